@@ -1,0 +1,92 @@
+"""Trace-time code generation of sparse products from static blade sets.
+
+Every product of two multivectors is a bilinear map whose structure depends only on the two static
+blade sets. ``bilinear_terms`` lists, for each output blade, the exact terms ``c * a[i] * b[j]`` that
+are structurally non-zero; ``sandwich_terms`` does the same for ``V X ~V`` as one expression,
+quadratic in V, with the symmetric pairs V_i V_j = V_j V_i merged so that terms which cancel in exact
+arithmetic are never emitted. ``emit`` turns such term lists into JAX operations on the last axis;
+XLA fuses them into one elementwise loop, which is what makes a per-point sandwich fast.
+"""
+
+from __future__ import annotations
+
+import functools
+from fractions import Fraction
+
+import jax.numpy as jnp
+
+from jaxcga import _algebra as alg
+
+Terms = tuple[tuple[int, tuple[tuple[tuple[int, ...], float], ...]], ...]
+
+
+@functools.cache
+def bilinear_terms(kind: str, blades_a: tuple[int, ...], blades_b: tuple[int, ...]):
+    """((out_blade, ((ia, ib), coef), ...), ...) for the product ``kind`` of the two blade sets."""
+    acc: dict[int, dict[tuple[int, int], Fraction]] = {}
+    for (ia, a), (ib, b) in alg.all_pairs(blades_a, blades_b):
+        for c, coef in alg.blade_product(kind, a, b):
+            acc.setdefault(c, {})
+            acc[c][(ia, ib)] = acc[c].get((ia, ib), 0) + coef
+    return _finish(acc)
+
+
+@functools.cache
+def sandwich_terms(blades_v: tuple[int, ...], blades_x: tuple[int, ...]):
+    """Terms of <V X ~V> projected on the grades of X, as ((out, ((i, j, l), coef), ...), ...),
+    meaning sum coef * V[i] * V[j] * X[l] with i <= j."""
+    grades = {alg.grade_of(b) for b in blades_x}
+    acc: dict[int, dict[tuple[int, int, int], Fraction]] = {}
+    for (i, vi), (l, xl) in alg.all_pairs(blades_v, blades_x):
+        for m, c1 in alg.blade_product("geometric", vi, xl):
+            for j, vj in enumerate(blades_v):
+                c_rev = alg.reverse_sign(vj)
+                for out, c2 in alg.blade_product("geometric", m, vj):
+                    if alg.grade_of(out) not in grades:
+                        continue
+                    key = (min(i, j), max(i, j), l)
+                    acc.setdefault(out, {})
+                    acc[out][key] = acc[out].get(key, 0) + c1 * c2 * c_rev
+    return _finish(acc)
+
+
+def _finish(acc) -> Terms:
+    out = []
+    for blade in alg.sort_blades(acc):
+        terms = tuple((key, float(c)) for key, c in sorted(acc[blade].items()) if c != 0)
+        if terms:
+            out.append((blade, terms))
+    return tuple(out)
+
+
+def emit(terms: Terms, factors, shape_hint):
+    """Evaluate generated terms. ``factors[p][idx]`` is the idx-th component (an array) of the p-th
+    factor of each term. Returns the tuple of output blades and one array per output blade."""
+    columns = []
+    for _, blade_terms in terms:
+        acc = None
+        for key, coef in blade_terms:
+            prod = factors[0][key[0]]
+            for p in range(1, len(key)):
+                prod = prod * factors[p][key[p]]
+            if coef == -1.0:
+                acc = -prod if acc is None else acc - prod
+                continue
+            if coef != 1.0:
+                prod = coef * prod
+            acc = prod if acc is None else acc + prod
+        columns.append(jnp.broadcast_to(acc, shape_hint) if acc.shape != shape_hint else acc)
+    return tuple(b for b, _ in terms), columns
+
+
+class LazyColumns:
+    """``values[..., i]`` on first use, so unused components of a factor cost nothing."""
+
+    def __init__(self, values):
+        self._values = values
+        self._cache: dict[int, object] = {}
+
+    def __getitem__(self, i):
+        if i not in self._cache:
+            self._cache[i] = self._values[..., i]
+        return self._cache[i]

@@ -1,0 +1,257 @@
+"""The multivector: a pytree of ``values: Array[..., k]`` and a static tuple of k blades.
+
+Leading axes are batch axes and broadcast like numpy. Products are generated at trace time from the
+two static blade sets (``_codegen``) and compute only structurally non-zero terms.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+
+from jaxcga import _algebra as alg
+from jaxcga import _codegen
+
+#: Named blade sets (DESIGN.md "The kernel").
+KINDS: dict[str, tuple[int, ...]] = {
+    "scalar": (0,),
+    "vector": alg.blades_of_grades(1),
+    "bivector": alg.blades_of_grades(2),
+    "trivector": alg.blades_of_grades(3),
+    "quadvector": alg.blades_of_grades(4),
+    "pseudoscalar": alg.blades_of_grades(5),
+    "rotor": alg.parse_blades(("1", "e12", "e13", "e23")),
+    "translator": alg.parse_blades(("1", "e1inf", "e2inf", "e3inf")),
+    "motor": alg.parse_blades(("1", "e12", "e13", "e23", "e1inf", "e2inf", "e3inf", "e123inf")),
+    "dilator": alg.parse_blades(("1", "eoinf")),
+    "similitude": alg.blades_of_grades(0, 2, 4),
+    "even": alg.blades_of_grades(0, 2, 4),
+    "odd": alg.blades_of_grades(1, 3, 5),
+    "full": alg.ALL_BLADES,
+}
+
+
+def as_blades(blades) -> tuple[int, ...]:
+    """A kind name, a sequence of blade names, or a sequence of blade bitmasks, as bitmasks."""
+    if isinstance(blades, str):
+        if blades not in KINDS:
+            raise ValueError(f"blades: unknown kind {blades!r}; expected one of {sorted(KINDS)}")
+        return KINDS[blades]
+    blades = tuple(blades)
+    if all(isinstance(b, str) for b in blades):
+        blades = alg.parse_blades(blades)
+    elif not all(isinstance(b, (int, np.integer)) and 0 <= b < alg.N_BLADES for b in blades):
+        raise ValueError(f"blades: expected blade names or bitmasks in [0, 32), got {blades!r}")
+    blades = tuple(int(b) for b in blades)
+    if len(set(blades)) != len(blades):
+        raise ValueError(f"blades: repeated blade in {blades!r}")
+    return blades
+
+
+def _float_array(values):
+    values = jnp.asarray(values)
+    if not jnp.issubdtype(values.dtype, jnp.floating):
+        values = values.astype(jnp.result_type(float))
+    return values
+
+
+def broadcast_batch(name_a: str, shape_a, name_b: str, shape_b) -> tuple[int, ...]:
+    try:
+        return tuple(np.broadcast_shapes(tuple(shape_a), tuple(shape_b)))
+    except ValueError:
+        raise ValueError(
+            f"{name_a} and {name_b}: batch shapes {tuple(shape_a)} and {tuple(shape_b)} do not broadcast"
+        ) from None
+
+
+class Multivector(eqx.Module):
+    """A batch of multivectors of G(4,1) in the null basis {e1, e2, e3, eo, einf}.
+
+    Args:
+        values: array of shape ``(..., k)``; leading axes are batch axes.
+        blades: the k blades, as a kind name (``"motor"``, ``"vector"``, ...), blade names
+            (``("1", "e12")``) or bitmasks. Static: part of the pytree structure, not of its leaves.
+
+    Operators: ``a * b`` geometric product, ``a ^ b`` outer, ``a | b`` inner (grade |r - s|, zero for
+    scalars, as in ``clifford``), ``~a`` reverse, ``v >> x`` sandwich ``v x v^-1``, ``+``, ``-``, and
+    scaling by numbers or arrays of batch shape.
+    """
+
+    values: Float[Array, "... k"]
+    blades: tuple[int, ...] = eqx.field(static=True)
+
+    def __init__(self, values, blades):
+        blades = as_blades(blades)
+        values = _float_array(values)
+        if values.ndim == 0 or values.shape[-1] != len(blades):
+            raise ValueError(
+                f"values: expected last axis of length {len(blades)} for blades "
+                f"{[alg.blade_name(b) for b in blades]}, got shape {values.shape}"
+            )
+        self.values = values
+        self.blades = blades
+
+    # ---------------------------------------------------------------- structure
+    @property
+    def batch_shape(self) -> tuple[int, ...]:
+        return self.values.shape[:-1]
+
+    @property
+    def dtype(self):
+        return self.values.dtype
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        return tuple(alg.blade_name(b) for b in self.blades)
+
+    def __getitem__(self, name: str):
+        """The coefficient of one blade (by name), zero if the blade is not carried."""
+        blade = alg.parse_blades((name,))[0]
+        if blade in self.blades:
+            return self.values[..., self.blades.index(blade)]
+        return jnp.zeros(self.batch_shape, self.dtype)
+
+    def embed(self, blades) -> Multivector:
+        """The same multivector carried on a larger blade set (missing blades get zeros)."""
+        blades = as_blades(blades)
+        missing = set(self.blades) - set(blades)
+        if missing:
+            raise ValueError(
+                f"blades: cannot embed, {[alg.blade_name(b) for b in missing]} not in target set"
+            )
+        return Multivector(_gather(self.values, self.blades, blades), blades)
+
+    def full(self) -> Float[Array, "... 32"]:
+        """Plain ``(..., 32)`` array in the canonical blade order ``ALL_BLADES``."""
+        return _gather(self.values, self.blades, alg.ALL_BLADES)
+
+    @classmethod
+    def from_full(cls, values) -> Multivector:
+        return cls(values, alg.ALL_BLADES)
+
+    def grade(self, *grades: int) -> Multivector:
+        """Grade projection <m>_g (several grades: their sum)."""
+        keep = [i for i, b in enumerate(self.blades) if alg.grade_of(b) in grades]
+        return Multivector(self.values[..., keep], tuple(self.blades[i] for i in keep))
+
+    def scalar(self):
+        """The scalar part as an array of batch shape."""
+        return self["1"]
+
+    def __repr__(self) -> str:
+        return f"Multivector(blades={list(self.names)}, values={self.values!r})"
+
+    # ---------------------------------------------------------------- linear
+    def __add__(self, other):
+        other = _coerce(other, self)
+        blades = alg.sort_blades(self.blades + other.blades)
+        if blades == self.blades == other.blades:
+            return Multivector(self.values + other.values, blades)
+        return Multivector(_gather(self.values, self.blades, blades) + _gather(other.values, other.blades, blades), blades)
+
+    __radd__ = __add__
+
+    def __neg__(self):
+        return Multivector(-self.values, self.blades)
+
+    def __sub__(self, other):
+        return self + (-_coerce(other, self))
+
+    def __rsub__(self, other):
+        return _coerce(other, self) - self
+
+    def __truediv__(self, other):
+        if isinstance(other, Multivector):
+            from jaxcga._operations import inverse
+
+            return self * inverse(other)
+        return Multivector(self.values / _scalar_field(other), self.blades)
+
+    # ---------------------------------------------------------------- products
+    def __mul__(self, other):
+        if not isinstance(other, Multivector):
+            return Multivector(self.values * _scalar_field(other), self.blades)
+        return product("geometric", self, other)
+
+    def __rmul__(self, other):
+        return Multivector(self.values * _scalar_field(other), self.blades)
+
+    def __xor__(self, other):
+        return product("outer", self, _coerce(other, self))
+
+    def __rxor__(self, other):
+        return product("outer", _coerce(other, self), self)
+
+    def __or__(self, other):
+        return product("inner", self, _coerce(other, self))
+
+    def __ror__(self, other):
+        return product("inner", _coerce(other, self), self)
+
+    def __invert__(self):
+        return Multivector(self.values * _signs(alg.reverse_sign, self.blades, self.dtype), self.blades)
+
+    def __rshift__(self, other):
+        from jaxcga._operations import sandwich
+
+        return sandwich(self, other)
+
+
+def _scalar_field(s):
+    s = jnp.asarray(s)
+    return s[..., None]
+
+
+def _coerce(x, like: Multivector) -> Multivector:
+    if isinstance(x, Multivector):
+        return x
+    return Multivector(jnp.asarray(x, like.dtype)[..., None], (0,))
+
+
+def _signs(rule, blades, dtype):
+    return jnp.asarray(np.array([rule(b) for b in blades], dtype=float), dtype)
+
+
+def _gather(values, source: tuple[int, ...], target: tuple[int, ...]):
+    """Reorder / zero-pad the last axis from blade set ``source`` to ``target`` (a superset)."""
+    if source == target:
+        return values
+    index = {b: i for i, b in enumerate(source)}
+    zero = jnp.zeros(values.shape[:-1], values.dtype)
+    return jnp.stack([values[..., index[b]] if b in index else zero for b in target], axis=-1)
+
+
+def stack_columns(columns, batch_shape, dtype):
+    if not columns:
+        return jnp.zeros(tuple(batch_shape) + (0,), dtype)
+    return jnp.stack(columns, axis=-1)
+
+
+def product(kind: str, a: Multivector, b: Multivector) -> Multivector:
+    """The product ``kind`` (see ``_algebra.GRADE_RULES``) of a and b, generated for their blades."""
+    if kind not in alg.GRADE_RULES:
+        raise ValueError(f"kind: expected one of {sorted(alg.GRADE_RULES)}, got {kind!r}")
+    batch = broadcast_batch("a", a.batch_shape, "b", b.batch_shape)
+    dtype = jnp.result_type(a.dtype, b.dtype)
+    terms = _codegen.bilinear_terms(kind, a.blades, b.blades)
+    blades, columns = _codegen.emit(
+        terms, (_codegen.LazyColumns(a.values), _codegen.LazyColumns(b.values)), batch
+    )
+    return Multivector(stack_columns(columns, batch, dtype), blades)
+
+
+@functools.cache
+def _pseudoscalar() -> tuple[tuple[int, ...], np.ndarray]:
+    terms = alg.pseudoscalar_terms()
+    return tuple(terms), np.array([float(c) for c in terms.values()])
+
+
+def pseudoscalar(dtype=None) -> Multivector:
+    """The paper's pseudoscalar I = e1^e2^e3^e+^e- (eq. 6); I * I = -1."""
+    blades, values = _pseudoscalar()
+    return Multivector(jnp.asarray(values, dtype or jnp.result_type(float)), blades)
+

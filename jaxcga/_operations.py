@@ -1,0 +1,228 @@
+"""Products and unary operations on multivectors (cut/tear/drill paper, sections 2.2-2.4).
+
+All products are generated from the static blade sets of their operands (``_codegen``) and
+broadcast over leading batch axes.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import equinox as eqx
+import jax.numpy as jnp
+
+from jaxcga import _algebra as alg
+from jaxcga import _codegen
+from jaxcga._multivector import (
+    Multivector,
+    _signs,
+    broadcast_batch,
+    product,
+    pseudoscalar,
+    stack_columns,
+)
+
+
+def geometric(a: Multivector, b: Multivector) -> Multivector:
+    """Geometric product ``a b``."""
+    return product("geometric", a, b)
+
+
+def outer(a: Multivector, b: Multivector) -> Multivector:
+    """Outer (wedge) product ``a ^ b``."""
+    return product("outer", a, b)
+
+
+def left_contraction(a: Multivector, b: Multivector) -> Multivector:
+    """Left contraction ``a _| b``: grade s - r of the product of grade-r and grade-s parts."""
+    return product("left_contraction", a, b)
+
+
+def inner(a: Multivector, b: Multivector) -> Multivector:
+    """Inner product ``a | b``: grade |r - s|, zero when either part is a scalar (clifford's ``|``).
+
+    On vectors it is the paper's inner product (sec. 2.2): eo . einf = -1, X . Y = -|x - y|^2 / 2."""
+    return product("inner", a, b)
+
+
+def scalar_product(a: Multivector, b: Multivector):
+    """Scalar part of ``a b``, as an array of batch shape."""
+    out = product("scalar", a, b)
+    return out.values[..., 0] if out.blades else jnp.zeros(out.batch_shape, out.dtype)
+
+
+def commutator(a: Multivector, b: Multivector) -> Multivector:
+    """Commutator product ``(a b - b a) / 2``."""
+    return (product("geometric", a, b) - product("geometric", b, a)) * 0.5
+
+
+def reverse(m: Multivector) -> Multivector:
+    """Reverse ``~m``: grade g gets the sign (-1)^(g(g-1)/2)."""
+    return ~m
+
+
+def involution(m: Multivector) -> Multivector:
+    """Grade involution: grade g gets the sign (-1)^g."""
+    return Multivector(m.values * _signs(alg.involution_sign, m.blades, m.dtype), m.blades)
+
+
+def conjugate(m: Multivector) -> Multivector:
+    """Clifford conjugate: reverse of the grade involution."""
+    return Multivector(m.values * _signs(alg.conjugate_sign, m.blades, m.dtype), m.blades)
+
+
+def dual(m: Multivector) -> Multivector:
+    """The paper's dual ``m* = -m I`` (eq. 7). Since I^2 = -1 this equals ``m I^-1``, clifford's dual;
+    ``dual(dual(m)) = -m`` and ``undual(dual(m)) = m``."""
+    return -(m * pseudoscalar(m.dtype))
+
+
+def undual(m: Multivector) -> Multivector:
+    """Inverse of ``dual``: ``m I``."""
+    return m * pseudoscalar(m.dtype)
+
+
+def meet(a: Multivector, b: Multivector) -> Multivector:
+    """Regressive product ``a v b`` (clifford's ``vee``): the intersection of two objects given in
+    outer-product (direct) form. Metric-free, through complements against I: ``(a v b)`` equals
+    ``undual(dual(a) ^ dual(b))`` up to a grade-dependent sign."""
+    return product("regressive", a, b)
+
+
+def grade(m: Multivector, *grades: int) -> Multivector:
+    """Grade projection ``<m>_g``."""
+    return m.grade(*grades)
+
+
+def norm2(m: Multivector):
+    """``<~m m>_0`` (may be negative in this mixed-signature algebra)."""
+    return scalar_product(~m, m)
+
+
+def _safe_sqrt_abs(x):
+    # sqrt has an infinite derivative at 0; the double where keeps gradients finite there.
+    ax = jnp.abs(x)
+    positive = ax > 0
+    return jnp.where(positive, jnp.sqrt(jnp.where(positive, ax, 1.0)), 0.0)
+
+
+def norm(m: Multivector):
+    """``sqrt(|<~m m>_0|)``, as clifford's ``abs``."""
+    return _safe_sqrt_abs(norm2(m))
+
+
+def normalize(m: Multivector) -> Multivector:
+    """``m / norm(m)``. Motors are normalized exactly: the result satisfies M ~M = 1, with the
+    e123inf part of M ~M removed as well (it is not a scale)."""
+    if set(m.blades) <= set(_motor_blades()):
+        return _normalize_motor(m)
+    n = norm(m)
+    n = eqx.error_if(n, n == 0, "normalize: m has zero norm")
+    return m / n
+
+
+@functools.cache
+def _motor_blades():
+    from jaxcga._multivector import KINDS
+
+    return KINDS["motor"]
+
+
+def _normalize_motor(m: Multivector) -> Multivector:
+    # M ~M = s + p P with P = e123inf central and P^2 = 0 in the motor algebra, so
+    # N = M (1 - p/(2s) P) / sqrt(s) gives N ~N = 1 exactly.
+    m = m.embed(_motor_blades())
+    mm = m * ~m
+    s, p = mm["1"], mm["e123inf"]
+    s = eqx.error_if(s, s <= 0, "normalize: motor has non-positive norm M~M")
+    alpha = 1.0 / jnp.sqrt(s)
+    correction = Multivector(
+        jnp.stack([alpha, -alpha * p / (2 * s)], axis=-1), alg.parse_blades(("1", "e123inf"))
+    )
+    return (m * correction).embed(_motor_blades())
+
+
+def versor_inverse(v: Multivector) -> Multivector:
+    """Inverse of a versor, ``~v / <v ~v>_0`` (rotors, translators, dilators, motors, similitudes)."""
+    n = scalar_product(v, ~v)
+    n = eqx.error_if(n, n == 0, "versor_inverse: v ~v is zero, v is not invertible")
+    return ~v / n
+
+
+@functools.cache
+def _closure(blades: tuple[int, ...]) -> tuple[int, ...]:
+    """Smallest blade set containing 1 and ``blades`` that is closed under the geometric product."""
+    closed = set(blades) | {0}
+    while True:
+        new = {
+            c
+            for a in closed
+            for b in closed
+            for c, _ in alg.blade_product("geometric", a, b)
+        } | closed
+        if new == closed:
+            return alg.sort_blades(closed)
+        closed = new
+
+
+def inverse(m: Multivector) -> Multivector:
+    """Inverse of any invertible multivector: solves ``m x = 1`` in the subalgebra generated by m's
+    blades (a linear system of at most 32 unknowns). Non-invertible input raises (inside jit too)."""
+    blades = _closure(m.blades)
+    n = len(blades)
+    # Left-multiplication matrix L[k, j]: component k of m * (blade j).
+    terms = _codegen.bilinear_terms("geometric", m.blades, blades)
+    out_index = {b: k for k, b in enumerate(blades)}
+    cols = _codegen.LazyColumns(m.values)
+    zero = jnp.zeros(m.batch_shape, m.dtype)
+    rows = [[zero] * n for _ in range(n)]
+    for out_blade, blade_terms in terms:
+        k = out_index[out_blade]
+        for (ia, j), coef in blade_terms:
+            rows[k][j] = rows[k][j] + coef * cols[ia]
+    matrix = jnp.stack([jnp.stack(r, axis=-1) for r in rows], axis=-2)
+    rhs = jnp.zeros(m.batch_shape + (n,), m.dtype).at[..., blades.index(0)].set(1.0)
+    x = jnp.linalg.solve(matrix, rhs[..., None])[..., 0]
+    residual = jnp.einsum("...kj,...j->...k", matrix, x) - rhs
+    scale = 1.0 + jnp.max(jnp.abs(matrix)) * jnp.max(jnp.abs(x), initial=0.0)
+    bad = ~jnp.all(jnp.isfinite(x)) | (jnp.max(jnp.abs(residual), initial=0.0) > 1e-6 * scale)
+    x = eqx.error_if(x, bad, "inverse: multivector is not invertible")
+    return Multivector(x, blades)
+
+
+def sandwich(v: Multivector, x: Multivector) -> Multivector:
+    """``v x v^-1`` (eq. 14) as one generated expression, bilinear in v, projected on the grades of x.
+
+    ``v`` is a versor; ``v^-1 = ~v / <v ~v>_0``, so un-normalized versors (e.g. the paper's dilator
+    of eq. 12) act correctly too."""
+    if not isinstance(v, Multivector) or not isinstance(x, Multivector):
+        raise ValueError("sandwich: v and x must be Multivectors")
+    batch = broadcast_batch("v", v.batch_shape, "x", x.batch_shape)
+    vc = _codegen.LazyColumns(v.values)
+    terms = _codegen.sandwich_terms(v.blades, x.blades)
+    blades, columns = _codegen.emit(terms, (vc, vc, _codegen.LazyColumns(x.values)), batch)
+    scale = scalar_product(v, ~v)
+    out = Multivector(stack_columns(columns, batch, jnp.result_type(v.dtype, x.dtype)), blades)
+    return out / scale
+
+
+def zeros(blades, batch_shape=(), dtype=None) -> Multivector:
+    from jaxcga._multivector import as_blades
+
+    blades = as_blades(blades)
+    return Multivector(jnp.zeros(tuple(batch_shape) + (len(blades),), dtype or jnp.result_type(float)), blades)
+
+
+def scalar(value, dtype=None) -> Multivector:
+    """A (batch of) scalar multivector(s)."""
+    value = jnp.asarray(value, dtype or jnp.result_type(float))
+    return Multivector(value[..., None], (0,))
+
+
+def basis_vector(name: str, dtype=None) -> Multivector:
+    """One basis blade by name, e.g. ``basis_vector("einf")`` or ``basis_vector("e12")``."""
+    return Multivector(jnp.ones((1,), dtype or jnp.result_type(float)), (name,))
+
+
+def is_finite(m: Multivector):
+    return jnp.all(jnp.isfinite(m.values))
