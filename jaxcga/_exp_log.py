@@ -1,0 +1,227 @@
+"""Closed-form exponential and logarithm of motors and similitudes (cut/tear/drill paper sec. 2.4-2.5,
+eq. 8-12; the paper approximates them by Taylor series, we use closed forms).
+
+Motors. P = e123inf commutes with every even element of the motor algebra and P^2 = 0, so it plays
+the dual unit of dual numbers. A motor generator (bivector) B = B_E + B_I squares to
+-(theta + P d)^2, with theta^2 = |B_E|^2, hence exp(B) = cos(theta_d) + sinc(theta_d) B evaluated in
+dual-number arithmetic, and log(M) = theta_d / sin(theta_d) <M>_2 with theta_d = atan2(sin, cos).
+
+Similitudes (rotation, translation, uniform dilation). The generator B = Omega + tau + kappa eo^einf
+acts on points as the vector field x' = lam x + w x x + v (lam = 2 kappa, w and v from Omega and
+tau). Its flow for unit time is x -> e^lam Rot(w) x + V v with V = int_0^1 exp(s (lam I + [w]x)) ds
+= a0 I + a1 W + a2 W^2 (W = [w]x); a0, a1, a2 are the real and imaginary parts of
+(e^z - 1) / z at z = lam + i|w|, evaluated by series near z = 0. So exp(B) = T(V v) R(w) D(e^lam).
+
+All scalar functions are written in the squared angle so that gradients are finite at angle 0 and
+for pure translations (no sqrt(0) on any differentiated path).
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+
+from jaxcga import _algebra as alg
+from jaxcga._multivector import KINDS, Multivector
+from jaxcga._operations import normalize
+from jaxcga._versors import dilator, translator
+
+MOTOR_GENERATOR = alg.parse_blades(("e12", "e13", "e23", "e1inf", "e2inf", "e3inf"))
+SIMILITUDE_GENERATOR = MOTOR_GENERATOR + alg.parse_blades(("eoinf",))
+_ROTATION = alg.parse_blades(("e12", "e13", "e23"))
+_SCALAR_P = alg.parse_blades(("1", "e123inf"))
+_SERIES_BELOW = 1e-2  # squared angle below which Taylor series replace the closed forms
+
+
+def _where_small(x, small, series, closed):
+    """``series(x)`` where ``small`` else ``closed(x)``, with safe inputs on both branches."""
+    return jnp.where(small, series(jnp.where(small, x, 0.0)), closed(jnp.where(small, 1.0, x)))
+
+
+def _cos_sinc_g(x):
+    """cos(sqrt x), sin(sqrt x)/sqrt x and (cos - sinc)/x, analytic in x >= 0."""
+    small = x < _SERIES_BELOW
+    cos = _where_small(x, small, lambda y: 1 - y / 2 * (1 - y / 12 * (1 - y / 30 * (1 - y / 56))), lambda y: jnp.cos(jnp.sqrt(y)))
+    sinc = _where_small(x, small, lambda y: 1 - y / 6 * (1 - y / 20 * (1 - y / 42 * (1 - y / 72))), lambda y: jnp.sin(jnp.sqrt(y)) / jnp.sqrt(y))
+    g = _where_small(
+        x,
+        small,
+        lambda y: -1 / 3 + y / 30 - y**2 / 840 + y**3 / 45360 - y**4 / 3991680,
+        lambda y: (jnp.cos(jnp.sqrt(y)) - jnp.sin(jnp.sqrt(y)) / jnp.sqrt(y)) / y,
+    )
+    return cos, sinc, g
+
+
+def _require_generator(name: str, b: Multivector, blades: tuple[int, ...], what: str):
+    if not isinstance(b, Multivector) or not set(b.blades) <= set(blades):
+        raise ValueError(
+            f"{name}: expected a {what} (a bivector on {[alg.blade_name(x) for x in blades]}), "
+            f"got blades {list(b.names) if isinstance(b, Multivector) else type(b)}"
+        )
+
+
+def _scalar_p(s, p) -> Multivector:
+    """The dual number s + p P as a multivector."""
+    s, p = jnp.broadcast_arrays(s, p)
+    return Multivector(jnp.stack([s, p], axis=-1), _SCALAR_P)
+
+
+def exp_motor(b: Multivector) -> Multivector:
+    """Motor ``exp(B)`` of a bivector on {e12, e13, e23, e1inf, e2inf, e3inf}, closed form."""
+    _require_generator("b", b, MOTOR_GENERATOR, "motor generator")
+    b = b.embed(MOTOR_GENERATOR)
+    rot = b.values[..., :3]
+    x = jnp.sum(rot * rot, axis=-1)  # theta^2, B_E^2 = -theta^2
+    y = (b * b)["e123inf"]  # B^2 = -theta^2 + y P, y = -2 theta d
+    cos, sinc, g = _cos_sinc_g(x)
+    m = _scalar_p(cos, 0.5 * y * sinc) + _scalar_p(sinc, -0.5 * y * g) * b
+    return m.embed(KINDS["motor"])
+
+
+def _atan_ratio(u, a):
+    """theta / s and (theta / s - a) / s^2 for theta = atan2(s, a), s = sqrt(u), a^2 + u = 1."""
+    small = (u < _SERIES_BELOW) & (a > 0)
+    safe_a = jnp.where(small, a, 1.0)
+
+    def series(v):
+        w2 = v / safe_a**2  # tan^2(theta)
+        k = (1 - w2 / 3 + w2**2 / 5 - w2**3 / 7 + w2**4 / 9 - w2**5 / 11) / safe_a
+        # (k - a) / u with 1 - a^2 = u substituted exactly.
+        m = (1 - 1 / (3 * safe_a**2) + v / (5 * safe_a**4) - v**2 / (7 * safe_a**6) + v**3 / (9 * safe_a**8) - v**4 / (11 * safe_a**10)) / safe_a
+        return k, m
+
+    def closed(v):
+        s = jnp.sqrt(v)
+        k = jnp.arctan2(s, a) / s
+        return k, (k - a) / v
+
+    u_series = jnp.where(small, u, 0.0)
+    u_closed = jnp.where(small | (u == 0), 1.0, u)
+    k_s, m_s = series(u_series)
+    k_c, m_c = closed(u_closed)
+    return jnp.where(small, k_s, k_c), jnp.where(small, m_s, m_c)
+
+
+def log_motor(m: Multivector) -> Multivector:
+    """Bivector ``log(M)`` of a motor (normalized first), closed form; ``exp(log(M)) = M``.
+
+    The rotation angle of the result is in [0, 2 pi]; a motor whose rotor part is -1 (a 2 pi turn) has
+    no unique logarithm and gets the e12 plane."""
+    if not isinstance(m, Multivector) or not set(m.blades) <= set(KINDS["motor"]):
+        raise ValueError("m: expected a motor Multivector")
+    m = normalize(m.embed(KINDS["motor"]))
+    a, b4 = m["1"], m["e123inf"]
+    biv = Multivector(m.values[..., 1:7], MOTOR_GENERATOR)
+    rot = biv.values[..., :3]
+    u = jnp.sum(rot * rot, axis=-1)  # sin^2(theta)
+    z = (biv * biv)["e123inf"]  # <M>_2^2 = -sin^2(theta_d): its P part
+    k, mm = _atan_ratio(u, a)
+    # theta_d / sin(theta_d) = k + P (-b4 + z m / 2) (dual-number division, see module docstring).
+    at_two_pi = (u == 0) & (a < 0)
+    out = _scalar_p(k, -b4 + 0.5 * z * mm) * biv
+    out = out.embed(MOTOR_GENERATOR)
+    full_turn = jnp.zeros_like(out.values).at[..., 0].set(jnp.pi)
+    return Multivector(jnp.where(at_two_pi[..., None], full_turn, out.values), MOTOR_GENERATOR)
+
+
+# ---------------------------------------------------------------- similitudes
+def _rotation_vector(b_rot):
+    """w (the rotation vector) of a rotation generator with components (e12, e13, e23)."""
+    return jnp.stack([-2 * b_rot[..., 2], 2 * b_rot[..., 1], -2 * b_rot[..., 0]], axis=-1)
+
+
+def _v_coefficients(lam, x):
+    """a0, a1, a2 of V = int_0^1 e^{s lam} Rot(s w) ds = a0 I + a1 W + a2 W^2, with x = |w|^2."""
+    z2 = lam * lam + x
+    small = z2 < 1.0
+    lam_s, x_s = jnp.where(small, lam, 0.0), jnp.where(small, x, 0.0)
+    # Series: a_k = sum_n c_n / (n+1)!, with z^n = Re_n + i theta P_n, Q_n = (lam^n - Re_n) / theta^2.
+    re, p, q, lam_n = jnp.ones_like(lam_s), jnp.zeros_like(lam_s), jnp.zeros_like(lam_s), jnp.ones_like(lam_s)
+    a0 = a1 = a2 = 0.0
+    fact = 1.0
+    for n in range(24):
+        fact *= n + 1
+        a0, a1, a2 = a0 + lam_n / fact, a1 + p / fact, a2 + q / fact
+        re, p, q, lam_n = re * lam_s - p * x_s, re + p * lam_s, q * lam_s + p, lam_n * lam_s
+    # Closed forms, |z| >= 1.
+    lam_c, x_c = jnp.where(small, 1.0, lam), jnp.where(small, 1.0, x)
+    z2_c = lam_c * lam_c + x_c
+    cos, sinc, _ = _cos_sinc_g(x_c)
+    one_minus_cos = _where_small(x_c, x_c < _SERIES_BELOW, lambda y: 0.5 - y / 24 + y**2 / 720 - y**3 / 40320, lambda y: (1 - jnp.cos(jnp.sqrt(y))) / y)
+    e = jnp.exp(lam_c)
+    lam_tiny = jnp.abs(lam_c) < 1e-4
+    phi0 = jnp.where(lam_tiny, 1 + lam_c / 2 + lam_c**2 / 6 + lam_c**3 / 24, jnp.expm1(lam_c) / jnp.where(lam_tiny, 1.0, lam_c))
+    c1 = (lam_c * e * sinc - e * cos + 1) / z2_c
+    c2 = (e * lam_c * one_minus_cos + phi0 - e * sinc) / z2_c
+    return jnp.where(small, a0, phi0), jnp.where(small, a1, c1), jnp.where(small, a2, c2)
+
+
+def _apply_v(lam, w, v):
+    a0, a1, a2 = _v_coefficients(lam, jnp.sum(w * w, axis=-1))
+    wv = jnp.cross(w, v)
+    return a0[..., None] * v + a1[..., None] * wv + a2[..., None] * jnp.cross(w, wv)
+
+
+def _v_matrix(lam, w):
+    a0, a1, a2 = _v_coefficients(lam, jnp.sum(w * w, axis=-1))
+    zero = jnp.zeros_like(w[..., 0])
+    W = jnp.stack(
+        [
+            jnp.stack([zero, -w[..., 2], w[..., 1]], -1),
+            jnp.stack([w[..., 2], zero, -w[..., 0]], -1),
+            jnp.stack([-w[..., 1], w[..., 0], zero], -1),
+        ],
+        -2,
+    )
+    eye = jnp.eye(3, dtype=w.dtype)
+    return a0[..., None, None] * eye + a1[..., None, None] * W + a2[..., None, None] * (W @ W)
+
+
+def exp_similitude(b: Multivector) -> Multivector:
+    """Similitude ``exp(B)`` of a bivector on the motor generators plus eo^einf (dilation)."""
+    _require_generator("b", b, SIMILITUDE_GENERATOR, "similitude generator")
+    b = b.embed(SIMILITUDE_GENERATOR)
+    w = _rotation_vector(b.values[..., :3])
+    v = -2.0 * b.values[..., 3:6]
+    lam = 2.0 * b.values[..., 6]
+    rotation = exp_motor(Multivector(b.values[..., :3], _ROTATION))
+    t = _apply_v(lam, w, v)
+    return (translator(t) * rotation * dilator(jnp.exp(lam))).embed(KINDS["similitude"])
+
+
+def log_similitude(s: Multivector) -> Multivector:
+    """Bivector ``log(S)`` of a similitude ``S = T R D`` (rotation angle below 2 pi)."""
+    if not isinstance(s, Multivector) or not set(s.blades) <= set(KINDS["similitude"]):
+        raise ValueError("s: expected a similitude Multivector (even blades)")
+    s = s.embed(KINDS["similitude"])
+    from jaxcga._versors import apply_to_points
+
+    t = apply_to_points(s, jnp.zeros(s.batch_shape + (3,), s.dtype))
+    rd = translator(-t) * s  # R D = R (cosh + sinh eo^einf)
+    names_c = ("1", "e12", "e13", "e23")
+    names_s = ("eoinf", "e12oinf", "e13oinf", "e23oinf")
+    rc = jnp.stack([rd[n] for n in names_c], axis=-1)
+    rs = jnp.stack([rd[n] for n in names_s], axis=-1)
+    # rc = R cosh(lam/2), rs = R sinh(lam/2), so <rc, rs> / <rc, rc> = tanh(lam/2).
+    c2, s2, cs = jnp.sum(rc * rc, -1), jnp.sum(rs * rs, -1), jnp.sum(rc * rs, -1)
+    c2 = eqx.error_if(c2, jnp.any(c2 <= s2), "s: not a similitude versor")
+    lam = 2.0 * jnp.arctanh(cs / c2)
+    rotor_part = Multivector(rc, KINDS["rotor"])
+    rot = log_motor(rotor_part).values[..., :3]
+    w = _rotation_vector(rot)
+    v = jnp.linalg.solve(_v_matrix(lam, w), t[..., None])[..., 0]
+    return Multivector(jnp.concatenate([rot, -0.5 * v, 0.5 * lam[..., None]], axis=-1), SIMILITUDE_GENERATOR)
+
+
+def exp(b: Multivector) -> Multivector:
+    """Exponential of a motor or similitude generator (dispatch on the static blades)."""
+    if isinstance(b, Multivector) and set(b.blades) <= set(MOTOR_GENERATOR):
+        return exp_motor(b)
+    return exp_similitude(b)
+
+
+def log(v: Multivector) -> Multivector:
+    """Logarithm of a motor or similitude (dispatch on the static blades)."""
+    if isinstance(v, Multivector) and set(v.blades) <= set(KINDS["motor"]):
+        return log_motor(v)
+    return log_similitude(v)

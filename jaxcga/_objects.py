@@ -1,0 +1,251 @@
+"""Geometric objects of CGA (cut/tear/drill paper, sections 2.1 and 2.3).
+
+Two representations of every object:
+
+* vector (inner-product) form: points, spheres and planes are vectors (eq. 3-5), and the line,
+  circle and point pair "seen by" two or three vectors are their outer products (e.g. the wedge of
+  two plane vectors is the dual line). The paper calls this the *normal* form.
+* direct (outer-product) form: the wedge of the points on the object (``circle(a, b, c)``,
+  ``line(a, b)`` with einf, ``sphere_through(a, b, c, d)``). The paper calls this the *dual* form,
+  because it is ``m* = -m I`` of the vector form (eq. 7), up to scale.
+
+Every constructor returns a ``Multivector`` with a batch shape broadcast from its arguments.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from jaxcga import _algebra as alg
+from jaxcga._multivector import Multivector, broadcast_batch
+from jaxcga._operations import (
+    _safe_sqrt_abs,
+    basis_vector,
+    dual,
+    inner,
+    meet,
+    outer,
+    scalar_product,
+    undual,
+)
+
+POINT_BLADES = alg.parse_blades(("e1", "e2", "e3", "eo", "einf"))
+
+
+def check_vectors(name: str, x, size: int = 3):
+    """``x`` as a float array of shape (..., size), or a ValueError naming ``name``."""
+    x = jnp.asarray(x)
+    if not jnp.issubdtype(x.dtype, jnp.floating):
+        x = x.astype(jnp.result_type(float))
+    if x.ndim == 0 or x.shape[-1] != size:
+        raise ValueError(f"{name}: expected an array of shape (..., {size}), got shape {x.shape}")
+    return x
+
+
+def check_finite(name: str, x):
+    """Raise (also inside jit) when ``x`` holds NaN or infinity."""
+    return eqx.error_if(x, ~jnp.all(jnp.isfinite(x)), f"{name}: non-finite values (NaN or inf)")
+
+
+def _euclidean_checked(name: str, x):
+    return check_finite(name, check_vectors(name, x))
+
+
+def _vector(e123, eo, einf) -> Multivector:
+    batch = broadcast_batch("components", e123.shape[:-1], "components", jnp.shape(einf))
+    e123 = jnp.broadcast_to(e123, batch + (3,))
+    eo = jnp.broadcast_to(jnp.asarray(eo, e123.dtype), batch)
+    einf = jnp.broadcast_to(einf, batch)
+    return Multivector(jnp.concatenate([e123, eo[..., None], einf[..., None]], axis=-1), POINT_BLADES)
+
+
+def up(x: Float[Array, "... 3"]) -> Multivector:
+    """Up-projection of Euclidean points, X = x + |x|^2/2 einf + eo (eq. 3)."""
+    x = _euclidean_checked("x", x)
+    return _vector(x, 1.0, 0.5 * jnp.sum(x * x, axis=-1))
+
+
+point = up
+
+
+def down(X: Multivector) -> Float[Array, "... 3"]:
+    """Euclidean point of a conformal point (any scale): x = X_e / X_eo, where X_eo = -X . einf."""
+    _require_vector("X", X)
+    w = X["eo"]
+    w = eqx.error_if(w, jnp.any(w == 0), "X: eo coefficient is zero (a point at infinity or a plane)")
+    return jnp.stack([X["e1"], X["e2"], X["e3"]], axis=-1) / w[..., None]
+
+
+def sphere(center: Float[Array, "... 3"], radius: Float[Array, "..."]) -> Multivector:
+    """Sphere in vector form, S = X - r^2/2 einf (eq. 4). A negative r^2 is an imaginary sphere; pass
+    ``radius`` >= 0 here."""
+    c = _euclidean_checked("center", center)
+    r = check_finite("radius", jnp.asarray(radius, c.dtype))
+    r = eqx.error_if(r, jnp.any(r < 0), "radius: must be >= 0")
+    return _vector(c, 1.0, 0.5 * (jnp.sum(c * c, axis=-1) - r * r))
+
+
+def plane(normal: Float[Array, "... 3"], distance: Float[Array, "..."]) -> Multivector:
+    """Plane in vector form, P = n + d einf (eq. 5): the points x with x . n = d (n is normalized)."""
+    n = _euclidean_checked("normal", normal)
+    d = check_finite("distance", jnp.asarray(distance, n.dtype))
+    length = jnp.linalg.norm(n, axis=-1)
+    length = eqx.error_if(length, jnp.any(length == 0), "normal: zero-length normal")
+    return _vector(n / length[..., None], 0.0, d)
+
+
+def _require_vector(name: str, m: Multivector):
+    if not isinstance(m, Multivector) or any(alg.grade_of(b) != 1 for b in m.blades):
+        raise ValueError(f"{name}: expected a grade-1 Multivector (a conformal vector)")
+
+
+def _require_grade(name: str, m: Multivector, grade: int, what: str):
+    if not isinstance(m, Multivector) or any(alg.grade_of(b) != grade for b in m.blades):
+        raise ValueError(f"{name}: expected {what}, a grade-{grade} Multivector")
+
+
+def _einf(dtype) -> Multivector:
+    return basis_vector("einf", dtype)
+
+
+# ---------------------------------------------------------------- direct (outer-product) forms
+def point_pair(a: Multivector, b: Multivector) -> Multivector:
+    """Point pair through two conformal points, a ^ b (grade 2)."""
+    return outer(a, b)
+
+
+def line(a: Multivector, b: Multivector) -> Multivector:
+    """Line through two conformal points, a ^ b ^ einf (grade 3, sec. 2.3)."""
+    return outer(outer(a, b), _einf(a.dtype))
+
+
+def circle(a: Multivector, b: Multivector, c: Multivector) -> Multivector:
+    """Circle through three conformal points, a ^ b ^ c (grade 3, sec. 2.3)."""
+    return outer(outer(a, b), c)
+
+
+def plane_through(a: Multivector, b: Multivector, c: Multivector) -> Multivector:
+    """Plane through three conformal points, a ^ b ^ c ^ einf (grade 4, sec. 2.3)."""
+    return outer(outer(outer(a, b), c), _einf(a.dtype))
+
+
+def sphere_through(a: Multivector, b: Multivector, c: Multivector, d: Multivector) -> Multivector:
+    """Sphere through four conformal points, a ^ b ^ c ^ d (grade 4, sec. 2.3)."""
+    return outer(outer(outer(a, b), c), d)
+
+
+# ---------------------------------------------------------------- distances
+def squared_distance(a: Multivector, b: Multivector):
+    """|x - y|^2 = -2 X . Y / (X_eo Y_eo) for conformal points of any scale (sec. 2.2)."""
+    _require_vector("a", a)
+    _require_vector("b", b)
+    return -2.0 * scalar_product(a, b) / (a["eo"] * b["eo"])
+
+
+def distance(a: Multivector, b: Multivector):
+    """Euclidean distance between two conformal points."""
+    return _safe_sqrt_abs(jnp.maximum(squared_distance(a, b), 0.0))
+
+
+def plane_signed_distance(plane_vector: Multivector, X: Multivector):
+    """Signed distance of a point from a plane given in vector form: X . P = x . n - d."""
+    _require_vector("plane_vector", plane_vector)
+    return scalar_product(X, plane_vector) / X["eo"]
+
+
+def sphere_power(sphere_vector: Multivector, X: Multivector):
+    """X . S / X_eo = (r^2 - |x - c|^2) / 2: positive inside the sphere, zero on it, negative outside."""
+    _require_vector("sphere_vector", sphere_vector)
+    return scalar_product(X, sphere_vector) / (X["eo"] * sphere_vector["eo"])
+
+
+# ---------------------------------------------------------------- extraction
+def _as_vector_form(name: str, m: Multivector) -> Multivector:
+    """Spheres and planes may be passed as vectors or as their direct 4-vector forms."""
+    if all(alg.grade_of(b) == 4 for b in m.blades):
+        return undual(m)
+    _require_vector(name, m)
+    return m
+
+
+def sphere_center_radius(S: Multivector):
+    """(center (..., 3), radius (...)) of a sphere in vector or direct form. An imaginary sphere
+    (r^2 < 0) gets a negative radius: -sqrt(-r^2)."""
+    S = _as_vector_form("S", S)
+    w = S["eo"]
+    w = eqx.error_if(w, jnp.any(w == 0), "S: eo coefficient is zero (a plane, not a sphere)")
+    c = jnp.stack([S["e1"], S["e2"], S["e3"]], axis=-1) / w[..., None]
+    r2 = jnp.sum(c * c, axis=-1) - 2.0 * S["einf"] / w
+    return c, jnp.sign(r2) * _safe_sqrt_abs(r2)
+
+
+def plane_normal_distance(P: Multivector):
+    """(unit normal (..., 3), distance (...)) of a plane in vector or direct form, x . n = d."""
+    P = _as_vector_form("P", P)
+    n = jnp.stack([P["e1"], P["e2"], P["e3"]], axis=-1)
+    length = jnp.linalg.norm(n, axis=-1)
+    length = eqx.error_if(length, jnp.any(length == 0), "P: zero normal (not a plane)")
+    return n / length[..., None], P["einf"] / length
+
+
+def line_point_direction(L: Multivector):
+    """(point of the line closest to the origin (..., 3), unit direction (..., 3)) of a line in
+    direct form ``a ^ b ^ einf``; the direction points from a to b."""
+    _require_grade("L", L, 3, "a line in direct form")
+    # The dual of a line is a bivector: its e_ij part is the direction (as I3 d), its e_i einf part
+    # the moment, proportional to d x p.
+    Ld = dual(L)
+    d = -jnp.stack([Ld["e23"], -Ld["e13"], Ld["e12"]], axis=-1)
+    m = jnp.stack([Ld["e1inf"], Ld["e2inf"], Ld["e3inf"]], axis=-1)
+    length = jnp.linalg.norm(d, axis=-1)
+    length = eqx.error_if(length, jnp.any(length == 0), "L: not a finite line")
+    u = d / length[..., None]
+    return jnp.cross(m / length[..., None], u), u
+
+
+def round_radius2(X: Multivector):
+    """Squared radius of a round (point pair, circle or sphere) in direct form:
+    <X X^> / <K K^> with K = einf _| X and ^ the grade involution; negative for imaginary rounds."""
+    from jaxcga._operations import involution, left_contraction
+
+    K = left_contraction(_einf(X.dtype), X)
+    return scalar_product(X, involution(X)) / scalar_product(K, involution(K))
+
+
+def round_center(X: Multivector):
+    """Center (..., 3) of a round in direct form: X einf X is the flat point at the center."""
+    S = (X * _einf(X.dtype) * X).grade(1)
+    center, _ = sphere_center_radius(S)
+    return center
+
+
+def circle_center_radius_normal(C: Multivector):
+    """(center (..., 3), radius (...), unit normal (..., 3)) of a circle in direct form ``a ^ b ^ c``."""
+    _require_grade("C", C, 3, "a circle in direct form")
+    r2 = round_radius2(C)
+    n, _ = plane_normal_distance(outer(C, _einf(C.dtype)))
+    return round_center(C), jnp.sign(r2) * _safe_sqrt_abs(r2), n
+
+
+def point_pair_points(T: Multivector):
+    """The two Euclidean points (..., 2, 3) of a point pair in direct form ``a ^ b``:
+    (T -/+ sqrt(T . T)) (einf _| T), down-projected. Imaginary pairs give non-finite output and an
+    error."""
+    _require_grade("T", T, 2, "a point pair in direct form")
+    einf = _einf(T.dtype)
+    s2 = scalar_product(T, T)
+    s2 = eqx.error_if(s2, jnp.any(s2 < 0), "T: imaginary point pair (T . T < 0)")
+    root = jnp.sqrt(s2)
+    projector = inner(einf, T)  # a vector
+    out = []
+    for sign in (-1.0, 1.0):
+        P = ((T + sign * root) * projector).grade(1)
+        out.append(down(P))
+    return jnp.stack(out, axis=-2)
+
+
+def intersect(a: Multivector, b: Multivector) -> Multivector:
+    """Intersection of two objects in direct form, by the meet (regressive product)."""
+    return meet(a, b)

@@ -1,0 +1,264 @@
+"""Rotations, translations and dilations as versors (cut/tear/drill paper, section 2.4, eq. 8-14),
+their products (motors, similitudes), conversions to matrices, quaternions and dual quaternions, and
+the generated affine form of a versor acting on Euclidean points.
+
+Conventions (checked against scipy's rotations in the tests):
+
+* rotor ``R = cos(phi/2) - sin(phi/2) u I3`` (eq. 8) rotates by +phi about the unit axis u;
+  ``u I3 = u1 e23 - u2 e13 + u3 e12``.
+* translator ``T = 1 - t einf / 2`` (eq. 10) translates by t.
+* dilator (eq. 12) scales by d > 0 about the origin; returned normalized, ``D ~D = 1``:
+  ``D = cosh(ln d / 2) + sinh(ln d / 2) eo^einf``, which is eq. 12 times (1 + d) / (2 sqrt d).
+* a product ``M = Mn ... M1`` applies M1 first (eq. 14): ``motor(R, t) = T R``,
+  ``similitude(R, t, d) = T R D`` maps x to d R x + t.
+"""
+
+from __future__ import annotations
+
+import functools
+
+import equinox as eqx
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+from jaxcga import _algebra as alg
+from jaxcga import _codegen
+from jaxcga._multivector import KINDS, Multivector, broadcast_batch
+from jaxcga._objects import POINT_BLADES, check_finite, check_vectors
+
+_ROTOR = KINDS["rotor"]  # 1, e12, e13, e23
+
+
+def _stack(*columns, blades):
+    batch = jnp.broadcast_shapes(*(jnp.shape(c) for c in columns))
+    return Multivector(jnp.stack([jnp.broadcast_to(c, batch) for c in columns], axis=-1), blades)
+
+
+def translator(t: Float[Array, "... 3"]) -> Multivector:
+    """Translator ``T = 1 - t einf / 2`` by the Euclidean vector t (eq. 10)."""
+    t = check_finite("t", check_vectors("t", t))
+    one = jnp.ones(t.shape[:-1], t.dtype)
+    return _stack(one, -0.5 * t[..., 0], -0.5 * t[..., 1], -0.5 * t[..., 2], blades=KINDS["translator"])
+
+
+def rotor(axis: Float[Array, "... 3"], angle: Float[Array, "..."]) -> Multivector:
+    """Rotor by ``angle`` (radians, right-handed) about ``axis`` (normalized here), eq. 8."""
+    axis = check_finite("axis", check_vectors("axis", axis))
+    angle = check_finite("angle", jnp.asarray(angle, axis.dtype))
+    length = jnp.linalg.norm(axis, axis=-1)
+    length = eqx.error_if(length, jnp.any(length == 0), "axis: zero-length rotation axis")
+    u = axis / length[..., None]
+    c, s = jnp.cos(angle / 2), jnp.sin(angle / 2)
+    return _stack(c, -s * u[..., 2], s * u[..., 1], -s * u[..., 0], blades=_ROTOR)
+
+
+def rotor_from_bivector(plane: Float[Array, "... 3"], angle: Float[Array, "..."]) -> Multivector:
+    """Rotor ``exp(-b angle / 2)`` in the plane of the Euclidean bivector b with components
+    (e12, e13, e23) (normalized here), eq. 8."""
+    b = check_finite("plane", check_vectors("plane", plane))
+    angle = check_finite("angle", jnp.asarray(angle, b.dtype))
+    length = jnp.linalg.norm(b, axis=-1)
+    length = eqx.error_if(length, jnp.any(length == 0), "plane: zero bivector")
+    b = b / length[..., None]
+    c, s = jnp.cos(angle / 2), jnp.sin(angle / 2)
+    return _stack(c, -s * b[..., 0], -s * b[..., 1], -s * b[..., 2], blades=_ROTOR)
+
+
+def dilator(scale: Float[Array, "..."]) -> Multivector:
+    """Normalized dilator about the origin by the factor ``scale`` > 0 (eq. 12-13)."""
+    d = check_finite("scale", jnp.asarray(scale, jnp.result_type(float)))
+    d = eqx.error_if(d, jnp.any(d <= 0), "scale: dilation factor must be > 0")
+    root = jnp.sqrt(d)
+    return _stack((1 + d) / (2 * root), (d - 1) / (2 * root), blades=KINDS["dilator"])
+
+
+def dilator_paper(scale) -> Multivector:
+    """The paper's un-normalized dilator ``D = 1 + (1 - d)/(1 + d) einf^eo`` (eq. 12)."""
+    d = jnp.asarray(scale, jnp.result_type(float))
+    return _stack(jnp.ones_like(d), (d - 1) / (d + 1), blades=KINDS["dilator"])
+
+
+def _require_blades(name: str, m: Multivector, kind: str):
+    if not isinstance(m, Multivector) or not set(m.blades) <= set(KINDS[kind]):
+        raise ValueError(f"{name}: expected a {kind} Multivector (blades {list(_names(kind))})")
+
+
+def _names(kind):
+    return (alg.blade_name(b) for b in KINDS[kind])
+
+
+def motor(rotation: Multivector, translation: Float[Array, "... 3"]) -> Multivector:
+    """Motor ``T R``: rotate by the rotor, then translate by ``translation``."""
+    _require_blades("rotation", rotation, "rotor")
+    return (translator(translation) * rotation).embed(KINDS["motor"])
+
+
+def similitude(rotation: Multivector, translation: Float[Array, "... 3"], scale) -> Multivector:
+    """Similitude ``T R D``: x -> scale R x + translation (16 even components)."""
+    _require_blades("rotation", rotation, "rotor")
+    return (translator(translation) * rotation * dilator(scale)).embed(KINDS["similitude"])
+
+
+# ---------------------------------------------------------------- the versor acting on points
+@functools.cache
+def _point_map(blades_v: tuple[int, ...]):
+    """Generated affine form of ``V X ~V`` on up-projected points. Rows e1, e2, e3, eo of the output,
+    columns e1, e2, e3, eo (=1), einf (=|x|^2/2) of the input: {(row, col): ((i, j), coef)...}."""
+    rows = {b: k for k, b in enumerate(POINT_BLADES[:4])}
+    entries: dict[tuple[int, int], list] = {}
+    for out, terms in _codegen.sandwich_terms(blades_v, POINT_BLADES):
+        if out not in rows:
+            continue
+        for (i, j, col), coef in terms:
+            entries.setdefault((rows[out], col), []).append(((i, j), coef))
+    return {key: tuple(value) for key, value in entries.items()}
+
+
+def _map_entries(v: Multivector):
+    cols = _codegen.LazyColumns(v.values)
+    entries = {}
+    for key, terms in _point_map(v.blades).items():
+        _, (value,) = _codegen.emit(((0, terms),), (cols, cols), v.batch_shape)
+        entries[key] = value
+    return entries
+
+
+def apply_to_points(v: Multivector, x: Float[Array, "... 3"]) -> Float[Array, "... 3"]:
+    """Apply a versor (rotor, translator, dilator, motor, similitude) to Euclidean points: the
+    sandwich ``V up(x) V^-1`` down-projected, evaluated as the affine map whose entries are generated
+    from V's components. Batch shapes of v and x broadcast: one motor per point or one for all.
+
+    Hot path: x is checked for shape here, but values are not checked for NaN (that would cost a
+    pass over the data); ``up``/``point`` check them."""
+    if not isinstance(v, Multivector):
+        raise ValueError("v: expected a versor Multivector")
+    x = check_vectors("x", x)
+    batch = broadcast_batch("v", v.batch_shape, "x", x.shape[:-1])
+    a = _map_entries(v)
+    xs = [x[..., 0], x[..., 1], x[..., 2]]
+    needs_sq = any(col == 4 for (_, col) in a)
+    inputs = xs + [None, 0.5 * (xs[0] ** 2 + xs[1] ** 2 + xs[2] ** 2) if needs_sq else None]
+
+    def row(r):
+        acc = None
+        for col in range(5):
+            if (r, col) not in a:
+                continue
+            term = a[(r, col)] if col == 3 else a[(r, col)] * inputs[col]
+            acc = term if acc is None else acc + term
+        return acc
+
+    w = row(3)
+    inv_w = 1.0 / w
+    out = [row(k) * inv_w for k in range(3)]
+    return jnp.stack([jnp.broadcast_to(c, batch) for c in out], axis=-1)
+
+
+def versor_to_matrix(v: Multivector) -> Float[Array, "... 4 4"]:
+    """Homogeneous 4x4 matrix of a motor or similitude (V must be a versor: the |x|^2 column of its
+    sandwich then vanishes)."""
+    a = _map_entries(v)
+    zero = jnp.zeros(v.batch_shape, v.dtype)
+    w = a[(3, 3)]
+    rows = [[a.get((r, c), zero) / w for c in range(4)] for r in range(3)]
+    one = jnp.ones(v.batch_shape, v.dtype)
+    rows.append([zero, zero, zero, one])
+    return jnp.stack([jnp.stack(r, axis=-1) for r in rows], axis=-2)
+
+
+motor_to_matrix = versor_to_matrix
+
+
+# ---------------------------------------------------------------- quaternions
+def rotor_to_quaternion(r: Multivector) -> Float[Array, "... 4"]:
+    """Unit quaternion (w, x, y, z) of the same rotation as the rotor (same sign convention as
+    scipy's ``Rotation.from_quat(..., scalar_first=True)``)."""
+    _require_blades("r", r, "motor")
+    return jnp.stack([r["1"], -r["e23"], r["e13"], -r["e12"]], axis=-1)
+
+
+def quaternion_to_rotor(q: Float[Array, "... 4"]) -> Multivector:
+    """Rotor of a quaternion (w, x, y, z) (normalized here)."""
+    q = check_finite("q", check_vectors("q", q, 4))
+    length = jnp.linalg.norm(q, axis=-1)
+    length = eqx.error_if(length, jnp.any(length == 0), "q: zero quaternion")
+    q = q / length[..., None]
+    return _stack(q[..., 0], -q[..., 3], q[..., 2], -q[..., 1], blades=_ROTOR)
+
+
+def _quat_mul(p, q):
+    pw, px, py, pz = (p[..., i] for i in range(4))
+    qw, qx, qy, qz = (q[..., i] for i in range(4))
+    return jnp.stack(
+        [
+            pw * qw - px * qx - py * qy - pz * qz,
+            pw * qx + px * qw + py * qz - pz * qy,
+            pw * qy - px * qz + py * qw + pz * qx,
+            pw * qz + px * qy - py * qx + pz * qw,
+        ],
+        axis=-1,
+    )
+
+
+def motor_rotor_translation(m: Multivector):
+    """Split a motor ``M = T R`` into its rotor R (a Multivector) and translation t (..., 3)."""
+    _require_blades("m", m, "motor")
+    m = m.embed(KINDS["motor"])
+    r = Multivector(jnp.stack([m["1"], m["e12"], m["e13"], m["e23"]], axis=-1), _ROTOR)
+    # T = M ~R / (R ~R); T = 1 - t einf / 2.
+    t_part = m * ~r
+    scale = r.values[..., 0] ** 2 + jnp.sum(r.values[..., 1:] ** 2, axis=-1)
+    t = -2.0 * jnp.stack([t_part["e1inf"], t_part["e2inf"], t_part["e3inf"]], axis=-1) / scale[..., None]
+    return r, t
+
+
+def motor_to_dual_quaternion(m: Multivector) -> Float[Array, "... 8"]:
+    """Unit dual quaternion (real w, x, y, z, dual w, x, y, z) with dual part t q / 2."""
+    r, t = motor_rotor_translation(m)
+    q = rotor_to_quaternion(r)
+    t_quat = jnp.concatenate([jnp.zeros(t.shape[:-1] + (1,), t.dtype), t], axis=-1)
+    return jnp.concatenate([q, 0.5 * _quat_mul(t_quat, q)], axis=-1)
+
+
+def dual_quaternion_to_motor(dq: Float[Array, "... 8"]) -> Multivector:
+    """Motor of a unit dual quaternion (real part, dual part), translation t = 2 q_d q_r^*."""
+    dq = check_finite("dq", check_vectors("dq", dq, 8))
+    q, qd = dq[..., :4], dq[..., 4:]
+    norm2 = jnp.sum(q * q, axis=-1, keepdims=True)
+    norm2 = eqx.error_if(norm2, jnp.any(norm2 == 0), "dq: zero real part")
+    conj = q * jnp.asarray([1.0, -1.0, -1.0, -1.0], q.dtype)
+    t = 2.0 * _quat_mul(qd, conj)[..., 1:] / norm2
+    return motor(quaternion_to_rotor(q), t)
+
+
+def matrix_to_quaternion(rotation: Float[Array, "... 3 3"]) -> Float[Array, "... 4"]:
+    """Quaternion (w, x, y, z), w >= 0, of a rotation matrix (Shepperd's method: the best-
+    conditioned of four formulas, chosen per matrix)."""
+    m = rotation
+    tr = m[..., 0, 0] + m[..., 1, 1] + m[..., 2, 2]
+    cands = jnp.stack(
+        [
+            jnp.stack([1 + tr, m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]], -1),
+            jnp.stack([m[..., 2, 1] - m[..., 1, 2], 1 + 2 * m[..., 0, 0] - tr, m[..., 0, 1] + m[..., 1, 0], m[..., 0, 2] + m[..., 2, 0]], -1),
+            jnp.stack([m[..., 0, 2] - m[..., 2, 0], m[..., 0, 1] + m[..., 1, 0], 1 + 2 * m[..., 1, 1] - tr, m[..., 1, 2] + m[..., 2, 1]], -1),
+            jnp.stack([m[..., 1, 0] - m[..., 0, 1], m[..., 0, 2] + m[..., 2, 0], m[..., 1, 2] + m[..., 2, 1], 1 + 2 * m[..., 2, 2] - tr], -1),
+        ],
+        axis=-2,
+    )
+    pivots = jnp.stack([tr, m[..., 0, 0], m[..., 1, 1], m[..., 2, 2]], axis=-1)
+    best = jnp.argmax(pivots, axis=-1)
+    q = jnp.take_along_axis(cands, best[..., None, None], axis=-2)[..., 0, :]
+    q = q / jnp.linalg.norm(q, axis=-1, keepdims=True)
+    return q * jnp.where(q[..., :1] < 0, -1.0, 1.0)
+
+
+def matrix_to_motor(matrix: Float[Array, "... 4 4"]) -> Multivector:
+    """Motor of a rigid homogeneous 4x4 matrix (rotation block must be orthonormal, det +1)."""
+    matrix = jnp.asarray(matrix)
+    if matrix.ndim < 2 or matrix.shape[-2:] not in ((4, 4), (3, 4)):
+        raise ValueError(f"matrix: expected shape (..., 4, 4) or (..., 3, 4), got {matrix.shape}")
+    matrix = check_finite("matrix", matrix)
+    rot = matrix[..., :3, :3]
+    err = jnp.max(jnp.abs(jnp.swapaxes(rot, -1, -2) @ rot - jnp.eye(3, dtype=rot.dtype)), initial=0.0)
+    rot = eqx.error_if(rot, (err > 1e-5) | jnp.any(jnp.linalg.det(rot) < 0), "matrix: not a rigid motion")
+    return motor(quaternion_to_rotor(matrix_to_quaternion(rot)), matrix[..., :3, 3])
