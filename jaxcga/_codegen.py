@@ -61,20 +61,26 @@ def _finish(acc) -> Terms:
 
 def emit(terms: Terms, factors, shape_hint):
     """Evaluate generated terms. ``factors[p][idx]`` is the idx-th component (an array) of the p-th
-    factor of each term. Returns the tuple of output blades and one array per output blade."""
+    factor of each term. Returns the tuple of output blades and one array per output blade.
+
+    Terms sharing a coefficient magnitude are summed first and scaled once (most coefficients are
+    +-1 or +-2), which saves a multiply per term on the hot path."""
     columns = []
     for _, blade_terms in terms:
-        acc = None
+        groups: dict[float, object] = {}
         for key, coef in blade_terms:
             prod = factors[0][key[0]]
             for p in range(1, len(key)):
                 prod = prod * factors[p][key[p]]
-            if coef == -1.0:
-                acc = -prod if acc is None else acc - prod
-                continue
-            if coef != 1.0:
-                prod = coef * prod
-            acc = prod if acc is None else acc + prod
+            mag = abs(coef)
+            if mag in groups:
+                groups[mag] = groups[mag] + prod if coef > 0 else groups[mag] - prod
+            else:
+                groups[mag] = prod if coef > 0 else -prod
+        acc = None
+        for mag, total in groups.items():
+            term = total if mag == 1.0 else mag * total
+            acc = term if acc is None else acc + term
         columns.append(jnp.broadcast_to(acc, shape_hint) if acc.shape != shape_hint else acc)
     return tuple(b for b, _ in terms), columns
 

@@ -108,8 +108,12 @@ class Multivector(eqx.Module):
     def names(self) -> tuple[str, ...]:
         return tuple(alg.blade_name(b) for b in self.blades)
 
-    def __getitem__(self, name: str):
-        """The coefficient of one blade (by name), zero if the blade is not carried."""
+    def __getitem__(self, name):
+        """``m["e12"]``: the coefficient of one blade (zero if the blade is not carried).
+        Anything else indexes the batch axes: ``m[0]``, ``m[:, None]``, ``m[mask]``."""
+        if not isinstance(name, str):
+            index = name if isinstance(name, tuple) else (name,)
+            return Multivector(self.values[index + (slice(None),)], self.blades)
         blade = alg.parse_blades((name,))[0]
         if blade in self.blades:
             return self.values[..., self.blades.index(blade)]

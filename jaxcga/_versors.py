@@ -18,6 +18,7 @@ from __future__ import annotations
 import functools
 
 import equinox as eqx
+import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
@@ -114,8 +115,8 @@ def _point_map(blades_v: tuple[int, ...]):
     return {key: tuple(value) for key, value in entries.items()}
 
 
-def _map_entries(v: Multivector):
-    cols = _codegen.LazyColumns(v.values)
+def _map_entries(v: Multivector, columns=None):
+    cols = _codegen.LazyColumns(v.values) if columns is None else columns
     entries = {}
     for key, terms in _point_map(v.blades).items():
         _, (value,) = _codegen.emit(((0, terms),), (cols, cols), v.batch_shape)
@@ -134,8 +135,14 @@ def apply_to_points(v: Multivector, x: Float[Array, "... 3"]) -> Float[Array, ".
         raise ValueError("v: expected a versor Multivector")
     x = check_vectors("x", x)
     batch = broadcast_batch("v", v.batch_shape, "x", x.shape[:-1])
-    a = _map_entries(v)
-    xs = [x[..., 0], x[..., 1], x[..., 2]]
+    # Work on component-major copies: XLA:CPU then vectorizes the generated arithmetic along the
+    # points (measured 2-3x faster than on the interleaved (..., k) layout). The barriers keep
+    # XLA from fusing the transposes back into the arithmetic.
+    v_rows, x_rows = jax.lax.optimization_barrier(
+        (jnp.moveaxis(v.values, -1, 0), jnp.moveaxis(x, -1, 0))
+    )
+    a = _map_entries(v, columns=v_rows)
+    xs = [x_rows[0], x_rows[1], x_rows[2]]
     needs_sq = any(col == 4 for (_, col) in a)
     inputs = xs + [None, 0.5 * (xs[0] ** 2 + xs[1] ** 2 + xs[2] ** 2) if needs_sq else None]
 
@@ -148,10 +155,12 @@ def apply_to_points(v: Multivector, x: Float[Array, "... 3"]) -> Float[Array, ".
             acc = term if acc is None else acc + term
         return acc
 
-    w = row(3)
-    inv_w = 1.0 / w
-    out = [row(k) * inv_w for k in range(3)]
-    return jnp.stack([jnp.broadcast_to(c, batch) for c in out], axis=-1)
+    inv_w = 1.0 / row(3)
+    # Three separate outputs form one multi-output loop that shares the generated products between
+    # the rows; a stacked output would recompute them for every coordinate.
+    rows = jax.lax.optimization_barrier(tuple(jnp.broadcast_to(row(k) * inv_w, batch) for k in range(3)))
+    out = jax.lax.optimization_barrier(jnp.stack(rows, axis=0))
+    return jnp.moveaxis(out, 0, -1)
 
 
 def versor_to_matrix(v: Multivector) -> Float[Array, "... 4 4"]:

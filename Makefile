@@ -1,0 +1,31 @@
+# Two commands set everything up on a fresh machine: `make demo` and `make test`.
+PYTHON ?= python3
+VENV ?= .venv
+PY := $(VENV)/bin/python
+STAMP := $(VENV)/.installed
+
+.PHONY: demo test bench install clean
+
+$(STAMP): pyproject.toml
+	test -x $(PY) || $(PYTHON) -m venv $(VENV)
+	$(PY) -m pip install --quiet --upgrade pip
+	$(PY) -m pip install --quiet -e ".[dev,bench]"
+	touch $(STAMP)
+
+install: $(STAMP)
+
+## Run the main job on the built-in default (prints a tour, saves out/blending.png).
+demo: $(STAMP)
+	$(VENV)/bin/jaxcga demo
+
+## Run every test, notebooks included.
+test: $(STAMP)
+	$(PY) -m pytest --nbmake tests notebooks
+
+## Benchmarks: print figures and ratios, write JSON to out/bench/.
+bench: $(STAMP)
+	mkdir -p out/bench
+	$(PY) benchmarks/bench_kernel.py --json out/bench/kernel.json
+
+clean:
+	rm -rf $(VENV) out .pytest_cache
