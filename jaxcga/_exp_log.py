@@ -24,7 +24,7 @@ import jax.numpy as jnp
 from jaxcga import _algebra as alg
 from jaxcga._multivector import KINDS, Multivector
 from jaxcga._operations import normalize
-from jaxcga._versors import dilator, translator
+from jaxcga._versors import dilator
 
 MOTOR_GENERATOR = alg.parse_blades(("e12", "e13", "e23", "e1inf", "e2inf", "e3inf"))
 SIMILITUDE_GENERATOR = MOTOR_GENERATOR + alg.parse_blades(("eoinf",))
@@ -106,7 +106,7 @@ def log_motor(m: Multivector) -> Multivector:
     """Bivector ``log(M)`` of a motor (normalized first), closed form; ``exp(log(M)) = M``.
 
     The rotation angle of the result is in [0, 2 pi]; a motor whose rotor part is -1 (a 2 pi turn) has
-    no unique logarithm and gets the e12 plane."""
+    no unique logarithm: it gets the screw axis along its translation (the e12 plane if there is none)."""
     if not isinstance(m, Multivector) or not set(m.blades) <= set(KINDS["motor"]):
         raise ValueError("m: expected a motor Multivector")
     m = normalize(m.embed(KINDS["motor"]))
@@ -117,11 +117,30 @@ def log_motor(m: Multivector) -> Multivector:
     z = (biv * biv)["e123inf"]  # <M>_2^2 = -sin^2(theta_d): its P part
     k, mm = _atan_ratio(u, a)
     # theta_d / sin(theta_d) = k + P (-b4 + z m / 2) (dual-number division, see module docstring).
-    at_two_pi = (u == 0) & (a < 0)
     out = _scalar_p(k, -b4 + 0.5 * z * mm) * biv
-    out = out.embed(MOTOR_GENERATOR)
-    full_turn = jnp.zeros_like(out.values).at[..., 0].set(jnp.pi)
-    return Multivector(jnp.where(at_two_pi[..., None], full_turn, out.values), MOTOR_GENERATOR)
+    out = out.embed(MOTOR_GENERATOR).values
+    # For a rotation beyond pi (a < 0) the two P terms above are ~pi / sin each and cancel. With
+    # w = sin(theta) u (u the axis, in e_i einf coordinates w = P <M>_2's rotation part) and v the
+    # e_i einf part of M, the same value is k v_perp + a v_par - b4 w: no cancellation.
+    w = jnp.stack([-rot[..., 2], rot[..., 1], -rot[..., 0]], axis=-1)
+    v = biv.values[..., 3:6]
+    u_safe = jnp.where(u > 0, u, 1.0)[..., None]
+    v_par = jnp.sum(v * w, axis=-1, keepdims=True) * w / u_safe
+    v_perp = k[..., None] * jnp.cross(w, jnp.cross(v, w)) / u_safe
+    # v_perp is ill conditioned (rounding of size eps |v| times k ~ pi / sin): project once more so
+    # that none of that rounding lands along the axis, where the result is well conditioned.
+    v_perp = v_perp - jnp.sum(v_perp * w, axis=-1, keepdims=True) * w / u_safe
+    far = (a < 0)[..., None]
+    out_i = jnp.where(far, v_perp + a[..., None] * v_par - b4[..., None] * w, out[..., 3:6])
+    # A 2 pi turn (rotor part -1): M = -T(t) is the 2 pi screw about the axis along t (any axis if
+    # t = 0; then e12).
+    at_two_pi = ((u == 0) & (a < 0))[..., None]
+    v2 = jnp.sum(v * v, axis=-1, keepdims=True)
+    axis = jnp.where(v2 > 0, v / jnp.sqrt(jnp.where(v2 > 0, v2, 1.0)), jnp.asarray([0.0, 0.0, -1.0], v.dtype))
+    full_turn = jnp.pi * jnp.stack([-axis[..., 2], axis[..., 1], -axis[..., 0]], axis=-1)
+    out_r = jnp.where(at_two_pi, full_turn, out[..., :3])
+    out_i = jnp.where(at_two_pi, a[..., None] * v, out_i)
+    return Multivector(jnp.concatenate([out_r, out_i], axis=-1), MOTOR_GENERATOR)
 
 
 # ---------------------------------------------------------------- similitudes
@@ -186,7 +205,11 @@ def exp_similitude(b: Multivector) -> Multivector:
     lam = 2.0 * b.values[..., 6]
     rotation = exp_motor(Multivector(b.values[..., :3], _ROTATION))
     t = _apply_v(lam, w, v)
-    return (translator(t) * rotation * dilator(jnp.exp(lam))).embed(KINDS["similitude"])
+    # T R D = R D - (t einf / 2) R D, and einf D = e^(-lam/2) einf exactly. Forming the product
+    # T R D numerically instead would cancel cosh(lam/2) - sinh(lam/2) and lose ~e^|lam| ulps.
+    rd = rotation * dilator(jnp.exp(lam))
+    t_einf = Multivector(-0.5 * jnp.exp(-0.5 * lam)[..., None] * t, alg.parse_blades(("e1inf", "e2inf", "e3inf")))
+    return (rd + t_einf * rotation).embed(KINDS["similitude"])
 
 
 def log_similitude(s: Multivector) -> Multivector:
@@ -194,19 +217,25 @@ def log_similitude(s: Multivector) -> Multivector:
     if not isinstance(s, Multivector) or not set(s.blades) <= set(KINDS["similitude"]):
         raise ValueError("s: expected a similitude Multivector (even blades)")
     s = s.embed(KINDS["similitude"])
-    from jaxcga._versors import apply_to_points
-
-    t = apply_to_points(s, jnp.zeros(s.batch_shape + (3,), s.dtype))
-    rd = translator(-t) * s  # R D = R (cosh + sinh eo^einf)
+    # S = T R D = R D + x' einf with R D = R (cosh + sinh eo^einf) and x' = -(1/2) e^(-lam/2) t R on
+    # (e1, e2, e3, e123); the two parts sit on disjoint blades.
     names_c = ("1", "e12", "e13", "e23")
     names_s = ("eoinf", "e12oinf", "e13oinf", "e23oinf")
-    rc = jnp.stack([rd[n] for n in names_c], axis=-1)
-    rs = jnp.stack([rd[n] for n in names_s], axis=-1)
+    rc = jnp.stack([s[n] for n in names_c], axis=-1)
+    rs = jnp.stack([s[n] for n in names_s], axis=-1)
     # rc = R cosh(lam/2), rs = R sinh(lam/2), so <rc, rs> / <rc, rc> = tanh(lam/2).
     c2, s2, cs = jnp.sum(rc * rc, -1), jnp.sum(rs * rs, -1), jnp.sum(rc * rs, -1)
     c2 = eqx.error_if(c2, jnp.any(c2 <= s2), "s: not a similitude versor")
     lam = 2.0 * jnp.arctanh(cs / c2)
     rotor_part = Multivector(rc, KINDS["rotor"])
+    # t = -2 x' ~R e^(lam/2) / |R|^2 with R = rc / cosh(lam/2): products only. (The sandwich of the
+    # origin would cancel terms of size d to get ones of size 1/d and lose ~d^2 ulps.)
+    x_prime = Multivector(
+        jnp.stack([s[n] for n in ("e1inf", "e2inf", "e3inf", "e123inf")], axis=-1),
+        alg.parse_blades(("e1", "e2", "e3", "e123")),
+    )
+    t_r = x_prime * ~rotor_part
+    t = -((1.0 + jnp.exp(lam)) / c2)[..., None] * jnp.stack([t_r[n] for n in ("e1", "e2", "e3")], axis=-1)
     rot = log_motor(rotor_part).values[..., :3]
     w = _rotation_vector(rot)
     v = jnp.linalg.solve(_v_matrix(lam, w), t[..., None])[..., 0]

@@ -152,6 +152,7 @@ class Multivector(eqx.Module):
     # ---------------------------------------------------------------- linear
     def __add__(self, other):
         other = _coerce(other, self)
+        broadcast_batch("a", self.batch_shape, "b", other.batch_shape)
         blades = alg.sort_blades(self.blades + other.blades)
         if blades == self.blades == other.blades:
             return Multivector(self.values + other.values, blades)

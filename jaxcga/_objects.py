@@ -207,11 +207,13 @@ def line_point_direction(L: Multivector):
 
 def round_radius2(X: Multivector):
     """Squared radius of a round (point pair, circle or sphere) in direct form:
-    <X X^> / <K K^> with K = einf _| X and ^ the grade involution; negative for imaginary rounds."""
+    <X X^> / <K K> with K = einf _| X and ^ the grade involution; negative for imaginary rounds.
+    (With K^ in the denominator the sign would flip for point pairs and spheres, whose K has odd
+    grade.)"""
     from jaxcga._operations import involution, left_contraction
 
     K = left_contraction(_einf(X.dtype), X)
-    return scalar_product(X, involution(X)) / scalar_product(K, involution(K))
+    return scalar_product(X, involution(X)) / scalar_product(K, K)
 
 
 def round_center(X: Multivector):
