@@ -11,7 +11,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 
 from jaxcga._exp_log import exp, log
-from jaxcga._multivector import Multivector, broadcast_batch
+from jaxcga._multivector import KINDS, Multivector, broadcast_batch
 from jaxcga._operations import normalize, versor_inverse
 
 
@@ -28,7 +28,13 @@ def blend_linear(m1: Multivector, m2: Multivector, alpha, renormalize: bool = Tr
     _check_pair(m1, m2)
     alpha = jnp.asarray(alpha, m1.dtype)
     out = m1 * (1 - alpha) + m2 * alpha
-    return normalize(out) if renormalize else out
+    if not renormalize:
+        return out
+    if set(out.blades) <= set(KINDS["motor"]):
+        return normalize(out)
+    # A sum of similitudes is not a similitude; project it back (rotor normalized, dilation from the
+    # tanh ratio, translation from the einf part) through log / exp, which read exactly those parts.
+    return exp(log(out.embed(KINDS["similitude"])))
 
 
 def blend_log(m1: Multivector, m2: Multivector, alpha) -> Multivector:
@@ -38,8 +44,6 @@ def blend_log(m1: Multivector, m2: Multivector, alpha) -> Multivector:
     alpha = jnp.asarray(alpha, m1.dtype)
     relative = versor_inverse(m1) * m2
     kind = set(m1.blades) | set(m2.blades)
-    from jaxcga._multivector import KINDS
-
     blades = KINDS["motor"] if kind <= set(KINDS["motor"]) else KINDS["similitude"]
     step = exp(log(relative.embed(blades)) * alpha)
     return (m1 * step).embed(blades)

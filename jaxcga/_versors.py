@@ -65,9 +65,15 @@ def rotor_from_bivector(plane: Float[Array, "... 3"], angle: Float[Array, "..."]
     return _stack(c, -s * b[..., 0], -s * b[..., 1], -s * b[..., 2], blades=_ROTOR)
 
 
+def _float_scalar(value):
+    """Keep a floating input's dtype (float32 stays float32); integers become the default float."""
+    value = jnp.asarray(value)
+    return value if jnp.issubdtype(value.dtype, jnp.floating) else value.astype(jnp.result_type(float))
+
+
 def dilator(scale: Float[Array, "..."]) -> Multivector:
     """Normalized dilator about the origin by the factor ``scale`` > 0 (eq. 12-13)."""
-    d = check_finite("scale", jnp.asarray(scale, jnp.result_type(float)))
+    d = check_finite("scale", _float_scalar(scale))
     d = eqx.error_if(d, jnp.any(d <= 0), "scale: dilation factor must be > 0")
     root = jnp.sqrt(d)
     return _stack((1 + d) / (2 * root), (d - 1) / (2 * root), blades=KINDS["dilator"])
@@ -75,7 +81,7 @@ def dilator(scale: Float[Array, "..."]) -> Multivector:
 
 def dilator_paper(scale) -> Multivector:
     """The paper's un-normalized dilator ``D = 1 + (1 - d)/(1 + d) einf^eo`` (eq. 12)."""
-    d = jnp.asarray(scale, jnp.result_type(float))
+    d = _float_scalar(scale)
     return _stack(jnp.ones_like(d), (d - 1) / (d + 1), blades=KINDS["dilator"])
 
 

@@ -301,3 +301,23 @@ def test_blend_weighted_derivatives():
         fd = (_a(f(jnp.asarray(x + h * d))) - _a(f(jnp.asarray(x - h * d)))) / (2 * h)
         scale = np.abs(c).sum() * max(1.0, np.abs(fd).max())
         assert abs(np.sum(_a(vj) * d) - c @ fd) <= 1e-6 * scale
+
+
+def test_blend_linear_of_similitudes_is_a_similitude():
+    """Renormalized linear blending of similitudes projects back onto similitudes: W ~W = 1 with no
+    grade-2/4 part, so an equilateral triangle stays equilateral (the raw sum distorts it)."""
+    s1 = cga.similitude(cga.rotor(jnp.array([0.0, 0, 1]), -0.3), jnp.zeros(3), 1.5)
+    s2 = cga.similitude(cga.rotor(jnp.array([0.3, 0.2, 1.0]), 2.8), jnp.array([1.0, 0.5, 4.0]), 0.5)
+    tri = jnp.array([[1.0, 0, 0], [-0.5, 3**0.5 / 2, 0], [-0.5, -(3**0.5) / 2, 0]])
+    for alpha in (0.25, 0.5, 0.8):
+        w = cga.blend_linear(s1, s2, alpha)
+        ww = w * ~w
+        np.testing.assert_allclose(float(ww["1"]), 1.0, atol=1e-12)
+        assert float(jnp.max(jnp.abs(ww.grade(2, 4).values))) < 1e-12
+        p = cga.apply_to_points(w, tri)
+        sides = np.linalg.norm(np.asarray(p - jnp.roll(p, 1, axis=0)), axis=-1)
+        np.testing.assert_allclose(sides, sides[0], rtol=1e-12)
+    raw = cga.blend_linear(s1, s2, 0.5, renormalize=False)
+    p = cga.apply_to_points(raw, tri)
+    sides = np.linalg.norm(np.asarray(p - jnp.roll(p, 1, axis=0)), axis=-1)
+    assert np.ptp(sides) > 1e-3

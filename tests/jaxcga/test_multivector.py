@@ -241,12 +241,6 @@ def test_mixed_precision_is_rejected_under_strict_promotion():
         a * b
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="known bug in jaxcga/_versors.py: dilator() and dilator_paper() build their values with "
-    "jnp.asarray(scale, jnp.result_type(float)), i.e. float64 under x64, whatever the input dtype, so "
-    "similitude(R32, t32, s32) mixes float32 and float64 and fails under strict promotion",
-)
 def test_float32_dilator_and_similitude():
     f32 = jnp.float32
     assert jaxcga.dilator(jnp.asarray(2.0, f32)).dtype == f32
