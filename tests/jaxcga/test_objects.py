@@ -10,22 +10,12 @@ from __future__ import annotations
 import jax
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import given
 from hypothesis import strategies as st
 
 import jaxcga as cga
 
-SETTINGS = settings(max_examples=25, deadline=None, derandomize=True)
-seeds = st.integers(0, 2**32 - 1)
-
-
-def _a(x):
-    return np.asarray(x, dtype=np.float64)
-
-
-def _unit(v):
-    v = _a(v)
-    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+from tests.jaxcga._helpers import SETTINGS, _a, _unit, seeds
 
 
 def _well_spread(rng, n, min_gap=0.3, scale=1.0):
