@@ -42,27 +42,29 @@ def translator(t: Float[Array, "... 3"]) -> Multivector:
     return _stack(one, -0.5 * t[..., 0], -0.5 * t[..., 1], -0.5 * t[..., 2], blades=KINDS["translator"])
 
 
-def rotor(axis: Float[Array, "... 3"], angle: Float[Array, "..."]) -> Multivector:
-    """Rotor by ``angle`` (radians, right-handed) about ``axis`` (normalized here), eq. 8."""
-    axis = check_finite("axis", check_vectors("axis", axis))
-    angle = check_finite("angle", jnp.asarray(angle, axis.dtype))
-    length = jnp.linalg.norm(axis, axis=-1)
-    length = eqx.error_if(length, jnp.any(length == 0), "axis: zero-length rotation axis")
-    u = axis / length[..., None]
+def _rotor_in_plane(name: str, plane, angle, what: str) -> Multivector:
+    """``exp(-b angle / 2)`` for the Euclidean bivector b = plane (e12, e13, e23), normalized here."""
+    angle = check_finite("angle", jnp.asarray(angle, plane.dtype))
+    length = jnp.linalg.norm(plane, axis=-1)
+    length = eqx.error_if(length, jnp.any(length == 0), f"{name}: zero-length {what}")
+    b = plane / length[..., None]
     c, s = jnp.cos(angle / 2), jnp.sin(angle / 2)
-    return _stack(c, -s * u[..., 2], s * u[..., 1], -s * u[..., 0], blades=_ROTOR)
+    return _stack(c, -s * b[..., 0], -s * b[..., 1], -s * b[..., 2], blades=_ROTOR)
+
+
+def rotor(axis: Float[Array, "... 3"], angle: Float[Array, "..."]) -> Multivector:
+    """Rotor by ``angle`` (radians, right-handed) about ``axis`` (normalized here), eq. 8:
+    the rotation plane is u I3 = u1 e23 - u2 e13 + u3 e12."""
+    u = check_finite("axis", check_vectors("axis", axis))
+    plane = jnp.stack([u[..., 2], -u[..., 1], u[..., 0]], axis=-1)
+    return _rotor_in_plane("axis", plane, angle, "rotation axis")
 
 
 def rotor_from_bivector(plane: Float[Array, "... 3"], angle: Float[Array, "..."]) -> Multivector:
     """Rotor ``exp(-b angle / 2)`` in the plane of the Euclidean bivector b with components
     (e12, e13, e23) (normalized here), eq. 8."""
     b = check_finite("plane", check_vectors("plane", plane))
-    angle = check_finite("angle", jnp.asarray(angle, b.dtype))
-    length = jnp.linalg.norm(b, axis=-1)
-    length = eqx.error_if(length, jnp.any(length == 0), "plane: zero bivector")
-    b = b / length[..., None]
-    c, s = jnp.cos(angle / 2), jnp.sin(angle / 2)
-    return _stack(c, -s * b[..., 0], -s * b[..., 1], -s * b[..., 2], blades=_ROTOR)
+    return _rotor_in_plane("plane", b, angle, "bivector")
 
 
 def _float_scalar(value):
