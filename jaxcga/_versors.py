@@ -279,3 +279,26 @@ def matrix_to_motor(matrix: Float[Array, "... 4 4"]) -> Multivector:
     err = jnp.max(jnp.abs(jnp.swapaxes(rot, -1, -2) @ rot - jnp.eye(3, dtype=rot.dtype)), initial=0.0)
     rot = eqx.error_if(rot, (err > 1e-5) | jnp.any(jnp.linalg.det(rot) < 0), "matrix: not a rigid motion")
     return motor(quaternion_to_rotor(matrix_to_quaternion(rot)), matrix[..., :3, 3])
+
+
+def matrix_to_similitude(matrix: Float[Array, "... 4 4"], tolerance: float = 1e-5) -> Multivector:
+    """Similitude ``T R D`` of a homogeneous matrix ``[s Q | t]`` with Q a rotation and s > 0 a
+    uniform scale (glTF inverse bind matrices, node matrices with uniform scale).
+
+    Args:
+        matrix: (..., 4, 4) or (..., 3, 4).
+        tolerance: allowed deviation of ``A^T A / s^2`` from the identity (shear or non-uniform scale
+            beyond it raises inside jit through ``eqx.error_if``)."""
+    matrix = jnp.asarray(matrix)
+    if matrix.ndim < 2 or matrix.shape[-2:] not in ((4, 4), (3, 4)):
+        raise ValueError(f"matrix: expected shape (..., 4, 4) or (..., 3, 4), got {matrix.shape}")
+    matrix = check_finite("matrix", matrix)
+    a = matrix[..., :3, :3]
+    det = jnp.linalg.det(a)
+    det = eqx.error_if(det, jnp.any(det <= 0), "matrix: not a similitude (determinant <= 0: reflection or singular)")
+    s = jnp.cbrt(det)
+    rot = a / s[..., None, None]
+    err = jnp.max(jnp.abs(jnp.swapaxes(rot, -1, -2) @ rot - jnp.eye(3, dtype=rot.dtype)), initial=0.0)
+    rot = eqx.error_if(rot, err > tolerance, "matrix: not a similitude (shear or non-uniform scale)")
+    return similitude(quaternion_to_rotor(matrix_to_quaternion(rot)), matrix[..., :3, 3], s)
+

@@ -1,0 +1,189 @@
+"""Fitting bone motors and dilations to target vertex positions (the design card's "fit motor
+handles to target poses by gradient descent", on the rigged deformation of eq. 17).
+
+Each bone's local versor is its rest versor times a change in its own frame,
+``L_i = L_i^rest exp(B_i) D(exp(sigma_i))``, with B_i a motor generator (6 bivector components:
+e12, e13, e23 rotation, e1inf, e2inf, e3inf translation) and sigma_i a log-scale. Parameters are zero
+at the rest pose, so the regularizer ``lambda |params|^2`` pulls toward it. The residual
+``(skin(params)[vertices] - targets) / diagonal`` is minimized by optimistix (Levenberg-Marquardt by
+default, Gauss-Newton, or BFGS / gradient descent on the squared residual).
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import optimistix as optx
+from jaxtyping import Array, Float, Int
+
+import jaxcga as cga
+from deform import _pose, _rig
+from deform._model import RiggedModel
+from jaxcga._multivector import KINDS, Multivector
+
+SOLVERS = ("levenberg_marquardt", "gauss_newton", "bfgs", "gradient_descent")
+PARAMETERS_PER_BONE = 7  # six motor-generator components and one log-scale
+
+
+def pose_from_parameters(model: RiggedModel, params: Float[Array, "... b 7"]) -> Multivector:
+    """Local similitudes ``L_rest exp(B) D(exp(sigma))`` of every bone, batch shape (..., b).
+
+    Args:
+        model: the RiggedModel (its skeleton's rest pose is the reference).
+        params: (..., b, 7): motor-generator components (e12, e13, e23, e1inf, e2inf, e3inf) and the
+            log-scale of each bone."""
+    params = jnp.asarray(params)
+    b = model.skeleton.num_bones
+    if params.ndim < 2 or params.shape[-2:] != (b, PARAMETERS_PER_BONE):
+        raise ValueError(f"params: expected shape (..., {b}, {PARAMETERS_PER_BONE}), got {params.shape}")
+    motion = cga.exp_motor(Multivector(params[..., :6], cga.MOTOR_GENERATOR))
+    dilation = cga.dilator(jnp.exp(params[..., 6]))
+    rest = _rig.local_versors(model.skeleton)
+    return (rest * motion * dilation).embed(KINDS["similitude"])
+
+
+def skin_parameters(model: RiggedModel, params, method: str = "cga"):
+    """Skinned positions (..., n, 3) for parameters (..., b, 7) (see ``pose_from_parameters``)."""
+    return _pose.skin_pose(model, pose_from_parameters(model, params), method)
+
+
+def bounding_diagonal(model: RiggedModel) -> Float[Array, ""]:
+    """Bounding-box diagonal of the skinned rest pose (world space), the unit of fitting errors."""
+    rest = _pose.rest_pose(model, "lbs")
+    return jnp.linalg.norm(jnp.max(rest, axis=0) - jnp.min(rest, axis=0))
+
+
+class PoseFit(eqx.Module):
+    """Result of ``fit_pose``.
+
+    Attributes:
+        params: (b, 7) fitted parameters (see ``pose_from_parameters``).
+        local: fitted local similitudes, batch shape (b,).
+        positions: (n, 3) skinned positions of the fit.
+        max_error: largest distance between fitted and target vertices.
+        rms_error: root-mean-square distance.
+        steps: solver steps taken.
+        converged: whether the solver met its tolerance within max_steps.
+    """
+
+    params: Float[Array, "b 7"]
+    local: Multivector
+    positions: Float[Array, "n 3"]
+    max_error: Float[Array, ""]
+    rms_error: Float[Array, ""]
+    steps: Int[Array, ""]
+    converged: Array
+
+
+def _solver(name: str, rtol: float, atol: float):
+    if name == "levenberg_marquardt":
+        return optx.LevenbergMarquardt(rtol=rtol, atol=atol)
+    if name == "gauss_newton":
+        return optx.GaussNewton(rtol=rtol, atol=atol)
+    if name == "bfgs":
+        return optx.BFGS(rtol=rtol, atol=atol)
+    if name == "gradient_descent":
+        return optx.GradientDescent(learning_rate=1e-2, rtol=rtol, atol=atol)
+    raise ValueError(f"solver: expected one of {SOLVERS}, got {name!r}")
+
+
+def fit_pose(
+    model: RiggedModel,
+    targets: Float[Array, "t 3"],
+    vertices: Int[Array, " t"] | None = None,
+    *,
+    method: str = "cga",
+    regularization: float = 0.0,
+    fit_scale: bool = True,
+    solver: str = "levenberg_marquardt",
+    max_steps: int = 200,
+    rtol: float = 1e-10,
+    atol: float = 1e-12,
+    init: Float[Array, "b 7"] | None = None,
+) -> PoseFit:
+    """Fit every bone's motor (and dilation) so that the skinned vertices reach ``targets``.
+
+    Args:
+        model: the RiggedModel.
+        targets: (t, 3) target positions of the vertices ``vertices`` (all vertices when None: t = n).
+        vertices: (t,) int vertex indices, or None.
+        method: skinning method (``deform.METHODS``; "dqs" cannot fit dilations).
+        regularization: weight lambda of ``lambda |params|^2`` toward the rest pose (use it when only a
+            handful of vertices are targeted).
+        fit_scale: also fit each bone's dilation (log-scale); otherwise motors only.
+        solver: one of ``SOLVERS``.
+        max_steps, rtol, atol: solver limits and tolerances.
+        init: (b, 7) starting parameters (zeros: the rest pose).
+    Returns:
+        a PoseFit."""
+    n = model.mesh.num_vertices
+    b = model.skeleton.num_bones
+    targets = jnp.asarray(targets)
+    index = jnp.arange(n) if vertices is None else jnp.asarray(vertices)
+    if not jnp.issubdtype(index.dtype, jnp.integer) or index.ndim != 1:
+        raise ValueError(f"vertices: expected a (t,) integer array, got {index.dtype} {index.shape}")
+    if targets.shape != (index.shape[0], 3):
+        raise ValueError(f"targets: expected shape ({index.shape[0]}, 3), got {targets.shape}")
+    if not bool(jnp.all(jnp.isfinite(targets))):
+        raise ValueError("targets: contains NaN or infinity")
+    if index.size and (int(index.min()) < 0 or int(index.max()) >= n):
+        raise ValueError(f"vertices: indices must lie in [0, {n})")
+    if regularization < 0:
+        raise ValueError(f"regularization: expected >= 0, got {regularization}")
+    _pose._check_method(method)
+    if method == "dqs" and fit_scale:
+        raise ValueError("method: dual-quaternion skinning cannot represent dilations; use fit_scale=False")
+    dtype = model.mesh.V.dtype
+    diagonal = bounding_diagonal(model)
+    width = PARAMETERS_PER_BONE if fit_scale else 6
+    y0 = jnp.zeros((b, width), dtype) if init is None else jnp.asarray(init, dtype)[:, :width]
+    if y0.shape != (b, width):
+        raise ValueError(f"init: expected shape ({b}, {PARAMETERS_PER_BONE}), got {jnp.shape(init)}")
+
+    def full(y):
+        return y if fit_scale else jnp.concatenate([y, jnp.zeros((b, 1), y.dtype)], axis=-1)
+
+    def residuals(y, _):
+        moved = skin_parameters(model, full(y), method)[index]
+        r = ((moved - targets) / diagonal).ravel()
+        if regularization:
+            r = jnp.concatenate([r, jnp.sqrt(regularization) * y.ravel()])
+        return r
+
+    def loss(y, args):
+        r = residuals(y, args)
+        return jnp.sum(r * r)
+
+    opt = _solver(solver, rtol, atol)
+    if solver in ("levenberg_marquardt", "gauss_newton"):
+        sol = optx.least_squares(residuals, opt, y0, max_steps=max_steps, throw=False)
+    else:
+        sol = optx.minimise(loss, opt, y0, max_steps=max_steps, throw=False)
+    params = full(sol.value)
+    local = pose_from_parameters(model, params)
+    positions = _pose.skin_pose(model, local, method)
+    dist = jnp.linalg.norm(positions[index] - targets, axis=-1)
+    return PoseFit(
+        params=params,
+        local=local,
+        positions=positions,
+        max_error=jnp.max(dist),
+        rms_error=jnp.sqrt(jnp.mean(dist**2)),
+        steps=sol.stats["num_steps"],
+        converged=sol.result == optx.RESULTS.successful,
+    )
+
+
+def random_parameters(key, model: RiggedModel, rotation: float = 0.4, translation: float = 0.0,
+                      log_scale: float = 0.0, dtype=None) -> Float[Array, "b 7"]:
+    """Random pose parameters (b, 7): uniform in [-rotation, rotation] for the rotation bivector,
+    translation in units of the mesh's bounding-box diagonal, and log-scale, for tests and examples."""
+    b = model.skeleton.num_bones
+    dtype = dtype or model.mesh.V.dtype
+    k1, k2, k3 = jax.random.split(key, 3)
+    diagonal = bounding_diagonal(model)
+    rot = jax.random.uniform(k1, (b, 3), dtype, -rotation, rotation)
+    trans = jax.random.uniform(k2, (b, 3), dtype, -translation, translation) * diagonal
+    scale = jax.random.uniform(k3, (b, 1), dtype, -log_scale, log_scale)
+    return jnp.concatenate([rot, trans, scale], axis=-1)

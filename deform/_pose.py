@@ -1,0 +1,111 @@
+"""Posing a rigged model: local transforms -> forward kinematics -> joint transforms -> skinning.
+
+The glue between the rig (``_rig``) and the skinning equations (``_skinning``). A pose is the
+local transform of every bone, either as versors (a Multivector with batch shape (..., b), motors
+or similitudes) or as matrices (..., b, 4, 4). Methods:
+
+* ``"lbs"``: matrix linear blend skinning, eq. (16);
+* ``"dqs"``: dual-quaternion skinning (rigid poses only);
+* ``"cga"``: multivector skinning, eq. (17), blend after the sandwich (the paper's);
+* ``"cga_motor_blend"``: multivector skinning with the versors blended first (like DQS).
+
+``skin_model(model, t)`` samples clip ``clip`` at time t: by the glTF specification (TRS lerp /
+slerp) for the matrix methods, by logarithmic blending of versors for the multivector methods.
+"""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+from jax.sharding import Mesh, NamedSharding, PartitionSpec
+
+import jaxcga as cga
+from deform import _rig, _skinning
+from deform._model import RiggedModel
+from jaxcga._multivector import Multivector
+
+METHODS = ("lbs", "dqs", "cga", "cga_motor_blend")
+
+
+def _check_method(method: str):
+    if method not in METHODS:
+        raise ValueError(f"method: expected one of {METHODS}, got {method!r}")
+
+
+def skin_pose(model: RiggedModel, local, method: str = "cga"):
+    """Skinned positions (..., n, 3) of the model in a pose given by local bone transforms.
+
+    Args:
+        model: the RiggedModel.
+        local: local transform of every bone: versors (Multivector, batch shape (..., b)) or
+            matrices (..., b, 4, 4).
+        method: one of ``METHODS``."""
+    _check_method(method)
+    mesh, parents = model.mesh, model.skeleton.parents
+    if isinstance(local, Multivector):
+        if method in ("cga", "cga_motor_blend"):
+            joints = _rig.joint_versors(mesh, _rig.forward_kinematics(parents, local))
+            skin = _skinning.skin_cga if method == "cga" else _skinning.skin_cga_motor_blend
+            return skin(mesh.V, mesh.J, mesh.W, joints)
+        local = cga.versor_to_matrix(local)
+    local = jnp.asarray(local)
+    if method in ("cga", "cga_motor_blend"):
+        return skin_pose(model, cga.matrix_to_similitude(local), method)
+    joints = _rig.joint_matrices(mesh, _rig.forward_kinematics_matrices(parents, local))
+    if method == "lbs":
+        return _skinning.skin_lbs(mesh.V, mesh.J, mesh.W, joints)
+    return _skinning.skin_dqs(mesh.V, mesh.J, mesh.W, _skinning.matrices_to_dual_quaternions(joints))
+
+
+def rest_pose(model: RiggedModel, method: str = "cga"):
+    """Skinned positions (n, 3) in the skeleton's rest pose (the nodes' own TRS)."""
+    _check_method(method)
+    if method in ("cga", "cga_motor_blend"):
+        return skin_pose(model, _rig.local_versors(model.skeleton), method)
+    return skin_pose(model, _rig.local_matrices(model.skeleton), method)
+
+
+def sample_pose(model: RiggedModel, t, method: str = "cga", clip: int | str = 0):
+    """Local bone transforms of clip ``clip`` at time t: versors (b,) for the multivector methods,
+    matrices (b, 4, 4) for the matrix methods."""
+    _check_method(method)
+    animation = model.clip(clip)
+    if method in ("cga", "cga_motor_blend"):
+        return _rig.sample_versors(model.skeleton, animation, t)
+    return _rig.sample_matrices(model.skeleton, animation, t)
+
+
+def skin_model(model: RiggedModel, t, method: str = "cga", clip: int | str = 0):
+    """Skinned positions (n, 3) of the model at time t of a clip (rest pose when it has no clip).
+    vmap over t for many frames."""
+    if not model.clips:
+        return rest_pose(model, method)
+    return skin_pose(model, sample_pose(model, t, method, clip), method)
+
+
+def sharded_vmap(fn, batch, devices=None):
+    """``jax.vmap(fn)(batch)`` with the leading batch axis split over devices (``jax.sharding``).
+
+    The batch (any pytree of arrays with a common leading axis) is padded to a multiple of the
+    device count, laid out with a NamedSharding over a 1-D mesh, mapped under jit with the output
+    sharded the same way, and un-padded. With one device this is plain jit(vmap).
+
+    Args:
+        fn: function of one batch element.
+        batch: pytree of arrays with leading axis size N.
+        devices: devices to use (default ``jax.devices()``)."""
+    devices = list(jax.devices() if devices is None else devices)
+    leaves = jax.tree_util.tree_leaves(batch)
+    if not leaves or any(np.ndim(x) == 0 for x in leaves):
+        raise ValueError("batch: expected a pytree of arrays with a leading batch axis")
+    n = np.shape(leaves[0])[0]
+    if any(np.shape(x)[0] != n for x in leaves):
+        raise ValueError("batch: every leaf needs the same leading axis size")
+    pad = (-n) % len(devices)
+    if pad:
+        batch = jax.tree_util.tree_map(lambda x: jnp.concatenate([x, jnp.repeat(x[-1:], pad, axis=0)]), batch)
+    sharding = NamedSharding(Mesh(np.array(devices), ("batch",)), PartitionSpec("batch"))
+    batch = jax.device_put(batch, sharding)
+    out = jax.jit(jax.vmap(fn), out_shardings=sharding)(batch)
+    return jax.tree_util.tree_map(lambda x: x[:n], out) if pad else out

@@ -1,0 +1,307 @@
+"""The rig in matrix and multivector form (cut/tear/drill paper sec. 3, eq. 15, and sec. 4.1).
+
+A bone's local transform is ``t = T R S`` (eq. 15). In the multivector form it becomes the
+similitude ``T R D``: translator, rotor and a dilator for a uniform scale (sec. 4.1, "the multivector
+M_i,k ... can be replaced with M_i,k D_i,k"). A non-uniform scale has no versor: it raises (inside jit
+through ``eqx.error_if``); the matrix path (``local_matrices`` + ``skin_lbs``) handles it.
+
+Sampling a clip:
+
+* ``sample_trs`` follows the glTF 2.0 specification (Appendix "Interpolation"): translation and
+  scale lerped, rotation slerped along the shortest arc, STEP holds the key, CUBICSPLINE is the
+  Hermite spline with tangents scaled by the key interval (rotation normalized afterwards);
+* ``sample_versors`` is the paper's multivector path: each channel's keys become versors
+  (translators, rotors, dilators) blended logarithmically, ``m1 exp(a log(m1^-1 m2))`` (sec. 2.5).
+  For translators this is the lerp and for rotors (sign-aligned) the slerp of the specification,
+  exactly; for dilators it interpolates the scale geometrically, ``s1^(1-a) s2^a``, where the
+  specification lerps (equal at the keys and when the scale is constant). CUBICSPLINE channels are
+  evaluated by the specification's Hermite spline, then turned into versors.
+
+User-made keyframes (``Keyframes``) are blended linearly and renormalized, the paper's choice for
+frames generated on the fly (sec. 2.5).
+
+Times outside a clip's key range are clamped to its first / last key.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+from jaxtyping import Array, Float
+
+import jaxcga as cga
+from deform._model import AnimationClip, Channel, Skeleton, SkinnedMesh
+from jaxcga._multivector import KINDS, Multivector
+
+_SIMILITUDE = KINDS["similitude"]
+
+
+# ---------------------------------------------------------------- TRS -> matrix / versor
+def quaternion_xyzw_to_matrix(q: Float[Array, "... 4"]) -> Float[Array, "... 3 3"]:
+    """Rotation matrix of a unit quaternion in glTF order (x, y, z, w)."""
+    x, y, z, w = (q[..., i] for i in range(4))
+    return jnp.stack(
+        [
+            jnp.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
+            jnp.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
+            jnp.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
+        ],
+        axis=-2,
+    )
+
+
+def trs_to_matrix(translation, rotation, scale) -> Float[Array, "... 4 4"]:
+    """Homogeneous matrix ``T R S`` (eq. 15) of translation (..., 3), glTF quaternion (..., 4), scale
+    (..., 3)."""
+    rs = quaternion_xyzw_to_matrix(rotation) * scale[..., None, :]
+    top = jnp.concatenate([rs, translation[..., :, None]], axis=-1)
+    bottom = jnp.broadcast_to(jnp.asarray([0, 0, 0, 1], rs.dtype), top.shape[:-2] + (1, 4))
+    return jnp.concatenate([top, bottom], axis=-2)
+
+
+def _rotor_xyzw(q) -> Multivector:
+    return cga.quaternion_to_rotor(jnp.concatenate([q[..., 3:], q[..., :3]], axis=-1))
+
+
+def uniform_scale(scale: Float[Array, "... 3"], tolerance: float = 1e-5) -> Float[Array, "..."]:
+    """The common factor of a uniform scale (..., 3); non-uniform (relative spread > tolerance) or
+    non-positive scales raise inside jit: a dilator is a uniform scaling (eq. 12)."""
+    s = jnp.mean(scale, axis=-1)
+    spread = jnp.max(jnp.abs(scale - s[..., None]), axis=-1, initial=0.0) / jnp.abs(s)
+    s = eqx.error_if(
+        s,
+        jnp.any(spread > tolerance) | jnp.any(s <= 0),
+        "scale: non-uniform or non-positive bone scale has no versor (dilators scale uniformly); "
+        "use the matrix path (local_matrices / skin_lbs) for such rigs",
+    )
+    return s
+
+
+def trs_to_versor(translation, rotation, scale) -> Multivector:
+    """Similitude ``T R D`` of a local TRS (the multivector form of eq. 15, sec. 4.1)."""
+    return cga.similitude(_rotor_xyzw(rotation), translation, uniform_scale(scale))
+
+
+def local_matrices(skeleton: Skeleton) -> Float[Array, "b 4 4"]:
+    """Rest local matrices ``T R S`` of every bone."""
+    return trs_to_matrix(skeleton.translation, skeleton.rotation, skeleton.scale)
+
+
+def local_versors(skeleton: Skeleton) -> Multivector:
+    """Rest local similitudes of every bone, batch shape (b,)."""
+    return trs_to_versor(skeleton.translation, skeleton.rotation, skeleton.scale)
+
+
+# ---------------------------------------------------------------- forward kinematics
+def _scan_chain(parents: tuple[int, ...], local, identity, compose):
+    """Globals ``G_i = G_parent(i) * L_i`` by a scan over the bones in topological order.
+
+    ``local`` has the bone axis first: (b, *rest); ``identity`` has shape ``rest``."""
+    parents_arr = jnp.asarray(parents, jnp.int32)
+
+    def step(globals_, inputs):
+        i, parent, l_i = inputs
+        parent_global = jnp.where(parent >= 0, globals_[jnp.maximum(parent, 0)], identity)
+        g = compose(parent_global, l_i)
+        return globals_.at[i].set(g), None
+
+    init = jnp.zeros_like(local)
+    out, _ = jax.lax.scan(step, init, (jnp.arange(len(parents)), parents_arr, local))
+    return out
+
+
+def _check_bones(name: str, parents, n: int):
+    if n != len(parents):
+        raise ValueError(f"{name}: expected {len(parents)} bones on the last batch axis, got {n}")
+
+
+def forward_kinematics(parents: tuple[int, ...], local: Multivector) -> Multivector:
+    """Global bone versors ``M_i = M_parent(i) L_i`` (sec. 3, with multivectors as in sec. 4.1).
+
+    Args:
+        parents: the skeleton's parents (topological order, -1 for roots).
+        local: local versors (motors or similitudes), batch shape (..., b).
+    Returns:
+        global versors with the same blades and batch shape (similitudes when ``local`` is)."""
+    if not isinstance(local, Multivector) or not local.batch_shape:
+        raise ValueError("local: expected a Multivector with batch shape (..., b)")
+    _check_bones("local", parents, local.batch_shape[-1])
+    blades = local.blades
+    values = jnp.moveaxis(local.values, -2, 0)
+    identity = Multivector(jnp.ones((1,), values.dtype), KINDS["scalar"]).embed(blades).values
+
+    def compose(a, b):
+        return (Multivector(a, blades) * Multivector(b, blades)).embed(blades).values
+
+    return Multivector(jnp.moveaxis(_scan_chain(parents, values, identity, compose), 0, -2), blades)
+
+
+def forward_kinematics_matrices(parents: tuple[int, ...], local: Float[Array, "... b 4 4"]) -> Float[Array, "... b 4 4"]:
+    """Global bone matrices ``T_i = T_parent(i) t_i`` (sec. 3)."""
+    local = jnp.asarray(local)
+    if local.ndim < 3 or local.shape[-2:] != (4, 4):
+        raise ValueError(f"local: expected shape (..., b, 4, 4), got {local.shape}")
+    _check_bones("local", parents, local.shape[-3])
+    values = jnp.moveaxis(local, -3, 0)
+    out = _scan_chain(parents, values, jnp.eye(4, dtype=local.dtype), jnp.matmul)
+    return jnp.moveaxis(out, 0, -3)
+
+
+def joint_matrices(mesh: SkinnedMesh, global_matrices: Float[Array, "... b 4 4"]) -> Float[Array, "... j 4 4"]:
+    """glTF joint matrices ``global(bone of joint) @ inverse_bind`` (the ``T_n,k O_n`` of eq. 16)."""
+    return global_matrices[..., jnp.asarray(mesh.joints, jnp.int32), :, :] @ mesh.inverse_bind
+
+
+def inverse_bind_versors(mesh: SkinnedMesh) -> Multivector:
+    """The inverse-bind versors ``B_n`` of eq. (17), from the inverse bind matrices."""
+    return cga.matrix_to_similitude(mesh.inverse_bind)
+
+
+def joint_versors(mesh: SkinnedMesh, global_versors: Multivector) -> Multivector:
+    """Joint versors ``M_n,k B_n`` of eq. (17), batch shape (..., j)."""
+    bones = global_versors[..., jnp.asarray(mesh.joints, jnp.int32)]
+    return (bones * inverse_bind_versors(mesh)).embed(_SIMILITUDE)
+
+
+# ---------------------------------------------------------------- sampling a clip
+def _locate(times, t):
+    """Key interval index k and fraction alpha of time t (clamped to the key range)."""
+    k_max = times.shape[0] - 1
+    if k_max == 0:
+        return jnp.zeros((), jnp.int32), jnp.zeros((), times.dtype)
+    t = jnp.clip(jnp.asarray(t, times.dtype), times[0], times[-1])
+    k = jnp.clip(jnp.searchsorted(times, t, side="right") - 1, 0, k_max - 1)
+    alpha = (t - times[k]) / (times[k + 1] - times[k])
+    return k, alpha
+
+
+def _slerp(a, b, alpha):
+    """glTF slerp of unit quaternions along the shortest arc (lerp + normalize when nearly equal)."""
+    d = jnp.sum(a * b, axis=-1)
+    b = jnp.where(d < 0, -b, b)
+    d = jnp.abs(d)
+    near = d > 0.9995
+    theta = jnp.arccos(jnp.where(near, 0.5, jnp.minimum(d, 1.0)))
+    sin_theta = jnp.sin(theta)
+    wa = jnp.where(near, 1 - alpha, jnp.sin((1 - alpha) * theta) / sin_theta)
+    wb = jnp.where(near, alpha, jnp.sin(alpha * theta) / sin_theta)
+    q = wa * a + wb * b
+    return q / jnp.linalg.norm(q, axis=-1, keepdims=True)
+
+
+def _hermite(channel: Channel, k, alpha):
+    """CUBICSPLINE: p = (2s^3-3s^2+1) v_k + td (s^3-2s^2+s) b_k + (-2s^3+3s^2) v_k+1 + td (s^3-s^2) a_k+1."""
+    v = channel.values
+    if v.shape[0] == 1:
+        return v[0, 1]
+    td = channel.times[k + 1] - channel.times[k]
+    s, s2, s3 = alpha, alpha**2, alpha**3
+    return (
+        (2 * s3 - 3 * s2 + 1) * v[k, 1]
+        + td * (s3 - 2 * s2 + s) * v[k, 2]
+        + (-2 * s3 + 3 * s2) * v[k + 1, 1]
+        + td * (s3 - s2) * v[k + 1, 0]
+    )
+
+
+def sample_channel(channel: Channel, t) -> Float[Array, " d"]:
+    """Value of one channel at time t per the glTF specification."""
+    k, alpha = _locate(channel.times, t)
+    if channel.interpolation == "CUBICSPLINE":
+        value = _hermite(channel, k, alpha)
+        return value / jnp.linalg.norm(value) if channel.path == "rotation" else value
+    v = channel.values
+    if channel.interpolation == "STEP" or v.shape[0] == 1:
+        return v[jnp.where(alpha >= 1, k + 1, k)] if v.shape[0] > 1 else v[0]
+    if channel.path == "rotation":
+        return _slerp(v[k], v[k + 1], alpha)
+    return (1 - alpha) * v[k] + alpha * v[k + 1]
+
+
+def sample_trs(skeleton: Skeleton, clip: AnimationClip, t):
+    """Local TRS of every bone at time t per the glTF specification (unanimated properties keep
+    the rest value). Returns translation (b, 3), rotation (b, 4) in (x, y, z, w), scale (b, 3)."""
+    trs = {"translation": skeleton.translation, "rotation": skeleton.rotation, "scale": skeleton.scale}
+    for channel in clip.channels:
+        value = sample_channel(channel, t).astype(trs[channel.path].dtype)
+        trs[channel.path] = trs[channel.path].at[channel.bone].set(value)
+    return trs["translation"], trs["rotation"], trs["scale"]
+
+
+def sample_matrices(skeleton: Skeleton, clip: AnimationClip, t) -> Float[Array, "b 4 4"]:
+    """Local matrices ``T R S`` (eq. 15) of every bone at time t (specification sampling)."""
+    return trs_to_matrix(*sample_trs(skeleton, clip, t))
+
+
+def _key_versors(path: str, values) -> Multivector:
+    if path == "translation":
+        return cga.translator(values)
+    if path == "rotation":
+        return _rotor_xyzw(values)
+    return cga.dilator(uniform_scale(values))
+
+
+def _blend_keys(path: str, values, k, alpha) -> Multivector:
+    a, b = values[k], values[k + 1]
+    if path == "rotation":
+        # Shortest arc, as the specification's slerp: q and -q are the same rotation.
+        b = jnp.where(jnp.sum(a * b) < 0, -b, b)
+    return cga.blend_log(_key_versors(path, a), _key_versors(path, b), alpha)
+
+
+def sample_versors(skeleton: Skeleton, clip: AnimationClip, t) -> Multivector:
+    """Local similitudes ``T R D`` of every bone at time t, keys blended logarithmically (sec. 2.5,
+    4.1). Batch shape (b,)."""
+    translation, rotation, scale = skeleton.translation, skeleton.rotation, skeleton.scale
+    parts = {
+        "translation": cga.translator(translation).values,
+        "rotation": _rotor_xyzw(rotation).values,
+        "scale": cga.dilator(uniform_scale(scale)).values,
+    }
+    blades = {"translation": KINDS["translator"], "rotation": KINDS["rotor"], "scale": KINDS["dilator"]}
+    for channel in clip.channels:
+        k, alpha = _locate(channel.times, t)
+        if channel.interpolation == "CUBICSPLINE":
+            versor = _key_versors(channel.path, sample_channel(channel, t))
+        elif channel.interpolation == "STEP" or channel.values.shape[0] == 1:
+            versor = _key_versors(channel.path, sample_channel(channel, t))
+        else:
+            versor = _blend_keys(channel.path, channel.values, k, alpha)
+        versor = versor.embed(blades[channel.path])
+        parts[channel.path] = parts[channel.path].at[channel.bone].set(versor.values.astype(parts[channel.path].dtype))
+    t_, r_, d_ = (Multivector(parts[p], blades[p]) for p in ("translation", "rotation", "scale"))
+    return (t_ * r_ * d_).embed(_SIMILITUDE)
+
+
+# ---------------------------------------------------------------- user keyframes
+class Keyframes(eqx.Module):
+    """User-made keyframes: local versors of every bone at increasing times, blended linearly and
+    renormalized between keys (sec. 2.5: the paper's choice for frames generated on the fly).
+
+    Attributes:
+        times: (K,) strictly increasing times.
+        poses: local similitudes, batch shape (K, b).
+    """
+
+    times: Float[Array, " K"]
+    poses: Multivector
+
+    def __check_init__(self):
+        if not isinstance(self.poses, Multivector) or len(self.poses.batch_shape) != 2:
+            raise ValueError("poses: expected a Multivector with batch shape (K, b)")
+        if jnp.shape(self.times) != self.poses.batch_shape[:1]:
+            raise ValueError(f"times: expected shape ({self.poses.batch_shape[0]},), got {jnp.shape(self.times)}")
+
+
+def sample_keyframes(keyframes: Keyframes, t) -> Multivector:
+    """Local versors at time t: linear blending of the two surrounding keys, renormalized."""
+    poses = keyframes.poses.embed(_SIMILITUDE)
+    k, alpha = _locate(keyframes.times, t)
+    if keyframes.times.shape[0] == 1:
+        return poses[0]
+    a, b = poses[k], poses[k + 1]
+    # Align each bone's key with the previous one (V and -V are the same transformation).
+    dot = jnp.sum(a.values * b.values, axis=-1, keepdims=True)
+    b = Multivector(jnp.where(dot < 0, -b.values, b.values), b.blades)
+    return cga.blend_linear(a, b, alpha)

@@ -1,0 +1,103 @@
+"""An independent reference for glTF 2.0 skinning, written from the specification in plain numpy and
+scipy (no code shared with ``deform``): accessors, node transforms, sampler interpolation, joint
+matrices ``global(joint) @ inverseBindMatrix`` and linear blend skinning in world space."""
+
+from __future__ import annotations
+
+import numpy as np
+import pygltflib
+from scipy.spatial.transform import Rotation, Slerp
+
+_COMPONENTS = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 5125: np.uint32, 5126: np.float32}
+_WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT4": 16}
+
+
+class Reference:
+    def __init__(self, path):
+        self.gltf = pygltflib.GLTF2().load(str(path))
+        self.blob = self.gltf.binary_blob()
+
+    def accessor(self, index):
+        acc = self.gltf.accessors[index]
+        view = self.gltf.bufferViews[acc.bufferView]
+        dtype = np.dtype(_COMPONENTS[acc.componentType])
+        width = _WIDTH[acc.type]
+        start = (view.byteOffset or 0) + (acc.byteOffset or 0)
+        stride = view.byteStride or dtype.itemsize * width
+        rows = [np.frombuffer(self.blob, dtype, width, start + i * stride) for i in range(acc.count)]
+        out = np.array(rows, dtype=np.float64 if dtype == np.float32 else dtype)
+        if acc.normalized:
+            out = np.maximum(out / np.iinfo(dtype).max, -1.0)
+        return out
+
+    def local(self, i, overrides=None):
+        node = self.gltf.nodes[i]
+        if node.matrix is not None:
+            return np.array(node.matrix, dtype=np.float64).reshape(4, 4).T
+        t = np.array(node.translation or [0, 0, 0], float)
+        r = np.array(node.rotation or [0, 0, 0, 1], float)
+        s = np.array(node.scale or [1, 1, 1], float)
+        if overrides:
+            t = overrides.get((i, "translation"), t)
+            r = overrides.get((i, "rotation"), r)
+            s = overrides.get((i, "scale"), s)
+        m = np.eye(4)
+        m[:3, :3] = Rotation.from_quat(r).as_matrix() * s
+        m[:3, 3] = t
+        return m
+
+    def globals(self, overrides=None):
+        parent = {c: p for p, n in enumerate(self.gltf.nodes) for c in (n.children or [])}
+        out = {}
+
+        def glob(i):
+            if i not in out:
+                m = self.local(i, overrides)
+                out[i] = glob(parent[i]) @ m if i in parent else m
+            return out[i]
+
+        for i in range(len(self.gltf.nodes)):
+            glob(i)
+        return out
+
+    def sample(self, animation, t):
+        overrides = {}
+        anim = self.gltf.animations[animation]
+        for ch in anim.channels:
+            if ch.target.path not in ("translation", "rotation", "scale"):
+                continue
+            sampler = anim.samplers[ch.sampler]
+            times = self.accessor(sampler.input).ravel()
+            values = self.accessor(sampler.output)
+            tc = np.clip(t, times[0], times[-1])
+            k = int(np.clip(np.searchsorted(times, tc, side="right") - 1, 0, max(len(times) - 2, 0)))
+            if len(times) == 1:
+                v = values[0]
+            elif sampler.interpolation == "STEP":
+                v = values[k + 1] if tc >= times[k + 1] else values[k]
+            elif ch.target.path == "rotation":
+                v = Slerp(times[k:k + 2], Rotation.from_quat(values[k:k + 2]))([tc]).as_quat()[0]
+            else:
+                a = (tc - times[k]) / (times[k + 1] - times[k])
+                v = (1 - a) * values[k] + a * values[k + 1]
+            overrides[(ch.target.node, ch.target.path)] = v
+        return overrides
+
+    def skin(self, animation=None, t=0.0):
+        """World-space skinned positions of every skinned primitive, concatenated in node order."""
+        overrides = self.sample(animation, t) if animation is not None else None
+        g = self.globals(overrides)
+        out = []
+        for node in self.gltf.nodes:
+            if node.mesh is None or node.skin is None:
+                continue
+            skin = self.gltf.skins[node.skin]
+            ibm = self.accessor(skin.inverseBindMatrices).reshape(-1, 4, 4).transpose(0, 2, 1)
+            joint = np.stack([g[j] @ ibm[k] for k, j in enumerate(skin.joints)])
+            for prim in self.gltf.meshes[node.mesh].primitives:
+                v = self.accessor(prim.attributes.POSITION)
+                j = self.accessor(prim.attributes.JOINTS_0).astype(int)
+                w = self.accessor(prim.attributes.WEIGHTS_0)
+                blended = np.einsum("nk,nkij->nij", w, joint[j])
+                out.append(np.einsum("nij,nj->ni", blended[:, :3, :3], v) + blended[:, :3, 3])
+        return np.concatenate(out)
