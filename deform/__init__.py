@@ -8,6 +8,7 @@ clip sampling, keyframes; eq. 15), ``_skinning`` (eq. 16, eq. 17 in both variant
 (model-level posing, batches over devices), ``_fitting`` (poses from target positions).
 """
 
+from deform._default_arm import default_arm
 from deform._fitting import (
     PARAMETERS_PER_BONE,
     SOLVERS,
@@ -53,6 +54,7 @@ __all__ = [
     "Skeleton",
     "SkinnedMesh",
     "bounding_diagonal",
+    "default_arm",
     "fit_pose",
     "forward_kinematics",
     "forward_kinematics_matrices",

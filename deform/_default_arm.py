@@ -125,15 +125,16 @@ def default_arm(*, ring_vertices: int = 24, rings_per_unit: float = 150.0, dtype
     * ``hand`` (wrist, 0.18 m, finger-less, rest extension 10 degrees up about its local z).
 
     Mesh: a closed, watertight, outward-oriented triangle tube around the chain, from a rounded shoulder cap
-    (pole at x = -0.05) to a rounded fingertip; half-radii about 0.05 at the shoulder, 0.04 at the elbow,
-    0.03 at the wrist, and a flat hand (0.013 thick, 0.041 wide, half sizes). Default 3266 vertices and
-    6528 faces. Vertices are in the rest pose, which is the bind pose. Skin weights blend neighbouring bones
-    with a smoothstep over +-0.04 m (shoulder joint, wrist) and +-0.05 m (elbow) along the chain: at most
-    two influences per vertex, unused slots weight 0 with joint 0; all four bones are joints.
+    (pole at x = -0.05) to a rounded fingertip at x = 0.79: radius about 0.05 at the shoulder, 0.04 at the
+    elbow, 0.03 at the wrist, and a flat hand (half thickness 0.013, half width 0.041). Default 3266 vertices
+    and 6528 faces (``2 + rings * ring_vertices`` and ``2 * rings * ring_vertices``). Vertices are in the
+    rest pose, which is the bind pose. Skin weights blend neighbouring bones with a smoothstep over +-0.04 m
+    (shoulder joint, wrist) and +-0.05 m (elbow) along the chain: at most two influences per vertex, unused
+    slots weight 0 with joint 0; all four bones are joints.
 
     Clip ``"wave"`` (2 s, 9 LINEAR keys every 0.25 s, rigid only, no scale): a 2 cm shoulder shrug
-    (root translation) and a 45 degree arm raise (upper_arm about local z) and an extra 100 degree elbow
-    flexion (forearm about local x), all 0 -> max -> 0 as sin^2; a wrist twist of +-40 degrees about the
+    (root translation), a 45 degree arm raise (upper_arm about local z) and an extra 100 degree elbow
+    flexion (forearm about local x), all 0 -> max (t = 1 s) -> 0 as sin^2; and a wrist twist of +-40 degrees about the
     hand's axis (a full sine period).
 
     Args:

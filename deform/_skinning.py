@@ -7,11 +7,14 @@ transforms (poses).
 
 * ``skin_lbs``: ``V_k[m] = sum_n w_mn T_n,k O_n v[m]`` (eq. 16, G = identity).
 * ``skin_cga``: ``C_k[m] = sum_n w_mn (M_n,k B_n) c[m] (M_n,k B_n)^-1`` (eq. 17), then down-projected.
-  The sum of conformal points with weights summing to one has eo-coefficient 1 and Euclidean part
-  ``sum_n w_mn x_n``, so eq. (17) is the weighted sum of the sandwiched points. A sandwich by one fixed
-  versor is an affine map of the point, generated from the versor's components by the kernel
-  (``jaxcga.versor_to_matrix``); it is built once per joint and the per-vertex sum uses it, which is
-  eq. (17) evaluated without repeating each joint's work at every vertex.
+  A sandwich by one fixed versor is a linear map of the conformal point (x, 1), generated from the
+  versor's components by the kernel (``jaxcga.versor_to_matrix(..., normalized=False)``); it is built
+  once per joint, and the per-vertex sum of eq. (17) adds the mapped points. The sandwich of a point by
+  a normalized similitude of scale s is the point scaled by ``lambda = 1/s``
+  (``D up(x) D^-1 = up(s x) / s``), so the down-projection of the sum,
+  ``sum_n w_mn lambda_n x_n / sum_n w_mn lambda_n``, weighs each influence by the inverse of its
+  dilation. With rigid joints, or equal dilations, that is LBS with the same transforms;
+  ``normalize_points=True`` normalizes each sandwiched point first, which is LBS in every case.
 * ``skin_cga_motor_blend``: blend the versors first, normalized, like DQS: each joint similitude is
   factored as a motor times a dilator about the origin, ``M_n D(s_n)``; per vertex the motors are
   blended (signs aligned with the first influence) and normalized, the scales are blended in log
@@ -42,10 +45,14 @@ def _check_mesh(V, J, W):
     return V, J, W
 
 
-def _blend_affine(V, J, W, maps: Float[Array, "... j 3 4"]) -> Float[Array, "... n 3"]:
-    """``sum_k W[:, k] * (maps[J[:, k]] @ [V, 1])`` for every vertex; batch axes lead ``maps``."""
+def _blend_affine(V, J, W, maps: Float[Array, "... j r 4"]) -> Float[Array, "... n 3"]:
+    """``sum_k W[:, k] * (maps[J[:, k]] @ [V, 1])`` for every vertex; batch axes lead ``maps``. With
+    4-row maps the result is down-projected: divided by the blended last coordinate."""
     blended = jnp.einsum("nk,...nkij->...nij", W.astype(maps.dtype), maps[..., J, :, :])
-    return jnp.einsum("...nij,nj->...ni", blended[..., :3], V.astype(maps.dtype)) + blended[..., 3]
+    out = jnp.einsum("...nij,nj->...ni", blended[..., :3], V.astype(maps.dtype)) + blended[..., 3]
+    if maps.shape[-2] == 3:
+        return out
+    return out[..., :3] / out[..., 3:]
 
 
 def skin_lbs(V, J, W, joint_matrices: Float[Array, "... j 4 4"]) -> Float[Array, "... n 3"]:
@@ -72,17 +79,22 @@ def _check_versors(name: str, versors):
         raise ValueError(f"{name}: expected motors or similitudes, got blades {versors.names}")
 
 
-def skin_cga(V, J, W, joint_versors: Multivector) -> Float[Array, "... n 3"]:
+def skin_cga(V, J, W, joint_versors: Multivector, normalize_points: bool = False) -> Float[Array, "... n 3"]:
     """Multivector skinning, eq. (17): blend after the sandwich, with per-bone dilation.
 
     Args:
         V, J, W: as in ``skin_lbs``.
         joint_versors: motors or similitudes ``M_n,k B_n``, batch shape (..., j).
+        normalize_points: normalize every sandwiched conformal point (eo-coefficient 1) before the
+            weighted sum; False is the paper's eq. (17) as written (see the module docstring).
     Returns:
-        (..., n, 3) skinned positions (down-projected conformal points)."""
+        (..., n, 3) skinned positions (the down-projected sum of conformal points)."""
     V, J, W = _check_mesh(V, J, W)
     _check_versors("joint_versors", joint_versors)
-    return _blend_affine(V, J, W, cga.versor_to_matrix(joint_versors)[..., :3, :])
+    if normalize_points:
+        return _blend_affine(V, J, W, cga.versor_to_matrix(joint_versors)[..., :3, :])
+    maps = cga.versor_to_matrix(joint_versors, normalized=False)
+    return _blend_affine(V, J, W, maps)
 
 
 def _motor_and_log_scale(versors: Multivector):

@@ -171,15 +171,22 @@ def apply_to_points(v: Multivector, x: Float[Array, "... 3"]) -> Float[Array, ".
     return jnp.moveaxis(out, 0, -1)
 
 
-def versor_to_matrix(v: Multivector) -> Float[Array, "... 4 4"]:
+def versor_to_matrix(v: Multivector, normalized: bool = True) -> Float[Array, "... 4 4"]:
     """Homogeneous 4x4 matrix of a motor or similitude (V must be a versor: the |x|^2 column of its
-    sandwich then vanishes)."""
+    sandwich then vanishes).
+
+    With ``normalized=False`` the matrix is the sandwich's own linear map on (x, 1): its last row is
+    (0, 0, 0, lambda), lambda the eo-coefficient of ``V up(x) V^-1`` (1 / scale for a normalized
+    similitude, 1 for a motor), and the top rows are lambda times those of the normalized matrix."""
     a = _map_entries(v)
     zero = jnp.zeros(v.batch_shape, v.dtype)
     w = a[(3, 3)]
-    rows = [[a.get((r, c), zero) / w for c in range(4)] for r in range(3)]
-    one = jnp.ones(v.batch_shape, v.dtype)
-    rows.append([zero, zero, zero, one])
+    if normalized:
+        rows = [[a.get((r, c), zero) / w for c in range(4)] for r in range(3)]
+        rows.append([zero, zero, zero, jnp.ones(v.batch_shape, v.dtype)])
+    else:
+        rows = [[a.get((r, c), zero) for c in range(4)] for r in range(3)]
+        rows.append([zero, zero, zero, w])
     return jnp.stack([jnp.stack(r, axis=-1) for r in rows], axis=-2)
 
 

@@ -1,0 +1,696 @@
+"""Rigged-model I/O: glTF 2.0 reading and writing, FBX / COLLADA through assimp, vertex welding.
+
+Semantics are those of the glTF 2.0 specification (sections "Concepts", "Binary Data Storage",
+"Skins", "Animations", "GLB File Format Specification"):
+
+* accessors are read with numpy over their buffer views (``byteOffset``, ``byteStride``,
+  ``componentType``, ``type``, ``count``); ``normalized`` integers are dequantized as the spec says
+  (``max(c / 127, -1)`` for BYTE, ``c / 255`` for UNSIGNED_BYTE, ``max(c / 32767, -1)`` for SHORT,
+  ``c / 65535`` for UNSIGNED_SHORT); sparse accessors are applied on top of their base data;
+* matrices are column-major in the file and row-major (``M @ [x, 1]``) in memory; a node's local
+  transform is ``T * R * S`` or its ``matrix``, which is decomposed into T, R, S (a shear is an error);
+* the skeleton is every joint of every skin that a skinned mesh node uses, plus all their ancestors,
+  in depth-first order from the scene roots (children in the order the file lists them);
+* a skinned vertex is ``sum_k W[:, k] * global(bone) @ inverse_bind @ [V, 1]``: the transform of the
+  node that holds the mesh is ignored, so meshes are read in their own space;
+* animation channels on nodes outside the skeleton and morph-target ``weights`` channels are dropped.
+
+Images, materials, normals, texture coordinates, morph targets and cameras are not read. FBX,
+COLLADA and every other format assimp imports are converted to GLB by the ``assimp`` command-line
+tool (Debian package ``assimp-utils``) first. Everything here runs on the host with numpy.
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import shutil
+import struct
+import subprocess
+import tempfile
+import urllib.parse
+from pathlib import Path
+
+import jax.numpy as jnp
+import numpy as np
+from scipy.spatial.transform import Rotation
+from trimesh import grouping
+
+from deform._model import INTERPOLATIONS, PATHS, AnimationClip, Channel, RiggedModel, Skeleton, SkinnedMesh
+
+_GLB_MAGIC = b"glTF"
+_CHUNK_JSON = 0x4E4F534A
+_CHUNK_BIN = 0x004E4942
+_FLOAT, _UINT, _USHORT = 5126, 5125, 5123
+_COMPONENT = {5120: "<i1", 5121: "<u1", 5122: "<i2", 5123: "<u2", 5125: "<u4", 5126: "<f4"}
+_NORMALIZER = {5120: 127.0, 5121: 255.0, 5122: 32767.0, 5123: 65535.0}
+_WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
+_MODES = {0: "POINTS", 1: "LINES", 2: "LINE_LOOP", 3: "LINE_STRIP", 4: "TRIANGLES", 5: "TRIANGLE_STRIP", 6: "TRIANGLE_FAN"}
+_ARRAY_BUFFER, _ELEMENT_ARRAY_BUFFER = 34962, 34963
+# Extensions whose geometry lives outside plain accessors.
+_UNSUPPORTED_EXTENSIONS = {"KHR_draco_mesh_compression", "EXT_meshopt_compression"}
+# Float32 data: columns of a rotation-times-scale matrix are orthogonal to about 1e-7; a shear is far larger.
+_SHEAR_TOLERANCE = 1e-5
+_WEIGHT_TOLERANCE = 1e-2
+
+
+def _float_array(x) -> jnp.ndarray:
+    return jnp.asarray(x, dtype=jnp.result_type(float))
+
+
+def _int_array(x) -> jnp.ndarray:
+    return jnp.asarray(x, dtype=jnp.int32)
+
+
+# ----------------------------------------------------------------------------------------------- reading
+
+
+class _Document:
+    """A parsed glTF: its JSON, its buffers (loaded lazily) and the file name used in error messages."""
+
+    def __init__(self, path: Path, source: str):
+        self.source = source
+        self.base = path.parent
+        self.glb_bin = None
+        raw = path.read_bytes()
+        if raw[:4] == _GLB_MAGIC:
+            self.json = self._parse_glb(raw)
+        else:
+            try:
+                self.json = json.loads(raw.decode("utf-8"))
+            except (UnicodeDecodeError, json.JSONDecodeError) as e:
+                raise ValueError(f"{source}: not a glTF 2.0 file (neither GLB nor glTF JSON): {e}") from None
+        if not isinstance(self.json, dict) or not str(self.json.get("asset", {}).get("version", "")).startswith("2."):
+            raise ValueError(f"{source}: not a glTF 2.0 file (asset.version must be '2.x')")
+        unsupported = _UNSUPPORTED_EXTENSIONS & set(self.json.get("extensionsRequired", ()))
+        if unsupported:
+            raise ValueError(f"{source}: required extensions {sorted(unsupported)} are not supported (compressed geometry)")
+        self._buffers = {}
+
+    def _parse_glb(self, raw: bytes) -> dict:
+        if len(raw) < 20:
+            raise ValueError(f"{self.source}: truncated GLB file ({len(raw)} bytes)")
+        _, version, length = struct.unpack_from("<4sII", raw, 0)
+        if version != 2:
+            raise ValueError(f"{self.source}: GLB container version {version}, expected 2")
+        if length > len(raw):
+            raise ValueError(f"{self.source}: truncated GLB file (header says {length} bytes, file has {len(raw)})")
+        doc, offset = None, 12
+        while offset + 8 <= length:
+            size, kind = struct.unpack_from("<II", raw, offset)
+            chunk = raw[offset + 8 : offset + 8 + size]
+            if len(chunk) != size:
+                raise ValueError(f"{self.source}: truncated GLB chunk at byte {offset}")
+            if doc is None:
+                if kind != _CHUNK_JSON:
+                    raise ValueError(f"{self.source}: the first GLB chunk must be JSON")
+                try:
+                    doc = json.loads(chunk.decode("utf-8"))
+                except (UnicodeDecodeError, json.JSONDecodeError) as e:
+                    raise ValueError(f"{self.source}: malformed GLB JSON chunk: {e}") from None
+            elif kind == _CHUNK_BIN and self.glb_bin is None:
+                self.glb_bin = chunk
+            offset += 8 + size
+        if doc is None:
+            raise ValueError(f"{self.source}: GLB file without a JSON chunk")
+        return doc
+
+    def item(self, kind: str, index, what: str) -> dict:
+        items = self.json.get(kind, [])
+        if not isinstance(index, int) or not 0 <= index < len(items):
+            raise ValueError(f"{self.source}: {what} refers to {kind}[{index}], the file has {len(items)} {kind}")
+        return items[index]
+
+    def buffer(self, index: int) -> bytes:
+        if index not in self._buffers:
+            spec = self.item("buffers", index, "a buffer view")
+            uri = spec.get("uri")
+            if uri is None:
+                if index != 0 or self.glb_bin is None:
+                    raise ValueError(f"{self.source}: buffer {index} has no uri and there is no GLB binary chunk")
+                data = self.glb_bin
+            elif uri.startswith("data:"):
+                header, _, payload = uri.partition(",")
+                data = base64.b64decode(payload) if header.endswith(";base64") else urllib.parse.unquote_to_bytes(payload)
+            else:
+                file = self.base / urllib.parse.unquote(uri)
+                if not file.is_file():
+                    raise FileNotFoundError(f"{self.source}: buffer {index} refers to {uri!r}, no such file {file}")
+                data = file.read_bytes()
+            if len(data) < spec.get("byteLength", 0):
+                raise ValueError(f"{self.source}: buffer {index} holds {len(data)} bytes, byteLength says {spec['byteLength']}")
+            self._buffers[index] = data
+        return self._buffers[index]
+
+    def _view(self, view_index, offset: int, count: int, width: int, dtype: np.dtype, what: str) -> np.ndarray:
+        view = self.item("bufferViews", view_index, what)
+        data = self.buffer(view.get("buffer"))
+        start, length = view.get("byteOffset", 0), view["byteLength"]
+        element = dtype.itemsize * width
+        stride = view.get("byteStride") or element
+        if start + length > len(data):
+            raise ValueError(f"{self.source}: buffer view {view_index} ends past its buffer ({start + length} > {len(data)})")
+        if count and offset + stride * (count - 1) + element > length:
+            raise ValueError(f"{self.source}: {what} reads past the end of buffer view {view_index}")
+        strided = np.ndarray((count, width), dtype, buffer=data, offset=start + offset, strides=(stride, dtype.itemsize))
+        return strided.copy()
+
+    def accessor(self, index, what: str, types: tuple[str, ...], components: tuple[int, ...]) -> np.ndarray:
+        """Accessor ``index`` as a (count, width) array: float64 when ``_FLOAT`` is allowed, else int64."""
+        acc = self.item("accessors", index, what)
+        ctype, kind = acc.get("componentType"), acc.get("type")
+        if kind not in types or ctype not in components:
+            raise ValueError(
+                f"{self.source}: {what} (accessor {index}) must have type {' or '.join(types)} and componentType in "
+                f"{list(components)}, got {kind} / {ctype}"
+            )
+        count, width, dtype = acc["count"], _WIDTH[kind], np.dtype(_COMPONENT[ctype])
+        if "bufferView" in acc:
+            out = self._view(acc["bufferView"], acc.get("byteOffset", 0), count, width, dtype, what)
+        else:
+            out = np.zeros((count, width), dtype)
+        sparse = acc.get("sparse")
+        if sparse:
+            n, ind, val = sparse["count"], sparse["indices"], sparse["values"]
+            if ind.get("componentType") not in (5121, 5123, 5125):
+                raise ValueError(f"{self.source}: {what} (accessor {index}) has sparse indices of an invalid componentType")
+            idx = self._view(ind["bufferView"], ind.get("byteOffset", 0), n, 1, np.dtype(_COMPONENT[ind["componentType"]]), what)
+            values = self._view(val["bufferView"], val.get("byteOffset", 0), n, width, dtype, what)
+            if n and idx.max() >= count:
+                raise ValueError(f"{self.source}: {what} (accessor {index}) has a sparse index past its count {count}")
+            out[idx[:, 0]] = values
+        if _FLOAT not in components:
+            return out.astype(np.int64)
+        if acc.get("normalized", False) and ctype in _NORMALIZER:
+            return np.maximum(out / _NORMALIZER[ctype], -1.0)
+        return out.astype(np.float64)
+
+
+_FLOATS = (_FLOAT, 5120, 5121, 5122, 5123)  # float, or quantized integers (KHR_mesh_quantization)
+
+
+def _decompose(matrix: np.ndarray, where: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Translation, unit quaternion (x, y, z, w) and scale of an affine 4x4 matrix ``T * R * S``."""
+    if np.abs(matrix[3] - (0.0, 0.0, 0.0, 1.0)).max() > 1e-6:
+        raise ValueError(f"{where}: matrix is not affine (last row {matrix[3].tolist()}, expected [0, 0, 0, 1])")
+    linear = matrix[:3, :3]
+    scale = np.linalg.norm(linear, axis=0)
+    if scale.min() <= 1e-12 * max(1.0, scale.max()):
+        raise ValueError(f"{where}: matrix has a zero scale and cannot be decomposed into T * R * S")
+    if np.linalg.det(linear) < 0:
+        scale[0] = -scale[0]  # a reflection becomes a negative x scale, as in three.js
+    rotation = linear / scale
+    error = np.abs(rotation.T @ rotation - np.eye(3)).max()
+    if error > _SHEAR_TOLERANCE:
+        raise ValueError(f"{where}: matrix has a shear (columns {error:.2g} from orthogonal) and is not T * R * S")
+    return matrix[:3, 3].copy(), Rotation.from_matrix(rotation).as_quat(), scale
+
+
+def _node_trs(node: dict, where: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    has_trs = any(k in node for k in ("translation", "rotation", "scale"))
+    if "matrix" in node:
+        matrix = np.asarray(node["matrix"], dtype=np.float64)
+        if matrix.shape != (16,):
+            raise ValueError(f"{where}: matrix must have 16 numbers, got {matrix.shape}")
+        matrix = matrix.reshape(4, 4).T  # column-major in the file
+        if not has_trs:
+            return _decompose(matrix, where)
+        if not np.array_equal(matrix, np.eye(4)):
+            raise ValueError(f"{where}: node has both a matrix and translation/rotation/scale")
+    t = np.asarray(node.get("translation", (0.0, 0.0, 0.0)), dtype=np.float64)
+    r = np.asarray(node.get("rotation", (0.0, 0.0, 0.0, 1.0)), dtype=np.float64)
+    s = np.asarray(node.get("scale", (1.0, 1.0, 1.0)), dtype=np.float64)
+    if t.shape != (3,) or r.shape != (4,) or s.shape != (3,):
+        raise ValueError(f"{where}: translation, rotation, scale must have 3, 4, 3 numbers")
+    return t, r, s
+
+
+def _unique_names(names: list[str]) -> list[str]:
+    used, out = set(), []
+    for base in names:
+        name, k = base, 0
+        while name in used:
+            k += 1
+            name = f"{base}.{k:03d}"
+        used.add(name)
+        out.append(name)
+    return out
+
+
+def _skeleton(doc: _Document, skinned: list[int]) -> tuple[Skeleton, dict[int, int]]:
+    """The skeleton of the used skins and the map node index -> bone index."""
+    src, nodes = doc.source, doc.json.get("nodes", [])
+    parent = [-1] * len(nodes)
+    for i, node in enumerate(nodes):
+        for c in node.get("children", []):
+            if not isinstance(c, int) or not 0 <= c < len(nodes) or c == i or parent[c] != -1:
+                raise ValueError(f"{src}: node {i} lists child {c}, which is not a valid node with a single parent")
+            parent[c] = i
+    needed = set()
+    for i in skinned:
+        skin = doc.item("skins", nodes[i]["skin"], f"node {i}")
+        if not skin.get("joints"):
+            raise ValueError(f"{src}: skin {nodes[i]['skin']} has no joints")
+        for j in skin["joints"]:
+            doc.item("nodes", j, f"skin {nodes[i]['skin']}")
+            while j != -1 and j not in needed:
+                needed.add(j)
+                j = parent[j]
+    scenes = doc.json.get("scenes", [])
+    scene_roots = scenes[doc.json.get("scene", 0)].get("nodes", []) if scenes else []
+    roots = [r for r in dict.fromkeys([*scene_roots, *range(len(nodes))]) if parent[r] == -1]
+    order, bone_of, stack = [], {}, [r for r in reversed(roots) if r in needed]
+    while stack:
+        i = stack.pop()
+        bone_of[i] = len(order)
+        order.append(i)
+        stack.extend(c for c in reversed(nodes[i].get("children", [])) if c in needed)
+    if len(order) != len(needed):
+        raise ValueError(f"{src}: joint nodes {sorted(needed - set(order))} are not reachable from a root (cycle)")
+    names = _unique_names([nodes[i].get("name") or f"node{i}" for i in order])
+    trs = [_node_trs(nodes[i], f"{src}: node {i} ({names[b]})") for b, i in enumerate(order)]
+    skeleton = Skeleton(
+        translation=_float_array(np.array([t for t, _, _ in trs]).reshape(-1, 3)),
+        rotation=_float_array(np.array([r for _, r, _ in trs]).reshape(-1, 4)),
+        scale=_float_array(np.array([s for _, _, s in trs]).reshape(-1, 3)),
+        parents=tuple(bone_of[parent[i]] if parent[i] != -1 else -1 for i in order),
+        names=tuple(names),
+    )
+    return skeleton, bone_of
+
+
+def _joint_table(doc: _Document, skins: list[int], bone_of: dict[int, int]):
+    """Joints (bone, inverse bind) as the union over ``skins``, and per skin its joint -> global index map."""
+    bones, matrices, index, maps = [], [], {}, {}
+    for s in skins:
+        skin = doc.json["skins"][s]
+        n = len(skin["joints"])
+        if "inverseBindMatrices" in skin:
+            ibm = doc.accessor(skin["inverseBindMatrices"], f"skin {s} inverseBindMatrices", ("MAT4",), (_FLOAT,))
+            if len(ibm) != n:
+                raise ValueError(f"{doc.source}: skin {s} has {n} joints but {len(ibm)} inverse bind matrices")
+            ibm = ibm.reshape(n, 4, 4).transpose(0, 2, 1)  # column-major in the file
+        else:
+            ibm = np.broadcast_to(np.eye(4), (n, 4, 4))
+        local = []
+        for node, matrix in zip(skin["joints"], ibm):
+            key = (bone_of[node], matrix.tobytes())
+            if key not in index:
+                index[key] = len(bones)
+                bones.append(bone_of[node])
+                matrices.append(matrix)
+            local.append(index[key])
+        maps[s] = np.asarray(local, dtype=np.int64)
+    return tuple(bones), np.asarray(matrices, dtype=np.float64).reshape(-1, 4, 4), maps
+
+
+def _primitive(doc: _Document, prim: dict, skin_joints: int, where: str):
+    """V (n, 3), F (m, 3), J (n, 4s) local joint indices, W (n, 4s) of one skinned primitive."""
+    mode = prim.get("mode", 4)
+    if mode != 4:
+        raise ValueError(f"{where}: primitive mode {mode} ({_MODES.get(mode, 'unknown')}); only TRIANGLES (4) is supported")
+    attrs = prim.get("attributes", {})
+    if "POSITION" not in attrs:
+        raise ValueError(f"{where}: primitive has no POSITION attribute")
+    V = doc.accessor(attrs["POSITION"], f"{where} POSITION", ("VEC3",), _FLOATS)
+    n = len(V)
+    if "indices" in prim:
+        F = doc.accessor(prim["indices"], f"{where} indices", ("SCALAR",), (5121, _USHORT, _UINT))[:, 0]
+    else:
+        F = np.arange(n)
+    if len(F) % 3 or (len(F) and F.max() >= n):
+        raise ValueError(f"{where}: indices must be a multiple of 3 and below the vertex count {n}")
+    sets = 0
+    while f"JOINTS_{sets}" in attrs:
+        sets += 1
+    if sets == 0 or any(f"WEIGHTS_{s}" not in attrs for s in range(sets)) or f"WEIGHTS_{sets}" in attrs:
+        raise ValueError(f"{where}: a skinned primitive needs matching JOINTS_0/WEIGHTS_0 (and _1, ...) attributes")
+    J = np.hstack([doc.accessor(attrs[f"JOINTS_{s}"], f"{where} JOINTS_{s}", ("VEC4",), (5121, _USHORT)) for s in range(sets)])
+    W = np.hstack([doc.accessor(attrs[f"WEIGHTS_{s}"], f"{where} WEIGHTS_{s}", ("VEC4",), (_FLOAT, 5121, _USHORT)) for s in range(sets)])
+    if len(J) != n or len(W) != n:
+        raise ValueError(f"{where}: JOINTS/WEIGHTS have {len(J)}/{len(W)} entries, POSITION has {n}")
+    if J.size and J.max() >= skin_joints:
+        raise ValueError(f"{where}: JOINTS index {J.max()} is past the skin's {skin_joints} joints")
+    off = np.abs(W.sum(axis=1) - 1.0)
+    if off.size and off.max() > _WEIGHT_TOLERANCE:
+        v = int(off.argmax())
+        raise ValueError(f"{where}: WEIGHTS of vertex {v} sum to {W[v].sum():.6g}; weights must sum to 1 (+-{_WEIGHT_TOLERANCE})")
+    return V, F.reshape(-1, 3), J, W
+
+
+def _mesh(doc: _Document, skinned: list[int], bone_of: dict[int, int]) -> SkinnedMesh:
+    skins = list(dict.fromkeys(doc.json["nodes"][i]["skin"] for i in skinned))
+    joints, inverse_bind, maps = _joint_table(doc, skins, bone_of)
+    parts = []
+    for i in skinned:
+        node = doc.json["nodes"][i]
+        mesh = doc.item("meshes", node["mesh"], f"node {i}")
+        n_joints = len(doc.json["skins"][node["skin"]]["joints"])
+        for p, prim in enumerate(mesh.get("primitives", [])):
+            where = f"{doc.source}: node {i} mesh {node['mesh']} ({mesh.get('name', '')}) primitive {p}"
+            V, F, J, W = _primitive(doc, prim, n_joints, where)
+            parts.append((V, F, maps[node["skin"]][J], W))
+    if not parts:
+        raise ValueError(f"{doc.source}: the skinned meshes have no primitives")
+    k = max(J.shape[1] for _, _, J, _ in parts)
+    offsets = np.cumsum([0] + [len(V) for V, _, _, _ in parts])
+    return SkinnedMesh(
+        V=_float_array(np.vstack([V for V, _, _, _ in parts])),
+        F=_int_array(np.vstack([F + o for (_, F, _, _), o in zip(parts, offsets)])),
+        J=_int_array(np.vstack([np.pad(J, ((0, 0), (0, k - J.shape[1]))) for _, _, J, _ in parts])),
+        W=_float_array(np.vstack([np.pad(W, ((0, 0), (0, k - W.shape[1]))) for _, _, _, W in parts])),
+        inverse_bind=_float_array(inverse_bind),
+        joints=joints,
+        primitive_sizes=tuple((len(V), len(F)) for V, F, _, _ in parts),
+    )
+
+
+def _clips(doc: _Document, bone_of: dict[int, int]) -> tuple[AnimationClip, ...]:
+    clips = []
+    for a, anim in enumerate(doc.json.get("animations", [])):
+        name = anim.get("name") or f"clip{a}"
+        channels, seen = [], set()
+        for c, channel in enumerate(anim.get("channels", [])):
+            target = channel.get("target", {})
+            node, path = target.get("node"), target.get("path")
+            if node not in bone_of or path not in PATHS:
+                continue
+            where = f"{doc.source}: animation {a} ({name}) channel {c}"
+            if (node, path) in seen:
+                raise ValueError(f"{where}: node {node} has two {path!r} channels in one animation")
+            seen.add((node, path))
+            sampler = anim["samplers"][channel["sampler"]]
+            interpolation = sampler.get("interpolation", "LINEAR")
+            if interpolation not in INTERPOLATIONS:
+                raise ValueError(f"{where}: interpolation {interpolation!r}, expected one of {INTERPOLATIONS}")
+            times = doc.accessor(sampler["input"], f"{where} input", ("SCALAR",), (_FLOAT,))[:, 0]
+            if len(times) == 0 or np.any(np.diff(times) <= 0):
+                raise ValueError(f"{where}: key times must be non-empty and strictly increasing")
+            d = 4 if path == "rotation" else 3
+            values = doc.accessor(sampler["output"], f"{where} output", (f"VEC{d}",), _FLOATS)
+            keys = 3 * len(times) if interpolation == "CUBICSPLINE" else len(times)
+            if len(values) != keys:
+                raise ValueError(f"{where}: {len(values)} output values for {len(times)} keys ({interpolation})")
+            if interpolation == "CUBICSPLINE":
+                values = values.reshape(len(times), 3, d)
+            channels.append(Channel(_float_array(times), _float_array(values), bone_of[node], path, interpolation))
+        clips.append(AnimationClip(tuple(channels), name=name))
+    return tuple(clips)
+
+
+def _read_model(doc: _Document, name: str) -> RiggedModel:
+    nodes = doc.json.get("nodes", [])
+    skinned = [i for i, node in enumerate(nodes) if "mesh" in node and "skin" in node]
+    if not skinned:
+        raise ValueError(f"{doc.source}: no skinned mesh (no node has both 'mesh' and 'skin'); a rigged model is expected")
+    skeleton, bone_of = _skeleton(doc, skinned)
+    return RiggedModel(mesh=_mesh(doc, skinned, bone_of), skeleton=skeleton, clips=_clips(doc, bone_of), name=name)
+
+
+def convert_with_assimp(path, out=None) -> Path:
+    """Convert a model file (FBX, COLLADA, ... anything assimp imports) to GLB with the assimp CLI.
+
+    Runs ``assimp export path out -f glb2``. Needs the ``assimp`` executable on PATH (Debian package
+    ``assimp-utils``).
+
+    Args:
+        path: str or Path, the input model file.
+        out: str or Path of the GLB to write; default ``<stem>.glb`` in a new temporary directory,
+            which the caller owns.
+
+    Returns:
+        The Path of the written GLB.
+
+    Raises:
+        FileNotFoundError: ``path`` does not exist.
+        RuntimeError: the ``assimp`` executable is not installed.
+        ValueError: assimp could not convert the file (its output is in the message).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"path: no such file {path}")
+    exe = shutil.which("assimp")
+    if exe is None:
+        raise RuntimeError(
+            f"path: reading {path.suffix or 'this'} files needs the assimp command-line tool, which is not on PATH; "
+            "install the Debian package assimp-utils (sudo apt-get install assimp-utils)"
+        )
+    out = Path(tempfile.mkdtemp(prefix="jaxcga-assimp-")) / f"{path.stem}.glb" if out is None else Path(out)
+    proc = subprocess.run([exe, "export", str(path), str(out), "-f", "glb2"], capture_output=True, text=True, errors="replace")
+    if proc.returncode != 0 or not out.is_file():
+        log = (proc.stderr + proc.stdout).strip()[-2000:]
+        raise ValueError(f"path: assimp could not convert {path} to glTF (exit code {proc.returncode}):\n{log}")
+    return out
+
+
+def load_model(path, *, weld: bool = False) -> RiggedModel:
+    """Read a rigged model: a glTF 2.0 file (``.gltf`` or ``.glb``), or FBX / COLLADA / ... through assimp.
+
+    Every node with both ``mesh`` and ``skin`` contributes its primitives, in node order, to one
+    SkinnedMesh (see ``SkinnedMesh``); k = 4 influences per vertex, 8 with JOINTS_1/WEIGHTS_1 (4 per
+    set in general; primitives with fewer sets get zero weights). Joints are the union of (bone,
+    inverse bind matrix) pairs of the skins used (identity when a skin has no inverseBindMatrices).
+    Weights are kept exactly as stored (no renormalization). The skeleton holds the joints and all
+    their ancestors; animations become AnimationClips (named from the file, else ``clip{i}``), with
+    CUBICSPLINE values of shape (k, 3, d). Float arrays are float64 under x64 (else float32), integer
+    arrays int32. Normalized integer data is dequantized. ``name`` is the file's stem.
+
+    Args:
+        path: str or Path of the model file.
+        weld: merge duplicated vertices with ``weld`` (FBX exports split vertices along UV seams).
+
+    Returns:
+        The RiggedModel.
+
+    Raises:
+        FileNotFoundError: ``path`` or a buffer file it refers to does not exist.
+        ValueError: the file is not glTF 2.0 or is malformed, has no skinned mesh, has a primitive mode
+            other than TRIANGLES, weights whose rows do not sum to 1 within 1e-2, a node matrix with a
+            shear, non-increasing key times; or assimp could not convert it.
+        RuntimeError: a non-glTF file was given and the assimp executable is not installed.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"path: no such file {path}")
+    if path.suffix.lower() in (".gltf", ".glb"):
+        model = _read_model(_Document(path, str(path)), path.stem)
+    else:
+        with tempfile.TemporaryDirectory(prefix="jaxcga-assimp-") as tmp:
+            glb = convert_with_assimp(path, Path(tmp) / "model.glb")
+            model = _read_model(_Document(glb, f"{path} (converted by assimp)"), path.stem)
+    if not weld:
+        return model
+    return RiggedModel(mesh=_weld(model.mesh), skeleton=model.skeleton, clips=model.clips, name=model.name)
+
+
+# ----------------------------------------------------------------------------------------------- welding
+
+
+def weld(mesh: SkinnedMesh, decimals: int = 8) -> SkinnedMesh:
+    """Merge vertices with the same position, joints and weights (host-side, numpy).
+
+    Rows ``[V, J, W]`` are compared after rounding to ``decimals`` digits (trimesh.grouping.unique_rows),
+    so vertices that straddle a rounding boundary stay apart; joints and weights must match in the
+    same slot order. The first vertex of each group is kept, with its exact values, in order of first
+    occurrence. F is re-indexed; faces whose corners become the same vertex are dropped (faces that
+    keep three distinct vertices are kept, even if flat). Unreferenced vertices are kept. All
+    primitives merge into one: ``primitive_sizes`` becomes ``((n', m'),)``.
+
+    Args:
+        mesh: SkinnedMesh with V (n, 3), F (m, 3), J (n, k), W (n, k).
+        decimals: number of decimal digits of the comparison.
+
+    Returns:
+        The welded SkinnedMesh, V (n', 3), F (m', 3), J (n', k), W (n', k); ``inverse_bind`` and
+        ``joints`` unchanged.
+    """
+    V, F, J, W = (np.asarray(a) for a in (mesh.V, mesh.F, mesh.J, mesh.W))
+    if V.shape[0] == 0:
+        return mesh
+    first, inverse = grouping.unique_rows(np.hstack([V, J, W]).astype(np.float64), digits=decimals, keep_order=True)
+    F = inverse[F]
+    F = F[(F[:, 0] != F[:, 1]) & (F[:, 1] != F[:, 2]) & (F[:, 0] != F[:, 2])]
+    return SkinnedMesh(
+        V=jnp.asarray(V[first]),
+        F=jnp.asarray(F, dtype=jnp.asarray(mesh.F).dtype),
+        J=jnp.asarray(J[first]),
+        W=jnp.asarray(W[first]),
+        inverse_bind=mesh.inverse_bind,
+        joints=mesh.joints,
+        primitive_sizes=((len(first), len(F)),),
+    )
+
+
+_weld = weld  # load_model's ``weld`` keyword shadows the function
+
+
+# ----------------------------------------------------------------------------------------------- writing
+
+
+class _Writer:
+    """Accumulates one binary buffer and the bufferViews / accessors that describe it."""
+
+    def __init__(self):
+        self.chunks, self.size, self.views, self.accessors = [], 0, [], []
+
+    def accessor(self, data: np.ndarray, kind: str, target: int | None = None, bounds: bool = False) -> int:
+        data = np.ascontiguousarray(data)
+        ctype = {np.dtype("<f4"): _FLOAT, np.dtype("<u4"): _UINT, np.dtype("<u2"): _USHORT}[data.dtype]
+        raw = data.tobytes()
+        view = {"buffer": 0, "byteOffset": self.size, "byteLength": len(raw)}
+        if target is not None:
+            view["target"] = target
+        self.chunks.append(raw + b"\0" * (-len(raw) % 4))  # every view starts 4-byte aligned
+        self.size += len(self.chunks[-1])
+        self.views.append(view)
+        acc = {"bufferView": len(self.views) - 1, "componentType": ctype, "count": len(data), "type": kind}
+        if bounds:
+            flat = data.reshape(len(data), -1)
+            acc["min"], acc["max"] = flat.min(axis=0).tolist(), flat.max(axis=0).tolist()
+        self.accessors.append(acc)
+        return len(self.accessors) - 1
+
+    def blob(self) -> bytes:
+        return b"".join(self.chunks)
+
+
+def _finite(name: str, x) -> np.ndarray:
+    x = np.asarray(x, dtype=np.float64)
+    if not np.all(np.isfinite(x)):
+        raise ValueError(f"{name}: contains non-finite values; cannot write glTF")
+    return x
+
+
+def _mesh_json(mesh: SkinnedMesh, writer: _Writer) -> list[dict]:
+    V = _finite("model.mesh.V", mesh.V).astype("<f4")
+    W = _finite("model.mesh.W", mesh.W).astype("<f4")
+    F, J = np.asarray(mesh.F, dtype=np.int64), np.asarray(mesh.J, dtype=np.int64)
+    n, k = len(V), J.shape[1]
+    if k == 0:
+        raise ValueError("model.mesh.J: expected at least one influence per vertex, got shape (n, 0)")
+    if F.size and (F.min() < 0 or F.max() >= n):
+        raise ValueError(f"model.mesh.F: indices must be in [0, {n})")
+    if J.size and (J.min() < 0 or J.max() >= mesh.num_joints):
+        raise ValueError(f"model.mesh.J: joint indices must be in [0, {mesh.num_joints})")
+    pad = -k % 4  # glTF stores influences in sets of 4
+    J = np.pad(J, ((0, 0), (0, pad))).astype("<u2")
+    W = np.pad(W, ((0, 0), (0, pad)))
+    primitives, v0, f0 = [], 0, 0
+    for p, (nv, nf) in enumerate(mesh.primitive_sizes or ((n, len(F)),)):
+        faces = F[f0 : f0 + nf] - v0
+        if nv == 0 or nf == 0:
+            raise ValueError(f"model.mesh.primitive_sizes: primitive {p} is empty {(nv, nf)}; glTF cannot store it")
+        if faces.min() < 0 or faces.max() >= nv:
+            raise ValueError(f"model.mesh.F: faces of primitive {p} use vertices of another primitive; set primitive_sizes=()")
+        attributes = {"POSITION": writer.accessor(V[v0 : v0 + nv], "VEC3", _ARRAY_BUFFER, bounds=True)}
+        for s in range(J.shape[1] // 4):
+            attributes[f"JOINTS_{s}"] = writer.accessor(J[v0 : v0 + nv, 4 * s : 4 * s + 4], "VEC4", _ARRAY_BUFFER)
+            attributes[f"WEIGHTS_{s}"] = writer.accessor(W[v0 : v0 + nv, 4 * s : 4 * s + 4], "VEC4", _ARRAY_BUFFER)
+        indices = writer.accessor(faces.reshape(-1).astype("<u4"), "SCALAR", _ELEMENT_ARRAY_BUFFER)
+        primitives.append({"attributes": attributes, "indices": indices, "mode": 4})
+        v0, f0 = v0 + nv, f0 + nf
+    return primitives
+
+
+def _animation_json(clip: AnimationClip, writer: _Writer) -> dict:
+    samplers, channels, inputs = [], [], {}
+    for c, channel in enumerate(clip.channels):
+        times = _finite(f"clip {clip.name!r} channel {c} times", channel.times).astype("<f4")
+        if np.any(np.diff(times) <= 0):
+            raise ValueError(f"clip {clip.name!r} channel {c}: times must be strictly increasing (in float32)")
+        values = _finite(f"clip {clip.name!r} channel {c} values", channel.values).astype("<f4")
+        d = values.shape[-1]
+        if times.tobytes() not in inputs:
+            inputs[times.tobytes()] = writer.accessor(times, "SCALAR", bounds=True)  # min/max required for inputs
+        output = writer.accessor(values.reshape(-1, d), f"VEC{d}")
+        samplers.append({"input": inputs[times.tobytes()], "output": output, "interpolation": channel.interpolation})
+        channels.append({"sampler": c, "target": {"node": channel.bone, "path": channel.path}})
+    return {"name": clip.name, "samplers": samplers, "channels": channels}
+
+
+def save_model(model: RiggedModel, path) -> None:
+    """Write a RiggedModel as glTF 2.0: ``.glb``, or ``.gltf`` with a sibling ``<stem>.bin``.
+
+    Bones become nodes 0..b-1 (name, translation, rotation, scale, children); a mesh node named
+    ``model.name`` at the scene root, without a transform, holds one mesh with one primitive per
+    ``mesh.primitive_sizes`` entry (one when empty) and the skin (``joints`` = ``mesh.joints``,
+    ``inverseBindMatrices``). Attributes: POSITION (float, with min/max), indices (UNSIGNED_INT),
+    JOINTS_s (UNSIGNED_SHORT) and WEIGHTS_s (FLOAT), one set per 4 influences (k is padded to a
+    multiple of 4 with zero weights). Every clip with channels becomes an animation (a clip without
+    channels is not written: glTF animations need one); samplers keep their interpolation.
+
+    Buffer data (V, W, inverse_bind, key times and values) is written as float32: a float64 model is
+    rounded once, a model read from a file round-trips exactly. Node TRS go into the JSON at full
+    double precision. Reading back gives the bones in depth-first order, which is the order of every
+    loaded skeleton; another topological order comes back reordered.
+
+    Args:
+        model: RiggedModel with mesh V (n, 3), F (m, 3), J (n, k), W (n, k), inverse_bind (j, 4, 4),
+            skeleton translation (b, 3), rotation (b, 4), scale (b, 3), clips' times (t,) and values
+            (t, d) or (t, 3, d).
+        path: str or Path ending in ``.glb`` or ``.gltf``.
+
+    Raises:
+        ValueError: wrong suffix; ``mesh.joints`` repeats a bone (two inverse bind matrices for one
+            node cannot be one glTF skin); non-finite values; key times not increasing in float32;
+            faces crossing ``primitive_sizes``; an empty primitive.
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in (".glb", ".gltf"):
+        raise ValueError(f"path: expected a .glb or .gltf file name, got {path.name!r}")
+    mesh, skeleton = model.mesh, model.skeleton
+    repeated = sorted({skeleton.names[j] for j in mesh.joints if mesh.joints.count(j) > 1})
+    if repeated:
+        raise ValueError(
+            f"model.mesh.joints: bones {repeated} appear as several joints (different inverse bind matrices); "
+            "one glTF skin lists each node once"
+        )
+    writer = _Writer()
+    primitives = _mesh_json(mesh, writer)
+    ibm = _finite("model.mesh.inverse_bind", mesh.inverse_bind).astype("<f4").transpose(0, 2, 1).reshape(-1, 16)
+    skin = {"joints": list(mesh.joints), "inverseBindMatrices": writer.accessor(ibm, "MAT4")}
+    t, r, s = (_finite(f"model.skeleton.{a}", getattr(skeleton, a)) for a in ("translation", "rotation", "scale"))
+    b = skeleton.num_bones
+    nodes = [
+        {"name": skeleton.names[i], "translation": t[i].tolist(), "rotation": r[i].tolist(), "scale": s[i].tolist()}
+        for i in range(b)
+    ]
+    for i, p in enumerate(skeleton.parents):
+        if p != -1:
+            nodes[p].setdefault("children", []).append(i)
+    nodes.append({"name": model.name, "mesh": 0, "skin": 0})
+    roots = [i for i, p in enumerate(skeleton.parents) if p == -1] + [b]
+    animations = [_animation_json(clip, writer) for clip in model.clips if clip.channels]
+    blob = writer.blob()
+    buffer = {"byteLength": len(blob)}
+    if suffix == ".gltf":
+        bin_path = path.with_suffix(".bin")
+        buffer["uri"] = urllib.parse.quote(bin_path.name)
+    doc = {
+        "asset": {"version": "2.0", "generator": "jaxcga"},
+        "scene": 0,
+        "scenes": [{"name": model.name, "nodes": roots}],
+        "nodes": nodes,
+        "meshes": [{"name": model.name, "primitives": primitives}],
+        "skins": [skin],
+        "accessors": writer.accessors,
+        "bufferViews": writer.views,
+        "buffers": [buffer],
+    }
+    if animations:
+        doc["animations"] = animations
+    if suffix == ".gltf":
+        bin_path.write_bytes(blob)
+        path.write_text(json.dumps(doc, indent=1))
+        return
+    text = json.dumps(doc, separators=(",", ":")).encode("utf-8")
+    text += b" " * (-len(text) % 4)
+    total = 12 + 8 + len(text) + 8 + len(blob)
+    path.write_bytes(
+        struct.pack("<4sII", _GLB_MAGIC, 2, total)
+        + struct.pack("<II", len(text), _CHUNK_JSON)
+        + text
+        + struct.pack("<II", len(blob), _CHUNK_BIN)
+        + blob
+    )

@@ -1,0 +1,190 @@
+"""Skinning equations (16), (17) in both variants, and DQS, on hand-made rigs.
+
+Independent checks: eq. (17) evaluated literally with the kernel's generic sandwich on conformal
+points (sum of conformal points, then down-projection), matrix LBS from numpy, a rigid motion on
+every bone, DQS from the kernel's motor -> dual quaternion conversion, finite differences."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import deform
+import jaxcga as cga
+from tests.deform._rigs import random_model, random_pose
+
+MODEL = random_model(0, rest_scale=(0.5, 2.0))
+B = MODEL.skeleton.num_bones
+MESH = MODEL.mesh
+
+
+def _numpy_lbs(model, local_matrices):
+    parents = model.skeleton.parents
+    g = []
+    for i, p in enumerate(parents):
+        g.append(np.asarray(local_matrices[i]) if p < 0 else g[p] @ np.asarray(local_matrices[i]))
+    joint = np.stack([g[b] for b in model.mesh.joints]) @ np.asarray(model.mesh.inverse_bind)
+    V, J, W = (np.asarray(x) for x in (model.mesh.V, model.mesh.J, model.mesh.W))
+    blended = np.einsum("nk,nkij->nij", W, joint[J])
+    return np.einsum("nij,nj->ni", blended[:, :3, :3], V) + blended[:, :3, 3]
+
+
+@pytest.mark.parametrize("method", deform.METHODS)
+def test_rest_pose_reproduces_bind_positions(method):
+    np.testing.assert_allclose(deform.rest_pose(MODEL, method), MESH.V, atol=1e-12)
+
+
+def test_cga_with_dilations_against_numpy_lbs():
+    local = random_pose(1, B, scale_range=(0.5, 2.0))
+    expected = _numpy_lbs(MODEL, cga.versor_to_matrix(local))
+    np.testing.assert_allclose(deform.skin_pose(MODEL, local, "lbs"), expected, atol=1e-12)
+    joints = deform.joint_versors(MESH, deform.forward_kinematics(MODEL.skeleton.parents, local))
+    normalized = deform.skin_cga(MESH.V, MESH.J, MESH.W, joints, normalize_points=True)
+    np.testing.assert_allclose(normalized, expected, atol=1e-12)
+    # Eq. (17) as written: each influence weighted by lambda = 1 / (its joint's scale).
+    matrices = np.asarray(cga.versor_to_matrix(joints))
+    scale = np.cbrt(np.linalg.det(matrices[:, :3, :3]))
+    moved = np.einsum("nkij,nj->nki", matrices[np.asarray(MESH.J), :3, :3], np.asarray(MESH.V))
+    moved = moved + matrices[np.asarray(MESH.J), :3, 3]
+    weight = np.asarray(MESH.W) / scale[np.asarray(MESH.J)]
+    literal = np.einsum("nk,nki->ni", weight, moved) / weight.sum(axis=1, keepdims=True)
+    np.testing.assert_allclose(deform.skin_pose(MODEL, local, "cga"), literal, atol=1e-12)
+    assert np.max(np.abs(literal - expected)) > 1e-2  # dilations make eq. (17) differ from LBS
+
+
+def test_cga_equals_lbs_for_rigid_joints():
+    model = random_model(11)
+    local = random_pose(11, B)
+    np.testing.assert_allclose(deform.skin_pose(model, local, "cga"), deform.skin_pose(model, local, "lbs"),
+                               atol=1e-12)
+
+
+def test_cga_equals_literal_equation_17():
+    """sum_n w_mn (M_n B_n) c[m] (M_n B_n)^-1 with the kernel's generic sandwich, down-projected."""
+    local = random_pose(2, B, scale_range=(0.5, 2.0))
+    joints = deform.joint_versors(MESH, deform.forward_kinematics(MODEL.skeleton.parents, local))
+    moved = cga.sandwich(joints[MESH.J], cga.up(MESH.V)[:, None])  # (n, k) conformal points
+    summed = cga.Multivector(jnp.einsum("nk,nkc->nc", MESH.W, moved.values), moved.blades)
+    np.testing.assert_allclose(deform.skin_pose(MODEL, local, "cga"), cga.down(summed), atol=1e-11)
+
+
+def test_motor_blend_equals_dqs_for_rigid_poses():
+    local = random_pose(3, B)
+    model = random_model(3)  # rigid rest pose too
+    dqs = deform.skin_pose(model, local, "dqs")
+    np.testing.assert_allclose(deform.skin_pose(model, local, "cga_motor_blend"), dqs, atol=1e-12)
+    # DQS from the kernel's own motor -> dual quaternion conversion agrees with the matrix route.
+    joints = deform.joint_versors(model.mesh, deform.forward_kinematics(model.skeleton.parents, local))
+    dq = cga.motor_to_dual_quaternion(cga.matrix_to_motor(cga.versor_to_matrix(joints)))
+    np.testing.assert_allclose(deform.skin_dqs(model.mesh.V, model.mesh.J, model.mesh.W, dq), dqs, atol=1e-12)
+    # and it differs from LBS: the methods are not all the same code path
+    assert np.max(np.abs(np.asarray(dqs) - np.asarray(deform.skin_pose(model, local, "lbs")))) > 1e-3
+
+
+@pytest.mark.parametrize("method", deform.METHODS)
+def test_same_rigid_motion_on_every_bone_gives_that_map(method):
+    model = random_model(4)
+    rigid = cga.motor(cga.rotor(jnp.array([0.3, -1.0, 0.5]), 2.1), jnp.array([0.4, -2.0, 1.5]))
+    local = deform.local_versors(model.skeleton)
+    roots = jnp.asarray([p < 0 for p in model.skeleton.parents])[:, None]
+    moved = (rigid * local).embed(cga.KINDS["similitude"])
+    local = cga.Multivector(jnp.where(roots, moved.values, local.values), local.blades)
+    expected = cga.apply_to_points(rigid, model.mesh.V)
+    np.testing.assert_allclose(deform.skin_pose(model, local, method), expected, atol=1e-12)
+
+
+@pytest.mark.parametrize("method", ["cga", "cga_motor_blend"])
+def test_same_similitude_on_every_bone_gives_that_map(method):
+    model = random_model(5, rest_scale=(0.7, 1.4))
+    sim = cga.similitude(cga.rotor(jnp.array([1.0, 0.2, 0.0]), 0.7), jnp.array([1.0, 2.0, -0.5]), 1.7)
+    local = deform.local_versors(model.skeleton)
+    roots = jnp.asarray([p < 0 for p in model.skeleton.parents])[:, None]
+    moved = (sim * local).embed(cga.KINDS["similitude"])
+    local = cga.Multivector(jnp.where(roots, moved.values, local.values), local.blades)
+    np.testing.assert_allclose(deform.skin_pose(model, local, method), cga.apply_to_points(sim, model.mesh.V),
+                               atol=1e-12)
+
+
+def test_dqs_rejects_scaled_joints():
+    local = random_pose(6, B, scale_range=(1.5, 2.0))
+    with pytest.raises(Exception, match="rigid"):
+        jax.block_until_ready(deform.skin_pose(MODEL, local, "dqs"))
+
+
+def test_motor_blend_dilation_is_blended_in_log_space():
+    """One vertex, two joints with pure dilations s1, s2 and weights w: scale s1^w1 s2^w2."""
+    V = jnp.array([[1.0, 2.0, 3.0]])
+    J = jnp.array([[0, 1]], jnp.int32)
+    W = jnp.array([[0.25, 0.75]])
+    joints = cga.dilator(jnp.array([2.0, 0.5])).embed(cga.KINDS["similitude"])
+    out = deform.skin_cga_motor_blend(V, J, W, joints)
+    np.testing.assert_allclose(out, V * 2.0**0.25 * 0.5**0.75, atol=1e-14)
+    # eq. (17) as written blends the scales harmonically (each point weighted by 1 / scale)
+    np.testing.assert_allclose(deform.skin_cga(V, J, W, joints), V / (0.25 / 2.0 + 0.75 / 0.5), atol=1e-14)
+    np.testing.assert_allclose(deform.skin_cga(V, J, W, joints, normalize_points=True),
+                               V * (0.25 * 2.0 + 0.75 * 0.5), atol=1e-14)
+
+
+@pytest.mark.parametrize("method", deform.METHODS)
+def test_batched_poses_under_vmap_equal_one_by_one(method):
+    params = jnp.stack([deform.random_parameters(jax.random.PRNGKey(k), MODEL, 0.5, 0.1, 0.0) for k in range(3)])
+    local = deform.pose_from_parameters(MODEL, params)
+    if method == "dqs":
+        local = deform.pose_from_parameters(random_model(0), params)
+    model = random_model(0) if method == "dqs" else MODEL
+    batched = jax.jit(jax.vmap(lambda p: deform.skin_pose(model, p, method)))(local)
+    for k in range(3):
+        np.testing.assert_allclose(batched[k], deform.skin_pose(model, local[k], method), atol=1e-12)
+    # leading batch axes also broadcast without vmap
+    np.testing.assert_allclose(deform.skin_pose(model, local, method), batched, atol=1e-12)
+
+
+@pytest.mark.parametrize("method", deform.METHODS)
+def test_gradients_match_finite_differences(method):
+    model = random_model(7)
+    p0 = deform.random_parameters(jax.random.PRNGKey(7), model, 0.5, 0.1, 0.0 if method == "dqs" else 0.1)
+    target = jnp.asarray(np.random.default_rng(7).normal(size=(model.mesh.num_vertices, 3)))
+
+    def loss(p):
+        return jnp.sum((deform.skin_parameters(model, p, method) - target) ** 2)
+
+    grad = jax.grad(loss)(p0)
+    rng = np.random.default_rng(8)
+    for _ in range(3):
+        d = jnp.asarray(rng.normal(size=p0.shape))
+        if method == "dqs":
+            d = d.at[:, 6].set(0.0)
+        h = 1e-6
+        fd = (loss(p0 + h * d) - loss(p0 - h * d)) / (2 * h)
+        np.testing.assert_allclose(jnp.sum(grad * d), fd, rtol=1e-6, atol=1e-7)
+
+
+def test_float32_skinning():
+    model = jax.tree_util.tree_map(lambda x: x.astype(jnp.float32) if jnp.issubdtype(x.dtype, jnp.floating) else x,
+                                   random_model(9))
+    local = deform.local_versors(model.skeleton)
+    for method in deform.METHODS:
+        out = deform.skin_pose(model, local, method)
+        assert out.dtype == jnp.float32
+        np.testing.assert_allclose(out, model.mesh.V, atol=1e-4)
+
+
+def test_bad_input_is_named():
+    V, J, W = MESH.V, MESH.J, MESH.W
+    m = jnp.zeros((MESH.num_joints, 4, 4))
+    with pytest.raises(ValueError, match="V: expected shape"):
+        deform.skin_lbs(V[:, :2], J, W, m)
+    with pytest.raises(ValueError, match="J: expected integer"):
+        deform.skin_lbs(V, J.astype(float), W, m)
+    with pytest.raises(ValueError, match="W: expected shape"):
+        deform.skin_lbs(V, J, W[:, :2], m)
+    with pytest.raises(ValueError, match="joint_matrices"):
+        deform.skin_lbs(V, J, W, jnp.zeros((3, 3)))
+    with pytest.raises(ValueError, match="joint_versors"):
+        deform.skin_cga(V, J, W, jnp.zeros((3, 16)))
+    with pytest.raises(ValueError, match="joint_dual_quaternions"):
+        deform.skin_dqs(V, J, W, jnp.zeros((3, 7)))
+    with pytest.raises(ValueError, match="method"):
+        deform.skin_pose(MODEL, deform.local_versors(MODEL.skeleton), "nope")
