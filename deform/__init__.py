@@ -19,10 +19,12 @@ from deform._fitting import (
     random_parameters,
     skin_parameters,
 )
+from deform._gltf import convert_with_assimp, load_model, save_model, weld
 from deform._model import AnimationClip, Channel, RiggedModel, Skeleton, SkinnedMesh
 from deform._pose import METHODS, rest_pose, sample_pose, sharded_vmap, skin_model, skin_pose
 from deform._rig import (
     Keyframes,
+    clip_from_poses,
     forward_kinematics,
     forward_kinematics_matrices,
     inverse_bind_versors,
@@ -39,6 +41,7 @@ from deform._rig import (
     trs_to_matrix,
     trs_to_versor,
     uniform_scale,
+    versor_to_trs,
 )
 from deform._skinning import matrices_to_dual_quaternions, skin_cga, skin_cga_motor_blend, skin_dqs, skin_lbs
 
@@ -54,6 +57,8 @@ __all__ = [
     "Skeleton",
     "SkinnedMesh",
     "bounding_diagonal",
+    "clip_from_poses",
+    "convert_with_assimp",
     "default_arm",
     "fit_pose",
     "forward_kinematics",
@@ -61,6 +66,7 @@ __all__ = [
     "inverse_bind_versors",
     "joint_matrices",
     "joint_versors",
+    "load_model",
     "local_matrices",
     "local_versors",
     "matrices_to_dual_quaternions",
@@ -74,6 +80,7 @@ __all__ = [
     "sample_pose",
     "sample_trs",
     "sample_versors",
+    "save_model",
     "sharded_vmap",
     "skin_cga",
     "skin_cga_motor_blend",
@@ -85,4 +92,6 @@ __all__ = [
     "trs_to_matrix",
     "trs_to_versor",
     "uniform_scale",
+    "versor_to_trs",
+    "weld",
 ]

@@ -19,7 +19,7 @@ from jaxtyping import Array, Float, Int
 
 import jaxcga as cga
 from deform import _pose, _rig
-from deform._model import RiggedModel
+from deform._model import RiggedModel, SkinnedMesh
 from jaxcga._multivector import KINDS, Multivector
 
 SOLVERS = ("levenberg_marquardt", "gauss_newton", "bfgs", "gradient_descent")
@@ -144,8 +144,14 @@ def fit_pose(
     def full(y):
         return y if fit_scale else jnp.concatenate([y, jnp.zeros((b, 1), y.dtype)], axis=-1)
 
+    # Only the targeted vertices are skinned inside the solver.
+    mesh = model.mesh
+    subset = SkinnedMesh(mesh.V[index], jnp.zeros((0, 3), jnp.int32), mesh.J[index], mesh.W[index],
+                         mesh.inverse_bind, mesh.joints)
+    reduced = RiggedModel(subset, model.skeleton, (), model.name)
+
     def residuals(y, _):
-        moved = skin_parameters(model, full(y), method)[index]
+        moved = skin_parameters(reduced, full(y), method)
         r = ((moved - targets) / diagonal).ravel()
         if regularization:
             r = jnp.concatenate([r, jnp.sqrt(regularization) * y.ravel()])

@@ -45,7 +45,15 @@ _FLOAT, _UINT, _USHORT = 5126, 5125, 5123
 _COMPONENT = {5120: "<i1", 5121: "<u1", 5122: "<i2", 5123: "<u2", 5125: "<u4", 5126: "<f4"}
 _NORMALIZER = {5120: 127.0, 5121: 255.0, 5122: 32767.0, 5123: 65535.0}
 _WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
-_MODES = {0: "POINTS", 1: "LINES", 2: "LINE_LOOP", 3: "LINE_STRIP", 4: "TRIANGLES", 5: "TRIANGLE_STRIP", 6: "TRIANGLE_FAN"}
+_MODES = {
+    0: "POINTS",
+    1: "LINES",
+    2: "LINE_LOOP",
+    3: "LINE_STRIP",
+    4: "TRIANGLES",
+    5: "TRIANGLE_STRIP",
+    6: "TRIANGLE_FAN",
+}
 _ARRAY_BUFFER, _ELEMENT_ARRAY_BUFFER = 34962, 34963
 # Extensions whose geometry lives outside plain accessors.
 _UNSUPPORTED_EXTENSIONS = {"KHR_draco_mesh_compression", "EXT_meshopt_compression"}
@@ -84,7 +92,9 @@ class _Document:
             raise ValueError(f"{source}: not a glTF 2.0 file (asset.version must be '2.x')")
         unsupported = _UNSUPPORTED_EXTENSIONS & set(self.json.get("extensionsRequired", ()))
         if unsupported:
-            raise ValueError(f"{source}: required extensions {sorted(unsupported)} are not supported (compressed geometry)")
+            raise ValueError(
+                f"{source}: required extensions {sorted(unsupported)} are not supported (compressed geometry)"
+            )
         self._buffers = {}
 
     def _parse_glb(self, raw: bytes) -> dict:
@@ -131,14 +141,18 @@ class _Document:
                 data = self.glb_bin
             elif uri.startswith("data:"):
                 header, _, payload = uri.partition(",")
-                data = base64.b64decode(payload) if header.endswith(";base64") else urllib.parse.unquote_to_bytes(payload)
+                data = (
+                    base64.b64decode(payload) if header.endswith(";base64") else urllib.parse.unquote_to_bytes(payload)
+                )
             else:
                 file = self.base / urllib.parse.unquote(uri)
                 if not file.is_file():
                     raise FileNotFoundError(f"{self.source}: buffer {index} refers to {uri!r}, no such file {file}")
                 data = file.read_bytes()
             if len(data) < spec.get("byteLength", 0):
-                raise ValueError(f"{self.source}: buffer {index} holds {len(data)} bytes, byteLength says {spec['byteLength']}")
+                raise ValueError(
+                    f"{self.source}: buffer {index} holds {len(data)} bytes, byteLength says {spec['byteLength']}"
+                )
             self._buffers[index] = data
         return self._buffers[index]
 
@@ -149,10 +163,14 @@ class _Document:
         element = dtype.itemsize * width
         stride = view.get("byteStride") or element
         if start + length > len(data):
-            raise ValueError(f"{self.source}: buffer view {view_index} ends past its buffer ({start + length} > {len(data)})")
+            raise ValueError(
+                f"{self.source}: buffer view {view_index} ends past its buffer ({start + length} > {len(data)})"
+            )
         if count and offset + stride * (count - 1) + element > length:
             raise ValueError(f"{self.source}: {what} reads past the end of buffer view {view_index}")
-        strided = np.ndarray((count, width), dtype, buffer=data, offset=start + offset, strides=(stride, dtype.itemsize))
+        strided = np.ndarray(
+            (count, width), dtype, buffer=data, offset=start + offset, strides=(stride, dtype.itemsize)
+        )
         return strided.copy()
 
     def accessor(self, index, what: str, types: tuple[str, ...], components: tuple[int, ...]) -> np.ndarray:
@@ -173,8 +191,12 @@ class _Document:
         if sparse:
             n, ind, val = sparse["count"], sparse["indices"], sparse["values"]
             if ind.get("componentType") not in (5121, 5123, 5125):
-                raise ValueError(f"{self.source}: {what} (accessor {index}) has sparse indices of an invalid componentType")
-            idx = self._view(ind["bufferView"], ind.get("byteOffset", 0), n, 1, np.dtype(_COMPONENT[ind["componentType"]]), what)
+                raise ValueError(
+                    f"{self.source}: {what} (accessor {index}) has sparse indices of an invalid componentType"
+                )
+            idx = self._view(
+                ind["bufferView"], ind.get("byteOffset", 0), n, 1, np.dtype(_COMPONENT[ind["componentType"]]), what
+            )
             values = self._view(val["bufferView"], val.get("byteOffset", 0), n, width, dtype, what)
             if n and idx.max() >= count:
                 raise ValueError(f"{self.source}: {what} (accessor {index}) has a sparse index past its count {count}")
@@ -308,7 +330,9 @@ def _primitive(doc: _Document, prim: dict, skin_joints: int, where: str):
     """V (n, 3), F (m, 3), J (n, 4s) local joint indices, W (n, 4s) of one skinned primitive."""
     mode = prim.get("mode", 4)
     if mode != 4:
-        raise ValueError(f"{where}: primitive mode {mode} ({_MODES.get(mode, 'unknown')}); only TRIANGLES (4) is supported")
+        raise ValueError(
+            f"{where}: primitive mode {mode} ({_MODES.get(mode, 'unknown')}); only TRIANGLES (4) is supported"
+        )
     attrs = prim.get("attributes", {})
     if "POSITION" not in attrs:
         raise ValueError(f"{where}: primitive has no POSITION attribute")
@@ -325,8 +349,15 @@ def _primitive(doc: _Document, prim: dict, skin_joints: int, where: str):
         sets += 1
     if sets == 0 or any(f"WEIGHTS_{s}" not in attrs for s in range(sets)) or f"WEIGHTS_{sets}" in attrs:
         raise ValueError(f"{where}: a skinned primitive needs matching JOINTS_0/WEIGHTS_0 (and _1, ...) attributes")
-    J = np.hstack([doc.accessor(attrs[f"JOINTS_{s}"], f"{where} JOINTS_{s}", ("VEC4",), (5121, _USHORT)) for s in range(sets)])
-    W = np.hstack([doc.accessor(attrs[f"WEIGHTS_{s}"], f"{where} WEIGHTS_{s}", ("VEC4",), (_FLOAT, 5121, _USHORT)) for s in range(sets)])
+    J = np.hstack(
+        [doc.accessor(attrs[f"JOINTS_{s}"], f"{where} JOINTS_{s}", ("VEC4",), (5121, _USHORT)) for s in range(sets)]
+    )
+    W = np.hstack(
+        [
+            doc.accessor(attrs[f"WEIGHTS_{s}"], f"{where} WEIGHTS_{s}", ("VEC4",), (_FLOAT, 5121, _USHORT))
+            for s in range(sets)
+        ]
+    )
     if len(J) != n or len(W) != n:
         raise ValueError(f"{where}: JOINTS/WEIGHTS have {len(J)}/{len(W)} entries, POSITION has {n}")
     if J.size and J.max() >= skin_joints:
@@ -334,7 +365,9 @@ def _primitive(doc: _Document, prim: dict, skin_joints: int, where: str):
     off = np.abs(W.sum(axis=1) - 1.0)
     if off.size and off.max() > _WEIGHT_TOLERANCE:
         v = int(off.argmax())
-        raise ValueError(f"{where}: WEIGHTS of vertex {v} sum to {W[v].sum():.6g}; weights must sum to 1 (+-{_WEIGHT_TOLERANCE})")
+        raise ValueError(
+            f"{where}: WEIGHTS of vertex {v} sum to {W[v].sum():.6g}; weights must sum to 1 (+-{_WEIGHT_TOLERANCE})"
+        )
     return V, F.reshape(-1, 3), J, W
 
 
@@ -379,7 +412,10 @@ def _clips(doc: _Document, bone_of: dict[int, int]) -> tuple[AnimationClip, ...]
             if (node, path) in seen:
                 raise ValueError(f"{where}: node {node} has two {path!r} channels in one animation")
             seen.add((node, path))
-            sampler = anim["samplers"][channel["sampler"]]
+            samplers, index = anim.get("samplers", []), channel.get("sampler")
+            if not isinstance(index, int) or not 0 <= index < len(samplers):
+                raise ValueError(f"{where}: sampler {index} does not exist ({len(samplers)} samplers)")
+            sampler = samplers[index]
             interpolation = sampler.get("interpolation", "LINEAR")
             if interpolation not in INTERPOLATIONS:
                 raise ValueError(f"{where}: interpolation {interpolation!r}, expected one of {INTERPOLATIONS}")
@@ -402,7 +438,9 @@ def _read_model(doc: _Document, name: str) -> RiggedModel:
     nodes = doc.json.get("nodes", [])
     skinned = [i for i, node in enumerate(nodes) if "mesh" in node and "skin" in node]
     if not skinned:
-        raise ValueError(f"{doc.source}: no skinned mesh (no node has both 'mesh' and 'skin'); a rigged model is expected")
+        raise ValueError(
+            f"{doc.source}: no skinned mesh (no node has both 'mesh' and 'skin'); a rigged model is expected"
+        )
     skeleton, bone_of = _skeleton(doc, skinned)
     return RiggedModel(mesh=_mesh(doc, skinned, bone_of), skeleton=skeleton, clips=_clips(doc, bone_of), name=name)
 
@@ -436,7 +474,13 @@ def convert_with_assimp(path, out=None) -> Path:
             "install the Debian package assimp-utils (sudo apt-get install assimp-utils)"
         )
     out = Path(tempfile.mkdtemp(prefix="jaxcga-assimp-")) / f"{path.stem}.glb" if out is None else Path(out)
-    proc = subprocess.run([exe, "export", str(path), str(out), "-f", "glb2"], capture_output=True, text=True, errors="replace")
+    proc = subprocess.run(
+        [exe, "export", str(path), str(out), "-f", "glb2"],
+        check=False,
+        capture_output=True,
+        text=True,
+        errors="replace",
+    )
     if proc.returncode != 0 or not out.is_file():
         log = (proc.stderr + proc.stdout).strip()[-2000:]
         raise ValueError(f"path: assimp could not convert {path} to glTF (exit code {proc.returncode}):\n{log}")
@@ -581,7 +625,9 @@ def _mesh_json(mesh: SkinnedMesh, writer: _Writer) -> list[dict]:
         if nv == 0 or nf == 0:
             raise ValueError(f"model.mesh.primitive_sizes: primitive {p} is empty {(nv, nf)}; glTF cannot store it")
         if faces.min() < 0 or faces.max() >= nv:
-            raise ValueError(f"model.mesh.F: faces of primitive {p} use vertices of another primitive; set primitive_sizes=()")
+            raise ValueError(
+                f"model.mesh.F: faces of primitive {p} use vertices of another primitive; set primitive_sizes=()"
+            )
         attributes = {"POSITION": writer.accessor(V[v0 : v0 + nv], "VEC3", _ARRAY_BUFFER, bounds=True)}
         for s in range(J.shape[1] // 4):
             attributes[f"JOINTS_{s}"] = writer.accessor(J[v0 : v0 + nv, 4 * s : 4 * s + 4], "VEC4", _ARRAY_BUFFER)

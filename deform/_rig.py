@@ -250,6 +250,13 @@ def _blend_keys(path: str, values, k, alpha) -> Multivector:
     return cga.blend_log(_key_versors(path, a), _key_versors(path, b), alpha)
 
 
+def _project(m: Multivector, blades) -> Multivector:
+    """Keep the components on ``blades`` (the blend of two rotors is a rotor, though log/exp carry it
+    in the motor's blades)."""
+    columns = [m.blades.index(b) for b in blades]
+    return Multivector(m.values[..., jnp.asarray(columns)], blades)
+
+
 def sample_versors(skeleton: Skeleton, clip: AnimationClip, t) -> Multivector:
     """Local similitudes ``T R D`` of every bone at time t, keys blended logarithmically (sec. 2.5,
     4.1). Batch shape (b,)."""
@@ -268,7 +275,7 @@ def sample_versors(skeleton: Skeleton, clip: AnimationClip, t) -> Multivector:
             versor = _key_versors(channel.path, sample_channel(channel, t))
         else:
             versor = _blend_keys(channel.path, channel.values, k, alpha)
-        versor = versor.embed(blades[channel.path])
+        versor = _project(versor, blades[channel.path])
         parts[channel.path] = parts[channel.path].at[channel.bone].set(versor.values.astype(parts[channel.path].dtype))
     t_, r_, d_ = (Multivector(parts[p], blades[p]) for p in ("translation", "rotation", "scale"))
     return (t_ * r_ * d_).embed(_SIMILITUDE)
@@ -305,3 +312,46 @@ def sample_keyframes(keyframes: Keyframes, t) -> Multivector:
     dot = jnp.sum(a.values * b.values, axis=-1, keepdims=True)
     b = Multivector(jnp.where(dot < 0, -b.values, b.values), b.blades)
     return cga.blend_linear(a, b, alpha)
+
+
+# ---------------------------------------------------------------- versors back to TRS / clips
+def versor_to_trs(versors: Multivector):
+    """Translation (..., 3), glTF quaternion (..., 4) and uniform scale (..., 3) of motors or
+    similitudes: the inverse of ``trs_to_versor``."""
+    matrix = cga.versor_to_matrix(versors)
+    scale = jnp.cbrt(jnp.linalg.det(matrix[..., :3, :3]))
+    wxyz = cga.matrix_to_quaternion(matrix[..., :3, :3] / scale[..., None, None])
+    rotation = jnp.concatenate([wxyz[..., 1:], wxyz[..., :1]], axis=-1)
+    return matrix[..., :3, 3], rotation, jnp.repeat(scale[..., None], 3, axis=-1)
+
+
+def clip_from_poses(times: Float[Array, " K"], local: Multivector, name: str = "clip",
+                    scale: bool | None = None) -> AnimationClip:
+    """A LINEAR AnimationClip with translation, rotation (and scale) channels on every bone, keyed by
+    local versors (batch shape (K, b)) at ``times``; consecutive quaternions are sign-aligned so the
+    glTF slerp follows the versors' shortest arcs.
+
+    Args:
+        times: (K,) strictly increasing key times.
+        local: local versors of every bone at each key, batch shape (K, b).
+        name: clip name.
+        scale: write scale channels (default: only when some scale differs from 1 by > 1e-9)."""
+    if not isinstance(local, Multivector) or len(local.batch_shape) != 2:
+        raise ValueError("local: expected a Multivector with batch shape (K, b)")
+    times = jnp.asarray(times, local.dtype)
+    if times.shape != local.batch_shape[:1]:
+        raise ValueError(f"times: expected shape ({local.batch_shape[0]},), got {times.shape}")
+    translation, rotation, scales = versor_to_trs(local)
+    # Flip each key's quaternion to the hemisphere of the previous one (a cumulative sign).
+    dots = jnp.sum(rotation[1:] * rotation[:-1], axis=-1)
+    flips = jnp.concatenate([jnp.ones_like(dots[:1]), jnp.where(dots < 0, -1.0, 1.0).astype(dots.dtype)])
+    rotation = rotation * jnp.cumprod(flips, axis=0)[..., None]
+    if scale is None:
+        scale = bool(jnp.max(jnp.abs(scales - 1.0)) > 1e-9)
+    channels = []
+    for bone in range(local.batch_shape[1]):
+        channels.append(Channel(times, translation[:, bone], bone, "translation", "LINEAR"))
+        channels.append(Channel(times, rotation[:, bone], bone, "rotation", "LINEAR"))
+        if scale:
+            channels.append(Channel(times, scales[:, bone], bone, "scale", "LINEAR"))
+    return AnimationClip(tuple(channels), name)

@@ -89,6 +89,38 @@ def demo(out: Path, steps: int, figure: bool) -> int:
     return 0
 
 
+def _x64():
+    import jax
+
+    jax.config.update("jax_enable_x64", True)
+
+
+def _model_argument(p):
+    p.add_argument("model", nargs="?", default=None,
+                   help="glTF (.gltf/.glb), or FBX/COLLADA through assimp; default: the built-in arm")
+    p.add_argument("--weld", action="store_true", help="weld split vertices of the loaded model")
+
+
+def _run_deform(args) -> int:
+    _x64()
+    from deform import _commands
+
+    model = _commands.load_or_default(args.model, weld=args.weld)
+    if args.command == "skin":
+        summary = _commands.skin_command(model, args.time, args.method, args.clip, args.out)
+    elif args.command == "animate":
+        summary = _commands.animate_command(model, args.frames, args.out, args.clip)
+    else:
+        summary = _commands.fit_command(model, args.target, args.out, args.method, args.vertices,
+                                        args.regularization, args.max_steps, not args.no_scale)
+    print(f"jaxcga {args.command} {model.name}: " + ", ".join(f"{k} {v}" for k, v in summary.items()))
+    return 0
+
+
+def _clip(value: str):
+    return int(value) if value.lstrip("-").isdigit() else value
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="jaxcga", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -96,12 +128,41 @@ def main(argv: list[str] | None = None) -> int:
     p_demo.add_argument("--out", type=Path, default=Path("out"), help="folder for figures (default: out/)")
     p_demo.add_argument("--steps", type=int, default=8, help="frames in the blending figure (>= 2)")
     p_demo.add_argument("--no-figure", action="store_true", help="print the tour only")
+
+    methods = ("lbs", "dqs", "cga", "cga_motor_blend")
+    p_skin = sub.add_parser("skin", help="skinned vertex positions of a model at a clip time")
+    _model_argument(p_skin)
+    p_skin.add_argument("--time", type=float, default=0.0, help="clip time in seconds (default 0)")
+    p_skin.add_argument("--method", choices=methods, default="cga", help="skinning method (default cga, eq. 17)")
+    p_skin.add_argument("--clip", type=_clip, default=0, help="clip name or index (default 0)")
+    p_skin.add_argument("--out", type=Path, required=True,
+                        help="OUT.npy: float64 (n, 3) world-space positions; OUT.glb: the posed mesh")
+
+    p_anim = sub.add_parser("animate", help="write an animated glTF re-sampled through the multivector path")
+    _model_argument(p_anim)
+    p_anim.add_argument("--frames", type=int, default=60, help="frames to sample (default 60)")
+    p_anim.add_argument("--clip", type=_clip, default=0, help="clip name or index (default 0)")
+    p_anim.add_argument("--out", type=Path, required=True, help="OUT.glb or OUT.gltf")
+
+    p_fit = sub.add_parser("fit", help="fit bone motors (and dilations) to target vertex positions")
+    _model_argument(p_fit)
+    p_fit.add_argument("--target", type=Path, required=True, help="TARGET.npy: (n, 3) world-space positions")
+    p_fit.add_argument("--vertices", type=Path, default=None, help="IDX.npy: (t,) vertex indices of (t, 3) targets")
+    p_fit.add_argument("--method", choices=methods, default="cga", help="skinning method (default cga)")
+    p_fit.add_argument("--regularization", type=float, default=0.0, help="weight of |params|^2 toward the rest pose")
+    p_fit.add_argument("--max-steps", type=int, default=200, help="solver step limit (default 200)")
+    p_fit.add_argument("--no-scale", action="store_true", help="fit motors only, no dilations")
+    p_fit.add_argument("--out", type=Path, required=True, help="POSE.json")
+
     args = parser.parse_args(argv)
     if args.command == "demo":
         if args.steps < 2:
             parser.error("--steps: expected at least 2 frames")
         return demo(args.out, args.steps, not args.no_figure)
-    return 2  # unreachable: argparse requires a command
+    try:
+        return _run_deform(args)
+    except (ValueError, FileNotFoundError, RuntimeError) as error:
+        parser.exit(2, f"jaxcga {args.command}: error: {error}\n")
 
 
 if __name__ == "__main__":

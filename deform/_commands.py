@@ -1,0 +1,130 @@
+"""The ``jaxcga skin``, ``jaxcga animate`` and ``jaxcga fit`` commands (called by ``jaxcga.cli``).
+
+Each takes an optional MODEL path (glTF, or FBX / COLLADA through assimp); without one it uses the
+built-in default arm.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import jaxcga as cga
+from deform import _fitting, _pose, _rig
+from deform._default_arm import default_arm
+from deform._gltf import load_model, save_model
+from deform._model import RiggedModel
+
+
+def load_or_default(path: str | Path | None, weld: bool = False) -> RiggedModel:
+    """The model at ``path``, or the built-in default arm when ``path`` is None."""
+    if path is None:
+        return default_arm()
+    return load_model(path, weld=weld)
+
+
+def _save_positions(model: RiggedModel, positions, out: Path):
+    out.parent.mkdir(parents=True, exist_ok=True)
+    if out.suffix == ".npy":
+        np.save(out, np.asarray(positions, dtype=np.float64))
+    elif out.suffix in (".glb", ".gltf", ".ply", ".obj", ".stl"):
+        import trimesh
+
+        trimesh.Trimesh(np.asarray(positions), np.asarray(model.mesh.F), process=False).export(out)
+    else:
+        raise ValueError(f"out: expected a .npy, .glb, .gltf, .ply, .obj or .stl path, got {out}")
+
+
+def skin_command(model: RiggedModel, time: float, method: str, clip: int | str, out: Path) -> dict:
+    """Skinned positions of every skinned primitive (file order) at ``time``, in glTF world space,
+    written to ``out`` (.npy: float64 (n, 3); .glb etc.: the posed mesh)."""
+    positions = jax.jit(lambda t: _pose.skin_model(model, t, method, clip))(time)
+    if not bool(jnp.all(jnp.isfinite(positions))):
+        raise ValueError("skinning produced non-finite positions")
+    _save_positions(model, positions, out)
+    return {"vertices": int(positions.shape[0]), "method": method, "time": time, "out": str(out)}
+
+
+def generated_keyframes(model: RiggedModel, duration: float = 2.0) -> _rig.Keyframes:
+    """Keyframes made on the fly (sec. 2.5 / 4.1): rest, every bone bent about its local x axis with
+    the deepest bone dilated by 1.25, and rest again; blended linearly by ``sample_keyframes``."""
+    skeleton = model.skeleton
+    rest = _rig.local_versors(skeleton)
+    depth = np.zeros(skeleton.num_bones, int)
+    for i, p in enumerate(skeleton.parents):
+        depth[i] = 0 if p < 0 else depth[p] + 1
+    dtype = rest.dtype
+    bend = cga.rotor(jnp.asarray([1.0, 0.0, 0.0], dtype), jnp.asarray(0.35 * (depth > 0), dtype))
+    scale = jnp.where(jnp.asarray(depth == depth.max()), 1.25, 1.0).astype(dtype)
+    bent = (rest * bend * cga.dilator(scale)).embed(cga.KINDS["similitude"])
+    poses = cga.Multivector(jnp.stack([rest.values, bent.values, rest.values]), rest.blades)
+    return _rig.Keyframes(jnp.asarray([0.0, duration / 2, duration], dtype), poses)
+
+
+def animate_command(model: RiggedModel, frames: int, out: Path, clip: int | str = 0) -> dict:
+    """Write an animated glTF: the model's clip re-sampled at ``frames`` times through the multivector
+    path (logarithmic blending of key versors), or generated keyframes (linear blending) when the
+    model has no clip."""
+    if frames < 2:
+        raise ValueError(f"frames: expected at least 2, got {frames}")
+    if out.suffix not in (".glb", ".gltf"):
+        raise ValueError(f"out: expected a .glb or .gltf path, got {out}")
+    if model.clips:
+        source = model.clip(clip)
+        times = jnp.linspace(source.start, source.end, frames, dtype=model.mesh.V.dtype)
+        local = jax.jit(jax.vmap(lambda t: _rig.sample_versors(model.skeleton, source, t)))(times)
+        name = f"{source.name}_cga"
+    else:
+        keys = generated_keyframes(model)
+        times = jnp.linspace(0.0, float(keys.times[-1]), frames, dtype=model.mesh.V.dtype)
+        local = jax.jit(jax.vmap(lambda t: _rig.sample_keyframes(keys, t)))(times)
+        name = "generated_keyframes"
+    animation = _rig.clip_from_poses(times, local, name)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    save_model(RiggedModel(model.mesh, model.skeleton, (animation,), model.name), out)
+    return {"frames": frames, "clip": name, "bones": model.skeleton.num_bones, "out": str(out)}
+
+
+def fit_command(model: RiggedModel, target: Path, out: Path, method: str = "cga", vertices: Path | None = None,
+                regularization: float = 0.0, max_steps: int = 200, fit_scale: bool = True) -> dict:
+    """Fit bone motors (and dilations) to target positions (.npy (n, 3), or (t, 3) with a vertex index
+    file) and write the pose as JSON."""
+    targets = np.load(target)
+    index = None if vertices is None else np.load(vertices)
+    if index is None and targets.shape != (model.mesh.num_vertices, 3):
+        raise ValueError(f"target: expected shape ({model.mesh.num_vertices}, 3) (every vertex), got "
+                         f"{targets.shape}; give --vertices for a subset")
+    dtype = model.mesh.V.dtype
+    fit = _fitting.fit_pose(model, jnp.asarray(targets, dtype), None if index is None else jnp.asarray(index),
+                            method=method, regularization=regularization, max_steps=max_steps,
+                            fit_scale=fit_scale and method != "dqs")
+    translation, rotation, scale = _rig.versor_to_trs(fit.local)
+    diagonal = float(_fitting.bounding_diagonal(model))
+    result = {
+        "model": model.name,
+        "method": method,
+        "max_error": float(fit.max_error),
+        "rms_error": float(fit.rms_error),
+        "bounding_diagonal": diagonal,
+        "steps": int(fit.steps),
+        "converged": bool(fit.converged),
+        "parameters": "per bone: motor generator (e12, e13, e23, e1inf, e2inf, e3inf) and log-scale, applied "
+                      "in the bone's frame after its rest transform",
+        "bones": [
+            {
+                "name": name,
+                "parameters": np.asarray(fit.params[i]).tolist(),
+                "translation": np.asarray(translation[i]).tolist(),
+                "rotation_xyzw": np.asarray(rotation[i]).tolist(),
+                "scale": float(scale[i, 0]),
+            }
+            for i, name in enumerate(model.skeleton.names)
+        ],
+    }
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(result, indent=1))
+    return {k: result[k] for k in ("max_error", "rms_error", "bounding_diagonal", "steps", "converged")}
