@@ -14,6 +14,7 @@ unchanged. The conventions follow glTF 2.0 (section "Skins" and "Animations"):
 from __future__ import annotations
 
 import equinox as eqx
+import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
@@ -176,6 +177,14 @@ class SkinnedMesh(eqx.Module):
     @property
     def num_joints(self) -> int:
         return len(self.joints)
+
+    def with_normalized_weights(self) -> SkinnedMesh:
+        """The same mesh with every weight row divided by its sum (files often store sums of
+        0.998..1.002; the glTF specification asks for 1)."""
+        total = jnp.sum(self.W, axis=-1, keepdims=True)
+        if bool(jnp.any(total <= 0)):
+            raise ValueError("W: a vertex has no positive weight; cannot normalize")
+        return eqx.tree_at(lambda m: m.W, self, self.W / total)
 
 
 class RiggedModel(eqx.Module):

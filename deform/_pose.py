@@ -11,10 +11,14 @@ or similitudes) or as matrices (..., b, 4, 4). Methods:
 
 ``skin_model(model, t)`` samples clip ``clip`` at time t: by the glTF specification (TRS lerp /
 slerp) for the matrix methods, by logarithmic blending of versors for the multivector methods.
+
+The model-level functions are compiled on first use (``eqx.filter_jit``: arrays traced, the method
+name and the model's static fields part of the cache key); inside an outer jit they are inlined.
 """
 
 from __future__ import annotations
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -33,6 +37,7 @@ def _check_method(method: str):
         raise ValueError(f"method: expected one of {METHODS}, got {method!r}")
 
 
+@eqx.filter_jit
 def skin_pose(model: RiggedModel, local, method: str = "cga"):
     """Skinned positions (..., n, 3) of the model in a pose given by local bone transforms.
 
@@ -58,6 +63,7 @@ def skin_pose(model: RiggedModel, local, method: str = "cga"):
     return _skinning.skin_dqs(mesh.V, mesh.J, mesh.W, _skinning.matrices_to_dual_quaternions(joints))
 
 
+@eqx.filter_jit
 def rest_pose(model: RiggedModel, method: str = "cga"):
     """Skinned positions (n, 3) in the skeleton's rest pose (the nodes' own TRS)."""
     _check_method(method)
@@ -66,6 +72,7 @@ def rest_pose(model: RiggedModel, method: str = "cga"):
     return skin_pose(model, _rig.local_matrices(model.skeleton), method)
 
 
+@eqx.filter_jit
 def sample_pose(model: RiggedModel, t, method: str = "cga", clip: int | str = 0):
     """Local bone transforms of clip ``clip`` at time t: versors (b,) for the multivector methods,
     matrices (b, 4, 4) for the matrix methods."""
@@ -76,6 +83,7 @@ def sample_pose(model: RiggedModel, t, method: str = "cga", clip: int | str = 0)
     return _rig.sample_matrices(model.skeleton, animation, t)
 
 
+@eqx.filter_jit
 def skin_model(model: RiggedModel, t, method: str = "cga", clip: int | str = 0):
     """Skinned positions (n, 3) of the model at time t of a clip (rest pose when it has no clip).
     vmap over t for many frames."""

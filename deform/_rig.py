@@ -28,6 +28,7 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
 import jaxcga as cga
@@ -165,73 +166,107 @@ def joint_versors(mesh: SkinnedMesh, global_versors: Multivector) -> Multivector
 
 
 # ---------------------------------------------------------------- sampling a clip
-def _locate(times, t):
-    """Key interval index k and fraction alpha of time t (clamped to the key range)."""
-    k_max = times.shape[0] - 1
-    if k_max == 0:
-        return jnp.zeros((), jnp.int32), jnp.zeros((), times.dtype)
-    t = jnp.clip(jnp.asarray(t, times.dtype), times[0], times[-1])
-    k = jnp.clip(jnp.searchsorted(times, t, side="right") - 1, 0, k_max - 1)
-    alpha = (t - times[k]) / (times[k + 1] - times[k])
-    return k, alpha
+# Channels that share (path, interpolation) are stacked, padded with their last key, and sampled
+# together: one vectorized evaluation per group keeps compile time independent of the channel count.
+def _locate(times, t, counts=None):
+    """Key interval k and fraction alpha of time t for every row of ``times`` (..., K) (clamped to
+    each row's key range; ``counts`` (...,) are the rows' real key counts, padding repeats the last)."""
+    times = jnp.asarray(times)
+    K = times.shape[-1]
+    counts = np.full(times.shape[:-1], K) if counts is None else np.asarray(counts)
+    last = jnp.take_along_axis(times, jnp.asarray(counts - 1)[..., None], axis=-1)[..., 0]
+    t = jnp.clip(jnp.asarray(t, times.dtype), times[..., 0], last)
+    k = jnp.sum(times <= t[..., None], axis=-1) - 1
+    k = jnp.clip(k, 0, jnp.asarray(np.maximum(counts - 2, 0)))
+    k1 = jnp.minimum(k + 1, K - 1)
+    t0 = jnp.take_along_axis(times, k[..., None], axis=-1)[..., 0]
+    t1 = jnp.take_along_axis(times, k1[..., None], axis=-1)[..., 0]
+    span = t1 - t0
+    alpha = jnp.where(span > 0, (t - t0) / jnp.where(span > 0, span, 1), 0)
+    return k, k1, alpha
 
 
 def _slerp(a, b, alpha):
     """glTF slerp of unit quaternions along the shortest arc (lerp + normalize when nearly equal)."""
     d = jnp.sum(a * b, axis=-1)
-    b = jnp.where(d < 0, -b, b)
+    b = jnp.where((d < 0)[..., None], -b, b)
     d = jnp.abs(d)
     near = d > 0.9995
     theta = jnp.arccos(jnp.where(near, 0.5, jnp.minimum(d, 1.0)))
     sin_theta = jnp.sin(theta)
     wa = jnp.where(near, 1 - alpha, jnp.sin((1 - alpha) * theta) / sin_theta)
     wb = jnp.where(near, alpha, jnp.sin(alpha * theta) / sin_theta)
-    q = wa * a + wb * b
+    q = wa[..., None] * a + wb[..., None] * b
     return q / jnp.linalg.norm(q, axis=-1, keepdims=True)
 
 
-def _hermite(channel: Channel, k, alpha):
-    """CUBICSPLINE: p = (2s^3-3s^2+1) v_k + td (s^3-2s^2+s) b_k + (-2s^3+3s^2) v_k+1 + td (s^3-s^2) a_k+1."""
-    v = channel.values
-    if v.shape[0] == 1:
-        return v[0, 1]
-    td = channel.times[k + 1] - channel.times[k]
-    s, s2, s3 = alpha, alpha**2, alpha**3
-    return (
-        (2 * s3 - 3 * s2 + 1) * v[k, 1]
-        + td * (s3 - 2 * s2 + s) * v[k, 2]
-        + (-2 * s3 + 3 * s2) * v[k + 1, 1]
-        + td * (s3 - s2) * v[k + 1, 0]
-    )
+def _stack(channels: list[Channel]):
+    """times (c, K), values (c, K, ...), counts (c,), bones (c,) of channels padded with their last key."""
+    K = max(c.times.shape[0] for c in channels)
+
+    def pad(x):
+        return jnp.concatenate([x, jnp.repeat(x[-1:], K - x.shape[0], axis=0)], axis=0)
+
+    times = jnp.stack([pad(c.times) for c in channels])
+    values = jnp.stack([pad(c.values) for c in channels])
+    return times, values, np.array([c.times.shape[0] for c in channels]), np.array([c.bone for c in channels])
+
+
+def _groups(clip: AnimationClip):
+    groups: dict[tuple[str, str], list[Channel]] = {}
+    for channel in clip.channels:
+        groups.setdefault((channel.path, channel.interpolation), []).append(channel)
+    return groups
+
+
+def _rows(x, k):
+    """x[c, k[c]] for every row c."""
+    return jnp.take_along_axis(x, k.reshape(k.shape + (1,) * (x.ndim - 1)), axis=1)[:, 0]
+
+
+def _sample_rows(path: str, interpolation: str, times, values, counts, t):
+    """Values of stacked channels (c, d) at time t per the glTF specification."""
+    k, k1, alpha = _locate(times, t, counts)
+    if interpolation == "CUBICSPLINE":
+        # p = (2s^3-3s^2+1) v_k + td (s^3-2s^2+s) b_k + (-2s^3+3s^2) v_k+1 + td (s^3-s^2) a_k+1
+        td = (_rows(times, k1) - _rows(times, k))[:, None]
+        s = alpha[:, None]
+        s2, s3 = s**2, s**3
+        vk, vk1 = _rows(values, k), _rows(values, k1)
+        value = ((2 * s3 - 3 * s2 + 1) * vk[:, 1] + td * (s3 - 2 * s2 + s) * vk[:, 2]
+                 + (-2 * s3 + 3 * s2) * vk1[:, 1] + td * (s3 - s2) * vk1[:, 0])
+        return value / jnp.linalg.norm(value, axis=-1, keepdims=True) if path == "rotation" else value
+    if interpolation == "STEP":
+        return _rows(values, jnp.where(alpha >= 1, k1, k))
+    a, b = _rows(values, k), _rows(values, k1)
+    if path == "rotation":
+        return _slerp(a, b, alpha)
+    return (1 - alpha[:, None]) * a + alpha[:, None] * b
 
 
 def sample_channel(channel: Channel, t) -> Float[Array, " d"]:
     """Value of one channel at time t per the glTF specification."""
-    k, alpha = _locate(channel.times, t)
-    if channel.interpolation == "CUBICSPLINE":
-        value = _hermite(channel, k, alpha)
-        return value / jnp.linalg.norm(value) if channel.path == "rotation" else value
-    v = channel.values
-    if channel.interpolation == "STEP" or v.shape[0] == 1:
-        return v[jnp.where(alpha >= 1, k + 1, k)] if v.shape[0] > 1 else v[0]
-    if channel.path == "rotation":
-        return _slerp(v[k], v[k + 1], alpha)
-    return (1 - alpha) * v[k] + alpha * v[k + 1]
+    times, values, counts, _ = _stack([channel])
+    return _sample_rows(channel.path, channel.interpolation, times, values, counts, t)[0]
 
 
 def sample_trs(skeleton: Skeleton, clip: AnimationClip, t):
     """Local TRS of every bone at time t per the glTF specification (unanimated properties keep
     the rest value). Returns translation (b, 3), rotation (b, 4) in (x, y, z, w), scale (b, 3)."""
     trs = {"translation": skeleton.translation, "rotation": skeleton.rotation, "scale": skeleton.scale}
-    for channel in clip.channels:
-        value = sample_channel(channel, t).astype(trs[channel.path].dtype)
-        trs[channel.path] = trs[channel.path].at[channel.bone].set(value)
+    for (path, interpolation), channels in _groups(clip).items():
+        times, values, counts, bones = _stack(channels)
+        value = _sample_rows(path, interpolation, times, values, counts, t)
+        trs[path] = trs[path].at[jnp.asarray(bones)].set(value.astype(trs[path].dtype))
     return trs["translation"], trs["rotation"], trs["scale"]
 
 
 def sample_matrices(skeleton: Skeleton, clip: AnimationClip, t) -> Float[Array, "b 4 4"]:
     """Local matrices ``T R S`` (eq. 15) of every bone at time t (specification sampling)."""
     return trs_to_matrix(*sample_trs(skeleton, clip, t))
+
+
+_PART_BLADES = {"translation": KINDS["translator"], "rotation": KINDS["rotor"], "scale": KINDS["dilator"]}
 
 
 def _key_versors(path: str, values) -> Multivector:
@@ -242,14 +277,6 @@ def _key_versors(path: str, values) -> Multivector:
     return cga.dilator(uniform_scale(values))
 
 
-def _blend_keys(path: str, values, k, alpha) -> Multivector:
-    a, b = values[k], values[k + 1]
-    if path == "rotation":
-        # Shortest arc, as the specification's slerp: q and -q are the same rotation.
-        b = jnp.where(jnp.sum(a * b) < 0, -b, b)
-    return cga.blend_log(_key_versors(path, a), _key_versors(path, b), alpha)
-
-
 def _project(m: Multivector, blades) -> Multivector:
     """Keep the components on ``blades`` (the blend of two rotors is a rotor, though log/exp carry it
     in the motor's blades)."""
@@ -257,27 +284,32 @@ def _project(m: Multivector, blades) -> Multivector:
     return Multivector(m.values[..., jnp.asarray(columns)], blades)
 
 
+def _versor_rows(path: str, interpolation: str, times, values, counts, t) -> Multivector:
+    """Versors of stacked channels at time t: LINEAR keys blended logarithmically (sec. 2.5)."""
+    if interpolation != "LINEAR":
+        return _key_versors(path, _sample_rows(path, interpolation, times, values, counts, t))
+    k, k1, alpha = _locate(times, t, counts)
+    a, b = _rows(values, k), _rows(values, k1)
+    if path == "rotation":
+        # Shortest arc, as the specification's slerp: q and -q are the same rotation.
+        b = jnp.where((jnp.sum(a * b, axis=-1) < 0)[:, None], -b, b)
+    return _project(cga.blend_log(_key_versors(path, a), _key_versors(path, b), alpha), _PART_BLADES[path])
+
+
 def sample_versors(skeleton: Skeleton, clip: AnimationClip, t) -> Multivector:
     """Local similitudes ``T R D`` of every bone at time t, keys blended logarithmically (sec. 2.5,
     4.1). Batch shape (b,)."""
-    translation, rotation, scale = skeleton.translation, skeleton.rotation, skeleton.scale
     parts = {
-        "translation": cga.translator(translation).values,
-        "rotation": _rotor_xyzw(rotation).values,
-        "scale": cga.dilator(uniform_scale(scale)).values,
+        "translation": cga.translator(skeleton.translation).values,
+        "rotation": _rotor_xyzw(skeleton.rotation).values,
+        "scale": cga.dilator(uniform_scale(skeleton.scale)).values,
     }
-    blades = {"translation": KINDS["translator"], "rotation": KINDS["rotor"], "scale": KINDS["dilator"]}
-    for channel in clip.channels:
-        k, alpha = _locate(channel.times, t)
-        if channel.interpolation == "CUBICSPLINE":
-            versor = _key_versors(channel.path, sample_channel(channel, t))
-        elif channel.interpolation == "STEP" or channel.values.shape[0] == 1:
-            versor = _key_versors(channel.path, sample_channel(channel, t))
-        else:
-            versor = _blend_keys(channel.path, channel.values, k, alpha)
-        versor = _project(versor, blades[channel.path])
-        parts[channel.path] = parts[channel.path].at[channel.bone].set(versor.values.astype(parts[channel.path].dtype))
-    t_, r_, d_ = (Multivector(parts[p], blades[p]) for p in ("translation", "rotation", "scale"))
+    for (path, interpolation), channels in _groups(clip).items():
+        times, values, counts, bones = _stack(channels)
+        versors = _versor_rows(path, interpolation, times, values, counts, t)
+        parts[path] = parts[path].at[jnp.asarray(bones)].set(versors.embed(_PART_BLADES[path]).values
+                                                              .astype(parts[path].dtype))
+    t_, r_, d_ = (Multivector(parts[p], _PART_BLADES[p]) for p in ("translation", "rotation", "scale"))
     return (t_ * r_ * d_).embed(_SIMILITUDE)
 
 
@@ -304,9 +336,9 @@ class Keyframes(eqx.Module):
 def sample_keyframes(keyframes: Keyframes, t) -> Multivector:
     """Local versors at time t: linear blending of the two surrounding keys, renormalized."""
     poses = keyframes.poses.embed(_SIMILITUDE)
-    k, alpha = _locate(keyframes.times, t)
     if keyframes.times.shape[0] == 1:
         return poses[0]
+    k, _, alpha = _locate(keyframes.times, t)
     a, b = poses[k], poses[k + 1]
     # Align each bone's key with the previous one (V and -V are the same transformation).
     dot = jnp.sum(a.values * b.values, axis=-1, keepdims=True)

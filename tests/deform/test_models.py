@@ -1,0 +1,149 @@
+"""Skinning real models against the glTF specification, batches, sharding and fitting.
+
+The reference (tests/deform/_gltf_reference.py) computes joint matrices independently from the raw
+file with numpy and scipy; Arm5 checks its bind positions; fits recover known random poses."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import deform
+import jaxcga as cga
+from tests.deform._gltf_reference import Reference
+
+DATA = Path(__file__).resolve().parents[1] / "data"
+
+
+@pytest.fixture(scope="module")
+def models():
+    return {name: deform.load_model(DATA / f"{name}.glb") for name in ("RiggedSimple", "CesiumMan", "Arm5")}
+
+
+def _diagonal(x):
+    x = np.asarray(x)
+    return float(np.linalg.norm(x.max(axis=0) - x.min(axis=0)))
+
+
+@pytest.mark.parametrize("name", ["RiggedSimple", "CesiumMan"])
+def test_skinning_follows_the_specification(models, name):
+    model = models[name]
+    reference = Reference(DATA / f"{name}.glb")
+    clip = model.clips[0]
+    skin = {m: jax.jit(lambda t, m=m: deform.skin_model(model, t, m)) for m in ("lbs", "cga")}
+    for t in [clip.start, 0.37, 1.0, 1.61, clip.end, clip.end + 1.0]:
+        expected = reference.skin(0, t)
+        tol = 1e-6 * _diagonal(expected)
+        # matrix LBS: the specification's slerp switches to a normalized lerp within 0.9995 of
+        # equal keys, a ~1e-7 relative difference from scipy's exact slerp.
+        np.testing.assert_allclose(skin["lbs"](t), expected, atol=tol)
+        # eq. (17) with log-blended keys; the float32 inverse-bind matrices become exact similitudes.
+        np.testing.assert_allclose(skin["cga"](t), expected, atol=2 * tol)
+
+
+def test_motor_blend_equals_dqs_on_a_rigid_clip(models):
+    model = models["CesiumMan"]
+    for t in [0.3, 1.2]:
+        dqs = deform.skin_model(model, t, "dqs")
+        np.testing.assert_allclose(deform.skin_model(model, t, "cga_motor_blend"), dqs, atol=1e-6 * _diagonal(dqs))
+
+
+def test_arm5_rest_pose_reproduces_bind_positions(models):
+    model = models["Arm5"]
+    V = np.asarray(model.mesh.V)
+    diagonal = _diagonal(V)
+    # Eq. (17)'s down-projection divides by the summed weights (Arm5's sum to 0.998..1 in the file).
+    np.testing.assert_allclose(deform.rest_pose(model, "cga"), V, atol=1e-6 * diagonal)
+    np.testing.assert_allclose(deform.rest_pose(model, "cga_motor_blend"), V, atol=1e-6 * diagonal)
+    # LBS follows the specification to the letter: with the stored weights it equals the reference...
+    np.testing.assert_allclose(deform.rest_pose(model, "lbs"), Reference(DATA / "Arm5.glb").skin(), atol=1e-9)
+    # ...and with weights renormalized it reproduces the bind positions.
+    normalized = deform.RiggedModel(model.mesh.with_normalized_weights(), model.skeleton, model.clips)
+    np.testing.assert_allclose(deform.rest_pose(normalized, "lbs"), V, atol=1e-6 * diagonal)
+
+
+@pytest.mark.parametrize("method", deform.METHODS)
+def test_same_rigid_motion_on_every_bone_of_cesium_man(models, method):
+    model = models["CesiumMan"]
+    rigid = cga.motor(cga.rotor(jnp.array([0.2, 1.0, -0.4]), 1.3), jnp.array([0.5, -0.2, 1.0]))
+    local = deform.sample_pose(model, 0.8, "cga")
+    roots = jnp.asarray([p < 0 for p in model.skeleton.parents])[:, None]
+    moved = cga.Multivector(jnp.where(roots, (rigid * local).embed(local.blades).values, local.values), local.blades)
+    before = deform.skin_pose(model, local, method)
+    # LBS and DQS keep the stored float32 weights, whose sums are 1 +- 6e-8: the translation of the
+    # rigid motion then picks up (1 - sum w) t. Eq. (17)'s down-projection divides that out.
+    tol = 1e-12 if method.startswith("cga") else 1e-6
+    np.testing.assert_allclose(deform.skin_pose(model, moved, method), cga.apply_to_points(rigid, before), atol=tol)
+
+
+def test_thousand_poses_of_cesium_man_in_one_jit_call(models):
+    model = models["CesiumMan"]
+    times = jnp.linspace(0.0, 2.0, 1000)
+    frames = jax.jit(jax.vmap(lambda t: deform.skin_model(model, t, "cga")))(times)
+    assert frames.shape == (1000, model.mesh.num_vertices, 3)
+    assert bool(jnp.all(jnp.isfinite(frames)))
+    for k in (0, 357, 999):
+        np.testing.assert_allclose(frames[k], deform.skin_model(model, times[k], "cga"), atol=1e-12)
+
+
+def test_sharded_batch_equals_unsharded():
+    """1,000 CesiumMan poses split over 4 host devices (a fresh process: XLA_FLAGS must be set first)."""
+    script = textwrap.dedent(f"""
+        import jax, jax.numpy as jnp, numpy as np
+        jax.config.update("jax_enable_x64", True)
+        import deform
+        assert len(jax.devices()) == 4, jax.devices()
+        model = deform.load_model({str(DATA / "CesiumMan.glb")!r})
+        times = jnp.linspace(0.0, 2.0, 1000)
+        skin = lambda t: deform.skin_model(model, t, "cga")
+        sharded = deform.sharded_vmap(skin, times)
+        assert len(sharded.sharding.device_set) == 4
+        plain = jax.jit(jax.vmap(skin))(times)
+        np.testing.assert_allclose(np.asarray(sharded), np.asarray(plain), atol=1e-12)
+        odd = deform.sharded_vmap(skin, times[:998])  # padded to a multiple of 4, then cut
+        np.testing.assert_allclose(np.asarray(odd), np.asarray(plain[:998]), atol=1e-12)
+        print("sharded ok")
+    """)
+    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=4", JAX_PLATFORMS="cpu")
+    root = Path(__file__).resolve().parents[2]
+    done = subprocess.run([sys.executable, "-c", script], env=env, cwd=root, capture_output=True, text=True,
+                          timeout=600)
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert "sharded ok" in done.stdout
+
+
+@pytest.mark.parametrize("name", ["Arm5", "CesiumMan"])
+def test_fit_recovers_known_random_poses(models, name):
+    model = models[name]
+    truth = deform.random_parameters(jax.random.PRNGKey(3), model, rotation=0.3, translation=0.02, log_scale=0.1)
+    targets = deform.skin_parameters(model, truth)
+    fit = deform.fit_pose(model, targets)
+    diagonal = float(deform.bounding_diagonal(model))
+    assert bool(fit.converged)
+    assert float(fit.max_error) <= 1e-6 * diagonal
+
+
+def test_fit_to_a_handful_of_vertices_with_regularization(models):
+    model = models["Arm5"]
+    truth = deform.random_parameters(jax.random.PRNGKey(4), model, rotation=0.2)
+    targets = deform.skin_parameters(model, truth)
+    index = jnp.arange(0, model.mesh.num_vertices, 400)  # 8 vertices
+    loose = deform.fit_pose(model, targets[index], index, regularization=1e-6)
+    tight = deform.fit_pose(model, targets[index], index, regularization=1e-2)
+    diagonal = float(deform.bounding_diagonal(model))
+    assert float(loose.max_error) <= 1e-3 * diagonal
+    # the regularizer pulls toward the rest pose: smaller parameters, larger residual
+    assert float(jnp.linalg.norm(tight.params)) < float(jnp.linalg.norm(loose.params))
+    assert float(tight.max_error) > float(loose.max_error)
+    with pytest.raises(ValueError, match="targets"):
+        deform.fit_pose(model, targets[index][:, :2], index)
+    with pytest.raises(ValueError, match="vertices"):
+        deform.fit_pose(model, targets[:2], jnp.array([0, 10**6]))
