@@ -1,0 +1,85 @@
+"""The ``jaxcga skin``, ``animate`` and ``fit`` commands, end to end in-process."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import trimesh
+
+import deform
+from jaxcga.cli import main
+from tests.deform._gltf_reference import Reference
+
+DATA = Path(__file__).resolve().parents[1] / "data"
+
+
+def test_skin_writes_world_space_float64_positions(tmp_path):
+    out = tmp_path / "cesium.npy"
+    assert main(["skin", str(DATA / "CesiumMan.glb"), "--time", "0.8", "--method", "lbs", "--out", str(out)]) == 0
+    positions = np.load(out)
+    assert positions.dtype == np.float64 and positions.shape == (3273, 3)
+    np.testing.assert_allclose(positions, Reference(DATA / "CesiumMan.glb").skin(0, 0.8), atol=2e-6)
+
+
+def test_skin_default_arm_to_a_posed_glb(tmp_path):
+    out = tmp_path / "arm.glb"
+    assert main(["skin", "--time", "1.0", "--out", str(out)]) == 0
+    arm = deform.default_arm()
+    loaded = trimesh.load(out, force="mesh", process=False)
+    assert loaded.vertices.shape == (arm.mesh.num_vertices, 3)
+    np.testing.assert_allclose(loaded.vertices, deform.skin_model(arm, 1.0, "cga"), atol=1e-5)
+
+
+def test_animate_resamples_the_clip_through_versors(tmp_path):
+    out = tmp_path / "walk.glb"
+    assert main(["animate", str(DATA / "RiggedSimple.glb"), "--frames", "9", "--out", str(out)]) == 0
+    original = deform.load_model(DATA / "RiggedSimple.glb")
+    animated = deform.load_model(out)
+    assert len(animated.clips) == 1 and animated.clips[0].channels[0].times.shape == (9,)
+    times = np.asarray(animated.clips[0].channels[0].times)
+    for t in times[[0, 4, 8]]:
+        expected = deform.skin_model(original, t, "cga")
+        np.testing.assert_allclose(deform.skin_model(animated, t, "lbs"), expected, atol=1e-5)
+
+
+def test_animate_generates_keyframes_for_a_model_without_clip(tmp_path):
+    out = tmp_path / "arm5.gltf"
+    assert main(["animate", str(DATA / "Arm5.glb"), "--frames", "5", "--out", str(out)]) == 0
+    animated = deform.load_model(out)
+    assert animated.clips[0].name == "generated_keyframes"
+    paths = {c.path for c in animated.clips[0].channels}
+    assert paths == {"translation", "rotation", "scale"}  # the generated keys dilate the deepest bones
+    middle = deform.skin_model(animated, 1.0, "cga")
+    assert float(jnp.max(jnp.abs(middle - deform.rest_pose(animated, "cga")))) > 1.0
+
+
+def test_fit_writes_a_pose_that_reproduces_the_target(tmp_path):
+    arm = deform.default_arm()
+    truth = deform.random_parameters(jax.random.PRNGKey(0), arm, rotation=0.3, translation=0.01, log_scale=0.05)
+    np.save(tmp_path / "target.npy", np.asarray(deform.skin_parameters(arm, truth)))
+    out = tmp_path / "pose.json"
+    assert main(["fit", "--target", str(tmp_path / "target.npy"), "--out", str(out)]) == 0
+    pose = json.loads(out.read_text())
+    assert pose["converged"] and pose["max_error"] <= 1e-6 * pose["bounding_diagonal"]
+    assert [b["name"] for b in pose["bones"]] == list(arm.skeleton.names)
+    params = jnp.asarray([b["parameters"] for b in pose["bones"]])
+    np.testing.assert_allclose(deform.skin_parameters(arm, params), deform.skin_parameters(arm, truth), atol=1e-6)
+
+
+def test_errors_are_reported_with_exit_code_2(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main(["skin", str(tmp_path / "missing.glb"), "--out", str(tmp_path / "x.npy")])
+    assert exit_info.value.code == 2
+    assert "missing.glb" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["skin", "--out", str(tmp_path / "x.txt")])
+    assert "out" in capsys.readouterr().err
+    np.save(tmp_path / "bad.npy", np.zeros((5, 3)))
+    with pytest.raises(SystemExit):
+        main(["fit", "--target", str(tmp_path / "bad.npy"), "--out", str(tmp_path / "p.json")])
+    assert "target" in capsys.readouterr().err
