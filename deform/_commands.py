@@ -128,3 +128,42 @@ def fit_command(model: RiggedModel, target: Path, out: Path, method: str = "cga"
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(result, indent=1))
     return {k: result[k] for k in ("max_error", "rms_error", "bounding_diagonal", "steps", "converged")}
+
+
+def skinning_figure(model: RiggedModel, path: Path, frames: int = 5) -> Path:
+    """Save a figure of the model at ``frames`` times of its clip (or of generated keyframes),
+    skinned by eq. (17), with the largest distance to matrix LBS in the title."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    if model.clips:
+        times = jnp.linspace(model.clips[0].start, model.clips[0].end, frames)
+        cga_frames = jax.vmap(lambda t: _pose.skin_model(model, t, "cga"))(times)
+        lbs_frames = jax.vmap(lambda t: _pose.skin_model(model, t, "lbs"))(times)
+    else:
+        keys = generated_keyframes(model)
+        times = jnp.linspace(0.0, float(keys.times[-1]), frames)
+        local = jax.vmap(lambda t: _rig.sample_keyframes(keys, t))(times)
+        cga_frames = _pose.skin_pose(model, local, "cga")
+        lbs_frames = _pose.skin_pose(model, local, "lbs")
+    gap = float(jnp.max(jnp.abs(cga_frames - lbs_frames)))
+    fig = plt.figure(figsize=(3.2 * frames, 3.4))
+    F = np.asarray(model.mesh.F)
+    lo, hi = np.asarray(jnp.min(cga_frames, axis=(0, 1))), np.asarray(jnp.max(cga_frames, axis=(0, 1)))
+    for k in range(frames):
+        ax = fig.add_subplot(1, frames, k + 1, projection="3d")
+        X = np.asarray(cga_frames[k])
+        ax.plot_trisurf(X[:, 0], X[:, 1], X[:, 2], triangles=F, color="tab:orange", linewidth=0, alpha=0.9)
+        ax.set_xlim(lo[0], hi[0])
+        ax.set_ylim(lo[1], hi[1])
+        ax.set_zlim(lo[2], hi[2])
+        ax.set_box_aspect(hi - lo)
+        ax.set_title(f"t = {float(times[k]):.2f} s", fontsize=9)
+        ax.set_axis_off()
+    fig.suptitle(f"{model.name}: multivector skinning, eq. (17); max |eq. 17 - LBS| = {gap:.1e}")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=90, bbox_inches="tight")
+    plt.close(fig)
+    return path
