@@ -56,15 +56,21 @@ def _per_joint(x):
     return (flat @ jnp.eye(shape[-1], dtype=x.dtype)).reshape(shape)
 
 
-def _blend_joints(J, W, data, sign=None):
-    """``sum_k W[:, k] * sign[..., k] * data[..., J[:, k], :]`` (..., n, c), written elementwise over
-    the k influences so that XLA fuses the gathers into one loop: a gather-then-einsum materializes
-    (..., n, k, c) and was measured 100x slower at 100k vertices (and runs out of memory under vmap
-    over 1,000 poses)."""
+def _blend_joints(J, W, data, align: bool = False):
+    """``sum_k W[:, k] * data[..., J[:, k], :]`` (..., n, c), written elementwise over the k influences
+    so that XLA fuses the gathers into one loop: a gather-then-einsum materializes (..., n, k, c) and
+    was measured 100x slower at 100k vertices (and runs out of memory under vmap over 1,000 poses).
+
+    With ``align`` each influence's sign is flipped when its first four components (a rotor or a
+    quaternion) point away from the first influence's: V and -V are the same transformation."""
+    # The signs come from a joint-by-joint table of rotor dot products (a tiny dot), so that the
+    # per-vertex loop reads one entry of it instead of a second gather of every influence.
+    dots = jnp.einsum("...ac,...bc->...ab", data[..., :4], data[..., :4]) if align else None
     acc = None
     for k in range(J.shape[1]):
         w = W[:, k].astype(data.dtype)
-        w = w if sign is None else w * sign[..., k]
+        if align:
+            w = jnp.where(dots[..., J[:, 0], J[:, k]] < 0, -w, w)
         term = w[..., None] * data[..., J[:, k], :]
         acc = term if acc is None else acc + term
     return acc
@@ -72,14 +78,16 @@ def _blend_joints(J, W, data, sign=None):
 
 def _blend_affine(V, J, W, maps: Float[Array, "... j r 4"]) -> Float[Array, "... n 3"]:
     """``sum_k W[:, k] * (maps[J[:, k]] @ [V, 1])`` for every vertex; batch axes lead ``maps``. With
-    4-row maps the result is down-projected: divided by the blended last coordinate."""
-    r = maps.shape[-2]
-    blended = _blend_joints(J, W, maps.reshape(maps.shape[:-2] + (4 * r,)))
+    4-row maps (last row (0, 0, 0, lambda)) the result is down-projected: divided by the blended
+    lambda."""
+    affine = maps[..., :3, :]
+    blended = _blend_joints(J, W, affine.reshape(affine.shape[:-2] + (12,)))
     x, y, z = (V[:, i].astype(maps.dtype) for i in range(3))
     rows = [blended[..., 4 * i] * x + blended[..., 4 * i + 1] * y + blended[..., 4 * i + 2] * z
-            + blended[..., 4 * i + 3] for i in range(r)]
-    if r == 4:
-        rows = [row / rows[3] for row in rows[:3]]
+            + blended[..., 4 * i + 3] for i in range(3)]
+    if maps.shape[-2] == 4:
+        weight = _blend_joints(J, W, maps[..., 3, 3:])[..., 0]
+        rows = [row / weight for row in rows]
     return jnp.stack(rows, axis=-1)
 
 
@@ -149,17 +157,12 @@ def skin_cga_motor_blend(V, J, W, joint_versors: Multivector) -> Float[Array, ".
     motors, log_scale = _motor_and_log_scale(joint_versors)
     motors = _per_joint(motors)
     log_scale = _per_joint(log_scale[..., None])[..., 0]
-    blended = _blend_joints(J, W, motors, _antipodal_signs(J, motors))
+    blended = Multivector(_blend_joints(J, W, motors, align=True), KINDS["motor"])
     scale = jnp.exp(_blend_joints(J, W, log_scale[..., None])[..., 0])
-    return cga.apply_to_points(cga.normalize(Multivector(blended, KINDS["motor"])), V * scale[..., None])
-
-
-def _antipodal_signs(J, data):
-    """Sign per influence (..., n, k) aligning its rotor / quaternion (the first four components)
-    with the first influence's: V and -V are the same transformation."""
-    first = data[..., J[:, 0], :4]
-    return jnp.stack([jnp.where(jnp.sum(data[..., J[:, k], :4] * first, axis=-1) < 0, -1.0, 1.0)
-                      .astype(data.dtype) for k in range(J.shape[1])], axis=-1)
+    # No explicit normalization: the generated point map of M up(x) ~M divides by the eo row, the
+    # scalar part of M ~M, and the e123inf part of M ~M does not reach points, so the unnormalized
+    # blend moves points exactly as ``jaxcga.normalize(M)`` does (tested), inside one fused loop.
+    return cga.apply_to_points(blended, V * scale[..., None], fused=True)
 
 
 def _quat_mul(p, q):
@@ -204,18 +207,17 @@ def skin_dqs(V, J, W, joint_dual_quaternions: Float[Array, "... j 8"]) -> Float[
     if dq.ndim < 2 or dq.shape[-1] != 8:
         raise ValueError(f"joint_dual_quaternions: expected shape (..., j, 8), got {dq.shape}")
     d = _per_joint(dq)
-    b = _blend_joints(J, W, d, _antipodal_signs(J, d))
-    real, dual = b[..., :4], b[..., 4:]
-    inv = 1.0 / jnp.sum(real * real, axis=-1)
-    w, x, y, z = (real[..., i] for i in range(4))
-    # Rotation of the unnormalized real part, divided by its squared norm.
-    rx = V[..., 0].astype(d.dtype)
-    ry = V[..., 1].astype(d.dtype)
-    rz = V[..., 2].astype(d.dtype)
-    out_x = (w * w + x * x - y * y - z * z) * rx + 2 * (x * y - w * z) * ry + 2 * (x * z + w * y) * rz
-    out_y = 2 * (x * y + w * z) * rx + (w * w - x * x + y * y - z * z) * ry + 2 * (y * z - w * x) * rz
-    out_z = 2 * (x * z - w * y) * rx + 2 * (y * z + w * x) * ry + (w * w - x * x - y * y + z * z) * rz
-    conj = real * jnp.asarray([1.0, -1.0, -1.0, -1.0], d.dtype)
-    t = 2.0 * _quat_mul(dual, conj)[..., 1:]
-    rotated = jnp.stack([out_x, out_y, out_z], axis=-1)
-    return (rotated + t) * inv[..., None]
+    b = _blend_joints(J, W, d, align=True)
+    w, x, y, z = (b[..., i] for i in range(4))
+    dw, dx, dy, dz = (b[..., 4 + i] for i in range(4))
+    inv = 1.0 / (w * w + x * x + y * y + z * z)
+    vx, vy, vz = (V[:, i].astype(d.dtype) for i in range(3))
+    # Rotation by the unnormalized real part and translation 2 q_d q_r^*, both divided by |q_r|^2;
+    # written per component (no stacked temporaries) so that XLA fuses the whole vertex loop.
+    out_x = (w * w + x * x - y * y - z * z) * vx + 2 * (x * y - w * z) * vy + 2 * (x * z + w * y) * vz
+    out_y = 2 * (x * y + w * z) * vx + (w * w - x * x + y * y - z * z) * vy + 2 * (y * z - w * x) * vz
+    out_z = 2 * (x * z - w * y) * vx + 2 * (y * z + w * x) * vy + (w * w - x * x - y * y + z * z) * vz
+    t_x = 2 * (-dw * x + dx * w - dy * z + dz * y)
+    t_y = 2 * (-dw * y + dx * z + dy * w - dz * x)
+    t_z = 2 * (-dw * z - dx * y + dy * x + dz * w)
+    return jnp.stack([(out_x + t_x) * inv, (out_y + t_y) * inv, (out_z + t_z) * inv], axis=-1)

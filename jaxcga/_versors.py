@@ -132,10 +132,15 @@ def _map_entries(v: Multivector, columns=None):
     return entries
 
 
-def apply_to_points(v: Multivector, x: Float[Array, "... 3"]) -> Float[Array, "... 3"]:
+def apply_to_points(v: Multivector, x: Float[Array, "... 3"], fused: bool = False) -> Float[Array, "... 3"]:
     """Apply a versor (rotor, translator, dilator, motor, similitude) to Euclidean points: the
     sandwich ``V up(x) V^-1`` down-projected, evaluated as the affine map whose entries are generated
     from V's components. Batch shapes of v and x broadcast: one motor per point or one for all.
+
+    ``fused=True`` leaves the memory layout to XLA: use it when V is itself computed elementwise per
+    point in the same jit (e.g. motors blended per vertex), so that the whole computation fuses into
+    one loop instead of materializing V (the default re-lays V and x out component-major behind
+    optimization barriers, measured 2-3x faster for stored per-point versors).
 
     Hot path: x is checked for shape here, but values are not checked for NaN (that would cost a
     pass over the data); ``up``/``point`` check them."""
@@ -143,6 +148,18 @@ def apply_to_points(v: Multivector, x: Float[Array, "... 3"]) -> Float[Array, ".
         raise ValueError("v: expected a versor Multivector")
     x = check_vectors("x", x)
     batch = broadcast_batch("v", v.batch_shape, "x", x.shape[:-1])
+    if fused:
+        a = _map_entries(v)
+        xs = [x[..., 0], x[..., 1], x[..., 2]]
+        sq = 0.5 * (xs[0] ** 2 + xs[1] ** 2 + xs[2] ** 2) if any(col == 4 for (_, col) in a) else None
+        inputs = xs + [None, sq]
+
+        def fused_row(r):
+            terms = [a[(r, c)] if c == 3 else a[(r, c)] * inputs[c] for c in range(5) if (r, c) in a]
+            return functools.reduce(lambda p, q: p + q, terms)
+
+        inv_w = 1.0 / fused_row(3)
+        return jnp.stack([jnp.broadcast_to(fused_row(k) * inv_w, batch) for k in range(3)], axis=-1)
     # Work on component-major copies: XLA:CPU then vectorizes the generated arithmetic along the
     # points (measured 2-3x faster than on the interleaved (..., k) layout). The barriers keep
     # XLA from fusing the transposes back into the arithmetic.
