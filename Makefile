@@ -14,7 +14,7 @@ $(STAMP): pyproject.toml
 
 install: $(STAMP)
 
-## Run the main job on the built-in default (prints a tour, saves out/blending.png).
+## Run the main job on the built-in default (kernel tour, the rigged arm; figures and a glb in out/).
 demo: $(STAMP)
 	$(VENV)/bin/jaxcga demo
 
@@ -26,6 +26,7 @@ test: $(STAMP)
 bench: $(STAMP)
 	mkdir -p out/bench
 	$(PY) benchmarks/bench_kernel.py --json out/bench/kernel.json
+	$(PY) benchmarks/bench_skinning.py --json out/bench/skinning.json
 
 clean:
 	rm -rf $(VENV) out .pytest_cache

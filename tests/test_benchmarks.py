@@ -1,0 +1,23 @@
+"""The benchmark scripts run (in their small --quick mode) and write the JSON names the issues
+promise. Speed itself is not asserted here: it is measured by `make bench`."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def test_bench_skinning_quick_writes_the_published_names(tmp_path):
+    out = tmp_path / "skinning.json"
+    done = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "bench_skinning.py"), "--quick", "--json", str(out)],
+                          capture_output=True, text=True, timeout=600, cwd=ROOT)
+    assert done.returncode == 0, done.stderr[-3000:]
+    result = json.loads(out.read_text())
+    for name in ("cga_vs_lbs_f32", "cga_vs_lbs_f64", "cga_motor_blend_vs_dqs_f32", "cga_motor_blend_vs_dqs_f64"):
+        assert result["ratios"][name] > 0
+    for name in ("cga_20_poses_f32_s", "lbs_20_poses_f32_s"):  # cga_1000_poses_f32_s with the default --poses
+        assert result["figures"][name] > 0 and name in result["units"]
