@@ -56,27 +56,24 @@ def _per_joint(x):
     return (flat @ jnp.eye(shape[-1], dtype=x.dtype)).reshape(shape)
 
 
-def _blend_joints(J, W, data, align: bool = False, unsigned=None):
+def _blend_joints(J, W, data, align: bool = False):
     """``sum_k W[:, k] * data[..., J[:, k], :]`` (..., n, c), written elementwise over the k influences
     so that XLA fuses the gathers into one loop: a gather-then-einsum materializes (..., n, k, c) and
     was measured 100x slower at 100k vertices (and runs out of memory under vmap over 1,000 poses).
 
     With ``align`` each influence's sign is flipped when its first four components (a rotor or a
-    quaternion) point away from the first influence's: V and -V are the same transformation. Per-joint
-    data in ``unsigned`` (..., j, u) is blended in the same loop without the signs, and returned second."""
+    quaternion) point away from the first influence's: V and -V are the same transformation."""
     # The signs come from a joint-by-joint table of rotor dot products (a tiny dot), so that the
     # per-vertex loop reads one entry of it instead of a second gather of every influence.
     dots = jnp.einsum("...ac,...bc->...ab", data[..., :4], data[..., :4]) if align else None
-    acc = extra = None
+    acc = None
     for k in range(J.shape[1]):
         w = W[:, k].astype(data.dtype)
-        signed = jnp.where(dots[..., J[:, 0], J[:, k]] < 0, -w, w) if align else w
-        term = signed[..., None] * data[..., J[:, k], :]
+        if align:
+            w = jnp.where(dots[..., J[:, 0], J[:, k]] < 0, -w, w)
+        term = w[..., None] * data[..., J[:, k], :]
         acc = term if acc is None else acc + term
-        if unsigned is not None:
-            term = w[..., None] * unsigned[..., J[:, k], :]
-            extra = term if extra is None else extra + term
-    return acc if unsigned is None else (acc, extra)
+    return acc
 
 
 def _blend_affine(V, J, W, maps: Float[Array, "... j r 4"]) -> Float[Array, "... n 3"]:
@@ -160,12 +157,12 @@ def skin_cga_motor_blend(V, J, W, joint_versors: Multivector) -> Float[Array, ".
     motors, log_scale = _motor_and_log_scale(joint_versors)
     motors = _per_joint(motors)
     log_scale = _per_joint(log_scale[..., None])[..., 0]
-    blended, log_blend = _blend_joints(J, W, motors, align=True, unsigned=log_scale[..., None])
-    # The vertex's versor M D(s). No explicit normalization: the generated point map of V up(x) ~V
-    # divides by its eo row (the scalar part of V ~V), and the e123inf part of M ~M does not reach
-    # points, so the unnormalized blend moves points exactly as ``jaxcga.normalize(M)`` does (tested).
-    versor = Multivector(blended, KINDS["motor"]) * cga.dilator(jnp.exp(log_blend[..., 0]))
-    return cga.apply_to_points(versor, V, fused=True)
+    blended = Multivector(_blend_joints(J, W, motors, align=True), KINDS["motor"])
+    scale = jnp.exp(_blend_joints(J, W, log_scale[..., None])[..., 0])
+    # No explicit normalization: the generated point map of M up(x) ~M divides by the eo row, the
+    # scalar part of M ~M, and the e123inf part of M ~M does not reach points, so the unnormalized
+    # blend moves points exactly as ``jaxcga.normalize(M)`` does (tested), inside one fused loop.
+    return cga.apply_to_points(blended, V * scale[..., None], fused=True)
 
 
 def _quat_mul(p, q):
