@@ -79,15 +79,17 @@ def _blend_joints(J, W, data, align: bool = False):
 def _blend_affine(V, J, W, maps: Float[Array, "... j r 4"]) -> Float[Array, "... n 3"]:
     """``sum_k W[:, k] * (maps[J[:, k]] @ [V, 1])`` for every vertex; batch axes lead ``maps``. With
     4-row maps (last row (0, 0, 0, lambda)) the result is down-projected: divided by the blended
-    lambda."""
-    affine = maps[..., :3, :]
-    blended = _blend_joints(J, W, affine.reshape(affine.shape[:-2] + (12,)))
+    lambda, which rides along as a 13th column of the per-joint table (one blend, one reciprocal)."""
+    table = maps[..., :3, :].reshape(maps.shape[:-3] + (maps.shape[-3], 12))
+    if maps.shape[-2] == 4:
+        table = _per_joint(jnp.concatenate([table, maps[..., 3, 3:]], axis=-1))
+    blended = _blend_joints(J, W, table)
     x, y, z = (V[:, i].astype(maps.dtype) for i in range(3))
     rows = [blended[..., 4 * i] * x + blended[..., 4 * i + 1] * y + blended[..., 4 * i + 2] * z
             + blended[..., 4 * i + 3] for i in range(3)]
     if maps.shape[-2] == 4:
-        weight = _blend_joints(J, W, maps[..., 3, 3:])[..., 0]
-        rows = [row / weight for row in rows]
+        inv = 1.0 / blended[..., 12]
+        rows = [row * inv for row in rows]
     return jnp.stack(rows, axis=-1)
 
 
@@ -130,7 +132,7 @@ def skin_cga(V, J, W, joint_versors: Multivector, normalize_points: bool = False
     maps = cga.versor_to_matrix(joint_versors, normalized=normalize_points)
     if normalize_points:
         maps = maps[..., :3, :]
-    return _blend_affine(V, J, W, _per_joint(maps))
+    return _blend_affine(V, J, W, maps if not normalize_points else _per_joint(maps))
 
 
 def _motor_and_log_scale(versors: Multivector):
