@@ -72,24 +72,32 @@ def rest_pose(model: RiggedModel, method: str = "cga"):
     return skin_pose(model, _rig.local_matrices(model.skeleton), method)
 
 
-@eqx.filter_jit
 def sample_pose(model: RiggedModel, t, method: str = "cga", clip: int | str = 0):
     """Local bone transforms of clip ``clip`` at time t: versors (b,) for the multivector methods,
     matrices (b, 4, 4) for the matrix methods."""
     _check_method(method)
-    animation = model.clip(clip)
+    # The time goes in as an array: filter_jit would treat a Python float as static and recompile.
+    return _sample_pose(model, jnp.asarray(t), method, model.clip(clip))
+
+
+@eqx.filter_jit
+def _sample_pose(model: RiggedModel, t, method: str, animation):
     if method in ("cga", "cga_motor_blend"):
         return _rig.sample_versors(model.skeleton, animation, t)
     return _rig.sample_matrices(model.skeleton, animation, t)
 
 
-@eqx.filter_jit
 def skin_model(model: RiggedModel, t, method: str = "cga", clip: int | str = 0):
     """Skinned positions (n, 3) of the model at time t of a clip (rest pose when it has no clip).
     vmap over t for many frames."""
     if not model.clips:
         return rest_pose(model, method)
-    return skin_pose(model, sample_pose(model, t, method, clip), method)
+    return _skin_model(model, jnp.asarray(t), method, model.clip(clip))
+
+
+@eqx.filter_jit
+def _skin_model(model: RiggedModel, t, method: str, animation):
+    return skin_pose(model, _sample_pose(model, t, method, animation), method)
 
 
 def sharded_vmap(fn, batch, devices=None):
