@@ -25,9 +25,8 @@ transforms (poses).
 from __future__ import annotations
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Float, Int
+from jaxtyping import Array, Float
 
 import jaxcga as cga
 from jaxcga._multivector import KINDS, Multivector
@@ -167,20 +166,6 @@ def skin_cga_motor_blend(V, J, W, joint_versors: Multivector) -> Float[Array, ".
     return cga.apply_to_points(blended, V * scale[..., None], fused=True)
 
 
-def _quat_mul(p, q):
-    pw, px, py, pz = (p[..., i] for i in range(4))
-    qw, qx, qy, qz = (q[..., i] for i in range(4))
-    return jnp.stack(
-        [
-            pw * qw - px * qx - py * qy - pz * qz,
-            pw * qx + px * qw + py * qz - pz * qy,
-            pw * qy - px * qz + py * qw + pz * qx,
-            pw * qz + px * qy - py * qx + pz * qw,
-        ],
-        axis=-1,
-    )
-
-
 def matrices_to_dual_quaternions(matrices: Float[Array, "... 4 4"], tolerance: float = 1e-5) -> Float[Array, "... 8"]:
     """Unit dual quaternions (real w, x, y, z; dual w, x, y, z) of rigid 4x4 matrices; a matrix with a
     scale or shear raises inside jit (DQS cannot represent a dilation, the paper's sec. 3)."""
@@ -191,9 +176,7 @@ def matrices_to_dual_quaternions(matrices: Float[Array, "... 4 4"], tolerance: f
     err = jnp.max(jnp.abs(jnp.swapaxes(rot, -1, -2) @ rot - jnp.eye(3, dtype=rot.dtype)), initial=0.0)
     rot = eqx.error_if(rot, err > tolerance, "matrices: dual-quaternion skinning needs rigid joint transforms "
                        "(no scale or shear); use skin_cga for dilations")
-    q = cga.matrix_to_quaternion(rot)
-    t = jnp.concatenate([jnp.zeros(q.shape[:-1] + (1,), q.dtype), matrices[..., :3, 3]], axis=-1)
-    return jnp.concatenate([q, 0.5 * _quat_mul(t, q)], axis=-1)
+    return cga.motor_to_dual_quaternion(cga.matrix_to_motor(matrices.at[..., :3, :3].set(rot)))
 
 
 def skin_dqs(V, J, W, joint_dual_quaternions: Float[Array, "... j 8"]) -> Float[Array, "... n 3"]:
