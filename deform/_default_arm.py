@@ -16,6 +16,7 @@ from scipy.interpolate import PchipInterpolator
 from scipy.spatial.transform import Rotation
 
 from deform._model import AnimationClip, Channel, RiggedModel, Skeleton, SkinnedMesh
+from deform._rig import forward_kinematics_matrices, trs_to_matrix
 
 _NAMES = ("shoulder", "upper_arm", "forearm", "hand")
 _PARENTS = (-1, 0, 1, 2)
@@ -51,14 +52,11 @@ def _smoothstep(x):
 
 
 def _global_matrices(translation, rotation):
-    """(b, 4, 4) global matrices of the bones from local translations and (x, y, z, w) rotations (unit scale)."""
-    local = np.tile(np.eye(4), (len(_PARENTS), 1, 1))
-    local[:, :3, :3] = Rotation.from_quat(rotation).as_matrix()
-    local[:, :3, 3] = translation
-    G = []
-    for i, p in enumerate(_PARENTS):
-        G.append(local[i] if p < 0 else G[p] @ local[i])
-    return np.stack(G)
+    """(b, 4, 4) global matrices of the bones from local translations and (x, y, z, w) rotations (unit
+    scale), by the rig's own forward kinematics (eq. 15), in float64 on the host."""
+    translation, rotation = np.asarray(translation, np.float64), np.asarray(rotation, np.float64)
+    local = trs_to_matrix(translation, rotation, np.ones_like(translation))
+    return np.asarray(forward_kinematics_matrices(_PARENTS, local), np.float64)
 
 
 def _rings(rings_per_unit):
