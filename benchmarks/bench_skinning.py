@@ -5,7 +5,8 @@ on a subdivided Arm5 (>= 100k vertices, 23 joints, 4 influences), float32 and fl
 Every method runs the whole pipeline from local bone transforms to vertex positions, jitted:
 forward kinematics, joint transforms, per-vertex skinning. The baselines take local 4x4 matrices (LBS)
 and convert joint matrices to dual quaternions (DQS); the multivector methods take local similitudes.
-All get the same random rigid poses. The batch of poses runs as ``jax.lax.map(..., batch_size=chunk)``:
+All get the same random rigid poses. Calls are interleaved round-robin over the methods (medians per
+method), so that the machine's drift during the run does not bias a ratio. The batch of poses runs as ``jax.lax.map(..., batch_size=chunk)``:
 vmap over chunks of 50 poses, which bounds the memory of the per-pose temporaries (1,000 poses x 100k
 vertices x 3 floats is already 1.2 GB of output in float32). Ratios are baseline time / our time (> 1: we are faster).
 
@@ -87,14 +88,19 @@ def pipelines(model: deform.RiggedModel):
     return {"lbs": lbs, "dqs": dqs, "cga": cga_sandwich, "cga_motor_blend": cga_motor_blend}
 
 
-def median_time(fn, args, repeats: int) -> float:
-    jax.block_until_ready(fn(*args))  # compile + warm up
-    times = []
+def round_robin_times(fns: dict, args, repeats: int) -> dict:
+    """Median wall time of each function, the calls interleaved round-robin (one call of each per
+    round) so that drift in the machine's speed during the run affects every method alike."""
+    for fn in fns.values():
+        jax.block_until_ready(fn(*args))  # compile + warm up
+    times = {name: [] for name in fns}
     for _ in range(repeats):
-        start = time.perf_counter()
-        jax.block_until_ready(fn(*args))
-        times.append(time.perf_counter() - start)
-    return statistics.median(times)
+        for name, fn in fns.items():
+            start = time.perf_counter()
+            out = jax.block_until_ready(fn(*args))
+            times[name].append(time.perf_counter() - start)
+            del out
+    return {name: statistics.median(t) for name, t in times.items()}
 
 
 def run(vertices: int, poses: int, repeats: int, batch_repeats: int, chunk: int):
@@ -113,25 +119,25 @@ def run(vertices: int, poses: int, repeats: int, batch_repeats: int, chunk: int)
         lv, lm = local.values.astype(dtype), local_m.astype(dtype)
         # Single poses first, all methods, then the batches: the large batch outputs would otherwise
         # sit in memory while the small calls are timed.
-        t_one = {name: median_time(jax.jit(fn), (lv[0], lm[0]), repeats) for name, fn in fns.items()}
+        t_one = round_robin_times({name: jax.jit(fn) for name, fn in fns.items()}, (lv[0], lm[0]), repeats)
+        many = {name: jax.jit(lambda lv, lm, fn=fn: jax.lax.map(lambda a: fn(*a), (lv, lm), batch_size=chunk))
+                for name, fn in fns.items()}
+        reference = many["lbs"](lv, lm)
+        gaps = {}
+        for name, fn in many.items():
+            gaps[name] = float(jnp.max(jnp.abs(fn(lv, lm) - reference)))
+        del reference
+        t_many = round_robin_times(many, (lv, lm), batch_repeats)
         results = {}
-        reference = None
-        for name, fn in fns.items():
-            many = jax.jit(lambda lv, lm, fn=fn: jax.lax.map(lambda a: fn(*a), (lv, lm), batch_size=chunk))
-            out = many(lv, lm)
-            if reference is None:
-                reference = out
-            gap = float(jnp.max(jnp.abs(out - reference)))
-            del out
-            t_many = median_time(many, (lv, lm), batch_repeats)
-            results[name] = (t_one[name], t_many)
+        for name in fns:
+            results[name] = (t_one[name], t_many[name])
             figures[f"{name}_1_pose_{tag}_ms"] = 1e3 * t_one[name]
-            figures[f"{name}_{poses}_poses_{tag}_s"] = t_many
+            figures[f"{name}_{poses}_poses_{tag}_s"] = t_many[name]
             units[f"{name}_1_pose_{tag}_ms"] = "ms"
             units[f"{name}_{poses}_poses_{tag}_s"] = "s"
-            rate = poses * model.mesh.num_vertices / t_many
-            print(f"  {tag} {name:16s} one pose {1e3 * t_one[name]:8.2f} ms   {poses} poses {t_many:7.3f} s "
-                  f"({rate:.3g} vertex-poses/s)   max |x - lbs| {gap:.1e}")
+            rate = poses * model.mesh.num_vertices / t_many[name]
+            print(f"  {tag} {name:16s} one pose {1e3 * t_one[name]:8.2f} ms   {poses} poses {t_many[name]:7.3f} s "
+                  f"({rate:.3g} vertex-poses/s)   max |x - lbs| {gaps[name]:.1e}", flush=True)
         for ours, baseline in (("cga", "lbs"), ("cga_motor_blend", "dqs")):
             key = f"{ours}_vs_{baseline}_{tag}"
             ratios[key] = results[baseline][0] / results[ours][0]

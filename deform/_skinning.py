@@ -45,11 +45,14 @@ def _check_mesh(V, J, W):
     return V, J, W
 
 
-def _per_joint(x):
-    """Materialize a per-joint array before the per-vertex gather. XLA:CPU fuses elementwise
-    producers into a gather and would recompute every joint's map at every (vertex, influence)
-    (measured 3-30x slower); an optimization barrier does not stop that, a dot does, so the joint
-    data goes through a product with the identity (negligible: j x c x c flops)."""
+def _materialize(x):
+    """Materialize an array that XLA:CPU would otherwise fuse into its consumers and recompute there.
+
+    Per-joint data before the per-vertex gather: fused into the gather, every joint's map is
+    recomputed at every (vertex, influence) (measured 3-30x slower). Blended per-vertex versors
+    before the point map: fused into the map, the blend is recomputed for every output coordinate
+    (measured 1.5x slower under vmap over poses). An optimization barrier does not stop XLA:CPU's
+    fusion, a dot does, so the data goes through a product with the identity (c x c flops per row)."""
     shape = x.shape
     flat = x.reshape(-1, shape[-1])
     return (flat @ jnp.eye(shape[-1], dtype=x.dtype)).reshape(shape)
@@ -81,7 +84,7 @@ def _blend_affine(V, J, W, maps: Float[Array, "... j r 4"]) -> Float[Array, "...
     lambda, which rides along as a 13th column of the per-joint table (one blend, one reciprocal)."""
     table = maps[..., :3, :].reshape(maps.shape[:-3] + (maps.shape[-3], 12))
     if maps.shape[-2] == 4:
-        table = _per_joint(jnp.concatenate([table, maps[..., 3, 3:]], axis=-1))
+        table = _materialize(jnp.concatenate([table, maps[..., 3, 3:]], axis=-1))
     blended = _blend_joints(J, W, table)
     x, y, z = (V[:, i].astype(maps.dtype) for i in range(3))
     rows = [blended[..., 4 * i] * x + blended[..., 4 * i + 1] * y + blended[..., 4 * i + 2] * z
@@ -131,7 +134,7 @@ def skin_cga(V, J, W, joint_versors: Multivector, normalize_points: bool = False
     maps = cga.versor_to_matrix(joint_versors, normalized=normalize_points)
     if normalize_points:
         maps = maps[..., :3, :]
-    return _blend_affine(V, J, W, maps if not normalize_points else _per_joint(maps))
+    return _blend_affine(V, J, W, maps if not normalize_points else _materialize(maps))
 
 
 def _motor_and_log_scale(versors: Multivector):
@@ -156,9 +159,9 @@ def skin_cga_motor_blend(V, J, W, joint_versors: Multivector) -> Float[Array, ".
     V, J, W = _check_mesh(V, J, W)
     _check_versors("joint_versors", joint_versors)
     motors, log_scale = _motor_and_log_scale(joint_versors)
-    motors = _per_joint(motors)
-    log_scale = _per_joint(log_scale[..., None])[..., 0]
-    blended = Multivector(_blend_joints(J, W, motors, align=True), KINDS["motor"])
+    motors = _materialize(motors)
+    log_scale = _materialize(log_scale[..., None])[..., 0]
+    blended = Multivector(_materialize(_blend_joints(J, W, motors, align=True)), KINDS["motor"])
     scale = jnp.exp(_blend_joints(J, W, log_scale[..., None])[..., 0])
     # No explicit normalization: the generated point map of M up(x) ~M divides by the eo row, the
     # scalar part of M ~M, and the e123inf part of M ~M does not reach points, so the unnormalized
@@ -191,7 +194,7 @@ def skin_dqs(V, J, W, joint_dual_quaternions: Float[Array, "... j 8"]) -> Float[
     dq = jnp.asarray(joint_dual_quaternions)
     if dq.ndim < 2 or dq.shape[-1] != 8:
         raise ValueError(f"joint_dual_quaternions: expected shape (..., j, 8), got {dq.shape}")
-    d = _per_joint(dq)
+    d = _materialize(dq)
     b = _blend_joints(J, W, d, align=True)
     w, x, y, z = (b[..., i] for i in range(4))
     dw, dx, dy, dz = (b[..., 4 + i] for i in range(4))
