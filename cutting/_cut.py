@@ -1,0 +1,334 @@
+"""Planar cut of a (skinned) triangle mesh: Algorithm 1 of the cut/tear/drill paper (sec. 4.2.1),
+with the weights of new vertices of sec. 4.3 and, beyond the paper, optional capping.
+
+Steps, vectorized over faces (host numpy; the predicates may run on the jaxcga kernel):
+
+1. signed distances of the vertices (``predicates="euclidean"`` or ``"ga"``, Table 1); a vertex within
+   ``tolerance`` (relative to the bounding-box diagonal) of the plane is snapped *onto* it (its
+   position is kept, only its side changes), so that no sliver triangle is created;
+2. one new vertex per edge whose endpoints lie strictly on opposite sides, at ``t = s_i / (s_i - s_j)``
+   along the edge, weights blended from the edge's endpoints (sec. 4.3);
+3. every face re-triangulated by a table over its 27 sign patterns (a lone vertex gives 1 + 2
+   triangles, a vertex on the plane 1 + 1);
+4. faces sorted into the positive side (``n . x > d``) and the negative side;
+5. each side compacted into its own mesh; with ``cap=True`` and a closed input, the cut loops are
+   triangulated (manifold3d) and close both halves.
+
+Vertices on the plane and new vertices belong to both halves (each half has its own copy). The
+original vertices keep their rest positions, joints and weights, so skinning a half at any pose gives,
+at every original vertex, exactly what skinning the input gives.
+
+For a fixed topology the positions of new vertices are a JAX function of the plane and the vertices
+(``cut_positions``), so they can be differentiated with respect to the tool.
+"""
+
+from __future__ import annotations
+
+import itertools
+from typing import NamedTuple
+
+import jax.numpy as jnp
+import numpy as np
+
+from cutting._predicates import check_plane, check_predicates, edge_points, signed_distances
+from cutting._weights import blend_weights
+from deform._model import SkinnedMesh
+
+
+class MeshEdges(NamedTuple):
+    """Reusable adjacency of a triangle mesh (the preprocessing of a cut).
+
+    Attributes:
+        edges: (e, 2) int unique undirected edges, smaller index first.
+        face_edges: (m, 3) int edge id of each face's local edge (k, k+1 mod 3).
+    """
+
+    edges: np.ndarray
+    face_edges: np.ndarray
+
+
+def mesh_edges(F) -> MeshEdges:
+    """Unique edges of the faces F (m, 3) and each face's edge ids."""
+    F = np.asarray(F)
+    if F.ndim != 2 or F.shape[1] != 3:
+        raise ValueError(f"F: expected shape (m, 3), got {F.shape}")
+    directed = np.stack([F, np.roll(F, -1, axis=1)], axis=-1).reshape(-1, 2)
+    edges, inverse = np.unique(np.sort(directed, axis=1), axis=0, return_inverse=True)
+    return MeshEdges(edges, inverse.reshape(-1, 3))
+
+
+def _split_tables():
+    """For each sign pattern (s0, s1, s2) in {-1, 0, 1}^3 (code = 9 (s0+1) + 3 (s1+1) + (s2+1)):
+    the positive and negative triangles as slots (0-2: the face's corners, 3-5: the new vertex on
+    local edge (k, k+1)); -1 pads. All-zero (a face in the plane) is handled by the caller."""
+    positive = -np.ones((27, 2, 3), np.int64)
+    negative = -np.ones((27, 2, 3), np.int64)
+    for signs in itertools.product((-1, 0, 1), repeat=3):
+        code = 9 * (signs[0] + 1) + 3 * (signs[1] + 1) + (signs[2] + 1)
+        if all(s >= 0 for s in signs) or all(s <= 0 for s in signs):
+            side = positive if any(s > 0 for s in signs) else negative
+            side[code, 0] = (0, 1, 2)
+            continue
+        tris = {1: [], -1: []}
+        if 0 in signs:  # one corner on the plane, the others on opposite sides
+            z = signs.index(0)
+            a, b = (z + 1) % 3, (z + 2) % 3
+            x = 3 + a  # new vertex on edge (a, b)
+            tris[signs[a]].append((z, a, x))
+            tris[signs[b]].append((z, x, b))
+        else:  # a lone corner a on one side, b and c on the other
+            a = next(k for k in range(3) if signs.count(signs[k]) == 1)
+            b, c = (a + 1) % 3, (a + 2) % 3
+            x, y = 3 + a, 3 + c  # new vertices on edges (a, b) and (c, a)
+            tris[signs[a]].append((a, x, y))
+            tris[signs[b]] += [(x, b, c), (x, c, y)]
+        for side, sign in ((positive, 1), (negative, -1)):
+            for k, tri in enumerate(tris[sign]):
+                side[code, k] = tri
+    return positive, negative
+
+
+_POSITIVE, _NEGATIVE = _split_tables()
+
+
+class PlaneCut(NamedTuple):
+    """The topology of a planar cut, in an extended vertex numbering: the n input vertices, then one
+    new vertex per crossing edge.
+
+    Attributes:
+        crossing: (p, 2) int the edges (i, j) that carry the new vertices n .. n + p - 1.
+        t: (p,) parameter of each new vertex along its edge, ``x = (1 - t) V_i + t V_j``.
+        points: (p, 3) positions of the new vertices (by the selected predicates).
+        positive: (a,) extended indices of the positive half's vertices (its vertex order).
+        positive_faces: (fa, 3) the positive half's faces in its own numbering (caps included).
+        negative, negative_faces: the same for the negative half.
+        distances: (n,) signed distances of the input vertices after snapping (0: on the plane).
+    """
+
+    crossing: np.ndarray
+    t: np.ndarray
+    points: np.ndarray
+    positive: np.ndarray
+    positive_faces: np.ndarray
+    negative: np.ndarray
+    negative_faces: np.ndarray
+    distances: np.ndarray
+
+
+def _bounding_diagonal(V) -> float:
+    return float(np.linalg.norm(V.max(axis=0) - V.min(axis=0))) if len(V) else 0.0
+
+
+def _is_closed(edges: MeshEdges) -> bool:
+    counts = np.bincount(edges.face_edges.ravel(), minlength=len(edges.edges))
+    return bool(np.all(counts == 2))
+
+
+def plane_cut(V, F, plane, *, predicates: str = "euclidean", tolerance: float = 1e-6, cap: bool = False,
+              edges: MeshEdges | None = None) -> PlaneCut:
+    """Topology and new vertices of cutting the triangle mesh (V, F) by a plane (Algorithm 1).
+
+    Args:
+        V: (n, 3) vertex positions (the mesh as it is cut: rest pose or posed).
+        F: (m, 3) int faces.
+        plane: ``(nx, ny, nz, d)`` or a jaxcga plane vector ``n + d einf`` (eq. 5).
+        predicates: ``"euclidean"`` or ``"ga"`` (Table 1).
+        tolerance: vertices closer to the plane than ``tolerance`` times the bounding-box diagonal
+            count as on it (no sliver triangles).
+        cap: close both halves with the triangulated cut loops (the input must be closed).
+        edges: ``mesh_edges(F)``, precomputed once per topology.
+    Raises:
+        ValueError: bad shapes, non-finite input, or a plane that misses the mesh (all vertices on one
+            side: there is nothing to cut)."""
+    check_predicates(predicates)
+    V = np.asarray(V, np.float64)
+    F = np.asarray(F)
+    if V.ndim != 2 or V.shape[1] != 3:
+        raise ValueError(f"V: expected shape (n, 3), got {V.shape}")
+    if not np.all(np.isfinite(V)):
+        raise ValueError("V: vertex positions must be finite")
+    if F.ndim != 2 or F.shape[1] != 3 or not np.issubdtype(F.dtype, np.integer):
+        raise ValueError(f"F: expected integer faces of shape (m, 3), got {F.dtype} {F.shape}")
+    if F.size and (F.min() < 0 or F.max() >= len(V)):
+        raise ValueError(f"F: vertex indices must lie in [0, {len(V)})")
+    if not tolerance >= 0:
+        raise ValueError(f"tolerance: expected a non-negative number, got {tolerance}")
+    edges = mesh_edges(F) if edges is None else edges
+    if edges.face_edges.shape != F.shape:
+        raise ValueError(f"edges: computed for another mesh (face_edges {edges.face_edges.shape}, F {F.shape})")
+    n, d = check_plane(plane)
+    s = signed_distances(V, n, d, predicates)
+    s = np.where(np.abs(s) <= tolerance * _bounding_diagonal(V), 0.0, s)
+    used = np.unique(F)
+    if not (np.any(s[used] > 0) and np.any(s[used] < 0)):
+        raise ValueError("plane: misses the mesh (every vertex lies on one side of it); nothing to cut")
+    sign = np.sign(s).astype(np.int64)
+
+    # New vertices: one per edge with endpoints strictly on opposite sides.
+    e = edges.edges
+    crossing_mask = sign[e[:, 0]] * sign[e[:, 1]] < 0
+    crossing = e[crossing_mask]
+    points, t = edge_points(V[crossing[:, 0]], V[crossing[:, 1]], s[crossing[:, 0]], s[crossing[:, 1]], n, d,
+                            predicates)
+    new_index = np.full(len(e), -1, np.int64)
+    new_index[crossing_mask] = len(V) + np.arange(len(crossing))
+
+    # Slots per face: its corners, then the new vertex (or -1) on each local edge.
+    slots = np.concatenate([F, new_index[edges.face_edges]], axis=1)
+    face_signs = sign[F]
+    code = 9 * (face_signs[:, 0] + 1) + 3 * (face_signs[:, 1] + 1) + (face_signs[:, 2] + 1)
+    in_plane = code == 13
+    sides = []
+    for table, sign_of_side in ((_POSITIVE, 1), (_NEGATIVE, -1)):
+        templates = table[code]  # (m, 2, 3)
+        valid = templates[:, :, 0] >= 0
+        valid[in_plane] = False
+        faces = np.take_along_axis(slots[:, None, :], np.where(templates < 0, 0, templates), axis=2)[valid]
+        # A face lying in the plane closes the half that its normal points away from.
+        if np.any(in_plane):
+            flat = F[in_plane]
+            normal = np.cross(V[flat[:, 1]] - V[flat[:, 0]], V[flat[:, 2]] - V[flat[:, 0]])
+            faces = np.concatenate([faces, flat[sign_of_side * (normal @ n) < 0]])
+        sides.append(faces)
+
+    if cap:
+        if not _is_closed(edges):
+            raise ValueError("cap: the input mesh is not closed (an edge is not shared by exactly two faces)")
+        extended = np.concatenate([V, points])
+        cap_faces = _cap(extended, sides[0], n)
+        sides = [np.concatenate([sides[0], cap_faces]), np.concatenate([sides[1], cap_faces[:, ::-1]])]
+
+    halves = []
+    for faces in sides:
+        keep, local = np.unique(faces, return_inverse=True)
+        halves += [keep, local.reshape(-1, 3)]
+    return PlaneCut(crossing, t, points, halves[0], halves[1], halves[2], halves[3], s)
+
+
+def _cap(extended, positive_faces, n):
+    """Triangles closing the positive half (normal -n, out of it) over its boundary loops on the plane.
+    The negative half is closed by the same triangles reversed."""
+    import manifold3d
+
+    directed = np.stack([positive_faces, np.roll(positive_faces, -1, axis=1)], axis=-1).reshape(-1, 2)
+    key = np.sort(directed, axis=1)
+    _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    boundary = directed[counts[inverse.ravel()] == 1]
+    if len(boundary) == 0:
+        return np.zeros((0, 3), np.int64)
+    # The cap runs along each boundary edge in the opposite direction: follow v -> u.
+    following = dict(zip(boundary[:, 1].tolist(), boundary[:, 0].tolist()))
+    if len(following) != len(boundary):
+        raise ValueError("cap: the cut loops are not simple (the input is not manifold along the cut)")
+    loops, seen = [], set()
+    for start in following:
+        if start in seen:
+            continue
+        loop, v = [], start
+        while v not in seen:
+            seen.add(v)
+            loop.append(v)
+            v = following.get(v)
+            if v is None:
+                raise ValueError("cap: a cut loop is open (the input is not closed along the cut)")
+        loops.append(np.asarray(loop))
+    # A frame (u, w) of the plane in which the cap, seen from the negative side (-n), is counter-clockwise.
+    u = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
+    u /= np.linalg.norm(u)
+    w = np.cross(-n, u)
+    polygons = [np.stack([extended[loop] @ u, extended[loop] @ w], axis=1) for loop in loops]
+    triangles = np.asarray(manifold3d.triangulate(polygons), np.int64).reshape(-1, 3)
+    vertex_of = np.concatenate(loops)
+    faces = vertex_of[triangles]
+    normal = np.cross(extended[faces[:, 1]] - extended[faces[:, 0]], extended[faces[:, 2]] - extended[faces[:, 0]])
+    flip = normal @ n > 0
+    faces[flip] = faces[flip][:, ::-1]
+    return faces
+
+
+def cut_positions(V, crossing, plane_normal, plane_distance):
+    """Positions (p, 3) of the new vertices of a cut as a JAX function of the vertices and the plane,
+    for a fixed topology (``PlaneCut.crossing``): differentiable with respect to the tool.
+
+    Args:
+        V: (n, 3) vertex positions.
+        crossing: (p, 2) int crossing edges of the cut.
+        plane_normal: (3,) normal (need not be unit length: the intersection does not depend on it).
+        plane_distance: scalar d (with a non-unit normal, the plane is ``normal . x = d``)."""
+    V = jnp.asarray(V)
+    A, B = V[crossing[:, 0]], V[crossing[:, 1]]
+    sA, sB = A @ plane_normal - plane_distance, B @ plane_normal - plane_distance
+    t = sA / (sA - sB)
+    return A + t[:, None] * (B - A)
+
+
+def _rest_positions(mesh: SkinnedMesh, J_new, W_new, targets, joint_matrices):
+    """Rest positions whose LBS image (eq. 16) under ``joint_matrices`` is ``targets``: the inverse
+    of each new vertex's blended affine map."""
+    M = np.asarray(joint_matrices, np.float64)[:, :3, :]
+    blended = np.einsum("pk,pkij->pij", W_new, M[J_new])
+    return np.linalg.solve(blended[:, :, :3], (targets - blended[:, :, 3])[:, :, None])[:, :, 0]
+
+
+def cut(mesh: SkinnedMesh, plane, *, cap: bool = False, predicates: str = "euclidean", side_weight: float = 0.0,
+        tolerance: float = 1e-6, joint_matrices=None, edges: MeshEdges | None = None):
+    """Cut a skinned mesh by a plane (Algorithm 1): the positive side (``n . x > d``), then the negative.
+
+    Both halves are SkinnedMeshes with the input's joints and inverse bind matrices; they animate with
+    every skinning method.
+
+    Args:
+        mesh: the SkinnedMesh (``deform``).
+        plane: ``(nx, ny, nz, d)`` or a jaxcga plane vector (eq. 5), in the space of the mesh as cut:
+            the bind pose, or the pose given by ``joint_matrices``.
+        cap: close both halves (the input must be closed).
+        predicates: ``"euclidean"`` or ``"ga"`` (Table 1).
+        side_weight: in [0, 1]; 0 gives every new vertex the barycentric weights of its edge
+            (sec. 4.3, the same in both halves); towards 1 each half's copy leans to the weights of its
+            own side's endpoint (the variant that favours one side), 1 uses that endpoint's alone.
+        tolerance: snapping distance relative to the bounding-box diagonal (see ``plane_cut``).
+        joint_matrices: (j, 4, 4) joint matrices of a pose (``deform.joint_matrices``): cut the mesh
+            *in that pose* (after animation), the plane in world space. New vertices get the rest
+            positions whose LBS image in that pose is their position on the cut (exact for LBS, and
+            for eq. (17) with rigid joints; other methods within their difference from LBS).
+        edges: ``mesh_edges(mesh.F)``, precomputed.
+    Returns:
+        (positive, negative) SkinnedMeshes."""
+    if not 0.0 <= side_weight <= 1.0:
+        raise ValueError(f"side_weight: expected a number in [0, 1], got {side_weight}")
+    V, F = np.asarray(mesh.V, np.float64), np.asarray(mesh.F)
+    J, W = np.asarray(mesh.J), np.asarray(mesh.W)
+    if joint_matrices is None:
+        cut_space = V
+    else:
+        joint_matrices = np.asarray(joint_matrices, np.float64)
+        if joint_matrices.shape != (mesh.num_joints, 4, 4):
+            raise ValueError(f"joint_matrices: expected shape ({mesh.num_joints}, 4, 4), got {joint_matrices.shape}")
+        M = joint_matrices[:, :3, :]
+        cut_space = np.einsum("nk,nkij,nj->ni", W, M[J], np.concatenate([V, np.ones((len(V), 1))], axis=1))
+    topology = plane_cut(cut_space, F, plane, predicates=predicates, tolerance=tolerance, cap=cap, edges=edges)
+    crossing, t = topology.crossing, topology.t
+    coefficients = np.stack([1.0 - t, t], axis=1)
+    J_bary, W_bary = blend_weights(J, W, crossing, coefficients)
+    if joint_matrices is None:
+        rest = V[crossing[:, 0]] + t[:, None] * (V[crossing[:, 1]] - V[crossing[:, 0]])
+    else:
+        rest = _rest_positions(mesh, J_bary, W_bary, topology.points, joint_matrices)
+
+    halves = []
+    for keep, faces, sign in ((topology.positive, topology.positive_faces, 1),
+                              (topology.negative, topology.negative_faces, -1)):
+        J_new, W_new = J_bary, W_bary
+        if side_weight > 0:
+            # the endpoint on this half's side of each crossing edge
+            own = np.where(sign * topology.distances[crossing[:, 0]] > 0, crossing[:, 0], crossing[:, 1])
+            J_new, W_new = blend_weights(np.concatenate([J, J_bary]), np.concatenate([W, W_bary]),
+                                         np.stack([len(V) + np.arange(len(t)), own], axis=1),
+                                         np.broadcast_to([1.0 - side_weight, side_weight], (len(t), 2)))
+        ext_V = np.concatenate([V, rest])
+        ext_J = np.concatenate([J, J_new])
+        ext_W = np.concatenate([W, W_new])
+        halves.append(SkinnedMesh(jnp.asarray(ext_V[keep], mesh.V.dtype), jnp.asarray(faces, mesh.F.dtype),
+                                  jnp.asarray(ext_J[keep], mesh.J.dtype), jnp.asarray(ext_W[keep], mesh.W.dtype),
+                                  mesh.inverse_bind, mesh.joints))
+    return halves[0], halves[1]
