@@ -27,6 +27,7 @@ bench: $(STAMP)
 	mkdir -p out/bench
 	$(PY) benchmarks/bench_kernel.py --json out/bench/kernel.json
 	$(PY) benchmarks/bench_skinning.py --json out/bench/skinning.json
+	$(PY) benchmarks/bench_cutting.py --json out/bench/cutting.json
 
 clean:
 	rm -rf $(VENV) out .pytest_cache

@@ -35,21 +35,26 @@ import deform  # noqa: E402
 import jaxcga as cga  # noqa: E402
 
 
-def subdivided_arm5(min_vertices: int, influences: int = 4) -> deform.RiggedModel:
-    """Arm5 with midpoint subdivision, cut to its first min_vertices vertices; a new vertex takes the
-    mean of its edge's weights (dense over the joints), the top ``influences`` kept and renormalized."""
+def subdivided_arm5(min_vertices: int = 0, influences: int = 4, min_faces: int = 0) -> deform.RiggedModel:
+    """Arm5 with midpoint subdivision; a new vertex takes the mean of its edge's weights (dense over
+    the joints), the top ``influences`` kept and renormalized. With ``min_vertices`` the mesh is cut to
+    its first min_vertices vertices (the original mesh, then edge midpoints) and the faces among them;
+    with ``min_faces`` to its first min_faces faces (a conforming patch) and the vertices they use."""
     model = deform.load_model(ROOT / "tests" / "data" / "Arm5.glb")
     mesh = model.mesh
     V, F = np.asarray(mesh.V), np.asarray(mesh.F)
     dense = np.zeros((V.shape[0], mesh.num_joints))
     np.put_along_axis(dense, np.asarray(mesh.J), np.asarray(mesh.W), axis=1)
-    while V.shape[0] < min_vertices:
+    while V.shape[0] < min_vertices or F.shape[0] < min_faces:
         V, F, attributes = trimesh.remesh.subdivide(V, F, vertex_attributes={"w": dense})
         dense = attributes["w"]
-    # Keep exactly min_vertices vertices (the first ones: the original mesh, then edge midpoints) and
-    # the faces among them, so the figures are per 100k vertices.
-    keep = np.all(F < min_vertices, axis=1)
-    V, F, dense = V[:min_vertices], F[keep], dense[:min_vertices]
+    if min_faces:
+        F = F[:min_faces]
+        used, F = np.unique(F, return_inverse=True)
+        V, F, dense = V[used], F.reshape(-1, 3), dense[used]
+    else:
+        keep = np.all(F < min_vertices, axis=1)
+        V, F, dense = V[:min_vertices], F[keep], dense[:min_vertices]
     J = np.argsort(-dense, axis=1)[:, :influences]
     W = np.take_along_axis(dense, J, axis=1)
     W[W.sum(axis=1) == 0, 0] = 1.0  # a few Arm5 vertices carry no weight: bind them to one joint

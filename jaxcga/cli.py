@@ -100,7 +100,55 @@ def demo(out: Path, steps: int, figure: bool) -> int:
     if figure:
         path = _commands.skinning_figure(arm, out / "arm.png")
         print(f"  figure: the arm along its clip         -> {path}")
+
+    import time
+
+    import cutting
+
+    plane = jnp.array([1.0, 0.15, 0.0, float(jnp.median(arm.mesh.V @ jnp.array([1.0, 0.15, 0.0])))])
+    start = time.perf_counter()
+    upper, lower = cutting.cut(arm.mesh, plane, cap=True)
+    took = 1e3 * (time.perf_counter() - start)
+    print(f"\nCut (Algorithm 1, capped) across the forearm: halves of {upper.F.shape[0]} and {lower.F.shape[0]} "
+          f"faces in {took:.1f} ms")
+    if figure:
+        path = _cut_figure(arm, upper, lower, out / "arm_cut.png")
+        print(f"  figure: before / after the cut, posed again -> {path}")
     return 0
+
+
+def _cut_figure(arm, upper, lower, path: Path) -> Path:
+    """The arm at t = 0 before the cut, and both halves posed again at t = 1.2 s after it."""
+    import jax.numpy as jnp
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from deform import _pose
+    from deform._model import RiggedModel
+
+    fig = plt.figure(figsize=(10, 4.5))
+    panels = [("before the cut (t = 0 s)", [(arm, 0.0, "tab:gray")]),
+              ("after: both halves posed at t = 1.2 s", [(RiggedModel(upper, arm.skeleton, arm.clips), 1.2, "tab:blue"),
+                                                         (RiggedModel(lower, arm.skeleton, arm.clips), 1.2, "tab:red")])]
+    for k, (title, parts) in enumerate(panels):
+        ax = fig.add_subplot(1, 2, k + 1, projection="3d")
+        everything = []
+        for model, t, color in parts:
+            V = _pose.skin_model(model, t, "cga")
+            everything.append(V)
+            ax.plot_trisurf(V[:, 0], V[:, 1], V[:, 2], triangles=model.mesh.F, color=color, alpha=0.6, linewidth=0)
+        V = jnp.concatenate(everything)
+        center, half = (V.max(axis=0) + V.min(axis=0)) / 2, float((V.max(axis=0) - V.min(axis=0)).max()) / 2
+        ax.set(xlim=(center[0] - half, center[0] + half), ylim=(center[1] - half, center[1] + half),
+               zlim=(center[2] - half, center[2] + half), title=title)
+        ax.set_box_aspect((1, 1, 1))
+        ax.view_init(elev=20, azim=-60)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=100, bbox_inches="tight")
+    plt.close(fig)
+    return path
 
 
 def _x64():
@@ -120,7 +168,12 @@ def _run_deform(args) -> int:
     from deform import _commands
 
     model = _commands.load_or_default(args.model, weld=args.weld)
-    if args.command == "skin":
+    if args.command == "cut":
+        from cutting import _commands as _cutting_commands
+
+        summary = _cutting_commands.cut_command(model, args.plane, *args.out, cap=args.cap,
+                                                predicates=args.predicates, side_weight=args.side_weight)
+    elif args.command == "skin":
         summary = _commands.skin_command(model, args.time, args.method, args.clip, args.out)
     elif args.command == "animate":
         summary = _commands.animate_command(model, args.frames, args.out, args.clip)
@@ -167,6 +220,18 @@ def main(argv: list[str] | None = None) -> int:
     p_fit.add_argument("--max-steps", type=int, default=200, help="solver step limit (default 200)")
     p_fit.add_argument("--no-scale", action="store_true", help="fit motors only, no dilations")
     p_fit.add_argument("--out", type=Path, required=True, help="POSE.json")
+
+    p_cut = sub.add_parser("cut", help="cut a model by a plane (Algorithm 1) into two skinned glTF halves")
+    _model_argument(p_cut)
+    p_cut.add_argument("--plane", type=float, nargs=4, required=True, metavar=("NX", "NY", "NZ", "D"),
+                       help="the plane n . x = d in the bind pose (n is normalized)")
+    p_cut.add_argument("--cap", action="store_true", help="close both halves (the model must be closed)")
+    p_cut.add_argument("--predicates", choices=("euclidean", "ga"), default="euclidean",
+                       help="Euclidean or GA predicates (Table 1; default euclidean)")
+    p_cut.add_argument("--side-weight", type=float, default=0.0,
+                       help="0: barycentric weights for new vertices (sec. 4.3); up to 1: favour each half's side")
+    p_cut.add_argument("--out", type=Path, nargs=2, required=True, metavar=("POS.glb", "NEG.glb"),
+                       help="the positive (n . x > d) and negative halves")
 
     args = parser.parse_args(argv)
     if args.command == "demo":

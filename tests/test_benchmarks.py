@@ -21,3 +21,14 @@ def test_bench_skinning_quick_writes_the_published_names(tmp_path):
         assert result["ratios"][name] > 0
     for name in ("cga_20_poses_f32_s", "lbs_20_poses_f32_s"):  # cga_1000_poses_f32_s with the default --poses
         assert result["figures"][name] > 0 and name in result["units"]
+
+
+def test_bench_cutting_quick_writes_the_published_names(tmp_path):
+    out = tmp_path / "cutting.json"
+    done = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "bench_cutting.py"), "--quick", "--json", str(out)],
+                          capture_output=True, text=True, timeout=600, cwd=ROOT)
+    assert done.returncode == 0, done.stderr[-3000:]
+    result = json.loads(out.read_text())
+    for name in ("arm5_cut_ms", "arm5_cut_ga_ms", "arm5_preprocess_ms", "100k_cut_ms", "100k_preprocess_ms"):
+        assert result["figures"][name] > 0 and name in result["units"]
+    assert result["ratios"]["arm5_cut_vs_paper"] > 0
