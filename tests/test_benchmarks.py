@@ -11,12 +11,17 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def test_bench_skinning_quick_writes_the_published_names(tmp_path):
-    out = tmp_path / "skinning.json"
-    done = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "bench_skinning.py"), "--quick", "--json", str(out)],
+def _quick(script: str, tmp_path) -> dict:
+    """Run ``benchmarks/<script> --quick`` and read back its JSON."""
+    out = tmp_path / "result.json"
+    done = subprocess.run([sys.executable, str(ROOT / "benchmarks" / script), "--quick", "--json", str(out)],
                           capture_output=True, text=True, timeout=600, cwd=ROOT)
     assert done.returncode == 0, done.stderr[-3000:]
-    result = json.loads(out.read_text())
+    return json.loads(out.read_text())
+
+
+def test_bench_skinning_quick_writes_the_published_names(tmp_path):
+    result = _quick("bench_skinning.py", tmp_path)
     for name in ("cga_vs_lbs_f32", "cga_vs_lbs_f64", "cga_motor_blend_vs_dqs_f32", "cga_motor_blend_vs_dqs_f64"):
         assert result["ratios"][name] > 0
     for name in ("cga_20_poses_f32_s", "lbs_20_poses_f32_s"):  # cga_1000_poses_f32_s with the default --poses
@@ -24,11 +29,7 @@ def test_bench_skinning_quick_writes_the_published_names(tmp_path):
 
 
 def test_bench_cutting_quick_writes_the_published_names(tmp_path):
-    out = tmp_path / "cutting.json"
-    done = subprocess.run([sys.executable, str(ROOT / "benchmarks" / "bench_cutting.py"), "--quick", "--json", str(out)],
-                          capture_output=True, text=True, timeout=600, cwd=ROOT)
-    assert done.returncode == 0, done.stderr[-3000:]
-    result = json.loads(out.read_text())
+    result = _quick("bench_cutting.py", tmp_path)
     for name in ("arm5_cut_ms", "arm5_cut_ga_ms", "arm5_preprocess_ms", "100k_cut_ms", "100k_preprocess_ms"):
         assert result["figures"][name] > 0 and name in result["units"]
     assert result["ratios"]["arm5_cut_vs_paper"] > 0
