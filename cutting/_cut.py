@@ -55,8 +55,8 @@ def mesh_edges(F) -> MeshEdges:
     a, b = F.astype(np.int64), np.roll(F, -1, axis=1).astype(np.int64)
     lo, hi = np.minimum(a, b), np.maximum(a, b)
     # one integer key per undirected edge: a 1-D unique is several times faster than unique(axis=0)
-    keys, inverse = np.unique((lo * (int(F.max(initial=0)) + 1) + hi).ravel(), return_inverse=True)
     n = int(F.max(initial=0)) + 1
+    keys, inverse = np.unique((lo * n + hi).ravel(), return_inverse=True)
     return MeshEdges(np.stack([keys // n, keys % n], axis=1), inverse.reshape(-1, 3))
 
 
