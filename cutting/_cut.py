@@ -267,7 +267,7 @@ def cut_positions(V, crossing, plane_normal, plane_distance):
     return A + t[:, None] * (B - A)
 
 
-def _rest_positions(mesh: SkinnedMesh, J_new, W_new, targets, joint_matrices):
+def _rest_positions(J_new, W_new, targets, joint_matrices):
     """Rest positions whose LBS image (eq. 16) under ``joint_matrices`` is ``targets``: the inverse
     of each new vertex's blended affine map."""
     M = np.asarray(joint_matrices, np.float64)[:, :3, :]
@@ -318,7 +318,7 @@ def cut(mesh: SkinnedMesh, plane, *, cap: bool = False, predicates: str = "eucli
     if joint_matrices is None:
         rest = V[crossing[:, 0]] + t[:, None] * (V[crossing[:, 1]] - V[crossing[:, 0]])
     else:
-        rest = _rest_positions(mesh, J_bary, W_bary, topology.points, joint_matrices)
+        rest = _rest_positions(J_bary, W_bary, topology.points, joint_matrices)
 
     halves = []
     for keep, faces, sign in ((topology.positive, topology.positive_faces, 1),
