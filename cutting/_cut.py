@@ -31,6 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from cutting._predicates import check_plane, check_predicates, edge_points, signed_distances
+from cutting._geometry import check_mesh_arrays, posed_vertices, rest_positions, skinned_mesh_like
 from cutting._weights import blend_weights
 from deform._model import SkinnedMesh
 
@@ -41,10 +42,15 @@ class MeshEdges(NamedTuple):
     Attributes:
         edges: (e, 2) int unique undirected edges, smaller index first.
         face_edges: (m, 3) int edge id of each face's local edge (k, k+1 mod 3).
+        edge_faces: (e, 2) int the first and the last face on each edge (-1 for the second of a
+            boundary edge); tear and drill walk across faces with it.
+        edge_counts: (e,) int faces on each edge (2 inside a manifold, 1 on its boundary).
     """
 
     edges: np.ndarray
     face_edges: np.ndarray
+    edge_faces: np.ndarray
+    edge_counts: np.ndarray
 
 
 def mesh_edges(F) -> MeshEdges:
@@ -57,7 +63,16 @@ def mesh_edges(F) -> MeshEdges:
     # one integer key per undirected edge: a 1-D unique is several times faster than unique(axis=0)
     n = int(F.max(initial=0)) + 1
     keys, inverse = np.unique((lo * n + hi).ravel(), return_inverse=True)
-    return MeshEdges(np.stack([keys // n, keys % n], axis=1), inverse.reshape(-1, 3))
+    inverse = inverse.reshape(-1)
+    face_of = np.repeat(np.arange(len(F)), 3)
+    # Last writer wins in a fancy assignment: forwards gives each edge's last face, backwards its first.
+    first = np.empty(len(keys), np.int64)
+    first[inverse[::-1]] = face_of[::-1]
+    last = np.empty(len(keys), np.int64)
+    last[inverse] = face_of
+    counts = np.bincount(inverse, minlength=len(keys))
+    edge_faces = np.stack([first, np.where(counts >= 2, last, -1)], axis=1)
+    return MeshEdges(np.stack([keys // n, keys % n], axis=1), inverse.reshape(-1, 3), edge_faces, counts)
 
 
 def _split_tables():
@@ -123,8 +138,7 @@ def _bounding_diagonal(V) -> float:
 
 
 def _is_closed(edges: MeshEdges) -> bool:
-    counts = np.bincount(edges.face_edges.ravel(), minlength=len(edges.edges))
-    return bool(np.all(counts == 2))
+    return bool(np.all(edges.edge_counts == 2))
 
 
 def plane_cut(V, F, plane, *, predicates: str = "euclidean", tolerance: float = 1e-6, cap: bool = False,
@@ -144,16 +158,7 @@ def plane_cut(V, F, plane, *, predicates: str = "euclidean", tolerance: float = 
         ValueError: bad shapes, non-finite input, or a plane that misses the mesh (all vertices on one
             side: there is nothing to cut)."""
     check_predicates(predicates)
-    V = np.asarray(V, np.float64)
-    F = np.asarray(F)
-    if V.ndim != 2 or V.shape[1] != 3:
-        raise ValueError(f"V: expected shape (n, 3), got {V.shape}")
-    if not np.all(np.isfinite(V)):
-        raise ValueError("V: vertex positions must be finite")
-    if F.ndim != 2 or F.shape[1] != 3 or not np.issubdtype(F.dtype, np.integer):
-        raise ValueError(f"F: expected integer faces of shape (m, 3), got {F.dtype} {F.shape}")
-    if F.size and (F.min() < 0 or F.max() >= len(V)):
-        raise ValueError(f"F: vertex indices must lie in [0, {len(V)})")
+    V, F = check_mesh_arrays(V, F)
     if not tolerance >= 0:
         raise ValueError(f"tolerance: expected a non-negative number, got {tolerance}")
     edges = mesh_edges(F) if edges is None else edges
@@ -267,14 +272,6 @@ def cut_positions(V, crossing, plane_normal, plane_distance):
     return A + t[:, None] * (B - A)
 
 
-def _rest_positions(J_new, W_new, targets, joint_matrices):
-    """Rest positions whose LBS image (eq. 16) under ``joint_matrices`` is ``targets``: the inverse
-    of each new vertex's blended affine map."""
-    M = np.asarray(joint_matrices, np.float64)[:, :3, :]
-    blended = np.einsum("pk,pkij->pij", W_new, M[J_new])
-    return np.linalg.solve(blended[:, :, :3], (targets - blended[:, :, 3])[:, :, None])[:, :, 0]
-
-
 def cut(mesh: SkinnedMesh, plane, *, cap: bool = False, predicates: str = "euclidean", side_weight: float = 0.0,
         tolerance: float = 1e-6, joint_matrices=None, edges: MeshEdges | None = None):
     """Cut a skinned mesh by a plane (Algorithm 1): the positive side (``n . x > d``), then the negative.
@@ -303,14 +300,7 @@ def cut(mesh: SkinnedMesh, plane, *, cap: bool = False, predicates: str = "eucli
         raise ValueError(f"side_weight: expected a number in [0, 1], got {side_weight}")
     V, F = np.asarray(mesh.V, np.float64), np.asarray(mesh.F)
     J, W = np.asarray(mesh.J), np.asarray(mesh.W)
-    if joint_matrices is None:
-        cut_space = V
-    else:
-        joint_matrices = np.asarray(joint_matrices, np.float64)
-        if joint_matrices.shape != (mesh.num_joints, 4, 4):
-            raise ValueError(f"joint_matrices: expected shape ({mesh.num_joints}, 4, 4), got {joint_matrices.shape}")
-        M = joint_matrices[:, :3, :]
-        cut_space = np.einsum("nk,nkij,nj->ni", W, M[J], np.concatenate([V, np.ones((len(V), 1))], axis=1))
+    cut_space, joint_matrices = posed_vertices(mesh, joint_matrices)
     topology = plane_cut(cut_space, F, plane, predicates=predicates, tolerance=tolerance, cap=cap, edges=edges)
     crossing, t = topology.crossing, topology.t
     coefficients = np.stack([1.0 - t, t], axis=1)
@@ -318,7 +308,7 @@ def cut(mesh: SkinnedMesh, plane, *, cap: bool = False, predicates: str = "eucli
     if joint_matrices is None:
         rest = V[crossing[:, 0]] + t[:, None] * (V[crossing[:, 1]] - V[crossing[:, 0]])
     else:
-        rest = _rest_positions(J_bary, W_bary, topology.points, joint_matrices)
+        rest = rest_positions(J_bary, W_bary, topology.points, joint_matrices)
 
     halves = []
     for keep, faces, sign in ((topology.positive, topology.positive_faces, 1),
@@ -333,9 +323,5 @@ def cut(mesh: SkinnedMesh, plane, *, cap: bool = False, predicates: str = "eucli
         ext_V = np.concatenate([V, rest])
         ext_J = np.concatenate([J, J_new])
         ext_W = np.concatenate([W, W_new])
-        # numpy arrays (host data, traced like JAX arrays by jit): no per-array device transfer on
-        # the interactive path.
-        halves.append(SkinnedMesh(ext_V[keep].astype(mesh.V.dtype), faces.astype(mesh.F.dtype),
-                                  ext_J[keep].astype(mesh.J.dtype), ext_W[keep].astype(mesh.W.dtype),
-                                  mesh.inverse_bind, mesh.joints))
+        halves.append(skinned_mesh_like(mesh, ext_V[keep], faces, ext_J[keep], ext_W[keep]))
     return halves[0], halves[1]

@@ -1,0 +1,329 @@
+"""Drilling a (skinned) triangle mesh with a cylindrical drill: Algorithm 3 of the cut/tear/drill
+paper (sec. 4.2.3), with the weights of new vertices of sec. 4.3.
+
+The drill is given by its tip A, its base B and its radius r; Pi is the plane through B perpendicular
+to the axis, P the projection onto it.
+
+1. a vertex is inside the drill when |P(v) - B| < r (on it within ``tolerance``);
+2. the faces pierced by the axis segment B -> A are the seeds; the affected faces are the faces
+   with a vertex inside the drill, or an edge that passes through it, connected to a seed (the
+   paper's breadth-first search, here connected components of that face graph), so the drill only
+   goes through the sheets of the surface that its axis reaches;
+3. every edge (v_i, v_j) of an affected face meets the cylinder where alpha is a root in [0, 1] of
+   K alpha^2 + L alpha + N = 0 (eq. 18-20, mu = P(v_i), nu = P(v_j)); the point alpha v_i + (1 - alpha)
+   v_j lies exactly on the cylinder (the projection is affine). An edge with both ends outside can
+   cross it twice;
+4. weights of the new points from their edges (sec. 4.3);
+5. each affected face is replaced by the convex pieces of it that lie outside the drill (the runs of
+   its boundary outside the cylinder, each closed by a straight chord), vertices inside are removed.
+
+When a hole has fewer than ``min_points`` boundary points (a drill thin against the faces), the
+affected faces are split (midpoints of their edges; neighbours get conforming 2- or 3-way splits)
+and the mesh is drilled again, at most ``max_refinements`` times (the paper's "split and drill
+again").
+
+For a fixed topology the new points are a JAX function of the vertices and the drill
+(``drill_positions``), so they can be differentiated with respect to the tool.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax.numpy as jnp
+import numpy as np
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import connected_components
+
+from cutting._cut import MeshEdges, _bounding_diagonal, mesh_edges
+from cutting._geometry import (check_mesh_arrays, check_point, fan_triangles, posed_vertices, rest_positions,
+                               segment_hits, skinned_mesh_like)
+from cutting._weights import blend_weights
+from deform._model import SkinnedMesh
+
+
+class Drilling(NamedTuple):
+    """The topology of a drilled hole, in an extended vertex numbering: the vertices of the mesh as
+    drilled (the input's, then ``parents``' midpoints from refinement), then the new points.
+
+    Attributes:
+        parents: (r, 2) int refinement: vertex n + k is the midpoint of vertices ``parents[k]``.
+        refinements: how many times the affected faces were split.
+        vertices: (n + r, 3) the vertex positions that were drilled (the input's, then midpoints).
+        crossing: (p, 2) int the edge (i, j) of each new point.
+        alpha: (p,) its root of eq. (18-20): the point is ``alpha V_i + (1 - alpha) V_j``.
+        root: (p,) +1 or -1: the sign of the square root that gives alpha.
+        points: (p, 3) the new points, on the cylinder.
+        faces: (f, 3) the drilled mesh's faces in the extended numbering.
+        kept: (k,) the extended indices of the drilled mesh's vertices, in its vertex order
+            (vertices inside the hole are gone).
+        holes: number of holes (connected drilled regions).
+    """
+
+    parents: np.ndarray
+    refinements: int
+    vertices: np.ndarray
+    crossing: np.ndarray
+    alpha: np.ndarray
+    root: np.ndarray
+    points: np.ndarray
+    faces: np.ndarray
+    kept: np.ndarray
+    holes: int
+
+
+def _refine_tables():
+    """Triangles of a face whose local edges with bit k set are split at their midpoints (slot 3 + k);
+    slots 0-2 are the corners. -1 pads."""
+    table = -np.ones((8, 4, 3), np.int64)
+    for code in range(8):
+        split = [k for k in range(3) if code >> k & 1]
+        if len(split) == 0:
+            tris = [(0, 1, 2)]
+        elif len(split) == 1:
+            k = split[0]
+            tris = [(k, 3 + k, (k + 2) % 3), (3 + k, (k + 1) % 3, (k + 2) % 3)]
+        elif len(split) == 2:
+            k = next(k for k in range(3) if k in split and (k + 1) % 3 in split)
+            k1 = (k + 1) % 3
+            tris = [(3 + k, k1, 3 + k1), (k, 3 + k, 3 + k1), (k, 3 + k1, (k + 2) % 3)]
+        else:
+            tris = [(0, 3, 5), (3, 1, 4), (5, 4, 2), (3, 4, 5)]
+        table[code, :len(tris)] = tris
+    return table
+
+
+_REFINE = _refine_tables()
+
+
+def _refine(V, F, edges: MeshEdges, face_mask):
+    """Split every edge of the masked faces at its midpoint; every face on a split edge is
+    re-triangulated conformingly. Returns (V, F, parents)."""
+    split = np.zeros(len(edges.edges), bool)
+    split[edges.face_edges[face_mask].ravel()] = True
+    parents = edges.edges[split]
+    midpoint = np.full(len(edges.edges), -1, np.int64)
+    midpoint[split] = len(V) + np.arange(len(parents))
+    code = split[edges.face_edges] @ np.array([1, 2, 4])
+    slots = np.concatenate([F, midpoint[edges.face_edges]], axis=1)
+    templates = _REFINE[code]
+    valid = templates[:, :, 0] >= 0
+    faces = np.take_along_axis(slots[:, None, :], np.where(templates < 0, 0, templates), axis=2)[valid]
+    return np.concatenate([V, 0.5 * (V[parents[:, 0]] + V[parents[:, 1]])]), faces, parents
+
+
+def _cylinder_roots(radial, pairs, radius, lengths, margin):
+    """Roots alpha of eq. (18-20) for the edges ``pairs`` (mu = P(v_i) - B, nu = P(v_j) - B given as
+    ``radial``), kept strictly inside the edge (farther than ``margin`` from both ends).
+    Returns (edge index, alpha, root sign) of every crossing."""
+    mu, nu = radial[pairs[:, 0]], radial[pairs[:, 1]]
+    diff = mu - nu
+    K = np.einsum("ij,ij->i", diff, diff)  # eq. (18)
+    L = 2.0 * np.einsum("ij,ij->i", diff, nu)  # eq. (19)
+    N = np.einsum("ij,ij->i", nu, nu) - radius**2  # eq. (20)
+    disc = L * L - 4.0 * K * N
+    ok = (K > 0) & (disc > 0)
+    root = np.sqrt(np.where(ok, disc, 0.0))
+    safe_K = np.where(ok, K, 1.0)
+    found = []
+    for sign in (1.0, -1.0):
+        alpha = (-L + sign * root) / (2.0 * safe_K)
+        inner = ok & (alpha * lengths > margin) & ((1.0 - alpha) * lengths > margin)
+        index = np.flatnonzero(inner)
+        found.append((index, alpha[index], np.full(len(index), sign)))
+    return tuple(np.concatenate(parts) for parts in zip(*found))
+
+
+def _drill_once(V, F, edges: MeshEdges, tip, base, radius, margin):
+    """One drilling pass: affected faces, their holes and the crossings on their edges."""
+    axis = (tip - base) / np.linalg.norm(tip - base)
+    relative = V - base
+    radial = relative - np.outer(relative @ axis, axis)  # P(v) - B
+    distance = np.linalg.norm(radial, axis=1)
+    inside = distance < radius - margin
+    seeds, _, _ = segment_hits(V, F, base, tip)
+    if len(seeds) == 0:
+        raise ValueError("tip, base: the drill misses the mesh (its axis from base to tip crosses no face)")
+    pairs = edges.edges
+    lengths = np.linalg.norm(V[pairs[:, 1]] - V[pairs[:, 0]], axis=1)
+    # only edges that can reach the cylinder: an endpoint within radius + the edge's length of the axis
+    near = np.minimum(distance[pairs[:, 0]], distance[pairs[:, 1]]) < radius + lengths
+    near_index = np.flatnonzero(near)
+    index, alpha, sign = _cylinder_roots(radial, pairs[near_index], radius, lengths[near_index], margin)
+    index = near_index[index]
+    crossed = np.zeros(len(pairs), bool)
+    crossed[index] = True
+    candidate = inside[F].any(axis=1) | crossed[edges.face_edges].any(axis=1)
+    candidate[seeds] = True
+    # connected components of the candidate faces over shared edges; affected: those with a seed
+    interior = (edges.edge_faces[:, 1] >= 0)
+    a, b = edges.edge_faces[interior, 0], edges.edge_faces[interior, 1]
+    link = candidate[a] & candidate[b]
+    graph = coo_matrix((np.ones(int(link.sum())), (a[link], b[link])), shape=(len(F), len(F)))
+    _, labels = connected_components(graph, directed=False)
+    holes = np.unique(labels[seeds])
+    affected = candidate & np.isin(labels, holes)
+    # crossings on the edges of affected faces, and how many each hole has
+    on_affected = np.zeros(len(pairs), bool)
+    on_affected[edges.face_edges[affected].ravel()] = True
+    keep = on_affected[index]
+    index, alpha, sign = index[keep], alpha[keep], sign[keep]
+    face_of_edge = np.where(affected[edges.edge_faces[:, 0]], edges.edge_faces[:, 0], edges.edge_faces[:, 1])
+    counts = [int(np.count_nonzero(labels[face_of_edge[index]] == h)) for h in holes]
+    return dict(affected=affected, index=index, alpha=alpha, sign=sign, distance=distance, radial=radial,
+                seeds=seeds, holes=len(holes), fewest=min(counts) if counts else 0)
+
+
+def drill_mesh(V, F, tip, base, radius, *, min_points: int = 6, max_refinements: int = 4, tolerance: float = 1e-6,
+               edges: MeshEdges | None = None) -> Drilling:
+    """The topology of drilling the triangle mesh (V, F) (Algorithm 3).
+
+    Args:
+        V: (n, 3) vertex positions (rest pose or posed). F: (m, 3) int faces.
+        tip, base: (3,) the drill's endpoints A (tip) and B (base); it drills the sheets of the
+            surface that the segment B -> A pierces.
+        radius: the drill's radius r > 0.
+        min_points: fewest boundary points per hole before the affected faces are split and drilled
+            again (the paper suggests 6).
+        max_refinements: how many times at most.
+        tolerance: vertices within ``tolerance`` times the bounding-box diagonal of the cylinder count
+            as on it (no sliver triangles).
+        edges: ``mesh_edges(F)``, precomputed once per topology.
+    Raises:
+        ValueError: bad input, a drill that misses the mesh, or a hole that stays below three
+            boundary points after ``max_refinements`` splits."""
+    V, F = check_mesh_arrays(V, F)
+    tip, base = check_point("tip", tip), check_point("base", base)
+    if not (np.isfinite(radius) and radius > 0):
+        raise ValueError(f"radius: expected a positive finite number, got {radius}")
+    if np.linalg.norm(tip - base) == 0:
+        raise ValueError("tip, base: the drill's endpoints coincide (no axis)")
+    if min_points < 3 or max_refinements < 0:
+        raise ValueError(f"min_points, max_refinements: expected >= 3 and >= 0, got {min_points}, {max_refinements}")
+    if not tolerance >= 0:
+        raise ValueError(f"tolerance: expected a non-negative number, got {tolerance}")
+    edges = mesh_edges(F) if edges is None else edges
+    if edges.face_edges.shape != F.shape:
+        raise ValueError(f"edges: computed for another mesh (face_edges {edges.face_edges.shape}, F {F.shape})")
+    margin = tolerance * _bounding_diagonal(V)
+    all_parents, refinements = [], 0
+    while True:
+        state = _drill_once(V, F, edges, tip, base, radius, margin)
+        if state["fewest"] >= min_points or refinements == max_refinements:
+            break
+        V, F, parents = _refine(V, F, edges, state["affected"])
+        all_parents.append(parents)
+        edges = mesh_edges(F)
+        refinements += 1
+    if state["fewest"] < 3:
+        raise ValueError(f"radius: a hole has {state['fewest']} boundary points after {refinements} refinements "
+                         "(the drill is too thin for the faces it meets; raise max_refinements or the radius)")
+    index, alpha, sign = state["index"], state["alpha"], state["sign"]
+    crossing = edges.edges[index]
+    points = alpha[:, None] * V[crossing[:, 0]] + (1.0 - alpha[:, None]) * V[crossing[:, 1]]
+    faces = _retriangulate(V, F, edges, state, points, crossing, radius)
+    used = np.zeros(len(V) + len(points), bool)
+    used[faces] = True
+    kept = np.flatnonzero(used)
+    local = np.cumsum(used) - 1
+    parents = np.concatenate(all_parents) if all_parents else np.zeros((0, 2), np.int64)
+    return Drilling(parents, refinements, V, crossing, alpha, sign, points, local[faces], kept, state["holes"])
+
+
+def _retriangulate(V, F, edges: MeshEdges, state, points, crossing, radius):
+    """Faces of the drilled mesh (Algorithm 3, step 5) in the extended numbering."""
+    affected = state["affected"]
+    n = len(V)
+    index, alpha = state["index"], state["alpha"]
+    # radial vectors P(x) - B of every vertex and new point (the projection is affine)
+    radial = np.concatenate([state["radial"], alpha[:, None] * state["radial"][crossing[:, 0]]
+                             + (1.0 - alpha[:, None]) * state["radial"][crossing[:, 1]]])
+    extended = np.concatenate([V, points])
+    # the new points of each edge, ordered from its first vertex (edges.edges[e, 0]) to its second
+    on_edge: dict[int, list[tuple[float, int]]] = {}
+    for p, (e, a) in enumerate(zip(index.tolist(), alpha.tolist())):
+        on_edge.setdefault(e, []).append((1.0 - a, n + p))
+    for entries in on_edge.values():
+        entries.sort()
+    triangles = []
+    for f in np.flatnonzero(affected).tolist():
+        cycle = []
+        for k in range(3):
+            a, b = int(F[f, k]), int(F[f, (k + 1) % 3])
+            cycle.append(a)
+            ordered = [vid for _, vid in on_edge.get(int(edges.face_edges[f, k]), [])]
+            cycle += ordered if a < b else ordered[::-1]
+        m = len(cycle)
+        # a boundary piece is outside the drill when its midpoint is (the drill is convex)
+        ring = np.asarray(cycle)
+        middle = 0.5 * (radial[ring] + radial[np.roll(ring, -1)])
+        outside = (np.einsum("ij,ij->i", middle, middle) > radius * radius).tolist()
+        if all(outside):
+            triangles.append(tuple(F[f].tolist()))
+            continue
+        if not any(outside):
+            continue
+        # each run of the boundary outside the drill, closed by a chord, is a convex piece
+        start = next(i for i in range(m) if outside[i] and not outside[i - 1])
+        run = [cycle[start]]
+        for step in range(m):
+            i = (start + step) % m
+            if outside[i]:
+                run.append(cycle[(i + 1) % m])
+                continue
+            if len(run) >= 3:
+                triangles += fan_triangles(run, extended[run])
+            run = [cycle[(i + 1) % m]]
+    return np.concatenate([F[~affected], np.asarray(triangles, np.int64).reshape(-1, 3)])
+
+
+def drill(mesh: SkinnedMesh, tip, base, radius, *, min_points: int = 6, max_refinements: int = 4,
+          tolerance: float = 1e-6, joint_matrices=None, edges: MeshEdges | None = None, return_topology: bool = False):
+    """Drill a hole into a skinned mesh with a cylinder from ``base`` to ``tip`` (Algorithm 3).
+
+    Args:
+        mesh: the SkinnedMesh (``deform``).
+        tip, base, radius: the drill (see ``drill_mesh``), in the space of the mesh as drilled: the
+            bind pose, or the pose of ``joint_matrices``.
+        min_points, max_refinements, tolerance: see ``drill_mesh``.
+        joint_matrices: (j, 4, 4) joint matrices of a pose (``deform.joint_matrices``): drill the mesh
+            *in that pose*, the drill in world space. New vertices get the rest positions whose LBS
+            image in that pose is their drilled position (exact for LBS).
+        edges: ``mesh_edges(mesh.F)``, precomputed.
+        return_topology: also return the ``Drilling``.
+    Returns:
+        The drilled SkinnedMesh (its vertices: the input's outside the hole, in order, then refinement
+        midpoints and new points), and the Drilling when ``return_topology``."""
+    J, W = np.asarray(mesh.J), np.asarray(mesh.W)
+    space, joint_matrices = posed_vertices(mesh, joint_matrices)
+    topology = drill_mesh(space, mesh.F, tip, base, radius, min_points=min_points, max_refinements=max_refinements,
+                          tolerance=tolerance, edges=edges)
+    rest = np.asarray(mesh.V, np.float64)
+    # refinement midpoints, level by level (a midpoint's parents may be midpoints themselves)
+    for parent_pair in topology.parents:
+        J_mid, W_mid = blend_weights(J, W, parent_pair[None], np.array([[0.5, 0.5]]))
+        target = 0.5 * (topology.vertices[parent_pair[0]] + topology.vertices[parent_pair[1]])
+        rest = np.concatenate([rest, rest_positions(J_mid, W_mid, target[None], joint_matrices)])
+        J, W = np.concatenate([J, J_mid]), np.concatenate([W, W_mid])
+    J_new, W_new = blend_weights(J, W, topology.crossing, np.stack([topology.alpha, 1.0 - topology.alpha], axis=1))
+    rest = np.concatenate([rest, rest_positions(J_new, W_new, topology.points, joint_matrices)])
+    J, W = np.concatenate([J, J_new]), np.concatenate([W, W_new])
+    kept = topology.kept
+    drilled = skinned_mesh_like(mesh, rest[kept], topology.faces, J[kept], W[kept])
+    return (drilled, topology) if return_topology else drilled
+
+
+def drill_positions(V, crossing, root, tip, base, radius):
+    """Positions (p, 3) of a drill's new points as a JAX function of the vertices and the drill, for
+    a fixed topology (``Drilling.crossing``, ``Drilling.root``; V: ``Drilling.vertices``):
+    eq. (18-20) solved for alpha, the point ``alpha V_i + (1 - alpha) V_j``."""
+    V = jnp.asarray(V)
+    axis = (tip - base) / jnp.linalg.norm(tip - base)
+    relative = V - base
+    radial = relative - (relative @ axis)[:, None] * axis
+    mu, nu = radial[crossing[:, 0]], radial[crossing[:, 1]]
+    K = jnp.sum((mu - nu) ** 2, -1)
+    L = 2.0 * jnp.sum((mu - nu) * nu, -1)
+    N = jnp.sum(nu * nu, -1) - radius**2
+    alpha = (-L + jnp.asarray(root) * jnp.sqrt(L * L - 4.0 * K * N)) / (2.0 * K)
+    return alpha[:, None] * V[crossing[:, 0]] + (1.0 - alpha[:, None]) * V[crossing[:, 1]]

@@ -1,0 +1,126 @@
+"""Geometry shared by cut, tear and drill: input checks, the mesh in a pose and back to rest
+(before / after animation), segment-surface hits, and the triangulation of the convex pieces that a
+tool leaves of a face."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from deform._model import SkinnedMesh
+
+
+def check_mesh_arrays(V, F) -> tuple[np.ndarray, np.ndarray]:
+    """(V float64 (n, 3), F int (m, 3)) with clear errors for bad shapes, indices or values."""
+    V = np.asarray(V, np.float64)
+    F = np.asarray(F)
+    if V.ndim != 2 or V.shape[1] != 3:
+        raise ValueError(f"V: expected shape (n, 3), got {V.shape}")
+    if not np.all(np.isfinite(V)):
+        raise ValueError("V: vertex positions must be finite")
+    if F.ndim != 2 or F.shape[1] != 3 or not np.issubdtype(F.dtype, np.integer):
+        raise ValueError(f"F: expected integer faces of shape (m, 3), got {F.dtype} {F.shape}")
+    if F.size and (F.min() < 0 or F.max() >= len(V)):
+        raise ValueError(f"F: vertex indices must lie in [0, {len(V)})")
+    return V, F
+
+
+def check_point(name: str, value) -> np.ndarray:
+    point = np.asarray(value, np.float64)
+    if point.shape != (3,) or not np.all(np.isfinite(point)):
+        raise ValueError(f"{name}: expected 3 finite coordinates, got {value!r}")
+    return point
+
+
+def posed_vertices(mesh: SkinnedMesh, joint_matrices) -> tuple[np.ndarray, np.ndarray | None]:
+    """The mesh's vertices in the space it is operated in: the bind pose when ``joint_matrices`` is
+    None, else their LBS image (eq. 16) under the (j, 4, 4) joint matrices of a pose."""
+    V = np.asarray(mesh.V, np.float64)
+    if joint_matrices is None:
+        return V, None
+    joint_matrices = np.asarray(joint_matrices, np.float64)
+    if joint_matrices.shape != (mesh.num_joints, 4, 4):
+        raise ValueError(f"joint_matrices: expected shape ({mesh.num_joints}, 4, 4), got {joint_matrices.shape}")
+    M = joint_matrices[:, :3, :]
+    homogeneous = np.concatenate([V, np.ones((len(V), 1))], axis=1)
+    return np.einsum("nk,nkij,nj->ni", np.asarray(mesh.W, np.float64), M[np.asarray(mesh.J)], homogeneous), \
+        joint_matrices
+
+
+def rest_positions(J_new, W_new, targets, joint_matrices):
+    """Rest positions of new vertices: bind-pose positions when ``joint_matrices`` is None, else the
+    rest positions whose LBS image (eq. 16) under ``joint_matrices`` is ``targets`` (the inverse of
+    each new vertex's blended affine map), so that re-posing reproduces the tool's surface."""
+    targets = np.asarray(targets, np.float64)
+    if joint_matrices is None:
+        return targets
+    M = np.asarray(joint_matrices, np.float64)[:, :3, :]
+    blended = np.einsum("pk,pkij->pij", W_new, M[J_new])
+    return np.linalg.solve(blended[:, :, :3], (targets - blended[:, :, 3])[:, :, None])[:, :, 0]
+
+
+def skinned_mesh_like(mesh: SkinnedMesh, V, F, J, W) -> SkinnedMesh:
+    """A SkinnedMesh with ``mesh``'s joints, inverse binds and dtypes. Numpy arrays (host data,
+    traced like JAX arrays by jit): no per-array device transfer on the interactive path."""
+    return SkinnedMesh(np.asarray(V).astype(mesh.V.dtype), np.asarray(F).astype(mesh.F.dtype),
+                       np.asarray(J).astype(mesh.J.dtype), np.asarray(W).astype(mesh.W.dtype),
+                       mesh.inverse_bind, mesh.joints)
+
+
+def cross_rows(a, b):
+    """Row-wise cross product of (..., 3) arrays (np.cross spends most of its time on axis handling
+    for the small and medium arrays of the interactive path)."""
+    a0, a1, a2 = a[..., 0], a[..., 1], a[..., 2]
+    b0, b1, b2 = b[..., 0], b[..., 1], b[..., 2]
+    return np.stack([a1 * b2 - a2 * b1, a2 * b0 - a0 * b2, a0 * b1 - a1 * b0], axis=-1)
+
+
+def cross3(a, b):
+    """Cross product of two 3-vectors as Python floats (for per-face work on a tool's path)."""
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+def segment_hits(V, F, start, end, faces=None):
+    """Crossings of the segment start -> end with the triangles F (Moller-Trumbore, vectorized).
+
+    Returns (faces (h,), barycentric (h, 3), s (h,)): the faces crossed, the crossing's barycentric
+    coordinates in each face and its parameter along the segment, sorted by s (from ``start``)."""
+    corners = F if faces is None else F[np.asarray(faces)]
+    faces = np.arange(len(F)) if faces is None else np.asarray(faces)
+    A, B, C = (V[corners[:, k]] for k in range(3))
+    direction = end - start
+    e1, e2 = B - A, C - A
+    p = cross_rows(direction, e2)
+    det = np.einsum("ij,ij->i", e1, p)
+    ok = np.abs(det) > 1e-300
+    inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+    offset = start - A
+    u = np.einsum("ij,ij->i", offset, p) * inv
+    q = cross_rows(offset, e1)
+    v = (q @ direction) * inv
+    s = np.einsum("ij,ij->i", e2, q) * inv
+    hit = ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (s >= 0) & (s <= 1)
+    order = np.argsort(s[hit], kind="stable")
+    u, v, s = u[hit][order], v[hit][order], s[hit][order]
+    return faces[hit][order], np.stack([1.0 - u - v, u, v], axis=1), s
+
+
+def fan_triangles(polygon, coordinates):
+    """Triangles of a convex polygon (vertex ids in the face's winding order) whose boundary may hold
+    collinear points (new points on an edge): the fan from the apex whose smallest triangle is
+    largest, so that no triangle is degenerate. ``coordinates`` (k, 3) are the polygon's points."""
+    k = len(polygon)
+    if k == 3:
+        return [tuple(polygon)]
+    P = [tuple(map(float, x)) for x in coordinates]
+    best, best_area = 0, -1.0
+    for apex in range(k):
+        a = P[apex]
+        smallest = float("inf")
+        for i in range(1, k - 1):
+            b, c = P[(apex + i) % k], P[(apex + i + 1) % k]
+            n = cross3((b[0] - a[0], b[1] - a[1], b[2] - a[2]), (c[0] - a[0], c[1] - a[1], c[2] - a[2]))
+            smallest = min(smallest, n[0] * n[0] + n[1] * n[1] + n[2] * n[2])
+        if smallest > best_area:
+            best, best_area = apex, smallest
+    ring = [polygon[(best + i) % k] for i in range(k)]
+    return [(ring[0], ring[i], ring[i + 1]) for i in range(1, k - 1)]

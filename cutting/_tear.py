@@ -1,0 +1,393 @@
+"""Tearing a (skinned) triangle mesh with a scalpel: Algorithm 2 of the cut/tear/drill paper
+(sec. 4.2.2), with the weights of new vertices of sec. 4.3.
+
+The scalpel is a segment known at time steps t_0 .. t_k (``scalpels[i] = (X0, X1)``; X0 is the
+handle side: where the segment crosses the surface more than once, the crossing nearest X0 counts).
+
+1. S_i, the crossing of the scalpel with the surface at t_i (the tear points);
+2. for each step i, the plane Pi_i through S_i and the scalpel's endpoints at t_{i+1};
+3. from S_i's face, the intersection of Pi_i with the surface is followed face by face (across
+   shared edges, towards S_{i+1}) until S_{i+1}'s face: the edge points Q_j, in order on the skin;
+4. weights of S_0, S_k (barycentric in their faces) and of every Q_j (on its edge), sec. 4.3;
+5. the faces on the path are re-triangulated: the tips S_0 and S_k become vertices inside their
+   faces, every Q_j is duplicated, one copy for each side of the tear;
+6. the two copies of every Q_j are pushed apart along Pi's normal, ``opening / 2`` each.
+
+Successive samples make one tear along the whole path (the paper's successive tears): in the face
+of an intermediate sample S_i the path goes straight from the point where it enters the face to
+the point where it leaves it (the paper's assumption that the tear curve is smooth between close
+samples). A plane that passes within ``tolerance`` of a vertex of the path is moved along its normal
+by three times the tolerance (a gentle perturbation), so that no sliver triangle is created.
+
+For a fixed topology (``TearPath``), the positions of the new vertices are a JAX function of the
+scalpel samples, the vertices and the opening (``tear_positions``), so they can be differentiated.
+"""
+
+from __future__ import annotations
+
+from typing import NamedTuple
+
+import jax.numpy as jnp
+import numpy as np
+
+from cutting._cut import MeshEdges, _bounding_diagonal, mesh_edges
+from cutting._geometry import (check_mesh_arrays, cross_rows, fan_triangles, posed_vertices, rest_positions,
+                               segment_hits,
+                               skinned_mesh_like)
+from cutting._predicates import check_predicates, edge_points, signed_distances
+from cutting._weights import blend_weights
+from deform._model import SkinnedMesh
+
+# Tip points keep at least this barycentric coordinate in their face (no zero-area fan triangle
+# when the scalpel meets the surface on an edge).
+_TIP_MARGIN = 1e-6
+
+
+class TearPath(NamedTuple):
+    """The topology of a tear, and the geometry it was computed from.
+
+    Attributes:
+        sample_faces: (k+1,) int the face crossed by the scalpel at each sample t_i.
+        sample_points: (k+1, 3) the crossings S_i.
+        sample_barycentric: (k+1, 3) barycentric coordinates of S_i in its face.
+        faces: (p,) int the faces on the tear path, in order from S_0's face to S_k's face.
+        edge_ids: (p-1,) int the edge (``MeshEdges`` id) between path faces j and j+1 that carries Q_j.
+        crossing: (p-1, 2) int its vertices (i, j).
+        t: (p-1,) parameter of Q_j along its edge, ``Q = (1 - t) V_i + t V_j``.
+        points: (p-1, 3) the Q_j before the opening.
+        step: (p-1,) int the scalpel step i (plane Pi_i) that gave Q_j.
+        planes: (k, 4) the planes Pi_i as (unit normal, d): the normal points to the tear's left
+            (face normal x path direction), d includes the perturbation.
+        orientation: (k,) +1 or -1: Pi_i's normal is ``orientation * (A - S_i) x (B - S_i)``
+            normalized, with A, B the scalpel's endpoints at t_{i+1}.
+        shift: (k,) how far each plane was moved along its normal (the perturbation; mostly 0).
+    """
+
+    sample_faces: np.ndarray
+    sample_points: np.ndarray
+    sample_barycentric: np.ndarray
+    faces: np.ndarray
+    edge_ids: np.ndarray
+    crossing: np.ndarray
+    t: np.ndarray
+    points: np.ndarray
+    step: np.ndarray
+    planes: np.ndarray
+    orientation: np.ndarray
+    shift: np.ndarray
+
+
+def check_scalpels(scalpels) -> np.ndarray:
+    """Scalpel samples as a (k+1, 2, 3) array (k+1 >= 2 positions of a segment)."""
+    scalpels = np.asarray(scalpels, np.float64)
+    if scalpels.ndim != 3 or scalpels.shape[1:] != (2, 3) or scalpels.shape[0] < 2:
+        raise ValueError(f"scalpels: expected (k+1, 2, 3) segment endpoints at k+1 >= 2 time steps, got "
+                         f"shape {scalpels.shape}")
+    if not np.all(np.isfinite(scalpels)):
+        raise ValueError("scalpels: endpoints must be finite")
+    if np.any(np.linalg.norm(scalpels[:, 1] - scalpels[:, 0], axis=1) == 0):
+        raise ValueError("scalpels: a scalpel sample has two equal endpoints")
+    return scalpels
+
+
+def _tip(V, F, scalpel, index):
+    faces, barycentric, _ = segment_hits(V, F, scalpel[0], scalpel[1])
+    if len(faces) == 0:
+        raise ValueError(f"scalpels[{index}]: the scalpel does not cross the surface (no face between "
+                         f"{scalpel[0].tolist()} and {scalpel[1].tolist()})")
+    b = np.maximum(barycentric[0], _TIP_MARGIN)
+    b /= b.sum()
+    return int(faces[0]), b, b @ V[F[faces[0]]]
+
+
+def _face_normal(V, corners):
+    return cross_rows(V[corners[1]] - V[corners[0]], V[corners[2]] - V[corners[0]])
+
+
+class _NearVertex(Exception):
+    """The plane passes within the tolerance of a vertex of the path: move it and walk again."""
+
+
+class _Lost(Exception):
+    """The plane's curve leaves the faces being followed (after a move, it may miss the first face)."""
+
+
+def _walk(V, F, edges: MeshEdges, s, margin, start, entry_edge, origin, goal, target, visited):
+    """Follow the zero set of the signed distances s from face ``start`` (entered over
+    ``entry_edge``, or from the tip ``origin`` inside it) to face ``target``.
+    Returns the crossed edge ids and the faces entered (target last)."""
+    crossed, entered = [], []
+    f, e_from = start, entry_edge
+    for _ in range(len(F) + 1):
+        if np.abs(s[F[f]]).min() <= margin:
+            raise _NearVertex
+        candidates = [int(e) for e in edges.face_edges[f] if e != e_from
+                      and s[edges.edges[e, 0]] * s[edges.edges[e, 1]] < 0]
+        if not candidates:
+            raise _Lost
+        if len(candidates) > 1:
+            # only in the first face: leave it towards the next sample
+            def progress(e):
+                i, j = edges.edges[e]
+                x = V[i] + s[i] / (s[i] - s[j]) * (V[j] - V[i])
+                return float((x - origin) @ (goal - origin))
+            candidates.sort(key=progress, reverse=True)
+        e = candidates[0]
+        if edges.edge_counts[e] != 2:
+            raise ValueError("mesh: the tear reaches the boundary of the surface or a non-manifold edge "
+                             f"(edge {edges.edges[e].tolist()}; if the mesh has seams of split vertices, weld "
+                             "it first: deform.weld or load_model(..., weld=True))")
+        g = int(edges.edge_faces[e, 0] if edges.edge_faces[e, 0] != f else edges.edge_faces[e, 1])
+        crossed.append(e)
+        entered.append(g)
+        if g == target:
+            return crossed, entered
+        if g == start:
+            raise ValueError("scalpels: the tear plane's curve on the surface does not reach the next sample "
+                             "(it closes on itself; the samples are too far apart)")
+        if g in visited:
+            raise ValueError("scalpels: the tear path crosses itself")
+        visited.add(g)
+        f, e_from = g, e
+    raise ValueError("scalpels: the tear path does not reach the next sample")
+
+
+def tear_path(V, F, scalpels, *, predicates: str = "euclidean", tolerance: float = 1e-6,
+              edges: MeshEdges | None = None) -> TearPath:
+    """The tear path of a scalpel moving over the mesh (V, F) (Algorithm 2, steps 1-3).
+
+    Args:
+        V: (n, 3) vertex positions (rest pose or posed).
+        F: (m, 3) int faces.
+        scalpels: (k+1, 2, 3) scalpel endpoints (handle side first) at k+1 time steps.
+        predicates: ``"euclidean"`` or ``"ga"`` (Table 1) for the side of a vertex and the edge points.
+        tolerance: planes passing closer than ``tolerance`` times the bounding-box diagonal to a path
+            vertex are moved away from it (three times that distance).
+        edges: ``mesh_edges(F)``, precomputed once per topology.
+    Raises:
+        ValueError: a scalpel sample that does not cross the surface, a tear that crosses no edge
+            (it stays inside one face), reaches the boundary, crosses itself or cannot be followed."""
+    check_predicates(predicates)
+    V, F = check_mesh_arrays(V, F)
+    scalpels = check_scalpels(scalpels)
+    if not tolerance >= 0:
+        raise ValueError(f"tolerance: expected a non-negative number, got {tolerance}")
+    edges = mesh_edges(F) if edges is None else edges
+    if edges.face_edges.shape != F.shape:
+        raise ValueError(f"edges: computed for another mesh (face_edges {edges.face_edges.shape}, F {F.shape})")
+    diagonal = _bounding_diagonal(V)
+    margin = tolerance * diagonal
+    samples = [_tip(V, F, scalpel, i) for i, scalpel in enumerate(scalpels)]
+    sample_faces = np.array([f for f, _, _ in samples])
+    sample_points = np.array([p for _, _, p in samples])
+    sample_barycentric = np.array([b for _, b, _ in samples])
+
+    faces, crossed, steps = [int(sample_faces[0])], [], []
+    planes, orientation, shifts, point_chunks, t_chunks = [], [], [], [], []
+    visited = {faces[0]}
+    entry_edge, entry_point = None, sample_points[0]
+    for i in range(len(scalpels) - 1):
+        origin, goal = sample_points[i], sample_points[i + 1]
+        A, B = scalpels[i + 1]
+        normal = cross_rows(A - origin, B - origin)
+        length = np.linalg.norm(normal)
+        if length <= 1e-12 * diagonal**2:
+            raise ValueError(f"scalpels[{i + 1}]: the scalpel passes through the previous tear point, so the "
+                             "tear plane is not defined (move the scalpel between samples)")
+        n = normal / length
+        d = float(n @ origin)
+        target = int(sample_faces[i + 1])
+        sign, shift = 1.0, 0.0
+        step_edges, step_faces = [], []
+        if target != faces[-1]:
+            # the plane as given, then moved along its normal both ways (gentle perturbation)
+            for shift in margin * np.array([0.0, 3.0, -3.0, 6.0, -6.0, 12.0, -12.0]):
+                s = signed_distances(V, n, d + shift, predicates)
+                try:
+                    step_edges, step_faces = _walk(V, F, edges, s, margin, faces[-1], entry_edge, origin, goal,
+                                                   target, set(visited))
+                    break
+                except _NearVertex:
+                    failure = (f"scalpels[{i + 1}]: the tear plane keeps passing through vertices of the mesh "
+                               "(within the tolerance); move the scalpel slightly")
+                except _Lost:
+                    failure = ("scalpels: the tear plane leaves the surface's path between two samples (the "
+                               "samples are too far apart or the tear turns back)")
+            else:
+                raise ValueError(failure)
+            # Orient the normal to the left of the path: face normal x direction of travel.
+            i0, j0 = edges.edges[step_edges[0]]
+            first_point = V[i0] + s[i0] / (s[i0] - s[j0]) * (V[j0] - V[i0])
+            left = cross_rows(_face_normal(V, F[faces[-1]]), first_point - entry_point)
+            sign = 1.0 if n @ left >= 0 else -1.0
+            visited.update(step_faces)
+            pairs = edges.edges[step_edges]
+            points, t = edge_points(V[pairs[:, 0]], V[pairs[:, 1]], s[pairs[:, 0]], s[pairs[:, 1]], n, d + shift,
+                                    predicates)
+        else:
+            points, t = np.zeros((0, 3)), np.zeros(0)
+        planes.append(np.append(sign * n, sign * (d + shift)))
+        orientation.append(sign)
+        shifts.append(shift)
+        point_chunks.append(points)
+        t_chunks.append(t)
+        crossed += step_edges
+        steps += [i] * len(step_edges)
+        faces += step_faces
+        if step_edges:
+            entry_edge, entry_point = step_edges[-1], points[-1]
+    if not crossed:
+        raise ValueError("scalpels: the tear crosses no edge of the mesh (it stays inside one face); move the "
+                         "scalpel farther between samples")
+    crossed = np.asarray(crossed)
+    return TearPath(sample_faces, sample_points, sample_barycentric, np.asarray(faces), crossed, edges.edges[crossed],
+                    np.concatenate(t_chunks),
+                    np.concatenate(point_chunks), np.asarray(steps), np.asarray(planes), np.asarray(orientation),
+                    np.asarray(shifts))
+
+
+def _retriangulate(V, F, edges: MeshEdges, path: TearPath, n_vertices: int):
+    """Triangles replacing the path faces (Algorithm 2, step 5). Vertex ids: the input's, then S_0
+    (n), S_k (n+1), the left copies of Q_j (n+2+j), the right copies (n+2+q+j)."""
+    q = len(path.t)
+    tips = (n_vertices, n_vertices + 1)
+    point_of_edge = {int(e): j for j, e in enumerate(path.edge_ids)}
+    triangles = []
+    last = len(path.faces) - 1
+    for position, f in enumerate(path.faces):
+        corners = F[f]
+        local = edges.face_edges[f]
+        normal = _face_normal(V, corners)
+        entry = position - 1 if position > 0 else None
+        exit_ = position if position < last else None
+        # the face's boundary in winding order, with its path points on their edges
+        cycle, where = [], []
+        for k in range(3):
+            cycle.append(("corner", int(corners[k])))
+            j = point_of_edge.get(int(local[k]))
+            if j is not None and j in (entry, exit_):
+                cycle.append(("point", j))
+        if entry is None or exit_ is None:  # a tip face: fan from the tip S inside it
+            tip = tips[0] if entry is None else tips[1]
+            j = exit_ if entry is None else entry
+            tip_point = path.sample_points[0] if entry is None else path.sample_points[-1]
+            direction = path.points[j] - tip_point if entry is None else tip_point - path.points[j]
+            left = cross_rows(normal, direction)
+            for m in range(len(cycle)):
+                a, b = cycle[m], cycle[(m + 1) % len(cycle)]
+                if "point" in (a[0], b[0]):
+                    corner = b[1] if a[0] == "point" else a[1]
+                    copy = _copy(j, q, n_vertices, left @ (V[corner] - path.points[j]) > 0)
+                    ids = [copy if x[0] == "point" else x[1] for x in (a, b)]
+                else:
+                    ids = [a[1], b[1]]
+                triangles.append((ids[0], ids[1], tip))
+            continue
+        # a chord face: the segment entry -> exit splits it into two convex pieces
+        start = next(m for m, item in enumerate(cycle) if item == ("point", entry))
+        cycle = cycle[start:] + cycle[:start]
+        stop = next(m for m, item in enumerate(cycle) if item == ("point", exit_))
+        left = cross_rows(normal, path.points[exit_] - path.points[entry])
+        for piece in (cycle[:stop + 1], cycle[stop:] + cycle[:1]):
+            corner = next(x[1] for x in piece if x[0] == "corner")
+            is_left = left @ (V[corner] - path.points[entry]) > 0
+            ids = [_copy(x[1], q, n_vertices, is_left) if x[0] == "point" else x[1] for x in piece]
+            coordinates = [path.points[x[1]] if x[0] == "point" else V[x[1]] for x in piece]
+            triangles += fan_triangles(ids, coordinates)
+    return np.asarray(triangles, np.int64).reshape(-1, 3)
+
+
+def _copy(j, q, n_vertices, is_left):
+    return n_vertices + 2 + j if is_left else n_vertices + 2 + q + j
+
+
+def tear(mesh: SkinnedMesh, scalpels, *, opening: float = 0.0, predicates: str = "euclidean",
+         side_weight: float = 0.0, tolerance: float = 1e-6, joint_matrices=None, edges: MeshEdges | None = None,
+         return_path: bool = False):
+    """Tear a skinned mesh with a scalpel moving through the samples ``scalpels`` (Algorithm 2).
+
+    Args:
+        mesh: the SkinnedMesh (``deform``).
+        scalpels: (k+1, 2, 3) the scalpel segment (handle end first) at time steps t_0 .. t_k, in the
+            space of the mesh as torn: the bind pose, or the pose of ``joint_matrices``. Two samples
+            are the paper's ``scalpel_0, scalpel_1``; more make one tear along the whole path.
+        opening: the distance between the two copies of every interior tear point (each is pushed
+            ``opening / 2`` along the tear plane's normal, away from it); 0 leaves a closed slit.
+        predicates: ``"euclidean"`` or ``"ga"`` (Table 1).
+        side_weight: in [0, 1]; 0 gives both copies of a tear point the barycentric weights of its
+            edge (sec. 4.3); towards 1 each copy leans to the weights of its own side's endpoint.
+        tolerance: see ``tear_path``.
+        joint_matrices: (j, 4, 4) joint matrices of a pose (``deform.joint_matrices``): tear the mesh
+            *in that pose*, the scalpel in world space. New vertices get the rest positions whose LBS
+            image in that pose is their torn position (exact for LBS).
+        edges: ``mesh_edges(mesh.F)``, precomputed.
+        return_path: also return the ``TearPath`` (for ``tear_positions``).
+    Returns:
+        The torn SkinnedMesh (the input's vertices first, in order; then S_0, S_k, the left copies of
+        the Q_j, the right copies), and the TearPath when ``return_path``."""
+    if not 0.0 <= side_weight <= 1.0:
+        raise ValueError(f"side_weight: expected a number in [0, 1], got {side_weight}")
+    if not (np.isfinite(opening) and opening >= 0):
+        raise ValueError(f"opening: expected a finite non-negative distance, got {opening}")
+    F = np.asarray(mesh.F)
+    J, W = np.asarray(mesh.J), np.asarray(mesh.W)
+    space, joint_matrices = posed_vertices(mesh, joint_matrices)
+    edges = mesh_edges(F) if edges is None else edges
+    path = tear_path(space, F, scalpels, predicates=predicates, tolerance=tolerance, edges=edges)
+    n_vertices, q = len(space), len(path.t)
+
+    tip_faces = path.sample_faces[[0, -1]]
+    J_tips, W_tips = blend_weights(J, W, F[tip_faces], path.sample_barycentric[[0, -1]])
+    J_q, W_q = blend_weights(J, W, path.crossing, np.stack([1.0 - path.t, path.t], axis=1))
+    normals = path.planes[path.step, :3]
+    copies_J, copies_W = [], []
+    for side in (1.0, -1.0):
+        if side_weight > 0 and q:
+            own = np.where(side * np.einsum("ij,ij->i", space[path.crossing[:, 0]] - path.points, normals) > 0,
+                           path.crossing[:, 0], path.crossing[:, 1])
+            Jc, Wc = blend_weights(np.concatenate([J, J_q]), np.concatenate([W, W_q]),
+                                   np.stack([n_vertices + np.arange(q), own], axis=1),
+                                   np.broadcast_to([1.0 - side_weight, side_weight], (q, 2)))
+        else:
+            Jc, Wc = J_q, W_q
+        copies_J.append(Jc)
+        copies_W.append(Wc)
+    J_new = np.concatenate([J_tips] + copies_J)
+    W_new = np.concatenate([W_tips] + copies_W)
+    world = np.concatenate([path.sample_points[[0, -1]], path.points + 0.5 * opening * normals,
+                            path.points - 0.5 * opening * normals])
+    rest = rest_positions(J_new, W_new, world, joint_matrices)
+
+    keep = np.ones(len(F), bool)
+    keep[path.faces] = False
+    triangles = _retriangulate(space, F, edges, path, n_vertices)
+    torn = skinned_mesh_like(mesh, np.concatenate([np.asarray(mesh.V, np.float64), rest]),
+                             np.concatenate([F[keep], triangles]), np.concatenate([J, J_new]),
+                             np.concatenate([W, W_new]))
+    return (torn, path) if return_path else torn
+
+
+def tear_positions(V, F, path: TearPath, scalpels, opening=0.0):
+    """Positions of a tear's new vertices as a JAX function of the vertices, the scalpel samples
+    and the opening, for a fixed topology (``path``): differentiable with respect to the tool.
+
+    Returns (tips (2, 3): S_0 and S_k, left (q, 3), right (q, 3): the two copies of every Q_j).
+    The tips are the scalpel's crossings with their faces' planes (without the barycentric margin
+    that keeps them off the faces' edges)."""
+    V = jnp.asarray(V)
+    scalpels = jnp.asarray(scalpels)
+    corners = V[jnp.asarray(F)[jnp.asarray(path.sample_faces)]]  # (k+1, 3, 3)
+    face_normals = jnp.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    X0, X1 = scalpels[:, 0], scalpels[:, 1]
+    s = jnp.sum(face_normals * (corners[:, 0] - X0), -1) / jnp.sum(face_normals * (X1 - X0), -1)
+    samples = X0 + s[:, None] * (X1 - X0)
+    normals = jnp.cross(scalpels[1:, 0] - samples[:-1], scalpels[1:, 1] - samples[:-1])
+    normals = jnp.asarray(path.orientation)[:, None] * normals / jnp.linalg.norm(normals, axis=-1, keepdims=True)
+    offsets = jnp.sum(normals * samples[:-1], -1) + jnp.asarray(path.shift)
+    step = jnp.asarray(path.step)
+    n, d = normals[step], offsets[step]
+    A, B = V[path.crossing[:, 0]], V[path.crossing[:, 1]]
+    sA, sB = jnp.sum(A * n, -1) - d, jnp.sum(B * n, -1) - d
+    Q = A + (sA / (sA - sB))[:, None] * (B - A)
+    half = 0.5 * opening * n
+    return samples[jnp.array([0, -1])], Q + half, Q - half
