@@ -1,5 +1,6 @@
-"""The ``jaxcga cut`` command (called by ``jaxcga.cli``): cut a rigged model by a plane and write both
-halves as skinned glTF files with the input's skeleton and clips, so that they animate again."""
+"""The ``jaxcga cut``, ``tear`` and ``drill`` commands (called by ``jaxcga.cli``): operate on a rigged
+model in its bind pose and write skinned glTF files with the input's skeleton and clips, so that the
+results animate again."""
 
 from __future__ import annotations
 
@@ -8,6 +9,8 @@ from pathlib import Path
 import numpy as np
 
 from cutting._cut import cut
+from cutting._drill import drill
+from cutting._tear import tear
 from deform._gltf import save_model
 from deform._model import RiggedModel
 
@@ -27,3 +30,34 @@ def cut_command(model: RiggedModel, plane, out_positive: Path, out_negative: Pat
     return {"positive_faces": int(positive.F.shape[0]), "negative_faces": int(negative.F.shape[0]),
             "new_vertices": positive.num_vertices + negative.num_vertices - model.mesh.num_vertices,
             "out": f"{out_positive} {out_negative}"}
+
+
+def tear_command(model: RiggedModel, scalpels, out: Path, opening: float = 0.0, predicates: str = "euclidean",
+                 side_weight: float = 0.0) -> dict:
+    """Tear ``model`` in its bind pose with a scalpel at the samples ``scalpels`` ((k+1, 2, 3)); write
+    the torn model to ``out`` (.glb or .gltf)."""
+    _check_out(out)
+    torn, path = tear(model.mesh, np.asarray(scalpels, np.float64), opening=opening, predicates=predicates,
+                      side_weight=side_weight, return_path=True)
+    Path(out).parent.mkdir(parents=True, exist_ok=True)
+    save_model(RiggedModel(torn, model.skeleton, model.clips, f"{model.name}-torn"), out)
+    return {"tear_points": len(path.t), "faces": int(torn.F.shape[0]),
+            "new_vertices": torn.num_vertices - model.mesh.num_vertices, "out": str(out)}
+
+
+def drill_command(model: RiggedModel, tip, base, radius: float, out: Path, min_points: int = 6,
+                  max_refinements: int = 4) -> dict:
+    """Drill ``model`` in its bind pose from ``base`` to ``tip`` with ``radius``; write the drilled
+    model to ``out`` (.glb or .gltf)."""
+    _check_out(out)
+    drilled, topology = drill(model.mesh, tip, base, radius, min_points=min_points, max_refinements=max_refinements,
+                              return_topology=True)
+    Path(out).parent.mkdir(parents=True, exist_ok=True)
+    save_model(RiggedModel(drilled, model.skeleton, model.clips, f"{model.name}-drilled"), out)
+    return {"holes": topology.holes, "hole_points": len(topology.points), "refinements": topology.refinements,
+            "faces": int(drilled.F.shape[0]), "out": str(out)}
+
+
+def _check_out(out):
+    if Path(out).suffix not in (".glb", ".gltf"):
+        raise ValueError(f"out: expected a .glb or .gltf path, got {out}")

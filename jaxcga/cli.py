@@ -167,8 +167,21 @@ def _run_deform(args) -> int:
     _x64()
     from deform import _commands
 
-    model = _commands.load_or_default(args.model, weld=args.weld)
-    if args.command == "cut":
+    # tear and drill walk across faces: split vertices along UV seams are always welded for them
+    model = _commands.load_or_default(args.model, weld=args.weld or args.command in ("tear", "drill"))
+    if args.command == "tear":
+        from cutting import _commands as _cutting_commands
+
+        scalpels = [args.scalpel0, args.scalpel1] + (args.scalpel_next or [])
+        summary = _cutting_commands.tear_command(model, [[s[:3], s[3:]] for s in scalpels], args.out,
+                                                 opening=args.opening, predicates=args.predicates,
+                                                 side_weight=args.side_weight)
+    elif args.command == "drill":
+        from cutting import _commands as _cutting_commands
+
+        summary = _cutting_commands.drill_command(model, args.tip, args.base, args.radius, args.out,
+                                                  min_points=args.min_points, max_refinements=args.max_refinements)
+    elif args.command == "cut":
         from cutting import _commands as _cutting_commands
 
         summary = _cutting_commands.cut_command(model, args.plane, *args.out, cap=args.cap,
@@ -232,6 +245,35 @@ def main(argv: list[str] | None = None) -> int:
                        help="0: barycentric weights for new vertices (sec. 4.3); up to 1: favour each half's side")
     p_cut.add_argument("--out", type=Path, nargs=2, required=True, metavar=("POS.glb", "NEG.glb"),
                        help="the positive (n . x > d) and negative halves")
+
+    scalpel = ("X0", "Y0", "Z0", "X1", "Y1", "Z1")
+    p_tear = sub.add_parser("tear", help="tear a model with a moving scalpel (Algorithm 2) into a skinned glTF")
+    _model_argument(p_tear)
+    p_tear.add_argument("--scalpel0", type=float, nargs=6, required=True, metavar=scalpel,
+                        help="the scalpel segment at t_0 in the bind pose, handle end (outside the skin) first")
+    p_tear.add_argument("--scalpel1", type=float, nargs=6, required=True, metavar=scalpel,
+                        help="the scalpel segment at t_1")
+    p_tear.add_argument("--scalpel-next", type=float, nargs=6, action="append", metavar=scalpel,
+                        help="further samples t_2, t_3, ... (repeat): one tear along the whole path")
+    p_tear.add_argument("--opening", type=float, default=0.0,
+                        help="distance between the two sides of the tear (default 0: a closed slit)")
+    p_tear.add_argument("--predicates", choices=("euclidean", "ga"), default="euclidean",
+                        help="Euclidean or GA predicates (Table 1; default euclidean)")
+    p_tear.add_argument("--side-weight", type=float, default=0.0,
+                        help="0: barycentric weights for new vertices (sec. 4.3); up to 1: favour each side")
+    p_tear.add_argument("--out", type=Path, required=True, help="OUT.glb or OUT.gltf")
+
+    p_drill = sub.add_parser("drill", help="drill a hole into a model (Algorithm 3) and write a skinned glTF")
+    _model_argument(p_drill)
+    p_drill.add_argument("--tip", type=float, nargs=3, required=True, metavar=("X", "Y", "Z"),
+                         help="the drill's tip in the bind pose: it drills the sheets its axis reaches")
+    p_drill.add_argument("--base", type=float, nargs=3, required=True, metavar=("X", "Y", "Z"),
+                         help="the drill's base (the other end of its axis)")
+    p_drill.add_argument("--radius", type=float, required=True, help="the drill's radius")
+    p_drill.add_argument("--min-points", type=int, default=6,
+                         help="fewest points around a hole before faces are split and drilled again (default 6)")
+    p_drill.add_argument("--max-refinements", type=int, default=4, help="at most this many splits (default 4)")
+    p_drill.add_argument("--out", type=Path, required=True, help="OUT.glb or OUT.gltf")
 
     args = parser.parse_args(argv)
     if args.command == "demo":

@@ -37,3 +37,41 @@ def test_cut_errors_exit_with_code_2(tmp_path, capsys):
     assert stop.value.code == 2 and "misses the mesh" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(["cut", "--plane", "1", "0", "0", "0.3", "--out", str(tmp_path / "a.npy"), str(tmp_path / "b.glb")])
+
+
+def test_tear_writes_a_skinned_model_with_an_open_slit(tmp_path):
+    out = tmp_path / "torn.glb"
+    assert main(["tear", "--scalpel0", "0.2", "0", "0.1", "0.2", "0", "0", "--scalpel1", "0.3", "0", "0.1", "0.3", "0",
+                 "0", "--scalpel-next", "0.35", "0.01", "0.1", "0.35", "0.01", "0", "--opening", "0.005",
+                 "--out", str(out)]) == 0
+    arm = deform.default_arm()
+    torn = deform.load_model(out)
+    assert torn.skeleton.names == arm.skeleton.names and len(torn.clips) == len(arm.clips)
+    V, F = np.asarray(torn.mesh.V), np.asarray(torn.mesh.F)
+    np.testing.assert_allclose(np.asarray(torn.mesh.W).sum(axis=1), 1.0, atol=1e-6)
+    mesh = trimesh.Trimesh(V, F, process=False)
+    assert not mesh.is_watertight and mesh.is_winding_consistent  # the closed arm now has a slit
+    assert len(V) > arm.mesh.num_vertices
+    assert np.all(np.isfinite(np.asarray(deform.skin_model(torn, 1.2, "cga"))))
+
+
+def test_drill_writes_a_skinned_model_with_a_hole(tmp_path):
+    out = tmp_path / "drilled.glb"
+    assert main(["drill", "--tip", "0.4", "0", "0", "--base", "0.4", "0", "0.1", "--radius", "0.015",
+                 "--out", str(out)]) == 0
+    drilled = deform.load_model(out)
+    V, F = np.asarray(drilled.mesh.V), np.asarray(drilled.mesh.F)
+    mesh = trimesh.Trimesh(V, F, process=False)
+    assert not mesh.is_watertight and mesh.is_winding_consistent
+    assert np.all(np.isfinite(np.asarray(deform.skin_model(drilled, 1.2, "lbs"))))
+
+
+def test_tear_and_drill_errors_exit_with_code_2(tmp_path, capsys):
+    with pytest.raises(SystemExit) as stop:
+        main(["tear", "--scalpel0", "5", "5", "5", "5", "5", "6", "--scalpel1", "0.3", "0", "0.1", "0.3", "0", "0",
+              "--out", str(tmp_path / "t.glb")])
+    assert stop.value.code == 2 and "does not cross" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as stop:
+        main(["drill", "--tip", "5", "5", "5", "--base", "5", "5", "6", "--radius", "0.01",
+              "--out", str(tmp_path / "d.glb")])
+    assert stop.value.code == 2 and "misses" in capsys.readouterr().err

@@ -1,0 +1,205 @@
+"""Drilling (Algorithm 3) on real models: new points on the cylinder, the hole's area against the
+analytic inscribed polygon on a flat plate, one boundary loop per hole, weights, skinning after the
+drill, refinement of faces larger than the drill, posed drills, gradients by finite differences,
+bad input."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import trimesh
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import cutting
+import deform
+import jaxcga as cga
+from tests.cutting.tools import drill_into, mean_edge
+
+DATA = Path(__file__).resolve().parents[1] / "data"
+# welded: glTF splits vertices along UV seams, and a drill walks across faces
+MODELS = {name: deform.load_model(DATA / f"{name}.glb", weld=True) for name in ("Arm5", "3Cylinder4bones")}
+ARM = deform.default_arm()
+
+
+def _area(V, F):
+    V, F = np.asarray(V, np.float64), np.asarray(F)
+    return 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
+
+
+def _diagonal(V):
+    V = np.asarray(V)
+    return float(np.linalg.norm(V.max(axis=0) - V.min(axis=0)))
+
+
+def _edge_counts(F):
+    edges = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
+    return np.unique(edges, axis=0, return_counts=True)
+
+
+def _radial_distance(points, tip, base):
+    axis = (tip - base) / np.linalg.norm(tip - base)
+    relative = points - base
+    return np.linalg.norm(relative - np.outer(relative @ axis, axis), axis=1)
+
+
+def _loops(boundary_edges):
+    """Number of closed loops formed by undirected edges in which every vertex has degree 2."""
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
+    vertices, local = np.unique(boundary_edges, return_inverse=True)
+    local = local.reshape(-1, 2)
+    degree = np.bincount(local.ravel(), minlength=len(vertices))
+    assert np.all(degree == 2)
+    graph = sp.coo_matrix((np.ones(len(local)), (local[:, 0], local[:, 1])), shape=(len(vertices),) * 2)
+    return connected_components(graph, directed=False)[0]
+
+
+@settings(max_examples=12, deadline=None)
+@given(name=st.sampled_from(sorted(MODELS)), seed=st.integers(0, 10_000), radius=st.floats(0.4, 3.0),
+       depth=st.floats(0.5, 3.0))
+def test_drill_invariants_on_real_models(name, seed, radius, depth):
+    mesh = MODELS[name].mesh
+    V, F = np.asarray(mesh.V, np.float64), np.asarray(mesh.F)
+    edge = mean_edge(V, F)
+    tip, base = drill_into(V, F, np.random.default_rng(seed).integers(len(F)), depth * edge)
+    drilled, topology = cutting.drill(mesh, tip, base, radius * edge, return_topology=True)
+    Vd, Fd = np.asarray(drilled.V, np.float64), np.asarray(drilled.F)
+    diagonal = _diagonal(V)
+    # new points on the cylinder; no degenerate face; area only removed
+    assert np.all(np.abs(_radial_distance(topology.points, tip, base) - radius * edge) <= 1e-9 * diagonal)
+    assert _area(Vd, Fd).min() > 1e-14 * diagonal**2
+    assert _area(Vd, Fd).sum() < _area(V, F).sum()
+    # weights of new vertices (refinement midpoints and hole points)
+    W = np.asarray(drilled.W)[topology.kept >= len(V)]
+    np.testing.assert_allclose(W.sum(axis=1), 1.0, atol=1e-12)
+    assert drilled.J.shape[1] == mesh.J.shape[1] and np.all(np.asarray(drilled.J) < mesh.num_joints)
+    # manifold, with one new boundary loop per hole
+    edges, counts = _edge_counts(Fd)
+    before_edges, before_counts = _edge_counts(F)
+    assert counts.max() <= 2
+    assert trimesh.Trimesh(Vd, Fd, process=False).is_winding_consistent
+    new_loops = _loops(edges[counts == 1]) - (_loops(before_edges[before_counts == 1]) if np.any(before_counts == 1)
+                                              else 0)
+    assert new_loops == topology.holes >= 1
+    # the input's vertices outside the hole keep their rest positions, in order
+    original = topology.kept[topology.kept < len(V)]
+    np.testing.assert_array_equal(Vd[:len(original)], V[original])
+
+
+def test_hole_in_a_flat_plate_is_the_inscribed_polygon():
+    """A drill perpendicular to a flat plate removes exactly the polygon of its boundary points, whose
+    vertices lie on the circle of radius r; its area tends to pi r^2 as the plate is refined."""
+    plate = trimesh.creation.box(extents=(4.0, 4.0, 1.0))
+    for _ in range(4):
+        plate = plate.subdivide()
+    V, F = np.asarray(plate.vertices), np.asarray(plate.faces)
+    tip, base, r = np.array([0.1, 0.05, 0.0]), np.array([0.1, 0.05, 2.0]), 0.7
+    drilled = cutting.drill_mesh(V, F, tip, base, r)
+    assert drilled.holes == 1
+    top_before = _area(V, F)[V[F].mean(axis=1)[:, 2] > 0.49].sum()
+    extended = np.concatenate([drilled.vertices, drilled.points])[drilled.kept]
+    top_after = _area(extended, drilled.faces)[extended[drilled.faces].mean(axis=1)[:, 2] > 0.49].sum()
+    points = drilled.points[drilled.points[:, 2] > 0.49] - tip
+    order = np.argsort(np.arctan2(points[:, 1], points[:, 0]))
+    x, y = points[order, 0], points[order, 1]
+    polygon = 0.5 * abs(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
+    assert abs((top_before - top_after) - polygon) <= 1e-9 * polygon
+    assert 0.9 * np.pi * r**2 < polygon < np.pi * r**2
+    # the bottom of the plate is not reached by the drill's axis: untouched
+    bottom = _area(V, F)[V[F].mean(axis=1)[:, 2] < -0.49].sum()
+    assert abs(_area(extended, drilled.faces)[extended[drilled.faces].mean(axis=1)[:, 2] < -0.49].sum() - bottom) \
+        <= 1e-12 * bottom
+    # a longer drill goes through both sides
+    through = cutting.drill_mesh(V, F, np.array([0.1, 0.05, -2.0]), base, r)
+    assert through.holes == 2
+
+
+def test_a_drill_thinner_than_the_faces_splits_them_and_drills_again():
+    mesh = MODELS["Arm5"].mesh
+    V, F = np.asarray(mesh.V), np.asarray(mesh.F)
+    tip, base = drill_into(V, F, 1000, mean_edge(V, F))
+    radius = 0.08 * mean_edge(V, F)
+    drilled, topology = cutting.drill(mesh, tip, base, radius, return_topology=True)
+    assert topology.refinements >= 1 and len(topology.points) >= 6
+    np.testing.assert_allclose(_radial_distance(topology.points, tip, base), radius, atol=1e-9 * _diagonal(V))
+    with pytest.raises(ValueError, match="too thin"):
+        cutting.drill(mesh, tip, base, radius, max_refinements=0)
+
+
+@pytest.mark.parametrize("method", deform.METHODS)
+def test_skinning_the_drilled_mesh_gives_the_original_at_original_vertices(method):
+    model = ARM
+    V, F = np.asarray(model.mesh.V), np.asarray(model.mesh.F)
+    tip, base = drill_into(V, F, 3000, 0.05)
+    drilled, topology = cutting.drill(model.mesh, tip, base, 0.02, return_topology=True)
+    pose = deform.sample_pose(model, 0.7, method)
+    original = np.asarray(deform.skin_pose(model, pose, method))
+    posed = np.asarray(deform.skin_pose(deform.RiggedModel(drilled, model.skeleton), pose, method))
+    kept = topology.kept[topology.kept < len(V)]
+    np.testing.assert_allclose(posed[:len(kept)], original[kept], atol=1e-12)
+    assert np.all(np.isfinite(posed))
+
+
+@pytest.mark.parametrize("method", ["lbs", "cga"])
+def test_drill_in_a_pose_reproduces_the_hole_when_posed_again(method):
+    model = ARM
+    local = deform.sample_pose(model, 0.9, "lbs")
+    joints = deform.joint_matrices(model.mesh, deform.forward_kinematics_matrices(model.skeleton.parents, local))
+    posed = np.asarray(deform.skin_pose(model, local, "lbs"))
+    F = np.asarray(model.mesh.F)
+    tip, base = drill_into(posed, F, 5000, 0.05)
+    drilled, topology = cutting.drill(model.mesh, tip, base, 0.015, joint_matrices=joints, return_topology=True)
+    pose = local if method == "lbs" else cga.matrix_to_similitude(local)
+    again = np.asarray(deform.skin_pose(deform.RiggedModel(drilled, model.skeleton), pose, method))
+    new = topology.kept >= len(topology.vertices)
+    # re-posed, the new points lie on the drill's cylinder again
+    np.testing.assert_allclose(_radial_distance(again[new], tip, base), 0.015, atol=1e-9 * _diagonal(posed))
+    later = deform.skin_pose(deform.RiggedModel(drilled, model.skeleton), deform.sample_pose(model, 1.6, "lbs"), "lbs")
+    assert np.all(np.isfinite(np.asarray(later)))
+
+
+def test_new_vertex_positions_are_differentiable_in_the_drill():
+    mesh = MODELS["3Cylinder4bones"].mesh
+    V, F = np.asarray(mesh.V), np.asarray(mesh.F)
+    tip, base = drill_into(V, F, 100, 0.5)
+    topology = cutting.drill_mesh(V, F, tip, base, 0.3)
+    positions = cutting.drill_positions(topology.vertices, topology.crossing, topology.root, tip, base, 0.3)
+    np.testing.assert_allclose(positions, topology.points, atol=1e-12)
+
+    def loss(params):
+        points = cutting.drill_positions(topology.vertices, topology.crossing, topology.root, params[:3], params[3:6],
+                                         params[6])
+        return jnp.sum(jnp.sin(points))
+
+    params = jnp.concatenate([jnp.asarray(tip), jnp.asarray(base), jnp.array([0.3])])
+    grad = jax.grad(loss)(params)
+    step = 1e-6
+    numeric = np.array([(loss(params.at[i].add(step)) - loss(params.at[i].add(-step))) / (2 * step)
+                        for i in range(len(params))])
+    np.testing.assert_allclose(grad, numeric, rtol=1e-5, atol=1e-6 * float(np.abs(numeric).max()))
+
+
+def test_bad_input():
+    mesh = ARM.mesh
+    V, F = np.asarray(mesh.V), np.asarray(mesh.F)
+    tip, base = drill_into(V, F, 3000, 0.05)
+    with pytest.raises(ValueError, match="misses the mesh"):
+        cutting.drill(mesh, tip + 10.0, base + 10.0, 0.02)
+    with pytest.raises(ValueError, match="radius"):
+        cutting.drill(mesh, tip, base, -1.0)
+    with pytest.raises(ValueError, match="coincide"):
+        cutting.drill(mesh, tip, tip, 0.02)
+    with pytest.raises(ValueError, match="tip"):
+        cutting.drill(mesh, [0.0, 1.0], base, 0.02)
+    with pytest.raises(ValueError, match="base"):
+        cutting.drill(mesh, tip, [np.nan, 0.0, 0.0], 0.02)
+    with pytest.raises(ValueError, match="min_points"):
+        cutting.drill(mesh, tip, base, 0.02, min_points=2)
+    with pytest.raises(ValueError, match="joint_matrices"):
+        cutting.drill(mesh, tip, base, 0.02, joint_matrices=np.eye(4))
