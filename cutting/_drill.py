@@ -112,11 +112,29 @@ def _refine(V, F, edges: MeshEdges, face_mask):
     return np.concatenate([V, 0.5 * (V[parents[:, 0]] + V[parents[:, 1]])]), faces, parents
 
 
-def _cylinder_roots(radial, pairs, radius, lengths, margin):
-    """Roots alpha of eq. (18-20) for the edges ``pairs`` (mu = P(v_i) - B, nu = P(v_j) - B given as
-    ``radial``), kept strictly inside the edge (farther than ``margin`` from both ends).
+def refine(mesh: SkinnedMesh, faces=None, *, joint_matrices=None) -> SkinnedMesh:
+    """The paper's "split" of sec. 4.2.3 on a skinned mesh: every edge of the given faces (all faces
+    when None) is split at its midpoint, faces on split edges are re-triangulated conformingly (4, 3
+    or 2 triangles); a midpoint gets its edge's blended weights (sec. 4.3). With ``joint_matrices``
+    the split is made in that pose (midpoints of the posed edges, rest positions by inverse LBS)."""
+    F = np.asarray(mesh.F)
+    mask = np.ones(len(F), bool)
+    if faces is not None:
+        mask = np.zeros(len(F), bool)
+        mask[np.asarray(faces)] = True
+    space, joint_matrices = posed_vertices(mesh, joint_matrices)
+    refined, F_new, parents = _refine(space, F, mesh_edges(F), mask)
+    J, W = np.asarray(mesh.J), np.asarray(mesh.W)
+    J_mid, W_mid = blend_weights(J, W, parents, np.full(parents.shape, 0.5))
+    rest = rest_positions(J_mid, W_mid, refined[len(space):], joint_matrices)
+    return skinned_mesh_like(mesh, np.concatenate([np.asarray(mesh.V, np.float64), rest]), F_new,
+                             np.concatenate([J, J_mid]), np.concatenate([W, W_mid]))
+
+
+def _cylinder_roots(mu, nu, radius, lengths, margin):
+    """Roots alpha of eq. (18-20) for edges with mu = P(v_i) - B, nu = P(v_j) - B (p, 3), kept
+    strictly inside the edge (farther than ``margin`` from both ends).
     Returns (edge index, alpha, root sign) of every crossing."""
-    mu, nu = radial[pairs[:, 0]], radial[pairs[:, 1]]
     diff = mu - nu
     K = np.einsum("ij,ij->i", diff, diff)  # eq. (18)
     L = 2.0 * np.einsum("ij,ij->i", diff, nu)  # eq. (19)
@@ -134,44 +152,74 @@ def _cylinder_roots(radial, pairs, radius, lengths, margin):
     return tuple(np.concatenate(parts) for parts in zip(*found))
 
 
+class _Axis(NamedTuple):
+    """The drill's axis: base B, unit direction, and the heights (v - B) . axis of all vertices."""
+
+    base: np.ndarray
+    direction: np.ndarray
+    heights: np.ndarray
+
+    def radial(self, V, index):
+        """P(v) - B for the vertices ``index`` (computed where needed: few vertices are near a hole)."""
+        return V[index] - self.base - self.heights[index, None] * self.direction
+
+
+def _crossed(axis: _Axis, V, pairs, radius, margin):
+    """Roots of eq. (18-20) on the edges ``pairs`` (see ``_cylinder_roots``)."""
+    spans = V[pairs[:, 1]] - V[pairs[:, 0]]
+    ends = axis.radial(V, pairs.ravel()).reshape(-1, 2, 3)
+    return _cylinder_roots(ends[:, 0], ends[:, 1], radius, np.sqrt(np.einsum("ij,ij->i", spans, spans)), margin)
+
+
 def _drill_once(V, F, edges: MeshEdges, tip, base, radius, margin):
-    """One drilling pass: affected faces, their holes and the crossings on their edges."""
-    axis = (tip - base) / np.linalg.norm(tip - base)
-    relative = V - base
-    radial = relative - np.outer(relative @ axis, axis)  # P(v) - B
-    distance = np.linalg.norm(radial, axis=1)
-    inside = distance < radius - margin
+    """One drilling pass (Algorithm 3, steps 1-3): the seeds pierced by the axis, the breadth-first
+    search over the faces around them, and the crossings on the edges of the affected faces."""
+    direction = (tip - base) / np.linalg.norm(tip - base)
+    heights = V @ direction - base @ direction
+    axis = _Axis(base, direction, heights)
+    # |P(v) - B|^2 = |v - B|^2 - h^2, without forming P(v) for every vertex
+    squared = np.einsum("ij,ij->i", V, V) - 2.0 * (V @ base) + base @ base - heights * heights
+    inside = squared < (radius - margin) ** 2
     seeds, _, _ = segment_hits(V, F, base, tip)
     if len(seeds) == 0:
         raise ValueError("tip, base: the drill misses the mesh (its axis from base to tip crosses no face)")
-    pairs = edges.edges
-    lengths = np.linalg.norm(V[pairs[:, 1]] - V[pairs[:, 0]], axis=1)
-    # only edges that can reach the cylinder: an endpoint within radius + the edge's length of the axis
-    near = np.minimum(distance[pairs[:, 0]], distance[pairs[:, 1]]) < radius + lengths
-    near_index = np.flatnonzero(near)
-    index, alpha, sign = _cylinder_roots(radial, pairs[near_index], radius, lengths[near_index], margin)
-    index = near_index[index]
-    crossed = np.zeros(len(pairs), bool)
-    crossed[index] = True
-    candidate = inside[F].any(axis=1) | crossed[edges.face_edges].any(axis=1)
-    candidate[seeds] = True
-    # connected components of the candidate faces over shared edges; affected: those with a seed
-    interior = (edges.edge_faces[:, 1] >= 0)
-    a, b = edges.edge_faces[interior, 0], edges.edge_faces[interior, 1]
-    link = candidate[a] & candidate[b]
-    graph = coo_matrix((np.ones(int(link.sum())), (a[link], b[link])), shape=(len(F), len(F)))
-    _, labels = connected_components(graph, directed=False)
-    holes = np.unique(labels[seeds])
-    affected = candidate & np.isin(labels, holes)
-    # crossings on the edges of affected faces, and how many each hole has
-    on_affected = np.zeros(len(pairs), bool)
-    on_affected[edges.face_edges[affected].ravel()] = True
-    keep = on_affected[index]
-    index, alpha, sign = index[keep], alpha[keep], sign[keep]
-    face_of_edge = np.where(affected[edges.edge_faces[:, 0]], edges.edge_faces[:, 0], edges.edge_faces[:, 1])
-    counts = [int(np.count_nonzero(labels[face_of_edge[index]] == h)) for h in holes]
-    return dict(affected=affected, index=index, alpha=alpha, sign=sign, distance=distance, radial=radial,
-                seeds=seeds, holes=len(holes), fewest=min(counts) if counts else 0)
+    # BFS: a neighbour is affected when a corner lies inside the drill or an edge passes through it
+    visited = np.zeros(len(F), bool)
+    visited[seeds] = True
+    layers, frontier = [seeds], seeds
+    while len(frontier):
+        neighbours = edges.edge_faces[edges.face_edges[frontier].ravel()].ravel()
+        neighbours = np.unique(neighbours[neighbours >= 0])
+        neighbours = neighbours[~visited[neighbours]]
+        visited[neighbours] = True
+        hit = inside[F[neighbours]].any(axis=1)
+        rest = np.flatnonzero(~hit)
+        if len(rest):
+            local_edges = edges.face_edges[neighbours[rest]]
+            index, _, _ = _crossed(axis, V, edges.edges[local_edges.ravel()], radius, margin)
+            hit[rest[np.unique(index // 3)]] = True
+        frontier = neighbours[hit]
+        layers.append(frontier)
+    affected_faces = np.concatenate(layers)
+    affected = np.zeros(len(F), bool)
+    affected[affected_faces] = True
+    # crossings on the edges of the affected faces
+    on_affected = np.unique(edges.face_edges[affected_faces])
+    index, alpha, sign = _crossed(axis, V, edges.edges[on_affected], radius, margin)
+    index = on_affected[index]
+    # holes: connected components of the affected faces; each needs enough boundary points
+    local = np.full(len(F), -1, np.int64)
+    local[affected_faces] = np.arange(len(affected_faces))
+    a, b = edges.edge_faces[on_affected, 0], edges.edge_faces[on_affected, 1]
+    a, b = local[a], np.where(b >= 0, local[np.maximum(b, 0)], -1)
+    link = (a >= 0) & (b >= 0)
+    graph = coo_matrix((np.ones(int(link.sum())), (a[link], b[link])), shape=(len(affected_faces),) * 2)
+    holes, labels = connected_components(graph, directed=False)
+    first = edges.edge_faces[index, 0]
+    face_of_edge = np.where(affected[first], first, edges.edge_faces[index, 1])
+    counts = np.bincount(labels[local[face_of_edge]], minlength=holes)
+    return dict(affected=affected, index=index, alpha=alpha, sign=sign, axis=axis, holes=holes,
+                fewest=int(counts.min()))
 
 
 def drill_mesh(V, F, tip, base, radius, *, min_points: int = 6, max_refinements: int = 4, tolerance: float = 1e-6,
@@ -231,35 +279,44 @@ def drill_mesh(V, F, tip, base, radius, *, min_points: int = 6, max_refinements:
 
 
 def _retriangulate(V, F, edges: MeshEdges, state, points, crossing, radius):
-    """Faces of the drilled mesh (Algorithm 3, step 5) in the extended numbering."""
-    affected = state["affected"]
+    """Faces of the drilled mesh (Algorithm 3, step 5) in the extended numbering. Per affected face
+    in plain Python: the faces near a hole are few, and small arrays cost more than they save."""
+    affected = np.flatnonzero(state["affected"])
     n = len(V)
     index, alpha = state["index"], state["alpha"]
-    # radial vectors P(x) - B of every vertex and new point (the projection is affine)
-    radial = np.concatenate([state["radial"], alpha[:, None] * state["radial"][crossing[:, 0]]
-                             + (1.0 - alpha[:, None]) * state["radial"][crossing[:, 1]]])
-    extended = np.concatenate([V, points])
+    corners = F[affected]
+    # radial vectors P(x) - B of the corners and the new points (the projection is affine)
+    axis = state["axis"]
+    radial = dict(zip(corners.ravel().tolist(), axis.radial(V, corners.ravel()).tolist()))
+    point_radial = (alpha[:, None] * axis.radial(V, crossing[:, 0])
+                    + (1.0 - alpha[:, None]) * axis.radial(V, crossing[:, 1]))
+    radial.update(zip(range(n, n + len(points)), point_radial.tolist()))
+    position = dict(zip(corners.ravel().tolist(), V[corners.ravel()].tolist()))
+    position.update(zip(range(n, n + len(points)), points.tolist()))
     # the new points of each edge, ordered from its first vertex (edges.edges[e, 0]) to its second
     on_edge: dict[int, list[tuple[float, int]]] = {}
     for p, (e, a) in enumerate(zip(index.tolist(), alpha.tolist())):
         on_edge.setdefault(e, []).append((1.0 - a, n + p))
     for entries in on_edge.values():
         entries.sort()
+    limit = radius * radius
     triangles = []
-    for f in np.flatnonzero(affected).tolist():
+    for face, local_edges in zip(corners.tolist(), edges.face_edges[affected].tolist()):
         cycle = []
         for k in range(3):
-            a, b = int(F[f, k]), int(F[f, (k + 1) % 3])
+            a, b = face[k], face[(k + 1) % 3]
             cycle.append(a)
-            ordered = [vid for _, vid in on_edge.get(int(edges.face_edges[f, k]), [])]
+            ordered = [vid for _, vid in on_edge.get(local_edges[k], ())]
             cycle += ordered if a < b else ordered[::-1]
         m = len(cycle)
         # a boundary piece is outside the drill when its midpoint is (the drill is convex)
-        ring = np.asarray(cycle)
-        middle = 0.5 * (radial[ring] + radial[np.roll(ring, -1)])
-        outside = (np.einsum("ij,ij->i", middle, middle) > radius * radius).tolist()
+        outside = []
+        for i in range(m):
+            x, y = radial[cycle[i]], radial[cycle[(i + 1) % m]]
+            mx, my, mz = x[0] + y[0], x[1] + y[1], x[2] + y[2]
+            outside.append(0.25 * (mx * mx + my * my + mz * mz) > limit)
         if all(outside):
-            triangles.append(tuple(F[f].tolist()))
+            triangles.append(tuple(face))
             continue
         if not any(outside):
             continue
@@ -272,9 +329,9 @@ def _retriangulate(V, F, edges: MeshEdges, state, points, crossing, radius):
                 run.append(cycle[(i + 1) % m])
                 continue
             if len(run) >= 3:
-                triangles += fan_triangles(run, extended[run])
+                triangles += fan_triangles(run, [position[v] for v in run])
             run = [cycle[(i + 1) % m]]
-    return np.concatenate([F[~affected], np.asarray(triangles, np.int64).reshape(-1, 3)])
+    return np.concatenate([F[~state["affected"]], np.asarray(triangles, np.int64).reshape(-1, 3)])
 
 
 def drill(mesh: SkinnedMesh, tip, base, radius, *, min_points: int = 6, max_refinements: int = 4,

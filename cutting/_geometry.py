@@ -79,13 +79,30 @@ def cross3(a, b):
     return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
 
 
+def _straddling_faces(V, F, start, end):
+    """Faces that the segment start -> end may cross: their corners lie on both sides (or on) of two
+    planes through the segment's line and within its extent along it. One byte per vertex, OR-ed
+    over each face's corners: a cheap necessary condition that leaves a handful of faces."""
+    direction = end - start
+    length = float(np.linalg.norm(direction))
+    d = direction / length
+    u = np.cross(d, [1.0, 0.0, 0.0] if abs(d[0]) < 0.9 else [0.0, 1.0, 0.0])
+    u /= np.linalg.norm(u)
+    w = np.cross(d, u)
+    a, b, s = ((V - start) @ np.stack([u, w, d], axis=1)).T
+    code = ((a <= 0) | (a >= 0) << 1 | (b <= 0) << 2 | (b >= 0) << 3 | (s <= length) << 4 | (s >= 0) << 5)
+    code = code.astype(np.uint8)[F]
+    return np.flatnonzero((code[:, 0] | code[:, 1] | code[:, 2]) == 63)
+
+
 def segment_hits(V, F, start, end, faces=None):
     """Crossings of the segment start -> end with the triangles F (Moller-Trumbore, vectorized).
 
     Returns (faces (h,), barycentric (h, 3), s (h,)): the faces crossed, the crossing's barycentric
-    coordinates in each face and its parameter along the segment, sorted by s (from ``start``)."""
-    corners = F if faces is None else F[np.asarray(faces)]
-    faces = np.arange(len(F)) if faces is None else np.asarray(faces)
+    coordinates in each face and its parameter along the segment, sorted by s (from ``start``).
+    ``faces``: the faces to test (default: those that ``_straddling_faces`` leaves)."""
+    faces = _straddling_faces(V, F, start, end) if faces is None else np.asarray(faces)
+    corners = F[faces]
     A, B, C = (V[corners[:, k]] for k in range(3))
     direction = end - start
     e1, e2 = B - A, C - A
@@ -107,11 +124,12 @@ def segment_hits(V, F, start, end, faces=None):
 def fan_triangles(polygon, coordinates):
     """Triangles of a convex polygon (vertex ids in the face's winding order) whose boundary may hold
     collinear points (new points on an edge): the fan from the apex whose smallest triangle is
-    largest, so that no triangle is degenerate. ``coordinates`` (k, 3) are the polygon's points."""
+    largest, so that no triangle is degenerate. ``coordinates``: the polygon's k points (sequences of
+    3 floats; Python lists are fastest for these few points)."""
     k = len(polygon)
     if k == 3:
         return [tuple(polygon)]
-    P = [tuple(map(float, x)) for x in coordinates]
+    P = coordinates
     best, best_area = 0, -1.0
     for apex in range(k):
         a = P[apex]

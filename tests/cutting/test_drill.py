@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import trimesh
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 import cutting
@@ -61,13 +61,19 @@ def _loops(boundary_edges):
 
 
 @settings(max_examples=12, deadline=None)
-@given(name=st.sampled_from(sorted(MODELS)), seed=st.integers(0, 10_000), radius=st.floats(0.4, 3.0),
+@given(name=st.sampled_from(sorted(MODELS)), seed=st.integers(0, 10_000), radius=st.floats(0.4, 1.5),
        depth=st.floats(0.5, 3.0))
 def test_drill_invariants_on_real_models(name, seed, radius, depth):
     mesh = MODELS[name].mesh
     V, F = np.asarray(mesh.V, np.float64), np.asarray(mesh.F)
     edge = mean_edge(V, F)
-    tip, base = drill_into(V, F, np.random.default_rng(seed).integers(len(F)), depth * edge)
+    face = np.random.default_rng(seed).integers(len(F))
+    tip, base = drill_into(V, F, face, depth * edge)
+    # away from the input's own boundary (Arm5 is open at both ends), narrower than the bodies: the hole gets
+    # a loop of its own (a drill wider than the body severs it, with two loops)
+    before_edges, before_counts = _edge_counts(F)
+    rim = V[np.unique(before_edges[before_counts == 1])]
+    assume(len(rim) == 0 or np.linalg.norm(rim - V[F[face]].mean(axis=0), axis=1).min() > (radius + depth + 2) * edge)
     drilled, topology = cutting.drill(mesh, tip, base, radius * edge, return_topology=True)
     Vd, Fd = np.asarray(drilled.V, np.float64), np.asarray(drilled.F)
     diagonal = _diagonal(V)
@@ -81,7 +87,6 @@ def test_drill_invariants_on_real_models(name, seed, radius, depth):
     assert drilled.J.shape[1] == mesh.J.shape[1] and np.all(np.asarray(drilled.J) < mesh.num_joints)
     # manifold, with one new boundary loop per hole
     edges, counts = _edge_counts(Fd)
-    before_edges, before_counts = _edge_counts(F)
     assert counts.max() <= 2
     assert trimesh.Trimesh(Vd, Fd, process=False).is_winding_consistent
     new_loops = _loops(edges[counts == 1]) - (_loops(before_edges[before_counts == 1]) if np.any(before_counts == 1)
