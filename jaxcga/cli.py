@@ -114,6 +114,17 @@ def demo(out: Path, steps: int, figure: bool) -> int:
     if figure:
         path = _cut_figure(arm, upper, lower, out / "arm_cut.png")
         print(f"  figure: before / after the cut, posed again -> {path}")
+    from cutting import _commands as _cutting_commands
+
+    scalpels = [[[0.2, 0.0, 0.1], [0.2, 0.0, 0.0]], [[0.3, 0.0, 0.1], [0.3, 0.0, 0.0]]]
+    start = time.perf_counter()
+    summary = _cutting_commands.tear_command(arm, scalpels, out / "arm_torn.glb", opening=0.005)
+    print(f"Tear (Algorithm 2) along the upper arm: {summary['tear_points']} tear points, opened by 5 mm, in "
+          f"{1e3 * (time.perf_counter() - start):.1f} ms with the file -> {summary['out']}")
+    start = time.perf_counter()
+    summary = _cutting_commands.drill_command(arm, [0.4, 0.0, 0.0], [0.4, 0.0, 0.1], 0.015, out / "arm_drilled.glb")
+    print(f"Drill (Algorithm 3) of radius 15 mm into the forearm: {summary['hole_points']} points around the hole, "
+          f"in {1e3 * (time.perf_counter() - start):.1f} ms with the file -> {summary['out']}")
     return 0
 
 
