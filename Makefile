@@ -18,9 +18,9 @@ install: $(STAMP)
 demo: $(STAMP)
 	$(VENV)/bin/jaxcga demo
 
-## Run every test, notebooks included.
+## Run every test, notebooks included, on two workers (pytest-xdist; CI has two cores).
 test: $(STAMP)
-	$(PY) -m pytest --nbmake tests notebooks
+	$(PY) -m pytest -n 2 --nbmake tests notebooks
 
 ## Benchmarks: print figures and ratios, write JSON to out/bench/.
 bench: $(STAMP)

@@ -205,6 +205,10 @@ def _drill_once(V, F, edges: MeshEdges, tip, base, radius, margin):
     affected[affected_faces] = True
     # crossings on the edges of the affected faces
     on_affected = np.unique(edges.face_edges[affected_faces])
+    if edges.edge_counts[on_affected].max() > 2:
+        bad = edges.edges[on_affected[np.argmax(edges.edge_counts[on_affected])]]
+        raise ValueError(f"mesh: the drill meets a non-manifold edge {bad.tolist()} (more than two faces on it); "
+                         "the hole around it is not defined")
     index, alpha, sign = _crossed(axis, V, edges.edges[on_affected], radius, margin)
     index = on_affected[index]
     # holes: connected components of the affected faces; each needs enough boundary points

@@ -30,6 +30,8 @@ def test_bench_skinning_quick_writes_the_published_names(tmp_path):
 
 def test_bench_cutting_quick_writes_the_published_names(tmp_path):
     result = _quick("bench_cutting.py", tmp_path)
-    for name in ("arm5_cut_ms", "arm5_cut_ga_ms", "arm5_preprocess_ms", "100k_cut_ms", "100k_preprocess_ms"):
+    for name in ("arm5_cut_ms", "arm5_cut_ga_ms", "arm5_tear_ms", "arm5_tear_ga_ms", "arm5_drill_ms",
+                 "arm5_preprocess_ms", "100k_cut_ms", "100k_tear_ms", "100k_drill_ms", "100k_preprocess_ms"):
         assert result["figures"][name] > 0 and name in result["units"]
-    assert result["ratios"]["arm5_cut_vs_paper"] > 0
+    for name in ("arm5_cut_vs_paper", "arm5_tear_vs_paper", "arm5_drill_vs_paper"):
+        assert result["ratios"][name] > 0

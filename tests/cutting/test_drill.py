@@ -67,7 +67,9 @@ def test_drill_invariants_on_real_models(name, seed, radius, depth):
     mesh = MODELS[name].mesh
     V, F = np.asarray(mesh.V, np.float64), np.asarray(mesh.F)
     edge = mean_edge(V, F)
-    face = np.random.default_rng(seed).integers(len(F))
+    # on Arm5, the arm itself: the fingers (y > 55) are thinner than a drill of a few edges would need
+    eligible = np.flatnonzero(V[F].mean(axis=1)[:, 1] < 50) if name == "Arm5" else np.arange(len(F))
+    face = np.random.default_rng(seed).choice(eligible)
     tip, base = drill_into(V, F, face, depth * edge)
     # away from the input's own boundary (Arm5 is open at both ends), narrower than the bodies: the hole gets
     # a loop of its own (a drill wider than the body severs it, with two loops)
@@ -208,3 +210,34 @@ def test_bad_input():
         cutting.drill(mesh, tip, base, 0.02, min_points=2)
     with pytest.raises(ValueError, match="joint_matrices"):
         cutting.drill(mesh, tip, base, 0.02, joint_matrices=np.eye(4))
+
+
+def _plate_with_a_fin():
+    """A flat 10 x 10 grid in z = 0 with a fin standing on the row y = 0.5 between x = 0.3 and 0.7:
+    the row's edges there carry three faces (non-manifold)."""
+    x, y = np.meshgrid(np.linspace(0, 1, 11), np.linspace(0, 1, 11), indexing="ij")
+    V = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], axis=1)
+    index = np.arange(121).reshape(11, 11)
+    a, b, c, d = index[:-1, :-1].ravel(), index[1:, :-1].ravel(), index[1:, 1:].ravel(), index[:-1, 1:].ravel()
+    F = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+    fin = []
+    for i in range(3, 7):
+        V = np.vstack([V, [(i + 0.5) / 10, 0.5, 0.3]])
+        fin.append([index[i, 5], index[i + 1, 5], len(V) - 1])
+    return V, np.concatenate([F, np.asarray(fin)])
+
+
+def test_non_manifold_input():
+    V, F = _plate_with_a_fin()
+    # far from the fin the plate drills normally; across it the drill is refused
+    away = cutting.drill_mesh(V, F, np.array([0.25, 0.2, -1.0]), np.array([0.25, 0.2, 1.0]), 0.12)
+    assert away.holes == 1 and len(away.points) >= 6
+    with pytest.raises(ValueError, match="non-manifold"):
+        cutting.drill_mesh(V, F, np.array([0.5, 0.52, -1.0]), np.array([0.5, 0.52, 1.0]), 0.12)
+    # a tear that reaches the fin's edges is refused too
+    scalpels = np.array([[[0.52, 0.3, 1.0], [0.52, 0.3, -1.0]], [[0.52, 0.7, 1.0], [0.52, 0.7, -1.0]]])
+    with pytest.raises(ValueError, match="non-manifold"):
+        cutting.tear_path(V, F, scalpels)
+    # a cut goes through (it works face by face)
+    topology = cutting.plane_cut(V, F, [1.0, 0.0, 0.0, 0.55])
+    assert len(topology.points) > 0
