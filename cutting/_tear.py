@@ -16,8 +16,10 @@ handle side: where the segment crosses the surface more than once, the crossing 
 Successive samples make one tear along the whole path (the paper's successive tears): in the face
 of an intermediate sample S_i the path goes straight from the point where it enters the face to
 the point where it leaves it (the paper's assumption that the tear curve is smooth between close
-samples). A plane that passes within ``tolerance`` of a vertex of the path is moved along its normal
-by three times the tolerance (a gentle perturbation), so that no sliver triangle is created.
+samples). A plane that passes within ``tolerance`` of a vertex of the path, or that would put a tear
+point within 2% of an edge's length from its end, is moved along its normal in steps of 5% of an edge
+(a gentle perturbation, as the XFEM paper's sec. 6.1 does for cuts through vertices), so that no
+sliver triangle is created; ``TearPath.shift`` records the move.
 
 For a fixed topology (``TearPath``), the positions of the new vertices are a JAX function of the
 scalpel samples, the vertices and the opening (``tear_positions``), so they can be differentiated.
@@ -38,9 +40,13 @@ from cutting._predicates import check_predicates, edge_points, signed_distances
 from cutting._weights import blend_weights
 from deform._model import SkinnedMesh
 
-# Tip points keep at least this barycentric coordinate in their face (no zero-area fan triangle
-# when the scalpel meets the surface on an edge).
-_TIP_MARGIN = 1e-6
+# A tear point keeps at least this fraction of its edge from both ends; the plane is moved (in steps
+# of _SHIFT_STEP mean edge lengths of the starting face) until every point does: no sliver triangles.
+_EDGE_MARGIN = 0.02
+_SHIFT_STEP = 0.05
+# Tip points keep at least this barycentric coordinate in their face (no sliver fan triangle when
+# the scalpel meets the surface on or near an edge).
+_TIP_MARGIN = 0.02
 
 
 class TearPath(NamedTuple):
@@ -133,6 +139,10 @@ def _walk(V, F, edges: MeshEdges, s, margin, start, entry_edge, origin, goal, ta
                 return float((x - origin) @ (goal - origin))
             candidates.sort(key=progress, reverse=True)
         e = candidates[0]
+        i, j = edges.edges[e]
+        t = s[i] / (s[i] - s[j])
+        if min(t, 1.0 - t) < _EDGE_MARGIN:
+            raise _NearVertex
         if edges.edge_counts[e] != 2:
             raise ValueError("mesh: the tear reaches the boundary of the surface or a non-manifold edge "
                              f"(edge {edges.edges[e].tolist()}; if the mesh has seams of split vertices, weld "
@@ -162,7 +172,7 @@ def tear_path(V, F, scalpels, *, predicates: str = "euclidean", tolerance: float
         scalpels: (k+1, 2, 3) scalpel endpoints (handle side first) at k+1 time steps.
         predicates: ``"euclidean"`` or ``"ga"`` (Table 1) for the side of a vertex and the edge points.
         tolerance: planes passing closer than ``tolerance`` times the bounding-box diagonal to a path
-            vertex are moved away from it (three times that distance).
+            vertex are moved away from it (see the module docstring).
         edges: ``mesh_edges(F)``, precomputed once per topology.
     Raises:
         ValueError: a scalpel sample that does not cross the surface, a tear that crosses no edge
@@ -201,7 +211,9 @@ def tear_path(V, F, scalpels, *, predicates: str = "euclidean", tolerance: float
         step_edges, step_faces = [], []
         if target != faces[-1]:
             # the plane as given, then moved along its normal both ways (gentle perturbation)
-            for shift in margin * np.array([0.0, 3.0, -3.0, 6.0, -6.0, 12.0, -12.0]):
+            corners = V[F[faces[-1]]]
+            step = _SHIFT_STEP * np.linalg.norm(corners - np.roll(corners, 1, axis=0), axis=1).mean()
+            for shift in step * np.array([0.0, 1.0, -1.0, 2.0, -2.0, 3.0, -3.0, 4.0, -4.0]):
                 s = signed_distances(V, n, d + shift, predicates)
                 try:
                     step_edges, step_faces = _walk(V, F, edges, s, margin, faces[-1], entry_edge, origin, goal,
@@ -372,7 +384,7 @@ def tear_positions(V, F, path: TearPath, scalpels, opening=0.0):
     and the opening, for a fixed topology (``path``): differentiable with respect to the tool.
 
     Returns (tips (2, 3): S_0 and S_k, left (q, 3), right (q, 3): the two copies of every Q_j).
-    The tips are the scalpel's crossings with their faces' planes (without the barycentric margin
+    The tips are the scalpel's crossings with their faces' planes (without the 2% barycentric margin
     that keeps them off the faces' edges)."""
     V = jnp.asarray(V)
     scalpels = jnp.asarray(scalpels)

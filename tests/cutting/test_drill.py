@@ -241,3 +241,22 @@ def test_non_manifold_input():
     # a cut goes through (it works face by face)
     topology = cutting.plane_cut(V, F, [1.0, 0.0, 0.0, 0.55])
     assert len(topology.points) > 0
+
+
+def test_a_drill_through_grid_vertices_makes_no_slivers():
+    """A cylinder whose radius is exactly the distance to grid vertices: they are snapped onto it."""
+    x, y = np.meshgrid(np.linspace(0, 1, 11), np.linspace(0, 1, 11), indexing="ij")
+    V = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], axis=1)
+    index = np.arange(121).reshape(11, 11)
+    a, b, c, d = index[:-1, :-1].ravel(), index[1:, :-1].ravel(), index[1:, 1:].ravel(), index[:-1, 1:].ravel()
+    F = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+    centre = np.array([0.5, 0.5, 0.0])
+    for radius in (0.2, 0.1 * np.sqrt(5.0), 0.3 + 1e-12):
+        hole = cutting.drill_mesh(V, F, centre - [0, 0, 1], centre + [0, 0, 1], radius)
+        extended = np.concatenate([hole.vertices, hole.points])[hole.kept]
+        assert _area(extended, hole.faces).min() > 1e-9
+        removed = 1.0 - _area(extended, hole.faces).sum()
+        assert 0.8 * np.pi * radius**2 < removed < np.pi * radius**2
+        rim = extended[np.unique(_edge_counts(hole.faces)[0][_edge_counts(hole.faces)[1] == 1])]
+        on_hole = np.linalg.norm(rim[:, :2] - 0.5, axis=1) < 0.45
+        np.testing.assert_allclose(np.linalg.norm(rim[on_hole, :2] - 0.5, axis=1), radius, atol=1e-6)
