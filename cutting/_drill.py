@@ -4,7 +4,9 @@ paper (sec. 4.2.3), with the weights of new vertices of sec. 4.3.
 The drill is given by its tip A, its base B and its radius r; Pi is the plane through B perpendicular
 to the axis, P the projection onto it.
 
-1. a vertex is inside the drill when |P(v) - B| < r (on it within ``tolerance``);
+1. a vertex is inside the drill when |P(v) - B| < r (on it within ``tolerance``); as in the paper,
+   the cylinder is unbounded along its axis (the tip only picks the sheets drilled, step 2), so a
+   drill held along the surface cuts a groove as long as the surface stays inside it;
 2. the faces pierced by the axis segment B -> A are the seeds; the affected faces are the faces
    with a vertex inside the drill, or an edge that passes through it, connected to a seed (the
    paper's breadth-first search, here connected components of that face graph), so the drill only

@@ -61,7 +61,7 @@ def _loops(boundary_edges):
 
 
 @settings(max_examples=12, deadline=None)
-@given(name=st.sampled_from(sorted(MODELS)), seed=st.integers(0, 10_000), radius=st.floats(0.4, 1.5),
+@given(name=st.sampled_from(sorted(MODELS)), seed=st.integers(0, 10_000), radius=st.floats(0.4, 1.0),
        depth=st.floats(0.5, 3.0))
 def test_drill_invariants_on_real_models(name, seed, radius, depth):
     mesh = MODELS[name].mesh
@@ -72,7 +72,8 @@ def test_drill_invariants_on_real_models(name, seed, radius, depth):
     face = np.random.default_rng(seed).choice(eligible)
     tip, base = drill_into(V, F, face, depth * edge)
     # away from the input's own boundary (Arm5 is open at both ends), narrower than the bodies: the hole gets
-    # a loop of its own (a drill wider than the body severs it, with two loops)
+    # a loop of its own (a drill wider than the body severs it, with two loops; 3Cylinder4bones's thinnest part
+    # has radius 0.52, 1.4 mean edges)
     before_edges, before_counts = _edge_counts(F)
     rim = V[np.unique(before_edges[before_counts == 1])]
     assume(len(rim) == 0 or np.linalg.norm(rim - V[F[face]].mean(axis=0), axis=1).min() > (radius + depth + 2) * edge)

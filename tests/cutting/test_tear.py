@@ -73,7 +73,9 @@ def test_tear_invariants_on_real_models(name, seed, samples, steps, predicates):
     for i in (0, -1):
         a, b = scalpels[i]
         off_line = np.linalg.norm(np.cross(path.sample_points[i] - a, b - a)) / np.linalg.norm(b - a)
-        assert off_line <= 0.05 * mean_edge(V, F)  # the tip keeps a 2% barycentric margin from its face's edges
+        corners = V[F[path.sample_faces[i]]]
+        longest = np.linalg.norm(corners - np.roll(corners, 1, axis=0), axis=1).max()
+        assert off_line <= 0.06 * longest  # the tip keeps a 2% barycentric margin from its face's edges
     # the original vertices first and unchanged; weights of new vertices
     np.testing.assert_array_equal(Vt[:len(V)], V)
     W = np.asarray(torn.W)[len(V):]
