@@ -33,9 +33,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from cutting._cut import MeshEdges, _bounding_diagonal, mesh_edges
-from cutting._geometry import (check_mesh_arrays, cross_rows, fan_triangles, posed_vertices, rest_positions,
-                               segment_hits,
-                               skinned_mesh_like)
+from cutting._geometry import (check_mesh_arrays, cross3, cross_rows, fan_triangles, posed_vertices, rest_positions,
+                               segment_hits, skinned_mesh_like)
 from cutting._predicates import check_predicates, edge_points, signed_distances
 from cutting._weights import blend_weights
 from deform._model import SkinnedMesh
@@ -260,51 +259,65 @@ def tear_path(V, F, scalpels, *, predicates: str = "euclidean", tolerance: float
 
 def _retriangulate(V, F, edges: MeshEdges, path: TearPath, n_vertices: int):
     """Triangles replacing the path faces (Algorithm 2, step 5). Vertex ids: the input's, then S_0
-    (n), S_k (n+1), the left copies of Q_j (n+2+j), the right copies (n+2+q+j)."""
+    (n), S_k (n+1), the left copies of Q_j (n+2+j), the right copies (n+2+q+j). Per path face in
+    plain Python: a path crosses few faces, and small arrays cost more than they save."""
     q = len(path.t)
     tips = (n_vertices, n_vertices + 1)
-    point_of_edge = {int(e): j for j, e in enumerate(path.edge_ids)}
+    point_of_edge = {e: j for j, e in enumerate(path.edge_ids.tolist())}
+    corners_of = F[path.faces].tolist()
+    position = dict(zip(np.ravel(corners_of).tolist(), V[np.ravel(corners_of)].tolist()))
+    points = path.points.tolist()
+    sample_points = path.sample_points[[0, -1]].tolist()
+
+    def sub(a, b):
+        return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
+
+    def dot(a, b):
+        return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
+
+    def is_left(normal, origin, direction, corner):
+        # the corner lies left of the directed path (face normal x direction)
+        return dot(cross3(normal, direction), sub(position[corner], origin)) > 0
+
     triangles = []
     last = len(path.faces) - 1
-    for position, f in enumerate(path.faces):
-        corners = F[f]
-        local = edges.face_edges[f]
-        normal = _face_normal(V, corners)
-        entry = position - 1 if position > 0 else None
-        exit_ = position if position < last else None
+    for at, (corners, local) in enumerate(zip(corners_of, edges.face_edges[path.faces].tolist())):
+        a, b, c = (position[v] for v in corners)
+        normal = cross3(sub(b, a), sub(c, a))
+        entry = at - 1 if at > 0 else None
+        exit_ = at if at < last else None
         # the face's boundary in winding order, with its path points on their edges
-        cycle, where = [], []
+        cycle = []
         for k in range(3):
-            cycle.append(("corner", int(corners[k])))
-            j = point_of_edge.get(int(local[k]))
+            cycle.append(("corner", corners[k]))
+            j = point_of_edge.get(local[k])
             if j is not None and j in (entry, exit_):
                 cycle.append(("point", j))
         if entry is None or exit_ is None:  # a tip face: fan from the tip S inside it
             tip = tips[0] if entry is None else tips[1]
             j = exit_ if entry is None else entry
-            tip_point = path.sample_points[0] if entry is None else path.sample_points[-1]
-            direction = path.points[j] - tip_point if entry is None else tip_point - path.points[j]
-            left = cross_rows(normal, direction)
+            tip_point = sample_points[0] if entry is None else sample_points[1]
+            direction = sub(points[j], tip_point) if entry is None else sub(tip_point, points[j])
             for m in range(len(cycle)):
-                a, b = cycle[m], cycle[(m + 1) % len(cycle)]
-                if "point" in (a[0], b[0]):
-                    corner = b[1] if a[0] == "point" else a[1]
-                    copy = _copy(j, q, n_vertices, left @ (V[corner] - path.points[j]) > 0)
-                    ids = [copy if x[0] == "point" else x[1] for x in (a, b)]
+                x, y = cycle[m], cycle[(m + 1) % len(cycle)]
+                if "point" in (x[0], y[0]):
+                    corner = y[1] if x[0] == "point" else x[1]
+                    copy = _copy(j, q, n_vertices, is_left(normal, points[j], direction, corner))
+                    ids = [copy if z[0] == "point" else z[1] for z in (x, y)]
                 else:
-                    ids = [a[1], b[1]]
+                    ids = [x[1], y[1]]
                 triangles.append((ids[0], ids[1], tip))
             continue
         # a chord face: the segment entry -> exit splits it into two convex pieces
-        start = next(m for m, item in enumerate(cycle) if item == ("point", entry))
+        start = cycle.index(("point", entry))
         cycle = cycle[start:] + cycle[:start]
-        stop = next(m for m, item in enumerate(cycle) if item == ("point", exit_))
-        left = cross_rows(normal, path.points[exit_] - path.points[entry])
+        stop = cycle.index(("point", exit_))
+        direction = sub(points[exit_], points[entry])
         for piece in (cycle[:stop + 1], cycle[stop:] + cycle[:1]):
-            corner = next(x[1] for x in piece if x[0] == "corner")
-            is_left = left @ (V[corner] - path.points[entry]) > 0
-            ids = [_copy(x[1], q, n_vertices, is_left) if x[0] == "point" else x[1] for x in piece]
-            coordinates = [path.points[x[1]] if x[0] == "point" else V[x[1]] for x in piece]
+            corner = next(z[1] for z in piece if z[0] == "corner")
+            left = is_left(normal, points[entry], direction, corner)
+            ids = [_copy(z[1], q, n_vertices, left) if z[0] == "point" else z[1] for z in piece]
+            coordinates = [points[z[1]] if z[0] == "point" else position[z[1]] for z in piece]
             triangles += fan_triangles(ids, coordinates)
     return np.asarray(triangles, np.int64).reshape(-1, 3)
 
