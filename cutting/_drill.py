@@ -34,8 +34,6 @@ from typing import NamedTuple
 
 import jax.numpy as jnp
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
 from cutting._cut import MeshEdges, _bounding_diagonal, mesh_edges
 from cutting._geometry import (check_mesh_arrays, check_point, fan_triangles, posed_vertices, rest_positions,
@@ -213,14 +211,25 @@ def _drill_once(V, F, edges: MeshEdges, tip, base, radius, margin):
                          "the hole around it is not defined")
     index, alpha, sign = _crossed(axis, V, edges.edges[on_affected], radius, margin)
     index = on_affected[index]
-    # holes: connected components of the affected faces; each needs enough boundary points
+    # holes: connected components of the affected faces (union-find over their shared edges: a few
+    # dozen faces, cheaper in Python than a sparse graph); each hole needs enough boundary points
     local = np.full(len(F), -1, np.int64)
     local[affected_faces] = np.arange(len(affected_faces))
     a, b = edges.edge_faces[on_affected, 0], edges.edge_faces[on_affected, 1]
     a, b = local[a], np.where(b >= 0, local[np.maximum(b, 0)], -1)
     link = (a >= 0) & (b >= 0)
-    graph = coo_matrix((np.ones(int(link.sum())), (a[link], b[link])), shape=(len(affected_faces),) * 2)
-    holes, labels = connected_components(graph, directed=False)
+    parent = list(range(len(affected_faces)))
+
+    def root(x):
+        while parent[x] != x:
+            parent[x] = parent[parent[x]]
+            x = parent[x]
+        return x
+
+    for x, y in zip(a[link].tolist(), b[link].tolist()):
+        parent[root(x)] = root(y)
+    _, labels = np.unique([root(x) for x in range(len(affected_faces))], return_inverse=True)
+    holes = int(labels.max()) + 1
     first = edges.edge_faces[index, 0]
     face_of_edge = np.where(affected[first], first, edges.edge_faces[index, 1])
     counts = np.bincount(labels[local[face_of_edge]], minlength=holes)
@@ -362,12 +371,18 @@ def drill(mesh: SkinnedMesh, tip, base, radius, *, min_points: int = 6, max_refi
     topology = drill_mesh(space, mesh.F, tip, base, radius, min_points=min_points, max_refinements=max_refinements,
                           tolerance=tolerance, edges=edges)
     rest = np.asarray(mesh.V, np.float64)
-    # refinement midpoints, level by level (a midpoint's parents may be midpoints themselves)
-    for parent_pair in topology.parents:
-        J_mid, W_mid = blend_weights(J, W, parent_pair[None], np.array([[0.5, 0.5]]))
-        target = 0.5 * (topology.vertices[parent_pair[0]] + topology.vertices[parent_pair[1]])
-        rest = np.concatenate([rest, rest_positions(J_mid, W_mid, target[None], joint_matrices)])
+    # refinement midpoints, level by level: a level's parents all precede it (they may be midpoints
+    # of an earlier level), so each level is one vectorized blend
+    done = 0
+    while done < len(topology.parents):
+        pending = topology.parents[done:]
+        later = np.flatnonzero(pending.max(axis=1) >= len(rest))
+        level = pending[:later[0] if len(later) else len(pending)]
+        J_mid, W_mid = blend_weights(J, W, level, np.full(level.shape, 0.5))
+        target = 0.5 * (topology.vertices[level[:, 0]] + topology.vertices[level[:, 1]])
+        rest = np.concatenate([rest, rest_positions(J_mid, W_mid, target, joint_matrices)])
         J, W = np.concatenate([J, J_mid]), np.concatenate([W, W_mid])
+        done += len(level)
     J_new, W_new = blend_weights(J, W, topology.crossing, np.stack([topology.alpha, 1.0 - topology.alpha], axis=1))
     rest = np.concatenate([rest, rest_positions(J_new, W_new, topology.points, joint_matrices)])
     J, W = np.concatenate([J, J_new]), np.concatenate([W, W_new])

@@ -136,6 +136,14 @@ def test_a_drill_thinner_than_the_faces_splits_them_and_drills_again():
     drilled, topology = cutting.drill(mesh, tip, base, radius, return_topology=True)
     assert topology.refinements >= 1 and len(topology.points) >= 6
     np.testing.assert_allclose(_radial_distance(topology.points, tip, base), radius, atol=1e-9 * _diagonal(V))
+    # refinement midpoints (of midpoints, level after level) sit halfway along their parents
+    vertices = topology.vertices
+    np.testing.assert_allclose(vertices[len(V):], 0.5 * (vertices[topology.parents[:, 0]]
+                                                          + vertices[topology.parents[:, 1]]), atol=1e-12)
+    kept = topology.kept
+    midpoints = (kept >= len(V)) & (kept < len(vertices))
+    np.testing.assert_allclose(np.asarray(drilled.V)[midpoints], vertices[kept[midpoints]], atol=1e-5)
+    assert np.all(np.asarray(drilled.W)[midpoints].sum(axis=1) > 0.999)
     with pytest.raises(ValueError, match="too thin"):
         cutting.drill(mesh, tip, base, radius, max_refinements=0)
 
