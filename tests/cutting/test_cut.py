@@ -4,9 +4,6 @@ finite differences, both predicate families, and bad input."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
-import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -17,20 +14,17 @@ from hypothesis import strategies as st
 import cutting
 import deform
 import jaxcga as cga
+from tests.cutting.tools import area as _area
+from tests.cutting.tools import check_gradient, load_models
+from tests.cutting.tools import diagonal as _diagonal
+from tests.cutting.tools import posed as posed_arm
 
-DATA = Path(__file__).resolve().parents[1] / "data"
-MODELS = {name: deform.load_model(DATA / f"{name}.glb") for name in ("Arm5", "3Cylinder4bones")}
+MODELS = load_models(weld=False)
 ARM = deform.default_arm()
 
 
-def _area(V, F):
-    V, F = np.asarray(V, np.float64), np.asarray(F)
-    return 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
 
 
-def _diagonal(V):
-    V = np.asarray(V)
-    return float(np.linalg.norm(V.max(axis=0) - V.min(axis=0)))
 
 
 def _random_plane(V, direction, offset):
@@ -143,7 +137,8 @@ def test_planes_through_vertices_and_along_edges_make_no_slivers():
             assert abs(_area(ext, faces).sum()) > 0
         total = _area(V, F).sum()
         pieces = sum(_area(np.concatenate([V, topology.points])[k], f).sum()
-                     for k, f in ((topology.positive, topology.positive_faces), (topology.negative, topology.negative_faces)))
+                     for k, f in ((topology.positive, topology.positive_faces),
+                                  (topology.negative, topology.negative_faces)))
         assert abs(pieces - total) <= 1e-12 * total
 
 
@@ -196,9 +191,7 @@ def test_cut_in_a_pose_reproduces_the_cut_when_posed_again(method):
     """After animation: the plane is given in world space at a pose; re-posing the halves puts the
     new vertices back on that plane (exact for LBS, and for eq. (17) with rigid joints)."""
     model = ARM
-    local = deform.sample_pose(model, 0.9, "lbs")
-    joints = deform.joint_matrices(model.mesh, deform.forward_kinematics_matrices(model.skeleton.parents, local))
-    posed = np.asarray(deform.skin_pose(model, local, "lbs"))
+    local, joints, posed = posed_arm(model, 0.9)
     plane = _random_plane(posed, [0.3, 1.0, 0.2], 0.5)
     positive, negative = cutting.cut(model.mesh, plane, joint_matrices=joints)
     pose = local if method == "lbs" else cga.matrix_to_similitude(local)
@@ -222,10 +215,7 @@ def test_new_vertex_positions_are_differentiable_in_the_plane():
         return jnp.sum(cutting.cut_positions(mesh.V, topology.crossing, params[:3], params[3]) ** 2)
 
     params = jnp.asarray(plane)
-    grad = jax.grad(loss)(params)
-    step = 1e-6
-    numeric = np.array([(loss(params.at[i].add(step)) - loss(params.at[i].add(-step))) / (2 * step) for i in range(4)])
-    np.testing.assert_allclose(grad, numeric, rtol=1e-6, atol=1e-6 * float(jnp.abs(numeric).max()))
+    check_gradient(loss, params, rtol=1e-6)
 
 
 def test_bad_input():

@@ -5,9 +5,6 @@ bad input."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
-import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -18,27 +15,20 @@ from hypothesis import strategies as st
 import cutting
 import deform
 import jaxcga as cga
-from tests.cutting.tools import drill_into, mean_edge
+from tests.cutting.tools import area as _area
+from tests.cutting.tools import check_gradient, drill_into, grid, load_models, mean_edge
+from tests.cutting.tools import diagonal as _diagonal
+from tests.cutting.tools import edge_counts as _edge_counts
+from tests.cutting.tools import posed as posed_arm
 
-DATA = Path(__file__).resolve().parents[1] / "data"
-# welded: glTF splits vertices along UV seams, and a drill walks across faces
-MODELS = {name: deform.load_model(DATA / f"{name}.glb", weld=True) for name in ("Arm5", "3Cylinder4bones")}
+MODELS = load_models(weld=True)
 ARM = deform.default_arm()
 
 
-def _area(V, F):
-    V, F = np.asarray(V, np.float64), np.asarray(F)
-    return 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
 
 
-def _diagonal(V):
-    V = np.asarray(V)
-    return float(np.linalg.norm(V.max(axis=0) - V.min(axis=0)))
 
 
-def _edge_counts(F):
-    edges = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
-    return np.unique(edges, axis=0, return_counts=True)
 
 
 def _radial_distance(points, tip, base):
@@ -165,9 +155,7 @@ def test_skinning_the_drilled_mesh_gives_the_original_at_original_vertices(metho
 @pytest.mark.parametrize("method", ["lbs", "cga"])
 def test_drill_in_a_pose_reproduces_the_hole_when_posed_again(method):
     model = ARM
-    local = deform.sample_pose(model, 0.9, "lbs")
-    joints = deform.joint_matrices(model.mesh, deform.forward_kinematics_matrices(model.skeleton.parents, local))
-    posed = np.asarray(deform.skin_pose(model, local, "lbs"))
+    local, joints, posed = posed_arm(model, 0.9)
     F = np.asarray(model.mesh.F)
     tip, base = drill_into(posed, F, 5000, 0.05)
     drilled, topology = cutting.drill(model.mesh, tip, base, 0.015, joint_matrices=joints, return_topology=True)
@@ -194,11 +182,7 @@ def test_new_vertex_positions_are_differentiable_in_the_drill():
         return jnp.sum(jnp.sin(points))
 
     params = jnp.concatenate([jnp.asarray(tip), jnp.asarray(base), jnp.array([0.3])])
-    grad = jax.grad(loss)(params)
-    step = 1e-6
-    numeric = np.array([(loss(params.at[i].add(step)) - loss(params.at[i].add(-step))) / (2 * step)
-                        for i in range(len(params))])
-    np.testing.assert_allclose(grad, numeric, rtol=1e-5, atol=1e-6 * float(np.abs(numeric).max()))
+    check_gradient(loss, params)
 
 
 def test_bad_input():
@@ -224,11 +208,8 @@ def test_bad_input():
 def _plate_with_a_fin():
     """A flat 10 x 10 grid in z = 0 with a fin standing on the row y = 0.5 between x = 0.3 and 0.7:
     the row's edges there carry three faces (non-manifold)."""
-    x, y = np.meshgrid(np.linspace(0, 1, 11), np.linspace(0, 1, 11), indexing="ij")
-    V = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], axis=1)
+    V, F = grid()
     index = np.arange(121).reshape(11, 11)
-    a, b, c, d = index[:-1, :-1].ravel(), index[1:, :-1].ravel(), index[1:, 1:].ravel(), index[:-1, 1:].ravel()
-    F = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
     fin = []
     for i in range(3, 7):
         V = np.vstack([V, [(i + 0.5) / 10, 0.5, 0.3]])
@@ -254,11 +235,7 @@ def test_non_manifold_input():
 
 def test_a_drill_through_grid_vertices_makes_no_slivers():
     """A cylinder whose radius is exactly the distance to grid vertices: they are snapped onto it."""
-    x, y = np.meshgrid(np.linspace(0, 1, 11), np.linspace(0, 1, 11), indexing="ij")
-    V = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], axis=1)
-    index = np.arange(121).reshape(11, 11)
-    a, b, c, d = index[:-1, :-1].ravel(), index[1:, :-1].ravel(), index[1:, 1:].ravel(), index[:-1, 1:].ravel()
-    F = np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+    V, F = grid()
     centre = np.array([0.5, 0.5, 0.0])
     for radius in (0.2, 0.1 * np.sqrt(5.0), 0.3 + 1e-12):
         hole = cutting.drill_mesh(V, F, centre - [0, 0, 1], centre + [0, 0, 1], radius)

@@ -4,9 +4,6 @@ skinning after the tear, successive samples, posed tears, gradients by finite di
 
 from __future__ import annotations
 
-from pathlib import Path
-
-import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -17,31 +14,22 @@ from hypothesis import strategies as st
 import cutting
 import deform
 import jaxcga as cga
-from tests.cutting.tools import mean_edge, scalpels_over
+from tests.cutting.tools import area as _area
+from tests.cutting.tools import check_gradient, edge_counts, grid, load_models, mean_edge, scalpels_over
+from tests.cutting.tools import diagonal as _diagonal
+from tests.cutting.tools import posed as posed_arm
 
-DATA = Path(__file__).resolve().parents[1] / "data"
-# welded: glTF splits vertices along UV seams, and a tear or a drill walks across faces
-MODELS = {name: deform.load_model(DATA / f"{name}.glb", weld=True) for name in ("Arm5", "3Cylinder4bones")}
+MODELS = load_models(weld=True)
 ARM = deform.default_arm()
 # The tool fails for these reasons only on surfaces it cannot follow (a random tool may).
 TOOL_REFUSALS = ("does not cross", "boundary", "crosses itself", "turns back", "inside one face", "does not reach",
                  "keeps passing")
 
 
-def _area(V, F):
-    V, F = np.asarray(V, np.float64), np.asarray(F)
-    return 0.5 * np.linalg.norm(np.cross(V[F[:, 1]] - V[F[:, 0]], V[F[:, 2]] - V[F[:, 0]]), axis=1)
 
 
-def _diagonal(V):
-    V = np.asarray(V)
-    return float(np.linalg.norm(V.max(axis=0) - V.min(axis=0)))
 
 
-def _boundary_edges(F):
-    edges = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
-    _, counts = np.unique(edges, axis=0, return_counts=True)
-    return counts
 
 
 def _tear_or_refusal(mesh, scalpels, **kwargs):
@@ -84,7 +72,7 @@ def test_tear_invariants_on_real_models(name, seed, samples, steps, predicates):
     # manifold where the input was, with the slit as one new boundary loop of 2 (q + 1) edges
     q = len(path.t)
     assert len(Vt) == len(V) + 2 + 2 * q
-    before, after = _boundary_edges(F), _boundary_edges(Ft)
+    before, after = edge_counts(F)[1], edge_counts(Ft)[1]
     assert after.max() <= 2
     assert np.count_nonzero(after == 1) == np.count_nonzero(before == 1) + 2 * (q + 1)
     assert trimesh.Trimesh(Vt, Ft, process=False).is_winding_consistent
@@ -133,9 +121,7 @@ def test_successive_samples_make_one_tear_along_the_path():
 @pytest.mark.parametrize("method", ["lbs", "cga"])
 def test_tear_in_a_pose_reproduces_the_tear_when_posed_again(method):
     model = ARM
-    local = deform.sample_pose(model, 0.9, "lbs")
-    joints = deform.joint_matrices(model.mesh, deform.forward_kinematics_matrices(model.skeleton.parents, local))
-    posed = np.asarray(deform.skin_pose(model, local, "lbs"))
+    local, joints, posed = posed_arm(model, 0.9)
     F = np.asarray(model.mesh.F)
     scalpels = scalpels_over(posed, F, 5000, [0.0, 1.0, 1.0], 3, 3 * mean_edge(posed, F))
     torn, path = cutting.tear(model.mesh, scalpels, opening=0.004, joint_matrices=joints, return_path=True)
@@ -165,11 +151,7 @@ def test_new_vertex_positions_are_differentiable_in_the_scalpel():
         return jnp.sum(jnp.sin(tips)) + jnp.sum(left**2) + jnp.sum(jnp.cos(right))
 
     params = jnp.append(jnp.asarray(scalpels).ravel(), 0.1)
-    grad = jax.grad(loss)(params)
-    step = 1e-6
-    numeric = np.array([(loss(params.at[i].add(step)) - loss(params.at[i].add(-step))) / (2 * step)
-                        for i in range(len(params))])
-    np.testing.assert_allclose(grad, numeric, rtol=1e-5, atol=1e-6 * float(np.abs(numeric).max()))
+    check_gradient(loss, params)
 
 
 def test_bad_input():
@@ -205,17 +187,11 @@ def test_bad_input():
         cutting.tear_path(Vp, Fo, off)
 
 
-def _grid(n=10):
-    x, y = np.meshgrid(np.linspace(0, 1, n + 1), np.linspace(0, 1, n + 1), indexing="ij")
-    V = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], axis=1)
-    index = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
-    a, b, c, d = index[:-1, :-1].ravel(), index[1:, :-1].ravel(), index[1:, 1:].ravel(), index[:-1, 1:].ravel()
-    return V, np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
 
 
 def test_a_tear_along_a_row_of_vertices_makes_no_slivers():
     """The tear plane x = 0.5 holds a row of grid vertices: it is moved off them (gentle perturbation)."""
-    V, F = _grid()
+    V, F = grid()
     mesh = deform.SkinnedMesh(jnp.asarray(V), jnp.asarray(F, jnp.int32), jnp.zeros((len(V), 1), jnp.int32),
                               jnp.ones((len(V), 1)), jnp.eye(4)[None], (0,))
     scalpels = np.array([[[0.5, 0.23, 1.0], [0.5, 0.23, -1.0]], [[0.5, 0.77, 1.0], [0.5, 0.77, -1.0]]])
