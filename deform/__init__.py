@@ -5,7 +5,9 @@ multivector form (17) with per-bone dilation, keyframe blending, and fitting pos
 
 Where things live: ``_model`` (bundles), ``_rig`` (TRS -> matrices / versors, forward kinematics,
 clip sampling, keyframes; eq. 15), ``_skinning`` (eq. 16, eq. 17 in both variants, DQS), ``_pose``
-(model-level posing, batches over devices), ``_fitting`` (poses from target positions).
+(model-level posing, batches over devices), ``_fitting`` (poses from target positions); from the
+mesh-deformation paper: ``_harmonic`` (harmonic fields, sec. VIII) on ``_sparse`` (a sparse system
+factored once on the host and solved from JAX).
 """
 
 from deform._default_arm import default_arm
@@ -20,6 +22,8 @@ from deform._fitting import (
     skin_parameters,
 )
 from deform._gltf import convert_with_assimp, load_model, save_model, weld
+from deform._harmonic import (LAPLACIANS, HarmonicSolver, harmonic_fields, harmonic_precompute, laplacian,
+                              mean_value_laplacian)
 from deform._model import AnimationClip, Channel, RiggedModel, Skeleton, SkinnedMesh
 from deform._pose import METHODS, rest_pose, sample_pose, sharded_vmap, skin_model, skin_pose
 from deform._rig import (
@@ -43,9 +47,17 @@ from deform._rig import (
     uniform_scale,
     versor_to_trs,
 )
+from deform._sparse import SparseSolver
 from deform._skinning import matrices_to_dual_quaternions, skin_cga, skin_cga_motor_blend, skin_dqs, skin_lbs
 
 __all__ = [
+    "LAPLACIANS",
+    "HarmonicSolver",
+    "SparseSolver",
+    "harmonic_fields",
+    "harmonic_precompute",
+    "laplacian",
+    "mean_value_laplacian",
     "METHODS",
     "PARAMETERS_PER_BONE",
     "SOLVERS",

@@ -15,9 +15,10 @@ import cutting
 import deform
 import jaxcga as cga
 from tests.cutting.tools import area as _area
-from tests.cutting.tools import check_gradient, load_models
 from tests.cutting.tools import diagonal as _diagonal
+from tests.cutting.tools import load_models
 from tests.cutting.tools import posed as posed_arm
+from tests.shared import check_gradient
 
 MODELS = load_models(weld=False)
 ARM = deform.default_arm()

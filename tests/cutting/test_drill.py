@@ -16,10 +16,11 @@ import cutting
 import deform
 import jaxcga as cga
 from tests.cutting.tools import area as _area
-from tests.cutting.tools import check_gradient, drill_into, grid, load_models, mean_edge
 from tests.cutting.tools import diagonal as _diagonal
+from tests.cutting.tools import drill_into, load_models, mean_edge
 from tests.cutting.tools import edge_counts as _edge_counts
 from tests.cutting.tools import posed as posed_arm
+from tests.shared import check_gradient, grid
 
 MODELS = load_models(weld=True)
 ARM = deform.default_arm()

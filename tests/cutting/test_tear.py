@@ -15,9 +15,10 @@ import cutting
 import deform
 import jaxcga as cga
 from tests.cutting.tools import area as _area
-from tests.cutting.tools import check_gradient, edge_counts, grid, load_models, mean_edge, scalpels_over
 from tests.cutting.tools import diagonal as _diagonal
+from tests.cutting.tools import edge_counts, load_models, mean_edge, scalpels_over
 from tests.cutting.tools import posed as posed_arm
+from tests.shared import check_gradient, grid
 
 MODELS = load_models(weld=True)
 ARM = deform.default_arm()

@@ -1,5 +1,5 @@
-"""Shared by the cutting tests: the real models, measures of meshes (areas, edge counts), a flat
-grid, and tools placed on real models (scalpels that sweep over the surface, drills along a face's
+"""Shared by the cutting tests: the real models, measures of meshes (areas, edge counts), a posed
+arm, and tools placed on real models (scalpels that sweep over the surface, drills along a face's
 inward normal)."""
 
 from __future__ import annotations
@@ -36,15 +36,6 @@ def edge_counts(F):
     F = np.asarray(F)
     edges = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
     return np.unique(edges, axis=0, return_counts=True)
-
-
-def grid(n: int = 10):
-    """The unit square in z = 0 as an n x n grid of quads, two triangles each."""
-    x, y = np.meshgrid(np.linspace(0, 1, n + 1), np.linspace(0, 1, n + 1), indexing="ij")
-    V = np.stack([x.ravel(), y.ravel(), np.zeros(x.size)], axis=1)
-    index = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
-    a, b, c, d = index[:-1, :-1].ravel(), index[1:, :-1].ravel(), index[1:, 1:].ravel(), index[:-1, 1:].ravel()
-    return V, np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
 
 
 def _frame(V, F, face):
@@ -85,16 +76,6 @@ def drill_into(V, F, face, depth: float):
     """(tip, base) of a drill entering the surface at ``face``'s centre along its inward normal."""
     centre, normal = _frame(V, F, face)
     return centre - depth * normal, centre + depth * normal
-
-
-def check_gradient(loss, params, rtol: float = 1e-5, step: float = 1e-6):
-    """jax.grad of ``loss`` at ``params`` against central finite differences, component by component."""
-    import jax
-
-    grad = jax.grad(loss)(params)
-    numeric = np.array([(loss(params.at[i].add(step)) - loss(params.at[i].add(-step))) / (2 * step)
-                        for i in range(len(params))])
-    np.testing.assert_allclose(grad, numeric, rtol=rtol, atol=1e-6 * float(np.abs(numeric).max()))
 
 
 def posed(model, t: float):

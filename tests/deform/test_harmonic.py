@@ -1,0 +1,132 @@
+"""Harmonic fields (deformation paper sec. VIII): agreement with igl.harmonic, partition of unity, the
+maximum principle of mean-value weights, linear precision of both Laplacians on flat meshes, the
+prefactored solve as a JAX function (jit, vmap, gradients by finite differences), bad input."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import igl
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+import deform
+from tests.shared import check_gradient, grid
+
+DATA = Path(__file__).resolve().parents[1] / "data"
+ARM = deform.default_arm().mesh
+ARM5 = deform.load_model(DATA / "Arm5.glb", weld=True).mesh
+
+
+def _arm_handles(V):
+    x = V[:, 0]
+    return [np.flatnonzero(x < 0.0), np.flatnonzero(x > 0.75), np.flatnonzero(np.abs(x - 0.4) < 0.01)]
+
+
+def _one_hot(handles):
+    b = np.concatenate(handles)
+    bc = np.zeros((len(b), len(handles)))
+    bc[np.arange(len(b)), np.repeat(np.arange(len(handles)), [len(h) for h in handles])] = 1.0
+    return b, bc
+
+
+@pytest.mark.parametrize("name", ["arm", "Arm5"])
+def test_cotangent_fields_equal_igl_harmonic(name):
+    mesh = ARM if name == "arm" else ARM5
+    V, F = np.asarray(mesh.V, np.float64), np.asarray(mesh.F, np.int64)
+    if name == "arm":
+        handles = _arm_handles(V)
+    else:  # Arm5: the shoulder ring, the fingertips, a band around the elbow
+        y = V[:, 1]
+        handles = [np.flatnonzero(y < 2.0), np.flatnonzero(y > 70.0), np.flatnonzero(np.abs(y - 39.0) < 0.5)]
+    fields = np.asarray(deform.harmonic_fields(V, F, handles))
+    b, bc = _one_hot(handles)
+    np.testing.assert_allclose(fields, igl.harmonic(V, F, b, bc, 1), atol=1e-8)
+    np.testing.assert_allclose(fields.sum(axis=1), 1.0, atol=1e-10)
+    for h, part in enumerate(handles):
+        np.testing.assert_array_equal(fields[part, h], 1.0)
+
+
+def test_mean_value_fields_sum_to_one_and_keep_the_maximum_principle():
+    V, F = np.asarray(ARM.V, np.float64), np.asarray(ARM.F)
+    fields = np.asarray(deform.harmonic_fields(V, F, _arm_handles(V), weights="mean_value"))
+    np.testing.assert_allclose(fields.sum(axis=1), 1.0, atol=1e-10)
+    assert fields.min() >= -1e-12 and fields.max() <= 1.0 + 1e-12
+    # harmonic: the rows of free vertices of L annihilate every field
+    L = deform.mean_value_laplacian(V, F)
+    free = np.setdiff1d(np.arange(len(V)), np.concatenate(_arm_handles(V)))
+    assert np.abs(L[free] @ fields).max() < 1e-10
+
+
+@pytest.mark.parametrize("weights", deform.LAPLACIANS)
+def test_both_laplacians_reproduce_linear_functions_on_a_flat_mesh(weights):
+    """Linear precision: on a planar mesh, a linear function is harmonic at interior vertices, so its
+    boundary values reproduce it exactly (an independent check of the assembled weights)."""
+    V, F = grid(12)
+    rng = np.random.default_rng(0)
+    interior = (V[:, 0] > 0) & (V[:, 0] < 1) & (V[:, 1] > 0) & (V[:, 1] < 1)
+    V[interior, :2] += rng.uniform(-0.03, 0.03, (interior.sum(), 2))  # an irregular, still planar mesh
+    L = deform.laplacian(V, F, weights)
+    assert np.abs(L[np.flatnonzero(interior)] @ V).max() < 1e-12
+    np.testing.assert_allclose(np.asarray(L.sum(axis=1)).ravel(), 0.0, atol=1e-12)
+    boundary = np.flatnonzero(~interior)
+    linear = 0.3 + 2.0 * V[:, 0] - 1.5 * V[:, 1]
+    solver = deform.harmonic_precompute(V, F, boundary, weights)
+    np.testing.assert_allclose(solver(jnp.asarray(linear[boundary])), linear, atol=1e-12)
+
+
+@pytest.mark.parametrize("weights", deform.LAPLACIANS)
+def test_the_solve_is_a_differentiable_batched_jax_function(weights):
+    V, F = np.asarray(ARM.V, np.float64), np.asarray(ARM.F)
+    handles = _arm_handles(V)
+    b, bc = _one_hot(handles)
+    solver = deform.harmonic_precompute(V, F, b, weights)
+    np.testing.assert_allclose(jax.jit(solver)(jnp.asarray(bc)), deform.harmonic_fields(V, F, handles, weights),
+                               atol=1e-12)
+    # vmap over boundary values equals one solve per column
+    batched = jax.vmap(solver, in_axes=1, out_axes=1)(jnp.asarray(bc))
+    np.testing.assert_allclose(batched, solver(jnp.asarray(bc)), atol=1e-12)
+    # reverse-mode gradient with respect to the boundary values (the unsymmetric mean-value system
+    # needs the transposed solve)
+    probe = jnp.asarray(np.random.default_rng(1).normal(size=len(V)))
+
+    def loss(values):
+        return jnp.sum(jnp.sin(solver(values)) * probe)
+
+    params = jnp.asarray(np.random.default_rng(2).uniform(size=len(b)))
+    check_gradient(loss, params, rtol=1e-6)
+
+
+def test_sparse_solver_checks_its_input():
+    with pytest.raises(ValueError, match="singular"):
+        deform.SparseSolver(sp.csc_matrix(np.array([[1.0, 1.0], [1.0, 1.0]])))
+    with pytest.raises(ValueError, match="square"):
+        deform.SparseSolver(sp.csc_matrix(np.ones((2, 3))))
+    solver = deform.SparseSolver(sp.csc_matrix(np.array([[2.0, 1.0], [0.0, 1.0]])))
+    np.testing.assert_allclose(solver(jnp.array([3.0, 1.0])), [1.0, 1.0])
+    with pytest.raises(ValueError, match="b: expected shape"):
+        solver(jnp.ones(3))
+
+
+def test_bad_input():
+    V, F = np.asarray(ARM.V, np.float64), np.asarray(ARM.F)
+    handles = _arm_handles(V)
+    with pytest.raises(ValueError, match="weights"):
+        deform.harmonic_fields(V, F, handles, weights="uniform")
+    with pytest.raises(ValueError, match="disjoint"):
+        deform.harmonic_fields(V, F, [handles[0], handles[0][:3]])
+    with pytest.raises(ValueError, match="at least one vertex"):
+        deform.harmonic_fields(V, F, [handles[0], []])
+    with pytest.raises(ValueError, match="lie in"):
+        deform.harmonic_precompute(V, F, np.array([0, len(V)]))
+    with pytest.raises(ValueError, match="bc: expected shape"):
+        deform.harmonic_precompute(V, F, handles[0])(jnp.ones(3))
+    # two disjoint copies of the arm, constrained on one only: the other's fields are undefined
+    two = np.concatenate([V, V + 2.0])
+    with pytest.raises(ValueError, match="connected part"):
+        deform.harmonic_fields(two, np.concatenate([F, F + len(V)]), handles)
+    with pytest.raises(ValueError, match="V: expected"):
+        deform.harmonic_fields(np.full_like(V, np.nan), F, handles)
