@@ -18,7 +18,6 @@ The baseline is the paper's published timing on Arm5 (sec. 4.3: 4,666 ms to cut,
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
 import sys
 import time
@@ -35,6 +34,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 import cutting  # noqa: E402
 import deform  # noqa: E402
+from _report import RATIO_UNIT, add_json_argument, write_json  # noqa: E402
 
 PAPER_MS = {"cut": 4666.0, "tear": 2437.0, "drill": 274.0}
 
@@ -133,7 +133,7 @@ def run(repeats: int, faces_100k: int):
     for name in figures:
         units[name] = "ms"
     for name in ratios:
-        units[name] = "x (baseline time / ours)"
+        units[name] = RATIO_UNIT
     return {"figures": figures, "ratios": ratios, "units": units}
 
 
@@ -142,14 +142,12 @@ def main(argv=None):
     parser.add_argument("--repeats", type=int, default=50, help="timed repetitions per figure")
     parser.add_argument("--faces", type=int, default=100_000, help="faces of the large mesh (about)")
     parser.add_argument("--quick", action="store_true", help="small sizes for a smoke test")
-    parser.add_argument("--json", type=Path, default=None, help="write figures, ratios and units here")
+    add_json_argument(parser)
     args = parser.parse_args(argv)
     if args.quick:
         args.repeats, args.faces = 2, 20_000
     result = run(args.repeats, args.faces)
-    if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(result, indent=1))
+    write_json(args.json, result)
     return 0
 
 

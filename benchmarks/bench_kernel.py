@@ -16,7 +16,6 @@ Usage: ``python benchmarks/bench_kernel.py [--n 100000] [--repeats 30] [--json P
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
 import sys
 import time
@@ -32,6 +31,7 @@ import jaxcga as cga  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _kingdon_peer import make_kingdon_sandwich  # noqa: E402
+from _report import RATIO_UNIT, add_json_argument, write_json  # noqa: E402
 
 
 def _ours(motor_values, x):
@@ -128,7 +128,7 @@ def run(n: int, repeats: int) -> dict:
         "compile_vs_kingdon": kingdon_compile_s / compile_s,
     }
     units = {name: ("s" if name.endswith("compile_s") else "points/s") for name in figures}
-    units.update({name: "x" for name in ratios})
+    units.update({name: RATIO_UNIT for name in ratios})
     return {"figures": figures, "ratios": ratios, "units": units}
 
 
@@ -136,7 +136,7 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--n", type=int, default=100_000, help="number of points (default 100000)")
     parser.add_argument("--repeats", type=int, default=30, help="timed calls per candidate")
-    parser.add_argument("--json", type=Path, help="write {figures, ratios, units} here")
+    add_json_argument(parser)
     args = parser.parse_args(argv)
     if args.n < 1 or args.repeats < 1:
         parser.error("--n and --repeats must be positive")
@@ -147,9 +147,7 @@ def main(argv=None) -> int:
         print(f"  {name:38s} {value:12.4g} {unit}")
     for name, value in result["ratios"].items():
         print(f"  {name:38s} {value:12.3f} x  (baseline time / jaxcga time)")
-    if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(result, indent=2))
+    write_json(args.json, result)
     return 0
 
 

@@ -11,9 +11,10 @@ Every method runs the whole pipeline from local bone transforms to vertex positi
 forward kinematics, joint transforms, per-vertex skinning. The baselines take local 4x4 matrices (LBS)
 and convert joint matrices to dual quaternions (DQS); the multivector methods take local similitudes.
 All get the same random rigid poses. Calls are interleaved round-robin over the methods (medians per
-method), so that the machine's drift during the run does not bias a ratio. The batch of poses runs as ``jax.lax.map(..., batch_size=chunk)``:
-vmap over chunks of 50 poses, which bounds the memory of the per-pose temporaries (1,000 poses x 100k
-vertices x 3 floats is already 1.2 GB of output in float32). Ratios are baseline time / our time (> 1: we are faster).
+method), so that the machine's drift during the run does not bias a ratio. The batch of poses runs as
+``jax.lax.map(..., batch_size=chunk)``: vmap over chunks of 50 poses, which bounds the memory of the
+per-pose temporaries (1,000 poses x 100k vertices x 3 floats is already 1.2 GB of output in float32).
+Ratios are baseline time / our time (> 1: we are faster).
 
     python benchmarks/bench_skinning.py [--vertices 100000] [--poses 1000] [--json out/bench/skinning.json]
 """
@@ -21,7 +22,6 @@ vertices x 3 floats is already 1.2 GB of output in float32). Ratios are baseline
 from __future__ import annotations
 
 import argparse
-import json
 import statistics
 import sys
 import time
@@ -36,8 +36,10 @@ import trimesh  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
 import deform  # noqa: E402
 import jaxcga as cga  # noqa: E402
+from _report import RATIO_UNIT, add_json_argument, write_json  # noqa: E402
 
 
 def subdivided_arm5(min_vertices: int = 0, influences: int = 4, min_faces: int = 0) -> deform.RiggedModel:
@@ -159,7 +161,7 @@ def run(vertices: int, poses: int, repeats: int, batch_repeats: int, chunk: int)
             print(f"  {tag} ratio {key}: {ratios[key]:.2f} (one pose), "
                   f"{ratios[f'{ours}_vs_{baseline}_{poses}_poses_{tag}']:.2f} ({poses} poses)")
     for name in ratios:
-        units[name] = "x (baseline time / ours)"
+        units[name] = RATIO_UNIT
     return {"figures": figures, "ratios": ratios, "units": units}
 
 
@@ -172,14 +174,12 @@ def main(argv=None):
     parser.add_argument("--chunk", type=int, default=50,
                         help="poses per vmapped chunk of the batch (jax.lax.map batch_size; bounds memory)")
     parser.add_argument("--quick", action="store_true", help="small sizes for a smoke test")
-    parser.add_argument("--json", type=Path, default=None, help="write figures, ratios and units here")
+    add_json_argument(parser)
     args = parser.parse_args(argv)
     if args.quick:
         args.vertices, args.poses, args.repeats, args.batch_repeats = 5_000, 20, 3, 1
     result = run(args.vertices, args.poses, args.repeats, args.batch_repeats, args.chunk)
-    if args.json:
-        args.json.parent.mkdir(parents=True, exist_ok=True)
-        args.json.write_text(json.dumps(result, indent=1))
+    write_json(args.json, result)
     return 0
 
 
