@@ -65,7 +65,8 @@ class TearPath(NamedTuple):
             (face normal x path direction), d includes the perturbation.
         orientation: (k,) +1 or -1: Pi_i's normal is ``orientation * (A - S_i) x (B - S_i)``
             normalized, with A, B the scalpel's endpoints at t_{i+1}.
-        shift: (k,) how far each plane was moved along its normal (the perturbation; mostly 0).
+        shift: (k,) how far each plane was moved along its oriented normal (the perturbation; mostly 0):
+            ``planes[i, 3] = planes[i, :3] . S_i + shift[i]``.
     """
 
     sample_faces: np.ndarray
@@ -211,8 +212,8 @@ def tear_path(V, F, scalpels, *, predicates: str = "euclidean", tolerance: float
         if target != faces[-1]:
             # the plane as given, then moved along its normal both ways (gentle perturbation)
             corners = V[F[faces[-1]]]
-            step = _SHIFT_STEP * np.linalg.norm(corners - np.roll(corners, 1, axis=0), axis=1).mean()
-            for shift in step * np.array([0.0, 1.0, -1.0, 2.0, -2.0, 3.0, -3.0, 4.0, -4.0]):
+            unit = _SHIFT_STEP * np.linalg.norm(corners - np.roll(corners, 1, axis=0), axis=1).mean()
+            for shift in unit * np.array([0.0, 1.0, -1.0, 2.0, -2.0, 3.0, -3.0, 4.0, -4.0]):
                 s = signed_distances(V, n, d + shift, predicates)
                 try:
                     step_edges, step_faces = _walk(V, F, edges, s, margin, faces[-1], entry_edge, origin, goal,
@@ -239,7 +240,7 @@ def tear_path(V, F, scalpels, *, predicates: str = "euclidean", tolerance: float
             points, t = np.zeros((0, 3)), np.zeros(0)
         planes.append(np.append(sign * n, sign * (d + shift)))
         orientation.append(sign)
-        shifts.append(shift)
+        shifts.append(sign * shift)  # along the oriented normal
         point_chunks.append(points)
         t_chunks.append(t)
         crossed += step_edges
@@ -252,9 +253,8 @@ def tear_path(V, F, scalpels, *, predicates: str = "euclidean", tolerance: float
                          "scalpel farther between samples")
     crossed = np.asarray(crossed)
     return TearPath(sample_faces, sample_points, sample_barycentric, np.asarray(faces), crossed, edges.edges[crossed],
-                    np.concatenate(t_chunks),
-                    np.concatenate(point_chunks), np.asarray(steps), np.asarray(planes), np.asarray(orientation),
-                    np.asarray(shifts))
+                    np.concatenate(t_chunks), np.concatenate(point_chunks), np.asarray(steps), np.asarray(planes),
+                    np.asarray(orientation), np.asarray(shifts))
 
 
 def _retriangulate(V, F, edges: MeshEdges, path: TearPath, n_vertices: int):
@@ -397,15 +397,23 @@ def tear_positions(V, F, path: TearPath, scalpels, opening=0.0):
     and the opening, for a fixed topology (``path``): differentiable with respect to the tool.
 
     Returns (tips (2, 3): S_0 and S_k, left (q, 3), right (q, 3): the two copies of every Q_j).
-    The tips are the scalpel's crossings with their faces' planes (without the 2% barycentric margin
-    that keeps them off the faces' edges)."""
+    Each S_i is the scalpel's crossing with its face's plane, kept the same 2% (barycentric) off the
+    face's edges as in ``tear_path``."""
     V = jnp.asarray(V)
     scalpels = jnp.asarray(scalpels)
     corners = V[jnp.asarray(F)[jnp.asarray(path.sample_faces)]]  # (k+1, 3, 3)
     face_normals = jnp.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
     X0, X1 = scalpels[:, 0], scalpels[:, 1]
     s = jnp.sum(face_normals * (corners[:, 0] - X0), -1) / jnp.sum(face_normals * (X1 - X0), -1)
-    samples = X0 + s[:, None] * (X1 - X0)
+    crossings = X0 + s[:, None] * (X1 - X0)
+    # barycentric coordinates in the face, with tear_path's margin (piecewise smooth in the tool)
+    squared = jnp.sum(face_normals * face_normals, -1)
+    barycentric = jnp.stack([jnp.sum(face_normals * jnp.cross(corners[:, (k + 1) % 3] - crossings,
+                                                              corners[:, (k + 2) % 3] - crossings), -1)
+                             for k in range(3)], axis=-1) / squared[:, None]
+    barycentric = jnp.maximum(barycentric, _TIP_MARGIN)
+    barycentric = barycentric / jnp.sum(barycentric, -1, keepdims=True)
+    samples = jnp.einsum("sk,skc->sc", barycentric, corners)
     normals = jnp.cross(scalpels[1:, 0] - samples[:-1], scalpels[1:, 1] - samples[:-1])
     normals = jnp.asarray(path.orientation)[:, None] * normals / jnp.linalg.norm(normals, axis=-1, keepdims=True)
     offsets = jnp.sum(normals * samples[:-1], -1) + jnp.asarray(path.shift)
