@@ -10,9 +10,9 @@ predicates can run on the jaxcga kernel (``predicates="ga"``). Where things live
 from cutting._cut import MeshEdges, PlaneCut, cut, cut_positions, mesh_edges, plane_cut
 from cutting._drill import Drilling, drill, drill_mesh, drill_positions, refine
 from cutting._predicates import PREDICATES
-from cutting._tear import TearPath, tear, tear_path, tear_positions
+from cutting._tear import TearPath, scalpel_path, tear, tear_path, tear_positions
 from cutting._weights import blend_weights
 
 __all__ = ["PREDICATES", "Drilling", "MeshEdges", "PlaneCut", "TearPath", "blend_weights", "cut", "cut_positions",
-           "drill", "drill_mesh", "drill_positions", "mesh_edges", "plane_cut", "refine", "tear", "tear_path",
-           "tear_positions"]
+           "drill", "drill_mesh", "drill_positions", "mesh_edges", "plane_cut", "refine", "scalpel_path", "tear",
+           "tear_path", "tear_positions"]

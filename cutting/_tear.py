@@ -2,7 +2,8 @@
 (sec. 4.2.2), with the weights of new vertices of sec. 4.3.
 
 The scalpel is a segment known at time steps t_0 .. t_k (``scalpels[i] = (X0, X1)``; X0 is the
-handle side: where the segment crosses the surface more than once, the crossing nearest X0 counts).
+handle side: where the segment crosses the surface more than once, the crossing nearest X0 counts),
+given as segments or as a blade moved by motors (``scalpel_path``).
 
 1. S_i, the crossing of the scalpel with the surface at t_i (the tear points);
 2. for each step i, the plane Pi_i through S_i and the scalpel's endpoints at t_{i+1};
@@ -31,6 +32,8 @@ from typing import NamedTuple
 
 import jax.numpy as jnp
 import numpy as np
+
+import jaxcga as cga
 
 from cutting._cut import MeshEdges, _bounding_diagonal, mesh_edges
 from cutting._geometry import (check_mesh_arrays, cross3, cross_rows, fan_triangles, posed_vertices, rest_positions,
@@ -94,6 +97,20 @@ def check_scalpels(scalpels) -> np.ndarray:
     if np.any(np.linalg.norm(scalpels[:, 1] - scalpels[:, 0], axis=1) == 0):
         raise ValueError("scalpels: a scalpel sample has two equal endpoints")
     return scalpels
+
+
+def scalpel_path(blade, motors) -> np.ndarray:
+    """Scalpel samples from a blade moved by motors: the segment ``blade`` (2, 3) (handle end first)
+    carried by each of the k+1 versors ``motors`` (a jaxcga Multivector of motors or similitudes with
+    batch shape (k+1,), e.g. two motors for the paper's two time steps, or a motor spline sampled at
+    t_0 .. t_k). Returns the (k+1, 2, 3) samples that ``tear`` takes."""
+    blade = np.asarray(blade, np.float64)
+    if blade.shape != (2, 3) or not np.all(np.isfinite(blade)):
+        raise ValueError(f"blade: expected 2 finite endpoints of shape (2, 3), got {blade.shape}")
+    if not isinstance(motors, cga.Multivector) or len(motors.batch_shape) != 1 or motors.batch_shape[0] < 2:
+        raise ValueError("motors: expected a jaxcga versor Multivector with batch shape (k+1,), k+1 >= 2")
+    per_sample = cga.Multivector(motors.values[:, None, :], motors.blades)  # (k+1, 1) against (2,) points
+    return np.asarray(cga.apply_to_points(per_sample, jnp.asarray(blade)), np.float64)
 
 
 def _tip(V, F, scalpel, index):

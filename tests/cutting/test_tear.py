@@ -222,3 +222,27 @@ def test_tear_positions_follow_a_perturbed_plane():
     flipped = cutting.tear_path(V, F, scalpels[::-1])
     _, left, _ = cutting.tear_positions(V, F, flipped, scalpels[::-1], 0.0)
     np.testing.assert_allclose(left, flipped.points, atol=1e-9)
+
+
+def test_a_blade_moved_by_two_motors_gives_the_same_tear_as_its_segments():
+    mesh = MODELS["3Cylinder4bones"].mesh
+    V, F = np.asarray(mesh.V), np.asarray(mesh.F)
+    segments = scalpels_over(V, F, 100, [0.0, 1.0, 0.0], 2, 2 * mean_edge(V, F))
+    blade = segments[0]
+    # the motor T R taking the blade onto the second sample: R turns its direction, T its midpoint
+    moved = segments[1]
+    axis = np.cross(blade[1] - blade[0], moved[1] - moved[0])
+    angle = np.arctan2(np.linalg.norm(axis), np.dot(blade[1] - blade[0], moved[1] - moved[0]))
+    rotation = cga.rotor(jnp.asarray(axis / np.linalg.norm(axis)), angle)
+    turned_middle = np.asarray(cga.apply_to_points(rotation, jnp.asarray(blade.mean(axis=0))))
+    second = cga.motor(rotation, jnp.asarray(moved.mean(axis=0) - turned_middle))
+    first = cga.motor(cga.rotor(jnp.array([0.0, 0.0, 1.0]), 0.0), jnp.zeros(3))
+    motors = cga.Multivector(jnp.stack([first.values, second.values]), first.blades)
+    samples = cutting.scalpel_path(blade, motors)
+    np.testing.assert_allclose(samples[0], blade, atol=1e-12)
+    np.testing.assert_allclose(samples[1, 1] - samples[1, 0], moved[1] - moved[0], atol=1e-9)
+    np.testing.assert_allclose(samples[1].mean(axis=0), moved.mean(axis=0), atol=1e-9)
+    np.testing.assert_allclose(cutting.tear_path(V, F, samples).points, cutting.tear_path(V, F, segments).points,
+                               atol=1e-9)
+    with pytest.raises(ValueError, match="motors"):
+        cutting.scalpel_path(blade, first)
