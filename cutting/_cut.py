@@ -30,49 +30,18 @@ from typing import NamedTuple
 import jax.numpy as jnp
 import numpy as np
 
+from cutting._geometry import (
+    MeshEdges,
+    bounding_diagonal,
+    check_mesh_arrays,
+    mesh_edges,
+    posed_vertices,
+    rest_positions,
+    skinned_mesh_like,
+)
 from cutting._predicates import check_plane, check_predicates, edge_points, signed_distances
-from cutting._geometry import check_mesh_arrays, posed_vertices, rest_positions, skinned_mesh_like
 from cutting._weights import blend_weights
 from deform._model import SkinnedMesh
-
-
-class MeshEdges(NamedTuple):
-    """Reusable adjacency of a triangle mesh (the preprocessing of a cut).
-
-    Attributes:
-        edges: (e, 2) int unique undirected edges, smaller index first.
-        face_edges: (m, 3) int edge id of each face's local edge (k, k+1 mod 3).
-        edge_faces: (e, 2) int the first and the last face on each edge (-1 for the second of a
-            boundary edge); tear and drill walk across faces with it.
-        edge_counts: (e,) int faces on each edge (2 inside a manifold, 1 on its boundary).
-    """
-
-    edges: np.ndarray
-    face_edges: np.ndarray
-    edge_faces: np.ndarray
-    edge_counts: np.ndarray
-
-
-def mesh_edges(F) -> MeshEdges:
-    """Unique edges of the faces F (m, 3) and each face's edge ids."""
-    F = np.asarray(F)
-    if F.ndim != 2 or F.shape[1] != 3:
-        raise ValueError(f"F: expected shape (m, 3), got {F.shape}")
-    a, b = F.astype(np.int64), np.roll(F, -1, axis=1).astype(np.int64)
-    lo, hi = np.minimum(a, b), np.maximum(a, b)
-    # one integer key per undirected edge: a 1-D unique is several times faster than unique(axis=0)
-    n = int(F.max(initial=0)) + 1
-    keys, inverse = np.unique((lo * n + hi).ravel(), return_inverse=True)
-    inverse = inverse.reshape(-1)
-    face_of = np.repeat(np.arange(len(F)), 3)
-    # Last writer wins in a fancy assignment: forwards gives each edge's last face, backwards its first.
-    first = np.empty(len(keys), np.int64)
-    first[inverse[::-1]] = face_of[::-1]
-    last = np.empty(len(keys), np.int64)
-    last[inverse] = face_of
-    counts = np.bincount(inverse, minlength=len(keys))
-    edge_faces = np.stack([first, np.where(counts >= 2, last, -1)], axis=1)
-    return MeshEdges(np.stack([keys // n, keys % n], axis=1), inverse.reshape(-1, 3), edge_faces, counts)
 
 
 def _split_tables():
@@ -133,13 +102,6 @@ class PlaneCut(NamedTuple):
     distances: np.ndarray
 
 
-def _bounding_diagonal(V) -> float:
-    # column by column: numpy's axis-0 reduction over (n, 3) rows is some 20x slower
-    if not len(V):
-        return 0.0
-    return float(np.sqrt(sum((V[:, k].max() - V[:, k].min()) ** 2 for k in range(V.shape[1]))))
-
-
 def _is_closed(edges: MeshEdges) -> bool:
     return bool(np.all(edges.edge_counts == 2))
 
@@ -169,7 +131,7 @@ def plane_cut(V, F, plane, *, predicates: str = "euclidean", tolerance: float = 
         raise ValueError(f"edges: computed for another mesh (face_edges {edges.face_edges.shape}, F {F.shape})")
     n, d = check_plane(plane)
     s = signed_distances(V, n, d, predicates)
-    s = np.where(np.abs(s) <= tolerance * _bounding_diagonal(V), 0.0, s)
+    s = np.where(np.abs(s) <= tolerance * bounding_diagonal(V), 0.0, s)
     if not (np.any(s[F] > 0) and np.any(s[F] < 0)):
         raise ValueError("plane: misses the mesh (every vertex lies on one side of it); nothing to cut")
     sign = np.sign(s).astype(np.int64)

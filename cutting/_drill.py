@@ -35,9 +35,18 @@ from typing import NamedTuple
 import jax.numpy as jnp
 import numpy as np
 
-from cutting._cut import MeshEdges, _bounding_diagonal, mesh_edges
-from cutting._geometry import (check_mesh_arrays, check_point, fan_triangles, posed_vertices, rest_positions,
-                               segment_hits, skinned_mesh_like)
+from cutting._geometry import (
+    MeshEdges,
+    bounding_diagonal,
+    check_mesh_arrays,
+    check_point,
+    fan_triangles,
+    mesh_edges,
+    posed_vertices,
+    rest_positions,
+    segment_hits,
+    skinned_mesh_like,
+)
 from cutting._weights import blend_weights
 from deform._model import SkinnedMesh
 
@@ -268,7 +277,7 @@ def drill_mesh(V, F, tip, base, radius, *, min_points: int = 6, max_refinements:
     edges = mesh_edges(F) if edges is None else edges
     if edges.face_edges.shape != F.shape:
         raise ValueError(f"edges: computed for another mesh (face_edges {edges.face_edges.shape}, F {F.shape})")
-    margin = tolerance * _bounding_diagonal(V)
+    margin = tolerance * bounding_diagonal(V)
     all_parents, refinements = [], 0
     while True:
         state = _drill_once(V, F, edges, tip, base, radius, margin)

@@ -34,10 +34,19 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxcga as cga
-
-from cutting._cut import MeshEdges, _bounding_diagonal, mesh_edges
-from cutting._geometry import (check_mesh_arrays, cross3, cross_rows, fan_triangles, posed_vertices, rest_positions,
-                               segment_hits, skinned_mesh_like)
+from cutting._geometry import (
+    MeshEdges,
+    bounding_diagonal,
+    check_mesh_arrays,
+    cross3,
+    cross_rows,
+    fan_triangles,
+    mesh_edges,
+    posed_vertices,
+    rest_positions,
+    segment_hits,
+    skinned_mesh_like,
+)
 from cutting._predicates import check_predicates, edge_points, signed_distances
 from cutting._weights import blend_weights
 from deform._model import SkinnedMesh
@@ -202,7 +211,7 @@ def tear_path(V, F, scalpels, *, predicates: str = "euclidean", tolerance: float
     edges = mesh_edges(F) if edges is None else edges
     if edges.face_edges.shape != F.shape:
         raise ValueError(f"edges: computed for another mesh (face_edges {edges.face_edges.shape}, F {F.shape})")
-    diagonal = _bounding_diagonal(V)
+    diagonal = bounding_diagonal(V)
     margin = tolerance * diagonal
     samples = [_tip(V, F, scalpel, i) for i, scalpel in enumerate(scalpels)]
     sample_faces = np.array([f for f, _, _ in samples])
