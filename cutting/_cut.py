@@ -30,15 +30,8 @@ from typing import NamedTuple
 import jax.numpy as jnp
 import numpy as np
 
-from cutting._geometry import (
-    MeshEdges,
-    bounding_diagonal,
-    check_mesh_arrays,
-    mesh_edges,
-    posed_vertices,
-    rest_positions,
-    skinned_mesh_like,
-)
+from cutting._geometry import (MeshEdges, bounding_diagonal, check_mesh_arrays, mesh_edges, posed_vertices,
+                               rest_positions, skinned_mesh_like)
 from cutting._predicates import check_plane, check_predicates, edge_points, signed_distances
 from cutting._weights import blend_weights
 from deform._model import SkinnedMesh

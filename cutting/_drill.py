@@ -35,18 +35,8 @@ from typing import NamedTuple
 import jax.numpy as jnp
 import numpy as np
 
-from cutting._geometry import (
-    MeshEdges,
-    bounding_diagonal,
-    check_mesh_arrays,
-    check_point,
-    fan_triangles,
-    mesh_edges,
-    posed_vertices,
-    rest_positions,
-    segment_hits,
-    skinned_mesh_like,
-)
+from cutting._geometry import (MeshEdges, bounding_diagonal, check_mesh_arrays, check_point, fan_triangles, mesh_edges,
+                               posed_vertices, rest_positions, segment_hits, skinned_mesh_like)
 from cutting._weights import blend_weights
 from deform._model import SkinnedMesh
 

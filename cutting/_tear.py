@@ -34,19 +34,8 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxcga as cga
-from cutting._geometry import (
-    MeshEdges,
-    bounding_diagonal,
-    check_mesh_arrays,
-    cross3,
-    cross_rows,
-    fan_triangles,
-    mesh_edges,
-    posed_vertices,
-    rest_positions,
-    segment_hits,
-    skinned_mesh_like,
-)
+from cutting._geometry import (MeshEdges, bounding_diagonal, check_mesh_arrays, cross3, cross_rows, fan_triangles,
+                               mesh_edges, posed_vertices, rest_positions, segment_hits, skinned_mesh_like)
 from cutting._predicates import check_predicates, edge_points, signed_distances
 from cutting._weights import blend_weights
 from deform._model import SkinnedMesh
