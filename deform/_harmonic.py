@@ -85,7 +85,9 @@ class HarmonicSolver:
     def __init__(self, L, constrained, n: int, symmetric: bool):
         self.n = n
         self.constrained = constrained
-        self.free = np.setdiff1d(np.arange(n), constrained)
+        is_free = np.ones(n, bool)
+        is_free[constrained] = False
+        self.free = np.flatnonzero(is_free)  # a mask, not setdiff1d: that sorts (0.1 s at 160k)
         L = sp.csr_matrix(L)
         self._coupling = L[self.free][:, constrained].tocsr()  # L_fc
         self._solve = SparseSolver(-L[self.free][:, self.free], symmetric=symmetric)
@@ -135,7 +137,9 @@ def harmonic_precompute(V, F, constrained, weights: str = "cotangent") -> Harmon
     L = laplacian(V, F, weights)
     # every connected part of the mesh needs a constrained vertex, or L_ff is singular there
     parts, labels = connected_components(L, directed=False)
-    unreached = np.setdiff1d(np.arange(parts), labels[constrained])
+    reached = np.zeros(parts, bool)
+    reached[labels[constrained]] = True
+    unreached = np.flatnonzero(~reached)
     if len(unreached):
         raise ValueError(f"constrained: {len(unreached)} connected part(s) of the mesh hold no constrained vertex "
                          f"(e.g. vertex {int(np.flatnonzero(labels == unreached[0])[0])}); their fields are undefined")

@@ -3,9 +3,14 @@ algebra"): ``jax.pure_callback`` runs the factor's solve, ``jax.custom_vjp`` giv
 solve with the transposed factor; the same solve for a symmetric system). The harmonic fields use it;
 so will ARAP's global step.
 
-The factorization is scipy's sparse LU (SuperLU): the one sparse direct solver that ships with the
-project's dependencies, and it handles the unsymmetric mean-value Laplacian as well as the symmetric
-cotangent one.
+Two factorizations, picked by the system:
+
+* symmetric positive definite (cotangent Laplacians, ARAP's global step): CHOLMOD's sparse Cholesky
+  (LDL^T with a fill-reducing ordering) through ``sksparse_minimal``. Measured on a 161k-vertex Arm5
+  Laplacian: factor 0.47 s, against 0.96 s for SuperLU (COLAMD) and 0.6 s for libigl's own
+  ``min_quad_with_fixed`` inside ``igl.harmonic``; SuperLU with a symmetric ordering (MMD_AT_PLUS_A,
+  SymmetricMode) took 37 s.
+* unsymmetric (the mean-value Laplacian): scipy's sparse LU (SuperLU).
 """
 
 from __future__ import annotations
@@ -15,10 +20,12 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+from sksparse_minimal import SparseCholesky
 
 
 class SparseSolver:
-    """``A x = b`` for a fixed square sparse ``A``, factored once (host, float64).
+    """``A x = b`` for a fixed square sparse ``A``, factored once (host, float64); ``symmetric=True``
+    promises a symmetric positive definite A (Cholesky), otherwise LU.
 
     Call it on ``b`` of shape (n,) or (n, k) inside or outside jit; it is differentiable (reverse mode)
     with respect to ``b`` and works under vmap (one host solve per batch element). Hashable by
@@ -32,16 +39,26 @@ class SparseSolver:
             raise ValueError("A: the system is empty")
         self.n = A.shape[0]
         self.symmetric = symmetric
-        try:
-            self._lu = spla.splu(A)
-        except RuntimeError as error:  # SuperLU reports an exactly singular matrix this way
-            raise ValueError(f"A: the matrix is singular ({error})") from None
+        if symmetric:
+            if abs(A - A.T).max() > 1e-12 * abs(A).max():
+                raise ValueError("A: symmetric=True but the matrix is not symmetric")
+            try:
+                self._cholesky = SparseCholesky(A)
+            except ValueError as error:  # CHOLMOD: a zero or negative pivot
+                raise ValueError(f"A: the matrix is singular or not positive definite ({error})") from None
+        else:
+            try:
+                self._lu = spla.splu(A)
+            except RuntimeError as error:  # SuperLU reports an exactly singular matrix this way
+                raise ValueError(f"A: the matrix is singular ({error})") from None
         self._solve = _make_solve(self)
 
     def host_solve(self, b, transpose: bool = False) -> np.ndarray:
         """The solve in numpy (float64), for host code."""
         b = np.asarray(b, np.float64)
-        return self._lu.solve(b, trans="T" if transpose and not self.symmetric else "N")
+        if self.symmetric:
+            return self._cholesky.solve_A(b)
+        return self._lu.solve(b, trans="T" if transpose else "N")
 
     def __call__(self, b):
         b = jnp.asarray(b)

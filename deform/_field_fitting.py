@@ -1,0 +1,148 @@
+"""Fitting the key motors of a motor field to target vertex positions (issue: "recover handle motors
+from target vertex positions by gradient descent"), for every deformation built on ``MotorField``:
+spline-aligned deformation (eq. 1-2), harmonic motor handles (sec. IV), motor FFD (eq. 7-8) and motor
+cages (sec. VI).
+
+Each fitted key motor is ``R_j = exp(B_j)`` with B_j a motor generator (six bivector components e12,
+e13, e23, e1inf, e2inf, e3inf); B = 0 is the identity, i.e. the bound rest mesh, so the regularizer
+``lambda |B|^2`` pulls toward it. The residual ``(field(exp(B))[vertices] - targets) / diagonal`` is
+minimized by optimistix (the solvers of ``deform.fit_pose``: Levenberg-Marquardt by default,
+Gauss-Newton, BFGS, gradient descent); keys not in ``free`` keep the motors given in ``fixed_motors``
+(the identity by default: a fixed region).
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax.numpy as jnp
+import numpy as np
+import optimistix as optx
+from jaxtyping import Array, Float, Int
+
+import jaxcga as cga
+from deform._fitting import SOLVERS, _solver
+from deform._motor_field import MotorField, identity_motors
+from jaxcga import KINDS, Multivector
+
+
+class MotorFit(eqx.Module):
+    """Result of ``fit_key_motors``.
+
+    Attributes:
+        generators: (k, 6) motor generators B_j of every key (zeros for keys not fitted).
+        motors: the key motors, batch shape (k,).
+        positions: (n, 3) deformed positions of the fit.
+        max_error, rms_error: largest and root-mean-square distance to the targets.
+        steps: solver steps taken. converged: whether the solver met its tolerance.
+    """
+
+    generators: Float[Array, "k 6"]
+    motors: Multivector
+    positions: Float[Array, "n 3"]
+    max_error: Float[Array, ""]
+    rms_error: Float[Array, ""]
+    steps: Int[Array, ""]
+    converged: Array
+
+
+def generators_to_motors(generators: Float[Array, "... k 6"]) -> Multivector:
+    """Key motors ``exp(B_j)`` from (..., k, 6) motor generators."""
+    generators = jnp.asarray(generators)
+    if generators.ndim < 1 or generators.shape[-1] != 6:
+        raise ValueError(f"generators: expected shape (..., k, 6), got {generators.shape}")
+    return cga.exp_motor(Multivector(generators, cga.MOTOR_GENERATOR))
+
+
+def fit_key_motors(
+    field: MotorField,
+    targets: Float[Array, "t 3"],
+    vertices: Int[Array, " t"] | None = None,
+    *,
+    free=None,
+    fixed_motors: Multivector | None = None,
+    regularization: float = 0.0,
+    solver: str = "levenberg_marquardt",
+    max_steps: int = 200,
+    rtol: float = 1e-10,
+    atol: float = 1e-12,
+    init: Float[Array, "k 6"] | None = None,
+) -> MotorFit:
+    """Fit the key motors of ``field`` so that its vertices ``vertices`` reach ``targets``.
+
+    Args:
+        field: a ``MotorField`` (from ``spline_precompute``, ``harmonic_handles``, an FFD or a cage).
+        targets: (t, 3) target positions (t = n when ``vertices`` is None).
+        vertices: (t,) int vertex indices, or None for all.
+        free: indices of the keys to fit (default all); the others keep ``fixed_motors``.
+        fixed_motors: motors (batch shape (k,)) for the keys not fitted; default identities.
+        regularization: weight of ``lambda |B|^2`` toward the rest (use it with few targets).
+        solver: one of ``deform.SOLVERS``.
+        max_steps, rtol, atol: solver limits and tolerances.
+        init: (k, 6) starting generators (zeros: the rest).
+    Returns:
+        a ``MotorFit``."""
+    if not isinstance(field, MotorField):
+        raise ValueError(f"field: expected a deform.MotorField, got {type(field).__name__}")
+    n, k = field.bound.shape[0], field.num_keys
+    dtype = field.weights.dtype
+    targets = jnp.asarray(targets, dtype)
+    index = np.arange(n) if vertices is None else np.asarray(vertices)
+    if index.ndim != 1 or not np.issubdtype(index.dtype, np.integer):
+        raise ValueError(f"vertices: expected a (t,) integer array, got {index.dtype} {index.shape}")
+    if index.size and (index.min() < 0 or index.max() >= n):
+        raise ValueError(f"vertices: indices must lie in [0, {n})")
+    if targets.shape != (len(index), 3):
+        raise ValueError(f"targets: expected shape ({len(index)}, 3), got {targets.shape}")
+    if not bool(jnp.all(jnp.isfinite(targets))):
+        raise ValueError("targets: contains NaN or infinity")
+    free = np.arange(k) if free is None else np.asarray(free).reshape(-1)
+    if not np.issubdtype(free.dtype, np.integer) or len(free) == 0 or free.min() < 0 or free.max() >= k \
+            or len(np.unique(free)) != len(free):
+        raise ValueError(f"free: expected distinct key indices in [0, {k}), got {free}")
+    if regularization < 0:
+        raise ValueError(f"regularization: expected >= 0, got {regularization}")
+    if solver not in SOLVERS:
+        raise ValueError(f"solver: expected one of {SOLVERS}, got {solver!r}")
+    fixed = identity_motors(k, dtype) if fixed_motors is None else fixed_motors
+    if not isinstance(fixed, Multivector) or fixed.batch_shape != (k,) or not set(fixed.blades) <= set(KINDS["motor"]):
+        raise ValueError(f"fixed_motors: expected motors with batch shape ({k},)")
+    fixed_values = fixed.embed(KINDS["motor"]).values.astype(dtype)
+    y0 = jnp.zeros((len(free), 6), dtype) if init is None else jnp.asarray(init, dtype)[free]
+    if init is not None and jnp.shape(init) != (k, 6):
+        raise ValueError(f"init: expected shape ({k}, 6), got {jnp.shape(init)}")
+
+    # Only the targeted vertices are deformed inside the solver.
+    reduced = MotorField(field.weights[index], field.bound[index])
+    scale = jnp.linalg.norm(jnp.max(field.bound, axis=0) - jnp.min(field.bound, axis=0))
+
+    def motors_of(y) -> Multivector:
+        values = fixed_values.at[free].set(generators_to_motors(y).values)
+        return Multivector(values, KINDS["motor"])
+
+    def residuals(y, _):
+        r = ((reduced(motors_of(y)) - targets) / scale).ravel()
+        if regularization:
+            r = jnp.concatenate([r, jnp.sqrt(regularization) * y.ravel()])
+        return r
+
+    def loss(y, args):
+        r = residuals(y, args)
+        return jnp.sum(r * r)
+
+    opt = _solver(solver, rtol, atol)
+    if solver in ("levenberg_marquardt", "gauss_newton"):
+        sol = optx.least_squares(residuals, opt, y0, max_steps=max_steps, throw=False)
+    else:
+        sol = optx.minimise(loss, opt, y0, max_steps=max_steps, throw=False)
+    motors = motors_of(sol.value)
+    positions = field(motors)
+    dist = jnp.linalg.norm(positions[index] - targets, axis=-1)
+    return MotorFit(
+        generators=jnp.zeros((k, 6), dtype).at[free].set(sol.value),
+        motors=motors,
+        positions=positions,
+        max_error=jnp.max(dist),
+        rms_error=jnp.sqrt(jnp.mean(dist**2)),
+        steps=sol.stats["num_steps"],
+        converged=sol.result == optx.RESULTS.successful,
+    )

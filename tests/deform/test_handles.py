@@ -1,0 +1,122 @@
+"""Harmonic motor handles (deformation paper sec. IV) and fitting key motors to targets: the rest mesh
+from identity motors, rigid handles, the same motor everywhere is that rigid map, batches, gradients by
+finite differences, recovery of known handle motors by optimistix, bad input."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxcga as cga
+from deform._field_fitting import fit_key_motors, generators_to_motors
+from deform._handles import harmonic_handles
+from deform._harmonic import harmonic_fields
+from deform._motor_field import bind, identity_motors, motor_about
+from deform import default_arm
+from tests.shared import check_gradient
+
+ARM = default_arm().mesh
+V, F = np.asarray(ARM.V, np.float64), np.asarray(ARM.F)
+X = V[:, 0]
+HANDLES = [np.flatnonzero(X < 0.0), np.flatnonzero(X > 0.75), np.flatnonzero(np.abs(X - 0.4) < 0.01)]
+FIELD = harmonic_handles(V, F, HANDLES)
+
+
+def _motors(rng, k, rotation=0.5, translation=0.1):
+    generators = np.concatenate([rng.uniform(-rotation, rotation, (k, 3)),
+                                 rng.uniform(-translation, translation, (k, 3))], axis=1)
+    return generators_to_motors(jnp.asarray(generators))
+
+
+def test_weights_are_the_harmonic_fields_and_identity_motors_give_the_rest_mesh():
+    np.testing.assert_array_equal(FIELD.weights, harmonic_fields(V, F, HANDLES))
+    np.testing.assert_allclose(FIELD.weights.sum(axis=1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(FIELD(identity_motors(3)), V, atol=1e-14)
+
+
+@pytest.mark.parametrize("weights", ["cotangent", "mean_value"])
+def test_handle_vertices_move_rigidly_by_their_motor(weights):
+    field = harmonic_handles(V, F, HANDLES, weights=weights)
+    motors = _motors(np.random.default_rng(1), 3)
+    moved = np.asarray(field(motors))
+    for j, part in enumerate(HANDLES):
+        one = cga.Multivector(motors.values[j], motors.blades)
+        np.testing.assert_allclose(moved[part], cga.apply_to_points(one, V[part]), atol=1e-12)
+    # between the handles the motion blends: nowhere equal to a handle's rigid map
+    free = np.setdiff1d(np.arange(len(V)), np.concatenate(HANDLES))
+    rigid = [np.asarray(cga.apply_to_points(cga.Multivector(motors.values[j], motors.blades), V[free])) for j in range(3)]
+    assert all(np.abs(moved[free] - r).max() > 1e-3 for r in rigid)
+
+
+def test_the_same_motor_on_every_handle_is_that_rigid_map():
+    G = motor_about(jnp.array([0.3, 0.1, -0.2]), cga.rotor(jnp.array([1.0, 2.0, 0.5]), 2.5), jnp.array([0.4, 0, 1]))
+    motors = cga.Multivector(jnp.broadcast_to(G.values, (3, 8)), G.blades)
+    np.testing.assert_allclose(FIELD(motors), cga.apply_to_points(G, V), atol=1e-12)
+
+
+def test_binding_to_rest_motors_gives_back_the_rest_mesh():
+    rest = _motors(np.random.default_rng(2), 3)
+    bound = bind(V, FIELD.weights, rest)
+    np.testing.assert_allclose(bound(rest), V, atol=1e-12)
+    with pytest.raises(ValueError, match="rest_motors"):
+        bind(V, FIELD.weights, identity_motors(2))
+
+
+def test_batches_of_handle_motors_under_jit_and_vmap():
+    rng = np.random.default_rng(3)
+    batch = cga.Multivector(jnp.stack([_motors(rng, 3).values for _ in range(4)]), cga.KINDS["motor"])
+    one_by_one = np.stack([FIELD(cga.Multivector(batch.values[i], batch.blades)) for i in range(4)])
+    np.testing.assert_allclose(jax.jit(FIELD.__call__)(batch), one_by_one, atol=1e-12)  # leading batch axes
+    mapped = jax.vmap(lambda values: FIELD(cga.Multivector(values, batch.blades)))(batch.values)
+    np.testing.assert_allclose(mapped, one_by_one, atol=1e-12)
+
+
+def test_gradient_with_respect_to_handle_generators_matches_finite_differences():
+    rng = np.random.default_rng(4)
+    target = V + 0.05 * rng.normal(size=V.shape)
+    params0 = jnp.asarray(rng.uniform(-0.3, 0.3, 18))
+
+    def loss(params):
+        return jnp.sum((FIELD(generators_to_motors(params.reshape(3, 6))) - target) ** 2)
+
+    check_gradient(jax.jit(loss), params0)
+
+
+@pytest.mark.parametrize("solver", ["levenberg_marquardt", "bfgs"])
+def test_fit_recovers_known_handle_motors(solver):
+    rng = np.random.default_rng(5)
+    truth = np.zeros((3, 6))
+    truth[1:] = np.concatenate([rng.uniform(-0.4, 0.4, (2, 3)), rng.uniform(-0.1, 0.1, (2, 3))], axis=1)
+    targets = FIELD(generators_to_motors(jnp.asarray(truth)))
+    fit = fit_key_motors(FIELD, targets, free=[1, 2], solver=solver, max_steps=400)
+    diagonal = np.linalg.norm(V.max(axis=0) - V.min(axis=0))
+    assert float(fit.max_error) < 1e-6 * diagonal
+    np.testing.assert_allclose(fit.generators, truth, atol=1e-5)
+    np.testing.assert_allclose(fit.motors.values[0], identity_motors(1).values[0])  # the fixed region
+
+
+def test_fit_to_a_handful_of_vertices_with_a_regularizer():
+    tip = HANDLES[1][:3]
+    targets = V[tip] + np.array([0.0, 0.15, 0.05])
+    fit = fit_key_motors(FIELD, targets, tip, free=[1, 2], regularization=1e-6)
+    assert float(fit.max_error) < 1e-3
+    # the fixed handle stays where it is, the rest of the mesh moves smoothly
+    np.testing.assert_allclose(fit.positions[HANDLES[0]], V[HANDLES[0]], atol=1e-12)
+    assert np.all(np.isfinite(fit.positions))
+
+
+def test_bad_input():
+    with pytest.raises(ValueError, match="handles"):
+        harmonic_handles(V, F, [HANDLES[0], HANDLES[0]])
+    with pytest.raises(ValueError, match="key_motors"):
+        FIELD(identity_motors(2))
+    with pytest.raises(ValueError, match="targets"):
+        fit_key_motors(FIELD, V[:3], [0, 1])
+    with pytest.raises(ValueError, match="free"):
+        fit_key_motors(FIELD, V, free=[3])
+    with pytest.raises(ValueError, match="field"):
+        fit_key_motors("field", V)
+    with pytest.raises(ValueError, match="weights"):
+        bind(V, np.ones((len(V) - 1, 3)))
