@@ -7,10 +7,19 @@ Where things live: ``_model`` (bundles), ``_rig`` (TRS -> matrices / versors, fo
 clip sampling, keyframes; eq. 15), ``_skinning`` (eq. 16, eq. 17 in both variants, DQS), ``_pose``
 (model-level posing, batches over devices), ``_fitting`` (poses from target positions); from the
 mesh-deformation paper: ``_harmonic`` (harmonic fields, sec. VIII) on ``_sparse`` (a sparse system
-factored once on the host and solved from JAX).
+factored once on the host and solved from JAX); ``_motor_field`` (per-vertex ``exp(sum w log R)`` and the
+sec. III-A binding, shared by every motor deformation); ``_spline`` (spline-aligned deformation, eq. 1-2),
+``_spline_fit`` (B-spline fitting of key motors, eq. 3-5), ``_fabrik`` (FABRIK inverse kinematics, Fig.
+5), ``_handles`` (harmonic motor handles, sec. IV), ``_ffd`` (classic and motor FFD, eq. 6-8), ``_cage``
+(harmonic-coordinate cages, sec. VI); ``_field_fitting`` (key motors from target positions).
 """
 
+from deform._cage import Cage, cage_precompute, harmonic_coordinates, tube_cage
 from deform._default_arm import default_arm
+from deform._fabrik import chain_motors, fabrik, rotor_between
+from deform._ffd import (Lattice, bernstein, bounding_lattice, distortion, ffd_motor_field, ffd_positions, ffd_weights,
+                         lattice_coordinates, lattice_points, signed_volume, twist_lattice)
+from deform._field_fitting import MotorFit, fit_key_motors, generators_to_motors
 from deform._fitting import (
     PARAMETERS_PER_BONE,
     SOLVERS,
@@ -24,7 +33,9 @@ from deform._fitting import (
 from deform._gltf import convert_with_assimp, load_model, save_model, weld
 from deform._harmonic import (LAPLACIANS, HarmonicSolver, harmonic_fields, harmonic_precompute, laplacian,
                               mean_value_laplacian)
+from deform._handles import harmonic_handles
 from deform._model import AnimationClip, Channel, RiggedModel, Skeleton, SkinnedMesh
+from deform._motor_field import MotorField, bind, blend_motors, identity_motors, motor_about, motor_logs
 from deform._pose import METHODS, rest_pose, sample_pose, sharded_vmap, skin_model, skin_pose
 from deform._rig import (
     Keyframes,
@@ -48,44 +59,74 @@ from deform._rig import (
     versor_to_trs,
 )
 from deform._sparse import SparseSolver
+from deform._spline import BASES, clamped_knots, spline_parameter, spline_precompute, spline_weights
+from deform._spline_fit import SplineFit, spline_fit_precompute
 from deform._skinning import matrices_to_dual_quaternions, skin_cga, skin_cga_motor_blend, skin_dqs, skin_lbs
 
 __all__ = [
+    "BASES",
     "LAPLACIANS",
-    "HarmonicSolver",
-    "SparseSolver",
-    "harmonic_fields",
-    "harmonic_precompute",
-    "laplacian",
-    "mean_value_laplacian",
     "METHODS",
     "PARAMETERS_PER_BONE",
     "SOLVERS",
     "AnimationClip",
+    "Cage",
     "Channel",
+    "HarmonicSolver",
     "Keyframes",
+    "Lattice",
+    "MotorField",
+    "MotorFit",
     "PoseFit",
     "RiggedModel",
     "Skeleton",
     "SkinnedMesh",
+    "SparseSolver",
+    "SplineFit",
+    "bernstein",
+    "bind",
+    "blend_motors",
     "bounding_diagonal",
+    "bounding_lattice",
+    "cage_precompute",
+    "chain_motors",
+    "clamped_knots",
     "clip_from_poses",
     "convert_with_assimp",
     "default_arm",
+    "distortion",
+    "fabrik",
+    "ffd_motor_field",
+    "ffd_positions",
+    "ffd_weights",
+    "fit_key_motors",
     "fit_pose",
     "forward_kinematics",
     "forward_kinematics_matrices",
+    "generators_to_motors",
+    "harmonic_coordinates",
+    "harmonic_fields",
+    "harmonic_handles",
+    "harmonic_precompute",
+    "identity_motors",
     "inverse_bind_versors",
     "joint_matrices",
     "joint_versors",
+    "laplacian",
+    "lattice_coordinates",
+    "lattice_points",
     "load_model",
     "local_matrices",
     "local_versors",
     "matrices_to_dual_quaternions",
+    "mean_value_laplacian",
+    "motor_about",
+    "motor_logs",
     "pose_from_parameters",
     "quaternion_xyzw_to_matrix",
     "random_parameters",
     "rest_pose",
+    "rotor_between",
     "sample_channel",
     "sample_keyframes",
     "sample_matrices",
@@ -94,6 +135,7 @@ __all__ = [
     "sample_versors",
     "save_model",
     "sharded_vmap",
+    "signed_volume",
     "skin_cga",
     "skin_cga_motor_blend",
     "skin_dqs",
@@ -101,8 +143,14 @@ __all__ = [
     "skin_model",
     "skin_parameters",
     "skin_pose",
+    "spline_fit_precompute",
+    "spline_parameter",
+    "spline_precompute",
+    "spline_weights",
     "trs_to_matrix",
     "trs_to_versor",
+    "tube_cage",
+    "twist_lattice",
     "uniform_scale",
     "versor_to_trs",
     "weld",

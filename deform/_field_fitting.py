@@ -53,6 +53,29 @@ def generators_to_motors(generators: Float[Array, "... k 6"]) -> Multivector:
     return cga.exp_motor(Multivector(generators, cga.MOTOR_GENERATOR))
 
 
+class _FitData(eqx.Module):
+    field: MotorField  # restricted to the targeted vertices
+    targets: Float[Array, "t 3"]
+    fixed_values: Float[Array, "k 8"]
+    free: Int[Array, " f"]
+    scale: Float[Array, ""]
+    root_regularization: Float[Array, ""]
+
+
+def _motors_of(y, data: _FitData) -> Multivector:
+    return Multivector(data.fixed_values.at[data.free].set(generators_to_motors(y).values), KINDS["motor"])
+
+
+def _residuals(y, data: _FitData):
+    r = ((data.field(_motors_of(y, data)) - data.targets) / data.scale).ravel()
+    return jnp.concatenate([r, data.root_regularization * y.ravel()])
+
+
+def _loss(y, data: _FitData):
+    r = _residuals(y, data)
+    return jnp.sum(r * r)
+
+
 def fit_key_motors(
     field: MotorField,
     targets: Float[Array, "t 3"],
@@ -111,30 +134,18 @@ def fit_key_motors(
     if init is not None and jnp.shape(init) != (k, 6):
         raise ValueError(f"init: expected shape ({k}, 6), got {jnp.shape(init)}")
 
-    # Only the targeted vertices are deformed inside the solver.
-    reduced = MotorField(field.weights[index], field.bound[index])
-    scale = jnp.linalg.norm(jnp.max(field.bound, axis=0) - jnp.min(field.bound, axis=0))
-
-    def motors_of(y) -> Multivector:
-        values = fixed_values.at[free].set(generators_to_motors(y).values)
-        return Multivector(values, KINDS["motor"])
-
-    def residuals(y, _):
-        r = ((reduced(motors_of(y)) - targets) / scale).ravel()
-        if regularization:
-            r = jnp.concatenate([r, jnp.sqrt(regularization) * y.ravel()])
-        return r
-
-    def loss(y, args):
-        r = residuals(y, args)
-        return jnp.sum(r * r)
-
+    # Only the targeted vertices are deformed inside the solver. Everything travels as the solver's
+    # args and the residual is a module-level function, so a second fit of the same sizes reuses the
+    # compiled solver (closed-over arrays would also be folded into the code as constants).
+    data = _FitData(MotorField(field.weights[index], field.bound[index]), targets, fixed_values, jnp.asarray(free),
+                    jnp.linalg.norm(jnp.max(field.bound, axis=0) - jnp.min(field.bound, axis=0)),
+                    jnp.sqrt(jnp.asarray(regularization, dtype)))
     opt = _solver(solver, rtol, atol)
     if solver in ("levenberg_marquardt", "gauss_newton"):
-        sol = optx.least_squares(residuals, opt, y0, max_steps=max_steps, throw=False)
+        sol = optx.least_squares(_residuals, opt, y0, args=data, max_steps=max_steps, throw=False)
     else:
-        sol = optx.minimise(loss, opt, y0, max_steps=max_steps, throw=False)
-    motors = motors_of(sol.value)
+        sol = optx.minimise(_loss, opt, y0, args=data, max_steps=max_steps, throw=False)
+    motors = _motors_of(sol.value, data)
     positions = field(motors)
     dist = jnp.linalg.norm(positions[index] - targets, axis=-1)
     return MotorFit(

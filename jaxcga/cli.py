@@ -174,8 +174,23 @@ def _model_argument(p):
     p.add_argument("--weld", action="store_true", help="weld split vertices of the loaded model")
 
 
+def _run_deformation(args) -> int:
+    from deform import _deform_commands
+
+    V, F = _deform_commands.load_mesh(args.mesh)
+    summary = _deform_commands.deform_command(
+        args.method, V, F, args.out, bend=args.bend, twist=args.twist, translate=args.translate, basis=args.basis,
+        keys=args.keys, weights=args.weights, handle_fraction=args.handle_fraction, handles=args.handles,
+        lattice=args.lattice, cage=args.cage, positional=args.positional)
+    print(f"jaxcga deform {args.method} {args.mesh or 'built-in arm'}: "
+          + ", ".join(f"{k} {v}" for k, v in summary.items()))
+    return 0
+
+
 def _run_deform(args) -> int:
     _x64()
+    if args.command == "deform":
+        return _run_deformation(args)
     from deform import _commands
 
     # tear and drill walk across faces: split vertices along UV seams are always welded for them
@@ -285,6 +300,40 @@ def main(argv: list[str] | None = None) -> int:
                          help="fewest points around a hole before faces are split and drilled again (default 6)")
     p_drill.add_argument("--max-refinements", type=int, default=4, help="at most this many splits (default 4)")
     p_drill.add_argument("--out", type=Path, required=True, help="OUT.glb or OUT.gltf")
+
+    p_deform = sub.add_parser("deform", help="deform a mesh by motors: spline, harmonic handles, FFD or cage "
+                                             "(the deformation paper, sec. III-VI)")
+    p_deform.add_argument("method", choices=("spline", "handles", "ffd", "cage"),
+                          help="spline-aligned (eq. 1-2), harmonic motor handles (sec. IV), motor FFD (eq. 7-8), "
+                               "harmonic-coordinate cage (sec. VI)")
+    p_deform.add_argument("mesh", nargs="?", default=None,
+                          help="a mesh file (glTF: its bind-pose mesh; .obj, .ply, .stl, ...); "
+                               "default: the built-in arm")
+    p_deform.add_argument("--bend", type=float, default=60.0,
+                          help="degrees of bend across the long axis at its far end (default 60)")
+    p_deform.add_argument("--twist", type=float, default=0.0, help="degrees of twist about the long axis (default 0)")
+    p_deform.add_argument("--translate", type=float, nargs=3, default=(0.0, 0.0, 0.0), metavar=("X", "Y", "Z"),
+                          help="translation at the far end (default none)")
+    p_deform.add_argument("--basis", choices=("linear", "lagrange", "bezier", "bspline"), default="bspline",
+                          help="spline: weights of the key motors (default bspline)")
+    p_deform.add_argument("--keys", type=int, default=5, help="spline: number of B-spline key motors (default 5)")
+    p_deform.add_argument("--weights", choices=("cotangent", "mean_value"), default="cotangent",
+                          help="spline, handles: Laplacian weights of the harmonic fields (default cotangent)")
+    p_deform.add_argument("--handle-fraction", type=float, default=0.05,
+                          help="spline, handles: the end handles hold the vertices within this fraction of the "
+                               "long axis's ends (default 0.05)")
+    p_deform.add_argument("--handles", type=Path, default=None,
+                          help='handles: HANDLES.json {"handles": [[i, ...], ...], "motors": [{"center", "axis", '
+                               '"angle_deg", "translation"}, ...]} instead of the two ends')
+    p_deform.add_argument("--lattice", type=int, nargs=3, default=(4, 4, 4), metavar=("L", "M", "N"),
+                          help="ffd: control points per axis (default 4 4 4)")
+    p_deform.add_argument("--cage", type=Path, default=None,
+                          help="cage: a closed cage mesh around the model (default: a tube cage of 7 rings of 8 "
+                               "along the long axis, deform.tube_cage)")
+    p_deform.add_argument("--positional", action="store_true",
+                          help="ffd, cage: move control points / cage vertices instead (classic FFD, positional cage)")
+    p_deform.add_argument("--out", type=Path, required=True,
+                          help="OUT.glb/.obj/.ply/.stl: the deformed mesh; OUT.npy: float64 (n, 3); OUT.png: a figure")
 
     args = parser.parse_args(argv)
     if args.command == "demo":

@@ -46,7 +46,8 @@ def test_handle_vertices_move_rigidly_by_their_motor(weights):
         np.testing.assert_allclose(moved[part], cga.apply_to_points(one, V[part]), atol=1e-12)
     # between the handles the motion blends: nowhere equal to a handle's rigid map
     free = np.setdiff1d(np.arange(len(V)), np.concatenate(HANDLES))
-    rigid = [np.asarray(cga.apply_to_points(cga.Multivector(motors.values[j], motors.blades), V[free])) for j in range(3)]
+    rigid = [np.asarray(cga.apply_to_points(cga.Multivector(motors.values[j], motors.blades), V[free]))
+             for j in range(3)]
     assert all(np.abs(moved[free] - r).max() > 1e-3 for r in rigid)
 
 

@@ -1,0 +1,198 @@
+"""Harmonic-coordinate cages (deformation paper sec. VI): barycentric coordinates on a one-tet cage (closed
+form), partition of unity, linear precision, interpolation and non-negativity on a cube cage and a tube
+cage around the built-in arm, affine and rigid invariance of the positional and motor cages, locality,
+the paper's origin binding, jit / vmap / gradients by finite differences, float32, bad input."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import trimesh
+
+import deform
+import jaxcga as cga
+from deform._cage import Cage, cage_precompute, harmonic_coordinates, tube_cage
+from deform._motor_field import bind, identity_motors, motor_about
+from tests.shared import check_gradient
+
+ARM_V = np.asarray(deform.default_arm().mesh.V, np.float64)
+BOX = trimesh.creation.box(extents=(2.0, 2.0, 2.0))
+BOX_V, BOX_F = np.asarray(BOX.vertices), np.asarray(BOX.faces)
+TET_V = np.array([[0.1, -0.2, 0.0], [1.3, 0.1, -0.1], [0.2, 1.1, 0.3], [0.0, 0.2, 0.9]])
+TET_F = np.array([[0, 2, 1], [0, 1, 3], [1, 2, 3], [0, 3, 2]])
+
+
+TUBE_V, TUBE_F = tube_cage(ARM_V, axis=0)
+BOX_POINTS = np.random.default_rng(0).uniform(-0.95, 0.95, (300, 3))
+CAGES = {
+    "cube": (BOX_V, BOX_F, np.concatenate([BOX_POINTS, BOX_V])),
+    "arm": (TUBE_V, TUBE_F, np.concatenate([ARM_V, TUBE_V])),
+}
+BOUND = {name: cage_precompute(*args) for name, args in CAGES.items()}
+
+
+def _barycentric(P, X):
+    """Closed-form barycentric coordinates of points X in the tetrahedron P: [P^T; 1] l = [x; 1]."""
+    A = np.vstack([P.T, np.ones(4)])
+    return np.linalg.solve(A, np.vstack([X.T, np.ones(len(X))])).T
+
+
+def test_single_tetrahedron_cage_gives_barycentric_coordinates():
+    TV, TT, H = harmonic_coordinates(TET_V, TET_F, max_tet_volume=1e-3)
+    assert len(TV) > 50  # interior nodes exist, so the solve is tested
+    np.testing.assert_allclose(H, _barycentric(TET_V, TV), atol=1e-10)
+    X = np.random.default_rng(1).dirichlet(np.ones(4), 200) @ TET_V
+    cage = cage_precompute(TET_V, TET_F, X, max_tet_volume=1e-3)
+    np.testing.assert_allclose(cage.coords, _barycentric(TET_V, X), atol=1e-10)
+
+
+@pytest.mark.parametrize("name", ["cube", "arm"])
+def test_partition_of_unity_linear_precision_and_interpolation(name):
+    cage_V, _, V = CAGES[name]
+    coords = np.asarray(BOUND[name].coords)
+    np.testing.assert_allclose(coords.sum(axis=1), 1.0, atol=1e-12)
+    np.testing.assert_allclose(coords @ cage_V, V, atol=1e-10)
+    c = len(cage_V)
+    np.testing.assert_allclose(coords[-c:], np.eye(c), atol=1e-12)  # the cage vertices were appended to V
+
+
+@pytest.mark.parametrize("name", ["cube", "arm"])
+def test_coordinates_are_nonnegative_on_well_shaped_cages(name):
+    # piecewise-linear harmonic functions keep the maximum principle only on well-shaped tets: measured
+    # minimum 0 on both cages here; a convex hull of the arm (848 vertices, thin faces) gives about -0.4
+    cage_V, cage_F, _ = CAGES[name]
+    _, _, H = harmonic_coordinates(cage_V, cage_F)
+    assert H.min() >= -1e-12 and H.max() <= 1.0 + 1e-12
+    assert BOUND[name].coords.min() >= -1e-12
+
+
+def test_inward_oriented_cage_gives_the_same_coordinates():
+    flipped = cage_precompute(BOX_V, BOX_F[:, ::-1], BOX_POINTS)
+    np.testing.assert_allclose(flipped.coords, BOUND["cube"].coords[: len(BOX_POINTS)], atol=1e-12)
+
+
+def test_points_on_the_cage_up_to_round_off_take_the_face_coordinates():
+    on_face = np.array([[1.0, 0.3, -0.2], [0.1, -1.0, 0.7]])
+    normals = np.array([[1.0, 0, 0], [0, -1.0, 0]])
+    exact = cage_precompute(BOX_V, BOX_F, on_face).coords
+    outside = cage_precompute(BOX_V, BOX_F, on_face + 1e-13 * normals).coords
+    np.testing.assert_allclose(outside, exact, atol=1e-12)
+    np.testing.assert_allclose(np.asarray(outside) @ BOX_V, on_face, atol=1e-12)
+
+
+@pytest.mark.parametrize("name", ["cube", "arm"])
+def test_affine_map_of_the_cage_moves_the_mesh_by_it(name):
+    cage_V, _, V = CAGES[name]
+    rng = np.random.default_rng(2)
+    A, b = np.eye(3) + 0.3 * rng.normal(size=(3, 3)), rng.normal(size=3)
+    np.testing.assert_allclose(BOUND[name](cage_V @ A.T + b), V @ A.T + b, atol=1e-10)
+
+
+def _random_motor(rng):
+    logs = rng.normal(size=6)
+    return cga.exp_motor(cga.Multivector(jnp.asarray(logs), cga.MOTOR_GENERATOR))
+
+
+@pytest.mark.parametrize("name", ["cube", "arm"])
+def test_same_motor_on_every_cage_vertex_moves_the_mesh_rigidly(name):
+    cage: Cage = BOUND[name]
+    V = CAGES[name][2]
+    motor_deform = jax.jit(Cage.motor_deform)
+    np.testing.assert_allclose(motor_deform(cage, identity_motors(cage.rest.shape[0])), V, atol=1e-12)
+    G = _random_motor(np.random.default_rng(3))
+    motors = cga.Multivector(jnp.broadcast_to(G.values, (cage.rest.shape[0], G.values.shape[-1])), G.blades)
+    np.testing.assert_allclose(motor_deform(cage, motors), cga.apply_to_points(G, jnp.asarray(V)), atol=1e-10)
+
+
+def test_translator_cage_motors_equal_the_positional_cage_in_both_bindings():
+    cage = BOUND["arm"]
+    d = np.random.default_rng(4).normal(scale=0.05, size=TUBE_V.shape)
+    positional = cage(TUBE_V + d)
+    np.testing.assert_allclose(cage.motor_deform(cga.translator(jnp.asarray(d))), positional, atol=1e-10)
+    # the paper's p_i = M_i o ~M_i: rest motors T_{P_j} carry the origin to the vertices
+    paper = bind(jnp.asarray(CAGES["arm"][2]), cage.coords, cga.translator(jnp.asarray(TUBE_V)))
+    np.testing.assert_allclose(paper.bound, 0.0, atol=1e-12)
+    np.testing.assert_allclose(paper(cga.translator(jnp.asarray(TUBE_V + d))), positional, atol=1e-10)
+
+
+def test_local_motor_moves_points_near_its_cage_vertex_most():
+    cage, V = BOUND["arm"], ARM_V
+    j = 3 * 8 + 2  # a vertex of the middle ring
+    turn = motor_about(jnp.asarray(TUBE_V[j]), cga.rotor(jnp.array([0.0, 0.0, 1.0]), 0.6), jnp.array([0.0, 0.05, 0.0]))
+    values = identity_motors(len(TUBE_V)).values.at[j].set(turn.values)
+    moved = np.asarray(cage.motor_deform(cga.Multivector(values, turn.blades)))[: len(V)]
+    displacement = np.linalg.norm(moved - V, axis=1)
+    distance = np.linalg.norm(V - TUBE_V[j], axis=1)
+    near, far = distance < np.quantile(distance, 0.05), distance > np.quantile(distance, 0.5)
+    assert displacement[near].mean() > 10 * displacement[far].mean()
+    assert distance[np.argmax(displacement)] < np.quantile(distance, 0.05)
+
+
+def test_jit_and_vmap_over_batches_of_cage_positions_and_motors():
+    cage = BOUND["cube"]
+    rng = np.random.default_rng(5)
+    P = jnp.asarray(BOX_V + rng.normal(scale=0.1, size=(4, 8, 3)))
+    expected = np.stack([np.asarray(cage.coords) @ np.asarray(p) for p in P])
+    np.testing.assert_allclose(cage(P), expected, atol=1e-12)
+    np.testing.assert_allclose(jax.jit(Cage.__call__)(cage, P), expected, atol=1e-12)
+    np.testing.assert_allclose(jax.vmap(cage)(P), expected, atol=1e-12)
+    logs = jnp.asarray(rng.normal(scale=0.3, size=(4, 8, 6)))
+    motors = cga.exp_motor(cga.Multivector(logs, cga.MOTOR_GENERATOR))
+    deform_one = jax.jit(Cage.motor_deform)
+    one_by_one = np.stack([deform_one(cage, cga.Multivector(m, motors.blades)) for m in motors.values])
+    np.testing.assert_allclose(deform_one(cage, motors), one_by_one, atol=1e-12)  # batch axes lead
+    vmapped = jax.jit(jax.vmap(Cage.motor_deform, in_axes=(None, 0)))
+    np.testing.assert_allclose(vmapped(cage, motors), one_by_one, atol=1e-12)
+
+
+def test_gradients_against_finite_differences():
+    cage = cage_precompute(BOX_V, BOX_F, BOX_POINTS[:20])
+    target = jnp.asarray(BOX_POINTS[:20] + 0.1)
+    check_gradient(jax.jit(lambda p: jnp.sum(jnp.sin(cage(p.reshape(8, 3)) - target) ** 2)),
+                   jnp.asarray(BOX_V).ravel() * 1.1)
+
+    @jax.jit
+    def motor_loss(logs):
+        motors = cga.exp_motor(cga.Multivector(logs.reshape(8, 6), cga.MOTOR_GENERATOR))
+        return jnp.sum((cage.motor_deform(motors) - target) ** 2)
+
+    check_gradient(motor_loss, jnp.asarray(np.random.default_rng(6).normal(scale=0.3, size=48)))
+
+
+def test_float32_cage():
+    cage = jax.tree.map(lambda a: a.astype(jnp.float32), BOUND["arm"])
+    P = jnp.asarray(TUBE_V * 1.1, jnp.float32)
+    assert cage(P).dtype == jnp.float32
+    np.testing.assert_allclose(cage(P), BOUND["arm"](TUBE_V * 1.1), atol=1e-5)
+    motors = cga.exp_motor(cga.Multivector(jnp.full((len(TUBE_V), 6), 0.1, jnp.float32), cga.MOTOR_GENERATOR))
+    motor_deform = jax.jit(Cage.motor_deform)
+    out = motor_deform(cage, motors)
+    assert out.dtype == jnp.float32
+    reference = motor_deform(BOUND["arm"], jax.tree.map(lambda a: a.astype(jnp.float64), motors))
+    np.testing.assert_allclose(out, reference, atol=1e-5)
+
+
+def test_bad_input():
+    with pytest.raises(ValueError, match="cage_F: the cage must be a closed"):
+        cage_precompute(BOX_V, BOX_F[:-1], BOX_POINTS)
+    with pytest.raises(ValueError, match="V: 1 vertices lie outside the cage, the first is vertex 2"):
+        cage_precompute(BOX_V, BOX_F, np.array([[0.0, 0, 0], [0.5, 0.5, 0.5], [1.5, 0, 0]]))
+    with pytest.raises(ValueError, match=r"cage_V: expected finite positions of shape \(c, 3\)"):
+        cage_precompute(BOX_V[:, :2], BOX_F, BOX_POINTS)
+    with pytest.raises(ValueError, match=r"V: expected finite positions of shape \(n, 3\)"):
+        cage_precompute(BOX_V, BOX_F, BOX_POINTS[:, :2])
+    with pytest.raises(ValueError, match="cage_F: expected integer faces"):
+        cage_precompute(BOX_V, BOX_F.astype(float), BOX_POINTS)
+    with pytest.raises(ValueError, match="max_tet_volume"):
+        cage_precompute(BOX_V, BOX_F, BOX_POINTS, max_tet_volume=2.0)
+    with pytest.raises(ValueError, match="subdivisions"):
+        cage_precompute(BOX_V, BOX_F, BOX_POINTS, subdivisions=-1)
+    with pytest.raises(ValueError, match="cage_V: vertex 8 is on no face"):
+        cage_precompute(np.concatenate([BOX_V, [[0.0, 0, 0]]]), BOX_F, BOX_POINTS)
+    cage = BOUND["cube"]
+    with pytest.raises(ValueError, match=r"P: expected cage positions of shape \(\.\.\., 8, 3\)"):
+        cage(jnp.zeros((7, 3)))
+    with pytest.raises(ValueError, match="key_motors"):
+        cage.motor_deform(identity_motors(7))
