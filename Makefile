@@ -28,6 +28,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/bench_kernel.py --json out/bench/kernel.json
 	$(PY) benchmarks/bench_skinning.py --json out/bench/skinning.json
 	$(PY) benchmarks/bench_cutting.py --json out/bench/cutting.json
+	$(PY) benchmarks/bench_deform.py --json out/bench/deform.json
 
 clean:
 	rm -rf $(VENV) out .pytest_cache

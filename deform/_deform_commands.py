@@ -114,7 +114,7 @@ def _handles_file(path: Path, n: int):
 
 
 def deform_command(method: str, V, F, out: Path, *, bend: float = 60.0, twist: float = 0.0,
-                   translate=(0.0, 0.0, 0.0), basis: str = "bspline", keys: int = 5, weights: str = "cotangent",
+                   translate=(0.0, 0.0, 0.0), basis: str = "bspline", keys: int | None = None, weights: str = "cotangent",
                    handle_fraction: float = 0.05, handles: Path | None = None, lattice=(4, 4, 4),
                    cage: Path | None = None, positional: bool = False) -> dict:
     """Bind (V, F) by ``method`` (one of ``DEFORMATIONS``), move the keys, write ``out``; returns a
@@ -129,6 +129,8 @@ def deform_command(method: str, V, F, out: Path, *, bend: float = 60.0, twist: f
     start = time.perf_counter()
     if method == "spline":
         first, last = _end_handles(motion, V, handle_fraction)
+        if keys is None and basis == "bspline":
+            keys = 5
         field = spline_precompute(V, F, first, last, basis=basis, num_keys=keys, laplacian=weights)
         key_motors = motion.motors(np.linspace(0.0, 1.0, field.num_keys))
     elif method == "handles":

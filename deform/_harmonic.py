@@ -67,14 +67,15 @@ def mean_value_laplacian(V, F) -> sp.csr_matrix:
     return (W - sp.diags(np.asarray(W.sum(axis=1)).ravel())).tocsr()
 
 
-def laplacian(V, F, weights: str = "cotangent") -> sp.csr_matrix:
-    """The mesh Laplacian (n, n) with ``weights`` in ``LAPLACIANS``; rows sum to zero."""
+def laplacian(V, F, weights: str = "cotangent") -> sp.sparray:
+    """The mesh Laplacian (n, n) with ``weights`` in ``LAPLACIANS``; rows sum to zero (a scipy sparse
+    matrix: CSC for cotangent weights, as libigl returns it; CSR for mean-value weights)."""
     if weights not in LAPLACIANS:
         raise ValueError(f"weights: expected one of {LAPLACIANS}, got {weights!r}")
     if weights == "mean_value":
         return mean_value_laplacian(V, F)
     V, F = _check_mesh(V, F)
-    return sp.csr_matrix(igl.cotmatrix(V, F))
+    return sp.csc_matrix(igl.cotmatrix(V, F))
 
 
 class HarmonicSolver:
@@ -88,15 +89,28 @@ class HarmonicSolver:
         is_free = np.ones(n, bool)
         is_free[constrained] = False
         self.free = np.flatnonzero(is_free)  # a mask, not setdiff1d: that sorts (0.1 s at 160k)
-        L = sp.csr_matrix(L)
-        self._coupling = L[self.free][:, constrained].tocsr()  # L_fc
-        self._solve = SparseSolver(-L[self.free][:, self.free], symmetric=symmetric)
+        L = sp.csc_matrix(L)  # columns, then rows: 7 ms at 130k vertices, against 50 ms for rows first on CSR
+        self._coupling = L[:, constrained][self.free].tocsr()  # L_fc
+        self._solve = SparseSolver(-L[:, self.free][self.free], symmetric=symmetric)
 
-    def __call__(self, bc):
-        bc = jnp.asarray(bc)
+    def _check_bc(self, bc):
         if bc.ndim not in (1, 2) or bc.shape[0] != len(self.constrained):
             raise ValueError(f"bc: expected shape ({len(self.constrained)},) or ({len(self.constrained)}, h), "
                              f"got {bc.shape}")
+
+    def host(self, bc) -> np.ndarray:
+        """The fields for boundary values known on the host, in numpy (float64): the same values as a
+        call, without JAX's per-operation dispatch (85 ms at 130k vertices)."""
+        bc = np.asarray(bc, np.float64)
+        self._check_bc(bc)
+        out = np.empty((self.n,) + bc.shape[1:])
+        out[self.constrained] = bc
+        out[self.free] = self._solve.host_solve(self._coupling @ bc)
+        return out
+
+    def __call__(self, bc):
+        bc = jnp.asarray(bc)
+        self._check_bc(bc)
         if not jnp.issubdtype(bc.dtype, jnp.floating):
             bc = bc.astype(jnp.float64)
         coupling = _sparse_matmul(self._coupling, bc)
@@ -166,4 +180,4 @@ def harmonic_fields(V, F, handles: Sequence, weights: str = "cotangent"):
         raise ValueError("handles: the handles must be disjoint (a vertex is in two handles or twice in one)")
     bc = np.zeros((len(constrained), len(parts)))
     bc[np.arange(len(constrained)), np.repeat(np.arange(len(parts)), [len(p) for p in parts])] = 1.0
-    return harmonic_precompute(V, F, constrained, weights)(jnp.asarray(bc))
+    return jnp.asarray(harmonic_precompute(V, F, constrained, weights).host(bc))  # constant bc: no autodiff needed

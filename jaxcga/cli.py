@@ -316,7 +316,9 @@ def main(argv: list[str] | None = None) -> int:
                           help="translation at the far end (default none)")
     p_deform.add_argument("--basis", choices=("linear", "lagrange", "bezier", "bspline"), default="bspline",
                           help="spline: weights of the key motors (default bspline)")
-    p_deform.add_argument("--keys", type=int, default=5, help="spline: number of B-spline key motors (default 5)")
+    p_deform.add_argument("--keys", type=int, default=None,
+                          help="spline: number of key motors for bezier / bspline (default 4 / 5; linear has 2, "
+                               "lagrange 3)")
     p_deform.add_argument("--weights", choices=("cotangent", "mean_value"), default="cotangent",
                           help="spline, handles: Laplacian weights of the harmonic fields (default cotangent)")
     p_deform.add_argument("--handle-fraction", type=float, default=0.05,

@@ -97,7 +97,7 @@ def test_the_solve_is_a_differentiable_batched_jax_function(weights):
         return jnp.sum(jnp.sin(solver(values)) * probe)
 
     params = jnp.asarray(np.random.default_rng(2).uniform(size=len(b)))
-    check_gradient(loss, params, rtol=1e-6)
+    check_gradient(jax.jit(loss), params, rtol=1e-6)
 
 
 def test_sparse_solver_checks_its_input():
