@@ -32,10 +32,11 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
+from _report import RATIO_UNIT, add_json_argument, write_json  # noqa: E402
+
 import cutting  # noqa: E402
 import deform  # noqa: E402
 import jaxcga as cga  # noqa: E402
-from _report import RATIO_UNIT, add_json_argument, write_json  # noqa: E402
 
 TARGET_FPS = 30.0
 

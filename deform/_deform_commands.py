@@ -114,8 +114,8 @@ def _handles_file(path: Path, n: int):
 
 
 def deform_command(method: str, V, F, out: Path, *, bend: float = 60.0, twist: float = 0.0,
-                   translate=(0.0, 0.0, 0.0), basis: str = "bspline", keys: int | None = None, weights: str = "cotangent",
-                   handle_fraction: float = 0.05, handles: Path | None = None, lattice=(4, 4, 4),
+                   translate=(0.0, 0.0, 0.0), basis: str = "bspline", keys: int | None = None,
+                   weights: str = "cotangent", handle_fraction: float = 0.05, handles: Path | None = None, lattice=(4, 4, 4),
                    cage: Path | None = None, positional: bool = False) -> dict:
     """Bind (V, F) by ``method`` (one of ``DEFORMATIONS``), move the keys, write ``out``; returns a
     summary (vertices, keys, precompute and per-frame milliseconds, volume and edge-length change)."""

@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 
 import jaxcga as cga
+from deform import default_arm
 from deform._field_fitting import fit_key_motors, generators_to_motors
 from deform._handles import harmonic_handles
 from deform._harmonic import harmonic_fields
 from deform._motor_field import bind, identity_motors, motor_about
-from deform import default_arm
 from tests.shared import check_gradient
 
 ARM = default_arm().mesh
