@@ -20,7 +20,7 @@ import optimistix as optx
 from jaxtyping import Array, Float, Int
 
 import jaxcga as cga
-from deform._fitting import SOLVERS, _solver
+from deform._fitting import SOLVERS, check_targets, run_solver
 from deform._motor_field import MotorField, identity_motors
 from jaxcga import KINDS, Multivector
 
@@ -71,11 +71,6 @@ def _residuals(y, data: _FitData):
     return jnp.concatenate([r, data.root_regularization * y.ravel()])
 
 
-def _loss(y, data: _FitData):
-    r = _residuals(y, data)
-    return jnp.sum(r * r)
-
-
 def fit_key_motors(
     field: MotorField,
     targets: Float[Array, "t 3"],
@@ -108,16 +103,7 @@ def fit_key_motors(
         raise ValueError(f"field: expected a deform.MotorField, got {type(field).__name__}")
     n, k = field.bound.shape[0], field.num_keys
     dtype = field.weights.dtype
-    targets = jnp.asarray(targets, dtype)
-    index = np.arange(n) if vertices is None else np.asarray(vertices)
-    if index.ndim != 1 or not np.issubdtype(index.dtype, np.integer):
-        raise ValueError(f"vertices: expected a (t,) integer array, got {index.dtype} {index.shape}")
-    if index.size and (index.min() < 0 or index.max() >= n):
-        raise ValueError(f"vertices: indices must lie in [0, {n})")
-    if targets.shape != (len(index), 3):
-        raise ValueError(f"targets: expected shape ({len(index)}, 3), got {targets.shape}")
-    if not bool(jnp.all(jnp.isfinite(targets))):
-        raise ValueError("targets: contains NaN or infinity")
+    targets, index = check_targets(targets, vertices, n, dtype)
     free = np.arange(k) if free is None else np.asarray(free).reshape(-1)
     if not np.issubdtype(free.dtype, np.integer) or len(free) == 0 or free.min() < 0 or free.max() >= k \
             or len(np.unique(free)) != len(free):
@@ -140,11 +126,7 @@ def fit_key_motors(
     data = _FitData(MotorField(field.weights[index], field.bound[index]), targets, fixed_values, jnp.asarray(free),
                     jnp.linalg.norm(jnp.max(field.bound, axis=0) - jnp.min(field.bound, axis=0)),
                     jnp.sqrt(jnp.asarray(regularization, dtype)))
-    opt = _solver(solver, rtol, atol)
-    if solver in ("levenberg_marquardt", "gauss_newton"):
-        sol = optx.least_squares(_residuals, opt, y0, args=data, max_steps=max_steps, throw=False)
-    else:
-        sol = optx.minimise(_loss, opt, y0, args=data, max_steps=max_steps, throw=False)
+    sol = run_solver(_residuals, solver, y0, data, max_steps, rtol, atol)
     motors = _motors_of(sol.value, data)
     positions = field(motors)
     dist = jnp.linalg.norm(positions[index] - targets, axis=-1)

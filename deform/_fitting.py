@@ -14,6 +14,7 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 import optimistix as optx
 from jaxtyping import Array, Float, Int
 
@@ -88,6 +89,36 @@ def _solver(name: str, rtol: float, atol: float):
     raise ValueError(f"solver: expected one of {SOLVERS}, got {name!r}")
 
 
+def check_targets(targets, vertices, n: int, dtype):
+    """Targets (t, 3) and the vertex indices (t,) they belong to (all n vertices when None), checked."""
+    targets = jnp.asarray(targets, dtype)
+    index = np.arange(n) if vertices is None else np.asarray(vertices)
+    if index.ndim != 1 or not np.issubdtype(index.dtype, np.integer):
+        raise ValueError(f"vertices: expected a (t,) integer array, got {index.dtype} {index.shape}")
+    if index.size and (index.min() < 0 or index.max() >= n):
+        raise ValueError(f"vertices: indices must lie in [0, {n})")
+    if targets.shape != (len(index), 3):
+        raise ValueError(f"targets: expected shape ({len(index)}, 3), got {targets.shape}")
+    if not bool(jnp.all(jnp.isfinite(targets))):
+        raise ValueError("targets: contains NaN or infinity")
+    return targets, index
+
+
+def run_solver(residuals, name: str, y0, args, max_steps: int, rtol: float, atol: float):
+    """optimistix on ``residuals(y, args)``: least squares for Levenberg-Marquardt / Gauss-Newton, else
+    minimisation of the squared residual (BFGS, gradient descent). Returns the solution object."""
+    opt = _solver(name, rtol, atol)
+    if name in ("levenberg_marquardt", "gauss_newton"):
+        return optx.least_squares(residuals, opt, y0, args=args, max_steps=max_steps, throw=False)
+    return optx.minimise(_squared, opt, y0, args=(residuals, args), max_steps=max_steps, throw=False)
+
+
+def _squared(y, residuals_and_args):
+    residuals, args = residuals_and_args
+    r = residuals(y, args)
+    return jnp.sum(r * r)
+
+
 def fit_pose(
     model: RiggedModel,
     targets: Float[Array, "t 3"],
@@ -119,16 +150,7 @@ def fit_pose(
         a PoseFit."""
     n = model.mesh.num_vertices
     b = model.skeleton.num_bones
-    targets = jnp.asarray(targets)
-    index = jnp.arange(n) if vertices is None else jnp.asarray(vertices)
-    if not jnp.issubdtype(index.dtype, jnp.integer) or index.ndim != 1:
-        raise ValueError(f"vertices: expected a (t,) integer array, got {index.dtype} {index.shape}")
-    if targets.shape != (index.shape[0], 3):
-        raise ValueError(f"targets: expected shape ({index.shape[0]}, 3), got {targets.shape}")
-    if not bool(jnp.all(jnp.isfinite(targets))):
-        raise ValueError("targets: contains NaN or infinity")
-    if index.size and (int(index.min()) < 0 or int(index.max()) >= n):
-        raise ValueError(f"vertices: indices must lie in [0, {n})")
+    targets, index = check_targets(targets, vertices, n, model.mesh.V.dtype)
     if regularization < 0:
         raise ValueError(f"regularization: expected >= 0, got {regularization}")
     _pose._check_method(method)
@@ -157,15 +179,7 @@ def fit_pose(
             r = jnp.concatenate([r, jnp.sqrt(regularization) * y.ravel()])
         return r
 
-    def loss(y, args):
-        r = residuals(y, args)
-        return jnp.sum(r * r)
-
-    opt = _solver(solver, rtol, atol)
-    if solver in ("levenberg_marquardt", "gauss_newton"):
-        sol = optx.least_squares(residuals, opt, y0, max_steps=max_steps, throw=False)
-    else:
-        sol = optx.minimise(loss, opt, y0, max_steps=max_steps, throw=False)
+    sol = run_solver(residuals, solver, y0, None, max_steps, rtol, atol)
     params = full(sol.value)
     local = pose_from_parameters(model, params)
     positions = _pose.skin_pose(model, local, method)
