@@ -29,6 +29,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/bench_skinning.py --json out/bench/skinning.json
 	$(PY) benchmarks/bench_cutting.py --json out/bench/cutting.json
 	$(PY) benchmarks/bench_deform.py --json out/bench/deform.json
+	$(PY) benchmarks/bench_arap.py --json out/bench/arap.json
 
 clean:
 	rm -rf $(VENV) out .pytest_cache

@@ -11,57 +11,102 @@ factored once on the host and solved from JAX); ``_motor_field`` (per-vertex ``e
 sec. III-A binding, shared by every motor deformation); ``_spline`` (spline-aligned deformation, eq. 1-2),
 ``_spline_fit`` (B-spline fitting of key motors, eq. 3-5), ``_fabrik`` (FABRIK inverse kinematics, Fig.
 5), ``_handles`` (harmonic motor handles, sec. IV), ``_ffd`` (classic and motor FFD, eq. 6-8), ``_cage``
-(harmonic-coordinate cages, sec. VI); ``_field_fitting`` (key motors from target positions).
+(harmonic-coordinate cages, sec. VI); ``_field_fitting`` (key motors from target positions); ``_arap``
+(as-rigid-as-possible modeling with rotors, sec. VII).
 """
 
+from deform._arap import ARAPData, ARAPResult, arap_precompute, arap_solve, horn_rotors
 from deform._cage import Cage, cage_precompute, harmonic_coordinates, tube_cage
 from deform._default_arm import default_arm
 from deform._fabrik import chain_motors, fabrik, rotor_between
-from deform._ffd import (Lattice, bernstein, bounding_lattice, distortion, ffd_motor_field, ffd_positions, ffd_weights,
-                         lattice_coordinates, lattice_points, signed_volume, twist_lattice)
+from deform._ffd import (
+                         Lattice,
+                         bernstein,
+                         bounding_lattice,
+                         distortion,
+                         ffd_motor_field,
+                         ffd_positions,
+                         ffd_weights,
+                         lattice_coordinates,
+                         lattice_points,
+                         signed_volume,
+                         twist_lattice,
+)
 from deform._field_fitting import MotorFit, fit_key_motors, generators_to_motors
 from deform._fitting import (
-    PARAMETERS_PER_BONE,
-    SOLVERS,
-    PoseFit,
-    bounding_diagonal,
-    fit_pose,
-    pose_from_parameters,
-    random_parameters,
-    skin_parameters,
+                         PARAMETERS_PER_BONE,
+                         SOLVERS,
+                         PoseFit,
+                         bounding_diagonal,
+                         fit_pose,
+                         pose_from_parameters,
+                         random_parameters,
+                         skin_parameters,
 )
 from deform._gltf import convert_with_assimp, load_model, save_model, weld
-from deform._harmonic import (LAPLACIANS, HarmonicSolver, harmonic_fields, harmonic_precompute, laplacian,
-                              mean_value_laplacian)
 from deform._handles import harmonic_handles
+from deform._harmonic import (
+                         LAPLACIANS,
+                         HarmonicSolver,
+                         harmonic_fields,
+                         harmonic_precompute,
+                         laplacian,
+                         mean_value_laplacian,
+)
 from deform._model import AnimationClip, Channel, RiggedModel, Skeleton, SkinnedMesh
-from deform._motor_field import MotorField, bind, blend_motors, identity_motors, motor_about, motor_logs
-from deform._pose import METHODS, rest_pose, sample_pose, sharded_vmap, skin_model, skin_pose
+from deform._motor_field import (
+                         MotorField,
+                         bind,
+                         blend_motors,
+                         identity_motors,
+                         motor_about,
+                         motor_logs,
+)
+from deform._pose import (
+                         METHODS,
+                         rest_pose,
+                         sample_pose,
+                         sharded_vmap,
+                         skin_model,
+                         skin_pose,
+)
 from deform._rig import (
-    Keyframes,
-    clip_from_poses,
-    forward_kinematics,
-    forward_kinematics_matrices,
-    inverse_bind_versors,
-    joint_matrices,
-    joint_versors,
-    local_matrices,
-    local_versors,
-    quaternion_xyzw_to_matrix,
-    sample_channel,
-    sample_keyframes,
-    sample_matrices,
-    sample_trs,
-    sample_versors,
-    trs_to_matrix,
-    trs_to_versor,
-    uniform_scale,
-    versor_to_trs,
+                         Keyframes,
+                         clip_from_poses,
+                         forward_kinematics,
+                         forward_kinematics_matrices,
+                         inverse_bind_versors,
+                         joint_matrices,
+                         joint_versors,
+                         local_matrices,
+                         local_versors,
+                         quaternion_xyzw_to_matrix,
+                         sample_channel,
+                         sample_keyframes,
+                         sample_matrices,
+                         sample_trs,
+                         sample_versors,
+                         trs_to_matrix,
+                         trs_to_versor,
+                         uniform_scale,
+                         versor_to_trs,
+)
+from deform._skinning import (
+                         matrices_to_dual_quaternions,
+                         skin_cga,
+                         skin_cga_motor_blend,
+                         skin_dqs,
+                         skin_lbs,
 )
 from deform._sparse import SparseSolver
-from deform._spline import BASES, clamped_knots, spline_parameter, spline_precompute, spline_weights
+from deform._spline import (
+                         BASES,
+                         clamped_knots,
+                         spline_parameter,
+                         spline_precompute,
+                         spline_weights,
+)
 from deform._spline_fit import SplineFit, spline_fit_precompute
-from deform._skinning import matrices_to_dual_quaternions, skin_cga, skin_cga_motor_blend, skin_dqs, skin_lbs
 
 __all__ = [
     "BASES",
@@ -69,6 +114,8 @@ __all__ = [
     "METHODS",
     "PARAMETERS_PER_BONE",
     "SOLVERS",
+    "ARAPData",
+    "ARAPResult",
     "AnimationClip",
     "Cage",
     "Channel",
@@ -83,6 +130,8 @@ __all__ = [
     "SkinnedMesh",
     "SparseSolver",
     "SplineFit",
+    "arap_precompute",
+    "arap_solve",
     "bernstein",
     "bind",
     "blend_motors",
@@ -105,6 +154,7 @@ __all__ = [
     "forward_kinematics_matrices",
     "generators_to_motors",
     "harmonic_coordinates",
+    "horn_rotors",
     "harmonic_fields",
     "harmonic_handles",
     "harmonic_precompute",

@@ -1,0 +1,117 @@
+"""ARAP benchmark (deformation paper sec. VII) against libigl's Python bindings in the same run: the
+precompute and the time per iteration on ~10k- and ~40k-vertex meshes (welded Arm5, midpoint
+subdivided), spokes energy, the shoulder fixed and the hand moved and turned.
+
+Per iteration: ours is ``arap_solve`` jitted with a fixed iteration count (tolerance < 0 runs them
+all), K iterations timed and divided by K; libigl's ``arap_solve`` with ``max_iter = K`` likewise.
+Medians over interleaved repeats. Ratios are baseline time / ours (> 1: we are faster).
+
+    python benchmarks/bench_arap.py [--iterations 10] [--repeats 5] [--json out/bench/arap.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+import igl  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+import trimesh  # noqa: E402
+from scipy.spatial.transform import Rotation  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from _report import RATIO_UNIT, add_json_argument, write_json  # noqa: E402
+
+import deform  # noqa: E402
+
+
+def subdivided_arm5(min_vertices: int):
+    """Welded Arm5, midpoint-subdivided until it has at least ``min_vertices`` vertices: (V, F)."""
+    mesh = deform.load_model(ROOT / "tests" / "data" / "Arm5.glb", weld=True).mesh
+    V, F = np.asarray(mesh.V, np.float64), np.asarray(mesh.F, np.int64)
+    while len(V) < min_vertices:
+        V, F = trimesh.remesh.subdivide(V, F)
+    return V, F
+
+
+def handles(V):
+    """Fixed shoulder (y < 2), hand (y > 60) turned by 40 degrees about x and lifted: (b, bc)."""
+    y = V[:, 1]
+    fixed, hand = np.flatnonzero(y < 2.0), np.flatnonzero(y > 60.0)
+    pivot = np.array([0.0, 55.0, 0.0])
+    moved = Rotation.from_rotvec([np.radians(40), 0, 0]).apply(V[hand] - pivot) + pivot + [0.0, 0.0, 5.0]
+    return np.concatenate([fixed, hand]), np.concatenate([V[fixed], moved])
+
+
+def timed(fn, repeats: int):
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - start)
+    return statistics.median(times)
+
+
+def run(sizes: dict, iterations: int, repeats: int):
+    figures, ratios, units = {}, {}, {}
+    for tag, size in sizes.items():
+        V, F = subdivided_arm5(size)
+        b, bc = handles(V)
+        U0 = V.copy()
+        U0[b] = bc
+
+        def igl_precompute():
+            data = igl.ARAPData()
+            data.energy = igl.ARAP_ENERGY_TYPE_SPOKES
+            data.max_iter = iterations
+            igl.arap_precomputation(V, F, 3, b, data)
+            return data
+
+        data_igl = igl_precompute()
+        ours = deform.arap_precompute(V, F, b)
+        solve = jax.jit(lambda c, x0: deform.arap_solve(ours, c, x0, max_iterations=iterations, tolerance=-1.0).U)
+        jax.block_until_ready(solve(jnp.asarray(bc), jnp.asarray(U0)))
+        difference = np.abs(np.asarray(solve(jnp.asarray(bc), jnp.asarray(U0)))
+                            - igl.arap_solve(bc, data_igl, U0)).max() / np.linalg.norm(np.ptp(V, axis=0))
+        t = {"pre_ours": [], "pre_igl": [], "it_ours": [], "it_igl": []}
+        for _ in range(repeats):
+            t["pre_ours"].append(timed(lambda: deform.arap_precompute(V, F, b), 1))
+            t["pre_igl"].append(timed(igl_precompute, 1))
+            t["it_ours"].append(timed(lambda: jax.block_until_ready(solve(jnp.asarray(bc), jnp.asarray(U0))), 1)
+                                / iterations)
+            t["it_igl"].append(timed(lambda: igl.arap_solve(bc, data_igl, U0), 1) / iterations)
+        m = {k: statistics.median(v) for k, v in t.items()}
+        figures.update({f"precompute_{tag}_s": m["pre_ours"], f"precompute_igl_{tag}_s": m["pre_igl"],
+                        f"iteration_{tag}_ms": 1e3 * m["it_ours"], f"iteration_igl_{tag}_ms": 1e3 * m["it_igl"],
+                        f"vertices_{tag}": float(len(V))})
+        units.update({f"precompute_{tag}_s": "s", f"precompute_igl_{tag}_s": "s", f"iteration_{tag}_ms": "ms",
+                      f"iteration_igl_{tag}_ms": "ms", f"vertices_{tag}": "count"})
+        ratios[f"iteration_vs_igl_{tag}"] = m["it_igl"] / m["it_ours"]
+        ratios[f"precompute_vs_igl_{tag}"] = m["pre_igl"] / m["pre_ours"]
+        print(f"{tag} ({len(V)} vertices): precompute ours {m['pre_ours']:.3f} s, igl {m['pre_igl']:.3f} s -> "
+              f"{ratios[f'precompute_vs_igl_{tag}']:.2f}x; per iteration ours {1e3 * m['it_ours']:.2f} ms, "
+              f"igl {1e3 * m['it_igl']:.2f} ms -> {ratios[f'iteration_vs_igl_{tag}']:.2f}x; "
+              f"after {iterations} iterations ours - igl = {difference:.1e} of the diagonal")
+    return {"figures": figures, "ratios": ratios, "units": units | {k: RATIO_UNIT for k in ratios}}
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--iterations", type=int, default=10, help="ARAP iterations per timed solve")
+    parser.add_argument("--repeats", type=int, default=5, help="timed repeats (medians)")
+    add_json_argument(parser)
+    args = parser.parse_args(argv)
+    write_json(args.json, run({"10k": 10_000, "40k": 40_000}, args.iterations, args.repeats))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,276 @@
+"""As-rigid-as-possible surface modeling with rotors: sec. VII of the CGA mesh-deformation paper
+(eq. 9-13), after Sorkine & Alexa 2007, with libigl's precompute / solve split.
+
+Energy (eq. 9, 11), the "spokes" energy of libigl (``igl.ARAP_ENERGY_TYPE_SPOKES``)::
+
+    E(p') = sum_i sum_{j in N(i)} w_ij |v'_ij - M_i v_ij ~M_i|^2,   v_ij = p_i - p_j,
+
+with ``w_ij = (cot a_ij + cot b_ij) / 2`` the off-diagonal of ``igl.cotmatrix`` and one rotor M_i per
+vertex. Each iteration alternates
+
+* local step: M_i maximizes ``sum_j w_ij (M_i v_ij ~M_i) . v'_ij``; it is the eigenvector of the
+  largest eigenvalue of Horn's symmetric 4x4 matrix P built from ``S = sum_j w_ij v_ij v'_ij^T``
+  (the paper's P), read as the rotor ``q0 - qz e12 - qx e23 - qy e31``. Batched over all vertices in
+  closed form: P is traceless, its largest eigenvalue is the largest root of the characteristic
+  quartic ``l^4 - 2|S|^2 l^2 - 8 det(S) l + det(P)``, found by Newton's method from the upper bound
+  ``sqrt(3) |S|_F`` (monotone for a polynomial with real roots), and the eigenvector is a column of
+  the adjugate of ``P - l I`` (rank one, ``c q q^T``, when the eigenvalue is simple). The same
+  eigenvalue gives the energy for free: ``E = sum w (|v'|^2 + |v|^2) - 2 sum_i l_i``.
+* global step (eq. 12): ``sum_j w_ij v'_ij = sum_j w_ij / 2 (M_i v_ij ~M_i + M_j v_ij ~M_j)``, i.e.
+  ``-L p' = C`` with L the cotangent Laplacian. The handle constraints ``p'_b = bc`` are substituted
+  (rows and columns of b removed, their columns moved to the right-hand side); ``-L_ff`` is positive
+  definite and factored once (CHOLMOD) in ``arap_precompute``. (Eq. 13's normal equations are not
+  needed: after substitution the system is square.)
+
+libigl's conventions, matched here (checked against ``igl.arap_solve`` in the tests): an iteration is
+"place the handles, local step on the current positions, global step"; ``max_iter`` counts these
+iterations; the initial guess is the caller's U0 (libigl's default for an empty U0 is zero; ours is
+the rest positions with the handles placed). libigl fits rotations with a single-precision 3x3 SVD,
+so agreement is to about 1e-7 relative, not to float64 round-off.
+
+Gradients of the converged positions with respect to ``bc`` are implicit at the fixed point
+``x* = G(x*, bc)`` (G = one local + global iteration): the adjoint ``(I - dG/dx)^T u = g`` is solved with
+GMRES (lineax) whose matrix-vector products are vjp's of G (each one back-substitution with the same
+factorization), and the gradient is ``(dG/dbc)^T u``. The loop is never unrolled.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import igl
+import jax
+import jax.numpy as jnp
+import lineax as lx
+import numpy as np
+import scipy.sparse as sp
+from jaxtyping import Array, Float, Int
+
+from deform._harmonic import _check_mesh
+from deform._sparse import SparseSolver
+from jaxcga import KINDS, Multivector, apply_to_points
+
+
+class ARAPData(eqx.Module):
+    """Precomputed ARAP data (``arap_precompute``): the rest mesh as padded one-rings, the weighted
+    rest spokes and the factored constrained Laplacian."""
+
+    V: Float[Array, "n 3"]  # rest positions
+    b: Int[Array, " nb"]  # handle vertices
+    free: Int[Array, " nf"]  # the other vertices, in order
+    ring: Int[Array, "n d"]  # one-ring neighbours, padded with the vertex itself (weight 0)
+    w: Float[Array, "n d"]  # cotangent weights w_ij
+    wv: Float[Array, "n d 3"]  # w_ij v_ij, the weighted rest spokes
+    wv_sum: Float[Array, "n 3"]  # sum_j w_ij v_ij
+    degree: Float[Array, " n"]  # sum_j w_ij, the diagonal of -L
+    rest_energy: Float[Array, ""]  # sum_ij w_ij |v_ij|^2
+    solver: SparseSolver = eqx.field(static=True)  # -L_ff, factored
+    n: int = eqx.field(static=True)
+
+
+def arap_precompute(V, F, b) -> ARAPData:
+    """Precompute ARAP (spokes energy, cotangent weights) for a mesh with handle vertices ``b``.
+
+    Args:
+        V: (n, 3) rest positions.
+        F: (m, 3) int triangles.
+        b: (nb,) distinct int handle vertex indices, nb >= 1 (with no handle the energy has no unique
+            minimizer). Every connected component needs a handle, or the system is singular.
+    Returns:
+        ``ARAPData``, the argument of ``arap_solve``."""
+    V, F = _check_mesh(V, F)
+    n = len(V)
+    b = np.asarray(b)
+    if b.ndim != 1 or len(b) == 0 or not np.issubdtype(b.dtype, np.integer):
+        raise ValueError(f"b: expected a non-empty (nb,) integer array of handle vertices, got {b.dtype} {b.shape}")
+    if b.min() < 0 or b.max() >= n:
+        raise ValueError(f"b: handle indices must lie in [0, {n})")
+    if len(np.unique(b)) != len(b):
+        raise ValueError("b: repeated handle vertices")
+    b = b.astype(np.int64)
+    L = sp.csr_matrix(igl.cotmatrix(V, F))
+    free = np.setdiff1d(np.arange(n), b)
+    if len(free) == 0:
+        raise ValueError("b: every vertex is a handle; nothing to solve")
+    try:
+        solver = SparseSolver(-L[free][:, free], symmetric=True)
+    except ValueError as error:
+        raise ValueError(f"F, b: the constrained Laplacian is singular (a component without a handle?): {error}") \
+            from None
+    # one-rings as a padded (n, d) table: dense gathers instead of scatters in the hot loop
+    W = (L - sp.diags(L.diagonal())).tocsr()
+    W.sort_indices()
+    counts = np.diff(W.indptr)
+    rows = np.repeat(np.arange(n), counts)
+    slot = np.arange(W.nnz) - W.indptr[rows]
+    d = max(int(counts.max()), 1)
+    ring = np.repeat(np.arange(n)[:, None], d, axis=1)
+    w = np.zeros((n, d))
+    ring[rows, slot] = W.indices
+    w[rows, slot] = W.data
+    wv = w[..., None] * (V[:, None, :] - V[ring])
+    return ARAPData(
+        V=jnp.asarray(V), b=jnp.asarray(b), free=jnp.asarray(free), ring=jnp.asarray(ring), w=jnp.asarray(w),
+        wv=jnp.asarray(wv), wv_sum=jnp.asarray(wv.sum(1)), degree=jnp.asarray(w.sum(1)),
+        rest_energy=jnp.asarray(np.einsum("ndk,ndk->", wv, V[:, None, :] - V[ring])), solver=solver, n=n,
+    )
+
+
+def _det3(a):
+    return (a[..., 0, 0] * (a[..., 1, 1] * a[..., 2, 2] - a[..., 1, 2] * a[..., 2, 1])
+            - a[..., 0, 1] * (a[..., 1, 0] * a[..., 2, 2] - a[..., 1, 2] * a[..., 2, 0])
+            + a[..., 0, 2] * (a[..., 1, 0] * a[..., 2, 1] - a[..., 1, 1] * a[..., 2, 0]))
+
+
+def _adjugate_and_det4(a):
+    """Adjugate (transpose of the cofactor matrix) and determinant of (..., 4, 4) matrices."""
+    idx = [[k for k in range(4) if k != i] for i in range(4)]
+    cof = jnp.stack([jnp.stack([(-1.0) ** (i + j) * _det3(a[..., idx[i], :][..., :, idx[j]]) for j in range(4)], -1)
+                     for i in range(4)], -2)
+    return jnp.swapaxes(cof, -1, -2), jnp.einsum("...j,...j->...", a[..., 0, :], cof[..., 0, :])
+
+
+def horn_rotors(S: Float[Array, "n 3 3"], newton_steps: int = 24):
+    """Rotors maximizing ``sum_j w_j (M v_j ~M) . v'_j`` for ``S = sum_j w_j v_j v'_j^T`` (sec. VII):
+    the top eigenvector of Horn's matrix P, in closed form (Newton on the characteristic quartic,
+    then the adjugate of ``P - l I``). Returns the rotors (a rotor Multivector, batch (n,)) and the
+    largest eigenvalues l (n,)."""
+    sxx, sxy, sxz = S[:, 0, 0], S[:, 0, 1], S[:, 0, 2]
+    syx, syy, syz = S[:, 1, 0], S[:, 1, 1], S[:, 1, 2]
+    szx, szy, szz = S[:, 2, 0], S[:, 2, 1], S[:, 2, 2]
+    P = jnp.stack([
+        jnp.stack([sxx + syy + szz, syz - szy, szx - sxz, sxy - syx], -1),
+        jnp.stack([syz - szy, sxx - syy - szz, sxy + syx, szx + sxz], -1),
+        jnp.stack([szx - sxz, sxy + syx, -sxx + syy - szz, syz + szy], -1),
+        jnp.stack([sxy - syx, szx + sxz, syz + szy, -sxx - syy + szz], -1),
+    ], -2)
+    norm2 = jnp.sum(S * S, axis=(1, 2))
+    c2, c1 = -2.0 * norm2, -8.0 * _det3(S)
+    _, c0 = _adjugate_and_det4(P)
+
+    def newton(_, lam):
+        p = ((lam * lam + c2) * lam + c1) * lam + c0
+        dp = (4.0 * lam * lam + 2.0 * c2) * lam + c1
+        # from above the largest root Newton decreases monotonically; dp > 0 there (dp = 0: at a multiple root)
+        return jnp.where(dp > 0, lam - p / jnp.where(dp > 0, dp, 1.0), lam)
+
+    lam = jax.lax.fori_loop(0, newton_steps, newton, jnp.sqrt(3.0 * norm2), unroll=True)
+    adj, _ = _adjugate_and_det4(P - lam[:, None, None] * jnp.eye(4, dtype=S.dtype))
+    # adj = c q q^T: its column with the largest diagonal entry is the best-conditioned copy of q
+    diag = jnp.abs(jnp.diagonal(adj, axis1=-2, axis2=-1))
+    k = jnp.argmax(diag, axis=-1)
+    q = jnp.take_along_axis(adj, k[:, None, None], axis=-1)[..., 0]
+    length = jnp.linalg.norm(q, axis=-1)
+    # S = 0 or a multiple top eigenvalue (no unique rotation, e.g. collinear spokes): keep the identity
+    ok = diag.max(-1) > 1e-24 * jnp.maximum(norm2, jnp.finfo(S.dtype).tiny) ** 1.5
+    q = jnp.where(ok[:, None], q / jnp.where(ok, length, 1.0)[:, None], jnp.array([1.0, 0, 0, 0], S.dtype))
+    q = q * jnp.where(q[:, :1] < 0, -1.0, 1.0)
+    rotor = Multivector(jnp.stack([q[:, 0], -q[:, 3], q[:, 2], -q[:, 1]], -1), KINDS["rotor"])  # q0 - qz e12 - ...
+    return rotor, lam
+
+
+def _local(data: ARAPData, x):
+    """Local step: rotors of all cells and the energy E(x) = min over rotors."""
+    spokes = x[:, None, :] - x[data.ring]
+    S = jnp.einsum("ndk,ndl->nkl", data.wv, spokes)
+    rotors, lam = horn_rotors(S)
+    energy = jnp.einsum("nd,ndk,ndk->", data.w, spokes, spokes) + data.rest_energy - 2.0 * jnp.sum(lam)
+    return rotors, energy
+
+
+def _global(data: ARAPData, rotors: Multivector, bc):
+    """Global step (eq. 12) with the handles substituted."""
+    own = apply_to_points(rotors, data.wv_sum, fused=True)
+    neighbours = Multivector(rotors.values[data.ring], rotors.blades)
+    rhs = 0.5 * (own + jnp.sum(apply_to_points(neighbours, data.wv, fused=True), axis=1))
+    y = jnp.zeros((data.n, 3), bc.dtype).at[data.b].set(bc)
+    Ly = data.degree[:, None] * y - jnp.einsum("nd,ndk->nk", data.w, y[data.ring])  # -L y
+    x_free = data.solver((rhs - Ly)[data.free])
+    return y.at[data.free].set(x_free)
+
+
+def _iterate(data, bc, V0, max_iterations, tolerance):
+    x0 = V0.at[data.b].set(bc)
+    rotors, energy = _local(data, x0)
+    energies = jnp.full((max_iterations + 1,), jnp.nan, bc.dtype).at[0].set(energy)
+
+    def cond(state):
+        _, _, energies, k = state
+        previous, current = energies[jnp.maximum(k - 1, 0)], energies[k]
+        return (k < max_iterations) & ((k == 0) | (previous - current > tolerance * previous))
+
+    def body(state):
+        _, rotors, energies, k = state
+        x = _global(data, rotors, bc)
+        rotors, energy = _local(data, x)
+        return x, rotors, energies.at[k + 1].set(energy), k + 1
+
+    x, _, energies, k = jax.lax.while_loop(cond, body, (x0, rotors, energies, jnp.asarray(0)))
+    return x, energies, k
+
+
+@eqx.filter_custom_vjp
+def _solve(bc, data, V0, max_iterations, tolerance):
+    return _iterate(data, bc, V0, max_iterations, tolerance)
+
+
+@_solve.def_fwd
+def _solve_fwd(perturbed, bc, data, V0, max_iterations, tolerance):
+    out = _iterate(data, bc, V0, max_iterations, tolerance)
+    return out, out[0]
+
+
+@_solve.def_bwd
+def _solve_bwd(x, grads, perturbed, bc, data, V0, max_iterations, tolerance):
+    g = grads[0]
+    if g is None:
+        return None
+
+    def step(x, bc):
+        return _global(data, _local(data, x)[0], bc)
+
+    _, vjp = jax.vjp(step, x, bc)
+    # (I - dG/dx)^T u = g; the handle rows of G do not depend on x, so the system is regular
+    operator = lx.FunctionLinearOperator(lambda u: u - vjp(u)[0], jax.ShapeDtypeStruct(x.shape, x.dtype))
+    u = lx.linear_solve(operator, g, lx.GMRES(rtol=1e-10, atol=1e-14, restart=40, max_steps=2000)).value
+    return vjp(u)[1]
+
+
+class ARAPResult(eqx.Module):
+    """``arap_solve``'s output: positions U (n, 3), the energy before each iteration and after the last
+    (``energies[k]`` for k <= iterations; NaN past them) and the number of iterations done."""
+
+    U: Float[Array, "n 3"]
+    energies: Float[Array, " k1"]
+    iterations: Int[Array, ""]
+
+
+def arap_solve(data: ARAPData, bc, V0=None, max_iterations: int = 10, tolerance: float = 1e-8) -> ARAPResult:
+    """Deform the mesh so that the handles ``data.b`` sit at ``bc``, as rigidly as possible.
+
+    Args:
+        data: ``arap_precompute``'s output.
+        bc: (nb, 3) handle positions, in the order of ``b``.
+        V0: (n, 3) initial guess (default: the rest positions); the handles are placed on it.
+        max_iterations: at most this many local/global iterations (libigl's ``max_iter``).
+        tolerance: stop when the energy decreases by less than ``tolerance`` times itself in one iteration
+            (0: when it stops decreasing; negative: always run ``max_iterations``, e.g. for tight convergence).
+    Returns:
+        ``ARAPResult(U, energies, iterations)``. U is differentiable (reverse mode) with respect to bc,
+        implicitly at the fixed point, so it is exact when the solve has converged; the energies are
+        not differentiated. jit and vmap work (the sparse solve runs one batch element at a time)."""
+    if not isinstance(data, ARAPData):
+        raise ValueError("data: expected the ARAPData returned by arap_precompute")
+    bc = jnp.asarray(bc)
+    if bc.shape != (len(data.b), 3) or not jnp.issubdtype(bc.dtype, jnp.floating):
+        raise ValueError(f"bc: expected float handle positions of shape ({len(data.b)}, 3), got {bc.dtype} {bc.shape}")
+    if V0 is None:
+        V0 = data.V.astype(bc.dtype)
+    V0 = jnp.asarray(V0, bc.dtype)
+    if V0.shape != (data.n, 3):
+        raise ValueError(f"V0: expected shape ({data.n}, 3), got {V0.shape}")
+    if not isinstance(max_iterations, int) or max_iterations < 1:
+        raise ValueError(f"max_iterations: expected an int >= 1, got {max_iterations!r}")
+    bc = eqx.error_if(bc, ~jnp.all(jnp.isfinite(bc)), "bc: non-finite handle positions")
+    # the fixed point does not depend on the initial guess: no gradient flows to V0
+    U, energies, iterations = _solve(bc, data, jax.lax.stop_gradient(V0), max_iterations, float(tolerance))
+    return ARAPResult(U, jax.lax.stop_gradient(energies), iterations)

@@ -1,0 +1,180 @@
+"""ARAP with rotors (deform/_arap.py) against libigl's spokes ARAP, invariants, implicit gradients, vmap."""
+
+import igl
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import trimesh
+from scipy.spatial.transform import Rotation
+
+import deform
+from deform._arap import arap_precompute, arap_solve, horn_rotors
+from jaxcga import KINDS, versor_to_matrix
+from tests.shared import check_gradient, grid
+
+
+def _igl(V, F, b, bc, U0, iterations):
+    data = igl.ARAPData()
+    data.energy = igl.ARAP_ENERGY_TYPE_SPOKES
+    data.max_iter = iterations
+    igl.arap_precomputation(V, F, 3, b.astype(np.int32), data)
+    return igl.arap_solve(bc, data, U0)
+
+
+def _moved(V, b, lo, axis, rotvec, shift):
+    """Handles of ``b`` with coordinate ``axis`` below ``lo`` stay; the others turn and shift."""
+    bc = V[b].copy()
+    moving = V[b, axis] > lo
+    centre = V[b][moving].mean(0)
+    bc[moving] = (V[b][moving] - centre) @ Rotation.from_rotvec(rotvec).as_matrix().T + centre + shift
+    return bc
+
+
+@pytest.fixture(scope="module")
+def arm():
+    mesh = deform.default_arm().mesh
+    V, F = np.asarray(mesh.V, np.float64), np.asarray(mesh.F, np.int64)
+    b = np.nonzero((V[:, 0] < 0) | (V[:, 0] > 0.75))[0]
+    bc = _moved(V, b, 0.75, 0, [0, 0.6, 0.3], [-0.1, 0.05, 0.2])
+    return V, F, b, bc, arap_precompute(V, F, b)
+
+
+@pytest.fixture(scope="module")
+def cylinder():
+    mesh = trimesh.creation.cylinder(radius=0.2, height=1.0, sections=24).subdivide().subdivide()
+    V, F = np.asarray(mesh.vertices), np.asarray(mesh.faces, np.int64)
+    b = np.nonzero(np.abs(V[:, 2]) > 0.45)[0]
+    bc = _moved(V, b, 0.45, 2, [0.5, 0.2, 0], [0.2, 0, -0.1])
+    return V, F, b, bc, arap_precompute(V, F, b)
+
+
+def test_horn_rotors_are_the_polar_rotations():
+    rng = np.random.default_rng(0)
+    S = rng.normal(size=(500, 3, 3))
+    U, _, Vt = np.linalg.svd(S)
+    sign = np.ones((500, 3))
+    sign[:, 2] = np.sign(np.linalg.det(U @ Vt))
+    expected = np.einsum("nji,nj,nkj->nik", Vt, sign, U)  # argmax_R tr(R S), R proper
+    rotors, lam = horn_rotors(jnp.asarray(S))
+    R = np.asarray(versor_to_matrix(rotors.embed(KINDS["motor"]))[:, :3, :3])
+    np.testing.assert_allclose(R, expected, atol=1e-10)
+    np.testing.assert_allclose(lam, np.einsum("nij,nji->n", expected, S), rtol=1e-10)
+
+
+@pytest.mark.parametrize("iterations", [1, 3, 10])
+def test_matches_libigl_on_a_cylinder(cylinder, iterations):
+    V, F, b, bc, data = cylinder
+    U = arap_solve(data, jnp.asarray(bc), max_iterations=iterations, tolerance=0.0).U
+    diag = np.linalg.norm(np.ptp(V, axis=0))
+    assert np.abs(np.asarray(U) - _igl(V, F, b, bc, V.copy(), iterations)).max() < 1e-6 * diag
+
+
+@pytest.mark.parametrize("iterations", [1, 5])
+def test_matches_libigl_on_the_arm(arm, iterations):
+    # The arm has cells whose covariance is nearly singular with a reflection (det S < 0); libigl's
+    # single-precision 3x3 SVD rotations differ there (ours equal float64 polar rotations), so the
+    # agreement is 4e-5 of the diagonal here, against 4e-7 on the well-shaped cylinder.
+    V, F, b, bc, data = arm
+    U0 = V + 0.01 * np.sin(7 * V[:, [1, 2, 0]])  # any initial guess, passed to both
+    U = arap_solve(data, jnp.asarray(bc), V0=U0, max_iterations=iterations, tolerance=0.0).U
+    diag = np.linalg.norm(np.ptp(V, axis=0))
+    assert np.abs(np.asarray(U) - _igl(V, F, b, bc, U0, iterations)).max() < 1e-4 * diag
+
+
+def test_energy_decreases_and_tolerance_stops(arm):
+    _, _, _, bc, data = arm
+    result = arap_solve(data, jnp.asarray(bc), max_iterations=30, tolerance=0.0)
+    energies = np.asarray(result.energies)[: int(result.iterations) + 1]
+    assert np.all(np.diff(energies) <= 1e-12 * energies[0])
+    assert energies[-1] < 0.01 * energies[0]
+    early = arap_solve(data, jnp.asarray(bc), max_iterations=30, tolerance=1e-2)
+    k = int(early.iterations)
+    assert 1 < k < 30 and np.isnan(early.energies[k + 1])
+    drops = -np.diff(np.asarray(early.energies)[: k + 1]) / np.asarray(early.energies)[:k]
+    assert drops[-1] <= 1e-2 and np.all(drops[:-1] > 1e-2)
+
+
+def test_rigid_motion_of_all_handles_is_exact(arm):
+    V, _, b, _, data = arm
+    R = Rotation.from_rotvec([0.3, -1.2, 0.7]).as_matrix()
+    t = np.array([0.4, -0.2, 1.0])
+    rigid = V @ R.T + t
+    # the rigid map is a fixed point: started there, the iterations stay there
+    result = arap_solve(data, jnp.asarray(rigid[b]), V0=rigid, max_iterations=3, tolerance=0.0)
+    np.testing.assert_allclose(result.U, rigid, atol=1e-9)
+
+
+def test_bad_input(arm):
+    V, F, b, bc, data = arm
+    with pytest.raises(ValueError, match="V"):
+        arap_precompute(V[:, :2], F, b)
+    with pytest.raises(ValueError, match="F"):
+        arap_precompute(V, F[:, :2], b)
+    with pytest.raises(ValueError, match=r"b: handle indices"):
+        arap_precompute(V, F, np.array([0, len(V)]))
+    with pytest.raises(ValueError, match="repeated"):
+        arap_precompute(V, F, np.array([3, 3]))
+    with pytest.raises(ValueError, match="non-empty"):
+        arap_precompute(V, F, np.array([], int))
+    with pytest.raises(ValueError, match="bc"):
+        arap_solve(data, jnp.asarray(bc[:-1]))
+    with pytest.raises(ValueError, match="V0"):
+        arap_solve(data, jnp.asarray(bc), V0=V[:-1])
+    with pytest.raises(ValueError, match="max_iterations"):
+        arap_solve(data, jnp.asarray(bc), max_iterations=0)
+    with pytest.raises(Exception, match="non-finite"):
+        arap_solve(data, jnp.asarray(bc).at[0, 0].set(jnp.nan))
+
+
+def _strip():
+    """A bent 8 x 8 grid; the column x = 0 is fixed, the column x = 1 is the moving handle."""
+    V, F = grid(8)
+    V[:, 2] = 0.2 * np.sin(np.pi * V[:, 0]) * (1 + 0.3 * V[:, 1])
+    left, right = np.nonzero(V[:, 0] == 0)[0], np.nonzero(V[:, 0] == 1)[0]
+    return V, F, np.concatenate([left, right]), len(left)
+
+
+def test_gradient_by_implicit_differentiation():
+    V, F, b, k = _strip()
+    data = arap_precompute(V, F, b)
+    markers = np.array([20, 40, 44])
+
+    @jax.jit
+    def loss(params):
+        # a negative tolerance runs every iteration: the energy stalls (round-off) before the positions
+        # have converged to the 1e-12 that central differences need. The parameters translate the
+        # moving handle.
+        U = arap_solve(data, jnp.asarray(V[b]).at[k:].add(params), max_iterations=500, tolerance=-1.0).U
+        return jnp.sum(jnp.sin(3 * U[markers]))
+
+    params = 0.1 * jnp.asarray(np.random.default_rng(1).normal(size=3))
+    check_gradient(loss, params, rtol=1e-4)
+
+
+def test_fit_handles_by_gradient_descent():
+    """Translate the moving handle so that a marker vertex reaches a target."""
+    V, F, b, k = _strip()
+    data = arap_precompute(V, F, b)
+    marker, target = 40, jnp.asarray(V[40] + np.array([0.0, 0.1, 0.15]))
+
+    @jax.jit
+    def loss(shift):
+        U = arap_solve(data, jnp.asarray(V[b]).at[k:].add(shift), max_iterations=100, tolerance=1e-12).U
+        return jnp.sum((U[marker] - target) ** 2)
+
+    grad = jax.jit(jax.grad(loss))
+    shift = jnp.zeros(3)
+    start = loss(shift)
+    for _ in range(12):
+        shift = shift - 2.0 * grad(shift)
+    assert loss(shift) < 1e-3 * start
+
+
+def test_vmap_and_jit_equal_one_by_one(cylinder):
+    _, _, _, bc, data = cylinder
+    batch = jnp.stack([jnp.asarray(bc) * s for s in (1.0, 0.9, 1.1)])
+    solve = jax.jit(lambda c: arap_solve(data, c, max_iterations=4, tolerance=0.0).U)
+    together = jax.vmap(solve)(batch)
+    for c, U in zip(batch, together):
+        np.testing.assert_allclose(U, arap_solve(data, c, max_iterations=4, tolerance=0.0).U, atol=1e-12)
