@@ -125,6 +125,18 @@ def demo(out: Path, steps: int, figure: bool) -> int:
     summary = _cutting_commands.drill_command(arm, [0.4, 0.0, 0.0], [0.4, 0.0, 0.1], 0.015, out / "arm_drilled.glb")
     print(f"Drill (Algorithm 3) of radius 15 mm into the forearm: {summary['hole_points']} points around the hole, "
           f"in {1e3 * (time.perf_counter() - start):.1f} ms with the file -> {summary['out']}")
+
+    from deform import _deform_commands
+
+    V, F = _deform_commands.load_mesh(None)
+    print("\nMotor deformations (the deformation paper): the same 120 degree twist of a 4x4x4 lattice")
+    for positional in (True, False):
+        out_file = out / ("arm_ffd_classic" if positional else "arm_ffd_motor")
+        summary = _deform_commands.deform_command("ffd", V, F, out_file.with_suffix(".png" if figure else ".npy"),
+                                                  bend=0.0, twist=120.0, positional=positional)
+        print(f"  {'classic FFD (eq. 6)' if positional else 'motor FFD (eq. 7-8)':22s}: volume ratio "
+              f"{summary['volume_ratio']:.4f}, mean edge change {summary['mean_edge_change']:.4f}, "
+              f"{summary['frame_ms']:.2f} ms per frame -> {summary['out']}")
     return 0
 
 
