@@ -62,9 +62,11 @@ class Motion:
 
     def __init__(self, V, bend_deg: float, twist_deg: float, translate=(0.0, 0.0, 0.0)):
         extent = V.max(axis=0) - V.min(axis=0)
-        self.long, self.across = int(np.argmax(extent)), int(np.argmin(extent))
-        if self.long == self.across:
+        if extent.max() <= 0:
             raise ValueError("mesh: has no extent (all vertices coincide)")
+        self.long = int(np.argmax(extent))
+        others = [i for i in range(3) if i != self.long]
+        self.across = others[int(np.argmin(extent[others]))]  # a cube's axes tie: still two distinct axes
         self.low, self.length = V[:, self.long].min(), extent[self.long]
         self.pivot = 0.5 * (V.min(axis=0) + V.max(axis=0))
         self.pivot[self.long] = self.low
