@@ -26,7 +26,7 @@ import numpy as np
 import jaxcga as cga
 from deform._cage import cage_precompute, tube_cage
 from deform._default_arm import default_arm
-from deform._ffd import bounding_lattice, ffd_motor_field, ffd_positions, lattice_points
+from deform._ffd import bounding_lattice, distortion, ffd_motor_field, ffd_positions, lattice_points
 from deform._handles import harmonic_handles
 from deform._motor_field import motor_about
 from deform._spline import spline_precompute
@@ -117,8 +117,8 @@ def _handles_file(path: Path, n: int):
 
 def deform_command(method: str, V, F, out: Path, *, bend: float = 60.0, twist: float = 0.0,
                    translate=(0.0, 0.0, 0.0), basis: str = "bspline", keys: int | None = None,
-                   weights: str = "cotangent", handle_fraction: float = 0.05, handles: Path | None = None, lattice=(4, 4, 4),
-                   cage: Path | None = None, positional: bool = False) -> dict:
+                   weights: str = "cotangent", handle_fraction: float = 0.05, handles: Path | None = None,
+                   lattice=(4, 4, 4), cage: Path | None = None, positional: bool = False) -> dict:
     """Bind (V, F) by ``method`` (one of ``DEFORMATIONS``), move the keys, write ``out``; returns a
     summary (vertices, keys, precompute and per-frame milliseconds, volume and edge-length change)."""
     if method not in DEFORMATIONS:
@@ -173,25 +173,17 @@ def deform_command(method: str, V, F, out: Path, *, bend: float = 60.0, twist: f
     if not np.all(np.isfinite(positions)):
         raise ValueError("the deformation produced non-finite positions")
     _write(out, V, positions, F, f"{method}{' (positional)' if positional else ''}")
-    edges = np.unique(np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1), axis=0)
-    rest_length = np.linalg.norm(V[edges[:, 0]] - V[edges[:, 1]], axis=1)
-    change = np.abs(np.linalg.norm(positions[edges[:, 0]] - positions[edges[:, 1]], axis=1) / rest_length - 1.0)
+    measured = distortion(V, positions, F)
     return {
         "method": method + (" (positional)" if positional else ""),
         "vertices": len(V),
         "keys": field.num_keys,
         "precompute_ms": round(precompute_ms, 1),
         "frame_ms": round(frame_ms, 2),
-        "volume_ratio": round(_volume(positions, F) / _volume(V, F), 4),
-        "mean_edge_change": round(float(change.mean()), 4),
+        "volume_ratio": round(float(measured["volume_ratio"]), 4),
+        "mean_edge_change": round(float(measured["edge_mean"]), 4),
         "out": str(out),
     }
-
-
-def _volume(V, F) -> float:
-    """Signed volume of a closed mesh (divergence theorem); of an open one, relative to the origin."""
-    a, b, c = V[F[:, 0]], V[F[:, 1]], V[F[:, 2]]
-    return float(np.einsum("ij,ij->i", a, np.cross(b, c)).sum() / 6.0)
 
 
 def _write(out: Path, V, positions, F, title: str):
