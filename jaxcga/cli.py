@@ -199,10 +199,23 @@ def _run_deformation(args) -> int:
     return 0
 
 
+def _run_arap(args) -> int:
+    from deform import _arap_commands, _deform_commands
+
+    V, F = _deform_commands.load_mesh(args.mesh)
+    summary = _arap_commands.arap_command(
+        V, F, args.out, handles=args.handles, iterations=args.iters, tolerance=args.tolerance, bend=args.bend,
+        twist=args.twist, translate=args.translate, handle_fraction=args.handle_fraction)
+    print(f"jaxcga arap {args.mesh or 'built-in arm'}: " + ", ".join(f"{k} {v}" for k, v in summary.items()))
+    return 0
+
+
 def _run_deform(args) -> int:
     _x64()
     if args.command == "deform":
         return _run_deformation(args)
+    if args.command == "arap":
+        return _run_arap(args)
     from deform import _commands
 
     # tear and drill walk across faces: split vertices along UV seams are always welded for them
@@ -348,6 +361,27 @@ def main(argv: list[str] | None = None) -> int:
                           help="ffd, cage: move control points / cage vertices instead (classic FFD, positional cage)")
     p_deform.add_argument("--out", type=Path, required=True,
                           help="OUT.glb/.obj/.ply/.stl: the deformed mesh; OUT.npy: float64 (n, 3); OUT.png: a figure")
+
+    p_arap = sub.add_parser("arap", help="as-rigid-as-possible deformation with rotors (the deformation paper, "
+                                         "sec. VII) by handle vertices")
+    p_arap.add_argument("mesh", nargs="?", default=None,
+                        help="a mesh file (glTF: its bind-pose mesh; .obj, .ply, .stl, ...); "
+                             "default: the built-in arm's rest mesh")
+    p_arap.add_argument("--handles", type=Path, default=None,
+                        help='HANDLES.json {"indices": [i, ...], "positions": [[x, y, z], ...]}; default: the low end '
+                             "of the long axis fixed, the high end moved by --bend/--twist/--translate")
+    p_arap.add_argument("--iters", type=int, default=10, help="at most this many local/global iterations (default 10)")
+    p_arap.add_argument("--tolerance", type=float, default=1e-8,
+                        help="stop when the energy decreases by less than this fraction in one iteration "
+                             "(default 1e-8; negative: run every iteration)")
+    p_arap.add_argument("--bend", type=float, default=60.0, help="default handles: degrees of bend (default 60)")
+    p_arap.add_argument("--twist", type=float, default=0.0, help="default handles: degrees of twist (default 0)")
+    p_arap.add_argument("--translate", type=float, nargs=3, default=(0.0, 0.0, 0.0), metavar=("X", "Y", "Z"),
+                        help="default handles: translation of the high end (default none)")
+    p_arap.add_argument("--handle-fraction", type=float, default=0.05,
+                        help="default handles: vertices within this fraction of the long axis's ends (default 0.05)")
+    p_arap.add_argument("--out", type=Path, required=True,
+                        help="OUT.npy: float64 (n, 3) positions; OUT.glb/.obj/.ply/.stl: the mesh; OUT.png: a figure")
 
     args = parser.parse_args(argv)
     if args.command == "demo":

@@ -36,3 +36,11 @@ def test_bench_cutting_quick_writes_the_published_names(tmp_path):
         assert result["figures"][name] > 0 and name in result["units"]
     for name in ("arm5_cut_vs_paper", "arm5_tear_vs_paper", "arm5_drill_vs_paper"):
         assert result["ratios"][name] > 0
+
+
+def test_bench_arap_quick_writes_the_published_names(tmp_path):
+    result = _quick("bench_arap.py", tmp_path)
+    for tag in ("10k", "40k"):
+        assert result["ratios"][f"iteration_vs_igl_{tag}"] > 0 and result["ratios"][f"precompute_vs_igl_{tag}"] > 0
+        # ours equals libigl's own iteration with double-precision rotations (arap_solve's are single)
+        assert result["figures"][f"difference_vs_igl_float64_rotations_{tag}"] < 1e-10

@@ -1,0 +1,84 @@
+"""The ``jaxcga arap`` command end to end in-process: handles from JSON, the default end handles, outputs,
+errors."""
+
+from __future__ import annotations
+
+import json
+
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import trimesh
+from scipy.spatial.transform import Rotation
+
+from deform import arap_precompute, arap_solve
+from jaxcga.cli import main
+
+
+@pytest.fixture(scope="module")
+def tube(tmp_path_factory):
+    """A closed tube along z (length 2, radius 0.2) written as .ply: (path, V, F)."""
+    mesh = trimesh.creation.cylinder(radius=0.2, height=2.0, sections=12).subdivide().subdivide()
+    path = tmp_path_factory.mktemp("mesh") / "tube.ply"
+    mesh.export(path)
+    loaded = trimesh.load(path, force="mesh", process=True)
+    return path, np.asarray(loaded.vertices), np.asarray(loaded.faces, np.int64)
+
+
+def test_handles_file_gives_arap_solves_result(tube, tmp_path, capsys):
+    path, V, F = tube
+    low, high = np.flatnonzero(V[:, 2] < -0.95), np.flatnonzero(V[:, 2] > 0.95)
+    indices = np.concatenate([low, high])
+    moved = Rotation.from_rotvec([0.8, 0.0, 0.3]).apply(V[high] - [0, 0, -1.0]) + [0.1, 0.2, -1.0]
+    positions = np.concatenate([V[low], moved])
+    handles = tmp_path / "handles.json"
+    handles.write_text(json.dumps({"indices": indices.tolist(), "positions": positions.tolist()}))
+    out = tmp_path / "arap.npy"
+    assert main(["arap", str(path), "--handles", str(handles), "--iters", "7", "--out", str(out)]) == 0
+    assert "jaxcga arap" in capsys.readouterr().out
+    X = np.load(out)
+    assert X.dtype == np.float64 and X.shape == V.shape
+    np.testing.assert_allclose(X[indices], positions, atol=1e-12)
+    expected = arap_solve(arap_precompute(V, F, indices), jnp.asarray(positions), max_iterations=7).U
+    np.testing.assert_allclose(X, expected, atol=1e-10)
+
+
+def test_default_handles_mesh_and_figure_outputs(tube, tmp_path):
+    path, V, F = tube
+    glb = tmp_path / "arap.glb"
+    assert main(["arap", str(path), "--bend", "90", "--iters", "5", "--out", str(glb)]) == 0
+    X = trimesh.load(glb, force="mesh", process=False).vertices
+    assert X.shape == V.shape
+    far = V[:, 2] > 0.95  # the far end is turned by 90 degrees about x about the centre of the low end
+    np.testing.assert_allclose(X[far], Rotation.from_rotvec([np.pi / 2, 0, 0]).apply(V[far] - [0, 0, -1]) + [0, 0, -1],
+                               atol=1e-5)  # float32 in the glb
+    png = tmp_path / "arap.png"
+    assert main(["arap", "--iters", "2", "--out", str(png)]) == 0  # the built-in arm
+    assert png.stat().st_size > 10_000
+
+
+@pytest.mark.parametrize("content, message", [
+    ("{", "not valid JSON"),
+    ('{"indices": [0, 1]}', "must hold"),
+    ('{"indices": [0, 100000], "positions": [[0, 0, 0], [1, 1, 1]]}', "must lie in"),
+    ('{"indices": [0, 1], "positions": [[0, 0, 0]]}', "one per index"),
+    ('{"indices": [0.5], "positions": [[0, 0, 0]]}', "vertex indices"),
+    ('{"indices": [0, 0], "positions": [[0, 0, 0], [0, 0, 0]]}', "repeated"),
+])
+def test_bad_handles_exit_with_a_message(tube, tmp_path, capsys, content, message):
+    path, _, _ = tube
+    handles = tmp_path / "bad.json"
+    handles.write_text(content)
+    with pytest.raises(SystemExit) as exit_info:
+        main(["arap", str(path), "--handles", str(handles), "--out", str(tmp_path / "x.npy")])
+    assert exit_info.value.code == 2
+    assert message in capsys.readouterr().err
+
+
+def test_bad_output_and_iterations(tube, tmp_path, capsys):
+    path, _, _ = tube
+    for args, message in ((["--out", str(tmp_path / "x.txt")], "out: expected"),
+                          (["--iters", "0", "--out", str(tmp_path / "x.npy")], "iters")):
+        with pytest.raises(SystemExit):
+            main(["arap", str(path), *args])
+        assert message in capsys.readouterr().err
