@@ -24,6 +24,8 @@ def libigl_arap_in_numpy(V, F, b, bc, U0, iterations, single_precision):
         x[b] = bc
         S = np.zeros((n, 3, 3))
         np.add.at(S, i, w[:, None, None] * v[:, :, None] * (x[i] - x[j])[:, None, :])
+        # arap_solve scales S into [-1, 1] first, for its single-precision SVD
+        S /= np.abs(S).max()
         R = igl.fit_rotations(S.transpose(1, 0, 2).reshape(3 * n, 3), single_precision)
         R = R.reshape(3, n, 3).transpose(1, 0, 2)
         rhs = np.zeros((n, 3))
