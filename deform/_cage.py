@@ -36,10 +36,6 @@ TetGen is AGPL-3.0 (its Python wrapper ``tetgen`` is MIT); it is used here as a 
 
 from __future__ import annotations
 
-import contextlib
-import os
-import sys
-
 import equinox as eqx
 import igl
 import jax.numpy as jnp
@@ -52,6 +48,7 @@ from jaxtyping import Array, Float
 from deform._motor_field import MotorField, bind
 from deform._sparse import SparseSolver
 from jaxcga import Multivector
+from jaxcga._support import quiet_stdout
 
 # points off the cage by less than this fraction of its bounding diagonal count as on it
 _SURFACE_TOLERANCE = 1e-9
@@ -79,20 +76,6 @@ def _check_cage(cage_V, cage_F):
     if mesh.volume < 0:  # inward normals: flip, so that inside means winding number +1
         cage_F = cage_F[:, ::-1].copy()
     return cage_V, cage_F, abs(mesh.volume)
-
-
-@contextlib.contextmanager
-def _quiet_stdout():
-    """Silence output written to file descriptor 1 by C code (Python's own sys.stdout is untouched)."""
-    sys.stdout.flush()
-    saved = os.dup(1)
-    try:
-        with open(os.devnull, "w") as devnull:
-            os.dup2(devnull.fileno(), 1)
-            yield
-    finally:
-        os.dup2(saved, 1)
-        os.close(saved)
 
 
 def _subdivide(cage_V, cage_F, levels: int):
@@ -129,7 +112,7 @@ def _tetrahedralize(cage_V, cage_F, sV, sF, max_tet_volume):
     """TetGen on the subdivided surface; checks that the tets' boundary lies on the cage, face by face.
     Returns the nodes, the tets and the boundary nodes."""
     try:
-        with _quiet_stdout():  # the wrapper prints "parsing switches / success" from C even with Q
+        with quiet_stdout():  # the wrapper prints "parsing switches / success" from C even with Q
             TV, TT = tetgen.TetGen(sV, sF).tetrahedralize(switches=f"pq1.414YQa{max_tet_volume:.17g}")[:2]
     except RuntimeError as error:
         raise _TetGenFailure(f"cage_F: TetGen failed to tetrahedralize the cage ({error})") from None

@@ -38,7 +38,6 @@ a deformation causes, for the comparison in the paper's Fig. 7.
 from __future__ import annotations
 
 import equinox as eqx
-import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
@@ -47,15 +46,7 @@ from scipy.special import comb
 import jaxcga as cga
 from deform._motor_field import MotorField, bind, motor_about
 from jaxcga import Multivector
-
-
-def _require(x, bad, message: str):
-    """ValueError on concrete input; inside jit (traced values) ``eqx.error_if``."""
-    if isinstance(bad, jax.core.Tracer):
-        return eqx.error_if(x, bad, message)
-    if bool(bad):
-        raise ValueError(message)
-    return x
+from jaxcga._support import require
 
 
 def _float_array(name: str, x, shape: tuple[int, ...]):
@@ -124,8 +115,8 @@ def lattice_coordinates(lattice: Lattice, V: Float[Array, "n 3"]) -> Float[Array
     local = jnp.linalg.solve(axes.T, (V - origin).T).T
     tolerance = float(np.sqrt(np.finfo(V.dtype).eps))
     outside = ~jnp.all((local >= -tolerance) & (local <= 1 + tolerance))
-    return _require(local, outside, "V: points lie outside the lattice (local coordinates outside [0, 1]) "
-                    "or the lattice axes are degenerate")
+    return require(local, (outside, "V: points lie outside the lattice (local coordinates outside [0, 1]) "
+                           "or the lattice axes are degenerate"))
 
 
 def bernstein(degree: int, t: Float[Array, "..."]) -> Float[Array, "... degree+1"]:

@@ -1,1 +1,69 @@
-"""placeholder"""
+"""xfem: tetrahedral FEM and (next) the generalized XFEM of the XFEM paper (../papers/002), on the
+jaxcga kernel.
+
+Sec. 3 of the paper, the simulation core: ``_tetmesh`` (tet meshes: generators, TetGen, meshio files,
+boundary faces, one-rings, adjacency), ``_linear_tet`` (linear shape functions eq. 5, consistent and
+lumped mass eq. 7, body forces eq. 8), ``_neohookean`` (stable neo-Hookean energy, stress and
+PSD-projected Hessians), ``_assembly`` (sparse patterns precomputed on the host, assembly in JAX),
+``_backward_euler`` (eq. 10 as a minimization: projected Newton with line search, Dirichlet nodes,
+implicit gradients). The step is generic over an element list (DOF-node indices, shape gradients,
+integration weights) and any mass matrix, so the enriched XFEM elements go through the same code.
+"""
+
+from xfem._assembly import AssemblyPattern, assemble_matrix, assemble_vector, assembly_pattern
+from xfem._backward_euler import FEMSystem, State, backward_euler_step, fem_from_mesh, fem_system, mechanical_energy
+from xfem._linear_tet import body_force, consistent_mass, lumped_mass, shape_functions, shape_gradients
+from xfem._neohookean import (
+    element_energy,
+    element_gradient_hessian,
+    lame,
+    stable_neohookean_energy,
+    stable_neohookean_pk1,
+)
+from xfem._tetmesh import (
+    TetMesh,
+    boundary_faces,
+    box_tets,
+    element_adjacency,
+    five_tet_cube,
+    node_rings,
+    one_tet,
+    read_tet_mesh,
+    tet_mesh,
+    tet_volumes,
+    tetrahedralize,
+)
+
+__all__ = [
+    "AssemblyPattern",
+    "FEMSystem",
+    "State",
+    "TetMesh",
+    "assemble_matrix",
+    "assemble_vector",
+    "assembly_pattern",
+    "backward_euler_step",
+    "body_force",
+    "boundary_faces",
+    "box_tets",
+    "consistent_mass",
+    "element_adjacency",
+    "element_energy",
+    "element_gradient_hessian",
+    "fem_from_mesh",
+    "fem_system",
+    "five_tet_cube",
+    "lame",
+    "lumped_mass",
+    "mechanical_energy",
+    "node_rings",
+    "one_tet",
+    "read_tet_mesh",
+    "shape_functions",
+    "shape_gradients",
+    "stable_neohookean_energy",
+    "stable_neohookean_pk1",
+    "tet_mesh",
+    "tet_volumes",
+    "tetrahedralize",
+]

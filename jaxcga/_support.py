@@ -1,0 +1,38 @@
+"""Host-side helpers shared by the packages built on the kernel (deform, cutting, xfem); not algebra and
+not part of jaxcga's public API."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import sys
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+
+
+def require(x, *checks):
+    """Value checks, pairs ``(bad, message)``: a ``ValueError`` on concrete input; inside jit or grad
+    (traced flags) ``eqx.error_if`` on ``x``. Returns ``x`` (to be used, so the traced check is kept)."""
+    for bad, message in checks:
+        if isinstance(bad, jax.core.Tracer):
+            x = eqx.error_if(jnp.asarray(x), jnp.any(bad), message)  # python scalars have nothing to thread on
+        elif bool(jnp.any(bad)):
+            raise ValueError(message)
+    return x
+
+
+@contextlib.contextmanager
+def quiet_stdout():
+    """Silence output written to file descriptor 1 by C code, e.g. TetGen (Python's sys.stdout is untouched)."""
+    sys.stdout.flush()
+    saved = os.dup(1)
+    try:
+        with open(os.devnull, "w") as devnull:
+            os.dup2(devnull.fileno(), 1)
+            yield
+    finally:
+        sys.stdout.flush()
+        os.dup2(saved, 1)
+        os.close(saved)

@@ -1,0 +1,221 @@
+"""Backward Euler steps of the XFEM paper, sec. 3.3 (eq. 6-10): rest stays at rest; a free body keeps its
+momentum (uniform velocity moves it rigidly) and its centre of mass falls with g exactly, on an XFEM-like
+system (two disjoint copies of a mesh, one with a lumped mass); a converged step zeroes grad E (an
+independent dense evaluation of eq. 10's potential); fixed nodes stay pinned or follow a moving boundary;
+50 steps of a cantilever stay finite, lose energy and settle at the static equilibrium (scipy L-BFGS);
+implicit gradients through three converged steps against central differences (Young's modulus, initial
+velocity, moving boundary, force, integration weights); bad input."""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import scipy.optimize
+import scipy.sparse as sp
+
+from xfem._backward_euler import State, _host_direct, backward_euler_step, fem_from_mesh, fem_system
+from xfem._linear_tet import body_force, consistent_mass, lumped_mass, shape_gradients
+from xfem._neohookean import element_energy, lame
+from xfem._tetmesh import box_tets, five_tet_cube
+
+H = 0.033
+MU, LAM = lame(1e6, 0.4)
+GRAVITY = np.array([0.0, 0.0, -9.81])
+CONVERGED = dict(newton_iterations=20, tolerance=1e-12)
+
+BAR = box_tets((2, 1, 1), size=(2.0, 1.0, 1.0))
+X = np.asarray(BAR.X)
+FIXED = np.flatnonzero(X[:, 0] == 0)
+CANTILEVER = fem_from_mesh(BAR, 1e3, GRAVITY, fixed=FIXED)
+
+
+def _two_cubes(gravity):
+    """Two disjoint five-tet cubes in one system (as XFEM's duplicated nodes after a full cut): the first with
+    the consistent mass, the second with the lumped (diagonal) one."""
+    cube = five_tet_cube()
+    X1, T1 = np.asarray(cube.X), np.asarray(cube.T)
+    Xs = np.concatenate([X1, X1 + [2.0, 0.0, 0.0]])
+    Ts = np.concatenate([T1, T1 + len(X1)])
+    grads, volumes = shape_gradients(jnp.asarray(Xs), jnp.asarray(Ts))
+    mass = sp.block_diag([consistent_mass(X1, T1, 1e3), sp.diags(np.asarray(lumped_mass(cube.X, cube.T, 1e3)))])
+    force = body_force(jnp.asarray(Xs), jnp.asarray(Ts), 1e3 * np.asarray(gravity))
+    return fem_system(Ts, grads, volumes, mass, force), mass, Xs
+
+
+def _deformed(X, seed, scale=0.05):
+    rng = np.random.default_rng(seed)
+    return jnp.asarray(X + scale * rng.normal(size=X.shape)), jnp.asarray(rng.normal(size=X.shape))
+
+
+def test_rest_stays_at_rest():
+    system = fem_from_mesh(BAR, 1e3, (0.0, 0.0, 0.0), fixed=FIXED)
+    state = backward_euler_step(system, State(BAR.X, jnp.zeros_like(BAR.X)), H, MU, LAM)
+    np.testing.assert_allclose(state.x, X, atol=1e-14)
+    np.testing.assert_allclose(state.v, 0.0, atol=1e-12)
+
+
+def test_uniform_velocity_moves_a_free_body_rigidly():
+    system, _, Xs = _two_cubes((0.0, 0.0, 0.0))
+    v = jnp.broadcast_to(jnp.asarray([0.3, -1.2, 2.0]), Xs.shape)
+    state = State(jnp.asarray(Xs), v)
+    for _ in range(3):
+        state = backward_euler_step(system, state, H, MU, LAM, **CONVERGED)
+    np.testing.assert_allclose(state.x, Xs + 3 * H * v, atol=1e-12)
+    np.testing.assert_allclose(state.v, v, atol=1e-10)
+
+
+def test_gravity_accelerates_the_centre_of_mass_by_g():
+    system, mass, Xs = _two_cubes(GRAVITY)
+    x, v = _deformed(Xs, 1)  # deformed, random velocities: large elastic forces, all internal
+    after = backward_euler_step(system, State(x, v), H, MU, LAM, **CONVERGED)
+    nodal = np.asarray(mass.sum(axis=1)).ravel()  # the nodes' shares of the mass
+    for piece in (slice(0, 8), slice(8, 16)):  # each disjoint body on its own
+        w = nodal[piece] / nodal[piece].sum()
+        centre = w @ np.asarray(x)[piece] + H * w @ np.asarray(v)[piece]
+        np.testing.assert_allclose(w @ np.asarray(after.x)[piece], centre + H**2 * GRAVITY, atol=1e-10)
+        np.testing.assert_allclose(w @ np.asarray(after.v)[piece], w @ np.asarray(v)[piece] + H * GRAVITY,
+                                   atol=1e-8)
+
+
+def _potential_gradient(x, x_t, v_t):
+    """grad E of eq. (10) from a dense mass matrix and the element energies (independent of the solver)."""
+    M = np.kron(consistent_mass(X, np.asarray(BAR.T), 1e3).toarray(), np.eye(3))
+    grads, volumes = shape_gradients(BAR.X, BAR.T)
+    force = np.asarray(body_force(BAR.X, BAR.T, 1e3 * GRAVITY)).ravel()
+
+    def E(y):
+        d = (y - x_t - H * v_t).ravel()
+        elastic = jnp.sum(element_energy(y[BAR.T], grads, volumes, MU, LAM))
+        return 0.5 * d @ (M @ d) + H**2 * (elastic - force @ y.ravel())
+
+    return np.asarray(jax.grad(E)(x)), np.abs(M @ np.asarray(x - x_t).ravel()).max()
+
+
+def test_converged_step_zeroes_the_gradient_and_keeps_fixed_nodes():
+    x, v = _deformed(X, 2)
+    x = x.at[FIXED].set(X[FIXED])
+    moved = X[FIXED] + np.array([0.0, 0.02, -0.03])
+    for fixed_positions, expected in ((None, X[FIXED]), (moved, moved)):
+        after = backward_euler_step(CANTILEVER, State(x, v), H, MU, LAM, fixed_positions=fixed_positions,
+                                    **CONVERGED)
+        np.testing.assert_array_equal(after.x[FIXED], expected)
+        gradient, scale = _potential_gradient(after.x, x, v)
+        free = np.setdiff1d(np.arange(len(X)), FIXED)
+        assert np.abs(gradient[free]).max() < 1e-11 * scale
+        assert np.abs(gradient[FIXED]).max() > 1e-3 * scale  # the reaction forces of the supports
+
+
+def _static_deflection():
+    """The cantilever's equilibrium (min U - f . x, fixed nodes pinned) by scipy's L-BFGS: the mean tip sag."""
+    grads, volumes = shape_gradients(BAR.X, BAR.T)
+    free = np.setdiff1d(np.arange(len(X)), FIXED)
+    force = np.asarray(CANTILEVER.force)
+
+    @jax.jit
+    def potential(y):
+        x = jnp.asarray(X).at[free].set(y.reshape(-1, 3))
+        return jnp.sum(element_energy(x[BAR.T], grads, volumes, MU, LAM)) - jnp.sum(force * x)
+
+    result = scipy.optimize.minimize(jax.value_and_grad(potential), X[free].ravel(), jac=True, method="L-BFGS-B",
+                                     options=dict(gtol=1e-9, ftol=1e-15, maxiter=5000))
+    x = X.copy()
+    x[free] = result.x.reshape(-1, 3)
+    return x[X[:, 0] == 2.0, 2].mean() - 0.5
+
+
+def test_cantilever_stays_finite_loses_energy_and_settles():
+    M = np.kron(consistent_mass(X, np.asarray(BAR.T), 1e3).toarray(), np.eye(3))
+    grads, volumes = shape_gradients(BAR.X, BAR.T)
+    force = np.asarray(CANTILEVER.force).ravel()
+
+    def total_energy(s):
+        elastic = float(jnp.sum(element_energy(s.x[BAR.T], grads, volumes, MU, LAM)))
+        v = np.asarray(s.v).ravel()
+        return 0.5 * v @ M @ v + elastic - force @ np.asarray(s.x).ravel()
+
+    state = State(BAR.X, jnp.zeros_like(BAR.X))
+    energies, tips = [total_energy(state)], []
+    for _ in range(50):
+        state = backward_euler_step(CANTILEVER, state, H, MU, LAM)
+        energies.append(total_energy(state))
+        tips.append(float(state.x[X[:, 0] == 2.0, 2].mean() - 0.5))
+    assert np.all(np.isfinite(np.asarray(state.x))) and np.all(np.isfinite(energies))
+    assert np.all(np.diff(energies) < 0)  # backward Euler dissipates
+    np.testing.assert_array_equal(state.x[FIXED], X[FIXED])
+    # a suddenly applied weight overshoots (at most twice the static sag), then settles at equilibrium
+    static = _static_deflection()
+    assert 2 * static < min(tips) < 1.2 * static
+    np.testing.assert_allclose(tips[-1], static, rtol=0.05)
+
+
+def test_implicit_gradients_match_central_differences():
+    rng = np.random.default_rng(3)
+    weights = jnp.asarray(rng.normal(size=X.shape))
+    v0 = jnp.asarray(rng.normal(size=X.shape))
+    direction = {"v0": jnp.asarray(rng.normal(size=X.shape)), "offset": jnp.asarray(rng.normal(size=(len(FIXED), 3)))}
+
+    def loss(young, v0, offset, gravity_scale, weight_scale):
+        mu, lam = lame(young, jnp.asarray(0.4))
+        system = eqx.tree_at(lambda s: (s.force, s.volumes), CANTILEVER,
+                             (gravity_scale * CANTILEVER.force, weight_scale * CANTILEVER.volumes))
+
+        def step(state, _):
+            return backward_euler_step(system, state, H, mu, lam, fixed_positions=X[FIXED] + offset,
+                                       **CONVERGED), None
+
+        state = jax.lax.scan(step, State(BAR.X, v0), length=3)[0]
+        return jnp.sum(weights * state.x) + 0.5 * jnp.sum(state.v**2)
+
+    one = jnp.asarray(1.0)
+    args = (jnp.asarray(2e5), v0, jnp.zeros((len(FIXED), 3)), one, one)
+    value_and_grad = jax.jit(jax.value_and_grad(loss, argnums=(0, 1, 2, 3, 4)))  # one compilation for all
+    grad = value_and_grad(*args)[1]
+
+    def central(i, d, eps):
+        plus, minus = list(args), list(args)
+        plus[i], minus[i] = args[i] + eps * d, args[i] - eps * d
+        return float(value_and_grad(*plus)[0] - value_and_grad(*minus)[0]) / (2 * eps)
+
+    np.testing.assert_allclose(grad[0], central(0, 1.0, 1e-4 * float(args[0])), rtol=1e-5)
+    np.testing.assert_allclose(jnp.sum(grad[1] * direction["v0"]), central(1, direction["v0"], 1e-5), rtol=1e-5)
+    np.testing.assert_allclose(jnp.sum(grad[2] * direction["offset"]), central(2, direction["offset"], 1e-6),
+                               rtol=1e-5)
+    np.testing.assert_allclose(grad[3], central(3, 1.0, 1e-4), rtol=1e-5)  # through system.force
+    np.testing.assert_allclose(grad[4], central(4, 1.0, 1e-4), rtol=1e-5)  # through the integration weights
+
+
+def test_bad_input():
+    state = State(BAR.X, jnp.zeros_like(BAR.X))
+    with pytest.raises(ValueError, match="state.x: expected shape"):
+        backward_euler_step(CANTILEVER, State(BAR.X[:-1], BAR.X[:-1]), H, MU, LAM)
+    with pytest.raises(ValueError, match="h: expected a finite positive"):
+        backward_euler_step(CANTILEVER, state, -H, MU, LAM)
+    with pytest.raises(ValueError, match="fixed_positions: expected shape"):
+        backward_euler_step(CANTILEVER, state, H, MU, LAM, fixed_positions=np.zeros((2, 3)))
+    with pytest.raises(ValueError, match="newton_iterations"):
+        backward_euler_step(CANTILEVER, state, H, MU, LAM, newton_iterations=0)
+    with pytest.raises(ValueError, match="tolerance"):
+        backward_euler_step(CANTILEVER, state, H, MU, LAM, tolerance=-1.0)
+    with pytest.raises(ValueError, match="state.v: non-finite"):
+        backward_euler_step(CANTILEVER, State(BAR.X, jnp.full_like(BAR.X, jnp.nan)), H, MU, LAM)
+    grads, volumes = shape_gradients(BAR.X, BAR.T)
+    mass = consistent_mass(BAR.X, BAR.T, 1.0)
+    with pytest.raises(ValueError, match="mass: expected a finite symmetric"):
+        fem_system(BAR.T, grads, volumes, mass + sp.coo_matrix(([1.0], ([0], [1])), shape=mass.shape),
+                   CANTILEVER.force)
+    with pytest.raises(ValueError, match="force: expected"):
+        fem_system(BAR.T, grads, volumes, mass, CANTILEVER.force[:-1])
+    with pytest.raises(ValueError, match="gravity"):
+        fem_from_mesh(BAR, 1.0, gravity=(0.0, -9.81))
+
+
+def test_adjoint_solve_of_an_indefinite_or_singular_hessian():
+    # the true Hessian of a strongly compressed state may be indefinite: CHOLMOD refuses it, SuperLU solves it
+    A = sp.csr_matrix(np.array([[1.0, 2.0, 0.0], [2.0, 1.0, 0.0], [0.0, 0.0, 3.0]]))
+    b = np.array([1.0, -2.0, 3.0])
+    np.testing.assert_allclose(_host_direct(A.data, b, A.indptr, A.indices), np.linalg.solve(A.toarray(), b))
+    A = sp.csr_matrix(np.array([[1.0, 1.0], [1.0, 1.0]]))
+    assert np.all(np.isnan(_host_direct(A.data, b[:2], A.indptr, A.indices)))

@@ -1,0 +1,282 @@
+"""Sparse assembly of the backward Euler system of the XFEM paper, sec. 3.3: the 3n x 3n matrix
+``M (x) I3 + h^2 d^2U/dx^2`` (eq. 7, 9, 10) and the 3n vectors of eq. 6 and 8, summed from per-element
+12-vectors and 12 x 12 blocks.
+
+The sparsity is fixed by the element list (and, for XFEM's custom mass entries, by extra node couplings),
+so ``assembly_pattern`` computes it once on the host in vectorized numpy: the CSR structure of the matrix and,
+for each of the ``144 m`` element Hessian entries, the CSR data slot it adds into. Assembly in JAX is then a
+single scatter-add (``assemble_matrix``), jit- and grad-able. Dirichlet conditions are applied by
+substitution: the pattern of the free nodes only (the fixed nodes' rows and columns removed) is built
+directly, and entries touching a fixed node go to a discarded slot.
+
+Node ordering: DOF ``3 i + k`` is coordinate k of node i, the element 12-ordering is node-major (entry
+``3 a + k`` is coordinate k of the element's local node a). The CSR of node pairs is expanded to 3 x 3
+blocks, so row ``3 a + k`` of the reduced matrix holds the columns ``3 b + c`` of the free nodes b coupled
+with free node a, b ascending, c = 0, 1, 2.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import scipy.sparse as sp
+from jaxtyping import Array, Float, Int
+
+
+class AssemblyPattern(eqx.Module):
+    """The CSR structure of the reduced (free-DOF) 3n x 3n matrix and the scatter maps into it; build it with
+    ``assembly_pattern``.
+
+    Attributes:
+        n: the number of DOF nodes.
+        n_free: the number of free (not fixed) nodes; the matrix is 3 n_free x 3 n_free.
+        nnz: the number of stored entries.
+        m: the number of elements the pattern was built for.
+        free: (n_free,) the free nodes, ascending: reduced node r is node ``free[r]``.
+        free_index: (n,) the reduced index of each node, -1 for a fixed node.
+        indptr: (3 n_free + 1,) CSR row pointers.
+        indices: (nnz,) CSR column indices, ascending within a row.
+        rows: (nnz,) the row of each entry (the COO twin of indptr, for matrix-vector products).
+        hessian_slots: (144 m,) the data slot of each element Hessian entry ``H[e, r, c]`` (flattened in C
+            order); ``nnz`` for entries on a fixed node's row or column, which are discarded.
+    """
+
+    n: int = eqx.field(static=True)
+    n_free: int = eqx.field(static=True)
+    nnz: int = eqx.field(static=True)
+    m: int = eqx.field(static=True)
+    free: Int[Array, " n_free"]
+    free_index: Int[Array, " n"]
+    indptr: Int[Array, " rows_plus_one"]
+    indices: Int[Array, " nnz"]
+    rows: Int[Array, " nnz"]
+    hessian_slots: Int[Array, " entries"]
+
+
+def _host_fixed(fixed, n: int) -> np.ndarray:
+    fixed = np.asarray(fixed)
+    if fixed.size == 0:
+        return np.zeros(0, np.int64)
+    if fixed.ndim != 1 or not np.issubdtype(fixed.dtype, np.integer):
+        raise ValueError(f"fixed: expected a 1-D integer array of node indices, got {fixed.dtype} {fixed.shape}")
+    if fixed.min() < 0 or fixed.max() >= n:
+        raise ValueError(f"fixed: node indices must lie in [0, {n}), got [{fixed.min()}, {fixed.max()}]")
+    if len(np.unique(fixed)) != len(fixed):
+        raise ValueError("fixed: repeated node indices")
+    return fixed.astype(np.int64)
+
+
+def _host_elements(T, n: int) -> np.ndarray:
+    T = np.asarray(T)
+    if T.ndim != 2 or T.shape[1] != 4 or not np.issubdtype(T.dtype, np.integer):
+        raise ValueError(f"T: expected integer elements of shape (m, 4), got {T.dtype} {T.shape}")
+    if T.size and (T.min() < 0 or T.max() >= n):
+        raise ValueError(f"T: node indices must lie in [0, {n}), got [{T.min()}, {T.max()}]")
+    return T.astype(np.int64)
+
+
+def _block_slots(node_indptr, degree, a, p, k, c):
+    """CSR slot of entry (3 a + k, 3 b + c), b being the column node of the p-th stored node pair, which lies in
+    node row a (see the module docstring). Row a = n_free (a fixed node's entry, discarded) gives a dummy."""
+    degree = np.append(degree, 0)
+    return 9 * node_indptr[a] + 3 * k * degree[a] + 3 * (p - node_indptr[a]) + c
+
+
+def assembly_pattern(T, n: int, fixed=(), coupling=None) -> AssemblyPattern:
+    """Precompute the sparsity of the free-DOF system and the scatter map of the element Hessians (host).
+
+    Args:
+        T: (m, 4) int elements, indices into the n DOF nodes (nodes may repeat across elements in any way;
+            in XFEM they are enriched copies, not mesh vertices).
+        n: the number of DOF nodes.
+        fixed: (k,) distinct int nodes removed from the system (Dirichlet by substitution); () for none.
+        coupling: None, or an (n, n) scipy sparse (or dense) matrix whose nonzero pattern is added to the
+            node couplings of T, e.g. a mass matrix with entries between nodes that share no element.
+    Returns:
+        The ``AssemblyPattern``.
+    """
+    n = int(n)
+    if n < 1:
+        raise ValueError(f"n: expected a positive number of nodes, got {n}")
+    T = _host_elements(T, n)
+    fixed = _host_fixed(fixed, n)
+    free_index = np.full(n, -1, np.int64)
+    free = np.setdiff1d(np.arange(n), fixed)
+    free_index[free] = np.arange(len(free))
+    nf = len(free)
+
+    F = free_index[T]  # (m, 4) reduced nodes, -1 where fixed
+    ra = np.broadcast_to(F[:, :, None], (len(T), 4, 4))
+    cb = np.broadcast_to(F[:, None, :], (len(T), 4, 4))
+    pairs_a, pairs_b = ra.ravel(), cb.ravel()
+    if coupling is not None:
+        C = sp.coo_matrix(coupling)
+        if C.shape != (n, n):
+            raise ValueError(f"coupling: expected shape ({n}, {n}), got {C.shape}")
+        keep = C.data != 0
+        pairs_a = np.concatenate([pairs_a, free_index[C.row[keep]]])
+        pairs_b = np.concatenate([pairs_b, free_index[C.col[keep]]])
+    valid = (pairs_a >= 0) & (pairs_b >= 0)
+    keys = np.unique(pairs_a[valid] * nf + pairs_b[valid])
+    node_rows, node_cols = keys // max(nf, 1), keys % max(nf, 1)
+    degree = np.bincount(node_rows, minlength=nf)
+    node_indptr = np.concatenate([[0], np.cumsum(degree)])
+    nnz = 9 * len(keys)
+
+    # the DOF-level CSR: row 3 a + k holds the blocks (b, c) of node row a in order
+    k3 = np.arange(3)
+    indptr = np.concatenate([(9 * node_indptr[:-1, None] + 3 * k3 * degree[:, None]).ravel(), [nnz]])
+    # node row a stores its pairs once per coordinate k: entry t in [0, 3 degree) of the row uses pair t % degree
+    t = np.arange(3 * len(keys)) - np.repeat(3 * node_indptr[:-1], 3 * degree)
+    pair_of_entry = np.repeat(node_indptr[:-1], 3 * degree) + t % np.repeat(np.maximum(degree, 1), 3 * degree)
+    indices = (3 * node_cols[pair_of_entry][:, None] + k3).ravel()
+    rows = np.repeat(np.arange(3 * nf), np.diff(indptr))
+
+    # the slot of every element Hessian entry (e, a, k, b, l)
+    pair = np.searchsorted(keys, np.where((ra >= 0) & (cb >= 0), ra * nf + cb, 0))  # (m, 4, 4)
+    row = np.where(ra >= 0, ra, nf)
+    slots = _block_slots(node_indptr, degree, row[:, :, None, :, None], pair[:, :, None, :, None],
+                         k3[None, None, :, None, None], k3[None, None, None, None, :])
+    dropped = ((ra < 0) | (cb < 0))[:, :, None, :, None]
+    slots = np.where(dropped, nnz, slots).reshape(-1)
+
+    index = np.int32 if nnz < 2**31 - 1 else np.int64
+    return AssemblyPattern(n=n, n_free=nf, nnz=nnz, m=len(T), free=jnp.asarray(free.astype(index)),
+                           free_index=jnp.asarray(free_index.astype(index)), indptr=jnp.asarray(indptr.astype(index)),
+                           indices=jnp.asarray(indices.astype(index)), rows=jnp.asarray(rows.astype(index)),
+                           hessian_slots=jnp.asarray(slots.astype(index)))
+
+
+def _host_pairs(pattern: AssemblyPattern):
+    """The stored node pairs as sorted keys ``a * n_free + b`` (host), with the node-level row pointers."""
+    indptr, indices, rows = (np.asarray(a, np.int64) for a in (pattern.indptr, pattern.indices, pattern.rows))
+    first = (rows % 3 == 0) & (indices % 3 == 0)  # entry (3 a, 3 b): one per node pair, in CSR order
+    keys = rows[first] // 3 * pattern.n_free + indices[first] // 3
+    node_indptr = indptr[::3] // 9
+    return keys, node_indptr, np.diff(node_indptr)
+
+
+def scalar_slots(pattern: AssemblyPattern, rows, cols) -> np.ndarray:
+    """The data slots of the entries ``(3 r + k, 3 c + k)``, k = 0, 1, 2, of a scalar (n, n) matrix expanded by
+    ``(x) I3`` (the mass matrix of eq. 7); host, numpy.
+
+    Args:
+        pattern: the ``AssemblyPattern``; every pair (r, c) of free nodes must be stored in it (build it with
+            the scalar matrix as ``coupling``).
+        rows: (k,) int node rows in [0, n).
+        cols: (k,) int node columns in [0, n).
+    Returns:
+        (k, 3) int slots for ``assemble_scalar``; ``nnz`` (discarded) where r or c is fixed.
+    """
+    rows, cols = np.asarray(rows), np.asarray(cols)
+    if rows.ndim != 1 or rows.shape != cols.shape or not (np.issubdtype(rows.dtype, np.integer)
+                                                          and np.issubdtype(cols.dtype, np.integer)):
+        raise ValueError(f"rows, cols: expected two 1-D integer arrays of one length, got {rows.shape}, {cols.shape}")
+    if rows.size and (min(rows.min(), cols.min()) < 0 or max(rows.max(), cols.max()) >= pattern.n):
+        raise ValueError(f"rows, cols: node indices must lie in [0, {pattern.n})")
+    free_index = np.asarray(pattern.free_index, np.int64)
+    ra, cb = free_index[rows], free_index[cols]
+    valid = (ra >= 0) & (cb >= 0)
+    keys, node_indptr, degree = _host_pairs(pattern)
+    wanted = np.where(valid, ra * pattern.n_free + cb, 0)
+    p = np.minimum(np.searchsorted(keys, wanted), max(len(keys) - 1, 0))
+    missing = valid & (keys[p] != wanted) if len(keys) else valid
+    if np.any(missing):
+        e = int(np.argmax(missing))
+        raise ValueError(f"rows, cols: the node pair ({rows[e]}, {cols[e]}) is not in the pattern; pass the matrix "
+                         "as coupling to assembly_pattern")
+    k3 = np.arange(3)
+    slots = _block_slots(node_indptr, degree, np.where(valid, ra, pattern.n_free)[:, None], p[:, None], k3, k3)
+    return np.where(valid[:, None], slots, pattern.nnz)
+
+
+def assemble_matrix(pattern: AssemblyPattern, H: Float[Array, "m 12 12"]) -> Float[Array, " nnz"]:
+    """Sum element 12 x 12 blocks into the reduced CSR matrix (one scatter-add; jit/grad-able).
+
+    Args:
+        pattern: the ``AssemblyPattern`` of the elements.
+        H: (m, 12, 12) float element matrices in the node-major 12-ordering.
+    Returns:
+        (nnz,) the CSR data, in the order of ``pattern.indices``.
+    """
+    H = jnp.asarray(H)
+    if H.shape != (pattern.m, 12, 12):
+        raise ValueError(f"H: expected shape ({pattern.m}, 12, 12), got {H.shape}")
+    return jnp.zeros(pattern.nnz, H.dtype).at[pattern.hessian_slots].add(H.reshape(-1), mode="drop")
+
+
+def assemble_scalar(pattern: AssemblyPattern, slots: Int[Array, "k 3"], values: Float[Array, " k"]
+                    ) -> Float[Array, " nnz"]:
+    """The CSR data of a scalar (n, n) matrix expanded by ``(x) I3`` and reduced to the free nodes.
+
+    Args:
+        pattern: the ``AssemblyPattern``.
+        slots: (k, 3) int slots from ``scalar_slots``.
+        values: (k,) float entries of the scalar matrix at those (row, col) pairs.
+    Returns:
+        (nnz,) the CSR data.
+    """
+    values = jnp.asarray(values)
+    if slots.ndim != 2 or slots.shape[1] != 3 or values.shape != slots.shape[:1]:
+        raise ValueError(f"slots, values: expected shapes (k, 3) and (k,), got {slots.shape}, {values.shape}")
+    return jnp.zeros(pattern.nnz, values.dtype).at[slots].add(
+        jnp.broadcast_to(values[:, None], slots.shape), mode="drop")
+
+
+def assemble_vector(T: Int[Array, "m 4"], g: Float[Array, "m 12"], n: int) -> Float[Array, "n 3"]:
+    """Sum element 12-vectors (node-major) into an (n, 3) nodal array (jit/grad-able).
+
+    Args:
+        T: (m, 4) int elements.
+        g: (m, 12) float element vectors.
+        n: the number of DOF nodes.
+    Returns:
+        (n, 3) nodal sums.
+    """
+    T, g = jnp.asarray(T), jnp.asarray(g)
+    if T.ndim != 2 or T.shape[1] != 4 or g.shape != (T.shape[0], 12):
+        raise ValueError(f"T, g: expected shapes (m, 4) and (m, 12), got {T.shape}, {g.shape}")
+    return jax.ops.segment_sum(g.reshape(-1, 3), T.reshape(-1), num_segments=n)
+
+
+def restrict(pattern: AssemblyPattern, v: Float[Array, "n 3"]) -> Float[Array, " dofs"]:
+    """The free rows of a nodal array as a vector in the pattern's DOF order.
+
+    Args:
+        pattern: the ``AssemblyPattern``.
+        v: (n, 3) nodal values.
+    Returns:
+        (3 n_free,) ``v[pattern.free].ravel()``.
+    """
+    if v.shape != (pattern.n, 3):
+        raise ValueError(f"v: expected shape ({pattern.n}, 3), got {v.shape}")
+    return v[pattern.free].reshape(-1)
+
+
+def matvec(pattern: AssemblyPattern, data: Float[Array, " nnz"], x: Float[Array, " dofs"]) -> Float[Array, " dofs"]:
+    """The product of the reduced CSR matrix with a vector (jit/grad-able).
+
+    Args:
+        pattern: the ``AssemblyPattern``.
+        data: (nnz,) the matrix's CSR data.
+        x: (3 n_free,) the vector.
+    Returns:
+        (3 n_free,) the product.
+    """
+    return jax.ops.segment_sum(data * x[pattern.indices], pattern.rows, num_segments=3 * pattern.n_free,
+                               indices_are_sorted=True)
+
+
+def to_scipy(pattern: AssemblyPattern, data) -> sp.csr_matrix:
+    """The reduced matrix as a scipy CSR matrix (host).
+
+    Args:
+        pattern: the ``AssemblyPattern``.
+        data: (nnz,) the matrix's CSR data.
+    Returns:
+        (3 n_free, 3 n_free) ``scipy.sparse.csr_matrix``.
+    """
+    return sp.csr_matrix((np.asarray(data), np.asarray(pattern.indices), np.asarray(pattern.indptr)),
+                         shape=(3 * pattern.n_free, 3 * pattern.n_free))

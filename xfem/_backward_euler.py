@@ -1,0 +1,439 @@
+"""Backward Euler time stepping of the XFEM paper, sec. 3.3: the equations of motion ``M u'' = -grad U + f``
+(eq. 6) with the mass, force and elastic energy of eq. 7-9, integrated by eq. (10) as a minimization.
+
+Step (eq. 10). With ``x~ = x_t + h v_t``, the new positions minimize
+
+    E(x) = 1/2 (x - x~)^T M (x - x~) + h^2 (U(x) - f . x),
+
+which has the same minimizer as the paper's ``1/2 |x - x~ - h^2 M^-1 f|_M^2 + h^2 U`` (they differ by a
+constant) without inverting M; then ``v_{t+1} = (x_{t+1} - x_t) / h``. Dirichlet nodes are substituted:
+their positions are set (to ``fixed_positions``, default where they are) and only the free nodes are
+unknowns. Newton's method starts at x~ (fixed nodes placed) and solves ``(M + h^2 K_+) dx = -grad E`` on the
+free DOFs, K_+ being the stiffness assembled from the PSD-projected element Hessians (so the direction is
+one of descent), followed by a backtracking (Armijo) line search on E. The paper takes one Newton
+iteration per step (the default here); with ``tolerance`` the iterations go on, up to
+``newton_iterations``, until the largest entry of a Newton update is below it.
+
+The system is generic over an element list: elements ``T`` index a DOF-node array, each with its shape
+gradients and integration weight (``volumes``), plus any symmetric scalar (n, n) mass matrix and (n, 3)
+forces. Nothing assumes the nodes are mesh vertices or that the mass is ``consistent_mass``, so XFEM's
+enriched copies, sub-elements and custom mass entries go through the same code.
+
+Linear solver, chosen by measurement. One step (element Hessians, assembly, solve, line search) on
+``box_tets`` meshes, Young 1e6, Poisson 0.4, density 1e3, h = 0.033, gravity, the x = 0 face fixed, one
+Newton iteration, from a sagging state; best of 12 steps in two runs, wall-clock, float64, on the shared
+2-core development machine (load average ~4 from other sessions)::
+
+    box cells, DOFs (free)             (6,6,6) 1029 (882)   (11,9,19) 7200 (6600)   (18,19,19) 22800 (21600)
+    (a) CHOLMOD, host callback         0.012 s              0.26 s                  1.97 s
+    (b) lineax CG + Jacobi, in JAX     0.020 s              0.28 s                  1.33 s
+    (c) Jacobi PCG, host callback      0.012 s              0.11 s                  0.49 s   <- used
+
+(a) ``sksparse_minimal``'s CHOLMOD: its wheel carries the reference BLAS, so the supernodal factorization is
+slow (1.7-2.5 s alone at 22.8k DOFs; scipy's SuperLU took 5.9 s); it has no separate symbolic analysis to
+reuse across steps, and the numeric factorization dominates anyway. (b) lineax CG with matrix-vector products
+in JAX: XLA's CPU gathers and scatters make one product ~3-5 ms at 22.8k DOFs against ~0.6 ms for scipy's CSR
+product. (c) the same preconditioned CG as a numpy loop over scipy's CSR product (``_host_cg``), one
+``jax.pure_callback`` per Newton iteration (~220 CG iterations, 0.12 s, at 22.8k DOFs; the rest of the 0.49 s
+is the projected element Hessians, 0.21 s, their assembly, 0.04 s, and the line search). The Newton direction
+is solved to a relative residual of 1e-4 (an inexact Newton step; 1e-6 takes ~1.4x the iterations, and after 7
+steps at 7.2k DOFs the positions differ from those of a 1e-9 solve by 1e-7, 3e-6 of the largest displacement).
+With ``tolerance`` the relative residual is tightened to ``|grad E| / |grad E at the first iteration|`` (down
+to 1e-11), so that Newton converges superlinearly where the projection of the element Hessians is inactive
+near the solution (where it is active, projected Newton converges linearly). The adjoint solve of the
+gradients (below) must be exact: it uses CHOLMOD, and scipy's SuperLU when the true Hessian is not positive
+definite.
+
+Gradients (implicit differentiation). ``backward_euler_step`` is differentiable in reverse mode with
+respect to ``state.x``, ``state.v``, ``mu``, ``lam``, ``fixed_positions`` and, in the system, ``force``,
+``grads``, ``volumes`` and ``mass_values`` (e.g. XFEM integration weights that depend on a cut); not ``h``.
+At the minimizer x* the free-DOF gradient ``G(x*, theta) = grad_free E`` vanishes, so
+``dx*/dtheta = -H^-1 dG/dtheta`` with H the TRUE (unprojected) Hessian ``M + h^2 K``: the backward pass
+solves ``H u = x_bar`` once and returns ``-(dG/dtheta)^T u`` (a vjp of autodiff's gradient of E); the fixed
+rows pass their cotangent to ``fixed_positions``. The Newton loop is never unrolled. This is the derivative
+of the exact minimizer: it matches the computed step only when the step is converged (``newton_iterations``
+~ 20 and a small ``tolerance``); after a single Newton iteration it is an approximation.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+from jaxtyping import Array, Float, Int
+from sksparse_minimal import SparseCholesky
+
+from jaxcga._support import require
+from xfem._assembly import (
+    AssemblyPattern,
+    _host_elements,
+    _host_fixed,
+    assemble_matrix,
+    assemble_scalar,
+    assemble_vector,
+    assembly_pattern,
+    restrict,
+    scalar_slots,
+)
+from xfem._linear_tet import body_force, consistent_mass, shape_gradients
+from xfem._neohookean import element_energy, element_gradient_hessian
+from xfem._tetmesh import TetMesh
+
+_CG_RTOL = 1e-4  # relative residual of the Newton direction (inexact Newton)
+_CG_RTOL_MIN = 1e-11  # the tightest one asked for when converging (CG stalls near rounding)
+_ARMIJO = 1e-4  # sufficient-decrease constant of the line search
+_HALVINGS = 30  # the line search gives up (takes no step) after this many halvings
+
+
+class FEMSystem(eqx.Module):
+    """Everything a backward Euler step needs besides the state and the material (``fem_system``,
+    ``fem_from_mesh``).
+
+    Attributes:
+        T: (m, 4) int elements, indices into the n DOF nodes.
+        grads: (m, 4, 3) shape-function gradients of each element (``F_e = sum_a x_{T[e,a]} grads[e,a]^T``).
+        volumes: (m,) integration weights (rest volumes).
+        mass_rows, mass_cols: (k,) int nonzero entries of the scalar (n, n) mass matrix, sorted by row (CSR).
+        mass_values: (k,) their values (eq. 7's scalar factor; the 3n matrix is ``M (x) I3``).
+        mass_data: (nnz,) ``M (x) I3`` restricted to the free DOFs, as data of ``pattern``.
+        force: (n, 3) external nodal forces f (eq. 8).
+        fixed: (nb,) int Dirichlet nodes.
+        pattern: the ``AssemblyPattern`` of the free-DOF system (elements and mass couplings).
+        n: the number of DOF nodes.
+    """
+
+    T: Int[Array, "m 4"]
+    grads: Float[Array, "m 4 3"]
+    volumes: Float[Array, " m"]
+    mass_rows: Int[Array, " k"]
+    mass_cols: Int[Array, " k"]
+    mass_values: Float[Array, " k"]
+    mass_data: Float[Array, " nnz"]
+    force: Float[Array, "n 3"]
+    fixed: Int[Array, " nb"]
+    pattern: AssemblyPattern
+    n: int = eqx.field(static=True)
+
+
+class State(eqx.Module):
+    """Positions and velocities of the n DOF nodes.
+
+    Attributes:
+        x: (n, 3) positions.
+        v: (n, 3) velocities.
+    """
+
+    x: Float[Array, "n 3"]
+    v: Float[Array, "n 3"]
+
+
+def fem_system(T, grads, volumes, mass, force, fixed=()) -> FEMSystem:
+    """Bundle an element list, a mass matrix, forces and Dirichlet nodes for ``backward_euler_step`` (host).
+
+    Args:
+        T: (m, 4) int elements, indices into the n DOF nodes.
+        grads: (m, 4, 3) float shape-function gradients of the elements; their dtype is the system's.
+        volumes: (m,) float non-negative integration weights.
+        mass: (n, n) symmetric scalar mass matrix (scipy sparse or dense), positive definite on the free
+            nodes; its nonzeros may couple nodes that share no element.
+        force: (n, 3) float nodal forces.
+        fixed: (nb,) distinct int Dirichlet nodes; () for none.
+    Returns:
+        The ``FEMSystem``.
+    """
+    grads, volumes = jnp.asarray(grads), jnp.asarray(volumes)
+    if grads.ndim != 3 or grads.shape[1:] != (4, 3) or not jnp.issubdtype(grads.dtype, jnp.floating):
+        raise ValueError(f"grads: expected float shape gradients of shape (m, 4, 3), got {grads.dtype} {grads.shape}")
+    dtype, m = grads.dtype, grads.shape[0]
+    if volumes.shape != (m,) or not jnp.issubdtype(volumes.dtype, jnp.floating):
+        raise ValueError(f"volumes: expected float weights of shape ({m},), got {volumes.dtype} {volumes.shape}")
+    if not (np.all(np.isfinite(grads)) and np.all(np.isfinite(volumes)) and np.all(np.asarray(volumes) >= 0)):
+        raise ValueError("grads, volumes: expected finite values and non-negative weights")
+    mass = sp.csr_matrix(mass, dtype=np.float64)
+    n = mass.shape[0]
+    if mass.shape != (n, n) or n < 1:
+        raise ValueError(f"mass: expected a square (n, n) matrix, got shape {mass.shape}")
+    mass.sum_duplicates()
+    mass.eliminate_zeros()
+    if not np.all(np.isfinite(mass.data)) or (mass.nnz and abs(mass - mass.T).max() > 1e-12 * abs(mass).max()):
+        raise ValueError("mass: expected a finite symmetric matrix")
+    T = _host_elements(T, n)
+    if len(T) != m:
+        raise ValueError(f"T: expected {m} elements (as in grads), got {len(T)}")
+    force = jnp.asarray(force)
+    if force.shape != (n, 3) or not np.all(np.isfinite(force)):
+        raise ValueError(f"force: expected finite forces of shape ({n}, 3), got {force.shape}")
+    fixed = _host_fixed(fixed, n)
+    pattern = assembly_pattern(T, n, fixed, coupling=mass)
+    coo = mass.tocoo()
+    values = jnp.asarray(coo.data, dtype)
+    mass_data = assemble_scalar(pattern, jnp.asarray(scalar_slots(pattern, coo.row, coo.col)), values)
+    index = pattern.indices.dtype
+    return FEMSystem(T=jnp.asarray(T, index), grads=grads, volumes=jnp.asarray(volumes, dtype),
+                     mass_rows=jnp.asarray(coo.row, index), mass_cols=jnp.asarray(coo.col, index), mass_values=values,
+                     mass_data=mass_data, force=jnp.asarray(force, dtype), fixed=jnp.asarray(fixed, index),
+                     pattern=pattern, n=n)
+
+
+def fem_from_mesh(mesh: TetMesh, density, gravity=(0.0, 0.0, -9.81), fixed=()) -> FEMSystem:
+    """The FEM system of a tet mesh: linear elements, consistent mass (eq. 7), gravity as body force (eq. 8).
+
+    Args:
+        mesh: the ``TetMesh``.
+        density: scalar or (m,) positive mass density per tet.
+        gravity: (3,) gravitational acceleration; the body force density is ``density * gravity``.
+        fixed: (nb,) distinct int Dirichlet nodes; () for none.
+    Returns:
+        The ``FEMSystem`` (n = the mesh's nodes).
+    """
+    gravity = np.asarray(gravity, np.float64)
+    if gravity.shape != (3,) or not np.all(np.isfinite(gravity)):
+        raise ValueError(f"gravity: expected a finite (3,) acceleration, got {gravity.shape}")
+    grads, volumes = shape_gradients(mesh.X, mesh.T)
+    mass = consistent_mass(mesh.X, mesh.T, density)
+    rho = np.asarray(density, np.float64)
+    force = body_force(mesh.X, mesh.T, rho[..., None] * gravity)
+    return fem_system(mesh.T, grads, volumes, mass, force, fixed)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# host linear solves
+
+
+def _csr(data, indptr, indices):
+    N = len(indptr) - 1
+    return sp.csr_matrix((np.asarray(data, np.float64), np.asarray(indices), np.asarray(indptr)), shape=(N, N))
+
+
+def _host_cg(data, rhs, rtol, indptr, indices):
+    """Jacobi-preconditioned CG to the relative residual ``rtol``, starting at 0.
+
+    Not scipy's ``cg``: its vector dot products go to numpy's multithreaded BLAS, whose threads stall on a
+    loaded 2-core machine (measured 8 ms for one dot of two 21.6k-vectors, 10x the sparse product);
+    ``np.sum(a * b)`` stays in one thread. An unconverged iterate still decreases the quadratic model, so
+    it remains a descent direction."""
+    A = _csr(data, indptr, indices)
+    b = np.asarray(rhs, np.float64)
+    inverse_diagonal = 1 / A.diagonal()
+    x, r = np.zeros_like(b), b.copy()
+    z = inverse_diagonal * r
+    p, rz = z.copy(), np.sum(r * z)
+    stop = float(rtol) ** 2 * np.sum(b * b)
+    for _ in range(max(len(b), 1)):
+        if np.sum(r * r) <= stop:
+            break
+        Ap = A @ p
+        alpha = rz / np.sum(p * Ap)
+        x += alpha * p
+        r -= alpha * Ap
+        z = inverse_diagonal * r
+        rz, rz_old = np.sum(r * z), rz
+        p = z + (rz / rz_old) * p
+    return x.astype(rhs.dtype)
+
+
+def _host_direct(data, rhs, indptr, indices):
+    """The exact solve: CHOLMOD, or SuperLU for an indefinite matrix, NaN for a singular one."""
+    A = _csr(data, indptr, indices)
+    b = np.asarray(rhs, np.float64)
+    try:  # a symmetric matrix's CSR arrays are its CSC arrays
+        x = SparseCholesky(A.tocsc()).solve_A(b)
+    except ValueError:  # not positive definite (the true Hessian of a strongly compressed state)
+        try:
+            x = spla.splu(A.tocsc()).solve(b)
+        except RuntimeError:  # exactly singular
+            x = np.full_like(b, np.nan)
+    return x.astype(rhs.dtype)
+
+
+def _solve(host, pattern: AssemblyPattern, data, rhs, *options):
+    """``host(data, rhs, *options, indptr, indices)`` on the host: the solution of the reduced system."""
+    x = jax.pure_callback(host, jax.ShapeDtypeStruct(rhs.shape, rhs.dtype), data, rhs, *options, pattern.indptr,
+                          pattern.indices, vmap_method="sequential")
+    return eqx.error_if(x, ~jnp.all(jnp.isfinite(x)), "the Newton system is singular or the state is not finite")
+
+
+# ---------------------------------------------------------------------------------------------------------
+# the incremental potential E and its Newton minimization
+
+
+class _Theta(eqx.Module):
+    """The differentiable inputs of a step: E depends on them, the sparsity pattern does not."""
+
+    x: Float[Array, "n 3"]  # x_t
+    v: Float[Array, "n 3"]  # v_t
+    mu: Float[Array, "..."]
+    lam: Float[Array, "..."]
+    fixed_positions: Float[Array, "nb 3"]
+    force: Float[Array, "n 3"]
+    grads: Float[Array, "m 4 3"]
+    volumes: Float[Array, " m"]
+    mass_values: Float[Array, " k"]
+
+
+def _mass_times(system: FEMSystem, mass_values, d):
+    """M d for the scalar mass (entries ``mass_values``) applied to each coordinate of d (n, 3)."""
+    return jax.ops.segment_sum(mass_values[:, None] * d[system.mass_cols], system.mass_rows,
+                               num_segments=system.n, indices_are_sorted=True)
+
+
+def mechanical_energy(system: FEMSystem, state: State, mu, lam):
+    """The energies of a state: kinetic ``1/2 v^T M v``, elastic ``U(x)`` (eq. 9) and the potential of the
+    external forces ``-f . x`` (gravity's, for body forces). Their sum is conserved by the exact dynamics;
+    backward Euler dissipates it. Returns three scalars (JAX, differentiable)."""
+    kinetic = 0.5 * jnp.sum(state.v * _mass_times(system, system.mass_values, state.v))
+    elastic = jnp.sum(element_energy(state.x[system.T], system.grads, system.volumes, mu, lam))
+    return kinetic, elastic, -jnp.sum(system.force * state.x)
+
+
+def _energy(system: FEMSystem, x, theta: _Theta, h):
+    """E(x) and a magnitude of its terms (for the line search's rounding slack)."""
+    d = x - theta.x - h * theta.v
+    kinetic = 0.5 * jnp.sum(d * _mass_times(system, theta.mass_values, d))
+    elastic = jnp.sum(element_energy(x[system.T], theta.grads, theta.volumes, theta.mu, theta.lam))
+    work = jnp.sum(theta.force * x)
+    return kinetic + h**2 * (elastic - work), kinetic + h**2 * (jnp.abs(elastic) + jnp.abs(work))
+
+
+def _gradient_and_matrix(system: FEMSystem, x, theta: _Theta, h, project: bool):
+    """grad E on the free DOFs (3 n_free,) and the CSR data of ``M + h^2 K`` (K projected or true)."""
+    g, H = element_gradient_hessian(x[system.T], theta.grads, theta.volumes, theta.mu, theta.lam, project=project)
+    d = x - theta.x - h * theta.v
+    gradient = _mass_times(system, theta.mass_values, d) + h**2 * (assemble_vector(system.T, g, system.n) - theta.force)
+    return restrict(system.pattern, gradient), system.mass_data + h**2 * assemble_matrix(system.pattern, H)
+
+
+def _line_search(system: FEMSystem, x, step, slope, theta: _Theta, h):
+    """The Armijo step length along ``step`` (n_free, 3); 0 when no decrease is found."""
+    free = system.pattern.free
+    energy0, scale = _energy(system, x, theta, h)
+    slack = 64 * jnp.finfo(x.dtype).eps * scale  # below this E differences are rounding
+
+    def accepted(alpha, energy):
+        return energy <= energy0 + _ARMIJO * alpha * slope + slack
+
+    def trial(alpha):
+        return _energy(system, x.at[free].add(alpha * step), theta, h)[0]
+
+    def cond(carry):
+        alpha, energy, k = carry
+        return ~accepted(alpha, energy) & (k < _HALVINGS)
+
+    def body(carry):
+        alpha, _, k = carry
+        return alpha / 2, trial(alpha / 2), k + 1
+
+    one = jnp.ones((), x.dtype)
+    alpha, energy, _ = jax.lax.while_loop(cond, body, (one, trial(one), 0))
+    return jnp.where(accepted(alpha, energy), alpha, 0)
+
+
+def _newton(theta: _Theta, system: FEMSystem, h, iterations: int, tolerance, line_search: bool):
+    free = system.pattern.free
+    x0 = (theta.x + h * theta.v).at[system.fixed].set(theta.fixed_positions)
+
+    def cond(carry):
+        k, _, _, done = carry
+        return (k < iterations) & ~done
+
+    def body(carry):
+        k, x, first_norm, _ = carry
+        gradient, data = _gradient_and_matrix(system, x, theta, h, project=True)
+        norm = jnp.sqrt(jnp.sum(gradient**2))
+        first_norm = jnp.where(k == 0, norm, first_norm)
+        rtol = _CG_RTOL
+        if tolerance is not None:  # converging: tighten the solves as grad E falls, for superlinear convergence
+            rtol = jnp.clip(norm / first_norm, _CG_RTOL_MIN, _CG_RTOL)
+        step = -_solve(_host_cg, system.pattern, data, gradient, jnp.asarray(rtol, x.dtype))
+        alpha = _line_search(system, x, step.reshape(-1, 3), jnp.dot(gradient, step), theta, h) if line_search else 1
+        x = x.at[free].add(alpha * step.reshape(-1, 3))
+        done = False if tolerance is None else jnp.max(jnp.abs(step), initial=0) <= tolerance
+        return k + 1, x, first_norm, jnp.asarray(done)
+
+    zero = jnp.zeros((), x0.dtype)
+    return jax.lax.while_loop(cond, body, (0, x0, zero, jnp.asarray(False)))[1]
+
+
+@eqx.filter_custom_vjp
+def _minimize(theta, system, h, iterations, tolerance, line_search):
+    return _newton(theta, system, h, iterations, tolerance, line_search)
+
+
+@_minimize.def_fwd
+def _minimize_fwd(perturbed, theta, system, h, iterations, tolerance, line_search):
+    x = _newton(theta, system, h, iterations, tolerance, line_search)
+    return x, x
+
+
+@_minimize.def_bwd
+def _minimize_bwd(x, x_bar, perturbed, theta, system, h, iterations, tolerance, line_search):
+    pattern = system.pattern
+
+    def free_gradient(t: _Theta):  # G(x*, theta): the fixed rows of x follow theta's fixed positions
+        y = x.at[system.fixed].set(t.fixed_positions)
+        return restrict(pattern, jax.grad(lambda z: _energy(system, z, t, h)[0])(y))
+
+    _, data = _gradient_and_matrix(system, x, theta, h, project=False)
+    u = _solve(_host_direct, pattern, data, restrict(pattern, x_bar))
+    grad = jax.vjp(free_gradient, theta)[1](-u)[0]
+    grad = eqx.tree_at(lambda t: t.fixed_positions, grad, grad.fixed_positions + x_bar[system.fixed])
+    return jax.tree.map(lambda g, p: g if p else None, grad, perturbed)
+
+
+@eqx.filter_jit
+def _step(system, state, h, mu, lam, fixed_positions, iterations, tolerance, line_search):
+    theta = _Theta(state.x, state.v, mu, lam, fixed_positions, system.force, system.grads, system.volumes,
+                   system.mass_values)
+    # theta carries every differentiable input; the rest of the system is structure
+    x = _minimize(theta, jax.lax.stop_gradient(system), h, iterations, tolerance, line_search)
+    return State(x, (x - state.x) / h)
+
+
+def backward_euler_step(system: FEMSystem, state: State, h, mu, lam, fixed_positions=None,
+                        newton_iterations: int = 1, tolerance: float | None = None,
+                        line_search: bool = True) -> State:
+    """One backward Euler step (eq. 10) of the stable neo-Hookean system (module docstring); jit-compiled,
+    differentiable (reverse mode, implicitly) in state, mu, lam, fixed_positions and the system's force,
+    grads, volumes and mass_values.
+
+    Args:
+        system: the ``FEMSystem``.
+        state: the ``State`` at time t, x and v of shape (n, 3) and the system's dtype.
+        h: the positive time step.
+        mu, lam: Lamé parameters (``lame``), scalars or (m,) per element.
+        fixed_positions: (nb, 3) positions of the fixed nodes at t + h (a moving boundary); None keeps them
+            where they are, ``state.x[system.fixed]``.
+        newton_iterations: the most Newton iterations (>= 1); 1 as in the paper.
+        tolerance: None (run all ``newton_iterations``) or stop once the largest entry of a Newton update
+            (a length) is at most this.
+        line_search: backtrack (Armijo) on E; False takes full Newton steps.
+    Returns:
+        The ``State`` at t + h: the fixed nodes at ``fixed_positions``, ``v = (x_{t+1} - x_t) / h``.
+    """
+    if not isinstance(system, FEMSystem) or not isinstance(state, State):
+        raise ValueError("system, state: expected an FEMSystem (fem_system) and a State")
+    dtype = system.grads.dtype
+    for name, a in (("state.x", state.x), ("state.v", state.v)):
+        if jnp.shape(a) != (system.n, 3) or jnp.result_type(a) != dtype:
+            raise ValueError(f"{name}: expected shape ({system.n}, 3) and dtype {dtype}, got "
+                             f"{jnp.result_type(a)} {jnp.shape(a)}")
+    if int(newton_iterations) != newton_iterations or newton_iterations < 1:
+        raise ValueError(f"newton_iterations: expected an int >= 1, got {newton_iterations!r}")
+    if tolerance is not None and not tolerance > 0:
+        raise ValueError(f"tolerance: expected None or a positive length, got {tolerance!r}")
+    h = jnp.asarray(h, dtype)
+    if h.shape != ():
+        raise ValueError(f"h: expected a scalar time step, got shape {h.shape}")
+    h = require(h, (~(h > 0) | ~jnp.isfinite(h), "h: expected a finite positive time step"))
+    if fixed_positions is None:
+        fixed_positions = state.x[system.fixed]
+    fixed_positions = jnp.asarray(fixed_positions)
+    if fixed_positions.shape != system.fixed.shape + (3,):
+        raise ValueError(f"fixed_positions: expected shape ({system.fixed.shape[0]}, 3), got {fixed_positions.shape}")
+    state = State(*(require(a, (~jnp.all(jnp.isfinite(a)), f"state.{name}: non-finite values (NaN or inf)"))
+                    for name, a in (("x", state.x), ("v", state.v))))
+    return _step(system, state, h, jnp.asarray(mu, dtype), jnp.asarray(lam, dtype),
+                 jnp.asarray(fixed_positions, dtype), int(newton_iterations), tolerance, line_search)
