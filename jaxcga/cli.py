@@ -210,8 +210,24 @@ def _run_arap(args) -> int:
     return 0
 
 
+def _run_fem(args) -> int:
+    from xfem import _fem_commands
+
+    summary = _fem_commands.fem_command(
+        args.scene, args.steps, args.out, h=args.dt, young=args.young, poisson=args.poisson, density=args.density,
+        gravity=tuple(args.gravity), newton_iterations=args.newton, every=args.every, fix_fraction=args.fix_fraction,
+        figures=not args.no_figures)
+    shown = {k: summary[k] for k in ("nodes", "dofs", "elements", "steps", "step_avg_s", "step_max_s",
+                                     "max_displacement")}
+    print(f"jaxcga fem {args.scene}: " + ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}"
+                                                   for k, v in shown.items()) + f", out {args.out}")
+    return 0
+
+
 def _run_deform(args) -> int:
     _x64()
+    if args.command == "fem":
+        return _run_fem(args)
     if args.command == "deform":
         return _run_deformation(args)
     if args.command == "arap":
@@ -382,6 +398,25 @@ def main(argv: list[str] | None = None) -> int:
                         help="default handles: vertices within this fraction of the long axis's ends (default 0.05)")
     p_arap.add_argument("--out", type=Path, required=True,
                         help="OUT.npy: float64 (n, 3) positions; OUT.glb/.obj/.ply/.stl: the mesh; OUT.png: a figure")
+
+    p_fem = sub.add_parser("fem", help="simulate a stable neo-Hookean body under gravity by backward Euler "
+                                       "(the XFEM paper, sec. 3)")
+    p_fem.add_argument("scene", help="bar (a cantilever), cube (hanging from its top face), a tet mesh file (meshio: "
+                                     ".msh, .vtu, ...) or a closed surface (.obj, .ply, .stl, .off, glTF) to tetrahedralize")
+    p_fem.add_argument("--steps", type=int, default=100, help="time steps (default 100)")
+    p_fem.add_argument("--dt", type=float, default=0.033, help="time step h in seconds (default 0.033, the paper's)")
+    p_fem.add_argument("--young", type=float, default=1e6, help="Young's modulus in Pa (default 1e6)")
+    p_fem.add_argument("--poisson", type=float, default=0.4, help="Poisson's ratio (default 0.4)")
+    p_fem.add_argument("--density", type=float, default=1e3, help="mass density in kg/m^3 (default 1e3)")
+    p_fem.add_argument("--gravity", type=float, nargs=3, default=(0.0, 0.0, -9.81), metavar=("GX", "GY", "GZ"),
+                       help="gravitational acceleration (default 0 0 -9.81)")
+    p_fem.add_argument("--newton", type=int, default=1, help="Newton iterations per step (default 1, the paper's)")
+    p_fem.add_argument("--every", type=int, default=10, help="write a frame every this many steps (default 10)")
+    p_fem.add_argument("--fix-fraction", type=float, default=0.02,
+                       help="mesh files: clamp the nodes within this fraction of the height below the top (default 0.02)")
+    p_fem.add_argument("--no-figures", action="store_true", help="write the .vtu meshes and summary.json only")
+    p_fem.add_argument("--out", type=Path, required=True,
+                       help="folder for frame_XXXX.png, frame_XXXX.vtu and summary.json")
 
     args = parser.parse_args(argv)
     if args.command == "demo":

@@ -1,0 +1,64 @@
+"""The ``jaxcga fem SCENE`` command end to end in-process: the bar scene's frames, meshes and summary, a
+closed surface tetrahedralized, a written frame read back as a tet mesh scene, errors."""
+
+from __future__ import annotations
+
+import json
+
+import meshio
+import numpy as np
+import pytest
+import trimesh
+
+from jaxcga.cli import main
+
+
+@pytest.fixture(scope="module")
+def bar_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("fem") / "bar"
+    assert main(["fem", "bar", "--steps", "3", "--every", "2", "--out", str(out)]) == 0
+    return out
+
+
+def test_bar_writes_frames_meshes_and_a_summary(bar_run, capsys):
+    names = sorted(p.name for p in bar_run.iterdir())
+    assert names == ["frame_0000.png", "frame_0000.vtu", "frame_0002.png", "frame_0002.vtu", "frame_0003.png",
+                     "frame_0003.vtu", "summary.json"]
+    summary = json.loads((bar_run / "summary.json").read_text())
+    assert summary["steps"] == 3 and summary["nodes"] == 17 * 5 * 5 and summary["elements"] == 6 * 16 * 4 * 4
+    assert summary["dofs"] == 3 * (summary["nodes"] - summary["fixed_nodes"]) and summary["fixed_nodes"] == 25
+    assert len(summary["kinetic_energy"]) == 3 and all(np.isfinite(summary["potential_energy"]))
+    last = meshio.read(bar_run / "frame_0003.vtu")
+    u = last.point_data["displacement"]
+    clamped = last.points[:, 0] - u[:, 0] <= 1e-12
+    assert np.abs(u[clamped]).max() == 0.0  # the clamped face stays
+    assert u[:, 2].min() < -1e-3 and np.abs(u).max() == pytest.approx(summary["max_displacement"])  # it falls
+    assert last.cells_dict["tetra"].shape == (summary["elements"], 4)
+
+
+def test_a_surface_and_a_written_frame_are_scenes(bar_run, tmp_path, capsys):
+    sphere = tmp_path / "ball.obj"
+    trimesh.creation.icosphere(subdivisions=1, radius=0.3).export(sphere)
+    out = tmp_path / "ball"
+    assert main(["fem", str(sphere), "--steps", "2", "--no-figures", "--fix-fraction", "0.2", "--out", str(out)]) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["fixed_nodes"] >= 3 and summary["elements"] > 0
+    assert not any(p.suffix == ".png" for p in out.iterdir())
+    # a frame written by the bar run is a meshio tet mesh: simulate it again, hanging from its top
+    out = tmp_path / "again"
+    assert main(["fem", str(bar_run / "frame_0000.vtu"), "--steps", "1", "--no-figures", "--out", str(out)]) == 0
+    assert json.loads((out / "summary.json").read_text())["nodes"] == 17 * 5 * 5
+    assert "jaxcga fem" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("args, message", [
+    (["nowhere.msh"], "SCENE"),
+    (["bar", "--steps", "0"], "steps"),
+    (["bar", "--poisson", "0.5"], "poisson"),
+    (["bar", "--dt", "-1"], "dt"),
+])
+def test_bad_arguments_exit_with_a_message(tmp_path, capsys, args, message):
+    with pytest.raises(SystemExit) as exit_info:
+        main(["fem", *args, "--out", str(tmp_path / "x")])
+    assert exit_info.value.code == 2
+    assert message in capsys.readouterr().err
