@@ -76,7 +76,8 @@ def demo(out: Path, steps: int, figure: bool) -> int:
     cc, cr, cn = cga.circle_center_radius_normal(circle)
     print(f"  sphere meet plane (a circle)           : center {cc.round(6).tolist()}, radius {float(cr):.6f}")
     m = cga.motor(cga.rotor(jnp.array([0.0, 0.0, 1.0]), jnp.pi / 2), jnp.array([1.0, 0.0, 0.0]))
-    print(f"  motor (90 deg about z, then +x) on a   : {cga.apply_to_points(m, jnp.array([1.0, 0, 0])).round(6).tolist()}")
+    moved = cga.apply_to_points(m, jnp.array([1.0, 0, 0])).round(6).tolist()
+    print(f"  motor (90 deg about z, then +x) on a   : {moved}")
     gen = cga.log(m)
     print(f"  log of that motor (screw generator)    : {dict(zip(gen.names, gen.values.round(6).tolist()))}")
     print(f"  exp(log(M)) - M, max abs               : {float(jnp.max(jnp.abs(cga.exp(gen).values - m.values))):.2e}")
@@ -152,9 +153,9 @@ def _cut_figure(arm, upper, lower, path: Path) -> Path:
     from deform._model import RiggedModel
 
     fig = plt.figure(figsize=(10, 4.5))
-    panels = [("before the cut (t = 0 s)", [(arm, 0.0, "tab:gray")]),
-              ("after: both halves posed at t = 1.2 s", [(RiggedModel(upper, arm.skeleton, arm.clips), 1.2, "tab:blue"),
-                                                         (RiggedModel(lower, arm.skeleton, arm.clips), 1.2, "tab:red")])]
+    halves = [(RiggedModel(upper, arm.skeleton, arm.clips), 1.2, "tab:blue"),
+              (RiggedModel(lower, arm.skeleton, arm.clips), 1.2, "tab:red")]
+    panels = [("before the cut (t = 0 s)", [(arm, 0.0, "tab:gray")]), ("after: both halves posed at t = 1.2 s", halves)]
     for k, (title, parts) in enumerate(panels):
         ax = fig.add_subplot(1, 2, k + 1, projection="3d")
         everything = []
@@ -401,8 +402,9 @@ def main(argv: list[str] | None = None) -> int:
 
     p_fem = sub.add_parser("fem", help="simulate a stable neo-Hookean body under gravity by backward Euler "
                                        "(the XFEM paper, sec. 3)")
-    p_fem.add_argument("scene", help="bar (a cantilever), cube (hanging from its top face), a tet mesh file (meshio: "
-                                     ".msh, .vtu, ...) or a closed surface (.obj, .ply, .stl, .off, glTF) to tetrahedralize")
+    p_fem.add_argument("scene", help="bar (a cantilever), cube (hanging from its top face), a tet mesh file "
+                                     "(meshio: .msh, .vtu, ...) or a closed surface (.obj, .ply, .stl, .off, glTF) "
+                                     "to tetrahedralize")
     p_fem.add_argument("--steps", type=int, default=100, help="time steps (default 100)")
     p_fem.add_argument("--dt", type=float, default=0.033, help="time step h in seconds (default 0.033, the paper's)")
     p_fem.add_argument("--young", type=float, default=1e6, help="Young's modulus in Pa (default 1e6)")
@@ -413,7 +415,8 @@ def main(argv: list[str] | None = None) -> int:
     p_fem.add_argument("--newton", type=int, default=1, help="Newton iterations per step (default 1, the paper's)")
     p_fem.add_argument("--every", type=int, default=10, help="write a frame every this many steps (default 10)")
     p_fem.add_argument("--fix-fraction", type=float, default=0.02,
-                       help="mesh files: clamp the nodes within this fraction of the height below the top (default 0.02)")
+                       help="mesh files: clamp the nodes within this fraction of the height below the top "
+                            "(default 0.02)")
     p_fem.add_argument("--no-figures", action="store_true", help="write the .vtu meshes and summary.json only")
     p_fem.add_argument("--out", type=Path, required=True,
                        help="folder for frame_XXXX.png, frame_XXXX.vtu and summary.json")
