@@ -30,6 +30,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/bench_cutting.py --json out/bench/cutting.json
 	$(PY) benchmarks/bench_deform.py --json out/bench/deform.json
 	$(PY) benchmarks/bench_arap.py --json out/bench/arap.json
+	$(PY) benchmarks/bench_fem.py --json out/bench/fem.json
 
 clean:
 	rm -rf $(VENV) out .pytest_cache

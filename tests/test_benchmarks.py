@@ -44,3 +44,11 @@ def test_bench_arap_quick_writes_the_published_names(tmp_path):
         assert result["ratios"][f"iteration_vs_igl_{tag}"] > 0 and result["ratios"][f"precompute_vs_igl_{tag}"] > 0
         # ours equals libigl's own iteration with double-precision rotations (arap_solve's are single)
         assert result["figures"][f"difference_vs_igl_float64_rotations_{tag}"] < 1e-10
+
+
+def test_bench_fem_quick_writes_the_published_names(tmp_path):
+    result = _quick("bench_fem.py", tmp_path)
+    for name in ("step_1k_s", "step_7k_s", "step_23k_s"):
+        assert result["figures"][name] > 0 and name in result["units"]
+    for name in ("step_23k_vs_paper", "step_23k_vs_direct"):
+        assert result["ratios"][name] > 0

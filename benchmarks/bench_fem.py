@@ -1,0 +1,202 @@
+"""FEM benchmark (XFEM paper sec. 3.3 and 5.2): the time of one backward Euler step (``xfem.backward_euler_step``,
+eq. 10, one projected Newton iteration with a CG solve) at about 1k, 7.2k and 22.8k DOFs, with the paper's
+parameters (stable neo-Hookean, Young 1e6, Poisson 0.4, density 1e3, h = 0.033 s, one Newton iteration).
+
+Scene: like the paper's accordion (Fig. 7), a block hanging under gravity from its clamped top face (z max),
+``box_tets`` cells of 0.13 m (average tet edge 0.165 m; the accordion's is 0.17 m, Table 1). The cells are chosen
+so that the FREE DOFs (3 x the nodes not on the top face) are 1,029, 7,200 and 22,800; the fixed nodes are not
+counted (the totals are printed too). The block starts at rest and falls into its sag, so the state evolves.
+
+Timing: after a first step (jit compilation included; reported as a figure), the median and the max of
+``--steps`` steps of the running simulation, wall-clock, float64. Same run baselines:
+
+* the paper's averages per step (Table 2, "Ours", cut and uncut frames): 5.785 s for the 22.8k-DOF accordion
+  and 0.627 s for the 7.2k-DOF "Thin" model, on an i9-13900K (ratios ``step_23k_vs_paper``, ``step_7k_vs_paper``);
+* the same step with the Newton system solved exactly by CHOLMOD (the module's ``_host_direct``) instead of the
+  inexact Jacobi-preconditioned CG, from the same states (``step_<size>_vs_direct``);
+* a breakdown from the same states: projected element gradients and Hessians
+  (``element_gradient_hessian``), their assembly (``assemble_matrix``), the CG and the CHOLMOD solves of the
+  Newton system (host, as the step's callback runs them) and the line search.
+
+Ratios are baseline time / ours (> 1: we are faster).
+
+    python benchmarks/bench_fem.py [--steps 10] [--quick] [--json out/bench/fem.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import jax
+
+jax.config.update("jax_enable_x64", True)
+import equinox as eqx  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import numpy as np  # noqa: E402
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+from _report import RATIO_UNIT, add_json_argument, write_json  # noqa: E402
+
+import xfem  # noqa: E402
+import xfem._backward_euler as be  # noqa: E402
+
+YOUNG, POISSON, DENSITY, H = 1e6, 0.4, 1e3, 0.033
+CELL = 0.13  # m
+# free DOFs 3 * nx * ny * (nz - 1) for nx x ny x nz nodes with the top layer fixed: 1029, 7200, 22800
+CELLS = {"1k": (6, 6, 7), "7k": (11, 9, 20), "23k": (19, 19, 19)}
+QUICK_CELLS = (3, 3, 3)  # --quick: every size tag on this one small block (one compilation)
+PAPER_S = {"7k": 0.627, "23k": 5.785}  # Table 2, average step time, "Thin (Ours)" and "Accordion (Ours)"
+CG_RTOL = be._CG_RTOL  # the step's relative residual for the Newton direction
+
+
+def hanging_block(cells):
+    """A box of ``cells`` cells of size CELL, clamped on its top face, under gravity: (system, rest state)."""
+    mesh = xfem.box_tets(cells, tuple(CELL * c for c in cells))
+    X = np.asarray(mesh.X)
+    top = np.flatnonzero(np.isclose(X[:, 2], X[:, 2].max()))
+    system = xfem.fem_from_mesh(mesh, DENSITY, (0.0, 0.0, -9.81), top)
+    return system, xfem.State(mesh.X, jnp.zeros_like(mesh.X))
+
+
+def seconds(fn):
+    """(result, wall-clock seconds) of ``fn()``, JAX results waited for."""
+    start = time.perf_counter()
+    result = jax.block_until_ready(fn())
+    return result, time.perf_counter() - start
+
+
+def _theta(system, state, h, mu, lam):
+    return be._Theta(state.x, state.v, mu, lam, state.x[system.fixed], system.force, system.grads, system.volumes,
+                     system.mass_values)
+
+
+@eqx.filter_jit
+def newton_start(system, state, h, mu, lam):
+    """The point one Newton iteration starts from, its free gradient of E and the CSR data of ``M + h^2 K_+``."""
+    x = (state.x + h * state.v).at[system.fixed].set(state.x[system.fixed])
+    gradient, data = be._gradient_and_matrix(system, x, _theta(system, state, h, mu, lam), h, project=True)
+    return x, gradient, data
+
+
+@eqx.filter_jit
+def direct_step(system, state, h, mu, lam):
+    """``backward_euler_step`` with one Newton iteration whose system is solved by CHOLMOD (``_host_direct``)
+    instead of CG: the body of ``_newton`` with the same gradient, matrix and line search (keep in step)."""
+    theta = _theta(system, state, h, mu, lam)
+    x, gradient, data = newton_start(system, state, h, mu, lam)
+    step = -be._solve(be._host_direct, system.pattern, data, gradient)
+    alpha = be._line_search(system, x, step.reshape(-1, 3), jnp.dot(gradient, step), theta, h)
+    x = x.at[system.pattern.free].add(alpha * step.reshape(-1, 3))
+    return xfem.State(x, (x - state.x) / h)
+
+
+@eqx.filter_jit
+def element_hessians(system, x, mu, lam):
+    return xfem.element_gradient_hessian(x[system.T], system.grads, system.volumes, mu, lam)
+
+
+@eqx.filter_jit
+def assembly(system, Hs):
+    return xfem.assemble_matrix(system.pattern, Hs)
+
+
+@eqx.filter_jit
+def line_search(system, state, x, gradient, step, h, mu, lam):
+    return be._line_search(system, x, step.reshape(-1, 3), jnp.dot(gradient, step), _theta(system, state, h, mu, lam),
+                           h)
+
+
+def breakdown(system, states, h, mu, lam):
+    """Median seconds of the parts of a step from each of ``states`` (the first call of each compiles)."""
+    indptr, indices = np.asarray(system.pattern.indptr), np.asarray(system.pattern.indices)
+    times = {"hessians": [], "assembly": [], "cg_solve": [], "direct_solve": [], "line_search": []}
+    for i, state in enumerate(states):
+        x, gradient, data = newton_start(system, state, h, mu, lam)
+        (_, Hs), t_hessians = seconds(lambda: element_hessians(system, x, mu, lam))
+        _, t_assembly = seconds(lambda: assembly(system, Hs))
+        rhs, A = np.asarray(gradient), np.asarray(data)
+        step, t_cg = seconds(lambda: -be._host_cg(A, rhs, CG_RTOL, indptr, indices))
+        _, t_direct = seconds(lambda: be._host_direct(A, rhs, indptr, indices))
+        step = jnp.asarray(step)
+        _, t_line = seconds(lambda: line_search(system, state, x, gradient, step, h, mu, lam))
+        if i > 0:  # the first state compiles
+            for key, t in zip(times, (t_hessians, t_assembly, t_cg, t_direct, t_line)):
+                times[key].append(t)
+    return {key: statistics.median(t) for key, t in times.items()}
+
+
+def run(cells: dict, steps: int):
+    mu, lam = (jnp.asarray(p, jnp.float64) for p in xfem.lame(YOUNG, POISSON))
+    h = jnp.asarray(H, jnp.float64)
+    figures, ratios, units = {}, {}, {}
+    for tag, c in cells.items():
+        system, state = hanging_block(c)
+        rest = state.x
+        n_free = system.pattern.n_free
+        # the first step compiles; the timed steps continue the same simulation
+        state, first = seconds(lambda: xfem.backward_euler_step(system, state, h, mu, lam))
+        states, t_ours = [], []
+        for _ in range(steps):
+            states.append(state)
+            state, t = seconds(lambda: xfem.backward_euler_step(system, states[-1], h, mu, lam))
+            t_ours.append(t)
+        # CHOLMOD from the same states (the first call compiles)
+        seconds(lambda: direct_step(system, states[0], h, mu, lam))
+        t_direct, difference = [], 0.0
+        for i, s in enumerate(states):
+            exact, t = seconds(lambda: direct_step(system, s, h, mu, lam))
+            t_direct.append(t)
+            ours = states[i + 1].x if i + 1 < len(states) else state.x
+            difference = max(difference, float(jnp.max(jnp.abs(ours - exact.x))))
+        sag = float(jnp.max(jnp.abs(state.x - rest)))
+        parts = breakdown(system, [states[0]] + states, h, mu, lam)  # a first pass to compile
+
+        step, direct = statistics.median(t_ours), statistics.median(t_direct)
+        other = step - sum(parts[key] for key in ("hessians", "assembly", "cg_solve", "line_search"))
+        f = {f"step_{tag}_s": step, f"step_max_{tag}_s": max(t_ours), f"step_first_{tag}_s": first,
+             f"step_direct_{tag}_s": direct}
+        units.update({k: "s" for k in f})
+        f |= {f"{key}_{tag}_ms": 1e3 * t for key, t in parts.items()}
+        units.update({f"{key}_{tag}_ms": "ms" for key in parts})
+        f[f"dofs_{tag}"], f[f"tets_{tag}"] = 3.0 * n_free, float(len(system.T))
+        units[f"dofs_{tag}"] = units[f"tets_{tag}"] = "count"
+        f[f"direct_difference_{tag}"] = difference / sag
+        units[f"direct_difference_{tag}"] = "largest displacement"
+        figures |= f
+        ratios[f"step_{tag}_vs_direct"] = direct / step
+        print(f"{tag}: cells {c}, {3 * n_free} free DOFs ({3 * system.n} with the {system.n - n_free} fixed nodes), "
+              f"{len(system.T)} tets; largest displacement after {steps + 1} steps {sag:.3g} m")
+        print(f"  step (CG, ours): median {step:.4f} s, max {max(t_ours):.4f} s over {steps} steps; "
+              f"first step (with compilation) {first:.2f} s")
+        print(f"  step with CHOLMOD: median {direct:.4f} s -> step_{tag}_vs_direct "
+              f"{ratios[f'step_{tag}_vs_direct']:.2f}x; positions differ by at most "
+              f"{f[f'direct_difference_{tag}']:.1e} of the largest displacement")
+        print("  breakdown (medians): " + ", ".join(f"{key} {1e3 * t:.1f} ms" for key, t in parts.items())
+              + f"; the rest of the CG step {1e3 * other:.1f} ms "
+              "(gather, gradient and mass products, callback)")
+        if tag in PAPER_S:
+            ratios[f"step_{tag}_vs_paper"] = PAPER_S[tag] / step
+            print(f"  step_{tag}_vs_paper {ratios[f'step_{tag}_vs_paper']:.1f}x (paper {PAPER_S[tag]} s a step)")
+    return {"figures": figures, "ratios": ratios, "units": units | {k: RATIO_UNIT for k in ratios}}
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--steps", type=int, default=10, help="timed steps per size (medians and max)")
+    parser.add_argument("--quick", action="store_true",
+                        help=f"every size on one {QUICK_CELLS} block (compiled once), 2 steps: a smoke run")
+    add_json_argument(parser)
+    args = parser.parse_args(argv)
+    cells, steps = ({tag: QUICK_CELLS for tag in CELLS}, 2) if args.quick else (CELLS, args.steps)
+    write_json(args.json, run(cells, steps))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
