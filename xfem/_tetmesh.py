@@ -287,7 +287,7 @@ def tetrahedralize(V, F, max_volume: float | None = None, quality: bool = True) 
     pairs = igl.copyleft.cgal.remesh_self_intersections(V, F.astype(np.int64), detect_only=True, first_only=True)[2]
     if len(pairs):
         raise ValueError(f"F: the surface intersects itself (faces {int(pairs[0, 0])} and {int(pairs[0, 1])} cross)")
-    switches = "pQ" + ("q1.414" if quality else "")
+    switches = "pMQ" + ("q1.414" if quality else "")  # M: no merging of coplanar facets, the surface is kept
     if max_volume is not None:
         if not np.isfinite(max_volume) or max_volume <= 0:
             raise ValueError(f"max_volume: expected None or a positive volume, got {max_volume}")

@@ -251,7 +251,7 @@ def test_tetrahedralize_icosphere_and_box():
     V, F = np.asarray(box.vertices), np.asarray(box.faces)
     plain = tetrahedralize(V, F, quality=False)
     _surface_checks(plain, V, F)
-    assert plain.n_nodes == 8  # no Steiner points without refinement
+    assert plain.n_nodes <= 9  # no refinement: at most one Steiner point (with -M the face diagonals are constraints)
     refined = tetrahedralize(V, F, max_volume=0.05)
     faces = _surface_checks(refined, V, F)
     assert len(faces) > len(F)  # TetGen split the box faces, yet the boundary covers them exactly
