@@ -295,7 +295,9 @@ def _energy(system: FEMSystem, x, theta: _Theta, h):
     kinetic = 0.5 * jnp.sum(d * _mass_times(system, theta.mass_values, d))
     elastic = jnp.sum(element_energy(x[system.T], theta.grads, theta.volumes, theta.mu, theta.lam))
     work = jnp.sum(theta.force * x)
-    return kinetic + h**2 * (elastic - work), kinetic + h**2 * (jnp.abs(elastic) + jnp.abs(work))
+    # the elastic energy's rounding error is ~eps (mu + lam) volume whatever the strain: part of the scale
+    stiffness = jnp.sum(theta.volumes * (theta.mu + theta.lam))
+    return kinetic + h**2 * (elastic - work), kinetic + h**2 * (jnp.abs(elastic) + jnp.abs(work) + stiffness)
 
 
 def _gradient_and_matrix(system: FEMSystem, x, theta: _Theta, h, project: bool):
@@ -333,7 +335,11 @@ def _line_search(system: FEMSystem, x, step, slope, theta: _Theta, h):
 
 def _newton(theta: _Theta, system: FEMSystem, h, iterations: int, tolerance, line_search: bool):
     free = system.pattern.free
-    x0 = (theta.x + h * theta.v).at[system.fixed].set(theta.fixed_positions)
+    # start at x~ = x_t + h v_t or at x_t, whichever has the lower E: from x~ alone, one Newton iteration on a
+    # violent state (large velocities) only lowers E below E(x~), far above the minimum, and the energy grows
+    inertial = (theta.x + h * theta.v).at[system.fixed].set(theta.fixed_positions)
+    previous = theta.x.at[system.fixed].set(theta.fixed_positions)
+    x0 = jnp.where(_energy(system, previous, theta, h)[0] < _energy(system, inertial, theta, h)[0], previous, inertial)
 
     def cond(carry):
         k, _, _, done = carry
@@ -350,7 +356,8 @@ def _newton(theta: _Theta, system: FEMSystem, h, iterations: int, tolerance, lin
         step = -_solve(_host_cg, system.pattern, data, gradient, jnp.asarray(rtol, x.dtype))
         alpha = _line_search(system, x, step.reshape(-1, 3), jnp.dot(gradient, step), theta, h) if line_search else 1
         x = x.at[free].add(alpha * step.reshape(-1, 3))
-        done = False if tolerance is None else jnp.max(jnp.abs(step), initial=0) <= tolerance
+        # converged, or stalled (the line search found no decrease above rounding)
+        done = False if tolerance is None else (jnp.max(jnp.abs(step), initial=0) <= tolerance) | (alpha == 0)
         return k + 1, x, first_norm, jnp.asarray(done)
 
     zero = jnp.zeros((), x0.dtype)
