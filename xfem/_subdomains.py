@@ -1,0 +1,394 @@
+"""Nodal and element subdomains cut by mesh Booleans: sec. 4.2 (nodal subdomains Omega^{i,s} = Omega^i minus
+the cuts, their connected components, the enrichments of eqs. 15-18) and sec. 4.4 (per node and per element
+triangle meshes, collision culling, connected components, DOF duplication) of the XFEM paper, Algorithm 1
+lines 1-19.
+
+Every node i keeps a list of nodal subdomains, initially one: its 1-ring Omega^i (the union of its incident
+tets, bounded by the outward boundary faces of that sub-mesh); every element e keeps a list of element
+subdomains, initially one: the tet itself (sec. 4.3, eq. 20). Each subdomain is a closed solid held as a
+``manifold3d.Manifold`` (float64 ``Mesh64`` input) and has an integer id, unique within its kind (nodal ids
+start as the node index, element ids as the element index; pieces made by cuts get fresh ids). ``apply_cut``
+subtracts a cut solid Gamma^c (``xfem._cuts.cut_solid``) from every subdomain it meets and replaces the
+subdomain by the connected components of the difference (``Manifold.decompose``):
+
+- several components: the subdomain is split; the children get fresh ids and record the old id as their
+  ``parent``, so that the caller duplicates the parent's DOF values into them (Algorithm 1 line 7, which
+  keeps the displacement field of eq. 18 unchanged);
+- one component: the subdomain keeps its id (and DOFs) but its geometry becomes the difference. Algorithm 1
+  keeps the old geometry in this case; keeping the difference instead lets a later cut that completes a
+  partial one (the next time step of a swept scalpel) split the subdomain, and makes the element volumes
+  exact (the removed slab E^- of eq. 20 is not integrated);
+- no component (the subdomain lies inside the cut): it disappears, with its DOFs.
+
+Culling (sec. 4.4). Primary: the tets' axis-aligned bounding boxes against the cut's box, then the tets
+against the cut's triangles (their boxes, then the separating axis test of tet and triangle); a tet in the
+box that meets no triangle meets the cut only if it lies inside it (winding number of a corner). All of it is
+vectorized numpy over tets (the paper uses an AABB tree). Secondary, exact: the element Booleans themselves. An
+element subdomain is met by the cut when the difference lost volume (more than ``1e-12`` of the subdomain's);
+a nodal 1-ring (a union of tets) is met exactly when one of its tets is, so only the nodes of met elements get
+nodal Booleans. Triangle meshes are built lazily: a node or element no cut meets never gets one.
+
+Robustness (sec. 6.1, cuts aligned with element faces, edges and vertices). manifold3d is exact in its
+topology (symbolic perturbation) and always returns closed manifolds, but a cut face coplanar with a tet face
+may leave sliver components of rounding-size volume: components below ``1e-12`` of the subdomain's volume are
+dropped. ``apply_cut(..., perturb=h)`` applies the paper's gentle perturbation instead: while a node of a
+candidate tet lies within ``h / 100`` of the cut's surface, the cut is moved by a random rigid motion of size
+h (a rotation by ``h / size`` about its box centre and a translation of length h, both of random direction).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import igl
+import manifold3d
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from xfem._tetmesh import TetMesh, boundary_faces, node_rings
+
+# pieces and volume changes below this fraction of a subdomain's volume are rounding, not material
+_RELATIVE_VOLUME = 1e-12
+# attempts of the gentle perturbation before giving up, and the alignment distance relative to the motion
+_PERTURB_TRIES = 16
+_ALIGNED = 1e-2
+# tet-triangle pairs tested at once in the culling, and its contact tolerance relative to the boxes' size
+_PAIRS = 1 << 20
+_SLACK = 1e-12
+# the faces of a tet, outward when it is positively oriented (the opposite of local vertex 0, 1, 2, 3)
+_FACES = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]])
+
+
+def _solid(V: np.ndarray, F: np.ndarray, what: str) -> manifold3d.Manifold:
+    """A Manifold from global vertices V and outward triangles F (compacted to the vertices F uses)."""
+    used, local = np.unique(F, return_inverse=True)
+    mesh = manifold3d.Mesh64(vert_properties=np.ascontiguousarray(V[used], np.float64),
+                             tri_verts=np.ascontiguousarray(local.reshape(-1, 3), np.uint64))
+    solid = manifold3d.Manifold(mesh)
+    if solid.status() != manifold3d.Error.NoError or solid.volume() <= 0:
+        raise ValueError(f"mesh: manifold3d rejected the boundary of {what} (status {solid.status().name}); "
+                         "the mesh must be manifold around every node")
+    return solid
+
+
+@dataclass
+class _Kind:
+    """The subdomains of one kind (nodal or element), indexed by id.
+
+    Attributes:
+        live: per owner (node or element), the ids of its current subdomains.
+        owner: per id, its node or element.
+        parent: per id, the id it was split from; -1 for the initial ones.
+        solids: per id, its Manifold; None for an initial subdomain not built yet or a retired id.
+        alive: per id, whether it is current.
+    """
+
+    live: list[list[int]]
+    owner: list[int]
+    parent: list[int]
+    solids: list[manifold3d.Manifold | None]
+    alive: list[bool]
+
+    @classmethod
+    def initial(cls, n: int) -> _Kind:
+        return cls([[i] for i in range(n)], list(range(n)), [-1] * n, [None] * n, [True] * n)
+
+    def add(self, owner: int, parent: int, solid: manifold3d.Manifold) -> int:
+        self.owner.append(owner)
+        self.parent.append(parent)
+        self.solids.append(solid)
+        self.alive.append(True)
+        return len(self.owner) - 1
+
+
+class Subdomains:
+    """The nodal and element subdomains of a tet mesh (host data; build with ``subdomains``, update with
+    ``apply_cut``).
+
+    Attributes:
+        X: (n, 3) float64 node positions.
+        T: (m, 4) int64 tets.
+        ring_offsets, ring_elements: the tets of node i are ``ring_elements[ring_offsets[i]:ring_offsets[i+1]]``.
+        tet_low, tet_high: (m, 3) the tets' bounding boxes.
+    """
+
+    def __init__(self, mesh: TetMesh):
+        self.X = np.asarray(mesh.X, np.float64)
+        self.T = np.asarray(mesh.T, np.int64)
+        self.ring_offsets, self.ring_elements = node_rings(self.T, len(self.X))
+        corners = self.X[self.T]
+        self.tet_low, self.tet_high = corners.min(axis=1), corners.max(axis=1)
+        self._nodes = _Kind.initial(len(self.X))
+        self._elements = _Kind.initial(len(self.T))
+
+    @property
+    def n_nodes(self) -> int:
+        return len(self.X)
+
+    @property
+    def n_elements(self) -> int:
+        return len(self.T)
+
+    def node_subdomains(self, i: int) -> list[int]:
+        """The ids of node i's current nodal subdomains S(i) (eq. 18), in creation order."""
+        return list(self._nodes.live[i])
+
+    def element_subdomains(self, e: int) -> list[int]:
+        """The ids of element e's current element subdomains (eq. 20), in creation order."""
+        return list(self._elements.live[e])
+
+    def node_of(self, sid: int) -> int:
+        """The node of nodal subdomain sid."""
+        return self._nodes.owner[sid]
+
+    def element_of(self, sid: int) -> int:
+        """The element of element subdomain sid."""
+        return self._elements.owner[sid]
+
+    def node_parent(self, sid: int) -> int:
+        """The nodal subdomain that sid was split from (its DOFs are the parent's at the cut), -1 if initial."""
+        return self._nodes.parent[sid]
+
+    def element_parent(self, sid: int) -> int:
+        """The element subdomain that sid was split from, -1 if initial."""
+        return self._elements.parent[sid]
+
+    def node_alive(self, sid: int) -> bool:
+        """Whether nodal subdomain sid is current (not split or removed since)."""
+        return self._nodes.alive[sid]
+
+    def element_alive(self, sid: int) -> bool:
+        """Whether element subdomain sid is current."""
+        return self._elements.alive[sid]
+
+    def node_solid(self, sid: int) -> manifold3d.Manifold:
+        """The closed solid of current nodal subdomain sid (built on first use for an uncut 1-ring)."""
+        if not self._nodes.alive[sid]:
+            raise ValueError(f"sid: nodal subdomain {sid} was split or removed by a cut")
+        if self._nodes.solids[sid] is None:
+            i = sid  # an unbuilt subdomain is the initial one, whose id is the node
+            tets = self.T[self.ring_elements[self.ring_offsets[i]:self.ring_offsets[i + 1]]]
+            self._nodes.solids[sid] = _solid(self.X, boundary_faces(tets), f"the 1-ring of node {i}")
+        return self._nodes.solids[sid]
+
+    def element_solid(self, sid: int) -> manifold3d.Manifold:
+        """The closed solid of current element subdomain sid (built on first use for an uncut tet)."""
+        if not self._elements.alive[sid]:
+            raise ValueError(f"sid: element subdomain {sid} was split or removed by a cut")
+        if self._elements.solids[sid] is None:
+            e = sid
+            self._elements.solids[sid] = _solid(self.X, self.T[e][_FACES], f"tet {e}")
+        return self._elements.solids[sid]
+
+    def node_built(self, i: int) -> bool:
+        """Whether node i's subdomains have triangle meshes (False until a cut meets its 1-ring)."""
+        return self._nodes.live[i] != [i] or self._nodes.solids[i] is not None
+
+    def element_built(self, e: int) -> bool:
+        """Whether element e's subdomains have triangle meshes (False until a cut meets the tet)."""
+        return self._elements.live[e] != [e] or self._elements.solids[e] is not None
+
+
+def subdomains(mesh: TetMesh) -> Subdomains:
+    """The initial subdomains of a tet mesh: one per node (its 1-ring) and one per element (the tet).
+
+    Args:
+        mesh: the ``TetMesh`` (positively oriented tets, as its constructors guarantee).
+    Returns:
+        The ``Subdomains``; no triangle mesh is built until a cut meets it.
+    """
+    if not isinstance(mesh, TetMesh):
+        raise ValueError(f"mesh: expected a TetMesh, got {type(mesh).__name__}")
+    return Subdomains(mesh)
+
+
+@dataclass
+class CutReport:
+    """What one ``apply_cut`` changed.
+
+    Attributes:
+        boxed: (b,) int64 elements whose bounding box meets the cut's bounding box.
+        candidates: (c,) int64 those of them that meet the cut solid by the exact-up-to-rounding culling test
+            (tet-triangle separating axes, winding number); they get element Booleans.
+        elements_touched: (t,) int64 elements whose subdomains the cut met (lost volume).
+        nodes_touched: (u,) int64 nodes of those elements (the 1-rings the cut met).
+        node_children: nodal subdomain id -> the ids of its pieces, for every nodal subdomain split (two or
+            more pieces; the caller copies the parent's DOFs to each, Algorithm 1 line 7) or removed (empty).
+        element_children: the same for element subdomains.
+        nodes_split: (p,) int64 nodes that gained subdomains.
+        elements_split: (q,) int64 elements that gained subdomains.
+        n_booleans: the Boolean differences computed.
+        boolean_seconds: wall time in them (difference, decomposition and volumes).
+        motion: (3, 4) the rigid motion applied to the cut by the perturbation (identity when none).
+    """
+
+    boxed: np.ndarray
+    candidates: np.ndarray
+    elements_touched: np.ndarray
+    nodes_touched: np.ndarray
+    node_children: dict[int, tuple[int, ...]]
+    element_children: dict[int, tuple[int, ...]]
+    nodes_split: np.ndarray
+    elements_split: np.ndarray
+    n_booleans: int = 0
+    boolean_seconds: float = 0.0
+    motion: np.ndarray = field(default_factory=lambda: np.eye(4)[:3])
+
+
+def _difference(solid: manifold3d.Manifold, cut: manifold3d.Manifold, report: CutReport):
+    """The components of solid minus cut, or None when the cut does not meet the solid (no volume lost)."""
+    start = time.perf_counter()
+    before = solid.volume()
+    pieces = (solid - cut).decompose()
+    volumes = [p.volume() for p in pieces]
+    report.boolean_seconds += time.perf_counter() - start
+    report.n_booleans += 1
+    tiny = _RELATIVE_VOLUME * before
+    if before - sum(volumes) <= tiny:
+        return None
+    return [p for p, v in zip(pieces, volumes) if v > tiny]
+
+
+def _cut_kind(kind: _Kind, owners, solid_of, cut: manifold3d.Manifold, report: CutReport,
+              children: dict[int, tuple[int, ...]]) -> tuple[list[int], list[int]]:
+    """Algorithm 1 lines 2-8 (or 12-17) for the given owners: the owners met and those split."""
+    met, split = [], []
+    for owner in owners:
+        old = kind.live[owner]
+        new_live, hit = [], False
+        for sid in old:
+            pieces = _difference(solid_of(sid), cut, report)
+            if pieces is None:
+                new_live.append(sid)
+                continue
+            hit = True
+            if len(pieces) == 1:  # reshaped, same DOFs
+                kind.solids[sid] = pieces[0]
+                new_live.append(sid)
+                continue
+            kind.alive[sid] = False
+            kind.solids[sid] = None
+            ids = tuple(kind.add(owner, sid, p) for p in pieces)
+            children[sid] = ids
+            new_live.extend(ids)
+        if hit:
+            met.append(owner)
+        if len(new_live) > len(old):
+            split.append(owner)
+        kind.live[owner] = new_live
+    return met, split
+
+
+def _aligned(sub: Subdomains, candidates: np.ndarray, cut: manifold3d.Manifold, tol: float) -> bool:
+    """Whether a node of the candidate tets lies within tol of the cut's surface."""
+    if len(candidates) == 0:
+        return False
+    mesh = cut.to_mesh64()
+    V = np.asarray(mesh.vert_properties, np.float64)[:, :3]
+    F = np.asarray(mesh.tri_verts, np.int64)
+    points = sub.X[np.unique(sub.T[candidates])]
+    distance2 = igl.point_mesh_squared_distance(points, V, F)[0]
+    return bool(np.min(distance2) < tol * tol)
+
+
+def _tet_triangle_overlap(P: np.ndarray, Q: np.ndarray, slack: float) -> np.ndarray:
+    """(k,) whether tet P[j] (4, 3) and triangle Q[j] (3, 3) may overlap: no separating axis among the tet's
+    face normals, the triangle's normal and the 18 edge-edge cross products (separating axis theorem for
+    convex polytopes). Conservative: gaps below slack times the axis length count as contact."""
+    tet_edges = P[:, [1, 2, 3, 2, 3, 3]] - P[:, [0, 0, 0, 1, 1, 2]]
+    tri_edges = Q[:, [1, 2, 0]] - Q
+    faces = P[:, _FACES]
+    axes = np.concatenate([
+        np.cross(faces[:, :, 1] - faces[:, :, 0], faces[:, :, 2] - faces[:, :, 0]),
+        np.cross(tri_edges[:, :1], tri_edges[:, 1:2]),
+        np.cross(tet_edges[:, :, None], tri_edges[:, None]).reshape(-1, 18, 3),
+    ], axis=1)
+    p = np.einsum("kav,kjv->kaj", axes, P)
+    q = np.einsum("kav,kjv->kaj", axes, Q)
+    gap = slack * np.linalg.norm(axes, axis=2)
+    separated = (p.max(axis=2) < q.min(axis=2) - gap) | (q.max(axis=2) < p.min(axis=2) - gap)
+    return ~np.any(separated, axis=1)
+
+
+def _candidates(sub: Subdomains, cut: manifold3d.Manifold) -> tuple[np.ndarray, np.ndarray]:
+    """The tets whose box meets the cut's box, and those of them that meet the cut solid (primary culling).
+
+    A tet meets the closed solid iff it meets a boundary triangle (box filter, then the separating axis test)
+    or, meeting none, lies inside the solid (winding number of one corner)."""
+    box = np.asarray(cut.bounding_box(), np.float64)
+    boxed = np.flatnonzero(np.all((sub.tet_low <= box[3:]) & (sub.tet_high >= box[:3]), axis=1))
+    if len(boxed) == 0:
+        return boxed, boxed
+    mesh = cut.to_mesh64()
+    V = np.asarray(mesh.vert_properties, np.float64)[:, :3]
+    F = np.asarray(mesh.tri_verts, np.int64)
+    triangles = V[F]
+    tri_low, tri_high = triangles.min(axis=1), triangles.max(axis=1)
+    low, high = sub.tet_low[boxed], sub.tet_high[boxed]
+    slack = _SLACK * float(np.max(box[3:] - box[:3]) + np.max(high - low))
+    near = np.zeros(len(boxed), bool)
+    chunk = max(1, _PAIRS // len(boxed))  # bounds the (tets, triangles) pair arrays
+    for start in range(0, len(F), chunk):
+        t_low, t_high = tri_low[start:start + chunk], tri_high[start:start + chunk]
+        pairs = np.all((low[:, None] <= t_high[None] + slack) & (high[:, None] >= t_low[None] - slack), axis=2)
+        pairs[near] = False  # already known to meet the cut
+        k, j = np.nonzero(pairs)
+        hit = _tet_triangle_overlap(sub.X[sub.T[boxed[k]]], triangles[start + j], slack)
+        near[k[hit]] = True
+    far = boxed[~near]
+    inside = igl.winding_number(V, F, sub.X[sub.T[far, 0]]) > 0.5
+    return boxed, np.sort(np.concatenate([boxed[near], far[inside]]))
+
+
+def apply_cut(sub: Subdomains, cut: manifold3d.Manifold, perturb: float = 0.0, seed: int = 0) -> CutReport:
+    """Cut all subdomains by one cut solid (Algorithm 1 lines 1-19), in place.
+
+    Args:
+        sub: the ``Subdomains`` to update.
+        cut: the closed cut solid Gamma^c (``xfem._cuts.cut_solid``), non-empty.
+        perturb: 0, or a distance h > 0: while a node of a candidate tet lies within h / 100 of the cut's
+            surface, move the cut by a random rigid motion of size h (sec. 6.1, gentle perturbation);
+            ValueError if still aligned after 16 tries.
+        seed: seed of the perturbation's random motions.
+    Returns:
+        The ``CutReport``.
+    """
+    if not isinstance(sub, Subdomains):
+        raise ValueError(f"sub: expected Subdomains, got {type(sub).__name__}")
+    if not isinstance(cut, manifold3d.Manifold):
+        raise ValueError(f"cut: expected a manifold3d.Manifold, got {type(cut).__name__}")
+    if cut.status() != manifold3d.Error.NoError or cut.is_empty() or cut.volume() <= 0:
+        raise ValueError(f"cut: expected a valid non-empty solid (status {cut.status().name}, volume {cut.volume()})")
+    if not np.isfinite(perturb) or perturb < 0:
+        raise ValueError(f"perturb: expected a distance >= 0, got {perturb!r}")
+    motion = np.eye(4)[:3]
+    boxed, candidates = _candidates(sub, cut)
+    if perturb > 0:
+        rng = np.random.default_rng(seed)
+        box = np.asarray(cut.bounding_box(), np.float64)
+        centre, size = (box[:3] + box[3:]) / 2, np.linalg.norm(box[3:] - box[:3])
+        original, tries = cut, 0
+        while _aligned(sub, candidates, cut, _ALIGNED * perturb):
+            if tries == _PERTURB_TRIES:
+                raise ValueError(f"perturb: the cut stays within {_ALIGNED * perturb} of mesh nodes after {tries} "
+                                 "random motions")
+            tries += 1
+            axis = rng.normal(size=3)
+            R = Rotation.from_rotvec(axis / np.linalg.norm(axis) * perturb / size).as_matrix()
+            shift = rng.normal(size=3)
+            t = centre - R @ centre + perturb * shift / np.linalg.norm(shift)
+            motion = np.concatenate([R, t[:, None]], axis=1)
+            cut = original.transform(motion)
+            boxed, candidates = _candidates(sub, cut)
+    report = CutReport(boxed, candidates, np.zeros(0, np.int64), np.zeros(0, np.int64), {}, {},
+                       np.zeros(0, np.int64), np.zeros(0, np.int64), motion=motion)
+    met, split = _cut_kind(sub._elements, candidates.tolist(), sub.element_solid, cut, report,
+                           report.element_children)
+    report.elements_touched = np.asarray(met, np.int64)
+    report.elements_split = np.asarray(split, np.int64)
+    report.nodes_touched = np.unique(sub.T[report.elements_touched]) if met else np.zeros(0, np.int64)
+    met, split = _cut_kind(sub._nodes, report.nodes_touched.tolist(), sub.node_solid, cut, report,
+                           report.node_children)
+    report.nodes_split = np.asarray(split, np.int64)
+    return report
