@@ -8,10 +8,17 @@ PSD-projected Hessians), ``_assembly`` (sparse patterns precomputed on the host,
 ``_backward_euler`` (eq. 10 as a minimization: projected Newton with line search, Dirichlet nodes,
 implicit gradients). The step is generic over an element list (DOF-node indices, shape gradients,
 integration weights) and any mass matrix, so the enriched XFEM elements go through the same code.
+
+Sec. 4, the generalized XFEM (in progress): ``_cuts`` (swept tool edges thickened into closed solids,
+sec. 4.1), ``_subdomains`` (nodal and element subdomains cut by manifold3d Booleans, Algorithm 1 lines
+1-19), ``_integration`` (exact divergence-theorem moments of the pieces, eq. 13, 14, 21), ``_xfem``
+(``XFEMModel``: indicator enrichments eq. 16-18, DOF duplication, pieces on the FEM core).
 """
 
 from xfem._assembly import AssemblyPattern, assemble_matrix, assemble_vector, assembly_pattern
 from xfem._backward_euler import FEMSystem, State, backward_euler_step, fem_from_mesh, fem_system, mechanical_energy
+from xfem._cuts import cut_solid, plane_cut_solid, swept_surface, thicken
+from xfem._integration import element_piece_integrals, moments_of_pieces, polyhedron_moments
 from xfem._linear_tet import body_force, consistent_mass, lumped_mass, shape_functions, shape_gradients
 from xfem._neohookean import (
     element_energy,
@@ -20,6 +27,7 @@ from xfem._neohookean import (
     stable_neohookean_energy,
     stable_neohookean_pk1,
 )
+from xfem._subdomains import Subdomains, apply_cut, subdomains
 from xfem._tetmesh import (
     TetMesh,
     boundary_faces,
@@ -33,8 +41,21 @@ from xfem._tetmesh import (
     tet_volumes,
     tetrahedralize,
 )
+from xfem._xfem import XFEMModel, xfem_model
 
 __all__ = [
+    "cut_solid",
+    "plane_cut_solid",
+    "swept_surface",
+    "thicken",
+    "element_piece_integrals",
+    "moments_of_pieces",
+    "polyhedron_moments",
+    "Subdomains",
+    "apply_cut",
+    "subdomains",
+    "XFEMModel",
+    "xfem_model",
     "AssemblyPattern",
     "FEMSystem",
     "State",

@@ -1,0 +1,185 @@
+"""The XFEM cutting simulation (XFEM paper sec. 4.2-4.4, eq. 16-18, 21, Algorithm 1): an uncut model is plain FEM
+(``fem_from_mesh``, identical steps); a cut keeps the displacement and velocity fields of eq. 18 (DOF duplication,
+checked against the barycentric interpolation of the nodal values before the cut); the mass after a cut is rho
+times the body's volume minus the volume of the cut inside it (manifold3d's Boolean volume); a body cut through
+separates and its free part falls with g."""
+
+import jax.numpy as jnp
+import manifold3d
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from xfem._backward_euler import State, backward_euler_step, fem_from_mesh
+from xfem._cuts import plane_cut_solid
+from xfem._tetmesh import boundary_faces, box_tets, five_tet_cube
+from xfem._xfem import xfem_model
+
+RHO, EPS, H = 1e3, 1e-3, 0.01
+MU, LAM = 1e6, 1e6
+G = np.array([0.0, 0.0, -9.81])
+# a plane across the tall box, tilted so that it meets no node, face or edge of the mesh exactly
+POINT, NORMAL = np.array([0.5, 0.5, 0.61]), np.array([0.07, -0.04, 1.0])
+
+
+def _tall_box():
+    return box_tets((2, 2, 3), size=(1.0, 1.0, 1.5))
+
+
+def _plane(point=POINT, normal=NORMAL, extent=3.0):
+    return plane_cut_solid(np.asarray(point, np.float64), np.asarray(normal, np.float64), extent, EPS)
+
+
+def _mass(system):
+    return sp.csr_matrix((np.asarray(system.mass_values), (np.asarray(system.mass_rows), np.asarray(system.mass_cols))),
+                         shape=(system.n, system.n))
+
+
+def _deformed_state(mesh, seed=0):
+    rng = np.random.default_rng(seed)
+    X = np.asarray(mesh.X)
+    return State(jnp.asarray(X + 0.02 * rng.normal(size=X.shape)), jnp.asarray(rng.normal(size=X.shape)))
+
+
+def _random_points(mesh, k, seed=1):
+    """k random points inside random tets: (k, 3) points and (k,) tets, and the barycentric weights (k, 4)."""
+    rng = np.random.default_rng(seed)
+    elements = rng.integers(0, mesh.T.shape[0], k)
+    w = rng.dirichlet(np.ones(4), k)
+    return np.einsum("ka,kaj->kj", w, np.asarray(mesh.X)[np.asarray(mesh.T)[elements]]), elements, w
+
+
+@pytest.mark.parametrize("make", [five_tet_cube, lambda: box_tets((2, 2, 2))])
+def test_uncut_model_is_plain_fem(make):
+    mesh = make()
+    fixed = np.flatnonzero(np.asarray(mesh.X)[:, 2] < 1e-9)
+    model = xfem_model(mesh, RHO, fixed=fixed, state=_deformed_state(mesh))
+    system, reference = model.system(), fem_from_mesh(mesh, RHO, fixed=fixed)
+    np.testing.assert_array_equal(np.asarray(system.T), np.asarray(reference.T))
+    np.testing.assert_array_equal(np.asarray(system.fixed), np.asarray(reference.fixed))
+    np.testing.assert_allclose(np.asarray(system.volumes), np.asarray(reference.volumes), rtol=0, atol=1e-15)
+    np.testing.assert_allclose(_mass(system).toarray(), _mass(reference).toarray(), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(np.asarray(system.force), np.asarray(reference.force), rtol=0, atol=1e-12)
+    state = _deformed_state(mesh)
+    for _ in range(5):
+        model.step(H, MU, LAM)
+        state = backward_euler_step(reference, state, H, MU, LAM)
+    np.testing.assert_allclose(np.asarray(model.state.x), np.asarray(state.x), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(np.asarray(model.state.v), np.asarray(state.v), rtol=0, atol=1e-12)
+    assert model.pieces() == 1
+
+
+def test_cut_keeps_displacement_and_velocity():
+    mesh = _tall_box()
+    state = _deformed_state(mesh)
+    model = xfem_model(mesh, RHO, state=state)
+    points, elements, w = _random_points(mesh, 400)
+    # eq. 18 before any cut is the barycentric interpolation of the nodal values
+    T = np.asarray(mesh.T)[elements]
+    u0 = np.einsum("ka,kaj->kj", w, np.asarray(state.x)[T] - np.asarray(mesh.X)[T])
+    v0 = np.einsum("ka,kaj->kj", w, np.asarray(state.v)[T])
+    np.testing.assert_allclose(model.displacement_at(points, elements), u0, rtol=0, atol=1e-12)
+    report = model.cut(_plane())
+    added = sum(len(c) - 1 for c in report.node_children.values())
+    assert added > 0 and len(model.dof_sid) == mesh.X.shape[0] + added
+    # material points only: outside the slab of thickness EPS (with a margin)
+    n = NORMAL / np.linalg.norm(NORMAL)
+    keep = np.abs((points - POINT) @ n) > EPS
+    assert keep.sum() > 350
+    np.testing.assert_allclose(model.displacement_at(points[keep], elements[keep]), u0[keep], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(model.velocity_at(points[keep], elements[keep]), v0[keep], rtol=0, atol=1e-12)
+    # the two sides now move independently: the DOFs of a split node on either side are copies
+    assert model.pieces() == 2
+    # a second, crossing cut splits subdomains made by the first: four pieces, the fields still unchanged
+    point, normal = np.array([0.43, 0.5, 0.75]), np.array([1.0, 0.06, -0.03])
+    model.cut(_plane(point, normal))
+    keep &= np.abs((points - point) @ (normal / np.linalg.norm(normal))) > EPS
+    np.testing.assert_allclose(model.displacement_at(points[keep], elements[keep]), u0[keep], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(model.velocity_at(points[keep], elements[keep]), v0[keep], rtol=0, atol=1e-12)
+    assert model.pieces() == 4
+
+
+def test_mass_after_cuts_is_body_minus_cuts():
+    mesh = _tall_box()
+    model = xfem_model(mesh, RHO)
+    # two crossing cuts: the second one also splits pieces made by the first
+    cut = _plane() + _plane((0.43, 0.5, 0.75), (1.0, 0.06, -0.03))
+    model.cut(_plane())
+    model.cut(_plane((0.43, 0.5, 0.75), (1.0, 0.06, -0.03)))
+    X, T = np.asarray(mesh.X), np.asarray(mesh.T)
+    F = boundary_faces(T)
+    body = manifold3d.Manifold(manifold3d.Mesh64(vert_properties=np.array(X, np.float64),
+                                                 tri_verts=np.array(F, np.uint64)))
+    volume = body.volume() - (body ^ cut).volume()
+    system = model.system()
+    _, _, piece_volume, _, load = model.piece_arrays()
+    assert abs(_mass(system).sum() - RHO * volume) <= 1e-12 * RHO * volume
+    assert abs(piece_volume.sum() - volume) <= 1e-12 * volume
+    assert abs(load.sum() - volume) <= 1e-12 * volume
+    np.testing.assert_allclose(np.asarray(system.force).sum(axis=0), RHO * volume * G, rtol=1e-12, atol=1e-9)
+
+
+def test_cut_through_hanging_body_separates():
+    mesh = _tall_box()
+    top = np.flatnonzero(np.asarray(mesh.X)[:, 2] > 1.5 - 1e-9)
+    model = xfem_model(mesh, RHO, fixed=top)
+    assert model.pieces() == 1
+    model.cut(_plane())
+    count, label = model.components()
+    assert count == 2 == model.pieces()
+    masses = np.asarray(_mass(model.system()).sum(axis=1)).ravel()  # int rho phi_i psi_i^s: COM weights
+    lower = label != label[np.isin(model.dof_node, top)][0]
+    assert not np.any(np.isin(model.dof_node[lower], top))
+
+    def com(values, part):
+        return masses[part] @ np.asarray(values)[part] / masses[part].sum()
+
+    lower_x0, upper_x0 = com(model.state.x, lower), com(model.state.x, ~lower)
+    previous = com(model.state.v, lower)
+    for _ in range(6):
+        model.step(H, MU, LAM, newton_iterations=3)
+        velocity = com(model.state.v, lower)
+        acceleration, previous = (velocity - previous) / H, velocity
+    # the free part is in free fall: its centre of mass accelerates with g (backward Euler conserves its momentum
+    # up to the inexact Newton solves)
+    np.testing.assert_allclose(acceleration, G, rtol=0, atol=1e-2)
+    fall = lower_x0[2] - com(model.state.x, lower)[2]
+    assert fall > 0.5 * 9.81 * (6 * H) ** 2
+    # the held part stays: it sags elastically (rho g L^2 / E ~ 1e-3) by far less than the fall
+    assert np.linalg.norm(com(model.state.x, ~lower) - upper_x0) < 0.1 * fall
+
+
+def test_cut_outside_is_a_no_op():
+    mesh = box_tets((2, 2, 2))
+    model = xfem_model(mesh, RHO, state=_deformed_state(mesh))
+    before = model.piece_arrays()
+    report = model.cut(_plane(point=(0.5, 0.5, 2.0)))
+    assert len(report.elements_touched) == 0
+    for a, b in zip(before, model.piece_arrays()):
+        np.testing.assert_array_equal(a, b)
+    assert len(model.dof_sid) == mesh.X.shape[0]
+    np.testing.assert_array_equal(np.asarray(model.state.x), np.asarray(_deformed_state(mesh).x))
+
+
+def test_partial_cut_keeps_one_piece():
+    mesh = _tall_box()
+    model = xfem_model(mesh, RHO)
+    # a square of side 1.2 centred on the box's x = 0 face: it cuts x < 0.6 only, through the 1-rings of the
+    # nodes at x = 0 but not of those at x = 0.5
+    report = model.cut(_plane(point=(0.0, 0.5, 0.61), extent=1.2))
+    assert len(report.elements_touched) > 0 and len(report.nodes_split) > 0
+    assert model.pieces() == 1
+    _, _, volume, _, _ = model.piece_arrays()
+    assert 1.5 - 0.6 * EPS * 1.1 < volume.sum() < 1.5 - 0.6 * EPS * 0.9
+
+
+def test_bad_input():
+    mesh = five_tet_cube()
+    with pytest.raises(ValueError, match="density"):
+        xfem_model(mesh, -1.0)
+    with pytest.raises(ValueError, match="fixed"):
+        xfem_model(mesh, RHO, fixed=[0, 8])
+    with pytest.raises(ValueError, match="state"):
+        xfem_model(mesh, RHO, state=State(jnp.zeros((3, 3)), jnp.zeros((3, 3))))
+    with pytest.raises(ValueError, match="points"):
+        xfem_model(mesh, RHO).displacement_at(np.zeros((2, 2)), np.zeros(2, int))

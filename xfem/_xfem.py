@@ -1,0 +1,372 @@
+"""The cutting simulation of the XFEM paper: generalized enrichments (sec. 4.2, eq. 15-18), exact integration of
+the enriched mass and forces over element subdomains (sec. 3.5 and 4.3, eq. 13, 14, 19-21) and the per-step
+Algorithm 1 (sec. 4.4): cut the subdomains (lines 1-19, ``xfem._subdomains.apply_cut``), duplicate DOFs (line
+7), recompute the touched elements (lines 20-25) and step the FEM core (line 26, ``backward_euler_step``).
+
+DOFs. Every current nodal subdomain Omega^{i,s} carries one DOF, the coefficient u_i^s of eq. 18 (here the
+position ``X_i + u_i^s`` and the velocity). When a cut splits Omega^{i,s}, each piece gets a copy of its x and
+v (line 7): the pieces' indicators sum to the parent's on the material, so eq. 18 keeps its value at every
+material point. DOFs are numbered node by node, a node's subdomains by id (creation order); an uncut model has
+DOF i = node i. A nodal subdomain that no element piece reaches (possible only through dropped rounding-size
+slivers) gets no DOF, so that the mass stays positive definite.
+
+Element pieces. Every current element subdomain p of element e (a "piece") is an element of the FEM core: its
+4 DOFs, the shape gradients of e (the enriched basis is phi_i on p), the weight |p| (the elastic energy is
+psi(F) |p|, sec. 4.3), and its exact 4 x 4 mass ``rho int_p phi_a phi_b`` and loads ``int_p phi_a`` (eq. 13,
+14 by eq. 21, ``xfem._integration``). Elements no cut has met keep the closed forms of the whole tet (vectorized,
+no Booleans): ``rho V (1 + delta_ab) / 20`` and ``V / 4``, the plain FEM values.
+
+Enrichment (eq. 16). The DOF of local node a of piece p is that of the subdomain s of node i = T[e, a] whose
+indicator psi_i^s is 1 on p: the one with the smallest distance to a point X_p strictly inside p. The distance
+to a solid (not to its boundary: eq. 16 compares ``dist(X, Omega^{i,s})``) is 0 where the winding number of its
+boundary mesh exceeds 1/2 (libigl ``winding_number``) and the unsigned distance to the boundary mesh (libigl
+``point_mesh_squared_distance``) elsewhere. X_p is the centroid of p's largest boundary triangle moved inward,
+along the triangle's normal, by 1e-6 times the square root of its area: the point lies inside p (and so inside
+exactly one of node i's subdomains, which are disjoint and at least the cut's thickness apart, eq. 17) unless p
+is thinner than that offset there. A node with a single subdomain needs no query.
+"""
+
+from __future__ import annotations
+
+import igl
+import jax.numpy as jnp
+import manifold3d
+import numpy as np
+import scipy.sparse as sp
+from scipy.sparse.csgraph import connected_components
+
+from xfem._backward_euler import FEMSystem, State, backward_euler_step, fem_system
+from xfem._integration import element_piece_integrals, linear_shape_coefficients, moments_of_pieces
+from xfem._linear_tet import shape_gradients
+from xfem._subdomains import CutReport, Subdomains, apply_cut, subdomains
+from xfem._tetmesh import TetMesh
+
+_INWARD = 1e-6  # inward offset of a piece's query point, relative to the square root of its triangle's area
+
+
+def _mesh_arrays(solid: manifold3d.Manifold) -> tuple[np.ndarray, np.ndarray]:
+    mesh = solid.to_mesh64()
+    return (np.ascontiguousarray(np.asarray(mesh.vert_properties, np.float64)[:, :3]),
+            np.ascontiguousarray(np.asarray(mesh.tri_verts, np.int64)))
+
+
+def _interior_point(V: np.ndarray, F: np.ndarray) -> np.ndarray:
+    """A point strictly inside the solid bounded by (V, F): its largest triangle's centroid moved inward."""
+    corners = V[F]
+    normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+    areas2 = np.linalg.norm(normals, axis=1)
+    t = int(np.argmax(areas2))
+    inward = -normals[t] / areas2[t]
+    return corners[t].mean(axis=0) + _INWARD * np.sqrt(areas2[t] / 2) * inward
+
+
+def _nearest_subdomain(meshes: list[tuple[np.ndarray, np.ndarray]], points: np.ndarray) -> np.ndarray:
+    """(k,) for each point, the index of the solid at the smallest distance (0 inside), eq. 16."""
+    distance = np.empty((len(meshes), len(points)))
+    for s, (V, F) in enumerate(meshes):
+        inside = igl.winding_number(V, F, points) > 0.5
+        distance[s] = np.where(inside, 0.0, igl.point_mesh_squared_distance(points, V, F)[0])
+    return np.argmin(distance, axis=0)
+
+
+class XFEMModel:
+    """A cut elastic body: tet mesh, subdomains, DOFs and element pieces (host bookkeeping; build with
+    ``xfem_model``, then ``cut`` and ``step``).
+
+    Attributes:
+        mesh: the ``TetMesh`` (never modified).
+        sub: its ``Subdomains``.
+        X: (n, 3) float64 rest positions of the mesh nodes.
+        T: (m, 4) int64 tets.
+        rho: (m,) float64 density per tet.
+        gravity: (3,) float64 gravitational acceleration.
+        fixed_nodes: (nb,) int64 mesh nodes whose every DOF is fixed.
+        dof_node: (n_dofs,) int64 the mesh node of each DOF.
+        dof_sid: (n_dofs,) int64 the nodal subdomain of each DOF.
+        state: the ``State`` over the DOFs.
+    """
+
+    def __init__(self, mesh: TetMesh, rho: np.ndarray, gravity: np.ndarray, fixed: np.ndarray, state: State):
+        self.mesh = mesh
+        self.sub: Subdomains = subdomains(mesh)
+        self.X, self.T = self.sub.X, self.sub.T
+        self.rho, self.gravity, self.fixed_nodes = rho, gravity, fixed
+        grads, volumes = shape_gradients(mesh.X, mesh.T)
+        self._grads = np.asarray(grads)
+        # plain FEM closed forms of the whole tets (eq. 7, 8)
+        volumes = np.asarray(volumes)
+        self._tet_volume = volumes
+        self._tet_mass = (rho * volumes / 20)[:, None, None] * (1 + np.eye(4))
+        self._tet_load = np.repeat(volumes[:, None] / 4, 4, axis=1)
+        self._exact: set[int] = set()  # elements met by a cut: their pieces come from Booleans
+        self._integrals: dict[int, tuple[float, np.ndarray, np.ndarray]] = {}  # piece sid -> volume, mass, load
+        self._enriched: dict[int, np.ndarray] = {}  # piece sid -> (4,) nodal sids, where a node has several
+        self.dof_node = np.arange(len(self.X), dtype=np.int64)
+        self.dof_sid = np.arange(len(self.X), dtype=np.int64)
+        self.state = state
+        self._system: FEMSystem | None = None
+
+    # ---------------------------------------------------------------------------------------------------
+    # pieces
+
+    def _piece_nodal_sids(self, e: int, sid: int) -> np.ndarray:
+        """(4,) the nodal subdomains whose indicators are 1 on piece sid of element e (eq. 16)."""
+        if sid in self._enriched:
+            return self._enriched[sid]
+        return np.array([self.sub.node_subdomains(int(i))[0] for i in self.T[e]], np.int64)
+
+    def _enrich(self, elements: np.ndarray) -> None:
+        """Assign the nodal subdomains of every piece of the given elements at nodes with several (eq. 16); one
+        distance query per such node and subdomain, for all its pieces' points at once."""
+        queries: dict[int, list[tuple[int, int, np.ndarray]]] = {}  # node -> (piece sid, local node, point)
+        for e in elements.tolist():
+            several = [a for a in range(4) if len(self.sub.node_subdomains(int(self.T[e, a]))) > 1]
+            for sid in self.sub.element_subdomains(e):
+                self._enriched.pop(sid, None)
+                if not several:
+                    continue
+                if e in self._exact:
+                    point = _interior_point(*_mesh_arrays(self.sub.element_solid(sid)))
+                else:  # the whole tet: its centroid is inside
+                    point = self.X[self.T[e]].mean(axis=0)
+                self._enriched[sid] = np.array([self.sub.node_subdomains(int(i))[0] for i in self.T[e]], np.int64)
+                for a in several:
+                    queries.setdefault(int(self.T[e, a]), []).append((sid, a, point))
+        for i, rows in queries.items():
+            options = self.sub.node_subdomains(i)
+            meshes = [_mesh_arrays(self.sub.node_solid(s)) for s in options]
+            chosen = _nearest_subdomain(meshes, np.stack([point for _, _, point in rows]))
+            for (sid, a, _), k in zip(rows, chosen.tolist()):
+                self._enriched[sid][a] = options[k]
+
+    def _integrate(self, elements: np.ndarray) -> None:
+        """Exact mass, loads and volume of every piece of the given elements (eq. 13, 14, 21), one batch."""
+        V, F, piece, sids, owner, offset = [], [], [], [], [], 0
+        for e in elements.tolist():
+            for sid in self.sub.element_subdomains(e):
+                Vp, Fp = _mesh_arrays(self.sub.element_solid(sid))
+                V.append(Vp)
+                F.append(Fp + offset)
+                piece.append(np.full(len(Fp), len(sids), np.int64))
+                offset += len(Vp)
+                sids.append(sid)
+                owner.append(e)
+        if not sids:
+            return
+        owner = np.asarray(owner)
+        Xe = self.X[self.T[owner]]
+        origin = Xe.mean(axis=1)  # the tets' centroids: the moments stay relative to the piece's size
+        moments = moments_of_pieces(np.concatenate(V), np.concatenate(F), np.concatenate(piece), len(sids), origin)
+        c, g = linear_shape_coefficients(Xe, origin)
+        mass, load, volume = element_piece_integrals(c, g, moments, self.rho[owner])
+        for k, sid in enumerate(sids):
+            self._integrals[sid] = (float(volume[k]), mass[k], load[k])
+
+    def _pieces(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``piece_arrays`` with the nodal subdomain ids (P, 4) of eq. 16 in place of the DOFs."""
+        uncut = np.ones(len(self.T), bool)
+        uncut[list(self._exact)] = False
+        element = [np.flatnonzero(uncut)]
+        nodal = [self.T[element[0]]]  # the initial nodal subdomain of node i has id i
+        volume, mass, load = [self._tet_volume[uncut]], [self._tet_mass[uncut]], [self._tet_load[uncut]]
+        for sid, sids in self._enriched.items():
+            if sid < len(self.T) and uncut[sid]:  # an uncut tet's piece id is the element
+                nodal[0][np.searchsorted(element[0], sid)] = sids
+        for e in sorted(self._exact):
+            for sid in self.sub.element_subdomains(e):
+                vol, ms, ld = self._integrals[sid]
+                element.append(np.array([e]))
+                nodal.append(self._piece_nodal_sids(e, sid)[None])
+                volume.append(np.array([vol]))
+                mass.append(ms[None])
+                load.append(ld[None])
+        element = np.concatenate(element)
+        order = np.argsort(element, kind="stable")
+        return (element[order], np.concatenate(nodal)[order], np.concatenate(volume)[order],
+                np.concatenate(mass)[order], np.concatenate(load)[order])
+
+    def piece_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The element pieces, element by element (an uncut model: one piece per tet, in mesh order).
+
+        Returns:
+            element (P,) int64 parent element, dofs (P, 4) int64 DOF indices, volume (P,), mass (P, 4, 4)
+            ``rho int_p phi_a phi_b``, load (P, 4) ``int_p phi_a``.
+        """
+        element, nodal, volume, mass, load = self._pieces()
+        return element, self._dof_index(nodal), volume, mass, load
+
+    def _dof_index(self, sids: np.ndarray) -> np.ndarray:
+        """The DOF indices of nodal subdomains (-1 for one without a DOF)."""
+        order = np.argsort(self.dof_sid)
+        at = np.minimum(np.searchsorted(self.dof_sid[order], sids), len(order) - 1)
+        return np.where(self.dof_sid[order][at] == sids, order[at], -1)
+
+    # ---------------------------------------------------------------------------------------------------
+    # Algorithm 1
+
+    def system(self) -> FEMSystem:
+        """The ``FEMSystem`` of the current pieces (cached until the next cut): elements = pieces with their
+        parents' shape gradients and volumes |p|, mass assembled from the piece masses, gravity loads."""
+        if self._system is None:
+            element, dofs, volume, mass, load = self.piece_arrays()
+            n = len(self.dof_sid)
+            rows = np.broadcast_to(dofs[:, :, None], mass.shape).ravel()
+            cols = np.broadcast_to(dofs[:, None, :], mass.shape).ravel()
+            M = sp.csr_matrix((mass.ravel(), (rows, cols)), shape=(n, n))
+            M = (M + M.T) * 0.5  # summing duplicates in another order leaves M_ij != M_ji in the last bit
+            weights = load * self.rho[element][:, None]
+            force = np.zeros((n, 3))
+            np.add.at(force, dofs, weights[:, :, None] * self.gravity)
+            fixed = np.flatnonzero(np.isin(self.dof_node, self.fixed_nodes))
+            self._system = fem_system(dofs, jnp.asarray(self._grads[element]), jnp.asarray(volume), M,
+                                      jnp.asarray(force), fixed)
+        return self._system
+
+    def cut(self, solid: manifold3d.Manifold, perturb: float = 0.0) -> CutReport:
+        """Cut the body by a closed cut solid (Algorithm 1 lines 1-25): split the subdomains, copy the split
+        nodal subdomains' x and v to their pieces (line 7), integrate the touched elements' pieces (eq. 21),
+        re-enrich the elements around split nodes (eq. 16) and renumber the DOFs.
+
+        Args:
+            solid: the cut solid Gamma^c (``xfem._cuts.cut_solid``, ``plane_cut_solid``).
+            perturb: 0, or the size of the gentle perturbation (``apply_cut``).
+        Returns:
+            The ``CutReport`` of ``apply_cut``.
+        """
+        report = apply_cut(self.sub, solid, perturb)
+        if len(report.elements_touched) == 0:
+            return report
+        touched = report.elements_touched
+        for sid in report.element_children:  # retired pieces
+            self._integrals.pop(sid, None)
+            self._enriched.pop(sid, None)
+        self._exact.update(touched.tolist())
+        self._integrate(touched)
+        # nodes whose subdomain lists changed: their elements' pieces are enriched anew (line 21)
+        changed = {self.sub.node_of(s) for s in report.node_children} | set(report.nodes_split.tolist())
+        ring = [self.sub.ring_elements[self.sub.ring_offsets[i]:self.sub.ring_offsets[i + 1]] for i in changed]
+        self._enrich(np.unique(np.concatenate([touched, *ring])))
+        self._renumber()
+        self._system = None
+        return report
+
+    def _renumber(self) -> None:
+        """DOFs of the live nodal subdomains that a piece reaches, ordered by node, then id (creation order);
+        a subdomain made by this cut copies its parent's x and v (line 7)."""
+        sids = np.unique(self._pieces()[1])
+        nodes = np.array([s if s < len(self.X) else self.sub.node_of(int(s)) for s in sids], np.int64)
+        order = np.lexsort((sids, nodes))
+        sids, nodes = sids[order], nodes[order]
+        source = self._dof_index(sids)
+        for k in np.flatnonzero(source < 0).tolist():
+            origin = int(sids[k])
+            while source[k] < 0:
+                origin = self.sub.node_parent(origin)
+                source[k] = self._dof_index(np.array([origin]))[0]
+        self.dof_sid, self.dof_node = sids, nodes
+        # gathered on the host: a JAX gather would compile anew for every DOF count
+        self.state = State(jnp.asarray(np.asarray(self.state.x)[source]), jnp.asarray(np.asarray(self.state.v)[source]))
+
+    def step(self, h, mu, lam, newton_iterations: int = 1) -> State:
+        """One backward Euler step (eq. 10, Algorithm 1 line 26) of the current system; updates and returns
+        ``state``. mu, lam: scalar Lamé parameters."""
+        self.state = backward_euler_step(self.system(), self.state, h, mu, lam, newton_iterations=newton_iterations)
+        return self.state
+
+    # ---------------------------------------------------------------------------------------------------
+    # queries
+
+    def _field(self, values: np.ndarray, points, elements) -> np.ndarray:
+        """sum_i sum_s values_i^s phi_i(X) psi_i^s(X) (eq. 18) at points X in the given elements."""
+        points = np.asarray(points, np.float64)
+        elements = np.asarray(elements)
+        if points.ndim != 2 or points.shape[1] != 3 or not np.all(np.isfinite(points)):
+            raise ValueError(f"points: expected finite points of shape (k, 3), got {points.shape}")
+        if elements.shape != (len(points),) or not np.issubdtype(elements.dtype, np.integer) or (
+                elements.size and (elements.min() < 0 or elements.max() >= len(self.T))):
+            raise ValueError(f"elements: expected ({len(points)},) element indices in [0, {len(self.T)})")
+        c, _ = linear_shape_coefficients(self.X[self.T[elements]], points)  # phi_a(X): barycentric coordinates
+        result = np.zeros((len(points), values.shape[1]))
+        for a in range(4):
+            nodes = self.T[elements, a]
+            for i in np.unique(nodes).tolist():
+                at = np.flatnonzero(nodes == i)
+                options = self.sub.node_subdomains(i)
+                if len(options) == 1:
+                    chosen = np.zeros(len(at), np.int64)
+                else:
+                    meshes = [_mesh_arrays(self.sub.node_solid(s)) for s in options]
+                    chosen = _nearest_subdomain(meshes, points[at])
+                dofs = self._dof_index(np.asarray(options, np.int64))[chosen]
+                if np.any(dofs < 0):
+                    raise ValueError(f"points: a point's nodal subdomain of node {i} has no material (no DOF)")
+                result[at] += c[at, a, None] * values[dofs]
+        return result
+
+    def displacement_at(self, points, elements) -> np.ndarray:
+        """u(X) = sum_i sum_s u_i^s phi_i(X) psi_i^s(X) (eq. 18), u_i^s = x_i^s - X_i.
+
+        Args:
+            points: (k, 3) material points.
+            elements: (k,) int the element containing each point.
+        Returns:
+            (k, 3) displacements.
+        """
+        return self._field(np.asarray(self.state.x) - self.X[self.dof_node], points, elements)
+
+    def velocity_at(self, points, elements) -> np.ndarray:
+        """The velocity field of eq. 18 (coefficients v_i^s) at points (k, 3) in elements (k,); (k, 3)."""
+        return self._field(np.asarray(self.state.v), points, elements)
+
+    def components(self) -> tuple[int, np.ndarray]:
+        """The connected pieces of the body: components of the graph of element pieces sharing a DOF.
+
+        Returns:
+            count, and (n_dofs,) int the component of each DOF.
+        """
+        _, dofs, _, _, _ = self.piece_arrays()
+        n = len(self.dof_sid)
+        rows = np.repeat(dofs[:, :1], 3, axis=1).ravel()
+        graph = sp.csr_matrix((np.ones(len(rows)), (rows, dofs[:, 1:].ravel())), shape=(n, n))
+        return connected_components(graph, directed=False)
+
+    def pieces(self) -> int:
+        """The number of connected pieces of the body (``components``)."""
+        return self.components()[0]
+
+
+def xfem_model(mesh: TetMesh, density, gravity=(0.0, 0.0, -9.81), fixed=(), state: State | None = None) -> XFEMModel:
+    """An uncut XFEM model: one DOF per node (its 1-ring), one piece per tet.
+
+    Args:
+        mesh: the ``TetMesh``.
+        density: scalar or (m,) positive mass density per tet.
+        gravity: (3,) gravitational acceleration (body force density ``density * gravity``).
+        fixed: (nb,) int mesh nodes held in place (all their DOFs, also after cuts); () for none.
+        state: the initial ``State`` over the n nodes (float64); None: at rest in the rest positions.
+    Returns:
+        The ``XFEMModel``.
+    """
+    if not isinstance(mesh, TetMesh):
+        raise ValueError(f"mesh: expected a TetMesh, got {type(mesh).__name__}")
+    m, n = mesh.T.shape[0], mesh.X.shape[0]
+    rho = np.asarray(density)
+    if rho.shape not in ((), (m,)) or not np.issubdtype(rho.dtype, np.number) or not np.all(
+            np.isfinite(rho) & (rho > 0)):
+        raise ValueError(f"density: expected finite positive values of shape () or ({m},), got {rho.shape}")
+    rho = np.broadcast_to(rho.astype(np.float64), (m,)).copy()
+    gravity = np.asarray(gravity, np.float64)
+    if gravity.shape != (3,) or not np.all(np.isfinite(gravity)):
+        raise ValueError(f"gravity: expected a finite (3,) acceleration, got {gravity.shape}")
+    fixed = np.asarray(fixed).reshape(-1)
+    if fixed.size and (not np.issubdtype(fixed.dtype, np.integer) or fixed.min() < 0 or fixed.max() >= n
+                       or len(np.unique(fixed)) != len(fixed)):
+        raise ValueError(f"fixed: expected distinct int node indices in [0, {n})")
+    fixed = fixed.astype(np.int64)
+    if state is None:
+        X = jnp.asarray(mesh.X, jnp.float64)
+        state = State(X, jnp.zeros_like(X))
+    elif not isinstance(state, State) or jnp.shape(state.x) != (n, 3) or jnp.shape(state.v) != (n, 3) or \
+            jnp.result_type(state.x) != jnp.float64 or jnp.result_type(state.v) != jnp.float64:
+        raise ValueError(f"state: expected a float64 State with x, v of shape ({n}, 3)")
+    return XFEMModel(mesh, rho, gravity, fixed, state)
