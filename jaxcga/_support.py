@@ -10,6 +10,13 @@ import sys
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
+
+
+def to_device(a, dtype=None) -> jax.Array:
+    """A host array (or list) on the device, ``dtype`` if given. ``jax.device_put`` of a numpy array, not
+    ``jnp.asarray``, which compiles a copy for every new shape (it adds up where shapes change per call)."""
+    return jax.device_put(np.asarray(a, dtype))
 
 
 def require(x, *checks):

@@ -24,6 +24,12 @@ import numpy as np
 import scipy.sparse as sp
 from jaxtyping import Array, Float, Int
 
+from jaxcga._support import to_device
+
+
+class CapacityError(ValueError):
+    """A padded system's capacity (``nnz_capacity``, ``SystemCapacity``) is smaller than the system."""
+
 
 class AssemblyPattern(eqx.Module):
     """The CSR structure of the reduced (free-DOF) 3n x 3n matrix and the scatter maps into it; build it with
@@ -36,7 +42,7 @@ class AssemblyPattern(eqx.Module):
         m: the number of elements the pattern was built for.
         free: (n_free,) the free nodes, ascending: reduced node r is node ``free[r]``.
         free_index: (n,) the reduced index of each node, -1 for a fixed node.
-        indptr: (3 n_free + 1,) CSR row pointers.
+        indptr: (3 n_free + 1,) CSR row pointers; ``indptr[-1]`` <= nnz (the rest is padding).
         indices: (nnz,) CSR column indices, ascending within a row.
         rows: (nnz,) the row of each entry (the COO twin of indptr, for matrix-vector products).
         hessian_slots: (144 m,) the data slot of each element Hessian entry ``H[e, r, c]`` (flattened in C
@@ -84,7 +90,7 @@ def _block_slots(node_indptr, degree, a, p, k, c):
     return 9 * node_indptr[a] + 3 * k * degree[a] + 3 * (p - node_indptr[a]) + c
 
 
-def assembly_pattern(T, n: int, fixed=(), coupling=None) -> AssemblyPattern:
+def assembly_pattern(T, n: int, fixed=(), coupling=None, nnz_capacity: int | None = None) -> AssemblyPattern:
     """Precompute the sparsity of the free-DOF system and the scatter map of the element Hessians (host).
 
     Args:
@@ -142,11 +148,23 @@ def assembly_pattern(T, n: int, fixed=(), coupling=None) -> AssemblyPattern:
     dropped = ((ra < 0) | (cb < 0))[:, :, None, :, None]
     slots = np.where(dropped, nnz, slots).reshape(-1)
 
+    if nnz_capacity is not None:
+        if int(nnz_capacity) != nnz_capacity or nnz_capacity < nnz or nf < 1:
+            raise CapacityError(f"nnz_capacity: expected an int >= the pattern's {nnz} entries (and a free node), got "
+                             f"{nnz_capacity!r}")
+        pad = int(nnz_capacity) - nnz
+        # padded entries lie past indptr[-1] (the host solvers cut them off); for matvec they sit in the last
+        # row with zero data, keeping ``rows`` sorted
+        indices = np.concatenate([indices, np.full(pad, 3 * nf - 1, indices.dtype)])
+        rows = np.concatenate([rows, np.full(pad, 3 * nf - 1, rows.dtype)])
+        slots = np.where(slots == nnz, nnz + pad, slots)  # the discard slot stays past the end
+        nnz += pad
+
     index = np.int32 if nnz < 2**31 - 1 else np.int64
-    return AssemblyPattern(n=n, n_free=nf, nnz=nnz, m=len(T), free=jnp.asarray(free.astype(index)),
-                           free_index=jnp.asarray(free_index.astype(index)), indptr=jnp.asarray(indptr.astype(index)),
-                           indices=jnp.asarray(indices.astype(index)), rows=jnp.asarray(rows.astype(index)),
-                           hessian_slots=jnp.asarray(slots.astype(index)))
+    return AssemblyPattern(n=n, n_free=nf, nnz=nnz, m=len(T), free=to_device(free, index),
+                           free_index=to_device(free_index, index), indptr=to_device(indptr, index),
+                           indices=to_device(indices, index), rows=to_device(rows, index),
+                           hessian_slots=to_device(slots, index))
 
 
 def _host_pairs(pattern: AssemblyPattern):
@@ -278,5 +296,7 @@ def to_scipy(pattern: AssemblyPattern, data) -> sp.csr_matrix:
     Returns:
         (3 n_free, 3 n_free) ``scipy.sparse.csr_matrix``.
     """
-    return sp.csr_matrix((np.asarray(data), np.asarray(pattern.indices), np.asarray(pattern.indptr)),
+    indptr = np.asarray(pattern.indptr)
+    used = int(indptr[-1])  # the rest is padding (``nnz_capacity``)
+    return sp.csr_matrix((np.asarray(data)[:used], np.asarray(pattern.indices)[:used], indptr),
                          shape=(3 * pattern.n_free, 3 * pattern.n_free))

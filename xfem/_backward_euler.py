@@ -57,6 +57,8 @@ of the exact minimizer: it matches the computed step only when the step is conve
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -66,9 +68,10 @@ import scipy.sparse.linalg as spla
 from jaxtyping import Array, Float, Int
 from sksparse_minimal import SparseCholesky
 
-from jaxcga._support import require
+from jaxcga._support import require, to_device
 from xfem._assembly import (
     AssemblyPattern,
+    CapacityError,
     _host_elements,
     _host_fixed,
     assemble_matrix,
@@ -130,7 +133,48 @@ class State(eqx.Module):
     v: Float[Array, "n 3"]
 
 
-def fem_system(T, grads, volumes, mass, force, fixed=()) -> FEMSystem:
+class SystemCapacity(NamedTuple):
+    """The array sizes of a padded ``fem_system``: systems built to one capacity share every array shape, so
+    ``backward_euler_step`` compiles once for all of them (XFEM's systems change with every cut).
+
+    Padding: extra DOF nodes (the last ``fixed - nb`` of them fixed, the others free with unit mass, no
+    elements and no force, so a state that puts them anywhere with zero velocity keeps them there), extra
+    elements (copies of element 0 with weight 0), extra mass entries (zeros) and CSR slots
+    (``assembly_pattern``'s ``nnz_capacity``). None of it changes the real DOFs' step.
+
+    Attributes:
+        nodes: DOF nodes n (>= the real nodes + the padded fixed nodes).
+        elements: elements m.
+        mass_entries: stored entries of the scalar mass matrix (>= the real ones + the padded nodes).
+        fixed: Dirichlet nodes.
+        nonzeros: stored entries of the reduced 3n x 3n matrix.
+    """
+
+    nodes: int
+    elements: int
+    mass_entries: int
+    fixed: int
+    nonzeros: int
+
+
+def _pad(T, grads, volumes, mass, force, fixed, capacity: SystemCapacity):
+    """The padded arrays of ``SystemCapacity`` (host)."""
+    n, m = mass.shape[0], len(T)
+    extra_nodes, extra_fixed = capacity.nodes - n, capacity.fixed - len(fixed)
+    if min(extra_nodes, extra_fixed, capacity.elements - m, extra_nodes - extra_fixed) < 0 or m < 1:
+        raise CapacityError(f"capacity: {capacity} is too small for {n} nodes ({len(fixed)} fixed) and {m} elements")
+    # numpy, not JAX: a JAX concatenate would compile anew for every size
+    T = np.concatenate([T, np.repeat(T[:1], capacity.elements - m, axis=0)])
+    grads = np.concatenate([grads, np.repeat(grads[:1], capacity.elements - m, axis=0)])
+    volumes = np.concatenate([volumes, np.zeros(capacity.elements - m, volumes.dtype)])
+    if extra_nodes:
+        mass = sp.block_diag([mass, sp.identity(extra_nodes)], format="csr")
+    force = np.concatenate([force, np.zeros((extra_nodes, 3), force.dtype)])
+    fixed = np.concatenate([fixed, np.arange(capacity.nodes - extra_fixed, capacity.nodes)])
+    return T, grads, volumes, mass, force, fixed
+
+
+def fem_system(T, grads, volumes, mass, force, fixed=(), capacity: SystemCapacity | None = None) -> FEMSystem:
     """Bundle an element list, a mass matrix, forces and Dirichlet nodes for ``backward_euler_step`` (host).
 
     Args:
@@ -141,10 +185,13 @@ def fem_system(T, grads, volumes, mass, force, fixed=()) -> FEMSystem:
             nodes; its nonzeros may couple nodes that share no element.
         force: (n, 3) float nodal forces.
         fixed: (nb,) distinct int Dirichlet nodes; () for none.
+        capacity: None, or the ``SystemCapacity`` to pad to; the state of the padded system has
+            ``capacity.nodes`` rows, the real nodes first (pad with zeros).
     Returns:
         The ``FEMSystem``.
     """
-    grads, volumes = jnp.asarray(grads), jnp.asarray(volumes)
+    # numpy on the host, one device_put at the end: jnp.asarray of a numpy array compiles a copy per shape
+    grads, volumes = np.asarray(grads), np.asarray(volumes)
     if grads.ndim != 3 or grads.shape[1:] != (4, 3) or not jnp.issubdtype(grads.dtype, jnp.floating):
         raise ValueError(f"grads: expected float shape gradients of shape (m, 4, 3), got {grads.dtype} {grads.shape}")
     dtype, m = grads.dtype, grads.shape[0]
@@ -163,18 +210,29 @@ def fem_system(T, grads, volumes, mass, force, fixed=()) -> FEMSystem:
     T = _host_elements(T, n)
     if len(T) != m:
         raise ValueError(f"T: expected {m} elements (as in grads), got {len(T)}")
-    force = jnp.asarray(force)
+    force = np.asarray(force)
     if force.shape != (n, 3) or not np.all(np.isfinite(force)):
         raise ValueError(f"force: expected finite forces of shape ({n}, 3), got {force.shape}")
     fixed = _host_fixed(fixed, n)
-    pattern = assembly_pattern(T, n, fixed, coupling=mass)
+    nnz_capacity = None
+    if capacity is not None:
+        T, grads, volumes, mass, force, fixed = _pad(T, grads, volumes, mass, force, fixed, capacity)
+        n, nnz_capacity = capacity.nodes, capacity.nonzeros
+    pattern = assembly_pattern(T, n, fixed, coupling=mass, nnz_capacity=nnz_capacity)
     coo = mass.tocoo()
-    values = jnp.asarray(coo.data, dtype)
-    mass_data = assemble_scalar(pattern, jnp.asarray(scalar_slots(pattern, coo.row, coo.col)), values)
+    rows, cols, values = coo.row, coo.col, coo.data
+    if capacity is not None:  # zero entries on the last node's diagonal keep the rows sorted
+        if capacity.mass_entries < len(values):
+            raise CapacityError(f"capacity: {capacity.mass_entries} mass entries, fewer than the {len(values)} needed")
+        extra = capacity.mass_entries - len(values)
+        rows, cols = (np.concatenate([a, np.full(extra, n - 1, a.dtype)]) for a in (rows, cols))
+        values = np.concatenate([values, np.zeros(extra)])
     index = pattern.indices.dtype
-    return FEMSystem(T=jnp.asarray(T, index), grads=grads, volumes=jnp.asarray(volumes, dtype),
-                     mass_rows=jnp.asarray(coo.row, index), mass_cols=jnp.asarray(coo.col, index), mass_values=values,
-                     mass_data=mass_data, force=jnp.asarray(force, dtype), fixed=jnp.asarray(fixed, index),
+    values = to_device(values, dtype)
+    mass_data = assemble_scalar(pattern, to_device(scalar_slots(pattern, rows, cols), index), values)
+    return FEMSystem(T=to_device(T, index), grads=to_device(grads, dtype), volumes=to_device(volumes, dtype),
+                     mass_rows=to_device(rows, index), mass_cols=to_device(cols, index), mass_values=values,
+                     mass_data=mass_data, force=to_device(force, dtype), fixed=to_device(fixed, index),
                      pattern=pattern, n=n)
 
 
@@ -204,8 +262,9 @@ def fem_from_mesh(mesh: TetMesh, density, gravity=(0.0, 0.0, -9.81), fixed=()) -
 
 
 def _csr(data, indptr, indices):
-    N = len(indptr) - 1
-    return sp.csr_matrix((np.asarray(data, np.float64), np.asarray(indices), np.asarray(indptr)), shape=(N, N))
+    N, used = len(indptr) - 1, int(indptr[-1])  # entries past indptr[-1] are padding (``nnz_capacity``)
+    return sp.csr_matrix((np.asarray(data, np.float64)[:used], np.asarray(indices)[:used], np.asarray(indptr)),
+                         shape=(N, N))
 
 
 def _host_cg(data, rhs, rtol, indptr, indices):

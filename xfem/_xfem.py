@@ -28,6 +28,9 @@ is thinner than that offset there. A node with a single subdomain needs no query
 
 from __future__ import annotations
 
+import threading
+import time
+
 import igl
 import jax.numpy as jnp
 import manifold3d
@@ -35,13 +38,27 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
-from xfem._backward_euler import FEMSystem, State, backward_euler_step, fem_system
+from jaxcga._support import to_device
+from xfem._assembly import CapacityError
+from xfem._backward_euler import FEMSystem, State, SystemCapacity, backward_euler_step, fem_system
 from xfem._integration import element_piece_integrals, linear_shape_coefficients, moments_of_pieces
 from xfem._linear_tet import shape_gradients
 from xfem._subdomains import CutReport, Subdomains, apply_cut, subdomains
 from xfem._tetmesh import TetMesh
 
 _INWARD = 1e-6  # inward offset of a piece's query point, relative to the square root of its triangle's area
+_HEADROOM = 1.25  # capacity level 0 over the uncut model's sizes
+_GROWTH = 1.5  # capacity growth per level
+# the smallest capacities (nodes, elements, mass entries, fixed nodes, nonzeros): a small model's cuts stay in
+# level 0, and its padded step costs next to nothing
+_FLOOR = (256, 512, 4096, 64, 9 * 4096)
+
+
+def _padded_state(state: State, n: int, nodes: int) -> State:
+    """The state with zero rows for the padded DOF nodes (host; no JAX op to compile per size)."""
+    x, v = np.zeros((nodes, 3)), np.zeros((nodes, 3))
+    x[:n], v[:n] = np.asarray(state.x), np.asarray(state.v)
+    return State(to_device(x), to_device(v))
 
 
 def _mesh_arrays(solid: manifold3d.Manifold) -> tuple[np.ndarray, np.ndarray]:
@@ -105,6 +122,13 @@ class XFEMModel:
         self.dof_sid = np.arange(len(self.X), dtype=np.int64)
         self.state = state
         self._system: FEMSystem | None = None
+        self._arrays: tuple | None = None
+        self._padded: FEMSystem | None = None
+        self._level = 0
+        self._warmed: dict[tuple, threading.Thread | None] = {}  # levels compiled (in a thread or not)
+        _, _, _, M, _, fixed = self._system_arrays()
+        # capacity level 0 is _HEADROOM times these (nodes, elements, mass entries, fixed nodes, nonzeros)
+        self._base = (len(self.X), len(self.T), M.nnz, len(fixed), 9 * M.nnz)
 
     # ---------------------------------------------------------------------------------------------------
     # pieces
@@ -139,8 +163,9 @@ class XFEMModel:
             for (sid, a, _), k in zip(rows, chosen.tolist()):
                 self._enriched[sid][a] = options[k]
 
-    def _integrate(self, elements: np.ndarray) -> None:
-        """Exact mass, loads and volume of every piece of the given elements (eq. 13, 14, 21), one batch."""
+    def _integrate(self, elements: np.ndarray) -> int:
+        """Exact mass, loads and volume of every piece of the given elements (eq. 13, 14, 21), one batch;
+        returns the number of pieces."""
         V, F, piece, sids, owner, offset = [], [], [], [], [], 0
         for e in elements.tolist():
             for sid in self.sub.element_subdomains(e):
@@ -152,7 +177,7 @@ class XFEMModel:
                 sids.append(sid)
                 owner.append(e)
         if not sids:
-            return
+            return 0
         owner = np.asarray(owner)
         Xe = self.X[self.T[owner]]
         origin = Xe.mean(axis=1)  # the tets' centroids: the moments stay relative to the piece's size
@@ -161,6 +186,7 @@ class XFEMModel:
         mass, load, volume = element_piece_integrals(c, g, moments, self.rho[owner])
         for k, sid in enumerate(sids):
             self._integrals[sid] = (float(volume[k]), mass[k], load[k])
+        return len(sids)
 
     def _pieces(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """``piece_arrays`` with the nodal subdomain ids (P, 4) of eq. 16 in place of the DOFs."""
@@ -204,10 +230,11 @@ class XFEMModel:
     # ---------------------------------------------------------------------------------------------------
     # Algorithm 1
 
-    def system(self) -> FEMSystem:
-        """The ``FEMSystem`` of the current pieces (cached until the next cut): elements = pieces with their
-        parents' shape gradients and volumes |p|, mass assembled from the piece masses, gravity loads."""
-        if self._system is None:
+    def _system_arrays(self):
+        """The arguments of ``fem_system`` for the current pieces (cached until the next cut): elements =
+        pieces with their parents' shape gradients and volumes |p|, mass assembled from the piece masses,
+        gravity loads, the DOFs of the fixed nodes."""
+        if self._arrays is None:
             element, dofs, volume, mass, load = self.piece_arrays()
             n = len(self.dof_sid)
             rows = np.broadcast_to(dofs[:, :, None], mass.shape).ravel()
@@ -218,9 +245,76 @@ class XFEMModel:
             force = np.zeros((n, 3))
             np.add.at(force, dofs, weights[:, :, None] * self.gravity)
             fixed = np.flatnonzero(np.isin(self.dof_node, self.fixed_nodes))
-            self._system = fem_system(dofs, jnp.asarray(self._grads[element]), jnp.asarray(volume), M,
-                                      jnp.asarray(force), fixed)
+            self._arrays = (dofs, self._grads[element], volume, M, force, fixed)
+        return self._arrays
+
+    def system(self) -> FEMSystem:
+        """The ``FEMSystem`` of the current pieces (cached until the next cut), one DOF node per row of
+        ``state``; ``step`` runs the same system padded to a capacity (module docstring)."""
+        if self._system is None:
+            dofs, grads, volume, M, force, fixed = self._system_arrays()
+            self._system = fem_system(dofs, grads, volume, M, force, fixed)
         return self._system
+
+    # ---------------------------------------------------------------------------------------------------
+    # capacities: padded systems so that a cut rarely changes the compiled step
+
+    def _capacity(self, level: int) -> SystemCapacity:
+        scale = _HEADROOM * _GROWTH**level
+        base, floor = self._base, _FLOOR
+        size = [max(f, int(np.ceil(b * scale))) for b, f in zip(base, floor)]
+        fixed = size[3]
+        nodes = size[0] + fixed  # room for the padded fixed nodes
+        # the padded free nodes' unit masses add a mass entry and a 3 x 3 block each
+        return SystemCapacity(nodes=nodes, elements=size[1], mass_entries=size[2] + nodes, fixed=fixed,
+                              nonzeros=size[4] + 9 * nodes)
+
+    def _fits(self, level: int) -> bool:
+        dofs, _, _, M, _, fixed = self._system_arrays()
+        capacity = self._capacity(level)
+        return (len(self.dof_sid) <= capacity.nodes - capacity.fixed and len(dofs) <= capacity.elements
+                and M.nnz <= capacity.mass_entries - capacity.nodes and len(fixed) <= capacity.fixed)
+
+    def _padded_system(self) -> tuple[FEMSystem, int]:
+        """The current system padded to the smallest capacity level (not below the last one) that holds it."""
+        if self._padded is None:
+            level = self._level
+            while not self._fits(level):
+                level += 1
+            dofs, grads, volume, M, force, fixed = self._system_arrays()
+            while True:
+                try:
+                    system = fem_system(dofs, grads, volume, M, force, fixed,
+                                        capacity=self._capacity(level))
+                    break
+                except CapacityError:  # more matrix nonzeros than the level holds
+                    level += 1
+            self._padded, self._level = system, level
+        return self._padded, self._level
+
+    def _warm_up(self, level: int, h, mu, lam, newton_iterations: int) -> None:
+        """Compile the step of capacity ``level`` in a background thread (once per level and arguments), so
+        that the cut that first needs it does not wait for XLA: the current system padded to that level and
+        the current state are stepped once and the result dropped."""
+        key = (level, newton_iterations, np.shape(mu), np.shape(lam))
+        if key in self._warmed or not self._fits(level):
+            return
+        arrays, state, n = self._system_arrays(), self.state, len(self.dof_sid)
+        capacity = self._capacity(level)
+
+        def compile_step():
+            dofs, grads, volume, M, force, fixed = arrays
+            try:
+                system = fem_system(dofs, grads, volume, M, force, fixed,
+                                    capacity=capacity)
+            except CapacityError:  # the level is too small for this system's nonzeros: nothing to compile
+                return
+            backward_euler_step(system, _padded_state(state, n, capacity.nodes), h, mu, lam,
+                                newton_iterations=newton_iterations).x.block_until_ready()
+
+        thread = threading.Thread(target=compile_step)  # not a daemon: XLA must not be cut off at exit
+        self._warmed[key] = thread
+        thread.start()
 
     def cut(self, solid: manifold3d.Manifold, perturb: float = 0.0) -> CutReport:
         """Cut the body by a closed cut solid (Algorithm 1 lines 1-25): split the subdomains, copy the split
@@ -241,13 +335,17 @@ class XFEMModel:
             self._integrals.pop(sid, None)
             self._enriched.pop(sid, None)
         self._exact.update(touched.tolist())
-        self._integrate(touched)
+        start = time.perf_counter()
+        report.pieces_integrated = self._integrate(touched)
+        report.integration_seconds = time.perf_counter() - start
+        start = time.perf_counter()
         # nodes whose subdomain lists changed: their elements' pieces are enriched anew (line 21)
         changed = {self.sub.node_of(s) for s in report.node_children} | set(report.nodes_split.tolist())
         ring = [self.sub.ring_elements[self.sub.ring_offsets[i]:self.sub.ring_offsets[i + 1]] for i in changed]
         self._enrich(np.unique(np.concatenate([touched, *ring])))
         self._renumber()
-        self._system = None
+        report.enrichment_seconds = time.perf_counter() - start
+        self._system = self._arrays = self._padded = None
         return report
 
     def _renumber(self) -> None:
@@ -265,12 +363,25 @@ class XFEMModel:
                 source[k] = self._dof_index(np.array([origin]))[0]
         self.dof_sid, self.dof_node = sids, nodes
         # gathered on the host: a JAX gather would compile anew for every DOF count
-        self.state = State(jnp.asarray(np.asarray(self.state.x)[source]), jnp.asarray(np.asarray(self.state.v)[source]))
+        self.state = State(to_device(np.asarray(self.state.x)[source]), to_device(np.asarray(self.state.v)[source]))
 
     def step(self, h, mu, lam, newton_iterations: int = 1) -> State:
         """One backward Euler step (eq. 10, Algorithm 1 line 26) of the current system; updates and returns
-        ``state``. mu, lam: scalar Lamé parameters."""
-        self.state = backward_euler_step(self.system(), self.state, h, mu, lam, newton_iterations=newton_iterations)
+        ``state``. mu, lam: scalar Lamé parameters.
+
+        The system is padded to a capacity level (module docstring); the step of the next level is compiled
+        in the background meanwhile."""
+        system, level = self._padded_system()
+        key = (level, int(newton_iterations), np.shape(mu), np.shape(lam))
+        if self._warmed.get(key) is not None:  # its compilation may still be running: wait, not compile twice
+            self._warmed[key].join()
+        n = len(self.dof_sid)
+        stepped = backward_euler_step(system, _padded_state(self.state, n, system.n), h, mu, lam,
+                                      newton_iterations=newton_iterations)
+        self._warmed.setdefault(key, None)  # compiled by this step
+        # sliced on the host: a JAX slice would compile anew for every DOF count
+        self.state = State(to_device(np.asarray(stepped.x)[:n]), to_device(np.asarray(stepped.v)[:n]))
+        self._warm_up(level + 1, h, mu, lam, int(newton_iterations))
         return self.state
 
     # ---------------------------------------------------------------------------------------------------

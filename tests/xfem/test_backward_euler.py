@@ -16,7 +16,15 @@ import pytest
 import scipy.optimize
 import scipy.sparse as sp
 
-from xfem._backward_euler import State, _host_direct, backward_euler_step, fem_from_mesh, fem_system
+from xfem._assembly import CapacityError
+from xfem._backward_euler import (
+    State,
+    SystemCapacity,
+    _host_direct,
+    backward_euler_step,
+    fem_from_mesh,
+    fem_system,
+)
 from xfem._linear_tet import body_force, consistent_mass, lumped_mass, shape_gradients
 from xfem._neohookean import element_energy, lame
 from xfem._tetmesh import box_tets, five_tet_cube
@@ -219,3 +227,33 @@ def test_adjoint_solve_of_an_indefinite_or_singular_hessian():
     np.testing.assert_allclose(_host_direct(A.data, b, A.indptr, A.indices), np.linalg.solve(A.toarray(), b))
     A = sp.csr_matrix(np.array([[1.0, 1.0], [1.0, 1.0]]))
     assert np.all(np.isnan(_host_direct(A.data, b[:2], A.indptr, A.indices)))
+
+
+def test_padded_system_steps_like_the_real_one():
+    """A system padded to a capacity (extra free and fixed nodes, zero-weight elements, zero mass entries and CSR
+    slots) takes the same step on its real nodes and leaves the padded ones where they are."""
+    mesh = box_tets((2, 2, 3))
+    n, m = mesh.X.shape[0], mesh.T.shape[0]
+    fixed = np.flatnonzero(np.asarray(mesh.X)[:, 2] < 1e-9)
+    real = fem_from_mesh(mesh, 1e3, fixed=fixed)
+    grads, volumes = shape_gradients(mesh.X, mesh.T)
+    mass = consistent_mass(mesh.X, mesh.T, 1e3)
+    force = body_force(mesh.X, mesh.T, 1e3 * np.array([0.0, 0.0, -9.81]))
+    capacity = SystemCapacity(nodes=n + 20, elements=m + 7, mass_entries=real.mass_values.shape[0] + 40,
+                              fixed=len(fixed) + 5, nonzeros=real.pattern.nnz + 9 * 15 + 99)  # 15 free padded nodes
+    padded = fem_system(mesh.T, grads, volumes, mass, force, fixed, capacity=capacity)
+    assert (padded.n, padded.T.shape[0], padded.fixed.shape[0], padded.pattern.nnz) == tuple(
+        capacity[k] for k in (0, 1, 3, 4))
+    mu, lam = lame(1e6, 0.4)
+    X = np.asarray(mesh.X)
+    state = State(jnp.asarray(X), jnp.asarray(np.random.default_rng(0).normal(size=X.shape)))
+    wide = State(jnp.asarray(np.vstack([X, np.zeros((20, 3))])), jnp.asarray(np.vstack([state.v, np.zeros((20, 3))])))
+    for _ in range(2):
+        state = backward_euler_step(real, state, 0.033, mu, lam)
+        wide = backward_euler_step(padded, wide, 0.033, mu, lam)
+    np.testing.assert_allclose(np.asarray(wide.x)[:n], state.x, rtol=0, atol=1e-12)
+    np.testing.assert_array_equal(np.asarray(wide.x)[n:], 0.0)
+    with pytest.raises(CapacityError, match="capacity"):
+        fem_system(mesh.T, grads, volumes, mass, force, fixed, capacity=capacity._replace(nonzeros=9))
+    with pytest.raises(CapacityError, match="capacity"):
+        fem_system(mesh.T, grads, volumes, mass, force, fixed, capacity=capacity._replace(elements=m - 1))

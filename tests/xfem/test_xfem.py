@@ -4,6 +4,9 @@ checked against the barycentric interpolation of the nodal values before the cut
 times the body's volume minus the volume of the cut inside it (manifold3d's Boolean volume); a body cut through
 separates and its free part falls with g."""
 
+import logging
+
+import jax
 import jax.numpy as jnp
 import manifold3d
 import numpy as np
@@ -183,3 +186,22 @@ def test_bad_input():
         xfem_model(mesh, RHO, state=State(jnp.zeros((3, 3)), jnp.zeros((3, 3))))
     with pytest.raises(ValueError, match="points"):
         xfem_model(mesh, RHO).displacement_at(np.zeros((2, 2)), np.zeros(2, int))
+
+
+def test_cuts_within_a_capacity_level_reuse_the_compiled_step(caplog):
+    """Steps run on the system padded to a capacity level: cuts that stay within it compile nothing for the step,
+    and the padded step equals the real system's step."""
+    mesh = _tall_box()
+    model = xfem_model(mesh, RHO, gravity=G, fixed=np.flatnonzero(np.asarray(mesh.X)[:, 2] > 1.5 - 1e-9))
+    cuts = [_plane(), _plane(point=(0.5, 0.5, 0.9), normal=(0.03, 0.05, 1.0))]
+    model.step(H, MU, LAM)
+    for cut in cuts:
+        model.cut(cut)
+        before = model.state
+        with jax.log_compiles(), caplog.at_level(logging.WARNING):
+            caplog.clear()
+            model.step(H, MU, LAM)
+        assert not [r for r in caplog.records if "Compiling" in r.getMessage() and "_step" in r.getMessage()]
+        assert model._level == 0
+        expected = backward_euler_step(model.system(), before, H, MU, LAM)
+        np.testing.assert_allclose(model.state.x, expected.x, rtol=0, atol=1e-12)
