@@ -46,7 +46,8 @@ class AssemblyPattern(eqx.Module):
         indices: (nnz,) CSR column indices, ascending within a row.
         rows: (nnz,) the row of each entry (the COO twin of indptr, for matrix-vector products).
         hessian_slots: (144 m,) the data slot of each element Hessian entry ``H[e, r, c]`` (flattened in C
-            order); ``nnz`` for entries on a fixed node's row or column, which are discarded.
+            order); ``nnz`` or more (out of bounds) for entries on a fixed node's row or column, which are
+            discarded.
     """
 
     n: int = eqx.field(static=True)
@@ -140,27 +141,30 @@ def assembly_pattern(T, n: int, fixed=(), coupling=None, nnz_capacity: int | Non
     indices = (3 * node_cols[pair_of_entry][:, None] + k3).ravel()
     rows = np.repeat(np.arange(3 * nf), np.diff(indptr))
 
-    # the slot of every element Hessian entry (e, a, k, b, l)
-    pair = np.searchsorted(keys, np.where((ra >= 0) & (cb >= 0), ra * nf + cb, 0))  # (m, 4, 4)
-    row = np.where(ra >= 0, ra, nf)
-    slots = _block_slots(node_indptr, degree, row[:, :, None, :, None], pair[:, :, None, :, None],
-                         k3[None, None, :, None, None], k3[None, None, None, None, :])
-    dropped = ((ra < 0) | (cb < 0))[:, :, None, :, None]
-    slots = np.where(dropped, nnz, slots).reshape(-1)
+    if nnz_capacity is not None and (int(nnz_capacity) != nnz_capacity or nnz_capacity < nnz or nf < 1):
+        raise CapacityError(f"nnz_capacity: expected an int >= the pattern's {nnz} entries (and a free node), got "
+                            f"{nnz_capacity!r}")
+    stored = nnz if nnz_capacity is None else int(nnz_capacity)
+    index = np.int32 if stored + 3 < 2**31 - 1 else np.int64
+
+    # the slot of every element Hessian entry (e, a, k, b, l): _block_slots split into its node-pair part
+    # (m, 4, 4) and the coordinate offsets, broadcast once (in 32 bits: 144 m entries)
+    kept = (ra >= 0) & (cb >= 0)
+    pair = np.searchsorted(keys, np.where(kept, ra * nf + cb, 0))
+    start, row_degree = node_indptr[np.where(kept, ra, 0)], degree[np.where(kept, ra, 0)] if nf else 0
+    base = np.where(kept, 9 * start + 3 * (pair - start), stored).astype(index)  # stored + c: past the end
+    stride = np.where(kept, 3 * row_degree, 0).astype(index)
+    slots = (base[:, :, None, :, None] + stride[:, :, None, :, None] * k3.astype(index)[:, None, None]
+             + k3.astype(index)).reshape(-1)
 
     if nnz_capacity is not None:
-        if int(nnz_capacity) != nnz_capacity or nnz_capacity < nnz or nf < 1:
-            raise CapacityError(f"nnz_capacity: expected an int >= the pattern's {nnz} entries (and a free node), got "
-                             f"{nnz_capacity!r}")
-        pad = int(nnz_capacity) - nnz
+        pad = stored - nnz
         # padded entries lie past indptr[-1] (the host solvers cut them off); for matvec they sit in the last
         # row with zero data, keeping ``rows`` sorted
         indices = np.concatenate([indices, np.full(pad, 3 * nf - 1, indices.dtype)])
         rows = np.concatenate([rows, np.full(pad, 3 * nf - 1, rows.dtype)])
-        slots = np.where(slots == nnz, nnz + pad, slots)  # the discard slot stays past the end
-        nnz += pad
+        nnz = stored
 
-    index = np.int32 if nnz < 2**31 - 1 else np.int64
     return AssemblyPattern(n=n, n_free=nf, nnz=nnz, m=len(T), free=to_device(free, index),
                            free_index=to_device(free_index, index), indptr=to_device(indptr, index),
                            indices=to_device(indices, index), rows=to_device(rows, index),

@@ -67,14 +67,16 @@ def _mesh_arrays(solid: manifold3d.Manifold) -> tuple[np.ndarray, np.ndarray]:
             np.ascontiguousarray(np.asarray(mesh.tri_verts, np.int64)))
 
 
-def _interior_point(V: np.ndarray, F: np.ndarray) -> np.ndarray:
-    """A point strictly inside the solid bounded by (V, F): its largest triangle's centroid moved inward."""
+def _interior_points(V: np.ndarray, F: np.ndarray, piece: np.ndarray, k: int) -> np.ndarray:
+    """(k, 3) a point strictly inside each of k solids whose boundary triangles F (into V) carry their solid's
+    index in ``piece``: the solid's largest triangle's centroid moved inward (module docstring)."""
     corners = V[F]
     normals = np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
     areas2 = np.linalg.norm(normals, axis=1)
-    t = int(np.argmax(areas2))
-    inward = -normals[t] / areas2[t]
-    return corners[t].mean(axis=0) + _INWARD * np.sqrt(areas2[t] / 2) * inward
+    order = np.lexsort((-areas2, piece))
+    largest = order[np.searchsorted(piece[order], np.arange(k))]  # the first of each piece: its largest
+    inward = -normals[largest] / areas2[largest, None]
+    return corners[largest].mean(axis=1) + _INWARD * np.sqrt(areas2[largest, None] / 2) * inward
 
 
 def _nearest_subdomain(meshes: list[tuple[np.ndarray, np.ndarray]], points: np.ndarray) -> np.ndarray:
@@ -116,7 +118,8 @@ class XFEMModel:
         self._tet_mass = (rho * volumes / 20)[:, None, None] * (1 + np.eye(4))
         self._tet_load = np.repeat(volumes[:, None] / 4, 4, axis=1)
         self._exact: set[int] = set()  # elements met by a cut: their pieces come from Booleans
-        self._integrals: dict[int, tuple[float, np.ndarray, np.ndarray]] = {}  # piece sid -> volume, mass, load
+        # piece sid -> volume, mass, load, a point inside it
+        self._integrals: dict[int, tuple[float, np.ndarray, np.ndarray, np.ndarray]] = {}
         self._enriched: dict[int, np.ndarray] = {}  # piece sid -> (4,) nodal sids, where a node has several
         self.dof_node = np.arange(len(self.X), dtype=np.int64)
         self.dof_sid = np.arange(len(self.X), dtype=np.int64)
@@ -150,7 +153,7 @@ class XFEMModel:
                 if not several:
                     continue
                 if e in self._exact:
-                    point = _interior_point(*_mesh_arrays(self.sub.element_solid(sid)))
+                    point = self._integrals[sid][3]
                 else:  # the whole tet: its centroid is inside
                     point = self.X[self.T[e]].mean(axis=0)
                 self._enriched[sid] = np.array([self.sub.node_subdomains(int(i))[0] for i in self.T[e]], np.int64)
@@ -181,11 +184,13 @@ class XFEMModel:
         owner = np.asarray(owner)
         Xe = self.X[self.T[owner]]
         origin = Xe.mean(axis=1)  # the tets' centroids: the moments stay relative to the piece's size
-        moments = moments_of_pieces(np.concatenate(V), np.concatenate(F), np.concatenate(piece), len(sids), origin)
+        V, F, piece = np.concatenate(V), np.concatenate(F), np.concatenate(piece)
+        moments = moments_of_pieces(V, F, piece, len(sids), origin)
         c, g = linear_shape_coefficients(Xe, origin)
         mass, load, volume = element_piece_integrals(c, g, moments, self.rho[owner])
+        points = _interior_points(V, F, piece, len(sids))
         for k, sid in enumerate(sids):
-            self._integrals[sid] = (float(volume[k]), mass[k], load[k])
+            self._integrals[sid] = (float(volume[k]), mass[k], load[k], points[k])
         return len(sids)
 
     def _pieces(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -200,7 +205,7 @@ class XFEMModel:
                 nodal[0][np.searchsorted(element[0], sid)] = sids
         for e in sorted(self._exact):
             for sid in self.sub.element_subdomains(e):
-                vol, ms, ld = self._integrals[sid]
+                vol, ms, ld, _ = self._integrals[sid]
                 element.append(np.array([e]))
                 nodal.append(self._piece_nodal_sids(e, sid)[None])
                 volume.append(np.array([vol]))
