@@ -4,7 +4,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test bench install clean
+.PHONY: demo test test-slow bench install clean
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -18,9 +18,13 @@ install: $(STAMP)
 demo: $(STAMP)
 	$(VENV)/bin/jaxcga demo
 
-## Run every test, notebooks included, on two workers (pytest-xdist; CI has two cores).
+## Run every test, notebooks included, on two workers (pytest-xdist; CI has two cores), except those marked slow.
 test: $(STAMP)
-	$(PY) -m pytest -n 2 --nbmake tests notebooks
+	$(PY) -m pytest -n 2 --nbmake -m "not slow" tests notebooks
+
+## The tests marked slow (benchmark smoke runs, paper-size scenes); CI runs them after `make test`.
+test-slow: $(STAMP)
+	$(PY) -m pytest -n 2 -m slow tests
 
 ## Benchmarks: print figures and ratios, write JSON to out/bench/.
 bench: $(STAMP)

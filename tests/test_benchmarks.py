@@ -1,5 +1,8 @@
 """The benchmark scripts run (in their small --quick mode) and write the JSON names the issues
-promise. Speed itself is not asserted here: it is measured by `make bench`."""
+promise. Speed itself is not asserted here: it is measured by `make bench`.
+
+Marked slow (each run compiles the benchmark's whole set of kernels in a fresh process): `make test` leaves them
+out, `make test-slow` runs them, and CI (`.ci/run`) runs both."""
 
 from __future__ import annotations
 
@@ -8,7 +11,10 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
+pytestmark = pytest.mark.slow
 
 
 def _quick(script: str, tmp_path) -> dict:

@@ -8,7 +8,10 @@ position ``X_i + u_i^s`` and the velocity). When a cut splits Omega^{i,s}, each 
 v (line 7): the pieces' indicators sum to the parent's on the material, so eq. 18 keeps its value at every
 material point. DOFs are numbered node by node, a node's subdomains by id (creation order); an uncut model has
 DOF i = node i. A nodal subdomain that no element piece reaches (possible only through dropped rounding-size
-slivers) gets no DOF, so that the mass stays positive definite.
+slivers) gets no DOF. A thin sliver that is kept (e.g. left by a perturbed cut next to a node layer, 1e-7
+thick) gives its DOF a mass near rounding (~1e-19, entries of either sign ~1e-17): the step's matrix
+``M + h^2 K`` stays positive definite through the sliver's stiffness, and the runs stay stable
+(tests/xfem/test_robustness.py), but such a DOF's velocity means little.
 
 Element pieces. Every current element subdomain p of element e (a "piece") is an element of the FEM core: its
 4 DOFs, the shape gradients of e (the enriched basis is phi_i on p), the weight |p| (the elastic energy is
