@@ -451,6 +451,8 @@ def _minimize_bwd(x, x_bar, perturbed, theta, system, h, iterations, tolerance, 
 
 @eqx.filter_jit
 def _step(system, state, h, mu, lam, fixed_positions, iterations, tolerance, line_search):
+    if fixed_positions is None:  # they stay where they are
+        fixed_positions = state.x[system.fixed]
     theta = _Theta(state.x, state.v, mu, lam, fixed_positions, system.force, system.grads, system.volumes,
                    system.mass_values)
     # theta carries every differentiable input; the rest of the system is structure
@@ -490,16 +492,27 @@ def backward_euler_step(system: FEMSystem, state: State, h, mu, lam, fixed_posit
         raise ValueError(f"newton_iterations: expected an int >= 1, got {newton_iterations!r}")
     if tolerance is not None and not tolerance > 0:
         raise ValueError(f"tolerance: expected None or a positive length, got {tolerance!r}")
-    h = jnp.asarray(h, dtype)
-    if h.shape != ():
-        raise ValueError(f"h: expected a scalar time step, got shape {h.shape}")
-    h = require(h, (~(h > 0) | ~jnp.isfinite(h), "h: expected a finite positive time step"))
-    if fixed_positions is None:
-        fixed_positions = state.x[system.fixed]
-    fixed_positions = jnp.asarray(fixed_positions)
-    if fixed_positions.shape != system.fixed.shape + (3,):
-        raise ValueError(f"fixed_positions: expected shape ({system.fixed.shape[0]}, 3), got {fixed_positions.shape}")
-    state = State(*(require(a, (~jnp.all(jnp.isfinite(a)), f"state.{name}: non-finite values (NaN or inf)"))
+    if jnp.shape(h) != ():
+        raise ValueError(f"h: expected a scalar time step, got shape {jnp.shape(h)}")
+    # concrete values are checked in numpy: eager JAX checks cost a dispatch and a sync each, a large part of
+    # a small system's step; traced ones by eqx.error_if
+    h = _checked(jnp.asarray(h, dtype), lambda h: ~(h > 0) | ~np.isfinite(h), "h: expected a finite positive time step")
+    if fixed_positions is not None:
+        fixed_positions = jnp.asarray(fixed_positions, dtype)
+        if fixed_positions.shape != system.fixed.shape + (3,):
+            raise ValueError(f"fixed_positions: expected shape ({system.fixed.shape[0]}, 3), got "
+                             f"{fixed_positions.shape}")
+    state = State(*(_checked(a, lambda a: ~np.isfinite(a), f"state.{name}: non-finite values (NaN or inf)")
                     for name, a in (("x", state.x), ("v", state.v))))
-    return _step(system, state, h, jnp.asarray(mu, dtype), jnp.asarray(lam, dtype),
-                 jnp.asarray(fixed_positions, dtype), int(newton_iterations), tolerance, line_search)
+    return _step(system, state, h, jnp.asarray(mu, dtype), jnp.asarray(lam, dtype), fixed_positions,
+                 int(newton_iterations), tolerance, line_search)
+
+
+def _checked(a, bad, message: str):
+    """``a``, checked by ``bad`` (elementwise, numpy or jnp): ValueError for concrete values, eqx.error_if when
+    traced."""
+    if isinstance(a, jax.core.Tracer):
+        return require(a, (bad(a), message))
+    if np.any(bad(np.asarray(a))):
+        raise ValueError(message)
+    return a
