@@ -117,16 +117,19 @@ def assembly_pattern(T, n: int, fixed=(), coupling=None, nnz_capacity: int | Non
     F = free_index[T]  # (m, 4) reduced nodes, -1 where fixed
     ra = np.broadcast_to(F[:, :, None], (len(T), 4, 4))
     cb = np.broadcast_to(F[:, None, :], (len(T), 4, 4))
-    pairs_a, pairs_b = ra.ravel(), cb.ravel()
+    valid = (ra >= 0) & (cb >= 0)
+    keys = np.unique((ra * nf + cb)[valid])
     if coupling is not None:
         C = sp.coo_matrix(coupling)
         if C.shape != (n, n):
             raise ValueError(f"coupling: expected shape ({n}, {n}), got {C.shape}")
-        keep = C.data != 0
-        pairs_a = np.concatenate([pairs_a, free_index[C.row[keep]]])
-        pairs_b = np.concatenate([pairs_b, free_index[C.col[keep]]])
-    valid = (pairs_a >= 0) & (pairs_b >= 0)
-    keys = np.unique(pairs_a[valid] * nf + pairs_b[valid])
+        a, b = free_index[C.row[C.data != 0]], free_index[C.col[C.data != 0]]
+        extra = (a * nf + b)[(a >= 0) & (b >= 0)]
+        # most couplings (a mass matrix's) are element pairs already: only the others join the sort
+        at = np.minimum(np.searchsorted(keys, extra), max(len(keys) - 1, 0))
+        extra = extra[keys[at] != extra] if len(keys) else extra
+        if len(extra):
+            keys = np.union1d(keys, extra)
     node_rows, node_cols = keys // max(nf, 1), keys % max(nf, 1)
     degree = np.bincount(node_rows, minlength=nf)
     node_indptr = np.concatenate([[0], np.cumsum(degree)])

@@ -126,6 +126,7 @@ class XFEMModel:
         self._enriched: dict[int, np.ndarray] = {}  # piece sid -> (4,) nodal sids, where a node has several
         self.dof_node = np.arange(len(self.X), dtype=np.int64)
         self.dof_sid = np.arange(len(self.X), dtype=np.int64)
+        self._sorted_sids: tuple = (None,)  # (dof_sid it was made for, argsort, sorted ids): _dof_index's cache
         self.state = state
         self._system: FEMSystem | None = None
         self._arrays: tuple | None = None
@@ -203,9 +204,10 @@ class XFEMModel:
         element = [np.flatnonzero(uncut)]
         nodal = [self.T[element[0]]]  # the initial nodal subdomain of node i has id i
         volume, mass, load = [self._tet_volume[uncut]], [self._tet_mass[uncut]], [self._tet_load[uncut]]
-        for sid, sids in self._enriched.items():
-            if sid < len(self.T) and uncut[sid]:  # an uncut tet's piece id is the element
-                nodal[0][np.searchsorted(element[0], sid)] = sids
+        # an uncut tet's piece id is the element
+        enriched = [sid for sid in self._enriched if sid < len(self.T) and uncut[sid]]
+        if enriched:
+            nodal[0][np.searchsorted(element[0], enriched)] = np.stack([self._enriched[sid] for sid in enriched])
         for e in sorted(self._exact):
             for sid in self.sub.element_subdomains(e):
                 vol, ms, ld, _ = self._integrals[sid]
@@ -231,9 +233,12 @@ class XFEMModel:
 
     def _dof_index(self, sids: np.ndarray) -> np.ndarray:
         """The DOF indices of nodal subdomains (-1 for one without a DOF)."""
-        order = np.argsort(self.dof_sid)
-        at = np.minimum(np.searchsorted(self.dof_sid[order], sids), len(order) - 1)
-        return np.where(self.dof_sid[order][at] == sids, order[at], -1)
+        if self._sorted_sids[0] is not self.dof_sid:  # the sort is redone only when the DOFs change
+            order = np.argsort(self.dof_sid)
+            self._sorted_sids = (self.dof_sid, order, self.dof_sid[order])
+        _, order, ordered = self._sorted_sids
+        at = np.minimum(np.searchsorted(ordered, sids), len(order) - 1)
+        return np.where(ordered[at] == sids, order[at], -1)
 
     # ---------------------------------------------------------------------------------------------------
     # Algorithm 1
