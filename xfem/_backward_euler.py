@@ -75,7 +75,6 @@ from xfem._assembly import (
     _host_elements,
     _host_fixed,
     assemble_matrix,
-    assemble_scalar,
     assemble_vector,
     assembly_pattern,
     restrict,
@@ -229,7 +228,12 @@ def fem_system(T, grads, volumes, mass, force, fixed=(), capacity: SystemCapacit
         values = np.concatenate([values, np.zeros(extra)])
     index = pattern.indices.dtype
     values = to_device(values, dtype)
-    mass_data = assemble_scalar(pattern, to_device(scalar_slots(pattern, rows, cols), index), values)
+    # on the host (no JAX op to dispatch: fem_system may run beside a step, in a compiling thread)
+    slots = scalar_slots(pattern, rows, cols)
+    kept = slots < pattern.nnz
+    mass_data = np.zeros(pattern.nnz, dtype)
+    np.add.at(mass_data, slots[kept], np.broadcast_to(np.asarray(values)[:, None], slots.shape)[kept])
+    mass_data = to_device(mass_data)
     return FEMSystem(T=to_device(T, index), grads=to_device(grads, dtype), volumes=to_device(volumes, dtype),
                      mass_rows=to_device(rows, index), mass_cols=to_device(cols, index), mass_values=values,
                      mass_data=mass_data, force=to_device(force, dtype), fixed=to_device(fixed, index),
@@ -481,6 +485,12 @@ def backward_euler_step(system: FEMSystem, state: State, h, mu, lam, fixed_posit
     Returns:
         The ``State`` at t + h: the fixed nodes at ``fixed_positions``, ``v = (x_{t+1} - x_t) / h``.
     """
+    return _step(*_step_arguments(system, state, h, mu, lam, fixed_positions, newton_iterations, tolerance,
+                                  line_search))
+
+
+def _step_arguments(system, state, h, mu, lam, fixed_positions, newton_iterations, tolerance, line_search):
+    """``backward_euler_step``'s checks; the arguments of ``_step``."""
     if not isinstance(system, FEMSystem) or not isinstance(state, State):
         raise ValueError("system, state: expected an FEMSystem (fem_system) and a State")
     dtype = system.grads.dtype
@@ -496,23 +506,48 @@ def backward_euler_step(system: FEMSystem, state: State, h, mu, lam, fixed_posit
         raise ValueError(f"h: expected a scalar time step, got shape {jnp.shape(h)}")
     # concrete values are checked in numpy: eager JAX checks cost a dispatch and a sync each, a large part of
     # a small system's step; traced ones by eqx.error_if
-    h = _checked(jnp.asarray(h, dtype), lambda h: ~(h > 0) | ~np.isfinite(h), "h: expected a finite positive time step")
+    h = _checked(jnp.asarray(h, dtype), lambda h, xp: ~(h > 0) | ~xp.isfinite(h),
+                 "h: expected a finite positive time step")
     if fixed_positions is not None:
         fixed_positions = jnp.asarray(fixed_positions, dtype)
         if fixed_positions.shape != system.fixed.shape + (3,):
             raise ValueError(f"fixed_positions: expected shape ({system.fixed.shape[0]}, 3), got "
                              f"{fixed_positions.shape}")
-    state = State(*(_checked(a, lambda a: ~np.isfinite(a), f"state.{name}: non-finite values (NaN or inf)")
+    state = State(*(_checked(a, lambda a, xp: ~xp.isfinite(a), f"state.{name}: non-finite values (NaN or inf)")
                     for name, a in (("x", state.x), ("v", state.v))))
-    return _step(system, state, h, jnp.asarray(mu, dtype), jnp.asarray(lam, dtype), fixed_positions,
-                 int(newton_iterations), tolerance, line_search)
+    return (system, state, h, jnp.asarray(mu, dtype), jnp.asarray(lam, dtype), fixed_positions,
+            int(newton_iterations), tolerance, line_search)
+
+
+def compiled_step(system: FEMSystem, state: State, h, mu, lam, newton_iterations: int = 1,
+                  tolerance: float | None = None, line_search: bool = True):
+    """``backward_euler_step`` compiled ahead of time (traced and compiled, not run) for systems shaped like
+    ``system`` (same array shapes and static sizes, e.g. padded to one ``SystemCapacity``) and these options.
+
+    Compiling is safe in a background thread while other steps run (it executes nothing), which is how XFEM
+    prepares the step of the next capacity level before a cut needs it.
+
+    Args:
+        system, state, h, mu, lam, newton_iterations, tolerance, line_search: as ``backward_euler_step`` (only
+            their shapes and dtypes matter, and the options' values).
+    Returns:
+        A function ``(system, state, h, mu, lam) -> State`` equal to ``backward_euler_step`` with these options
+        (fixed nodes kept in place), for systems and states of the compiled shapes.
+    """
+    compiled = _step.lower(*_step_arguments(system, state, h, mu, lam, None, newton_iterations, tolerance,
+                                            line_search)).compile()
+
+    def step(system: FEMSystem, state: State, h, mu, lam) -> State:
+        return compiled(*_step_arguments(system, state, h, mu, lam, None, newton_iterations, tolerance, line_search))
+
+    return step
 
 
 def _checked(a, bad, message: str):
-    """``a``, checked by ``bad`` (elementwise, numpy or jnp): ValueError for concrete values, eqx.error_if when
-    traced."""
+    """``a``, checked by ``bad(a, xp)`` (elementwise; xp is numpy or jax.numpy): ValueError for concrete values,
+    eqx.error_if when traced."""
     if isinstance(a, jax.core.Tracer):
-        return require(a, (bad(a), message))
-    if np.any(bad(np.asarray(a))):
+        return require(a, (bad(a, jnp), message))
+    if np.any(bad(np.asarray(a), np)):
         raise ValueError(message)
     return a

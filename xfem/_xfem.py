@@ -43,7 +43,7 @@ from scipy.sparse.csgraph import connected_components
 
 from jaxcga._support import to_device
 from xfem._assembly import CapacityError
-from xfem._backward_euler import FEMSystem, State, SystemCapacity, backward_euler_step, fem_system
+from xfem._backward_euler import FEMSystem, State, SystemCapacity, compiled_step, fem_system
 from xfem._integration import element_piece_integrals, linear_shape_coefficients, moments_of_pieces
 from xfem._linear_tet import shape_gradients
 from xfem._subdomains import CutReport, Subdomains, apply_cut, subdomains
@@ -55,6 +55,27 @@ _GROWTH = 1.5  # capacity growth per level
 # the smallest capacities (nodes, elements, mass entries, fixed nodes, nonzeros): a small model's cuts stay in
 # level 0, and its padded step costs next to nothing
 _FLOOR = (256, 512, 4096, 64, 9 * 4096)
+
+
+class _Compilation:
+    """A step compiled (or being compiled) for one capacity and set of options."""
+
+    def __init__(self):
+        self.step = None
+        self.thread: threading.Thread | None = None
+
+    def build(self, arrays, state: State, n: int, capacity: SystemCapacity, h, mu, lam, newton_iterations: int):
+        """Pad the system ``arrays`` (``XFEMModel._system_arrays``) to ``capacity`` and compile its step."""
+        try:
+            system = fem_system(*arrays, capacity=capacity)
+        except CapacityError:  # too small for this system's nonzeros: the model moves to a larger level
+            return
+        self.step = compiled_step(system, _padded_state(state, n, capacity.nodes), h, mu, lam, newton_iterations)
+
+
+# compiled steps by (capacity, newton iterations, shapes of mu and lam), for every model in the process
+_COMPILED: dict[tuple, _Compilation] = {}
+_COMPILED_LOCK = threading.Lock()
 
 
 def _padded_state(state: State, n: int, nodes: int) -> State:
@@ -132,7 +153,6 @@ class XFEMModel:
         self._arrays: tuple | None = None
         self._padded: FEMSystem | None = None
         self._level = 0
-        self._warmed: dict[tuple, threading.Thread | None] = {}  # levels compiled (in a thread or not)
         _, _, _, M, _, fixed = self._system_arrays()
         # capacity level 0 is _HEADROOM times these (nodes, elements, mass entries, fixed nodes, nonzeros)
         self._base = (len(self.X), len(self.T), M.nnz, len(fixed), 9 * M.nnz)
@@ -305,29 +325,33 @@ class XFEMModel:
             self._padded, self._level = system, level
         return self._padded, self._level
 
-    def _warm_up(self, level: int, h, mu, lam, newton_iterations: int) -> None:
-        """Compile the step of capacity ``level`` in a background thread (once per level and arguments), so
-        that the cut that first needs it does not wait for XLA: the current system padded to that level and
-        the current state are stepped once and the result dropped."""
-        key = (level, newton_iterations, np.shape(mu), np.shape(lam))
-        if key in self._warmed or not self._fits(level):
-            return
-        arrays, state, n = self._system_arrays(), self.state, len(self.dof_sid)
+    def _compiled(self, level: int, h, mu, lam, newton_iterations: int, background: bool):
+        """The step compiled for capacity ``level`` (``compiled_step``), shared by all models through
+        ``_COMPILED``: found there, or compiled now (``background=False``), or compiled in a background thread
+        that the step needing it will wait for (``background=True``; returns None)."""
         capacity = self._capacity(level)
-
-        def compile_step():
-            dofs, grads, volume, M, force, fixed = arrays
-            try:
-                system = fem_system(dofs, grads, volume, M, force, fixed,
-                                    capacity=capacity)
-            except CapacityError:  # the level is too small for this system's nonzeros: nothing to compile
-                return
-            backward_euler_step(system, _padded_state(state, n, capacity.nodes), h, mu, lam,
-                                newton_iterations=newton_iterations).x.block_until_ready()
-
-        thread = threading.Thread(target=compile_step)  # not a daemon: XLA must not be cut off at exit
-        self._warmed[key] = thread
-        thread.start()
+        key = (capacity, newton_iterations, np.shape(mu), np.shape(lam))
+        with _COMPILED_LOCK:
+            entry = _COMPILED.get(key)
+            if entry is None:
+                if background and not self._fits(level):
+                    return None
+                entry = _COMPILED[key] = _Compilation()
+                arrays, state, n = self._system_arrays(), self.state, len(self.dof_sid)
+                if background:  # never run a step here: two steps' host callbacks at once can deadlock XLA
+                    entry.thread = threading.Thread(target=entry.build, args=(arrays, state, n, capacity, h, mu,
+                                                                              lam, newton_iterations))
+                    entry.thread.start()  # not a daemon: XLA must not be cut off at exit
+                    return None
+                entry.build(arrays, state, n, capacity, h, mu, lam, newton_iterations)
+        if background:
+            return None
+        if entry.thread is not None:
+            entry.thread.join()
+        if entry.step is None:  # its background build failed (e.g. too few nonzeros): build it here
+            entry.build(self._system_arrays(), self.state, len(self.dof_sid), capacity, h, mu, lam,
+                        newton_iterations)
+        return entry.step
 
     def cut(self, solid: manifold3d.Manifold, perturb: float = 0.0) -> CutReport:
         """Cut the body by a closed cut solid (Algorithm 1 lines 1-25): split the subdomains, copy the split
@@ -384,17 +408,15 @@ class XFEMModel:
 
         The system is padded to a capacity level (module docstring); the step of the next level is compiled
         in the background meanwhile."""
+        if int(newton_iterations) != newton_iterations or newton_iterations < 1:
+            raise ValueError(f"newton_iterations: expected an int >= 1, got {newton_iterations!r}")
         system, level = self._padded_system()
-        key = (level, int(newton_iterations), np.shape(mu), np.shape(lam))
-        if self._warmed.get(key) is not None:  # its compilation may still be running: wait, not compile twice
-            self._warmed[key].join()
+        step = self._compiled(level, h, mu, lam, int(newton_iterations), background=False)
         n = len(self.dof_sid)
-        stepped = backward_euler_step(system, _padded_state(self.state, n, system.n), h, mu, lam,
-                                      newton_iterations=newton_iterations)
-        self._warmed.setdefault(key, None)  # compiled by this step
+        stepped = step(system, _padded_state(self.state, n, system.n), h, mu, lam)
         # sliced on the host: a JAX slice would compile anew for every DOF count
         self.state = State(to_device(np.asarray(stepped.x)[:n]), to_device(np.asarray(stepped.v)[:n]))
-        self._warm_up(level + 1, h, mu, lam, int(newton_iterations))
+        self._compiled(level + 1, h, mu, lam, int(newton_iterations), background=True)
         return self.state
 
     # ---------------------------------------------------------------------------------------------------
