@@ -17,7 +17,7 @@ sec. 4.1), ``_subdomains`` (nodal and element subdomains cut by manifold3d Boole
 
 from xfem._assembly import AssemblyPattern, assemble_matrix, assemble_vector, assembly_pattern
 from xfem._backward_euler import FEMSystem, State, backward_euler_step, fem_from_mesh, fem_system, mechanical_energy
-from xfem._cuts import cut_solid, plane_cut_solid, swept_surface, thicken
+from xfem._cuts import cut_solid, plane_cut_solid, sweep_between, swept_surface, thicken
 from xfem._integration import element_piece_integrals, moments_of_pieces, polyhedron_moments
 from xfem._linear_tet import body_force, consistent_mass, lumped_mass, shape_functions, shape_gradients
 from xfem._neohookean import (
@@ -46,6 +46,7 @@ from xfem._xfem import XFEMModel, xfem_model
 __all__ = [
     "cut_solid",
     "plane_cut_solid",
+    "sweep_between",
     "swept_surface",
     "thicken",
     "element_piece_integrals",
