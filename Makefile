@@ -35,6 +35,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/bench_deform.py --json out/bench/deform.json
 	$(PY) benchmarks/bench_arap.py --json out/bench/arap.json
 	$(PY) benchmarks/bench_fem.py --json out/bench/fem.json
+	$(PY) benchmarks/bench_xfem.py --json out/bench/xfem.json
 
 clean:
 	rm -rf $(VENV) out .pytest_cache

@@ -225,10 +225,24 @@ def _run_fem(args) -> int:
     return 0
 
 
+def _run_xfem(args) -> int:
+    from xfem import _xfem_commands
+
+    summary = _xfem_commands.xfem_command(args.scene, args.out, args.steps, size=args.size, every=args.every,
+                                          figures=not args.no_figures)
+    shown = {k: summary[k] for k in ("size", "nodes", "dofs", "pieces", "frames", "cuts", "booleans", "boolean_ms",
+                                     "integral_ms", "step_avg_s", "step_max_s", "total_s")}
+    print(f"jaxcga xfem {args.scene}: " + ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}"
+                                                    for k, v in shown.items()) + f", out {args.out}")
+    return 0
+
+
 def _run_deform(args) -> int:
     _x64()
     if args.command == "fem":
         return _run_fem(args)
+    if args.command == "xfem":
+        return _run_xfem(args)
     if args.command == "deform":
         return _run_deformation(args)
     if args.command == "arap":
@@ -420,6 +434,18 @@ def main(argv: list[str] | None = None) -> int:
     p_fem.add_argument("--no-figures", action="store_true", help="write the .vtu meshes and summary.json only")
     p_fem.add_argument("--out", type=Path, required=True,
                        help="folder for frame_XXXX.png, frame_XXXX.vtu and summary.json")
+
+    p_xfem = sub.add_parser("xfem", help="run a cutting scene of the XFEM paper (sec. 5: sticks, thin, cheese, "
+                                         "accordion, mouth) with Table 2's timings")
+    p_xfem.add_argument("scene", help="sticks (Fig. 5), thin (Fig. 1), cheese (Fig. 6), accordion (Fig. 7) or mouth "
+                                      "(Fig. 8)")
+    p_xfem.add_argument("--steps", type=int, default=None, help="frames (default: the scene's, past its last cut)")
+    p_xfem.add_argument("--size", default="paper", help="paper (Table 1's meshes, the default) or small (coarse)")
+    p_xfem.add_argument("--every", type=int, default=10,
+                        help="write a frame every this many frames, besides cut frames and the last (default 10)")
+    p_xfem.add_argument("--no-figures", action="store_true", help="write the .vtu surfaces and summary.json only")
+    p_xfem.add_argument("--out", type=Path, required=True,
+                        help="folder for frame_XXXX.png, frame_XXXX.vtu and summary.json")
 
     args = parser.parse_args(argv)
     if args.command == "demo":

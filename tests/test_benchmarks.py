@@ -58,3 +58,12 @@ def test_bench_fem_quick_writes_the_published_names(tmp_path):
         assert result["figures"][name] > 0 and name in result["units"]
     for name in ("step_23k_vs_paper", "step_23k_vs_direct"):
         assert result["ratios"][name] > 0
+
+
+def test_bench_xfem_quick_writes_the_published_names(tmp_path):
+    result = _quick("bench_xfem.py", tmp_path)
+    for scene in ("sticks", "thin", "accordion"):
+        for name in ("boolean_ms", "step_avg_s", "step_max_s", "integral_ms", "dpsi_ms", "cg_s", "cut_max_over_avg"):
+            assert result["figures"][f"{scene}_{name}"] > 0 and f"{scene}_{name}" in result["units"]
+        assert result["ratios"][f"{scene}_step_avg_vs_paper"] > 0
+    assert result["figures"]["sticks_pieces"] == 36  # the small sticks end as 36 pieces too

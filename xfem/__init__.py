@@ -9,10 +9,12 @@ PSD-projected Hessians), ``_assembly`` (sparse patterns precomputed on the host,
 implicit gradients). The step is generic over an element list (DOF-node indices, shape gradients,
 integration weights) and any mass matrix, so the enriched XFEM elements go through the same code.
 
-Sec. 4, the generalized XFEM (in progress): ``_cuts`` (swept tool edges thickened into closed solids,
-sec. 4.1), ``_subdomains`` (nodal and element subdomains cut by manifold3d Booleans, Algorithm 1 lines
-1-19), ``_integration`` (exact divergence-theorem moments of the pieces, eq. 13, 14, 21), ``_xfem``
-(``XFEMModel``: indicator enrichments eq. 16-18, DOF duplication, pieces on the FEM core).
+Sec. 4, the generalized XFEM: ``_cuts`` (swept tool edges thickened into closed solids, sec. 4.1),
+``_subdomains`` (nodal and element subdomains cut by manifold3d Booleans, Algorithm 1 lines 1-19),
+``_integration`` (exact divergence-theorem moments of the pieces, eq. 13, 14, 21), ``_xfem`` (``XFEMModel``:
+indicator enrichments eq. 16-18, DOF duplication, pieces on the FEM core, systems padded to capacity levels so
+that cuts reuse the compiled step). Sec. 5: ``_scenes`` (the paper's five scenes with Table 1's parameters, a
+runner timing them like Table 2), ``_xfem_commands`` (``jaxcga xfem SCENE``).
 """
 
 from xfem._assembly import AssemblyPattern, assemble_matrix, assemble_vector, assembly_pattern
@@ -27,6 +29,7 @@ from xfem._neohookean import (
     stable_neohookean_energy,
     stable_neohookean_pk1,
 )
+from xfem._scenes import SCENES, FrameRecord, Scene, SceneRun, ScheduledCut, piece_surfaces, run_scene, scene
 from xfem._subdomains import Subdomains, apply_cut, subdomains
 from xfem._tetmesh import (
     TetMesh,
@@ -44,6 +47,14 @@ from xfem._tetmesh import (
 from xfem._xfem import XFEMModel, xfem_model
 
 __all__ = [
+    "SCENES",
+    "FrameRecord",
+    "ScheduledCut",
+    "Scene",
+    "SceneRun",
+    "piece_surfaces",
+    "run_scene",
+    "scene",
     "cut_solid",
     "plane_cut_solid",
     "sweep_between",

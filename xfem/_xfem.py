@@ -51,7 +51,7 @@ from xfem._tetmesh import TetMesh
 
 _INWARD = 1e-6  # inward offset of a piece's query point, relative to the square root of its triangle's area
 _HEADROOM = 1.25  # capacity level 0 over the uncut model's sizes
-_GROWTH = 2.0  # capacity growth per level: few levels, so few compilations
+_GROWTH = 1.5  # capacity growth per level
 # the smallest capacities (nodes, elements, mass entries, fixed nodes, nonzeros): a small model's cuts stay in
 # level 0, and its padded step costs next to nothing
 _FLOOR = (256, 512, 4096, 64, 9 * 4096)

@@ -1,0 +1,58 @@
+"""The ``jaxcga xfem SCENE`` command end to end in-process on the small cheese tetrahedron (XFEM paper sec. 5,
+Fig. 6): frames, surfaces and summary written, the summary's figures consistent with the files, errors."""
+
+from __future__ import annotations
+
+import json
+
+import meshio
+import numpy as np
+import pytest
+
+from jaxcga.cli import main
+
+
+def test_cheese_writes_frames_surfaces_and_a_summary(tmp_path, capsys):
+    out = tmp_path / "cheese"
+    assert main(["xfem", "cheese", "--size", "small", "--steps", "4", "--every", "4", "--out", str(out)]) == 0
+    assert "jaxcga xfem cheese" in capsys.readouterr().out
+    # frame 0, the cut frames 1 and 2, frame 4 (every 4 and the last)
+    frames = [0, 1, 2, 4]
+    assert sorted(p.name for p in out.iterdir()) == sorted(
+        [f"frame_{k:04d}.{ext}" for k in frames for ext in ("png", "vtu")] + ["summary.json"])
+    summary = json.loads((out / "summary.json").read_text())
+    for key in ("pieces", "dofs", "dofs_initial", "booleans", "boolean_ms", "integral_ms", "step_avg_s",
+                "step_max_s", "total_cut_frames_s", "total_s", "epsilon", "cut_frames", "frame_pieces"):
+        assert key in summary
+    assert summary["frames"] == summary["steps"] == 4 and summary["cuts"] == 5 and summary["size"] == "small"
+    assert summary["cut_frames"] == [1, 2] and summary["frames_written"] == frames
+    assert summary["epsilon"] == 1e-3 and summary["nodes"] == 4 and summary["dofs_initial"] == 12
+    assert summary["pieces"] == summary["frame_pieces"][-1] >= 6 and summary["dofs"] == summary["frame_dofs"][-1] > 12
+    assert summary["total_s"] == pytest.approx(sum(summary["frame_seconds"]))
+    assert summary["step_max_s"] == pytest.approx(max(summary["frame_seconds"]))
+    # the surfaces: one piece at the start, every piece at the end; the base stays on the ground, the rest sags
+    first, last = meshio.read(out / "frame_0000.vtu"), meshio.read(out / "frame_0004.vtu")
+    assert np.unique(first.cell_data["piece"][0]).tolist() == [0]
+    assert np.unique(last.cell_data["piece"][0]).tolist() == list(range(summary["pieces"]))
+    assert last.points[:, 2].min() == pytest.approx(0.0, abs=1e-12)
+    assert 0 < summary["max_displacement"] < 0.1
+
+
+def test_no_figures_writes_surfaces_only(tmp_path):
+    out = tmp_path / "plain"
+    assert main(["xfem", "cheese", "--size", "small", "--steps", "1", "--no-figures", "--out", str(out)]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["frame_0000.vtu", "frame_0001.vtu", "summary.json"]
+
+
+@pytest.mark.parametrize("args, message", [
+    (["octopus"], "SCENE"),
+    (["cheese", "--steps", "0"], "steps"),
+    (["cheese", "--size", "huge"], "size"),
+    (["cheese", "--every", "0"], "every"),
+])
+def test_bad_arguments_exit_with_a_message(tmp_path, capsys, args, message):
+    with pytest.raises(SystemExit) as exit_info:
+        main(["xfem", *args, "--out", str(tmp_path / "x")])
+    assert exit_info.value.code == 2
+    assert message in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()

@@ -1,0 +1,524 @@
+"""The five cutting scenes of the XFEM paper's results, sec. 5 (Ton-That, Kry, Andrews, "Generalized eXtended
+Finite Element Method for Deformable Cutting via Boolean Operations"), with the parameters of sec. 5 and Table 1,
+and a runner that times them like Table 2.
+
+Parameters (sec. 5): stable neo-Hookean material, Young 1e6 (1e7 for the character, as the paper's octopus),
+Poisson 0.4, density 1e3, h = 0.033 s, one Newton iteration, gravity -9.81 along z. Table 1 gives the cut
+thickness epsilon (1e-3 for the tetrahedron, 1e-4 otherwise) and the average edge length of each mesh, used here
+as its scale (``average_edge`` is over the mesh's distinct edges). Every cut gets the gentle perturbation of
+sec. 6.1 with a size of 1e-2 average edges (``apply_cut`` moves a cut only when a node lies within 1e-4 average
+edges of its surface).
+
+Scenes (``scene(name, size)``; size "paper" is Table 1's mesh and a cut every few frames, "small" a coarse mesh
+with the cuts grouped into few frames, for tests and notebooks):
+
+* ``sticks`` (Fig. 5, Table 1 "Cube"): the 5-tet unit cube (average edge 1.14) clamped at its x = 0 face, a
+  cantilever, diced into 36 sticks along x by 5 vertical cuts (planes y = c) crossing 5 horizontal ones
+  (z = c), alternating, one every 5 frames (small: the vertical ones in frame 1, the horizontal in frame 2).
+* ``thin`` (Fig. 1): a 19 x 19 x 5 cell slab (2400 nodes, 7.2k DOFs; small 9 x 9 x 3), average edge 0.14,
+  clamped at x = 0. Partial cuts parallel to its large faces from the free end to 35% of its length: the
+  first halves its thickness, three more slice the top half into four thinner sheets; the last cut, the plane
+  y = W/2 over the outer half of the length and the top 60% of the thickness, is perpendicular to all sheets and
+  crosses them.
+* ``cheese`` (Fig. 6, "Tetrahedron"): one tetrahedron (average edge 1.77, epsilon 1e-3) standing on its base
+  (the three base nodes clamped), carved by two full wavy cuts (sinusoidal tool edges swept by translations),
+  a partial wavy cut swept by a rotation, and two partial flat cuts, in different directions: many pieces and
+  several subdomains per node in a single element.
+* ``accordion`` (Fig. 7): a cube of 18 x 19 x 19 cells (7600 nodes, 22.8k DOFs; small 8 x 9 x 9), average edge
+  0.17, hanging from its top face. Horizontal partial cuts every second cell layer (9 levels; small 4), from the
+  x = 0 side to 80% of the width and from the other side to 20%, alternating: the body stays one piece, a
+  zig-zag that stretches down. The last cut, the vertical plane x = 0.6 W between the two top levels, crosses
+  both and releases everything below the top level's hinge: one piece becomes two.
+* ``mouth`` (Fig. 8, "Octopus"): a head-like blob (an icosphere ellipsoid with radial bumps on its lower half,
+  watertight, TetGen; 6698 nodes, 20.1k DOFs at paper size (the paper's: 20.8k), average edge 2.39; small 727
+  nodes), Young 1e7,
+  clamped at its back (the nodes within 15% of its depth from the back). A smiling wavy tool edge swept
+  straight into its front carves the mouth; a vertical cut behind the mouth's front part, from just above the
+  mouth down through the chin and narrower than the mouth, crosses it: the jaw stays hinged at its two sides
+  (one piece) and drops.
+
+The runner (``run_scene``) applies each frame's cuts (``XFEMModel.cut``, Algorithm 1 lines 1-25), then one step
+(line 26), and records per frame what Table 2 reports: Booleans and their time (MB), pieces integrated and their
+time (EI), the step time; a cut frame's time is its cuts plus its step. Table 2's derivative (dPsi) and CG
+columns are inside the jit-compiled step and not measured here (``benchmarks/bench_xfem.py`` times them on the
+final system). The step time includes XLA compilation on the first frame of a process and when a cut moves the
+model to a capacity level whose step is not compiled yet (``XFEMModel`` compiles the next level in the
+background, so this is rare once the run is under way).
+
+``piece_surfaces`` gives the deformed surfaces of the pieces (the mesh boundary and the cut faces, each piece's
+triangles mapped by its own DOFs, eq. 18) for pictures and files.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import jax
+import jax.numpy as jnp
+import manifold3d
+import numpy as np
+import trimesh
+
+import jaxcga as cga
+from xfem._cuts import cut_solid, plane_cut_solid, sweep_between, swept_surface
+from xfem._integration import linear_shape_coefficients
+from xfem._neohookean import lame
+from xfem._tetmesh import TetMesh, box_tets, element_adjacency, five_tet_cube, one_tet, tet_mesh, tetrahedralize
+from xfem._xfem import XFEMModel, xfem_model
+
+SCENES = ("sticks", "thin", "cheese", "accordion", "mouth")
+SIZES = ("paper", "small")
+
+_PERTURB = 1e-2  # size of the gentle perturbation (sec. 6.1), in average edges
+_ON_FACE = 1e-9  # a piece vertex with a barycentric coordinate below this lies on the opposite tet face
+
+
+@dataclass(frozen=True)
+class ScheduledCut:
+    """A cut applied before the step of a frame.
+
+    Attributes:
+        frame: the frame (>= 1) whose step it precedes.
+        solid: the closed cut solid (``cut_solid``, ``plane_cut_solid``).
+        perturb: the gentle perturbation size (``XFEMModel.cut``).
+        label: a short description.
+    """
+
+    frame: int
+    solid: manifold3d.Manifold
+    perturb: float
+    label: str
+
+
+@dataclass(frozen=True)
+class Scene:
+    """A cutting scene (host data: a mesh, its clamped nodes, material, time step and a schedule of cut solids;
+    a plain dataclass because the manifold3d solids are not JAX data).
+
+    Attributes:
+        name: one of ``SCENES``.
+        size: "paper" or "small".
+        mesh: the ``TetMesh``.
+        fixed: (nb,) int64 clamped nodes.
+        young, poisson, density: material (Pa, 1, kg/m^3).
+        h: time step (s).
+        epsilon: cut thickness (Table 1).
+        steps: default number of frames (the last cut is well before it).
+        cuts: the ``ScheduledCut``s, by frame.
+        newton_iterations: Newton iterations per step.
+        gravity: (3,) gravitational acceleration.
+    """
+
+    name: str
+    size: str
+    mesh: TetMesh
+    fixed: np.ndarray
+    young: float
+    poisson: float
+    density: float
+    h: float
+    epsilon: float
+    steps: int
+    cuts: tuple[ScheduledCut, ...]
+    newton_iterations: int = 1
+    gravity: tuple[float, float, float] = (0.0, 0.0, -9.81)
+
+    @property
+    def last_cut_frame(self) -> int:
+        return max(c.frame for c in self.cuts)
+
+    def model(self) -> XFEMModel:
+        """A fresh uncut ``XFEMModel`` of the scene, at rest."""
+        return xfem_model(self.mesh, self.density, self.gravity, self.fixed)
+
+
+def average_edge(mesh: TetMesh) -> float:
+    """The mean length of the mesh's distinct edges (Table 1's "average edge length")."""
+    T = np.asarray(mesh.T)
+    edges = np.stack([T[:, [0, 0, 0, 1, 1, 2]], T[:, [1, 2, 3, 2, 3, 3]]], axis=-1).reshape(-1, 2)
+    edges = np.unique(np.sort(edges, axis=1), axis=0)
+    X = np.asarray(mesh.X)
+    return float(np.linalg.norm(X[edges[:, 1]] - X[edges[:, 0]], axis=1).mean())
+
+
+def _scaled(mesh: TetMesh, edge: float) -> TetMesh:
+    """The mesh scaled about the origin so that its average edge is ``edge``."""
+    return tet_mesh(np.asarray(mesh.X) * (edge / average_edge(mesh)), np.asarray(mesh.T))
+
+
+def _rectangle(centre, u, w, half_u: float, half_w: float, epsilon: float) -> manifold3d.Manifold:
+    """The flat cut ``centre + a u + b w``, |a| <= half_u, |b| <= half_w (u, w orthonormal), thickened by
+    epsilon: the segment along u swept along w (``sweep_between``)."""
+    centre, u, w = (np.asarray(v, np.float64) for v in (centre, u, w))
+    edge = np.stack([centre - half_u * u - half_w * w, centre + half_u * u - half_w * w])
+    V, F = sweep_between(jnp.asarray(edge), jnp.asarray(edge + 2 * half_w * w))
+    return cut_solid(V, F, epsilon)
+
+
+def _swept(edge, pivot, axis, angles, shifts, epsilon: float, samples: int = 6) -> manifold3d.Manifold:
+    """The cut swept by a tool edge (p, 3) (world positions at the first key) through key poses: rotation by
+    ``angles[k]`` about ``axis`` through ``pivot``, then translation by ``shifts[k]`` (``swept_surface``,
+    logarithmic blending of the key motors)."""
+    pivot = np.asarray(pivot, np.float64)
+    angles = np.asarray(angles, np.float64)
+    axes = np.broadcast_to(np.asarray(axis, np.float64), (len(angles), 3))
+    motors = cga.motor(cga.rotor(jnp.asarray(axes), jnp.asarray(angles)),
+                       jnp.asarray(pivot + np.asarray(shifts, np.float64)))
+    V, F = swept_surface(jnp.asarray(np.asarray(edge, np.float64) - pivot), motors, samples)
+    return cut_solid(V, F, epsilon)
+
+
+def _frames(size: str, paper: list[int], small: list[int]) -> list[int]:
+    return paper if size == "paper" else small
+
+
+def _sticks(size: str) -> Scene:
+    mesh = five_tet_cube(1.0)
+    epsilon = 1e-4
+    perturb = _PERTURB * average_edge(mesh)
+    # off-centre positions: no cut plane meets the cube's diagonals where they cross
+    levels = np.arange(1, 6) / 6 + np.array([0.011, -0.007, 0.005, -0.013, 0.009])
+    cuts, k = [], 0
+    for i in range(5):
+        for axis, name in ((1, "vertical y"), (2, "horizontal z")):
+            point, normal = np.full(3, 0.5), np.eye(3)[axis]
+            point[axis] = levels[i]
+            frame = 5 * (k + 1) if size == "paper" else (1 if axis == 1 else 2)
+            cuts.append(ScheduledCut(frame, plane_cut_solid(point, normal, 1.6, epsilon), perturb,
+                                     f"{name} = {levels[i]:.3f}"))
+            k += 1
+    cuts.sort(key=lambda c: c.frame)
+    fixed = np.flatnonzero(np.asarray(mesh.X)[:, 0] < 1e-9)
+    return Scene("sticks", size, mesh, fixed, 1e6, 0.4, 1e3, 0.033, epsilon, 150 if size == "paper" else 3,
+                 tuple(cuts))
+
+
+def _thin(size: str) -> Scene:
+    cells = (19, 19, 5) if size == "paper" else (9, 9, 3)
+    mesh = _scaled(box_tets(cells, size=cells), 0.14)
+    epsilon = 1e-4
+    L, W, T = np.asarray(mesh.X).max(axis=0)
+    perturb = _PERTURB * 0.14
+    margin = 0.1 * L
+    start = 0.35 * L  # partial: the sheets stay attached to the slab's clamped part
+    frames = _frames(size, [20, 40, 60, 80, 110], [1, 1, 1, 1, 2])
+    cuts = []
+    for frame, level in zip(frames[:4], (0.5, 0.625, 0.75, 0.875)):
+        x0, x1 = start, L + margin
+        cuts.append(ScheduledCut(frame, _rectangle(((x0 + x1) / 2, W / 2, level * T), (1, 0, 0), (0, 1, 0),
+                                                   (x1 - x0) / 2, W / 2 + margin, epsilon),
+                                 perturb, f"sheet z = {level} T"))
+    x0, x1, z0, z1 = 0.5 * L, L + margin, 0.4 * T, T + margin
+    cuts.append(ScheduledCut(frames[4], _rectangle(((x0 + x1) / 2, 0.5 * W + 0.013 * T, (z0 + z1) / 2), (1, 0, 0),
+                                                   (0, 0, 1), (x1 - x0) / 2, (z1 - z0) / 2, epsilon),
+                             perturb, "across the sheets y = W / 2"))
+    fixed = np.flatnonzero(np.asarray(mesh.X)[:, 0] < 1e-9 * L)
+    return Scene("thin", size, mesh, fixed, 1e6, 0.4, 1e3, 0.033, epsilon, 200 if size == "paper" else 4,
+                 tuple(cuts))
+
+
+def _wave(a, b, normal, amplitude: float, waves: float, points: int = 33) -> np.ndarray:
+    """(points, 3) the polyline from a to b displaced by ``amplitude sin(2 pi waves t)`` along normal."""
+    t = np.linspace(0.0, 1.0, points)[:, None]
+    a, b, normal = (np.asarray(v, np.float64) for v in (a, b, normal))
+    return (1 - t) * a + t * b + amplitude * np.sin(2 * np.pi * waves * t) * normal
+
+
+def _cheese(size: str) -> Scene:
+    mesh = _scaled(one_tet(), 1.77)
+    s = float(np.asarray(mesh.X).max())  # the legs' length
+    epsilon = 1e-3
+    perturb = _PERTURB * 1.77
+    m = 0.2 * s
+    zero2 = np.zeros(2)
+    frames = _frames(size, [10, 20, 30, 40, 50], [1, 1, 1, 2, 2])
+    cuts = [
+        # full wavy cuts: a sinusoidal edge along y swept along x (waves in z), one along x swept along z (in y)
+        ScheduledCut(frames[0], _swept(_wave((-m, -m, 0.31 * s), (-m, s + m, 0.31 * s), (0, 0, 1), 0.05 * s, 2.5),
+                                       (0, 0, 0), (0, 0, 1), zero2, [(0, 0, 0), (s + 2 * m, 0, 0)], epsilon),
+                     perturb, "wavy z ~ 0.31 s"),
+        ScheduledCut(frames[1], _swept(_wave((-m, 0.27 * s, -m), (s + m, 0.27 * s, -m), (0, 1, 0), 0.06 * s, 2.0),
+                                       (0, 0, 0), (0, 0, 1), zero2, [(0, 0, 0), (0, 0, s + 2 * m)], epsilon),
+                     perturb, "wavy y ~ 0.27 s"),
+        # partial flat cuts
+        ScheduledCut(frames[2], _rectangle((0.23 * s, 0.2 * s, 0.2 * s), (0, 1, 0), (0, 0, 1), 0.35 * s, 0.35 * s,
+                                           epsilon), perturb, "flat x = 0.23 s, partial"),
+        ScheduledCut(frames[3], _rectangle((0.3 * s, 0.3 * s, 0.12 * s), np.array([1, -1, 0]) / np.sqrt(2),
+                                           np.array([1, 1, -1.5]) / np.sqrt(4.25), 0.3 * s, 0.25 * s, epsilon),
+                     perturb, "flat oblique, partial"),
+        # a wavy edge swept by a 70 degree rotation about the vertical axis through the apex: a partial fan
+        ScheduledCut(frames[4], _swept(_wave((0.05 * s, 0.05 * s, 0.45 * s), (0.55 * s, 0.05 * s, 0.45 * s),
+                                             (0, 0, 1), 0.03 * s, 1.5),
+                                       (0.02 * s, 0.02 * s, 0.45 * s), (0, 0, 1), [0.0, np.radians(70)],
+                                       np.zeros((2, 3)), epsilon),
+                     perturb, "wavy fan, partial"),
+    ]
+    fixed = np.flatnonzero(np.asarray(mesh.X)[:, 2] < 1e-9 * s)
+    return Scene("cheese", size, mesh, fixed, 1e6, 0.4, 1e3, 0.033, epsilon, 100 if size == "paper" else 3,
+                 tuple(cuts))
+
+
+def _accordion(size: str) -> Scene:
+    cells = (18, 19, 19) if size == "paper" else (8, 9, 9)
+    mesh = _scaled(box_tets(cells, size=cells), 0.17)
+    epsilon = 1e-4
+    W, D, H = np.asarray(mesh.X).max(axis=0)
+    perturb = _PERTURB * 0.17
+    margin = 0.1 * W
+    nz = cells[2]
+    levels = [(j + 0.5) / nz * H for j in range(nz - 2, 0, -2)]  # mid-cell, every second layer, from the top
+    every = 15
+    cuts = []
+    for k, z in enumerate(levels):
+        x0, x1 = (-margin, 0.8 * W) if k % 2 == 0 else (0.2 * W, W + margin)
+        frame = every * (k + 1) if size == "paper" else 1
+        cuts.append(ScheduledCut(frame, _rectangle(((x0 + x1) / 2, D / 2, z), (1, 0, 0), (0, 1, 0), (x1 - x0) / 2,
+                                                   D / 2 + margin, epsilon),
+                                 perturb, f"partial z = {z / H:.3f} H from x {'= 0' if k % 2 == 0 else '= W'}"))
+    # between the first two levels: the first one's span covers x < 0.8 W, the second one's x > 0.2 W
+    cell = H / nz
+    z0, z1 = levels[1] - 0.5 * cell, levels[0] + 0.5 * cell
+    frame = cuts[-1].frame + (every if size == "paper" else 1)
+    cuts.append(ScheduledCut(frame, _rectangle((0.6 * W + 0.013 * cell, D / 2, (z0 + z1) / 2), (0, 1, 0), (0, 0, 1),
+                                               D / 2 + margin, (z1 - z0) / 2, epsilon),
+                             perturb, "vertical x = 0.6 W: the release"))
+    fixed = np.flatnonzero(np.asarray(mesh.X)[:, 2] > H * (1 - 1e-9))
+    return Scene("accordion", size, mesh, fixed, 1e6, 0.4, 1e3, 0.033, epsilon,
+                 frame + 60 if size == "paper" else frame + 1, tuple(cuts))
+
+
+def head_surface(radius: float, subdivisions: int) -> tuple[np.ndarray, np.ndarray]:
+    """The ``mouth`` scene's closed surface: an icosphere (trimesh) made an ellipsoid of radii
+    (0.9, 1, 1.15) radius, with radial bumps (4 around the vertical axis) on its lower half.
+
+    Args:
+        radius: the scale.
+        subdivisions: the icosphere's subdivisions.
+    Returns:
+        V (v, 3) float64 and F (f, 3) int64, watertight, outward oriented, star-shaped about the origin.
+    """
+    sphere = trimesh.creation.icosphere(subdivisions=subdivisions)
+    P = np.asarray(sphere.vertices, np.float64)
+    bumps = 1 + 0.08 * np.sin(4 * np.arctan2(P[:, 1], P[:, 0])) * np.clip(-P[:, 2], 0, None) ** 2
+    return P * bumps[:, None] * radius * np.array([0.9, 1.0, 1.15]), np.asarray(sphere.faces, np.int64)
+
+
+def _mouth(size: str) -> Scene:
+    R = 22.0
+    # TetGen's quality tets are smaller than the regular tet of its volume bound: the bound of a regular tet of
+    # edge 2.7 gives (measured) 6698 nodes of average edge 2.39, Table 1's octopus
+    edge = 2.7 if size == "paper" else 6.0
+    V, F = head_surface(R, 3 if size == "paper" else 2)
+    mesh = tetrahedralize(V, F, max_volume=edge**3 / (6 * np.sqrt(2)))
+    epsilon = 1e-4
+    perturb = _PERTURB * average_edge(mesh)
+    Rx, Ry, Rz = 0.9 * R, R, 1.15 * R
+    z_mouth = -0.25 * Rz
+    # the smiling tool edge: up at the corners (a parabola) with a ripple, swept from outside the front to 65%
+    # of the depth
+    y = np.linspace(-0.55 * Ry, 0.55 * Ry, 33)
+    smile = z_mouth + 0.12 * Rz * (y / (0.55 * Ry)) ** 2 + 0.025 * Rz * np.sin(6 * np.pi * y / (1.1 * Ry))
+    tool = np.stack([np.full_like(y, 1.1 * Rx), y, smile], axis=1)
+    mouth = _swept(tool, (0, 0, 0), (0, 0, 1), np.zeros(2), [(0, 0, 0), (-0.75 * Rx, 0, 0)], epsilon)
+    # the jaw: a vertical cut in front of the mouth's back end, from above the mouth's lowest points through the
+    # chin, narrower than the mouth (the jaw's sides stay attached)
+    z0, z1 = -1.3 * Rz, z_mouth + 0.06 * Rz
+    jaw = _rectangle((0.45 * Rx, 0.0, (z0 + z1) / 2), (0, 1, 0), (0, 0, 1), 0.45 * Ry, (z1 - z0) / 2, epsilon)
+    frames = _frames(size, [20, 40], [1, 2])
+    cuts = (ScheduledCut(frames[0], mouth, perturb, "the mouth: a smiling wavy edge swept into the front"),
+            ScheduledCut(frames[1], jaw, perturb, "the jaw: vertical, crossing the mouth"))
+    X = np.asarray(mesh.X)
+    fixed = np.flatnonzero(X[:, 0] < X[:, 0].min() + 0.15 * (X[:, 0].max() - X[:, 0].min()))
+    return Scene("mouth", size, mesh, fixed, 1e7, 0.4, 1e3, 0.033, epsilon, 120 if size == "paper" else 3, cuts)
+
+
+_BUILDERS = {"sticks": _sticks, "thin": _thin, "cheese": _cheese, "accordion": _accordion, "mouth": _mouth}
+
+
+def scene(name: str, size: str = "paper") -> Scene:
+    """Build one of the paper's scenes (module docstring).
+
+    Args:
+        name: one of ``SCENES``.
+        size: "paper" (Table 1's meshes, a cut every few frames) or "small" (coarse meshes, the cuts grouped into
+            the first few frames).
+    Returns:
+        The ``Scene``.
+    """
+    if name not in _BUILDERS:
+        raise ValueError(f"name: expected one of {SCENES}, got {name!r}")
+    if size not in SIZES:
+        raise ValueError(f"size: expected one of {SIZES}, got {size!r}")
+    return _BUILDERS[name](size)
+
+
+@dataclass
+class FrameRecord:
+    """What one frame of ``run_scene`` did.
+
+    Attributes:
+        frame: the frame number (>= 1).
+        cuts: cuts applied before the step.
+        cut_seconds: wall time of those cuts (``XFEMModel.cut``: Booleans, integration, enrichment).
+        n_booleans, boolean_seconds: the Booleans of those cuts and their time.
+        pieces_integrated, integration_seconds: element pieces integrated (eq. 21) and their time.
+        step_seconds: wall time of the step (jit compilation included when it happened).
+        dofs: 3 x the number of nodal DOFs after the frame's cuts.
+        pieces: connected pieces of the body after the frame's cuts.
+    """
+
+    frame: int
+    cuts: int
+    cut_seconds: float
+    n_booleans: int
+    boolean_seconds: float
+    pieces_integrated: int
+    integration_seconds: float
+    step_seconds: float
+    dofs: int
+    pieces: int
+
+    @property
+    def seconds(self) -> float:
+        """The frame's time: its cuts and its step."""
+        return self.cut_seconds + self.step_seconds
+
+
+@dataclass
+class SceneRun:
+    """The result of ``run_scene``.
+
+    Attributes:
+        scene: the ``Scene``.
+        model: the ``XFEMModel`` in its final state.
+        records: one ``FrameRecord`` per frame.
+        applied: the cut solids as applied (moved by their perturbations), in order.
+    """
+
+    scene: Scene
+    model: XFEMModel
+    records: list[FrameRecord] = field(default_factory=list)
+    applied: list[manifold3d.Manifold] = field(default_factory=list)
+
+    def summary(self) -> dict:
+        """Table 2's figures as far as the runner measures them (times in seconds unless named ``_ms``):
+        pieces and DOFs at the end, initial DOFs, Booleans and ms per Boolean (MB), pieces integrated and ms
+        per piece (EI), step avg / max over all frames (a cut frame's time is its cuts plus its step), totals
+        over cut frames (C) and all frames (C+U), and the uncut frames' average step."""
+        records = self.records
+        frame_s = np.array([r.seconds for r in records])
+        cut = np.array([r.cuts > 0 for r in records])
+        booleans = sum(r.n_booleans for r in records)
+        integrated = sum(r.pieces_integrated for r in records)
+        uncut_steps = [r.step_seconds for r in records if r.cuts == 0]
+        return {
+            "scene": self.scene.name, "size": self.scene.size, "frames": len(records),
+            "cuts": sum(r.cuts for r in records), "nodes": int(self.scene.mesh.n_nodes),
+            "elements": int(self.scene.mesh.n_elements), "pieces": records[-1].pieces if records else 1,
+            "dofs_initial": 3 * int(self.scene.mesh.n_nodes), "dofs": records[-1].dofs if records else
+            3 * int(self.scene.mesh.n_nodes), "element_pieces": int(len(self.model.piece_arrays()[0])),
+            "booleans": booleans, "boolean_ms": 1e3 * sum(r.boolean_seconds for r in records) / max(booleans, 1),
+            "pieces_integrated": integrated,
+            "integral_ms": 1e3 * sum(r.integration_seconds for r in records) / max(integrated, 1),
+            "step_avg_s": float(frame_s.mean()) if len(records) else 0.0,
+            "step_max_s": float(frame_s.max()) if len(records) else 0.0,
+            "uncut_step_avg_s": float(np.mean(uncut_steps)) if uncut_steps else 0.0,
+            "total_cut_frames_s": float(frame_s[cut].sum()), "total_s": float(frame_s.sum()),
+        }
+
+
+def run_scene(scene: Scene, steps: int | None = None, progress: bool = False,
+              on_frame: Callable[[FrameRecord, XFEMModel], None] | None = None) -> SceneRun:
+    """Simulate a scene: in each frame its scheduled cuts (Algorithm 1 lines 1-25), then one backward Euler step.
+
+    Args:
+        scene: the ``Scene``.
+        steps: frames to run (>= 1); None: ``scene.steps``. Cuts scheduled after the last frame are not applied.
+        progress: show a tqdm progress bar.
+        on_frame: None, or called after every frame with its ``FrameRecord`` and the model.
+    Returns:
+        The ``SceneRun``.
+    Raises:
+        ValueError: bad steps. RuntimeError: non-finite positions after a step.
+    """
+    if not isinstance(scene, Scene):
+        raise ValueError(f"scene: expected a Scene (scene(name)), got {type(scene).__name__}")
+    steps = scene.steps if steps is None else steps
+    if not isinstance(steps, int) or isinstance(steps, bool) or steps < 1:
+        raise ValueError(f"steps: expected an int >= 1, got {steps!r}")
+    from tqdm import tqdm
+
+    mu, lam = lame(scene.young, scene.poisson)
+    model = scene.model()
+    run = SceneRun(scene, model)
+    pieces = 1
+    for frame in tqdm(range(1, steps + 1), desc=f"xfem {scene.name}", unit="frame", disable=not progress):
+        record = FrameRecord(frame, 0, 0.0, 0, 0.0, 0, 0.0, 0.0, 0, pieces)
+        for scheduled in (c for c in scene.cuts if c.frame == frame):
+            start = time.perf_counter()
+            report = model.cut(scheduled.solid, scheduled.perturb)
+            record.cut_seconds += time.perf_counter() - start
+            record.cuts += 1
+            record.n_booleans += report.n_booleans
+            record.boolean_seconds += report.boolean_seconds
+            record.pieces_integrated += report.pieces_integrated
+            record.integration_seconds += report.integration_seconds
+            run.applied.append(scheduled.solid.transform(report.motion))
+        if record.cuts:
+            pieces = record.pieces = model.pieces()
+        record.dofs = 3 * len(model.dof_sid)
+        start = time.perf_counter()
+        state = jax.block_until_ready(model.step(scene.h, mu, lam, newton_iterations=scene.newton_iterations))
+        record.step_seconds = time.perf_counter() - start
+        if not np.all(np.isfinite(np.asarray(state.x))):  # numpy: a JAX check would compile per DOF count
+            raise RuntimeError(f"{scene.name}: non-finite positions after frame {frame}")
+        run.records.append(record)
+        if on_frame is not None:
+            on_frame(record, model)
+    return run
+
+
+def piece_surfaces(model: XFEMModel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The deformed surfaces of the body's pieces: the mesh's boundary faces and the cut faces, each element
+    piece's triangles mapped by its own DOFs (eq. 18: x(X) = sum_a phi_a(X) x_a^s on the piece).
+
+    Uncut elements give their boundary faces; a cut element's piece gives the triangles of its solid except
+    those on a tet face shared with a neighbour (interior).
+
+    Args:
+        model: the ``XFEMModel``.
+    Returns:
+        V (v, 3) deformed positions, F (f, 3) int64 triangles (each triangle has its own three vertices) and
+        piece (f,) int64 the connected piece (``XFEMModel.components``) of each triangle.
+    """
+    element, dofs, _, _, _ = model.piece_arrays()
+    _, label = model.components()
+    x = np.asarray(model.state.x)
+    X, T = model.X, model.T
+    neighbour = element_adjacency(T)
+    cut = np.array([model.sub.element_built(e) for e in range(len(T))], bool)  # pieces have solids
+    # uncut elements: their outer faces, rest corners = the tet's nodes, mapped by the piece's DOFs
+    uncut = np.flatnonzero(~cut[element])
+    opposite = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]])
+    k, a = np.nonzero(neighbour[element[uncut]] < 0)
+    corners = [x[dofs[uncut[k]][np.arange(len(k))[:, None], opposite[a]]]]
+    owner = [label[dofs[uncut[k], 0]]]
+    # cut elements: each piece's solid, one pass over its sids in the order piece_arrays lists them
+    for e in np.unique(element[cut[element]]).tolist():
+        rows = np.flatnonzero(element == e)
+        for row, sid in zip(rows.tolist(), model.sub.element_subdomains(e)):
+            mesh = model.sub.element_solid(sid).to_mesh64()
+            Vp = np.asarray(mesh.vert_properties, np.float64)[:, :3]
+            Fp = np.asarray(mesh.tri_verts, np.int64)
+            c, _ = linear_shape_coefficients(np.repeat(X[T[e]][None], len(Vp), axis=0), Vp)
+            interior = np.zeros(len(Fp), bool)
+            for face in range(4):
+                if neighbour[e, face] >= 0:
+                    interior |= np.all(np.abs(c[Fp, face]) < _ON_FACE, axis=1)
+            Fp = Fp[~interior]
+            corners.append((c @ x[dofs[row]])[Fp])
+            owner.append(np.full(len(Fp), label[dofs[row, 0]]))
+    V = np.concatenate(corners).reshape(-1, 3)
+    return V, np.arange(len(V)).reshape(-1, 3), np.concatenate(owner).astype(np.int64)
