@@ -16,7 +16,8 @@ and of the step's host CG (Jacobi-preconditioned, relative residual 1e-4) on the
 
 Targets (issue 8), as ratios to Table 2 (paper figure / ours; > 1: we are faster): ``SCENE_step_avg_vs_paper``
 >= 1 and ``SCENE_boolean_vs_paper``; the Booleans take <= 0.5 ms per subdomain (``SCENE_boolean_ms``); the
-slowest cut frame takes <= 2x the average frame (``SCENE_cut_max_over_avg`` <= 2). The paper ran on an
+slowest cut frame takes <= 2x the average frame (``SCENE_cut_max_over_avg`` <= 2; its step alone, without the
+cut's Booleans, integrals and re-enrichment: ``SCENE_cut_step_max_over_avg``). The paper ran on an
 i9-13900K; this machine's figures come from a shared 2-core machine.
 
     python benchmarks/bench_xfem.py [--steps N] [--quick] [--json out/bench/xfem.json]
@@ -106,6 +107,8 @@ def run(size: str, steps: int | None):
         timed = run_scene(sc, steps=frames)
         summary = timed.summary()
         cut_max = max((r.seconds for r in timed.records if r.cuts), default=0.0)
+        # the step alone on cut frames: no compilation, the cut's cost does not leak into the step
+        cut_step_max = max((r.step_seconds for r in timed.records if r.cuts), default=0.0)
         dpsi, cg = _breakdown(timed.model, sc.h, mu, lam)
         ours = {"dofs": summary["dofs"], "integral_ms": summary["integral_ms"], "boolean_ms": summary["boolean_ms"],
                 "dpsi_ms": 1e3 * dpsi, "cg_s": cg, "step_max_s": summary["step_max_s"],
@@ -114,7 +117,7 @@ def run(size: str, steps: int | None):
         for column in COLUMNS:
             figures[f"{name}_{column}"] = float(ours[column])
             units[f"{name}_{column}"] = "count" if column == "dofs" else ("ms" if column.endswith("_ms") else "s")
-        extra = {"cut_max_s": cut_max, "uncut_step_avg_s": summary["uncut_step_avg_s"],
+        extra = {"cut_max_s": cut_max, "cut_step_max_s": cut_step_max, "uncut_step_avg_s": summary["uncut_step_avg_s"],
                  "cold_max_s": cold_max}
         for key, value in extra.items():
             figures[f"{name}_{key}"] = float(value)
@@ -124,6 +127,8 @@ def run(size: str, steps: int | None):
             units[f"{name}_{key}"] = "count"
         figures[f"{name}_cut_max_over_avg"] = cut_max / summary["step_avg_s"]
         units[f"{name}_cut_max_over_avg"] = "x (slowest cut frame / average frame; target <= 2)"
+        figures[f"{name}_cut_step_max_over_avg"] = cut_step_max / summary["step_avg_s"]
+        units[f"{name}_cut_step_max_over_avg"] = "x (slowest step of a cut frame, the cut excluded / average frame)"
         paper = dict(zip(COLUMNS, PAPER[name]))
         ratios[f"{name}_step_avg_vs_paper"] = paper["step_avg_s"] / summary["step_avg_s"]
         ratios[f"{name}_boolean_vs_paper"] = paper["boolean_ms"] / summary["boolean_ms"]
@@ -137,6 +142,8 @@ def run(size: str, steps: int | None):
         print(f"  slowest cut frame {cut_max:.4f} s = {figures[f'{name}_cut_max_over_avg']:.2f}x the average "
               f"frame (target <= 2); uncut frames average {summary['uncut_step_avg_s']:.4f} s; the warm-up run's "
               f"slowest frame (with compilation) {cold_max:.2f} s")
+        print(f"  the step alone on cut frames: at most {cut_step_max:.4f} s = "
+              f"{figures[f'{name}_cut_step_max_over_avg']:.2f}x the average frame")
         print(f"  {name}_step_avg_vs_paper {ratios[f'{name}_step_avg_vs_paper']:.2f}x, "
               f"{name}_boolean_vs_paper {ratios[f'{name}_boolean_vs_paper']:.1f}x "
               f"({summary['boolean_ms']:.3f} ms per Boolean; target <= 0.5 ms)")
