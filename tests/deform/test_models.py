@@ -38,15 +38,16 @@ def test_skinning_follows_the_specification(models, name):
     model = models[name]
     reference = Reference(DATA / f"{name}.glb")
     clip = model.clips[0]
-    skin = {m: jax.jit(lambda t, m=m: deform.skin_model(model, t, m)) for m in ("lbs", "cga")}
     for t in [clip.start, 0.37, 1.0, 1.61, clip.end, clip.end + 1.0]:
         expected = reference.skin(0, t)
         tol = 1e-6 * _diagonal(expected)
+        # A float64 array time: the same compiled skin_model as the single frames of the batch tests.
+        time = jnp.asarray(t, jnp.float64)
         # matrix LBS: the specification's slerp switches to a normalized lerp within 0.9995 of
         # equal keys, a ~1e-7 relative difference from scipy's exact slerp.
-        np.testing.assert_allclose(skin["lbs"](t), expected, atol=tol)
+        np.testing.assert_allclose(deform.skin_model(model, time, "lbs"), expected, atol=tol)
         # eq. (17) with log-blended keys; the float32 inverse-bind matrices become exact similitudes.
-        np.testing.assert_allclose(skin["cga"](t), expected, atol=2 * tol)
+        np.testing.assert_allclose(deform.skin_model(model, time, "cga"), expected, atol=2 * tol)
 
 
 def test_motor_blend_equals_dqs_on_a_rigid_clip(models):
@@ -84,18 +85,26 @@ def test_same_rigid_motion_on_every_bone_of_cesium_man(models, method):
     np.testing.assert_allclose(deform.skin_pose(model, moved, method), cga.apply_to_points(rigid, before), atol=tol)
 
 
-def test_thousand_poses_of_cesium_man_in_one_jit_call(models):
+@pytest.fixture(scope="module")
+def thousand_frames(models):
+    """1,000 CesiumMan poses in one jit call, shared with the sharded test (one compile, not two)."""
     model = models["CesiumMan"]
     times = jnp.linspace(0.0, 2.0, 1000)
-    frames = jax.jit(jax.vmap(lambda t: deform.skin_model(model, t, "cga")))(times)
+    return times, jax.jit(jax.vmap(lambda t: deform.skin_model(model, t, "cga")))(times)
+
+
+def test_thousand_poses_of_cesium_man_in_one_jit_call(models, thousand_frames):
+    model = models["CesiumMan"]
+    times, frames = thousand_frames
     assert frames.shape == (1000, model.mesh.num_vertices, 3)
     assert bool(jnp.all(jnp.isfinite(frames)))
     for k in (0, 357, 999):
         np.testing.assert_allclose(frames[k], deform.skin_model(model, times[k], "cga"), atol=1e-12)
 
 
-def test_sharded_batch_equals_unsharded():
-    """1,000 CesiumMan poses split over 4 host devices (a fresh process: XLA_FLAGS must be set first)."""
+def test_sharded_batch_equals_unsharded(thousand_frames, tmp_path):
+    """1,000 CesiumMan poses split over 4 host devices (a fresh process: XLA_FLAGS must be set first),
+    against the unsharded batch of this process."""
     script = textwrap.dedent(f"""
         import jax, jax.numpy as jnp, numpy as np
         jax.config.update("jax_enable_x64", True)
@@ -106,10 +115,9 @@ def test_sharded_batch_equals_unsharded():
         skin = lambda t: deform.skin_model(model, t, "cga")
         sharded = deform.sharded_vmap(skin, times)
         assert len(sharded.sharding.device_set) == 4
-        plain = jax.jit(jax.vmap(skin))(times)
-        np.testing.assert_allclose(np.asarray(sharded), np.asarray(plain), atol=1e-12)
+        np.save({str(tmp_path / "sharded.npy")!r}, np.asarray(sharded))
         odd = deform.sharded_vmap(skin, times[:998])  # padded to a multiple of 4, then cut
-        np.testing.assert_allclose(np.asarray(odd), np.asarray(plain[:998]), atol=1e-12)
+        np.save({str(tmp_path / "odd.npy")!r}, np.asarray(odd))
         print("sharded ok")
     """)
     env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=4", JAX_PLATFORMS="cpu")
@@ -118,6 +126,13 @@ def test_sharded_batch_equals_unsharded():
                           timeout=600)
     assert done.returncode == 0, done.stderr[-3000:]
     assert "sharded ok" in done.stdout
+    _, plain = thousand_frames
+    sharded, odd = (np.load(tmp_path / f"{name}.npy") for name in ("sharded", "odd"))
+    for name in ("sharded", "odd"):
+        (tmp_path / f"{name}.npy").unlink()  # 80 MB each: pytest keeps its temporary folders
+    np.testing.assert_allclose(sharded, np.asarray(plain), atol=1e-12)
+    assert odd.shape == (998,) + plain.shape[1:]
+    np.testing.assert_allclose(odd, np.asarray(plain[:998]), atol=1e-12)
 
 
 @pytest.mark.parametrize("name", ["Arm5", "CesiumMan"])
