@@ -119,6 +119,19 @@ def _squared(y, residuals_and_args):
     return jnp.sum(r * r)
 
 
+def _full_parameters(y, fit_scale: bool):
+    """(b, 7) parameters from the fitted ones: a zero log-scale column when the dilations are not fitted."""
+    return y if fit_scale else jnp.concatenate([y, jnp.zeros((y.shape[0], 1), y.dtype)], axis=-1)
+
+
+def _pose_residuals(y, args):
+    """``fit_pose``'s residuals: the targeted vertices' offsets over the bounding diagonal, then
+    ``sqrt(lambda) y`` (zeros without regularization, so both share a compiled solver)."""
+    reduced, targets, diagonal, root_regularization, fit_scale, method = args
+    moved = skin_parameters(reduced, _full_parameters(y, fit_scale), method)
+    return jnp.concatenate([((moved - targets) / diagonal).ravel(), root_regularization * y.ravel()])
+
+
 def fit_pose(
     model: RiggedModel,
     targets: Float[Array, "t 3"],
@@ -163,24 +176,16 @@ def fit_pose(
     if y0.shape != (b, width):
         raise ValueError(f"init: expected shape ({b}, {PARAMETERS_PER_BONE}), got {jnp.shape(init)}")
 
-    def full(y):
-        return y if fit_scale else jnp.concatenate([y, jnp.zeros((b, 1), y.dtype)], axis=-1)
-
     # Only the targeted vertices are skinned inside the solver.
     mesh = model.mesh
     subset = SkinnedMesh(mesh.V[index], jnp.zeros((0, 3), jnp.int32), mesh.J[index], mesh.W[index],
                          mesh.inverse_bind, mesh.joints)
     reduced = RiggedModel(subset, model.skeleton, (), model.name)
-
-    def residuals(y, _):
-        moved = skin_parameters(reduced, full(y), method)
-        r = ((moved - targets) / diagonal).ravel()
-        if regularization:
-            r = jnp.concatenate([r, jnp.sqrt(regularization) * y.ravel()])
-        return r
-
-    sol = run_solver(residuals, solver, y0, None, max_steps, rtol, atol)
-    params = full(sol.value)
+    # the data travel as solver arguments, the residual is one module-level function: fits of one size and
+    # kind share optimistix's compiled solver (a closure per call compiled it anew, ~10 s each)
+    args = (reduced, targets, diagonal, jnp.sqrt(jnp.asarray(regularization, dtype)), fit_scale, method)
+    sol = run_solver(_pose_residuals, solver, y0, args, max_steps, rtol, atol)
+    params = _full_parameters(sol.value, fit_scale)
     local = pose_from_parameters(model, params)
     positions = _pose.skin_pose(model, local, method)
     dist = jnp.linalg.norm(positions[index] - targets, axis=-1)
