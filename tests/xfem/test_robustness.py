@@ -22,11 +22,11 @@ fields of eq. 18 (unchanged by every cut at material points, to 1e-12):
   the free fall's exact numerical dissipation m h^2 g^2 / 2 per step), the fixed parts stay put. The exact
   face-aligned cut shows none of the "sticking" sec. 6.1 reports: its lower part falls freely too."""
 
-import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from xfem._backward_euler import State, mechanical_energy
+from tests.xfem.test_xfem import _deformed_state, _random_points
+from xfem._backward_euler import mechanical_energy
 from xfem._cuts import plane_cut_solid
 from xfem._neohookean import lame
 from xfem._tetmesh import box_tets, one_tet
@@ -53,20 +53,6 @@ def _unit(normal):
 def _slab_above(point, normal):
     """The slab whose lower face (the -normal side) holds point: it occupies 0 <= (X - point) . n <= EPS."""
     return _slab(np.asarray(point, np.float64) + EPS / 2 * _unit(normal), normal)
-
-
-def _deformed_state(mesh, seed=0):
-    rng = np.random.default_rng(seed)
-    X = np.asarray(mesh.X)
-    return State(jnp.asarray(X + 0.02 * rng.normal(size=X.shape)), jnp.asarray(rng.normal(size=X.shape)))
-
-
-def _random_points(mesh, k, seed=1):
-    """k random points in random tets: (k, 3) points, (k,) tets."""
-    rng = np.random.default_rng(seed)
-    elements = rng.integers(0, mesh.T.shape[0], k)
-    w = rng.dirichlet(np.ones(4), k)
-    return np.einsum("ka,kaj->kj", w, np.asarray(mesh.X)[np.asarray(mesh.T)[elements]]), elements
 
 
 def _fields(model, points, elements):
@@ -125,7 +111,7 @@ def test_cut_aligned_with_faces_edges_or_vertices(feature, perturb):
     d = (X - centre) @ n  # the slab is 0 <= d <= EPS
     assert np.sum(np.abs(d) < 1e-15) == on_face and np.all((np.abs(d) < 1e-15) | (np.abs(d) > 0.01))
     model = xfem_model(mesh, RHO, state=_deformed_state(mesh))
-    points, elements = _random_points(mesh, 400)
+    points, elements, _ = _random_points(mesh, 400)
     before = _fields(model, points, elements)
     report = model.cut(_slab_above(centre, n), perturb=perturb)
     delta = _motion_size(report.motion, X)
@@ -201,7 +187,7 @@ def test_cut_touching_the_boundary(where, perturb):
     X = np.asarray(mesh.X)
     model = xfem_model(mesh, RHO, state=_deformed_state(mesh))
     reference = model.piece_arrays()
-    points, elements = _random_points(mesh, 200)
+    points, elements, _ = _random_points(mesh, 200)
     before = _fields(model, points, elements)
     report = model.cut(_slab_above(point, normal), perturb=perturb)
     delta = _motion_size(report.motion, X)
@@ -225,7 +211,7 @@ def test_cut_shaving_the_top_layer():
     mesh = box_tets((2, 2, 2))
     X = np.asarray(mesh.X)
     model = xfem_model(mesh, RHO, state=_deformed_state(mesh))
-    points, elements = _random_points(mesh, 200)
+    points, elements, _ = _random_points(mesh, 200)
     before = _fields(model, points, elements)
     report = model.cut(_slab((0.5, 0.5, 1.0), (0.0, 0.0, 1.0)), perturb=PERTURB)
     # the top nodes lie inside the slab, EPS / 2 from its faces: not aligned, no perturbation; their 1-rings
@@ -240,7 +226,7 @@ def test_repeated_cuts_through_the_same_elements():
     mesh = box_tets((2, 2, 2))
     X = np.asarray(mesh.X)
     model = xfem_model(mesh, RHO, state=_deformed_state(mesh))
-    points, elements = _random_points(mesh, 400)
+    points, elements, _ = _random_points(mesh, 400)
     before = _fields(model, points, elements)
     z = points[:, 2]
     up = (0.0, 0.0, 1.0)
@@ -307,7 +293,7 @@ def _layers(cuts):
 def test_three_cuts_through_one_tet(layout):
     mesh = one_tet()
     model = xfem_model(mesh, RHO, state=_deformed_state(mesh))
-    points, elements = _random_points(mesh, 300)
+    points, elements, _ = _random_points(mesh, 300)
     before = _fields(model, points, elements)
     if layout == "parallel":  # z = 0.2, 0.4, 0.6: k + 1 layers, each reaching all four nodes' subdomains
         planes = [((0.3, 0.3, c), 2) for c in (0.2, 0.4, 0.6)]
@@ -397,7 +383,7 @@ def test_long_run_cut_before_and_between_steps():
     hanging = float(elastic)
     assert hanging > 0
     # a horizontal cut of the sagging body: the two lower quarters fall, the fields do not jump
-    points, elements = _random_points(mesh, 400)
+    points, elements, _ = _random_points(mesh, 400)
     before = _fields(model, points, elements)
     point, normal = np.array([0.5, 0.5, 0.45]), _unit((0.02, -0.03, 1.0))
     run.cut(_slab(point, normal))
