@@ -18,13 +18,15 @@ install: $(STAMP)
 demo: $(STAMP)
 	$(VENV)/bin/jaxcga demo
 
-## Run every test, notebooks included, on two workers (pytest-xdist; CI has two cores), except those marked slow.
+## Run every test on two workers (pytest-xdist; CI has two cores), except those marked slow and the notebooks.
 test: $(STAMP)
-	$(PY) -m pytest -n 2 --nbmake -m "not slow" tests notebooks
+	$(PY) -m pytest -n 2 -m "not slow" tests
 
-## The tests marked slow (benchmark smoke runs, paper-size scenes); CI runs them after `make test`.
+## The second CI job: the tests marked slow (benchmark smoke runs, compile-heavy gradient and fitting checks)
+## and the notebooks, executed.
 test-slow: $(STAMP)
 	$(PY) -m pytest -n 2 -m slow tests
+	$(PY) -m pytest -n 2 --nbmake notebooks
 
 ## Benchmarks: print figures and ratios, write JSON to out/bench/.
 bench: $(STAMP)

@@ -2,7 +2,7 @@
 promise. Speed itself is not asserted here: it is measured by `make bench`.
 
 Marked slow (each run compiles the benchmark's whole set of kernels in a fresh process): `make test` leaves them
-out, `make test-slow` runs them, and CI (`.ci/run`) runs both."""
+out, `make test-slow` runs them (with the notebooks), and CI (`.ci/run`) runs both."""
 
 from __future__ import annotations
 

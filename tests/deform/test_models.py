@@ -135,6 +135,7 @@ def test_sharded_batch_equals_unsharded(thousand_frames, tmp_path):
     np.testing.assert_allclose(odd, np.asarray(plain[:998]), atol=1e-12)
 
 
+@pytest.mark.slow  # ~20 s of solver compilation per model: `make test-slow` and CI run it
 @pytest.mark.parametrize("name", ["Arm5", "CesiumMan"])
 def test_fit_recovers_known_random_poses(models, name):
     model = models[name]

@@ -142,6 +142,7 @@ def test_batched_poses_under_vmap_equal_one_by_one(method):
     np.testing.assert_allclose(broadcast, batched, atol=1e-12)
 
 
+@pytest.mark.slow  # a backward-pass compile per method (~10-30 s each): `make test-slow` and CI run it
 @pytest.mark.parametrize("method", deform.METHODS)
 def test_gradients_match_finite_differences(method):
     model = random_model(7)
