@@ -64,12 +64,15 @@ class _Compilation:
         self.step = None
         self.thread: threading.Thread | None = None
 
-    def build(self, arrays, state: State, n: int, capacity: SystemCapacity, h, mu, lam, newton_iterations: int):
-        """Pad the system ``arrays`` (``XFEMModel._system_arrays``) to ``capacity`` and compile its step."""
-        try:
-            system = fem_system(*arrays, capacity=capacity)
-        except CapacityError:  # too small for this system's nonzeros: the model moves to a larger level
-            return
+    def build(self, arrays, state: State, n: int, capacity: SystemCapacity, h, mu, lam, newton_iterations: int,
+              system: FEMSystem | None = None):
+        """Compile the step of ``system``, already padded to ``capacity``, or of the system ``arrays``
+        (``XFEMModel._system_arrays``) padded here."""
+        if system is None:
+            try:
+                system = fem_system(*arrays, capacity=capacity)
+            except CapacityError:  # too small for this system's nonzeros: the model moves to a larger level
+                return
         self.step = compiled_step(system, _padded_state(state, n, capacity.nodes), h, mu, lam, newton_iterations)
 
 
@@ -343,14 +346,15 @@ class XFEMModel:
                                                                               lam, newton_iterations))
                     entry.thread.start()  # not a daemon: XLA must not be cut off at exit
                     return None
-                entry.build(arrays, state, n, capacity, h, mu, lam, newton_iterations)
+                # the current level: the model's padded system is already built
+                entry.build(arrays, state, n, capacity, h, mu, lam, newton_iterations, self._padded_system()[0])
         if background:
             return None
         if entry.thread is not None:
             entry.thread.join()
         if entry.step is None:  # its background build failed (e.g. too few nonzeros): build it here
             entry.build(self._system_arrays(), self.state, len(self.dof_sid), capacity, h, mu, lam,
-                        newton_iterations)
+                        newton_iterations, self._padded_system()[0])
         return entry.step
 
     def cut(self, solid: manifold3d.Manifold, perturb: float = 0.0) -> CutReport:
