@@ -170,7 +170,7 @@ def main(argv=None):
     parser.add_argument("--vertices", type=int, default=100_000, help="minimum vertex count (default 100000)")
     parser.add_argument("--poses", type=int, default=1000, help="poses in the vmap batch (default 1000)")
     parser.add_argument("--repeats", type=int, default=100, help="timed repetitions for one pose")
-    parser.add_argument("--batch-repeats", type=int, default=3, help="timed repetitions for the batch")
+    parser.add_argument("--batch-repeats", type=int, default=5, help="timed repetitions for the batch")
     parser.add_argument("--chunk", type=int, default=50,
                         help="poses per vmapped chunk of the batch (jax.lax.map batch_size; bounds memory)")
     parser.add_argument("--quick", action="store_true", help="small sizes for a smoke test")

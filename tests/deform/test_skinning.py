@@ -142,6 +142,30 @@ def test_batched_poses_under_vmap_equal_one_by_one(method):
     np.testing.assert_allclose(broadcast, batched, atol=1e-12)
 
 
+@pytest.mark.parametrize("dense", [True, False])
+def test_dilation_blend_paths_agree_under_vmap_and_grad(dense, monkeypatch):
+    """Eq. (17)'s lambda row goes through a dense weight matrix for small skeletons and through the
+    per-influence gather for large ones: both equal the literal weighted sum, batched and
+    differentiated (weights included)."""
+    from deform import _skinning
+
+    if not dense:
+        monkeypatch.setattr(_skinning, "DENSE_DILATION_BLEND_MAX_JOINTS", 0)
+    rng = np.random.default_rng(4)
+    J, W = np.asarray(MESH.J), np.asarray(MESH.W)
+    dilations = jnp.asarray(rng.uniform(0.5, 2.0, size=(3, int(J.max()) + 1)))
+    expected = np.einsum("nk,pnk->pn", W, np.asarray(dilations)[:, J])
+    np.testing.assert_allclose(jax.vmap(lambda d: _skinning._blend_dilations(MESH.J, MESH.W, d))(dilations),
+                               expected, atol=1e-14)
+    np.testing.assert_allclose(_skinning._blend_dilations(MESH.J, MESH.W, dilations), expected, atol=1e-14)
+    weights = jnp.stack([MESH.W, MESH.W[:, ::-1]])  # a batch of meshes (weights) under vmap
+    np.testing.assert_allclose(jax.vmap(lambda w: _skinning._blend_dilations(MESH.J, w, dilations[0]))(weights),
+                               np.einsum("bnk,nk->bn", np.asarray(weights), np.asarray(dilations)[0, J]), atol=1e-14)
+    grad_w = jax.grad(lambda w: jnp.sum(_skinning._blend_dilations(MESH.J, w, dilations) ** 2))(MESH.W)
+    np.testing.assert_allclose(grad_w, np.einsum("pn,pnk->nk", 2 * expected, np.asarray(dilations)[:, J]),
+                               atol=1e-12)
+
+
 @pytest.mark.slow  # a backward-pass compile per method (~10-30 s each): `make test-slow` and CI run it
 @pytest.mark.parametrize("method", deform.METHODS)
 def test_gradients_match_finite_differences(method):
