@@ -32,6 +32,7 @@ from jaxtyping import Array, Float
 
 import jaxcga as cga
 from jaxcga._multivector import KINDS, Multivector
+from jaxcga._versors import fused_point_coordinates
 
 
 def _check_mesh(V, J, W):
@@ -68,13 +69,19 @@ def _blend_joints(J, W, data, align: bool = False):
     With ``align`` each influence's sign is flipped when its first four components (a rotor or a
     quaternion) point away from the first influence's: V and -V are the same transformation."""
     # The signs come from a joint-by-joint table of rotor dot products (a tiny dot), so that the
-    # per-vertex loop reads one entry of it instead of a second gather of every influence.
-    dots = jnp.einsum("...ac,...bc->...ab", data[..., :4], data[..., :4]) if align else None
+    # per-vertex loop reads one entry of it instead of a second gather of every influence; the
+    # table is flattened so that the lookup is a one-index gather, which XLA fuses into the loop
+    # (a two-index one it ran as a separate pass per influence).
+    joints = data.shape[-2]
+    dots = None
+    if align:
+        dots = jnp.einsum("...ac,...bc->...ab", data[..., :4], data[..., :4])
+        dots = dots.reshape(dots.shape[:-2] + (joints * joints,))
     acc = None
     for k in range(J.shape[1]):
         w = W[:, k].astype(data.dtype)
         if align:
-            w = jnp.where(dots[..., J[:, 0], J[:, k]] < 0, -w, w)
+            w = jnp.where(dots[..., J[:, 0] * joints + J[:, k]] < 0, -w, w)
         term = w[..., None] * data[..., J[:, k], :]
         acc = term if acc is None else acc + term
     return acc
@@ -227,12 +234,16 @@ def skin_cga_motor_blend(V, J, W, joint_versors: Multivector) -> Float[Array, ".
     motors, log_scale = _motor_and_log_scale(joint_versors)
     motors = _materialize(motors)
     log_scale = _materialize(log_scale[..., None])[..., 0]
-    blended = Multivector(_materialize(_blend_joints(J, W, motors, align=True)), KINDS["motor"])
+    # The blend is computed once per vertex (the barrier keeps XLA from recomputing it for every
+    # output coordinate; it costs no copy, unlike ``_materialize``).
+    blended = Multivector(jax.lax.optimization_barrier(_blend_joints(J, W, motors, align=True)), KINDS["motor"])
     scale = jnp.exp(_blend_joints(J, W, log_scale[..., None])[..., 0])
     # No explicit normalization: the generated point map of M up(x) ~M divides by the eo row, the
     # scalar part of M ~M, and the e123inf part of M ~M does not reach points, so the unnormalized
-    # blend moves points exactly as ``jaxcga.normalize(M)`` does (tested), inside one fused loop.
-    return cga.apply_to_points(blended, V * scale[..., None], fused=True)
+    # blend moves points exactly as ``jaxcga.normalize(M)`` does (tested), inside one fused loop,
+    # written coordinate-major and then moved last (as in ``_blend_affine``).
+    coordinates = fused_point_coordinates(blended, V * scale[..., None], blended.batch_shape)
+    return jnp.moveaxis(jnp.stack(coordinates, axis=-2), -2, -1)
 
 
 def matrices_to_dual_quaternions(matrices: Float[Array, "... 4 4"], tolerance: float = 1e-5) -> Float[Array, "... 8"]:
@@ -274,4 +285,5 @@ def skin_dqs(V, J, W, joint_dual_quaternions: Float[Array, "... j 8"]) -> Float[
     t_x = 2 * (-dw * x + dx * w - dy * z + dz * y)
     t_y = 2 * (-dw * y + dx * z + dy * w - dz * x)
     t_z = 2 * (-dw * z - dx * y + dy * x + dz * w)
-    return jnp.stack([(out_x + t_x) * inv, (out_y + t_y) * inv, (out_z + t_z) * inv], axis=-1)
+    # coordinate-major, then moved last (as in ``_blend_affine``)
+    return jnp.moveaxis(jnp.stack([(out_x + t_x) * inv, (out_y + t_y) * inv, (out_z + t_z) * inv], axis=-2), -2, -1)

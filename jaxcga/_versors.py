@@ -132,6 +132,24 @@ def _map_entries(v: Multivector, columns=None):
     return entries
 
 
+def fused_point_coordinates(v: Multivector, x: Float[Array, "... 3"], batch: tuple[int, ...]) -> list:
+    """The three coordinates (each of shape ``batch``) of ``apply_to_points(v, x, fused=True)``, written
+    elementwise so that XLA fuses them with the computation of v; the caller chooses how to stack them
+    (e.g. coordinate-major, then moved last: XLA:CPU's transpose emitter runs that 1.4x faster than a
+    stack along the last axis for per-vertex blended motors)."""
+    a = _map_entries(v)
+    xs = [x[..., 0], x[..., 1], x[..., 2]]
+    sq = 0.5 * (xs[0] ** 2 + xs[1] ** 2 + xs[2] ** 2) if any(col == 4 for (_, col) in a) else None
+    inputs = xs + [None, sq]
+
+    def fused_row(r):
+        terms = [a[(r, c)] if c == 3 else a[(r, c)] * inputs[c] for c in range(5) if (r, c) in a]
+        return functools.reduce(lambda p, q: p + q, terms)
+
+    inv_w = 1.0 / fused_row(3)
+    return [jnp.broadcast_to(fused_row(k) * inv_w, batch) for k in range(3)]
+
+
 def apply_to_points(v: Multivector, x: Float[Array, "... 3"], fused: bool = False) -> Float[Array, "... 3"]:
     """Apply a versor (rotor, translator, dilator, motor, similitude) to Euclidean points: the
     sandwich ``V up(x) V^-1`` down-projected, evaluated as the affine map whose entries are generated
@@ -149,17 +167,7 @@ def apply_to_points(v: Multivector, x: Float[Array, "... 3"], fused: bool = Fals
     x = check_vectors("x", x)
     batch = broadcast_batch("v", v.batch_shape, "x", x.shape[:-1])
     if fused:
-        a = _map_entries(v)
-        xs = [x[..., 0], x[..., 1], x[..., 2]]
-        sq = 0.5 * (xs[0] ** 2 + xs[1] ** 2 + xs[2] ** 2) if any(col == 4 for (_, col) in a) else None
-        inputs = xs + [None, sq]
-
-        def fused_row(r):
-            terms = [a[(r, c)] if c == 3 else a[(r, c)] * inputs[c] for c in range(5) if (r, c) in a]
-            return functools.reduce(lambda p, q: p + q, terms)
-
-        inv_w = 1.0 / fused_row(3)
-        return jnp.stack([jnp.broadcast_to(fused_row(k) * inv_w, batch) for k in range(3)], axis=-1)
+        return jnp.stack(fused_point_coordinates(v, x, batch), axis=-1)
     # Work on component-major copies: XLA:CPU then vectorizes the generated arithmetic along the
     # points (measured 2-3x faster than on the interleaved (..., k) layout). The barriers keep
     # XLA from fusing the transposes back into the arithmetic.
