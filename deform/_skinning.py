@@ -52,10 +52,10 @@ def _materialize(x):
     """Materialize an array that XLA:CPU would otherwise fuse into its consumers and recompute there.
 
     Per-joint data before the per-vertex gather: fused into the gather, every joint's map is
-    recomputed at every (vertex, influence) (measured 3-30x slower). Blended per-vertex versors
-    before the point map: fused into the map, the blend is recomputed for every output coordinate
-    (measured 1.5x slower under vmap over poses). An optimization barrier does not stop XLA:CPU's
-    fusion, a dot does, so the data goes through a product with the identity (c x c flops per row)."""
+    recomputed at every (vertex, influence) (measured 3-30x slower). A dot separates the fusions, so
+    the data goes through a product with the identity (c x c flops per row: nothing for per-joint
+    tables). For large per-vertex arrays ``jax.lax.optimization_barrier`` does the same without the
+    copy (``skin_cga_motor_blend``)."""
     shape = x.shape
     flat = x.reshape(-1, shape[-1])
     return (flat @ jnp.eye(shape[-1], dtype=x.dtype)).reshape(shape)
@@ -69,9 +69,8 @@ def _blend_joints(J, W, data, align: bool = False):
     With ``align`` each influence's sign is flipped when its first four components (a rotor or a
     quaternion) point away from the first influence's: V and -V are the same transformation."""
     # The signs come from a joint-by-joint table of rotor dot products (a tiny dot), so that the
-    # per-vertex loop reads one entry of it instead of a second gather of every influence; the
-    # table is flattened so that the lookup is a one-index gather, which XLA fuses into the loop
-    # (a two-index one it ran as a separate pass per influence).
+    # per-vertex loop reads one entry of it instead of a second gather of every influence (the
+    # table flattened: one index per lookup).
     joints = data.shape[-2]
     dots = None
     if align:
@@ -128,7 +127,7 @@ def _blend_dilations(J, W, dilations: Float[Array, "... j"]) -> Float[Array, "..
     The per-vertex loop divides by it, so it is computed once per vertex and pose beforehand. For one
     pose that is a gather. For a batch of poses, natively or under vmap, the gather makes XLA:CPU lay
     the array out vertex-major (n, poses) while the loop writes pose-major, and every read misses the
-    cache (measured 1.3-1.4x slower at 100k vertices and 1,000 poses); written as
+    cache (measured 1.2-1.3x slower at 100k vertices and 300 poses); written as
     ``dilations @ dense_weights`` the product keeps the pose axis first. For one pose that product is
     slower than the gather (building the dense weights is not amortized), so the choice is made by
     batching (``custom_vmap``); derivatives go through the gather (``custom_jvp``), which is linear in
