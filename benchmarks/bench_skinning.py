@@ -79,6 +79,9 @@ def pipelines(model: deform.RiggedModel):
     """name -> function of (local versor values, local matrices) -> positions."""
     mesh, parents = model.mesh, model.skeleton.parents
     blades = cga.KINDS["similitude"]
+    # B_n in multivector form, converted once from the file's inverse bind matrices (the matrix
+    # baselines use those matrices as stored)
+    inverse_bind = deform.inverse_bind_versors(mesh)
 
     def lbs(_, local_m):
         joints = deform.joint_matrices(mesh, deform.forward_kinematics_matrices(parents, local_m))
@@ -89,7 +92,8 @@ def pipelines(model: deform.RiggedModel):
         return deform.skin_dqs(mesh.V, mesh.J, mesh.W, deform.matrices_to_dual_quaternions(joints))
 
     def versors(local_v):
-        return deform.joint_versors(mesh, deform.forward_kinematics(parents, cga.Multivector(local_v, blades)))
+        return deform.joint_versors(mesh, deform.forward_kinematics(parents, cga.Multivector(local_v, blades)),
+                                    inverse_bind)
 
     def cga_sandwich(local_v, _):
         return deform.skin_cga(mesh.V, mesh.J, mesh.W, versors(local_v))

@@ -133,7 +133,8 @@ def forward_kinematics(parents: tuple[int, ...], local: Multivector) -> Multivec
     identity = Multivector(jnp.ones((1,), values.dtype), KINDS["scalar"]).embed(blades).values
 
     def compose(a, b):
-        return (Multivector(a, blades) * Multivector(b, blades)).embed(blades).values
+        # one bone per step: the structure-tensor contraction (two dots), not one kernel per blade
+        return cga.table_product("geometric", Multivector(a, blades), Multivector(b, blades)).embed(blades).values
 
     return Multivector(jnp.moveaxis(_scan_chain(parents, values, identity, compose), 0, -2), blades)
 
@@ -151,7 +152,10 @@ def forward_kinematics_matrices(parents: tuple[int, ...], local: Float[Array, ".
 
 def joint_matrices(mesh: SkinnedMesh, global_matrices: Float[Array, "... b 4 4"]) -> Float[Array, "... j 4 4"]:
     """glTF joint matrices ``global(bone of joint) @ inverse_bind`` (the ``T_n,k O_n`` of eq. 16)."""
-    return global_matrices[..., jnp.asarray(mesh.joints, jnp.int32), :, :] @ mesh.inverse_bind
+    bones = global_matrices[..., jnp.asarray(mesh.joints, jnp.int32), :, :]
+    # elementwise, one fused loop: XLA:CPU's batched dot of 4x4 matrices took 0.07 against 0.02 ms
+    # for 23 joints
+    return (bones[..., :, :, None] * mesh.inverse_bind[..., None, :, :]).sum(-2)
 
 
 def inverse_bind_versors(mesh: SkinnedMesh) -> Multivector:
@@ -159,10 +163,24 @@ def inverse_bind_versors(mesh: SkinnedMesh) -> Multivector:
     return cga.matrix_to_similitude(mesh.inverse_bind)
 
 
-def joint_versors(mesh: SkinnedMesh, global_versors: Multivector) -> Multivector:
-    """Joint versors ``M_n,k B_n`` of eq. (17), batch shape (..., j)."""
+def joint_versors(mesh: SkinnedMesh, global_versors: Multivector,
+                  inverse_bind: Multivector | None = None) -> Multivector:
+    """Joint versors ``M_n,k B_n`` of eq. (17), batch shape (..., j).
+
+    Args:
+        mesh: the skinned mesh (its joints and inverse bind matrices).
+        global_versors: global bone versors, batch shape (..., b) (``forward_kinematics``).
+        inverse_bind: the versors ``B_n`` (``inverse_bind_versors(mesh)``), batch shape (j,). Pass them
+            when posing a mesh many times: otherwise every call converts the inverse bind matrices
+            again (a determinant, a rigidity check and a quaternion extraction per joint: 0.08 ms of
+            a 1.3 ms pose of a 100k-vertex mesh)."""
+    if inverse_bind is None:
+        inverse_bind = inverse_bind_versors(mesh)
+    elif not isinstance(inverse_bind, Multivector) or inverse_bind.batch_shape[-1:] != (len(mesh.joints),):
+        raise ValueError(f"inverse_bind: expected versors with batch shape ({len(mesh.joints)},), "
+                         f"got {getattr(inverse_bind, 'batch_shape', type(inverse_bind).__name__)}")
     bones = global_versors[..., jnp.asarray(mesh.joints, jnp.int32)]
-    return (bones * inverse_bind_versors(mesh)).embed(_SIMILITUDE)
+    return cga.table_product("geometric", bones, inverse_bind).embed(_SIMILITUDE)
 
 
 # ---------------------------------------------------------------- sampling a clip

@@ -18,7 +18,7 @@ from jaxcga._exp_log import (
     log_similitude,
 )
 from jaxcga._interpolation import blend_linear, blend_log, blend_weighted
-from jaxcga._multivector import KINDS, Multivector, pseudoscalar
+from jaxcga._multivector import KINDS, Multivector, pseudoscalar, table_product
 from jaxcga._objects import (
     circle,
     circle_center_radius_normal,
@@ -162,6 +162,7 @@ __all__ = [
     "sphere_power",
     "sphere_through",
     "squared_distance",
+    "table_product",
     "translator",
     "undual",
     "up",

@@ -14,6 +14,7 @@ import functools
 from fractions import Fraction
 
 import jax.numpy as jnp
+import numpy as np
 
 from jaxcga import _algebra as alg
 
@@ -29,6 +30,19 @@ def bilinear_terms(kind: str, blades_a: tuple[int, ...], blades_b: tuple[int, ..
             acc.setdefault(c, {})
             acc[c][(ia, ib)] = acc[c].get((ia, ib), 0) + coef
     return _finish(acc)
+
+
+@functools.cache
+def bilinear_tensor(kind: str, blades_a: tuple[int, ...], blades_b: tuple[int, ...]):
+    """The same product as a dense structure tensor: (out_blades, T) with ``T[ia, ib, k]`` the
+    coefficient of ``out_blades[k]`` in ``a[ia] b[ib]`` (for ``table_product``)."""
+    terms = bilinear_terms(kind, blades_a, blades_b)
+    table = np.zeros((len(blades_a), len(blades_b), len(terms)))
+    for k, (_, blade_terms) in enumerate(terms):
+        for (ia, ib), coef in blade_terms:
+            table[ia, ib, k] = coef
+    table.setflags(write=False)
+    return tuple(b for b, _ in terms), table
 
 
 @functools.cache

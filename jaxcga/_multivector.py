@@ -249,6 +249,27 @@ def product(kind: str, a: Multivector, b: Multivector) -> Multivector:
     return Multivector(stack_columns(columns, batch, dtype), blades)
 
 
+def table_product(kind: str, a: Multivector, b: Multivector) -> Multivector:
+    """The same product as ``product``, evaluated as one contraction with the structure tensor of the
+    two blade sets (``a_i T_ijk b_j``) instead of generated per-blade expressions.
+
+    For small batches: per-joint data such as forward kinematics and joint versors. There XLA:CPU
+    compiles the generated expressions into one kernel per output blade plus a concatenate (17
+    kernels for two similitudes), and the contraction into two dots. Measured on Arm5 (25 bones, 23
+    joints, float32, 10th percentiles of 300 calls): forward kinematics 0.16 -> 0.09 ms, the product
+    by the inverse-bind versors 0.05 ms less. For large batches (a versor per point) use ``product``:
+    it skips the structural zeros (for two similitudes the tensor holds 256 non-zeros among 4,096
+    entries)."""
+    if kind not in alg.GRADE_RULES:
+        raise ValueError(f"kind: expected one of {sorted(alg.GRADE_RULES)}, got {kind!r}")
+    broadcast_batch("a", a.batch_shape, "b", b.batch_shape)
+    dtype = jnp.result_type(a.dtype, b.dtype)
+    blades, table = _codegen.bilinear_tensor(kind, a.blades, b.blades)
+    values = jnp.einsum("...i,ijk,...j->...k", a.values.astype(dtype), jnp.asarray(table, dtype),
+                        b.values.astype(dtype))
+    return Multivector(values, blades)
+
+
 @functools.cache
 def _pseudoscalar() -> tuple[tuple[int, ...], np.ndarray]:
     terms = alg.pseudoscalar_terms()

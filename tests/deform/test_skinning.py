@@ -31,6 +31,21 @@ def _numpy_lbs(model, local_matrices):
     return np.einsum("nij,nj->ni", blended[:, :3, :3], V) + blended[:, :3, 3]
 
 
+def test_joint_versors_take_precomputed_inverse_bind_versors():
+    local = random_pose(2, B, scale_range=(0.5, 2.0))
+    global_versors = deform.forward_kinematics(MODEL.skeleton.parents, local)
+    inverse_bind = deform.inverse_bind_versors(MESH)
+    given = deform.joint_versors(MESH, global_versors, inverse_bind)
+    np.testing.assert_allclose(given.values, deform.joint_versors(MESH, global_versors).values, atol=1e-13)
+    # against the matrices: joint matrix = global bone matrix @ inverse bind matrix
+    expected = deform.joint_matrices(MESH, cga.versor_to_matrix(global_versors))
+    np.testing.assert_allclose(cga.versor_to_matrix(given), expected, atol=1e-12)
+    with pytest.raises(ValueError, match="inverse_bind: expected versors with batch shape"):
+        deform.joint_versors(MESH, global_versors, inverse_bind[:-1])
+    with pytest.raises(ValueError, match="inverse_bind: expected versors"):
+        deform.joint_versors(MESH, global_versors, MESH.inverse_bind)
+
+
 @pytest.mark.parametrize("method", deform.METHODS)
 def test_rest_pose_reproduces_bind_positions(method):
     np.testing.assert_allclose(deform.rest_pose(MODEL, method), MESH.V, atol=1e-12)
