@@ -98,6 +98,45 @@ def test_motor_blend_equals_dqs_for_rigid_poses():
     assert np.max(np.abs(np.asarray(dqs) - np.asarray(deform.skin_pose(model, local, "lbs")))) > 1e-3
 
 
+def _numpy_dqs(V, J, W, dq):
+    """Kavan et al.'s DQS per vertex, in numpy: align each influence's sign with the first's, blend,
+    normalize by the real part's norm, rotate and translate."""
+    def qmul(a, b):
+        w1, v1, w2, v2 = a[0], a[1:], b[0], b[1:]
+        return np.concatenate([[w1 * w2 - v1 @ v2], w1 * v2 + w2 * v1 + np.cross(v1, v2)])
+
+    out = np.empty_like(V)
+    for m in range(len(V)):
+        q = dq[J[m]]
+        signs = np.where(q[:, :4] @ q[0, :4] < 0, -1.0, 1.0)
+        b = np.einsum("k,k,kc->c", W[m], signs, q)
+        real, dual = b[:4] / np.linalg.norm(b[:4]), b[4:] / np.linalg.norm(b[:4])
+        conj = real * np.array([1, -1, -1, -1])
+        rotated = qmul(qmul(real, np.concatenate([[0.0], V[m]])), conj)[1:]
+        out[m] = rotated + 2 * qmul(dual, conj)[1:]
+    return out
+
+
+def test_dqs_and_motor_blend_against_numpy_dqs_with_flipped_signs():
+    """Negating a joint's dual quaternion (or motor) is the same transformation: the blends align
+    signs per vertex, so flipping any subset of joints changes nothing."""
+    model = random_model(7)
+    local = random_pose(7, model.skeleton.num_bones)
+    joints = deform.joint_versors(model.mesh, deform.forward_kinematics(model.skeleton.parents, local))
+    dq = np.asarray(cga.motor_to_dual_quaternion(cga.matrix_to_motor(cga.versor_to_matrix(joints))))
+    flips = np.where(np.arange(len(dq)) % 2 == 1, -1.0, 1.0)[:, None]
+    V, J, W = (np.asarray(x) for x in (model.mesh.V, model.mesh.J, model.mesh.W))
+    expected = _numpy_dqs(V, J, W, dq)
+    for sign in (np.ones_like(flips), flips, -flips):
+        np.testing.assert_allclose(deform.skin_dqs(V, J, W, dq * sign), expected, atol=1e-12)
+        flipped = cga.Multivector(joints.values * sign, joints.blades)
+        np.testing.assert_allclose(deform.skin_cga_motor_blend(V, J, W, flipped), expected, atol=1e-12)
+    # and under vmap over poses (the weights are computed for the whole batch in one pass)
+    batch = jnp.stack([dq, dq * flips])
+    np.testing.assert_allclose(jax.vmap(lambda d: deform.skin_dqs(V, J, W, d))(batch), np.stack([expected] * 2),
+                               atol=1e-12)
+
+
 @pytest.mark.parametrize("method", deform.METHODS)
 def test_same_rigid_motion_on_every_bone_gives_that_map(method):
     model = random_model(4)
