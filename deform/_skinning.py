@@ -55,7 +55,7 @@ def _materialize(x):
     recomputed at every (vertex, influence) (measured 3-30x slower). A dot separates the fusions, so
     the data goes through a product with the identity (c x c flops per row: nothing for per-joint
     tables). For large per-vertex arrays ``jax.lax.optimization_barrier`` does the same without the
-    copy (``skin_cga_motor_blend``)."""
+    copy (``_aligned_weights``)."""
     shape = x.shape
     flat = x.reshape(-1, shape[-1])
     return (flat @ jnp.eye(shape[-1], dtype=x.dtype)).reshape(shape)
