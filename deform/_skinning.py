@@ -81,7 +81,7 @@ def _influence_weights(W):
 def _aligned_weights(J, W, rotors: Float[Array, "... j 4"], log_scales: Float[Array, "... j"] | None = None):
     """The weights of a versor blend, one (..., n) row per influence, with each influence's sign
     flipped when its rotor (or quaternion) points away from the first influence's: V and -V are the
-    same transformation. With ``log_scales``, one more row: ``exp`` of the blended log scales.
+    same transformation. With ``log_scales``, one more row: the blended log scales (unsigned).
 
     The signs come from a joint-by-joint table of rotor dot products (a tiny dot; flattened, so a
     lookup takes one index). All rows are written in one pass, coordinate-major (..., rows, n), and
@@ -96,7 +96,7 @@ def _aligned_weights(J, W, rotors: Float[Array, "... j 4"], log_scales: Float[Ar
         w = W[:, k].astype(rotors.dtype)
         rows.append(jnp.where(dots[..., J[:, 0] * joints + J[:, k]] < 0, -w, w))
     if log_scales is not None:
-        rows.append(jnp.exp(_blend_joints(J, _influence_weights(W), log_scales[..., None])[..., 0]))
+        rows.append(_blend_joints(J, _influence_weights(W), log_scales[..., None])[..., 0])
     stacked = jax.lax.optimization_barrier(jnp.stack(rows, axis=-2))
     return [stacked[..., r, :] for r in range(len(rows))]
 
@@ -248,10 +248,12 @@ def skin_cga_motor_blend(V, J, W, joint_versors: Multivector) -> Float[Array, ".
     motors, log_scale = _motor_and_log_scale(joint_versors)
     motors = _materialize(motors)
     log_scale = _materialize(log_scale[..., None])[..., 0]
-    *weights, scale = _aligned_weights(J, W, motors[..., :4], log_scale)
-    # The blend is left to XLA to fuse into the point map (recomputed per output coordinate): with
-    # the weights precomputed, that measured faster than keeping it behind a barrier (one pose 2.28
-    # -> 2.19 ms, 300 poses 1.7 -> 1.3 s, float64).
+    *weights, log_scale = _aligned_weights(J, W, motors[..., :4], log_scale)
+    # exp in a loop of its own, where it vectorizes: inside the gather loop it ran scalar (300 poses,
+    # float64: 1.15 -> 1.01 s)
+    scale = jax.lax.optimization_barrier(jnp.exp(log_scale))
+    # XLA writes the blend once per vertex by itself (one (..., n, 8) pass); a barrier there measured
+    # no faster.
     blended = Multivector(_blend_joints(J, weights, motors), KINDS["motor"])
     # No explicit normalization: the generated point map of M up(x) ~M divides by the eo row, the
     # scalar part of M ~M, and the e123inf part of M ~M does not reach points, so the unnormalized
