@@ -252,8 +252,8 @@ def skin_cga_motor_blend(V, J, W, joint_versors: Multivector) -> Float[Array, ".
     # exp in a loop of its own, where it vectorizes: inside the gather loop it ran scalar (300 poses,
     # float64: 1.15 -> 1.01 s)
     scale = jax.lax.optimization_barrier(jnp.exp(log_scale))
-    # XLA writes the blend once per vertex by itself (one (..., n, 8) pass); a barrier there measured
-    # no faster.
+    # XLA writes the blend once per vertex by itself (one (..., n, 8) pass, as for DQS); a barrier
+    # there measured within the run-to-run noise at 300 poses.
     blended = Multivector(_blend_joints(J, weights, motors), KINDS["motor"])
     # No explicit normalization: the generated point map of M up(x) ~M divides by the eo row, the
     # scalar part of M ~M, and the e123inf part of M ~M does not reach points, so the unnormalized

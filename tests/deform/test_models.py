@@ -50,6 +50,7 @@ def test_skinning_follows_the_specification(models, name):
         np.testing.assert_allclose(deform.skin_model(model, time, "cga"), expected, atol=2 * tol)
 
 
+@pytest.mark.slow  # ~20-50 s on 2 cores: kept out of `make test` for its 15-minute budget; `make test-slow` and CI run it
 def test_motor_blend_equals_dqs_on_a_rigid_clip(models):
     model = models["CesiumMan"]
     for t in [0.3, 1.2]:
@@ -102,6 +103,7 @@ def test_thousand_poses_of_cesium_man_in_one_jit_call(models, thousand_frames):
         np.testing.assert_allclose(frames[k], deform.skin_model(model, times[k], "cga"), atol=1e-12)
 
 
+@pytest.mark.slow  # ~20-50 s on 2 cores: kept out of `make test` for its 15-minute budget; `make test-slow` and CI run it
 def test_sharded_batch_equals_unsharded(thousand_frames, tmp_path):
     """1,000 CesiumMan poses split over 4 host devices (a fresh process: XLA_FLAGS must be set first),
     against the unsharded batch of this process."""
@@ -147,6 +149,7 @@ def test_fit_recovers_known_random_poses(models, name):
     assert float(fit.max_error) <= 1e-6 * diagonal
 
 
+@pytest.mark.slow  # ~20-50 s on 2 cores: kept out of `make test` for its 15-minute budget; `make test-slow` and CI run it
 def test_fit_to_a_handful_of_vertices_with_regularization(models):
     model = models["Arm5"]
     truth = deform.random_parameters(jax.random.PRNGKey(4), model, rotation=0.2)
