@@ -236,10 +236,14 @@ def stack_columns(columns, batch_shape, dtype):
     return jnp.stack(columns, axis=-1)
 
 
-def product(kind: str, a: Multivector, b: Multivector) -> Multivector:
-    """The product ``kind`` (see ``_algebra.GRADE_RULES``) of a and b, generated for their blades."""
+def _check_kind(kind: str):
     if kind not in alg.GRADE_RULES:
         raise ValueError(f"kind: expected one of {sorted(alg.GRADE_RULES)}, got {kind!r}")
+
+
+def product(kind: str, a: Multivector, b: Multivector) -> Multivector:
+    """The product ``kind`` (see ``_algebra.GRADE_RULES``) of a and b, generated for their blades."""
+    _check_kind(kind)
     batch = broadcast_batch("a", a.batch_shape, "b", b.batch_shape)
     dtype = jnp.result_type(a.dtype, b.dtype)
     terms = _codegen.bilinear_terms(kind, a.blades, b.blades)
@@ -260,8 +264,7 @@ def table_product(kind: str, a: Multivector, b: Multivector) -> Multivector:
     by the inverse-bind versors 0.05 ms less. For large batches (a versor per point) use ``product``:
     it skips the structural zeros (for two similitudes the tensor holds 256 non-zeros among 4,096
     entries)."""
-    if kind not in alg.GRADE_RULES:
-        raise ValueError(f"kind: expected one of {sorted(alg.GRADE_RULES)}, got {kind!r}")
+    _check_kind(kind)
     broadcast_batch("a", a.batch_shape, "b", b.batch_shape)
     dtype = jnp.result_type(a.dtype, b.dtype)
     blades, table = _codegen.bilinear_tensor(kind, a.blades, b.blades)
