@@ -6,7 +6,8 @@ or similitudes) or as matrices (..., b, 4, 4). Methods:
 
 * ``"lbs"``: matrix linear blend skinning, eq. (16);
 * ``"dqs"``: dual-quaternion skinning (rigid poses only);
-* ``"cga"``: multivector skinning, eq. (17), blend after the sandwich (the paper's);
+* ``"cga"``: multivector skinning, eq. (17), blend after the sandwich (the paper's), each sandwiched
+  point down-projected before the sum as in the paper's implementation (sec. 4.3; ``skin_cga``);
 * ``"cga_motor_blend"``: multivector skinning with the versors blended first (like DQS).
 
 ``skin_model(model, t)`` samples clip ``clip`` at time t: by the glTF specification (TRS lerp /

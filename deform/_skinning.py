@@ -6,15 +6,18 @@ one transform per joint; they are jit-, vmap- and grad-able and batch over leadi
 transforms (poses).
 
 * ``skin_lbs``: ``V_k[m] = sum_n w_mn T_n,k O_n v[m]`` (eq. 16, G = identity).
-* ``skin_cga``: ``C_k[m] = sum_n w_mn (M_n,k B_n) c[m] (M_n,k B_n)^-1`` (eq. 17), then down-projected.
-  A sandwich by one fixed versor is a linear map of the conformal point (x, 1), generated from the
-  versor's components by the kernel (``jaxcga.versor_to_matrix(..., normalized=False)``); it is built
-  once per joint, and the per-vertex sum of eq. (17) adds the mapped points. The sandwich of a point by
-  a normalized similitude of scale s is the point scaled by ``lambda = 1/s``
-  (``D up(x) D^-1 = up(s x) / s``), so the down-projection of the sum,
+* ``skin_cga``: ``C_k[m] = sum_n w_mn (M_n,k B_n) c[m] (M_n,k B_n)^-1`` (eq. 17), down-projected. A
+  sandwich by one fixed versor is a linear map of the conformal point (x, 1), generated from the
+  versor's components by the kernel (``jaxcga.versor_to_matrix``); it is built once per joint, and the
+  per-vertex sum of eq. (17) adds the mapped points. Sec. 4.3 gives two ways to down-project the sum:
+  each term first, then add (the paper's implementation, "faster", and the default here), or the sum
+  at once (``normalize_points=False``). They differ when the joints carry unequal dilations: the
+  sandwich of a point by a normalized similitude of scale s is the point scaled by ``lambda = 1/s``
+  (``D up(x) D^-1 = up(s x) / s``), so down-projecting the sum,
   ``sum_n w_mn lambda_n x_n / sum_n w_mn lambda_n``, weighs each influence by the inverse of its
-  dilation. With rigid joints, or equal dilations, that is LBS with the same transforms;
-  ``normalize_points=True`` normalizes each sandwiched point first, which is LBS in every case.
+  dilation (scales blend harmonically), while down-projecting each term blends the moved points with
+  the weights as given (scales blend linearly, as LBS with the same similitudes). With rigid joints, or
+  equal dilations, both are LBS with the same transforms.
 * ``skin_cga_motor_blend``: blend the versors first, normalized, like DQS: each joint similitude is
   factored as a motor times a dilator about the origin, ``M_n D(s_n)``; per vertex the motors are
   blended (signs aligned with the first influence) and normalized, the scales are blended in log
@@ -206,22 +209,24 @@ def _check_versors(name: str, versors):
         raise ValueError(f"{name}: expected motors or similitudes, got blades {versors.names}")
 
 
-def skin_cga(V, J, W, joint_versors: Multivector, normalize_points: bool = False) -> Float[Array, "... n 3"]:
+def skin_cga(V, J, W, joint_versors: Multivector, normalize_points: bool = True) -> Float[Array, "... n 3"]:
     """Multivector skinning, eq. (17): blend after the sandwich, with per-bone dilation.
 
     Args:
         V, J, W: as in ``skin_lbs``.
         joint_versors: motors or similitudes ``M_n,k B_n``, batch shape (..., j).
-        normalize_points: normalize every sandwiched conformal point (eo-coefficient 1) before the
-            weighted sum; False is the paper's eq. (17) as written (see the module docstring).
+        normalize_points: True (default): down-project (normalize) every sandwiched conformal point,
+            then blend: the paper's evaluation (sec. 4.3). False: blend the conformal points and
+            down-project the sum, eq. (17) read literally, which weighs each influence by the inverse
+            of its joint's dilation (module docstring); one more gather and a division per vertex.
     Returns:
-        (..., n, 3) skinned positions (the down-projected sum of conformal points)."""
+        (..., n, 3) skinned positions."""
     V, J, W = _check_mesh(V, J, W)
     _check_versors("joint_versors", joint_versors)
     maps = cga.versor_to_matrix(joint_versors, normalized=normalize_points)
     if normalize_points:
-        maps = maps[..., :3, :]
-    return _blend_affine(V, J, W, maps if not normalize_points else _materialize(maps))
+        maps = _materialize(maps[..., :3, :])
+    return _blend_affine(V, J, W, maps)
 
 
 def _motor_and_log_scale(versors: Multivector):

@@ -28,7 +28,8 @@ def _quick(script: str, tmp_path) -> dict:
 
 def test_bench_skinning_quick_writes_the_published_names(tmp_path):
     result = _quick("bench_skinning.py", tmp_path)
-    for name in ("cga_vs_lbs_f32", "cga_vs_lbs_f64", "cga_projected_vs_lbs_f32", "cga_projected_vs_lbs_f64",
+    for name in ("cga_vs_lbs_f32", "cga_vs_lbs_f64", "cga_sum_then_project_vs_lbs_f32",
+                 "cga_sum_then_project_vs_lbs_f64",
                  "cga_motor_blend_vs_dqs_f32", "cga_motor_blend_vs_dqs_f64"):
         assert result["ratios"][name] > 0
     for name in ("cga_20_poses_f32_s", "lbs_20_poses_f32_s"):  # cga_1000_poses_f32_s with the default --poses

@@ -175,7 +175,7 @@ def _strip():
     return V, F, np.concatenate([left, right]), len(left)
 
 
-@pytest.mark.slow  # ~20-50 s on 2 cores: kept out of `make test` for its 15-minute budget; `make test-slow` and CI run it
+@pytest.mark.slow  # ~20-50 s on 2 cores: out of `make test` (its 15-minute budget); `make test-slow` and CI run it
 def test_implicit_gradient_matches_finite_differences_and_fits_a_handle():
     """One compiled loss and gradient (the adjoint compiles slowly): the gradient with respect to a
     translation of the moving handle matches central differences, and gradient descent on it brings a
@@ -207,7 +207,7 @@ def test_implicit_gradient_matches_finite_differences_and_fits_a_handle():
     assert loss(shift, target)[0] < 1e-3 * start
 
 
-@pytest.mark.slow  # ~20-50 s on 2 cores: kept out of `make test` for its 15-minute budget; `make test-slow` and CI run it
+@pytest.mark.slow  # ~20-50 s on 2 cores: out of `make test` (its 15-minute budget); `make test-slow` and CI run it
 def test_vmap_and_jit_equal_one_by_one(cylinder):
     _, _, _, bc, data = cylinder
     batch = jnp.stack([jnp.asarray(bc) * s for s in (1.0, 0.9, 1.1)])

@@ -43,7 +43,7 @@ def test_handles_file_gives_arap_solves_result(tube, tmp_path, capsys):
     np.testing.assert_allclose(X, expected, atol=1e-10)
 
 
-@pytest.mark.slow  # ~20-50 s on 2 cores: kept out of `make test` for its 15-minute budget; `make test-slow` and CI run it
+@pytest.mark.slow  # ~20-50 s on 2 cores: out of `make test` (its 15-minute budget); `make test-slow` and CI run it
 def test_default_handles_mesh_and_figure_outputs(tube, tmp_path):
     path, V, F = tube
     glb = tmp_path / "arap.glb"

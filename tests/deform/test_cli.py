@@ -35,7 +35,7 @@ def test_skin_default_arm_to_a_posed_glb(tmp_path):
     np.testing.assert_allclose(loaded.vertices, deform.skin_model(arm, 1.0, "cga"), atol=1e-5)
 
 
-@pytest.mark.slow  # ~20-50 s on 2 cores: kept out of `make test` for its 15-minute budget; `make test-slow` and CI run it
+@pytest.mark.slow  # ~20-50 s on 2 cores: out of `make test` (its 15-minute budget); `make test-slow` and CI run it
 def test_animate_resamples_the_clip_through_versors(tmp_path):
     out = tmp_path / "walk.glb"
     assert main(["animate", str(DATA / "RiggedSimple.glb"), "--frames", "9", "--out", str(out)]) == 0
@@ -48,7 +48,7 @@ def test_animate_resamples_the_clip_through_versors(tmp_path):
         np.testing.assert_allclose(deform.skin_model(animated, t, "lbs"), expected, atol=1e-5)
 
 
-@pytest.mark.slow  # ~20-50 s on 2 cores: kept out of `make test` for its 15-minute budget; `make test-slow` and CI run it
+@pytest.mark.slow  # ~20-50 s on 2 cores: out of `make test` (its 15-minute budget); `make test-slow` and CI run it
 def test_animate_generates_keyframes_for_a_model_without_clip(tmp_path):
     out = tmp_path / "arm5.gltf"
     assert main(["animate", str(DATA / "Arm5.glb"), "--frames", "5", "--out", str(out)]) == 0
@@ -60,7 +60,7 @@ def test_animate_generates_keyframes_for_a_model_without_clip(tmp_path):
     assert float(jnp.max(jnp.abs(middle - deform.rest_pose(animated, "cga")))) > 1.0
 
 
-@pytest.mark.slow  # ~20-50 s on 2 cores: kept out of `make test` for its 15-minute budget; `make test-slow` and CI run it
+@pytest.mark.slow  # ~20-50 s on 2 cores: out of `make test` (its 15-minute budget); `make test-slow` and CI run it
 def test_fit_writes_a_pose_that_reproduces_the_target(tmp_path):
     arm = deform.default_arm()
     truth = deform.random_parameters(jax.random.PRNGKey(0), arm, rotation=0.3, translation=0.01, log_scale=0.05)

@@ -211,7 +211,7 @@ def _small_case():
     return lattice, V, jnp.asarray(target)
 
 
-@pytest.mark.slow  # ~20-50 s on 2 cores: kept out of `make test` for its 15-minute budget; `make test-slow` and CI run it
+@pytest.mark.slow  # ~20-50 s on 2 cores: out of `make test` (its 15-minute budget); `make test-slow` and CI run it
 def test_gradient_with_respect_to_lattice_motor_logs():
     lattice, V, target = _small_case()
     field = ffd_motor_field(lattice, V)

@@ -90,7 +90,7 @@ def test_gradient_with_respect_to_handle_generators_matches_finite_differences()
 
 @pytest.mark.parametrize("method, solver", [("spline", "gauss_newton"), ("handles", "levenberg_marquardt"),
                                             ("ffd", "levenberg_marquardt")])
-@pytest.mark.slow  # ~20-50 s on 2 cores: kept out of `make test` for its 15-minute budget; `make test-slow` and CI run it
+@pytest.mark.slow  # ~20-50 s on 2 cores: out of `make test` (its 15-minute budget); `make test-slow` and CI run it
 def test_fit_recovers_known_key_motors(method, solver):
     """Targets from known key motors of the spline (eq. 1-2), the harmonic handles (sec. IV) and the motor
     FFD (eq. 7-8) are fitted back (Gauss-Newton compiles in half the time of Levenberg-Marquardt, which
@@ -126,7 +126,7 @@ def test_fit_by_gradient_based_minimisation():
     np.testing.assert_allclose(fit.generators, truth, atol=1e-5)
 
 
-@pytest.mark.slow  # ~20-50 s on 2 cores: kept out of `make test` for its 15-minute budget; `make test-slow` and CI run it
+@pytest.mark.slow  # ~20-50 s on 2 cores: out of `make test` (its 15-minute budget); `make test-slow` and CI run it
 def test_fit_to_a_handful_of_vertices_with_a_regularizer():
     tip = HANDLES[1][:3]
     targets = V[tip] + np.array([0.0, 0.15, 0.05])

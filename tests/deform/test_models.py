@@ -50,7 +50,7 @@ def test_skinning_follows_the_specification(models, name):
         np.testing.assert_allclose(deform.skin_model(model, time, "cga"), expected, atol=2 * tol)
 
 
-@pytest.mark.slow  # ~20-50 s on 2 cores: kept out of `make test` for its 15-minute budget; `make test-slow` and CI run it
+@pytest.mark.slow  # ~20-50 s on 2 cores: out of `make test` (its 15-minute budget); `make test-slow` and CI run it
 def test_motor_blend_equals_dqs_on_a_rigid_clip(models):
     model = models["CesiumMan"]
     for t in [0.3, 1.2]:
@@ -62,14 +62,24 @@ def test_arm5_rest_pose_reproduces_bind_positions(models):
     model = models["Arm5"]
     V = np.asarray(model.mesh.V)
     diagonal = _diagonal(V)
-    # Eq. (17)'s down-projection divides by the summed weights (Arm5's sum to 0.998..1 in the file).
-    np.testing.assert_allclose(deform.rest_pose(model, "cga"), V, atol=1e-6 * diagonal)
+    # Eq. (17) with the sum down-projected divides by the summed weights (Arm5's sum to 0.998..1 in the
+    # file); the motor blend normalizes its blended versor.
+    mesh = model.mesh
+    rest = deform.forward_kinematics(model.skeleton.parents, deform.local_versors(model.skeleton))
+    joints = deform.joint_versors(mesh, rest)
+    summed = deform.skin_cga(mesh.V, mesh.J, mesh.W, joints, normalize_points=False)
+    np.testing.assert_allclose(summed, V, atol=1e-6 * diagonal)
     np.testing.assert_allclose(deform.rest_pose(model, "cga_motor_blend"), V, atol=1e-6 * diagonal)
-    # LBS follows the specification to the letter: with the stored weights it equals the reference...
-    np.testing.assert_allclose(deform.rest_pose(model, "lbs"), Reference(DATA / "Arm5.glb").skin(), atol=1e-9)
-    # ...and with weights renormalized it reproduces the bind positions.
+    # LBS follows the specification to the letter, and so does eq. (17) projected term by term (the
+    # default): with the stored weights they equal the reference...
+    reference = Reference(DATA / "Arm5.glb").skin()
+    np.testing.assert_allclose(deform.rest_pose(model, "lbs"), reference, atol=1e-9)
+    # (the versors B_n come from the file's float32 inverse bind matrices: their rounding, ~1e-6 here)
+    np.testing.assert_allclose(deform.rest_pose(model, "cga"), reference, atol=1e-6 * diagonal)
+    # ...and with weights renormalized they reproduce the bind positions.
     normalized = deform.RiggedModel(model.mesh.with_normalized_weights(), model.skeleton, model.clips)
-    np.testing.assert_allclose(deform.rest_pose(normalized, "lbs"), V, atol=1e-6 * diagonal)
+    for method in ("lbs", "cga"):
+        np.testing.assert_allclose(deform.rest_pose(normalized, method), V, atol=1e-6 * diagonal)
 
 
 @pytest.mark.parametrize("method", deform.METHODS)
@@ -80,9 +90,10 @@ def test_same_rigid_motion_on_every_bone_of_cesium_man(models, method):
     roots = jnp.asarray([p < 0 for p in model.skeleton.parents])[:, None]
     moved = cga.Multivector(jnp.where(roots, (rigid * local).embed(local.blades).values, local.values), local.blades)
     before = deform.skin_pose(model, local, method)
-    # LBS and DQS keep the stored float32 weights, whose sums are 1 +- 6e-8: the translation of the
-    # rigid motion then picks up (1 - sum w) t. Eq. (17)'s down-projection divides that out.
-    tol = 1e-12 if method.startswith("cga") else 1e-6
+    # LBS, DQS and eq. (17) projected term by term keep the stored float32 weights, whose sums are
+    # 1 +- 6e-8: the translation of the rigid motion then picks up (1 - sum w) t. The motor blend
+    # normalizes its blended versor.
+    tol = 1e-12 if method == "cga_motor_blend" else 1e-6
     np.testing.assert_allclose(deform.skin_pose(model, moved, method), cga.apply_to_points(rigid, before), atol=tol)
 
 
@@ -103,7 +114,7 @@ def test_thousand_poses_of_cesium_man_in_one_jit_call(models, thousand_frames):
         np.testing.assert_allclose(frames[k], deform.skin_model(model, times[k], "cga"), atol=1e-12)
 
 
-@pytest.mark.slow  # ~20-50 s on 2 cores: kept out of `make test` for its 15-minute budget; `make test-slow` and CI run it
+@pytest.mark.slow  # ~20-50 s on 2 cores: out of `make test` (its 15-minute budget); `make test-slow` and CI run it
 def test_sharded_batch_equals_unsharded(thousand_frames, tmp_path):
     """1,000 CesiumMan poses split over 4 host devices (a fresh process: XLA_FLAGS must be set first),
     against the unsharded batch of this process."""
@@ -149,7 +160,7 @@ def test_fit_recovers_known_random_poses(models, name):
     assert float(fit.max_error) <= 1e-6 * diagonal
 
 
-@pytest.mark.slow  # ~20-50 s on 2 cores: kept out of `make test` for its 15-minute budget; `make test-slow` and CI run it
+@pytest.mark.slow  # ~20-50 s on 2 cores: out of `make test` (its 15-minute budget); `make test-slow` and CI run it
 def test_fit_to_a_handful_of_vertices_with_regularization(models):
     model = models["Arm5"]
     truth = deform.random_parameters(jax.random.PRNGKey(4), model, rotation=0.2)

@@ -55,18 +55,21 @@ def test_cga_with_dilations_against_numpy_lbs():
     local = random_pose(1, B, scale_range=(0.5, 2.0))
     expected = _numpy_lbs(MODEL, cga.versor_to_matrix(local))
     np.testing.assert_allclose(deform.skin_pose(MODEL, local, "lbs"), expected, atol=1e-12)
+    # the paper's evaluation (sec. 4.3, the default): each sandwiched point down-projected, then blended
+    np.testing.assert_allclose(deform.skin_pose(MODEL, local, "cga"), expected, atol=1e-12)
     joints = deform.joint_versors(MESH, deform.forward_kinematics(MODEL.skeleton.parents, local))
     normalized = deform.skin_cga(MESH.V, MESH.J, MESH.W, joints, normalize_points=True)
     np.testing.assert_allclose(normalized, expected, atol=1e-12)
-    # Eq. (17) as written: each influence weighted by lambda = 1 / (its joint's scale).
+    # Eq. (17) down-projected after the sum: each influence weighted by lambda = 1 / (its joint's scale).
     matrices = np.asarray(cga.versor_to_matrix(joints))
     scale = np.cbrt(np.linalg.det(matrices[:, :3, :3]))
     moved = np.einsum("nkij,nj->nki", matrices[np.asarray(MESH.J), :3, :3], np.asarray(MESH.V))
     moved = moved + matrices[np.asarray(MESH.J), :3, 3]
     weight = np.asarray(MESH.W) / scale[np.asarray(MESH.J)]
     literal = np.einsum("nk,nki->ni", weight, moved) / weight.sum(axis=1, keepdims=True)
-    np.testing.assert_allclose(deform.skin_pose(MODEL, local, "cga"), literal, atol=1e-12)
-    assert np.max(np.abs(literal - expected)) > 1e-2  # dilations make eq. (17) differ from LBS
+    np.testing.assert_allclose(deform.skin_cga(MESH.V, MESH.J, MESH.W, joints, normalize_points=False), literal,
+                               atol=1e-12)
+    assert np.max(np.abs(literal - expected)) > 1e-2  # dilations make the two evaluations differ
 
 
 def test_cga_equals_lbs_for_rigid_joints():
@@ -77,12 +80,16 @@ def test_cga_equals_lbs_for_rigid_joints():
 
 
 def test_cga_equals_literal_equation_17():
-    """sum_n w_mn (M_n B_n) c[m] (M_n B_n)^-1 with the kernel's generic sandwich, down-projected."""
+    """sum_n w_mn (M_n B_n) c[m] (M_n B_n)^-1 with the kernel's generic sandwich, down-projected term by
+    term (sec. 4.3, the default) or as a sum."""
     local = random_pose(2, B, scale_range=(0.5, 2.0))
     joints = deform.joint_versors(MESH, deform.forward_kinematics(MODEL.skeleton.parents, local))
     moved = cga.sandwich(joints[MESH.J], cga.up(MESH.V)[:, None])  # (n, k) conformal points
+    terms = jnp.einsum("nk,nkc->nc", MESH.W, cga.down(moved))
+    np.testing.assert_allclose(deform.skin_pose(MODEL, local, "cga"), terms, atol=1e-11)
     summed = cga.Multivector(jnp.einsum("nk,nkc->nc", MESH.W, moved.values), moved.blades)
-    np.testing.assert_allclose(deform.skin_pose(MODEL, local, "cga"), cga.down(summed), atol=1e-11)
+    np.testing.assert_allclose(deform.skin_cga(MESH.V, MESH.J, MESH.W, joints, normalize_points=False),
+                               cga.down(summed), atol=1e-11)
 
 
 def test_motor_blend_equals_dqs_for_rigid_poses():
@@ -175,10 +182,11 @@ def test_motor_blend_dilation_is_blended_in_log_space():
     joints = cga.dilator(jnp.array([2.0, 0.5])).embed(cga.KINDS["similitude"])
     out = deform.skin_cga_motor_blend(V, J, W, joints)
     np.testing.assert_allclose(out, V * 2.0**0.25 * 0.5**0.75, atol=1e-14)
-    # eq. (17) as written blends the scales harmonically (each point weighted by 1 / scale)
-    np.testing.assert_allclose(deform.skin_cga(V, J, W, joints), V / (0.25 / 2.0 + 0.75 / 0.5), atol=1e-14)
-    np.testing.assert_allclose(deform.skin_cga(V, J, W, joints, normalize_points=True),
-                               V * (0.25 * 2.0 + 0.75 * 0.5), atol=1e-14)
+    # eq. (17) down-projected after the sum blends the scales harmonically (each point weighted by 1 / scale)
+    np.testing.assert_allclose(deform.skin_cga(V, J, W, joints, normalize_points=False),
+                               V / (0.25 / 2.0 + 0.75 / 0.5), atol=1e-14)
+    # down-projected term by term (the default), linearly
+    np.testing.assert_allclose(deform.skin_cga(V, J, W, joints), V * (0.25 * 2.0 + 0.75 * 0.5), atol=1e-14)
 
 
 @pytest.mark.parametrize("method", deform.METHODS)

@@ -178,7 +178,7 @@ def test_jit_and_vmap_over_batches_of_key_motors():
     np.testing.assert_allclose(jax.jit(jax.vmap(field))(batch), one_by_one, atol=1e-13)
 
 
-@pytest.mark.slow  # ~20-50 s on 2 cores: kept out of `make test` for its 15-minute budget; `make test-slow` and CI run it
+@pytest.mark.slow  # ~20-50 s on 2 cores: out of `make test` (its 15-minute budget); `make test-slow` and CI run it
 def test_gradient_with_respect_to_key_motor_logs():
     rng = np.random.default_rng(4)
     small = tube(max_edge=0.4)

@@ -369,7 +369,7 @@ class _Run:
             np.testing.assert_allclose(w @ v[part], v0 - np.array([0, 0, speed]), rtol=0, atol=2e-5 * speed)
 
 
-@pytest.mark.slow  # ~20-50 s on 2 cores: kept out of `make test` for its 15-minute budget; `make test-slow` and CI run it
+@pytest.mark.slow  # ~20-50 s on 2 cores: out of `make test` (its 15-minute budget); `make test-slow` and CI run it
 def test_long_run_cut_before_and_between_steps():
     mesh = box_tets((3, 3, 3))
     X = np.asarray(mesh.X)
