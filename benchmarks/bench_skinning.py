@@ -12,7 +12,8 @@ Every method runs the whole pipeline from local bone transforms to vertex positi
 forward kinematics, joint transforms, per-vertex skinning. The baselines take local 4x4 matrices (LBS)
 and convert joint matrices to dual quaternions (DQS); the multivector methods take local similitudes.
 All get the same random rigid poses. Calls are interleaved round-robin over the methods (medians per
-method), so that the machine's drift during the run does not bias a ratio. The batch of poses runs as
+method), so that the machine's drift during the run does not bias a ratio, and each timed call follows
+an untimed call of the same method (``round_robin_times``). The batch of poses runs as
 ``jax.lax.map(..., batch_size=chunk)``: vmap over chunks of 50 poses, which bounds the memory of the
 per-pose temporaries (1,000 poses x 100k vertices x 3 floats is already 1.2 GB of output in float32).
 Ratios are baseline time / our time (> 1: we are faster).
@@ -110,13 +111,19 @@ def pipelines(model: deform.RiggedModel):
 
 
 def round_robin_times(fns: dict, args, repeats: int) -> dict:
-    """Median wall time of each function, the calls interleaved round-robin (one call of each per
-    round) so that drift in the machine's speed during the run affects every method alike."""
+    """Median wall time of each function, the calls interleaved round-robin (one timed call of each per
+    round) so that drift in the machine's speed during the run affects every method alike.
+
+    Each timed call follows an untimed call of the same function. A batch's output and temporaries
+    take gigabytes, and a call that follows another method's runs in memory that allocation left
+    behind: measured at 1,000 poses in float64, the motor blend took 4.18 s after DQS's call, and
+    3.01 s after its own, so the order of the methods decided the ratio (0.64 against 0.88)."""
     for fn in fns.values():
         jax.block_until_ready(fn(*args))  # compile + warm up
     times = {name: [] for name in fns}
     for _ in range(repeats):
         for name, fn in fns.items():
+            jax.block_until_ready(fn(*args))  # settle: this method's own allocations
             start = time.perf_counter()
             out = jax.block_until_ready(fn(*args))
             times[name].append(time.perf_counter() - start)
