@@ -64,15 +64,19 @@ def _materialize(x):
     return (flat @ jnp.eye(shape[-1], dtype=x.dtype)).reshape(shape)
 
 
-def _blend_joints(J, weights, data):
+def _blend_joints(J, weights, data, joint_axis: int = -2):
     """``sum_k weights[k] * data[..., J[:, k], :]`` (..., n, c); ``weights`` holds one (n,) or (..., n)
-    array per influence (``_influence_weights`` or ``_aligned_weights``). Written elementwise over the
-    k influences so that XLA fuses the gathers into one loop: a gather-then-einsum materializes
-    (..., n, k, c) and was measured 100x slower at 100k vertices (and runs out of memory under vmap
-    over 1,000 poses)."""
+    array per influence (``_influence_weights`` or ``_aligned_weights``). With ``joint_axis=-1`` the
+    joints are the last axis of ``data`` (..., c1, c2, j) and the result is (..., c1, c2, n). Written
+    elementwise over the k influences so that XLA fuses the gathers into one loop: a gather-then-einsum
+    materializes (..., n, k, c) and was measured 100x slower at 100k vertices (and runs out of memory
+    under vmap over 1,000 poses)."""
+    if joint_axis not in (-1, -2):
+        raise ValueError(f"joint_axis: expected -1 or -2, got {joint_axis!r}")
     acc = None
     for k, w in enumerate(weights):
-        term = w.astype(data.dtype)[..., None] * data[..., J[:, k], :]
+        w = w.astype(data.dtype)
+        term = w * data[..., J[:, k]] if joint_axis == -1 else w[..., None] * data[..., J[:, k], :]
         acc = term if acc is None else acc + term
     return acc
 
@@ -174,10 +178,7 @@ def _blend_affine(V, J, W, maps: Float[Array, "... j r 4"]) -> Float[Array, "...
     joints = maps.shape[-3]
     table = _materialize(maps[..., :3, :].reshape(maps.shape[:-3] + (joints, 12)))
     table = jnp.moveaxis(table, -2, -1).reshape(maps.shape[:-3] + (3, 4, joints))
-    blended = None
-    for k in range(J.shape[1]):
-        term = W[:, k].astype(maps.dtype) * table[..., J[:, k]]
-        blended = term if blended is None else blended + term  # (..., 3, 4, n)
+    blended = _blend_joints(J, _influence_weights(W), table, joint_axis=-1)  # (..., 3, 4, n)
     x, y, z = (V[:, i].astype(maps.dtype) for i in range(3))
     out = blended[..., 0, :] * x + blended[..., 1, :] * y + blended[..., 2, :] * z + blended[..., 3, :]
     if maps.shape[-2] == 4:
