@@ -225,9 +225,7 @@ def skin_cga(V, J, W, joint_versors: Multivector, normalize_points: bool = True)
     V, J, W = _check_mesh(V, J, W)
     _check_versors("joint_versors", joint_versors)
     maps = cga.versor_to_matrix(joint_versors, normalized=normalize_points)
-    if normalize_points:
-        maps = _materialize(maps[..., :3, :])
-    return _blend_affine(V, J, W, maps)
+    return _blend_affine(V, J, W, maps[..., :3, :] if normalize_points else maps)  # it materializes the table
 
 
 def _motor_and_log_scale(versors: Multivector):
