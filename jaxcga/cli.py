@@ -229,7 +229,7 @@ def _run_xfem(args) -> int:
     from xfem import _xfem_commands
 
     summary = _xfem_commands.xfem_command(args.scene, args.out, args.steps, size=args.size, every=args.every,
-                                          figures=not args.no_figures)
+                                          figures=not args.no_figures, cut_latency=args.cut_latency)
     shown = {k: summary[k] for k in ("size", "nodes", "dofs", "pieces", "frames", "cuts", "booleans", "boolean_ms",
                                      "integral_ms", "step_avg_s", "step_max_s", "total_s")}
     print(f"jaxcga xfem {args.scene}: " + ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}"
@@ -443,6 +443,9 @@ def main(argv: list[str] | None = None) -> int:
     p_xfem.add_argument("--size", default="paper", help="paper (Table 1's meshes, the default) or small (coarse)")
     p_xfem.add_argument("--every", type=int, default=10,
                         help="write a frame every this many frames, besides cut frames and the last (default 10)")
+    p_xfem.add_argument("--cut-latency", type=int, default=0,
+                        help="compute each cut in the background while the body steps; it takes effect this many "
+                             "frames after its scheduled frame (default 0: in its frame, as Algorithm 1)")
     p_xfem.add_argument("--no-figures", action="store_true", help="write the .vtu surfaces and summary.json only")
     p_xfem.add_argument("--out", type=Path, required=True,
                         help="folder for frame_XXXX.png, frame_XXXX.vtu and summary.json")

@@ -360,13 +360,16 @@ class FrameRecord:
 
     Attributes:
         frame: the frame number (>= 1).
-        cuts: cuts applied before the step.
-        cut_seconds: wall time of those cuts (``XFEMModel.cut``: Booleans, integration, enrichment).
-        n_booleans, boolean_seconds: the Booleans of those cuts and their time.
+        cuts: cuts that took effect before the step.
+        cut_seconds: wall time of the cut work on the frame's thread: ``XFEMModel.cut`` (Booleans, integration,
+            enrichment) or, with a cut latency, starting cuts and committing them (waiting for them included).
+        n_booleans, boolean_seconds: the Booleans of the cuts that took effect and their time.
         pieces_integrated, integration_seconds: element pieces integrated (eq. 21) and their time.
         step_seconds: wall time of the step (jit compilation included when it happened).
         dofs: 3 x the number of nodal DOFs after the frame's cuts.
         pieces: connected pieces of the body after the frame's cuts.
+        cuts_started: cuts made in this frame (with a cut latency they take effect later).
+        cutting: whether cut work was under way in this frame (a cut made, pending or taking effect).
     """
 
     frame: int
@@ -379,6 +382,8 @@ class FrameRecord:
     step_seconds: float
     dofs: int
     pieces: int
+    cuts_started: int = 0
+    cutting: bool = False
 
     @property
     def seconds(self) -> float:
@@ -430,14 +435,22 @@ class SceneRun:
 
 
 def run_scene(scene: Scene, steps: int | None = None, progress: bool = False,
-              on_frame: Callable[[FrameRecord, XFEMModel], None] | None = None) -> SceneRun:
+              on_frame: Callable[[FrameRecord, XFEMModel], None] | None = None, cut_latency: int = 0) -> SceneRun:
     """Simulate a scene: in each frame its scheduled cuts (Algorithm 1 lines 1-25), then one backward Euler step.
+
+    Cut latency. With ``cut_latency = L > 0`` a cut scheduled for frame f is started in the background
+    (``XFEMModel.cut_async``) before that frame's step and takes effect (``commit_cuts``) before the step of frame
+    f + L, waiting for it if needed: frames f to f + L - 1 step the body as it was, while the cut's Booleans,
+    integrals and new system are computed beside them. The run is deterministic, and equal to the run with
+    latency 0 of the scene whose cuts are scheduled L frames later. L = 0: each cut is done in its frame.
 
     Args:
         scene: the ``Scene``.
-        steps: frames to run (>= 1); None: ``scene.steps``. Cuts scheduled after the last frame are not applied.
+        steps: frames to run (>= 1); None: ``scene.steps``. Cuts scheduled after the last frame are not applied;
+            cuts started but not yet due at the end take effect after the last step.
         progress: show a tqdm progress bar.
         on_frame: None, or called after every frame with its ``FrameRecord`` and the model.
+        cut_latency: L >= 0, in frames.
     Returns:
         The ``SceneRun``.
     Raises:
@@ -448,24 +461,48 @@ def run_scene(scene: Scene, steps: int | None = None, progress: bool = False,
     steps = scene.steps if steps is None else steps
     if not isinstance(steps, int) or isinstance(steps, bool) or steps < 1:
         raise ValueError(f"steps: expected an int >= 1, got {steps!r}")
+    if not isinstance(cut_latency, int) or isinstance(cut_latency, bool) or cut_latency < 0:
+        raise ValueError(f"cut_latency: expected an int >= 0 (frames), got {cut_latency!r}")
     from tqdm import tqdm
 
     mu, lam = lame(scene.young, scene.poisson)
     model = scene.model()
     run = SceneRun(scene, model)
     pieces = 1
+    pending: list[tuple[int, ScheduledCut, object]] = []  # (frame it takes effect, the cut, its future)
+
+    def took_effect(record: FrameRecord, scheduled: ScheduledCut, report) -> None:
+        record.cuts += 1
+        record.n_booleans += report.n_booleans
+        record.boolean_seconds += report.boolean_seconds
+        record.pieces_integrated += report.pieces_integrated
+        record.integration_seconds += report.integration_seconds
+        run.applied.append(scheduled.solid.transform(report.motion))
+
+    def commit(record: FrameRecord, due: list) -> None:
+        start = time.perf_counter()
+        model.commit_cuts(until=due[-1][2])  # nothing to do if a query (e.g. in on_frame) committed them
+        record.cut_seconds += time.perf_counter() - start
+        for _, scheduled, future in due:
+            took_effect(record, scheduled, future.result())
+
     for frame in tqdm(range(1, steps + 1), desc=f"xfem {scene.name}", unit="frame", disable=not progress):
-        record = FrameRecord(frame, 0, 0.0, 0, 0.0, 0, 0.0, 0.0, 0, pieces)
+        record = FrameRecord(frame, 0, 0.0, 0, 0.0, 0, 0.0, 0.0, 0, pieces, cutting=bool(pending))
+        due = [p for p in pending if p[0] <= frame]
+        if due:
+            pending = pending[len(due):]
+            commit(record, due)
         for scheduled in (c for c in scene.cuts if c.frame == frame):
+            record.cuts_started += 1
+            record.cutting = True
             start = time.perf_counter()
-            report = model.cut(scheduled.solid, scheduled.perturb)
-            record.cut_seconds += time.perf_counter() - start
-            record.cuts += 1
-            record.n_booleans += report.n_booleans
-            record.boolean_seconds += report.boolean_seconds
-            record.pieces_integrated += report.pieces_integrated
-            record.integration_seconds += report.integration_seconds
-            run.applied.append(scheduled.solid.transform(report.motion))
+            if cut_latency:
+                pending.append((frame + cut_latency, scheduled, model.cut_async(scheduled.solid, scheduled.perturb)))
+                record.cut_seconds += time.perf_counter() - start
+            else:
+                report = model.cut(scheduled.solid, scheduled.perturb)
+                record.cut_seconds += time.perf_counter() - start
+                took_effect(record, scheduled, report)
         if record.cuts:
             pieces = record.pieces = model.pieces()
         record.dofs = 3 * len(model.dof_sid)
@@ -477,6 +514,10 @@ def run_scene(scene: Scene, steps: int | None = None, progress: bool = False,
         run.records.append(record)
         if on_frame is not None:
             on_frame(record, model)
+    if pending:  # started, not yet due: they take effect after the last step
+        commit(run.records[-1], pending)
+        run.records[-1].pieces = model.pieces()
+        run.records[-1].dofs = 3 * len(model.dof_sid)
     return run
 
 

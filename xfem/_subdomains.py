@@ -228,6 +228,8 @@ class CutReport:
         pieces_integrated: element pieces whose integrals were recomputed (``XFEMModel.cut``; 0 here).
         integration_seconds: wall time in those integrals (eq. 21; Table 2's EI is this over the pieces).
         enrichment_seconds: wall time in the indicator queries (eq. 16) and the DOF renumbering.
+        staged: whether the cut changed the DOFs or the system (``XFEMModel``: a new numbering and system wait
+            to take effect).
     """
 
     boxed: np.ndarray
@@ -244,6 +246,8 @@ class CutReport:
     pieces_integrated: int = 0
     integration_seconds: float = 0.0
     enrichment_seconds: float = 0.0
+    staged: bool = False
+
 
 
 def _difference(solid: manifold3d.Manifold, cut: manifold3d.Manifold):
@@ -373,6 +377,16 @@ def _candidates(sub: Subdomains, cut: manifold3d.Manifold) -> tuple[np.ndarray, 
     return boxed, np.sort(np.concatenate([boxed[near], far[inside]]))
 
 
+def check_cut(cut: manifold3d.Manifold, perturb: float) -> None:
+    """``apply_cut``'s checks of its cut solid and perturbation size (ValueError)."""
+    if not isinstance(cut, manifold3d.Manifold):
+        raise ValueError(f"cut: expected a manifold3d.Manifold, got {type(cut).__name__}")
+    if cut.status() != manifold3d.Error.NoError or cut.is_empty() or cut.volume() <= 0:
+        raise ValueError(f"cut: expected a valid non-empty solid (status {cut.status().name}, volume {cut.volume()})")
+    if not np.isfinite(perturb) or perturb < 0:
+        raise ValueError(f"perturb: expected a distance >= 0, got {perturb!r}")
+
+
 def apply_cut(sub: Subdomains, cut: manifold3d.Manifold, perturb: float = 0.0, seed: int = 0) -> CutReport:
     """Cut all subdomains by one cut solid (Algorithm 1 lines 1-19), in place.
 
@@ -388,12 +402,7 @@ def apply_cut(sub: Subdomains, cut: manifold3d.Manifold, perturb: float = 0.0, s
     """
     if not isinstance(sub, Subdomains):
         raise ValueError(f"sub: expected Subdomains, got {type(sub).__name__}")
-    if not isinstance(cut, manifold3d.Manifold):
-        raise ValueError(f"cut: expected a manifold3d.Manifold, got {type(cut).__name__}")
-    if cut.status() != manifold3d.Error.NoError or cut.is_empty() or cut.volume() <= 0:
-        raise ValueError(f"cut: expected a valid non-empty solid (status {cut.status().name}, volume {cut.volume()})")
-    if not np.isfinite(perturb) or perturb < 0:
-        raise ValueError(f"perturb: expected a distance >= 0, got {perturb!r}")
+    check_cut(cut, perturb)
     motion = np.eye(4)[:3]
     boxed, candidates = _candidates(sub, cut)
     if perturb > 0:

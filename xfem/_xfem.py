@@ -31,8 +31,13 @@ is thinner than that offset there. A node with a single subdomain needs no query
 
 from __future__ import annotations
 
+import sys
 import threading
 import time
+import weakref
+from collections import deque
+from concurrent.futures import Future, ThreadPoolExecutor
+from typing import NamedTuple
 
 import igl
 import jax.numpy as jnp
@@ -46,7 +51,7 @@ from xfem._assembly import CapacityError
 from xfem._backward_euler import FEMSystem, State, SystemCapacity, compiled_step, fem_system
 from xfem._integration import element_piece_integrals, linear_shape_coefficients, moments_of_pieces
 from xfem._linear_tet import shape_gradients
-from xfem._subdomains import CutReport, Subdomains, apply_cut, subdomains
+from xfem._subdomains import CutReport, Subdomains, apply_cut, check_cut, subdomains
 from xfem._tetmesh import TetMesh
 
 _INWARD = 1e-6  # inward offset of a piece's query point, relative to the square root of its triangle's area
@@ -62,18 +67,68 @@ class _Compilation:
 
     def __init__(self):
         self.step = None
-        self.thread: threading.Thread | None = None
+        self.thread: threading.Thread | None = None  # the background thread building it, if any
+        self.ready = threading.Event()  # set when a build has ended (step None: it failed)
 
-    def build(self, arrays, state: State, n: int, capacity: SystemCapacity, h, mu, lam, newton_iterations: int,
+    def build(self, arrays, capacity: SystemCapacity, h, mu, lam, newton_iterations: int,
               system: FEMSystem | None = None):
         """Compile the step of ``system``, already padded to ``capacity``, or of the system ``arrays``
         (``XFEMModel._system_arrays``) padded here."""
-        if system is None:
-            try:
-                system = fem_system(*arrays, capacity=capacity)
-            except CapacityError:  # too small for this system's nonzeros: the model moves to a larger level
-                return
-        self.step = compiled_step(system, _padded_state(state, n, capacity.nodes), h, mu, lam, newton_iterations)
+        try:
+            if system is None:
+                try:
+                    system = fem_system(*arrays, capacity=capacity)
+                except CapacityError:  # too small for this system's nonzeros: the model moves to a larger level
+                    return
+            zeros = to_device(np.zeros((capacity.nodes, 3)))  # only the state's shape matters
+            self.step = compiled_step(system, State(zeros, zeros), h, mu, lam, newton_iterations)
+        finally:
+            self.ready.set()
+
+
+class _Live(NamedTuple):
+    """The system the steps run: padded to capacity ``level``, made from ``arrays`` (``_system_arrays``) over n
+    DOFs."""
+
+    system: FEMSystem
+    level: int
+    arrays: tuple
+    n: int
+
+
+class _StagedCut(NamedTuple):
+    """A prepared cut waiting to take effect (``XFEMModel.commit_cuts``): the new DOF numbering, the row of the
+    old numbering each new DOF copies its x and v from (Algorithm 1 line 7), and the new live system."""
+
+    dof_sid: np.ndarray
+    dof_node: np.ndarray
+    source: np.ndarray
+    live: _Live
+
+
+# While a cut runs in a worker thread, the steps' Python parts (the host CG's numpy loop, dispatch) wait for the
+# worker to hand over the GIL, up to the switch interval each time (5 ms by default): a CG of a few hundred numpy
+# operations then waited seconds (measured on the thin slab: steps of 0.35 s took 1.3 s). A 0.1 ms interval bounds
+# the waits (steps during cuts 0.9 s).
+_SWITCH_INTERVAL = 1e-4
+_switching = {"models": 0, "saved": None}
+_SWITCHING_LOCK = threading.Lock()
+
+
+def _cutting_in_background(started: bool) -> None:
+    """Count the models with pending background cuts; the first lowers the interpreter's switch interval, the
+    last restores it."""
+    with _SWITCHING_LOCK:
+        if started:
+            if _switching["models"] == 0 and sys.getswitchinterval() > _SWITCH_INTERVAL:
+                _switching["saved"] = sys.getswitchinterval()
+                sys.setswitchinterval(_SWITCH_INTERVAL)
+            _switching["models"] += 1
+        else:
+            _switching["models"] -= 1
+            if _switching["models"] == 0 and _switching["saved"] is not None:
+                sys.setswitchinterval(_switching["saved"])
+                _switching["saved"] = None
 
 
 # compiled steps by (capacity, newton iterations, shapes of mu and lam), for every model in the process
@@ -107,12 +162,20 @@ def _interior_points(V: np.ndarray, F: np.ndarray, piece: np.ndarray, k: int) ->
 
 
 def _nearest_subdomain(meshes: list[tuple[np.ndarray, np.ndarray]], points: np.ndarray) -> np.ndarray:
-    """(k,) for each point, the index of the solid at the smallest distance (0 inside), eq. 16."""
-    distance = np.empty((len(meshes), len(points)))
+    """(k,) for each point, the index of the solid at the smallest distance (0 inside; the first such solid),
+    eq. 16. A point inside a solid needs no distance: the winding numbers are taken first, and only for the
+    points in the solid's bounding box; the distances only for the points inside none of the solids."""
+    chosen = np.full(len(points), -1, np.int64)
     for s, (V, F) in enumerate(meshes):
-        inside = igl.winding_number(V, F, points) > 0.5
-        distance[s] = np.where(inside, 0.0, igl.point_mesh_squared_distance(points, V, F)[0])
-    return np.argmin(distance, axis=0)
+        near = (chosen < 0) & np.all((points >= V.min(axis=0)) & (points <= V.max(axis=0)), axis=1)
+        if near.any():
+            at = np.flatnonzero(near)
+            chosen[at[igl.winding_number(V, F, points[at]) > 0.5]] = s
+    rest = np.flatnonzero(chosen < 0)
+    if len(rest):
+        distance = np.stack([igl.point_mesh_squared_distance(points[rest], V, F)[0] for V, F in meshes])
+        chosen[rest] = np.argmin(distance, axis=0)
+    return chosen
 
 
 class XFEMModel:
@@ -130,6 +193,14 @@ class XFEMModel:
         dof_node: (n_dofs,) int64 the mesh node of each DOF.
         dof_sid: (n_dofs,) int64 the nodal subdomain of each DOF.
         state: the ``State`` over the DOFs.
+
+    Cuts in the background (``cut_async``). A cut's work (Booleans, integrals, enrichment, the new system, its
+    compiled step) depends on the rest geometry and the earlier cuts only, never on the state, so it can run in a
+    worker thread while the model steps its current system; ``commit_cuts`` then makes it take effect: the DOFs
+    are renumbered, their x and v copied (Algorithm 1 line 7) from the state at that moment, and the next step
+    runs the new system. The result equals that of ``cut`` called at the moment of the commit. Pending cuts run
+    one after the other, in order; a query (``piece_arrays``, ``system``, ``displacement_at``, ...) or ``cut``
+    first waits for them and commits them (``components`` and ``pieces`` answer for the committed cuts).
     """
 
     def __init__(self, mesh: TetMesh, rho: np.ndarray, gravity: np.ndarray, fixed: np.ndarray, state: State):
@@ -150,12 +221,20 @@ class XFEMModel:
         self._enriched: dict[int, np.ndarray] = {}  # piece sid -> (4,) nodal sids, where a node has several
         self.dof_node = np.arange(len(self.X), dtype=np.int64)
         self.dof_sid = np.arange(len(self.X), dtype=np.int64)
-        self._sorted_sids: tuple = (None,)  # (dof_sid it was made for, argsort, sorted ids): _dof_index's cache
+        # the numbering of the rest-space bookkeeping below: ahead of dof_sid while cuts are pending
+        self._staged_sid, self._staged_node = self.dof_sid, self.dof_node
+        self._sorted_sids: tuple = (None,)  # (_staged_sid it was made for, argsort, sorted ids): _dof_index's cache
         self.state = state
         self._system: FEMSystem | None = None
-        self._arrays: tuple | None = None
+        self._arrays: tuple | None = None  # of the staged numbering
         self._padded: FEMSystem | None = None
         self._level = 0
+        self._live: _Live | None = None  # the committed system that step runs
+        self._pending: deque[Future] = deque()  # cut_async's cuts, in order
+        self._staged: deque[_StagedCut] = deque()  # prepared by the worker, in order, not yet committed
+        self._worker: ThreadPoolExecutor | None = None
+        self._committed: weakref.WeakSet[Future] = weakref.WeakSet()
+        self._step_options: tuple | None = None  # (h, mu, lam, newton_iterations) of the last step
         _, _, _, M, _, fixed = self._system_arrays()
         # capacity level 0 is _HEADROOM times these (nodes, elements, mass entries, fixed nodes, nonzeros)
         self._base = (len(self.X), len(self.T), M.nnz, len(fixed), 9 * M.nnz)
@@ -244,6 +323,11 @@ class XFEMModel:
         return (element[order], np.concatenate(nodal)[order], np.concatenate(volume)[order],
                 np.concatenate(mass)[order], np.concatenate(load)[order])
 
+    def _piece_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``piece_arrays`` in the staged numbering (no wait for pending cuts)."""
+        element, nodal, volume, mass, load = self._pieces()
+        return element, self._dof_index(nodal), volume, mass, load
+
     def piece_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The element pieces, element by element (an uncut model: one piece per tet, in mesh order).
 
@@ -251,14 +335,14 @@ class XFEMModel:
             element (P,) int64 parent element, dofs (P, 4) int64 DOF indices, volume (P,), mass (P, 4, 4)
             ``rho int_p phi_a phi_b``, load (P, 4) ``int_p phi_a``.
         """
-        element, nodal, volume, mass, load = self._pieces()
-        return element, self._dof_index(nodal), volume, mass, load
+        self.commit_cuts()
+        return self._piece_arrays()
 
     def _dof_index(self, sids: np.ndarray) -> np.ndarray:
-        """The DOF indices of nodal subdomains (-1 for one without a DOF)."""
-        if self._sorted_sids[0] is not self.dof_sid:  # the sort is redone only when the DOFs change
-            order = np.argsort(self.dof_sid)
-            self._sorted_sids = (self.dof_sid, order, self.dof_sid[order])
+        """The DOF indices of nodal subdomains (-1 for one without a DOF) in the staged numbering."""
+        if self._sorted_sids[0] is not self._staged_sid:  # the sort is redone only when the DOFs change
+            order = np.argsort(self._staged_sid)
+            self._sorted_sids = (self._staged_sid, order, self._staged_sid[order])
         _, order, ordered = self._sorted_sids
         at = np.minimum(np.searchsorted(ordered, sids), len(order) - 1)
         return np.where(ordered[at] == sids, order[at], -1)
@@ -271,8 +355,8 @@ class XFEMModel:
         pieces with their parents' shape gradients and volumes |p|, mass assembled from the piece masses,
         gravity loads, the DOFs of the fixed nodes."""
         if self._arrays is None:
-            element, dofs, volume, mass, load = self.piece_arrays()
-            n = len(self.dof_sid)
+            element, dofs, volume, mass, load = self._piece_arrays()
+            n = len(self._staged_sid)
             rows = np.broadcast_to(dofs[:, :, None], mass.shape).ravel()
             cols = np.broadcast_to(dofs[:, None, :], mass.shape).ravel()
             M = sp.csr_matrix((mass.ravel(), (rows, cols)), shape=(n, n))
@@ -280,13 +364,14 @@ class XFEMModel:
             weights = load * self.rho[element][:, None]
             force = np.zeros((n, 3))
             np.add.at(force, dofs, weights[:, :, None] * self.gravity)
-            fixed = np.flatnonzero(np.isin(self.dof_node, self.fixed_nodes))
+            fixed = np.flatnonzero(np.isin(self._staged_node, self.fixed_nodes))
             self._arrays = (dofs, self._grads[element], volume, M, force, fixed)
         return self._arrays
 
     def system(self) -> FEMSystem:
         """The ``FEMSystem`` of the current pieces (cached until the next cut), one DOF node per row of
         ``state``; ``step`` runs the same system padded to a capacity (module docstring)."""
+        self.commit_cuts()
         if self._system is None:
             dofs, grads, volume, M, force, fixed = self._system_arrays()
             self._system = fem_system(dofs, grads, volume, M, force, fixed)
@@ -305,19 +390,20 @@ class XFEMModel:
         return SystemCapacity(nodes=nodes, elements=size[1], mass_entries=size[2] + nodes, fixed=fixed,
                               nonzeros=size[4] + 9 * nodes)
 
-    def _fits(self, level: int) -> bool:
-        dofs, _, _, M, _, fixed = self._system_arrays()
+    def _fits(self, level: int, arrays: tuple, n: int) -> bool:
+        """Whether the system ``arrays`` over n DOFs fits capacity ``level`` (its nonzeros aside)."""
+        dofs, _, _, M, _, fixed = arrays
         capacity = self._capacity(level)
-        return (len(self.dof_sid) <= capacity.nodes - capacity.fixed and len(dofs) <= capacity.elements
+        return (n <= capacity.nodes - capacity.fixed and len(dofs) <= capacity.elements
                 and M.nnz <= capacity.mass_entries - capacity.nodes and len(fixed) <= capacity.fixed)
 
     def _padded_system(self) -> tuple[FEMSystem, int]:
-        """The current system padded to the smallest capacity level (not below the last one) that holds it."""
+        """The staged system padded to the smallest capacity level (not below the last one) that holds it."""
         if self._padded is None:
-            level = self._level
-            while not self._fits(level):
+            level, arrays = self._level, self._system_arrays()
+            while not self._fits(level, arrays, len(self._staged_sid)):
                 level += 1
-            dofs, grads, volume, M, force, fixed = self._system_arrays()
+            dofs, grads, volume, M, force, fixed = arrays
             while True:
                 try:
                     system = fem_system(dofs, grads, volume, M, force, fixed,
@@ -328,39 +414,46 @@ class XFEMModel:
             self._padded, self._level = system, level
         return self._padded, self._level
 
-    def _compiled(self, level: int, h, mu, lam, newton_iterations: int, background: bool):
+    def _compiled(self, live: _Live, level: int, h, mu, lam, newton_iterations: int, background: bool):
         """The step compiled for capacity ``level`` (``compiled_step``), shared by all models through
         ``_COMPILED``: found there, or compiled now (``background=False``), or compiled in a background thread
-        that the step needing it will wait for (``background=True``; returns None)."""
+        that the step needing it will wait for (``background=True``; returns None). ``live``: the system it
+        is for (a level above ``live.level`` pads ``live.arrays`` anew)."""
         capacity = self._capacity(level)
         key = (capacity, newton_iterations, np.shape(mu), np.shape(lam))
-        with _COMPILED_LOCK:
+        system = live.system if level == live.level else None
+        with _COMPILED_LOCK:  # held briefly: a compilation in one thread must not stall another's lookups
             entry = _COMPILED.get(key)
-            if entry is None:
-                if background and not self._fits(level):
+            created = entry is None
+            if created:
+                if background and not self._fits(level, live.arrays, live.n):
                     return None
                 entry = _COMPILED[key] = _Compilation()
-                arrays, state, n = self._system_arrays(), self.state, len(self.dof_sid)
                 if background:  # never run a step here: two steps' host callbacks at once can deadlock XLA
-                    entry.thread = threading.Thread(target=entry.build, args=(arrays, state, n, capacity, h, mu,
-                                                                              lam, newton_iterations))
+                    entry.thread = threading.Thread(target=entry.build, args=(live.arrays, capacity, h, mu, lam,
+                                                                              newton_iterations, system))
                     entry.thread.start()  # not a daemon: XLA must not be cut off at exit
-                    return None
-                # the current level: the model's padded system is already built
-                entry.build(arrays, state, n, capacity, h, mu, lam, newton_iterations, self._padded_system()[0])
         if background:
             return None
-        if entry.thread is not None:
-            entry.thread.join()
+        if created:
+            entry.build(live.arrays, capacity, h, mu, lam, newton_iterations, system)
+        entry.ready.wait()
         if entry.step is None:  # its background build failed (e.g. too few nonzeros): build it here
-            entry.build(self._system_arrays(), self.state, len(self.dof_sid), capacity, h, mu, lam,
-                        newton_iterations, self._padded_system()[0])
+            entry.build(live.arrays, capacity, h, mu, lam, newton_iterations, system)
         return entry.step
+
+    def _live_system(self) -> _Live:
+        """The committed system the steps run (built from the staged one when no cut is pending)."""
+        if self._live is None:
+            system, level = self._padded_system()
+            self._live = _Live(system, level, self._system_arrays(), len(self._staged_sid))
+        return self._live
 
     def cut(self, solid: manifold3d.Manifold, perturb: float = 0.0) -> CutReport:
         """Cut the body by a closed cut solid (Algorithm 1 lines 1-25): split the subdomains, copy the split
         nodal subdomains' x and v to their pieces (line 7), integrate the touched elements' pieces (eq. 21),
-        re-enrich the elements around split nodes (eq. 16) and renumber the DOFs.
+        re-enrich the elements around split nodes (eq. 16) and renumber the DOFs. Pending ``cut_async`` cuts
+        take effect first.
 
         Args:
             solid: the cut solid Gamma^c (``xfem._cuts.cut_solid``, ``plane_cut_solid``).
@@ -368,7 +461,87 @@ class XFEMModel:
         Returns:
             The ``CutReport`` of ``apply_cut``.
         """
+        check_cut(solid, perturb)
+        self.commit_cuts()
+        report = self._prepare(solid, perturb)
+        if report.staged:
+            self._commit(self._staged.popleft())
+        return report
+
+    def cut_async(self, solid: manifold3d.Manifold, perturb: float = 0.0) -> Future:
+        """Start a cut in the model's worker thread (class docstring); the model keeps stepping its current
+        system until ``commit_cuts`` makes the cut take effect.
+
+        Args:
+            solid, perturb: as ``cut`` (checked now).
+        Returns:
+            A ``concurrent.futures.Future`` of the cut's ``CutReport``; pass it to ``commit_cuts``.
+        """
+        check_cut(solid, perturb)
+        self._live_system()  # the steps' system must not be built from the worker's bookkeeping
+        if self._worker is None:
+            self._worker = ThreadPoolExecutor(1, thread_name_prefix="xfem-cut")
+        future = self._worker.submit(self._prepare, solid, perturb)
+        if not self._pending:
+            _cutting_in_background(True)
+        self._pending.append(future)
+        return future
+
+    @property
+    def pending_cuts(self) -> int:
+        """The ``cut_async`` cuts not yet committed."""
+        return len(self._pending)
+
+    def commit_cuts(self, until: Future | None = None) -> list[CutReport]:
+        """Make pending ``cut_async`` cuts take effect, in order: wait for each, renumber the DOFs, copy x and v
+        from the current state to the new DOFs (Algorithm 1 line 7) and switch the steps to the new system.
+
+        Args:
+            until: a cut's future: commit it and the cuts started before it (later ones stay pending); nothing
+                if it is committed already (e.g. by a query); None: all pending cuts.
+        Returns:
+            The committed cuts' ``CutReport``s, in order. A cut that failed in the worker raises its error here
+            (the cuts after it are dropped: they were prepared on its partial bookkeeping).
+        """
+        if until is not None and until not in self._pending:
+            if until in self._committed:
+                return []
+            raise ValueError("until: expected a cut of this model (a cut_async future)")
+        reports = []
+        while self._pending:
+            future = self._pending.popleft()
+            try:
+                report = future.result()
+            except BaseException:
+                for later in self._pending:
+                    later.cancel()
+                self._pending.clear()
+                self._staged.clear()
+                _cutting_in_background(False)
+                raise
+            if report.staged:
+                self._commit(self._staged.popleft())
+            self._committed.add(future)
+            reports.append(report)
+            if not self._pending:
+                _cutting_in_background(False)
+            if future is until:
+                break
+        return reports
+
+    def _commit(self, staged: _StagedCut) -> None:
+        """A prepared cut takes effect: its numbering, the state copied to it (line 7), its system."""
+        self.dof_sid, self.dof_node = staged.dof_sid, staged.dof_node
+        # gathered on the host: a JAX gather would compile anew for every DOF count
+        self.state = State(to_device(np.asarray(self.state.x)[staged.source]),
+                           to_device(np.asarray(self.state.v)[staged.source]))
+        self._live, self._system = staged.live, None
+
+    def _prepare(self, solid: manifold3d.Manifold, perturb: float) -> CutReport:
+        """A cut's work up to its commit (``cut``): the subdomains, integrals and enrichment, the new numbering
+        and system (and its compiled step for the options of the last step), queued in ``_staged``."""
         report = apply_cut(self.sub, solid, perturb)
+        report.staged = False
         if len(report.elements_touched) == 0:
             return report
         touched = report.elements_touched
@@ -384,14 +557,21 @@ class XFEMModel:
         changed = {self.sub.node_of(s) for s in report.node_children} | set(report.nodes_split.tolist())
         ring = [self.sub.ring_elements[self.sub.ring_offsets[i]:self.sub.ring_offsets[i + 1]] for i in changed]
         self._enrich(np.unique(np.concatenate([touched, *ring])))
-        self._renumber()
+        source = self._renumber()
         report.enrichment_seconds = time.perf_counter() - start
-        self._system = self._arrays = self._padded = None
+        self._arrays = self._padded = None
+        system, level = self._padded_system()
+        live = _Live(system, level, self._system_arrays(), len(self._staged_sid))
+        if self._step_options is not None:  # the new level's step, compiled before the commit needs it
+            self._compiled(live, level, *self._step_options, background=False)
+        self._staged.append(_StagedCut(self._staged_sid, self._staged_node, source, live))
+        report.staged = True
         return report
 
-    def _renumber(self) -> None:
-        """DOFs of the live nodal subdomains that a piece reaches, ordered by node, then id (creation order);
-        a subdomain made by this cut copies its parent's x and v (line 7)."""
+    def _renumber(self) -> np.ndarray:
+        """The staged DOFs become the live nodal subdomains that a piece reaches, ordered by node, then id
+        (creation order). Returns, for each, the DOF of the previous numbering whose x and v it copies: its own,
+        or its parent's for a subdomain made by this cut (line 7)."""
         sids = np.unique(self._pieces()[1])
         nodes = np.array([s if s < len(self.X) else self.sub.node_of(int(s)) for s in sids], np.int64)
         order = np.lexsort((sids, nodes))
@@ -402,25 +582,26 @@ class XFEMModel:
             while source[k] < 0:
                 origin = self.sub.node_parent(origin)
                 source[k] = self._dof_index(np.array([origin]))[0]
-        self.dof_sid, self.dof_node = sids, nodes
-        # gathered on the host: a JAX gather would compile anew for every DOF count
-        self.state = State(to_device(np.asarray(self.state.x)[source]), to_device(np.asarray(self.state.v)[source]))
+        self._staged_sid, self._staged_node = sids, nodes
+        return source
 
     def step(self, h, mu, lam, newton_iterations: int = 1) -> State:
         """One backward Euler step (eq. 10, Algorithm 1 line 26) of the current system; updates and returns
-        ``state``. mu, lam: scalar Lamé parameters.
+        ``state``. mu, lam: scalar Lamé parameters. Pending ``cut_async`` cuts do not take effect here
+        (``commit_cuts``).
 
         The system is padded to a capacity level (module docstring); the step of the next level is compiled
         in the background meanwhile."""
         if int(newton_iterations) != newton_iterations or newton_iterations < 1:
             raise ValueError(f"newton_iterations: expected an int >= 1, got {newton_iterations!r}")
-        system, level = self._padded_system()
-        step = self._compiled(level, h, mu, lam, int(newton_iterations), background=False)
-        n = len(self.dof_sid)
-        stepped = step(system, _padded_state(self.state, n, system.n), h, mu, lam)
+        live = self._live_system()
+        options = (h, mu, lam, int(newton_iterations))
+        step = self._compiled(live, live.level, *options, background=False)
+        stepped = step(live.system, _padded_state(self.state, live.n, live.system.n), h, mu, lam)
         # sliced on the host: a JAX slice would compile anew for every DOF count
-        self.state = State(to_device(np.asarray(stepped.x)[:n]), to_device(np.asarray(stepped.v)[:n]))
-        self._compiled(level + 1, h, mu, lam, int(newton_iterations), background=True)
+        self.state = State(to_device(np.asarray(stepped.x)[:live.n]), to_device(np.asarray(stepped.v)[:live.n]))
+        self._step_options = options
+        self._compiled(live, live.level + 1, *options, background=True)
         return self.state
 
     # ---------------------------------------------------------------------------------------------------
@@ -462,20 +643,25 @@ class XFEMModel:
         Returns:
             (k, 3) displacements.
         """
+        self.commit_cuts()
         return self._field(np.asarray(self.state.x) - self.X[self.dof_node], points, elements)
 
     def velocity_at(self, points, elements) -> np.ndarray:
         """The velocity field of eq. 18 (coefficients v_i^s) at points (k, 3) in elements (k,); (k, 3)."""
+        self.commit_cuts()
         return self._field(np.asarray(self.state.v), points, elements)
 
     def components(self) -> tuple[int, np.ndarray]:
-        """The connected pieces of the body: components of the graph of element pieces sharing a DOF.
+        """The connected pieces of the body: components of the graph of element pieces sharing a DOF (of the
+        committed cuts: pending ``cut_async`` cuts are not waited for).
 
         Returns:
             count, and (n_dofs,) int the component of each DOF.
         """
-        _, dofs, _, _, _ = self.piece_arrays()
-        n = len(self.dof_sid)
+        if self._pending:  # the committed pieces: the live system's elements
+            dofs, n = self._live.arrays[0], self._live.n
+        else:
+            dofs, n = self._piece_arrays()[1], len(self.dof_sid)
         rows = np.repeat(dofs[:, :1], 3, axis=1).ravel()
         graph = sp.csr_matrix((np.ones(len(rows)), (rows, dofs[:, 1:].ravel())), shape=(n, n))
         return connected_components(graph, directed=False)

@@ -2,7 +2,9 @@
 (``xfem._scenes``: sticks, thin, cheese, accordion, mouth; parameters of sec. 5 and Table 1), simulated with
 the timings of Table 2.
 
-Writes into OUT, every ``every`` frames, on every frame with a cut, and for the last frame:
+Writes into OUT, every ``every`` frames, on every frame with a cut, and for the last frame (with a cut latency,
+a frame due while cuts are computed in the background is written at the first frame without pending cuts, so
+that writing never makes a cut take effect early):
 
 * ``frame_XXXX.png``: the deformed surfaces of the pieces (mesh boundary and cut faces, ``piece_surfaces``),
   coloured by connected piece, fixed axes;
@@ -43,9 +45,9 @@ def _frame(V: np.ndarray, F: np.ndarray, piece: np.ndarray, limits, path: Path, 
 
 
 def xfem_command(name: str, out: Path, steps: int | None = None, *, size: str = "paper", every: int = 10,
-                 figures: bool = True, progress: bool = True) -> dict:
+                 figures: bool = True, progress: bool = True, cut_latency: int = 0) -> dict:
     """Run scene ``name`` for ``steps`` frames (None: the scene's default) and write frames into ``out``; returns
-    the summary (module docstring)."""
+    the summary (module docstring). ``cut_latency``: as ``run_scene``."""
     if name not in SCENES:
         raise ValueError(f"SCENE: expected one of {SCENES}, got {name!r}")
     if size not in SIZES:
@@ -54,6 +56,8 @@ def xfem_command(name: str, out: Path, steps: int | None = None, *, size: str = 
         raise ValueError(f"steps: expected an int >= 1, got {steps!r}")
     if not isinstance(every, int) or every < 1:
         raise ValueError(f"every: expected an int >= 1, got {every!r}")
+    if not isinstance(cut_latency, int) or cut_latency < 0:
+        raise ValueError(f"cut_latency: expected an int >= 0, got {cut_latency!r}")
     import meshio
 
     sc = scene(name, size)
@@ -64,6 +68,7 @@ def xfem_command(name: str, out: Path, steps: int | None = None, *, size: str = 
     # room to fall: the body's size below it, half of it around
     limits = (X.min(0) - np.array([0.5, 0.5, 1.0]) * extent.max(), X.max(0) + 0.5 * extent.max())
     written = []
+    deferred = [False]  # a frame is due but cuts are pending: write at the first frame without
 
     def write(frame: int, model: XFEMModel):
         V, F, piece = piece_surfaces(model)
@@ -74,15 +79,20 @@ def xfem_command(name: str, out: Path, steps: int | None = None, *, size: str = 
         written.append(frame)
 
     def on_frame(record: FrameRecord, model: XFEMModel):
-        if record.cuts or record.frame % every == 0 or record.frame == steps:
+        due = record.cuts or record.frame % every == 0 or record.frame == steps or deferred[0]
+        if due and model.pending_cuts and record.frame < steps:  # writing would wait for them and commit them
+            deferred[0] = True
+        elif due:
+            deferred[0] = False
             write(record.frame, model)
 
     write(0, sc.model())
-    run = run_scene(sc, steps, progress=progress, on_frame=on_frame)
+    run = run_scene(sc, steps, progress=progress, on_frame=on_frame, cut_latency=cut_latency)
     summary = run.summary()
     summary.update({
         "steps": steps, "dt": sc.h, "young": sc.young, "poisson": sc.poisson, "density": sc.density,
         "epsilon": sc.epsilon, "newton_iterations": sc.newton_iterations, "fixed_nodes": int(len(sc.fixed)),
+        "cut_latency": cut_latency,
         "cut_frames": sorted({c.frame for c in sc.cuts if c.frame <= steps}), "frames_written": written,
         "frame_pieces": [r.pieces for r in run.records], "frame_dofs": [r.dofs for r in run.records],
         "frame_seconds": [r.seconds for r in run.records],

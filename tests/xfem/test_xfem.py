@@ -5,6 +5,7 @@ times the body's volume minus the volume of the cut inside it (manifold3d's Bool
 separates and its free part falls with g."""
 
 import logging
+from concurrent.futures import Future
 
 import jax
 import jax.numpy as jnp
@@ -208,3 +209,42 @@ def test_cuts_within_a_capacity_level_reuse_the_compiled_step(caplog):
         assert model._level == 0
         expected = backward_euler_step(model.system(), before, H, MU, LAM)
         np.testing.assert_allclose(model.state.x, expected.x, rtol=0, atol=1e-12)
+
+
+def test_cut_async_takes_effect_at_commit():
+    """``cut_async`` prepares a cut in the worker thread while the model steps its old system; ``commit_cuts``
+    makes it take effect with the state of that moment: the same model as ``cut`` called then (to the rounding of
+    manifold3d's parallel Booleans, which differs between calling threads). Queries wait."""
+    mesh = _tall_box()
+    fixed = np.flatnonzero(np.asarray(mesh.X)[:, 2] > 1.5 - 1e-9)
+    background, inline = (xfem_model(mesh, RHO, gravity=G, fixed=fixed) for _ in range(2))
+    for model in (background, inline):
+        model.step(H, MU, LAM)
+    first = background.cut_async(_plane())
+    second = background.cut_async(_plane(point=(0.5, 0.5, 0.9), normal=(0.03, 0.05, 1.0)))
+    n = len(background.dof_sid)
+    for model in (background, inline):  # the old system: no new DOFs yet
+        model.step(H, MU, LAM)
+    assert len(background.dof_sid) == n and background.pieces() == 1
+    np.testing.assert_array_equal(np.asarray(background.state.x), np.asarray(inline.state.x))
+    with pytest.raises(ValueError, match="until"):
+        background.commit_cuts(until=Future())
+    reports = background.commit_cuts(until=first)
+    assert len(reports) == 1 and reports[0] is first.result() and len(background._pending) == 1
+    inline.cut(_plane())
+    assert background.pieces() == inline.pieces() == 2
+    for model in (background, inline):
+        model.step(H, MU, LAM)
+    np.testing.assert_allclose(np.asarray(background.state.x), np.asarray(inline.state.x), rtol=0, atol=1e-12)
+    inline.cut(_plane(point=(0.5, 0.5, 0.9), normal=(0.03, 0.05, 1.0)))
+    for a, b in zip(background.piece_arrays(), inline.piece_arrays()):  # waits for the second cut
+        np.testing.assert_allclose(a, b, rtol=1e-12, atol=0)
+    assert second.done() and not background._pending and background.pending_cuts == 0
+    assert background.commit_cuts(until=first) == [] == background.commit_cuts()  # committed already
+    for model in (background, inline):
+        model.step(H, MU, LAM)
+    np.testing.assert_allclose(np.asarray(background.state.x), np.asarray(inline.state.x), rtol=0, atol=1e-12)
+    with pytest.raises(ValueError, match="cut"):
+        background.cut_async(None)
+    with pytest.raises(ValueError, match="perturb"):
+        background.cut_async(_plane(), perturb=-1.0)
