@@ -43,7 +43,9 @@ time (EI), the step time; a cut frame's time is its cuts plus its step. Table 2'
 columns are inside the jit-compiled step and not measured here (``benchmarks/bench_xfem.py`` times them on the
 final system). The step time includes XLA compilation on the first frame of a process and when a cut moves the
 model to a capacity level whose step is not compiled yet (``XFEMModel`` compiles the next level in the
-background, so this is rare once the run is under way).
+background, so this is rare once the run is under way). With ``cut_latency=L`` the runner starts each cut in
+the background (``XFEMModel.cut_async``) in its frame and makes it take effect L frames later: the frames between
+step while the cut is computed.
 
 ``piece_surfaces`` gives the deformed surfaces of the pieces (the mesh boundary and the cut faces, each piece's
 triangles mapped by its own DOFs, eq. 18) for pictures and files.

@@ -240,3 +240,19 @@ def test_subdomains_inside_a_thick_cut_disappear():
         assert sub.node_subdomains(i) == ([] if X[i, 2] == 0 else [i])
     assert report.nodes_split.tolist() == []
     assert {k for k, v in report.node_children.items() if v == ()} == set(np.flatnonzero(X[:, 2] == 0).tolist())
+
+
+def test_batch_built_solids_equal_the_ones_built_one_by_one():
+    """``apply_cut`` builds the initial 1-ring and tet solids of a cut in one vectorized pass: the same meshes,
+    vertex for vertex and triangle for triangle, as ``node_solid`` / ``element_solid`` build alone."""
+    mesh = box_tets((3, 2, 2))
+    batch, single = subdomains(mesh), subdomains(mesh)
+    nodes, elements = list(range(batch.n_nodes)), list(range(batch.n_elements))
+    batch._build_initial(nodes, elements)
+    assert all(batch.node_built(i) for i in nodes) and all(batch.element_built(e) for e in elements)
+    pairs = [(batch.node_solid(i), single.node_solid(i)) for i in nodes]
+    pairs += [(batch.element_solid(e), single.element_solid(e)) for e in elements]
+    for a, b in pairs:
+        a, b = a.to_mesh64(), b.to_mesh64()
+        np.testing.assert_array_equal(np.asarray(a.vert_properties), np.asarray(b.vert_properties))
+        np.testing.assert_array_equal(np.asarray(a.tri_verts), np.asarray(b.tri_verts))
