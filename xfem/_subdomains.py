@@ -48,7 +48,7 @@ import manifold3d
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from xfem._tetmesh import TetMesh, boundary_faces, node_rings
+from xfem._tetmesh import TetMesh, node_rings
 
 # pieces and volume changes below this fraction of a subdomain's volume are rounding, not material
 _RELATIVE_VOLUME = 1e-12
@@ -65,13 +65,6 @@ _FACES = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]])
 
 
 def _solid(V: np.ndarray, F: np.ndarray, what: str) -> manifold3d.Manifold:
-    """A Manifold from global vertices V and outward triangles F (compacted to the vertices F uses, in the
-    order of their index)."""
-    used, local = np.unique(F, return_inverse=True)
-    return _compact_solid(V[used], local.reshape(-1, 3), what)
-
-
-def _compact_solid(V: np.ndarray, F: np.ndarray, what: str) -> manifold3d.Manifold:
     """A Manifold from its vertices V and outward triangles F (into V)."""
     mesh = manifold3d.Mesh64(vert_properties=np.ascontiguousarray(V, np.float64),
                              tri_verts=np.ascontiguousarray(F, np.uint64))
@@ -176,10 +169,8 @@ class Subdomains:
         """The closed solid of current nodal subdomain sid (built on first use for an uncut 1-ring)."""
         if not self._nodes.alive[sid]:
             raise ValueError(f"sid: nodal subdomain {sid} was split or removed by a cut")
-        if self._nodes.solids[sid] is None:
-            i = sid  # an unbuilt subdomain is the initial one, whose id is the node
-            tets = self.T[self.ring_elements[self.ring_offsets[i]:self.ring_offsets[i + 1]]]
-            self._nodes.solids[sid] = _solid(self.X, boundary_faces(tets), f"the 1-ring of node {i}")
+        if self._nodes.solids[sid] is None:  # an unbuilt subdomain is the initial one, whose id is the node
+            self._build_initial([sid], ())
         return self._nodes.solids[sid]
 
     def element_solid(self, sid: int) -> manifold3d.Manifold:
@@ -187,14 +178,15 @@ class Subdomains:
         if not self._elements.alive[sid]:
             raise ValueError(f"sid: element subdomain {sid} was split or removed by a cut")
         if self._elements.solids[sid] is None:
-            e = sid
-            self._elements.solids[sid] = _solid(self.X, self.T[e][_FACES], f"tet {e}")
+            self._build_initial((), [sid])
         return self._elements.solids[sid]
 
     def _build_initial(self, node_sids, element_sids) -> None:
         """Build the solids of the given subdomains that are initial and not built yet, in one vectorized pass:
-        the same meshes as ``node_solid`` and ``element_solid`` build one at a time (whose per-ring numpy calls
-        took as long as the Booleans themselves, and held the GIL the Boolean threads share)."""
+        a 1-ring's boundary faces (``boundary_faces`` of its tets, in their order) on its vertices in index
+        order, a tet's faces on its sorted nodes. ``apply_cut`` builds all those a cut needs at once: built one
+        by one, the per-ring numpy calls took as long as the Booleans themselves, holding the GIL the Boolean
+        threads share."""
         n = len(self.X)
         nodes = np.array([s for s in node_sids if s < n and self._nodes.solids[s] is None and self._nodes.alive[s]],
                          np.int64)
@@ -222,7 +214,7 @@ class Subdomains:
             local = local.reshape(-1, 3) - vertex_start[F_owner][:, None]
             vertices = self.X[used % n]
             for j, i in enumerate(nodes.tolist()):
-                self._nodes.solids[i] = _compact_solid(vertices[vertex_start[j]:vertex_start[j + 1]],
+                self._nodes.solids[i] = _solid(vertices[vertex_start[j]:vertex_start[j + 1]],
                                                        local[face_start[j]:face_start[j + 1]],
                                                        f"the 1-ring of node {i}")
         m = len(self.T)
@@ -233,7 +225,7 @@ class Subdomains:
             rank = np.argsort(np.argsort(T, axis=1), axis=1)  # each node's place among its tet's sorted nodes
             V, F = self.X[np.sort(T, axis=1)], rank[:, _FACES]
             for j, e in enumerate(elements.tolist()):
-                self._elements.solids[e] = _compact_solid(V[j], F[j], f"tet {e}")
+                self._elements.solids[e] = _solid(V[j], F[j], f"tet {e}")
 
     def node_built(self, i: int) -> bool:
         """Whether node i's subdomains have triangle meshes (False until a cut meets its 1-ring)."""
