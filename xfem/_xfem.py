@@ -461,9 +461,8 @@ class XFEMModel:
         Returns:
             The ``CutReport`` of ``apply_cut``.
         """
-        check_cut(solid, perturb)
         self.commit_cuts()
-        report = self._prepare(solid, perturb)
+        report = self._prepare(solid, perturb)  # apply_cut checks solid and perturb
         if report.staged:
             self._commit(self._staged.popleft())
         return report
