@@ -24,7 +24,7 @@ import numpy as np
 import scipy.sparse as sp
 from jaxtyping import Array, Float, Int
 
-from jaxcga._support import to_device
+from jaxcga._support import to_devices
 
 
 class CapacityError(ValueError):
@@ -168,10 +168,10 @@ def assembly_pattern(T, n: int, fixed=(), coupling=None, nnz_capacity: int | Non
         rows = np.concatenate([rows, np.full(pad, 3 * nf - 1, rows.dtype)])
         nnz = stored
 
-    return AssemblyPattern(n=n, n_free=nf, nnz=nnz, m=len(T), free=to_device(free, index),
-                           free_index=to_device(free_index, index), indptr=to_device(indptr, index),
-                           indices=to_device(indices, index), rows=to_device(rows, index),
-                           hessian_slots=to_device(slots, index))
+    free, free_index, indptr, indices, rows, slots = to_devices(*(np.asarray(a, index) for a in (
+        free, free_index, indptr, indices, rows, slots)))
+    return AssemblyPattern(n=n, n_free=nf, nnz=nnz, m=len(T), free=free, free_index=free_index, indptr=indptr,
+                           indices=indices, rows=rows, hessian_slots=slots)
 
 
 def _host_pairs(pattern: AssemblyPattern):

@@ -35,8 +35,12 @@ reuse across steps, and the numeric factorization dominates anyway. (b) lineax C
 in JAX: XLA's CPU gathers and scatters make one product ~3-5 ms at 22.8k DOFs against ~0.6 ms for scipy's CSR
 product. (c) the same preconditioned CG as a numpy loop over scipy's CSR product (``_host_cg``), one
 ``jax.pure_callback`` per Newton iteration (~220 CG iterations, 0.12 s, at 22.8k DOFs; the rest of the 0.49 s
-is the projected element Hessians, 0.21 s, their assembly, 0.04 s, and the line search). The Newton direction
-is solved to a relative residual of 1e-4 (an inexact Newton step; 1e-6 takes ~1.4x the iterations, and after 7
+is the projected element Hessians, 0.21 s, their assembly, 0.04 s, and the line search). Small systems are the
+exception: up to ``_DIRECT_DOFS`` = 1,000 unknowns one CHOLMOD factorization costs less than CG's iterations,
+and the step solves exactly (``_host_newton_direction``; the Newton system alone, from a sagging state: 375
+unknowns 1.3 ms against CG's 2.8 ms, the cut sticks scene's 771 unknowns 0.5 ms against 2.7 ms, but 1,029
+unknowns 7.6 ms against 5.3 ms and 1,944 unknowns 36 ms against 9.6 ms). CG's Newton direction is solved to a
+relative residual of 1e-4 (an inexact Newton step; 1e-6 takes ~1.4x the iterations, and after 7
 steps at 7.2k DOFs the positions differ from those of a 1e-9 solve by 1e-7, 3e-6 of the largest displacement).
 With ``tolerance`` the relative residual is tightened to ``|grad E| / |grad E at the first iteration|`` (down
 to 1e-11), so that Newton converges superlinearly where the projection of the element Hessians is inactive
@@ -68,7 +72,7 @@ import scipy.sparse.linalg as spla
 from jaxtyping import Array, Float, Int
 from sksparse_minimal import SparseCholesky
 
-from jaxcga._support import require, to_device
+from jaxcga._support import require, to_devices
 from xfem._assembly import (
     AssemblyPattern,
     CapacityError,
@@ -85,6 +89,7 @@ from xfem._neohookean import element_energy, element_gradient_hessian
 from xfem._tetmesh import TetMesh
 
 _CG_RTOL = 1e-4  # relative residual of the Newton direction (inexact Newton)
+_DIRECT_DOFS = 1000  # Newton systems up to this many unknowns are factorized (CHOLMOD), larger ones go to CG
 _CG_RTOL_MIN = 1e-11  # the tightest one asked for when converging (CG stalls near rounding)
 _ARMIJO = 1e-4  # sufficient-decrease constant of the line search
 _HALVINGS = 30  # the line search gives up (takes no step) after this many halvings
@@ -227,17 +232,17 @@ def fem_system(T, grads, volumes, mass, force, fixed=(), capacity: SystemCapacit
         rows, cols = (np.concatenate([a, np.full(extra, n - 1, a.dtype)]) for a in (rows, cols))
         values = np.concatenate([values, np.zeros(extra)])
     index = pattern.indices.dtype
-    values = to_device(values, dtype)
+    values = np.asarray(values, dtype)
     # on the host (no JAX op to dispatch: fem_system may run beside a step, in a compiling thread)
     slots = scalar_slots(pattern, rows, cols)
     kept = slots < pattern.nnz
     mass_data = np.zeros(pattern.nnz, dtype)
-    np.add.at(mass_data, slots[kept], np.broadcast_to(np.asarray(values)[:, None], slots.shape)[kept])
-    mass_data = to_device(mass_data)
-    return FEMSystem(T=to_device(T, index), grads=to_device(grads, dtype), volumes=to_device(volumes, dtype),
-                     mass_rows=to_device(rows, index), mass_cols=to_device(cols, index), mass_values=values,
-                     mass_data=mass_data, force=to_device(force, dtype), fixed=to_device(fixed, index),
-                     pattern=pattern, n=n)
+    np.add.at(mass_data, slots[kept], np.broadcast_to(values[:, None], slots.shape)[kept])
+    T, grads, volumes, rows, cols, values, mass_data, force, fixed = to_devices(
+        T.astype(index), grads.astype(dtype), volumes.astype(dtype), rows.astype(index), cols.astype(index), values,
+        mass_data, force.astype(dtype), fixed.astype(index))
+    return FEMSystem(T=T, grads=grads, volumes=volumes, mass_rows=rows, mass_cols=cols, mass_values=values,
+                     mass_data=mass_data, force=force, fixed=fixed, pattern=pattern, n=n)
 
 
 def fem_from_mesh(mesh: TetMesh, density, gravity=(0.0, 0.0, -9.81), fixed=()) -> FEMSystem:
@@ -310,6 +315,19 @@ def _host_direct(data, rhs, indptr, indices):
         except RuntimeError:  # exactly singular
             x = np.full_like(b, np.nan)
     return x.astype(rhs.dtype)
+
+
+def _host_newton_direction(data, rhs, rtol, indptr, indices):
+    """The Newton system's solve: CHOLMOD on systems of at most ``_DIRECT_DOFS`` unknowns, where one
+    factorization costs less than CG's iterations (module docstring), Jacobi PCG to ``rtol`` otherwise and on
+    a matrix CHOLMOD finds not positive definite."""
+    if len(rhs) <= _DIRECT_DOFS:
+        try:  # a symmetric matrix's CSR arrays are its CSC arrays
+            return SparseCholesky(_csr(data, indptr, indices).tocsc()).solve_A(np.asarray(rhs, np.float64)).astype(
+                rhs.dtype)
+        except ValueError:
+            pass
+    return _host_cg(data, rhs, rtol, indptr, indices)
 
 
 def _solve(host, pattern: AssemblyPattern, data, rhs, *options):
@@ -416,7 +434,7 @@ def _newton(theta: _Theta, system: FEMSystem, h, iterations: int, tolerance, lin
         rtol = _CG_RTOL
         if tolerance is not None:  # converging: tighten the solves as grad E falls, for superlinear convergence
             rtol = jnp.clip(norm / first_norm, _CG_RTOL_MIN, _CG_RTOL)
-        step = -_solve(_host_cg, system.pattern, data, gradient, jnp.asarray(rtol, x.dtype))
+        step = -_solve(_host_newton_direction, system.pattern, data, gradient, jnp.asarray(rtol, x.dtype))
         alpha = _line_search(system, x, step.reshape(-1, 3), jnp.dot(gradient, step), theta, h) if line_search else 1
         x = x.at[free].add(alpha * step.reshape(-1, 3))
         # converged, or stalled (the line search found no decrease above rounding)
@@ -506,8 +524,7 @@ def _step_arguments(system, state, h, mu, lam, fixed_positions, newton_iteration
         raise ValueError(f"h: expected a scalar time step, got shape {jnp.shape(h)}")
     # concrete values are checked in numpy: eager JAX checks cost a dispatch and a sync each, a large part of
     # a small system's step; traced ones by eqx.error_if
-    h = _checked(jnp.asarray(h, dtype), lambda h, xp: ~(h > 0) | ~xp.isfinite(h),
-                 "h: expected a finite positive time step")
+    h = _checked(_scalar(h, dtype), lambda h, xp: ~(h > 0) | ~xp.isfinite(h), "h: expected a finite positive time step")
     if fixed_positions is not None:
         fixed_positions = jnp.asarray(fixed_positions, dtype)
         if fixed_positions.shape != system.fixed.shape + (3,):
@@ -515,8 +532,17 @@ def _step_arguments(system, state, h, mu, lam, fixed_positions, newton_iteration
                              f"{fixed_positions.shape}")
     state = State(*(_checked(a, lambda a, xp: ~xp.isfinite(a), f"state.{name}: non-finite values (NaN or inf)")
                     for name, a in (("x", state.x), ("v", state.v))))
-    return (system, state, h, jnp.asarray(mu, dtype), jnp.asarray(lam, dtype), fixed_positions,
-            int(newton_iterations), tolerance, line_search)
+    return (system, state, h, _scalar(mu, dtype), _scalar(lam, dtype), fixed_positions, int(newton_iterations),
+            tolerance, line_search)
+
+
+def _scalar(a, dtype):
+    """A step's scalar or per-element parameter in ``dtype``: numpy for python and numpy values (a compiled
+    call takes them for a few us, a device_put costs ~100 us, a large part of a small system's step), JAX for
+    JAX arrays and tracers."""
+    if isinstance(a, (jax.Array, jax.core.Tracer)):
+        return jnp.asarray(a, dtype)
+    return np.asarray(a, dtype)
 
 
 def compiled_step(system: FEMSystem, state: State, h, mu, lam, newton_iterations: int = 1,

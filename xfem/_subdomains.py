@@ -303,16 +303,16 @@ def _difference(solid: manifold3d.Manifold, cut: manifold3d.Manifold):
     return [p for p, v in zip(pieces, volumes) if v > tiny]
 
 
-def _differences(sids: list[int], solid_of, cut: manifold3d.Manifold, report: CutReport) -> list:
-    """``_difference`` of the solids of the subdomains sids (built on first use by ``solid_of``) on
-    ``_BOOLEAN_THREADS`` threads (manifold3d releases the GIL: 1.6x on two cores); the report counts them and
-    their wall time (with the building of the solids)."""
+def _differences(sids: list[int], solid_of, cut: manifold3d.Manifold, report: CutReport, parallel: bool) -> list:
+    """``_difference`` of the solids of the subdomains sids (built on first use by ``solid_of``), in parallel
+    on ``_BOOLEAN_THREADS`` threads (manifold3d releases the GIL: 1.6x on two cores) or in this thread; the
+    report counts them and their wall time (with the building of the solids)."""
     start = time.perf_counter()
 
     def difference(sid):
         return _difference(solid_of(sid), cut)
 
-    if len(sids) < 2 * _BOOLEAN_CHUNK:
+    if not parallel or len(sids) < 2 * _BOOLEAN_CHUNK:
         results = [difference(sid) for sid in sids]
     else:
         results = list(_booleans().map(difference, sids, chunksize=_BOOLEAN_CHUNK))
@@ -327,11 +327,11 @@ def _booleans() -> ThreadPoolExecutor:
 
 
 def _cut_kind(kind: _Kind, owners, solid_of, cut: manifold3d.Manifold, report: CutReport,
-              children: dict[int, tuple[int, ...]]) -> tuple[list[int], list[int]]:
+              children: dict[int, tuple[int, ...]], parallel: bool) -> tuple[list[int], list[int]]:
     """Algorithm 1 lines 2-8 (or 12-17) for the given owners: the owners met and those split."""
     met, split = [], []
     sids = [sid for owner in owners for sid in kind.live[owner]]
-    results = dict(zip(sids, _differences(sids, solid_of, cut, report)))
+    results = dict(zip(sids, _differences(sids, solid_of, cut, report, parallel)))
     for owner in owners:
         old = kind.live[owner]
         new_live, hit = [], False
@@ -429,7 +429,8 @@ def check_cut(cut: manifold3d.Manifold, perturb: float) -> None:
         raise ValueError(f"perturb: expected a distance >= 0, got {perturb!r}")
 
 
-def apply_cut(sub: Subdomains, cut: manifold3d.Manifold, perturb: float = 0.0, seed: int = 0) -> CutReport:
+def apply_cut(sub: Subdomains, cut: manifold3d.Manifold, perturb: float = 0.0, seed: int = 0,
+              parallel: bool = True) -> CutReport:
     """Cut all subdomains by one cut solid (Algorithm 1 lines 1-19), in place.
 
     Args:
@@ -439,6 +440,8 @@ def apply_cut(sub: Subdomains, cut: manifold3d.Manifold, perturb: float = 0.0, s
             surface, move the cut by a random rigid motion of size h (sec. 6.1, gentle perturbation);
             ValueError if still aligned after 16 tries.
         seed: seed of the perturbation's random motions.
+        parallel: run the Booleans on ``_BOOLEAN_THREADS`` threads; False: in the calling thread (a cut in the
+            background leaves the other core to the steps).
     Returns:
         The ``CutReport``.
     """
@@ -470,7 +473,7 @@ def apply_cut(sub: Subdomains, cut: manifold3d.Manifold, perturb: float = 0.0, s
     sub._build_initial((), candidates.tolist())
     report.boolean_seconds += time.perf_counter() - start
     met, split = _cut_kind(sub._elements, candidates.tolist(), sub.element_solid, cut, report,
-                           report.element_children)
+                           report.element_children, parallel)
     report.elements_touched = np.asarray(met, np.int64)
     report.elements_split = np.asarray(split, np.int64)
     report.nodes_touched = np.unique(sub.T[report.elements_touched]) if met else np.zeros(0, np.int64)
@@ -478,6 +481,6 @@ def apply_cut(sub: Subdomains, cut: manifold3d.Manifold, perturb: float = 0.0, s
     sub._build_initial(report.nodes_touched.tolist(), ())
     report.boolean_seconds += time.perf_counter() - start
     met, split = _cut_kind(sub._nodes, report.nodes_touched.tolist(), sub.node_solid, cut, report,
-                           report.node_children)
+                           report.node_children, parallel)
     report.nodes_split = np.asarray(split, np.int64)
     return report

@@ -57,9 +57,10 @@ from xfem._tetmesh import TetMesh
 _INWARD = 1e-6  # inward offset of a piece's query point, relative to the square root of its triangle's area
 _HEADROOM = 1.25  # capacity level 0 over the uncut model's sizes
 _GROWTH = 1.5  # capacity growth per level
-# the smallest capacities (nodes, elements, mass entries, fixed nodes, nonzeros): a small model's cuts stay in
-# level 0, and its padded step costs next to nothing
-_FLOOR = (256, 512, 4096, 64, 9 * 4096)
+# the smallest capacities (nodes, elements, mass entries, nonzeros): a small model's first cuts stay in level 0,
+# and its padded step costs little (a level holds ~1.3-2x its system: the per-element Hessians' cost grows with
+# the padded elements, 4.8 ms for 512 of them against 1.6 ms for 161)
+_FLOOR = (128, 128, 1024, 9 * 1024)
 
 
 class _Compilation:
@@ -137,10 +138,11 @@ _COMPILED_LOCK = threading.Lock()
 
 
 def _padded_state(state: State, n: int, nodes: int) -> State:
-    """The state with zero rows for the padded DOF nodes (host; no JAX op to compile per size)."""
+    """The state with zero rows for the padded DOF nodes, in host arrays: a compiled step takes numpy arrays for
+    ~6 us each, a device_put costs ~80-170 us (and a JAX pad would compile anew for every size)."""
     x, v = np.zeros((nodes, 3)), np.zeros((nodes, 3))
     x[:n], v[:n] = np.asarray(state.x), np.asarray(state.v)
-    return State(to_device(x), to_device(v))
+    return State(x, v)
 
 
 def _mesh_arrays(solid: manifold3d.Manifold) -> tuple[np.ndarray, np.ndarray]:
@@ -161,19 +163,22 @@ def _interior_points(V: np.ndarray, F: np.ndarray, piece: np.ndarray, k: int) ->
     return corners[largest].mean(axis=1) + _INWARD * np.sqrt(areas2[largest, None] / 2) * inward
 
 
-def _nearest_subdomain(meshes: list[tuple[np.ndarray, np.ndarray]], points: np.ndarray) -> np.ndarray:
+def _nearest_subdomain(meshes: list[tuple[np.ndarray, ...]], points: np.ndarray) -> np.ndarray:
     """(k,) for each point, the index of the solid at the smallest distance (0 inside; the first such solid),
-    eq. 16. A point inside a solid needs no distance: the winding numbers are taken first, and only for the
-    points in the solid's bounding box; the distances only for the points inside none of the solids."""
+    eq. 16. meshes: (V, F, lower, upper) of each solid, its mesh and bounding box. A point inside a solid needs
+    no distance: the winding numbers are taken first, and only for the points in the solid's bounding box (all
+    boxes tested at once); the distances only for the points inside none of the solids."""
     chosen = np.full(len(points), -1, np.int64)
-    for s, (V, F) in enumerate(meshes):
-        near = (chosen < 0) & np.all((points >= V.min(axis=0)) & (points <= V.max(axis=0)), axis=1)
-        if near.any():
-            at = np.flatnonzero(near)
+    lower, upper = np.stack([m[2] for m in meshes]), np.stack([m[3] for m in meshes])
+    boxed = np.all((points[None] >= lower[:, None]) & (points[None] <= upper[:, None]), axis=2)  # (solids, points)
+    for s in np.flatnonzero(boxed.any(axis=1)).tolist():
+        at = np.flatnonzero(boxed[s] & (chosen < 0))
+        if len(at):
+            V, F = meshes[s][:2]
             chosen[at[igl.winding_number(V, F, points[at]) > 0.5]] = s
     rest = np.flatnonzero(chosen < 0)
     if len(rest):
-        distance = np.stack([igl.point_mesh_squared_distance(points[rest], V, F)[0] for V, F in meshes])
+        distance = np.stack([igl.point_mesh_squared_distance(points[rest], V, F)[0] for V, F, _, _ in meshes])
         chosen[rest] = np.argmin(distance, axis=0)
     return chosen
 
@@ -192,7 +197,8 @@ class XFEMModel:
         fixed_nodes: (nb,) int64 mesh nodes whose every DOF is fixed.
         dof_node: (n_dofs,) int64 the mesh node of each DOF.
         dof_sid: (n_dofs,) int64 the nodal subdomain of each DOF.
-        state: the ``State`` over the DOFs.
+        state: the ``State`` over the DOFs; ``step`` and the cuts keep it in host (numpy) arrays, which cost
+            nothing to pass to the compiled step (a device copy per step cost more than a small body's step).
 
     Cuts in the background (``cut_async``). A cut's work (Booleans, integrals, enrichment, the new system, its
     compiled step) depends on the rest geometry and the earlier cuts only, never on the state, so it can run in a
@@ -219,6 +225,7 @@ class XFEMModel:
         # piece sid -> volume, mass, load, a point inside it
         self._integrals: dict[int, tuple[float, np.ndarray, np.ndarray, np.ndarray]] = {}
         self._enriched: dict[int, np.ndarray] = {}  # piece sid -> (4,) nodal sids, where a node has several
+        self._node_meshes: dict[int, tuple] = {}  # nodal sid -> (its solid, V, F, lower, upper): _node_mesh
         self.dof_node = np.arange(len(self.X), dtype=np.int64)
         self.dof_sid = np.arange(len(self.X), dtype=np.int64)
         # the numbering of the rest-space bookkeeping below: ahead of dof_sid while cuts are pending
@@ -235,9 +242,9 @@ class XFEMModel:
         self._worker: ThreadPoolExecutor | None = None
         self._committed: weakref.WeakSet[Future] = weakref.WeakSet()
         self._step_options: tuple | None = None  # (h, mu, lam, newton_iterations) of the last step
-        _, _, _, M, _, fixed = self._system_arrays()
-        # capacity level 0 is _HEADROOM times these (nodes, elements, mass entries, fixed nodes, nonzeros)
-        self._base = (len(self.X), len(self.T), M.nnz, len(fixed), 9 * M.nnz)
+        _, _, _, M, _, _ = self._system_arrays()
+        # capacity level 0 is _HEADROOM times these (nodes, elements, mass entries, nonzeros), at least _FLOOR
+        self._base = (len(self.X), len(self.T), M.nnz, 9 * M.nnz)
 
     # ---------------------------------------------------------------------------------------------------
     # pieces
@@ -267,10 +274,20 @@ class XFEMModel:
                     queries.setdefault(int(self.T[e, a]), []).append((sid, a, point))
         for i, rows in queries.items():
             options = self.sub.node_subdomains(i)
-            meshes = [_mesh_arrays(self.sub.node_solid(s)) for s in options]
+            meshes = [self._node_mesh(s) for s in options]
             chosen = _nearest_subdomain(meshes, np.stack([point for _, _, point in rows]))
             for (sid, a, _), k in zip(rows, chosen.tolist()):
                 self._enriched[sid][a] = options[k]
+
+    def _node_mesh(self, sid: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(V, F, lower, upper): the mesh and bounding box of nodal subdomain sid's solid, kept until a cut
+        changes the solid (a node's subdomains are queried again by every later cut near it)."""
+        solid = self.sub.node_solid(sid)
+        kept = self._node_meshes.get(sid)
+        if kept is None or kept[0] is not solid:
+            V, F = _mesh_arrays(solid)
+            kept = self._node_meshes[sid] = (solid, V, F, V.min(axis=0), V.max(axis=0))
+        return kept[1:]
 
     def _integrate(self, elements: np.ndarray) -> int:
         """Exact mass, loads and volume of every piece of the given elements (eq. 13, 14, 21), one batch;
@@ -382,13 +399,14 @@ class XFEMModel:
 
     def _capacity(self, level: int) -> SystemCapacity:
         scale = _HEADROOM * _GROWTH**level
-        base, floor = self._base, _FLOOR
-        size = [max(f, int(np.ceil(b * scale))) for b, f in zip(base, floor)]
-        fixed = size[3]
+        size = [max(f, int(np.ceil(b * scale))) for b, f in zip(self._base, _FLOOR)]
+        # as many fixed rows as real nodes: padded fixed nodes cost next to nothing (the reduced system leaves
+        # them out), so the fixed count, which cuts through a clamped face multiply, never forces a larger level
+        fixed = size[0]
         nodes = size[0] + fixed  # room for the padded fixed nodes
         # the padded free nodes' unit masses add a mass entry and a 3 x 3 block each
         return SystemCapacity(nodes=nodes, elements=size[1], mass_entries=size[2] + nodes, fixed=fixed,
-                              nonzeros=size[4] + 9 * nodes)
+                              nonzeros=size[3] + 9 * nodes)
 
     def _fits(self, level: int, arrays: tuple, n: int) -> bool:
         """Whether the system ``arrays`` over n DOFs fits capacity ``level`` (its nonzeros aside)."""
@@ -480,7 +498,7 @@ class XFEMModel:
         self._live_system()  # the steps' system must not be built from the worker's bookkeeping
         if self._worker is None:
             self._worker = ThreadPoolExecutor(1, thread_name_prefix="xfem-cut")
-        future = self._worker.submit(self._prepare, solid, perturb)
+        future = self._worker.submit(self._prepare, solid, perturb, False)
         if not self._pending:
             _cutting_in_background(True)
         self._pending.append(future)
@@ -532,14 +550,13 @@ class XFEMModel:
         """A prepared cut takes effect: its numbering, the state copied to it (line 7), its system."""
         self.dof_sid, self.dof_node = staged.dof_sid, staged.dof_node
         # gathered on the host: a JAX gather would compile anew for every DOF count
-        self.state = State(to_device(np.asarray(self.state.x)[staged.source]),
-                           to_device(np.asarray(self.state.v)[staged.source]))
+        self.state = State(np.asarray(self.state.x)[staged.source], np.asarray(self.state.v)[staged.source])
         self._live, self._system = staged.live, None
 
-    def _prepare(self, solid: manifold3d.Manifold, perturb: float) -> CutReport:
+    def _prepare(self, solid: manifold3d.Manifold, perturb: float, parallel: bool = True) -> CutReport:
         """A cut's work up to its commit (``cut``): the subdomains, integrals and enrichment, the new numbering
         and system (and its compiled step for the options of the last step), queued in ``_staged``."""
-        report = apply_cut(self.sub, solid, perturb)
+        report = apply_cut(self.sub, solid, perturb, parallel=parallel)  # in the background: one core each
         report.staged = False
         if len(report.elements_touched) == 0:
             return report
@@ -597,8 +614,8 @@ class XFEMModel:
         options = (h, mu, lam, int(newton_iterations))
         step = self._compiled(live, live.level, *options, background=False)
         stepped = step(live.system, _padded_state(self.state, live.n, live.system.n), h, mu, lam)
-        # sliced on the host: a JAX slice would compile anew for every DOF count
-        self.state = State(to_device(np.asarray(stepped.x)[:live.n]), to_device(np.asarray(stepped.v)[:live.n]))
+        # host views of the result, sliced (a JAX slice would compile anew for every DOF count)
+        self.state = State(np.asarray(stepped.x)[:live.n], np.asarray(stepped.v)[:live.n])
         self._step_options = options
         self._compiled(live, live.level + 1, *options, background=True)
         return self.state
@@ -625,8 +642,7 @@ class XFEMModel:
                 if len(options) == 1:
                     chosen = np.zeros(len(at), np.int64)
                 else:
-                    meshes = [_mesh_arrays(self.sub.node_solid(s)) for s in options]
-                    chosen = _nearest_subdomain(meshes, points[at])
+                    chosen = _nearest_subdomain([self._node_mesh(s) for s in options], points[at])
                 dofs = self._dof_index(np.asarray(options, np.int64))[chosen]
                 if np.any(dofs < 0):
                     raise ValueError(f"points: a point's nodal subdomain of node {i} has no material (no DOF)")

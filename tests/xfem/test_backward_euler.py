@@ -21,6 +21,7 @@ from xfem._backward_euler import (
     State,
     SystemCapacity,
     _host_direct,
+    _host_newton_direction,
     backward_euler_step,
     fem_from_mesh,
     fem_system,
@@ -227,6 +228,31 @@ def test_adjoint_solve_of_an_indefinite_or_singular_hessian():
     np.testing.assert_allclose(_host_direct(A.data, b, A.indptr, A.indices), np.linalg.solve(A.toarray(), b))
     A = sp.csr_matrix(np.array([[1.0, 1.0], [1.0, 1.0]]))
     assert np.all(np.isnan(_host_direct(A.data, b[:2], A.indptr, A.indices)))
+
+
+def test_newton_direction_is_exact_on_small_systems_and_cg_on_large_ones(monkeypatch):
+    """Up to _DIRECT_DOFS unknowns the Newton system is factorized (exact), above it CG stops at its relative
+    residual; a small matrix CHOLMOD refuses (indefinite) goes to CG too."""
+    import xfem._backward_euler as be
+
+    rng = np.random.default_rng(3)
+    n = 64  # a mass-like diagonal plus a 4 x 4 x 4 grid Laplacian, like M + h^2 K
+    D = sp.diags([-1.0, 2.0, -1.0], [-1, 0, 1], shape=(4, 4))
+    eye = sp.identity(4)
+    A = sp.csr_matrix(sp.kron(sp.kron(D, eye), eye) + sp.kron(sp.kron(eye, D), eye) + sp.kron(sp.kron(eye, eye), D)
+                      + 0.5 * sp.identity(n))
+    b = rng.normal(size=n)
+    exact = np.linalg.solve(A.toarray(), b)
+    direct = _host_newton_direction(A.data, b, 1e-2, A.indptr, A.indices)
+    np.testing.assert_allclose(direct, exact, rtol=1e-10, atol=1e-12)
+    monkeypatch.setattr(be, "_DIRECT_DOFS", n - 1)  # the same system is now "large": CG to 1e-2
+    inexact = _host_newton_direction(A.data, b, 1e-2, A.indptr, A.indices)
+    residual = np.linalg.norm(A @ inexact - b) / np.linalg.norm(b)
+    assert 1e-12 < residual <= 1e-2
+    monkeypatch.setattr(be, "_DIRECT_DOFS", 1000)
+    indefinite = sp.csr_matrix(np.array([[1.0, 2.0, 0.0], [2.0, 1.0, 0.0], [0.0, 0.0, 3.0]]))
+    x = _host_newton_direction(indefinite.data, b[:3], 1e-12, indefinite.indptr, indefinite.indices)
+    assert np.all(np.isfinite(x))
 
 
 def test_padded_system_steps_like_the_real_one():
