@@ -204,8 +204,9 @@ class XFEMModel:
     compiled step) depends on the rest geometry and the earlier cuts only, never on the state, so it can run in a
     worker thread while the model steps its current system; ``commit_cuts`` then makes it take effect: the DOFs
     are renumbered, their x and v copied (Algorithm 1 line 7) from the state at that moment, and the next step
-    runs the new system. The result equals that of ``cut`` called at the moment of the commit. Pending cuts run
-    one after the other, in order; a query (``piece_arrays``, ``system``, ``displacement_at``, ...) or ``cut``
+    runs the new system. The result equals that of ``cut`` called at the moment of the commit (to the rounding of
+    manifold3d's Booleans, which the worker runs one at a time, leaving the other core to the steps). Pending
+    cuts run one after the other, in order; a query (``piece_arrays``, ``system``, ``displacement_at``, ...) or ``cut``
     first waits for them and commits them (``components`` and ``pieces`` answer for the committed cuts).
     """
 
