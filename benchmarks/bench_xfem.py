@@ -4,15 +4,17 @@ one Newton iteration, epsilon from Table 1).
 
 Columns, as in Table 2 ("Ours"): # DOFs (at the end), EI (ms to integrate one element piece, eq. 21), MB (ms
 per Boolean on one element or node subdomain), dPsi (ms for the elastic energy's derivatives of all pieces, the
-PSD-projected gradients and Hessians), CG (s for one Newton solve), step max and average (a cut frame's time is
-its cuts plus its step), totals over the cut frames (C) and over all frames (C+U).
+PSD-projected gradients and Hessians), CG (s for one Newton solve: the paper's CG, ours the step's solve), step
+max and average (a cut frame's time is its cuts plus its step), totals over the cut frames (C) and over all
+frames (C+U).
 
 Timing. Each scene runs twice in one process: a warm-up run through its last cut (it compiles the step at
 every capacity level the cuts reach; ``XFEMModel`` pads its systems to capacity levels, so a cut within a level
 reuses the compiled step), then the timed run of ``--steps`` frames (default: the scene's). The warm-up's
 slowest frame (with compilation) is reported as ``SCENE_cold_max_s``. dPsi and CG are timed after the run on
 the final (padded) system and state: the median of 5 calls of ``element_gradient_hessian`` on every piece,
-and of the step's host CG (Jacobi-preconditioned, relative residual 1e-4) on the Newton system there.
+and of the step's host solve of the Newton system there (``_host_newton_direction``: CHOLMOD up to 1,000
+unknowns, as on sticks, Jacobi-preconditioned CG to a relative residual of 1e-4 above).
 
 Cuts in the background. A third run per scene (after the timed one) computes each cut in a worker thread while
 the body steps (``run_scene(..., cut_latency=L)``, ``XFEMModel.cut_async``): a cut takes effect L frames after
@@ -101,7 +103,7 @@ def _breakdown(model, h, mu, lam) -> tuple[float, float]:
     gradient, data = _newton_system(system, state, h, mu, lam)
     rhs, A = np.asarray(gradient), np.asarray(data)
     indptr, indices = np.asarray(system.pattern.indptr), np.asarray(system.pattern.indices)
-    cg = _median_seconds(lambda: be._host_cg(A, rhs, be._CG_RTOL, indptr, indices))
+    cg = _median_seconds(lambda: be._host_newton_direction(A, rhs, be._CG_RTOL, indptr, indices))
     return dpsi, cg
 
 
