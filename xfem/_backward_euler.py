@@ -307,8 +307,8 @@ def _host_direct(data, rhs, indptr, indices):
     """The exact solve: CHOLMOD, or SuperLU for an indefinite matrix, NaN for a singular one."""
     A = _csr(data, indptr, indices)
     b = np.asarray(rhs, np.float64)
-    try:  # a symmetric matrix's CSR arrays are its CSC arrays
-        x = SparseCholesky(A.tocsc()).solve_A(b)
+    try:
+        x = _cholesky_solve(A, b)
     except ValueError:  # not positive definite (the true Hessian of a strongly compressed state)
         try:
             x = spla.splu(A.tocsc()).solve(b)
@@ -322,12 +322,17 @@ def _host_newton_direction(data, rhs, rtol, indptr, indices):
     factorization costs less than CG's iterations (module docstring), Jacobi PCG to ``rtol`` otherwise and on
     a matrix CHOLMOD finds not positive definite."""
     if len(rhs) <= _DIRECT_DOFS:
-        try:  # a symmetric matrix's CSR arrays are its CSC arrays
-            return SparseCholesky(_csr(data, indptr, indices).tocsc()).solve_A(np.asarray(rhs, np.float64)).astype(
-                rhs.dtype)
+        try:
+            return _cholesky_solve(_csr(data, indptr, indices), np.asarray(rhs, np.float64)).astype(rhs.dtype)
         except ValueError:
             pass
     return _host_cg(data, rhs, rtol, indptr, indices)
+
+
+def _cholesky_solve(A: sp.csr_matrix, b: np.ndarray) -> np.ndarray:
+    """A^-1 b by CHOLMOD for a symmetric A (its CSR arrays are its CSC arrays); ValueError if A is not positive
+    definite."""
+    return SparseCholesky(A.tocsc()).solve_A(b)
 
 
 def _solve(host, pattern: AssemblyPattern, data, rhs, *options):

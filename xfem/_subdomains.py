@@ -215,8 +215,7 @@ class Subdomains:
             vertices = self.X[used % n]
             for j, i in enumerate(nodes.tolist()):
                 self._nodes.solids[i] = _solid(vertices[vertex_start[j]:vertex_start[j + 1]],
-                                                       local[face_start[j]:face_start[j + 1]],
-                                                       f"the 1-ring of node {i}")
+                                               local[face_start[j]:face_start[j + 1]], f"the 1-ring of node {i}")
         m = len(self.T)
         elements = np.array([s for s in element_sids if s < m and self._elements.solids[s] is None
                              and self._elements.alive[s]], np.int64)
