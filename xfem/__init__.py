@@ -4,7 +4,8 @@ jaxcga kernel.
 Sec. 3 of the paper, the simulation core: ``_tetmesh`` (tet meshes: generators, TetGen, meshio files,
 boundary faces, one-rings, adjacency), ``_linear_tet`` (linear shape functions eq. 5, consistent and
 lumped mass eq. 7, body forces eq. 8), ``_neohookean`` (stable neo-Hookean energy, stress and
-PSD-projected Hessians), ``_assembly`` (sparse patterns precomputed on the host, assembly in JAX),
+PSD-projected Hessians; ``_jacobi3``, the batched 3 x 3 SVD and eigendecomposition of their eigensystem),
+``_assembly`` (sparse patterns precomputed on the host, assembly in JAX),
 ``_backward_euler`` (eq. 10 as a minimization: projected Newton with line search, Dirichlet nodes,
 implicit gradients). The step is generic over an element list (DOF-node indices, shape gradients,
 integration weights) and any mass matrix, so the enriched XFEM elements go through the same code.

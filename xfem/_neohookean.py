@@ -50,11 +50,12 @@ Its eigensystem in closed form ([SGK18] sec. 4): with the rotation-variant SVD `
 
 The projected stiffness keeps the modes with their eigenvalues clamped at 0. These formulas hold for any
 valid SVD, so repeated singular values (F = I, F = 0) need no special case and there is no division.
-Measured (``element_gradient_hessian``, 40,000 random tets, float64, jit, best of 15 on the shared 2-core
-CPU): 0.23 s with this eigensystem (LAPACK's batched 3 x 3 SVD and eigh), 0.41 s with a batched 9 x 9
-``eigh`` of dP/dF, 0.10 s unprojected. A branch-free Jacobi SVD written in jnp was 3x faster than LAPACK
-but is not used: XLA's CPU fusion recomputes its rotation and sorting decisions in several kernels with
-different rounding, and at nearly repeated singular values the kernels disagreed (non-orthogonal frames).
+The SVD and the 3 x 3 eigendecomposition are batched Jacobi rotations in jnp (``xfem._jacobi3``: each
+decision is taken once, inside a rotation's computation, so XLA's kernels agree at repeated singular values).
+Measured (``element_gradient_hessian``, random tets, float64, jit, best of 15 on the shared 2-core CPU, in one
+process): 40,000 tets 0.10 s with ``_jacobi3`` against 0.19-0.20 s with LAPACK's batched 3 x 3 SVD and eigh
+(one call per matrix), 0.08 s unprojected; 4,000 tets 7.5 ms against 15-17 ms. (Earlier: 0.41 s with a
+batched 9 x 9 ``eigh`` of dP/dF.)
 
 Element quantities: ``F_e = sum_a x_a grads_a^T`` (x: deformed node positions, grads: gradients of the
 linear shape functions with respect to the rest position), energy ``vol Psi(F_e)``, gradient
@@ -78,6 +79,7 @@ import numpy as np
 from jaxtyping import Array, Float
 
 from jaxcga._support import require
+from xfem._jacobi3 import eigh3, svd3
 
 _LEVI_CIVITA = np.zeros((3, 3, 3))
 for _i, _j, _k in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
@@ -169,12 +171,7 @@ def _dpdf(F, mu_s, lam_s):
 
 def _eigensystem(F, mu_s, lam_s):
     """Eigenvalues (..., 9) and orthonormal eigenmatrices (..., 9, 3, 3) of dP/dF, [SGK18] sec. 4."""
-    U, s, Vt = jnp.linalg.svd(F)
-    # rotation-variant SVD: flip the last singular pair so that det U det V = 1 and prod(s) = J
-    sign = jnp.where(jnp.linalg.det(U) * jnp.linalg.det(Vt) < 0, -1.0, 1.0).astype(F.dtype)
-    flip = jnp.stack([jnp.ones_like(sign), jnp.ones_like(sign), sign], axis=-1)
-    U = U * flip[..., None, :]
-    s = s * flip
+    U, s, Vt = svd3(F)  # rotation-variant: det U = det V = 1, prod(s) = J
     s0, s1, s2 = s[..., 0], s[..., 1], s[..., 2]
     ic = jnp.sum(s * s, axis=-1)
     c = mu_s * (1 - 1 / (ic + 1))
@@ -191,7 +188,7 @@ def _eigensystem(F, mu_s, lam_s):
         + lam_s[..., None, None] * h[..., :, None] * h[..., None, :]
         + b[..., None, None] * offdiag
     )
-    lam_scaling, q = jnp.linalg.eigh(scaling)
+    lam_scaling, q = eigh3(scaling)
     # uv[..., i, j, :, :] = u_i v_j^T
     Ut = U.swapaxes(-1, -2)
     uv = Ut[..., :, None, :, None] * Vt[..., None, :, None, :]
