@@ -45,7 +45,7 @@ from xfem._tetmesh import (
     tet_volumes,
     tetrahedralize,
 )
-from xfem._xfem import XFEMModel, xfem_model
+from xfem._xfem import XFEMModel, wait_for_compilations, xfem_model
 
 __all__ = [
     "SCENES",
@@ -68,6 +68,7 @@ __all__ = [
     "apply_cut",
     "subdomains",
     "XFEMModel",
+    "wait_for_compilations",
     "xfem_model",
     "AssemblyPattern",
     "FEMSystem",

@@ -137,6 +137,16 @@ _COMPILED: dict[tuple, _Compilation] = {}
 _COMPILED_LOCK = threading.Lock()
 
 
+def wait_for_compilations() -> None:
+    """Wait until every step compiling in a background thread (the next capacity level's, ``XFEMModel.step``)
+    is ready. A compilation takes seconds of CPU beside the steps; a benchmark calls this after its warm-up run
+    so that the warm-up's last compilation does not run into the timed frames."""
+    with _COMPILED_LOCK:
+        threads = [entry.thread for entry in _COMPILED.values() if entry.thread is not None]
+    for thread in threads:
+        thread.join()
+
+
 def _padded_state(state: State, n: int, nodes: int) -> State:
     """The state with zero rows for the padded DOF nodes, in host arrays: a compiled step takes numpy arrays for
     ~6 us each, a device_put costs ~80-170 us (and a JAX pad would compile anew for every size)."""
