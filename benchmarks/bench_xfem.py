@@ -13,10 +13,10 @@ every capacity level the cuts reach; ``XFEMModel`` pads its systems to capacity 
 reuses the compiled step), then the timed run of ``--steps`` frames (default: the scene's), once the warm-up's
 background compilation of the next level up has ended (``wait_for_compilations``; measured on sticks, it ran
 into the timed frames and took about half of their CPU). The warm-up's slowest frame (with compilation) is
-reported as ``SCENE_cold_max_s``. dPsi and CG are timed after the run on
-the final (padded) system and state: the median of 5 calls of ``element_gradient_hessian`` on every piece,
-and of the step's host solve of the Newton system there (``_host_newton_direction``: CHOLMOD up to 1,000
-unknowns, as on sticks, Jacobi-preconditioned CG to a relative residual of 1e-4 above).
+reported as ``SCENE_cold_max_s``. dPsi and CG are timed after the run on the final (padded) system and state:
+the median of 5 calls of ``element_gradient_hessian`` on every piece, and of the step's host solve of the
+Newton system there (``_host_newton_direction``: CHOLMOD up to 1,000 unknowns, as on sticks,
+Jacobi-preconditioned CG to a relative residual of 1e-4 above).
 
 Cuts in the background. A third run per scene (after the timed one) computes each cut in a worker thread while
 the body steps (``run_scene(..., cut_latency=L)``, ``XFEMModel.cut_async``): a cut takes effect L frames after
