@@ -31,7 +31,6 @@ is thinner than that offset there. A node with a single subdomain needs no query
 
 from __future__ import annotations
 
-import os
 import sys
 import threading
 import time
@@ -108,12 +107,13 @@ class _StagedCut(NamedTuple):
     live: _Live
 
 
-# While a cut runs in a worker thread, the steps' Python parts (the host CG's numpy loop, dispatch) wait for the
-# worker to hand over the GIL, up to the switch interval each time (5 ms by default): a CG of a few hundred numpy
-# operations then waited seconds (measured on the thin slab: steps of 0.35 s took 1.3 s). Each numpy operation of
-# the CG releases the GIL and may wait up to one interval to get it back, ~3,000 times per thin step: measured on
-# thin with background cuts (latency 6), the slowest frame of the cut windows was 2.88x and 2.76x the average
-# frame with 0.1 ms, 2.09x and 2.18x with 10 us.
+# While a cut runs in a worker thread, the steps' Python parts (dispatch, the host callbacks, the small systems'
+# CHOLMOD call) wait for the worker to hand over the GIL, up to the switch interval each time (5 ms by default),
+# or to the end of its current manifold3d or libigl call, which hold the GIL throughout. The host CG runs without
+# the GIL (``xfem._pcg``): as a numpy loop it handed the GIL over ~3,000 times per thin step, and the slowest frame
+# of thin's cut windows was 2.09-2.18x the average frame even at 10 us, 1.19x with the compiled CG. Measured
+# on sticks with background cuts (latency 25), the slowest cut-window frame was 2.4x the average frame at 10 us,
+# 4.2x at 0.1 and 1 ms, 4.8x at 5 ms.
 _SWITCH_INTERVAL = 1e-5
 _switching = {"models": 0, "saved": None}
 _SWITCHING_LOCK = threading.Lock()
@@ -133,24 +133,6 @@ def _cutting_in_background(started: bool) -> None:
             if _switching["models"] == 0 and _switching["saved"] is not None:
                 sys.setswitchinterval(_switching["saved"])
                 _switching["saved"] = None
-
-
-# The cut worker thread runs at the lowest scheduling priority (Linux: a thread's nice value is its own), so that
-# it takes the cores the steps leave idle (the host CG is one thread) rather than sharing them while the step's
-# XLA part runs on both. Measured with background cuts (latency 6), the slowest frame of the cut windows over the
-# average frame: thin 1.92x and 1.88x at nice 19, 2.29x at nice 10, 2.50x at nice 0; accordion 1.85x at nice 19
-# against 2.19-2.27x. The GIL is still shared: manifold3d and libigl hold it for the whole of each call.
-_WORKER_NICE = 19
-
-
-def _lower_worker_priority() -> None:
-    """The cut worker's initializer: raise the calling thread's nice value to ``_WORKER_NICE`` (Linux only;
-    elsewhere, or where the system refuses, the worker runs at the default priority: only timing differs)."""
-    if sys.platform.startswith("linux"):
-        try:
-            os.setpriority(os.PRIO_PROCESS, threading.get_native_id(), _WORKER_NICE)
-        except OSError:
-            pass
 
 
 # compiled steps by (capacity, newton iterations, shapes of mu and lam), for every model in the process
@@ -236,8 +218,7 @@ class XFEMModel:
     worker thread while the model steps its current system; ``commit_cuts`` then makes it take effect: the DOFs
     are renumbered, their x and v copied (Algorithm 1 line 7) from the state at that moment, and the next step
     runs the new system. The result equals that of ``cut`` called at the moment of the commit (to the rounding of
-    manifold3d's Booleans, which the worker runs one at a time, leaving the other core to the steps). The worker
-    thread runs at the lowest scheduling priority (``_WORKER_NICE``), on the CPU time the steps leave. Pending
+    manifold3d's Booleans, which the worker runs one at a time, leaving the other core to the steps). Pending
     cuts run one after the other, in order; a query (``piece_arrays``, ``system``, ``displacement_at``, ...) or ``cut``
     first waits for them and commits them (``components`` and ``pieces`` answer for the committed cuts).
     """
@@ -530,7 +511,7 @@ class XFEMModel:
         check_cut(solid, perturb)
         self._live_system()  # the steps' system must not be built from the worker's bookkeeping
         if self._worker is None:
-            self._worker = ThreadPoolExecutor(1, thread_name_prefix="xfem-cut", initializer=_lower_worker_priority)
+            self._worker = ThreadPoolExecutor(1, thread_name_prefix="xfem-cut")
         future = self._worker.submit(self._prepare, solid, perturb, False)
         if not self._pending:
             _cutting_in_background(True)

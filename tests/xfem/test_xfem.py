@@ -5,9 +5,6 @@ times the body's volume minus the volume of the cut inside it (manifold3d's Bool
 separates and its free part falls with g."""
 
 import logging
-import os
-import sys
-import threading
 from concurrent.futures import Future
 
 import jax
@@ -20,7 +17,7 @@ import scipy.sparse as sp
 from xfem._backward_euler import State, backward_euler_step, fem_from_mesh
 from xfem._cuts import plane_cut_solid
 from xfem._tetmesh import boundary_faces, box_tets, five_tet_cube
-from xfem._xfem import _COMPILED, _WORKER_NICE, wait_for_compilations, xfem_model
+from xfem._xfem import _COMPILED, wait_for_compilations, xfem_model
 
 RHO, EPS, H = 1e3, 1e-3, 0.01
 MU, LAM = 1e6, 1e6
@@ -251,14 +248,3 @@ def test_cut_async_takes_effect_at_commit():
         background.cut_async(None)
     with pytest.raises(ValueError, match="perturb"):
         background.cut_async(_plane(), perturb=-1.0)
-
-
-@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="per-thread nice values are Linux's")
-def test_cut_worker_runs_at_the_lowest_priority():
-    """The cut worker thread, and only it, runs at nice ``_WORKER_NICE`` (on the cores the steps leave idle)."""
-    model = xfem_model(_tall_box(), RHO, gravity=G)
-    main_nice = os.getpriority(os.PRIO_PROCESS, threading.get_native_id())
-    model.commit_cuts(until=model.cut_async(_plane()))
-    worker_nice = model._worker.submit(lambda: os.getpriority(os.PRIO_PROCESS, threading.get_native_id())).result()
-    assert _WORKER_NICE == 19 and worker_nice == 19
-    assert os.getpriority(os.PRIO_PROCESS, threading.get_native_id()) == main_nice
