@@ -67,9 +67,10 @@ from xfem._xfem import _padded_state, wait_for_compilations  # noqa: E402
 SCENES = ("sticks", "thin", "accordion")
 # frames from a background cut's start to its effect: its work (Booleans, integrals, new system) spread over
 # about this many steps on 2 cores. Sticks: 16-58 ms of cut work per cut beside 4-6 ms steps, a cut every 5
-# frames (with 25 frames no commit waited; 50 frames gave the same slowest frame). Thin and accordion: ~1 s of
-# cut work, 0.24-0.7 s steps.
-LATENCY = {"sticks": 25, "thin": 6, "accordion": 6}
+# frames (with 25 frames no commit waited; 50 frames gave the same slowest frame). Thin and accordion: ~1 s and
+# ~3 s of cut work beside 0.2 s and 0.6 s steps, whose XLA part uses both cores: spread over 6 frames the slowest
+# cut-window frame was 2.10x and 2.12x the average, over 10 frames 1.15x and 1.92x.
+LATENCY = {"sticks": 25, "thin": 10, "accordion": 10}
 # Table 2, "Ours": DOFs, EI ms, MB ms, dPsi ms, CG s, step max s, step avg s, total C s, total C+U s
 PAPER = {
     "sticks": (144, 0.36, 26.9, 0.0, 0.001, 0.278, 0.009, 0.898, 1.307),
