@@ -5,7 +5,7 @@ loop each CG iteration is ~14 array operations, and each releases the GIL and ta
 per step on the thin slab. While a cut runs in the background (``XFEMModel.cut_async``) the worker holds the GIL
 through whole manifold3d and libigl calls, so every hand-over could wait for one of them. Here the iteration is
 three fused loops (the CSR product with p.Ap, the updates with r.z and r.r, the new direction) in one call with
-``nogil=True``: the worker runs beside it, and the step never waits.
+``nogil=True``: the worker runs beside it, and the CG never waits for it.
 
 Same algorithm and stopping rule as the numpy loop it replaces: x_0 = 0, stop when ||r||^2 <= rtol^2 ||b||^2 or
 after n iterations; only the order of the sums' additions differs (``fastmath`` reassociation, for vectorized
@@ -61,9 +61,9 @@ def _pcg(data, indptr, indices, inverse_diagonal, b, rtol):  # pragma: no cover 
 
 def jacobi_pcg(data: np.ndarray, indptr: np.ndarray, indices: np.ndarray, inverse_diagonal: np.ndarray,
                b: np.ndarray, rtol: float) -> np.ndarray:
-    """x with ||A x - b|| <= rtol ||b|| (or n iterations' best), A the CSR matrix (data, indptr, indices) of n
-    rows, preconditioned by ``inverse_diagonal`` = 1 / diag(A). float64, x_0 = 0; runs without the GIL. An
-    unconverged iterate still decreases the quadratic model, so it is still a descent direction."""
+    """x with ||A x - b|| <= rtol ||b|| (or the iterate after n iterations), A the CSR matrix (data, indptr,
+    indices) of n rows, preconditioned by ``inverse_diagonal`` = 1 / diag(A). float64, x_0 = 0; runs without the
+    GIL. An unconverged iterate still decreases the quadratic model, so it is still a descent direction."""
     # unsigned indices: numba then skips the wrap-around of negative ones (the CSR product took 2x scipy's time
     # with int32 or int64, the same time with uint32), and 32 bits read half the bytes of 64
     index = np.uint32 if max(len(data), len(b)) < np.iinfo(np.uint32).max else np.uint64
