@@ -2,10 +2,10 @@
 
 The Newton solve of a large step (``xfem._backward_euler._host_newton_direction``) runs on the host. As a numpy
 loop each CG iteration is ~14 array operations, and each releases the GIL and takes it back: ~3,000 hand-overs
-per step on the thin slab. While a cut runs in the background (``XFEMModel.cut_async``) the worker holds the GIL
-through whole manifold3d and libigl calls, so every hand-over could wait for one of them. Here the iteration is
-three fused loops (the CSR product with p.Ap, the updates with r.z and r.r, the new direction) in one call with
-``nogil=True``: the worker runs beside it, and the CG never waits for it.
+per step on the thin slab, each a chance to wait for another thread (a cut's worker thread, before cuts moved
+to a worker process; the next capacity level's compilation; the application's own threads). Here the iteration
+is three fused loops (the CSR product with p.Ap, the updates with r.z and r.r, the new direction) in one call
+with ``nogil=True``: other threads run beside it, and the CG never waits for them.
 
 Same algorithm and stopping rule as the numpy loop it replaces: x_0 = 0, stop when ||r||^2 <= rtol^2 ||b||^2 or
 after n iterations; only the order of the sums' additions differs (``fastmath`` reassociation, for vectorized

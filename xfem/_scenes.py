@@ -473,6 +473,8 @@ def run_scene(scene: Scene, steps: int | None = None, progress: bool = False,
     run = SceneRun(scene, model)
     pieces = 1
     pending: list[tuple[int, ScheduledCut, object]] = []  # (frame it takes effect, the cut, its future)
+    if cut_latency:  # its start (imports, the model's replica) is not a frame's work
+        model.start_cut_worker()
 
     def took_effect(record: FrameRecord, scheduled: ScheduledCut, report) -> None:
         record.cuts += 1

@@ -42,6 +42,7 @@ import functools
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import igl
 import manifold3d
@@ -75,6 +76,28 @@ def _solid(V: np.ndarray, F: np.ndarray, what: str) -> manifold3d.Manifold:
     return solid
 
 
+class MeshSolid(NamedTuple):
+    """A closed solid as its float64 triangle mesh, for a trip between processes (``xfem._cut_process``): a
+    ``manifold3d.Manifold`` does not pickle. ``build`` gives the Manifold; ``solid_mesh`` the other way."""
+
+    V: np.ndarray  # (k, 3) float64 vertices
+    F: np.ndarray  # (f, 3) int64 outward triangles
+    tolerance: float  # the Manifold's tolerance (its Mesh64's), kept so that its Booleans round alike
+
+    def build(self) -> manifold3d.Manifold:
+        # copies: manifold3d takes writable arrays only, and a received mesh may be a read-only view
+        return manifold3d.Manifold(manifold3d.Mesh64(
+            vert_properties=np.array(self.V, np.float64, order="C"), tri_verts=np.array(self.F, np.uint64, order="C"),
+            tolerance=self.tolerance))
+
+
+def solid_mesh(solid: manifold3d.Manifold) -> MeshSolid:
+    """The ``MeshSolid`` of a Manifold."""
+    mesh = solid.to_mesh64()
+    return MeshSolid(np.array(np.asarray(mesh.vert_properties, np.float64)[:, :3], order="C"),
+                     np.array(mesh.tri_verts, np.int64, order="C"), float(solid.get_tolerance()))
+
+
 @dataclass
 class _Kind:
     """The subdomains of one kind (nodal or element), indexed by id.
@@ -83,7 +106,8 @@ class _Kind:
         live: per owner (node or element), the ids of its current subdomains.
         owner: per id, its node or element.
         parent: per id, the id it was split from; -1 for the initial ones.
-        solids: per id, its Manifold; None for an initial subdomain not built yet or a retired id.
+        solids: per id, its Manifold; None for an initial subdomain not built yet or a retired id; a
+            ``MeshSolid`` for one received from the cut worker process, built on first use.
         alive: per id, whether it is current.
     """
 
@@ -171,6 +195,8 @@ class Subdomains:
             raise ValueError(f"sid: nodal subdomain {sid} was split or removed by a cut")
         if self._nodes.solids[sid] is None:  # an unbuilt subdomain is the initial one, whose id is the node
             self._build_initial([sid], ())
+        elif isinstance(self._nodes.solids[sid], MeshSolid):
+            self._nodes.solids[sid] = self._nodes.solids[sid].build()
         return self._nodes.solids[sid]
 
     def element_solid(self, sid: int) -> manifold3d.Manifold:
@@ -179,6 +205,8 @@ class Subdomains:
             raise ValueError(f"sid: element subdomain {sid} was split or removed by a cut")
         if self._elements.solids[sid] is None:
             self._build_initial((), [sid])
+        elif isinstance(self._elements.solids[sid], MeshSolid):
+            self._elements.solids[sid] = self._elements.solids[sid].build()
         return self._elements.solids[sid]
 
     def _build_initial(self, node_sids, element_sids) -> None:

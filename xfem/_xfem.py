@@ -40,18 +40,20 @@ from concurrent.futures import Future, ThreadPoolExecutor
 from typing import NamedTuple
 
 import igl
+import jax
 import jax.numpy as jnp
 import manifold3d
 import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
-from jaxcga._support import to_device
+from jaxcga._support import to_device, to_devices
 from xfem._assembly import CapacityError
 from xfem._backward_euler import FEMSystem, State, SystemCapacity, compiled_step, fem_system
+from xfem._cut_process import CutProcess, CutProcessError, pack_meshes, unpack_meshes
 from xfem._integration import element_piece_integrals, linear_shape_coefficients, moments_of_pieces
 from xfem._linear_tet import shape_gradients
-from xfem._subdomains import CutReport, Subdomains, apply_cut, check_cut, subdomains
+from xfem._subdomains import CutReport, MeshSolid, Subdomains, apply_cut, check_cut, solid_mesh, subdomains
 from xfem._tetmesh import TetMesh
 
 _INWARD = 1e-6  # inward offset of a piece's query point, relative to the square root of its triangle's area
@@ -107,13 +109,11 @@ class _StagedCut(NamedTuple):
     live: _Live
 
 
-# While a cut runs in a worker thread, the steps' Python parts (dispatch, the host callbacks, the small systems'
-# CHOLMOD call) wait for the worker to hand over the GIL, up to the switch interval each time (5 ms by default),
-# or to the end of its current manifold3d or libigl call, which hold the GIL throughout. The host CG runs without
-# the GIL (``xfem._pcg``): as a numpy loop it handed the GIL over ~3,000 times per thin step, and the slowest frame
-# of thin's cut windows was 2.09-2.18x the average frame even at 10 us, 1.19x with the compiled CG. Measured
-# on sticks with background cuts (latency 25), the slowest cut-window frame was 2.4x the average frame at 10 us,
-# 4.2x at 0.1 and 1 ms, 4.8x at 5 ms.
+# While cuts are pending, the model's worker thread wakes to apply each cut's changes (0.5-2 ms of Python on
+# sticks, 4-36 ms on accordion, in a worker process's reply) and to compile new capacity levels' steps; the steps'
+# Python parts (dispatch, the host callbacks, the small systems' CHOLMOD call) would wait for it up to the switch
+# interval each time (5 ms by default, 3x a sticks frame). When the cut ran in that thread, on sticks (latency
+# 25) the slowest cut-window frame was 2.4x the average frame at 10 us, 4.2x at 0.1 and 1 ms, 4.8x at 5 ms.
 _SWITCH_INTERVAL = 1e-5
 _switching = {"models": 0, "saved": None}
 _SWITCHING_LOCK = threading.Lock()
@@ -214,13 +214,19 @@ class XFEMModel:
             nothing to pass to the compiled step (a device copy per step cost more than a small body's step).
 
     Cuts in the background (``cut_async``). A cut's work (Booleans, integrals, enrichment, the new system, its
-    compiled step) depends on the rest geometry and the earlier cuts only, never on the state, so it can run in a
-    worker thread while the model steps its current system; ``commit_cuts`` then makes it take effect: the DOFs
-    are renumbered, their x and v copied (Algorithm 1 line 7) from the state at that moment, and the next step
-    runs the new system. The result equals that of ``cut`` called at the moment of the commit (to the rounding of
-    manifold3d's Booleans, which the worker runs one at a time, leaving the other core to the steps). Pending
-    cuts run one after the other, in order; a query (``piece_arrays``, ``system``, ``displacement_at``, ...) or ``cut``
-    first waits for them and commits them (``components`` and ``pieces`` answer for the committed cuts).
+    compiled step) depends on the rest geometry and the earlier cuts only, never on the state, so it can run
+    while the model steps its current system; ``commit_cuts`` then makes it take effect: the DOFs are renumbered,
+    their x and v copied (Algorithm 1 line 7) from the state at that moment, and the next step runs the new
+    system. The result equals that of ``cut`` called at the moment of the commit (to the rounding of manifold3d's
+    Booleans, which the worker runs one at a time, leaving the other core to the steps). The work runs in a
+    worker process (``xfem._cut_process``: manifold3d and libigl hold the GIL through each call) that keeps a
+    replica of this bookkeeping and sends back what each cut changed; the model's worker thread applies it and
+    compiles the step of a new capacity level. The process starts with the first ``cut_async`` (or
+    ``start_cut_worker``), replaying the cuts made before; from then on ``cut`` goes through it too, and it ends
+    with the model. Pending cuts run one after the other, in order; a query (``piece_arrays``, ``system``,
+    ``displacement_at``, ...) or ``cut`` first waits for them and commits them (``components`` and ``pieces``
+    answer for the committed cuts). A failed cut (or a worker that died) raises at its commit; the next cut
+    starts a new worker.
     """
 
     def __init__(self, mesh: TetMesh, rho: np.ndarray, gravity: np.ndarray, fixed: np.ndarray, state: State):
@@ -254,6 +260,12 @@ class XFEMModel:
         self._pending: deque[Future] = deque()  # cut_async's cuts, in order
         self._staged: deque[_StagedCut] = deque()  # prepared by the worker, in order, not yet committed
         self._worker: ThreadPoolExecutor | None = None
+        # the cut worker process (xfem._cut_process) and the cuts made so far, which it replays when it starts:
+        # (the cut solid's mesh, perturb, parallel)
+        self._process: CutProcess | None = None
+        self._process_closer: weakref.finalize | None = None
+        self._remote = False  # set by the first cut_async: every later cut goes through the worker process
+        self._cut_log: list[tuple[MeshSolid, float, bool]] = []
         self._committed: weakref.WeakSet[Future] = weakref.WeakSet()
         self._step_options: tuple | None = None  # (h, mu, lam, newton_iterations) of the last step
         _, _, _, M, _, _ = self._system_arrays()
@@ -485,7 +497,8 @@ class XFEMModel:
         """Cut the body by a closed cut solid (Algorithm 1 lines 1-25): split the subdomains, copy the split
         nodal subdomains' x and v to their pieces (line 7), integrate the touched elements' pieces (eq. 21),
         re-enrich the elements around split nodes (eq. 16) and renumber the DOFs. Pending ``cut_async`` cuts
-        take effect first.
+        take effect first. Once the model has a cut worker process (``cut_async``, ``start_cut_worker``), the
+        cut is made there (with both cores' Booleans) and takes effect at once.
 
         Args:
             solid: the cut solid Gamma^c (``xfem._cuts.cut_solid``, ``plane_cut_solid``).
@@ -493,14 +506,21 @@ class XFEMModel:
         Returns:
             The ``CutReport`` of ``apply_cut``.
         """
+        if self._remote:
+            check_cut(solid, perturb)
+            return self.commit_cuts(until=self._submit(solid, perturb, parallel=True))[-1]
         self.commit_cuts()
-        report = self._prepare(solid, perturb)  # apply_cut checks solid and perturb
+        check_cut(solid, perturb)
+        # the cut as the worker process would get it (the log replays it there): a Manifold rebuilt from its mesh
+        cut = solid_mesh(solid)
+        report = self._prepare(cut.build(), perturb)
+        self._cut_log.append((cut, perturb, True))
         if report.staged:
             self._commit(self._staged.popleft())
         return report
 
     def cut_async(self, solid: manifold3d.Manifold, perturb: float = 0.0) -> Future:
-        """Start a cut in the model's worker thread (class docstring); the model keeps stepping its current
+        """Start a cut in the model's cut worker process (class docstring); the model keeps stepping its current
         system until ``commit_cuts`` makes the cut take effect.
 
         Args:
@@ -510,9 +530,29 @@ class XFEMModel:
         """
         check_cut(solid, perturb)
         self._live_system()  # the steps' system must not be built from the worker's bookkeeping
+        return self._submit(solid, perturb, parallel=False)
+
+    def start_cut_worker(self, wait: bool = True) -> None:
+        """Start the cut worker process now (``cut_async`` starts it when needed; it takes a few seconds: the
+        imports, the replica of the model, the replay of the cuts made so far).
+
+        Args:
+            wait: return once it is ready (its errors, if any, raised here).
+        """
+        self._remote = True
+        future = self._executor().submit(lambda: self._cut_process().wait_ready())
+        if wait:
+            future.result()
+
+    def _executor(self) -> ThreadPoolExecutor:
         if self._worker is None:
             self._worker = ThreadPoolExecutor(1, thread_name_prefix="xfem-cut")
-        future = self._worker.submit(self._prepare, solid, perturb, False)
+        return self._worker
+
+    def _submit(self, solid: manifold3d.Manifold, perturb: float, parallel: bool) -> Future:
+        """Queue a checked cut for the worker process; it becomes pending."""
+        self._remote = True
+        future = self._executor().submit(self._prepare_remote, solid_mesh(solid), perturb, parallel)
         if not self._pending:
             _cutting_in_background(True)
         self._pending.append(future)
@@ -590,13 +630,138 @@ class XFEMModel:
         source = self._renumber()
         report.enrichment_seconds = time.perf_counter() - start
         self._arrays = self._padded = None
+        self._stage(source)
+        report.staged = True
+        return report
+
+    def _stage(self, source: np.ndarray) -> None:
+        """Queue the staged numbering and system in ``_staged``, with the step compiled for its capacity level
+        and the options of the last step."""
         system, level = self._padded_system()
         live = _Live(system, level, self._system_arrays(), len(self._staged_sid))
         if self._step_options is not None:  # the new level's step, compiled before the commit needs it
             self._compiled(live, level, *self._step_options, background=False)
         self._staged.append(_StagedCut(self._staged_sid, self._staged_node, source, live))
-        report.staged = True
+
+    # ---------------------------------------------------------------------------------------------------
+    # the cut worker process (xfem._cut_process)
+
+    def _cut_process(self) -> CutProcess:
+        """The worker process, started (with the cuts made so far to replay) if there is none; worker thread."""
+        if self._process is None:
+            process = CutProcess(dict(
+                x64=bool(jax.config.jax_enable_x64), X=np.asarray(self.X), T=np.asarray(self.T), rho=self.rho,
+                gravity=self.gravity, fixed=self.fixed_nodes, log=list(self._cut_log)))
+            self._process = process
+            self._process_closer = weakref.finalize(self, process.close)
+        return self._process
+
+    def _drop_process(self) -> None:
+        """Stop the worker process (a new one starts with the next cut, from the model's own log)."""
+        if self._process_closer is not None:
+            self._process_closer()
+        self._process = self._process_closer = None
+
+    def _prepare_remote(self, cut: MeshSolid, perturb: float, parallel: bool) -> CutReport:
+        """``_prepare`` done by the worker process (worker thread): send the cut, wait for what it changed, apply
+        that to this model's bookkeeping and stage it."""
+        try:
+            report, delta = self._cut_process().request((cut, perturb, parallel))
+            if delta is not None:
+                self._apply_remote(report, delta)
+        except BaseException:
+            self._drop_process()  # its replica ran part of the failed cut, or disagrees with this model
+            raise
+        self._cut_log.append((cut, perturb, parallel))
         return report
+
+    def _replica_cut(self, cut: MeshSolid, perturb: float, parallel: bool, delta: bool = True):
+        """In the worker process: ``_prepare`` on the replica, and what it changed (``_apply_remote``).
+
+        Returns:
+            The ``CutReport`` and None (nothing touched, or ``delta`` False: a replay) or a dict: the id counts
+            before the cut, per kind the new ids' owners and parents, the retired ids, the touched owners' live
+            lists and the meshes of the solids that changed; the touched pieces' integrals; the enrichment
+            entries set and removed; the new numbering, its source rows (line 7), system arrays and padded
+            system (host arrays) and capacity level.
+        """
+        nodes, elements = self.sub._nodes, self.sub._elements
+        counts = (len(nodes.owner), len(elements.owner))
+        solids = (list(nodes.solids), list(elements.solids))
+        enriched = dict(self._enriched)
+        report = self._prepare(cut.build(), perturb, parallel)
+        self._cut_log.append((cut, perturb, parallel))
+        if not report.staged:
+            return report, None
+        staged = self._staged.popleft()  # the replica never steps: it takes the numbering at once
+        self.dof_sid, self.dof_node = staged.dof_sid, staged.dof_node
+        if not delta:
+            return report, None
+
+        def kind_delta(kind, start, before, owners, children):
+            live = {o: list(kind.live[o]) for o in owners.tolist()}
+            changed = [s for ids in live.values() for s in ids if s >= start or kind.solids[s] is not before[s]]
+            return dict(owner=kind.owner[start:], parent=kind.parent[start:], retired=list(children), live=live,
+                        changed=changed, meshes=pack_meshes([solid_mesh(kind.solids[s]) for s in changed]))
+
+        pieces = [sid for e in report.elements_touched.tolist() for sid in self.sub.element_subdomains(e)]
+        integrals = [self._integrals[sid] for sid in pieces]
+        set_enriched = [sid for sid, value in self._enriched.items() if enriched.get(sid) is not value]
+        system = staged.live.system
+        return report, dict(
+            counts=counts,
+            nodes=kind_delta(nodes, counts[0], solids[0], report.nodes_touched, report.node_children),
+            elements=kind_delta(elements, counts[1], solids[1], report.elements_touched, report.element_children),
+            pieces=np.asarray(pieces, np.int64),
+            integrals=(np.array([v[0] for v in integrals]), np.stack([v[1] for v in integrals]),
+                       np.stack([v[2] for v in integrals]), np.stack([v[3] for v in integrals])),
+            enriched=(np.asarray(set_enriched, np.int64),
+                      np.stack([self._enriched[sid] for sid in set_enriched]) if set_enriched
+                      else np.zeros((0, 4), np.int64)),
+            unenriched=np.asarray([sid for sid in enriched if sid not in self._enriched], np.int64),
+            numbering=(staged.dof_sid, staged.dof_node, staged.source),
+            arrays=staged.live.arrays, level=staged.live.level,
+            system=jax.tree.unflatten(jax.tree.structure(system), [np.asarray(a) for a in jax.tree.leaves(system)]))
+
+    def _apply_remote(self, report: CutReport, delta: dict) -> None:
+        """Apply what the worker process's cut changed (``_replica_cut``) and stage it (worker thread)."""
+        sub = self.sub
+        counts = (len(sub._nodes.owner), len(sub._elements.owner))
+        if tuple(delta["counts"]) != counts:
+            raise CutProcessError(f"the cut worker process's replica has {delta['counts']} nodal and element "
+                                  f"subdomain ids, this model {counts}")
+        for kind, change in ((sub._nodes, delta["nodes"]), (sub._elements, delta["elements"])):
+            added = len(change["owner"])
+            kind.owner.extend(change["owner"])
+            kind.parent.extend(change["parent"])
+            kind.alive.extend([True] * added)
+            kind.solids.extend([None] * added)
+            for sid in change["retired"]:
+                kind.alive[sid] = False
+                kind.solids[sid] = None
+            for owner, ids in change["live"].items():
+                kind.live[owner] = ids
+            for sid, mesh in zip(change["changed"], unpack_meshes(change["meshes"])):
+                kind.solids[sid] = mesh  # built into a Manifold on first use (Subdomains.node_solid)
+        for sid in delta["nodes"]["retired"]:
+            self._node_meshes.pop(sid, None)
+        for sid in delta["elements"]["retired"]:
+            self._integrals.pop(sid, None)
+            self._enriched.pop(sid, None)
+        self._exact.update(report.elements_touched.tolist())
+        volume, mass, load, point = delta["integrals"]
+        for k, sid in enumerate(delta["pieces"].tolist()):
+            self._integrals[sid] = (float(volume[k]), mass[k], load[k], point[k])
+        for sid in delta["unenriched"].tolist():
+            self._enriched.pop(sid, None)
+        sids, nodal = delta["enriched"]
+        for k, sid in enumerate(sids.tolist()):
+            self._enriched[sid] = nodal[k].copy()  # _enrich writes into its entries
+        self._staged_sid, self._staged_node, source = delta["numbering"]
+        system = delta["system"]
+        system = jax.tree.unflatten(jax.tree.structure(system), to_devices(*jax.tree.leaves(system)))
+        self._arrays, self._padded, self._level = delta["arrays"], system, delta["level"]
+        self._stage(source)
 
     def _renumber(self) -> np.ndarray:
         """The staged DOFs become the live nodal subdomains that a piece reaches, ordered by node, then id
@@ -698,6 +863,18 @@ class XFEMModel:
     def pieces(self) -> int:
         """The number of connected pieces of the body (``components``)."""
         return self.components()[0]
+
+
+def replica_model(init: dict) -> XFEMModel:
+    """The cut worker process's replica (``xfem._cut_process``) of a model: made from its construction
+    arguments, then its past cuts replayed (``XFEMModel._cut_process`` gives ``init``)."""
+    X = np.asarray(init["X"], np.float64)
+    zeros = np.zeros_like(X)
+    model = XFEMModel(TetMesh(X=X, T=np.asarray(init["T"], np.int64)), init["rho"], init["gravity"], init["fixed"],
+                      State(zeros, zeros))
+    for cut, perturb, parallel in init["log"]:
+        model._replica_cut(cut, perturb, parallel, delta=False)
+    return model
 
 
 def xfem_model(mesh: TetMesh, density, gravity=(0.0, 0.0, -9.81), fixed=(), state: State | None = None) -> XFEMModel:

@@ -1,0 +1,132 @@
+"""The cut worker process (``xfem._cut_process``): its replica of a model, replayed from the cuts made before it
+started, gives the same model as cuts made in the model's own process; a dead or failing worker raises at the
+commit and the next cut starts a new one; the worker ends with its model."""
+
+import gc
+
+import manifold3d
+import numpy as np
+import pytest
+
+from tests.xfem.test_xfem import LAM, MU, RHO, G, H, _plane, _tall_box
+from xfem._cut_process import CutProcess, CutProcessError, _portable, pack_meshes, unpack_meshes
+from xfem._subdomains import MeshSolid, solid_mesh
+from xfem._xfem import xfem_model
+
+CUTS = [dict(point=(0.5, 0.5, 0.61), normal=(0.07, -0.04, 1.0)), dict(point=(0.5, 0.5, 0.9), normal=(0.03, 0.05, 1.0)),
+        dict(point=(0.52, 0.5, 0.7), normal=(1.0, 0.04, 0.02))]
+
+
+def _models():
+    mesh = _tall_box()
+    fixed = np.flatnonzero(np.asarray(mesh.X)[:, 2] > 1.5 - 1e-9)
+    return [xfem_model(mesh, RHO, gravity=G, fixed=fixed) for _ in range(2)]
+
+
+def _assert_same(a, b):
+    assert a.pieces() == b.pieces()
+    np.testing.assert_array_equal(a.dof_sid, b.dof_sid)
+    np.testing.assert_array_equal(a.dof_node, b.dof_node)
+    for x, y in zip(a.piece_arrays(), b.piece_arrays()):
+        np.testing.assert_allclose(x, y, rtol=1e-12, atol=1e-15)
+    for model in (a, b):
+        model.step(H, MU, LAM)
+    np.testing.assert_allclose(np.asarray(a.state.x), np.asarray(b.state.x), rtol=0, atol=1e-12)
+
+
+def test_mesh_solid_round_trip():
+    """A Manifold sent as its mesh: the same volume and Booleans; the packing keeps every mesh."""
+    solid = manifold3d.Manifold.cube((1.0, 1.0, 1.0)) - manifold3d.Manifold.sphere(0.6, 24)
+    rebuilt = solid_mesh(solid).build()
+    assert rebuilt.volume() == pytest.approx(solid.volume(), rel=1e-14)
+    cut = _plane()
+    assert (rebuilt - cut).volume() == pytest.approx((solid - cut).volume(), rel=1e-14)
+    meshes = [solid_mesh(solid), solid_mesh(cut), MeshSolid(np.zeros((0, 3)), np.zeros((0, 3), np.int64), 0.0)]
+    for before, after in zip(meshes, unpack_meshes(pack_meshes(meshes))):
+        np.testing.assert_array_equal(before.V, after.V)
+        np.testing.assert_array_equal(before.F, after.F)
+        assert before.tolerance == after.tolerance
+    assert unpack_meshes(pack_meshes([])) == []
+
+
+def test_replica_replays_earlier_cuts_and_takes_later_ones():
+    """Cuts made in the model's process before its worker started are replayed there; ``cut`` after it started
+    goes through the worker too; the solids come back as meshes and are built on first use."""
+    remote, inline = _models()
+    for model in (remote, inline):
+        model.cut(_plane(**CUTS[0]))  # before any worker: in the model's process
+    remote.start_cut_worker()
+    assert remote._process is not None
+    future = remote.cut_async(_plane(**CUTS[1]))
+    inline.cut(_plane(**CUTS[1]))
+    assert remote.commit_cuts(until=future)[0].staged
+    remote.cut(_plane(**CUTS[2]))  # through the worker, in effect at once
+    inline.cut(_plane(**CUTS[2]))
+    assert not remote._pending
+    _assert_same(remote, inline)
+    received = [s for s in range(len(remote.sub._elements.owner)) if remote.sub.element_alive(s)
+                and isinstance(remote.sub._elements.solids[s], MeshSolid)]
+    assert received  # pieces made by the worker, not built yet
+    for sid in received:
+        assert remote.sub.element_solid(sid).volume() == pytest.approx(inline.sub.element_solid(sid).volume(),
+                                                                      rel=1e-12)
+    assert remote.cut(_plane(point=(0.5, 0.5, 5.0))).staged is False  # outside the body: nothing changes
+    _assert_same(remote, inline)
+
+
+def test_dead_worker_raises_at_commit_and_the_next_cut_starts_a_new_one():
+    remote, inline = _models()
+    remote.cut_async(_plane(**CUTS[0]))
+    remote.commit_cuts()
+    inline.cut(_plane(**CUTS[0]))
+    first = remote._process
+    first._child.kill()
+    first._child.wait()
+    remote.cut_async(_plane(**CUTS[1]))
+    with pytest.raises(CutProcessError, match="exited"):
+        remote.commit_cuts()
+    assert remote._process is None and not remote._pending
+    _assert_same(remote, inline)  # the failed cut changed nothing
+    remote.cut_async(_plane(**CUTS[1]))  # a new worker, replaying the first cut
+    inline.cut(_plane(**CUTS[1]))
+    remote.commit_cuts()
+    assert remote._process is not first
+    _assert_same(remote, inline)
+
+
+def test_worker_errors_come_back_and_disagreement_is_caught():
+    remote, _ = _models()
+    remote.start_cut_worker()
+    with pytest.raises(TypeError):  # a malformed request: the worker's own error, raised here
+        remote._process.request(("not a cut",))
+    remote._drop_process()
+    with pytest.raises(CutProcessError, match="replica has"):  # checked before anything is applied
+        remote._apply_remote(None, dict(counts=(0, 0)))
+    error = _portable(ValueError("perturb: bad"))
+    assert isinstance(error, ValueError) and str(error) == "perturb: bad"
+
+    class Local(Exception):  # defined in a function: it does not pickle
+        pass
+
+    error = _portable(Local("x"))
+    assert isinstance(error, RuntimeError) and "Local: x" in str(error)
+
+
+def test_worker_ends_with_its_model():
+    remote, _ = _models()
+    remote.start_cut_worker()
+    child = remote._process._child
+    assert child.poll() is None
+    del remote
+    gc.collect()
+    assert child.wait(10) == 0
+
+
+def test_worker_startup_failure_is_reported():
+    process = CutProcess(dict(x64=True, X=np.zeros((1, 3)), T=np.zeros((1, 4), np.int64), rho=np.ones(1),
+                              gravity=np.zeros(3), fixed=np.zeros(0, np.int64), log=[]))
+    try:
+        with pytest.raises(ValueError, match="positive volume"):  # a flat tet: the replica's own check, raised here
+            process.wait_ready()
+    finally:
+        process.close()
