@@ -18,8 +18,8 @@ the median of 5 calls of ``element_gradient_hessian`` on every piece, and of the
 Newton system there (``_host_newton_direction``: CHOLMOD up to 1,000 unknowns, as on sticks,
 Jacobi-preconditioned CG to a relative residual of 1e-4 above).
 
-Cuts in the background. A third run per scene (after the timed one) computes each cut in a worker thread while
-the body steps (``run_scene(..., cut_latency=L)``, ``XFEMModel.cut_async``): a cut takes effect L frames after
+Cuts in the background. A third run per scene (after the timed one) computes each cut in the cut worker process
+while the body steps (``run_scene(..., cut_latency=L)``, ``XFEMModel.cut_async``): a cut takes effect L frames after
 its scheduled frame (``LATENCY``), with the state of that moment. Its figures are named ``SCENE_async_*``; its
 slowest cut frame is the slowest frame from a cut's start to the frame it takes effect in (``FrameRecord.cutting``).
 ``SCENE_async_uncut_max_over_avg``, the slowest frame outside those windows over the average, is the reference
@@ -65,12 +65,13 @@ from xfem._scenes import run_scene, scene  # noqa: E402
 from xfem._xfem import _padded_state, wait_for_compilations  # noqa: E402
 
 SCENES = ("sticks", "thin", "accordion")
-# frames from a background cut's start to its effect: its work (Booleans, integrals, new system) spread over
-# about this many steps on 2 cores. Sticks: 16-58 ms of cut work per cut beside 4-6 ms steps, a cut every 5
-# frames (with 25 frames no commit waited; 50 frames gave the same slowest frame). Thin and accordion: ~1 s and
-# ~3 s of cut work beside 0.2 s and 0.6 s steps, whose XLA part uses both cores: spread over 6 frames the slowest
-# cut-window frame was 2.10x and 2.12x the average, over 10 frames 1.15x and 1.92x.
-LATENCY = {"sticks": 25, "thin": 10, "accordion": 10}
+# frames from a background cut's start to its effect: its work (Booleans, integrals, new system, in the cut worker
+# process) spread over about this many steps on 2 cores. Sticks: a cut every 5 frames, each 7-22 ms of worker time
+# beside ~1.5 ms steps, so the cuts queue up: ~140 ms of work in all, done by frame ~125 (latency 25, 50 and 75
+# still had commits waiting for it); 100 frames are ~0.15 s of wall-clock time (the thread worker's 25 frames were
+# 0.17 s at 6.9 ms per frame). Thin and accordion: ~1 s and ~1.2 s of worker time per cut beside ~0.11 s and
+# ~0.3 s steps: 15 and 10 frames leave ~1.6 s and ~3 s for them.
+LATENCY = {"sticks": 100, "thin": 15, "accordion": 10}
 # Table 2, "Ours": DOFs, EI ms, MB ms, dPsi ms, CG s, step max s, step avg s, total C s, total C+U s
 PAPER = {
     "sticks": (144, 0.36, 26.9, 0.0, 0.001, 0.278, 0.009, 0.898, 1.307),

@@ -37,7 +37,7 @@ product. (c) the same preconditioned CG on the host (``_host_cg``), one ``jax.pu
 iteration (~220 CG iterations, 0.12 s, at 22.8k DOFs; the rest of the 0.49 s is the projected element
 Hessians, 0.21 s, their assembly, 0.04 s, and the line search). Measured as a numpy loop over scipy's CSR
 product; it is now compiled by numba and runs without the GIL (``xfem._pcg``: 56 ms against the numpy loop's
-81 ms at 118k unknowns), so that a cut in a background thread does not stall it. Small systems are the
+81 ms at 118k unknowns), so that other threads do not stall it. Small systems are the
 exception: up to ``_DIRECT_DOFS`` = 1,000 unknowns one CHOLMOD factorization costs less than CG's iterations,
 and the step solves exactly (``_host_newton_direction``; the Newton system alone, from a sagging state: 375
 unknowns 1.3 ms against CG's 2.8 ms, the cut sticks scene's 771 unknowns 0.5 ms against 2.7 ms, but 1,029

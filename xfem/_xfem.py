@@ -36,7 +36,7 @@ import threading
 import time
 import weakref
 from collections import deque
-from concurrent.futures import Future, ThreadPoolExecutor
+from concurrent.futures import Future, ThreadPoolExecutor, wait
 from typing import NamedTuple
 
 import igl
@@ -63,6 +63,12 @@ _GROWTH = 1.5  # capacity growth per level
 # and its padded step costs little (a level holds ~1.3-2x its system: the per-element Hessians' cost grows with
 # the padded elements, 4.8 ms for 512 of them against 1.6 ms for 161)
 _FLOOR = (128, 128, 1024, 9 * 1024)
+# the cut worker process sends a new padded system up to this size; a larger one is built by the model's worker
+# thread from the system arrays: accordion's (59 MB, 8x its arrays) took longer to pickle, pass through the pipe,
+# unpickle and copy to the device than to build, and with it sent the slowest cut-window frame was 2.02-2.30x the
+# average frame against 1.71-1.75x built (thin: 1.66-1.88x against 1.28-1.33x). Sticks' (0.2 MB) is sent: built in
+# the model's process its ~2 ms of Python would stall ~1.5 ms steps.
+_SENT_SYSTEM_BYTES = 8 << 20
 
 
 class _Compilation:
@@ -265,6 +271,7 @@ class XFEMModel:
         self._process: CutProcess | None = None
         self._process_closer: weakref.finalize | None = None
         self._remote = False  # set by the first cut_async: every later cut goes through the worker process
+        self._failed = False  # a worker cut failed: the ones queued after it are dropped until commit_cuts raises
         self._cut_log: list[tuple[MeshSolid, float, bool]] = []
         self._committed: weakref.WeakSet[Future] = weakref.WeakSet()
         self._step_options: tuple | None = None  # (h, mu, lam, newton_iterations) of the last step
@@ -586,8 +593,10 @@ class XFEMModel:
             except BaseException:
                 for later in self._pending:
                     later.cancel()
+                wait(self._pending)  # one already running stops at once (``_failed``)
                 self._pending.clear()
                 self._staged.clear()
+                self._failed = False
                 _cutting_in_background(False)
                 raise
             if report.staged:
@@ -651,7 +660,8 @@ class XFEMModel:
         if self._process is None:
             process = CutProcess(dict(
                 x64=bool(jax.config.jax_enable_x64), X=np.asarray(self.X), T=np.asarray(self.T), rho=self.rho,
-                gravity=self.gravity, fixed=self.fixed_nodes, log=list(self._cut_log)))
+                gravity=self.gravity, fixed=self.fixed_nodes, log=list(self._cut_log),
+                sent_system_bytes=_SENT_SYSTEM_BYTES))
             self._process = process
             self._process_closer = weakref.finalize(self, process.close)
         return self._process
@@ -665,11 +675,14 @@ class XFEMModel:
     def _prepare_remote(self, cut: MeshSolid, perturb: float, parallel: bool) -> CutReport:
         """``_prepare`` done by the worker process (worker thread): send the cut, wait for what it changed, apply
         that to this model's bookkeeping and stage it."""
+        if self._failed:
+            raise CutProcessError("an earlier background cut failed: this one, prepared after it, was dropped")
         try:
             report, delta = self._cut_process().request((cut, perturb, parallel))
             if delta is not None:
                 self._apply_remote(report, delta)
         except BaseException:
+            self._failed = True
             self._drop_process()  # its replica ran part of the failed cut, or disagrees with this model
             raise
         self._cut_log.append((cut, perturb, parallel))
@@ -682,8 +695,8 @@ class XFEMModel:
             The ``CutReport`` and None (nothing touched, or ``delta`` False: a replay) or a dict: the id counts
             before the cut, per kind the new ids' owners and parents, the retired ids, the touched owners' live
             lists and the meshes of the solids that changed; the touched pieces' integrals; the enrichment
-            entries set and removed; the new numbering, its source rows (line 7), system arrays and padded
-            system (host arrays) and capacity level.
+            entries set and removed; the new numbering, its source rows (line 7), system arrays, capacity level
+            and padded system (host arrays; None above ``_SENT_SYSTEM_BYTES``: built from the arrays).
         """
         nodes, elements = self.sub._nodes, self.sub._elements
         counts = (len(nodes.owner), len(elements.owner))
@@ -721,7 +734,8 @@ class XFEMModel:
             unenriched=np.asarray([sid for sid in enriched if sid not in self._enriched], np.int64),
             numbering=(staged.dof_sid, staged.dof_node, staged.source),
             arrays=staged.live.arrays, level=staged.live.level,
-            system=jax.tree.unflatten(jax.tree.structure(system), [np.asarray(a) for a in jax.tree.leaves(system)]))
+            system=None if sum(np.asarray(a).nbytes for a in jax.tree.leaves(system)) > self._sent_system_bytes else
+            jax.tree.unflatten(jax.tree.structure(system), [np.asarray(a) for a in jax.tree.leaves(system)]))
 
     def _apply_remote(self, report: CutReport, delta: dict) -> None:
         """Apply what the worker process's cut changed (``_replica_cut``) and stage it (worker thread)."""
@@ -759,7 +773,9 @@ class XFEMModel:
             self._enriched[sid] = nodal[k].copy()  # _enrich writes into its entries
         self._staged_sid, self._staged_node, source = delta["numbering"]
         system = delta["system"]
-        system = jax.tree.unflatten(jax.tree.structure(system), to_devices(*jax.tree.leaves(system)))
+        if system is not None:
+            system = jax.tree.unflatten(jax.tree.structure(system), to_devices(*jax.tree.leaves(system)))
+        # None: a large system, built here from the arrays (at the replica's level)
         self._arrays, self._padded, self._level = delta["arrays"], system, delta["level"]
         self._stage(source)
 
@@ -874,6 +890,7 @@ def replica_model(init: dict) -> XFEMModel:
                       State(zeros, zeros))
     for cut, perturb, parallel in init["log"]:
         model._replica_cut(cut, perturb, parallel, delta=False)
+    model._sent_system_bytes = init["sent_system_bytes"]
     return model
 
 

@@ -8,6 +8,7 @@ import manifold3d
 import numpy as np
 import pytest
 
+import xfem._xfem
 from tests.xfem.test_xfem import LAM, MU, RHO, G, H, _plane, _tall_box
 from xfem._cut_process import CutProcess, CutProcessError, _portable, pack_meshes, unpack_meshes
 from xfem._subdomains import MeshSolid, solid_mesh
@@ -74,6 +75,21 @@ def test_replica_replays_earlier_cuts_and_takes_later_ones():
     _assert_same(remote, inline)
 
 
+def test_large_systems_are_built_by_the_model(monkeypatch):
+    """Above ``_SENT_SYSTEM_BYTES`` the worker sends the system arrays only, and the model pads them itself."""
+    monkeypatch.setattr(xfem._xfem, "_SENT_SYSTEM_BYTES", 0)
+    remote, inline = _models()
+    sent = []
+    apply = remote._apply_remote
+    remote._apply_remote = lambda report, delta: (sent.append(delta["system"]), apply(report, delta))
+    for cut in CUTS:
+        remote.cut_async(_plane(**cut))
+        inline.cut(_plane(**cut))
+    remote.commit_cuts()
+    assert sent == [None] * len(CUTS)
+    _assert_same(remote, inline)
+
+
 def test_dead_worker_raises_at_commit_and_the_next_cut_starts_a_new_one():
     remote, inline = _models()
     remote.cut_async(_plane(**CUTS[0]))
@@ -82,10 +98,12 @@ def test_dead_worker_raises_at_commit_and_the_next_cut_starts_a_new_one():
     first = remote._process
     first._child.kill()
     first._child.wait()
-    remote.cut_async(_plane(**CUTS[1]))
+    failed, dropped = remote.cut_async(_plane(**CUTS[1])), remote.cut_async(_plane(**CUTS[2]))
     with pytest.raises(CutProcessError, match="exited"):
         remote.commit_cuts()
-    assert remote._process is None and not remote._pending
+    assert remote._process is None and not remote._pending and not remote._staged
+    assert dropped.cancelled() or isinstance(dropped.exception(), CutProcessError)
+    assert failed.done()
     _assert_same(remote, inline)  # the failed cut changed nothing
     remote.cut_async(_plane(**CUTS[1]))  # a new worker, replaying the first cut
     inline.cut(_plane(**CUTS[1]))

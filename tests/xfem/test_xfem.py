@@ -212,7 +212,7 @@ def test_cuts_within_a_capacity_level_reuse_the_compiled_step(caplog):
 
 
 def test_cut_async_takes_effect_at_commit():
-    """``cut_async`` prepares a cut in the worker thread while the model steps its old system; ``commit_cuts``
+    """``cut_async`` prepares a cut in the worker process while the model steps its old system; ``commit_cuts``
     makes it take effect with the state of that moment: the same model as ``cut`` called then (to the rounding of
     manifold3d's parallel Booleans, which differs between calling threads). Queries wait."""
     mesh = _tall_box()
