@@ -718,7 +718,10 @@ class XFEMModel:
                         changed=changed, meshes=pack_meshes([solid_mesh(kind.solids[s]) for s in changed]))
 
         pieces = [sid for e in report.elements_touched.tolist() for sid in self.sub.element_subdomains(e)]
-        integrals = [self._integrals[sid] for sid in pieces]
+        integrals = [self._integrals[sid] for sid in pieces]  # none if the cut swallowed every touched element
+        volume, mass, load, point = (np.array([v[0] for v in integrals]).reshape(-1),
+                                     *(np.stack([v[k] for v in integrals]) if integrals else np.zeros((0, *shape))
+                                       for k, shape in ((1, (4, 4)), (2, (4,)), (3, (3,)))))
         set_enriched = [sid for sid, value in self._enriched.items() if enriched.get(sid) is not value]
         system = staged.live.system
         return report, dict(
@@ -726,8 +729,7 @@ class XFEMModel:
             nodes=kind_delta(nodes, counts[0], solids[0], report.nodes_touched, report.node_children),
             elements=kind_delta(elements, counts[1], solids[1], report.elements_touched, report.element_children),
             pieces=np.asarray(pieces, np.int64),
-            integrals=(np.array([v[0] for v in integrals]), np.stack([v[1] for v in integrals]),
-                       np.stack([v[2] for v in integrals]), np.stack([v[3] for v in integrals])),
+            integrals=(volume, mass, load, point),
             enriched=(np.asarray(set_enriched, np.int64),
                       np.stack([self._enriched[sid] for sid in set_enriched]) if set_enriched
                       else np.zeros((0, 4), np.int64)),

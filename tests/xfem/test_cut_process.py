@@ -75,6 +75,21 @@ def test_replica_replays_earlier_cuts_and_takes_later_ones():
     _assert_same(remote, inline)
 
 
+def test_cut_that_removes_material():
+    """A cut that swallows the top layer of tets (and their nodes' subdomains, with their DOFs) and cuts into the
+    next one: the same model through the worker."""
+    remote, inline = _models()
+    block = manifold3d.Manifold.cube((2.0, 2.0, 1.0)).translate((-0.5, -0.5, 0.93))
+    for model in (remote, inline):
+        model.step(H, MU, LAM)
+    remote.cut_async(block)
+    inline.cut(block)
+    report = remote.commit_cuts()[0]
+    assert any(not children for children in report.element_children.values())  # tets removed whole
+    assert len(remote.dof_sid) < len(remote.X)
+    _assert_same(remote, inline)
+
+
 def test_large_systems_are_built_by_the_model(monkeypatch):
     """Above ``_SENT_SYSTEM_BYTES`` the worker sends the system arrays only, and the model pads them itself."""
     monkeypatch.setattr(xfem._xfem, "_SENT_SYSTEM_BYTES", 0)
