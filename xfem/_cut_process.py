@@ -1,10 +1,11 @@
 """The worker process that prepares ``XFEMModel.cut_async``'s cuts (Algorithm 1 lines 1-25 without the state).
 
 Why a process. manifold3d's Booleans and libigl's queries hold the GIL for the whole of each call, and a cut is
-mostly such calls and the Python between them. Run in a thread beside the steps, it made every step's Python
-parts (dispatch, host callbacks, the small systems' CHOLMOD call) wait for it: the slowest frame while a cut was
-under way reached 2.6-4.4x the average frame on the sticks and accordion scenes. In a process it shares only
-the cores with the steps.
+mostly such calls and the Python between them. Run in a thread beside the steps, it made the steps' Python parts
+(dispatch, host callbacks, the small systems' CHOLMOD call) wait for it. In a process it shares only the cores:
+on 2 cores, against the thread, sticks' frames while cutting were ~20% faster (1.4-1.6 ms against 1.8-1.9 ms);
+thin's and accordion's slowest cut-window frames were 1.28-1.95x and 1.71-2.86x the average frame, against
+1.24-1.61x and 1.71x (one scene per process, the benchmark's set-up; single runs vary by +-0.5).
 
 How. The process holds a replica of the model's rest-space bookkeeping (subdomains, piece integrals,
 enrichment, DOF numbering), made from the mesh and the cuts the model had made before it started (replayed:

@@ -64,10 +64,11 @@ _GROWTH = 1.5  # capacity growth per level
 # the padded elements, 4.8 ms for 512 of them against 1.6 ms for 161)
 _FLOOR = (128, 128, 1024, 9 * 1024)
 # the cut worker process sends a new padded system up to this size; a larger one is built by the model's worker
-# thread from the system arrays: accordion's (59 MB, 8x its arrays) took longer to pickle, pass through the pipe,
-# unpickle and copy to the device than to build, and with it sent the slowest cut-window frame was 2.02-2.30x the
-# average frame against 1.71-1.75x built (thin: 1.66-1.88x against 1.28-1.33x). Sticks' (0.2 MB) is sent: built in
-# the model's process its ~2 ms of Python would stall ~1.5 ms steps.
+# thread from the system arrays (accordion's is 59 MB, 8x its arrays; half of it the Hessian scatter map). Sent, it
+# cost ~30 ms to pickle, 6-100 ms to unpickle, plus the pipe and the device copy; built, 180-360 ms of the worker
+# thread's CPU. Slowest cut-window frame over the average (one scene per process; benchmark runs): accordion
+# 2.18-2.30x sent, 1.71-2.86x built; thin 1.66-1.88x sent, 1.28-1.95x built: no clear winner on 2 cores. Sticks'
+# (0.2 MB) is always sent: built in the model's process its ~2 ms of Python would stall ~1.5 ms steps.
 _SENT_SYSTEM_BYTES = 8 << 20
 
 
