@@ -63,8 +63,9 @@ _GROWTH = 1.5  # capacity growth per level
 # and its padded step costs little (a level holds ~1.3-2x its system: the per-element Hessians' cost grows with
 # the padded elements, 4.8 ms for 512 of them against 1.6 ms for 161)
 _FLOOR = (128, 128, 1024, 9 * 1024)
-# the cut worker process sends a new padded system up to this size; a larger one is built by the model's worker
-# thread from the system arrays (accordion's is 59 MB, 8x its arrays; half of it the Hessian scatter map). Sent, it
+# the cut worker process builds and sends a new padded system up to this size (``_padded_bytes_at_least``); a
+# larger one is built only by the model's worker thread, from the system arrays (accordion's is 59 MB, 8x its
+# arrays; half of it the Hessian scatter map). Sent, it
 # cost ~30 ms to pickle, 6-100 ms to unpickle, plus the pipe and the device copy; built, 180-360 ms of the worker
 # thread's CPU. Slowest cut-window frame over the average (one scene per process; benchmark runs): accordion
 # 2.18-2.30x sent, 1.71-2.86x built; thin 1.66-1.88x sent, 1.28-1.95x built: no clear winner on 2 cores. Sticks'
@@ -274,6 +275,8 @@ class XFEMModel:
         self._remote = False  # set by the first cut_async: every later cut goes through the worker process
         self._failed = False  # a worker cut failed: the ones queued after it are dropped until commit_cuts raises
         self._cut_log: list[tuple[MeshSolid, float, bool]] = []
+        # a replica in the worker process: the largest padded system it builds and sends (``_SENT_SYSTEM_BYTES``)
+        self._sent_system_bytes: int | None = None
         self._committed: weakref.WeakSet[Future] = weakref.WeakSet()
         self._step_options: tuple | None = None  # (h, mu, lam, newton_iterations) of the last step
         _, _, _, M, _, _ = self._system_arrays()
@@ -646,12 +649,23 @@ class XFEMModel:
 
     def _stage(self, source: np.ndarray) -> None:
         """Queue the staged numbering and system in ``_staged``, with the step compiled for its capacity level
-        and the options of the last step."""
+        and the options of the last step. A replica queues no system (live None) where the model builds it."""
+        if self._sent_system_bytes is not None and self._padded_bytes_at_least() > self._sent_system_bytes:
+            self._staged.append(_StagedCut(self._staged_sid, self._staged_node, source, None))
+            return
         system, level = self._padded_system()
         live = _Live(system, level, self._system_arrays(), len(self._staged_sid))
         if self._step_options is not None:  # the new level's step, compiled before the commit needs it
             self._compiled(live, level, *self._step_options, background=False)
         self._staged.append(_StagedCut(self._staged_sid, self._staged_node, source, live))
+
+    def _padded_bytes_at_least(self) -> int:
+        """A lower bound of the staged padded system's size: its Hessian scatter map (144 int32 per element) at the
+        smallest level that holds its elements, nodes and mass entries."""
+        level, arrays = self._level, self._system_arrays()
+        while not self._fits(level, arrays, len(self._staged_sid)):
+            level += 1
+        return 144 * 4 * self._capacity(level).elements
 
     # ---------------------------------------------------------------------------------------------------
     # the cut worker process (xfem._cut_process)
@@ -697,7 +711,8 @@ class XFEMModel:
             before the cut, per kind the new ids' owners and parents, the retired ids, the touched owners' live
             lists and the meshes of the solids that changed; the touched pieces' integrals; the enrichment
             entries set and removed; the new numbering, its source rows (line 7), system arrays, capacity level
-            and padded system (host arrays; None above ``_SENT_SYSTEM_BYTES``: built from the arrays).
+            and padded system (host arrays; None, level None, where it would exceed ``_SENT_SYSTEM_BYTES``: the
+            replica does not build it, the model does).
         """
         nodes, elements = self.sub._nodes, self.sub._elements
         counts = (len(nodes.owner), len(elements.owner))
@@ -724,7 +739,7 @@ class XFEMModel:
                                      *(np.stack([v[k] for v in integrals]) if integrals else np.zeros((0, *shape))
                                        for k, shape in ((1, (4, 4)), (2, (4,)), (3, (3,)))))
         set_enriched = [sid for sid, value in self._enriched.items() if enriched.get(sid) is not value]
-        system = staged.live.system
+        live = staged.live
         return report, dict(
             counts=counts,
             nodes=kind_delta(nodes, counts[0], solids[0], report.nodes_touched, report.node_children),
@@ -736,9 +751,9 @@ class XFEMModel:
                       else np.zeros((0, 4), np.int64)),
             unenriched=np.asarray([sid for sid in enriched if sid not in self._enriched], np.int64),
             numbering=(staged.dof_sid, staged.dof_node, staged.source),
-            arrays=staged.live.arrays, level=staged.live.level,
-            system=None if sum(np.asarray(a).nbytes for a in jax.tree.leaves(system)) > self._sent_system_bytes else
-            jax.tree.unflatten(jax.tree.structure(system), [np.asarray(a) for a in jax.tree.leaves(system)]))
+            arrays=self._system_arrays() if live is None else live.arrays, level=None if live is None else live.level,
+            system=None if live is None else jax.tree.unflatten(jax.tree.structure(live.system),
+                                                                [np.asarray(a) for a in jax.tree.leaves(live.system)]))
 
     def _apply_remote(self, report: CutReport, delta: dict) -> None:
         """Apply what the worker process's cut changed (``_replica_cut``) and stage it (worker thread)."""
@@ -775,11 +790,11 @@ class XFEMModel:
         for k, sid in enumerate(sids.tolist()):
             self._enriched[sid] = nodal[k].copy()  # _enrich writes into its entries
         self._staged_sid, self._staged_node, source = delta["numbering"]
+        self._arrays, self._padded = delta["arrays"], None  # None: a large system, built here (_stage)
         system = delta["system"]
         if system is not None:
-            system = jax.tree.unflatten(jax.tree.structure(system), to_devices(*jax.tree.leaves(system)))
-        # None: a large system, built here from the arrays (at the replica's level)
-        self._arrays, self._padded, self._level = delta["arrays"], system, delta["level"]
+            self._padded = jax.tree.unflatten(jax.tree.structure(system), to_devices(*jax.tree.leaves(system)))
+            self._level = delta["level"]
         self._stage(source)
 
     def _renumber(self) -> np.ndarray:
@@ -891,9 +906,9 @@ def replica_model(init: dict) -> XFEMModel:
     zeros = np.zeros_like(X)
     model = XFEMModel(TetMesh(X=X, T=np.asarray(init["T"], np.int64)), init["rho"], init["gravity"], init["fixed"],
                       State(zeros, zeros))
+    model._sent_system_bytes = init["sent_system_bytes"]
     for cut, perturb, parallel in init["log"]:
         model._replica_cut(cut, perturb, parallel, delta=False)
-    model._sent_system_bytes = init["sent_system_bytes"]
     return model
 
 
