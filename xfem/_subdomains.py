@@ -92,10 +92,10 @@ class MeshSolid(NamedTuple):
 
 
 def solid_mesh(solid: manifold3d.Manifold) -> MeshSolid:
-    """The ``MeshSolid`` of a Manifold."""
+    """The ``MeshSolid`` of a Manifold (its vertices and triangles also feed the integrals and distance queries)."""
     mesh = solid.to_mesh64()
-    return MeshSolid(np.array(np.asarray(mesh.vert_properties, np.float64)[:, :3], order="C"),
-                     np.array(mesh.tri_verts, np.int64, order="C"), float(solid.get_tolerance()))
+    return MeshSolid(np.ascontiguousarray(np.asarray(mesh.vert_properties, np.float64)[:, :3]),
+                     np.ascontiguousarray(np.asarray(mesh.tri_verts, np.int64)), float(solid.get_tolerance()))
 
 
 @dataclass

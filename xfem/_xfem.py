@@ -166,12 +166,6 @@ def _padded_state(state: State, n: int, nodes: int) -> State:
     return State(x, v)
 
 
-def _mesh_arrays(solid: manifold3d.Manifold) -> tuple[np.ndarray, np.ndarray]:
-    mesh = solid.to_mesh64()
-    return (np.ascontiguousarray(np.asarray(mesh.vert_properties, np.float64)[:, :3]),
-            np.ascontiguousarray(np.asarray(mesh.tri_verts, np.int64)))
-
-
 def _interior_points(V: np.ndarray, F: np.ndarray, piece: np.ndarray, k: int) -> np.ndarray:
     """(k, 3) a point strictly inside each of k solids whose boundary triangles F (into V) carry their solid's
     index in ``piece``: the solid's largest triangle's centroid moved inward (module docstring)."""
@@ -322,7 +316,7 @@ class XFEMModel:
         solid = self.sub.node_solid(sid)
         kept = self._node_meshes.get(sid)
         if kept is None or kept[0] is not solid:
-            V, F = _mesh_arrays(solid)
+            V, F, _ = solid_mesh(solid)
             kept = self._node_meshes[sid] = (solid, V, F, V.min(axis=0), V.max(axis=0))
         return kept[1:]
 
@@ -332,7 +326,7 @@ class XFEMModel:
         V, F, piece, sids, owner, offset = [], [], [], [], [], 0
         for e in elements.tolist():
             for sid in self.sub.element_subdomains(e):
-                Vp, Fp = _mesh_arrays(self.sub.element_solid(sid))
+                Vp, Fp, _ = solid_mesh(self.sub.element_solid(sid))
                 V.append(Vp)
                 F.append(Fp + offset)
                 piece.append(np.full(len(Fp), len(sids), np.int64))
