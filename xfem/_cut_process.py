@@ -13,11 +13,16 @@ the model ran them on a Manifold rebuilt from the cut's float64 mesh, as the rep
 same subdomain ids). For each cut it runs ``XFEMModel._prepare`` on the replica and sends back what changed
 (``XFEMModel._replica_cut``): the new and retired subdomains with the new solids' triangle meshes, the touched
 pieces' integrals and enrichment, the new DOF numbering and the new system (host arrays, ``keep_on_host``). The
-model's worker thread, which waits for the reply without the GIL, applies it (``XFEMModel._apply_remote``,
-which first checks the replica's id counts against the model's). From then on the model makes every cut there.
+model's worker thread waits for the reply without the GIL, sends the next pending cut (the child works on it
+meanwhile) and applies the reply (``XFEMModel._apply_remote``, which first checks the replica's id counts against
+the model's). Its GIL-bound pieces (pickling, unpickling, applying, the device copy of the system) take turns with
+the steps (``XFEMModel._turn``). From then on the model makes every cut there. The child runs on one core at the
+lowest priority (``_CHILD_START``), and on all the parent's cores for a ``cut`` (parallel Booleans, the parent
+waiting).
 
-Protocol: pickles over the child's stdin and a duplicate of its stdout (its own stdout and prints go to
-stderr). The child is started as ``python -c "from xfem._cut_process import main; main()"``, not by
+Protocol: each message is a pickle's length (8 bytes) and the pickle, so that a reader takes the GIL only once the
+whole message has arrived; over the child's stdin and a duplicate of its stdout (its own stdout and prints go to
+stderr). Requests are answered in order. The child is started as ``python -c _CHILD_START``, not by
 ``multiprocessing``: its spawn start re-imports the parent's ``__main__`` (a script without a main guard would
 run again), and a fork of a process running JAX threads can deadlock. The child exits when its stdin closes
 (``CutProcess.close``, or the parent's exit). After an error the child exits too: its replica may hold part of
@@ -26,8 +31,10 @@ the failed cut, and the model starts a new one for its next cut.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import pickle
+import struct
 import subprocess
 import sys
 import threading
@@ -37,6 +44,27 @@ import numpy as np
 from xfem._subdomains import MeshSolid
 
 _PROTOCOL = 5
+_LENGTH = struct.Struct("<Q")  # each message: its pickle's length, then the pickle
+_NO_TURN = contextlib.nullcontext()
+
+# The child's first statements, before its imports start the thread pools of numpy's OpenBLAS, XLA and
+# manifold3d's TBB, which size themselves by the CPU affinity. It takes one core, the last the parent may use (its
+# pools run one thread each; a background cut is one thread's work anyway, ``parallel=False``), at the lowest
+# priority (a step's threads that wake on that core take it back at once). Measured on sticks (2 cores, latency
+# 100, 15 runs each), the slowest frame while cutting over the average frame: median 3.2 (2 of 15 runs <= 2) with
+# neither, 2.2 (2/15) with the core alone, 2.15-2.2 (4-6/15) with both, where in up to 3 of 15 runs the child fell
+# behind (the last cut not ready when due: 10-12x); nice 19 without a fixed core fell behind more (median 4.5), and
+# nice 5-15 spiked more (median 2.6-3.4). Keeping the parent's threads off the child's core (no fell-behind runs,
+# median 2.15) slowed thin's steps, which use both cores (1.8-2.6x against 1.2-1.6x).
+_CHILD_START = """
+import os
+if hasattr(os, "sched_setaffinity"):
+    os.sched_setaffinity(0, {max(os.sched_getaffinity(0))})
+if hasattr(os, "nice"):
+    os.nice(19)
+from xfem._cut_process import main
+main()
+"""
 
 
 class CutProcessError(RuntimeError):
@@ -44,30 +72,48 @@ class CutProcessError(RuntimeError):
 
 
 class CutProcess:
-    """The parent's end: start the child with a model's construction arguments and its past cuts; then one
-    request and one reply at a time (``request``, from the model's worker thread)."""
+    """The parent's end: start the child with a model's construction arguments and its past cuts; then requests
+    and their replies, in order (``send``, ``receive``; from one thread, the model's worker thread)."""
 
     def __init__(self, init: dict):
         env = dict(os.environ)
         env["JAX_PLATFORMS"] = "cpu"  # the replica builds host systems only; never take an accelerator
         env["PYTHONPATH"] = os.pathsep.join(p for p in sys.path if p)  # the parent's imports, from any directory
-        self._child = subprocess.Popen([sys.executable, "-c", "from xfem._cut_process import main; main()"],
-                                       stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env)
-        self._lock = threading.Lock()
+        self._child = subprocess.Popen([sys.executable, "-c", _CHILD_START], stdin=subprocess.PIPE,
+                                       stdout=subprocess.PIPE, env=env)
         self._ready = False
-        self._send(init)
+        self.send({**init, "cores": _cores()})
 
-    def _send(self, message) -> None:
+    def send(self, message, turn: threading.Lock | None = None) -> None:
+        """Send a request. The child answers requests in order, one at a time; the model sends the next cut's
+        request when a reply arrives, so that the child works on it while the model applies that reply.
+
+        Args:
+            turn: a lock the pickling runs under (it holds the GIL: the model's steps wait for it instead of sharing
+                the GIL with it, ``XFEMModel._turn``); the write runs outside.
+        """
+        with turn or _NO_TURN:
+            data = pickle.dumps(message, protocol=_PROTOCOL)
         try:
-            pickle.dump(message, self._child.stdin, protocol=_PROTOCOL)
-            self._child.stdin.flush()
+            _write_frame(self._child.stdin, data)
         except (BrokenPipeError, OSError) as error:
             raise CutProcessError(f"the cut worker process exited (code {self._child.poll()}; see its stderr)") \
                 from error
 
-    def _receive(self):
+    def receive(self, turn: threading.Lock | None = None):
+        """The next reply (after the child's ready message); raises the error the child raised, if any.
+
+        Args:
+            turn: as ``send``, for the unpickling; the wait for the child and the read run outside.
+        """
+        self.wait_ready()
+        return self._receive(turn)
+
+    def _receive(self, turn: threading.Lock | None = None):
         try:
-            kind, payload = pickle.load(self._child.stdout)  # the read waits without the GIL
+            data = _read_frame(self._child.stdout)  # waits for the whole reply, without the GIL
+            with turn or _NO_TURN:
+                kind, payload = pickle.loads(data)
         except (EOFError, OSError, pickle.UnpicklingError) as error:
             raise CutProcessError(f"the cut worker process exited (code {self._child.poll()}; see its stderr)") \
                 from error
@@ -77,17 +123,9 @@ class CutProcess:
 
     def wait_ready(self) -> None:
         """Wait until the child has built its replica (the first reply)."""
-        with self._lock:
-            if not self._ready:
-                self._receive()
-                self._ready = True
-
-    def request(self, message):
-        """Send a request and return the child's reply; raises the error the child raised, if any."""
-        self.wait_ready()
-        with self._lock:
-            self._send(message)
-            return self._receive()
+        if not self._ready:
+            self._receive()
+            self._ready = True
 
     def close(self) -> None:
         """Close the child's stdin (it exits) and wait for it; kill it if it does not exit in 10 s."""
@@ -108,6 +146,24 @@ class CutProcess:
                 pass
 
 
+def _write_frame(stream, data: bytes) -> None:
+    stream.write(_LENGTH.pack(len(data)))
+    stream.write(data)
+    stream.flush()
+
+
+def _read_frame(stream) -> bytes:
+    """The next message's pickle, read whole (the blocking reads release the GIL); EOFError at the stream's end."""
+    head = stream.read(_LENGTH.size)
+    if len(head) < _LENGTH.size:
+        raise EOFError("the stream ended")
+    size = _LENGTH.unpack(head)[0]
+    data = stream.read(size)
+    if len(data) < size:
+        raise EOFError("the stream ended within a message")
+    return data
+
+
 def _portable(error: BaseException) -> BaseException:
     """The error itself if it pickles (ValueError and friends), else a RuntimeError with its text."""
     try:
@@ -121,10 +177,10 @@ def _serve(inbox, outbox) -> None:
     """The child: build the replica, replay the past cuts, then answer cut requests until stdin closes."""
 
     def reply(kind, payload) -> None:
-        pickle.dump((kind, payload), outbox, protocol=_PROTOCOL)
-        outbox.flush()
+        _write_frame(outbox, pickle.dumps((kind, payload), protocol=_PROTOCOL))
 
-    init = pickle.load(inbox)
+    init = pickle.loads(_read_frame(inbox))
+    one_core, all_cores = _cores(), init["cores"]
     import jax
 
     jax.config.update("jax_enable_x64", init["x64"])
@@ -134,21 +190,41 @@ def _serve(inbox, outbox) -> None:
     keep_on_host()  # the systems it builds go to the parent, which puts them on its device
 
     try:
+        _use_cores(all_cores)  # the replay runs the past cuts' parallel Booleans on the parent's cores
         model = replica_model(init)
+        _use_cores(one_core)
     except BaseException as error:  # noqa: BLE001 (any failure goes back to the parent)
         reply("error", _portable(error))
         return
     reply("ready", None)
     while True:
         try:
-            message = pickle.load(inbox)
+            message = pickle.loads(_read_frame(inbox))
         except EOFError:
             return
         try:
+            parallel = message[2] if isinstance(message, tuple) and len(message) > 2 else False
+            _use_cores(all_cores if parallel else one_core)  # a cut's parallel Booleans: the parent waits for them
             reply("ok", model._replica_cut(*message))
         except BaseException as error:  # noqa: BLE001
             reply("error", _portable(error))
             return  # its bookkeeping may be partial: the parent starts a new replica
+
+
+def _cores() -> set[int] | None:
+    """The CPUs this process may run on (None where the platform does not say)."""
+    return set(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None
+
+
+def _use_cores(cores: set[int] | None) -> None:
+    """Let every thread of this process (the Boolean threads, the pools started so far) run on ``cores``."""
+    if cores is None or not hasattr(os, "sched_setaffinity") or not os.path.isdir("/proc/self/task"):
+        return
+    for thread in os.listdir("/proc/self/task"):
+        try:
+            os.sched_setaffinity(int(thread), cores)
+        except OSError:  # a thread that has just ended
+            pass
 
 
 def main() -> None:

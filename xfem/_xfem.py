@@ -262,12 +262,18 @@ class XFEMModel:
         self._pending: deque[Future] = deque()  # cut_async's cuts, in order
         self._staged: deque[_StagedCut] = deque()  # prepared by the worker, in order, not yet committed
         self._worker: ThreadPoolExecutor | None = None
+        # Held by each step and by each piece of the worker thread's GIL-bound work for the worker process (pickling
+        # a request, unpickling a reply, applying it, putting the new system on the device; 0.1-0.45 ms each on
+        # sticks): they take turns instead of sharing the GIL, whose hand-overs, when the worker thread waits for a
+        # core, cost a step more than the work itself.
+        self._turn = threading.Lock()
         # the cut worker process (xfem._cut_process) and the cuts made so far, which it replays when it starts:
         # (the cut solid's mesh, perturb, parallel)
         self._process: CutProcess | None = None
         self._process_closer: weakref.finalize | None = None
         self._remote = False  # set by the first cut_async: every later cut goes through the worker process
         self._failed = False  # a worker cut failed: the ones queued after it are dropped until commit_cuts raises
+        self._unsent: deque[tuple] = deque()  # the pending cuts' requests not yet sent to the worker process
         self._cut_log: list[tuple[MeshSolid, float, bool]] = []
         # a replica in the worker process: the largest padded system it builds and sends (``_SENT_SYSTEM_BYTES``)
         self._sent_system_bytes: int | None = None
@@ -557,7 +563,9 @@ class XFEMModel:
     def _submit(self, solid: manifold3d.Manifold, perturb: float, parallel: bool) -> Future:
         """Queue a checked cut for the worker process; it becomes pending."""
         self._remote = True
-        future = self._executor().submit(self._prepare_remote, solid_mesh(solid), perturb, parallel)
+        request = (solid_mesh(solid), perturb, parallel)
+        self._unsent.append(request)
+        future = self._executor().submit(self._prepare_remote, request)
         if not self._pending:
             _cutting_in_background(True)
         self._pending.append(future)
@@ -593,6 +601,7 @@ class XFEMModel:
                     later.cancel()
                 wait(self._pending)  # one already running stops at once (``_failed``)
                 self._pending.clear()
+                self._unsent.clear()
                 self._staged.clear()
                 self._failed = False
                 _cutting_in_background(False)
@@ -681,20 +690,36 @@ class XFEMModel:
             self._process_closer()
         self._process = self._process_closer = None
 
-    def _prepare_remote(self, cut: MeshSolid, perturb: float, parallel: bool) -> CutReport:
-        """``_prepare`` done by the worker process (worker thread): send the cut, wait for what it changed, apply
-        that to this model's bookkeeping and stage it."""
+    def _prepare_remote(self, request: tuple[MeshSolid, float, bool]) -> CutReport:
+        """``_prepare`` done by the worker process (worker thread): send the cut (unless it went with the last
+        reply), wait for what it changed, send the next pending cut, apply the changes to this model's bookkeeping
+        and stage them."""
         if self._failed:
             raise CutProcessError("an earlier background cut failed: this one, prepared after it, was dropped")
         try:
-            report, delta = self._cut_process().request((cut, perturb, parallel))
+            process = self._cut_process()
+            if any(r is request for r in self._unsent):
+                while self._unsent[0] is not request:  # requests of cuts cancelled after a failure
+                    self._unsent.popleft()
+                process.send(self._unsent.popleft(), self._turn)
+            report, delta = process.receive(self._turn)
+            if self._unsent:  # the child works on it while this reply is applied
+                process.send(self._unsent.popleft(), self._turn)
             if delta is not None:
-                self._apply_remote(report, delta)
+                with self._turn:
+                    source = self._apply_remote(report, delta)
+                system = delta["system"]
+                if system is not None:
+                    with self._turn:
+                        self._padded = jax.tree.unflatten(jax.tree.structure(system),
+                                                          to_devices(*jax.tree.leaves(system)))
+                        self._level = delta["level"]
+                self._stage(source)  # builds a large system, or compiles a new level's step: beside the steps
         except BaseException:
             self._failed = True
             self._drop_process()  # its replica ran part of the failed cut, or disagrees with this model
             raise
-        self._cut_log.append((cut, perturb, parallel))
+        self._cut_log.append(request)
         return report
 
     def _replica_cut(self, cut: MeshSolid, perturb: float, parallel: bool, delta: bool = True):
@@ -749,8 +774,9 @@ class XFEMModel:
             system=None if live is None else jax.tree.unflatten(jax.tree.structure(live.system),
                                                                 [np.asarray(a) for a in jax.tree.leaves(live.system)]))
 
-    def _apply_remote(self, report: CutReport, delta: dict) -> None:
-        """Apply what the worker process's cut changed (``_replica_cut``) and stage it (worker thread)."""
+    def _apply_remote(self, report: CutReport, delta: dict) -> np.ndarray:
+        """Apply what the worker process's cut changed (``_replica_cut``) to the bookkeeping (worker thread, in
+        its turn). Returns the new DOFs' source rows, for ``_stage``."""
         sub = self.sub
         counts = (len(sub._nodes.owner), len(sub._elements.owner))
         if tuple(delta["counts"]) != counts:
@@ -784,12 +810,8 @@ class XFEMModel:
         for k, sid in enumerate(sids.tolist()):
             self._enriched[sid] = nodal[k].copy()  # _enrich writes into its entries
         self._staged_sid, self._staged_node, source = delta["numbering"]
-        self._arrays, self._padded = delta["arrays"], None  # None: a large system, built here (_stage)
-        system = delta["system"]
-        if system is not None:
-            self._padded = jax.tree.unflatten(jax.tree.structure(system), to_devices(*jax.tree.leaves(system)))
-            self._level = delta["level"]
-        self._stage(source)
+        self._arrays, self._padded = delta["arrays"], None  # the system: _prepare_remote, or built by _stage
+        return source
 
     def _renumber(self) -> np.ndarray:
         """The staged DOFs become the live nodal subdomains that a piece reaches, ordered by node, then id
@@ -817,14 +839,15 @@ class XFEMModel:
         in the background meanwhile."""
         if int(newton_iterations) != newton_iterations or newton_iterations < 1:
             raise ValueError(f"newton_iterations: expected an int >= 1, got {newton_iterations!r}")
-        live = self._live_system()
-        options = (h, mu, lam, int(newton_iterations))
-        step = self._compiled(live, live.level, *options, background=False)
-        stepped = step(live.system, _padded_state(self.state, live.n, live.system.n), h, mu, lam)
-        # host views of the result, sliced (a JAX slice would compile anew for every DOF count)
-        self.state = State(np.asarray(stepped.x)[:live.n], np.asarray(stepped.v)[:live.n])
-        self._step_options = options
-        self._compiled(live, live.level + 1, *options, background=True)
+        with self._turn:  # the cut worker thread's Python waits (``_turn``)
+            live = self._live_system()
+            options = (h, mu, lam, int(newton_iterations))
+            step = self._compiled(live, live.level, *options, background=False)
+            stepped = step(live.system, _padded_state(self.state, live.n, live.system.n), h, mu, lam)
+            # host views of the result, sliced (a JAX slice would compile anew for every DOF count)
+            self.state = State(np.asarray(stepped.x)[:live.n], np.asarray(stepped.v)[:live.n])
+            self._step_options = options
+            self._compiled(live, live.level + 1, *options, background=True)
         return self.state
 
     # ---------------------------------------------------------------------------------------------------

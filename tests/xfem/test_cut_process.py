@@ -1,8 +1,12 @@
 """The cut worker process (``xfem._cut_process``): its replica of a model, replayed from the cuts made before it
 started, gives the same model as cuts made in the model's own process; a dead or failing worker raises at the
-commit and the next cut starts a new one; the worker ends with its model."""
+commit and the next cut starts a new one; the worker ends with its model; the protocol's framing, the requests
+sent ahead, the turns with the steps, the worker's core and priority."""
 
 import gc
+import io
+import os
+import threading
 
 import manifold3d
 import numpy as np
@@ -10,7 +14,15 @@ import pytest
 
 import xfem._xfem
 from tests.xfem.test_xfem import LAM, MU, RHO, G, H, _plane, _tall_box
-from xfem._cut_process import CutProcess, CutProcessError, _portable, pack_meshes, unpack_meshes
+from xfem._cut_process import (
+    CutProcess,
+    CutProcessError,
+    _portable,
+    _read_frame,
+    _write_frame,
+    pack_meshes,
+    unpack_meshes,
+)
 from xfem._subdomains import MeshSolid, solid_mesh
 from xfem._xfem import xfem_model
 
@@ -96,7 +108,7 @@ def test_large_systems_are_built_by_the_model(monkeypatch):
     remote, inline = _models()
     sent = []
     apply = remote._apply_remote
-    remote._apply_remote = lambda report, delta: (sent.append(delta["system"]), apply(report, delta))
+    remote._apply_remote = lambda report, delta: (sent.append(delta["system"]), apply(report, delta))[1]
     for cut in CUTS:
         remote.cut_async(_plane(**cut))
         inline.cut(_plane(**cut))
@@ -131,7 +143,8 @@ def test_worker_errors_come_back_and_disagreement_is_caught():
     remote, _ = _models()
     remote.start_cut_worker()
     with pytest.raises(TypeError):  # a malformed request: the worker's own error, raised here
-        remote._process.request(("not a cut",))
+        remote._process.send(("not a cut",))
+        remote._process.receive()
     remote._drop_process()
     with pytest.raises(CutProcessError, match="replica has"):  # checked before anything is applied
         remote._apply_remote(None, dict(counts=(0, 0)))
@@ -163,3 +176,67 @@ def test_worker_startup_failure_is_reported():
             process.wait_ready()
     finally:
         process.close()
+
+
+def test_messages_are_framed_whole():
+    """Each message is its pickle's length and the pickle; a stream that ends early is an EOFError, not a hang."""
+    stream = io.BytesIO()
+    for message in (b"", b"one", bytes(range(256)) * 300):
+        _write_frame(stream, message)
+    stream.seek(0)
+    assert [_read_frame(stream) for _ in range(3)] == [b"", b"one", bytes(range(256)) * 300]
+    with pytest.raises(EOFError):
+        _read_frame(stream)
+    stream = io.BytesIO()
+    _write_frame(stream, b"abcdef")
+    with pytest.raises(EOFError, match="within a message"):
+        _read_frame(io.BytesIO(stream.getvalue()[:-1]))
+
+
+def test_next_cut_is_sent_before_a_reply_is_applied():
+    """The worker process starts the next pending cut as soon as it replies, while the model applies the reply."""
+    remote, inline = _models()
+    remote.start_cut_worker()
+    events = []
+    process, apply = remote._process, remote._apply_remote
+    send = process.send
+    process.send = lambda message, turn=None: (events.append("send"), send(message, turn))[1]
+    remote._apply_remote = lambda report, delta: (events.append("apply"), apply(report, delta))[1]
+    with remote._turn:  # the worker cannot pickle the first request yet: all three are queued
+        for cut in CUTS:
+            remote.cut_async(_plane(**cut))
+    for cut in CUTS:
+        inline.cut(_plane(**cut))
+    remote.commit_cuts()
+    assert events == ["send", "send", "apply", "send", "apply", "apply"]
+    _assert_same(remote, inline)
+
+
+def test_steps_take_turns_with_the_worker():
+    """A step waits while the worker thread holds the turn (``XFEMModel._turn``)."""
+    model, _ = _models()
+    model.step(H, MU, LAM)  # compiled
+    done = threading.Event()
+    with model._turn:
+        stepping = threading.Thread(target=lambda: (model.step(H, MU, LAM), done.set()))
+        stepping.start()
+        assert not done.wait(0.3)
+    stepping.join(30)
+    assert done.is_set()
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_getaffinity"), reason="CPU affinity is Linux's")
+def test_worker_runs_on_one_core_at_low_priority():
+    """Background cuts run on one core at nice 19; a ``cut`` (the model waits for it) on all the parent's cores."""
+    remote, _ = _models()
+    remote.cut_async(_plane(**CUTS[0]))
+    remote.commit_cuts()
+    child = remote._process._child.pid
+    cores = os.sched_getaffinity(0)
+    assert os.sched_getaffinity(child) == {max(cores)}
+    assert os.getpriority(os.PRIO_PROCESS, child) == 19
+    remote.cut(_plane(**CUTS[1]))
+    assert os.sched_getaffinity(child) == cores
+    remote.cut_async(_plane(**CUTS[2]))
+    remote.commit_cuts()
+    assert os.sched_getaffinity(child) == {max(cores)}
