@@ -117,10 +117,10 @@ class _StagedCut(NamedTuple):
     live: _Live
 
 
-# While cuts are pending, the model's worker thread wakes to apply each cut's changes (0.5-2 ms of Python on
-# sticks, 4-36 ms on accordion, in a worker process's reply) and to compile new capacity levels' steps; the steps'
-# Python parts (dispatch, the host callbacks, the small systems' CHOLMOD call) would wait for it up to the switch
-# interval each time (5 ms by default, 3x a sticks frame). When the cut ran in that thread, on sticks (latency
+# While cuts are pending, the model's worker thread wakes to read each worker process's reply, to build a large
+# system from it and to compile new capacity levels' steps (its other pieces take turns with the steps, ``_turn``);
+# the steps' Python parts (dispatch, the host callbacks, the small systems' CHOLMOD call) would wait for it up to the
+# switch interval each time (5 ms by default, 3x a sticks frame). When the cut ran in that thread, on sticks (latency
 # 25) the slowest cut-window frame was 2.4x the average frame at 10 us, 4.2x at 0.1 and 1 ms, 4.8x at 5 ms.
 _SWITCH_INTERVAL = 1e-5
 _switching = {"models": 0, "saved": None}
@@ -222,8 +222,9 @@ class XFEMModel:
     system. The result equals that of ``cut`` called at the moment of the commit (to the rounding of manifold3d's
     Booleans, which the worker runs one at a time, leaving the other core to the steps). The work runs in a
     worker process (``xfem._cut_process``: manifold3d and libigl hold the GIL through each call) that keeps a
-    replica of this bookkeeping and sends back what each cut changed; the model's worker thread applies it and
-    compiles the step of a new capacity level. The process starts with the first ``cut_async`` (or
+    replica of this bookkeeping and sends back what each cut changed; the model's worker thread sends it the next
+    pending cut, then applies the reply, in pieces that take turns with the steps (``_turn``), and compiles the step
+    of a new capacity level. The process runs on one core at the lowest priority (``xfem._cut_process``). The process starts with the first ``cut_async`` (or
     ``start_cut_worker``), replaying the cuts made before; from then on ``cut`` goes through it too, and it ends
     with the model. Pending cuts run one after the other, in order; a query (``piece_arrays``, ``system``,
     ``displacement_at``, ...) or ``cut`` first waits for them and commits them (``components`` and ``pieces``
