@@ -224,12 +224,12 @@ class XFEMModel:
     worker process (``xfem._cut_process``: manifold3d and libigl hold the GIL through each call) that keeps a
     replica of this bookkeeping and sends back what each cut changed; the model's worker thread sends it the next
     pending cut, then applies the reply, in pieces that take turns with the steps (``_turn``), and compiles the step
-    of a new capacity level. The process runs on one core at the lowest priority (``xfem._cut_process``). The process starts with the first ``cut_async`` (or
-    ``start_cut_worker``), replaying the cuts made before; from then on ``cut`` goes through it too, and it ends
-    with the model. Pending cuts run one after the other, in order; a query (``piece_arrays``, ``system``,
-    ``displacement_at``, ...) or ``cut`` first waits for them and commits them (``components`` and ``pieces``
-    answer for the committed cuts). A failed cut (or a worker that died) raises at its commit; the next cut
-    starts a new worker.
+    of a new capacity level. The process runs on one core at the lowest priority (``xfem._cut_process``). It starts
+    with the first ``cut_async`` (or ``start_cut_worker``), replaying the cuts made before; from then on ``cut``
+    goes through it too, and it ends with the model. Pending cuts run one after the other, in order; a query
+    (``piece_arrays``, ``system``, ``displacement_at``, ...) or ``cut`` first waits for them and commits them
+    (``components`` and ``pieces`` answer for the committed cuts). A failed cut (or a worker that died) raises at
+    its commit; the next cut starts a new worker.
     """
 
     def __init__(self, mesh: TetMesh, rho: np.ndarray, gravity: np.ndarray, fixed: np.ndarray, state: State):
@@ -705,7 +705,10 @@ class XFEMModel:
                 process.send(self._unsent.popleft(), self._turn)
             report, delta = process.receive(self._turn)
             if self._unsent:  # the child works on it while this reply is applied
-                process.send(self._unsent.popleft(), self._turn)
+                try:
+                    process.send(self._unsent.popleft(), self._turn)
+                except CutProcessError:  # the child exited after its reply: that cut's receive raises it
+                    pass
             if delta is not None:
                 with self._turn:
                     source = self._apply_remote(report, delta)
