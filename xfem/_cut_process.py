@@ -51,11 +51,12 @@ _NO_TURN = contextlib.nullcontext()
 # manifold3d's TBB, which size themselves by the CPU affinity. It takes one core, the last the parent may use (its
 # pools run one thread each; a background cut is one thread's work anyway, ``parallel=False``), at the lowest
 # priority (a step's threads that wake on that core take it back at once). Measured on sticks (2 cores, latency
-# 100, 15 runs each), the slowest frame while cutting over the average frame: median 3.2 (2 of 15 runs <= 2) with
-# neither, 2.2 (2/15) with the core alone, 2.15-2.2 (4-6/15) with both, where in up to 3 of 15 runs the child fell
-# behind (the last cut not ready when due: 10-12x); nice 19 without a fixed core fell behind more (median 4.5), and
-# nice 5-15 spiked more (median 2.6-3.4). Keeping the parent's threads off the child's core (no fell-behind runs,
-# median 2.15) slowed thin's steps, which use both cores (1.8-2.6x against 1.2-1.6x).
+# 100), the slowest frame while cutting over the average frame, 15 runs each: median 3.2 (2 of 15 runs <= 2) with
+# neither, 2.2 (2/15) with the core alone, 2.2-2.5 (3-4/15) with both. The priority itself is a close call: nice 0
+# and 19 alternated in 20 runs each gave medians 2.8 and 2.7, and in some batches the child at nice 19 fell behind
+# (the last cut not ready when due: 10-12x); nice 19 without a fixed core fell behind more (median 4.5). Keeping
+# the parent's threads off the child's core (no run fell behind, median 2.15) slowed thin's steps, which use both
+# cores (1.8-2.6x against 1.2-1.6x).
 _CHILD_START = """
 import os
 if hasattr(os, "sched_setaffinity"):
