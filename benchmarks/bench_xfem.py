@@ -25,8 +25,9 @@ slowest cut frame is the slowest frame from a cut's start to the frame it takes 
 ``SCENE_async_uncut_max_over_avg``, the slowest frame outside those windows over the average, is the reference
 for the machine's own jitter (a shared 2-core machine: single frames with no cut work reach 1.4-2.3x).
 
-Garbage collection. After the warm-up the objects alive (modules, compiled steps, the scene) are moved out of the
-collector's reach (``gc.freeze``), as a real-time application does: a full collection over them took 120-130 ms,
+Garbage collection. After the warm-up, and again before the background run, the objects alive (modules, compiled
+steps, the scene, the timed run) are moved out of the collector's reach (``gc.freeze``), as a real-time application
+does: a full collection over them took 120-130 ms,
 half a thin frame, at random frames of the timed runs.
 
 Targets (issue 8), as ratios to Table 2 (paper figure / ours; > 1: we are faster): ``SCENE_step_avg_vs_paper``
@@ -139,6 +140,8 @@ def run(size: str, steps: int | None):
         cut_step_max = max((r.step_seconds for r in timed.records if r.cuts), default=0.0)
         dpsi, cg = _breakdown(timed.model, sc.h, mu, lam)
         wait_for_compilations()
+        gc.collect()  # the timed run's objects too, as after the warm-up
+        gc.freeze()
         background = run_scene(sc, steps=frames, cut_latency=LATENCY[name])
         asummary = background.summary()
         acut_max = max(r.seconds for r in background.records if r.cutting or r.cuts)
