@@ -27,8 +27,7 @@ for the machine's own jitter (a shared 2-core machine: single frames with no cut
 
 Garbage collection. After the warm-up, and again before the background run, the objects alive (modules, compiled
 steps, the scene, the timed run) are moved out of the collector's reach (``gc.freeze``), as a real-time application
-does: a full collection over them took 120-130 ms,
-half a thin frame, at random frames of the timed runs.
+does: a full collection over them took 120-130 ms, half a thin frame, at random frames of the timed runs.
 
 Targets (issue 8), as ratios to Table 2 (paper figure / ours; > 1: we are faster): ``SCENE_step_avg_vs_paper``
 >= 1 and ``SCENE_boolean_vs_paper``; the Booleans take <= 0.5 ms per subdomain (``SCENE_boolean_ms``); the

@@ -712,12 +712,8 @@ class XFEMModel:
             if delta is not None:
                 with self._turn:
                     source = self._apply_remote(report, delta)
-                system = delta["system"]
-                if system is not None:
-                    with self._turn:
-                        self._padded = jax.tree.unflatten(jax.tree.structure(system),
-                                                          to_devices(*jax.tree.leaves(system)))
-                        self._level = delta["level"]
+                with self._turn:  # the device copy, in a turn of its own
+                    self._take_system(delta)
                 self._stage(source)  # builds a large system, or compiles a new level's step: beside the steps
         except BaseException:
             self._failed = True
@@ -779,8 +775,9 @@ class XFEMModel:
                                                                 [np.asarray(a) for a in jax.tree.leaves(live.system)]))
 
     def _apply_remote(self, report: CutReport, delta: dict) -> np.ndarray:
-        """Apply what the worker process's cut changed (``_replica_cut``) to the bookkeeping (worker thread, in
-        its turn). Returns the new DOFs' source rows, for ``_stage``."""
+        """Apply what the worker process's cut changed (``_replica_cut``) to the bookkeeping and the staged
+        numbering (worker thread, in its turn; the system: ``_take_system``). Returns the new DOFs' source rows,
+        for ``_stage``."""
         sub = self.sub
         counts = (len(sub._nodes.owner), len(sub._elements.owner))
         if tuple(delta["counts"]) != counts:
@@ -814,8 +811,16 @@ class XFEMModel:
         for k, sid in enumerate(sids.tolist()):
             self._enriched[sid] = nodal[k].copy()  # _enrich writes into its entries
         self._staged_sid, self._staged_node, source = delta["numbering"]
-        self._arrays, self._padded = delta["arrays"], None  # the system: _prepare_remote, or built by _stage
         return source
+
+    def _take_system(self, delta: dict) -> None:
+        """The staged system from a worker process's reply: its arrays, and its padded system put on the device
+        where the reply holds one (else ``_stage`` builds it from the arrays)."""
+        self._arrays, self._padded = delta["arrays"], None
+        if delta["system"] is not None:
+            system = delta["system"]
+            self._padded = jax.tree.unflatten(jax.tree.structure(system), to_devices(*jax.tree.leaves(system)))
+            self._level = delta["level"]
 
     def _renumber(self) -> np.ndarray:
         """The staged DOFs become the live nodal subdomains that a piece reaches, ordered by node, then id
