@@ -6,6 +6,7 @@ sent ahead, the turns with the steps, the worker's core and priority."""
 import gc
 import io
 import os
+import pickle
 import threading
 
 import manifold3d
@@ -17,6 +18,7 @@ from tests.xfem.test_xfem import LAM, MU, RHO, G, H, _plane, _tall_box
 from xfem._cut_process import (
     CutProcess,
     CutProcessError,
+    _encode,
     _portable,
     _read_frame,
     _write_frame,
@@ -179,18 +181,34 @@ def test_worker_startup_failure_is_reported():
 
 
 def test_messages_are_framed_whole():
-    """Each message is its pickle's length and the pickle; a stream that ends early is an EOFError, not a hang."""
+    """Each message is its lengths, its pickle and its large arrays' buffers, read back whole, each buffer aligned to
+    64 bytes (XLA's CPU client aliases such host arrays); a stream that ends early is an EOFError, not a hang."""
+    large = np.arange(3000, dtype=np.float64).reshape(1000, 3)
+    messages = [b"", ("one", np.arange(5)), {"system": (large, np.asfortranarray(large[:, :2]).astype(np.int32)),
+                                            "small": np.ones(3)}]
     stream = io.BytesIO()
-    for message in (b"", b"one", bytes(range(256)) * 300):
-        _write_frame(stream, message)
+    for message in messages:
+        _write_frame(stream, *_encode(message))
     stream.seek(0)
-    assert [_read_frame(stream) for _ in range(3)] == [b"", b"one", bytes(range(256)) * 300]
-    with pytest.raises(EOFError):
+    frames = [_read_frame(stream) for _ in messages]
+    assert [len(buffers) for _, buffers in frames] == [0, 0, 2]
+    data, buffers = frames[2]
+    assert len(data) < 1000  # the arrays travel out of band
+    assert all(b.ctypes.data % 64 == 0 for b in buffers)
+    back = [pickle.loads(data, buffers=buffers) for data, buffers in frames]
+    assert back[0] == b"" and back[1][0] == "one"
+    np.testing.assert_array_equal(back[1][1], np.arange(5))
+    system = back[2]["system"]
+    np.testing.assert_array_equal(system[0], large)
+    np.testing.assert_array_equal(system[1], large[:, :2].astype(np.int32))
+    assert system[1].flags.f_contiguous and system[0].ctypes.data % 64 == 0
+    with pytest.raises(EOFError, match="the stream ended"):
         _read_frame(stream)
-    stream = io.BytesIO()
-    _write_frame(stream, b"abcdef")
-    with pytest.raises(EOFError, match="within a message"):
-        _read_frame(io.BytesIO(stream.getvalue()[:-1]))
+    whole = io.BytesIO()
+    _write_frame(whole, *_encode(messages[2]))
+    for cut in (3, 40, len(whole.getvalue()) - 1):  # in the lengths, the pickle, the last buffer
+        with pytest.raises(EOFError, match="within a message"):
+            _read_frame(io.BytesIO(whole.getvalue()[:cut]))
 
 
 def test_next_cut_is_sent_before_a_reply_is_applied():
