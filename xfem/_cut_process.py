@@ -16,7 +16,7 @@ pieces' integrals and enrichment, the new DOF numbering and the new system (host
 model's worker thread waits for the reply without the GIL, sends the next pending cut (the child works on it
 meanwhile) and applies the reply (``XFEMModel._apply_remote``, which first checks the replica's id counts against
 the model's). Its GIL-bound pieces (pickling, unpickling, applying, the device copy of the system) take turns with
-the steps (``XFEMModel._turn``). From then on the model makes every cut there. The child runs on one core at the
+the steps (``xfem._xfem._Turns``). From then on the model makes every cut there. The child runs on one core at the
 lowest priority (``_CHILD_START``), and on all the parent's cores for a ``cut`` (parallel Booleans, the parent
 waiting).
 
@@ -65,8 +65,8 @@ _NO_TURN = contextlib.nullcontext()
 # cores (1.8-2.6x against 1.2-1.6x).
 _CHILD_START = """
 import os
-if hasattr(os, "sched_setaffinity"):
-    os.sched_setaffinity(0, {max(os.sched_getaffinity(0))})
+if hasattr(os, "sched_setaffinity") and os.environ.get("XFEM_CUT_WORKER_CORE"):
+    os.sched_setaffinity(0, {int(os.environ["XFEM_CUT_WORKER_CORE"])})
 if hasattr(os, "nice"):
     os.nice(19)
 from xfem._cut_process import main
@@ -86,18 +86,21 @@ class CutProcess:
         env = dict(os.environ)
         env["JAX_PLATFORMS"] = "cpu"  # the replica builds host systems only; never take an accelerator
         env["PYTHONPATH"] = os.pathsep.join(p for p in sys.path if p)  # the parent's imports, from any directory
+        cores = parent_cores()
+        if cores:
+            env["XFEM_CUT_WORKER_CORE"] = str(worker_core(cores))
         self._child = subprocess.Popen([sys.executable, "-c", _CHILD_START], stdin=subprocess.PIPE,
                                        stdout=subprocess.PIPE, env=env)
         self._ready = False
-        self.send({**init, "cores": _cores()})
+        self.send({**init, "cores": cores})
 
-    def send(self, message, turn: threading.Lock | None = None) -> None:
+    def send(self, message, turn: contextlib.AbstractContextManager | None = None) -> None:
         """Send a request. The child answers requests in order, one at a time; the model sends the next cut's
         request when a reply arrives, so that the child works on it while the model applies that reply.
 
         Args:
-            turn: a lock the pickling runs under (it holds the GIL: the model's steps wait for it instead of sharing
-                the GIL with it, ``XFEMModel._turn``); the write runs outside.
+            turn: a context the pickling runs in (it holds the GIL: the model's steps wait for it instead of sharing
+                the GIL with it, ``xfem._xfem._Turns``); the write runs outside.
         """
         with turn or _NO_TURN:
             encoded = _encode(message)
@@ -107,7 +110,7 @@ class CutProcess:
             raise CutProcessError(f"the cut worker process exited (code {self._child.poll()}; see its stderr)") \
                 from error
 
-    def receive(self, turn: threading.Lock | None = None):
+    def receive(self, turn: contextlib.AbstractContextManager | None = None):
         """The next reply (after the child's ready message); raises the error the child raised, if any.
 
         Args:
@@ -116,7 +119,7 @@ class CutProcess:
         self.wait_ready()
         return self._receive(turn)
 
-    def _receive(self, turn: threading.Lock | None = None):
+    def _receive(self, turn: contextlib.AbstractContextManager | None = None):
         try:
             data, buffers = _read_frame(self._child.stdout)  # waits for the whole reply, without the GIL
             with turn or _NO_TURN:
@@ -259,6 +262,58 @@ def _serve(inbox, outbox) -> None:
             return  # its bookkeeping may be partial: the parent starts a new replica
 
 
+def worker_core(cores: set[int]) -> int:
+    """The core the worker process runs on, of the parent's cores: the last."""
+    return max(cores)
+
+
+# While a model with short steps has background cuts pending, every thread of the parent process stays off the
+# worker's core (``reserve_worker_core``). A step's thread that wakes behind the worker on its core can wait for the
+# scheduler's next tick, whatever the worker's priority: Linux's EEVDF scheduler lets a task that is owed CPU time
+# (as a low-priority task often preempted is) run out its slice (traced on sticks: the step's thread runnable for
+# 3.4-5.4 ms behind the worker, the other core idle; 4 ms ticks). That is 2-4x a 1.5 ms frame.
+_reservation: dict = {"count": 0, "saved": None, "cores": None}
+_RESERVATION_LOCK = threading.Lock()
+
+
+def parent_cores() -> set[int] | None:
+    """The CPUs the parent's threads may use outside a reservation (None where the platform does not say)."""
+    with _RESERVATION_LOCK:
+        return set(_reservation["cores"]) if _reservation["cores"] is not None else _cores()
+
+
+def reserve_worker_core(reserve: bool) -> None:
+    """Count the models that keep the worker's core free: the first moves every thread of this process off it (if
+    it has another core), the last moves each back to the CPUs it had (threads started meanwhile: to all the
+    process's)."""
+    with _RESERVATION_LOCK:
+        _reservation["count"] += 1 if reserve else -1
+        if reserve and _reservation["count"] == 1:
+            cores = _cores()
+            if cores is None or len(cores) < 2 or not os.path.isdir("/proc/self/task"):
+                return
+            saved, worker = {}, worker_core(cores)
+            for thread in _threads():
+                try:
+                    saved[thread] = os.sched_getaffinity(thread)
+                    os.sched_setaffinity(thread, saved[thread] - {worker} or saved[thread])
+                except OSError:  # a thread that has just ended
+                    pass
+            _reservation.update(saved=saved, cores=cores)
+        elif not reserve and _reservation["count"] == 0 and _reservation["saved"] is not None:
+            saved, cores = _reservation["saved"], _reservation["cores"]
+            for thread in _threads():
+                try:
+                    os.sched_setaffinity(thread, saved.get(thread, cores))
+                except OSError:
+                    pass
+            _reservation.update(saved=None, cores=None)
+
+
+def _threads() -> list[int]:
+    return [int(thread) for thread in os.listdir("/proc/self/task")]
+
+
 def _cores() -> set[int] | None:
     """The CPUs this process may run on (None where the platform does not say)."""
     return set(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else None
@@ -268,9 +323,9 @@ def _use_cores(cores: set[int] | None) -> None:
     """Let every thread of this process (the Boolean threads, the pools started so far) run on ``cores``."""
     if cores is None or not hasattr(os, "sched_setaffinity") or not os.path.isdir("/proc/self/task"):
         return
-    for thread in os.listdir("/proc/self/task"):
+    for thread in _threads():
         try:
-            os.sched_setaffinity(int(thread), cores)
+            os.sched_setaffinity(thread, cores)
         except OSError:  # a thread that has just ended
             pass
 

@@ -31,6 +31,7 @@ is thinner than that offset there. A node with a single subdomain needs no query
 
 from __future__ import annotations
 
+import contextlib
 import sys
 import threading
 import time
@@ -50,7 +51,7 @@ from scipy.sparse.csgraph import connected_components
 from jaxcga._support import to_device, to_devices
 from xfem._assembly import CapacityError
 from xfem._backward_euler import FEMSystem, State, SystemCapacity, compiled_step, fem_system
-from xfem._cut_process import CutProcess, CutProcessError, pack_meshes, unpack_meshes
+from xfem._cut_process import CutProcess, CutProcessError, pack_meshes, reserve_worker_core, unpack_meshes
 from xfem._integration import element_piece_integrals, linear_shape_coefficients, moments_of_pieces
 from xfem._linear_tet import shape_gradients
 from xfem._subdomains import CutReport, MeshSolid, Subdomains, apply_cut, check_cut, solid_mesh, subdomains
@@ -117,8 +118,59 @@ class _StagedCut(NamedTuple):
     live: _Live
 
 
+class _Turns:
+    """The steps and the pieces of the cut worker thread's GIL-bound work (pickling a request, unpickling a reply,
+    applying it, putting the new system on the device: 0.05-0.5 ms each on sticks) take turns instead of sharing
+    the GIL, whose hand-overs cost a step more than the work itself. Where ``paced`` (short steps,
+    ``_SHORT_STEP_S``), a piece waits for the end of a step after the previous piece, so that a step waits for one
+    piece at most (on sticks, the pieces of a reply in a row made their frame 1.5-2.5x the average); unless the
+    model's thread waits for the worker (``hurry``: a commit, a query) or nobody steps for ``_PATIENCE`` seconds."""
+
+    def __init__(self):
+        self.paced = False
+        self._lock = threading.Lock()
+        self._stepped = threading.Condition()
+        self._steps = 0  # steps ended
+        self._steps_at_piece = -1  # steps ended when the last piece ended
+        self._hurried = 0
+
+    @contextlib.contextmanager
+    def step(self):
+        with self._lock:
+            yield
+        with self._stepped:
+            self._steps += 1
+            self._stepped.notify_all()
+
+    @contextlib.contextmanager
+    def piece(self):
+        if self.paced:
+            with self._stepped:
+                self._stepped.wait_for(lambda: self._steps > self._steps_at_piece or self._hurried, _PATIENCE)
+        with self._lock:
+            yield
+        with self._stepped:
+            self._steps_at_piece = self._steps
+
+    @contextlib.contextmanager
+    def hurry(self):
+        """The model's thread waits for the worker thread: its pieces go without waiting for steps."""
+        with self._stepped:
+            self._hurried += 1
+            self._stepped.notify_all()
+        try:
+            yield
+        finally:
+            with self._stepped:
+                self._hurried -= 1
+
+
+# a worker thread's piece waits at most this long for a step (a model that is not stepping)
+_PATIENCE = 0.05
+
+
 # While cuts are pending, the model's worker thread wakes to read each worker process's reply, to build a large
-# system from it and to compile new capacity levels' steps (its other pieces take turns with the steps, ``_turn``);
+# system from it and to compile new capacity levels' steps (its other pieces take turns with the steps, ``_Turns``);
 # the steps' Python parts (dispatch, the host callbacks, the small systems' CHOLMOD call) would wait for it up to the
 # switch interval each time (5 ms by default, 3x a sticks frame). When the cut ran in that thread, on sticks (latency
 # 25) the slowest cut-window frame was 2.4x the average frame at 10 us, 4.2x at 0.1 and 1 ms, 4.8x at 5 ms.
@@ -127,9 +179,21 @@ _switching = {"models": 0, "saved": None}
 _SWITCHING_LOCK = threading.Lock()
 
 
-def _cutting_in_background(started: bool) -> None:
+# A model whose steps take less than this keeps the process's threads off the cut worker's core while its background
+# cuts are pending (``reserve_worker_core``), and paces the worker thread's pieces one per step (``_Turns``): a
+# thread that waits behind the worker for a scheduler tick (4 ms at Linux's usual 250 Hz), or a reply's pieces in
+# a row (~1 ms on sticks), make such a frame 1.5x or more. Longer steps (thin's 0.1 s, accordion's 0.3 s) use both
+# cores (kept off one, thin's slowest cut-window frames were 1.8-2.6x the average, against 1.2-1.6x), and pacing
+# would only delay their cuts: a piece is a small part of their frame.
+_SHORT_STEP_S = 0.01
+
+
+def _cutting_in_background(started: bool, reserve_core: bool = False) -> None:
     """Count the models with pending background cuts; the first lowers the interpreter's switch interval, the
-    last restores it."""
+    last restores it. ``reserve_core``: the model keeps the worker's core free meanwhile (``_SHORT_STEP_S``), the
+    same at its start and its end."""
+    if reserve_core:
+        reserve_worker_core(started)
     with _SWITCHING_LOCK:
         if started:
             if _switching["models"] == 0 and sys.getswitchinterval() > _SWITCH_INTERVAL:
@@ -223,7 +287,7 @@ class XFEMModel:
     Booleans, which the worker runs one at a time, leaving the other core to the steps). The work runs in a
     worker process (``xfem._cut_process``: manifold3d and libigl hold the GIL through each call) that keeps a
     replica of this bookkeeping and sends back what each cut changed; the model's worker thread sends it the next
-    pending cut, then applies the reply, in pieces that take turns with the steps (``_turn``), and compiles the step
+    pending cut, then applies the reply, in pieces that take turns with the steps (``_Turns``), and compiles the step
     of a new capacity level. The process runs on one core at the lowest priority (``xfem._cut_process``). It starts
     with the first ``cut_async`` (or ``start_cut_worker``), replaying the cuts made before; from then on ``cut``
     goes through it too, and it ends with the model. Pending cuts run one after the other, in order; a query
@@ -263,11 +327,7 @@ class XFEMModel:
         self._pending: deque[Future] = deque()  # cut_async's cuts, in order
         self._staged: deque[_StagedCut] = deque()  # prepared by the worker, in order, not yet committed
         self._worker: ThreadPoolExecutor | None = None
-        # Held by each step and by each piece of the worker thread's GIL-bound work for the worker process (pickling
-        # a request, unpickling a reply, applying it, putting the new system on the device; 0.1-0.45 ms each on
-        # sticks): they take turns instead of sharing the GIL, whose hand-overs, when the worker thread waits for a
-        # core, cost a step more than the work itself.
-        self._turn = threading.Lock()
+        self._turns = _Turns()  # the steps and the worker thread's GIL-bound pieces
         # the cut worker process (xfem._cut_process) and the cuts made so far, which it replays when it starts:
         # (the cut solid's mesh, perturb, parallel)
         self._process: CutProcess | None = None
@@ -280,6 +340,8 @@ class XFEMModel:
         self._sent_system_bytes: int | None = None
         self._committed: weakref.WeakSet[Future] = weakref.WeakSet()
         self._step_options: tuple | None = None  # (h, mu, lam, newton_iterations) of the last step
+        self._last_step_seconds = float("inf")  # wall-clock time of the last step
+        self._reserving = False  # keeping the process's threads off the worker's core (``_SHORT_STEP_S``)
         _, _, _, M, _, _ = self._system_arrays()
         # capacity level 0 is _HEADROOM times these (nodes, elements, mass entries, nonzeros), at least _FLOOR
         self._base = (len(self.X), len(self.T), M.nnz, 9 * M.nnz)
@@ -566,9 +628,16 @@ class XFEMModel:
         self._remote = True
         request = (solid_mesh(solid), perturb, parallel)
         self._unsent.append(request)
-        future = self._executor().submit(self._prepare_remote, request)
-        if not self._pending:
-            _cutting_in_background(True)
+        if not self._pending:  # before the worker thread wakes the worker process, which may then take this core
+            self._reserving = self._turns.paced = self._last_step_seconds < _SHORT_STEP_S
+            _cutting_in_background(True, self._reserving)
+        try:
+            future = self._executor().submit(self._prepare_remote, request)
+        except BaseException:
+            self._unsent.pop()
+            if not self._pending:
+                _cutting_in_background(False, self._reserving)
+            raise
         self._pending.append(future)
         return future
 
@@ -596,7 +665,8 @@ class XFEMModel:
         while self._pending:
             future = self._pending.popleft()
             try:
-                report = future.result()
+                with self._turns.hurry():
+                    report = future.result()
             except BaseException:
                 for later in self._pending:
                     later.cancel()
@@ -605,14 +675,14 @@ class XFEMModel:
                 self._unsent.clear()
                 self._staged.clear()
                 self._failed = False
-                _cutting_in_background(False)
+                _cutting_in_background(False, self._reserving)
                 raise
             if report.staged:
                 self._commit(self._staged.popleft())
             self._committed.add(future)
             reports.append(report)
             if not self._pending:
-                _cutting_in_background(False)
+                _cutting_in_background(False, self._reserving)
             if future is until:
                 break
         return reports
@@ -702,17 +772,17 @@ class XFEMModel:
             if any(r is request for r in self._unsent):
                 while self._unsent[0] is not request:  # requests of cuts cancelled after a failure
                     self._unsent.popleft()
-                process.send(self._unsent.popleft(), self._turn)
-            report, delta = process.receive(self._turn)
+                process.send(self._unsent.popleft(), self._turns.piece())
+            report, delta = process.receive(self._turns.piece())
             if self._unsent:  # the child works on it while this reply is applied
                 try:
-                    process.send(self._unsent.popleft(), self._turn)
+                    process.send(self._unsent.popleft(), self._turns.piece())
                 except CutProcessError:  # the child exited after its reply: that cut's receive raises it
                     pass
             if delta is not None:
-                with self._turn:
+                with self._turns.piece():
                     source = self._apply_remote(report, delta)
-                with self._turn:  # the device copy, in a turn of its own
+                with self._turns.piece():
                     self._take_system(delta)
                 self._stage(source)  # builds a large system, or compiles a new level's step: beside the steps
         except BaseException:
@@ -848,7 +918,8 @@ class XFEMModel:
         in the background meanwhile."""
         if int(newton_iterations) != newton_iterations or newton_iterations < 1:
             raise ValueError(f"newton_iterations: expected an int >= 1, got {newton_iterations!r}")
-        with self._turn:  # the cut worker thread's Python waits (``_turn``)
+        start = time.perf_counter()
+        with self._turns.step():  # the cut worker thread's Python waits (``_Turns``)
             live = self._live_system()
             options = (h, mu, lam, int(newton_iterations))
             step = self._compiled(live, live.level, *options, background=False)
@@ -857,6 +928,7 @@ class XFEMModel:
             self.state = State(np.asarray(stepped.x)[:live.n], np.asarray(stepped.v)[:live.n])
             self._step_options = options
             self._compiled(live, live.level + 1, *options, background=True)
+        self._last_step_seconds = time.perf_counter() - start
         return self.state
 
     # ---------------------------------------------------------------------------------------------------

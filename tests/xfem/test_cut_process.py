@@ -220,7 +220,7 @@ def test_next_cut_is_sent_before_a_reply_is_applied():
     send = process.send
     process.send = lambda message, turn=None: (events.append("send"), send(message, turn))[1]
     remote._apply_remote = lambda report, delta: (events.append("apply"), apply(report, delta))[1]
-    with remote._turn:  # the worker cannot pickle the first request yet: all three are queued
+    with remote._turns.step():  # the worker cannot pickle the first request yet: all three are queued
         for cut in CUTS:
             remote.cut_async(_plane(**cut))
     for cut in CUTS:
@@ -230,17 +230,48 @@ def test_next_cut_is_sent_before_a_reply_is_applied():
     _assert_same(remote, inline)
 
 
-def test_steps_take_turns_with_the_worker():
-    """A step waits while the worker thread holds the turn (``XFEMModel._turn``)."""
+def test_steps_and_worker_pieces_take_turns(monkeypatch):
+    """A step waits while a piece of the worker thread's work holds the turn; after a piece, the next one waits for
+    a step to end, unless the model's thread waits for the worker (``hurry``) or nobody steps (``_PATIENCE``)."""
+    monkeypatch.setattr(xfem._xfem, "_PATIENCE", 30.0)
     model, _ = _models()
     model.step(H, MU, LAM)  # compiled
+    turns = model._turns
+    turns.paced = True  # as for a model with short steps (``_SHORT_STEP_S``)
     done = threading.Event()
-    with model._turn:
+    with turns.piece():
         stepping = threading.Thread(target=lambda: (model.step(H, MU, LAM), done.set()))
         stepping.start()
         assert not done.wait(0.3)
     stepping.join(30)
     assert done.is_set()
+
+    def next_piece(started):
+        with turns.piece():
+            started.set()
+
+    with turns.piece():
+        pass
+    started = threading.Event()
+    waiting = threading.Thread(target=next_piece, args=(started,))
+    waiting.start()
+    assert not started.wait(0.3)  # no step since the last piece
+    model.step(H, MU, LAM)
+    assert started.wait(10)
+    waiting.join()
+    started = threading.Event()
+    waiting = threading.Thread(target=next_piece, args=(started,))
+    waiting.start()
+    assert not started.wait(0.3)
+    with turns.hurry():
+        assert started.wait(10)
+    waiting.join()
+    monkeypatch.setattr(xfem._xfem, "_PATIENCE", 0.05)
+    started = threading.Event()
+    waiting = threading.Thread(target=next_piece, args=(started,))
+    waiting.start()
+    assert started.wait(10)  # nobody steps: it goes after its patience
+    waiting.join()
 
 
 @pytest.mark.skipif(not hasattr(os, "sched_getaffinity"), reason="CPU affinity is Linux's")
@@ -258,3 +289,31 @@ def test_worker_runs_on_one_core_at_low_priority():
     remote.cut_async(_plane(**CUTS[2]))
     remote.commit_cuts()
     assert os.sched_getaffinity(child) == {max(cores)}
+
+
+@pytest.mark.skipif(not hasattr(os, "sched_getaffinity") or len(os.sched_getaffinity(0)) < 2,
+                    reason="needs Linux's CPU affinity and two cores")
+def test_short_steps_keep_the_process_off_the_worker_core():
+    """While a model with short steps has background cuts pending, every thread of the process stays off the
+    worker's core (and its worker pieces are paced); afterwards each gets its CPUs back. Long steps keep all."""
+    cores = os.sched_getaffinity(0)
+    worker = max(cores)
+
+    def affinities():
+        return {os.sched_getaffinity(int(t)) == cores - {worker} for t in os.listdir("/proc/self/task")}
+
+    remote, _ = _models()
+    remote.start_cut_worker()
+    assert os.sched_getaffinity(remote._process._child.pid) == {worker}
+    remote._last_step_seconds = 0.002  # as measured by its steps
+    with remote._turns.step():  # the cut stays pending
+        remote.cut_async(_plane(**CUTS[0]))
+        assert affinities() == {True} and remote._turns.paced
+    remote.commit_cuts()
+    assert os.sched_getaffinity(0) == cores and affinities() == {False}
+    remote._last_step_seconds = 1.0
+    with remote._turns.step():
+        remote.cut_async(_plane(**CUTS[1]))
+        assert os.sched_getaffinity(0) == cores and not remote._turns.paced
+    remote.commit_cuts()
+    assert os.sched_getaffinity(0) == cores
