@@ -288,7 +288,10 @@ class XFEMModel:
     worker process (``xfem._cut_process``: manifold3d and libigl hold the GIL through each call) that keeps a
     replica of this bookkeeping and sends back what each cut changed; the model's worker thread sends it the next
     pending cut, then applies the reply, in pieces that take turns with the steps (``_Turns``), and compiles the step
-    of a new capacity level. The process runs on one core at the lowest priority (``xfem._cut_process``). It starts
+    of a new capacity level. The process runs on one core at the lowest priority (``xfem._cut_process``). While a
+    model whose steps take under 10 ms has cuts pending, the process's threads stay off that core and the worker
+    thread's pieces come one per step (``_SHORT_STEP_S``): with ~1.5 ms steps, a wait behind the worker process
+    for a scheduler tick, or a reply's pieces in a row, would be a frame of 2-4x the average. It starts
     with the first ``cut_async`` (or ``start_cut_worker``), replaying the cuts made before; from then on ``cut``
     goes through it too, and it ends with the model. Pending cuts run one after the other, in order; a query
     (``piece_arrays``, ``system``, ``displacement_at``, ...) or ``cut`` first waits for them and commits them
