@@ -65,13 +65,13 @@ _GROWTH = 1.5  # capacity growth per level
 # the padded elements, 4.8 ms for 512 of them against 1.6 ms for 161)
 _FLOOR = (128, 128, 1024, 9 * 1024)
 # the cut worker process builds and sends a new padded system up to this size (``_padded_bytes_at_least``); a
-# larger one is built only by the model's worker thread, from the system arrays (accordion's is 59 MB, 8x its
-# arrays; half of it the Hessian scatter map). Sent, it
-# cost ~30 ms to pickle, 6-100 ms to unpickle, plus the pipe and the device copy; built, 180-360 ms of the worker
-# thread's CPU. Slowest cut-window frame over the average (one scene per process; benchmark runs): accordion
-# 2.18-2.30x sent, 1.71-2.86x built; thin 1.66-1.88x sent, 1.28-1.95x built: no clear winner on 2 cores. Sticks'
-# (0.2 MB) is always sent: built in the model's process its ~2 ms of Python would stall ~1.5 ms steps.
-_SENT_SYSTEM_BYTES = 8 << 20
+# larger one is built only by the model's worker thread, from the system arrays. Since messages carry arrays out
+# of band (``xfem._cut_process``: no copy to unpickle, none to put on the device), sending costs the model little
+# more than the pipe; building took 180-360 ms of the worker thread's CPU beside the steps (accordion's system is
+# 59 MB). Slowest cut-window frame over the average, one scene per process, alternated: accordion 1.72, 2.07,
+# 1.95 sent, 2.44, 2.09, 2.31 built; thin 1.26, 1.28 sent, 1.32, 1.49 built. The limit keeps a huge model's
+# system (and its copy in the worker process) out of the pipe.
+_SENT_SYSTEM_BYTES = 256 << 20
 
 
 class _Compilation:
