@@ -18,7 +18,8 @@ meanwhile) and applies the reply (``XFEMModel._apply_remote``, which first check
 the model's). Its GIL-bound pieces (pickling, unpickling, applying, the device copy of the system) take turns with
 the steps (``xfem._xfem._Turns``). From then on the model makes every cut there. The child runs on one core at the
 lowest priority (``_CHILD_START``), and on all the parent's cores for a ``cut`` (parallel Booleans, the parent
-waiting).
+waiting); a model with short steps keeps the parent's threads off that core while its cuts are pending
+(``reserve_worker_core``).
 
 Protocol: each message is a pickle (protocol 5) whose arrays of 4 kB or more travel after it, out of band: the
 lengths (8 bytes each), the pickle, the buffers; over the child's stdin and a duplicate of its stdout (its own
@@ -54,15 +55,13 @@ _ALIGN = 64  # XLA's CPU client aliases host arrays aligned to this, instead of 
 _NO_TURN = contextlib.nullcontext()
 
 # The child's first statements, before its imports start the thread pools of numpy's OpenBLAS, XLA and
-# manifold3d's TBB, which size themselves by the CPU affinity. It takes one core, the last the parent may use (its
-# pools run one thread each; a background cut is one thread's work anyway, ``parallel=False``), at the lowest
-# priority (a step's threads that wake on that core take it back at once). Measured on sticks (2 cores, latency
-# 100), the slowest frame while cutting over the average frame, 15 runs each: median 3.2 (2 of 15 runs <= 2) with
-# neither, 2.2 (2/15) with the core alone, 2.2-2.5 (3-4/15) with both. The priority itself is a close call: nice 0
-# and 19 alternated in 20 runs each gave medians 2.8 and 2.7, and in some batches the child at nice 19 fell behind
-# (the last cut not ready when due: 10-12x); nice 19 without a fixed core fell behind more (median 4.5). Keeping
-# the parent's threads off the child's core (no run fell behind, median 2.15) slowed thin's steps, which use both
-# cores (1.8-2.6x against 1.2-1.6x).
+# manifold3d's TBB, which size themselves by the CPU affinity. It takes one core, the last the parent may use
+# (``XFEM_CUT_WORKER_CORE``; its pools run one thread each; a background cut is one thread's work anyway,
+# ``parallel=False``), at the lowest priority. Measured on sticks (2 cores, latency 100), the slowest frame while
+# cutting over the average frame: median 3.2 with neither, 2.2 with the core, 2.2-2.5 with both (15 runs each).
+# Under Linux's EEVDF scheduler the priority does not keep the steps' threads from waiting behind the child on its
+# core (``reserve_worker_core``): nice 19, SCHED_IDLE and a 0.1 ms slice alternated in 16 runs each gave medians
+# 2.3, 2.1 and 2.5, all with runs of 4-12x; SCHED_IDLE on any core starved the child (median 9, its cuts late).
 _CHILD_START = """
 import os
 if hasattr(os, "sched_setaffinity") and os.environ.get("XFEM_CUT_WORKER_CORE"):
@@ -271,7 +270,10 @@ def worker_core(cores: set[int]) -> int:
 # worker's core (``reserve_worker_core``). A step's thread that wakes behind the worker on its core can wait for the
 # scheduler's next tick, whatever the worker's priority: Linux's EEVDF scheduler lets a task that is owed CPU time
 # (as a low-priority task often preempted is) run out its slice (traced on sticks: the step's thread runnable for
-# 3.4-5.4 ms behind the worker, the other core idle; 4 ms ticks). That is 2-4x a 1.5 ms frame.
+# 3.4-5.4 ms behind the worker, the other core idle; 4 ms ticks). That is 2-4x a 1.5 ms frame. Alternated over
+# 20 runs each (sticks, latency 100), the slowest frame while cutting over the average: median 2.16 without, 2.04
+# with the reservation; runs above 3x: 8 without, 2 with. The average frame stayed (1.59 and 1.56 ms). Made before
+# the worker thread wakes (``XFEMModel._submit``): made after, the step's thread was caught behind the child once.
 _reservation: dict = {"count": 0, "saved": None, "cores": None}
 _RESERVATION_LOCK = threading.Lock()
 
