@@ -346,7 +346,7 @@ class XFEMModel:
         self._committed: weakref.WeakSet[Future] = weakref.WeakSet()
         self._step_options: tuple | None = None  # (h, mu, lam, newton_iterations) of the last step
         self._last_step_seconds = float("inf")  # wall-clock time of the last step
-        self._reserving = False  # keeping the process's threads off the worker's core (``_SHORT_STEP_S``)
+        self._end_background = lambda: None  # ends the pending cuts' settings (``_start_background``)
         _, _, _, M, _, _ = self._system_arrays()
         # capacity level 0 is _HEADROOM times these (nodes, elements, mass entries, nonzeros), at least _FLOOR
         self._base = (len(self.X), len(self.T), M.nnz, 9 * M.nnz)
@@ -634,17 +634,23 @@ class XFEMModel:
         request = (solid_mesh(solid), perturb, parallel)
         self._unsent.append(request)
         if not self._pending:  # before the worker thread wakes the worker process, which may then take this core
-            self._reserving = self._turns.paced = self._last_step_seconds < _SHORT_STEP_S
-            _cutting_in_background(True, self._reserving)
+            self._start_background()
         try:
             future = self._executor().submit(self._prepare_remote, request)
         except BaseException:
             self._unsent.pop()
             if not self._pending:
-                _cutting_in_background(False, self._reserving)
+                self._end_background()
             raise
         self._pending.append(future)
         return future
+
+    def _start_background(self) -> None:
+        """Pending cuts from now on: the process-wide settings for background cuts (``_cutting_in_background``),
+        undone by ``_end_background``, or when the model is collected with cuts still pending."""
+        reserve = self._turns.paced = self._last_step_seconds < _SHORT_STEP_S
+        _cutting_in_background(True, reserve)
+        self._end_background = weakref.finalize(self, _cutting_in_background, False, reserve)
 
     @property
     def pending_cuts(self) -> int:
@@ -680,14 +686,14 @@ class XFEMModel:
                 self._unsent.clear()
                 self._staged.clear()
                 self._failed = False
-                _cutting_in_background(False, self._reserving)
+                self._end_background()
                 raise
             if report.staged:
                 self._commit(self._staged.popleft())
             self._committed.add(future)
             reports.append(report)
             if not self._pending:
-                _cutting_in_background(False, self._reserving)
+                self._end_background()
             if future is until:
                 break
         return reports

@@ -7,6 +7,7 @@ import gc
 import io
 import os
 import pickle
+import sys
 import threading
 
 import manifold3d
@@ -317,3 +318,20 @@ def test_short_steps_keep_the_process_off_the_worker_core():
         assert os.sched_getaffinity(0) == cores and not remote._turns.paced
     remote.commit_cuts()
     assert os.sched_getaffinity(0) == cores
+
+
+def test_a_model_dropped_with_pending_cuts_gives_back_the_process_settings():
+    """The switch interval and the reservation of the worker's core end with the model, even with cuts pending."""
+    interval = sys.getswitchinterval()
+    remote, _ = _models()
+    remote.start_cut_worker()
+    remote._last_step_seconds = 0.002
+    future = remote.cut_async(_plane(**CUTS[0]))
+    assert sys.getswitchinterval() < interval
+    future.result()
+    del remote, future
+    gc.collect()
+    assert sys.getswitchinterval() == interval
+    if hasattr(os, "sched_getaffinity"):
+        cores = os.sched_getaffinity(0)
+        assert {frozenset(os.sched_getaffinity(int(t))) for t in os.listdir("/proc/self/task")} == {frozenset(cores)}
