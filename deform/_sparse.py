@@ -1,7 +1,7 @@
 """A sparse linear system factored once on the host and solved from JAX (DESIGN.md, "Sparse linear
-algebra"): ``jax.pure_callback`` runs the factor's solve, ``jax.custom_vjp`` gives its adjoint (the
-solve with the transposed factor; the same solve for a symmetric system). The harmonic fields use it;
-so will ARAP's global step.
+algebra"): ``host_call`` (a ``jax.pure_callback`` without its device copy) runs the factor's solve,
+``jax.custom_vjp`` gives its adjoint (the solve with the transposed factor; the same solve for a symmetric
+system). The harmonic fields use it; so will ARAP's global step.
 
 Two factorizations, picked by the system:
 
@@ -15,12 +15,16 @@ Two factorizations, picked by the system:
 
 from __future__ import annotations
 
+import functools
+
 import jax
 import jax.numpy as jnp
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from sksparse_minimal import SparseCholesky
+
+from jaxcga._support import host_call
 
 
 class SparseSolver:
@@ -72,8 +76,8 @@ def _make_solve(solver: SparseSolver):
         return solver.host_solve(b, transpose).astype(b.dtype)
 
     def call(b, transpose):
-        return jax.pure_callback(lambda x: host(np.asarray(x), transpose), jax.ShapeDtypeStruct(b.shape, b.dtype), b,
-                                 vmap_method="sequential")
+        # host_call, not jax.pure_callback: its device copy of b could hang a one-core machine (jaxcga._support)
+        return host_call(functools.partial(host, transpose=transpose), jax.ShapeDtypeStruct(b.shape, b.dtype), b)
 
     @jax.custom_vjp
     def solve(b):

@@ -4,11 +4,18 @@ not part of jaxcga's public API."""
 from __future__ import annotations
 
 import contextlib
+import functools
 import os
 import sys
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
+import jax._src.callback
+import jax._src.dispatch
+import jax.extend.core
+import jax.interpreters.batching
+import jax.interpreters.mlir
 import jax.numpy as jnp
 import numpy as np
 
@@ -34,6 +41,72 @@ def to_devices(*arrays) -> tuple:
     if _HOST["only"]:
         return tuple(np.asarray(a) for a in arrays)
     return tuple(jax.device_put([np.asarray(a) for a in arrays]))
+
+
+# ---------------------------------------------------------------------------------------------------------
+# host calls from compiled code
+
+# ``jax.pure_callback`` (JAX >= 0.7) puts its callback's inputs on the CPU device before the call, and an input XLA
+# hands over unaligned is copied there asynchronously, by XLA's intra-op thread pool. On a machine with one core
+# (``taskset -c 0``, a one-CPU container) that pool has one thread, and it is the one running the callback when
+# the callback follows a parallel op (a scatter-add, as the Newton system's assembly): reading the input waited
+# for a copy that could never start, and the XFEM step hung for good (accordion scene; also a 20-line jit of a
+# scatter and a callback). ``host_call`` hands the callback XLA's numpy arrays as they are: no device copy, no
+# wait, and one copy less of every input (the accordion's Newton system is 16 MB).
+_host_call_p = jax.extend.core.Primitive("jaxcga_host_call")
+_host_call_p.multiple_results = True
+jax._src.dispatch.prim_requires_devices_during_lowering.add(_host_call_p)  # the lowering asks for the backend
+_host_call_p.def_impl(functools.partial(jax._src.dispatch.apply_primitive, _host_call_p))
+
+
+@_host_call_p.def_abstract_eval
+def _host_call_abstract(*avals, fn, results):
+    return results
+
+
+def _host_call_lowering(ctx, *operands, fn, results):
+    def call(*arrays):
+        # the result's dtype as asked (emit_python_callback checks shapes and dtypes, with a clear error)
+        return tuple(np.asarray(a, r.dtype) for a, r in zip(fn(*arrays), results, strict=True))
+
+    outputs, _, _ = jax._src.callback.emit_python_callback(
+        ctx, call, None, list(operands), ctx.avals_in, ctx.avals_out, has_side_effect=False, returns_token=False)
+    return outputs
+
+
+jax.interpreters.mlir.register_lowering(_host_call_p, _host_call_lowering, cacheable=False)
+
+
+def _host_call_batched(args, dims, *, fn, results):
+    """vmap: one call per batch element, in order (``jax.lax.map``), as ``vmap_method="sequential"``."""
+    size = next(a.shape[d] for a, d in zip(args, dims) if d is not None)  # None: an unbatched argument
+    args = [jnp.moveaxis(a, d, 0) if d is not None else jnp.broadcast_to(a, (size, *np.shape(a)))
+            for a, d in zip(args, dims)]
+    outputs = jax.lax.map(lambda xs: _host_call_p.bind(*xs, fn=fn, results=results), args)
+    return outputs, (0,) * len(results)
+
+
+jax.interpreters.batching.primitive_batchers[_host_call_p] = _host_call_batched
+
+
+def host_call(fn, result: jax.ShapeDtypeStruct, *args):
+    """``fn(*args)`` on the host from traced code, with numpy arrays, like ``jax.pure_callback`` (a pure function;
+    vmap calls it once per batch element) but without its device copy of the inputs, which could hang a one-core
+    machine (above). ``fn`` must be hashable and equal for equal calls (a module-level function, or a NamedTuple
+    of them), so that jit's caches hold; it returns an array of ``result``'s shape, cast to its dtype. Not
+    differentiable (wrap it in a ``jax.custom_vjp``)."""
+    args = [jnp.asarray(a) if isinstance(a, (jax.Array, jax.core.Tracer)) else np.asarray(a) for a in args]
+    results = (jax.core.ShapedArray(result.shape, result.dtype),)
+    return _host_call_p.bind(*args, fn=_Single(fn), results=results)[0]
+
+
+class _Single(NamedTuple):
+    """``fn``'s one result as the tuple the primitive returns; equal for equal ``fn``."""
+
+    fn: object
+
+    def __call__(self, *arrays):
+        return (self.fn(*arrays),)
 
 
 def require(x, *checks):

@@ -33,8 +33,8 @@ Newton iteration, from a sagging state; best of 12 steps in two runs, wall-clock
 slow (1.7-2.5 s alone at 22.8k DOFs; scipy's SuperLU took 5.9 s); it has no separate symbolic analysis to
 reuse across steps, and the numeric factorization dominates anyway. (b) lineax CG with matrix-vector products
 in JAX: XLA's CPU gathers and scatters make one product ~3-5 ms at 22.8k DOFs against ~0.6 ms for scipy's CSR
-product. (c) the same preconditioned CG on the host (``_host_cg``), one ``jax.pure_callback`` per Newton
-iteration (~220 CG iterations, 0.12 s, at 22.8k DOFs; the rest of the 0.49 s is the projected element
+product. (c) the same preconditioned CG on the host (``_host_cg``), one host call (``jaxcga._support.host_call``)
+per Newton iteration (~220 CG iterations, 0.12 s, at 22.8k DOFs; the rest of the 0.49 s is the projected element
 Hessians, 0.21 s, their assembly, 0.04 s, and the line search). Measured as a numpy loop over scipy's CSR
 product; it is now compiled by numba and runs without the GIL (``xfem._pcg``: 56 ms against the numpy loop's
 81 ms at 118k unknowns), so that other threads do not stall it. Small systems are the
@@ -74,7 +74,7 @@ import scipy.sparse.linalg as spla
 from jaxtyping import Array, Float, Int
 from sksparse_minimal import SparseCholesky
 
-from jaxcga._support import require, to_devices
+from jaxcga._support import host_call, require, to_devices
 from xfem._assembly import (
     AssemblyPattern,
     CapacityError,
@@ -327,9 +327,10 @@ def _cholesky_solve(A: sp.csr_matrix, b: np.ndarray) -> np.ndarray:
 
 
 def _solve(host, pattern: AssemblyPattern, data, rhs, *options):
-    """``host(data, rhs, *options, indptr, indices)`` on the host: the solution of the reduced system."""
-    x = jax.pure_callback(host, jax.ShapeDtypeStruct(rhs.shape, rhs.dtype), data, rhs, *options, pattern.indptr,
-                          pattern.indices, vmap_method="sequential")
+    """``host(data, rhs, *options, indptr, indices)`` on the host, with numpy arrays (``host_call``; with
+    ``jax.pure_callback`` the step hung on a one-core machine): the solution of the reduced system."""
+    x = host_call(host, jax.ShapeDtypeStruct(rhs.shape, rhs.dtype), data, rhs, *options, pattern.indptr,
+                  pattern.indices)
     return eqx.error_if(x, ~jnp.all(jnp.isfinite(x)), "the Newton system is singular or the state is not finite")
 
 
