@@ -46,7 +46,7 @@ def to_devices(*arrays) -> tuple:
 # ---------------------------------------------------------------------------------------------------------
 # host calls from compiled code
 
-# ``jax.pure_callback`` (JAX >= 0.7) puts its callback's inputs on the CPU device before the call, and an input XLA
+# ``jax.pure_callback`` (JAX 0.10) puts its callback's inputs on the CPU device before the call, and an input XLA
 # hands over unaligned is copied there asynchronously, by XLA's intra-op thread pool. On a machine with one core
 # (``taskset -c 0``, a one-CPU container) that pool has one thread, and it is the one running the callback when
 # the callback follows a parallel op (a scatter-add, as the Newton system's assembly): reading the input waited
@@ -92,9 +92,8 @@ jax.interpreters.batching.primitive_batchers[_host_call_p] = _host_call_batched
 def host_call(fn, result: jax.ShapeDtypeStruct, *args):
     """``fn(*args)`` on the host from traced code, with numpy arrays, like ``jax.pure_callback`` (a pure function;
     vmap calls it once per batch element) but without its device copy of the inputs, which could hang a one-core
-    machine (above). ``fn`` must be hashable and equal for equal calls (a module-level function, or a NamedTuple
-    of them), so that jit's caches hold; it returns an array of ``result``'s shape, cast to its dtype. Not
-    differentiable (wrap it in a ``jax.custom_vjp``)."""
+    machine (above). ``fn`` is a hashable callable (a module-level function, a ``functools.partial``); it returns
+    an array of ``result``'s shape, cast to its dtype. Not differentiable (wrap it in a ``jax.custom_vjp``)."""
     args = [jnp.asarray(a) if isinstance(a, (jax.Array, jax.core.Tracer)) else np.asarray(a) for a in args]
     results = (jax.core.ShapedArray(result.shape, result.dtype),)
     return _host_call_p.bind(*args, fn=_Single(fn), results=results)[0]
