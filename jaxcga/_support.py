@@ -7,7 +7,6 @@ import contextlib
 import functools
 import os
 import sys
-from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -54,20 +53,19 @@ def to_devices(*arrays) -> tuple:
 # scatter and a callback). ``host_call`` hands the callback XLA's numpy arrays as they are: no device copy, no
 # wait, and one copy less of every input (the accordion's Newton system is 16 MB).
 _host_call_p = jax.extend.core.Primitive("jaxcga_host_call")
-_host_call_p.multiple_results = True
 jax._src.dispatch.prim_requires_devices_during_lowering.add(_host_call_p)  # the lowering asks for the backend
 _host_call_p.def_impl(functools.partial(jax._src.dispatch.apply_primitive, _host_call_p))
 
 
 @_host_call_p.def_abstract_eval
-def _host_call_abstract(*avals, fn, results):
-    return results
+def _host_call_abstract(*avals, fn, result):
+    return result
 
 
-def _host_call_lowering(ctx, *operands, fn, results):
+def _host_call_lowering(ctx, *operands, fn, result):
     def call(*arrays):
         # the result's dtype as asked (emit_python_callback checks shapes and dtypes, with a clear error)
-        return tuple(np.asarray(a, r.dtype) for a, r in zip(fn(*arrays), results, strict=True))
+        return (np.asarray(fn(*arrays), result.dtype),)
 
     outputs, _, _ = jax._src.callback.emit_python_callback(
         ctx, call, None, list(operands), ctx.avals_in, ctx.avals_out, has_side_effect=False, returns_token=False)
@@ -77,13 +75,12 @@ def _host_call_lowering(ctx, *operands, fn, results):
 jax.interpreters.mlir.register_lowering(_host_call_p, _host_call_lowering, cacheable=False)
 
 
-def _host_call_batched(args, dims, *, fn, results):
+def _host_call_batched(args, dims, *, fn, result):
     """vmap: one call per batch element, in order (``jax.lax.map``), as ``vmap_method="sequential"``."""
     size = next(a.shape[d] for a, d in zip(args, dims) if d is not None)  # None: an unbatched argument
     args = [jnp.moveaxis(a, d, 0) if d is not None else jnp.broadcast_to(a, (size, *np.shape(a)))
             for a, d in zip(args, dims)]
-    outputs = jax.lax.map(lambda xs: _host_call_p.bind(*xs, fn=fn, results=results), args)
-    return outputs, (0,) * len(results)
+    return jax.lax.map(lambda xs: _host_call_p.bind(*xs, fn=fn, result=result), args), 0
 
 
 jax.interpreters.batching.primitive_batchers[_host_call_p] = _host_call_batched
@@ -95,17 +92,7 @@ def host_call(fn, result: jax.ShapeDtypeStruct, *args):
     machine (above). ``fn`` is a hashable callable (a module-level function, a ``functools.partial``); it returns
     an array of ``result``'s shape, cast to its dtype. Not differentiable (wrap it in a ``jax.custom_vjp``)."""
     args = [jnp.asarray(a) if isinstance(a, (jax.Array, jax.core.Tracer)) else np.asarray(a) for a in args]
-    results = (jax.core.ShapedArray(result.shape, result.dtype),)
-    return _host_call_p.bind(*args, fn=_Single(fn), results=results)[0]
-
-
-class _Single(NamedTuple):
-    """``fn``'s one result as the tuple the primitive returns; equal for equal ``fn``."""
-
-    fn: object
-
-    def __call__(self, *arrays):
-        return (self.fn(*arrays),)
+    return _host_call_p.bind(*args, fn=fn, result=jax.core.ShapedArray(result.shape, result.dtype))
 
 
 def require(x, *checks):

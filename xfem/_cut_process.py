@@ -294,26 +294,26 @@ def reserve_worker_core(reserve: bool) -> None:
             cores = _cores()
             if cores is None or len(cores) < 2 or not os.path.isdir("/proc/self/task"):
                 return
-            saved, worker = {}, worker_core(cores)
-            for thread in _threads():
-                try:
-                    saved[thread] = os.sched_getaffinity(thread)
-                    os.sched_setaffinity(thread, saved[thread] - {worker} or saved[thread])
-                except OSError:  # a thread that has just ended
-                    pass
+            worker = worker_core(cores)
+            saved = _set_thread_cores(lambda thread, had: had - {worker} or had)
             _reservation.update(saved=saved, cores=cores)
         elif not reserve and _reservation["count"] == 0 and _reservation["saved"] is not None:
             saved, cores = _reservation["saved"], _reservation["cores"]
-            for thread in _threads():
-                try:
-                    os.sched_setaffinity(thread, saved.get(thread, cores))
-                except OSError:
-                    pass
+            _set_thread_cores(lambda thread, had: saved.get(thread, cores))
             _reservation.update(saved=None, cores=None)
 
 
-def _threads() -> list[int]:
-    return [int(thread) for thread in os.listdir("/proc/self/task")]
+def _set_thread_cores(cores_of) -> dict[int, set[int]]:
+    """Give each thread of this process the CPUs ``cores_of(thread id, its CPUs)``; returns the CPUs each had. A
+    thread that ends meanwhile is left out."""
+    had = {}
+    for thread in (int(t) for t in os.listdir("/proc/self/task")):
+        try:
+            had[thread] = os.sched_getaffinity(thread)
+            os.sched_setaffinity(thread, cores_of(thread, had[thread]))
+        except OSError:  # a thread that has just ended
+            pass
+    return had
 
 
 def _cores() -> set[int] | None:
@@ -325,11 +325,7 @@ def _use_cores(cores: set[int] | None) -> None:
     """Let every thread of this process (the Boolean threads, the pools started so far) run on ``cores``."""
     if cores is None or not hasattr(os, "sched_setaffinity") or not os.path.isdir("/proc/self/task"):
         return
-    for thread in _threads():
-        try:
-            os.sched_setaffinity(thread, cores)
-        except OSError:  # a thread that has just ended
-            pass
+    _set_thread_cores(lambda thread, had: cores)
 
 
 def main() -> None:
