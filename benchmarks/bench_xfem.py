@@ -4,9 +4,10 @@ one Newton iteration, epsilon from Table 1).
 
 Columns, as in Table 2 ("Ours"): # DOFs (at the end), EI (ms to integrate one element piece, eq. 21), MB (ms
 per Boolean on one element or node subdomain), dPsi (ms for the elastic energy's derivatives of all pieces, the
-PSD-projected gradients and Hessians), CG (s for one Newton solve: the paper's CG, ours the step's solve), step
-max and average (a cut frame's time is its cuts plus its step), totals over the cut frames (C) and over all
-frames (C+U).
+PSD-projected gradients and Hessians, with their sum into the Newton system, as the step computes them: in
+chunks of elements, ``xfem._backward_euler._in_chunks``), CG (s for one Newton solve: the paper's CG, ours the
+step's solve), step max and average (a cut frame's time is its cuts plus its step), totals over the cut frames
+(C) and over all frames (C+U).
 
 Timing. Each scene runs twice in one process: a warm-up run through its last cut (it compiles the step at
 every capacity level the cuts reach; ``XFEMModel`` pads its systems to capacity levels, so a cut within a level
@@ -14,7 +15,7 @@ reuses the compiled step), then the timed run of ``--steps`` frames (default: th
 background compilation of the next level up has ended (``wait_for_compilations``; measured on sticks, it ran
 into the timed frames and took about half of their CPU). The warm-up's slowest frame (with compilation) is
 reported as ``SCENE_cold_max_s``. dPsi and CG are timed after the run on the final (padded) system and state:
-the median of 5 calls of ``element_gradient_hessian`` on every piece, and of the step's host solve of the
+the median of 5 calls of the step's gradient and Newton matrix (``_gradient_and_matrix``), and of its host solve of the
 Newton system there (``_host_newton_direction``: CHOLMOD up to 1,000 unknowns, as on sticks,
 Jacobi-preconditioned CG to a relative residual of 1e-4 above).
 
@@ -60,7 +61,7 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 from _report import RATIO_UNIT, add_json_argument, write_json  # noqa: E402
 
 import xfem._backward_euler as be  # noqa: E402
-from xfem._neohookean import element_gradient_hessian, lame  # noqa: E402
+from xfem._neohookean import lame  # noqa: E402
 from xfem._scenes import run_scene, scene  # noqa: E402
 from xfem._xfem import _padded_state, wait_for_compilations  # noqa: E402
 
@@ -101,17 +102,12 @@ def _newton_system(system, state, h, mu, lam):
     return be._gradient_and_matrix(system, x, theta, h, project=True)
 
 
-@eqx.filter_jit
-def _derivatives(system, x, mu, lam):
-    return element_gradient_hessian(x[system.T], system.grads, system.volumes, mu, lam)
-
-
 def _breakdown(model, h, mu, lam) -> tuple[float, float]:
     """(dPsi seconds, CG seconds) on the model's final padded system and state."""
     system, _ = model._padded_system()
     state = _padded_state(model.state, len(model.dof_sid), system.n)
     h, mu, lam = (jnp.asarray(v, jnp.float64) for v in (h, mu, lam))
-    dpsi = _median_seconds(lambda: _derivatives(system, state.x, mu, lam))
+    dpsi = _median_seconds(lambda: _newton_system(system, state, h, mu, lam))
     gradient, data = _newton_system(system, state, h, mu, lam)
     rhs, A = np.asarray(gradient), np.asarray(data)
     indptr, indices = np.asarray(system.pattern.indptr), np.asarray(system.pattern.indices)

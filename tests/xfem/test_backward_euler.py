@@ -22,6 +22,7 @@ from xfem._backward_euler import (
     SystemCapacity,
     _host_direct,
     _host_newton_direction,
+    _in_chunks,
     backward_euler_step,
     fem_from_mesh,
     fem_system,
@@ -283,3 +284,54 @@ def test_padded_system_steps_like_the_real_one():
         fem_system(mesh.T, grads, volumes, mass, force, fixed, capacity=capacity._replace(nonzeros=9))
     with pytest.raises(CapacityError, match="capacity"):
         fem_system(mesh.T, grads, volumes, mass, force, fixed, capacity=capacity._replace(elements=m - 1))
+
+
+def test_in_chunks_visits_every_row_once():
+    """The last chunk is moved back to end at the last row; the rows it shares with the chunk before are masked."""
+    rows = jnp.arange(1.0, 34.0)
+
+    def add_chunk(start, size, own, total):
+        return total + jnp.sum(jnp.where(own, jax.lax.dynamic_slice_in_dim(rows, start, size), 0))
+
+    for count in (1, 5, 8, 9, 16, 17, 33):
+        for chunk in (1, 3, 8, 40):
+            assert float(_in_chunks(count, chunk, add_chunk, jnp.zeros(()))) == count * (count + 1) / 2
+
+
+def test_steps_in_chunks_equal_one_pass(monkeypatch):
+    """The energy, its gradient and Newton matrix, M d, a step and its implicit gradient, summed over chunks of
+    elements and mass entries that overlap at the end (3 of 30 elements, 7 of 174 mass entries), equal one pass
+    over all of them."""
+    import xfem._backward_euler as be
+
+    mesh = box_tets((5, 1, 1), size=(5.0, 1.0, 1.0))
+    X = np.asarray(mesh.X)
+    system = fem_from_mesh(mesh, 1e3, GRAVITY, fixed=np.flatnonzero(X[:, 0] == 0))
+    x, v = _deformed(X, 4)
+    theta = be._Theta(jnp.asarray(X), v, jnp.asarray(MU), jnp.asarray(LAM), x[system.fixed], system.force,
+                      system.grads, system.volumes, system.mass_values)
+
+    def everything():
+        jax.clear_caches()  # the step's trace reads the chunk sizes
+        energy = be._energy(system, x, theta, H)[0]
+        dE_dx = jax.grad(lambda z: be._energy(system, z, theta, H)[0])(x)
+        dE_dvolumes = jax.grad(lambda t: be._energy(system, x, t, H)[0])(theta).volumes
+        projected, true = (be._gradient_and_matrix(system, x, theta, H, project) for project in (True, False))
+
+        def loss(young):
+            mu, lam = lame(young, jnp.asarray(0.4))
+            state = backward_euler_step(system, State(jnp.asarray(X), v), H, mu, lam, **CONVERGED)
+            return jnp.sum(state.x**2)
+
+        return (energy, dE_dx, dE_dvolumes, *projected, *true, be._mass_times(system, system.mass_values, v),
+                *jax.value_and_grad(loss)(jnp.asarray(1e6)))
+
+    assert (system.T.shape[0], system.mass_values.shape[0]) == (30, 174)
+    one_pass = everything()
+    monkeypatch.setattr(be, "_ELEMENT_CHUNK", 3)
+    monkeypatch.setattr(be, "_MASS_CHUNK", 7)
+    chunked = everything()
+    monkeypatch.undo()
+    jax.clear_caches()
+    for a, b in zip(chunked, one_pass):
+        np.testing.assert_allclose(a, b, rtol=1e-11, atol=1e-11 * float(jnp.max(jnp.abs(b))))
