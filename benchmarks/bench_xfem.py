@@ -24,7 +24,9 @@ while the body steps (``run_scene(..., cut_latency=L)``, ``XFEMModel.cut_async``
 its scheduled frame (``LATENCY``), with the state of that moment. Its figures are named ``SCENE_async_*``; its
 slowest cut frame is the slowest frame from a cut's start to the frame it takes effect in (``FrameRecord.cutting``).
 ``SCENE_async_uncut_max_over_avg``, the slowest frame outside those windows over the average, is the reference
-for the machine's own jitter (a shared 2-core machine: single frames with no cut work reach 1.4-2.3x).
+for the machine's own jitter (a shared 2-core machine: single frames with no cut work reach 1.4-2.3x). Frame 1 is
+left out of it: the new model's first step builds its system and makes the first call with it (sticks: 5.5-6.5 ms,
+3x its average frame, in every run), which is no jitter.
 
 Garbage collection. After the warm-up, and again before the background run, the objects alive (modules, compiled
 steps, the scene, the timed run) are moved out of the collector's reach (``gc.freeze``), as a real-time application
@@ -141,7 +143,7 @@ def run(size: str, steps: int | None, scenes=SCENES):
         asummary = background.summary()
         slowest = max((r for r in background.records if r.cutting or r.cuts), key=lambda r: r.seconds)
         acut_max = slowest.seconds
-        auncut_max = max((r.seconds for r in background.records if not (r.cutting or r.cuts)), default=0.0)
+        auncut_max = max((r.seconds for r in background.records[1:] if not (r.cutting or r.cuts)), default=0.0)
         ours = {"dofs": summary["dofs"], "integral_ms": summary["integral_ms"], "boolean_ms": summary["boolean_ms"],
                 "dpsi_ms": 1e3 * dpsi, "cg_s": cg, "step_max_s": summary["step_max_s"],
                 "step_avg_s": summary["step_avg_s"], "total_cut_frames_s": summary["total_cut_frames_s"],
@@ -165,7 +167,7 @@ def run(size: str, steps: int | None, scenes=SCENES):
         figures[f"{name}_async_cut_max_over_avg"] = acut_max / asummary["step_avg_s"]
         units[f"{name}_async_cut_max_over_avg"] = "x (slowest frame while cutting / average frame; target <= 2)"
         figures[f"{name}_async_uncut_max_over_avg"] = auncut_max / asummary["step_avg_s"]
-        units[f"{name}_async_uncut_max_over_avg"] = "x (slowest frame with no cut under way / average frame: jitter)"
+        units[f"{name}_async_uncut_max_over_avg"] = "x (slowest frame after the first with no cut under way / average frame: jitter)"
         figures[f"{name}_async_latency"] = float(LATENCY[name])
         units[f"{name}_async_latency"] = "frames"
         figures[f"{name}_cut_max_over_avg"] = cut_max / summary["step_avg_s"]
