@@ -111,13 +111,14 @@ def write_json(path, data) -> None:
     write_bytes(path, text)
 
 
-def _check_folder_of(path: Path, what: str) -> None:
-    """The nearest existing folder above ``path``: a folder this process may write in (missing ones are created)."""
-    folder = path.absolute().parent
+def _check_writable_folder(folder: Path, what: str) -> None:
+    """``folder``, or the nearest existing folder above it (missing ones are created): a folder this process may
+    write in."""
+    folder = folder.absolute()
     while not folder.exists():
         folder = folder.parent
     if not folder.is_dir():
-        raise ValueError(f"{what}: {folder} is a file, not a folder; cannot write {path}")
+        raise ValueError(f"{what}: {folder} is a file, not a folder")
     if _write_protected(folder) or not os.access(folder, os.X_OK):
         raise ValueError(f"{what}: cannot write in the folder {folder} (permission denied or write-protected)")
 
@@ -131,7 +132,7 @@ def check_output(path, suffixes: tuple[str, ...], what: str = "out") -> Path:
         raise ValueError(f"{what}: expected a {listed} file, got {path}")
     if path.is_dir():
         raise ValueError(f"{what}: {path} is a folder; expected a file name")
-    _check_folder_of(path, what)
+    _check_writable_folder(path.parent, what)
     if path.exists() and _write_protected(path):
         raise ValueError(f"{what}: {path} is write-protected; not replaced")
     return path
@@ -167,7 +168,7 @@ def check_folder(folder, what: str = "out") -> Path:
     folder = Path(folder)
     if folder.exists() and not folder.is_dir():
         raise ValueError(f"{what}: {folder} is a file; expected a folder")
-    _check_folder_of(folder / "x", what)
+    _check_writable_folder(folder, what)
     return folder
 
 
