@@ -294,6 +294,23 @@ def test_save_model_replaces_its_own_bin_only(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.bin", "b.bin", "b.gltf"]
 
 
+def test_a_trimesh_gltf_holds_its_buffers(tmp_path):
+    """skin / deform / arap write a posed mesh as .gltf through trimesh: one file, no sibling buffer to clobber."""
+    import trimesh
+
+    from deform._deform_commands import write_positions
+
+    for name in ("mesh.bin", "gltf_buffer_0.bin", "gltf_buffer.bin"):
+        (tmp_path / name).write_bytes(b"someone else's buffer")
+    V = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+    F = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
+    write_positions(tmp_path / "mesh.gltf", V, F)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["gltf_buffer.bin", "gltf_buffer_0.bin", "mesh.bin",
+                                                         "mesh.gltf"]
+    assert all((tmp_path / n).read_bytes() == b"someone else's buffer" for n in ("mesh.bin", "gltf_buffer_0.bin"))
+    np.testing.assert_allclose(trimesh.load(tmp_path / "mesh.gltf", force="mesh", process=False).vertices, V)
+
+
 # ------------------------------------------------------------------------------ fem / xfem folders hold one run
 
 
