@@ -11,22 +11,23 @@ import numpy as np
 from cutting._cut import cut
 from cutting._drill import drill
 from cutting._tear import tear
-from deform._gltf import save_model
+from deform._gltf import GLTF_OUTPUTS, buffer_file, model_files, save_model
 from deform._model import RiggedModel
+from jaxcga._output import check_distinct, check_output, write_files
 
 
 def cut_command(model: RiggedModel, plane, out_positive: Path, out_negative: Path, cap: bool = False,
                 predicates: str = "euclidean", side_weight: float = 0.0) -> dict:
     """Cut ``model`` by ``plane`` (nx, ny, nz, d) in its bind pose; write the positive half to
-    ``out_positive`` and the negative half to ``out_negative`` (.glb or .gltf)."""
-    for out in (out_positive, out_negative):
-        if Path(out).suffix not in (".glb", ".gltf"):
-            raise ValueError(f"out: expected .glb or .gltf paths, got {out}")
+    ``out_positive`` and the negative half to ``out_negative`` (.glb or .gltf, two different files), both
+    before either replaces an existing file."""
+    check_distinct({"out (positive half)": _check_out(out_positive), "out (negative half)": _check_out(out_negative)})
     positive, negative = cut(model.mesh, np.asarray(plane, np.float64), cap=cap, predicates=predicates,
                              side_weight=side_weight)
+    files = {}
     for half, out, side in ((positive, out_positive, "positive"), (negative, out_negative, "negative")):
-        Path(out).parent.mkdir(parents=True, exist_ok=True)
-        save_model(RiggedModel(half, model.skeleton, model.clips, f"{model.name}-{side}"), out)
+        files.update(model_files(RiggedModel(half, model.skeleton, model.clips, f"{model.name}-{side}"), out))
+    write_files(files)
     return {"positive_faces": int(positive.F.shape[0]), "negative_faces": int(negative.F.shape[0]),
             "new_vertices": positive.num_vertices + negative.num_vertices - model.mesh.num_vertices,
             "out": f"{out_positive} {out_negative}"}
@@ -39,7 +40,6 @@ def tear_command(model: RiggedModel, scalpels, out: Path, opening: float = 0.0, 
     _check_out(out)
     torn, path = tear(model.mesh, np.asarray(scalpels, np.float64), opening=opening, predicates=predicates,
                       side_weight=side_weight, return_path=True)
-    Path(out).parent.mkdir(parents=True, exist_ok=True)
     save_model(RiggedModel(torn, model.skeleton, model.clips, f"{model.name}-torn"), out)
     return {"tear_points": len(path.t), "faces": int(torn.F.shape[0]),
             "new_vertices": torn.num_vertices - model.mesh.num_vertices, "out": str(out)}
@@ -52,12 +52,12 @@ def drill_command(model: RiggedModel, tip, base, radius: float, out: Path, min_p
     _check_out(out)
     drilled, topology = drill(model.mesh, tip, base, radius, min_points=min_points, max_refinements=max_refinements,
                               return_topology=True)
-    Path(out).parent.mkdir(parents=True, exist_ok=True)
     save_model(RiggedModel(drilled, model.skeleton, model.clips, f"{model.name}-drilled"), out)
     return {"holes": topology.holes, "hole_points": len(topology.points), "refinements": topology.refinements,
             "faces": int(drilled.F.shape[0]), "out": str(out)}
 
 
-def _check_out(out):
-    if Path(out).suffix not in (".glb", ".gltf"):
-        raise ValueError(f"out: expected a .glb or .gltf path, got {out}")
+def _check_out(out) -> Path:
+    out = check_output(out, GLTF_OUTPUTS)
+    buffer_file(out, "out")
+    return out

@@ -8,7 +8,6 @@ the high end moves by the same motion as ``jaxcga deform`` (``--bend`` / ``--twi
 
 from __future__ import annotations
 
-import json
 import time
 from pathlib import Path
 
@@ -17,16 +16,14 @@ import jax.numpy as jnp
 import numpy as np
 
 from deform._arap import arap_precompute, arap_solve
-from deform._deform_commands import MESH_OUTPUTS, Motion, _end_handles, _write
+from deform._deform_commands import DEFORM_OUTPUTS, Motion, _end_handles, _write, read_json
 from jaxcga import apply_to_points
+from jaxcga._output import check_output
 
 
 def read_handles(path: Path, n: int):
     """(indices (k,), positions (k, 3)) from HANDLES.json, checked against a mesh of ``n`` vertices."""
-    try:
-        spec = json.loads(Path(path).read_text())
-    except json.JSONDecodeError as error:
-        raise ValueError(f"handles: {path} is not valid JSON ({error})") from None
+    spec = read_json(path, "handles")
     if not isinstance(spec, dict) or "indices" not in spec or "positions" not in spec:
         raise ValueError(f'handles: {path} must hold {{"indices": [...], "positions": [[x, y, z], ...]}}')
     indices = np.asarray(spec["indices"])
@@ -54,8 +51,7 @@ def arap_command(V, F, out: Path, *, handles: Path | None = None, iterations: in
                  handle_fraction: float = 0.05) -> dict:
     """Deform (V, F) as rigidly as possible with the handles of ``handles`` (or the default two ends),
     write ``out`` (.npy float64 (n, 3), a mesh, or a .png figure); returns a summary."""
-    if out.suffix not in MESH_OUTPUTS + (".npy", ".png"):
-        raise ValueError(f"out: expected one of {MESH_OUTPUTS + ('.npy', '.png')}, got {out}")
+    out = check_output(out, DEFORM_OUTPUTS)
     if not isinstance(iterations, int) or iterations < 1:
         raise ValueError(f"iters: expected an int >= 1, got {iterations!r}")
     if handles is None:

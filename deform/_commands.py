@@ -6,7 +6,6 @@ built-in default arm.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import jax
@@ -16,8 +15,10 @@ import numpy as np
 import jaxcga as cga
 from deform import _fitting, _pose, _rig
 from deform._default_arm import default_arm
-from deform._gltf import load_model, save_model
+from deform._deform_commands import POSITION_OUTPUTS, write_positions
+from deform._gltf import GLTF_OUTPUTS, buffer_file, load_model, save_model
 from deform._model import RiggedModel
+from jaxcga._output import check_output, save_figure, write_json
 
 
 def load_or_default(path: str | Path | None, weld: bool = False) -> RiggedModel:
@@ -27,25 +28,14 @@ def load_or_default(path: str | Path | None, weld: bool = False) -> RiggedModel:
     return load_model(path, weld=weld)
 
 
-def _save_positions(model: RiggedModel, positions, out: Path):
-    out.parent.mkdir(parents=True, exist_ok=True)
-    if out.suffix == ".npy":
-        np.save(out, np.asarray(positions, dtype=np.float64))
-    elif out.suffix in (".glb", ".gltf", ".ply", ".obj", ".stl"):
-        import trimesh
-
-        trimesh.Trimesh(np.asarray(positions), np.asarray(model.mesh.F), process=False).export(out)
-    else:
-        raise ValueError(f"out: expected a .npy, .glb, .gltf, .ply, .obj or .stl path, got {out}")
-
-
 def skin_command(model: RiggedModel, time: float, method: str, clip: int | str, out: Path) -> dict:
     """Skinned positions of every skinned primitive (file order) at ``time``, in glTF world space,
     written to ``out`` (.npy: float64 (n, 3); .glb etc.: the posed mesh)."""
+    out = check_output(out, POSITION_OUTPUTS)
     positions = jax.jit(lambda t: _pose.skin_model(model, t, method, clip))(time)
     if not bool(jnp.all(jnp.isfinite(positions))):
         raise ValueError("skinning produced non-finite positions")
-    _save_positions(model, positions, out)
+    write_positions(out, positions, model.mesh.F)
     return {"vertices": int(positions.shape[0]), "method": method, "time": time, "out": str(out)}
 
 
@@ -71,8 +61,8 @@ def animate_command(model: RiggedModel, frames: int, out: Path, clip: int | str 
     model has no clip."""
     if frames < 2:
         raise ValueError(f"frames: expected at least 2, got {frames}")
-    if out.suffix not in (".glb", ".gltf"):
-        raise ValueError(f"out: expected a .glb or .gltf path, got {out}")
+    out = check_output(out, GLTF_OUTPUTS)
+    buffer_file(out, "out")
     if model.clips:
         source = model.clip(clip)
         times = jnp.linspace(source.start, source.end, frames, dtype=model.mesh.V.dtype)
@@ -84,7 +74,6 @@ def animate_command(model: RiggedModel, frames: int, out: Path, clip: int | str 
         local = jax.jit(jax.vmap(lambda t: _rig.sample_keyframes(keys, t)))(times)
         name = "generated_keyframes"
     animation = _rig.clip_from_poses(times, local, name)
-    out.parent.mkdir(parents=True, exist_ok=True)
     save_model(RiggedModel(model.mesh, model.skeleton, (animation,), model.name), out)
     return {"frames": frames, "clip": name, "bones": model.skeleton.num_bones, "out": str(out)}
 
@@ -93,6 +82,7 @@ def fit_command(model: RiggedModel, target: Path, out: Path, method: str = "cga"
                 regularization: float = 0.0, max_steps: int = 200, fit_scale: bool = True) -> dict:
     """Fit bone motors (and dilations) to target positions (.npy (n, 3), or (t, 3) with a vertex index
     file) and write the pose as JSON."""
+    out = check_output(out, (".json",))
     targets = np.load(target)
     index = None if vertices is None else np.load(vertices)
     if index is None and targets.shape != (model.mesh.num_vertices, 3):
@@ -125,8 +115,7 @@ def fit_command(model: RiggedModel, target: Path, out: Path, method: str = "cga"
             for i, name in enumerate(model.skeleton.names)
         ],
     }
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(result, indent=1))
+    write_json(out, result)
     return {k: result[k] for k in ("max_error", "rms_error", "bounding_diagonal", "steps", "converged")}
 
 
@@ -163,7 +152,4 @@ def skinning_figure(model: RiggedModel, path: Path, frames: int = 5) -> Path:
         ax.set_title(f"t = {float(times[k]):.2f} s", fontsize=9)
         ax.set_axis_off()
     fig.suptitle(f"{model.name}: multivector skinning, eq. (17); max |eq. 17 - LBS| = {gap:.1e}")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=90, bbox_inches="tight")
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=90, bbox_inches="tight")

@@ -30,9 +30,12 @@ from deform._ffd import bounding_lattice, distortion, ffd_motor_field, ffd_posit
 from deform._handles import harmonic_handles
 from deform._motor_field import motor_about
 from deform._spline import spline_precompute
+from jaxcga._output import check_output, replacing, save_figure, write_bytes
 
 DEFORMATIONS = ("spline", "handles", "ffd", "cage")
 MESH_OUTPUTS = (".glb", ".gltf", ".obj", ".ply", ".stl")
+POSITION_OUTPUTS = (".npy",) + MESH_OUTPUTS
+DEFORM_OUTPUTS = POSITION_OUTPUTS + (".png",)
 
 
 def load_mesh(path: str | Path | None):
@@ -93,19 +96,30 @@ def _end_handles(motion: Motion, V, fraction: float):
     return start, end
 
 
+def read_json(path: Path, what: str):
+    """The JSON document in ``path``; a ``ValueError`` naming ``what`` and the file when it is not JSON."""
+    try:
+        return json.loads(Path(path).read_bytes())
+    except (json.JSONDecodeError, UnicodeDecodeError) as error:
+        raise ValueError(f"{what}: {path} is not valid JSON ({error})") from None
+
+
 def _handles_file(path: Path, n: int):
     """Handles and their motors from JSON: ``{"handles": [[i, ...], ...], "motors": [{"center": [x, y, z],
     "axis": [x, y, z], "angle_deg": a, "translation": [x, y, z]}, ...]}`` (one motor per handle; every
     key optional: the identity by default)."""
-    spec = json.loads(Path(path).read_text())
+    spec = read_json(path, "handles")
     if not isinstance(spec, dict) or "handles" not in spec:
         raise ValueError(f"handles: {path} must hold a JSON object with a 'handles' list")
-    handles = [np.asarray(h, np.int64).reshape(-1) for h in spec["handles"]]
+    try:
+        handles = [np.asarray(h, np.int64).reshape(-1) for h in spec["handles"]]
+    except (TypeError, ValueError):
+        raise ValueError(f"handles: 'handles' in {path} must be lists of vertex indices") from None
     if any(len(h) == 0 or h.min() < 0 or h.max() >= n for h in handles):
         raise ValueError(f"handles: every handle needs vertex indices in [0, {n})")
     motors = spec.get("motors", [{}] * len(handles))
-    if len(motors) != len(handles):
-        raise ValueError(f"handles: {len(handles)} handles but {len(motors)} motors in {path}")
+    if not isinstance(motors, list) or len(motors) != len(handles) or not all(isinstance(m, dict) for m in motors):
+        raise ValueError(f"handles: 'motors' in {path} must be a list of {len(handles)} objects, one per handle")
     values = []
     for m in motors:
         rotor = cga.rotor(jnp.asarray(m.get("axis", [0.0, 0.0, 1.0]), jnp.float64),
@@ -123,8 +137,7 @@ def deform_command(method: str, V, F, out: Path, *, bend: float = 60.0, twist: f
     summary (vertices, keys, precompute and per-frame milliseconds, volume and edge-length change)."""
     if method not in DEFORMATIONS:
         raise ValueError(f"method: expected one of {DEFORMATIONS}, got {method!r}")
-    if out.suffix not in MESH_OUTPUTS + (".npy", ".png"):
-        raise ValueError(f"out: expected one of {MESH_OUTPUTS + ('.npy', '.png')}, got {out}")
+    out = check_output(out, DEFORM_OUTPUTS)
     if positional and method not in ("ffd", "cage"):
         raise ValueError("positional: only the ffd and cage deformations have a positional form")
     motion = Motion(V, bend, twist, translate)
@@ -186,16 +199,26 @@ def deform_command(method: str, V, F, out: Path, *, bend: float = 60.0, twist: f
     }
 
 
+def write_positions(out: Path, positions, F) -> None:
+    """Write ``positions`` to ``out``: .npy float64 (n, 3), or the mesh (positions, F) in a trimesh format (a
+    .gltf holds its buffers), through ``jaxcga._output`` (an existing file survives a failed write)."""
+    if out.suffix.lower() == ".npy":
+        with replacing(out) as (temp,), open(temp, "wb") as file:  # np.save on a name would append .npy
+            np.save(file, np.asarray(positions, np.float64))
+        return
+    import trimesh
+
+    file_type = out.suffix.lower()[1:]
+    data = trimesh.Trimesh(np.asarray(positions), np.asarray(F), process=False).export(
+        file_type=file_type, **({"embed_buffers": True} if file_type == "gltf" else {}))
+    write_bytes(out, data["model.gltf"] if isinstance(data, dict) else data)
+
+
 def _write(out: Path, V, positions, F, title: str):
-    out.parent.mkdir(parents=True, exist_ok=True)
-    if out.suffix == ".npy":
-        np.save(out, positions)
-    elif out.suffix == ".png":
+    if out.suffix.lower() == ".png":
         deformation_figure(V, positions, F, out, title)
     else:
-        import trimesh
-
-        trimesh.Trimesh(positions, F, process=False).export(out)
+        write_positions(out, positions, F)
 
 
 def deformation_figure(V, positions, F, path: Path, title: str) -> Path:
@@ -214,6 +237,4 @@ def deformation_figure(V, positions, F, path: Path, title: str) -> Path:
         ax.set(xlim=(lo[0], hi[0]), ylim=(lo[1], hi[1]), zlim=(lo[2], hi[2]), title=label)
         ax.set_box_aspect(np.maximum(hi - lo, 1e-9 * (hi - lo).max()))
         ax.set_axis_off()
-    fig.savefig(path, dpi=90, bbox_inches="tight")
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=90, bbox_inches="tight")

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import base64
 import json
+import os
 import shutil
 import struct
 import subprocess
@@ -37,6 +38,7 @@ from scipy.spatial.transform import Rotation
 from trimesh import grouping
 
 from deform._model import INTERPOLATIONS, PATHS, AnimationClip, Channel, RiggedModel, Skeleton, SkinnedMesh
+from jaxcga._output import write_files
 
 _GLB_MAGIC = b"glTF"
 _CHUNK_JSON = 0x4E4F534A
@@ -55,6 +57,7 @@ _MODES = {
     6: "TRIANGLE_FAN",
 }
 _ARRAY_BUFFER, _ELEMENT_ARRAY_BUFFER = 34962, 34963
+GLTF_OUTPUTS = (".glb", ".gltf")  # what save_model writes
 # Extensions whose geometry lives outside plain accessors.
 _UNSUPPORTED_EXTENSIONS = {"KHR_draco_mesh_compression", "EXT_meshopt_compression"}
 # Float32 data: columns of a rotation-times-scale matrix are orthogonal to about 1e-7; a shear is far larger.
@@ -654,6 +657,33 @@ def _animation_json(clip: AnimationClip, writer: _Writer) -> dict:
     return {"name": clip.name, "samplers": samplers, "channels": channels}
 
 
+def buffer_file(path, what: str = "path") -> Path | None:
+    """The buffer file ``save_model`` writes beside ``path``: ``<stem>.bin`` for a .gltf, None for a .glb.
+    ``what``: the argument named in the error.
+
+    Raises:
+        ValueError: that file exists and is not a buffer of the .gltf at ``path`` (none there, or one that
+            does not refer to it): writing would destroy an unrelated file.
+    """
+    path = Path(path)
+    if path.suffix.lower() != ".gltf":
+        return None
+    bin_path = path.with_suffix(".bin")
+    if not bin_path.exists():
+        return bin_path
+    try:
+        buffers = json.loads(path.read_bytes()).get("buffers", [])
+        uris = [urllib.parse.unquote(b["uri"]) for b in buffers if isinstance(b, dict) and "uri" in b]
+    except (OSError, ValueError, AttributeError, TypeError):  # no .gltf there, or not a glTF document
+        uris = []
+    if not any(os.path.realpath(path.parent / uri) == os.path.realpath(bin_path) for uri in uris):
+        raise ValueError(
+            f"{what}: {bin_path} exists and is not the buffer of {path}; writing {path.name} would replace it "
+            "(move it away or choose another name)"
+        )
+    return bin_path
+
+
 def save_model(model: RiggedModel, path) -> None:
     """Write a RiggedModel as glTF 2.0: ``.glb``, or ``.gltf`` with a sibling ``<stem>.bin``.
 
@@ -670,6 +700,9 @@ def save_model(model: RiggedModel, path) -> None:
     double precision. Reading back gives the bones in depth-first order, which is the order of every
     loaded skeleton; another topological order comes back reordered.
 
+    The file (and a .gltf's buffer) is written to a temporary file beside it and renamed into place when
+    complete (``jaxcga._output.replacing``): a failed write leaves an existing file as it was.
+
     Args:
         model: RiggedModel with mesh V (n, 3), F (m, 3), J (n, k), W (n, k), inverse_bind (j, 4, 4),
             skeleton translation (b, 3), rotation (b, 4), scale (b, 3), clips' times (t,) and values
@@ -679,12 +712,21 @@ def save_model(model: RiggedModel, path) -> None:
     Raises:
         ValueError: wrong suffix; ``mesh.joints`` repeats a bone (two inverse bind matrices for one
             node cannot be one glTF skin); non-finite values; key times not increasing in float32;
-            faces crossing ``primitive_sizes``; an empty primitive.
+            faces crossing ``primitive_sizes``; an empty primitive; a ``<stem>.bin`` beside a .gltf
+            ``path`` that is not that file's buffer (``buffer_file``).
+        OSError: the file cannot be written (an existing one is left as it was).
     """
+    write_files(model_files(model, path))
+
+
+def model_files(model: RiggedModel, path) -> dict[Path, bytes | str]:
+    """The files ``save_model(model, path)`` writes, ``{path: content}``: the .glb, or the .gltf and its buffer
+    (for writing several models as one unit with ``jaxcga._output.write_files``). Arguments and errors as
+    ``save_model``'s, except that nothing is written."""
     path = Path(path)
-    suffix = path.suffix.lower()
-    if suffix not in (".glb", ".gltf"):
+    if path.suffix.lower() not in GLTF_OUTPUTS:
         raise ValueError(f"path: expected a .glb or .gltf file name, got {path.name!r}")
+    bin_path = buffer_file(path)
     mesh, skeleton = model.mesh, model.skeleton
     repeated = sorted({skeleton.names[j] for j in mesh.joints if mesh.joints.count(j) > 1})
     if repeated:
@@ -710,8 +752,7 @@ def save_model(model: RiggedModel, path) -> None:
     animations = [_animation_json(clip, writer) for clip in model.clips if clip.channels]
     blob = writer.blob()
     buffer = {"byteLength": len(blob)}
-    if suffix == ".gltf":
-        bin_path = path.with_suffix(".bin")
+    if bin_path is not None:
         buffer["uri"] = urllib.parse.quote(bin_path.name)
     doc = {
         "asset": {"version": "2.0", "generator": "jaxcga"},
@@ -726,17 +767,15 @@ def save_model(model: RiggedModel, path) -> None:
     }
     if animations:
         doc["animations"] = animations
-    if suffix == ".gltf":
-        bin_path.write_bytes(blob)
-        path.write_text(json.dumps(doc, indent=1))
-        return
+    if bin_path is not None:
+        return {path: json.dumps(doc, indent=1), bin_path: blob}
     text = json.dumps(doc, separators=(",", ":")).encode("utf-8")
     text += b" " * (-len(text) % 4)
     total = 12 + 8 + len(text) + 8 + len(blob)
-    path.write_bytes(
-        struct.pack("<4sII", _GLB_MAGIC, 2, total)
+    return {
+        path: struct.pack("<4sII", _GLB_MAGIC, 2, total)
         + struct.pack("<II", len(text), _CHUNK_JSON)
         + text
         + struct.pack("<II", len(blob), _CHUNK_BIN)
         + blob
-    )
+    }

@@ -10,6 +10,8 @@ import argparse
 import sys
 from pathlib import Path
 
+from jaxcga._output import check_distinct, check_folder, check_input, check_output, check_run_folder, save_figure
+
 
 def _triangle_keyframes():
     """A triangle and two similitude keyframes (rotation + translation + scaling), as in Fig. 1 of
@@ -52,10 +54,7 @@ def blending_figure(path: Path, steps: int = 8) -> Path:
         ax.set_title(title)
         ax.set_box_aspect((1, 1, 1))
     fig.suptitle("Blending similitude keyframes (rotation, translation, dilation)")
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110, bbox_inches="tight")
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=110, bbox_inches="tight")
 
 
 def demo(out: Path, steps: int, figure: bool) -> int:
@@ -169,10 +168,7 @@ def _cut_figure(arm, upper, lower, path: Path) -> Path:
                zlim=(center[2] - half, center[2] + half), title=title)
         ax.set_box_aspect((1, 1, 1))
         ax.view_init(elev=20, azim=-60)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=100, bbox_inches="tight")
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=100, bbox_inches="tight")
 
 
 def _x64():
@@ -217,7 +213,7 @@ def _run_fem(args) -> int:
     summary = _fem_commands.fem_command(
         args.scene, args.steps, args.out, h=args.dt, young=args.young, poisson=args.poisson, density=args.density,
         gravity=tuple(args.gravity), newton_iterations=args.newton, every=args.every, fix_fraction=args.fix_fraction,
-        figures=not args.no_figures)
+        figures=not args.no_figures, force=args.force)
     shown = {k: summary[k] for k in ("nodes", "dofs", "elements", "steps", "step_avg_s", "step_max_s",
                                      "max_displacement")}
     print(f"jaxcga fem {args.scene}: " + ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}"
@@ -229,7 +225,7 @@ def _run_xfem(args) -> int:
     from xfem import _xfem_commands
 
     summary = _xfem_commands.xfem_command(args.scene, args.out, args.steps, size=args.size, every=args.every,
-                                          figures=not args.no_figures, cut_latency=args.cut_latency)
+                                          figures=not args.no_figures, cut_latency=args.cut_latency, force=args.force)
     shown = {k: summary[k] for k in ("size", "nodes", "dofs", "pieces", "frames", "cuts", "booleans", "boolean_ms",
                                      "integral_ms", "step_avg_s", "step_max_s", "total_s")}
     print(f"jaxcga xfem {args.scene}: " + ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}"
@@ -277,6 +273,52 @@ def _run_deform(args) -> int:
                                         args.regularization, args.max_steps, not args.no_scale)
     print(f"jaxcga {args.command} {model.name}: " + ", ".join(f"{k} {v}" for k, v in summary.items()))
     return 0
+
+
+FORCE_HELP = ("replace the run in a non-empty OUT: its frame_XXXX.png/.vtu and summary.json are replaced when this "
+              "run ends; other files stay")
+
+
+def _check_paths(args) -> None:
+    """Every input and output path of the command, before anything is loaded or computed: inputs are files;
+    outputs have a known suffix, are no folder and lie in a folder this process may write in; fem and xfem
+    folders are empty (or --force); no output is an input or another output; a .gltf written with its .bin
+    does not replace an unrelated .bin."""
+    command = args.command
+    if command == "demo":
+        check_folder(args.out)
+        return
+    named = {"fit": ("model", "target", "vertices"), "deform": ("mesh", "handles", "cage"), "arap": ("mesh", "handles"),
+             "fem": (), "xfem": ()}.get(command, ("model",))
+    inputs = {name: check_input(getattr(args, name), name) for name in named if getattr(args, name) is not None}
+    if command in ("fem", "xfem"):
+        from xfem._fem_commands import RUN_DESCRIBED, RUN_FILES, SCENES
+
+        if command == "fem" and args.scene not in SCENES:
+            inputs["SCENE"] = check_input(args.scene, f"SCENE (one of {', '.join(SCENES)} or a mesh file)")
+        check_run_folder(args.out, RUN_FILES, args.force, RUN_DESCRIBED, inputs=inputs)
+        return
+    from deform._deform_commands import DEFORM_OUTPUTS, POSITION_OUTPUTS
+    from deform._gltf import GLTF_OUTPUTS, buffer_file
+
+    suffixes = {"skin": POSITION_OUTPUTS, "fit": (".json",), "deform": DEFORM_OUTPUTS, "arap": DEFORM_OUTPUTS}
+    if command == "cut":
+        outputs = {"out (positive half)": args.out[0], "out (negative half)": args.out[1]}
+    else:
+        outputs = {"out": args.out}
+    for name, path in outputs.items():
+        check_output(path, suffixes.get(command, GLTF_OUTPUTS), name)
+        if command in ("animate", "cut", "tear", "drill"):  # save_model writes a .gltf with its .bin
+            buffer_file(path, name)
+    check_distinct(outputs, inputs)
+
+
+def _error_message(error: BaseException) -> str:
+    """The one line ``jaxcga CMD: error: ...`` reports: an OSError as ``FILE: reason``, else the message."""
+    if isinstance(error, OSError) and error.strerror:
+        files = [str(f) for f in (error.filename, error.filename2) if f is not None]
+        return f"{' -> '.join(files)}: {error.strerror}" if files else error.strerror
+    return str(error)
 
 
 def _clip(value: str):
@@ -432,6 +474,7 @@ def main(argv: list[str] | None = None) -> int:
                        help="mesh files: clamp the nodes within this fraction of the height below the top "
                             "(default 0.02)")
     p_fem.add_argument("--no-figures", action="store_true", help="write the .vtu meshes and summary.json only")
+    p_fem.add_argument("--force", action="store_true", help=FORCE_HELP)
     p_fem.add_argument("--out", type=Path, required=True,
                        help="folder for frame_XXXX.png, frame_XXXX.vtu and summary.json")
 
@@ -447,18 +490,20 @@ def main(argv: list[str] | None = None) -> int:
                         help="compute each cut in the background while the body steps; it takes effect this many "
                              "frames after its scheduled frame (default 0: in its frame, as Algorithm 1)")
     p_xfem.add_argument("--no-figures", action="store_true", help="write the .vtu surfaces and summary.json only")
+    p_xfem.add_argument("--force", action="store_true", help=FORCE_HELP)
     p_xfem.add_argument("--out", type=Path, required=True,
                         help="folder for frame_XXXX.png, frame_XXXX.vtu and summary.json")
 
     args = parser.parse_args(argv)
-    if args.command == "demo":
-        if args.steps < 2:
-            parser.error("--steps: expected at least 2 frames")
-        return demo(args.out, args.steps, not args.no_figure)
+    if args.command == "demo" and args.steps < 2:
+        parser.error("--steps: expected at least 2 frames")
     try:
+        _check_paths(args)
+        if args.command == "demo":
+            return demo(args.out, args.steps, not args.no_figure)
         return _run_deform(args)
-    except (ValueError, FileNotFoundError, RuntimeError) as error:
-        parser.exit(2, f"jaxcga {args.command}: error: {error}\n")
+    except (ValueError, OSError, RuntimeError) as error:
+        parser.exit(2, f"jaxcga {args.command}: error: {_error_message(error)}\n")
 
 
 if __name__ == "__main__":

@@ -12,12 +12,14 @@ Scenes:
 
 Writes into OUT: ``frame_XXXX.png`` (the boundary surface, fixed axes) and ``frame_XXXX.vtu`` (the tet mesh
 with its displacement and velocity, for ParaView or meshio) every ``every`` steps and for the last one,
-and ``summary.json`` (nodes, DOFs, elements, steps, step times, energies).
+and ``summary.json`` (nodes, DOFs, elements, steps, step times, energies). OUT holds one run: it must be empty
+unless ``force``, and the files appear when the run ends (written beside, in a private folder), replacing the
+previous run's files (only those), ``summary.json`` last; a failed run leaves OUT as it was.
 """
 
 from __future__ import annotations
 
-import json
+import re
 import time
 from pathlib import Path
 
@@ -25,11 +27,14 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxcga._output import check_run_folder, run_folder, save_figure, write_json
 from xfem._backward_euler import State, backward_euler_step, fem_from_mesh, mechanical_energy
 from xfem._neohookean import lame
 from xfem._tetmesh import TetMesh, box_tets, read_tet_mesh, tetrahedralize
 
 SCENES = ("bar", "cube")
+RUN_FILES = re.compile(r"frame_\d{4,}\.(png|vtu)|summary\.json")  # one run's files in its OUT folder
+RUN_DESCRIBED = "frame_XXXX.png, frame_XXXX.vtu and summary.json"
 SURFACE_FORMATS = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf")
 
 
@@ -70,14 +75,15 @@ def _frame(mesh: TetMesh, faces, x, limits, path: Path, title: str):
     lo, hi = limits
     ax.set(xlim=(lo[0], hi[0]), ylim=(lo[1], hi[1]), zlim=(lo[2], hi[2]), title=title)
     ax.set_box_aspect(np.maximum(hi - lo, 1e-3 * (hi - lo).max()))
-    fig.savefig(path, dpi=80, bbox_inches="tight")
-    plt.close(fig)
+    save_figure(fig, path, dpi=80, bbox_inches="tight")
 
 
 def fem_command(scene: str, steps: int, out: Path, *, h: float = 0.033, young: float = 1e6, poisson: float = 0.4,
                 density: float = 1e3, gravity=(0.0, 0.0, -9.81), newton_iterations: int = 1, every: int = 10,
-                fix_fraction: float = 0.02, figures: bool = True, progress: bool = True) -> dict:
-    """Simulate ``scene`` for ``steps`` backward Euler steps and write frames into ``out``; returns the summary."""
+                fix_fraction: float = 0.02, figures: bool = True, progress: bool = True, force: bool = False) -> dict:
+    """Simulate ``scene`` for ``steps`` backward Euler steps and write frames into ``out``; returns the summary.
+    ``out`` must be empty unless ``force``; the run's files replace the previous run's when it ends
+    (``jaxcga._output.run_folder``)."""
     if not isinstance(steps, int) or steps < 1:
         raise ValueError(f"steps: expected an int >= 1, got {steps!r}")
     if not isinstance(every, int) or every < 1:
@@ -86,52 +92,54 @@ def fem_command(scene: str, steps: int, out: Path, *, h: float = 0.033, young: f
         raise ValueError(f"dt: expected a positive time step, got {h}")
     if not density > 0:
         raise ValueError(f"density: expected a positive density, got {density}")
+    out = check_run_folder(out, RUN_FILES, force, RUN_DESCRIBED,
+                           inputs=None if scene in SCENES else {"SCENE": Path(scene)})
     mu, lam = lame(young, poisson)
     mesh, fixed = scene_mesh(scene, fix_fraction)
     system = fem_from_mesh(mesh, density, gravity, fixed)
     faces = mesh.boundary_faces()
     X = np.asarray(mesh.X)
-    out.mkdir(parents=True, exist_ok=True)
     extent = X.max(0) - X.min(0)
     limits = (X.min(0) - 0.6 * extent.max(), X.max(0) + 0.6 * extent.max())
     energies = jax.jit(lambda state: mechanical_energy(system, state, mu, lam))
 
-    def write(k: int, state: State):
-        x = np.asarray(state.x)
-        import meshio
+    with run_folder(out, RUN_FILES, "summary.json") as staging:
+        def write(k: int, state: State):
+            x = np.asarray(state.x)
+            import meshio
 
-        meshio.write(out / f"frame_{k:04d}.vtu", meshio.Mesh(
-            x, [("tetra", np.asarray(mesh.T))],
-            point_data={"displacement": x - X, "velocity": np.asarray(state.v)}))
-        if figures:
-            _frame(mesh, faces, x, limits, out / f"frame_{k:04d}.png", f"{scene}: step {k}, t = {k * h:.3f} s")
+            meshio.write(staging / f"frame_{k:04d}.vtu", meshio.Mesh(
+                x, [("tetra", np.asarray(mesh.T))],
+                point_data={"displacement": x - X, "velocity": np.asarray(state.v)}))
+            if figures:
+                _frame(mesh, faces, x, limits, staging / f"frame_{k:04d}.png",
+                       f"{scene}: step {k}, t = {k * h:.3f} s")
 
-    from tqdm import tqdm
+        from tqdm import tqdm
 
-    state = State(mesh.X, jnp.zeros_like(mesh.X))
-    write(0, state)
-    times, kinetic, potential = [], [], []
-    for k in tqdm(range(1, steps + 1), desc=f"fem {Path(scene).name}", unit="step", disable=not progress):
-        start = time.perf_counter()
-        state = jax.block_until_ready(backward_euler_step(system, state, h, mu, lam,
-                                                          newton_iterations=newton_iterations))
-        times.append(time.perf_counter() - start)
-        if not bool(jnp.all(jnp.isfinite(state.x))):
-            raise RuntimeError(f"fem: non-finite positions at step {k}; try a smaller --dt or more --newton")
-        e_kin, e_elastic, e_external = energies(state)
-        kinetic.append(float(e_kin))
-        potential.append(float(e_elastic + e_external))
-        if k % every == 0 or k == steps:
-            write(k, state)
-    summary = {
-        "scene": scene, "nodes": int(mesh.n_nodes), "dofs": 3 * (int(mesh.n_nodes) - len(fixed)),
-        "elements": int(mesh.n_elements), "fixed_nodes": len(fixed), "steps": steps, "dt": h,
-        "young": young, "poisson": poisson, "density": density, "newton_iterations": newton_iterations,
-        "first_step_s": times[0], "step_avg_s": float(np.mean(times[1:])) if steps > 1 else times[0],
-        "step_max_s": float(np.max(times[1:])) if steps > 1 else times[0],
-        "kinetic_energy": kinetic, "potential_energy": potential,
-        "max_displacement": float(np.abs(np.asarray(state.x) - X).max()),
-    }
-    (out / "summary.json").write_text(json.dumps(summary, indent=1))
+        state = State(mesh.X, jnp.zeros_like(mesh.X))
+        write(0, state)
+        times, kinetic, potential = [], [], []
+        for k in tqdm(range(1, steps + 1), desc=f"fem {Path(scene).name}", unit="step", disable=not progress):
+            start = time.perf_counter()
+            state = jax.block_until_ready(backward_euler_step(system, state, h, mu, lam,
+                                                              newton_iterations=newton_iterations))
+            times.append(time.perf_counter() - start)
+            if not bool(jnp.all(jnp.isfinite(state.x))):
+                raise RuntimeError(f"fem: non-finite positions at step {k}; try a smaller --dt or more --newton")
+            e_kin, e_elastic, e_external = energies(state)
+            kinetic.append(float(e_kin))
+            potential.append(float(e_elastic + e_external))
+            if k % every == 0 or k == steps:
+                write(k, state)
+        summary = {
+            "scene": scene, "nodes": int(mesh.n_nodes), "dofs": 3 * (int(mesh.n_nodes) - len(fixed)),
+            "elements": int(mesh.n_elements), "fixed_nodes": len(fixed), "steps": steps, "dt": h,
+            "young": young, "poisson": poisson, "density": density, "newton_iterations": newton_iterations,
+            "first_step_s": times[0], "step_avg_s": float(np.mean(times[1:])) if steps > 1 else times[0],
+            "step_max_s": float(np.max(times[1:])) if steps > 1 else times[0],
+            "kinetic_energy": kinetic, "potential_energy": potential,
+            "max_displacement": float(np.abs(np.asarray(state.x) - X).max()),
+        }
+        write_json(staging / "summary.json", summary)
     return summary
-

@@ -12,16 +12,18 @@ that writing never makes a cut take effect early):
   ParaView or meshio;
 
 and ``summary.json``: ``SceneRun.summary()`` (pieces, DOFs, Booleans, timings) plus the run's settings, the
-cut frames and the per-frame pieces, DOFs and times.
+cut frames and the per-frame pieces, DOFs and times. OUT holds one run, as for ``jaxcga fem``
+(``xfem._fem_commands``): empty unless ``force``, filled when the run ends, ``summary.json`` last.
 """
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 
+from jaxcga._output import check_run_folder, run_folder, save_figure, write_json
+from xfem._fem_commands import RUN_DESCRIBED, RUN_FILES
 from xfem._scenes import SCENES, SIZES, FrameRecord, piece_surfaces, run_scene, scene
 from xfem._xfem import XFEMModel
 
@@ -40,14 +42,13 @@ def _frame(V: np.ndarray, F: np.ndarray, piece: np.ndarray, limits, path: Path, 
     lo, hi = limits
     ax.set(xlim=(lo[0], hi[0]), ylim=(lo[1], hi[1]), zlim=(lo[2], hi[2]), title=title)
     ax.set_box_aspect(np.maximum(hi - lo, 1e-3 * (hi - lo).max()))
-    fig.savefig(path, dpi=80, bbox_inches="tight")
-    plt.close(fig)
+    save_figure(fig, path, dpi=80, bbox_inches="tight")
 
 
 def xfem_command(name: str, out: Path, steps: int | None = None, *, size: str = "paper", every: int = 10,
-                 figures: bool = True, progress: bool = True, cut_latency: int = 0) -> dict:
+                 figures: bool = True, progress: bool = True, cut_latency: int = 0, force: bool = False) -> dict:
     """Run scene ``name`` for ``steps`` frames (None: the scene's default) and write frames into ``out``; returns
-    the summary (module docstring). ``cut_latency``: as ``run_scene``."""
+    the summary (module docstring). ``cut_latency``: as ``run_scene``; ``force``: as ``fem_command``'s."""
     if name not in SCENES:
         raise ValueError(f"SCENE: expected one of {SCENES}, got {name!r}")
     if size not in SIZES:
@@ -58,11 +59,11 @@ def xfem_command(name: str, out: Path, steps: int | None = None, *, size: str = 
         raise ValueError(f"every: expected an int >= 1, got {every!r}")
     if not isinstance(cut_latency, int) or cut_latency < 0:
         raise ValueError(f"cut_latency: expected an int >= 0, got {cut_latency!r}")
+    out = check_run_folder(out, RUN_FILES, force, RUN_DESCRIBED)
     import meshio
 
     sc = scene(name, size)
     steps = sc.steps if steps is None else steps
-    out.mkdir(parents=True, exist_ok=True)
     X = np.asarray(sc.mesh.X)
     extent = X.max(0) - X.min(0)
     # room to fall: the body's size below it, half of it around
@@ -70,33 +71,35 @@ def xfem_command(name: str, out: Path, steps: int | None = None, *, size: str = 
     written = []
     deferred = [False]  # a frame is due but cuts are pending: write at the first frame without
 
-    def write(frame: int, model: XFEMModel):
-        V, F, piece = piece_surfaces(model)
-        meshio.write(out / f"frame_{frame:04d}.vtu", meshio.Mesh(V, [("triangle", F)], cell_data={"piece": [piece]}))
-        if figures:
-            _frame(V, F, piece, limits, out / f"frame_{frame:04d}.png",
-                   f"{name}: frame {frame}, t = {frame * sc.h:.3f} s, {int(piece.max()) + 1} pieces")
-        written.append(frame)
+    with run_folder(out, RUN_FILES, "summary.json") as staging:
+        def write(frame: int, model: XFEMModel):
+            V, F, piece = piece_surfaces(model)
+            meshio.write(staging / f"frame_{frame:04d}.vtu",
+                         meshio.Mesh(V, [("triangle", F)], cell_data={"piece": [piece]}))
+            if figures:
+                _frame(V, F, piece, limits, staging / f"frame_{frame:04d}.png",
+                       f"{name}: frame {frame}, t = {frame * sc.h:.3f} s, {int(piece.max()) + 1} pieces")
+            written.append(frame)
 
-    def on_frame(record: FrameRecord, model: XFEMModel):
-        due = record.cuts or record.frame % every == 0 or record.frame == steps or deferred[0]
-        if due and model.pending_cuts and record.frame < steps:  # writing would wait for them and commit them
-            deferred[0] = True
-        elif due:
-            deferred[0] = False
-            write(record.frame, model)
+        def on_frame(record: FrameRecord, model: XFEMModel):
+            due = record.cuts or record.frame % every == 0 or record.frame == steps or deferred[0]
+            if due and model.pending_cuts and record.frame < steps:  # writing would wait for them and commit them
+                deferred[0] = True
+            elif due:
+                deferred[0] = False
+                write(record.frame, model)
 
-    write(0, sc.model())
-    run = run_scene(sc, steps, progress=progress, on_frame=on_frame, cut_latency=cut_latency)
-    summary = run.summary()
-    summary.update({
-        "steps": steps, "dt": sc.h, "young": sc.young, "poisson": sc.poisson, "density": sc.density,
-        "epsilon": sc.epsilon, "newton_iterations": sc.newton_iterations, "fixed_nodes": int(len(sc.fixed)),
-        "cut_latency": cut_latency,
-        "cut_frames": sorted({c.frame for c in sc.cuts if c.frame <= steps}), "frames_written": written,
-        "frame_pieces": [r.pieces for r in run.records], "frame_dofs": [r.dofs for r in run.records],
-        "frame_seconds": [r.seconds for r in run.records],
-        "max_displacement": float(np.abs(np.asarray(run.model.state.x) - X[run.model.dof_node]).max()),
-    })
-    (out / "summary.json").write_text(json.dumps(summary, indent=1))
+        write(0, sc.model())
+        run = run_scene(sc, steps, progress=progress, on_frame=on_frame, cut_latency=cut_latency)
+        summary = run.summary()
+        summary.update({
+            "steps": steps, "dt": sc.h, "young": sc.young, "poisson": sc.poisson, "density": sc.density,
+            "epsilon": sc.epsilon, "newton_iterations": sc.newton_iterations, "fixed_nodes": int(len(sc.fixed)),
+            "cut_latency": cut_latency,
+            "cut_frames": sorted({c.frame for c in sc.cuts if c.frame <= steps}), "frames_written": written,
+            "frame_pieces": [r.pieces for r in run.records], "frame_dofs": [r.dofs for r in run.records],
+            "frame_seconds": [r.seconds for r in run.records],
+            "max_displacement": float(np.abs(np.asarray(run.model.state.x) - X[run.model.dof_node]).max()),
+        })
+        write_json(staging / "summary.json", summary)
     return summary

@@ -51,6 +51,25 @@ def test_a_surface_and_a_written_frame_are_scenes(bar_run, tmp_path, capsys):
     assert "jaxcga fem" in capsys.readouterr().out
 
 
+def test_force_replaces_the_previous_run_and_nothing_else(tmp_path):
+    out = tmp_path / "run"
+    out.mkdir()
+    for name in ("frame_0000.png", "frame_0000.vtu", "frame_0040.vtu", "summary.json"):  # another scene's run
+        (out / name).write_text("an earlier run")
+    (out / "notes.txt").write_text("not the run's")
+    (out / "frame_0001.vtu.bak").write_text("not the run's either")
+    (out / "keep").mkdir()
+    assert main(["fem", "bar", "--steps", "1", "--no-figures", "--force", "--out", str(out)]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["frame_0000.vtu", "frame_0001.vtu", "frame_0001.vtu.bak", "keep",
+                                                     "notes.txt", "summary.json"]
+    assert (out / "notes.txt").read_text() == "not the run's"
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["steps"] == 1 and meshio.read(out / "frame_0001.vtu").points.shape == (summary["nodes"], 3)
+    # summary.json is renamed into the folder last: it marks a complete run
+    assert (out / "summary.json").stat().st_ctime_ns >= max((out / f"frame_000{k}.vtu").stat().st_ctime_ns
+                                                            for k in (0, 1))
+
+
 @pytest.mark.parametrize("args, message", [
     (["nowhere.msh"], "SCENE"),
     (["bar", "--steps", "0"], "steps"),
