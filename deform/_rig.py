@@ -34,6 +34,7 @@ from jaxtyping import Array, Float
 import jaxcga as cga
 from deform._model import AnimationClip, Channel, Skeleton, SkinnedMesh
 from jaxcga._multivector import KINDS, Multivector
+from jaxcga._support import require
 
 _SIMILITUDE = KINDS["similitude"]
 
@@ -70,12 +71,10 @@ def uniform_scale(scale: Float[Array, "... 3"], tolerance: float = 1e-5) -> Floa
     non-positive scales raise inside jit: a dilator is a uniform scaling (eq. 12)."""
     s = jnp.mean(scale, axis=-1)
     spread = jnp.max(jnp.abs(scale - s[..., None]), axis=-1, initial=0.0) / jnp.abs(s)
-    s = eqx.error_if(
-        s,
+    s = require(s, (
         jnp.any(spread > tolerance) | jnp.any(s <= 0),
         "scale: non-uniform or non-positive bone scale has no versor (dilators scale uniformly); "
-        "use the matrix path (local_matrices / skin_lbs) for such rigs",
-    )
+        "use the matrix path (local_matrices / skin_lbs) for such rigs"))
     return s
 
 

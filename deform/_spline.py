@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import math
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -27,6 +26,7 @@ from jaxtyping import Array, Float
 from deform._harmonic import harmonic_precompute
 from deform._motor_field import MotorField, bind
 from jaxcga import Multivector
+from jaxcga._support import require
 
 BASES = ("linear", "lagrange", "bezier", "bspline")
 _FIXED_KEYS = {"linear": 2, "lagrange": 3}
@@ -35,18 +35,14 @@ _ROUNDING = 1e-9  # how far outside [0, 1] a parameter may stray by rounding; it
 
 def check_parameter(lam) -> Float[Array, " n"]:
     """``lam`` as a float vector (n,) in [0, 1]: ValueError for a bad shape or (when concrete) values
-    outside [0, 1] beyond rounding, ``eqx.error_if`` for traced values; rounding is clipped away."""
+    outside [0, 1] beyond rounding, an ``eqx.error_if`` error inside jit; rounding is clipped away."""
     lam = jnp.asarray(lam)
     if lam.ndim != 1:
         raise ValueError(f"lam: expected a parameter vector of shape (n,), got shape {lam.shape}")
     if not jnp.issubdtype(lam.dtype, jnp.floating):
         lam = lam.astype(jnp.result_type(float))
     outside = ~jnp.all((lam >= -_ROUNDING) & (lam <= 1 + _ROUNDING))  # NaN counts as outside
-    message = "lam: spline parameters must lie in [0, 1] (and be finite)"
-    if isinstance(lam, jax.core.Tracer):
-        lam = eqx.error_if(lam, outside, message)
-    elif outside:
-        raise ValueError(message)
+    lam = require(lam, (outside, "lam: spline parameters must lie in [0, 1] (and be finite)"))
     return jnp.clip(lam, 0.0, 1.0)
 
 

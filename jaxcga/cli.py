@@ -7,6 +7,10 @@ subcommand). ``jaxcga demo`` runs the main job on the built-in default.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import logging
+import math
+import re
 import sys
 from pathlib import Path
 
@@ -279,12 +283,62 @@ def _run_deform(args) -> int:
     return 0
 
 
+def _finite_float(value: str) -> float:
+    number = float(value)
+    if not math.isfinite(number):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {value!r}")
+    return number
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with every ``type=float`` option finite, negative numbers in any notation read as values
+    (argparse's own test, ``-1`` or ``-.5``, takes ``-1e0`` for an option) and errors on one line."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.register("type", float, _finite_float)
+        self._negative_number_matcher = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^-(inf|infinity|nan)$",
+                                                   re.IGNORECASE)
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def error_line(error: BaseException) -> str:
+    """The message of ``error`` on one line: for an error raised inside compiled code (an ``eqx.error_if``
+    under ``eqx.filter_jit`` or ``jax.jit``, or an exception in a host callback) the check's own message,
+    without the banner and the traceback around it."""
+    text = str(error)
+    found = re.search(r"EquinoxRuntimeError: (.+)", text)
+    if found:
+        return found.group(1).strip()
+    import jax
+
+    if isinstance(error, jax.errors.JaxRuntimeError):
+        raised = re.findall(r"^\w*(?:Error|Exception): (.+)$", text, re.MULTILINE)
+        if raised:
+            return raised[-1].strip()
+    return text.strip().splitlines()[0] if text.strip() else type(error).__name__
+
+
+@contextlib.contextmanager
+def _quiet_callback_log():
+    """Mute JAX's log of a failed host callback (the traceback of an ``eqx.error_if`` under ``jax.jit``): the
+    error itself reaches ``main`` and is printed on one line."""
+    logger = logging.getLogger("jax._src.callback")
+    disabled, logger.disabled = logger.disabled, True
+    try:
+        yield
+    finally:
+        logger.disabled = disabled
+
+
 def _clip(value: str):
     return int(value) if value.lstrip("-").isdigit() else value
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="jaxcga", description=__doc__.splitlines()[0])
+    parser = _Parser(prog="jaxcga", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
     p_demo = sub.add_parser("demo", help="run the main job on the built-in default")
     p_demo.add_argument("--out", type=Path, default=Path("out"), help="folder for figures (default: out/)")
@@ -456,9 +510,10 @@ def main(argv: list[str] | None = None) -> int:
             parser.error("--steps: expected at least 2 frames")
         return demo(args.out, args.steps, not args.no_figure)
     try:
-        return _run_deform(args)
+        with _quiet_callback_log():
+            return _run_deform(args)
     except (ValueError, FileNotFoundError, RuntimeError) as error:
-        parser.exit(2, f"jaxcga {args.command}: error: {error}\n")
+        parser.exit(2, f"jaxcga {args.command}: error: {error_line(error)}\n")
 
 
 if __name__ == "__main__":
