@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import time
+import warnings
 from pathlib import Path
 
 import jax
@@ -36,8 +37,8 @@ MESH_OUTPUTS = (".glb", ".gltf", ".obj", ".ply", ".stl")
 
 
 def load_mesh(path: str | Path | None):
-    """(V, F) float64 / int64 of a mesh file (a glTF's bind-pose skinned mesh, welded), or of the
-    built-in arm's rest mesh when ``path`` is None."""
+    """(V, F) float64 / int64 of a mesh file (a glTF's bind-pose skinned mesh, welded; any other format by
+    ``read_mesh_file``), or of the built-in arm's rest mesh when ``path`` is None."""
     if path is None:
         mesh = default_arm().mesh
         return np.asarray(mesh.V, np.float64), np.asarray(mesh.F, np.int64)
@@ -49,12 +50,71 @@ def load_mesh(path: str | Path | None):
 
         mesh = load_model(path, weld=True).mesh
         return np.asarray(mesh.V, np.float64), np.asarray(mesh.F, np.int64)
+    return read_mesh_file(path)
+
+
+def read_mesh_file(path: str | Path, name: str = "mesh"):
+    """(V, F) float64 / int64 of a triangle mesh file that trimesh reads (.obj, .ply, .stl, .off, .glb, ...).
+
+    The file is read as it is (trimesh's ``process=False``); a non-finite vertex raises, naming its line
+    (OBJ) or its index. Vertices at the same position are then merged (an STL stores every corner apart,
+    other formats split vertices along UV seams), faces left with two equal corners are dropped, and so
+    are vertices no face uses: whatever this changes is reported by a ``UserWarning``.
+
+    Raises:
+        FileNotFoundError: no such file. ValueError: a file trimesh cannot read, one without triangles,
+        a non-finite vertex (``name`` starts the message).
+    """
     import trimesh
 
-    loaded = trimesh.load(path, force="mesh", process=True)
-    if len(loaded.faces) == 0:
-        raise ValueError(f"mesh: {path} holds no triangles")
-    return np.asarray(loaded.vertices, np.float64), np.asarray(loaded.faces, np.int64)
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{name}: no such file {path}")
+    try:
+        loaded = trimesh.load(path, force="mesh", process=False)
+    except (ValueError, KeyError, IndexError, TypeError, AttributeError) as error:  # trimesh's parsers
+        raise ValueError(f"{name}: trimesh cannot read {path} ({error})") from None
+    if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
+        raise ValueError(f"{name}: {path} holds no triangles")
+    V, F = np.asarray(loaded.vertices, np.float64), np.asarray(loaded.faces, np.int64)
+    bad = ~np.isfinite(V).all(axis=1)
+    if bad.any():
+        raise ValueError(f"{name}: {path}: {_non_finite_vertex(path, V, bad)}")
+    welded = trimesh.Trimesh(V, F, process=False)
+    welded.merge_vertices()
+    W, G = np.asarray(welded.vertices, np.float64), np.asarray(welded.faces, np.int64)
+    keep = (G[:, 0] != G[:, 1]) & (G[:, 1] != G[:, 2]) & (G[:, 2] != G[:, 0])
+    if keep.all() and len(W) == len(V):
+        return V, F
+    used = np.zeros(len(W), bool)
+    used[G[keep]] = True
+    renumber = np.cumsum(used) - 1
+    W, G = W[used], renumber[G[keep]]
+    if len(G) == 0:
+        raise ValueError(f"{name}: {path} holds no triangle with three distinct corners")
+    warnings.warn(f"{name}: {path}: welded {len(V)} vertices into {len(W)} (same positions merged, unused ones "
+                  f"dropped) and dropped {int((~keep).sum())} of {len(F)} faces with two equal corners",
+                  stacklevel=2)
+    return W, G
+
+
+def _non_finite_vertex(path: Path, V, bad) -> str:
+    """Where the first non-finite vertex is: its line in an OBJ file (trimesh may renumber OBJ vertices),
+    else its index."""
+    count = f"{int(bad.sum())} non-finite vertices" if bad.sum() > 1 else "a non-finite vertex"
+    if path.suffix.lower() == ".obj":
+        with open(path, errors="replace") as file:
+            for number, line in enumerate(file, 1):
+                words = line.split()
+                if words[:1] == ["v"]:
+                    try:
+                        finite = np.isfinite(np.asarray(words[1:4], np.float64)).all()
+                    except ValueError:
+                        finite = False
+                    if not finite:
+                        return f"{count}, the first on line {number}: {line.strip()!r}"
+    first = int(np.flatnonzero(bad)[0])
+    return f"{count}, the first is vertex {first}: {V[first].tolist()}"
 
 
 class Motion:

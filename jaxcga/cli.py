@@ -12,6 +12,7 @@ import logging
 import math
 import re
 import sys
+import warnings
 from pathlib import Path
 
 
@@ -322,13 +323,17 @@ def error_line(error: BaseException) -> str:
 
 
 @contextlib.contextmanager
-def _quiet_callback_log():
-    """Mute JAX's log of a failed host callback (the traceback of an ``eqx.error_if`` under ``jax.jit``): the
-    error itself reaches ``main`` and is printed on one line."""
+def _one_line_reports(command: str):
+    """Warnings (a mesh welded on load, ...) as one line each, and JAX's log of a failed host callback (the
+    traceback of an ``eqx.error_if`` under ``jax.jit``) muted: that error reaches ``main`` and is printed on
+    one line."""
     logger = logging.getLogger("jax._src.callback")
     disabled, logger.disabled = logger.disabled, True
     try:
-        yield
+        with warnings.catch_warnings():
+            warnings.showwarning = lambda message, *_, **__: print(f"jaxcga {command}: warning: {message}",
+                                                                   file=sys.stderr)
+            yield
     finally:
         logger.disabled = disabled
 
@@ -510,7 +515,7 @@ def main(argv: list[str] | None = None) -> int:
             parser.error("--steps: expected at least 2 frames")
         return demo(args.out, args.steps, not args.no_figure)
     try:
-        with _quiet_callback_log():
+        with _one_line_reports(args.command):
             return _run_deform(args)
     except (ValueError, FileNotFoundError, RuntimeError) as error:
         parser.exit(2, f"jaxcga {args.command}: error: {error_line(error)}\n")

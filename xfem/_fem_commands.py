@@ -45,10 +45,10 @@ def scene_mesh(scene: str, fix_fraction: float = 0.02):
     if not path.exists():
         raise FileNotFoundError(f"SCENE: expected one of {SCENES} or a mesh file, got {scene!r} (no such file)")
     if path.suffix.lower() in SURFACE_FORMATS:
-        import trimesh
+        # the command modules form the application layer above the packages (DESIGN.md): one mesh-file reader
+        from deform._deform_commands import read_mesh_file
 
-        surface = trimesh.load(path, force="mesh", process=True)
-        mesh = tetrahedralize(np.asarray(surface.vertices), np.asarray(surface.faces))
+        mesh = tetrahedralize(*read_mesh_file(path, "SCENE"))
     else:
         mesh = read_tet_mesh(path)
     if not 0 < fix_fraction < 1:
