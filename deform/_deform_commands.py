@@ -146,6 +146,11 @@ class Motion:
 
 
 def _end_handles(motion: Motion, V, fraction: float):
+    if fraction >= 0.5:
+        raise ValueError(f"handle_fraction: {fraction} makes the two end handles overlap (each holds the vertices "
+                         "within this fraction of the long axis from its end); expected a fraction below 0.5")
+    if not fraction >= 0:
+        raise ValueError(f"handle_fraction: expected a fraction in [0, 0.5), got {fraction}")
     s = motion.fraction(V)
     start, end = np.flatnonzero(s <= fraction), np.flatnonzero(s >= 1.0 - fraction)
     if len(start) == 0 or len(end) == 0:
