@@ -192,6 +192,8 @@ def deform_command(method: str, V, F, out: Path, *, bend: float = 60.0, twist: f
         raise ValueError(f"out: expected one of {MESH_OUTPUTS + ('.npy', '.png')}, got {out}")
     if positional and method not in ("ffd", "cage"):
         raise ValueError("positional: only the ffd and cage deformations have a positional form")
+    if keys is not None and keys > len(V):
+        raise ValueError(f"keys: expected at most one key motor per vertex ({len(V)}), got {keys}")
     motion = Motion(V, bend, twist, translate)
     start = time.perf_counter()
     if method == "spline":

@@ -23,6 +23,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from deform._ffd import MAX_DEGREE
 from deform._harmonic import harmonic_precompute
 from deform._motor_field import MotorField, bind
 from jaxcga import Multivector
@@ -101,8 +102,8 @@ def spline_weights(lam: Float[Array, " n"], basis: str = "bspline", num_keys: in
             raise ValueError(f"num_keys: the {basis} basis has exactly {k} keys, got {num_keys}")
     elif basis == "bezier":
         k = 4 if num_keys is None else num_keys
-        if not isinstance(k, int) or k < 2:
-            raise ValueError(f"num_keys: the Bezier basis needs an integer k >= 2, got {num_keys}")
+        if not isinstance(k, int) or not 2 <= k <= MAX_DEGREE + 1:
+            raise ValueError(f"num_keys: the Bezier basis needs an integer k in [2, {MAX_DEGREE + 1}], got {num_keys}")
     else:
         if not isinstance(degree, int) or degree < 1:
             raise ValueError(f"degree: expected an integer B-spline degree >= 1, got {degree}")

@@ -50,7 +50,10 @@ def scene_mesh(scene: str, fix_fraction: float = 0.02):
 
         mesh = tetrahedralize(*read_mesh_file(path, "SCENE"))
     else:
-        mesh = read_tet_mesh(path)
+        try:
+            mesh = read_tet_mesh(path)
+        except ValueError as error:  # it names its argument "path"
+            raise ValueError(f"SCENE: {str(error).removeprefix('path: ')}") from None
     if not 0 < fix_fraction < 1:
         raise ValueError(f"fix_fraction: expected a fraction in (0, 1), got {fix_fraction}")
     z = np.asarray(mesh.X)[:, 2]
@@ -86,6 +89,8 @@ def fem_command(scene: str, steps: int, out: Path, *, h: float = 0.033, young: f
         raise ValueError(f"dt: expected a positive time step, got {h}")
     if not density > 0:
         raise ValueError(f"density: expected a positive density, got {density}")
+    if len(gravity) != 3 or not np.isfinite(max(abs(float(g)) for g in gravity) * float(density)):
+        raise ValueError(f"gravity: expected three numbers whose product with the density is finite, got {gravity}")
     mu, lam = lame(young, poisson)
     mesh, fixed = scene_mesh(scene, fix_fraction)
     system = fem_from_mesh(mesh, density, gravity, fixed)
