@@ -306,20 +306,12 @@ class _Parser(argparse.ArgumentParser):
 
 
 def error_line(error: BaseException) -> str:
-    """The message of ``error`` on one line: for an error raised inside compiled code (an ``eqx.error_if``
-    under ``eqx.filter_jit`` or ``jax.jit``, or an exception in a host callback) the check's own message,
+    """The message of ``error`` on one line; for an error raised inside compiled code the check's own message,
     without the banner and the traceback around it."""
-    text = str(error)
-    found = re.search(r"EquinoxRuntimeError: (.+)", text)
-    if found:
-        return found.group(1).strip()
-    import jax
+    from jaxcga._support import compiled_error_message
 
-    if isinstance(error, jax.errors.JaxRuntimeError):
-        raised = re.findall(r"^\w*(?:Error|Exception): (.+)$", text, re.MULTILINE)
-        if raised:
-            return raised[-1].strip()
-    return text.strip().splitlines()[0] if text.strip() else type(error).__name__
+    text = str(error).strip()
+    return compiled_error_message(error) or (text.splitlines()[0] if text else type(error).__name__)
 
 
 @contextlib.contextmanager
