@@ -245,7 +245,7 @@ def _node_trs(node: dict, where: str) -> tuple[np.ndarray, np.ndarray, np.ndarra
         if matrix.shape != (16,):
             raise ValueError(f"{where}: matrix must have 16 numbers, got {matrix.shape}")
         if not np.isfinite(matrix).all():
-            raise ValueError(f"{where}: matrix must be finite, got {matrix.tolist()}")
+            raise ValueError(f"{where}: matrix must be finite, got a NaN or infinity")
         matrix = matrix.reshape(4, 4).T  # column-major in the file
         if not has_trs:
             return _decompose(matrix, where)
