@@ -17,6 +17,8 @@ and ``summary.json`` (nodes, DOFs, elements, steps, step times, energies).
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import time
 from pathlib import Path
@@ -51,7 +53,9 @@ def scene_mesh(scene: str, fix_fraction: float = 0.02):
         mesh = tetrahedralize(*read_mesh_file(path, "SCENE"))
     else:
         try:
-            mesh = read_tet_mesh(path)
+            # meshio prints its readers' complaints before giving up: the error below says it on one line
+            with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+                mesh = read_tet_mesh(path)
         except ValueError as error:  # it names its argument "path"
             raise ValueError(f"SCENE: {str(error).removeprefix('path: ')}") from None
     if not 0 < fix_fraction < 1:
