@@ -36,21 +36,21 @@ DEFORMATIONS = ("spline", "handles", "ffd", "cage")
 MESH_OUTPUTS = (".glb", ".gltf", ".obj", ".ply", ".stl")
 
 
-def load_mesh(path: str | Path | None):
+def load_mesh(path: str | Path | None, name: str = "mesh"):
     """(V, F) float64 / int64 of a mesh file (a glTF's bind-pose skinned mesh, welded; any other format by
-    ``read_mesh_file``), or of the built-in arm's rest mesh when ``path`` is None."""
+    ``read_mesh_file``), or of the built-in arm's rest mesh when ``path`` is None; errors start with ``name``."""
     if path is None:
         mesh = default_arm().mesh
         return np.asarray(mesh.V, np.float64), np.asarray(mesh.F, np.int64)
     path = Path(path)
     if not path.exists():
-        raise FileNotFoundError(f"mesh: no such file {path}")
+        raise FileNotFoundError(f"{name}: no such file {path}")
     if path.suffix.lower() in (".glb", ".gltf"):
         from deform._gltf import load_model
 
         mesh = load_model(path, weld=True).mesh
         return np.asarray(mesh.V, np.float64), np.asarray(mesh.F, np.int64)
-    return read_mesh_file(path)
+    return read_mesh_file(path, name)
 
 
 def read_mesh_file(path: str | Path, name: str = "mesh"):
@@ -158,25 +158,42 @@ def _end_handles(motion: Motion, V, fraction: float):
     return start, end
 
 
+_MOTOR_KEYS = {"center": [0.0, 0.0, 0.0], "axis": [0.0, 0.0, 1.0], "angle_deg": 0.0, "translation": [0.0, 0.0, 0.0]}
+
+
 def _handles_file(path: Path, n: int):
     """Handles and their motors from JSON: ``{"handles": [[i, ...], ...], "motors": [{"center": [x, y, z],
     "axis": [x, y, z], "angle_deg": a, "translation": [x, y, z]}, ...]}`` (one motor per handle; every
     key optional: the identity by default)."""
-    spec = json.loads(Path(path).read_text())
-    if not isinstance(spec, dict) or "handles" not in spec:
-        raise ValueError(f"handles: {path} must hold a JSON object with a 'handles' list")
-    handles = [np.asarray(h, np.int64).reshape(-1) for h in spec["handles"]]
+    try:
+        spec = json.loads(Path(path).read_text())
+    except json.JSONDecodeError as error:
+        raise ValueError(f"handles: {path} is not valid JSON ({error})") from None
+    if not isinstance(spec, dict) or not isinstance(spec.get("handles"), list) or not spec["handles"]:
+        raise ValueError(f"handles: {path} must hold a JSON object with a non-empty 'handles' list")
+    try:
+        handles = [np.asarray(h, np.int64).reshape(-1) for h in spec["handles"]]
+    except (TypeError, ValueError):
+        raise ValueError(f"handles: every handle in {path} must be a list of vertex indices") from None
     if any(len(h) == 0 or h.min() < 0 or h.max() >= n for h in handles):
         raise ValueError(f"handles: every handle needs vertex indices in [0, {n})")
     motors = spec.get("motors", [{}] * len(handles))
-    if len(motors) != len(handles):
-        raise ValueError(f"handles: {len(handles)} handles but {len(motors)} motors in {path}")
+    if not isinstance(motors, list) or len(motors) != len(handles):
+        raise ValueError(f"handles: 'motors' in {path} must be a list of one motor per handle ({len(handles)})")
     values = []
-    for m in motors:
-        rotor = cga.rotor(jnp.asarray(m.get("axis", [0.0, 0.0, 1.0]), jnp.float64),
-                          jnp.radians(jnp.asarray(m.get("angle_deg", 0.0), jnp.float64)))
-        values.append(motor_about(jnp.asarray(m.get("center", [0.0, 0.0, 0.0]), jnp.float64), rotor,
-                                  jnp.asarray(m.get("translation", [0.0, 0.0, 0.0]), jnp.float64)).values)
+    for i, m in enumerate(motors):
+        if not isinstance(m, dict) or set(m) - set(_MOTOR_KEYS):
+            raise ValueError(f"handles: motor {i} in {path} must be an object with keys among {tuple(_MOTOR_KEYS)}, got {m!r}")
+        try:
+            axis, center, translation = (np.asarray(m.get(k, _MOTOR_KEYS[k]), np.float64).reshape(3)
+                                         for k in ("axis", "center", "translation"))
+            angle = float(m.get("angle_deg", 0.0))
+        except (TypeError, ValueError):
+            raise ValueError(f"handles: motor {i} in {path} needs [x, y, z] lists and a number angle_deg") from None
+        if not (np.isfinite([*axis, *center, *translation, angle]).all() and np.any(axis)):
+            raise ValueError(f"handles: motor {i} in {path} needs finite numbers and a non-zero axis, got {m!r}")
+        rotor = cga.rotor(jnp.asarray(axis), jnp.radians(jnp.asarray(angle, jnp.float64)))
+        values.append(motor_about(jnp.asarray(center), rotor, jnp.asarray(translation)).values)
     return handles, cga.Multivector(jnp.stack(values), cga.KINDS["motor"])
 
 
@@ -219,7 +236,7 @@ def deform_command(method: str, V, F, out: Path, *, bend: float = 60.0, twist: f
         if cage is None:
             cage_V, cage_F = tube_cage(V, axis=motion.long)
         else:
-            cage_V, cage_F = load_mesh(cage)
+            cage_V, cage_F = load_mesh(cage, "cage")
         bound = cage_precompute(cage_V, cage_F, V)
         field = bound.field
         key_motors = motion.motors(motion.fraction(cage_V))

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -171,3 +172,21 @@ def test_more_keys_than_vertices_are_refused(tmp_path, capsys):
     with pytest.raises(SystemExit):
         main(["deform", "spline", "--keys", "100000", "--out", str(tmp_path / "x.npy")])
     assert "keys: expected at most one key motor per vertex (3266), got 100000" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("content, message", [
+    ("", "is not valid JSON"),
+    ('{"handles": 5}', "must hold a JSON object with a non-empty 'handles' list"),
+    ('{"handles": [["a"]]}', "must be a list of vertex indices"),
+    ('{"handles": [[0], [1]], "motors": [{"angle": 5}, {}]}', "motor 0 in .* must be an object with keys among"),
+    ('{"handles": [[0], [1]], "motors": [{"axis": [1, 0]}, {}]}', r"motor 0 in .* needs \[x, y, z\] lists"),
+    ('{"handles": [[0], [1]], "motors": [{"axis": [0, 0, 0]}, {}]}', "motor 0 in .* needs finite numbers and a non-zero"),
+    ('{"handles": [[0], [1]], "motors": [{"center": [NaN, 0, 0]}, {}]}', "motor 0 in .* needs finite numbers"),
+])
+def test_bad_handle_files_are_named(tmp_path, capsys, content, message):
+    (tmp_path / "h.json").write_text(content)
+    with pytest.raises(SystemExit) as exit_info:
+        main(["deform", "handles", "--handles", str(tmp_path / "h.json"), "--out", str(tmp_path / "x.npy")])
+    err = capsys.readouterr().err
+    assert exit_info.value.code == 2 and err.count("\n") == 1
+    assert re.search(f"jaxcga deform: error: handles: .*{message}", err), err
