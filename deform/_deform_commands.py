@@ -73,13 +73,13 @@ def read_mesh_file(path: str | Path, name: str = "mesh"):
     try:
         loaded = trimesh.load(path, force="mesh", process=False)
     except (ValueError, KeyError, IndexError, TypeError, AttributeError) as error:  # trimesh's parsers
-        raise ValueError(f"{name}: trimesh cannot read {path} ({error})") from None
+        line = _bad_obj_vertex(path)
+        raise ValueError(f"{name}: {path}: {line}" if line else f"{name}: trimesh cannot read {path} ({error})") from None
     if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
         raise ValueError(f"{name}: {path} holds no triangles")
     V, F = np.asarray(loaded.vertices, np.float64), np.asarray(loaded.faces, np.int64)
-    bad = ~np.isfinite(V).all(axis=1)
-    if bad.any():
-        raise ValueError(f"{name}: {path}: {_non_finite_vertex(path, V, bad)}")
+    if V.ndim != 2 or V.shape[1] != 3 or not np.isfinite(V).all():
+        raise ValueError(f"{name}: {path}: {_bad_vertex(path, V)}")
     welded = trimesh.Trimesh(V, F, process=False)
     welded.merge_vertices()
     W, G = np.asarray(welded.vertices, np.float64), np.asarray(welded.faces, np.int64)
@@ -98,22 +98,34 @@ def read_mesh_file(path: str | Path, name: str = "mesh"):
     return W, G
 
 
-def _non_finite_vertex(path: Path, V, bad) -> str:
-    """Where the first non-finite vertex is: its line in an OBJ file (trimesh may renumber OBJ vertices),
-    else its index."""
+def _bad_obj_vertex(path: Path) -> str | None:
+    """The first line of an OBJ file's vertices that is not three finite numbers (trimesh may renumber OBJ
+    vertices, so their lines say where they are), or None."""
+    if path.suffix.lower() != ".obj":
+        return None
+    with open(path, errors="replace") as file:
+        for number, line in enumerate(file, 1):
+            words = line.split()
+            if words[:1] == ["v"]:
+                try:
+                    good = len(words) >= 4 and np.isfinite(np.asarray(words[1:4], np.float64)).all()
+                except ValueError:
+                    good = False
+                if not good:
+                    return f"line {number}: {line.strip()!r} is not a vertex of three finite numbers"
+    return None
+
+
+def _bad_vertex(path: Path, V) -> str:
+    """Where the first vertex that is not three finite numbers is: its OBJ line, else its index."""
+    line = _bad_obj_vertex(path)
+    if line:
+        return line
+    if V.ndim != 2 or V.shape[1] != 3:
+        return f"vertices of shape {V.shape}, expected (n, 3)"
+    bad = ~np.isfinite(V).all(axis=1)
     count = f"{int(bad.sum())} non-finite vertices" if bad.sum() > 1 else "a non-finite vertex"
-    if path.suffix.lower() == ".obj":
-        with open(path, errors="replace") as file:
-            for number, line in enumerate(file, 1):
-                words = line.split()
-                if words[:1] == ["v"]:
-                    try:
-                        finite = np.isfinite(np.asarray(words[1:4], np.float64)).all()
-                    except ValueError:
-                        finite = False
-                    if not finite:
-                        return f"{count}, the first on line {number}: {line.strip()!r}"
-    first = int(np.flatnonzero(bad)[0])
+    first = int(np.argmax(bad))
     return f"{count}, the first is vertex {first}: {V[first].tolist()}"
 
 
