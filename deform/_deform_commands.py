@@ -74,7 +74,8 @@ def read_mesh_file(path: str | Path, name: str = "mesh"):
         loaded = trimesh.load(path, force="mesh", process=False)
     except (ValueError, KeyError, IndexError, TypeError, AttributeError) as error:  # trimesh's parsers
         line = _bad_obj_vertex(path)
-        raise ValueError(f"{name}: {path}: {line}" if line else f"{name}: trimesh cannot read {path} ({error})") from None
+        raise ValueError(f"{name}: {path}: {line}" if line else f"{name}: trimesh cannot read {path} ({error})"
+                         ) from None
     if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
         raise ValueError(f"{name}: {path} holds no triangles")
     V, F = np.asarray(loaded.vertices, np.float64), np.asarray(loaded.faces, np.int64)
@@ -195,7 +196,8 @@ def _handles_file(path: Path, n: int):
     values = []
     for i, m in enumerate(motors):
         if not isinstance(m, dict) or set(m) - set(_MOTOR_KEYS):
-            raise ValueError(f"handles: motor {i} in {path} must be an object with keys among {tuple(_MOTOR_KEYS)}, got {m!r}")
+            raise ValueError(f"handles: motor {i} in {path} must be an object with keys among {tuple(_MOTOR_KEYS)}, "
+                             f"got {m!r}")
         try:
             axis, center, translation = (np.asarray(m.get(k, _MOTOR_KEYS[k]), np.float64).reshape(3)
                                          for k in ("axis", "center", "translation"))

@@ -524,8 +524,9 @@ def load_model(path, *, weld: bool = False) -> RiggedModel:
     Raises:
         FileNotFoundError: ``path`` or a buffer file it refers to does not exist.
         ValueError: the file is not glTF 2.0 or is malformed, has no skinned mesh, a float accessor or
-            node transform with a NaN or infinity (named), a primitive mode other than TRIANGLES, weights whose rows do not sum to 1 within 1e-2, a node matrix with a
-            shear, non-increasing key times; or assimp could not convert it.
+            node transform with a NaN or infinity (named), a primitive mode other than TRIANGLES, weights
+            whose rows do not sum to 1 within 1e-2, a node matrix with a shear, non-increasing key times; or
+            assimp could not convert it.
         RuntimeError: a non-glTF file was given and the assimp executable is not installed.
     """
     path = Path(path)

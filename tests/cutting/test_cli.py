@@ -85,7 +85,8 @@ def test_negative_numbers_parse_in_any_notation(tmp_path, capsys, value, parsed)
         main(["cut", "--plane", "1", "0", "0", "0.3", "--side-weight", value, "--out", str(tmp_path / "a.glb"),
               str(tmp_path / "b.glb")])
     err = capsys.readouterr().err
-    assert stop.value.code == 2 and err == f"jaxcga cut: error: side_weight: expected a number in [0, 1], got {parsed}\n"
+    assert stop.value.code == 2
+    assert err == f"jaxcga cut: error: side_weight: expected a number in [0, 1], got {parsed}\n"
 
 
 def test_a_drill_wider_than_the_model_says_so(tmp_path, capsys):

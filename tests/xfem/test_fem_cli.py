@@ -69,8 +69,8 @@ def test_corrupt_scenes_and_overflowing_gravity_are_named(tmp_path, capsys):
     (tmp_path / "junk.msh").write_text("not a mesh")
     for args, message in ((["bar", "--gravity", "0", "0", "-1e308"], "gravity: expected three numbers whose product "
                                                                        "with the density is finite"),
-                          ([str(tmp_path / "nan.obj")], "SCENE: " + str(tmp_path / "nan.obj") + ": line 4: 'v 0 0 nan' is "
-                                                        "not a vertex of three finite numbers"),
+                          ([str(tmp_path / "nan.obj")], f"SCENE: {tmp_path / 'nan.obj'}: line 4: 'v 0 0 nan' is not a "
+                                                        "vertex of three finite numbers"),
                           ([str(tmp_path / "junk.msh")], "SCENE: meshio cannot read")):
         with pytest.raises(SystemExit) as exit_info:
             main(["fem", *args, "--out", str(tmp_path / "x")])
