@@ -252,8 +252,8 @@ def drill_mesh(V, F, tip, base, radius, *, min_points: int = 6, max_refinements:
             as on it (no sliver triangles).
         edges: ``mesh_edges(F)``, precomputed once per topology.
     Raises:
-        ValueError: bad input, a drill that misses the mesh, or a hole that stays below three
-            boundary points after ``max_refinements`` splits."""
+        ValueError: bad input, a drill that misses the mesh, a drill wider than the part of the mesh it
+            meets, or a hole that stays below three boundary points after ``max_refinements`` splits."""
     V, F = check_mesh_arrays(V, F)
     tip, base = check_point("tip", tip), check_point("base", base)
     if not (np.isfinite(radius) and radius > 0):
@@ -267,6 +267,10 @@ def drill_mesh(V, F, tip, base, radius, *, min_points: int = 6, max_refinements:
     edges = mesh_edges(F) if edges is None else edges
     if edges.face_edges.shape != F.shape:
         raise ValueError(f"edges: computed for another mesh (face_edges {edges.face_edges.shape}, F {F.shape})")
+    reach = float(_axis_distance(V, tip, base).max())
+    if reach <= radius:
+        raise ValueError(f"radius: {radius:.4g} exceeds the model's size: every vertex lies within {reach:.4g} of the "
+                         "drill's axis; give a smaller radius")
     margin = tolerance * bounding_diagonal(V)
     all_parents, refinements = [], 0
     while True:
@@ -277,6 +281,10 @@ def drill_mesh(V, F, tip, base, radius, *, min_points: int = 6, max_refinements:
         all_parents.append(parents)
         edges = mesh_edges(F)
         refinements += 1
+    if state["fewest"] == 0 and _axis_distance(V[F[state["affected"]]], tip, base).max() <= radius:
+        # every face around a hole lies inside the drill: no edge crosses its surface
+        raise ValueError(f"radius: {radius:.4g} is wider than the part of the model the drill meets (its faces all "
+                         "lie inside the drill); give a smaller radius")
     if state["fewest"] < 3:
         raise ValueError(f"radius: a hole has {state['fewest']} boundary points after {refinements} refinements "
                          "(the drill is too thin for the faces it meets; raise max_refinements or the radius)")
@@ -290,6 +298,12 @@ def drill_mesh(V, F, tip, base, radius, *, min_points: int = 6, max_refinements:
     local = np.cumsum(used) - 1
     parents = np.concatenate(all_parents) if all_parents else np.zeros((0, 2), np.int64)
     return Drilling(parents, refinements, V, crossing, alpha, sign, points, local[faces], kept, state["holes"])
+
+
+def _axis_distance(X, tip, base) -> np.ndarray:
+    direction = (tip - base) / np.linalg.norm(tip - base)
+    offsets = X - base
+    return np.linalg.norm(offsets - (offsets @ direction)[..., None] * direction, axis=-1)
 
 
 def _retriangulate(V, F, edges: MeshEdges, state, points, crossing, radius):

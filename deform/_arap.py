@@ -52,6 +52,7 @@ from jaxtyping import Array, Float, Int
 from deform._harmonic import _check_mesh
 from deform._sparse import SparseSolver
 from jaxcga import KINDS, Multivector, apply_to_points
+from jaxcga._support import require
 
 
 class ARAPData(eqx.Module):
@@ -278,7 +279,7 @@ def arap_solve(data: ARAPData, bc, V0=None, max_iterations: int = 10, tolerance:
         raise ValueError(f"V0: expected shape ({data.n}, 3), got {V0.shape}")
     if not isinstance(max_iterations, int) or max_iterations < 1:
         raise ValueError(f"max_iterations: expected an int >= 1, got {max_iterations!r}")
-    bc = eqx.error_if(bc, ~jnp.all(jnp.isfinite(bc)), "bc: non-finite handle positions")
+    bc = require(bc, (~jnp.all(jnp.isfinite(bc)), "bc: non-finite handle positions"))
     # the fixed point does not depend on the initial guess: no gradient flows to V0
     U, energies, iterations = _solve(bc, data, jax.lax.stop_gradient(V0), max_iterations, float(tolerance))
     return ARAPResult(U, jax.lax.stop_gradient(energies), iterations)

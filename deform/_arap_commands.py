@@ -32,6 +32,9 @@ def read_handles(path: Path, n: int):
         raise ValueError(f"handles: 'indices' must be a non-empty list of vertex indices, got {spec['indices']!r:.80}")
     if indices.min() < 0 or indices.max() >= n:
         raise ValueError(f"handles: 'indices' must lie in [0, {n}) for this mesh")
+    values, counts = np.unique(indices, return_counts=True)
+    if counts.max() > 1:
+        raise ValueError(f"handles: 'indices' has vertex {values[np.argmax(counts)]} repeated ({counts.max()} times)")
     if positions.shape != (len(indices), 3) or not np.all(np.isfinite(positions)):
         raise ValueError(f"handles: 'positions' must be {len(indices)} finite [x, y, z] triples (one per index), "
                          f"got shape {positions.shape}")

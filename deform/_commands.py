@@ -83,8 +83,8 @@ def fit_command(model: RiggedModel, target: Path, out: Path, method: str = "cga"
     """Fit bone motors (and dilations) to target positions (.npy (n, 3), or (t, 3) with a vertex index
     file) and write the pose as JSON."""
     out = check_output(out, (".json",))
-    targets = np.load(target)
-    index = None if vertices is None else np.load(vertices)
+    targets = _read_array("target", target)
+    index = None if vertices is None else _read_array("vertices", vertices)
     if index is None and targets.shape != (model.mesh.num_vertices, 3):
         raise ValueError(f"target: expected shape ({model.mesh.num_vertices}, 3) (every vertex), got "
                          f"{targets.shape}; give --vertices for a subset")
@@ -117,6 +117,17 @@ def fit_command(model: RiggedModel, target: Path, out: Path, method: str = "cga"
     }
     write_json(out, result)
     return {k: result[k] for k in ("max_error", "rms_error", "bounding_diagonal", "steps", "converged")}
+
+
+def _read_array(name: str, path: Path) -> np.ndarray:
+    """The array in the .npy file ``path`` (the option ``name`` gave it): a ValueError naming the option for a
+    missing file or one that holds no plain array."""
+    if not Path(path).is_file():
+        raise FileNotFoundError(f"{name}: no such file {path}")
+    try:
+        return np.load(path, allow_pickle=False)
+    except (ValueError, OSError, EOFError) as error:
+        raise ValueError(f"{name}: {path} is not a .npy file of a numeric array ({type(error).__name__})") from None
 
 
 def skinning_figure(model: RiggedModel, path: Path, frames: int = 5) -> Path:

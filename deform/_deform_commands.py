@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import json
 import time
+import warnings
 from pathlib import Path
 
 import jax
@@ -38,26 +39,98 @@ POSITION_OUTPUTS = (".npy",) + MESH_OUTPUTS
 DEFORM_OUTPUTS = POSITION_OUTPUTS + (".png",)
 
 
-def load_mesh(path: str | Path | None):
-    """(V, F) float64 / int64 of a mesh file (a glTF's bind-pose skinned mesh, welded), or of the
-    built-in arm's rest mesh when ``path`` is None."""
+def load_mesh(path: str | Path | None, name: str = "mesh"):
+    """(V, F) float64 / int64 of a mesh file (a glTF's bind-pose skinned mesh, welded; any other format by
+    ``read_mesh_file``), or of the built-in arm's rest mesh when ``path`` is None; errors start with ``name``."""
     if path is None:
         mesh = default_arm().mesh
         return np.asarray(mesh.V, np.float64), np.asarray(mesh.F, np.int64)
     path = Path(path)
     if not path.exists():
-        raise FileNotFoundError(f"mesh: no such file {path}")
+        raise FileNotFoundError(f"{name}: no such file {path}")
     if path.suffix.lower() in (".glb", ".gltf"):
         from deform._gltf import load_model
 
         mesh = load_model(path, weld=True).mesh
         return np.asarray(mesh.V, np.float64), np.asarray(mesh.F, np.int64)
+    return read_mesh_file(path, name)
+
+
+def read_mesh_file(path: str | Path, name: str = "mesh"):
+    """(V, F) float64 / int64 of a triangle mesh file that trimesh reads (.obj, .ply, .stl, .off, .glb, ...).
+
+    The file is read as it is (trimesh's ``process=False``); a non-finite vertex raises, naming its line
+    (OBJ) or its index. Vertices at the same position are then merged (an STL stores every corner apart,
+    other formats split vertices along UV seams), faces left with two equal corners are dropped, and so
+    are vertices no face uses: whatever this changes is reported by a ``UserWarning``.
+
+    Raises:
+        FileNotFoundError: no such file. ValueError: a file trimesh cannot read, one without triangles,
+        a non-finite vertex (``name`` starts the message).
+    """
     import trimesh
 
-    loaded = trimesh.load(path, force="mesh", process=True)
-    if len(loaded.faces) == 0:
-        raise ValueError(f"mesh: {path} holds no triangles")
-    return np.asarray(loaded.vertices, np.float64), np.asarray(loaded.faces, np.int64)
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{name}: no such file {path}")
+    try:
+        loaded = trimesh.load(path, force="mesh", process=False)
+    except (ValueError, KeyError, IndexError, TypeError, AttributeError) as error:  # trimesh's parsers
+        line = _bad_obj_vertex(path)
+        raise ValueError(f"{name}: {path}: {line}" if line else f"{name}: trimesh cannot read {path} ({error})"
+                         ) from None
+    if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
+        raise ValueError(f"{name}: {path} holds no triangles")
+    V, F = np.asarray(loaded.vertices, np.float64), np.asarray(loaded.faces, np.int64)
+    if V.ndim != 2 or V.shape[1] != 3 or not np.isfinite(V).all():
+        raise ValueError(f"{name}: {path}: {_bad_vertex(path, V)}")
+    welded = trimesh.Trimesh(V, F, process=False)
+    welded.merge_vertices()
+    W, G = np.asarray(welded.vertices, np.float64), np.asarray(welded.faces, np.int64)
+    keep = (G[:, 0] != G[:, 1]) & (G[:, 1] != G[:, 2]) & (G[:, 2] != G[:, 0])
+    if keep.all() and len(W) == len(V):
+        return V, F
+    used = np.zeros(len(W), bool)
+    used[G[keep]] = True
+    renumber = np.cumsum(used) - 1
+    W, G = W[used], renumber[G[keep]]
+    if len(G) == 0:
+        raise ValueError(f"{name}: {path} holds no triangle with three distinct corners")
+    warnings.warn(f"{name}: {path}: welded {len(V)} vertices into {len(W)} (same positions merged, unused ones "
+                  f"dropped) and dropped {int((~keep).sum())} of {len(F)} faces with two equal corners",
+                  stacklevel=2)
+    return W, G
+
+
+def _bad_obj_vertex(path: Path) -> str | None:
+    """The first line of an OBJ file's vertices that is not three finite numbers (trimesh may renumber OBJ
+    vertices, so their lines say where they are), or None."""
+    if path.suffix.lower() != ".obj":
+        return None
+    with open(path, errors="replace") as file:
+        for number, line in enumerate(file, 1):
+            words = line.split()
+            if words[:1] == ["v"]:
+                try:
+                    good = len(words) >= 4 and np.isfinite(np.asarray(words[1:4], np.float64)).all()
+                except ValueError:
+                    good = False
+                if not good:
+                    return f"line {number}: {line.strip()!r} is not a vertex of three finite numbers"
+    return None
+
+
+def _bad_vertex(path: Path, V) -> str:
+    """Where the first vertex that is not three finite numbers is: its OBJ line, else its index."""
+    line = _bad_obj_vertex(path)
+    if line:
+        return line
+    if V.ndim != 2 or V.shape[1] != 3:
+        return f"vertices of shape {V.shape}, expected (n, 3)"
+    bad = ~np.isfinite(V).all(axis=1)
+    count = f"{int(bad.sum())} non-finite vertices" if bad.sum() > 1 else "a non-finite vertex"
+    first = int(np.argmax(bad))
+    return f"{count}, the first is vertex {first}: {V[first].tolist()}"
 
 
 class Motion:
@@ -89,6 +162,11 @@ class Motion:
 
 
 def _end_handles(motion: Motion, V, fraction: float):
+    if fraction >= 0.5:
+        raise ValueError(f"handle_fraction: {fraction} makes the two end handles overlap (each holds the vertices "
+                         "within this fraction of the long axis from its end); expected a fraction below 0.5")
+    if not fraction >= 0:
+        raise ValueError(f"handle_fraction: expected a fraction in [0, 0.5), got {fraction}")
     s = motion.fraction(V)
     start, end = np.flatnonzero(s <= fraction), np.flatnonzero(s >= 1.0 - fraction)
     if len(start) == 0 or len(end) == 0:
@@ -104,28 +182,40 @@ def read_json(path: Path, what: str):
         raise ValueError(f"{what}: {path} is not valid JSON ({error})") from None
 
 
+_MOTOR_KEYS = {"center": [0.0, 0.0, 0.0], "axis": [0.0, 0.0, 1.0], "angle_deg": 0.0, "translation": [0.0, 0.0, 0.0]}
+
+
 def _handles_file(path: Path, n: int):
     """Handles and their motors from JSON: ``{"handles": [[i, ...], ...], "motors": [{"center": [x, y, z],
     "axis": [x, y, z], "angle_deg": a, "translation": [x, y, z]}, ...]}`` (one motor per handle; every
     key optional: the identity by default)."""
     spec = read_json(path, "handles")
-    if not isinstance(spec, dict) or "handles" not in spec:
-        raise ValueError(f"handles: {path} must hold a JSON object with a 'handles' list")
+    if not isinstance(spec, dict) or not isinstance(spec.get("handles"), list) or not spec["handles"]:
+        raise ValueError(f"handles: {path} must hold a JSON object with a non-empty 'handles' list")
     try:
         handles = [np.asarray(h, np.int64).reshape(-1) for h in spec["handles"]]
     except (TypeError, ValueError):
-        raise ValueError(f"handles: 'handles' in {path} must be lists of vertex indices") from None
+        raise ValueError(f"handles: every handle in {path} must be a list of vertex indices") from None
     if any(len(h) == 0 or h.min() < 0 or h.max() >= n for h in handles):
         raise ValueError(f"handles: every handle needs vertex indices in [0, {n})")
     motors = spec.get("motors", [{}] * len(handles))
-    if not isinstance(motors, list) or len(motors) != len(handles) or not all(isinstance(m, dict) for m in motors):
-        raise ValueError(f"handles: 'motors' in {path} must be a list of {len(handles)} objects, one per handle")
+    if not isinstance(motors, list) or len(motors) != len(handles):
+        raise ValueError(f"handles: 'motors' in {path} must be a list of one motor per handle ({len(handles)})")
     values = []
-    for m in motors:
-        rotor = cga.rotor(jnp.asarray(m.get("axis", [0.0, 0.0, 1.0]), jnp.float64),
-                          jnp.radians(jnp.asarray(m.get("angle_deg", 0.0), jnp.float64)))
-        values.append(motor_about(jnp.asarray(m.get("center", [0.0, 0.0, 0.0]), jnp.float64), rotor,
-                                  jnp.asarray(m.get("translation", [0.0, 0.0, 0.0]), jnp.float64)).values)
+    for i, m in enumerate(motors):
+        if not isinstance(m, dict) or set(m) - set(_MOTOR_KEYS):
+            raise ValueError(f"handles: motor {i} in {path} must be an object with keys among {tuple(_MOTOR_KEYS)}, "
+                             f"got {m!r}")
+        try:
+            axis, center, translation = (np.asarray(m.get(k, _MOTOR_KEYS[k]), np.float64).reshape(3)
+                                         for k in ("axis", "center", "translation"))
+            angle = float(m.get("angle_deg", 0.0))
+        except (TypeError, ValueError):
+            raise ValueError(f"handles: motor {i} in {path} needs [x, y, z] lists and a number angle_deg") from None
+        if not (np.isfinite([*axis, *center, *translation, angle]).all() and np.any(axis)):
+            raise ValueError(f"handles: motor {i} in {path} needs finite numbers and a non-zero axis, got {m!r}")
+        rotor = cga.rotor(jnp.asarray(axis), jnp.radians(jnp.asarray(angle, jnp.float64)))
+        values.append(motor_about(jnp.asarray(center), rotor, jnp.asarray(translation)).values)
     return handles, cga.Multivector(jnp.stack(values), cga.KINDS["motor"])
 
 
@@ -140,6 +230,8 @@ def deform_command(method: str, V, F, out: Path, *, bend: float = 60.0, twist: f
     out = check_output(out, DEFORM_OUTPUTS)
     if positional and method not in ("ffd", "cage"):
         raise ValueError("positional: only the ffd and cage deformations have a positional form")
+    if keys is not None and keys > len(V):
+        raise ValueError(f"keys: expected at most one key motor per vertex ({len(V)}), got {keys}")
     motion = Motion(V, bend, twist, translate)
     start = time.perf_counter()
     if method == "spline":
@@ -165,7 +257,7 @@ def deform_command(method: str, V, F, out: Path, *, bend: float = 60.0, twist: f
         if cage is None:
             cage_V, cage_F = tube_cage(V, axis=motion.long)
         else:
-            cage_V, cage_F = load_mesh(cage)
+            cage_V, cage_F = load_mesh(cage, "cage")
         bound = cage_precompute(cage_V, cage_F, V)
         field = bound.field
         key_motors = motion.motors(motion.fraction(cage_V))

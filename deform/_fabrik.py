@@ -16,7 +16,6 @@ joint. Fitted by ``deform._spline_fit`` at ``lambda_i = i / m`` they drive ``def
 
 from __future__ import annotations
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
@@ -24,6 +23,7 @@ from jaxtyping import Array, Float
 import jaxcga as cga
 from deform._motor_field import motor_about
 from jaxcga import KINDS, Multivector
+from jaxcga._support import require
 
 
 def _check_chain(name: str, P):
@@ -45,7 +45,7 @@ def _unit(d, fallback):
 def _bones(P):
     d = P[1:] - P[:-1]
     lengths = jnp.linalg.norm(d, axis=-1)
-    lengths = eqx.error_if(lengths, jnp.any(lengths <= 0), "P: every bone needs a positive length")
+    lengths = require(lengths, (jnp.any(lengths <= 0), "P: every bone needs a positive length"))
     return lengths, d / lengths[:, None]
 
 
@@ -67,7 +67,7 @@ def fabrik(P: Float[Array, "m1 3"], target: Float[Array, "3"], max_iterations: i
     if target.shape != (3,):
         raise ValueError(f"target: expected shape (3,), got {target.shape}")
     target = target.astype(P.dtype)
-    target = eqx.error_if(target, ~jnp.all(jnp.isfinite(target)), "target: non-finite values (NaN or inf)")
+    target = require(target, (~jnp.all(jnp.isfinite(target)), "target: non-finite values (NaN or inf)"))
     if not isinstance(max_iterations, int) or max_iterations < 1:
         raise ValueError(f"max_iterations: expected an integer >= 1, got {max_iterations!r}")
     lengths, rest = _bones(P)

@@ -58,6 +58,9 @@ def _float_array(name: str, x, shape: tuple[int, ...]):
     return x
 
 
+MAX_DEGREE = 1029  # the largest degree whose binomial coefficients are finite in float64
+
+
 class Lattice(eqx.Module):
     """An FFD lattice: the parallelepiped ``origin + [0, 1]^3 @ axes`` with ``counts`` control points per axis.
 
@@ -75,8 +78,8 @@ class Lattice(eqx.Module):
         origin = _float_array("origin", origin, (3,))
         axes = _float_array("axes", axes, (3, 3))
         counts = tuple(int(c) for c in counts) if np.ndim(counts) == 1 else ()
-        if len(counts) != 3 or min(counts) < 2:
-            raise ValueError(f"counts: expected three control-point counts >= 2, got {counts}")
+        if len(counts) != 3 or min(counts) < 2 or max(counts) > MAX_DEGREE + 1:
+            raise ValueError(f"counts: expected three control-point counts in [2, {MAX_DEGREE + 1}], got {counts}")
         self.origin, self.axes, self.counts = origin, axes.astype(origin.dtype), counts
 
     @property
@@ -121,8 +124,8 @@ def lattice_coordinates(lattice: Lattice, V: Float[Array, "n 3"]) -> Float[Array
 
 def bernstein(degree: int, t: Float[Array, "..."]) -> Float[Array, "... degree+1"]:
     """The Bernstein basis ``B^d_j(t) = C(d, j) t^j (1 - t)^(d - j)``, j = 0..d, stacked on a last axis."""
-    if int(degree) != degree or degree < 0:
-        raise ValueError(f"degree: expected an integer >= 0, got {degree}")
+    if int(degree) != degree or not 0 <= degree <= MAX_DEGREE:
+        raise ValueError(f"degree: expected an integer in [0, {MAX_DEGREE}], got {degree}")
     degree = int(degree)
     t = jnp.asarray(t)
     if not jnp.issubdtype(t.dtype, jnp.floating):

@@ -166,6 +166,8 @@ def fit_pose(
     targets, index = check_targets(targets, vertices, n, model.mesh.V.dtype)
     if regularization < 0:
         raise ValueError(f"regularization: expected >= 0, got {regularization}")
+    if not isinstance(max_steps, int) or max_steps < 1:
+        raise ValueError(f"max_steps: expected an int >= 1, got {max_steps!r}")
     _pose._check_method(method)
     if method == "dqs" and fit_scale:
         raise ValueError("method: dual-quaternion skinning cannot represent dilations; use fit_scale=False")

@@ -6,7 +6,8 @@ Semantics are those of the glTF 2.0 specification (sections "Concepts", "Binary 
 * accessors are read with numpy over their buffer views (``byteOffset``, ``byteStride``,
   ``componentType``, ``type``, ``count``); ``normalized`` integers are dequantized as the spec says
   (``max(c / 127, -1)`` for BYTE, ``c / 255`` for UNSIGNED_BYTE, ``max(c / 32767, -1)`` for SHORT,
-  ``c / 65535`` for UNSIGNED_SHORT); sparse accessors are applied on top of their base data;
+  ``c / 65535`` for UNSIGNED_SHORT); sparse accessors are applied on top of their base data; a NaN or
+  infinity in any float accessor is an error naming the accessor and what reads it;
 * matrices are column-major in the file and row-major (``M @ [x, 1]``) in memory; a node's local
   transform is ``T * R * S`` or its ``matrix``, which is decomposed into T, R, S (a shear is an error);
 * the skeleton is every joint of every skin that a skinned mesh node uses, plus all their ancestors,
@@ -131,7 +132,7 @@ class _Document:
     def item(self, kind: str, index, what: str) -> dict:
         items = self.json.get(kind, [])
         if not isinstance(index, int) or not 0 <= index < len(items):
-            raise ValueError(f"{self.source}: {what} refers to {kind}[{index}], the file has {len(items)} {kind}")
+            raise ValueError(f"{self._at(what)} refers to {kind}[{index}], the file has {len(items)} {kind}")
         return items[index]
 
     def buffer(self, index: int) -> bytes:
@@ -159,6 +160,10 @@ class _Document:
             self._buffers[index] = data
         return self._buffers[index]
 
+    def _at(self, what: str) -> str:
+        """``what`` prefixed by the file, once (a primitive's or channel's ``what`` already starts with it)."""
+        return what if what.startswith(self.source) else f"{self.source}: {what}"
+
     def _view(self, view_index, offset: int, count: int, width: int, dtype: np.dtype, what: str) -> np.ndarray:
         view = self.item("bufferViews", view_index, what)
         data = self.buffer(view.get("buffer"))
@@ -170,7 +175,7 @@ class _Document:
                 f"{self.source}: buffer view {view_index} ends past its buffer ({start + length} > {len(data)})"
             )
         if count and offset + stride * (count - 1) + element > length:
-            raise ValueError(f"{self.source}: {what} reads past the end of buffer view {view_index}")
+            raise ValueError(f"{self._at(what)} reads past the end of buffer view {view_index}")
         strided = np.ndarray(
             (count, width), dtype, buffer=data, offset=start + offset, strides=(stride, dtype.itemsize)
         )
@@ -182,7 +187,7 @@ class _Document:
         ctype, kind = acc.get("componentType"), acc.get("type")
         if kind not in types or ctype not in components:
             raise ValueError(
-                f"{self.source}: {what} (accessor {index}) must have type {' or '.join(types)} and componentType in "
+                f"{self._at(what)} (accessor {index}) must have type {' or '.join(types)} and componentType in "
                 f"{list(components)}, got {kind} / {ctype}"
             )
         count, width, dtype = acc["count"], _WIDTH[kind], np.dtype(_COMPONENT[ctype])
@@ -195,19 +200,24 @@ class _Document:
             n, ind, val = sparse["count"], sparse["indices"], sparse["values"]
             if ind.get("componentType") not in (5121, 5123, 5125):
                 raise ValueError(
-                    f"{self.source}: {what} (accessor {index}) has sparse indices of an invalid componentType"
+                    f"{self._at(what)} (accessor {index}) has sparse indices of an invalid componentType"
                 )
             idx = self._view(
                 ind["bufferView"], ind.get("byteOffset", 0), n, 1, np.dtype(_COMPONENT[ind["componentType"]]), what
             )
             values = self._view(val["bufferView"], val.get("byteOffset", 0), n, width, dtype, what)
             if n and idx.max() >= count:
-                raise ValueError(f"{self.source}: {what} (accessor {index}) has a sparse index past its count {count}")
+                raise ValueError(f"{self._at(what)} (accessor {index}) has a sparse index past its count {count}")
             out[idx[:, 0]] = values
         if _FLOAT not in components:
             return out.astype(np.int64)
         if acc.get("normalized", False) and ctype in _NORMALIZER:
             return np.maximum(out / _NORMALIZER[ctype], -1.0)
+        bad = ~np.isfinite(out).all(axis=1)
+        if bad.any():  # a corrupt buffer: blame it here rather than on whatever it would break later
+            named = f" {acc['name']!r}" if "name" in acc else ""
+            raise ValueError(f"{self._at(what)} (accessor {index}{named}) holds {int(bad.sum())} non-finite "
+                             f"elements (NaN or infinity) of {count}, the first at element {int(np.argmax(bad))}")
         return out.astype(np.float64)
 
 
@@ -237,6 +247,8 @@ def _node_trs(node: dict, where: str) -> tuple[np.ndarray, np.ndarray, np.ndarra
         matrix = np.asarray(node["matrix"], dtype=np.float64)
         if matrix.shape != (16,):
             raise ValueError(f"{where}: matrix must have 16 numbers, got {matrix.shape}")
+        if not np.isfinite(matrix).all():
+            raise ValueError(f"{where}: matrix must be finite, got a NaN or infinity")
         matrix = matrix.reshape(4, 4).T  # column-major in the file
         if not has_trs:
             return _decompose(matrix, where)
@@ -247,6 +259,9 @@ def _node_trs(node: dict, where: str) -> tuple[np.ndarray, np.ndarray, np.ndarra
     s = np.asarray(node.get("scale", (1.0, 1.0, 1.0)), dtype=np.float64)
     if t.shape != (3,) or r.shape != (4,) or s.shape != (3,):
         raise ValueError(f"{where}: translation, rotation, scale must have 3, 4, 3 numbers")
+    if not (np.isfinite(t).all() and np.isfinite(r).all() and np.isfinite(s).all()):
+        raise ValueError(f"{where}: translation, rotation, scale must be finite, got {t.tolist()}, {r.tolist()}, "
+                         f"{s.tolist()}")
     return t, r, s
 
 
@@ -511,9 +526,10 @@ def load_model(path, *, weld: bool = False) -> RiggedModel:
 
     Raises:
         FileNotFoundError: ``path`` or a buffer file it refers to does not exist.
-        ValueError: the file is not glTF 2.0 or is malformed, has no skinned mesh, has a primitive mode
-            other than TRIANGLES, weights whose rows do not sum to 1 within 1e-2, a node matrix with a
-            shear, non-increasing key times; or assimp could not convert it.
+        ValueError: the file is not glTF 2.0 or is malformed, has no skinned mesh, a float accessor or
+            node transform with a NaN or infinity (named), a primitive mode other than TRIANGLES, weights
+            whose rows do not sum to 1 within 1e-2, a node matrix with a shear, non-increasing key times; or
+            assimp could not convert it.
         RuntimeError: a non-glTF file was given and the assimp executable is not installed.
     """
     path = Path(path)

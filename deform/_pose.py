@@ -29,6 +29,7 @@ import jaxcga as cga
 from deform import _rig, _skinning
 from deform._model import RiggedModel
 from jaxcga._multivector import Multivector
+from jaxcga._support import plain_errors
 
 METHODS = ("lbs", "dqs", "cga", "cga_motor_blend")
 
@@ -38,6 +39,7 @@ def _check_method(method: str):
         raise ValueError(f"method: expected one of {METHODS}, got {method!r}")
 
 
+@plain_errors
 @eqx.filter_jit
 def skin_pose(model: RiggedModel, local, method: str = "cga"):
     """Skinned positions (..., n, 3) of the model in a pose given by local bone transforms.
@@ -64,6 +66,7 @@ def skin_pose(model: RiggedModel, local, method: str = "cga"):
     return _skinning.skin_dqs(mesh.V, mesh.J, mesh.W, _skinning.matrices_to_dual_quaternions(joints))
 
 
+@plain_errors
 @eqx.filter_jit
 def rest_pose(model: RiggedModel, method: str = "cga"):
     """Skinned positions (n, 3) in the skeleton's rest pose (the nodes' own TRS)."""
@@ -73,6 +76,7 @@ def rest_pose(model: RiggedModel, method: str = "cga"):
     return skin_pose(model, _rig.local_matrices(model.skeleton), method)
 
 
+@plain_errors
 def sample_pose(model: RiggedModel, t, method: str = "cga", clip: int | str = 0):
     """Local bone transforms of clip ``clip`` at time t: versors (b,) for the multivector methods,
     matrices (b, 4, 4) for the matrix methods."""
@@ -88,6 +92,7 @@ def _sample_pose(model: RiggedModel, t, method: str, animation):
     return _rig.sample_matrices(model.skeleton, animation, t)
 
 
+@plain_errors
 def skin_model(model: RiggedModel, t, method: str = "cga", clip: int | str = 0):
     """Skinned positions (n, 3) of the model at time t of a clip (rest pose when it has no clip).
     vmap over t for many frames."""

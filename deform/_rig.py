@@ -2,8 +2,8 @@
 
 A bone's local transform is ``t = T R S`` (eq. 15). In the multivector form it becomes the
 similitude ``T R D``: translator, rotor and a dilator for a uniform scale (sec. 4.1, "the multivector
-M_i,k ... can be replaced with M_i,k D_i,k"). A non-uniform scale has no versor: it raises (inside jit
-through ``eqx.error_if``); the matrix path (``local_matrices`` + ``skin_lbs``) handles it.
+M_i,k ... can be replaced with M_i,k D_i,k"). A non-uniform scale has no versor: it raises a ValueError
+(inside jit an ``eqx.error_if`` error); the matrix path (``local_matrices`` + ``skin_lbs``) handles it.
 
 Sampling a clip:
 
@@ -34,6 +34,7 @@ from jaxtyping import Array, Float
 import jaxcga as cga
 from deform._model import AnimationClip, Channel, Skeleton, SkinnedMesh
 from jaxcga._multivector import KINDS, Multivector
+from jaxcga._support import require
 
 _SIMILITUDE = KINDS["similitude"]
 
@@ -67,15 +68,14 @@ def _rotor_xyzw(q) -> Multivector:
 
 def uniform_scale(scale: Float[Array, "... 3"], tolerance: float = 1e-5) -> Float[Array, "..."]:
     """The common factor of a uniform scale (..., 3); non-uniform (relative spread > tolerance) or
-    non-positive scales raise inside jit: a dilator is a uniform scaling (eq. 12)."""
+    non-positive scales raise a ValueError (inside jit an ``eqx.error_if`` error): a dilator is a uniform
+    scaling (eq. 12)."""
     s = jnp.mean(scale, axis=-1)
     spread = jnp.max(jnp.abs(scale - s[..., None]), axis=-1, initial=0.0) / jnp.abs(s)
-    s = eqx.error_if(
-        s,
+    s = require(s, (
         jnp.any(spread > tolerance) | jnp.any(s <= 0),
         "scale: non-uniform or non-positive bone scale has no versor (dilators scale uniformly); "
-        "use the matrix path (local_matrices / skin_lbs) for such rigs",
-    )
+        "use the matrix path (local_matrices / skin_lbs) for such rigs"))
     return s
 
 

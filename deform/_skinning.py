@@ -27,7 +27,6 @@ transforms (poses).
 
 from __future__ import annotations
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jax import custom_batching
@@ -35,6 +34,7 @@ from jaxtyping import Array, Float
 
 import jaxcga as cga
 from jaxcga._multivector import KINDS, Multivector
+from jaxcga._support import require
 from jaxcga._versors import fused_point_coordinates
 
 
@@ -275,8 +275,8 @@ def matrices_to_dual_quaternions(matrices: Float[Array, "... 4 4"], tolerance: f
         raise ValueError(f"matrices: expected shape (..., 4, 4), got {matrices.shape}")
     rot = matrices[..., :3, :3]
     err = jnp.max(jnp.abs(jnp.swapaxes(rot, -1, -2) @ rot - jnp.eye(3, dtype=rot.dtype)), initial=0.0)
-    rot = eqx.error_if(rot, err > tolerance, "matrices: dual-quaternion skinning needs rigid joint transforms "
-                       "(no scale or shear); use skin_cga for dilations")
+    rot = require(rot, (err > tolerance, "matrices: dual-quaternion skinning needs rigid joint transforms "
+                       "(no scale or shear); use skin_cga for dilations"))
     return cga.motor_to_dual_quaternion(cga.matrix_to_motor(matrices.at[..., :3, :3].set(rot)))
 
 

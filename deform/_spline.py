@@ -18,15 +18,16 @@ from __future__ import annotations
 
 import math
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from deform._ffd import MAX_DEGREE
 from deform._harmonic import harmonic_precompute
 from deform._motor_field import MotorField, bind
 from jaxcga import Multivector
+from jaxcga._support import require
 
 BASES = ("linear", "lagrange", "bezier", "bspline")
 _FIXED_KEYS = {"linear": 2, "lagrange": 3}
@@ -35,18 +36,14 @@ _ROUNDING = 1e-9  # how far outside [0, 1] a parameter may stray by rounding; it
 
 def check_parameter(lam) -> Float[Array, " n"]:
     """``lam`` as a float vector (n,) in [0, 1]: ValueError for a bad shape or (when concrete) values
-    outside [0, 1] beyond rounding, ``eqx.error_if`` for traced values; rounding is clipped away."""
+    outside [0, 1] beyond rounding, an ``eqx.error_if`` error inside jit; rounding is clipped away."""
     lam = jnp.asarray(lam)
     if lam.ndim != 1:
         raise ValueError(f"lam: expected a parameter vector of shape (n,), got shape {lam.shape}")
     if not jnp.issubdtype(lam.dtype, jnp.floating):
         lam = lam.astype(jnp.result_type(float))
     outside = ~jnp.all((lam >= -_ROUNDING) & (lam <= 1 + _ROUNDING))  # NaN counts as outside
-    message = "lam: spline parameters must lie in [0, 1] (and be finite)"
-    if isinstance(lam, jax.core.Tracer):
-        lam = eqx.error_if(lam, outside, message)
-    elif outside:
-        raise ValueError(message)
+    lam = require(lam, (outside, "lam: spline parameters must lie in [0, 1] (and be finite)"))
     return jnp.clip(lam, 0.0, 1.0)
 
 
@@ -105,8 +102,8 @@ def spline_weights(lam: Float[Array, " n"], basis: str = "bspline", num_keys: in
             raise ValueError(f"num_keys: the {basis} basis has exactly {k} keys, got {num_keys}")
     elif basis == "bezier":
         k = 4 if num_keys is None else num_keys
-        if not isinstance(k, int) or k < 2:
-            raise ValueError(f"num_keys: the Bezier basis needs an integer k >= 2, got {num_keys}")
+        if not isinstance(k, int) or not 2 <= k <= MAX_DEGREE + 1:
+            raise ValueError(f"num_keys: the Bezier basis needs an integer k in [2, {MAX_DEGREE + 1}], got {num_keys}")
     else:
         if not isinstance(degree, int) or degree < 1:
             raise ValueError(f"degree: expected an integer B-spline degree >= 1, got {degree}")

@@ -18,12 +18,12 @@ for pure translations (no sqrt(0) on any differentiated path).
 
 from __future__ import annotations
 
-import equinox as eqx
 import jax.numpy as jnp
 
 from jaxcga import _algebra as alg
 from jaxcga._multivector import KINDS, Multivector
 from jaxcga._operations import normalize
+from jaxcga._support import require
 from jaxcga._versors import dilator
 
 MOTOR_GENERATOR = alg.parse_blades(("e12", "e13", "e23", "e1inf", "e2inf", "e3inf"))
@@ -225,7 +225,7 @@ def log_similitude(s: Multivector) -> Multivector:
     rs = jnp.stack([s[n] for n in names_s], axis=-1)
     # rc = R cosh(lam/2), rs = R sinh(lam/2), so <rc, rs> / <rc, rc> = tanh(lam/2).
     c2, s2, cs = jnp.sum(rc * rc, -1), jnp.sum(rs * rs, -1), jnp.sum(rc * rs, -1)
-    c2 = eqx.error_if(c2, jnp.any(c2 <= s2), "s: not a similitude versor")
+    c2 = require(c2, (jnp.any(c2 <= s2), "s: not a similitude versor"))
     lam = 2.0 * jnp.arctanh(cs / c2)
     rotor_part = Multivector(rc, KINDS["rotor"])
     # t = -2 x' ~R e^(lam/2) / |R|^2 with R = rc / cosh(lam/2): products only. (The sandwich of the

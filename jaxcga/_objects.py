@@ -14,7 +14,6 @@ Every constructor returns a ``Multivector`` with a batch shape broadcast from it
 
 from __future__ import annotations
 
-import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
@@ -30,6 +29,7 @@ from jaxcga._operations import (
     scalar_product,
     undual,
 )
+from jaxcga._support import require
 
 POINT_BLADES = alg.parse_blades(("e1", "e2", "e3", "eo", "einf"))
 
@@ -45,8 +45,8 @@ def check_vectors(name: str, x, size: int = 3):
 
 
 def check_finite(name: str, x):
-    """Raise (also inside jit) when ``x`` holds NaN or infinity."""
-    return eqx.error_if(x, ~jnp.all(jnp.isfinite(x)), f"{name}: non-finite values (NaN or inf)")
+    """A ValueError when ``x`` holds NaN or infinity (inside jit an ``eqx.error_if`` error)."""
+    return require(x, (~jnp.all(jnp.isfinite(x)), f"{name}: non-finite values (NaN or inf)"))
 
 
 def _euclidean_checked(name: str, x):
@@ -74,7 +74,7 @@ def down(X: Multivector) -> Float[Array, "... 3"]:
     """Euclidean point of a conformal point (any scale): x = X_e / X_eo, where X_eo = -X . einf."""
     _require_vector("X", X)
     w = X["eo"]
-    w = eqx.error_if(w, jnp.any(w == 0), "X: eo coefficient is zero (a point at infinity or a plane)")
+    w = require(w, (jnp.any(w == 0), "X: eo coefficient is zero (a point at infinity or a plane)"))
     return jnp.stack([X["e1"], X["e2"], X["e3"]], axis=-1) / w[..., None]
 
 
@@ -83,7 +83,7 @@ def sphere(center: Float[Array, "... 3"], radius: Float[Array, "..."]) -> Multiv
     ``radius`` >= 0 here."""
     c = _euclidean_checked("center", center)
     r = check_finite("radius", jnp.asarray(radius, c.dtype))
-    r = eqx.error_if(r, jnp.any(r < 0), "radius: must be >= 0")
+    r = require(r, (jnp.any(r < 0), "radius: must be >= 0"))
     return _vector(c, 1.0, 0.5 * (jnp.sum(c * c, axis=-1) - r * r))
 
 
@@ -92,7 +92,7 @@ def plane(normal: Float[Array, "... 3"], distance: Float[Array, "..."]) -> Multi
     n = _euclidean_checked("normal", normal)
     d = check_finite("distance", jnp.asarray(distance, n.dtype))
     length = jnp.linalg.norm(n, axis=-1)
-    length = eqx.error_if(length, jnp.any(length == 0), "normal: zero-length normal")
+    length = require(length, (jnp.any(length == 0), "normal: zero-length normal"))
     return _vector(n / length[..., None], 0.0, d)
 
 
@@ -175,7 +175,7 @@ def sphere_center_radius(S: Multivector):
     (r^2 < 0) gets a negative radius: -sqrt(-r^2)."""
     S = _as_vector_form("S", S)
     w = S["eo"]
-    w = eqx.error_if(w, jnp.any(w == 0), "S: eo coefficient is zero (a plane, not a sphere)")
+    w = require(w, (jnp.any(w == 0), "S: eo coefficient is zero (a plane, not a sphere)"))
     c = jnp.stack([S["e1"], S["e2"], S["e3"]], axis=-1) / w[..., None]
     r2 = jnp.sum(c * c, axis=-1) - 2.0 * S["einf"] / w
     return c, jnp.sign(r2) * _safe_sqrt_abs(r2)
@@ -186,7 +186,7 @@ def plane_normal_distance(P: Multivector):
     P = _as_vector_form("P", P)
     n = jnp.stack([P["e1"], P["e2"], P["e3"]], axis=-1)
     length = jnp.linalg.norm(n, axis=-1)
-    length = eqx.error_if(length, jnp.any(length == 0), "P: zero normal (not a plane)")
+    length = require(length, (jnp.any(length == 0), "P: zero normal (not a plane)"))
     return n / length[..., None], P["einf"] / length
 
 
@@ -200,7 +200,7 @@ def line_point_direction(L: Multivector):
     d = -jnp.stack([Ld["e23"], -Ld["e13"], Ld["e12"]], axis=-1)
     m = jnp.stack([Ld["e1inf"], Ld["e2inf"], Ld["e3inf"]], axis=-1)
     length = jnp.linalg.norm(d, axis=-1)
-    length = eqx.error_if(length, jnp.any(length == 0), "L: not a finite line")
+    length = require(length, (jnp.any(length == 0), "L: not a finite line"))
     u = d / length[..., None]
     return jnp.cross(m / length[..., None], u), u
 
@@ -238,7 +238,7 @@ def point_pair_points(T: Multivector):
     _require_grade("T", T, 2, "a point pair in direct form")
     einf = _einf(T.dtype)
     s2 = scalar_product(T, T)
-    s2 = eqx.error_if(s2, jnp.any(s2 < 0), "T: imaginary point pair (T . T < 0)")
+    s2 = require(s2, (jnp.any(s2 < 0), "T: imaginary point pair (T . T < 0)"))
     root = jnp.sqrt(s2)
     projector = inner(einf, T)  # a vector
     out = []

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import functools
 
-import equinox as eqx
 import jax.numpy as jnp
 
 from jaxcga import _algebra as alg
@@ -21,6 +20,7 @@ from jaxcga._multivector import (
     pseudoscalar,
     stack_columns,
 )
+from jaxcga._support import require
 
 
 def geometric(a: Multivector, b: Multivector) -> Multivector:
@@ -117,7 +117,7 @@ def normalize(m: Multivector) -> Multivector:
     if set(m.blades) <= set(_motor_blades()):
         return _normalize_motor(m)
     n = norm(m)
-    n = eqx.error_if(n, n == 0, "normalize: m has zero norm")
+    n = require(n, (n == 0, "normalize: m has zero norm"))
     return m / n
 
 
@@ -134,7 +134,7 @@ def _normalize_motor(m: Multivector) -> Multivector:
     m = m.embed(_motor_blades())
     mm = m * ~m
     s, p = mm["1"], mm["e123inf"]
-    s = eqx.error_if(s, s <= 0, "normalize: motor has non-positive norm M~M")
+    s = require(s, (s <= 0, "normalize: motor has non-positive norm M~M"))
     alpha = 1.0 / jnp.sqrt(s)
     correction = Multivector(
         jnp.stack([alpha, -alpha * p / (2 * s)], axis=-1), alg.parse_blades(("1", "e123inf"))
@@ -145,7 +145,7 @@ def _normalize_motor(m: Multivector) -> Multivector:
 def versor_inverse(v: Multivector) -> Multivector:
     """Inverse of a versor, ``~v / <v ~v>_0`` (rotors, translators, dilators, motors, similitudes)."""
     n = scalar_product(v, ~v)
-    n = eqx.error_if(n, n == 0, "versor_inverse: v ~v is zero, v is not invertible")
+    n = require(n, (n == 0, "versor_inverse: v ~v is zero, v is not invertible"))
     return ~v / n
 
 
@@ -186,7 +186,7 @@ def inverse(m: Multivector) -> Multivector:
     residual = jnp.einsum("...kj,...j->...k", matrix, x) - rhs
     scale = 1.0 + jnp.max(jnp.abs(matrix)) * jnp.max(jnp.abs(x), initial=0.0)
     bad = ~jnp.all(jnp.isfinite(x)) | (jnp.max(jnp.abs(residual), initial=0.0) > 1e-6 * scale)
-    x = eqx.error_if(x, bad, "inverse: multivector is not invertible")
+    x = require(x, (bad, "inverse: multivector is not invertible"))
     return Multivector(x, blades)
 
 

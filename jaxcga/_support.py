@@ -6,6 +6,7 @@ from __future__ import annotations
 import contextlib
 import functools
 import os
+import re
 import sys
 
 import equinox as eqx
@@ -104,6 +105,34 @@ def require(x, *checks):
         elif bool(jnp.any(bad)):
             raise ValueError(message)
     return x
+
+
+def compiled_error_message(error: BaseException) -> str | None:
+    """The message of a check that failed inside compiled code (``eqx.error_if`` under ``eqx.filter_jit`` or
+    ``jax.jit``, an exception in a host callback), without the banner and traceback around it; None for
+    other errors."""
+    text = str(error)
+    found = re.search(r"EquinoxRuntimeError: (.+)", text)
+    if found:
+        return found.group(1).strip()
+    if isinstance(error, jax.errors.JaxRuntimeError):
+        raised = re.findall(r"^\w*(?:Error|Exception): (.+)$", text, re.MULTILINE)
+        return raised[-1].strip() if raised else text.strip().splitlines()[0]
+    return None
+
+
+def plain_errors(fn):
+    """``fn`` (a jitted public function) raising a plain ``ValueError`` with the check's message when a value
+    check inside it fails on concrete input; under an outer trace nothing changes (its checks fail at run time)."""
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        try:
+            return fn(*args, **kwargs)
+        except eqx.EquinoxRuntimeError as error:
+            raise ValueError(compiled_error_message(error)) from None
+
+    return wrapper
 
 
 @contextlib.contextmanager

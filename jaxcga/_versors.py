@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import functools
 
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
@@ -26,6 +25,7 @@ from jaxcga import _algebra as alg
 from jaxcga import _codegen
 from jaxcga._multivector import KINDS, Multivector, broadcast_batch
 from jaxcga._objects import POINT_BLADES, check_finite, check_vectors
+from jaxcga._support import require
 
 _ROTOR = KINDS["rotor"]  # 1, e12, e13, e23
 
@@ -46,7 +46,7 @@ def _rotor_in_plane(name: str, plane, angle, what: str) -> Multivector:
     """``exp(-b angle / 2)`` for the Euclidean bivector b = plane (e12, e13, e23), normalized here."""
     angle = check_finite("angle", jnp.asarray(angle, plane.dtype))
     length = jnp.linalg.norm(plane, axis=-1)
-    length = eqx.error_if(length, jnp.any(length == 0), f"{name}: zero-length {what}")
+    length = require(length, (jnp.any(length == 0), f"{name}: zero-length {what}"))
     b = plane / length[..., None]
     c, s = jnp.cos(angle / 2), jnp.sin(angle / 2)
     return _stack(c, -s * b[..., 0], -s * b[..., 1], -s * b[..., 2], blades=_ROTOR)
@@ -76,7 +76,7 @@ def _float_scalar(value):
 def dilator(scale: Float[Array, "..."]) -> Multivector:
     """Normalized dilator about the origin by the factor ``scale`` > 0 (eq. 12-13)."""
     d = check_finite("scale", _float_scalar(scale))
-    d = eqx.error_if(d, jnp.any(d <= 0), "scale: dilation factor must be > 0")
+    d = require(d, (jnp.any(d <= 0), "scale: dilation factor must be > 0"))
     root = jnp.sqrt(d)
     return _stack((1 + d) / (2 * root), (d - 1) / (2 * root), blades=KINDS["dilator"])
 
@@ -230,7 +230,7 @@ def quaternion_to_rotor(q: Float[Array, "... 4"]) -> Multivector:
     """Rotor of a quaternion (w, x, y, z) (normalized here)."""
     q = check_finite("q", check_vectors("q", q, 4))
     length = jnp.linalg.norm(q, axis=-1)
-    length = eqx.error_if(length, jnp.any(length == 0), "q: zero quaternion")
+    length = require(length, (jnp.any(length == 0), "q: zero quaternion"))
     q = q / length[..., None]
     return _stack(q[..., 0], -q[..., 3], q[..., 2], -q[..., 1], blades=_ROTOR)
 
@@ -274,7 +274,7 @@ def dual_quaternion_to_motor(dq: Float[Array, "... 8"]) -> Multivector:
     dq = check_finite("dq", check_vectors("dq", dq, 8))
     q, qd = dq[..., :4], dq[..., 4:]
     norm2 = jnp.sum(q * q, axis=-1, keepdims=True)
-    norm2 = eqx.error_if(norm2, jnp.any(norm2 == 0), "dq: zero real part")
+    norm2 = require(norm2, (jnp.any(norm2 == 0), "dq: zero real part"))
     conj = q * jnp.asarray([1.0, -1.0, -1.0, -1.0], q.dtype)
     t = 2.0 * _quat_mul(qd, conj)[..., 1:] / norm2
     return motor(quaternion_to_rotor(q), t)
@@ -309,7 +309,7 @@ def matrix_to_motor(matrix: Float[Array, "... 4 4"]) -> Multivector:
     matrix = check_finite("matrix", matrix)
     rot = matrix[..., :3, :3]
     err = jnp.max(jnp.abs(jnp.swapaxes(rot, -1, -2) @ rot - jnp.eye(3, dtype=rot.dtype)), initial=0.0)
-    rot = eqx.error_if(rot, (err > 1e-5) | jnp.any(jnp.linalg.det(rot) < 0), "matrix: not a rigid motion")
+    rot = require(rot, ((err > 1e-5) | jnp.any(jnp.linalg.det(rot) < 0), "matrix: not a rigid motion"))
     return motor(quaternion_to_rotor(matrix_to_quaternion(rot)), matrix[..., :3, 3])
 
 
@@ -320,17 +320,17 @@ def matrix_to_similitude(matrix: Float[Array, "... 4 4"], tolerance: float = 1e-
     Args:
         matrix: (..., 4, 4) or (..., 3, 4).
         tolerance: allowed deviation of ``A^T A / s^2`` from the identity (shear or non-uniform scale
-            beyond it raises inside jit through ``eqx.error_if``)."""
+            beyond it raises a ValueError, inside jit an ``eqx.error_if`` error)."""
     matrix = jnp.asarray(matrix)
     if matrix.ndim < 2 or matrix.shape[-2:] not in ((4, 4), (3, 4)):
         raise ValueError(f"matrix: expected shape (..., 4, 4) or (..., 3, 4), got {matrix.shape}")
     matrix = check_finite("matrix", matrix)
     a = matrix[..., :3, :3]
     det = jnp.linalg.det(a)
-    det = eqx.error_if(det, jnp.any(det <= 0), "matrix: not a similitude (determinant <= 0: reflection or singular)")
+    det = require(det, (jnp.any(det <= 0), "matrix: not a similitude (determinant <= 0: reflection or singular)"))
     s = jnp.cbrt(det)
     rot = a / s[..., None, None]
     err = jnp.max(jnp.abs(jnp.swapaxes(rot, -1, -2) @ rot - jnp.eye(3, dtype=rot.dtype)), initial=0.0)
-    rot = eqx.error_if(rot, err > tolerance, "matrix: not a similitude (shear or non-uniform scale)")
+    rot = require(rot, (err > tolerance, "matrix: not a similitude (shear or non-uniform scale)"))
     return similitude(quaternion_to_rotor(matrix_to_quaternion(rot)), matrix[..., :3, 3], s)
 

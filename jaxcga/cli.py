@@ -7,7 +7,12 @@ subcommand). ``jaxcga demo`` runs the main job on the built-in default.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import logging
+import math
+import re
 import sys
+import warnings
 from pathlib import Path
 
 from jaxcga._output import check_distinct, check_folder, check_input, check_output, check_run_folder, save_figure
@@ -314,11 +319,57 @@ def _check_paths(args) -> None:
 
 
 def _error_message(error: BaseException) -> str:
-    """The one line ``jaxcga CMD: error: ...`` reports: an OSError as ``FILE: reason``, else the message."""
+    """The one line ``jaxcga CMD: error: ...`` reports: an OSError as ``FILE: reason``, else ``error_line``."""
     if isinstance(error, OSError) and error.strerror:
         files = [str(f) for f in (error.filename, error.filename2) if f is not None]
         return f"{' -> '.join(files)}: {error.strerror}" if files else error.strerror
-    return str(error)
+    return error_line(error)
+
+
+def _finite_float(value: str) -> float:
+    number = float(value)
+    if not math.isfinite(number):
+        raise argparse.ArgumentTypeError(f"expected a finite number, got {value!r}")
+    return number
+
+
+class _Parser(argparse.ArgumentParser):
+    """argparse with every ``type=float`` option finite, negative numbers in any notation read as values
+    (argparse's own test, ``-1`` or ``-.5``, takes ``-1e0`` for an option) and errors on one line."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.register("type", float, _finite_float)
+        self._negative_number_matcher = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^-(inf|infinity|nan)$",
+                                                   re.IGNORECASE)
+
+    def error(self, message):
+        self.exit(2, f"{self.prog}: error: {message}\n")
+
+
+def error_line(error: BaseException) -> str:
+    """The message of ``error`` on one line; for an error raised inside compiled code the check's own message,
+    without the banner and the traceback around it."""
+    from jaxcga._support import compiled_error_message
+
+    text = str(error).strip()
+    return compiled_error_message(error) or (text.splitlines()[0] if text else type(error).__name__)
+
+
+@contextlib.contextmanager
+def _one_line_reports(command: str):
+    """Warnings (a mesh welded on load, ...) as one line each, and JAX's log of a failed host callback (the
+    traceback of an ``eqx.error_if`` under ``jax.jit``) muted: that error reaches ``main`` and is printed on
+    one line."""
+    logger = logging.getLogger("jax._src.callback")
+    disabled, logger.disabled = logger.disabled, True
+    try:
+        with warnings.catch_warnings():
+            warnings.showwarning = lambda message, *_, **__: print(f"jaxcga {command}: warning: {message}",
+                                                                   file=sys.stderr)
+            yield
+    finally:
+        logger.disabled = disabled
 
 
 def _clip(value: str):
@@ -326,7 +377,7 @@ def _clip(value: str):
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(prog="jaxcga", description=__doc__.splitlines()[0])
+    parser = _Parser(prog="jaxcga", description=__doc__.splitlines()[0])
     sub = parser.add_subparsers(dest="command", required=True)
     p_demo = sub.add_parser("demo", help="run the main job on the built-in default")
     p_demo.add_argument("--out", type=Path, default=Path("out"), help="folder for figures (default: out/)")
@@ -498,10 +549,11 @@ def main(argv: list[str] | None = None) -> int:
     if args.command == "demo" and args.steps < 2:
         parser.error("--steps: expected at least 2 frames")
     try:
-        _check_paths(args)
-        if args.command == "demo":
-            return demo(args.out, args.steps, not args.no_figure)
-        return _run_deform(args)
+        with _one_line_reports(args.command):
+            _check_paths(args)
+            if args.command == "demo":
+                return demo(args.out, args.steps, not args.no_figure)
+            return _run_deform(args)
     except (ValueError, OSError, RuntimeError) as error:
         parser.exit(2, f"jaxcga {args.command}: error: {_error_message(error)}\n")
 

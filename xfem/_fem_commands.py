@@ -19,6 +19,8 @@ previous run's files (only those), ``summary.json`` last; a failed run leaves OU
 
 from __future__ import annotations
 
+import contextlib
+import io
 import re
 import time
 from pathlib import Path
@@ -50,12 +52,17 @@ def scene_mesh(scene: str, fix_fraction: float = 0.02):
     if not path.exists():
         raise FileNotFoundError(f"SCENE: expected one of {SCENES} or a mesh file, got {scene!r} (no such file)")
     if path.suffix.lower() in SURFACE_FORMATS:
-        import trimesh
+        # the command modules form the application layer above the packages (DESIGN.md): one mesh-file reader
+        from deform._deform_commands import read_mesh_file
 
-        surface = trimesh.load(path, force="mesh", process=True)
-        mesh = tetrahedralize(np.asarray(surface.vertices), np.asarray(surface.faces))
+        mesh = tetrahedralize(*read_mesh_file(path, "SCENE"))
     else:
-        mesh = read_tet_mesh(path)
+        try:
+            # meshio prints its readers' complaints before giving up: the error below says it on one line
+            with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+                mesh = read_tet_mesh(path)
+        except ValueError as error:  # it names its argument "path"
+            raise ValueError(f"SCENE: {str(error).removeprefix('path: ')}") from None
     if not 0 < fix_fraction < 1:
         raise ValueError(f"fix_fraction: expected a fraction in (0, 1), got {fix_fraction}")
     z = np.asarray(mesh.X)[:, 2]
@@ -92,6 +99,8 @@ def fem_command(scene: str, steps: int, out: Path, *, h: float = 0.033, young: f
         raise ValueError(f"dt: expected a positive time step, got {h}")
     if not density > 0:
         raise ValueError(f"density: expected a positive density, got {density}")
+    if len(gravity) != 3 or not np.isfinite(max(abs(float(g)) for g in gravity) * float(density)):
+        raise ValueError(f"gravity: expected three numbers whose product with the density is finite, got {gravity}")
     out = check_run_folder(out, RUN_FILES, force, RUN_DESCRIBED,
                            inputs=None if scene in SCENES else {"SCENE": Path(scene)})
     mu, lam = lame(young, poisson)

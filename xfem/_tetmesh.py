@@ -318,7 +318,8 @@ def read_tet_mesh(path) -> TetMesh:
         mesh = meshio.read(path)
     # meshio raises SystemExit (it calls sys.exit) on a file it cannot parse in the format its suffix names
     except (meshio.ReadError, OSError, KeyError, ValueError, SystemExit) as error:
-        raise ValueError(f"path: meshio cannot read {str(path)!r} ({error!r})") from None
+        reason = "no reader of its suffix's formats accepts it" if isinstance(error, SystemExit) else repr(error)
+        raise ValueError(f"path: meshio cannot read {str(path)!r} ({reason})") from None
     blocks = [np.asarray(block.data) for block in mesh.cells if block.type == "tetra"]
     if not blocks:
         types = sorted({block.type for block in mesh.cells})

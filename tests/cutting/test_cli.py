@@ -75,3 +75,24 @@ def test_tear_and_drill_errors_exit_with_code_2(tmp_path, capsys):
         main(["drill", "--tip", "5", "5", "5", "--base", "5", "5", "6", "--radius", "0.01",
               "--out", str(tmp_path / "d.glb")])
     assert stop.value.code == 2 and "misses" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("value, parsed", [("-1e0", "-1.0"), ("-1E+0", "-1.0"), ("-.5e1", "-5.0"), ("-2.", "-2.0"),
+                                           ("-1e12", "-1000000000000.0"), ("-0.3", "-0.3")])
+def test_negative_numbers_parse_in_any_notation(tmp_path, capsys, value, parsed):
+    """argparse's own test takes ``-1e0`` for an option: every notation reaches the command as a number."""
+    with pytest.raises(SystemExit) as stop:
+        main(["cut", "--plane", "1", "0", "0", "0.3", "--side-weight", value, "--out", str(tmp_path / "a.glb"),
+              str(tmp_path / "b.glb")])
+    err = capsys.readouterr().err
+    assert stop.value.code == 2
+    assert err == f"jaxcga cut: error: side_weight: expected a number in [0, 1], got {parsed}\n"
+
+
+def test_a_drill_wider_than_the_model_says_so(tmp_path, capsys):
+    with pytest.raises(SystemExit) as stop:
+        main(["drill", "--tip", "0.4", "0", "0", "--base", "0.4", "0", "0.1", "--radius", "10",
+              "--out", str(tmp_path / "d.glb")])
+    err = capsys.readouterr().err
+    assert stop.value.code == 2 and len(err.splitlines()) == 1
+    assert "radius: 10 exceeds the model's size: every vertex lies within 0.45 of the drill's axis" in err

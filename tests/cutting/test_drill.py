@@ -247,3 +247,17 @@ def test_a_drill_through_grid_vertices_makes_no_slivers():
         rim = extended[np.unique(_edge_counts(hole.faces)[0][_edge_counts(hole.faces)[1] == 1])]
         on_hole = np.linalg.norm(rim[:, :2] - 0.5, axis=1) < 0.45
         np.testing.assert_allclose(np.linalg.norm(rim[on_hole, :2] - 0.5, axis=1), radius, atol=1e-6)
+
+
+def test_a_drill_wider_than_what_it_meets_says_so_not_too_thin():
+    """A small plate and a far one: a radius wider than the small plate, or than the whole mesh, is named as
+    such (it used to read "the drill is too thin ... raise the radius")."""
+    V = np.array([[-0.05, -0.05, 0], [0.05, -0.05, 0], [0.05, 0.05, 0], [-0.05, 0.05, 0],
+                  [5, 5, 0], [6, 5, 0], [6, 6, 0], [5, 6, 0.0]])
+    F = np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]])
+    tip, base = np.array([0.0, 0.0, -1.0]), np.array([0.0, 0.0, 1.0])
+    with pytest.raises(ValueError, match=r"radius: 0.2 is wider than the part of the model the drill meets"):
+        cutting.drill_mesh(V, F, tip, base, 0.2)
+    with pytest.raises(ValueError, match=r"radius: 20 exceeds the model's size: every vertex lies within 8.485 "):
+        cutting.drill_mesh(V, F, tip, base, 20.0)
+    assert len(cutting.drill_mesh(V, F, tip, base, 0.01, max_refinements=8).points) >= 6  # a fitting radius drills

@@ -86,3 +86,64 @@ def test_errors_are_reported_with_exit_code_2(tmp_path, capsys):
     with pytest.raises(SystemExit):
         main(["fit", "--target", str(tmp_path / "bad.npy"), "--out", str(tmp_path / "p.json")])
     assert "target" in capsys.readouterr().err
+
+
+def _error(argv, capsys) -> str:
+    """The one line ``main(argv)`` prints when it fails with exit code 2."""
+    with pytest.raises(SystemExit) as exit_info:
+        main(argv)
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1, err
+    return err
+
+
+@pytest.mark.parametrize("value", ["nan", "inf", "-inf", "NaN", "1e999"])
+def test_non_finite_numbers_are_refused_by_the_parser(tmp_path, capsys, value):
+    err = _error(["skin", "--time", value, "--out", str(tmp_path / "x.npy")], capsys)
+    assert f"argument --time: expected a finite number, got '{value}'" in err
+
+
+def test_parser_errors_are_one_line(tmp_path, capsys):
+    assert "the following arguments are required: --out" in _error(["skin"], capsys)
+    assert "invalid choice: 'nope'" in _error(["skin", "--method", "nope", "--out", "x.npy"], capsys)
+
+
+def test_an_error_inside_compiled_code_prints_its_message_only(tmp_path, capsys, monkeypatch):
+    """eqx.error_if under jax.jit (a host callback error) and under eqx.filter_jit (the Equinox banner): one
+    line with the check's message, and no log of the failed callback."""
+    import equinox as eqx
+
+    from jaxcga import cli
+
+    check = lambda x: eqx.error_if(x, x > 0, "x: must not be positive")  # noqa: E731
+    for jit in (jax.jit, eqx.filter_jit):
+        monkeypatch.setattr(cli, "_run_deform", lambda args, jit=jit: jit(check)(jnp.ones(())))
+        err = _error(["skin", "--out", str(tmp_path / "x.npy")], capsys)
+        assert err == "jaxcga skin: error: x: must not be positive\n"
+
+
+def test_fit_names_unreadable_target_and_vertex_files(tmp_path, capsys):
+    out = str(tmp_path / "p.json")
+    assert "target: no such file" in _error(["fit", "--target", str(tmp_path / "none.npy"), "--out", out], capsys)
+    (tmp_path / "text.npy").write_text("not an array")
+    assert "target: " in _error(["fit", "--target", str(tmp_path / "text.npy"), "--out", out], capsys)
+    np.save(tmp_path / "t.npy", np.zeros((2, 3)))
+    np.save(tmp_path / "i.npy", np.array([0, 1]))
+    argv = ["fit", "--target", str(tmp_path / "t.npy"), "--out", out]
+    assert "vertices: no such file" in _error(argv + ["--vertices", str(tmp_path / "none.npy")], capsys)
+    assert "max_steps: expected an int >= 1, got 0" in _error(argv + ["--vertices", str(tmp_path / "i.npy"),
+                                                                      "--max-steps", "0"], capsys)
+
+
+def test_a_corrupt_buffer_is_blamed_on_its_accessor(tmp_path, capsys):
+    raw = bytearray((DATA / "RiggedSimple.glb").read_bytes())
+    length = int.from_bytes(raw[12:16], "little")
+    doc = json.loads(raw[20:20 + length])
+    accessor = doc["accessors"][doc["meshes"][0]["primitives"][0]["attributes"]["POSITION"]]
+    start = 20 + length + 8 + doc["bufferViews"][accessor["bufferView"]].get("byteOffset", 0)
+    start += accessor.get("byteOffset", 0)
+    raw[start:start + 12] = b"\xff" * 12  # NaN bit patterns: the first vertex
+    (tmp_path / "corrupt.glb").write_bytes(bytes(raw))
+    err = _error(["skin", str(tmp_path / "corrupt.glb"), "--out", str(tmp_path / "x.npy")], capsys)
+    assert "POSITION (accessor" in err and "non-finite" in err

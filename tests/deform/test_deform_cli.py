@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -93,3 +94,99 @@ def test_errors_name_the_problem(tmp_path, argv, message, capsys):
         main(argv)
     assert exit_info.value.code == 2
     assert message in capsys.readouterr().err
+
+
+TETRAHEDRON = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n"
+
+
+def _tetrahedron() -> trimesh.Trimesh:
+    return trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]], [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]],
+                           process=False)
+
+
+def test_a_mesh_file_is_read_as_it_is(tmp_path):
+    """No vertex is moved, merged or dropped from a clean file (trimesh's processing used to drop a NaN
+    vertex and go on with another mesh)."""
+    import warnings
+
+    from deform._deform_commands import read_mesh_file
+
+    mesh = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 1]], [[0, 2, 1], [0, 1, 3], [1, 2, 4]],
+                           process=False)
+    mesh.export(tmp_path / "five.ply")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        V, F = read_mesh_file(tmp_path / "five.ply")
+    np.testing.assert_array_equal(V, mesh.vertices)
+    np.testing.assert_array_equal(F, mesh.faces)
+
+
+def test_a_weld_or_dropped_faces_are_reported(tmp_path):
+    from deform._deform_commands import read_mesh_file
+
+    _tetrahedron().export(tmp_path / "tet.stl")  # an STL stores every corner apart: 12 vertices
+    with pytest.warns(UserWarning, match=r"tet.stl: welded 12 vertices into 4 .* dropped 0 of 4 faces"):
+        V, F = read_mesh_file(tmp_path / "tet.stl")
+    assert trimesh.Trimesh(V, F, process=False).is_watertight
+    (tmp_path / "flat.obj").write_text(TETRAHEDRON + "f 1 1 2\n")
+    with pytest.warns(UserWarning, match=r"flat.obj: welded 4 vertices into 4 .* dropped 1 of 5 faces"):
+        V, F = read_mesh_file(tmp_path / "flat.obj")
+    assert F.shape == (4, 3)
+
+
+@pytest.mark.parametrize("command", [["deform", "handles"], ["arap"]])
+@pytest.mark.parametrize("line", ["v nan 0 1", "v -inf 0 1", "v 0 1", "v 0 x 1"])
+def test_a_bad_obj_vertex_names_its_line(tmp_path, capsys, command, line):
+    path = tmp_path / "bad.obj"
+    path.write_text(TETRAHEDRON.replace("v 0 0 1", line))
+    with pytest.raises(SystemExit) as exit_info:
+        main([*command, str(path), "--out", str(tmp_path / "x.npy")])
+    err = capsys.readouterr().err
+    assert exit_info.value.code == 2 and err.count("\n") == 1
+    assert f"mesh: {path}: line 4: {line!r} is not a vertex of three finite numbers" in err
+
+
+def test_a_non_finite_vertex_in_other_formats_names_its_index(tmp_path):
+    from deform._deform_commands import read_mesh_file
+
+    V = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, np.inf]])
+    trimesh.Trimesh(V, [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]], process=False).export(tmp_path / "inf.ply")
+    with pytest.raises(ValueError, match=r"inf.ply: a non-finite vertex, the first is vertex 3: \[0.0, 0.0, inf\]"):
+        read_mesh_file(tmp_path / "inf.ply")
+
+
+@pytest.mark.parametrize("command", [["deform", "spline"], ["deform", "handles"], ["arap"]])
+def test_overlapping_end_handles_are_named(tmp_path, capsys, command):
+    """The end handles' vertex sets overlap from a fraction of 0.5 on: said so, not "repeated handle
+    vertices". The weld of the STL is reported on its own line first."""
+    _tetrahedron().export(tmp_path / "tet.stl")
+    with pytest.raises(SystemExit) as exit_info:
+        main([*command, str(tmp_path / "tet.stl"), "--handle-fraction", "0.6", "--out", str(tmp_path / "x.npy")])
+    warning, error = capsys.readouterr().err.splitlines()
+    assert exit_info.value.code == 2
+    assert warning.startswith(f"jaxcga {command[0]}: warning: mesh: ") and "welded 12 vertices into 4" in warning
+    assert error.startswith(f"jaxcga {command[0]}: error: handle_fraction: 0.6 makes the two end handles overlap")
+
+
+def test_more_keys_than_vertices_are_refused(tmp_path, capsys):
+    with pytest.raises(SystemExit):
+        main(["deform", "spline", "--keys", "100000", "--out", str(tmp_path / "x.npy")])
+    assert "keys: expected at most one key motor per vertex (3266), got 100000" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("content, message", [
+    ("", "is not valid JSON"),
+    ('{"handles": 5}', "must hold a JSON object with a non-empty 'handles' list"),
+    ('{"handles": [["a"]]}', "must be a list of vertex indices"),
+    ('{"handles": [[0], [1]], "motors": [{"angle": 5}, {}]}', "motor 0 in .* must be an object with keys among"),
+    ('{"handles": [[0], [1]], "motors": [{"axis": [1, 0]}, {}]}', r"motor 0 in .* needs \[x, y, z\] lists"),
+    ('{"handles": [[0], [1]], "motors": [{"axis": [0, 0, 0]}, {}]}', "motor 0 .* needs finite numbers and a non-zero"),
+    ('{"handles": [[0], [1]], "motors": [{"center": [NaN, 0, 0]}, {}]}', "motor 0 in .* needs finite numbers"),
+])
+def test_bad_handle_files_are_named(tmp_path, capsys, content, message):
+    (tmp_path / "h.json").write_text(content)
+    with pytest.raises(SystemExit) as exit_info:
+        main(["deform", "handles", "--handles", str(tmp_path / "h.json"), "--out", str(tmp_path / "x.npy")])
+    err = capsys.readouterr().err
+    assert exit_info.value.code == 2 and err.count("\n") == 1
+    assert re.search(f"jaxcga deform: error: handles: .*{message}", err), err

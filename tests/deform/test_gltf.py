@@ -3,6 +3,7 @@
 import base64
 import json
 import shutil
+import struct
 from pathlib import Path
 
 import jax
@@ -468,3 +469,60 @@ def test_weld_real_model_and_degenerate_faces():
     welded = weld(tiny)
     assert welded.num_vertices == 4
     np.testing.assert_array_equal(welded.F, [[0, 1, 3], [0, 2, 3]])
+
+
+# ------------------------------------------------------------------------------------------ corrupt buffers
+
+
+def _corrupt_glb(tmp_path, pick, name=None):
+    """RiggedSimple.glb with element 1 of the accessor that ``pick(json)`` names overwritten by NaN (the bytes
+    of a corrupt buffer), and that accessor named ``name``: (path, accessor index)."""
+    raw = bytearray((DATA / "RiggedSimple.glb").read_bytes())
+    length = struct.unpack_from("<I", raw, 12)[0]
+    doc = json.loads(raw[20:20 + length])
+    index = pick(doc)
+    accessor = doc["accessors"][index]
+    view = doc["bufferViews"][accessor["bufferView"]]
+    width = {"SCALAR": 1, "VEC3": 3, "VEC4": 4, "MAT4": 16}[accessor["type"]]
+    stride = view.get("byteStride", 4 * width)
+    offset = 20 + length + 8 + view.get("byteOffset", 0) + accessor.get("byteOffset", 0) + stride
+    struct.pack_into("<f", raw, offset, float("nan"))
+    if name is not None:  # a longer JSON chunk: rebuild the container
+        accessor["name"] = name
+        text = json.dumps(doc).encode()
+        text += b" " * (-len(text) % 4)
+        binary = raw[20 + length:]
+        raw = bytearray(struct.pack("<III", 0x46546C67, 2, 12 + 8 + len(text) + len(binary)))
+        raw += struct.pack("<II", len(text), 0x4E4F534A) + text + binary
+    path = tmp_path / "corrupt.glb"
+    path.write_bytes(bytes(raw))
+    return path, index
+
+
+def test_a_non_finite_accessor_is_named(tmp_path):
+    """A NaN in a float buffer is caught where it is read, naming the accessor and what reads it (before:
+    positions loaded as NaN and a later step failed with an unrelated message)."""
+    path, index = _corrupt_glb(tmp_path, lambda d: d["meshes"][0]["primitives"][0]["attributes"]["POSITION"])
+    with pytest.raises(ValueError, match=rf"POSITION \(accessor {index}\) holds 1 non-finite elements .* the "
+                                         r"first at element 1"):
+        load_model(path)
+    path, index = _corrupt_glb(tmp_path, lambda d: d["animations"][0]["samplers"][0]["output"], name="keys")
+    with pytest.raises(ValueError, match=rf"animation 0 .* output \(accessor {index} 'keys'\) holds 1 non-finite"):
+        load_model(path)
+    path, index = _corrupt_glb(tmp_path, lambda d: d["skins"][0]["inverseBindMatrices"])
+    with pytest.raises(ValueError, match=rf"corrupt.glb: skin 0 inverseBindMatrices \(accessor {index}\)"):
+        load_model(path)
+
+
+def test_a_non_finite_node_transform_is_named(tmp_path):
+    doc = json.loads(_synthetic(tmp_path).read_text())
+    doc["nodes"][1]["translation"] = [float("nan"), 1.0, 0.0]  # Python's json writes and reads NaN
+    doc["nodes"][0]["matrix"][12] = float("inf")
+    path = tmp_path / "nan.gltf"  # beside the synthetic file's buffer
+    path.write_text(json.dumps(doc))
+    with pytest.raises(ValueError, match=r"node 0 \(node0\): matrix must be finite"):
+        load_model(path)
+    doc["nodes"][0]["matrix"][12] = 0.0
+    path.write_text(json.dumps(doc))
+    with pytest.raises(ValueError, match=r"node 1 \(a\): translation, rotation, scale must be finite, got \[nan, 1.0"):
+        load_model(path)

@@ -81,3 +81,17 @@ def test_bad_arguments_exit_with_a_message(tmp_path, capsys, args, message):
         main(["fem", *args, "--out", str(tmp_path / "x")])
     assert exit_info.value.code == 2
     assert message in capsys.readouterr().err
+
+
+def test_corrupt_scenes_and_overflowing_gravity_are_named(tmp_path, capsys):
+    (tmp_path / "nan.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 nan\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n")
+    (tmp_path / "junk.msh").write_text("not a mesh")
+    for args, message in ((["bar", "--gravity", "0", "0", "-1e308"], "gravity: expected three numbers whose product "
+                                                                       "with the density is finite"),
+                          ([str(tmp_path / "nan.obj")], f"SCENE: {tmp_path / 'nan.obj'}: line 4: 'v 0 0 nan' is not a "
+                                                        "vertex of three finite numbers"),
+                          ([str(tmp_path / "junk.msh")], "SCENE: meshio cannot read")):
+        with pytest.raises(SystemExit) as exit_info:
+            main(["fem", *args, "--out", str(tmp_path / "x")])
+        err = capsys.readouterr().err
+        assert exit_info.value.code == 2 and err.count("\n") == 1 and message in err
