@@ -329,4 +329,4 @@ def test_json_errors_are_one_line(tmp_path, capsys):
                        "handles:", "not valid JSON")
     handles.write_text('{"handles": [[0]], "motors": [3]}')
     _fails_on_one_line(capsys, ["deform", "handles", "--handles", str(handles), "--out", str(tmp_path / "x.npy")],
-                       "'motors'")
+                       "motor 0", "must be an object")
