@@ -18,12 +18,15 @@ exactly at rigid maps. Each iteration alternates
 
 * local step: M_i maximizes ``sum_e c_e (M_i v_e ~M_i) . v'_e`` over its cell; it is the eigenvector of the
   largest eigenvalue of Horn's symmetric 4x4 matrix P built from ``S = sum_e c_e v_e v'_e^T``
-  (the paper's P), read as the rotor ``q0 - qz e12 - qx e23 - qy e31``. Batched over all vertices in
-  closed form: P is traceless, its largest eigenvalue is the largest root of the characteristic
+  (the paper's P). A rim is a difference of two spokes (``v'_jk = v'_ik - v'_ij``), so both energies'
+  S is ``sum_j y_ij v'_ij^T`` over the one-ring with precomputed y_ij (``w_ij v_ij`` for spokes). The
+  eigenvector is read as the rotor ``q0 - qz e12 - qx e23 - qy e31``. Batched over all vertices in closed
+  form: P is traceless, its largest eigenvalue is the largest root of the characteristic
   quartic ``l^4 - 2|S|^2 l^2 - 8 det(S) l + det(P)``, found by Newton's method from the upper bound
   ``sqrt(3) |S|_F`` (monotone for a polynomial with real roots), and the eigenvector is a column of
   the adjugate of ``P - l I`` (rank one, ``c q q^T``, when the eigenvalue is simple). The same
-  eigenvalue gives the energy for free: ``E = sum c (|v'|^2 + |v|^2) - 2 sum_i l_i``.
+  eigenvalue gives the energy for free: ``E = sum c (|v'|^2 + |v|^2) - 2 sum_i l_i`` (for spokes and
+  rims ``sum c |v'|^2`` over all cells is 3/2 of ``sum_ij w_ij |v'_ij|^2``: every face is in three cells).
 * global step (eq. 12): ``-L p' = C`` with L the cotangent Laplacian for both energies, where
   ``C_i = 1/2 sum_j (M_i + M_j) w_ij v_ij`` (spokes) or
   ``C_i = 1/3 sum_{faces f at i} (M_i + M_j + M_k) sum_{edges e of f at i} c_fe v_e`` (spokes and rims;
@@ -68,44 +71,38 @@ ENERGIES = ("spokes_and_rims", "spokes")
 
 
 class ARAPData(eqx.Module):
-    """Precomputed ARAP data (``arap_precompute``): the rest mesh as padded one-rings (and, for spokes and
-    rims, each vertex's rims), the weighted rest edges and the factored constrained Laplacian."""
+    """Precomputed ARAP data (``arap_precompute``): the rest mesh as padded one-rings, each spoke's rest
+    vectors for the local and the global step (the energy's) and the factored constrained Laplacian."""
 
     V: Float[Array, "n 3"]  # rest positions
     b: Int[Array, " nb"]  # handle vertices
     free: Int[Array, " nf"]  # the other vertices, in order
     ring: Int[Array, "n d"]  # one-ring neighbours, padded with the vertex itself (weight 0)
     w: Float[Array, "n d"]  # cotangent weights w_ij
-    wv: Float[Array, "n d 3"]  # w_ij v_ij, the weighted rest spokes
-    wv_sum: Float[Array, "n 3"]  # sum_j w_ij v_ij
+    wv_sum: Float[Array, "n 3"]  # sum_j w_ij v_ij, v_ij = p_i - p_j
+    y: Float[Array, "n d 3"]  # the local step's vectors y_ij: S_i = sum_j y_ij v'_ij^T
     z: Float[Array, "n d 3"]  # the global step's vectors z_ij: rhs_i = s (M_i wv_sum_i + sum_j M_j z_ij)
-    rims: Int[Array, "n r 2"]  # rim edges (a, b) of each vertex's faces (r = 0 for spokes), padded with (i, i)
-    c_rim: Float[Array, "n r"]  # their weights c_fe
-    cv_rim: Float[Array, "n r 3"]  # c_fe (p_a - p_b)
     degree: Float[Array, " n"]  # sum_j w_ij, the diagonal of -L
     rest_energy: Float[Array, ""]  # sum over every cell's edges of c |v|^2
     solver: SparseSolver = eqx.field(static=True)  # -L_ff, factored
     n: int = eqx.field(static=True)
     energy: str = eqx.field(static=True)
     rhs_scale: float = eqx.field(static=True)  # s: 1/2 (spokes) or 1/3 (spokes and rims)
+    quadratic_scale: float = eqx.field(static=True)  # sum over cells of c |v'|^2 = this x sum_ij w_ij |v'_ij|^2
 
 
 def _padded(rows, columns, values, n):
-    """Entries grouped by row (in the given order within a row) as padded (n, k) tables: the columns
-    padded with the row index, each value array with zeros."""
-    order = np.argsort(rows, kind="stable")
-    rows = rows[order]
+    """Entries sorted by row then column as padded (n, k) tables: the columns padded with the row index,
+    each value array with zeros."""
     counts = np.bincount(rows, minlength=n)
     slot = np.arange(len(rows)) - np.repeat(np.cumsum(counts) - counts, counts)
     k = max(int(counts.max()), 1)
     table = np.repeat(np.arange(n)[:, None], k, axis=1)
-    if columns.ndim == 2:
-        table = np.repeat(table[..., None], columns.shape[1], axis=2)
-    table[rows, slot] = columns[order]
+    table[rows, slot] = columns
     padded = []
     for v in values:
         out = np.zeros((n, k) + v.shape[1:])
-        out[rows, slot] = v[order]
+        out[rows, slot] = v
         padded.append(out)
     return table, padded
 
@@ -150,28 +147,31 @@ def arap_precompute(V, F, b, energy: str = "spokes_and_rims") -> ARAPData:
     corners = [(F[:, k], F[:, (k + 1) % 3], F[:, (k + 2) % 3], C[:, (k + 2) % 3], C[:, (k + 1) % 3], C[:, k])
                for k in range(3)]
     i, j1, j2, c1, c2, c_rim = (np.concatenate(x) for x in zip(*corners))
-    # the face's share of the global step at i: sum of its two edges at i, to be turned by all three rotors
+    # global step: the face's share at i, its two edges at i, is turned by all three rotors of the face
     u = c1[:, None] * (V[i] - V[j1]) + c2[:, None] * (V[i] - V[j2])
-    # one-rings from the faces' edges (not from L's nonzeros: an edge of weight 0 still carries rims' z)
-    half_i, half_j = np.concatenate([i, i]), np.concatenate([j1, j2])
-    keys, inverse = np.unique(half_i * n + half_j, return_inverse=True)
-    w_edge = np.bincount(inverse, np.concatenate([c1, c2]))
-    z_edge = np.stack([np.bincount(inverse, np.concatenate([u, u])[:, k]) for k in range(3)], 1)
-    ring, (w, z) = _padded(keys // n, keys % n, [w_edge, z_edge], n)
+    # local step: a rim is a difference of spokes, p'_j1 - p'_j2 = v'_ij2 - v'_ij1, so the cell's covariance
+    # stays a sum over its spokes: the rim's c (p_j1 - p_j2) joins y_ij2 and leaves y_ij1
+    rim = c_rim[:, None] * (V[j1] - V[j2])
+    # one-rings from the faces' edges (not from L's nonzeros: an edge of weight 0 still has rims)
+    keys, inverse = np.unique(np.concatenate([i * n + j1, i * n + j2]), return_inverse=True)
+
+    def per_edge(values):
+        return np.stack([np.bincount(inverse, values[:, k], len(keys)) for k in range(values.shape[1])], 1)
+
+    w_edge = np.bincount(inverse, np.concatenate([c1, c2]), len(keys))
+    z_edge, rim_edge = per_edge(np.concatenate([u, u])), per_edge(np.concatenate([-rim, rim]))
+    ring, (w, z, rim) = _padded(keys // n, keys % n, [w_edge, z_edge, rim_edge], n)
     wv = w[..., None] * (V[:, None, :] - V[ring])
-    rest_energy = np.einsum("ndk,ndk->", wv, V[:, None, :] - V[ring])
     if energy == "spokes":
-        z, rims, c_rim, cv_rim, scale = wv, np.zeros((n, 0, 2), np.int64), np.zeros((n, 0)), np.zeros((n, 0, 3)), 0.5
+        y, z, rhs_scale, quadratic_scale = wv, wv, 0.5, 1.0
     else:
-        rims, (c_rim, cv_rim) = _padded(i, np.stack([j1, j2], 1), [c_rim, c_rim[:, None] * (V[j1] - V[j2])], n)
-        rest_energy += np.einsum("nr,nrk,nrk->", c_rim, V[rims[..., 0]] - V[rims[..., 1]],
-                                 V[rims[..., 0]] - V[rims[..., 1]])
-        scale = 1.0 / 3.0
+        # every face's edges are in three cells; sum_ij w_ij |v'_ij|^2 counts every edge twice
+        y, rhs_scale, quadratic_scale = wv + rim, 1.0 / 3.0, 1.5
     return ARAPData(
         V=jnp.asarray(V), b=jnp.asarray(b), free=jnp.asarray(free), ring=jnp.asarray(ring), w=jnp.asarray(w),
-        wv=jnp.asarray(wv), wv_sum=jnp.asarray(wv.sum(1)), z=jnp.asarray(z), rims=jnp.asarray(rims),
-        c_rim=jnp.asarray(c_rim), cv_rim=jnp.asarray(cv_rim), degree=jnp.asarray(w.sum(1)),
-        rest_energy=jnp.asarray(rest_energy), solver=solver, n=n, energy=energy, rhs_scale=scale,
+        wv_sum=jnp.asarray(wv.sum(1)), y=jnp.asarray(y), z=jnp.asarray(z), degree=jnp.asarray(w.sum(1)),
+        rest_energy=jnp.asarray(quadratic_scale * np.einsum("ndk,ndk->", wv, V[:, None, :] - V[ring])),
+        solver=solver, n=n, energy=energy, rhs_scale=rhs_scale, quadratic_scale=quadratic_scale,
     )
 
 
@@ -232,13 +232,8 @@ def horn_rotors(S: Float[Array, "n 3 3"], newton_steps: int = 24):
 def _local(data: ARAPData, x):
     """Local step: rotors of all cells and the energy E(x) = min over rotors."""
     spokes = x[:, None, :] - x[data.ring]
-    S = jnp.einsum("ndk,ndl->nkl", data.wv, spokes)
-    quadratic = jnp.einsum("nd,ndk,ndk->", data.w, spokes, spokes)
-    if data.rims.shape[1]:  # static: spokes and rims
-        rims = x[data.rims[..., 0]] - x[data.rims[..., 1]]
-        S = S + jnp.einsum("nrk,nrl->nkl", data.cv_rim, rims)
-        quadratic = quadratic + jnp.einsum("nr,nrk,nrk->", data.c_rim, rims, rims)
-    rotors, lam = horn_rotors(S)
+    rotors, lam = horn_rotors(jnp.einsum("ndk,ndl->nkl", data.y, spokes))
+    quadratic = data.quadratic_scale * jnp.einsum("nd,ndk,ndk->", data.w, spokes, spokes)
     return rotors, quadratic + data.rest_energy - 2.0 * jnp.sum(lam)
 
 
