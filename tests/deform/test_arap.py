@@ -207,6 +207,8 @@ def test_bad_input(arm):
         arap_precompute(V, F, np.array([3, 3]))
     with pytest.raises(ValueError, match="non-empty"):
         arap_precompute(V, F, np.array([], int))
+    with pytest.raises(ValueError, match="energy: expected one of"):
+        arap_precompute(V, F, b, energy="rims")
     with pytest.raises(ValueError, match="bc"):
         arap_solve(data, jnp.asarray(bc[:-1]))
     with pytest.raises(ValueError, match="V0"):
