@@ -1,36 +1,49 @@
 """As-rigid-as-possible surface modeling with rotors: sec. VII of the CGA mesh-deformation paper
 (eq. 9-13), after Sorkine & Alexa 2007, with libigl's precompute / solve split.
 
-Energy (eq. 9, 11), the "spokes" energy of libigl (``igl.ARAP_ENERGY_TYPE_SPOKES``)::
+Two energies, libigl's two for triangle meshes, both with one rotor M_i per vertex and the cotangent
+weights ``c_fe = cot(angle opposite e in f) / 2`` (``igl.cotmatrix_entries``)::
 
-    E(p') = sum_i sum_{j in N(i)} w_ij |v'_ij - M_i v_ij ~M_i|^2,   v_ij = p_i - p_j,
+    spokes (eq. 9, 11; igl.ARAP_ENERGY_TYPE_SPOKES), the paper's:
+        E(p') = sum_i sum_{j in N(i)} w_ij |v'_ij - M_i v_ij ~M_i|^2,   v_ij = p_i - p_j,
+    spokes and rims (igl.ARAP_ENERGY_TYPE_SPOKES_AND_RIMS, libigl's default for triangles in 3D):
+        E(p') = sum_i sum_{faces f at i} sum_{edges e of f} c_fe |v'_e - M_i v_e ~M_i|^2,
 
-with ``w_ij = (cot a_ij + cot b_ij) / 2`` the off-diagonal of ``igl.cotmatrix`` and one rotor M_i per
-vertex. Each iteration alternates
+with ``w_ij = sum of c_fe over the faces of edge ij`` the off-diagonal of ``igl.cotmatrix``. A cell of the
+spokes energy is its vertex's spokes; with obtuse triangles (negative weights) a cell's energy can be
+negative and the iterations can fall away from a rigid map of all handles (they do on Arm5). A cell of
+spokes-and-rims also holds the rims, the edges opposite the vertex: each face's term is the cotangent
+(Dirichlet) energy of a piecewise-linear map, never negative whatever the angles, so E >= 0 with equality
+exactly at rigid maps. Each iteration alternates
 
-* local step: M_i maximizes ``sum_j w_ij (M_i v_ij ~M_i) . v'_ij``; it is the eigenvector of the
-  largest eigenvalue of Horn's symmetric 4x4 matrix P built from ``S = sum_j w_ij v_ij v'_ij^T``
-  (the paper's P), read as the rotor ``q0 - qz e12 - qx e23 - qy e31``. Batched over all vertices in
-  closed form: P is traceless, its largest eigenvalue is the largest root of the characteristic
+* local step: M_i maximizes ``sum_e c_e (M_i v_e ~M_i) . v'_e`` over its cell; it is the eigenvector of the
+  largest eigenvalue of Horn's symmetric 4x4 matrix P built from ``S = sum_e c_e v_e v'_e^T``
+  (the paper's P). A rim is a difference of two spokes (``v'_jk = v'_ik - v'_ij``), so both energies'
+  S is ``sum_j y_ij v'_ij^T`` over the one-ring with precomputed y_ij (``w_ij v_ij`` for spokes). The
+  eigenvector is read as the rotor ``q0 - qz e12 - qx e23 - qy e31``. Batched over all vertices in closed
+  form: P is traceless, its largest eigenvalue is the largest root of the characteristic
   quartic ``l^4 - 2|S|^2 l^2 - 8 det(S) l + det(P)``, found by Newton's method from the upper bound
   ``sqrt(3) |S|_F`` (monotone for a polynomial with real roots), and the eigenvector is a column of
   the adjugate of ``P - l I`` (rank one, ``c q q^T``, when the eigenvalue is simple). The same
-  eigenvalue gives the energy for free: ``E = sum w (|v'|^2 + |v|^2) - 2 sum_i l_i``.
-* global step (eq. 12): ``sum_j w_ij v'_ij = sum_j w_ij / 2 (M_i v_ij ~M_i + M_j v_ij ~M_j)``, i.e.
-  ``-L p' = C`` with L the cotangent Laplacian. The handle constraints ``p'_b = bc`` are substituted
-  (rows and columns of b removed, their columns moved to the right-hand side); ``-L_ff`` is positive
-  definite and factored once (CHOLMOD) in ``arap_precompute``. (Eq. 13's normal equations are not
-  needed: after substitution the system is square.)
+  eigenvalue gives the energy for free: ``E = sum c (|v'|^2 + |v|^2) - 2 sum_i l_i`` (for spokes and
+  rims ``sum c |v'|^2`` over all cells is 3/2 of ``sum_ij w_ij |v'_ij|^2``: every face is in three cells).
+* global step (eq. 12): ``-L p' = C`` with L the cotangent Laplacian for both energies, where
+  ``C_i = 1/2 sum_j (M_i + M_j) w_ij v_ij`` (spokes) or
+  ``C_i = 1/3 sum_{faces f at i} (M_i + M_j + M_k) sum_{edges e of f at i} c_fe v_e`` (spokes and rims;
+  the rotors of the face's three vertices, e oriented away from i). Both are ``s (M_i u_i + sum_j M_j z_ij)``
+  over the one-ring, with u_i = sum_j w_ij v_ij, so one padded gather serves both. The handle
+  constraints ``p'_b = bc`` are substituted (rows and columns of b removed, their columns moved to the
+  right-hand side); ``-L_ff`` is positive definite and factored once (CHOLMOD) in ``arap_precompute``.
+  (Eq. 13's normal equations are not needed: after substitution the system is square.)
 
-libigl's conventions, matched here (checked against ``igl.arap_solve`` in the tests): an iteration is
-"place the handles, local step on the current positions, global step"; ``max_iter`` counts these
-iterations; the initial guess is the caller's U0 (libigl's default for an empty U0 is zero; ours is
+libigl's conventions, matched here (checked against ``igl.arap_solve`` in the tests, both energies): an
+iteration is "place the handles, local step on the current positions, global step"; ``max_iter`` counts
+these iterations; the initial guess is the caller's U0 (libigl's default for an empty U0 is zero; ours is
 the rest positions with the handles placed). ``igl.arap_solve`` fits rotations with a single-precision
 3x3 SVD: on well-shaped meshes it agrees with us to ~1e-7 of the diagonal, but cells whose covariance
 is nearly singular with a reflection (det S < 0, as on Arm5) amplify its float32 error to ~1e-4. libigl's
 own algorithm with its double-precision rotation fit (``igl.fit_rotations(S, False)``) gives our result
-to ~1e-14 (tested). With obtuse triangles (negative cotangent weights) the spokes energy can be negative;
-the stopping test uses its magnitude.
+to ~1e-14 (tested). The spokes energy can be negative; the stopping test uses its magnitude.
 
 Gradients of the converged positions with respect to ``bc`` are implicit at the fixed point
 ``x* = G(x*, bc)`` (G = one local + global iteration): the adjoint ``(I - dG/dx)^T u = g`` is solved with
@@ -55,33 +68,61 @@ from jaxcga import KINDS, Multivector, apply_to_points
 from jaxcga._support import require
 
 
+ENERGIES = ("spokes_and_rims", "spokes")
+
+
 class ARAPData(eqx.Module):
-    """Precomputed ARAP data (``arap_precompute``): the rest mesh as padded one-rings, the weighted
-    rest spokes and the factored constrained Laplacian."""
+    """Precomputed ARAP data (``arap_precompute``): the rest mesh as padded one-rings, each spoke's rest
+    vectors for the local and the global step (the energy's) and the factored constrained Laplacian."""
 
     V: Float[Array, "n 3"]  # rest positions
     b: Int[Array, " nb"]  # handle vertices
     free: Int[Array, " nf"]  # the other vertices, in order
     ring: Int[Array, "n d"]  # one-ring neighbours, padded with the vertex itself (weight 0)
     w: Float[Array, "n d"]  # cotangent weights w_ij
-    wv: Float[Array, "n d 3"]  # w_ij v_ij, the weighted rest spokes
-    wv_sum: Float[Array, "n 3"]  # sum_j w_ij v_ij
+    wv_sum: Float[Array, "n 3"]  # sum_j w_ij v_ij, v_ij = p_i - p_j
+    y: Float[Array, "n d 3"]  # the local step's vectors y_ij: S_i = sum_j y_ij v'_ij^T
+    z: Float[Array, "n d 3"]  # the global step's vectors z_ij: rhs_i = s (M_i wv_sum_i + sum_j M_j z_ij)
     degree: Float[Array, " n"]  # sum_j w_ij, the diagonal of -L
-    rest_energy: Float[Array, ""]  # sum_ij w_ij |v_ij|^2
+    rest_energy: Float[Array, ""]  # sum over every cell's edges of c |v|^2
     solver: SparseSolver = eqx.field(static=True)  # -L_ff, factored
     n: int = eqx.field(static=True)
+    energy: str = eqx.field(static=True)
+    rhs_scale: float = eqx.field(static=True)  # s: 1/2 (spokes) or 1/3 (spokes and rims)
+    quadratic_scale: float = eqx.field(static=True)  # sum over cells of c |v'|^2 = this x sum_ij w_ij |v'_ij|^2
 
 
-def arap_precompute(V, F, b) -> ARAPData:
-    """Precompute ARAP (spokes energy, cotangent weights) for a mesh with handle vertices ``b``.
+def _padded(rows, columns, values, n):
+    """Entries sorted by row then column as padded (n, k) tables: the columns padded with the row index,
+    each value array with zeros."""
+    counts = np.bincount(rows, minlength=n)
+    slot = np.arange(len(rows)) - np.repeat(np.cumsum(counts) - counts, counts)
+    k = max(int(counts.max()), 1)
+    table = np.repeat(np.arange(n)[:, None], k, axis=1)
+    table[rows, slot] = columns
+    padded = []
+    for v in values:
+        out = np.zeros((n, k) + v.shape[1:])
+        out[rows, slot] = v
+        padded.append(out)
+    return table, padded
+
+
+def arap_precompute(V, F, b, energy: str = "spokes_and_rims") -> ARAPData:
+    """Precompute ARAP (cotangent weights) for a mesh with handle vertices ``b``.
 
     Args:
         V: (n, 3) rest positions.
         F: (m, 3) int triangles.
         b: (nb,) distinct int handle vertex indices, nb >= 1 (with no handle the energy has no unique
             minimizer). Every connected component needs a handle, or the system is singular.
+        energy: ``"spokes_and_rims"`` (default; libigl's default for triangle meshes in 3D: never negative,
+            so moving every handle by one rigid motion gives that rigid map) or ``"spokes"`` (the paper's
+            eq. 9; with obtuse triangles it can go negative and drift away from rigid maps, as on Arm5).
     Returns:
         ``ARAPData``, the argument of ``arap_solve``."""
+    if energy not in ENERGIES:
+        raise ValueError(f"energy: expected one of {ENERGIES}, got {energy!r}")
     V, F = _check_mesh(V, F)
     n = len(V)
     b = np.asarray(b)
@@ -101,22 +142,37 @@ def arap_precompute(V, F, b) -> ARAPData:
     except ValueError as error:
         raise ValueError(f"F, b: the constrained Laplacian is singular (a component without a handle?): {error}") \
             from None
-    # one-rings as a padded (n, d) table: dense gathers instead of scatters in the hot loop
-    W = (L - sp.diags(L.diagonal())).tocsr()
-    W.sort_indices()
-    counts = np.diff(W.indptr)
-    rows = np.repeat(np.arange(n), counts)
-    slot = np.arange(W.nnz) - W.indptr[rows]
-    d = max(int(counts.max()), 1)
-    ring = np.repeat(np.arange(n)[:, None], d, axis=1)
-    w = np.zeros((n, d))
-    ring[rows, slot] = W.indices
-    w[rows, slot] = W.data
+    # corner k of every face: its vertex i, the other two (j1, j2) and the weights of the edges i-j1
+    # (opposite j2) and i-j2 (opposite j1); the rim j1-j2 is opposite i
+    C = igl.cotmatrix_entries(V, F)  # (m, 3): column k is the edge opposite corner k
+    corners = [(F[:, k], F[:, (k + 1) % 3], F[:, (k + 2) % 3], C[:, (k + 2) % 3], C[:, (k + 1) % 3], C[:, k])
+               for k in range(3)]
+    i, j1, j2, c1, c2, c_rim = (np.concatenate(x) for x in zip(*corners))
+    # global step: the face's share at i, its two edges at i, is turned by all three rotors of the face
+    u = c1[:, None] * (V[i] - V[j1]) + c2[:, None] * (V[i] - V[j2])
+    # local step: a rim is a difference of spokes, p'_j1 - p'_j2 = v'_ij2 - v'_ij1, so the cell's covariance
+    # stays a sum over its spokes: the rim's c (p_j1 - p_j2) joins y_ij2 and leaves y_ij1
+    rim = c_rim[:, None] * (V[j1] - V[j2])
+    # one-rings from the faces' edges (not from L's nonzeros: an edge of weight 0 still has rims)
+    keys, inverse = np.unique(np.concatenate([i * n + j1, i * n + j2]), return_inverse=True)
+
+    def per_edge(values):
+        return np.stack([np.bincount(inverse, values[:, k], len(keys)) for k in range(values.shape[1])], 1)
+
+    w_edge = np.bincount(inverse, np.concatenate([c1, c2]), len(keys))
+    z_edge, rim_edge = per_edge(np.concatenate([u, u])), per_edge(np.concatenate([-rim, rim]))
+    ring, (w, z, rim) = _padded(keys // n, keys % n, [w_edge, z_edge, rim_edge], n)
     wv = w[..., None] * (V[:, None, :] - V[ring])
+    if energy == "spokes":
+        y, z, rhs_scale, quadratic_scale = wv, wv, 0.5, 1.0
+    else:
+        # every face's edges are in three cells; sum_ij w_ij |v'_ij|^2 counts every edge twice
+        y, rhs_scale, quadratic_scale = wv + rim, 1.0 / 3.0, 1.5
     return ARAPData(
         V=jnp.asarray(V), b=jnp.asarray(b), free=jnp.asarray(free), ring=jnp.asarray(ring), w=jnp.asarray(w),
-        wv=jnp.asarray(wv), wv_sum=jnp.asarray(wv.sum(1)), degree=jnp.asarray(w.sum(1)),
-        rest_energy=jnp.asarray(np.einsum("ndk,ndk->", wv, V[:, None, :] - V[ring])), solver=solver, n=n,
+        wv_sum=jnp.asarray(wv.sum(1)), y=jnp.asarray(y), z=jnp.asarray(z), degree=jnp.asarray(w.sum(1)),
+        rest_energy=jnp.asarray(quadratic_scale * np.einsum("ndk,ndk->", wv, V[:, None, :] - V[ring])),
+        solver=solver, n=n, energy=energy, rhs_scale=rhs_scale, quadratic_scale=quadratic_scale,
     )
 
 
@@ -177,17 +233,16 @@ def horn_rotors(S: Float[Array, "n 3 3"], newton_steps: int = 24):
 def _local(data: ARAPData, x):
     """Local step: rotors of all cells and the energy E(x) = min over rotors."""
     spokes = x[:, None, :] - x[data.ring]
-    S = jnp.einsum("ndk,ndl->nkl", data.wv, spokes)
-    rotors, lam = horn_rotors(S)
-    energy = jnp.einsum("nd,ndk,ndk->", data.w, spokes, spokes) + data.rest_energy - 2.0 * jnp.sum(lam)
-    return rotors, energy
+    rotors, lam = horn_rotors(jnp.einsum("ndk,ndl->nkl", data.y, spokes))
+    quadratic = data.quadratic_scale * jnp.einsum("nd,ndk,ndk->", data.w, spokes, spokes)
+    return rotors, quadratic + data.rest_energy - 2.0 * jnp.sum(lam)
 
 
 def _global(data: ARAPData, rotors: Multivector, bc):
     """Global step (eq. 12) with the handles substituted."""
     own = apply_to_points(rotors, data.wv_sum, fused=True)
     neighbours = Multivector(rotors.values[data.ring], rotors.blades)
-    rhs = 0.5 * (own + jnp.sum(apply_to_points(neighbours, data.wv, fused=True), axis=1))
+    rhs = data.rhs_scale * (own + jnp.sum(apply_to_points(neighbours, data.z, fused=True), axis=1))
     y = jnp.zeros((data.n, 3), bc.dtype).at[data.b].set(bc)
     Ly = data.degree[:, None] * y - jnp.einsum("nd,ndk->nk", data.w, y[data.ring])  # -L y
     x_free = data.solver((rhs - Ly)[data.free])

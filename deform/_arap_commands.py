@@ -51,9 +51,10 @@ def default_handles(V, bend: float, twist: float, translate, fraction: float):
 
 def arap_command(V, F, out: Path, *, handles: Path | None = None, iterations: int = 10, tolerance: float = 1e-8,
                  bend: float = 60.0, twist: float = 0.0, translate=(0.0, 0.0, 0.0),
-                 handle_fraction: float = 0.05) -> dict:
+                 handle_fraction: float = 0.05, energy: str = "spokes_and_rims") -> dict:
     """Deform (V, F) as rigidly as possible with the handles of ``handles`` (or the default two ends),
-    write ``out`` (.npy float64 (n, 3), a mesh, or a .png figure); returns a summary."""
+    write ``out`` (.npy float64 (n, 3), a mesh, or a .png figure); returns a summary. ``energy``:
+    ``arap_precompute``'s ("spokes_and_rims" or "spokes")."""
     out = check_output(out, DEFORM_OUTPUTS)
     if not isinstance(iterations, int) or iterations < 1:
         raise ValueError(f"iters: expected an int >= 1, got {iterations!r}")
@@ -62,7 +63,7 @@ def arap_command(V, F, out: Path, *, handles: Path | None = None, iterations: in
     else:
         b, bc = read_handles(handles, len(V))
     start = time.perf_counter()
-    data = arap_precompute(V, F, b)
+    data = arap_precompute(V, F, b, energy=energy)
     precompute_ms = 1e3 * (time.perf_counter() - start)
     start = time.perf_counter()
     result = jax.block_until_ready(arap_solve(data, jnp.asarray(bc), max_iterations=iterations, tolerance=tolerance))
@@ -73,6 +74,7 @@ def arap_command(V, F, out: Path, *, handles: Path | None = None, iterations: in
     return {
         "vertices": len(V),
         "handles": len(b),
+        "energy_type": energy,
         "iterations": int(result.iterations),
         "energy": f"{energies[0]:.4g} -> {energies[-1]:.4g}",
         "precompute_ms": round(precompute_ms, 1),

@@ -207,7 +207,7 @@ def _run_arap(args) -> int:
     V, F = _deform_commands.load_mesh(args.mesh)
     summary = _arap_commands.arap_command(
         V, F, args.out, handles=args.handles, iterations=args.iters, tolerance=args.tolerance, bend=args.bend,
-        twist=args.twist, translate=args.translate, handle_fraction=args.handle_fraction)
+        twist=args.twist, translate=args.translate, handle_fraction=args.handle_fraction, energy=args.energy)
     print(f"jaxcga arap {args.mesh or 'built-in arm'}: " + ", ".join(f"{k} {v}" for k, v in summary.items()))
     return 0
 
@@ -498,6 +498,10 @@ def main(argv: list[str] | None = None) -> int:
     p_arap.add_argument("--tolerance", type=float, default=1e-8,
                         help="stop when the energy decreases by less than this fraction in one iteration "
                              "(default 1e-8; negative: run every iteration)")
+    p_arap.add_argument("--energy", choices=("spokes_and_rims", "spokes"), default="spokes_and_rims",
+                        help="spokes_and_rims (default, libigl's default: a rigid motion of all handles gives that "
+                             "rigid map) or spokes (the paper's eq. 9: with obtuse triangles it can drift from "
+                             "rigid maps)")
     p_arap.add_argument("--bend", type=float, default=60.0, help="default handles: degrees of bend (default 60)")
     p_arap.add_argument("--twist", type=float, default=0.0, help="default handles: degrees of twist (default 0)")
     p_arap.add_argument("--translate", type=float, nargs=3, default=(0.0, 0.0, 0.0), metavar=("X", "Y", "Z"),

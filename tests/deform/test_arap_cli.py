@@ -25,7 +25,9 @@ def tube(tmp_path_factory):
     return path, np.asarray(loaded.vertices), np.asarray(loaded.faces, np.int64)
 
 
-def test_handles_file_gives_arap_solves_result(tube, tmp_path, capsys):
+@pytest.mark.parametrize("energy", [None, "spokes"])
+def test_handles_file_gives_arap_solves_result(tube, tmp_path, capsys, energy):
+    """The default energy is spokes and rims; --energy spokes gives the paper's."""
     path, V, F = tube
     low, high = np.flatnonzero(V[:, 2] < -0.95), np.flatnonzero(V[:, 2] > 0.95)
     indices = np.concatenate([low, high])
@@ -34,12 +36,14 @@ def test_handles_file_gives_arap_solves_result(tube, tmp_path, capsys):
     handles = tmp_path / "handles.json"
     handles.write_text(json.dumps({"indices": indices.tolist(), "positions": positions.tolist()}))
     out = tmp_path / "arap.npy"
-    assert main(["arap", str(path), "--handles", str(handles), "--iters", "7", "--out", str(out)]) == 0
-    assert "jaxcga arap" in capsys.readouterr().out
+    option = [] if energy is None else ["--energy", energy]
+    assert main(["arap", str(path), "--handles", str(handles), "--iters", "7", "--out", str(out), *option]) == 0
+    assert f"energy_type {energy or 'spokes_and_rims'}" in capsys.readouterr().out
     X = np.load(out)
     assert X.dtype == np.float64 and X.shape == V.shape
     np.testing.assert_allclose(X[indices], positions, atol=1e-12)
-    expected = arap_solve(arap_precompute(V, F, indices), jnp.asarray(positions), max_iterations=7).U
+    data = arap_precompute(V, F, indices, energy=energy or "spokes_and_rims")
+    expected = arap_solve(data, jnp.asarray(positions), max_iterations=7).U
     np.testing.assert_allclose(X, expected, atol=1e-10)
 
 
@@ -79,7 +83,8 @@ def test_bad_handles_exit_with_a_message(tube, tmp_path, capsys, content, messag
 def test_bad_output_and_iterations(tube, tmp_path, capsys):
     path, _, _ = tube
     for args, message in ((["--out", str(tmp_path / "x.txt")], "out: expected"),
-                          (["--iters", "0", "--out", str(tmp_path / "x.npy")], "iters")):
+                          (["--iters", "0", "--out", str(tmp_path / "x.npy")], "iters"),
+                          (["--energy", "rims", "--out", str(tmp_path / "x.npy")], "--energy")):
         with pytest.raises(SystemExit):
             main(["arap", str(path), *args])
         assert message in capsys.readouterr().err
