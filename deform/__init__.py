@@ -63,6 +63,7 @@ from deform._motor_field import (
                          motor_logs,
 )
 from deform._pose import (
+                         INTERPOLATIONS,
                          METHODS,
                          rest_pose,
                          sample_pose,
@@ -111,6 +112,7 @@ from deform._spline_fit import SplineFit, spline_fit_precompute
 __all__ = [
     "BASES",
     "LAPLACIANS",
+    "INTERPOLATIONS",
     "METHODS",
     "PARAMETERS_PER_BONE",
     "SOLVERS",

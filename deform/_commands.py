@@ -28,15 +28,18 @@ def load_or_default(path: str | Path | None, weld: bool = False) -> RiggedModel:
     return load_model(path, weld=weld)
 
 
-def skin_command(model: RiggedModel, time: float, method: str, clip: int | str, out: Path) -> dict:
+def skin_command(model: RiggedModel, time: float, method: str, clip: int | str, out: Path,
+                 interpolation: str = "gltf") -> dict:
     """Skinned positions of every skinned primitive (file order) at ``time``, in glTF world space,
-    written to ``out`` (.npy: float64 (n, 3); .glb etc.: the posed mesh)."""
+    written to ``out`` (.npy: float64 (n, 3); .glb etc.: the posed mesh); keys interpolated by
+    ``interpolation`` (``deform.skin_model``)."""
     out = check_output(out, POSITION_OUTPUTS)
-    positions = jax.jit(lambda t: _pose.skin_model(model, t, method, clip))(time)
+    positions = jax.jit(lambda t: _pose.skin_model(model, t, method, clip, interpolation))(time)
     if not bool(jnp.all(jnp.isfinite(positions))):
         raise ValueError("skinning produced non-finite positions")
     write_positions(out, positions, model.mesh.F)
-    return {"vertices": int(positions.shape[0]), "method": method, "time": time, "out": str(out)}
+    return {"vertices": int(positions.shape[0]), "method": method, "interpolation": interpolation, "time": time,
+            "out": str(out)}
 
 
 def generated_keyframes(model: RiggedModel, duration: float = 2.0) -> _rig.Keyframes:
@@ -55,10 +58,12 @@ def generated_keyframes(model: RiggedModel, duration: float = 2.0) -> _rig.Keyfr
     return _rig.Keyframes(jnp.asarray([0.0, duration / 2, duration], dtype), poses)
 
 
-def animate_command(model: RiggedModel, frames: int, out: Path, clip: int | str = 0) -> dict:
-    """Write an animated glTF: the model's clip re-sampled at ``frames`` times through the multivector
-    path (logarithmic blending of key versors), or generated keyframes (linear blending) when the
-    model has no clip."""
+def animate_command(model: RiggedModel, frames: int, out: Path, clip: int | str = 0,
+                    interpolation: str = "gltf") -> dict:
+    """Write an animated glTF: the model's clip re-sampled at ``frames`` times as similitudes, its keys
+    interpolated by ``interpolation`` (``"gltf"``: the specification's; ``"log"``: logarithmic
+    blending of key versors, sec. 4.1), or generated keyframes (linear blending) when the model has
+    no clip."""
     if frames < 2:
         raise ValueError(f"frames: expected at least 2, got {frames}")
     out = check_output(out, GLTF_OUTPUTS)
@@ -66,7 +71,7 @@ def animate_command(model: RiggedModel, frames: int, out: Path, clip: int | str 
     if model.clips:
         source = model.clip(clip)
         times = jnp.linspace(source.start, source.end, frames, dtype=model.mesh.V.dtype)
-        local = jax.jit(jax.vmap(lambda t: _rig.sample_versors(model.skeleton, source, t)))(times)
+        local = jax.jit(jax.vmap(lambda t: _pose.sample_pose(model, t, "cga", clip, interpolation)))(times)
         name = f"{source.name}_cga"
     else:
         keys = generated_keyframes(model)

@@ -10,8 +10,18 @@ or similitudes) or as matrices (..., b, 4, 4). Methods:
   point down-projected before the sum as in the paper's implementation (sec. 4.3; ``skin_cga``);
 * ``"cga_motor_blend"``: multivector skinning with the versors blended first (like DQS).
 
-``skin_model(model, t)`` samples clip ``clip`` at time t: by the glTF specification (TRS lerp /
-slerp) for the matrix methods, by logarithmic blending of versors for the multivector methods.
+``skin_model(model, t)`` samples clip ``clip`` at time t; how keys are interpolated is its own choice,
+orthogonal to the method (``interpolation``):
+
+* ``"gltf"`` (the default, for every method): the glTF specification's interpolation (translation and
+  scale lerped, rotation slerped, STEP, CUBICSPLINE; ``_rig.sample_trs``), the file's animation as
+  three.js and Blender play it. The multivector methods turn the sampled TRS into similitudes
+  (``_rig.trs_to_versor``: a non-uniform scale has no versor and raises);
+* ``"log"``: the paper's sampling (sec. 4.1 with sec. 2.5): each channel's keys become versors blended
+  logarithmically (``_rig.sample_versors``). It equals the specification for translations and
+  rotations and differs for scale keys (geometric instead of linear between keys). The matrix methods
+  take the log-blended similitudes as matrices (``jaxcga.versor_to_matrix``), so a non-uniform scale
+  raises there too.
 
 The model-level functions are compiled on first use (``eqx.filter_jit``: arrays traced, the method
 name and the model's static fields part of the cache key); inside an outer jit they are inlined.
@@ -32,11 +42,17 @@ from jaxcga._multivector import Multivector
 from jaxcga._support import plain_errors
 
 METHODS = ("lbs", "dqs", "cga", "cga_motor_blend")
+INTERPOLATIONS = ("gltf", "log")
 
 
 def _check_method(method: str):
     if method not in METHODS:
         raise ValueError(f"method: expected one of {METHODS}, got {method!r}")
+
+
+def _check_interpolation(interpolation: str):
+    if interpolation not in INTERPOLATIONS:
+        raise ValueError(f"interpolation: expected one of {INTERPOLATIONS}, got {interpolation!r}")
 
 
 @plain_errors
@@ -77,33 +93,55 @@ def rest_pose(model: RiggedModel, method: str = "cga"):
 
 
 @plain_errors
-def sample_pose(model: RiggedModel, t, method: str = "cga", clip: int | str = 0):
+def sample_pose(model: RiggedModel, t, method: str = "cga", clip: int | str = 0, interpolation: str = "gltf"):
     """Local bone transforms of clip ``clip`` at time t: versors (b,) for the multivector methods,
-    matrices (b, 4, 4) for the matrix methods."""
+    matrices (b, 4, 4) for the matrix methods.
+
+    Args:
+        model: the RiggedModel.
+        t: time in seconds (clamped to the clip's key range).
+        method: one of ``METHODS``: picks the form of the result.
+        clip: clip name or index.
+        interpolation: ``"gltf"`` (the specification's, default) or ``"log"`` (the paper's
+            logarithmic blending of key versors); module docstring."""
     _check_method(method)
+    _check_interpolation(interpolation)
     # The time goes in as an array: filter_jit would treat a Python float as static and recompile.
-    return _sample_pose(model, jnp.asarray(t), method, model.clip(clip))
+    return _sample_pose(model, jnp.asarray(t), method, model.clip(clip), interpolation)
 
 
 @eqx.filter_jit
-def _sample_pose(model: RiggedModel, t, method: str, animation):
+def _sample_pose(model: RiggedModel, t, method: str, animation, interpolation: str):
+    if interpolation == "log":
+        local = _rig.sample_versors(model.skeleton, animation, t)
+        return local if method in ("cga", "cga_motor_blend") else cga.versor_to_matrix(local)
     if method in ("cga", "cga_motor_blend"):
-        return _rig.sample_versors(model.skeleton, animation, t)
+        return _rig.trs_to_versor(*_rig.sample_trs(model.skeleton, animation, t))
     return _rig.sample_matrices(model.skeleton, animation, t)
 
 
 @plain_errors
-def skin_model(model: RiggedModel, t, method: str = "cga", clip: int | str = 0):
+def skin_model(model: RiggedModel, t, method: str = "cga", clip: int | str = 0, interpolation: str = "gltf"):
     """Skinned positions (n, 3) of the model at time t of a clip (rest pose when it has no clip).
-    vmap over t for many frames."""
+    vmap over t for many frames.
+
+    Args:
+        model: the RiggedModel.
+        t: time in seconds (clamped to the clip's key range).
+        method: one of ``METHODS``.
+        clip: clip name or index.
+        interpolation: ``"gltf"`` (the specification's, default) or ``"log"`` (the paper's); module
+            docstring."""
+    _check_method(method)
+    _check_interpolation(interpolation)
     if not model.clips:
         return rest_pose(model, method)
-    return _skin_model(model, jnp.asarray(t), method, model.clip(clip))
+    return _skin_model(model, jnp.asarray(t), method, model.clip(clip), interpolation)
 
 
 @eqx.filter_jit
-def _skin_model(model: RiggedModel, t, method: str, animation):
-    return skin_pose(model, _sample_pose(model, t, method, animation), method)
+def _skin_model(model: RiggedModel, t, method: str, animation, interpolation: str):
+    return skin_pose(model, _sample_pose(model, t, method, animation, interpolation), method)
 
 
 def sharded_vmap(fn, batch, devices=None):

@@ -10,7 +10,8 @@ Sampling a clip:
 * ``sample_trs`` follows the glTF 2.0 specification (Appendix "Interpolation"): translation and
   scale lerped, rotation slerped along the shortest arc, STEP holds the key, CUBICSPLINE is the
   Hermite spline with tangents scaled by the key interval (rotation normalized afterwards);
-* ``sample_versors`` is the paper's multivector path: each channel's keys become versors
+* ``sample_versors`` is the paper's sampling (``interpolation="log"`` of ``deform.skin_model``; the
+  default ``"gltf"`` is ``sample_trs`` for every method): each channel's keys become versors
   (translators, rotors, dilators) blended logarithmically, ``m1 exp(a log(m1^-1 m2))`` (sec. 2.5).
   For translators this is the lerp and for rotors (sign-aligned) the slerp of the specification,
   exactly; for dilators it interpolates the scale geometrically, ``s1^(1-a) s2^a``, where the

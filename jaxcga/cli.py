@@ -270,9 +270,9 @@ def _run_deform(args) -> int:
         summary = _cutting_commands.cut_command(model, args.plane, *args.out, cap=args.cap,
                                                 predicates=args.predicates, side_weight=args.side_weight)
     elif args.command == "skin":
-        summary = _commands.skin_command(model, args.time, args.method, args.clip, args.out)
+        summary = _commands.skin_command(model, args.time, args.method, args.clip, args.out, args.interpolation)
     elif args.command == "animate":
-        summary = _commands.animate_command(model, args.frames, args.out, args.clip)
+        summary = _commands.animate_command(model, args.frames, args.out, args.clip, args.interpolation)
     else:
         summary = _commands.fit_command(model, args.target, args.out, args.method, args.vertices,
                                         args.regularization, args.max_steps, not args.no_scale)
@@ -372,6 +372,13 @@ def _one_line_reports(command: str):
         logger.disabled = disabled
 
 
+def _interpolation_argument(parser):
+    parser.add_argument("--interpolation", choices=("gltf", "log"), default="gltf",
+                        help="key interpolation: gltf, the file's (the glTF specification's lerp / slerp / "
+                             "step / cubic spline; default), or log, the paper's logarithmic blending of "
+                             "key versors (sec. 4.1)")
+
+
 def _clip(value: str):
     return int(value) if value.lstrip("-").isdigit() else value
 
@@ -390,6 +397,7 @@ def main(argv: list[str] | None = None) -> int:
     p_skin.add_argument("--time", type=float, default=0.0, help="clip time in seconds (default 0)")
     p_skin.add_argument("--method", choices=methods, default="cga", help="skinning method (default cga, eq. 17)")
     p_skin.add_argument("--clip", type=_clip, default=0, help="clip name or index (default 0)")
+    _interpolation_argument(p_skin)
     p_skin.add_argument("--out", type=Path, required=True,
                         help="OUT.npy: float64 (n, 3) world-space positions; OUT.glb: the posed mesh")
 
@@ -397,6 +405,7 @@ def main(argv: list[str] | None = None) -> int:
     _model_argument(p_anim)
     p_anim.add_argument("--frames", type=int, default=60, help="frames to sample (default 60)")
     p_anim.add_argument("--clip", type=_clip, default=0, help="clip name or index (default 0)")
+    _interpolation_argument(p_anim)
     p_anim.add_argument("--out", type=Path, required=True, help="OUT.glb or OUT.gltf")
 
     p_fit = sub.add_parser("fit", help="fit bone motors (and dilations) to target vertex positions")

@@ -83,17 +83,21 @@ class Reference:
             overrides[(ch.target.node, ch.target.path)] = v
         return overrides
 
-    def skin(self, animation=None, t=0.0):
-        """World-space skinned positions of every skinned primitive, concatenated in node order."""
+    def joint_matrices(self, animation=None, t=0.0, skin=0):
+        """World-space joint matrices ``global(joint) @ inverseBindMatrix`` (j, 4, 4) of one skin."""
         overrides = self.sample(animation, t) if animation is not None else None
         g = self.globals(overrides)
+        skin = self.gltf.skins[skin]
+        ibm = self.accessor(skin.inverseBindMatrices).reshape(-1, 4, 4).transpose(0, 2, 1)
+        return np.stack([g[j] @ ibm[k] for k, j in enumerate(skin.joints)])
+
+    def skin(self, animation=None, t=0.0):
+        """World-space skinned positions of every skinned primitive, concatenated in node order."""
         out = []
         for node in self.gltf.nodes:
             if node.mesh is None or node.skin is None:
                 continue
-            skin = self.gltf.skins[node.skin]
-            ibm = self.accessor(skin.inverseBindMatrices).reshape(-1, 4, 4).transpose(0, 2, 1)
-            joint = np.stack([g[j] @ ibm[k] for k, j in enumerate(skin.joints)])
+            joint = self.joint_matrices(animation, t, node.skin)
             for prim in self.gltf.meshes[node.mesh].primitives:
                 v = self.accessor(prim.attributes.POSITION)
                 j = self.accessor(prim.attributes.JOINTS_0).astype(int)

@@ -46,3 +46,21 @@ def random_pose(seed, b, scale_range=None):
     q = unit_quaternions(rng, b)
     return cga.similitude(cga.quaternion_to_rotor(jnp.asarray(q)), jnp.asarray(rng.normal(size=(b, 3))),
                           jnp.asarray(scale))
+
+
+def scaled_keys_model(path, seed=7):
+    """A random rig whose clip keys translation, rotation and a uniform scale (0.5 .. 2.5) on every bone
+    (LINEAR, irregular key times), written to ``path`` (.glb) and read back: the model and the file
+    then hold the same float32 data for an independent reader."""
+    rng = np.random.default_rng(seed)
+    model = random_model(seed, n=60, rest_scale=(0.8, 1.25))
+    times = jnp.asarray([0.0, 0.4, 1.1, 1.5])
+    channels = []
+    for bone in range(model.skeleton.num_bones):
+        scale = np.repeat(rng.uniform(0.5, 2.5, (4, 1)), 3, axis=1)
+        channels += [deform.Channel(times, jnp.asarray(rng.normal(size=(4, 3))), bone, "translation", "LINEAR"),
+                     deform.Channel(times, jnp.asarray(unit_quaternions(rng, 4)), bone, "rotation", "LINEAR"),
+                     deform.Channel(times, jnp.asarray(scale), bone, "scale", "LINEAR")]
+    clip = deform.AnimationClip(tuple(channels), "scaled")
+    deform.save_model(deform.RiggedModel(model.mesh, model.skeleton, (clip,), "scaled_keys"), path)
+    return deform.load_model(path)

@@ -14,6 +14,7 @@ import trimesh
 import deform
 from jaxcga.cli import main
 from tests.deform._gltf_reference import Reference
+from tests.deform._rigs import scaled_keys_model
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 
@@ -147,3 +148,28 @@ def test_a_corrupt_buffer_is_blamed_on_its_accessor(tmp_path, capsys):
     (tmp_path / "corrupt.glb").write_bytes(bytes(raw))
     err = _error(["skin", str(tmp_path / "corrupt.glb"), "--out", str(tmp_path / "x.npy")], capsys)
     assert "POSITION (accessor" in err and "non-finite" in err
+
+
+def test_skin_and_animate_interpolation(tmp_path):
+    """``--interpolation gltf`` (default) follows the file's animation for every method; ``log`` is the
+    paper's sampling, which departs from it between scale keys."""
+    model = scaled_keys_model(tmp_path / "scaled.glb")
+    reference = Reference(tmp_path / "scaled.glb")
+    expected = reference.skin(0, 0.75)
+    diagonal = float(np.linalg.norm(np.ptp(expected, axis=0)))
+    for interpolation in ("gltf", "log"):
+        out = tmp_path / f"{interpolation}.npy"
+        assert main(["skin", str(tmp_path / "scaled.glb"), "--time", "0.75", "--method", "cga",
+                     "--interpolation", interpolation, "--out", str(out)]) == 0
+        gap = np.abs(np.load(out) - expected).max() / diagonal
+        assert gap < 1e-6 if interpolation == "gltf" else gap > 1e-2, (interpolation, gap)
+    np.testing.assert_allclose(np.load(tmp_path / "log.npy"),
+                               deform.skin_model(model, 0.75, "cga", interpolation="log"), atol=1e-12)
+    # animate re-samples at 0, 0.5, 1.0, 1.5 s: its keys hold the chosen sampling there
+    for interpolation in ("gltf", "log"):
+        out = tmp_path / f"{interpolation}.glb"
+        assert main(["animate", str(tmp_path / "scaled.glb"), "--frames", "4", "--interpolation", interpolation,
+                     "--out", str(out)]) == 0
+        animated = deform.load_model(out)
+        wanted = deform.skin_model(model, 0.5, "lbs", interpolation=interpolation)
+        np.testing.assert_allclose(deform.skin_model(animated, 0.5, "lbs"), wanted, atol=1e-5 * diagonal)

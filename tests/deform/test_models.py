@@ -19,6 +19,7 @@ import pytest
 import deform
 import jaxcga as cga
 from tests.deform._gltf_reference import Reference
+from tests.deform._rigs import scaled_keys_model
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 
@@ -33,21 +34,78 @@ def _diagonal(x):
     return float(np.linalg.norm(x.max(axis=0) - x.min(axis=0)))
 
 
-@pytest.mark.parametrize("name", ["RiggedSimple", "CesiumMan"])
-def test_skinning_follows_the_specification(models, name):
-    model = models[name]
-    reference = Reference(DATA / f"{name}.glb")
+@pytest.fixture(scope="module")
+def scaled_keys(tmp_path_factory):
+    path = tmp_path_factory.mktemp("scaled") / "scaled_keys.glb"
+    return scaled_keys_model(path), path
+
+
+def _spec_times(clip):
+    """Times on and between keys: four keys spread over the clip, the midpoints after them, and a
+    time 30% into the clip."""
+    keys = np.unique(np.concatenate([np.asarray(c.times) for c in clip.channels]))
+    picked = np.linspace(0, len(keys) - 2, 4).astype(int)
+    between = (keys[picked] + keys[picked + 1]) / 2
+    return [*keys[picked], *between, keys[0] + 0.3 * (keys[-1] - keys[0])]
+
+
+# The reference's joint matrices (the specification's sampling and kinematics) blended by each method's
+# own formula: what that method gives when it follows the file's animation.
+_BLEND_OF_MATRICES = {
+    "dqs": jax.jit(lambda V, J, W, m: deform.skin_dqs(V, J, W, deform.matrices_to_dual_quaternions(m))),
+    "cga": jax.jit(lambda V, J, W, m: deform.skin_cga(V, J, W, cga.matrix_to_similitude(m))),
+    "cga_motor_blend": jax.jit(lambda V, J, W, m: deform.skin_cga_motor_blend(V, J, W, cga.matrix_to_similitude(m))),
+}
+
+
+# CesiumMan's DQS and motor-blend cases take ~30 s each on 2 cores: in the slow job
+_SPEC_CASES = [(name, method) for name in ("RiggedSimple", "scaled_keys") for method in deform.METHODS
+               if (name, method) != ("scaled_keys", "dqs")]
+_SPEC_CASES += [("CesiumMan", "lbs"), ("CesiumMan", "cga")]
+_SPEC_CASES += [pytest.param("CesiumMan", method, marks=pytest.mark.slow) for method in ("dqs", "cga_motor_blend")]
+
+
+@pytest.mark.parametrize(("name", "method"), _SPEC_CASES)
+def test_skinning_follows_the_specification(models, scaled_keys, name, method):
+    """Every method, with the default interpolation, samples the clip as the glTF specification (as
+    three.js does): on and between keys it equals the independent reference's joint matrices blended
+    by the method's own formula (LBS: the reference's skinning itself)."""
+    if name == "scaled_keys":  # no DQS: it has no dilation (the paper's sec. 3)
+        model, path = scaled_keys
+    else:
+        model, path = models[name], DATA / f"{name}.glb"
+    reference = Reference(path)
+    mesh = model.mesh
+    skin = jax.jit(lambda t: deform.skin_model(model, t, method))
+    for t in _spec_times(model.clips[0]):
+        lbs = reference.skin(0, t)
+        expected = lbs if method == "lbs" else _BLEND_OF_MATRICES[method](mesh.V, mesh.J, mesh.W,
+                                                                       jnp.asarray(reference.joint_matrices(0, t)))
+        # the file's float32 inverse bind matrices are similitudes to ~1e-7 only: the multivector
+        # methods take their nearest similitudes, before or after the product with the bone
+        tol = (1e-7 if method in ("lbs", "dqs") else 1e-6) * _diagonal(lbs)
+        np.testing.assert_allclose(skin(jnp.asarray(t, jnp.float64)), expected, atol=tol, err_msg=f"t = {t}")
+
+
+def test_log_interpolation_is_the_papers_sampling(scaled_keys):
+    """``interpolation="log"`` blends the key versors logarithmically (sec. 4.1) for every method: equal
+    to the specification on keys, geometric scale between them (15% of the diagonal here)."""
+    model, path = scaled_keys
+    reference = Reference(path)
     clip = model.clips[0]
-    for t in [clip.start, 0.37, 1.0, 1.61, clip.end, clip.end + 1.0]:
+    log = jax.jit(lambda t, method: deform.skin_model(model, t, method, interpolation="log"), static_argnums=1)
+    for t in (0.4, 0.75):
         expected = reference.skin(0, t)
-        tol = 1e-6 * _diagonal(expected)
-        # A float64 array time: the same compiled skin_model as the single frames of the batch tests.
-        time = jnp.asarray(t, jnp.float64)
-        # matrix LBS: the specification's slerp switches to a normalized lerp within 0.9995 of
-        # equal keys, a ~1e-7 relative difference from scipy's exact slerp.
-        np.testing.assert_allclose(deform.skin_model(model, time, "lbs"), expected, atol=tol)
-        # eq. (17) with log-blended keys; the float32 inverse-bind matrices become exact similitudes.
-        np.testing.assert_allclose(deform.skin_model(model, time, "cga"), expected, atol=2 * tol)
+        local = deform.sample_versors(model.skeleton, clip, t)
+        np.testing.assert_allclose(log(t, "cga"), deform.skin_pose(model, local, "cga"), atol=1e-12)
+        np.testing.assert_allclose(log(t, "lbs"), deform.skin_pose(model, cga.versor_to_matrix(local), "lbs"),
+                                   atol=1e-12)
+        gap = np.abs(np.asarray(log(t, "lbs")) - expected).max() / _diagonal(expected)
+        assert gap < 1e-7 if t == 0.4 else gap > 1e-2, (t, gap)
+    with pytest.raises(ValueError, match="interpolation"):
+        deform.skin_model(model, 0.5, "cga", interpolation="slerp")
+    with pytest.raises(ValueError, match="interpolation"):
+        deform.sample_pose(model, 0.5, "lbs", interpolation="LINEAR")
 
 
 @pytest.mark.slow  # ~20-50 s on 2 cores: out of `make test` (its 15-minute budget); `make test-slow` and CI run it

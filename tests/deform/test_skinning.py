@@ -276,3 +276,33 @@ def test_bad_input_is_named():
         deform.skin_dqs(V, J, W, jnp.zeros((3, 7)))
     with pytest.raises(ValueError, match="method"):
         deform.skin_pose(MODEL, deform.local_versors(MODEL.skeleton), "nope")
+
+
+_RIGID_MODEL = random_model(12)
+_SKIN = {method: jax.jit(lambda local, m=method: deform.skin_pose(_RIGID_MODEL, local, m))
+         for method in ("lbs", "cga", "cga_motor_blend")}
+
+
+@pytest.mark.parametrize("d", [1e-4, 1e-2, 1.0, 1e2, 1e4])
+def test_skinning_with_large_and_small_dilations_stays_exact(d):
+    """A root bone dilated by d scales every joint: eq. (17) equals LBS with the same matrices, and the
+    motor blend equals DQS of the joints' rigid parts applied to d x (the dilation about the origin it
+    factors out), to the precision the versors' components carry (~max(d, 1/d) ulps)."""
+    model = _RIGID_MODEL
+    b = model.skeleton.num_bones
+    scales = jnp.where(jnp.arange(b) == 0, d, 1.0)
+    rng = np.random.default_rng(12)
+    q = rng.normal(size=(b, 4))
+    q /= np.linalg.norm(q, axis=1, keepdims=True)
+    t = jnp.asarray(rng.normal(size=(b, 3)))
+    local = cga.similitude(cga.quaternion_to_rotor(jnp.asarray(q)), t, scales)
+    matrices = deform.trs_to_matrix(t, jnp.asarray(q[:, [1, 2, 3, 0]]), jnp.repeat(scales[:, None], 3, axis=1))
+    lbs = np.asarray(_SKIN["lbs"](matrices))
+    size = np.abs(lbs).max()
+    tol = max(1e-13, 16 * np.finfo(np.float64).eps * max(d, 1 / d)) * size
+    np.testing.assert_allclose(_SKIN["cga"](local), lbs, rtol=0, atol=tol)
+    mesh = model.mesh
+    joints = deform.joint_matrices(mesh, deform.forward_kinematics_matrices(model.skeleton.parents, matrices))
+    rigid = joints.at[..., :3, :3].divide(d)
+    dqs = deform.skin_dqs(mesh.V * d, mesh.J, mesh.W, deform.matrices_to_dual_quaternions(rigid))
+    np.testing.assert_allclose(_SKIN["cga_motor_blend"](local), dqs, rtol=0, atol=tol)

@@ -172,17 +172,34 @@ def test_dilator_paper_and_its_inverse(seed, d):
     np.testing.assert_allclose(_a(vinv["eoinf"]), -(d * d - 1) / (4 * d), rtol=1e-10, atol=1e-12)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="known bug in _versors/_codegen: the expanded sandwich of a dilator by d > 1 cancels terms "
-    "of size d to form ones of size 1/d and loses ~d^2 ulps (relative error 2e-11 at d = 1e3, 2e-9 at "
-    "d = 1e4); the representation itself only limits it to ~d ulps",
-)
-@pytest.mark.parametrize("d", [1e3, 1e4])
-def test_large_dilation_keeps_precision(d):
-    x = np.random.default_rng(0).normal(size=(50, 3))
+# Scales of 1e-4 .. 1e4: the point map is evaluated in the factored components of the dilation
+# (jaxcga._versors._point_map), so its entries of size d and 1/d never come out of terms that cancel.
+SCALES = [1e-4, 3e-4, 1e-3, 1e-2, 0.3, 1.0, 7.0, 1e2, 1e3, 4e3, 1e4]
+
+
+def _representation_limit(d):
+    """What the 16 stored components determine: the two halves of a dilation by d are ~sqrt(d)/2 and
+    their difference, 1/sqrt(d), keeps ~max(d, 1/d) ulps."""
+    return 8 * np.finfo(np.float64).eps * max(d, 1 / d)
+
+
+@pytest.mark.parametrize("d", SCALES)
+def test_similitude_keeps_precision_at_any_scale(d):
+    rng = np.random.default_rng(int(np.log10(d) * 100) % 1000)
+    x = rng.normal(size=(50, 3))
+    for _ in range(5):
+        axis, angle = _random_rotation(rng)
+        t = rng.normal(size=3) * 5 * d
+        rotation = Rotation.from_rotvec(angle * axis)
+        S = cga.similitude(cga.rotor(axis, angle), t, d)
+        ref = d * rotation.apply(x) + t
+        error = np.linalg.norm(_apply(S, x) - ref, axis=1) / np.linalg.norm(ref, axis=1)
+        assert error.max() <= max(1e-13, _representation_limit(d)), (d, error.max())
+        H = _a(_to_matrix(S))
+        np.testing.assert_allclose(H[:3, :3], d * rotation.as_matrix(), rtol=0,
+                                   atol=max(1e-13, _representation_limit(d)) * d)
     for D in (cga.dilator(d), cga.dilator_paper(d)):
-        np.testing.assert_allclose(_apply(D, x), d * x, rtol=1e-12 * d / 1e2)
+        np.testing.assert_allclose(_apply(D, x), d * x, rtol=max(1e-13, _representation_limit(d)))
 
 
 # ---------------------------------------------------------------- motors and similitudes
