@@ -6,7 +6,9 @@ Each bone's local versor is its rest versor times a change in its own frame,
 e12, e13, e23 rotation, e1inf, e2inf, e3inf translation) and sigma_i a log-scale. Parameters are zero
 at the rest pose, so the regularizer ``lambda |params|^2`` pulls toward it. The residual
 ``(skin(params)[vertices] - targets) / diagonal`` is minimized by optimistix (Levenberg-Marquardt by
-default, Gauss-Newton, or BFGS / gradient descent on the squared residual).
+default, Gauss-Newton, or BFGS / gradient descent on the squared residual; gradient descent is optax's Adam
+through ``optimistix.OptaxMinimiser``, a first-order method that needs thousands of steps where
+Levenberg-Marquardt needs tens).
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+import optax
 import optimistix as optx
 from jaxtyping import Array, Float, Int
 
@@ -25,6 +28,7 @@ from jaxcga._multivector import KINDS, Multivector
 
 SOLVERS = ("levenberg_marquardt", "gauss_newton", "bfgs", "gradient_descent")
 PARAMETERS_PER_BONE = 7  # six motor-generator components and one log-scale
+_ADAM_RATE = 1e-2  # gradient_descent's initial step per parameter (radians, log-scale, model units)
 
 
 def pose_from_parameters(model: RiggedModel, params: Float[Array, "... b 7"]) -> Multivector:
@@ -77,7 +81,7 @@ class PoseFit(eqx.Module):
     converged: Array
 
 
-def _solver(name: str, rtol: float, atol: float):
+def _solver(name: str, rtol: float, atol: float, max_steps: int):
     if name == "levenberg_marquardt":
         return optx.LevenbergMarquardt(rtol=rtol, atol=atol)
     if name == "gauss_newton":
@@ -85,7 +89,10 @@ def _solver(name: str, rtol: float, atol: float):
     if name == "bfgs":
         return optx.BFGS(rtol=rtol, atol=atol)
     if name == "gradient_descent":
-        return optx.GradientDescent(learning_rate=1e-2, rtol=rtol, atol=atol)
+        # Adam (first order, per-parameter step sizes) with a learning rate decaying to zero over max_steps:
+        # a fixed rate keeps oscillating at its own size near the minimum and never meets the tolerances
+        adam = optax.adam(optax.cosine_decay_schedule(_ADAM_RATE, max_steps))
+        return optx.OptaxMinimiser(adam, rtol=rtol, atol=atol)
     raise ValueError(f"solver: expected one of {SOLVERS}, got {name!r}")
 
 
@@ -107,9 +114,14 @@ def check_targets(targets, vertices, n: int, dtype):
 def run_solver(residuals, name: str, y0, args, max_steps: int, rtol: float, atol: float):
     """optimistix on ``residuals(y, args)``: least squares for Levenberg-Marquardt / Gauss-Newton, else
     minimisation of the squared residual (BFGS, gradient descent). Returns the solution object."""
-    opt = _solver(name, rtol, atol)
+    opt = _solver(name, rtol, atol, max_steps)
     if name in ("levenberg_marquardt", "gauss_newton"):
         return optx.least_squares(residuals, opt, y0, args=args, max_steps=max_steps, throw=False)
+    if name == "gradient_descent":
+        # optax mixes its int32 step count with floats (schedule, bias correction): standard promotion for this
+        # call only, so a caller's strict promotion (the tests') still holds everywhere else
+        with jax.numpy_dtype_promotion("standard"):
+            return optx.minimise(_squared, opt, y0, args=(residuals, args), max_steps=max_steps, throw=False)
     return optx.minimise(_squared, opt, y0, args=(residuals, args), max_steps=max_steps, throw=False)
 
 
@@ -156,7 +168,8 @@ def fit_pose(
         regularization: weight lambda of ``lambda |params|^2`` toward the rest pose (use it when only a
             handful of vertices are targeted).
         fit_scale: also fit each bone's dilation (log-scale); otherwise motors only.
-        solver: one of ``SOLVERS``.
+        solver: one of ``SOLVERS``. "gradient_descent" (Adam, its learning rate decaying to zero over
+            ``max_steps``) is first order: give it thousands of steps (e.g. ``max_steps=10_000``).
         max_steps, rtol, atol: solver limits and tolerances.
         init: (b, 7) starting parameters (zeros: the rest pose).
     Returns:

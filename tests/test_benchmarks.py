@@ -69,4 +69,8 @@ def test_bench_xfem_quick_writes_the_published_names(tmp_path):
         for name in ("boolean_ms", "step_avg_s", "step_max_s", "integral_ms", "dpsi_ms", "cg_s", "cut_max_over_avg"):
             assert result["figures"][f"{scene}_{name}"] > 0 and f"{scene}_{name}" in result["units"]
         assert result["ratios"][f"{scene}_step_avg_vs_paper"] > 0
+        # cuts only duplicate DOFs: the final count is the one reported in the Table 2 column
+        dofs = result["figures"]
+        assert dofs[f"{scene}_dofs_final"] > dofs[f"{scene}_dofs_initial"] > 0
+        assert dofs[f"{scene}_dofs_final"] == dofs[f"{scene}_dofs"]
     assert result["figures"]["sticks_pieces"] == 36  # the small sticks end as 36 pieces too

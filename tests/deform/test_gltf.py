@@ -1,9 +1,10 @@
-"""glTF 2.0 / FBX reading and writing (deform._gltf), checked against trimesh, pygltflib and hand-built files."""
+"""glTF 2.0 / FBX / COLLADA reading and writing (deform._gltf), checked against trimesh, pygltflib and hand-built files."""
 
 import base64
 import json
 import shutil
 import struct
+import subprocess
 from pathlib import Path
 
 import jax
@@ -13,6 +14,7 @@ import pygltflib
 import pytest
 import trimesh
 
+from deform import bounding_diagonal, skin_model
 from deform._gltf import load_model, save_model, weld
 from deform._model import SkinnedMesh
 
@@ -167,6 +169,44 @@ def test_fbx_matches_glb():
         load_model(DATA / "3Cylinder4bones.fbx").skeleton.names
         == load_model(DATA / "3Cylinder4bones.glb").skeleton.names
     )
+
+
+def _quaternion_sign(a, b):
+    """``a`` with each row's sign flipped where b's row is nearer -a (q and -q are one rotation); rows of 4
+    are quaternions, other widths are returned as they are."""
+    a, b = np.asarray(a), np.asarray(b)
+    return a * np.where(np.sum(a * b, axis=-1, keepdims=True) < 0, -1.0, 1.0) if a.shape[-1] == 4 else a
+
+
+@needs_assimp
+def test_collada_matches_the_gltf_it_was_made_from(tmp_path):
+    # RiggedSimple: an animated two-joint rig (assimp 5.2 cannot write CesiumMan's or Arm5's embedded textures)
+    dae = tmp_path / "RiggedSimple.dae"
+    done = subprocess.run(["assimp", "export", str(DATA / "RiggedSimple.glb"), str(dae), "-f", "collada"],
+                          capture_output=True, text=True, timeout=120, check=False)
+    assert done.returncode == 0 and dae.is_file(), done.stdout + done.stderr
+    collada, glb = load_model(dae), load_model(DATA / "RiggedSimple.glb")
+    assert collada.skeleton.names == glb.skeleton.names and collada.skeleton.parents == glb.skeleton.parents
+    np.testing.assert_array_equal(collada.mesh.V, glb.mesh.V)
+    np.testing.assert_array_equal(collada.mesh.F, glb.mesh.F)
+    np.testing.assert_allclose(collada.mesh.inverse_bind, glb.mesh.inverse_bind, atol=1e-6)
+    for name in ("translation", "rotation", "scale"):
+        np.testing.assert_allclose(_quaternion_sign(getattr(collada.skeleton, name), getattr(glb.skeleton, name)),
+                                   getattr(glb.skeleton, name), atol=1e-6)
+    # assimp reads glTF key times as milliseconds (1000 ticks per second) and its COLLADA exporter writes the
+    # ticks as seconds: the .dae's clip runs 1000 times slower, keys and values otherwise the same
+    (a,), (b,) = collada.clips, glb.clips
+    ratio = a.end / b.end
+    assert ratio == pytest.approx(1000.0, rel=1e-6)
+    assert len(a.channels) == len(b.channels)
+    for ca, cb in zip(a.channels, b.channels):
+        assert (ca.bone, ca.path, ca.interpolation) == (cb.bone, cb.path, cb.interpolation)
+        np.testing.assert_allclose(ca.times, ratio * np.asarray(cb.times), rtol=1e-6)
+        np.testing.assert_allclose(_quaternion_sign(ca.values, cb.values), cb.values, atol=1e-6)
+    diagonal = float(bounding_diagonal(glb))
+    for t in (0.0, 0.7, 1.3, 2.05):  # rest, between keys, and near the clip's end
+        np.testing.assert_allclose(skin_model(collada, jnp.asarray(ratio * t), "lbs"),
+                                   skin_model(glb, jnp.asarray(t), "lbs"), atol=1e-6 * diagonal)
 
 
 @needs_assimp

@@ -218,6 +218,18 @@ def test_fit_recovers_known_random_poses(models, name):
     assert float(fit.max_error) <= 1e-6 * diagonal
 
 
+@pytest.mark.slow  # 10,000 Adam steps, ~80 s on 2 cores
+def test_gradient_descent_fit_recovers_a_known_pose_of_the_default_arm():
+    # notebook 02's problem: rotations up to 0.5 rad, translations up to 2% of the diagonal, scales within e^0.1
+    arm = deform.default_arm()
+    truth = deform.random_parameters(jax.random.PRNGKey(0), arm, rotation=0.5, translation=0.02, log_scale=0.1)
+    fit = deform.fit_pose(arm, deform.skin_parameters(arm, truth), solver="gradient_descent", max_steps=10_000)
+    diagonal = float(deform.bounding_diagonal(arm))
+    assert bool(fit.converged) and int(fit.steps) < 10_000
+    assert float(fit.max_error) <= 1e-6 * diagonal
+    np.testing.assert_allclose(fit.params, truth, atol=1e-5)
+
+
 @pytest.mark.slow  # ~20-50 s on 2 cores: out of `make test` (its 15-minute budget); `make test-slow` and CI run it
 def test_fit_to_a_handful_of_vertices_with_regularization(models):
     model = models["Arm5"]
