@@ -64,7 +64,7 @@ from jaxtyping import Array, Float, Int
 
 from deform._harmonic import _check_mesh
 from deform._sparse import SparseSolver
-from jaxcga import KINDS, Multivector, apply_to_points
+from jaxcga import KINDS, Multivector, align_points, apply_to_points
 from jaxcga._support import require
 
 
@@ -308,13 +308,23 @@ class ARAPResult(eqx.Module):
     iterations: Int[Array, ""]
 
 
+def _aligned_rest(data: ARAPData, bc) -> Float[Array, "n 3"]:
+    rest = data.V.astype(bc.dtype)
+    if len(data.b) < 3:
+        return rest
+    return apply_to_points(align_points(rest[data.b], bc), rest)
+
+
 def arap_solve(data: ARAPData, bc, V0=None, max_iterations: int = 10, tolerance: float = 1e-8) -> ARAPResult:
     """Deform the mesh so that the handles ``data.b`` sit at ``bc``, as rigidly as possible.
 
     Args:
         data: ``arap_precompute``'s output.
         bc: (nb, 3) handle positions, in the order of ``b``.
-        V0: (n, 3) initial guess (default: the rest positions); the handles are placed on it.
+        V0: (n, 3) initial guess; the handles are placed on it. Default: the rest positions moved by the
+            motor that best aligns the handles' rest positions with ``bc`` (Horn's method, ``align_points``;
+            the rest positions with fewer than 3 handles), so that a rigid motion of every handle gives that
+            rigid map at once and the iterations only have to find the non-rigid part.
         max_iterations: at most this many local/global iterations (libigl's ``max_iter``).
         tolerance: stop when the energy decreases by less than ``tolerance`` times itself in one iteration
             (0: when it stops decreasing; negative: always run ``max_iterations``, e.g. for tight convergence).
@@ -328,7 +338,7 @@ def arap_solve(data: ARAPData, bc, V0=None, max_iterations: int = 10, tolerance:
     if bc.shape != (len(data.b), 3) or not jnp.issubdtype(bc.dtype, jnp.floating):
         raise ValueError(f"bc: expected float handle positions of shape ({len(data.b)}, 3), got {bc.dtype} {bc.shape}")
     if V0 is None:
-        V0 = data.V.astype(bc.dtype)
+        V0 = _aligned_rest(data, bc)
     V0 = jnp.asarray(V0, bc.dtype)
     if V0.shape != (data.n, 3):
         raise ValueError(f"V0: expected shape ({data.n}, 3), got {V0.shape}")

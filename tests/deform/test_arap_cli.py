@@ -4,6 +4,7 @@ errors."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import jax.numpy as jnp
 import numpy as np
@@ -11,8 +12,11 @@ import pytest
 import trimesh
 from scipy.spatial.transform import Rotation
 
+import deform
 from deform import arap_precompute, arap_solve
 from jaxcga.cli import main
+
+DATA = Path(__file__).resolve().parents[1] / "data"
 
 
 @pytest.fixture(scope="module")
@@ -88,3 +92,20 @@ def test_bad_output_and_iterations(tube, tmp_path, capsys):
         with pytest.raises(SystemExit):
             main(["arap", str(path), *args])
         assert message in capsys.readouterr().err
+
+
+def test_one_rigid_motion_of_every_handle_gives_that_motion_on_arm5(tmp_path):
+    """Issue 30's probe: `jaxcga arap` on Arm5 (welded on load) with both ends moved by one rigid motion returns
+    that rigid map (the default energy and start) after 50 iterations."""
+    V = np.array(deform.load_model(DATA / "Arm5.glb", weld=True).mesh.V, np.float64)  # writable, for scipy
+    axis = int(np.argmax(np.ptp(V, axis=0)))
+    s = (V[:, axis] - V[:, axis].min()) / np.ptp(V[:, axis])
+    indices = np.flatnonzero((s < 0.05) | (s > 0.95))
+    diag = np.linalg.norm(np.ptp(V, axis=0))
+    rigid = Rotation.from_rotvec([0.3, -0.5, 0.2]).apply(V) + np.array([0.1, -0.05, 0.2]) * diag
+    handles = tmp_path / "handles.json"
+    handles.write_text(json.dumps({"indices": indices.tolist(), "positions": rigid[indices].tolist()}))
+    out = tmp_path / "arap.npy"
+    assert main(["arap", str(DATA / "Arm5.glb"), "--handles", str(handles), "--iters", "50", "--tolerance", "-1",
+                 "--out", str(out)]) == 0
+    assert np.abs(np.load(out) - rigid).max() < 1e-6 * diag
