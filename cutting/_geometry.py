@@ -191,3 +191,30 @@ def fan_triangles(polygon, coordinates):
             best, best_area = apex, smallest
     ring = [polygon[(best + i) % k] for i in range(k)]
     return [(ring[0], ring[i], ring[i + 1]) for i in range(1, k - 1)]
+
+
+# A piece that a tool leaves of a face keeps at least this fraction of the face's area, and no angle
+# under PIECE_ANGLE radians unless the face has a smaller one: a new point that would make a smaller
+# piece snaps to the vertex it lies next to.
+PIECE_AREA = 1e-3
+PIECE_ANGLE = 1e-3
+
+
+def triangle_quality(A, B, C):
+    """(twice the area (t,), smallest angle (t,)) of the triangles with corners A, B, C (t, 3)."""
+    ab, bc, ca = B - A, C - B, A - C
+    normal = cross_rows(ab, -ca)
+    doubled = np.sqrt(np.einsum("ij,ij->i", normal, normal))
+    # the angle at a corner from its two edges: atan2(|cross|, dot), |cross| = twice the area
+    dots = [-np.einsum("ij,ij->i", ca, ab), -np.einsum("ij,ij->i", ab, bc), -np.einsum("ij,ij->i", bc, ca)]
+    return doubled, np.min([np.arctan2(doubled, dot) for dot in dots], axis=0)
+
+
+def poor_pieces(P, pieces, parent_corners):
+    """Which pieces (t, 3) (vertex ids into P) are slivers of their faces (t, 3) (ids into P):
+    smaller than PIECE_AREA of the face, or with an angle under PIECE_ANGLE and the face's own
+    smallest angle."""
+    area, angle = triangle_quality(P[pieces[:, 0]], P[pieces[:, 1]], P[pieces[:, 2]])
+    face_area, face_angle = triangle_quality(P[parent_corners[:, 0]], P[parent_corners[:, 1]],
+                                             P[parent_corners[:, 2]])
+    return (area < PIECE_AREA * face_area) | (angle < np.minimum(PIECE_ANGLE, face_angle))
