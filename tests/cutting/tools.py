@@ -200,26 +200,33 @@ def random_drill(V, F, rng):
 
 def random_scalpels(V, F, rng):
     """(samples, 2, 3) scalpels crossing the surface: 2 to 4 samples, 1.5 to 4 mean edges apart,
-    from a random face in a random direction (``scalpels_over``)."""
+    from a random face in a random direction (``scalpels_over``), each reaching a step's length to
+    both sides of the surface."""
     face, _, _ = random_surface_point(V, F, rng)
-    return scalpels_over(V, F, face, rng.normal(size=3), int(rng.integers(2, 5)),
-                         rng.uniform(1.5, 4.0) * mean_edge(V, F))
+    step = rng.uniform(1.5, 4.0) * mean_edge(V, F)
+    return scalpels_over(V, F, face, rng.normal(size=3), int(rng.integers(2, 5)), step, depth=step)
 
 
 def fuzz(mesh, tool: str, count: int, seed: int):
-    """Run ``count`` random tools (``"plane"``, ``"drill"`` or ``"tear"``) on ``mesh`` (bind pose).
+    """Apply ``count`` random tools (``"plane"``, ``"drill"`` or ``"tear"``) to ``mesh`` (bind pose); a
+    tool that the algorithm declines (a ValueError) is recorded and replaced by another, up to 3 *
+    ``count`` tries.
 
-    Returns a dict: runs (tools applied), refused (ValueError messages: a tool the algorithm declines),
-    failures (descriptions), smallest area ratio and smallest angle of the new faces, and the largest
-    distance of a new point from the tool's surface relative to the diagonal."""
+    Returns a dict: runs (tools applied), refused (the ValueError messages), failures (descriptions),
+    smallest area ratio and smallest angle of the new faces, the largest distance of a new point from
+    the tool's surface (off_tool) and the largest distance from it of an input vertex that the cut's
+    boundary passes through instead of a new point next to it (snapped; for a tear: the largest move
+    of its plane), both relative to the diagonal."""
     import cutting
 
     V, F = np.asarray(mesh.V, np.float64), np.asarray(mesh.F)
     edges = cutting.mesh_edges(F)
     scale = diagonal(V)
     rng = np.random.default_rng(seed)
-    stats = dict(runs=0, refused=[], failures=[], area_ratio=np.inf, angle=np.inf, off_tool=0.0)
-    for trial in range(count):
+    stats = dict(runs=0, refused=[], failures=[], area_ratio=np.inf, angle=np.inf, off_tool=0.0, snapped=0.0)
+    for trial in range(3 * count):
+        if stats["runs"] == count:
+            break
         try:
             if tool == "plane":
                 plane = random_plane(V, rng)
@@ -227,6 +234,7 @@ def fuzz(mesh, tool: str, count: int, seed: int):
                 halves = cutting.cut(mesh, plane, edges=edges)
                 outputs = [(h, keep) for h, keep in zip(halves, (topology.positive, topology.negative))]
                 off = np.abs(topology.points @ plane[:3] - plane[3])
+                snapped = np.abs(V @ plane[:3] - plane[3])[topology.distances == 0]
             elif tool == "drill":
                 tip, base, radius = random_drill(V, F, rng)
                 drilled, topology = cutting.drill(mesh, tip, base, radius, edges=edges, return_topology=True)
@@ -234,12 +242,20 @@ def fuzz(mesh, tool: str, count: int, seed: int):
                 axis = (tip - base) / np.linalg.norm(tip - base)
                 relative = topology.points - base
                 off = np.abs(np.linalg.norm(relative - np.outer(relative @ axis, axis), axis=1) - radius)
+                # input vertices on the hole's boundary (on a boundary edge that the input did not have)
+                rim_edges, rim_counts = edge_counts(topology.kept[np.asarray(drilled.F)])
+                before_edges, before_counts = edge_counts(F)
+                rim = np.unique(rim_edges[rim_counts == 1])
+                rim = np.setdiff1d(rim[rim < len(V)], before_edges[before_counts == 1])
+                relative = V[rim] - base
+                snapped = np.abs(np.linalg.norm(relative - np.outer(relative @ axis, axis), axis=1) - radius)
             else:
                 scalpels = random_scalpels(V, F, rng)
                 torn, path = cutting.tear(mesh, scalpels, edges=edges, return_path=True)
                 outputs = [(torn, np.arange(len(torn.V)))]
                 normals, offsets = path.planes[path.step, :3], path.planes[path.step, 3]
                 off = np.abs(np.einsum("ij,ij->i", path.points, normals) - offsets)
+                snapped = np.abs(path.shift)
         except ValueError as error:
             stats["refused"].append(f"{tool} {trial}: {error}")
             continue
@@ -252,6 +268,7 @@ def fuzz(mesh, tool: str, count: int, seed: int):
             stats["angle"] = min(stats["angle"], angle)
         worst = float(off.max(initial=0.0)) / scale
         stats["off_tool"] = max(stats["off_tool"], worst)
+        stats["snapped"] = max(stats["snapped"], float(snapped.max(initial=0.0)) / scale)
         if worst > ON_TOOL:
             problems.append(f"a new point {worst:.3g} x diagonal off the tool")
         if problems:
