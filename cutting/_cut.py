@@ -31,7 +31,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from cutting._geometry import (MeshEdges, bounding_diagonal, check_mesh_arrays, mesh_edges, poor_pieces, posed_vertices,
-                               rest_positions, skinned_mesh_like)
+                               rest_positions, skinned_mesh_like, smallest_doubled_area)
 from cutting._predicates import check_plane, check_predicates, edge_points, signed_distances
 from cutting._weights import blend_weights
 from deform._model import SkinnedMesh
@@ -101,7 +101,7 @@ def _is_closed(edges: MeshEdges) -> bool:
     return bool(np.all(edges.edge_counts == 2))
 
 
-def _split(V, F, edges: MeshEdges, s, sign, n, d, predicates):
+def _split(V, F, edges: MeshEdges, s, sign, n, d, predicates, smallest):
     """The new points of the current signs and the pieces of the split faces, and the vertices to snap
     onto the plane: for each face whose pieces are slivers with either diagonal (``poor_pieces``), the
     endpoint nearest to the face's new point that lies closest (along its edge) to an end.
@@ -130,7 +130,7 @@ def _split(V, F, edges: MeshEdges, s, sign, n, d, predicates):
         ids = np.where(templates < 0, -1, ids)
         valid = ids[:, :, 0] >= 0
         bad = np.zeros(valid.shape, bool)
-        bad[valid] = poor_pieces(extended, ids[valid], np.repeat(F[split], 4, axis=0)[valid.ravel()])
+        bad[valid] = poor_pieces(extended, ids[valid], np.repeat(F[split], 4, axis=0)[valid.ravel()], smallest)
         pieces.append((ids[:, :2], ids[:, 2:]))
         poor.append(bad.any(axis=1))
     diagonal = (poor[0] & ~poor[1]).astype(np.int64)
@@ -175,9 +175,10 @@ def plane_cut(V, F, plane, *, predicates: str = "euclidean", tolerance: float = 
     if not (np.any(s[F] > 0) and np.any(s[F] < 0)):
         raise ValueError("plane: misses the mesh (every vertex lies on one side of it); nothing to cut")
     sign = np.sign(s).astype(np.int64)
+    smallest = smallest_doubled_area(V, F)
     # Each pass snaps at least one more vertex onto the plane, so this ends (at worst with no split face).
     for _ in range(len(V) + 1):
-        crossing, t, points, pieces, diagonal, snap = _split(V, F, edges, s, sign, n, d, predicates)
+        crossing, t, points, pieces, diagonal, snap = _split(V, F, edges, s, sign, n, d, predicates, smallest)
         if not len(snap):
             break
         sign[snap] = 0

@@ -37,7 +37,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from cutting._geometry import (MeshEdges, bounding_diagonal, check_mesh_arrays, check_point, fan_triangles, mesh_edges,
-                               poor_pieces, posed_vertices, rest_positions, segment_hits, skinned_mesh_like)
+                               poor_pieces, posed_vertices, rest_positions, segment_hits, skinned_mesh_like,
+                               smallest_doubled_area)
 from cutting._weights import blend_weights
 from deform._model import SkinnedMesh
 
@@ -269,6 +270,7 @@ def drill_mesh(V, F, tip, base, radius, *, min_points: int = 6, max_refinements:
     if edges.face_edges.shape != F.shape:
         raise ValueError(f"edges: computed for another mesh (face_edges {edges.face_edges.shape}, F {F.shape})")
     margin = tolerance * bounding_diagonal(V)
+    smallest = smallest_doubled_area(V, F)  # the input's: refinement only adds smaller faces
     all_parents, refinements = [], 0
     while True:
         state = _drill_once(V, F, edges, tip, base, radius, margin)
@@ -286,7 +288,7 @@ def drill_mesh(V, F, tip, base, radius, *, min_points: int = 6, max_refinements:
     for _ in range(len(index) + 1):
         crossing = edges.edges[index]
         points = alpha[:, None] * V[crossing[:, 0]] + (1.0 - alpha[:, None]) * V[crossing[:, 1]]
-        faces, drop = _retriangulate(V, F, edges, state, index, alpha, points, crossing, radius)
+        faces, drop = _retriangulate(V, F, edges, state, index, alpha, points, crossing, radius, smallest)
         if not len(drop):
             break
         keep = np.ones(len(index), bool)
@@ -300,7 +302,7 @@ def drill_mesh(V, F, tip, base, radius, *, min_points: int = 6, max_refinements:
     return Drilling(parents, refinements, V, crossing, alpha, sign, points, local[faces], kept, state["holes"])
 
 
-def _retriangulate(V, F, edges: MeshEdges, state, index, alpha, points, crossing, radius):
+def _retriangulate(V, F, edges: MeshEdges, state, index, alpha, points, crossing, radius, smallest):
     """Faces of the drilled mesh (Algorithm 3, step 5) in the extended numbering, and the new points
     to drop: in each face whose pieces are slivers (``poor_pieces``), the new point (or the two on one
     edge) closest to its neighbour on the face's boundary, relative to that edge's length; without it
@@ -359,7 +361,7 @@ def _retriangulate(V, F, edges: MeshEdges, state, index, alpha, points, crossing
                 run = [cycle[(i + 1) % m]]
         parents += [len(cycles) - 1] * (len(triangles) - before)
     pieces = np.asarray(triangles, np.int64).reshape(-1, 3)
-    poor = poor_pieces(np.concatenate([V, points]), pieces, corners[np.asarray(parents, np.int64)])
+    poor = poor_pieces(np.concatenate([V, points]), pieces, corners[np.asarray(parents, np.int64)], smallest)
     drop = []
     for f in np.unique(np.asarray(parents, np.int64)[poor]).tolist():
         cycle, spans = cycles[f]

@@ -193,9 +193,10 @@ def fan_triangles(polygon, coordinates):
     return [(ring[0], ring[i], ring[i + 1]) for i in range(1, k - 1)]
 
 
-# A piece that a tool leaves of a face keeps at least this fraction of the face's area, and no angle
-# under PIECE_ANGLE radians unless the face has a smaller one: a new point that would make a smaller
-# piece snaps to the vertex it lies next to.
+# A piece that a tool leaves of a face keeps at least PIECE_AREA of the mesh's smallest face area, and
+# no angle under PIECE_ANGLE radians unless the face has a smaller one: a new point that would make a
+# smaller piece snaps to the vertex it lies next to (the mesh's own scale, so vertices move no more
+# than these slivers need).
 PIECE_AREA = 1e-3
 PIECE_ANGLE = 1e-3
 
@@ -210,11 +211,17 @@ def triangle_quality(A, B, C):
     return doubled, np.min([np.arctan2(doubled, dot) for dot in dots], axis=0)
 
 
-def poor_pieces(P, pieces, parent_corners):
-    """Which pieces (t, 3) (vertex ids into P) are slivers of their faces (t, 3) (ids into P):
-    smaller than PIECE_AREA of the face, or with an angle under PIECE_ANGLE and the face's own
-    smallest angle."""
+def smallest_doubled_area(V, F) -> float:
+    """Twice the area of the smallest face of (V, F) (the reference of ``poor_pieces``)."""
+    if not len(F):
+        return 0.0
+    return float(triangle_quality(V[F[:, 0]], V[F[:, 1]], V[F[:, 2]])[0].min())
+
+
+def poor_pieces(P, pieces, parent_corners, smallest):
+    """Which pieces (t, 3) (vertex ids into P) of faces (t, 3) (ids into P) are slivers: under
+    PIECE_AREA of the mesh's smallest face (``smallest``: twice its area), or with an angle under
+    PIECE_ANGLE and the face's own smallest angle."""
     area, angle = triangle_quality(P[pieces[:, 0]], P[pieces[:, 1]], P[pieces[:, 2]])
-    face_area, face_angle = triangle_quality(P[parent_corners[:, 0]], P[parent_corners[:, 1]],
-                                             P[parent_corners[:, 2]])
-    return (area < PIECE_AREA * face_area) | (angle < np.minimum(PIECE_ANGLE, face_angle))
+    _, face_angle = triangle_quality(P[parent_corners[:, 0]], P[parent_corners[:, 1]], P[parent_corners[:, 2]])
+    return (area < PIECE_AREA * smallest) | (angle < np.minimum(PIECE_ANGLE, face_angle))
