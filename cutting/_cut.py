@@ -5,11 +5,13 @@ Steps, vectorized over faces (host numpy; the predicates may run on the jaxcga k
 
 1. signed distances of the vertices (``predicates="euclidean"`` or ``"ga"``, Table 1); a vertex within
    ``tolerance`` (relative to the bounding-box diagonal) of the plane is snapped *onto* it (its
-   position is kept, only its side changes), so that no sliver triangle is created;
+   position is kept, only its side changes);
 2. one new vertex per edge whose endpoints lie strictly on opposite sides, at ``t = s_i / (s_i - s_j)``
    along the edge, weights blended from the edge's endpoints (sec. 4.3);
 3. every face re-triangulated by a table over its 27 sign patterns (a lone vertex gives 1 + 2
-   triangles, a vertex on the plane 1 + 1);
+   triangles, the quadrilateral split by whichever diagonal leaves no sliver; a vertex on the plane
+   1 + 1); where a piece would still be a sliver (``_geometry.poor_pieces``), the vertex next to the
+   face's new point nearest an end of its edge is snapped onto the plane too, and steps 2-3 repeat;
 4. faces sorted into the positive side (``n . x > d``) and the negative side;
 5. each side compacted into its own mesh; with ``cap=True`` and a closed input, the cut loops are
    triangulated (manifold3d) and close both halves.
@@ -156,12 +158,12 @@ def plane_cut(V, F, plane, *, predicates: str = "euclidean", tolerance: float = 
         plane: ``(nx, ny, nz, d)`` or a jaxcga plane vector ``n + d einf`` (eq. 5).
         predicates: ``"euclidean"`` or ``"ga"`` (Table 1).
         tolerance: vertices closer to the plane than ``tolerance`` times the bounding-box diagonal
-            count as on it (no sliver triangles).
+            count as on it; so does a vertex next to which a crossing would leave a sliver piece.
         cap: close both halves with the triangulated cut loops (the input must be closed).
         edges: ``mesh_edges(F)``, precomputed once per topology.
     Raises:
         ValueError: bad shapes, non-finite input, or a plane that misses the mesh (all vertices on one
-            side: there is nothing to cut)."""
+            side: there is nothing to cut) or only grazes it (all on one side once snapped)."""
     check_predicates(predicates)
     V, F = check_mesh_arrays(V, F)
     if not tolerance >= 0:

@@ -17,7 +17,9 @@ to the axis, P the projection onto it.
    cross it twice;
 4. weights of the new points from their edges (sec. 4.3);
 5. each affected face is replaced by the convex pieces of it that lie outside the drill (the runs of
-   its boundary outside the cylinder, each closed by a straight chord), vertices inside are removed.
+   its boundary outside the cylinder, each closed by a straight chord), vertices inside are removed;
+   a new point that would leave a sliver piece (``_geometry.poor_pieces``) is dropped, the hole's
+   boundary then passes through its neighbour on the face's boundary, and step 5 repeats.
 
 When a hole has fewer than ``min_points`` boundary points (a drill thin against the faces), the
 affected faces are split (midpoints of their edges; neighbours get conforming 2- or 3-way splits)
