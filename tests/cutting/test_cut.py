@@ -72,6 +72,9 @@ def test_cut_invariants_on_real_models(name, direction, offset, predicates):
     # new vertices (not among the original positions) lie on the plane
     assert np.all(np.abs(topology.points @ n - d) <= 1e-9 * diagonal)
     assert np.all((topology.t > 0) & (topology.t < 1))
+    # the differentiable positions follow the snapped topology
+    np.testing.assert_allclose(np.asarray(cutting.cut_positions(V, topology.crossing, jnp.asarray(n), d)),
+                               topology.points, rtol=0, atol=1e-12 * diagonal)
 
 
 def _original_rows(half, V):

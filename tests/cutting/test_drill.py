@@ -76,6 +76,10 @@ def test_drill_invariants_on_real_models(name, seed, radius, depth):
     # angles of 1e-3 rad; area only removed
     assert np.all(np.abs(_radial_distance(topology.points, tip, base) - radius * edge) <= 1e-9 * diagonal)
     problems, _, _ = piece_quality(V, F, Vd, Fd, topology.kept)
+    # the differentiable positions follow the topology left after dropping points
+    np.testing.assert_allclose(np.asarray(cutting.drill_positions(topology.vertices, topology.crossing, topology.root,
+                                                                  jnp.asarray(tip), jnp.asarray(base), radius * edge)),
+                               topology.points, rtol=0, atol=1e-9 * diagonal)
     assert not problems + consistency_problems(drilled, mesh, topology.kept)
     assert _area(Vd, Fd).sum() < _area(V, F).sum()
     # weights of new vertices (refinement midpoints and hole points)
