@@ -103,6 +103,13 @@ def _is_closed(edges: MeshEdges) -> bool:
     return bool(np.all(edges.edge_counts == 2))
 
 
+def _row_range(rows):
+    """(smallest, largest) of each row of an (m, 3) array, column by column (numpy's axis-1
+    reductions of narrow rows are several times slower)."""
+    a, b, c = rows[:, 0], rows[:, 1], rows[:, 2]
+    return np.minimum(np.minimum(a, b), c), np.maximum(np.maximum(a, b), c)
+
+
 def _split(V, F, edges: MeshEdges, s, sign, n, d, predicates, smallest):
     """The new points of the current signs and the pieces of the split faces, and the vertices to snap
     onto the plane: for each face whose pieces are slivers with either diagonal (``poor_pieces``), the
@@ -119,7 +126,8 @@ def _split(V, F, edges: MeshEdges, s, sign, n, d, predicates, smallest):
     new_index = np.full(len(e), -1, np.int64)
     new_index[crossing_mask] = len(V) + np.arange(len(crossing))
     face_signs = sign[F]
-    split = (face_signs.min(axis=1) < 0) & (face_signs.max(axis=1) > 0)
+    lowest, highest = _row_range(face_signs)
+    split = (lowest < 0) & (highest > 0)
     # Only the split faces go through the tables. Slots: the corners, then the new vertex (or -1)
     # on each local edge.
     slots = np.concatenate([F[split], new_index[edges.face_edges[split]]], axis=1)
@@ -190,7 +198,7 @@ def plane_cut(V, F, plane, *, predicates: str = "euclidean", tolerance: float = 
     s = np.where(sign == 0, 0.0, s)
 
     face_signs = sign[F]
-    lowest, highest = face_signs.min(axis=1), face_signs.max(axis=1)
+    lowest, highest = _row_range(face_signs)
     in_plane = (lowest == 0) & (highest == 0)
     flat = F[in_plane]
     normal = np.cross(V[flat[:, 1]] - V[flat[:, 0]], V[flat[:, 2]] - V[flat[:, 0]])

@@ -215,7 +215,9 @@ def smallest_doubled_area(V, F) -> float:
     """Twice the area of the smallest face of (V, F) (the reference of ``poor_pieces``)."""
     if not len(F):
         return 0.0
-    return float(triangle_quality(V[F[:, 0]], V[F[:, 1]], V[F[:, 2]])[0].min())
+    A = V[F[:, 0]]
+    normal = cross_rows(V[F[:, 1]] - A, V[F[:, 2]] - A)
+    return float(np.sqrt(np.einsum("ij,ij->i", normal, normal).min()))
 
 
 def poor_pieces(P, pieces, parent_corners, smallest):

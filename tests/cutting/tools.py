@@ -223,7 +223,8 @@ def fuzz(mesh, tool: str, count: int, seed: int):
     edges = cutting.mesh_edges(F)
     scale = diagonal(V)
     rng = np.random.default_rng(seed)
-    stats = dict(runs=0, refused=[], failures=[], area_ratio=np.inf, angle=np.inf, off_tool=0.0, snapped=0.0)
+    stats = {"runs": 0, "refused": [], "failures": [], "area_ratio": np.inf, "angle": np.inf, "off_tool": 0.0,
+             "snapped": 0.0}
     for trial in range(3 * count):
         if stats["runs"] == count:
             break
