@@ -17,15 +17,12 @@ import jaxcga as cga
 from tests.cutting.tools import area as _area
 from tests.cutting.tools import consistency_problems, piece_quality
 from tests.cutting.tools import diagonal as _diagonal
-from tests.cutting.tools import edge_counts, load_models, mean_edge, scalpels_over
+from tests.cutting.tools import TOOL_REFUSALS, edge_counts, load_models, mean_edge, scalpels_over
 from tests.cutting.tools import posed as posed_arm
 from tests.shared import check_gradient, grid
 
 MODELS = load_models(weld=True)
 ARM = deform.default_arm()
-# The tool fails for these reasons only on surfaces it cannot follow (a random tool may).
-TOOL_REFUSALS = ("does not cross", "boundary", "crosses itself", "turns back", "inside one face", "does not reach",
-                 "keeps passing")
 
 
 

@@ -86,6 +86,10 @@ def posed(model, t: float):
     return local, joints, np.asarray(deform.skin_pose(model, local, "lbs"))
 
 
+# A tear fails for these reasons only on surfaces it cannot follow (a random scalpel may).
+TOOL_REFUSALS = ("does not cross", "boundary", "crosses itself", "turns back", "inside one face", "does not reach",
+                 "keeps passing")
+
 # --- Sliver fuzzing (issue 30, item 2) --------------------------------------------------------------
 # A cut, tear or drill may not make a face smaller than AREA_RATIO x the input's smallest face, nor
 # one with an angle under MIN_ANGLE unless the input face it comes from already has one.
