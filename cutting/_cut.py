@@ -5,11 +5,13 @@ Steps, vectorized over faces (host numpy; the predicates may run on the jaxcga k
 
 1. signed distances of the vertices (``predicates="euclidean"`` or ``"ga"``, Table 1); a vertex within
    ``tolerance`` (relative to the bounding-box diagonal) of the plane is snapped *onto* it (its
-   position is kept, only its side changes), so that no sliver triangle is created;
+   position is kept, only its side changes);
 2. one new vertex per edge whose endpoints lie strictly on opposite sides, at ``t = s_i / (s_i - s_j)``
    along the edge, weights blended from the edge's endpoints (sec. 4.3);
 3. every face re-triangulated by a table over its 27 sign patterns (a lone vertex gives 1 + 2
-   triangles, a vertex on the plane 1 + 1);
+   triangles, the quadrilateral split by whichever diagonal leaves no sliver; a vertex on the plane
+   1 + 1); where a piece would still be a sliver (``_geometry.poor_pieces``), the vertex next to the
+   face's new point nearest an end of its edge is snapped onto the plane too, and steps 2-3 repeat;
 4. faces sorted into the positive side (``n . x > d``) and the negative side;
 5. each side compacted into its own mesh; with ``cap=True`` and a closed input, the cut loops are
    triangulated (manifold3d) and close both halves.
@@ -30,17 +32,19 @@ from typing import NamedTuple
 import jax.numpy as jnp
 import numpy as np
 
-from cutting._geometry import (MeshEdges, bounding_diagonal, check_mesh_arrays, mesh_edges, posed_vertices,
-                               rest_positions, skinned_mesh_like)
+from cutting._geometry import (MeshEdges, bounding_diagonal, check_mesh_arrays, mesh_edges, poor_pieces, posed_vertices,
+                               rest_positions, skinned_mesh_like, smallest_doubled_area)
 from cutting._predicates import check_plane, check_predicates, edge_points, signed_distances
 from cutting._weights import blend_weights
 from deform._model import SkinnedMesh
 
 
-def _split_tables():
+def _split_tables(diagonal: int):
     """For each sign pattern (s0, s1, s2) in {-1, 0, 1}^3 (code = 9 (s0+1) + 3 (s1+1) + (s2+1)):
     the positive and negative triangles as slots (0-2: the face's corners, 3-5: the new vertex on
-    local edge (k, k+1)); -1 pads. All-zero (a face in the plane) is handled by the caller."""
+    local edge (k, k+1)); -1 pads. All-zero (a face in the plane) is handled by the caller.
+    ``diagonal``: which diagonal splits the quadrilateral that a lone corner leaves on the other side
+    (0: from the new point next to the lone corner's successor to the far corner, 1: the other one)."""
     positive = -np.ones((27, 2, 3), np.int64)
     negative = -np.ones((27, 2, 3), np.int64)
     for signs in itertools.product((-1, 0, 1), repeat=3):
@@ -61,14 +65,14 @@ def _split_tables():
             b, c = (a + 1) % 3, (a + 2) % 3
             x, y = 3 + a, 3 + c  # new vertices on edges (a, b) and (c, a)
             tris[signs[a]].append((a, x, y))
-            tris[signs[b]] += [(x, b, c), (x, c, y)]
+            tris[signs[b]] += [(x, b, c), (x, c, y)] if diagonal == 0 else [(x, b, y), (y, b, c)]
         for side, sign in ((positive, 1), (negative, -1)):
             for k, tri in enumerate(tris[sign]):
                 side[code, k] = tri
     return positive, negative
 
 
-_POSITIVE, _NEGATIVE = _split_tables()
+_TABLES = (_split_tables(0), _split_tables(1))
 
 
 class PlaneCut(NamedTuple):
@@ -99,6 +103,59 @@ def _is_closed(edges: MeshEdges) -> bool:
     return bool(np.all(edges.edge_counts == 2))
 
 
+def _row_range(rows):
+    """(smallest, largest) of each row of an (m, 3) array, column by column (numpy's axis-1
+    reductions of narrow rows are several times slower)."""
+    a, b, c = rows[:, 0], rows[:, 1], rows[:, 2]
+    return np.minimum(np.minimum(a, b), c), np.maximum(np.maximum(a, b), c)
+
+
+def _split(V, F, edges: MeshEdges, s, sign, n, d, predicates, smallest):
+    """The new points of the current signs and the pieces of the split faces, and the vertices to snap
+    onto the plane: for each face whose pieces are slivers with either diagonal (``poor_pieces``), the
+    endpoint nearest to the face's new point that lies closest (along its edge) to an end.
+
+    Returns (crossing (p, 2), t (p,), points (p, 3), pieces: for each diagonal the (positive, negative)
+    pieces of the split faces (split, 2, 3) as extended vertex ids (-1 pads), diagonal (split,) the one
+    chosen, snap (k,) vertex ids)."""
+    e = edges.edges
+    crossing_mask = sign[e[:, 0]] * sign[e[:, 1]] < 0
+    crossing = e[crossing_mask]
+    points, t = edge_points(V[crossing[:, 0]], V[crossing[:, 1]], s[crossing[:, 0]], s[crossing[:, 1]], n, d,
+                            predicates)
+    new_index = np.full(len(e), -1, np.int64)
+    new_index[crossing_mask] = len(V) + np.arange(len(crossing))
+    face_signs = sign[F]
+    lowest, highest = _row_range(face_signs)
+    split = (lowest < 0) & (highest > 0)
+    # Only the split faces go through the tables. Slots: the corners, then the new vertex (or -1)
+    # on each local edge.
+    slots = np.concatenate([F[split], new_index[edges.face_edges[split]]], axis=1)
+    code = face_signs[split] @ np.array([9, 3, 1]) + 13
+    extended = np.concatenate([V, points])
+    pieces, poor = [], []
+    for positive, negative in _TABLES:
+        templates = np.concatenate([positive[code], negative[code]], axis=1)  # (split, 4, 3)
+        ids = np.take_along_axis(slots[:, None, :], np.where(templates < 0, 0, templates), axis=2)
+        ids = np.where(templates < 0, -1, ids)
+        valid = ids[:, :, 0] >= 0
+        bad = np.zeros(valid.shape, bool)
+        bad[valid] = poor_pieces(extended, ids[valid], np.repeat(F[split], 4, axis=0)[valid.ravel()], smallest)
+        pieces.append((ids[:, :2], ids[:, 2:]))
+        poor.append(bad.any(axis=1))
+    diagonal = (poor[0] & ~poor[1]).astype(np.int64)
+    stuck = np.flatnonzero(poor[0] & poor[1])
+    if not len(stuck):
+        return crossing, t, points, pieces, diagonal, np.zeros(0, np.int64)
+    # the face's new point nearest an end of its edge, and that end
+    local = new_index[edges.face_edges[split][stuck]] - len(V)  # (k, 3), negative: no point
+    along = t[np.maximum(local, 0)]
+    margin = np.where(local >= 0, np.minimum(along, 1.0 - along), np.inf)
+    nearest = local[np.arange(len(stuck)), np.argmin(margin, axis=1)]
+    snap = np.where(t[nearest] < 0.5, crossing[nearest, 0], crossing[nearest, 1])
+    return crossing, t, points, pieces, diagonal, np.unique(snap)
+
+
 def plane_cut(V, F, plane, *, predicates: str = "euclidean", tolerance: float = 1e-6, cap: bool = False,
               edges: MeshEdges | None = None) -> PlaneCut:
     """Topology and new vertices of cutting the triangle mesh (V, F) by a plane (Algorithm 1).
@@ -109,12 +166,12 @@ def plane_cut(V, F, plane, *, predicates: str = "euclidean", tolerance: float = 
         plane: ``(nx, ny, nz, d)`` or a jaxcga plane vector ``n + d einf`` (eq. 5).
         predicates: ``"euclidean"`` or ``"ga"`` (Table 1).
         tolerance: vertices closer to the plane than ``tolerance`` times the bounding-box diagonal
-            count as on it (no sliver triangles).
+            count as on it; so does a vertex next to which a crossing would leave a sliver piece.
         cap: close both halves with the triangulated cut loops (the input must be closed).
         edges: ``mesh_edges(F)``, precomputed once per topology.
     Raises:
         ValueError: bad shapes, non-finite input, or a plane that misses the mesh (all vertices on one
-            side: there is nothing to cut)."""
+            side: there is nothing to cut) or only grazes it (all on one side once snapped)."""
     check_predicates(predicates)
     V, F = check_mesh_arrays(V, F)
     if not tolerance >= 0:
@@ -128,34 +185,30 @@ def plane_cut(V, F, plane, *, predicates: str = "euclidean", tolerance: float = 
     if not (np.any(s[F] > 0) and np.any(s[F] < 0)):
         raise ValueError("plane: misses the mesh (every vertex lies on one side of it); nothing to cut")
     sign = np.sign(s).astype(np.int64)
-
-    # New vertices: one per edge with endpoints strictly on opposite sides.
-    e = edges.edges
-    crossing_mask = sign[e[:, 0]] * sign[e[:, 1]] < 0
-    crossing = e[crossing_mask]
-    points, t = edge_points(V[crossing[:, 0]], V[crossing[:, 1]], s[crossing[:, 0]], s[crossing[:, 1]], n, d,
-                            predicates)
-    new_index = np.full(len(e), -1, np.int64)
-    new_index[crossing_mask] = len(V) + np.arange(len(crossing))
+    smallest = smallest_doubled_area(V, F)
+    # Each pass snaps at least one more vertex onto the plane, so this ends (at worst with no split face).
+    for _ in range(len(V) + 1):
+        crossing, t, points, pieces, diagonal, snap = _split(V, F, edges, s, sign, n, d, predicates, smallest)
+        if not len(snap):
+            break
+        sign[snap] = 0
+    if not (np.any(sign[F] > 0) and np.any(sign[F] < 0)):
+        raise ValueError("plane: only grazes the mesh (every vertex on one side of it lies so close to it that "
+                         "cutting there would leave sliver faces); nothing to cut")
+    s = np.where(sign == 0, 0.0, s)
 
     face_signs = sign[F]
-    lowest, highest = face_signs.min(axis=1), face_signs.max(axis=1)
-    split = (lowest < 0) & (highest > 0)
+    lowest, highest = _row_range(face_signs)
     in_plane = (lowest == 0) & (highest == 0)
-    # Only the split faces go through the tables. Slots: the corners, then the new vertex (or -1)
-    # on each local edge.
-    slots = np.concatenate([F[split], new_index[edges.face_edges[split]]], axis=1)
-    code = face_signs[split] @ np.array([9, 3, 1]) + 13
+    flat = F[in_plane]
+    normal = np.cross(V[flat[:, 1]] - V[flat[:, 0]], V[flat[:, 2]] - V[flat[:, 0]])
     sides = []
-    for table, sign_of_side, whole in ((_POSITIVE, 1, (lowest >= 0) & (highest > 0)),
-                                       (_NEGATIVE, -1, (highest <= 0) & (lowest < 0))):
-        templates = table[code]  # (split, 2, 3)
-        valid = templates[:, :, 0] >= 0
-        pieces = np.take_along_axis(slots[:, None, :], np.where(templates < 0, 0, templates), axis=2)[valid]
+    for k, (sign_of_side, whole) in enumerate(((1, (lowest >= 0) & (highest > 0)),
+                                               (-1, (highest <= 0) & (lowest < 0)))):
+        chosen = np.where(diagonal[:, None, None] == 0, pieces[0][k], pieces[1][k])
+        valid = chosen[:, :, 0] >= 0
         # A face lying in the plane closes the half that its normal points away from.
-        flat = F[in_plane]
-        normal = np.cross(V[flat[:, 1]] - V[flat[:, 0]], V[flat[:, 2]] - V[flat[:, 0]])
-        sides.append(np.concatenate([F[whole], pieces, flat[sign_of_side * (normal @ n) < 0]]))
+        sides.append(np.concatenate([F[whole], chosen[valid], flat[sign_of_side * (normal @ n) < 0]]))
 
     if cap:
         if not _is_closed(edges):

@@ -17,7 +17,9 @@ to the axis, P the projection onto it.
    cross it twice;
 4. weights of the new points from their edges (sec. 4.3);
 5. each affected face is replaced by the convex pieces of it that lie outside the drill (the runs of
-   its boundary outside the cylinder, each closed by a straight chord), vertices inside are removed.
+   its boundary outside the cylinder, each closed by a straight chord), vertices inside are removed;
+   a new point that would leave a sliver piece (``_geometry.poor_pieces``) is dropped, the hole's
+   boundary then passes through its neighbour on the face's boundary, and step 5 repeats.
 
 When a hole has fewer than ``min_points`` boundary points (a drill thin against the faces), the
 affected faces are split (midpoints of their edges; neighbours get conforming 2- or 3-way splits)
@@ -30,13 +32,15 @@ For a fixed topology the new points are a JAX function of the vertices and the d
 
 from __future__ import annotations
 
+import math
 from typing import NamedTuple
 
 import jax.numpy as jnp
 import numpy as np
 
 from cutting._geometry import (MeshEdges, bounding_diagonal, check_mesh_arrays, check_point, fan_triangles, mesh_edges,
-                               posed_vertices, rest_positions, segment_hits, skinned_mesh_like)
+                               poor_pieces, posed_vertices, rest_positions, segment_hits, skinned_mesh_like,
+                               smallest_doubled_area)
 from cutting._weights import blend_weights
 from deform._model import SkinnedMesh
 
@@ -272,6 +276,7 @@ def drill_mesh(V, F, tip, base, radius, *, min_points: int = 6, max_refinements:
         raise ValueError(f"radius: {radius:.4g} exceeds the model's size: every vertex lies within {reach:.4g} of the "
                          "drill's axis; give a smaller radius")
     margin = tolerance * bounding_diagonal(V)
+    smallest = smallest_doubled_area(V, F)  # the input's: refinement only adds smaller faces
     all_parents, refinements = [], 0
     while True:
         state = _drill_once(V, F, edges, tip, base, radius, margin)
@@ -289,9 +294,16 @@ def drill_mesh(V, F, tip, base, radius, *, min_points: int = 6, max_refinements:
         raise ValueError(f"radius: a hole has {state['fewest']} boundary points after {refinements} refinements "
                          "(the drill is too thin for the faces it meets; raise max_refinements or the radius)")
     index, alpha, sign = state["index"], state["alpha"], state["sign"]
-    crossing = edges.edges[index]
-    points = alpha[:, None] * V[crossing[:, 0]] + (1.0 - alpha[:, None]) * V[crossing[:, 1]]
-    faces = _retriangulate(V, F, edges, state, points, crossing, radius)
+    # Each pass drops at least one new point (it snaps to the vertex or point next to it), so this ends.
+    for _ in range(len(index) + 1):
+        crossing = edges.edges[index]
+        points = alpha[:, None] * V[crossing[:, 0]] + (1.0 - alpha[:, None]) * V[crossing[:, 1]]
+        faces, drop = _retriangulate(V, F, edges, state, index, alpha, points, crossing, radius, smallest)
+        if not len(drop):
+            break
+        keep = np.ones(len(index), bool)
+        keep[drop] = False
+        index, alpha, sign = index[keep], alpha[keep], sign[keep]
     used = np.zeros(len(V) + len(points), bool)
     used[faces] = True
     kept = np.flatnonzero(used)
@@ -306,12 +318,14 @@ def _axis_distance(X, tip, base) -> np.ndarray:
     return np.linalg.norm(offsets - (offsets @ direction)[..., None] * direction, axis=-1)
 
 
-def _retriangulate(V, F, edges: MeshEdges, state, points, crossing, radius):
-    """Faces of the drilled mesh (Algorithm 3, step 5) in the extended numbering. Per affected face
-    in plain Python: the faces near a hole are few, and small arrays cost more than they save."""
+def _retriangulate(V, F, edges: MeshEdges, state, index, alpha, points, crossing, radius, smallest):
+    """Faces of the drilled mesh (Algorithm 3, step 5) in the extended numbering, and the new points
+    to drop: in each face whose pieces are slivers (``poor_pieces``), the new point (or the two on one
+    edge) closest to its neighbour on the face's boundary, relative to that edge's length; without it
+    the hole's boundary passes through the neighbour. Per affected face in plain Python: the faces
+    near a hole are few, and small arrays cost more than they save."""
     affected = np.flatnonzero(state["affected"])
     n = len(V)
-    index, alpha = state["index"], state["alpha"]
     corners = F[affected]
     # radial vectors P(x) - B of the corners and the new points (the projection is affine)
     axis = state["axis"]
@@ -328,15 +342,19 @@ def _retriangulate(V, F, edges: MeshEdges, state, points, crossing, radius):
     for entries in on_edge.values():
         entries.sort()
     limit = radius * radius
-    triangles = []
+    triangles, parents, cycles = [], [], []
     for face, local_edges in zip(corners.tolist(), edges.face_edges[affected].tolist()):
-        cycle = []
+        cycle, spans = [], []  # the boundary, and the length of the face's edge under each step of it
         for k in range(3):
             a, b = face[k], face[(k + 1) % 3]
             cycle.append(a)
             ordered = [vid for _, vid in on_edge.get(local_edges[k], ())]
             cycle += ordered if a < b else ordered[::-1]
+            pa, pb = position[a], position[b]
+            spans += [((pa[0] - pb[0]) ** 2 + (pa[1] - pb[1]) ** 2 + (pa[2] - pb[2]) ** 2) ** 0.5] * (len(ordered) + 1)
+        cycles.append((cycle, spans))
         m = len(cycle)
+        before = len(triangles)
         # a boundary piece is outside the drill when its midpoint is (the drill is convex)
         outside = []
         for i in range(m):
@@ -345,21 +363,31 @@ def _retriangulate(V, F, edges: MeshEdges, state, points, crossing, radius):
             outside.append(0.25 * (mx * mx + my * my + mz * mz) > limit)
         if all(outside):
             triangles.append(tuple(face))
-            continue
-        if not any(outside):
-            continue
-        # each run of the boundary outside the drill, closed by a chord, is a convex piece
-        start = next(i for i in range(m) if outside[i] and not outside[i - 1])
-        run = [cycle[start]]
-        for step in range(m):
-            i = (start + step) % m
-            if outside[i]:
-                run.append(cycle[(i + 1) % m])
-                continue
-            if len(run) >= 3:
-                triangles += fan_triangles(run, [position[v] for v in run])
-            run = [cycle[(i + 1) % m]]
-    return np.concatenate([F[~state["affected"]], np.asarray(triangles, np.int64).reshape(-1, 3)])
+        elif any(outside):
+            # each run of the boundary outside the drill, closed by a chord, is a convex piece
+            start = next(i for i in range(m) if outside[i] and not outside[i - 1])
+            run = [cycle[start]]
+            for step in range(m):
+                i = (start + step) % m
+                if outside[i]:
+                    run.append(cycle[(i + 1) % m])
+                    continue
+                if len(run) >= 3:
+                    triangles += fan_triangles(run, [position[v] for v in run])
+                run = [cycle[(i + 1) % m]]
+        parents += [len(cycles) - 1] * (len(triangles) - before)
+    pieces = np.asarray(triangles, np.int64).reshape(-1, 3)
+    poor = poor_pieces(np.concatenate([V, points]), pieces, corners[np.asarray(parents, np.int64)], smallest)
+    drop = []
+    for f in np.unique(np.asarray(parents, np.int64)[poor]).tolist():
+        cycle, spans = cycles[f]
+        m = len(cycle)
+        steps = [(math.dist(position[cycle[i]], position[cycle[(i + 1) % m]]) / spans[i], i) for i in range(m)
+                 if max(cycle[i], cycle[(i + 1) % m]) >= n]
+        if steps:
+            _, i = min(steps)
+            drop += [v - n for v in (cycle[i], cycle[(i + 1) % m]) if v >= n]
+    return np.concatenate([F[~state["affected"]], pieces]), np.unique(np.asarray(drop, np.int64))
 
 
 def drill(mesh: SkinnedMesh, tip, base, radius, *, min_points: int = 6, max_refinements: int = 4,

@@ -191,3 +191,39 @@ def fan_triangles(polygon, coordinates):
             best, best_area = apex, smallest
     ring = [polygon[(best + i) % k] for i in range(k)]
     return [(ring[0], ring[i], ring[i + 1]) for i in range(1, k - 1)]
+
+
+# A piece that a tool leaves of a face keeps at least PIECE_AREA of the mesh's smallest face area, and
+# no angle under PIECE_ANGLE radians unless the face has a smaller one: a new point that would make a
+# smaller piece snaps to the vertex it lies next to (the mesh's own scale, so vertices move no more
+# than these slivers need).
+PIECE_AREA = 1e-3
+PIECE_ANGLE = 1e-3
+
+
+def triangle_quality(A, B, C):
+    """(twice the area (t,), smallest angle (t,)) of the triangles with corners A, B, C (t, 3)."""
+    ab, bc, ca = B - A, C - B, A - C
+    normal = cross_rows(ab, -ca)
+    doubled = np.sqrt(np.einsum("ij,ij->i", normal, normal))
+    # the angle at a corner from its two edges: atan2(|cross|, dot), |cross| = twice the area
+    dots = [-np.einsum("ij,ij->i", ca, ab), -np.einsum("ij,ij->i", ab, bc), -np.einsum("ij,ij->i", bc, ca)]
+    return doubled, np.min([np.arctan2(doubled, dot) for dot in dots], axis=0)
+
+
+def smallest_doubled_area(V, F) -> float:
+    """Twice the area of the smallest face of (V, F) (the reference of ``poor_pieces``)."""
+    if not len(F):
+        return 0.0
+    A = V[F[:, 0]]
+    normal = cross_rows(V[F[:, 1]] - A, V[F[:, 2]] - A)
+    return float(np.sqrt(np.einsum("ij,ij->i", normal, normal).min()))
+
+
+def poor_pieces(P, pieces, parent_corners, smallest):
+    """Which pieces (t, 3) (vertex ids into P) of faces (t, 3) (ids into P) are slivers: under
+    PIECE_AREA of the mesh's smallest face (``smallest``: twice its area), or with an angle under
+    PIECE_ANGLE and the face's own smallest angle."""
+    area, angle = triangle_quality(P[pieces[:, 0]], P[pieces[:, 1]], P[pieces[:, 2]])
+    _, face_angle = triangle_quality(P[parent_corners[:, 0]], P[parent_corners[:, 1]], P[parent_corners[:, 2]])
+    return (area < PIECE_AREA * smallest) | (angle < np.minimum(PIECE_ANGLE, face_angle))

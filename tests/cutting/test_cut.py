@@ -15,6 +15,7 @@ import cutting
 import deform
 import jaxcga as cga
 from tests.cutting.tools import area as _area
+from tests.cutting.tools import consistency_problems, piece_quality
 from tests.cutting.tools import diagonal as _diagonal
 from tests.cutting.tools import load_models
 from tests.cutting.tools import posed as posed_arm
@@ -53,22 +54,27 @@ def test_cut_invariants_on_real_models(name, direction, offset, predicates):
     areas = [_area(h.V, h.F) for h in (positive, negative)]
     total = _area(V, mesh.F).sum()
     assert abs(areas[0].sum() + areas[1].sum() - total) <= 1e-9 * total
-    # no degenerate face
-    assert min(a.min() for a in areas) > 1e-14 * diagonal**2
-    # sides: positive n.x >= d (up to the snapping tolerance), negative <= d
+    # no sliver: pieces of faces keep 1e-3 of the smallest face's area and angles of 1e-3 rad
+    topology = cutting.plane_cut(V, mesh.F, plane, predicates=predicates)
+    for half, keep in ((positive, topology.positive), (negative, topology.negative)):
+        problems, _, _ = piece_quality(V, mesh.F, half.V, half.F, keep)
+        assert not problems + consistency_problems(half, mesh, keep)
+    # sides: the positive half's input vertices have n.x >= d, or were snapped onto the plane (distance
+    # 0) because a crossing next to them would have left a sliver
     n, d = plane[:3], plane[3]
-    tol = 1e-6 * diagonal
-    assert np.all(np.asarray(positive.V) @ n - d >= -tol)
-    assert np.all(np.asarray(negative.V) @ n - d <= tol)
+    for keep, sign in ((topology.positive, 1), (topology.negative, -1)):
+        assert np.all(sign * topology.distances[keep[keep < len(V)]] >= 0)
     for half in (positive, negative):
         W = np.asarray(half.W)
         np.testing.assert_allclose(W.sum(axis=1)[len(V):], 1.0, atol=1e-12)
         assert half.J.shape[1] == mesh.J.shape[1]
         assert np.all(np.asarray(half.J) < mesh.num_joints)
     # new vertices (not among the original positions) lie on the plane
-    topology = cutting.plane_cut(V, mesh.F, plane, predicates=predicates)
     assert np.all(np.abs(topology.points @ n - d) <= 1e-9 * diagonal)
     assert np.all((topology.t > 0) & (topology.t < 1))
+    # the differentiable positions follow the snapped topology
+    np.testing.assert_allclose(np.asarray(cutting.cut_positions(V, topology.crossing, jnp.asarray(n), d)),
+                               topology.points, rtol=0, atol=1e-12 * diagonal)
 
 
 def _original_rows(half, V):

@@ -16,6 +16,7 @@ import cutting
 import deform
 import jaxcga as cga
 from tests.cutting.tools import area as _area
+from tests.cutting.tools import consistency_problems, piece_quality
 from tests.cutting.tools import diagonal as _diagonal
 from tests.cutting.tools import drill_into, load_models, mean_edge
 from tests.cutting.tools import edge_counts as _edge_counts
@@ -71,9 +72,15 @@ def test_drill_invariants_on_real_models(name, seed, radius, depth):
     drilled, topology = cutting.drill(mesh, tip, base, radius * edge, return_topology=True)
     Vd, Fd = np.asarray(drilled.V, np.float64), np.asarray(drilled.F)
     diagonal = _diagonal(V)
-    # new points on the cylinder; no degenerate face; area only removed
+    # new points on the cylinder; no sliver (issue 30): pieces keep 1e-3 of the smallest face's area and
+    # angles of 1e-3 rad; area only removed
     assert np.all(np.abs(_radial_distance(topology.points, tip, base) - radius * edge) <= 1e-9 * diagonal)
-    assert _area(Vd, Fd).min() > 1e-14 * diagonal**2
+    problems, _, _ = piece_quality(V, F, Vd, Fd, topology.kept)
+    # the differentiable positions follow the topology left after dropping points
+    np.testing.assert_allclose(np.asarray(cutting.drill_positions(topology.vertices, topology.crossing, topology.root,
+                                                                  jnp.asarray(tip), jnp.asarray(base), radius * edge)),
+                               topology.points, rtol=0, atol=1e-9 * diagonal)
+    assert not problems + consistency_problems(drilled, mesh, topology.kept)
     assert _area(Vd, Fd).sum() < _area(V, F).sum()
     # weights of new vertices (refinement midpoints and hole points)
     W = np.asarray(drilled.W)[topology.kept >= len(V)]
@@ -92,8 +99,9 @@ def test_drill_invariants_on_real_models(name, seed, radius, depth):
 
 
 def test_hole_in_a_flat_plate_is_the_inscribed_polygon():
-    """A drill perpendicular to a flat plate removes exactly the polygon of its boundary points, whose
-    vertices lie on the circle of radius r; its area tends to pi r^2 as the plate is refined."""
+    """A drill perpendicular to a flat plate removes exactly the polygon of its boundary: new points on
+    the circle of radius r, and input vertices where a new point would have made a sliver (they lie
+    next to the circle); its area tends to pi r^2 as the plate is refined."""
     plate = trimesh.creation.box(extents=(4.0, 4.0, 1.0))
     for _ in range(4):
         plate = plate.subdivide()
@@ -104,7 +112,10 @@ def test_hole_in_a_flat_plate_is_the_inscribed_polygon():
     top_before = _area(V, F)[V[F].mean(axis=1)[:, 2] > 0.49].sum()
     extended = np.concatenate([drilled.vertices, drilled.points])[drilled.kept]
     top_after = _area(extended, drilled.faces)[extended[drilled.faces].mean(axis=1)[:, 2] > 0.49].sum()
-    points = drilled.points[drilled.points[:, 2] > 0.49] - tip
+    rim_edges, rim_counts = _edge_counts(drilled.faces)
+    rim = extended[np.unique(rim_edges[rim_counts == 1])]
+    points = rim[rim[:, 2] > 0.49] - tip
+    assert np.all(np.abs(np.linalg.norm(points[:, :2], axis=1) - r) <= 0.05 * r)
     order = np.argsort(np.arctan2(points[:, 1], points[:, 0]))
     x, y = points[order, 0], points[order, 1]
     polygon = 0.5 * abs(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))

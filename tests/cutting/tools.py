@@ -84,3 +84,198 @@ def posed(model, t: float):
     local = deform.sample_pose(model, t, "lbs")
     joints = deform.joint_matrices(model.mesh, deform.forward_kinematics_matrices(model.skeleton.parents, local))
     return local, joints, np.asarray(deform.skin_pose(model, local, "lbs"))
+
+
+# A tear fails for these reasons only on surfaces it cannot follow (a random scalpel may).
+TOOL_REFUSALS = ("does not cross", "boundary", "crosses itself", "turns back", "inside one face", "does not reach",
+                 "keeps passing")
+
+# --- Sliver fuzzing (issue 30, item 2) --------------------------------------------------------------
+# A cut, tear or drill may not make a face smaller than AREA_RATIO x the input's smallest face, nor
+# one with an angle under MIN_ANGLE unless the input face it comes from already has one.
+AREA_RATIO = 1e-3
+MIN_ANGLE = 1e-3
+ON_TOOL = 1e-9  # new points lie on the tool's surface to this fraction of the bounding-box diagonal
+
+
+def angles(V, F):
+    """(m, 3) interior angles of the faces."""
+    V, F = np.asarray(V, np.float64), np.asarray(F)
+    result = []
+    for k in range(3):
+        u = V[F[:, (k + 1) % 3]] - V[F[:, k]]
+        w = V[F[:, (k + 2) % 3]] - V[F[:, k]]
+        result.append(np.arctan2(np.linalg.norm(np.cross(u, w), axis=1), np.einsum("ij,ij->i", u, w)))
+    return np.stack(result, axis=1)
+
+
+def piece_quality(V, F, V_out, F_out, ids):
+    """Problems of the faces an operation made (those that are not input faces).
+
+    ``ids``: for each output vertex its index in the input (or any value >= len(V) for a new one).
+    Returns (problems: list of strings, smallest area ratio, smallest angle) over the new faces; the
+    area ratio is against the input's smallest face, and an angle under MIN_ANGLE is a problem only
+    where the input face holding the new face's centroid has none."""
+    V, F = np.asarray(V, np.float64), np.asarray(F)
+    V_out, F_out, ids = np.asarray(V_out, np.float64), np.asarray(F_out), np.asarray(ids)
+    problems = []
+    def keys(faces):  # one integer per face, whatever its rotation
+        faces = np.sort(faces, axis=1).astype(np.int64)
+        return (faces[:, 0] * (len(V) + 1) + faces[:, 1]) * (len(V) + 1) + faces[:, 2]
+
+    labels = ids[F_out]
+    is_new = (labels >= len(V)).any(axis=1) | ~np.isin(keys(np.minimum(labels, len(V))), keys(F))
+    new = F_out[is_new]
+    if not len(new):
+        return problems, np.inf, np.inf
+    ratio = area(V_out, new) / area(V, F).min()
+    smallest = angles(V_out, new).min(axis=1)
+    if ratio.min() < AREA_RATIO:
+        problems.append(f"face of area {ratio.min():.3g} x the input's smallest")
+    thin = np.flatnonzero(smallest < MIN_ANGLE)
+    if len(thin):
+        centroids = V_out[new[thin]].mean(axis=1)
+        _, parents, _ = igl.point_mesh_squared_distance(centroids, V, F)
+        inherited = angles(V, F[parents]).min(axis=1) < MIN_ANGLE
+        if not inherited.all():
+            problems.append(f"face with an angle of {smallest[thin][~inherited].min():.3g} rad")
+    return problems, float(ratio.min()), float(smallest.min())
+
+
+def consistency_problems(mesh, input_mesh, ids):
+    """Problems of an output SkinnedMesh: repeated corners, duplicate faces, an edge on more than
+    two faces or twice in one direction (inconsistent winding), unused vertices, weights of new
+    vertices negative or not summing to one, input vertices' weights changed. ``ids``: as for
+    ``piece_quality``."""
+    V, F = np.asarray(mesh.V, np.float64), np.asarray(mesh.F)
+    J, W = np.asarray(mesh.J), np.asarray(mesh.W)
+    problems = []
+    if np.any((F[:, 0] == F[:, 1]) | (F[:, 1] == F[:, 2]) | (F[:, 2] == F[:, 0])):
+        problems.append("a face repeats a corner")
+    if len(np.unique(np.sort(F, axis=1), axis=0)) != len(F):
+        problems.append("duplicate faces")
+    if edge_counts(F)[1].max() > 2:
+        problems.append("an edge on more than two faces")
+    directed = np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]])
+    if len(np.unique(directed, axis=0)) != len(directed):
+        problems.append("inconsistent winding (a directed edge twice)")
+    if len(np.unique(F)) != len(V):
+        problems.append("unused vertices")
+    ids = np.asarray(ids)
+    old = ids < len(input_mesh.V)
+    # the input's own weights are kept as they are (glTF's float32 sums are off by up to 2e-3)
+    if not np.array_equal(W[old], np.asarray(input_mesh.W)[ids[old]]):
+        problems.append("an input vertex's weights changed")
+    new = W[~old]
+    if not (np.all(new >= 0) and np.allclose(new.sum(axis=1), 1.0, rtol=0, atol=8 * np.finfo(W.dtype).eps)):
+        problems.append("weights of a new vertex negative or not summing to one")
+    if not (np.all(J >= 0) and np.all(J < input_mesh.num_joints)):
+        problems.append("joint index out of range")
+    return problems
+
+
+def random_plane(V, rng):
+    """A plane with a random normal through the mesh (between 1% and 99% of its extent along it)."""
+    n = rng.normal(size=3)
+    n /= np.linalg.norm(n)
+    heights = np.asarray(V) @ n
+    return np.append(n, heights.min() + rng.uniform(0.01, 0.99) * (heights.max() - heights.min()))
+
+
+def random_surface_point(V, F, rng):
+    """(face, point, unit normal): a uniformly random point of the surface."""
+    V, F = np.asarray(V, np.float64), np.asarray(F)
+    areas = area(V, F)
+    face = int(rng.choice(len(F), p=areas / areas.sum()))
+    b = rng.dirichlet(np.ones(3))
+    _, normal = _frame(V, F, face)
+    return face, b @ V[F[face]], normal
+
+
+def random_drill(V, F, rng):
+    """(tip, base, radius): a drill along the normal at a random surface point, radius 0.3 to 2 mean
+    edges, its axis piercing the surface there."""
+    _, point, normal = random_surface_point(V, F, rng)
+    edge = mean_edge(V, F)
+    radius = rng.uniform(0.3, 2.0) * edge
+    depth = rng.uniform(0.5, 2.0) * edge
+    return point - depth * normal, point + depth * normal, radius
+
+
+def random_scalpels(V, F, rng):
+    """(samples, 2, 3) scalpels crossing the surface: 2 to 4 samples, 1.5 to 4 mean edges apart,
+    from a random face in a random direction (``scalpels_over``), each reaching a step's length to
+    both sides of the surface."""
+    face, _, _ = random_surface_point(V, F, rng)
+    step = rng.uniform(1.5, 4.0) * mean_edge(V, F)
+    return scalpels_over(V, F, face, rng.normal(size=3), int(rng.integers(2, 5)), step, depth=step)
+
+
+def fuzz(mesh, tool: str, count: int, seed: int):
+    """Apply ``count`` random tools (``"plane"``, ``"drill"`` or ``"tear"``) to ``mesh`` (bind pose); a
+    tool that the algorithm declines (a ValueError) is recorded and replaced by another, up to 3 *
+    ``count`` tries.
+
+    Returns a dict: runs (tools applied), refused (the ValueError messages), failures (descriptions),
+    smallest area ratio and smallest angle of the new faces, the largest distance of a new point from
+    the tool's surface (off_tool) and the largest distance from it of an input vertex that the cut's
+    boundary passes through instead of a new point next to it (snapped; for a tear: the largest move
+    of its plane), both relative to the diagonal."""
+    import cutting
+
+    V, F = np.asarray(mesh.V, np.float64), np.asarray(mesh.F)
+    edges = cutting.mesh_edges(F)
+    scale = diagonal(V)
+    rng = np.random.default_rng(seed)
+    stats = {"runs": 0, "refused": [], "failures": [], "area_ratio": np.inf, "angle": np.inf, "off_tool": 0.0,
+             "snapped": 0.0}
+    for trial in range(3 * count):
+        if stats["runs"] == count:
+            break
+        try:
+            if tool == "plane":
+                plane = random_plane(V, rng)
+                topology = cutting.plane_cut(V, F, plane, edges=edges)
+                halves = cutting.cut(mesh, plane, edges=edges)
+                outputs = [(h, keep) for h, keep in zip(halves, (topology.positive, topology.negative))]
+                off = np.abs(topology.points @ plane[:3] - plane[3])
+                snapped = np.abs(V @ plane[:3] - plane[3])[topology.distances == 0]
+            elif tool == "drill":
+                tip, base, radius = random_drill(V, F, rng)
+                drilled, topology = cutting.drill(mesh, tip, base, radius, edges=edges, return_topology=True)
+                outputs = [(drilled, topology.kept)]
+                axis = (tip - base) / np.linalg.norm(tip - base)
+                relative = topology.points - base
+                off = np.abs(np.linalg.norm(relative - np.outer(relative @ axis, axis), axis=1) - radius)
+                # input vertices on the hole's boundary (on a boundary edge that the input did not have)
+                rim_edges, rim_counts = edge_counts(topology.kept[np.asarray(drilled.F)])
+                before_edges, before_counts = edge_counts(F)
+                rim = np.unique(rim_edges[rim_counts == 1])
+                rim = np.setdiff1d(rim[rim < len(V)], before_edges[before_counts == 1])
+                relative = V[rim] - base
+                snapped = np.abs(np.linalg.norm(relative - np.outer(relative @ axis, axis), axis=1) - radius)
+            else:
+                scalpels = random_scalpels(V, F, rng)
+                torn, path = cutting.tear(mesh, scalpels, edges=edges, return_path=True)
+                outputs = [(torn, np.arange(len(torn.V)))]
+                normals, offsets = path.planes[path.step, :3], path.planes[path.step, 3]
+                off = np.abs(np.einsum("ij,ij->i", path.points, normals) - offsets)
+                snapped = np.abs(path.shift)
+        except ValueError as error:
+            stats["refused"].append(f"{tool} {trial}: {error}")
+            continue
+        stats["runs"] += 1
+        problems = []
+        for out, ids in outputs:
+            found, ratio, angle = piece_quality(V, F, out.V, out.F, ids)
+            problems += found + consistency_problems(out, mesh, ids)
+            stats["area_ratio"] = min(stats["area_ratio"], ratio)
+            stats["angle"] = min(stats["angle"], angle)
+        worst = float(off.max(initial=0.0)) / scale
+        stats["off_tool"] = max(stats["off_tool"], worst)
+        stats["snapped"] = max(stats["snapped"], float(snapped.max(initial=0.0)) / scale)
+        if worst > ON_TOOL:
+            problems.append(f"a new point {worst:.3g} x diagonal off the tool")
+        if problems:
+            stats["failures"].append(f"{tool} {trial}: " + "; ".join(problems))
+    return stats
