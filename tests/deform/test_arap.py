@@ -92,7 +92,7 @@ def arm5():
 
 
 @pytest.mark.parametrize("energy", ["spokes", "spokes_and_rims"])
-@pytest.mark.parametrize("iterations", [1, 10])
+@pytest.mark.parametrize("iterations", [1, pytest.param(10, marks=pytest.mark.slow)])
 def test_equals_libigls_algorithm_on_arm5(arm5, iterations, energy):
     """Arm5 has cells whose covariance is nearly singular with a reflection (det S < 0): there the
     single-precision 3x3 SVD that ``igl.arap_solve`` fits rotations with is off by ~1e-4 relative. With
@@ -164,7 +164,7 @@ def _welded(name):
     return V, F, np.flatnonzero((s < 0.05) | (s > 0.95)), np.linalg.norm(np.ptp(V, axis=0))
 
 
-@pytest.mark.parametrize("name", ["Arm5", "CesiumMan"])
+@pytest.mark.parametrize("name", ["Arm5", pytest.param("CesiumMan", marks=pytest.mark.slow)])
 def test_rigid_motion_stays_rigid_on_real_meshes(name):
     """Every handle moved by one rigid motion: with spokes and rims (the default) the rigid map is the
     energy's minimum (zero), the default start (the handles' best rigid alignment) is on it and the iterations

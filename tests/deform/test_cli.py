@@ -150,6 +150,7 @@ def test_a_corrupt_buffer_is_blamed_on_its_accessor(tmp_path, capsys):
     assert "POSITION (accessor" in err and "non-finite" in err
 
 
+@pytest.mark.slow  # compile-heavy: `make test-slow` and CI run it, `make test` stays under 10 minutes
 def test_skin_and_animate_interpolation(tmp_path):
     """``--interpolation gltf`` (default) follows the file's animation for every method; ``log`` is the
     paper's sampling, which departs from it between scale keys."""

@@ -87,6 +87,7 @@ def test_skinning_follows_the_specification(models, scaled_keys, name, method):
         np.testing.assert_allclose(skin(jnp.asarray(t, jnp.float64)), expected, atol=tol, err_msg=f"t = {t}")
 
 
+@pytest.mark.slow  # compile-heavy: `make test-slow` and CI run it, `make test` stays under 10 minutes
 def test_log_interpolation_is_the_papers_sampling(scaled_keys):
     """``interpolation="log"`` blends the key versors logarithmically (sec. 4.1) for every method: equal
     to the specification on keys, geometric scale between them (15% of the diagonal here)."""
