@@ -29,6 +29,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from jaxcga._meshfile import read_mesh_file
 from jaxcga._output import check_run_folder, run_folder, save_figure, write_json
 from xfem._backward_euler import State, backward_euler_step, fem_from_mesh, mechanical_energy
 from xfem._neohookean import lame
@@ -52,9 +53,6 @@ def scene_mesh(scene: str, fix_fraction: float = 0.02):
     if not path.exists():
         raise FileNotFoundError(f"SCENE: expected one of {SCENES} or a mesh file, got {scene!r} (no such file)")
     if path.suffix.lower() in SURFACE_FORMATS:
-        # the command modules form the application layer above the packages (DESIGN.md): one mesh-file reader
-        from deform._deform_commands import read_mesh_file
-
         mesh = tetrahedralize(*read_mesh_file(path, "SCENE"))
     else:
         try:
