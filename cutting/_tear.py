@@ -17,10 +17,11 @@ given as segments or as a blade moved by motors (``scalpel_path``).
 Successive samples make one tear along the whole path (the paper's successive tears): in the face
 of an intermediate sample S_i the path goes straight from the point where it enters the face to
 the point where it leaves it (the paper's assumption that the tear curve is smooth between close
-samples). A plane that passes within ``tolerance`` of a vertex of the path, or that would put a tear
-point within 2% of an edge's length from its end, is moved along its normal in steps of 5% of an edge
-(a gentle perturbation, as the XFEM paper's sec. 6.1 does for cuts through vertices), so that no
-sliver triangle is created; ``TearPath.shift`` records the move.
+samples). A plane that passes within ``tolerance`` of a vertex of the path, that would put a tear
+point within 2% of an edge's length from its end, or that would leave a piece of a face smaller or
+thinner than the sliver rule of ``_geometry.poor_pieces`` allows, is moved along its normal in steps of
+5% of an edge (a gentle perturbation, as the XFEM paper's sec. 6.1 does for cuts through vertices), so
+that no sliver triangle is created; ``TearPath.shift`` records the move.
 
 For a fixed topology (``TearPath``), the positions of the new vertices are a JAX function of the
 scalpel samples, the vertices and the opening (``tear_positions``), so they can be differentiated.
@@ -34,8 +35,9 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxcga as cga
-from cutting._geometry import (MeshEdges, bounding_diagonal, check_mesh_arrays, cross3, cross_rows, fan_triangles,
-                               mesh_edges, posed_vertices, rest_positions, segment_hits, skinned_mesh_like)
+from cutting._geometry import (PIECE_ANGLE, PIECE_AREA, MeshEdges, bounding_diagonal, check_mesh_arrays, cross3,
+                               cross_rows, fan_triangles, mesh_edges, posed_vertices, rest_positions, segment_hits,
+                               skinned_mesh_like, smallest_doubled_area, triangle_quality)
 from cutting._predicates import check_predicates, edge_points, signed_distances
 from cutting._weights import blend_weights
 from deform._model import SkinnedMesh
@@ -47,6 +49,10 @@ _SHIFT_STEP = 0.05
 # Tip points keep at least this barycentric coordinate in their face (no sliver fan triangle when
 # the scalpel meets the surface on or near an edge).
 _TIP_MARGIN = 0.02
+# The edge margins alone allow a corner piece of 0.02 x 0.02 of its face; each face's pieces are
+# checked against the rule of ``poor_pieces`` with this headroom (the final points come from the
+# predicates, which may round differently), and the plane moves on where one is a sliver.
+_PIECE_HEADROOM = 1.1
 
 
 class TearPath(NamedTuple):
@@ -126,19 +132,52 @@ def _face_normal(V, corners):
 
 
 class _NearVertex(Exception):
-    """The plane passes within the tolerance of a vertex of the path: move it and walk again."""
+    """The plane passes within the tolerance of a vertex of the path, or leaves a sliver piece: move it
+    and walk again."""
 
 
 class _Lost(Exception):
     """The plane's curve leaves the faces being followed (after a move, it may miss the first face)."""
 
 
-def _walk(V, F, edges: MeshEdges, s, margin, start, entry_edge, origin, goal, target, visited):
+def _poor_face(V, F, edges: MeshEdges, f, pieces_of, smallest):
+    """Whether the pieces that the tear leaves of face f are slivers (the rule of
+    ``_geometry.poor_pieces``, with _PIECE_HEADROOM). ``pieces_of``: ``(points, tip)``, the new points
+    as ``{edge id: position}`` and the tip inside the face (or None): the same split as
+    ``_retriangulate``, a fan from the tip or the chord's two convex pieces."""
+    points, tip = pieces_of
+    corners = V[F[f]]
+    cycle = []  # the face's boundary in winding order, with its new points on their edges
+    for k, e in enumerate(edges.face_edges[f].tolist()):
+        cycle.append(("corner", tuple(corners[k])))
+        if e in points:
+            cycle.append(("point", tuple(points[e])))
+    if tip is not None:
+        triangles = [(cycle[m][1], cycle[(m + 1) % len(cycle)][1], tuple(tip)) for m in range(len(cycle))]
+    else:
+        start = next(m for m, z in enumerate(cycle) if z[0] == "point")
+        cycle = cycle[start:] + cycle[:start]
+        stop = next(m for m, z in enumerate(cycle) if z[0] == "point" and m > 0)
+        triangles = []
+        for piece in (cycle[:stop + 1], cycle[stop:] + cycle[:1]):
+            coordinates = [z[1] for z in piece]
+            triangles += [tuple(coordinates[m] for m in ids)
+                          for ids in fan_triangles(list(range(len(piece))), coordinates)]
+    triangles = np.asarray(triangles, np.float64)
+    area, angle = triangle_quality(triangles[:, 0], triangles[:, 1], triangles[:, 2])
+    _, face_angle = triangle_quality(corners[None, 0], corners[None, 1], corners[None, 2])
+    return bool(np.any(area < _PIECE_HEADROOM * PIECE_AREA * smallest)
+                or np.any(angle < min(_PIECE_HEADROOM * PIECE_ANGLE, face_angle[0])))
+
+
+def _walk(V, F, edges: MeshEdges, s, margin, start, entry_edge, entry_point, origin, goal, target, visited,
+          smallest, final):
     """Follow the zero set of the signed distances s from face ``start`` (entered over
-    ``entry_edge``, or from the tip ``origin`` inside it) to face ``target``.
+    ``entry_edge`` at ``entry_point``, or from the tip ``origin`` inside it) to face ``target`` (the
+    last sample's face, holding the tip ``goal``, when ``final``).
     Returns the crossed edge ids and the faces entered (target last)."""
     crossed, entered = [], []
-    f, e_from = start, entry_edge
+    f, e_from, point_in = start, entry_edge, entry_point
     for _ in range(len(F) + 1):
         if np.abs(s[F[f]]).min() <= margin:
             raise _NearVertex
@@ -158,6 +197,13 @@ def _walk(V, F, edges: MeshEdges, s, margin, start, entry_edge, origin, goal, ta
         t = s[i] / (s[i] - s[j])
         if min(t, 1.0 - t) < _EDGE_MARGIN:
             raise _NearVertex
+        point_out = V[i] + t * (V[j] - V[i])
+        if e_from is None:
+            pieces_of = ({e: point_out}, origin)
+        else:
+            pieces_of = ({e_from: point_in, e: point_out}, None)
+        if _poor_face(V, F, edges, f, pieces_of, smallest):
+            raise _NearVertex
         if edges.edge_counts[e] != 2:
             raise ValueError("mesh: the tear reaches the boundary of the surface or a non-manifold edge "
                              f"(edge {edges.edges[e].tolist()}; if the mesh has seams of split vertices, weld "
@@ -166,6 +212,8 @@ def _walk(V, F, edges: MeshEdges, s, margin, start, entry_edge, origin, goal, ta
         crossed.append(e)
         entered.append(g)
         if g == target:
+            if final and _poor_face(V, F, edges, g, ({e: point_out}, goal), smallest):
+                raise _NearVertex
             return crossed, entered
         if g == start:
             raise ValueError("scalpels: the tear plane's curve on the surface does not reach the next sample "
@@ -173,7 +221,7 @@ def _walk(V, F, edges: MeshEdges, s, margin, start, entry_edge, origin, goal, ta
         if g in visited:
             raise ValueError("scalpels: the tear path crosses itself")
         visited.add(g)
-        f, e_from = g, e
+        f, e_from, point_in = g, e, point_out
     raise ValueError("scalpels: the tear path does not reach the next sample")
 
 
@@ -202,6 +250,7 @@ def tear_path(V, F, scalpels, *, predicates: str = "euclidean", tolerance: float
         raise ValueError(f"edges: computed for another mesh (face_edges {edges.face_edges.shape}, F {F.shape})")
     diagonal = bounding_diagonal(V)
     margin = tolerance * diagonal
+    smallest = smallest_doubled_area(V, F)
     samples = [_tip(V, F, scalpel, i) for i, scalpel in enumerate(scalpels)]
     sample_faces = np.array([f for f, _, _ in samples])
     sample_points = np.array([p for _, _, p in samples])
@@ -231,12 +280,14 @@ def tear_path(V, F, scalpels, *, predicates: str = "euclidean", tolerance: float
             for shift in unit * np.array([0.0, 1.0, -1.0, 2.0, -2.0, 3.0, -3.0, 4.0, -4.0]):
                 s = signed_distances(V, n, d + shift, predicates)
                 try:
-                    step_edges, step_faces = _walk(V, F, edges, s, margin, faces[-1], entry_edge, origin, goal,
-                                                   target, set(visited))
+                    step_edges, step_faces = _walk(V, F, edges, s, margin, faces[-1], entry_edge, entry_point,
+                                                   origin, goal, target, set(visited), smallest,
+                                                   final=i == len(scalpels) - 2)
                     break
                 except _NearVertex:
-                    failure = (f"scalpels[{i + 1}]: the tear plane keeps passing through vertices of the mesh "
-                               "(within the tolerance); move the scalpel slightly")
+                    failure = (f"scalpels[{i + 1}]: the tear plane keeps passing through or next to "
+                               "vertices of the mesh (within the tolerance, or leaving sliver triangles); move "
+                               "the scalpel slightly")
                 except _Lost:
                     failure = ("scalpels: the tear plane leaves the surface's path between two samples (the "
                                "samples are too far apart or the tear turns back)")
