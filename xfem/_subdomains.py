@@ -299,6 +299,9 @@ class CutReport:
         enrichment_seconds: wall time in the indicator queries (eq. 16) and the DOF renumbering.
         staged: whether the cut changed the DOFs or the system (``XFEMModel``: a new numbering and system wait
             to take effect).
+        dof_source: (n_dofs,) int64, for each DOF after the cut, the DOF before it whose x and v it copies
+            (Algorithm 1 line 7: a linear map of the state, ``x_new = x_old[dof_source]``); None until the cut
+            takes effect in an ``XFEMModel``, and for a cut that changed no DOF.
     """
 
     boxed: np.ndarray
@@ -316,6 +319,7 @@ class CutReport:
     integration_seconds: float = 0.0
     enrichment_seconds: float = 0.0
     staged: bool = False
+    dof_source: np.ndarray | None = None
 
 
 

@@ -595,7 +595,7 @@ class XFEMModel:
         report = self._prepare(cut.build(), perturb)
         self._cut_log.append((cut, perturb, True))
         if report.staged:
-            self._commit(self._staged.popleft())
+            report.dof_source = self._commit(self._staged.popleft())
         return report
 
     def cut_async(self, solid: manifold3d.Manifold, perturb: float = 0.0) -> Future:
@@ -689,7 +689,7 @@ class XFEMModel:
                 self._end_background()
                 raise
             if report.staged:
-                self._commit(self._staged.popleft())
+                report.dof_source = self._commit(self._staged.popleft())
             self._committed.add(future)
             reports.append(report)
             if not self._pending:
@@ -698,12 +698,14 @@ class XFEMModel:
                 break
         return reports
 
-    def _commit(self, staged: _StagedCut) -> None:
-        """A prepared cut takes effect: its numbering, the state copied to it (line 7), its system."""
+    def _commit(self, staged: _StagedCut) -> np.ndarray:
+        """A prepared cut takes effect: its numbering, the state copied to it (line 7), its system. Returns the
+        copy map (``CutReport.dof_source``)."""
         self.dof_sid, self.dof_node = staged.dof_sid, staged.dof_node
         # gathered on the host: a JAX gather would compile anew for every DOF count
         self.state = State(np.asarray(self.state.x)[staged.source], np.asarray(self.state.v)[staged.source])
         self._live, self._system = staged.live, None
+        return staged.source
 
     def _prepare(self, solid: manifold3d.Manifold, perturb: float, parallel: bool = True) -> CutReport:
         """A cut's work up to its commit (``cut``): the subdomains, integrals and enrichment, the new numbering
