@@ -41,6 +41,7 @@ def _random_plane(V, direction, offset):
 directions = st.tuples(*[st.floats(-1, 1) for _ in range(3)]).filter(lambda v: np.linalg.norm(v) > 0.1)
 
 
+@pytest.mark.slow  # 17 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 @settings(max_examples=15, deadline=None)
 @given(name=st.sampled_from(sorted(MODELS)), direction=directions, offset=st.floats(0.1, 0.9),
        predicates=st.sampled_from(cutting.PREDICATES))

@@ -52,6 +52,7 @@ def _loops(boundary_edges):
     return connected_components(graph, directed=False)[0]
 
 
+@pytest.mark.slow  # 10 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 @settings(max_examples=12, deadline=None)
 @given(name=st.sampled_from(sorted(MODELS)), seed=st.integers(0, 10_000), radius=st.floats(0.4, 1.0),
        depth=st.floats(0.5, 3.0))

@@ -110,6 +110,7 @@ def test_equals_libigls_algorithm_on_arm5(arm5, iterations, energy):
     assert np.abs(U - libigl).max() < 1e-3 * diag  # measured 2e-5 .. 3e-4: the float32 SVD
 
 
+@pytest.mark.slow  # 8 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 def test_matches_libigl_on_the_arm(arm):
     V, F, b, bc, data = arm
     U0 = V + 0.01 * np.sin(7 * V[:, [1, 2, 0]])  # any initial guess, passed to both
@@ -119,6 +120,7 @@ def test_matches_libigl_on_the_arm(arm):
     assert np.abs(np.asarray(U) - _igl(V, F, b, bc, U0, 5)).max() < 1e-4 * diag
 
 
+@pytest.mark.slow  # 11 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 def test_negative_energies_do_not_stop_the_iterations(arm5):
     """Obtuse triangles give negative cotangent weights, and Arm5's spokes energy goes below zero: the
     relative-decrease test must still run (and stop) correctly. Spokes and rims stays positive."""

@@ -107,6 +107,7 @@ def test_same_motor_on_every_cage_vertex_moves_the_mesh_rigidly(name):
     np.testing.assert_allclose(motor_deform(cage, motors), cga.apply_to_points(G, jnp.asarray(V)), atol=1e-10)
 
 
+@pytest.mark.slow  # 9 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 def test_translator_cage_motors_equal_the_positional_cage_in_both_bindings():
     cage = BOUND["arm"]
     d = np.random.default_rng(4).normal(scale=0.05, size=TUBE_V.shape)
@@ -148,6 +149,7 @@ def test_jit_and_vmap_over_batches_of_cage_positions_and_motors():
     np.testing.assert_allclose(vmapped(cage, motors), one_by_one, atol=1e-12)
 
 
+@pytest.mark.slow  # 14 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 def test_gradients_against_finite_differences():
     cage = cage_precompute(BOX_V, BOX_F, BOX_POINTS[:20])
     target = jnp.asarray(BOX_POINTS[:20] + 0.1)

@@ -77,6 +77,7 @@ def test_batches_of_handle_motors_under_jit_and_vmap():
     np.testing.assert_allclose(mapped, one_by_one, atol=1e-12)
 
 
+@pytest.mark.slow  # 9 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 def test_gradient_with_respect_to_handle_generators_matches_finite_differences():
     rng = np.random.default_rng(4)
     target = V + 0.05 * rng.normal(size=V.shape)
@@ -114,6 +115,7 @@ def test_fit_recovers_known_key_motors(method, solver):
         np.testing.assert_allclose(fit.motors.values[0], identity_motors(1).values[0])  # the fixed region
 
 
+@pytest.mark.slow  # 14 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 def test_fit_by_gradient_based_minimisation():
     """BFGS on the squared residual (optimistix.minimise) reaches the same handle motors."""
     rng = np.random.default_rng(7)

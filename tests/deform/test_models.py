@@ -117,6 +117,7 @@ def test_motor_blend_equals_dqs_on_a_rigid_clip(models):
         np.testing.assert_allclose(deform.skin_model(model, t, "cga_motor_blend"), dqs, atol=1e-6 * _diagonal(dqs))
 
 
+@pytest.mark.slow  # 18 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 def test_arm5_rest_pose_reproduces_bind_positions(models):
     model = models["Arm5"]
     V = np.asarray(model.mesh.V)

@@ -105,6 +105,7 @@ def test_cubic_spline_reproduces_a_cubic():
         np.testing.assert_allclose(deform.sample_channel(c, t), p(np.array(t)), atol=1e-12)
 
 
+@pytest.mark.slow  # 9 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 def test_versor_sampling_equals_specification_for_translation_and_rotation():
     model = random_model(4)
     rng = np.random.default_rng(4)

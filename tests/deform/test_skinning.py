@@ -92,6 +92,7 @@ def test_cga_equals_literal_equation_17():
                                cga.down(summed), atol=1e-11)
 
 
+@pytest.mark.slow  # 9 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 def test_motor_blend_equals_dqs_for_rigid_poses():
     local = random_pose(3, B)
     model = random_model(3)  # rigid rest pose too
@@ -249,6 +250,7 @@ def test_gradients_match_finite_differences(method):
         np.testing.assert_allclose(jnp.sum(grad * d), fd, rtol=1e-6, atol=1e-7)
 
 
+@pytest.mark.slow  # 13 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 def test_float32_skinning():
     model = jax.tree_util.tree_map(lambda x: x.astype(jnp.float32) if jnp.issubdtype(x.dtype, jnp.floating) else x,
                                    random_model(9))

@@ -192,6 +192,7 @@ def test_gradient_with_respect_to_key_motor_logs():
 
 
 # ---------------------------------------------------------------- B-spline fit (eq. 3-5)
+@pytest.mark.slow  # 14 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 def test_fit_recovers_the_key_motors_that_generated_the_data():
     rng = np.random.default_rng(5)
     lam = np.linspace(0.0, 1.0, 12)
@@ -208,6 +209,7 @@ def test_fit_recovers_the_key_motors_that_generated_the_data():
     np.testing.assert_allclose(fitted_logs(fit, noisy), np.linalg.lstsq(A, q, rcond=None)[0], atol=1e-12)
 
 
+@pytest.mark.slow  # 13 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 def test_ill_conditioned_fit_takes_the_svd_path_and_gives_the_minimum_norm_solution():
     rng = np.random.default_rng(6)
     lam = np.linspace(0.0, 0.3, 9)  # keys 5 and 6 of 7 have no parameter in their support
@@ -227,6 +229,7 @@ def test_ill_conditioned_fit_takes_the_svd_path_and_gives_the_minimum_norm_solut
     np.testing.assert_allclose(forced.logs(Q), normal.logs(Q), atol=1e-12)
 
 
+@pytest.mark.slow  # 17 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 def test_fit_is_a_jax_function_of_the_motors():
     rng = np.random.default_rng(7)
     fit = spline_fit_precompute(np.linspace(0.0, 1.0, 8), 4)

@@ -437,6 +437,7 @@ TABLE_KINDS = {"geometric": lambda a, b: a * b, "outer": lambda a, b: a ^ b, "in
                "left_contraction": lambda a, b: a.lc(b)}
 
 
+@pytest.mark.slow  # 23 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 def test_table_product_equals_generated_product_on_every_kind_pair():
     """The generated products are checked against clifford on every pair above; the structure-tensor
     evaluation must give the same blades and values on every pair too (pairs with the full 32-blade
