@@ -75,7 +75,7 @@ from xfem._capacity import padded_state, wait_for_compilations  # noqa: E402
 
 SCENES = ("sticks", "thin", "accordion")
 # frames from a background cut's start to its effect: enough steps for the worker's cut to be ready at the commit
-# (``SCENE_async_cut_max_s`` shows a commit that waited; benchmarks/README.md, "Cut latency")
+# (``SCENE_async_cut_max_s`` shows a commit that waited; benchmarks/README.md, "XFEM: cuts in the background")
 LATENCY = {"sticks": 100, "thin": 15, "accordion": 10}
 # the scenes whose background-cut figure is targeted: frames of 20 ms or more
 ASYNC_TARGET = {"thin": 1.5, "accordion": 1.5}

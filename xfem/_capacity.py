@@ -22,7 +22,7 @@ from xfem._backward_euler import FEMSystem, State, SystemCapacity, compiled_step
 _HEADROOM = 1.25  # capacity level 0 over the uncut model's sizes: the first cuts stay in it
 _GROWTH = 1.5  # capacity growth per level: few levels, each padding the system at most this much
 # the smallest capacities (nodes, elements, mass entries, nonzeros): a small model's first cuts stay in level 0,
-# and its padded step costs little (benchmarks/README.md, "Capacity levels")
+# and its padded step costs little (benchmarks/README.md, "XFEM: capacity levels")
 _FLOOR = (128, 128, 1024, 9 * 1024)
 
 
