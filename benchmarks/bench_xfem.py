@@ -69,9 +69,9 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 from _report import RATIO_UNIT, add_json_argument, write_json  # noqa: E402
 
 import xfem._backward_euler as be  # noqa: E402
+from xfem._capacity import padded_state, wait_for_compilations  # noqa: E402
 from xfem._neohookean import lame  # noqa: E402
 from xfem._scenes import run_scene, scene  # noqa: E402
-from xfem._capacity import padded_state, wait_for_compilations  # noqa: E402
 
 SCENES = ("sticks", "thin", "accordion")
 # frames from a background cut's start to its effect: enough steps for the worker's cut to be ready at the commit

@@ -15,12 +15,15 @@ Sec. 4, the generalized XFEM: ``_cuts`` (swept tool edges thickened into closed 
 ``_integration`` (exact divergence-theorem moments of the pieces, eq. 13, 14, 21), ``_xfem`` (``XFEMModel``:
 indicator enrichments eq. 16-18, DOF duplication, pieces on the FEM core), ``_capacity`` (systems padded to
 capacity levels so that cuts reuse the compiled step), ``_background`` (``BackgroundCuts``: cuts computed in a
-worker process, ``_cut_process`` and ``_framing``, while the model steps). Sec. 5: ``_scenes`` (the paper's five scenes with Table 1's parameters, a
-runner timing them like Table 2), ``_xfem_commands`` (``jaxcga xfem SCENE``).
+worker process, ``_cut_process`` and ``_framing``, while the model steps). Sec. 5: ``_scenes`` (the paper's
+five scenes with Table 1's parameters, a runner timing them like Table 2), ``_xfem_commands``
+(``jaxcga xfem SCENE``).
 """
 
 from xfem._assembly import AssemblyPattern, assemble_matrix, assemble_vector, assembly_pattern
+from xfem._background import BackgroundCuts
 from xfem._backward_euler import FEMSystem, State, backward_euler_step, fem_from_mesh, fem_system, mechanical_energy
+from xfem._capacity import wait_for_compilations
 from xfem._cuts import cut_solid, plane_cut_solid, sweep_between, swept_surface, thicken
 from xfem._integration import element_piece_integrals, moments_of_pieces, polyhedron_moments
 from xfem._linear_tet import body_force, consistent_mass, lumped_mass, shape_functions, shape_gradients
@@ -46,8 +49,6 @@ from xfem._tetmesh import (
     tet_volumes,
     tetrahedralize,
 )
-from xfem._background import BackgroundCuts
-from xfem._capacity import wait_for_compilations
 from xfem._xfem import XFEMModel, xfem_model
 
 __all__ = [

@@ -16,9 +16,9 @@ import scipy.sparse as sp
 
 from xfem._background import BackgroundCuts
 from xfem._backward_euler import State, backward_euler_step, fem_from_mesh
+from xfem._capacity import _COMPILED, wait_for_compilations
 from xfem._cuts import plane_cut_solid
 from xfem._tetmesh import boundary_faces, box_tets, five_tet_cube
-from xfem._capacity import _COMPILED, wait_for_compilations
 from xfem._xfem import xfem_model
 
 RHO, EPS, H = 1e3, 1e-3, 0.01
