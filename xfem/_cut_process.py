@@ -6,8 +6,10 @@ mostly such calls and the Python between them: in a thread beside the steps it m
 
 The child is started as ``python -c _CHILD_START``, not by ``multiprocessing``: its spawn start re-imports the
 parent's ``__main__`` (a script without a main guard would run again), and a fork of a process running JAX
-threads can deadlock. It lowers its own priority (nothing else: the parent's threads, priorities and settings
-are the user's), then runs the entry point it was given, which talks over its stdin and a duplicate of its
+threads can deadlock. It keeps the parent's priority and CPUs (at the lowest priority it starved beside other
+processes on a loaded machine and its cuts missed their commits: benchmarks/README.md, "XFEM: cuts in the
+background"); it changes nothing in the parent, whose threads, priorities and settings are the user's. It runs
+the entry point it was given, which talks over its stdin and a duplicate of its
 stdout (``xfem._framing``; its own stdout and prints go to stderr). It exits when its stdin closes
 (``CutProcess.close``, or the parent's exit).
 """
@@ -21,11 +23,7 @@ import sys
 
 from xfem._framing import decode, encode, read_frame, write_frame
 
-# the child's first statements: the lowest priority, so that the steps of the user's process come first
 _CHILD_START = """
-import os
-if hasattr(os, "nice"):
-    os.nice(19)
 from {module} import {function}
 {function}()
 """

@@ -2,8 +2,8 @@
 replica of a model, replayed from the cuts made before it started and kept in step through the deltas of
 ``XFEMModel`` and ``Subdomains``, gives the same model as cuts made in the model's own process; a dead or failing
 worker raises at the commit and the next cut starts a new one; the worker ends with its ``BackgroundCuts``; the
-protocol's framing; the requests sent ahead; the worker lowers its own priority and the user's process keeps its
-affinities, priority, switch interval and environment."""
+protocol's framing; the requests sent ahead; the user's process keeps its affinities, priority, switch interval
+and environment."""
 
 import gc
 import io
@@ -286,7 +286,7 @@ def _thread_affinities() -> dict[int, frozenset]:
 def test_background_cuts_leave_the_process_settings_alone():
     """A background cut changes nothing process-wide in the user's process: its CPU affinity and every thread's,
     its priority, the interpreter's switch interval and the environment stay as they were; the worker process
-    lowers its own priority only (nice 19, on the same CPUs as this process)."""
+    runs with this process's priority and CPUs."""
     remote, inline = _models()
     before = (frozenset(os.sched_getaffinity(0)), _thread_affinities(), os.getpriority(os.PRIO_PROCESS, 0),
               sys.getswitchinterval(), dict(os.environ))
@@ -297,7 +297,7 @@ def test_background_cuts_leave_the_process_settings_alone():
         remote.step(H, MU, LAM)
         assert frozenset(os.sched_getaffinity(0)) == before[0] and sys.getswitchinterval() == before[3]
     child = background._process.pid
-    assert os.getpriority(os.PRIO_PROCESS, child) == min(19, before[2] + 19)
+    assert os.getpriority(os.PRIO_PROCESS, child) == before[2]
     assert os.sched_getaffinity(child) == before[0]
     background.commit()
     remote.step(H, MU, LAM)
