@@ -14,33 +14,35 @@ step's solve), step max and average (a cut frame's time is its cuts plus its ste
 Timing. Each scene runs twice in one process: a warm-up run through its last cut (it compiles the step at
 every capacity level the cuts reach; ``XFEMModel`` pads its systems to capacity levels, so a cut within a level
 reuses the compiled step), then the timed run of ``--steps`` frames (default: the scene's), once the warm-up's
-background compilation of the next level up has ended (``wait_for_compilations``; measured on sticks, it ran
-into the timed frames and took about half of their CPU). The warm-up's slowest frame (with compilation) is
+background compilation of the next level up has ended (``wait_for_compilations``: it would run into the timed
+frames and take much of their CPU). The warm-up's slowest frame (with compilation) is
 reported as ``SCENE_cold_max_s``. dPsi and CG are timed after the run on the final (padded) system and state:
 the median of 5 calls of the step's gradient and Newton matrix (``_gradient_and_matrix``), and of its host solve of the
 Newton system there (``_host_newton_direction``: CHOLMOD up to 1,000 unknowns, as on sticks,
 Jacobi-preconditioned CG to a relative residual of 1e-4 above).
 
 Cuts in the background. A third run per scene (after the timed one) computes each cut in the cut worker process
-while the body steps (``run_scene(..., cut_latency=L)``, ``XFEMModel.cut_async``): a cut takes effect L frames after
+while the body steps (``run_scene(..., cut_latency=L)``, ``BackgroundCuts``): a cut takes effect L frames after
 its scheduled frame (``LATENCY``), with the state of that moment. Its figures are named ``SCENE_async_*``; its
 slowest cut frame is the slowest frame from a cut's start to the frame it takes effect in (``FrameRecord.cutting``).
 ``SCENE_async_uncut_max_over_avg``, the slowest frame outside those windows over the average, is the reference
-for the machine's own jitter (a shared 2-core machine: single frames with no cut work reach 1.4-2.3x). Frame 1 is
-left out of it: the new model's first step builds its system and makes the first call with it (sticks: 5.5-6.5 ms,
-3x its average frame, in every run), which is no jitter. ``SCENE_uncut_step_max_over_avg``, from the timed run
+for the machine's own jitter. Frame 1 is left out of it: the new model's first step builds its system and makes
+the first call with it, which is no jitter. ``SCENE_uncut_step_max_over_avg``, from the timed run
 (cuts in their frames), is the same reference over many more frames: its slowest step of a frame without cuts over
 their average (frame 1 left out; no cut work is under way in that run between the cut frames).
 
 Garbage collection. After the warm-up, and again before the background run, the objects alive (modules, compiled
 steps, the scene, the timed run) are moved out of the collector's reach (``gc.freeze``), as a real-time application
-does: a full collection over them took 120-130 ms, half a thin frame, at random frames of the timed runs.
+does: a full collection over them costs a large part of a frame, at random frames.
 
 Targets (issue 8), as ratios to Table 2 (paper figure / ours; > 1: we are faster): ``SCENE_step_avg_vs_paper``
 >= 1 and ``SCENE_boolean_vs_paper``; the Booleans take <= 0.5 ms per subdomain (``SCENE_boolean_ms``); the
 slowest cut frame takes <= 2x the average frame (``SCENE_cut_max_over_avg`` <= 2; its step alone, without the
-cut's Booleans, integrals and re-enrichment: ``SCENE_cut_step_max_over_avg``). The paper ran on an
-i9-13900K; this machine's figures come from a shared 2-core machine.
+cut's Booleans, integrals and re-enrichment: ``SCENE_cut_step_max_over_avg``). Cuts in the background (issue 31):
+on scenes whose frames take 20 ms or more (thin, accordion) the slowest frame of the cut windows takes <= 1.5x
+the run's average frame (``SCENE_async_cut_max_over_avg``); sticks' 2 ms frames are below the machine's
+scheduling noise, its figure is reported, not targeted. The paper ran on an i9-13900K; this machine's figures
+come from a shared 2-core machine (benchmarks/README.md).
 
     python benchmarks/bench_xfem.py [--steps N] [--quick] [--scenes SCENE ...] [--json out/bench/xfem.json]
 """
@@ -67,18 +69,16 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 from _report import RATIO_UNIT, add_json_argument, write_json  # noqa: E402
 
 import xfem._backward_euler as be  # noqa: E402
+from xfem._capacity import padded_state, wait_for_compilations  # noqa: E402
 from xfem._neohookean import lame  # noqa: E402
 from xfem._scenes import run_scene, scene  # noqa: E402
-from xfem._xfem import _padded_state, wait_for_compilations  # noqa: E402
 
 SCENES = ("sticks", "thin", "accordion")
-# frames from a background cut's start to its effect: its work (Booleans, integrals, new system, in the cut worker
-# process) spread over about this many steps on 2 cores. Sticks: a cut every 5 frames, each 7-22 ms of worker time
-# beside ~1.5 ms steps, so the cuts queue up: ~140 ms of work in all, done by frame ~125 (latency 25, 50 and 75
-# still had commits waiting for it); 100 frames are ~0.15 s of wall-clock time (the thread worker's 25 frames were
-# 0.17 s at 6.9 ms per frame). Thin and accordion: ~1 s and ~1.2 s of worker time per cut beside ~0.11 s and
-# ~0.3 s steps: 15 and 10 frames leave ~1.6 s and ~3 s for them.
+# frames from a background cut's start to its effect: enough steps for the worker's cut to be ready at the commit
+# (``SCENE_async_cut_max_s`` shows a commit that waited; benchmarks/README.md, "XFEM: cuts in the background")
 LATENCY = {"sticks": 100, "thin": 15, "accordion": 10}
+# the scenes whose background-cut figure is targeted: frames of 20 ms or more
+ASYNC_TARGET = {"thin": 1.5, "accordion": 1.5}
 # Table 2, "Ours": DOFs, EI ms, MB ms, dPsi ms, CG s, step max s, step avg s, total C s, total C+U s
 PAPER = {
     "sticks": (144, 0.36, 26.9, 0.0, 0.001, 0.278, 0.009, 0.898, 1.307),
@@ -110,8 +110,8 @@ def _newton_system(system, state, h, mu, lam):
 
 def _breakdown(model, h, mu, lam) -> tuple[float, float]:
     """(dPsi seconds, CG seconds) on the model's final padded system and state."""
-    system, _ = model._padded_system()
-    state = _padded_state(model.state, len(model.dof_sid), system.n)
+    system = model.padded_system().system
+    state = padded_state(model.state, len(model.dof_sid), system.n)
     h, mu, lam = (jnp.asarray(v, jnp.float64) for v in (h, mu, lam))
     dpsi = _median_seconds(lambda: _newton_system(system, state, h, mu, lam))
     gradient, data = _newton_system(system, state, h, mu, lam)
@@ -176,7 +176,8 @@ def run(size: str, steps: int | None, scenes=SCENES):
         figures[f"{name}_async_cut_max_s"] = acut_max
         units[f"{name}_async_cut_max_s"] = "s (slowest frame while a background cut is under way)"
         figures[f"{name}_async_cut_max_over_avg"] = acut_max / asummary["step_avg_s"]
-        units[f"{name}_async_cut_max_over_avg"] = "x (slowest frame while cutting / average frame; target <= 2)"
+        target = f"target <= {ASYNC_TARGET[name]}" if name in ASYNC_TARGET else "reported, not targeted"
+        units[f"{name}_async_cut_max_over_avg"] = f"x (slowest frame while cutting / average frame; {target})"
         figures[f"{name}_async_uncut_max_over_avg"] = auncut_max / asummary["step_avg_s"]
         units[f"{name}_async_uncut_max_over_avg"] = ("x (slowest frame after the first with no cut under way / average "
                                                      "frame: jitter)")
@@ -215,7 +216,7 @@ def run(size: str, steps: int | None, scenes=SCENES):
         print(f"  cuts in the background, latency {LATENCY[name]} frames: average frame "
               f"{asummary['step_avg_s']:.4f} s ({ratios[f'{name}_async_step_avg_vs_paper']:.2f}x the paper's), "
               f"slowest frame while cutting {acut_max:.4f} s = {figures[f'{name}_async_cut_max_over_avg']:.2f}x the "
-              f"average (target <= 2; frame {slowest.frame}: cut work {1e3 * slowest.cut_seconds:.1f} ms, step "
+              f"average ({target}; frame {slowest.frame}: cut work {1e3 * slowest.cut_seconds:.1f} ms, step "
               f"{1e3 * slowest.step_seconds:.1f} ms), {asummary['pieces']} pieces; outside the cut windows at most "
               f"{figures[f'{name}_async_uncut_max_over_avg']:.2f}x the average")
     return {"figures": figures, "ratios": ratios, "units": units | {k: RATIO_UNIT for k in ratios}}

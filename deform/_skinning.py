@@ -94,8 +94,7 @@ def _aligned_weights(J, W, rotors: Float[Array, "... j 4"], log_scales: Float[Ar
     lookup takes one index). All rows are written in one pass, coordinate-major (..., rows, n), and
     kept by ``jax.lax.optimization_barrier``: left to XLA, every influence's lookup became its own pass
     over the vertices, and under vmap over poses laid out vertex-major (n, poses) against the
-    pose-major loops that read it. Measured at 100k vertices, float64, 300 poses in chunks of 50: DQS
-    1.6 -> 0.97 s and the motor blend 1.9 -> 1.3 s."""
+    pose-major loops that read it (benchmarks/README.md, "Kernel and deformers")."""
     joints = rotors.shape[-2]
     dots = jnp.einsum("...ac,...bc->...ab", rotors, rotors).reshape(rotors.shape[:-2] + (joints * joints,))
     rows = [jnp.broadcast_to(W[:, 0].astype(rotors.dtype), rotors.shape[:-2] + W.shape[:1])]
@@ -172,9 +171,8 @@ def _blend_affine(V, J, W, maps: Float[Array, "... j r 4"]) -> Float[Array, "...
 
     The (3, 4) maps are blended with the joint axis last and contracted with (x, y, z, 1) coordinate-
     major, (..., 3, n), then the coordinate axis is moved last. Stacking the three rows of a flat
-    12-column table along the last axis instead was measured 1.5x slower for one pose (100k vertices,
-    float32: 1.67 against 1.11 ms for LBS) and 1.3x slower under vmap over poses, and with lambda as a
-    13th column XLA recomputed its blend for every row."""
+    12-column table along the last axis instead was slower (benchmarks/README.md, "Kernel and deformers"),
+    and with lambda as a 13th column XLA recomputed its blend for every row."""
     joints = maps.shape[-3]
     table = _materialize(maps[..., :3, :].reshape(maps.shape[:-3] + (joints, 12)))
     table = jnp.moveaxis(table, -2, -1).reshape(maps.shape[:-3] + (3, 4, joints))

@@ -6,10 +6,8 @@ system). The harmonic fields use it; so will ARAP's global step.
 Two factorizations, picked by the system:
 
 * symmetric positive definite (cotangent Laplacians, ARAP's global step): CHOLMOD's sparse Cholesky
-  (LDL^T with a fill-reducing ordering) through ``sksparse_minimal``. Measured on a 161k-vertex Arm5
-  Laplacian: factor 0.47 s, against 0.96 s for SuperLU (COLAMD) and 0.6 s for libigl's own
-  ``min_quad_with_fixed`` inside ``igl.harmonic``; SuperLU with a symmetric ordering (MMD_AT_PLUS_A,
-  SymmetricMode) took 37 s.
+  (LDL^T with a fill-reducing ordering) through ``sksparse_minimal``: the fastest factorization of a large
+  Laplacian (benchmarks/README.md, "Kernel and deformers").
 * unsymmetric (the mean-value Laplacian): scipy's sparse LU (SuperLU).
 """
 

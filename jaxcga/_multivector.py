@@ -259,10 +259,9 @@ def table_product(kind: str, a: Multivector, b: Multivector) -> Multivector:
 
     For small batches: per-joint data such as forward kinematics and joint versors. There XLA:CPU
     compiles the generated expressions into one kernel per output blade plus a concatenate (17
-    kernels for two similitudes), and the contraction into two dots. Measured on Arm5 (25 bones, 23
-    joints, float32, 10th percentiles of 300 calls): forward kinematics 0.16 -> 0.09 ms, the product
-    by the inverse-bind versors 0.05 ms less. For large batches (a versor per point) use ``product``:
-    it skips the structural zeros (for two similitudes the tensor holds 256 non-zeros among 4,096
+    kernels for two similitudes), and the contraction into two dots: forward kinematics takes about
+    half the time (benchmarks/README.md, "Kernel and deformers"). For large batches (a versor per point)
+    use ``product``: it skips the structural zeros (for two similitudes the tensor holds 256 non-zeros among 4,096
     entries)."""
     _check_kind(kind)
     broadcast_batch("a", a.batch_shape, "b", b.batch_shape)

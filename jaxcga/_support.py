@@ -36,8 +36,8 @@ def keep_on_host() -> None:
 
 
 def to_devices(*arrays) -> tuple:
-    """Host arrays on the device in one batched ``jax.device_put`` (half the cost of one call each: ~40 us per
-    array instead of ~80 us, a large part of building a small system); numpy arrays after ``keep_on_host``."""
+    """Host arrays on the device in one batched ``jax.device_put`` (about half the cost of one call each, a large
+    part of building a small system); numpy arrays after ``keep_on_host``."""
     if _HOST["only"]:
         return tuple(np.asarray(a) for a in arrays)
     return tuple(jax.device_put([np.asarray(a) for a in arrays]))

@@ -13,13 +13,17 @@ integration weights) and any mass matrix, so the enriched XFEM elements go throu
 Sec. 4, the generalized XFEM: ``_cuts`` (swept tool edges thickened into closed solids, sec. 4.1),
 ``_subdomains`` (nodal and element subdomains cut by manifold3d Booleans, Algorithm 1 lines 1-19),
 ``_integration`` (exact divergence-theorem moments of the pieces, eq. 13, 14, 21), ``_xfem`` (``XFEMModel``:
-indicator enrichments eq. 16-18, DOF duplication, pieces on the FEM core, systems padded to capacity levels so
-that cuts reuse the compiled step). Sec. 5: ``_scenes`` (the paper's five scenes with Table 1's parameters, a
-runner timing them like Table 2), ``_xfem_commands`` (``jaxcga xfem SCENE``).
+indicator enrichments eq. 16-18, DOF duplication, pieces on the FEM core), ``_capacity`` (systems padded to
+capacity levels so that cuts reuse the compiled step), ``_background`` (``BackgroundCuts``: cuts computed in a
+worker process, ``_cut_process`` and ``_framing``, while the model steps). Sec. 5: ``_scenes`` (the paper's
+five scenes with Table 1's parameters, a runner timing them like Table 2), ``_xfem_commands``
+(``jaxcga xfem SCENE``).
 """
 
 from xfem._assembly import AssemblyPattern, assemble_matrix, assemble_vector, assembly_pattern
+from xfem._background import BackgroundCuts
 from xfem._backward_euler import FEMSystem, State, backward_euler_step, fem_from_mesh, fem_system, mechanical_energy
+from xfem._capacity import wait_for_compilations
 from xfem._cuts import cut_solid, plane_cut_solid, sweep_between, swept_surface, thicken
 from xfem._integration import element_piece_integrals, moments_of_pieces, polyhedron_moments
 from xfem._linear_tet import body_force, consistent_mass, lumped_mass, shape_functions, shape_gradients
@@ -31,7 +35,7 @@ from xfem._neohookean import (
     stable_neohookean_pk1,
 )
 from xfem._scenes import SCENES, FrameRecord, Scene, SceneRun, ScheduledCut, piece_surfaces, run_scene, scene
-from xfem._subdomains import Subdomains, apply_cut, subdomains
+from xfem._subdomains import CutReport, CutStats, Subdomains, apply_cut, subdomains
 from xfem._tetmesh import (
     TetMesh,
     boundary_faces,
@@ -45,7 +49,7 @@ from xfem._tetmesh import (
     tet_volumes,
     tetrahedralize,
 )
-from xfem._xfem import XFEMModel, wait_for_compilations, xfem_model
+from xfem._xfem import XFEMModel, xfem_model
 
 __all__ = [
     "SCENES",
@@ -64,6 +68,9 @@ __all__ = [
     "element_piece_integrals",
     "moments_of_pieces",
     "polyhedron_moments",
+    "BackgroundCuts",
+    "CutReport",
+    "CutStats",
     "Subdomains",
     "apply_cut",
     "subdomains",

@@ -19,31 +19,14 @@ gradients and integration weight (``volumes``), plus any symmetric scalar (n, n)
 forces. Nothing assumes the nodes are mesh vertices or that the mass is ``consistent_mass``, so XFEM's
 enriched copies, sub-elements and custom mass entries go through the same code.
 
-Linear solver, chosen by measurement. One step (element Hessians, assembly, solve, line search) on
-``box_tets`` meshes, Young 1e6, Poisson 0.4, density 1e3, h = 0.033, gravity, the x = 0 face fixed, one
-Newton iteration, from a sagging state; best of 12 steps in two runs, wall-clock, float64, on the shared
-2-core development machine (load average ~4 from other sessions)::
-
-    box cells, DOFs (free)             (6,6,6) 1029 (882)   (11,9,19) 7200 (6600)   (18,19,19) 22800 (21600)
-    (a) CHOLMOD, host callback         0.012 s              0.26 s                  1.97 s
-    (b) lineax CG + Jacobi, in JAX     0.020 s              0.28 s                  1.33 s
-    (c) Jacobi PCG, host callback      0.012 s              0.11 s                  0.49 s   <- used
-
-(a) ``sksparse_minimal``'s CHOLMOD: its wheel carries the reference BLAS, so the supernodal factorization is
-slow (1.7-2.5 s alone at 22.8k DOFs; scipy's SuperLU took 5.9 s); it has no separate symbolic analysis to
-reuse across steps, and the numeric factorization dominates anyway. (b) lineax CG with matrix-vector products
-in JAX: XLA's CPU gathers and scatters make one product ~3-5 ms at 22.8k DOFs against ~0.6 ms for scipy's CSR
-product. (c) the same preconditioned CG on the host (``_host_cg``), one host call (``jaxcga._support.host_call``)
-per Newton iteration (~220 CG iterations, 0.12 s, at 22.8k DOFs; the rest of the 0.49 s is the projected element
-Hessians, 0.21 s, their assembly, 0.04 s, and the line search). Measured as a numpy loop over scipy's CSR
-product; it is now compiled by numba and runs without the GIL (``xfem._pcg``: 56 ms against the numpy loop's
-81 ms at 118k unknowns), so that other threads do not stall it. Small systems are the
-exception: up to ``_DIRECT_DOFS`` = 1,000 unknowns one CHOLMOD factorization costs less than CG's iterations,
-and the step solves exactly (``_host_newton_direction``; the Newton system alone, from a sagging state: 375
-unknowns 1.3 ms against CG's 2.8 ms, the cut sticks scene's 771 unknowns 0.5 ms against 2.7 ms, but 1,029
-unknowns 7.6 ms against 5.3 ms and 1,944 unknowns 36 ms against 9.6 ms). CG's Newton direction is solved to a
-relative residual of 1e-4 (an inexact Newton step; 1e-6 takes ~1.4x the iterations, and after 7
-steps at 7.2k DOFs the positions differ from those of a 1e-9 solve by 1e-7, 3e-6 of the largest displacement).
+Linear solver, chosen by measurement (benchmarks/README.md, "FEM linear solver"; ``bench_fem.py`` times the
+step against CHOLMOD): Jacobi-preconditioned CG on the host (``_host_cg``, compiled by numba without the GIL,
+``xfem._pcg``), one host call (``jaxcga._support.host_call``) per Newton iteration. CHOLMOD's wheel carries the
+reference BLAS, so its factorization is slow on large systems, and CG in JAX pays XLA's CPU gathers and scatters
+in every matrix-vector product. Small systems are the exception: up to ``_DIRECT_DOFS`` = 1,000 unknowns one
+CHOLMOD factorization costs less than CG's iterations, and the step solves exactly (``_host_newton_direction``).
+CG's Newton direction is solved to a relative residual of 1e-4 (an inexact Newton step: a tighter residual costs
+more iterations and moves the positions by a small fraction of the displacement).
 With ``tolerance`` the relative residual is tightened to ``|grad E| / |grad E at the first iteration|`` (down
 to 1e-11), so that Newton converges superlinearly where the projection of the element Hessians is inactive
 near the solution (where it is active, projected Newton converges linearly). The adjoint solve of the
@@ -287,7 +270,7 @@ def _host_cg(data, rhs, rtol, indptr, indices):
     without the GIL).
 
     Not scipy's ``cg``: its vector dot products go to numpy's multithreaded BLAS, whose threads stall on a
-    loaded 2-core machine (measured 8 ms for one dot of two 21.6k-vectors, 10x the sparse product). Not a numpy
+    loaded 2-core machine (benchmarks/README.md, "FEM linear solver"). Not a numpy
     loop either: its ~14 array operations per iteration each hand the GIL over, and wait for a background cut's
     manifold3d or libigl call to give it back. An unconverged iterate still decreases the quadratic model, so it
     remains a descent direction."""
@@ -389,8 +372,8 @@ def _in_chunks(count: int, chunk: int, work, init):
     and unmaps it on free: every step touched 86k new pages (a page fault and a page cleared each, in the
     kernel), and the faults of concurrent threads queue on the process's memory map. In chunks of 1,024
     elements (and 16,384 mass entries) the temporaries are 28 MB, mostly the Newton matrix's data, which glibc
-    keeps in its heap: no page faults, and the step takes 173 ms against 290-350 ms (median of 15; 512 and
-    2,048 elements per chunk: 185 and 231 ms). Thin's (13.5k DOFs): 75 ms against 116 ms."""
+    keeps in its heap: no page faults, and the step takes about half the time (benchmarks/README.md, "Element
+    chunks")."""
     if count <= chunk:
         return work(0, count, jnp.ones(count, bool), init)
     chunks = -(-count // chunk)
@@ -598,7 +581,7 @@ def _step_arguments(system, state, h, mu, lam, fixed_positions, newton_iteration
 
 def _scalar(a, dtype):
     """A step's scalar or per-element parameter in ``dtype``: numpy for python and numpy values (a compiled
-    call takes them for a few us, a device_put costs ~100 us, a large part of a small system's step), JAX for
+    call takes them at little cost, where a device_put is a large part of a small system's step), JAX for
     JAX arrays and tracers."""
     if isinstance(a, (jax.Array, jax.core.Tracer)):
         return jnp.asarray(a, dtype)

@@ -3,7 +3,7 @@ the closed-form eigensystem of the stable neo-Hookean stiffness (``xfem._neohook
 
 Why not ``jnp.linalg.svd`` / ``eigh``: on CPU they call LAPACK once per 3 x 3 matrix, a few us each, most of
 the time of the projected Hessians. Here every step is elementwise over the batch, and XLA fuses it into a few
-vector loops (measured in ``_neohookean``'s docstring).
+vector loops (benchmarks/README.md, "Element Hessians").
 
 SVD, ``F = U diag(s) V^T`` with U and V rotations (det +1), ``|s_0| >= |s_1| >= |s_2|``, s_0, s_1 >= 0 and s_2
 carrying the sign of det F ([SGK18]'s rotation-variant SVD):
@@ -27,7 +27,7 @@ each consumer kernel instead, with rounding that can differ between kernels; a f
 by a separate norm comparison, which XLA duplicated, and at equal norms (orthogonal F) the comparison came out
 differently for B and V in 5% of the cases. For the same reason the sweeps run in a ``fori_loop``, whose carry
 is materialized each sweep: fully unrolled, XLA recomputed the chains of cheap rotation products in many
-kernels, and the projected Hessians of 40,000 tets took 2.7 s instead of 0.1 s. ``tests/xfem/test_jacobi3.py``
+kernels, and the projected Hessians took over 20x as long. ``tests/xfem/test_jacobi3.py``
 checks the factorizations on such matrices in compiled batches.
 
 Sweeps: a fixed count, cyclic Jacobi converges quadratically. Measured in float64 on 3 x 10^6 random,

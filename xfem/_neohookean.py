@@ -52,10 +52,8 @@ The projected stiffness keeps the modes with their eigenvalues clamped at 0. The
 valid SVD, so repeated singular values (F = I, F = 0) need no special case and there is no division.
 The SVD and the 3 x 3 eigendecomposition are batched Jacobi rotations in jnp (``xfem._jacobi3``: each
 decision is taken once, inside a rotation's computation, so XLA's kernels agree at repeated singular values).
-Measured (``element_gradient_hessian``, random tets, float64, jit, best of 15 on the shared 2-core CPU, in one
-process): 40,000 tets 0.10 s with ``_jacobi3`` against 0.19-0.20 s with LAPACK's batched 3 x 3 SVD and eigh
-(one call per matrix), 0.08 s unprojected; 4,000 tets 7.5 ms against 15-17 ms. (Earlier: 0.41 s with a
-batched 9 x 9 ``eigh`` of dP/dF.)
+They take about half the time of LAPACK's batched 3 x 3 SVD and eigh (benchmarks/README.md, "Element
+Hessians").
 
 Element quantities: ``F_e = sum_a x_a grads_a^T`` (x: deformed node positions, grads: gradients of the
 linear shape functions with respect to the rest position), energy ``vol Psi(F_e)``, gradient

@@ -44,7 +44,7 @@ columns are inside the jit-compiled step and not measured here (``benchmarks/ben
 final system). The step time includes XLA compilation on the first frame of a process and when a cut moves the
 model to a capacity level whose step is not compiled yet (``XFEMModel`` compiles the next level in the
 background, so this is rare once the run is under way). With ``cut_latency=L`` the runner starts each cut in
-the background (``XFEMModel.cut_async``) in its frame and makes it take effect L frames later: the frames between
+the background (``BackgroundCuts.submit``) in its frame and makes it take effect L frames later: the frames between
 step while the cut is computed.
 
 ``piece_surfaces`` gives the deformed surfaces of the pieces (the mesh boundary and the cut faces, each piece's
@@ -64,6 +64,7 @@ import numpy as np
 import trimesh
 
 import jaxcga as cga
+from xfem._background import BackgroundCuts
 from xfem._cuts import cut_solid, plane_cut_solid, sweep_between, swept_surface
 from xfem._integration import linear_shape_coefficients
 from xfem._neohookean import lame
@@ -441,9 +442,9 @@ def run_scene(scene: Scene, steps: int | None = None, progress: bool = False,
     """Simulate a scene: in each frame its scheduled cuts (Algorithm 1 lines 1-25), then one backward Euler step.
 
     Cut latency. With ``cut_latency = L > 0`` a cut scheduled for frame f is started in the background
-    (``XFEMModel.cut_async``) before that frame's step and takes effect (``commit_cuts``) before the step of frame
-    f + L, waiting for it if needed: frames f to f + L - 1 step the body as it was, while the cut's Booleans,
-    integrals and new system are computed beside them. The run does not depend on the threads' timing: it equals
+    (``BackgroundCuts.submit``) before that frame's step and takes effect (``BackgroundCuts.commit``) before the
+    step of frame f + L, waiting for it if needed: frames f to f + L - 1 step the body as it was, while the cut's
+    Booleans, integrals and new system are computed beside them. The run does not depend on the threads' timing: it equals
     the run with latency 0 of the scene whose cuts are scheduled L frames later (to the rounding of manifold3d's
     parallel Booleans, which differs with the calling thread). L = 0: each cut is done in its frame.
 
@@ -473,23 +474,24 @@ def run_scene(scene: Scene, steps: int | None = None, progress: bool = False,
     run = SceneRun(scene, model)
     pieces = 1
     pending: list[tuple[int, ScheduledCut, object]] = []  # (frame it takes effect, the cut, its future)
-    if cut_latency:  # its start (imports, the model's replica) is not a frame's work
-        model.start_cut_worker()
+    background = BackgroundCuts(model) if cut_latency else None
+    if background is not None:  # its start (imports, the model's replica) is not a frame's work
+        background.start()
 
     def took_effect(record: FrameRecord, scheduled: ScheduledCut, report) -> None:
         record.cuts += 1
-        record.n_booleans += report.n_booleans
-        record.boolean_seconds += report.boolean_seconds
-        record.pieces_integrated += report.pieces_integrated
-        record.integration_seconds += report.integration_seconds
+        record.n_booleans += report.stats.n_booleans
+        record.boolean_seconds += report.stats.boolean_seconds
+        record.pieces_integrated += report.stats.pieces_integrated
+        record.integration_seconds += report.stats.integration_seconds
         run.applied.append(scheduled.solid.transform(report.motion))
 
     def commit(record: FrameRecord, due: list) -> None:
         start = time.perf_counter()
-        model.commit_cuts(until=due[-1][2])  # nothing to do if a query (e.g. in on_frame) committed them
+        reports = background.commit(until=due[-1][2])
         record.cut_seconds += time.perf_counter() - start
-        for _, scheduled, future in due:
-            took_effect(record, scheduled, future.result())
+        for (_, scheduled, _), report in zip(due, reports):
+            took_effect(record, scheduled, report)
 
     for frame in tqdm(range(1, steps + 1), desc=f"xfem {scene.name}", unit="frame", disable=not progress):
         record = FrameRecord(frame, 0, 0.0, 0, 0.0, 0, 0.0, 0.0, 0, pieces, cutting=bool(pending))
@@ -502,7 +504,7 @@ def run_scene(scene: Scene, steps: int | None = None, progress: bool = False,
             record.cutting = True
             start = time.perf_counter()
             if cut_latency:
-                pending.append((frame + cut_latency, scheduled, model.cut_async(scheduled.solid, scheduled.perturb)))
+                pending.append((frame + cut_latency, scheduled, background.submit(scheduled.solid, scheduled.perturb)))
                 record.cut_seconds += time.perf_counter() - start
             else:
                 report = model.cut(scheduled.solid, scheduled.perturb)

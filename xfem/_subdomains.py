@@ -107,15 +107,19 @@ class _Kind:
         owner: per id, its node or element.
         parent: per id, the id it was split from; -1 for the initial ones.
         solids: per id, its Manifold; None for an initial subdomain not built yet or a retired id; a
-            ``MeshSolid`` for one received from the cut worker process, built on first use.
+            ``MeshSolid`` for one received in a delta (``Subdomains.apply_delta``), built on first use.
         alive: per id, whether it is current.
+        retired: the ids retired by cuts, in order (``Subdomains.delta``).
+        reshaped: the ids whose solid a cut replaced (one component left), in order (``Subdomains.delta``).
     """
 
     live: list[list[int]]
     owner: list[int]
     parent: list[int]
-    solids: list[manifold3d.Manifold | None]
+    solids: list[manifold3d.Manifold | MeshSolid | None]
     alive: list[bool]
+    retired: list[int] = field(default_factory=list)
+    reshaped: list[int] = field(default_factory=list)
 
     @classmethod
     def initial(cls, n: int) -> _Kind:
@@ -127,6 +131,95 @@ class _Kind:
         self.solids.append(solid)
         self.alive.append(True)
         return len(self.owner) - 1
+
+    def retire(self, sid: int) -> None:
+        self.alive[sid] = False
+        self.solids[sid] = None
+        self.retired.append(sid)
+
+    def reshape(self, sid: int, solid: manifold3d.Manifold) -> None:
+        self.solids[sid] = solid
+        self.reshaped.append(sid)
+
+    def mark(self) -> tuple[int, int, int]:
+        return len(self.owner), len(self.retired), len(self.reshaped)
+
+    def delta(self, since: tuple[int, int, int]) -> KindDelta:
+        start, retired, reshaped = since
+        retired, reshaped = self.retired[retired:], self.reshaped[reshaped:]
+        changed = sorted({s for s in range(start, len(self.owner)) if self.alive[s]}
+                         | {s for s in reshaped if self.alive[s]})
+        owners = {self.owner[s] for s in (*range(start, len(self.owner)), *retired, *reshaped)}
+        return KindDelta(start, np.asarray(self.owner[start:], np.int64), np.asarray(self.parent[start:], np.int64),
+                         np.asarray(retired, np.int64), np.asarray(reshaped, np.int64),
+                         {o: list(self.live[o]) for o in sorted(owners)}, np.asarray(changed, np.int64),
+                         pack_meshes([_as_mesh(self.solids[s]) for s in changed]))
+
+    def apply(self, delta: KindDelta) -> None:
+        added = len(delta.owner)
+        self.owner.extend(delta.owner.tolist())
+        self.parent.extend(delta.parent.tolist())
+        self.alive.extend([True] * added)
+        self.solids.extend([None] * added)
+        for sid in delta.retired.tolist():
+            self.retire(sid)
+        self.reshaped.extend(delta.reshaped.tolist())
+        for owner, ids in delta.live.items():
+            self.live[owner] = list(ids)
+        for sid, mesh in zip(delta.changed.tolist(), unpack_meshes(delta.meshes)):
+            self.solids[sid] = mesh  # built into a Manifold on first use (Subdomains.node_solid)
+
+
+class KindDelta(NamedTuple):
+    """What cuts changed in the subdomains of one kind since a mark (``Subdomains.delta``).
+
+    Attributes:
+        start: the number of ids at the mark; the new ids follow.
+        owner, parent: (k,) int64 the new ids' owners and parents.
+        retired: (r,) int64 the ids retired since the mark.
+        reshaped: (s,) int64 the ids whose solid a cut replaced since the mark.
+        live: owner -> the ids of its current subdomains, for every owner of a new, retired or reshaped id.
+        changed: (c,) int64 the current ids among the new and reshaped, whose solids ``meshes`` holds.
+        meshes: their ``MeshSolid``s, ``pack_meshes``.
+    """
+
+    start: int
+    owner: np.ndarray
+    parent: np.ndarray
+    retired: np.ndarray
+    reshaped: np.ndarray
+    live: dict[int, list[int]]
+    changed: np.ndarray
+    meshes: tuple
+
+
+class SubdomainsDelta(NamedTuple):
+    """What cuts changed in ``Subdomains`` since a mark: ``Subdomains.delta``, for ``Subdomains.apply_delta``."""
+
+    nodes: KindDelta
+    elements: KindDelta
+
+
+def _as_mesh(solid) -> MeshSolid:
+    return solid if isinstance(solid, MeshSolid) else solid_mesh(solid)
+
+
+def pack_meshes(meshes: list[MeshSolid]) -> tuple:
+    """``MeshSolid``s as a few flat arrays (one pickle of thousands of small arrays holds the GIL for long)."""
+    if not meshes:
+        return np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64), \
+            np.zeros(0)
+    return (np.concatenate([m.V for m in meshes]), np.concatenate([m.F for m in meshes]),
+            np.array([len(m.V) for m in meshes]), np.array([len(m.F) for m in meshes]),
+            np.array([m.tolerance for m in meshes], np.float64))
+
+
+def unpack_meshes(packed: tuple) -> list[MeshSolid]:
+    """``pack_meshes`` undone (views into the flat arrays)."""
+    V, F, vertex_counts, face_counts, tolerances = packed
+    vertex_ends, face_ends = np.cumsum(vertex_counts).tolist(), np.cumsum(face_counts).tolist()
+    return [MeshSolid(V[v_end - nv:v_end], F[f_end - nf:f_end], tol) for v_end, nv, f_end, nf, tol in
+            zip(vertex_ends, vertex_counts.tolist(), face_ends, face_counts.tolist(), tolerances.tolist())]
 
 
 class Subdomains:
@@ -156,6 +249,28 @@ class Subdomains:
     @property
     def n_elements(self) -> int:
         return len(self.T)
+
+    def mark(self) -> tuple:
+        """A mark of the subdomains as they are now, for ``delta``."""
+        return self._nodes.mark(), self._elements.mark()
+
+    def delta(self, since: tuple) -> SubdomainsDelta:
+        """What the cuts made since the mark ``since`` (``mark``) changed: new, retired and reshaped ids, the
+        touched owners' lists and the changed solids as meshes. ``apply_delta`` makes another ``Subdomains`` of the
+        same mesh, as it was at the mark, equal to this one (a replica in another process: ``xfem._background``)."""
+        return SubdomainsDelta(self._nodes.delta(since[0]), self._elements.delta(since[1]))
+
+    def apply_delta(self, delta: SubdomainsDelta) -> None:
+        """Apply ``delta`` (from ``delta`` of a ``Subdomains`` of the same mesh that was equal to this one at its
+        mark); ValueError, before any change, if this one's ids do not match the mark's."""
+        if not isinstance(delta, SubdomainsDelta):
+            raise ValueError(f"delta: expected a SubdomainsDelta, got {type(delta).__name__}")
+        counts = (len(self._nodes.owner), len(self._elements.owner))
+        if (delta.nodes.start, delta.elements.start) != counts:
+            raise ValueError(f"delta: made from subdomains with {delta.nodes.start} nodal and {delta.elements.start} "
+                             f"element ids, these have {counts[0]} and {counts[1]}")
+        self._nodes.apply(delta.nodes)
+        self._elements.apply(delta.elements)
 
     def node_subdomains(self, i: int) -> list[int]:
         """The ids of node i's current nodal subdomains S(i) (eq. 18), in creation order."""
@@ -276,9 +391,28 @@ def subdomains(mesh: TetMesh) -> Subdomains:
     return Subdomains(mesh)
 
 
-@dataclass
+@dataclass(frozen=True)
+class CutStats:
+    """The work of one cut and its wall time.
+
+    Attributes:
+        n_booleans: the Boolean differences computed.
+        boolean_seconds: wall time in them (difference, decomposition and volumes).
+        pieces_integrated: element pieces whose integrals were recomputed (``XFEMModel.cut``; 0 in ``apply_cut``).
+        integration_seconds: wall time in those integrals (eq. 21; Table 2's EI is this over the pieces).
+        enrichment_seconds: wall time in the indicator queries (eq. 16) and the DOF renumbering.
+    """
+
+    n_booleans: int = 0
+    boolean_seconds: float = 0.0
+    pieces_integrated: int = 0
+    integration_seconds: float = 0.0
+    enrichment_seconds: float = 0.0
+
+
+@dataclass(frozen=True, eq=False)
 class CutReport:
-    """What one ``apply_cut`` changed.
+    """What one cut changed (``apply_cut``; ``XFEMModel.cut`` adds the DOF copy map and its own stats).
 
     Attributes:
         boxed: (b,) int64 elements whose bounding box meets the cut's bounding box.
@@ -291,17 +425,11 @@ class CutReport:
         element_children: the same for element subdomains.
         nodes_split: (p,) int64 nodes that gained subdomains.
         elements_split: (q,) int64 elements that gained subdomains.
-        n_booleans: the Boolean differences computed.
-        boolean_seconds: wall time in them (difference, decomposition and volumes).
         motion: (3, 4) the rigid motion applied to the cut by the perturbation (identity when none).
-        pieces_integrated: element pieces whose integrals were recomputed (``XFEMModel.cut``; 0 here).
-        integration_seconds: wall time in those integrals (eq. 21; Table 2's EI is this over the pieces).
-        enrichment_seconds: wall time in the indicator queries (eq. 16) and the DOF renumbering.
-        staged: whether the cut changed the DOFs or the system (``XFEMModel``: a new numbering and system wait
-            to take effect).
+        stats: the ``CutStats``.
         dof_source: (n_dofs,) int64, for each DOF after the cut, the DOF before it whose x and v it copies
-            (Algorithm 1 line 7: a linear map of the state, ``x_new = x_old[dof_source]``); None until the cut
-            takes effect in an ``XFEMModel``, and for a cut that changed no DOF.
+            (Algorithm 1 line 7: a linear map of the state, ``x_new = x_old[dof_source]``); None from
+            ``apply_cut``, and from an ``XFEMModel`` cut that met no element (nothing changed).
     """
 
     boxed: np.ndarray
@@ -312,15 +440,9 @@ class CutReport:
     element_children: dict[int, tuple[int, ...]]
     nodes_split: np.ndarray
     elements_split: np.ndarray
-    n_booleans: int = 0
-    boolean_seconds: float = 0.0
     motion: np.ndarray = field(default_factory=lambda: np.eye(4)[:3])
-    pieces_integrated: int = 0
-    integration_seconds: float = 0.0
-    enrichment_seconds: float = 0.0
-    staged: bool = False
+    stats: CutStats = CutStats()
     dof_source: np.ndarray | None = None
-
 
 
 def _difference(solid: manifold3d.Manifold, cut: manifold3d.Manifold):
@@ -334,10 +456,10 @@ def _difference(solid: manifold3d.Manifold, cut: manifold3d.Manifold):
     return [p for p, v in zip(pieces, volumes) if v > tiny]
 
 
-def _differences(sids: list[int], solid_of, cut: manifold3d.Manifold, report: CutReport, parallel: bool) -> list:
+def _differences(sids: list[int], solid_of, cut: manifold3d.Manifold, tally: list, parallel: bool) -> list:
     """``_difference`` of the solids of the subdomains sids (built on first use by ``solid_of``), in parallel
-    on ``_BOOLEAN_THREADS`` threads (manifold3d releases the GIL: 1.6x on two cores) or in this thread; the
-    report counts them and their wall time (with the building of the solids)."""
+    on ``_BOOLEAN_THREADS`` threads (manifold3d releases the GIL) or in this thread; ``tally`` ([count, seconds])
+    counts them and their wall time (with the building of the solids)."""
     start = time.perf_counter()
 
     def difference(sid):
@@ -347,8 +469,8 @@ def _differences(sids: list[int], solid_of, cut: manifold3d.Manifold, report: Cu
         results = [difference(sid) for sid in sids]
     else:
         results = list(_booleans().map(difference, sids, chunksize=_BOOLEAN_CHUNK))
-    report.boolean_seconds += time.perf_counter() - start
-    report.n_booleans += len(sids)
+    tally[0] += len(sids)
+    tally[1] += time.perf_counter() - start
     return results
 
 
@@ -357,12 +479,12 @@ def _booleans() -> ThreadPoolExecutor:
     return ThreadPoolExecutor(_BOOLEAN_THREADS, thread_name_prefix="xfem-boolean")
 
 
-def _cut_kind(kind: _Kind, owners, solid_of, cut: manifold3d.Manifold, report: CutReport,
+def _cut_kind(kind: _Kind, owners, solid_of, cut: manifold3d.Manifold, tally: list,
               children: dict[int, tuple[int, ...]], parallel: bool) -> tuple[list[int], list[int]]:
     """Algorithm 1 lines 2-8 (or 12-17) for the given owners: the owners met and those split."""
     met, split = [], []
     sids = [sid for owner in owners for sid in kind.live[owner]]
-    results = dict(zip(sids, _differences(sids, solid_of, cut, report, parallel)))
+    results = dict(zip(sids, _differences(sids, solid_of, cut, tally, parallel)))
     for owner in owners:
         old = kind.live[owner]
         new_live, hit = [], False
@@ -373,11 +495,10 @@ def _cut_kind(kind: _Kind, owners, solid_of, cut: manifold3d.Manifold, report: C
                 continue
             hit = True
             if len(pieces) == 1:  # reshaped, same DOFs
-                kind.solids[sid] = pieces[0]
+                kind.reshape(sid, pieces[0])
                 new_live.append(sid)
                 continue
-            kind.alive[sid] = False
-            kind.solids[sid] = None
+            kind.retire(sid)
             ids = tuple(kind.add(owner, sid, p) for p in pieces)
             children[sid] = ids
             new_live.extend(ids)
@@ -498,20 +619,21 @@ def apply_cut(sub: Subdomains, cut: manifold3d.Manifold, perturb: float = 0.0, s
             motion = np.concatenate([R, t[:, None]], axis=1)
             cut = original.transform(motion)
             boxed, candidates = _candidates(sub, cut)
-    report = CutReport(boxed, candidates, np.zeros(0, np.int64), np.zeros(0, np.int64), {}, {},
-                       np.zeros(0, np.int64), np.zeros(0, np.int64), motion=motion)
+    tally = [0, 0.0]  # Booleans and their seconds
+    element_children: dict[int, tuple[int, ...]] = {}
+    node_children: dict[int, tuple[int, ...]] = {}
     start = time.perf_counter()  # the solids' building counts as Boolean time (as when built one by one)
     sub._build_initial((), candidates.tolist())
-    report.boolean_seconds += time.perf_counter() - start
-    met, split = _cut_kind(sub._elements, candidates.tolist(), sub.element_solid, cut, report,
-                           report.element_children, parallel)
-    report.elements_touched = np.asarray(met, np.int64)
-    report.elements_split = np.asarray(split, np.int64)
-    report.nodes_touched = np.unique(sub.T[report.elements_touched]) if met else np.zeros(0, np.int64)
+    tally[1] += time.perf_counter() - start
+    met, elements_split = _cut_kind(sub._elements, candidates.tolist(), sub.element_solid, cut, tally,
+                                    element_children, parallel)
+    elements_touched = np.asarray(met, np.int64)
+    nodes_touched = np.unique(sub.T[elements_touched]) if met else np.zeros(0, np.int64)
     start = time.perf_counter()
-    sub._build_initial(report.nodes_touched.tolist(), ())
-    report.boolean_seconds += time.perf_counter() - start
-    met, split = _cut_kind(sub._nodes, report.nodes_touched.tolist(), sub.node_solid, cut, report,
-                           report.node_children, parallel)
-    report.nodes_split = np.asarray(split, np.int64)
-    return report
+    sub._build_initial(nodes_touched.tolist(), ())
+    tally[1] += time.perf_counter() - start
+    _, nodes_split = _cut_kind(sub._nodes, nodes_touched.tolist(), sub.node_solid, cut, tally, node_children,
+                               parallel)
+    return CutReport(boxed, candidates, elements_touched, nodes_touched, node_children, element_children,
+                     np.asarray(nodes_split, np.int64), np.asarray(elements_split, np.int64), motion,
+                     CutStats(n_booleans=tally[0], boolean_seconds=tally[1]))

@@ -3,8 +3,7 @@
 the timings of Table 2.
 
 Writes into OUT, every ``every`` frames, on every frame with a cut, and for the last frame (with a cut latency,
-a frame due while cuts are computed in the background is written at the first frame without pending cuts, so
-that writing never makes a cut take effect early):
+a frame shows the cuts that have taken effect):
 
 * ``frame_XXXX.png``: the deformed surfaces of the pieces (mesh boundary and cut faces, ``piece_surfaces``),
   coloured by connected piece, fixed axes;
@@ -69,7 +68,6 @@ def xfem_command(name: str, out: Path, steps: int | None = None, *, size: str = 
     # room to fall: the body's size below it, half of it around
     limits = (X.min(0) - np.array([0.5, 0.5, 1.0]) * extent.max(), X.max(0) + 0.5 * extent.max())
     written = []
-    deferred = [False]  # a frame is due but cuts are pending: write at the first frame without
 
     with run_folder(out, RUN_FILES, "summary.json") as staging:
         def write(frame: int, model: XFEMModel):
@@ -82,11 +80,7 @@ def xfem_command(name: str, out: Path, steps: int | None = None, *, size: str = 
             written.append(frame)
 
         def on_frame(record: FrameRecord, model: XFEMModel):
-            due = record.cuts or record.frame % every == 0 or record.frame == steps or deferred[0]
-            if due and model.pending_cuts and record.frame < steps:  # writing would wait for them and commit them
-                deferred[0] = True
-            elif due:
-                deferred[0] = False
+            if record.cuts or record.frame % every == 0 or record.frame == steps:
                 write(record.frame, model)
 
         write(0, sc.model())

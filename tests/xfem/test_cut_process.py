@@ -1,32 +1,26 @@
-"""The cut worker process (``xfem._cut_process``): its replica of a model, replayed from the cuts made before it
-started, gives the same model as cuts made in the model's own process; a dead or failing worker raises at the
-commit and the next cut starts a new one; the worker ends with its model; the protocol's framing, the requests
-sent ahead, the turns with the steps, the worker's core and priority."""
+"""Background cuts (``xfem._background``) and their worker process (``xfem._cut_process``, ``xfem._framing``): the
+replica of a model, replayed from the cuts made before it started and kept in step through the deltas of
+``XFEMModel`` and ``Subdomains``, gives the same model as cuts made in the model's own process; a dead or failing
+worker raises at the commit and the next cut starts a new one; the worker ends with its ``BackgroundCuts``; the
+protocol's framing; the requests sent ahead; the user's process keeps its affinities, priority, switch interval
+and environment."""
 
 import gc
 import io
 import os
 import pickle
 import sys
-import threading
 
 import manifold3d
 import numpy as np
 import pytest
 
-import xfem._xfem
+import xfem._background
 from tests.xfem.test_xfem import LAM, MU, RHO, G, H, _plane, _tall_box
-from xfem._cut_process import (
-    CutProcess,
-    CutProcessError,
-    _encode,
-    _portable,
-    _read_frame,
-    _write_frame,
-    pack_meshes,
-    unpack_meshes,
-)
-from xfem._subdomains import MeshSolid, solid_mesh
+from xfem._background import _ENTRY, BackgroundCuts
+from xfem._cut_process import CutProcess, CutProcessError
+from xfem._framing import decode, encode, portable, read_frame, write_frame
+from xfem._subdomains import MeshSolid, pack_meshes, solid_mesh, unpack_meshes
 from xfem._xfem import xfem_model
 
 CUTS = [dict(point=(0.5, 0.5, 0.61), normal=(0.07, -0.04, 1.0)), dict(point=(0.5, 0.5, 0.9), normal=(0.03, 0.05, 1.0)),
@@ -65,29 +59,55 @@ def test_mesh_solid_round_trip():
     assert unpack_meshes(pack_meshes([])) == []
 
 
-def test_replica_replays_earlier_cuts_and_takes_later_ones():
-    """Cuts made in the model's process before its worker started are replayed there; ``cut`` after it started
-    goes through the worker too; the solids come back as meshes and are built on first use."""
+def test_subdomains_delta_makes_a_copy_equal():
+    """``Subdomains.delta`` since a mark, applied to a copy as it was at the mark, makes it equal: the same ids,
+    owners, parents, live lists and solids; a delta applied to subdomains that moved on is refused."""
+    source, copy = _models()
+    source.cut(_plane(**CUTS[0]))
+    copy.cut(_plane(**CUTS[0]))
+    mark = source.sub.mark()
+    for cut in CUTS[1:]:
+        source.cut(_plane(**cut))
+    delta = source.sub.delta(mark)
+    copy.sub.apply_delta(delta)
+    a, b = source.sub, copy.sub
+    for kind in ("node", "element"):
+        owners = range(a.n_nodes if kind == "node" else a.n_elements)
+        live = [getattr(a, f"{kind}_subdomains")(o) for o in owners]
+        assert live == [getattr(b, f"{kind}_subdomains")(o) for o in owners]
+        for sid in (s for ids in live for s in ids):
+            assert getattr(a, f"{kind}_parent")(sid) == getattr(b, f"{kind}_parent")(sid)
+            assert getattr(b, f"{kind}_solid")(sid).volume() == pytest.approx(
+                getattr(a, f"{kind}_solid")(sid).volume(), rel=1e-12)
+    assert len(delta.elements.retired) > 0 and len(delta.elements.changed) > 0
+    with pytest.raises(ValueError, match="delta"):
+        copy.sub.apply_delta(delta)  # copy has the new ids already
+
+
+def test_replica_replays_earlier_cuts_and_direct_cuts():
+    """Cuts made in the model's process before its worker started are replayed there, and so is a ``cut`` made
+    directly while no cut is pending; the solids come back as meshes and are built on first use."""
     remote, inline = _models()
     for model in (remote, inline):
         model.cut(_plane(**CUTS[0]))  # before any worker: in the model's process
-    remote.start_cut_worker()
-    assert remote._process is not None
-    future = remote.cut_async(_plane(**CUTS[1]))
+    background = BackgroundCuts(remote)
+    background.start()
+    future = background.submit(_plane(**CUTS[1]))
     inline.cut(_plane(**CUTS[1]))
-    assert remote.commit_cuts(until=future)[0].staged
-    remote.cut(_plane(**CUTS[2]))  # through the worker, in effect at once
-    inline.cut(_plane(**CUTS[2]))
-    assert not remote._pending
-    _assert_same(remote, inline)
+    assert background.commit(until=future)[0].dof_source is not None
     received = [s for s in range(len(remote.sub._elements.owner)) if remote.sub.element_alive(s)
                 and isinstance(remote.sub._elements.solids[s], MeshSolid)]
     assert received  # pieces made by the worker, not built yet
     for sid in received:
         assert remote.sub.element_solid(sid).volume() == pytest.approx(inline.sub.element_solid(sid).volume(),
                                                                       rel=1e-12)
-    assert remote.cut(_plane(point=(0.5, 0.5, 5.0))).staged is False  # outside the body: nothing changes
+    for model in (remote, inline):
+        model.cut(_plane(**CUTS[2]))  # directly, in the model's process
+    outside = background.submit(_plane(point=(0.5, 0.5, 5.0)))  # the replica replays CUTS[2] first
+    assert background.commit()[0].dof_source is None  # outside the body: nothing changes
+    assert outside.done() and len(remote.cuts) == 4
     _assert_same(remote, inline)
+    background.close()
 
 
 def test_cut_that_removes_material():
@@ -97,83 +117,99 @@ def test_cut_that_removes_material():
     block = manifold3d.Manifold.cube((2.0, 2.0, 1.0)).translate((-0.5, -0.5, 0.93))
     for model in (remote, inline):
         model.step(H, MU, LAM)
-    remote.cut_async(block)
+    background = BackgroundCuts(remote)
+    background.submit(block)
     inline.cut(block)
-    report = remote.commit_cuts()[0]
+    report = background.commit()[0]
     assert any(not children for children in report.element_children.values())  # tets removed whole
     assert len(remote.dof_sid) < len(remote.X)
     _assert_same(remote, inline)
+    background.close()
 
 
-def test_large_systems_are_built_by_the_model(monkeypatch):
+def test_large_systems_are_padded_by_the_model(monkeypatch):
     """Above ``_SENT_SYSTEM_BYTES`` the worker sends the system arrays only, and the model pads them itself."""
-    monkeypatch.setattr(xfem._xfem, "_SENT_SYSTEM_BYTES", 0)
+    monkeypatch.setattr(xfem._background, "_SENT_SYSTEM_BYTES", 0)
     remote, inline = _models()
     sent = []
-    apply = remote._apply_remote
-    remote._apply_remote = lambda report, delta: (sent.append(delta["system"]), apply(report, delta))[1]
+    prepare = remote.prepare_step
+    remote.prepare_step = lambda arrays, n, system, level: (sent.append(system), prepare(arrays, n, system, level))[1]
+    background = BackgroundCuts(remote)
     for cut in CUTS:
-        remote.cut_async(_plane(**cut))
+        background.submit(_plane(**cut))
         inline.cut(_plane(**cut))
-    remote.commit_cuts()
+    background.commit()
     assert sent == [None] * len(CUTS)
     _assert_same(remote, inline)
+    background.close()
 
 
 def test_dead_worker_raises_at_commit_and_the_next_cut_starts_a_new_one():
     remote, inline = _models()
-    remote.cut_async(_plane(**CUTS[0]))
-    remote.commit_cuts()
+    background = BackgroundCuts(remote)
+    background.submit(_plane(**CUTS[0]))
+    background.commit()
     inline.cut(_plane(**CUTS[0]))
-    first = remote._process
-    first._child.kill()
-    first._child.wait()
-    failed, dropped = remote.cut_async(_plane(**CUTS[1])), remote.cut_async(_plane(**CUTS[2]))
+    first = background._process
+    first.kill()
+    failed, dropped = background.submit(_plane(**CUTS[1])), background.submit(_plane(**CUTS[2]))
     with pytest.raises(CutProcessError, match="exited"):
-        remote.commit_cuts()
-    assert remote._process is None and not remote._pending and not remote._staged
+        background.commit()
+    assert background._process is None and background.pending == 0
     assert dropped.cancelled() or isinstance(dropped.exception(), CutProcessError)
     assert failed.done()
     _assert_same(remote, inline)  # the failed cut changed nothing
-    remote.cut_async(_plane(**CUTS[1]))  # a new worker, replaying the first cut
+    background.submit(_plane(**CUTS[1]))  # a new worker, replaying the first cut
     inline.cut(_plane(**CUTS[1]))
-    remote.commit_cuts()
-    assert remote._process is not first
+    background.commit()
+    assert background._process is not first
     _assert_same(remote, inline)
+    background.close()
 
 
 def test_worker_errors_come_back_and_disagreement_is_caught():
-    remote, _ = _models()
-    remote.start_cut_worker()
+    remote, inline = _models()
+    background = BackgroundCuts(remote)
+    background.start()
     with pytest.raises(TypeError):  # a malformed request: the worker's own error, raised here
-        remote._process.send(("not a cut",))
-        remote._process.receive()
-    remote._drop_process()
-    with pytest.raises(CutProcessError, match="replica has"):  # checked before anything is applied
-        remote._apply_remote(None, dict(counts=(0, 0)))
-    error = _portable(ValueError("perturb: bad"))
+        background._process.send(("not a cut",))
+        background._process.receive()
+    background._drop_process()
+    background.submit(_plane(**CUTS[0]))
+    remote.cut(_plane(**CUTS[1]))  # directly, while a cut is pending: the replica cannot know
+    with pytest.raises(ValueError, match="delta"):  # checked before anything is applied
+        background.commit()
+    inline.cut(_plane(**CUTS[1]))
+    _assert_same(remote, inline)
+    background.submit(_plane(**CUTS[0]))  # a new worker, replaying the direct cut
+    inline.cut(_plane(**CUTS[0]))
+    background.commit()
+    _assert_same(remote, inline)
+    background.close()
+    error = portable(ValueError("perturb: bad"))
     assert isinstance(error, ValueError) and str(error) == "perturb: bad"
 
     class Local(Exception):  # defined in a function: it does not pickle
         pass
 
-    error = _portable(Local("x"))
+    error = portable(Local("x"))
     assert isinstance(error, RuntimeError) and "Local: x" in str(error)
 
 
-def test_worker_ends_with_its_model():
+def test_worker_ends_with_its_background_cuts():
     remote, _ = _models()
-    remote.start_cut_worker()
-    child = remote._process._child
+    background = BackgroundCuts(remote)
+    background.start()
+    child = background._process._child
     assert child.poll() is None
-    del remote
+    del background
     gc.collect()
     assert child.wait(10) == 0
 
 
 def test_worker_startup_failure_is_reported():
-    process = CutProcess(dict(x64=True, X=np.zeros((1, 3)), T=np.zeros((1, 4), np.int64), rho=np.ones(1),
-                              gravity=np.zeros(3), fixed=np.zeros(0, np.int64), log=[]))
+    process = CutProcess(dict(X=np.zeros((1, 3)), T=np.zeros((1, 4), np.int64), rho=np.ones(1),
+                              gravity=np.zeros(3), fixed=np.zeros(0, np.int64), log=[]), _ENTRY)
     try:
         with pytest.raises(ValueError, match="positive volume"):  # a flat tet: the replica's own check, raised here
             process.wait_ready()
@@ -189,14 +225,14 @@ def test_messages_are_framed_whole():
                                             "small": np.ones(3)}]
     stream = io.BytesIO()
     for message in messages:
-        _write_frame(stream, *_encode(message))
+        write_frame(stream, *encode(message))
     stream.seek(0)
-    frames = [_read_frame(stream) for _ in messages]
+    frames = [read_frame(stream) for _ in messages]
     assert [len(buffers) for _, buffers in frames] == [0, 0, 2]
     data, buffers = frames[2]
     assert len(data) < 1000  # the arrays travel out of band
     assert all(b.ctypes.data % 64 == 0 for b in buffers)
-    back = [pickle.loads(data, buffers=buffers) for data, buffers in frames]
+    back = [decode(data, buffers) for data, buffers in frames]
     assert back[0] == b"" and back[1][0] == "one"
     np.testing.assert_array_equal(back[1][1], np.arange(5))
     system = back[2]["system"]
@@ -204,145 +240,74 @@ def test_messages_are_framed_whole():
     np.testing.assert_array_equal(system[1], large[:, :2].astype(np.int32))
     assert system[1].flags.f_contiguous and system[0].ctypes.data % 64 == 0
     with pytest.raises(EOFError, match="the stream ended"):
-        _read_frame(stream)
+        read_frame(stream)
     whole = io.BytesIO()
-    _write_frame(whole, *_encode(messages[2]))
+    write_frame(whole, *encode(messages[2]))
     for cut in (3, 40, len(whole.getvalue()) - 1):  # in the lengths, the pickle, the last buffer
         with pytest.raises(EOFError, match="within a message"):
-            _read_frame(io.BytesIO(whole.getvalue()[:cut]))
+            read_frame(io.BytesIO(whole.getvalue()[:cut]))
+    assert pickle.loads(pickle.dumps(messages[1]))[0] == "one"
 
 
-def test_next_cut_is_sent_before_a_reply_is_applied():
-    """The worker process starts the next pending cut as soon as it replies, while the model applies the reply."""
+def test_next_cut_is_sent_before_a_reply_is_prepared():
+    """The worker process starts the next pending cut as soon as it replies, while this process prepares the
+    reply's system."""
     remote, inline = _models()
-    remote.start_cut_worker()
+    background = BackgroundCuts(remote)
+    background.start()
     events = []
-    process, apply = remote._process, remote._apply_remote
+    process, prepare = background._process, remote.prepare_step
     send = process.send
-    process.send = lambda message, turn=None: (events.append("send"), send(message, turn))[1]
-    remote._apply_remote = lambda report, delta: (events.append("apply"), apply(report, delta))[1]
-    with remote._turns.step():  # the worker cannot pickle the first request yet: all three are queued
-        for cut in CUTS:
-            remote.cut_async(_plane(**cut))
+    process.send = lambda message: (events.append("send"), send(message))[1]
+    remote.prepare_step = lambda *args: (events.append("prepare"), prepare(*args))[1]
+    for cut in CUTS:  # queued while the worker makes the first one
+        background.submit(_plane(**cut))
     for cut in CUTS:
         inline.cut(_plane(**cut))
-    remote.commit_cuts()
-    assert events == ["send", "send", "apply", "send", "apply", "apply"]
+    background.commit()
+    assert events == ["send", "send", "prepare", "send", "prepare", "prepare"]
     _assert_same(remote, inline)
+    background.close()
 
 
-def test_steps_and_worker_pieces_take_turns(monkeypatch):
-    """A step waits while a piece of the worker thread's work holds the turn; after a piece, the next one waits for
-    a step to end, unless the model's thread waits for the worker (``hurry``) or nobody steps (``_PATIENCE``)."""
-    monkeypatch.setattr(xfem._xfem, "_PATIENCE", 30.0)
-    model, _ = _models()
-    model.step(H, MU, LAM)  # compiled
-    turns = model._turns
-    turns.paced = True  # as for a model with short steps (``_SHORT_STEP_S``)
-    done = threading.Event()
-    with turns.piece():
-        stepping = threading.Thread(target=lambda: (model.step(H, MU, LAM), done.set()))
-        stepping.start()
-        assert not done.wait(0.3)
-    stepping.join(30)
-    assert done.is_set()
-
-    def next_piece(started):
-        with turns.piece():
-            started.set()
-
-    with turns.piece():
-        pass
-    started = threading.Event()
-    waiting = threading.Thread(target=next_piece, args=(started,))
-    waiting.start()
-    assert not started.wait(0.3)  # no step since the last piece
-    model.step(H, MU, LAM)
-    assert started.wait(10)
-    waiting.join()
-    started = threading.Event()
-    waiting = threading.Thread(target=next_piece, args=(started,))
-    waiting.start()
-    assert not started.wait(0.3)
-    with turns.hurry():
-        assert started.wait(10)
-    waiting.join()
-    monkeypatch.setattr(xfem._xfem, "_PATIENCE", 0.05)
-    started = threading.Event()
-    waiting = threading.Thread(target=next_piece, args=(started,))
-    waiting.start()
-    assert started.wait(10)  # nobody steps: it goes after its patience
-    waiting.join()
-
-
-@pytest.mark.skipif(not hasattr(os, "sched_getaffinity"), reason="CPU affinity is Linux's")
-def test_worker_runs_on_one_core_at_low_priority():
-    """Background cuts run on one core at nice 19; a ``cut`` (the model waits for it) on all the parent's cores."""
-    remote, _ = _models()
-    remote.cut_async(_plane(**CUTS[0]))
-    remote.commit_cuts()
-    child = remote._process._child.pid
-    cores = os.sched_getaffinity(0)
-    assert os.sched_getaffinity(child) == {max(cores)}
-    assert os.getpriority(os.PRIO_PROCESS, child) == 19
-    remote.cut(_plane(**CUTS[1]))
-    assert os.sched_getaffinity(child) == cores
-    remote.cut_async(_plane(**CUTS[2]))
-    remote.commit_cuts()
-    assert os.sched_getaffinity(child) == {max(cores)}
-
-
-def _thread_affinities() -> list[frozenset]:
+def _thread_affinities() -> dict[int, frozenset]:
     """The CPUs of each live thread of this process (a thread that ends while they are read is left out)."""
-    affinities = []
+    affinities = {}
     for thread in os.listdir("/proc/self/task"):
         try:
-            affinities.append(frozenset(os.sched_getaffinity(int(thread))))
-        except ProcessLookupError:
+            affinities[int(thread)] = frozenset(os.sched_getaffinity(int(thread)))
+        except (ProcessLookupError, PermissionError):
             pass
     return affinities
 
 
-@pytest.mark.skipif(not hasattr(os, "sched_getaffinity") or len(os.sched_getaffinity(0)) < 2,
-                    reason="needs Linux's CPU affinity and two cores")
-def test_short_steps_keep_the_process_off_the_worker_core():
-    """While a model with short steps has background cuts pending, every thread of the process stays off the
-    worker's core (and its worker pieces are paced); afterwards each gets its CPUs back. Long steps keep all."""
-    cores = os.sched_getaffinity(0)
-    worker = max(cores)
-
-    def affinities():
-        return {frozenset(a) == cores - {worker} for a in _thread_affinities()}
-
-    remote, _ = _models()
-    remote.start_cut_worker()
-    assert os.sched_getaffinity(remote._process._child.pid) == {worker}
-    remote._last_step_seconds = 0.002  # as measured by its steps
-    with remote._turns.step():  # the cut stays pending
-        remote.cut_async(_plane(**CUTS[0]))
-        assert affinities() == {True} and remote._turns.paced
-    remote.commit_cuts()
-    assert os.sched_getaffinity(0) == cores and affinities() == {False}
-    remote._last_step_seconds = 1.0
-    with remote._turns.step():
-        remote.cut_async(_plane(**CUTS[1]))
-        assert os.sched_getaffinity(0) == cores and not remote._turns.paced
-    remote.commit_cuts()
-    assert os.sched_getaffinity(0) == cores
-
-
-def test_a_model_dropped_with_pending_cuts_gives_back_the_process_settings():
-    """The switch interval and the reservation of the worker's core end with the model, even with cuts pending."""
-    interval = sys.getswitchinterval()
-    remote, _ = _models()
-    remote.start_cut_worker()
-    remote._last_step_seconds = 0.002
-    future = remote.cut_async(_plane(**CUTS[0]))
-    assert sys.getswitchinterval() < interval
-    future.result()
-    del remote, future
-    gc.collect()
-    assert sys.getswitchinterval() == interval
-    if hasattr(os, "sched_getaffinity"):
-        cores = os.sched_getaffinity(0)
-        assert set(_thread_affinities()) == {frozenset(cores)}
+@pytest.mark.skipif(not hasattr(os, "sched_getaffinity") or not os.path.isdir("/proc/self/task"),
+                    reason="needs Linux's CPU affinity")
+def test_background_cuts_leave_the_process_settings_alone():
+    """A background cut changes nothing process-wide in the user's process: its CPU affinity and every thread's,
+    its priority, the interpreter's switch interval and the environment stay as they were; the worker process
+    runs with this process's priority and CPUs."""
+    remote, inline = _models()
+    before = (frozenset(os.sched_getaffinity(0)), _thread_affinities(), os.getpriority(os.PRIO_PROCESS, 0),
+              sys.getswitchinterval(), dict(os.environ))
+    background = BackgroundCuts(remote)
+    remote.step(H, MU, LAM)
+    future = background.submit(_plane(**CUTS[0]))
+    while not future.done():  # steps while the cut is under way, as a simulation does
+        remote.step(H, MU, LAM)
+        assert frozenset(os.sched_getaffinity(0)) == before[0] and sys.getswitchinterval() == before[3]
+    child = background._process.pid
+    assert os.getpriority(os.PRIO_PROCESS, child) == before[2]
+    assert os.sched_getaffinity(child) == before[0]
+    background.commit()
+    remote.step(H, MU, LAM)
+    after = _thread_affinities()
+    assert frozenset(os.sched_getaffinity(0)) == before[0]
+    assert {t: a for t, a in after.items() if t in before[1]} == before[1]  # the threads there before
+    assert set(after.values()) <= {before[0]} | set(before[1].values())  # and those started since
+    assert os.getpriority(os.PRIO_PROCESS, 0) == before[2]
+    assert sys.getswitchinterval() == before[3]
+    assert dict(os.environ) == before[4]
+    background.close()
+    inline.cut(_plane(**CUTS[0]))
+    np.testing.assert_array_equal(remote.dof_sid, inline.dof_sid)

@@ -158,7 +158,7 @@ def test_cut_outside_the_body_is_bitwise_a_no_op():
     # the second slab is far above the box
     reports = [model.cut(_slab(point, (1.0, 1.0, 1.0))) for point in ((1.1, 1.1, 1.1), (0.5, 0.5, 5.0))]
     assert [len(r.boxed) for r in reports] == [48, 0]
-    assert all(len(r.candidates) == r.n_booleans == len(r.elements_touched) == 0 for r in reports)
+    assert all(len(r.candidates) == r.stats.n_booleans == len(r.elements_touched) == 0 for r in reports)
     assert not any(model.sub.node_built(i) for i in range(model.sub.n_nodes))
     assert not any(model.sub.element_built(e) for e in range(model.sub.n_elements))
     np.testing.assert_array_equal(model.dof_sid, uncut.dof_sid)
@@ -198,7 +198,7 @@ def test_cut_touching_the_boundary(where, perturb):
         assert 1 - delta - ROUNDING <= volume <= 1 + ROUNDING
         assert abs(_dof_masses(model).sum() - RHO * volume) <= RHO * ROUNDING
     else:  # the Booleans of the tets the slab touches lose no volume: nothing changes
-        assert len(report.candidates) > 0 and report.n_booleans == len(report.candidates)
+        assert len(report.candidates) > 0 and report.stats.n_booleans == len(report.candidates)
         assert len(report.elements_touched) == 0
         for a, b in zip(reference, model.piece_arrays()):
             np.testing.assert_array_equal(a, b)

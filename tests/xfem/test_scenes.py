@@ -139,7 +139,7 @@ def test_bad_input():
 
 def test_cut_latency_equals_the_cuts_done_later():
     """With a cut latency of L frames, cuts computed in the background while the body steps give the same run as
-    the same cuts done in their frame L frames later (``XFEMModel.cut_async``, ``commit_cuts``): the same DOFs and
+    the same cuts done in their frame L frames later (``BackgroundCuts``): the same DOFs and
     pieces, states equal to rounding (manifold3d's parallel Booleans round differently when called from another
     thread: measured 1e-18 in the pieces' volumes)."""
     sc = scene("sticks", "small")

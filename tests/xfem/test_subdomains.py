@@ -72,7 +72,7 @@ def test_plane_through_the_five_tet_cube_halves_every_subdomain():
     assert report.nodes_split.tolist() == list(range(8)) and report.elements_split.tolist() == list(range(5))
     assert sorted(report.node_children) == list(range(8))
     assert all(len(c) == 2 for c in report.node_children.values())
-    assert report.n_booleans == 5 + 8
+    assert report.stats.n_booleans == 5 + 8
     _check_ids(sub, report)
     # the initial ids are the node and element indices, the pieces' parents
     assert all(sub.node_parent(s) == i for i in range(8) for s in sub.node_subdomains(i))
@@ -104,7 +104,7 @@ def test_only_the_1_rings_the_plane_crosses_are_split():
 def test_a_cut_outside_the_body_touches_nothing():
     sub = subdomains(box_tets((2, 2, 2)))
     report = apply_cut(sub, _plane([0.5, 0.5, 5.0], [0, 0, 1]))
-    assert len(report.boxed) == len(report.candidates) == report.n_booleans == 0
+    assert len(report.boxed) == len(report.candidates) == report.stats.n_booleans == 0
     assert len(report.elements_touched) == 0 and len(report.nodes_touched) == 0
     assert report.node_children == {} and report.element_children == {}
     assert not any(sub.node_built(i) for i in range(sub.n_nodes))
@@ -154,7 +154,7 @@ def test_a_repeated_cut_splits_pieces_again_and_the_same_cut_twice_is_a_no_op():
     assert len(second.element_children) > 0
     assert all(sub.element_parent(sub.element_parent(s)) >= 0 for s in sum(second.element_children.values(), ()))
     again = apply_cut(sub, _plane([0.5, 0.5, 0.25], [0, 0, 1]))
-    assert len(again.candidates) == 5 and again.n_booleans > 0
+    assert len(again.candidates) == 5 and again.stats.n_booleans > 0
     assert len(again.elements_touched) == 0 and len(again.nodes_touched) == 0
     assert again.node_children == {} and again.element_children == {}
 
@@ -185,7 +185,7 @@ def test_aabb_culling_and_touched_sets_on_a_3x3x3_box():
         assert len(sub.node_subdomains(i)) == (2 if ring.min() < -EPS / 2 and ring.max() > EPS / 2 else 1)
     _check_ids(sub, report)
     # the Boolean count: one per candidate element, one per touched node (each had one subdomain)
-    assert report.n_booleans == len(report.candidates) + len(report.nodes_touched)
+    assert report.stats.n_booleans == len(report.candidates) + len(report.nodes_touched)
 
 
 def test_gentle_perturbation_moves_an_aligned_cut_off_the_nodes():

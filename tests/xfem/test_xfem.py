@@ -14,10 +14,12 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
+from xfem._background import BackgroundCuts
 from xfem._backward_euler import State, backward_euler_step, fem_from_mesh
+from xfem._capacity import _COMPILED, wait_for_compilations
 from xfem._cuts import plane_cut_solid
 from xfem._tetmesh import boundary_faces, box_tets, five_tet_cube
-from xfem._xfem import _COMPILED, wait_for_compilations, xfem_model
+from xfem._xfem import xfem_model
 
 RHO, EPS, H = 1e3, 1e-3, 0.01
 MU, LAM = 1e6, 1e6
@@ -211,40 +213,47 @@ def test_cuts_within_a_capacity_level_reuse_the_compiled_step(caplog):
         np.testing.assert_allclose(model.state.x, expected.x, rtol=0, atol=1e-12)
 
 
-def test_cut_async_takes_effect_at_commit():
-    """``cut_async`` prepares a cut in the worker process while the model steps its old system; ``commit_cuts``
-    makes it take effect with the state of that moment: the same model as ``cut`` called then (to the rounding of
-    manifold3d's parallel Booleans, which differs between calling threads). Queries wait."""
+def test_background_cut_takes_effect_at_commit():
+    """``BackgroundCuts.submit`` prepares a cut in the worker process while the model steps its old system;
+    ``commit`` makes it take effect with the state of that moment: the same model as ``cut`` called then (to the
+    rounding of manifold3d's parallel Booleans, which differs between calling threads). Until then the model's
+    queries answer for the committed cuts."""
     mesh = _tall_box()
     fixed = np.flatnonzero(np.asarray(mesh.X)[:, 2] > 1.5 - 1e-9)
-    background, inline = (xfem_model(mesh, RHO, gravity=G, fixed=fixed) for _ in range(2))
-    for model in (background, inline):
-        model.step(H, MU, LAM)
-    first = background.cut_async(_plane())
-    second = background.cut_async(_plane(point=(0.5, 0.5, 0.9), normal=(0.03, 0.05, 1.0)))
-    n = len(background.dof_sid)
-    for model in (background, inline):  # the old system: no new DOFs yet
-        model.step(H, MU, LAM)
-    assert len(background.dof_sid) == n and background.pieces() == 1
-    np.testing.assert_array_equal(np.asarray(background.state.x), np.asarray(inline.state.x))
+    model, inline = (xfem_model(mesh, RHO, gravity=G, fixed=fixed) for _ in range(2))
+    for m in (model, inline):
+        m.step(H, MU, LAM)
+    background = BackgroundCuts(model)
+    first = background.submit(_plane())
+    second = background.submit(_plane(point=(0.5, 0.5, 0.9), normal=(0.03, 0.05, 1.0)))
+    n = len(model.dof_sid)
+    for m in (model, inline):  # the old system: no new DOFs yet
+        m.step(H, MU, LAM)
+    second.result()  # both prepared, neither in effect
+    assert len(model.dof_sid) == n and model.pieces() == 1 and len(model.piece_arrays()[0]) == len(mesh.T)
+    np.testing.assert_array_equal(np.asarray(model.state.x), np.asarray(inline.state.x))
     with pytest.raises(ValueError, match="until"):
-        background.commit_cuts(until=Future())
-    reports = background.commit_cuts(until=first)
-    assert len(reports) == 1 and reports[0] is first.result() and len(background._pending) == 1
-    inline.cut(_plane())
-    assert background.pieces() == inline.pieces() == 2
-    for model in (background, inline):
-        model.step(H, MU, LAM)
-    np.testing.assert_allclose(np.asarray(background.state.x), np.asarray(inline.state.x), rtol=0, atol=1e-12)
+        background.commit(until=Future())
+    reports = background.commit(until=first)
+    assert len(reports) == 1 and reports[0] is first.result() and background.pending == 1
+    expected = inline.cut(_plane())
+    np.testing.assert_array_equal(reports[0].dof_source, expected.dof_source)
+    assert model.pieces() == inline.pieces() == 2
+    for m in (model, inline):
+        m.step(H, MU, LAM)
+    np.testing.assert_allclose(np.asarray(model.state.x), np.asarray(inline.state.x), rtol=0, atol=1e-12)
     inline.cut(_plane(point=(0.5, 0.5, 0.9), normal=(0.03, 0.05, 1.0)))
-    for a, b in zip(background.piece_arrays(), inline.piece_arrays()):  # waits for the second cut
+    assert len(background.commit()) == 1 and background.pending == 0
+    for a, b in zip(model.piece_arrays(), inline.piece_arrays()):
         np.testing.assert_allclose(a, b, rtol=1e-12, atol=0)
-    assert second.done() and not background._pending and background.pending_cuts == 0
-    assert background.commit_cuts(until=first) == [] == background.commit_cuts()  # committed already
-    for model in (background, inline):
-        model.step(H, MU, LAM)
-    np.testing.assert_allclose(np.asarray(background.state.x), np.asarray(inline.state.x), rtol=0, atol=1e-12)
+    assert background.commit(until=first) == [] == background.commit()  # committed already
+    for m in (model, inline):
+        m.step(H, MU, LAM)
+    np.testing.assert_allclose(np.asarray(model.state.x), np.asarray(inline.state.x), rtol=0, atol=1e-12)
     with pytest.raises(ValueError, match="cut"):
-        background.cut_async(None)
+        background.submit(None)
     with pytest.raises(ValueError, match="perturb"):
-        background.cut_async(_plane(), perturb=-1.0)
+        background.submit(_plane(), perturb=-1.0)
+    with pytest.raises(ValueError, match="model"):
+        BackgroundCuts(inline.sub)
+    background.close()
