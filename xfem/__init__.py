@@ -8,8 +8,9 @@ PSD-projected Hessians; ``_jacobi3``, the batched 3 x 3 SVD and eigendecompositi
 ``_assembly`` (sparse patterns precomputed on the host, assembly in JAX),
 ``_backward_euler`` (eq. 10 as a minimization: projected Newton with line search, Dirichlet nodes,
 implicit gradients), ``_material`` (``Material``: Young's modulus and Poisson's ratio), ``_rollout`` (steps in
-a checkpointed ``lax.scan``, differentiable in the initial state, material, forces and moving targets). The step is generic over an element list (DOF-node indices, shape gradients,
-integration weights) and any mass matrix, so the enriched XFEM elements go through the same code.
+a checkpointed ``lax.scan``, differentiable in the initial state, material, forces and moving targets). The
+step is generic over an element list (DOF-node indices, shape gradients, integration weights) and any mass
+matrix, so the enriched XFEM elements go through the same code.
 
 Sec. 4, the generalized XFEM: ``_cuts`` (swept tool edges thickened into closed solids, sec. 4.1),
 ``_subdomains`` (nodal and element subdomains cut by manifold3d Booleans, Algorithm 1 lines 1-19),

@@ -297,9 +297,7 @@ def _host_cg(data, rhs, rtol, indptr, indices):
     loop either: its ~14 array operations per iteration each hand the GIL over, and wait for a background cut's
     manifold3d or libigl call to give it back. An unconverged iterate still decreases the quadratic model, so it
     remains a descent direction."""
-    from xfem._pcg import (
-        jacobi_pcg,  # numba compiles on first use, not when the module is imported
-    )
+    from xfem._pcg import jacobi_pcg  # numba compiles on first use, not when the module is imported
 
     A = _csr(data, indptr, indices)
     return jacobi_pcg(A.data, A.indptr, A.indices, 1 / A.diagonal(), np.asarray(rhs, np.float64),
