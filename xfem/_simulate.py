@@ -113,7 +113,8 @@ def simulate(model: XFEMModel, schedule: Sequence[tuple[int, object]], material:
             raise ValueError(f"schedule: expected (frame, solid) pairs with an int frame in [1, {steps}], got {entry!r}")
     if forces is not None and not callable(forces):
         raise ValueError("forces: expected None or a function (segment index, FEMSystem) -> forces")
-    segments, start = _segments(model, schedule, steps)
+    with jax.ensure_compile_time_eval():  # host work, also when simulate is traced (jit, grad)
+        segments, start = _segments(model, schedule, steps)
     if state is None:
         state = start
     elif not isinstance(state, State):
