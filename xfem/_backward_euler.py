@@ -627,7 +627,7 @@ def _checked_material(material, system: FEMSystem, dtype) -> Material:
         raise ValueError(f"material: expected an xfem.Material(young, poisson), got {type(material).__name__}")
     m = system.T.shape[0]
     for name, a in (("material.young", material.young), ("material.poisson", material.poisson)):
-        if jnp.ndim(a) > 1 or jnp.ndim(a) == 1 and jnp.shape(a) != (m,):
+        if jnp.ndim(a) > 1 or (jnp.ndim(a) == 1 and jnp.shape(a) != (m,)):
             raise ValueError(f"{name}: expected a scalar or one value per element, shape ({m},), got {jnp.shape(a)}")
     # tree_map, not Material(...): its concrete checks already ran when it was made
     return jax.tree.map(lambda a: _scalar(a, dtype), material)

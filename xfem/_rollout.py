@@ -77,7 +77,8 @@ def _rollout(system, state, h, material, forces, targets, steps, iterations, tol
     fixed_start = state.x[system.fixed]
 
     # only the Newton result is kept for the reverse pass: it re-runs the cheap parts of a step, not its Newton
-    @functools.partial(jax.checkpoint, policy=jax.checkpoint_policies.save_only_these_names(_NEWTON_RESULT))
+    @functools.partial(jax.checkpoint, prevent_cse=False,  # no CSE across scan iterations to prevent
+                       policy=jax.checkpoint_policies.save_only_these_names(_NEWTON_RESULT))
     def body(s, frame):
         force, target = frame
         s = _advance(system, s, h, mu, lam, fixed_start if target is None else target,
