@@ -49,11 +49,12 @@ def test_rollout_equals_a_loop_of_steps():
     # constant forces, the fixed nodes kept in place
     loop = State(REST.x, V0)
     for _ in range(2):
-        loop = backward_euler_step(SYSTEM, loop, H, MATERIAL)
+        loop = backward_euler_step(SYSTEM, loop, H, MATERIAL, fixed_positions=X[FIXED])
     np.testing.assert_allclose(rollout(SYSTEM, State(REST.x, V0), MATERIAL, H, 2, forces=SYSTEM.force).x[-1], loop.x,
                                rtol=0, atol=1e-12)
 
 
+@pytest.mark.slow  # two compilations of a 3-step rollout (jit, vmap): ~45 s on the shared 2 cores
 def test_jit_and_vmap_over_young():
     youngs = jnp.asarray([1e5, 1e6])
 
@@ -146,6 +147,7 @@ def test_one_newton_iteration_gives_the_converged_formula_at_the_executed_iterat
     assert 1e-4 < difference < 1e-2, difference
 
 
+@pytest.mark.slow  # a rollout and its gradient compiled for a mesh of their own: ~25 s on the shared 2 cores
 def test_reverse_pass_reruns_no_newton_iteration(monkeypatch):
     """Checkpointing keeps each step's Newton result: the gradient of a 4-step rollout runs 4 Newton solves (the
     forward pass) and 4 adjoint solves, none again."""
