@@ -7,17 +7,20 @@ lumped mass eq. 7, body forces eq. 8), ``_neohookean`` (stable neo-Hookean energ
 PSD-projected Hessians; ``_jacobi3``, the batched 3 x 3 SVD and eigendecomposition of their eigensystem),
 ``_assembly`` (sparse patterns precomputed on the host, assembly in JAX),
 ``_backward_euler`` (eq. 10 as a minimization: projected Newton with line search, Dirichlet nodes,
-implicit gradients). The step is generic over an element list (DOF-node indices, shape gradients,
-integration weights) and any mass matrix, so the enriched XFEM elements go through the same code.
+implicit gradients), ``_material`` (``Material``: Young's modulus and Poisson's ratio), ``_rollout`` (steps in
+a checkpointed ``lax.scan``, differentiable in the initial state, material, forces and moving targets). The
+step is generic over an element list (DOF-node indices, shape gradients, integration weights) and any mass
+matrix, so the enriched XFEM elements go through the same code.
 
 Sec. 4, the generalized XFEM: ``_cuts`` (swept tool edges thickened into closed solids, sec. 4.1),
 ``_subdomains`` (nodal and element subdomains cut by manifold3d Booleans, Algorithm 1 lines 1-19),
 ``_integration`` (exact divergence-theorem moments of the pieces, eq. 13, 14, 21), ``_xfem`` (``XFEMModel``:
 indicator enrichments eq. 16-18, DOF duplication, pieces on the FEM core), ``_capacity`` (systems padded to
 capacity levels so that cuts reuse the compiled step), ``_background`` (``BackgroundCuts``: cuts computed in a
-worker process, ``_cut_process`` and ``_framing``, while the model steps). Sec. 5: ``_scenes`` (the paper's
-five scenes with Table 1's parameters, a runner timing them like Table 2), ``_xfem_commands``
-(``jaxcga xfem SCENE``).
+worker process, ``_cut_process`` and ``_framing``, while the model steps), ``_material`` (``Material``),
+``_rollout`` (``rollout``: a differentiable ``lax.scan`` of steps), ``_simulate`` (trajectories across a schedule
+of cuts, differentiable through the cuts' DOF copy maps). Sec. 5: ``_scenes`` (the paper's five scenes with Table 1's parameters, a runner timing them like
+Table 2), ``_xfem_commands`` (``jaxcga xfem SCENE``).
 """
 
 from xfem._assembly import AssemblyPattern, assemble_matrix, assemble_vector, assembly_pattern
@@ -27,6 +30,7 @@ from xfem._capacity import wait_for_compilations
 from xfem._cuts import cut_solid, plane_cut_solid, sweep_between, swept_surface, thicken
 from xfem._integration import element_piece_integrals, moments_of_pieces, polyhedron_moments
 from xfem._linear_tet import body_force, consistent_mass, lumped_mass, shape_functions, shape_gradients
+from xfem._material import Material
 from xfem._neohookean import (
     element_energy,
     element_gradient_hessian,
@@ -34,7 +38,9 @@ from xfem._neohookean import (
     stable_neohookean_energy,
     stable_neohookean_pk1,
 )
+from xfem._rollout import rollout
 from xfem._scenes import SCENES, FrameRecord, Scene, SceneRun, ScheduledCut, piece_surfaces, run_scene, scene
+from xfem._simulate import simulate
 from xfem._subdomains import CutReport, CutStats, Subdomains, apply_cut, subdomains
 from xfem._tetmesh import (
     TetMesh,
@@ -75,10 +81,12 @@ __all__ = [
     "apply_cut",
     "subdomains",
     "XFEMModel",
+    "simulate",
     "wait_for_compilations",
     "xfem_model",
     "AssemblyPattern",
     "FEMSystem",
+    "Material",
     "State",
     "TetMesh",
     "assemble_matrix",
@@ -101,6 +109,7 @@ __all__ = [
     "node_rings",
     "one_tet",
     "read_tet_mesh",
+    "rollout",
     "shape_functions",
     "shape_gradients",
     "stable_neohookean_energy",

@@ -18,6 +18,7 @@ import numpy as np
 from jaxcga._support import to_device
 from xfem._assembly import CapacityError
 from xfem._backward_euler import FEMSystem, State, SystemCapacity, compiled_step, fem_system
+from xfem._material import Material
 
 _HEADROOM = 1.25  # capacity level 0 over the uncut model's sizes: the first cuts stay in it
 _GROWTH = 1.5  # capacity growth per level: few levels, each padding the system at most this much
@@ -93,7 +94,7 @@ class _Compilation:
         self.thread: threading.Thread | None = None  # the background thread building it, if any
         self.ready = threading.Event()  # set when a build has ended (step None: it failed)
 
-    def build(self, arrays, capacity: SystemCapacity, h, mu, lam, newton_iterations: int,
+    def build(self, arrays, capacity: SystemCapacity, h, material: Material, newton_iterations: int,
               system: FEMSystem | None = None):
         """Compile the step of ``system``, already padded to ``capacity``, or of ``arrays`` padded here."""
         try:
@@ -103,12 +104,12 @@ class _Compilation:
                 except CapacityError:  # too small for this system's nonzeros: the model moves to a larger level
                     return
             zeros = to_device(np.zeros((capacity.nodes, 3)))  # only the state's shape matters
-            self.step = compiled_step(system, State(zeros, zeros), h, mu, lam, newton_iterations)
+            self.step = compiled_step(system, State(zeros, zeros), h, material, newton_iterations)
         finally:
             self.ready.set()
 
 
-# compiled steps by (capacity, newton iterations, shapes of mu and lam), for every model in the process
+# compiled steps by (capacity, newton iterations, shapes of the material's parameters), for every model in the process
 _COMPILED: dict[tuple, _Compilation] = {}
 _COMPILED_LOCK = threading.Lock()
 
@@ -123,14 +124,14 @@ def wait_for_compilations() -> None:
         thread.join()
 
 
-def compiled(capacities: Capacities, padded: PaddedSystem, level: int, h, mu, lam, newton_iterations: int,
+def compiled(capacities: Capacities, padded: PaddedSystem, level: int, h, material: Material, newton_iterations: int,
              background: bool):
     """The step compiled for capacity ``level`` (``compiled_step``), shared through ``_COMPILED``: found there, or
     compiled now (``background=False``), or compiled in a background thread that the step needing it will wait for
     (``background=True``; returns None). ``padded``: the system it is for (a level above ``padded.level`` pads
     ``padded.arrays`` anew; nothing is compiled in the background for a level the system does not fit)."""
     capacity = capacities.capacity(level)
-    key = (capacity, newton_iterations, np.shape(mu), np.shape(lam))
+    key = (capacity, newton_iterations, np.shape(material.young), np.shape(material.poisson))
     system = padded.system if level == padded.level else None
     with _COMPILED_LOCK:  # held briefly: a compilation in one thread must not stall another's lookups
         entry = _COMPILED.get(key)
@@ -140,16 +141,16 @@ def compiled(capacities: Capacities, padded: PaddedSystem, level: int, h, mu, la
                 return None
             entry = _COMPILED[key] = _Compilation()
             if background:  # never run a step here: two steps' host callbacks at once can deadlock XLA
-                entry.thread = threading.Thread(target=entry.build, args=(padded.arrays, capacity, h, mu, lam,
+                entry.thread = threading.Thread(target=entry.build, args=(padded.arrays, capacity, h, material,
                                                                           newton_iterations, system))
                 entry.thread.start()  # not a daemon: XLA must not be cut off at exit
     if background:
         return None
     if created:
-        entry.build(padded.arrays, capacity, h, mu, lam, newton_iterations, system)
+        entry.build(padded.arrays, capacity, h, material, newton_iterations, system)
     entry.ready.wait()
     if entry.step is None:  # its background build failed (e.g. too few nonzeros): build it here
-        entry.build(padded.arrays, capacity, h, mu, lam, newton_iterations, system)
+        entry.build(padded.arrays, capacity, h, material, newton_iterations, system)
     return entry.step
 
 

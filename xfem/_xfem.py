@@ -48,6 +48,7 @@ from xfem._backward_euler import FEMSystem, State, fem_system
 from xfem._capacity import Capacities, PaddedSystem, compiled, padded_state
 from xfem._integration import element_piece_integrals, linear_shape_coefficients, moments_of_pieces
 from xfem._linear_tet import shape_gradients
+from xfem._material import Material
 from xfem._subdomains import (
     CutReport,
     MeshSolid,
@@ -170,7 +171,7 @@ class XFEMModel:
         self._system: FEMSystem | None = None  # system
         self._padded: PaddedSystem | None = None  # the padded system the steps run
         self._level = 0  # the capacity level of the last padded system: the levels never go down
-        self._step_options: tuple | None = None  # (h, mu, lam, newton_iterations) of the last step
+        self._step_options: tuple | None = None  # (h, material, newton_iterations) of the last step
         _, _, _, M, _, _ = self._system_arrays()
         # capacity level 0 is the uncut model's sizes (nodes, elements, mass entries, nonzeros) with headroom
         self._capacities = Capacities((len(self.X), len(self.T), M.nnz, 9 * M.nnz))
@@ -395,18 +396,18 @@ class XFEMModel:
             self._level = self._padded.level
         return self._padded
 
-    def step(self, h, mu, lam, newton_iterations: int = 1) -> State:
+    def step(self, h, material: Material, newton_iterations: int = 1) -> State:
         """One backward Euler step (eq. 10, Algorithm 1 line 26) of the current system; updates and returns
-        ``state``. mu, lam: scalar Lamé parameters.
+        ``state``. material: the ``Material`` (scalar parameters).
 
         The system is padded to a capacity level (``padded_system``); the step of the next level is compiled in
         the background meanwhile, so that a cut that moves the model there finds it ready."""
         if int(newton_iterations) != newton_iterations or newton_iterations < 1:
             raise ValueError(f"newton_iterations: expected an int >= 1, got {newton_iterations!r}")
         padded = self.padded_system()
-        options = (h, mu, lam, int(newton_iterations))
+        options = (h, material, int(newton_iterations))
         step = compiled(self._capacities, padded, padded.level, *options, background=False)
-        stepped = step(padded.system, padded_state(self.state, padded.n, padded.system.n), h, mu, lam)
+        stepped = step(padded.system, padded_state(self.state, padded.n, padded.system.n), h, material)
         # host views of the result, sliced (a JAX slice would compile anew for every DOF count)
         self.state = State(np.asarray(stepped.x)[:padded.n], np.asarray(stepped.v)[:padded.n])
         self._step_options = options

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 import xfem._background
-from tests.xfem.test_xfem import LAM, MU, RHO, G, H, _plane, _tall_box
+from tests.xfem.test_xfem import MATERIAL, RHO, G, H, _plane, _tall_box
 from xfem._background import _ENTRY, BackgroundCuts
 from xfem._cut_process import CutProcess, CutProcessError
 from xfem._framing import decode, encode, portable, read_frame, write_frame
@@ -40,7 +40,7 @@ def _assert_same(a, b):
     for x, y in zip(a.piece_arrays(), b.piece_arrays()):
         np.testing.assert_allclose(x, y, rtol=1e-12, atol=1e-15)
     for model in (a, b):
-        model.step(H, MU, LAM)
+        model.step(H, MATERIAL)
     np.testing.assert_allclose(np.asarray(a.state.x), np.asarray(b.state.x), rtol=0, atol=1e-12)
 
 
@@ -116,7 +116,7 @@ def test_cut_that_removes_material():
     remote, inline = _models()
     block = manifold3d.Manifold.cube((2.0, 2.0, 1.0)).translate((-0.5, -0.5, 0.93))
     for model in (remote, inline):
-        model.step(H, MU, LAM)
+        model.step(H, MATERIAL)
     background = BackgroundCuts(remote)
     background.submit(block)
     inline.cut(block)
@@ -291,16 +291,16 @@ def test_background_cuts_leave_the_process_settings_alone():
     before = (frozenset(os.sched_getaffinity(0)), _thread_affinities(), os.getpriority(os.PRIO_PROCESS, 0),
               sys.getswitchinterval(), dict(os.environ))
     background = BackgroundCuts(remote)
-    remote.step(H, MU, LAM)
+    remote.step(H, MATERIAL)
     future = background.submit(_plane(**CUTS[0]))
     while not future.done():  # steps while the cut is under way, as a simulation does
-        remote.step(H, MU, LAM)
+        remote.step(H, MATERIAL)
         assert frozenset(os.sched_getaffinity(0)) == before[0] and sys.getswitchinterval() == before[3]
     child = background._process.pid
     assert os.getpriority(os.PRIO_PROCESS, child) == before[2]
     assert os.sched_getaffinity(child) == before[0]
     background.commit()
-    remote.step(H, MU, LAM)
+    remote.step(H, MATERIAL)
     after = _thread_affinities()
     assert frozenset(os.sched_getaffinity(0)) == before[0]
     assert {t: a for t, a in after.items() if t in before[1]} == before[1]  # the threads there before

@@ -18,11 +18,12 @@ from xfem._background import BackgroundCuts
 from xfem._backward_euler import State, backward_euler_step, fem_from_mesh
 from xfem._capacity import _COMPILED, wait_for_compilations
 from xfem._cuts import plane_cut_solid
+from xfem._material import Material
 from xfem._tetmesh import boundary_faces, box_tets, five_tet_cube
 from xfem._xfem import xfem_model
 
 RHO, EPS, H = 1e3, 1e-3, 0.01
-MU, LAM = 1e6, 1e6
+MATERIAL = Material(2.5e6, 0.25)  # Lamé mu = lam = 1e6
 G = np.array([0.0, 0.0, -9.81])
 # a plane across the tall box, tilted so that it meets no node, face or edge of the mesh exactly
 POINT, NORMAL = np.array([0.5, 0.5, 0.61]), np.array([0.07, -0.04, 1.0])
@@ -68,8 +69,8 @@ def test_uncut_model_is_plain_fem(make):
     np.testing.assert_allclose(np.asarray(system.force), np.asarray(reference.force), rtol=0, atol=1e-12)
     state = _deformed_state(mesh)
     for _ in range(5):
-        model.step(H, MU, LAM)
-        state = backward_euler_step(reference, state, H, MU, LAM)
+        model.step(H, MATERIAL)
+        state = backward_euler_step(reference, state, H, MATERIAL)
     np.testing.assert_allclose(np.asarray(model.state.x), np.asarray(state.x), rtol=0, atol=1e-12)
     np.testing.assert_allclose(np.asarray(model.state.v), np.asarray(state.v), rtol=0, atol=1e-12)
     assert model.pieces() == 1
@@ -143,7 +144,7 @@ def test_cut_through_hanging_body_separates():
     lower_x0, upper_x0 = com(model.state.x, lower), com(model.state.x, ~lower)
     previous = com(model.state.v, lower)
     for _ in range(6):
-        model.step(H, MU, LAM, newton_iterations=3)
+        model.step(H, MATERIAL, newton_iterations=3)
         velocity = com(model.state.v, lower)
         acceleration, previous = (velocity - previous) / H, velocity
     # the free part is in free fall: its centre of mass accelerates with g (backward Euler conserves its momentum
@@ -197,7 +198,7 @@ def test_cuts_within_a_capacity_level_reuse_the_compiled_step(caplog):
     mesh = _tall_box()
     model = xfem_model(mesh, RHO, gravity=G, fixed=np.flatnonzero(np.asarray(mesh.X)[:, 2] > 1.5 - 1e-9))
     cuts = [_plane(), _plane(point=(0.5, 0.5, 0.9), normal=(0.03, 0.05, 1.0))]
-    model.step(H, MU, LAM)
+    model.step(H, MATERIAL)
     assert any(c.thread is not None for c in _COMPILED.values())  # the next level, compiling in the background
     wait_for_compilations()  # it logs too
     assert all(c.ready.is_set() for c in _COMPILED.values())
@@ -206,10 +207,10 @@ def test_cuts_within_a_capacity_level_reuse_the_compiled_step(caplog):
         before = model.state
         with jax.log_compiles(), caplog.at_level(logging.WARNING):
             caplog.clear()
-            model.step(H, MU, LAM)
+            model.step(H, MATERIAL)
         assert not [r for r in caplog.records if "Compiling" in r.getMessage() and "_step" in r.getMessage()]
         assert model._level == 0
-        expected = backward_euler_step(model.system(), before, H, MU, LAM)
+        expected = backward_euler_step(model.system(), before, H, MATERIAL)
         np.testing.assert_allclose(model.state.x, expected.x, rtol=0, atol=1e-12)
 
 
@@ -222,13 +223,13 @@ def test_background_cut_takes_effect_at_commit():
     fixed = np.flatnonzero(np.asarray(mesh.X)[:, 2] > 1.5 - 1e-9)
     model, inline = (xfem_model(mesh, RHO, gravity=G, fixed=fixed) for _ in range(2))
     for m in (model, inline):
-        m.step(H, MU, LAM)
+        m.step(H, MATERIAL)
     background = BackgroundCuts(model)
     first = background.submit(_plane())
     second = background.submit(_plane(point=(0.5, 0.5, 0.9), normal=(0.03, 0.05, 1.0)))
     n = len(model.dof_sid)
     for m in (model, inline):  # the old system: no new DOFs yet
-        m.step(H, MU, LAM)
+        m.step(H, MATERIAL)
     second.result()  # both prepared, neither in effect
     assert len(model.dof_sid) == n and model.pieces() == 1 and len(model.piece_arrays()[0]) == len(mesh.T)
     np.testing.assert_array_equal(np.asarray(model.state.x), np.asarray(inline.state.x))
@@ -240,7 +241,7 @@ def test_background_cut_takes_effect_at_commit():
     np.testing.assert_array_equal(reports[0].dof_source, expected.dof_source)
     assert model.pieces() == inline.pieces() == 2
     for m in (model, inline):
-        m.step(H, MU, LAM)
+        m.step(H, MATERIAL)
     np.testing.assert_allclose(np.asarray(model.state.x), np.asarray(inline.state.x), rtol=0, atol=1e-12)
     inline.cut(_plane(point=(0.5, 0.5, 0.9), normal=(0.03, 0.05, 1.0)))
     assert len(background.commit()) == 1 and background.pending == 0
@@ -248,7 +249,7 @@ def test_background_cut_takes_effect_at_commit():
         np.testing.assert_allclose(a, b, rtol=1e-12, atol=0)
     assert background.commit(until=first) == [] == background.commit()  # committed already
     for m in (model, inline):
-        m.step(H, MU, LAM)
+        m.step(H, MATERIAL)
     np.testing.assert_allclose(np.asarray(model.state.x), np.asarray(inline.state.x), rtol=0, atol=1e-12)
     with pytest.raises(ValueError, match="cut"):
         background.submit(None)
