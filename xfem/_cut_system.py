@@ -35,6 +35,7 @@ from jax.extend.core import concrete_or_error
 from jaxtyping import Array, Float, Int
 
 from jaxcga._objects import check_finite, check_vectors
+from jaxcga._support import to_devices
 from xfem._assembly import scalar_slots
 from xfem._backward_euler import FEMSystem, State
 from xfem._cuts import _positive, plane_cut_solid
@@ -413,7 +414,8 @@ def _stage_replay(copy: XFEMModel, table: _Table, programs: dict, epsilons: list
         weight=rho, gravity=np.asarray(copy.gravity, np.float64), entry=entry(r_ * n + c_),
         transposed=entry(c_ * n + r_), slots=scalar_slots(system.pattern, mass_rows, mass_cols),
         entries=len(keys), nnz=int(system.pattern.nnz), n=n)
-    return jax.tree.map(jnp.asarray, replay), system, element
+    leaves, tree = jax.tree.flatten(replay)
+    return jax.tree.unflatten(tree, to_devices(*leaves)), system, element
 
 
 def _concrete(name: str, x) -> np.ndarray:
