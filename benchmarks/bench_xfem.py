@@ -71,9 +71,9 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 from _report import RATIO_UNIT, add_json_argument, write_json  # noqa: E402
 
 import xfem._backward_euler as be  # noqa: E402
-from xfem._neohookean import lame  # noqa: E402
 from xfem._cut_system import cut_system, plane_cuts  # noqa: E402
 from xfem._cuts import plane_cut_solid  # noqa: E402
+from xfem._neohookean import lame  # noqa: E402
 from xfem._scenes import run_scene, scene  # noqa: E402
 from xfem._xfem import _padded_state, wait_for_compilations, xfem_model  # noqa: E402
 

@@ -25,8 +25,6 @@ vertex, edge or face of a piece (the combinatorics change) is the function not d
 
 from __future__ import annotations
 
-from typing import NamedTuple
-
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -39,7 +37,11 @@ from jaxcga._support import to_devices
 from xfem._assembly import scalar_slots
 from xfem._backward_euler import FEMSystem, State
 from xfem._cuts import _positive, plane_cut_solid
-from xfem._integration import linear_shape_coefficients, shape_function_integrals, triangle_moment_terms
+from xfem._integration import (
+    linear_shape_coefficients,
+    shape_function_integrals,
+    triangle_moment_terms,
+)
 from xfem._subdomains import _FACES, CutReport, solid_mesh
 from xfem._tetmesh import tet_volumes
 from xfem._xfem import XFEMModel, xfem_model
@@ -74,7 +76,7 @@ class _Replay(eqx.Module):
     load: Float[Array, "p 4"]
     dofs: Int[Array, "p 4"]
     weight: Float[Array, " p"]  # the density of each piece's element (its load times gravity is the force)
-    gravity: Float[Array, "3"]
+    gravity: Float[Array, 3]
     entry: Int[Array, " e"]  # for each piece mass entry (p, a, b), its mass entry (r, c) (k where dropped)
     transposed: Int[Array, " e"]  # and its entry (c, r)
     slots: Int[Array, "k 3"]  # ``scalar_slots`` of the mass entries
@@ -195,18 +197,6 @@ def _clip(table: _Table, faces: list[tuple[int, ...]], side: float, s: np.ndarra
         centre = segments[0][0]
         clipped += [(centre, a, b) for a, b in segments if centre not in (a, b)]
     return clipped
-
-
-class _Stage(NamedTuple):
-    """What a stage's system needs from the host: the cut copy's pieces, DOFs and system at that moment."""
-
-    element: np.ndarray
-    dofs: np.ndarray
-    volume: np.ndarray
-    mass: np.ndarray
-    load: np.ndarray
-    system: FEMSystem
-    programs: dict  # row -> faces of its replayed piece
 
 
 class PlaneCuts:
@@ -333,12 +323,13 @@ def plane_cuts(model: XFEMModel, planes) -> PlaneCuts:
         if len(touched) == 0:
             raise ValueError(f"{name}: the slab misses the body (no element meets it)")
         if not set(touched.tolist()) <= set(prior):
-            raise ValueError(f"{name}: the cut met elements away from its plane")  # cannot happen for a slab
-        meshes = [solid_mesh(solids[sid]) for sid in solids]
+            raise ValueError(f"{name}: the cut met elements away from its plane")
+        used = [sid for e in touched.tolist() for sid in prior[e] if sid in solids]
+        meshes = [solid_mesh(solids[sid]) for sid in used]
         ids = table.stage(([X] if k == 0 else []) + [m.V for m in meshes])
         if k == 0:
             corner_ids = ids.pop(0)
-        start = {sid: (m, i) for sid, m, i in zip(solids, meshes, ids)}
+        start = {sid: (m, i) for sid, m, i in zip(used, meshes, ids)}
         s_table = (table.positions - point) @ normal
         made = {}
         for e in touched.tolist():

@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 
 import xfem
-from xfem._cut_system import cut_system, plane_cuts
 
 RHO, EPS = 1e3, 1e-2
 # a bar 0.2 x 0.2 x 1 hanging from its top face; 8 layers of 0.125, cut inside the layer 0.375-0.5
@@ -58,7 +57,7 @@ def _close(system, reference):
 def test_equals_the_boolean_cut(bar, height, theta):
     point, normal = np.asarray(_point(height)), np.asarray(_normal(theta))
     n_before = bar.system().n
-    system = cut_system(bar, point, normal, EPS)
+    system = xfem.cut_system(bar, point, normal, EPS)
     _close(system, _boolean_system(point, normal))
     assert bar.system().n == n_before  # the model is left uncut
 
@@ -76,11 +75,11 @@ def _scalar(system, weights):
 @pytest.mark.parametrize("which", ["height", "tilt"])
 def test_gradient_matches_central_differences_of_the_booleans(bar, which):
     height, theta = 0.43, 0.2
-    weights = _weights(cut_system(bar, _point(height), _normal(theta), EPS))
+    weights = _weights(xfem.cut_system(bar, _point(height), _normal(theta), EPS))
 
     def f(t):
         h, th = (height + t, theta) if which == "height" else (height, theta + t)
-        return _scalar(cut_system(bar, _point(h), _normal(th), EPS), weights)
+        return _scalar(xfem.cut_system(bar, _point(h), _normal(th), EPS), weights)
 
     gradient = jax.grad(f)(0.0)
     step = 1e-5
@@ -91,7 +90,7 @@ def test_gradient_matches_central_differences_of_the_booleans(bar, which):
 def test_mass_below_a_tilted_slab(bar):
     """The mass of the released piece and its derivatives in the height and the tilt: closed forms."""
     height, theta = 0.43, 0.3
-    cuts = plane_cuts(bar, [(_point(height), _normal(theta), EPS)])
+    cuts = xfem.plane_cuts(bar, [(_point(height), _normal(theta), EPS)])
     count, component = cuts.model.components()
     assert count == 2
     fixed = np.asarray(cuts.model.system().fixed)
@@ -113,14 +112,14 @@ def test_jit_and_two_planes(bar):
     """Two cuts: the second system depends on both planes; it equals the Booleans', and its jitted gradient
     matches central differences of the Boolean path."""
     planes = [(_point(0.43), _normal(0.2), EPS), (_point(0.71), _normal(-0.1), EPS)]
-    cuts = plane_cuts(bar, planes)
+    cuts = xfem.plane_cuts(bar, planes)
     assert [r.dof_source is not None for r in cuts.reports] == [True, True]
     reference = _bar()
     for point, normal, _ in planes:
         reference.cut(xfem.plane_cut_solid(np.asarray(point), np.asarray(normal), 5.0, EPS))
     first, second = cuts.systems(cuts.points, cuts.normals)
     _close(second, reference.system())
-    _close(first, cut_system(bar, *planes[0]))
+    _close(first, xfem.cut_system(bar, *planes[0]))
     weights = _weights(second, seed=1)
 
     @jax.jit
@@ -135,7 +134,7 @@ def test_jit_and_two_planes(bar):
         values = []
         for sign in (1, -1):
             shifted = thetas + sign * step * np.eye(2)[k]
-            system = plane_cuts(bar, [(p, _normal(t), EPS) for (p, _, _), t in zip(planes, shifted)]).system(
+            system = xfem.plane_cuts(bar, [(p, _normal(t), EPS) for (p, _, _), t in zip(planes, shifted)]).system(
                 cuts.points, jax.vmap(_normal)(shifted))
             values.append(_scalar(system, weights))
         difference = (values[0] - values[1]) / (2 * step)
@@ -149,7 +148,7 @@ def test_earlier_non_planar_cut_is_a_constant():
     notch = xfem.plane_cut_solid(np.array([0.09, 0.1, 0.45]), np.array([1.0, 0.0, 0.0]), 0.15, 0.02)
     model.cut(notch)
     point, normal = np.array([0.1, 0.1, 0.44]), np.asarray(_normal(0.1))
-    system = cut_system(model, point, normal, EPS)
+    system = xfem.cut_system(model, point, normal, EPS)
     reference = _bar()
     reference.cut(notch)
     reference.cut(xfem.plane_cut_solid(point, normal, 5.0, EPS))
@@ -159,19 +158,19 @@ def test_earlier_non_planar_cut_is_a_constant():
 def test_bad_input(bar):
     point, normal = np.array([0.1, 0.1, 0.43]), np.array([0.0, 0.0, 1.0])
     with pytest.raises(ValueError, match="normal: expected a unit normal"):
-        cut_system(bar, point, 2 * normal, EPS)
+        xfem.cut_system(bar, point, 2 * normal, EPS)
     with pytest.raises(ValueError, match="normal: expected a unit normal"):
-        cut_system(bar, point, 0 * normal, EPS)
+        xfem.cut_system(bar, point, 0 * normal, EPS)
     with pytest.raises(ValueError, match="epsilon"):
-        cut_system(bar, point, normal, 0.0)
+        xfem.cut_system(bar, point, normal, 0.0)
     with pytest.raises(ValueError, match="point: expected"):
-        cut_system(bar, point[:2], normal, EPS)
+        xfem.cut_system(bar, point[:2], normal, EPS)
     with pytest.raises(ValueError, match="misses the body"):
-        cut_system(bar, np.array([0.1, 0.1, 3.0]), normal, EPS)
+        xfem.cut_system(bar, np.array([0.1, 0.1, 3.0]), normal, EPS)
     with pytest.raises(ValueError, match=r"normal\[1\]"):
-        plane_cuts(bar, [(point, normal, EPS), (point, 2 * normal, EPS)])
+        xfem.plane_cuts(bar, [(point, normal, EPS), (point, 2 * normal, EPS)])
     with pytest.raises(ValueError, match="point: cut_system .* concrete"):
-        jax.jit(lambda p: cut_system(bar, p, normal, EPS).volumes)(point)
+        jax.jit(lambda p: xfem.cut_system(bar, p, normal, EPS).volumes)(point)
 
 
 @pytest.mark.slow
@@ -179,14 +178,14 @@ def test_gradient_of_a_step_outcome(bar):
     """The hanging part's sag after one converged backward Euler step, differentiated with respect to the cut's
     height through the step's implicit gradient: central differences of the Boolean path."""
     height, theta = 0.43, 0.2
-    cuts = plane_cuts(bar, [(_point(height), _normal(theta), EPS)])
+    cuts = xfem.plane_cuts(bar, [(_point(height), _normal(theta), EPS)])
     X = jnp.asarray(cuts.model.X[cuts.model.dof_node])
     state = xfem.State(X, jnp.zeros_like(X))
     mu, lam = xfem.lame(1e5, 0.3)
     weights = np.random.default_rng(2).normal(size=X.shape[0])
 
     def f(t):
-        system = cut_system(bar, _point(height + t), _normal(theta), EPS)
+        system = xfem.cut_system(bar, _point(height + t), _normal(theta), EPS)
         x = xfem.backward_euler_step(system, state, 0.01, mu, lam, newton_iterations=30, tolerance=1e-13).x
         return jnp.sum(weights * x[:, 2])
 
