@@ -63,6 +63,12 @@ class _Replay(eqx.Module):
     lerp_a: tuple[Int[Array, " l"], ...]
     lerp_b: tuple[Int[Array, " l"], ...]
     lerp_side: tuple[Float[Array, " l"], ...]
+    # per stage: the clipped pieces' vertices, their side and whether they were kept; every node's place (-1 below
+    # the slab, 0 in it, 1 above): the combinatorics that the replay holds for (``PlaneCuts.holds``)
+    check_ids: tuple[Int[Array, " v"], ...]
+    check_side: tuple[Float[Array, " v"], ...]
+    check_kept: tuple[Array, ...]
+    node_place: tuple[Int[Array, " n"], ...]
     epsilon: Float[Array, " k"]
     triangles: Int[Array, "t 3"]  # fans of the replayed pieces' faces, into the vertex table
     triangle_row: Int[Array, " t"]  # the replayed piece of each triangle
@@ -85,9 +91,8 @@ class _Replay(eqx.Module):
     n: int = eqx.field(static=True)
 
 
-@eqx.filter_jit
-def _fields(replay: _Replay, points, normals):
-    """The system's volumes, mass values, mass data and forces at the planes (points, normals)."""
+def _positions(replay: _Replay, points, normals):
+    """The vertex table at the planes, the unit normals and the planes' offsets ``n . p``."""
     normals = normals / jnp.linalg.norm(normals, axis=-1, keepdims=True)
     offsets = jnp.sum(normals * points, axis=-1)
     positions = jnp.zeros((0, 3), points.dtype)
@@ -98,6 +103,29 @@ def _fields(replay: _Replay, points, normals):
         sA = side * (A @ normals[k] - offsets[k]) - half
         sB = side * (B @ normals[k] - offsets[k]) - half
         positions = jnp.concatenate([positions, A + (sA / (sA - sB))[:, None] * (B - A)])
+    return positions, normals, offsets
+
+
+@eqx.filter_jit
+def _holds(replay: _Replay, points, normals):
+    """Whether every clipped vertex and every node is on the side of each plane it was on when the pieces were
+    found."""
+    positions, normals, offsets = _positions(replay, points, normals)
+    holds = jnp.asarray(True)
+    n = replay.node_place[0].shape[0]
+    for k in range(len(replay.consts)):
+        half = replay.epsilon[k] / 2
+        s = positions @ normals[k] - offsets[k]
+        sigma = replay.check_side[k] * s[replay.check_ids[k]] - half
+        place = jnp.where(s[:n] > half, 1, jnp.where(s[:n] < -half, -1, 0))
+        holds &= jnp.all((sigma >= 0) == replay.check_kept[k]) & jnp.all(place == replay.node_place[k])
+    return holds
+
+
+@eqx.filter_jit
+def _fields(replay: _Replay, points, normals):
+    """The system's volumes, mass values, mass data and forces at the planes (points, normals)."""
+    positions, _, _ = _positions(replay, points, normals)
     r = replay.rows.shape[0]
     values, _ = triangle_moment_terms(jnp, positions[replay.triangles] - replay.origin[replay.triangle_row][:, None])
     sums = jax.ops.segment_sum(values, replay.triangle_row, r)
@@ -125,12 +153,16 @@ class _Table:
         self.positions = np.zeros((0, 3))
         self.consts: list[np.ndarray] = []
         self.lerps: list[list[tuple[int, int, float]]] = []
+        self.checks: list[list[tuple[np.ndarray, float, np.ndarray]]] = []  # per stage: (ids, side, kept)
+        self.places: list[np.ndarray] = []
         self._new: list[np.ndarray] = []
         self._crossings: dict[tuple, int] = {}
 
-    def stage(self, consts: list[np.ndarray]) -> list[np.ndarray]:
-        """Start the next plane's stage with its constant vertices; returns their ids."""
+    def stage(self, consts: list[np.ndarray], place: np.ndarray) -> list[np.ndarray]:
+        """Start the next plane's stage with its constant vertices and the nodes' places; returns their ids."""
         self._close()
+        self.checks.append([])
+        self.places.append(place)
         offset = len(self.positions)
         block = np.concatenate(consts) if consts else np.zeros((0, 3))
         self.consts.append(block)
@@ -161,19 +193,28 @@ class _Table:
             self.positions = np.concatenate([self.positions, np.stack(self._new)])
             self._new = []
 
-    def arrays(self) -> tuple[tuple, tuple, tuple, tuple]:
-        """The stages' constants and crossings (a, b, side) as arrays (``_Replay``)."""
+    def arrays(self) -> dict:
+        """The stages' constants, crossings (a, b, side) and checks as arrays (``_Replay``'s fields)."""
         self._close()
         lerps = [np.asarray(k, np.float64).reshape(-1, 3) for k in self.lerps]
-        return (tuple(self.consts), tuple(k[:, 0].astype(np.int64) for k in lerps),
-                tuple(k[:, 1].astype(np.int64) for k in lerps), tuple(k[:, 2] for k in lerps))
+
+        def checks(j, dtype):
+            return tuple(np.concatenate([np.broadcast_to(c[j], c[0].shape) for c in stage]).astype(dtype) if stage
+                         else np.zeros(0, dtype) for stage in self.checks)
+
+        return dict(consts=tuple(self.consts), lerp_a=tuple(k[:, 0].astype(np.int64) for k in lerps),
+                    lerp_b=tuple(k[:, 1].astype(np.int64) for k in lerps), lerp_side=tuple(k[:, 2] for k in lerps),
+                    check_ids=checks(0, np.int64), check_side=checks(1, np.float64), check_kept=checks(2, bool),
+                    node_place=tuple(self.places))
 
 
 def _clip(table: _Table, faces: list[tuple[int, ...]], side: float, s: np.ndarray, half: float):
     """The part of a polyhedron (outward faces as vertex cycles, convex polygons) where ``side s >= half``: its
     faces clipped (Sutherland-Hodgman) and the cap fanned from its first crossing point; None if empty."""
     ids = np.unique(np.concatenate([np.asarray(f) for f in faces]))
-    kept = dict(zip(ids.tolist(), (side * s[ids] - half >= 0).tolist()))
+    flags = side * s[ids] - half >= 0
+    table.checks[-1].append((ids, side, flags))
+    kept = dict(zip(ids.tolist(), flags.tolist()))
     if not any(kept.values()):
         return None
     if all(kept.values()):
@@ -227,21 +268,32 @@ class PlaneCuts:
             k ``FEMSystem``s: the system after cut j (that of the copy cut by planes 0..j) depends on the first
             j + 1 planes; its volumes, mass values, mass data and forces carry the gradient.
         """
-        k = len(self._replays)
-        points, normals = jnp.asarray(points), jnp.asarray(normals)
-        if points.shape != (k, 3) or normals.shape != (k, 3):
-            raise ValueError(f"points, normals: expected shape ({k}, 3), got {points.shape} and {normals.shape}")
-        dtype = self._systems[0].grads.dtype
-        points, normals = points.astype(dtype), normals.astype(dtype)
+        points, normals = self._planes(points, normals)
         result = []
         for j, (replay, system) in enumerate(zip(self._replays, self._systems)):
             fields = _fields(replay, points[:j + 1], normals[:j + 1])
             result.append(eqx.tree_at(lambda t: (t.volumes, t.mass_values, t.mass_data, t.force), system, fields))
         return result
 
+    def _planes(self, points, normals):
+        k = len(self._replays)
+        points, normals = jnp.asarray(points), jnp.asarray(normals)
+        if points.shape != (k, 3) or normals.shape != (k, 3):
+            raise ValueError(f"points, normals: expected shape ({k}, 3), got {points.shape} and {normals.shape}")
+        dtype = self._systems[0].grads.dtype
+        return points.astype(dtype), normals.astype(dtype)
+
     def system(self, points, normals) -> FEMSystem:
         """The system after the last cut (``systems``)."""
         return self.systems(points, normals)[-1]
+
+    def holds(self, points, normals):
+        """Whether ``systems`` is exact at these planes: every node and every vertex of the replayed pieces lies on
+        the side of each slab it lay on at the planes found (a JAX bool; jit-able). Where it is False, the
+        pieces' combinatorics may differ: cut anew (``plane_cuts``) at these planes. Not checked: the vertices of
+        earlier non-planar cuts' pieces that the slabs did not meet."""
+        points, normals = self._planes(points, normals)
+        return _holds(self._replays[-1], points, normals)
 
 
 def _plane(point, normal, epsilon, index: str = ""):
@@ -326,7 +378,8 @@ def plane_cuts(model: XFEMModel, planes) -> PlaneCuts:
             raise ValueError(f"{name}: the cut met elements away from its plane")
         used = [sid for e in touched.tolist() for sid in prior[e] if sid in solids]
         meshes = [solid_mesh(solids[sid]) for sid in used]
-        ids = table.stage(([X] if k == 0 else []) + [m.V for m in meshes])
+        place = np.where(s_nodes > half, 1, np.where(s_nodes < -half, -1, 0))
+        ids = table.stage(([X] if k == 0 else []) + [m.V for m in meshes], place)
         if k == 0:
             corner_ids = ids.pop(0)
         start = {sid: (m, i) for sid, m, i in zip(used, meshes, ids)}
@@ -395,10 +448,9 @@ def _stage_replay(copy: XFEMModel, table: _Table, programs: dict, epsilons: list
         at = np.minimum(np.searchsorted(keys, key), len(keys) - 1)
         return np.where(keys[at] == key, at, len(keys))  # an entry fem_system dropped (an exact zero)
 
-    consts, lerp_a, lerp_b, lerp_side = table.arrays()
     rho = copy.rho[element]
     replay = _Replay(
-        consts=consts, lerp_a=lerp_a, lerp_b=lerp_b, lerp_side=lerp_side, epsilon=np.asarray(epsilons, np.float64),
+        **table.arrays(), epsilon=np.asarray(epsilons, np.float64),
         triangles=np.concatenate(triangles) if triangles else np.zeros((0, 3), np.int64),
         triangle_row=np.concatenate(triangle_row) if triangle_row else np.zeros(0, np.int64),
         origin=origin, c=c, g=g, rho=rho[rows], rows=rows, volume=volume, mass=mass, load=load, dofs=dofs,

@@ -107,6 +107,15 @@ def test_mass_below_a_tilted_slab(bar):
     np.testing.assert_allclose(dth, -RHO * AREA * EPS * np.sin(theta) / (2 * np.cos(theta) ** 2), rtol=1e-9)
 
 
+def test_holds_while_the_combinatorics_do(bar):
+    """``holds`` is True near the planes found and False once the slab passes a node layer (z = 0.5) or a tilt
+    moves a piece's corner across it."""
+    cuts = xfem.plane_cuts(bar, [(_point(0.43), _normal(0.2), EPS)])
+    holds = jax.jit(lambda h, th: cuts.holds(_point(h)[None], _normal(th)[None]))
+    assert holds(0.43, 0.2) and holds(0.431, 0.2) and holds(0.43, 0.21)
+    assert not holds(0.52, 0.2) and not holds(0.43, 0.6)
+
+
 @pytest.mark.slow
 def test_jit_and_two_planes(bar):
     """Two cuts: the second system depends on both planes; it equals the Booleans', and its jitted gradient
