@@ -198,20 +198,23 @@ class _Table:
         self._close()
         lerps = [np.asarray(k, np.float64).reshape(-1, 3) for k in self.lerps]
 
-        def checks(j, dtype):
-            return tuple(np.concatenate([np.broadcast_to(c[j], c[0].shape) for c in stage]).astype(dtype) if stage
-                         else np.zeros(0, dtype) for stage in self.checks)
+        def checks(stage):
+            if not stage:
+                return np.zeros(0, np.int64), np.zeros(0), np.zeros(0, bool)
+            ids, sides, kept = zip(*stage)
+            return (np.concatenate(ids), np.repeat(sides, [len(i) for i in ids]).astype(np.float64),
+                    np.concatenate(kept))
 
+        ids, sides, kept = zip(*(checks(stage) for stage in self.checks))
         return dict(consts=tuple(self.consts), lerp_a=tuple(k[:, 0].astype(np.int64) for k in lerps),
                     lerp_b=tuple(k[:, 1].astype(np.int64) for k in lerps), lerp_side=tuple(k[:, 2] for k in lerps),
-                    check_ids=checks(0, np.int64), check_side=checks(1, np.float64), check_kept=checks(2, bool),
-                    node_place=tuple(self.places))
+                    check_ids=ids, check_side=sides, check_kept=kept, node_place=tuple(self.places))
 
 
 def _clip(table: _Table, faces: list[tuple[int, ...]], side: float, s: np.ndarray, half: float):
     """The part of a polyhedron (outward faces as vertex cycles, convex polygons) where ``side s >= half``: its
     faces clipped (Sutherland-Hodgman) and the cap fanned from its first crossing point; None if empty."""
-    ids = np.unique(np.concatenate([np.asarray(f) for f in faces]))
+    ids = np.fromiter({v for face in faces for v in face}, np.int64)
     flags = side * s[ids] - half >= 0
     table.checks[-1].append((ids, side, flags))
     kept = dict(zip(ids.tolist(), flags.tolist()))
@@ -430,12 +433,18 @@ def _stage_replay(copy: XFEMModel, table: _Table, programs: dict, epsilons: list
     system = copy.system()
     sids = _row_sids(copy, element)
     rows = np.flatnonzero(np.isin(sids, list(programs)))
-    triangles, triangle_row = [], []
+    by_length: dict[int, tuple[list, list]] = {}  # the faces by their vertex count, fanned together
     for r, row in enumerate(rows.tolist()):
         for face in programs[int(sids[row])]:
-            fan = np.array([(face[0], face[i], face[i + 1]) for i in range(1, len(face) - 1)], np.int64)
-            triangles.append(fan)
-            triangle_row.append(np.full(len(fan), r, np.int64))
+            faces, owners = by_length.setdefault(len(face), ([], []))
+            faces.append(face)
+            owners.append(r)
+    triangles, triangle_row = [np.zeros((0, 3), np.int64)], [np.zeros(0, np.int64)]
+    for length, (faces, owners) in by_length.items():
+        faces, i = np.asarray(faces, np.int64), np.arange(1, length - 1)
+        triangles.append(np.stack([np.repeat(faces[:, :1], length - 2, axis=1), faces[:, i], faces[:, i + 1]],
+                                  axis=-1).reshape(-1, 3))
+        triangle_row.append(np.repeat(np.asarray(owners, np.int64), length - 2))
     Xe = copy.X[copy.T[element[rows]]]
     origin = Xe.mean(axis=1)
     c, g = linear_shape_coefficients(Xe, origin)
@@ -451,8 +460,7 @@ def _stage_replay(copy: XFEMModel, table: _Table, programs: dict, epsilons: list
     rho = copy.rho[element]
     replay = _Replay(
         **table.arrays(), epsilon=np.asarray(epsilons, np.float64),
-        triangles=np.concatenate(triangles) if triangles else np.zeros((0, 3), np.int64),
-        triangle_row=np.concatenate(triangle_row) if triangle_row else np.zeros(0, np.int64),
+        triangles=np.concatenate(triangles), triangle_row=np.concatenate(triangle_row),
         origin=origin, c=c, g=g, rho=rho[rows], rows=rows, volume=volume, mass=mass, load=load, dofs=dofs,
         weight=rho, gravity=np.asarray(copy.gravity, np.float64), entry=entry(r_ * n + c_),
         transposed=entry(c_ * n + r_), slots=scalar_slots(system.pattern, mass_rows, mass_cols),
