@@ -33,7 +33,7 @@ from jax.extend.core import concrete_or_error
 from jaxtyping import Array, Float, Int
 
 from jaxcga._objects import check_finite, check_vectors
-from jaxcga._support import to_devices
+from jaxcga._support import require, to_devices
 from xfem._assembly import scalar_slots
 from xfem._backward_euler import FEMSystem, State
 from xfem._cuts import _positive, plane_cut_solid
@@ -284,7 +284,12 @@ class PlaneCuts:
         if points.shape != (k, 3) or normals.shape != (k, 3):
             raise ValueError(f"points, normals: expected shape ({k}, 3), got {points.shape} and {normals.shape}")
         dtype = self._systems[0].grads.dtype
-        return points.astype(dtype), normals.astype(dtype)
+        points, normals = points.astype(dtype), normals.astype(dtype)
+        length = jnp.linalg.norm(normals, axis=-1)
+        points = require(points, (~jnp.all(jnp.isfinite(points)), "points: non-finite values (NaN or inf)"))
+        normals = require(normals, (~jnp.all(jnp.isfinite(length) & (length > 0)),
+                                    "normals: expected finite nonzero normals"))
+        return points, normals
 
     def system(self, points, normals) -> FEMSystem:
         """The system after the last cut (``systems``)."""

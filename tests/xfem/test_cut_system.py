@@ -178,6 +178,11 @@ def test_bad_input(bar):
         xfem.cut_system(bar, np.array([0.1, 0.1, 3.0]), normal, EPS)
     with pytest.raises(ValueError, match=r"normal\[1\]"):
         xfem.plane_cuts(bar, [(point, normal, EPS), (point, 2 * normal, EPS)])
+    cuts = xfem.plane_cuts(bar, [(point, normal, EPS)])
+    with pytest.raises(ValueError, match="normals: expected finite nonzero"):
+        cuts.system(point[None], 0 * normal[None])
+    with pytest.raises(ValueError, match=r"points, normals: expected shape \(1, 3\)"):
+        cuts.system(point, normal)
     with pytest.raises(ValueError, match="point: cut_system .* concrete"):
         jax.jit(lambda p: xfem.cut_system(bar, p, normal, EPS).volumes)(point)
 
