@@ -107,6 +107,16 @@ def test_mass_below_a_tilted_slab(bar):
     np.testing.assert_allclose(dth, -RHO * AREA * EPS * np.sin(theta) / (2 * np.cos(theta) ** 2), rtol=1e-9)
 
 
+def test_crossing_slabs(bar):
+    """Two slabs that cross inside the bar: pieces clipped by both, each system equal to the Booleans'."""
+    planes = [(_point(0.43), _normal(0.0), EPS), (_point(0.45), _normal(-0.3), EPS)]
+    cuts = xfem.plane_cuts(bar, planes)
+    reference = _bar()
+    for (point, normal, _), system in zip(planes, cuts.systems(cuts.points, cuts.normals)):
+        reference.cut(xfem.plane_cut_solid(np.asarray(point), np.asarray(normal), 5.0, EPS))
+        _close(system, reference.system())
+
+
 def test_holds_while_the_combinatorics_do(bar):
     """``holds`` is True near the planes found and False once the slab passes a node layer (z = 0.5) or a tilt
     moves a piece's corner across it."""
