@@ -360,10 +360,7 @@ def plane_cuts(model: XFEMModel, planes) -> PlaneCuts:
         checked.append(_plane(*plane, index=f"[{k}]" if len(planes) > 1 else ""))
     copy = _copy(model)
     X, T = copy.X, copy.T
-    # positively oriented corner order per tet: _FACES are then outward
-    flip = np.einsum("ij,ij->i", X[T[:, 1]] - X[T[:, 0]], np.cross(X[T[:, 2]] - X[T[:, 0]], X[T[:, 3]] - X[T[:, 0]])) < 0
-    local = np.where(flip[:, None], [1, 0, 2, 3], [0, 1, 2, 3])
-    tet_volume = np.abs(np.asarray(tet_volumes(X, T)))
+    tet_volume = np.asarray(tet_volumes(X, T))
     table = _Table()
     programs: dict[int, list[tuple[int, ...]]] = {}  # replayed piece sid -> faces
     reports, replays, systems = [], [], []
@@ -404,9 +401,8 @@ def plane_cuts(model: XFEMModel, planes) -> PlaneCuts:
                 elif origin in start:
                     mesh, at = start[origin]
                     faces = [tuple(f) for f in at[mesh.F].tolist()]
-                else:  # the whole tet
-                    corners = corner_ids[T[e, local[e]]]
-                    faces = [tuple(f) for f in corners[_FACES].tolist()]
+                else:  # the whole tet (a TetMesh's tets are positively oriented: _FACES are outward)
+                    faces = [tuple(f) for f in corner_ids[T[e]][_FACES].tolist()]
                 clipped = _clip(table, faces, side, s_table, half)
                 if clipped is None:
                     raise ValueError(f"model: piece {sid} of element {e} is not on the side of the slab its point is")
