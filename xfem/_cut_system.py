@@ -20,7 +20,9 @@ ValueError. Pieces of elements the planes do not meet keep their values (constan
 The system is then assembled in JAX from the piece integrals exactly as ``XFEMModel.system`` assembles it on the
 host (the mass entries symmetrized, ``M (x) I3`` scattered into the free-DOF pattern, gravity loads), so it equals
 the Boolean path to rounding. The gradient is exact for the topology found: only where a plane crosses a
-vertex, edge or face of a piece (the combinatorics change) is the function not differentiable.
+vertex, edge or face of a piece (the combinatorics change) is the function not differentiable, and beyond such a
+crossing the replay no longer equals the Booleans (``PlaneCuts.holds`` tells; ``cut_system`` finds the pieces
+anew at every call).
 """
 
 from __future__ import annotations
