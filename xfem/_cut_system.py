@@ -15,7 +15,9 @@ from the planes, and the exact moments (eq. 21, ``triangle_moment_terms``) give 
 ``shape_function_integrals``). Clipping convex pieces gives one polyhedron per piece and side, so a replayed
 piece is matched to the model's by its side and its volume (to ``_MATCH`` of its tet's volume); where a cut splits
 a non-convex piece (made by an earlier non-planar cut) into several on one side, the match fails with a
-ValueError. Pieces of elements the planes do not meet keep their values (constants).
+ValueError. Pieces of elements the planes do not meet keep their values (constants), and so do the pieces of
+elements that a solid cut between the planes meets (``plane_cuts``: from that cut on, their geometry is the
+Booleans', and their gradient with respect to earlier planes is dropped).
 
 The system is then assembled in JAX from the piece integrals exactly as ``XFEMModel.system`` assembles it on the
 host (the mass entries symmetrized, ``M (x) I3`` scattered into the free-DOF pattern, gravity loads), so it equals
@@ -30,6 +32,7 @@ from __future__ import annotations
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import manifold3d
 import numpy as np
 from jax.extend.core import concrete_or_error
 from jaxtyping import Array, Float, Int
@@ -44,7 +47,7 @@ from xfem._integration import (
     shape_function_integrals,
     triangle_moment_terms,
 )
-from xfem._subdomains import _FACES, CutReport, solid_mesh
+from xfem._subdomains import _FACES, CutReport, check_cut, solid_mesh
 from xfem._tetmesh import tet_volumes
 from xfem._xfem import XFEMModel, xfem_model
 
@@ -159,6 +162,7 @@ class _Table:
         self.places: list[np.ndarray] = []
         self._new: list[np.ndarray] = []
         self._crossings: dict[tuple, int] = {}
+        self.corners: np.ndarray | None = None  # the ids of the mesh nodes (the first stage's constants)
 
     def stage(self, consts: list[np.ndarray], place: np.ndarray) -> list[np.ndarray]:
         """Start the next plane's stage with its constant vertices and the nodes' places; returns their ids."""
@@ -249,11 +253,11 @@ class PlaneCuts:
     """Slab cuts by planes, replayed (module docstring): ``plane_cuts`` builds it.
 
     Attributes:
-        model: the copy of the model cut by every plane (the input model is left uncut), for later cuts and
+        model: the copy of the model cut by every cut (the input model is left uncut), for later cuts and
             queries.
-        reports: the ``CutReport`` of each plane's cut of the copy (``dof_source``: the DOF copy map of the
+        reports: the ``CutReport`` of each cut of the copy, in order (``dof_source``: the DOF copy map of the
             cut, Algorithm 1 line 7).
-        points: (k, 3) the planes' points found; normals: (k, 3) their unit normals; epsilons: (k,) the slab
+        points: (k, 3) the k planes' points found; normals: (k, 3) their unit normals; epsilons: (k,) the slab
             thicknesses.
     """
 
@@ -270,18 +274,19 @@ class PlaneCuts:
             points: (k, 3) the planes' points.
             normals: (k, 3) their normals (normalized here: the gradient is tangent to the unit sphere).
         Returns:
-            k ``FEMSystem``s: the system after cut j (that of the copy cut by planes 0..j) depends on the first
-            j + 1 planes; its volumes, mass values, mass data and forces carry the gradient.
+            An ``FEMSystem`` per cut: the system after cut j (of the copy cut by cuts 0..j) depends on the planes
+            among those cuts; its volumes, mass values, mass data and forces carry the gradient.
         """
         points, normals = self._planes(points, normals)
         result = []
-        for j, (replay, system) in enumerate(zip(self._replays, self._systems)):
-            fields = _fields(replay, points[:j + 1], normals[:j + 1])
+        for replay, system in zip(self._replays, self._systems):
+            planes = len(replay.consts)  # the planes among the cuts so far
+            fields = _fields(replay, points[:planes], normals[:planes])
             result.append(eqx.tree_at(lambda t: (t.volumes, t.mass_values, t.mass_data, t.force), system, fields))
         return result
 
     def _planes(self, points, normals):
-        k = len(self._replays)
+        k = len(self.points)
         points, normals = jnp.asarray(points), jnp.asarray(normals)
         if points.shape != (k, 3) or normals.shape != (k, 3):
             raise ValueError(f"points, normals: expected shape ({k}, 3), got {points.shape} and {normals.shape}")
@@ -337,97 +342,129 @@ def _row_sids(model: XFEMModel, element: np.ndarray) -> np.ndarray:
     return sids
 
 
-def plane_cuts(model: XFEMModel, planes) -> PlaneCuts:
+def _entry(entry, index: str):
+    """A checked entry of ``plane_cuts``: (point, normal, epsilon) or (None, solid, perturb)."""
+    if isinstance(entry, manifold3d.Manifold):
+        entry = (entry, 0.0)
+    if isinstance(entry, (tuple, list)) and len(entry) == 2 and isinstance(entry[0], manifold3d.Manifold):
+        check_cut(*entry)
+        return None, entry[0], float(entry[1])
+    if isinstance(entry, (tuple, list)) and len(entry) == 3:
+        return _plane(*entry, index=index)
+    raise ValueError(f"cuts{index}: expected (point, normal, epsilon) or a cut solid (a manifold3d.Manifold, or "
+                     "(solid, perturb))")
+
+
+def plane_cuts(model: XFEMModel, cuts) -> PlaneCuts:
     """Cut a copy of the model by slabs (``plane_cut_solid`` covering the body), in order, and replay the pieces
     they make as JAX functions of the planes (module docstring).
 
     Args:
         model: the ``XFEMModel``; left uncut. Its earlier cuts (any solids) are constants of the replay.
-        planes: a sequence of (point (3,), normal (3,) unit, epsilon > 0), concrete values.
+        cuts: a sequence of planes (point (3,), normal (3,) unit, epsilon > 0), concrete values, and possibly cut
+            solids between them (a ``manifold3d.Manifold``, or (solid, perturb)): cut as ``XFEMModel.cut`` does,
+            the pieces of the elements a solid meets are constants from then on.
     Returns:
-        The ``PlaneCuts``: the cut copy, the cuts' reports and ``systems(points, normals)``.
+        The ``PlaneCuts``: the cut copy, the cuts' reports and ``systems(points, normals)`` (one system per cut,
+        points and normals one per plane).
     Raises:
-        ValueError: a bad plane (naming ``point``, ``normal``, ``epsilon`` and its index), a plane that misses
-        the body, or pieces the replay cannot follow (``model``: a non-convex piece split into several).
+        ValueError: a bad plane (naming ``point``, ``normal``, ``epsilon`` and its index), a bad solid, a plane
+        that misses the body, or pieces the replay cannot follow (``model``: a non-convex piece split into
+        several).
     """
     if not isinstance(model, XFEMModel):
         raise ValueError(f"model: expected an XFEMModel, got {type(model).__name__}")
-    planes = list(planes)
-    if not planes:
-        raise ValueError("planes: expected at least one (point, normal, epsilon)")
-    checked = []
-    for k, plane in enumerate(planes):
-        if not isinstance(plane, (tuple, list)) or len(plane) != 3:
-            raise ValueError(f"planes[{k}]: expected (point, normal, epsilon)")
-        checked.append(_plane(*plane, index=f"[{k}]" if len(planes) > 1 else ""))
+    cuts = list(cuts)
+    if not cuts:
+        raise ValueError("cuts: expected at least one (point, normal, epsilon)")
+    checked = [_entry(entry, f"[{k}]" if len(cuts) > 1 else "") for k, entry in enumerate(cuts)]
+    if all(entry[0] is None for entry in checked):
+        raise ValueError("cuts: expected at least one (point, normal, epsilon)")
     copy = _copy(model)
-    X, T = copy.X, copy.T
-    tet_volume = np.asarray(tet_volumes(X, T))
+    tet_volume = np.asarray(tet_volumes(copy.X, copy.T))
     table = _Table()
     programs: dict[int, list[tuple[int, ...]]] = {}  # replayed piece sid -> faces
-    reports, replays, systems = [], [], []
-    for k, (point, normal, epsilon) in enumerate(checked):
-        name = f"point[{k}], normal[{k}]" if len(planes) > 1 else "point, normal"
-        half = epsilon / 2
-        s_nodes = (X - point) @ normal
-        near = np.flatnonzero((s_nodes[T].min(axis=1) <= half * (1 + 1e-9))
-                              & (s_nodes[T].max(axis=1) >= -half * (1 + 1e-9)))
-        exact = copy._exact
-        prior = {e: list(copy.sub.element_subdomains(e)) for e in near.tolist()}
-        solids = {sid: copy.sub.element_solid(sid) for e in near.tolist() if e in exact
-                  for sid in prior[e] if sid not in programs}
-        extent = _COVER * 2 * float(np.max(np.linalg.norm(X - point, axis=1)))
-        report = copy.cut(plane_cut_solid(point, normal, extent, epsilon))
-        touched = report.elements_touched
-        if len(touched) == 0:
-            raise ValueError(f"{name}: the slab misses the body (no element meets it)")
-        if not set(touched.tolist()) <= set(prior):
-            raise ValueError(f"{name}: the cut met elements away from its plane")
-        used = [sid for e in touched.tolist() for sid in prior[e] if sid in solids]
-        meshes = [solid_mesh(solids[sid]) for sid in used]
-        place = np.where(s_nodes > half, 1, np.where(s_nodes < -half, -1, 0))
-        ids = table.stage(([X] if k == 0 else []) + [m.V for m in meshes], place)
-        if k == 0:
-            corner_ids = ids.pop(0)
-        start = {sid: (m, i) for sid, m, i in zip(used, meshes, ids)}
-        s_table = (table.positions - point) @ normal
-        made = {}
-        for e in touched.tolist():
-            for sid in copy.sub.element_subdomains(e):
-                origin = sid if sid in prior[e] else copy.sub.element_parent(sid)
-                if origin not in prior[e]:
-                    raise ValueError(f"model: piece {sid} of element {e} has no piece before the cut")
-                side = 1.0 if (copy._integrals[sid][3] - point) @ normal > 0 else -1.0
-                if origin in programs:
-                    faces = programs[origin]
-                elif origin in start:
-                    mesh, at = start[origin]
-                    faces = [tuple(f) for f in at[mesh.F].tolist()]
-                else:  # the whole tet (a TetMesh's tets are positively oriented: _FACES are outward)
-                    faces = [tuple(f) for f in corner_ids[T[e]][_FACES].tolist()]
-                clipped = _clip(table, faces, side, s_table, half)
-                if clipped is None:
-                    raise ValueError(f"model: piece {sid} of element {e} is not on the side of the slab its point is")
-                made[sid] = clipped
-        for sid in report.element_children:
-            programs.pop(sid, None)
-        programs.update(made)
+    planes, reports, replays, systems = [], [], [], []
+    for k, entry in enumerate(checked):
+        name = f"point[{k}], normal[{k}]" if len(cuts) > 1 else "point, normal"
+        if entry[0] is None:
+            report = copy.cut(entry[1], entry[2])
+            for e in report.elements_touched.tolist():  # its pieces' geometry is the Booleans' from now on
+                for sid in copy.sub.element_subdomains(e):
+                    programs.pop(sid, None)
+            for sid in report.element_children:
+                programs.pop(sid, None)
+        else:
+            report = _cut_by_plane(copy, table, programs, *entry, name)
+            planes.append(entry)
         reports.append(report)
-        replay, system, elements = _stage_replay(copy, table, programs, [c[2] for c in checked[:k + 1]])
-        # the replay at the planes found must give the Booleans' pieces
-        volume = _fields(replay, jnp.asarray(np.stack([c[0] for c in checked[:k + 1]])),
-                         jnp.asarray(np.stack([c[1] for c in checked[:k + 1]])))[0]
-        rows = np.asarray(replay.rows)
-        error = np.abs(np.asarray(volume)[rows] - np.asarray(system.volumes)[rows])
-        bad = error > _MATCH * tet_volume[elements[rows]]
-        if np.any(bad):
-            e = int(elements[rows][np.argmax(bad)])
-            raise ValueError(f"model: the pieces of element {e} after the cut by {name} are not the slab's "
-                             "half-spaces of its earlier pieces (a non-convex piece split into several?)")
+        replay, system, elements = _stage_replay(copy, table, programs, [c[2] for c in planes])
+        if planes:  # the replay at the planes found must give the Booleans' pieces
+            volume = _fields(replay, jnp.asarray(np.stack([c[0] for c in planes])),
+                             jnp.asarray(np.stack([c[1] for c in planes])))[0]
+            rows = np.asarray(replay.rows)
+            bad = np.abs(np.asarray(volume)[rows] - np.asarray(system.volumes)[rows]) > _MATCH * tet_volume[
+                elements[rows]]
+            if np.any(bad):
+                e = int(elements[rows][np.argmax(bad)])
+                raise ValueError(f"model: the pieces of element {e} after cut {k} are not the slabs' half-spaces of "
+                                 "its earlier pieces (a non-convex piece split into several?)")
         replays.append(replay)
         systems.append(system)
-    return PlaneCuts(copy, reports, np.stack([c[0] for c in checked]), np.stack([c[1] for c in checked]),
-                     np.array([c[2] for c in checked]), replays, systems)
+    return PlaneCuts(copy, reports, np.stack([c[0] for c in planes]), np.stack([c[1] for c in planes]),
+                     np.array([c[2] for c in planes]), replays, systems)
+
+
+def _cut_by_plane(copy: XFEMModel, table: _Table, programs: dict, point, normal, epsilon, name: str) -> CutReport:
+    """Cut the copy by the slab and replay the pieces of the elements it meets (``programs``, new stage of the
+    table)."""
+    X, T = copy.X, copy.T
+    half = epsilon / 2
+    s_nodes = (X - point) @ normal
+    near = np.flatnonzero((s_nodes[T].min(axis=1) <= half * (1 + 1e-9))
+                          & (s_nodes[T].max(axis=1) >= -half * (1 + 1e-9)))
+    exact = copy._exact
+    prior = {e: list(copy.sub.element_subdomains(e)) for e in near.tolist()}
+    solids = {sid: copy.sub.element_solid(sid) for e in near.tolist() if e in exact
+              for sid in prior[e] if sid not in programs}
+    extent = _COVER * 2 * float(np.max(np.linalg.norm(X - point, axis=1)))
+    report = copy.cut(plane_cut_solid(point, normal, extent, epsilon))
+    touched = report.elements_touched
+    if len(touched) == 0:
+        raise ValueError(f"{name}: the slab misses the body (no element meets it)")
+    if not set(touched.tolist()) <= set(prior):
+        raise ValueError(f"{name}: the cut met elements away from its plane")
+    used = [sid for e in touched.tolist() for sid in prior[e] if sid in solids]
+    meshes = [solid_mesh(solids[sid]) for sid in used]
+    place = np.where(s_nodes > half, 1, np.where(s_nodes < -half, -1, 0))
+    first = table.corners is None
+    ids = table.stage(([X] if first else []) + [m.V for m in meshes], place)
+    if first:
+        table.corners = ids.pop(0)
+    start = {sid: (m, i) for sid, m, i in zip(used, meshes, ids)}
+    s_table = (table.positions - point) @ normal
+    made = {}
+    for e in touched.tolist():
+        for sid in copy.sub.element_subdomains(e):
+            origin = sid if sid in prior[e] else copy.sub.element_parent(sid)
+            if origin not in prior[e]:
+                raise ValueError(f"model: piece {sid} of element {e} has no piece before the cut")
+            side = 1.0 if (copy._integrals[sid][3] - point) @ normal > 0 else -1.0
+            if origin in programs:
+                faces = programs[origin]
+            elif origin in start:
+                mesh, at = start[origin]
+                faces = [tuple(f) for f in at[mesh.F].tolist()]
+            else:  # the whole tet (a TetMesh's tets are positively oriented: _FACES are outward)
+                faces = [tuple(f) for f in table.corners[T[e]][_FACES].tolist()]
+            clipped = _clip(table, faces, side, s_table, half)
+            if clipped is None:
+                raise ValueError(f"model: piece {sid} of element {e} is not on the side of the slab its point is")
+            made[sid] = clipped
+    for sid in report.element_children:
+        programs.pop(sid, None)
+    programs.update(made)
+    return report
 
 
 def _stage_replay(copy: XFEMModel, table: _Table, programs: dict, epsilons: list):

@@ -117,6 +117,20 @@ def test_crossing_slabs(bar):
         _close(system, reference.system())
 
 
+def test_solid_cuts_between_the_planes(bar):
+    """A schedule of a plane, a partial notch meeting its pieces (which become constants) and a second plane through
+    the notched elements: every system equals the Booleans'."""
+    notch = xfem.plane_cut_solid(np.array([0.09, 0.1, 0.45]), np.array([1.0, 0.0, 0.0]), 0.15, 0.02)
+    cuts = [(_point(0.43), _normal(0.1), EPS), (notch, 0.0), (_point(0.47), _normal(-0.2), EPS)]
+    replayed = xfem.plane_cuts(bar, cuts)
+    assert replayed.points.shape == (2, 3)
+    reference = _bar()
+    for cut, system in zip(cuts, replayed.systems(replayed.points, replayed.normals)):
+        reference.cut(cut[0] if len(cut) == 2 else xfem.plane_cut_solid(np.asarray(cut[0]), np.asarray(cut[1]), 5.0,
+                                                                           EPS))
+        _close(system, reference.system())
+
+
 def test_holds_while_the_combinatorics_do(bar):
     """``holds`` is True near the planes found and False once the slab passes a node layer (z = 0.5) or a tilt
     moves a piece's corner across it."""
@@ -186,6 +200,8 @@ def test_bad_input(bar):
         xfem.cut_system(bar, point[:2], normal, EPS)
     with pytest.raises(ValueError, match="misses the body"):
         xfem.cut_system(bar, np.array([0.1, 0.1, 3.0]), normal, EPS)
+    with pytest.raises(ValueError, match=r"cuts\[1\]: expected"):
+        xfem.plane_cuts(bar, [(point, normal, EPS), (point, normal)])
     with pytest.raises(ValueError, match=r"normal\[1\]"):
         xfem.plane_cuts(bar, [(point, normal, EPS), (point, 2 * normal, EPS)])
     cuts = xfem.plane_cuts(bar, [(point, normal, EPS)])
