@@ -523,7 +523,8 @@ def cut_system(model: XFEMModel, point, normal, epsilon) -> FEMSystem:
     (``plane_cut_solid`` with an extent covering the body, ``XFEMModel.cut``), the model left uncut: its DOF
     numbering is the cut model's, and its volumes, mass values, mass data and forces are JAX functions of point and
     normal (module docstring), differentiable by ``jax.grad`` (eagerly: the pieces are found at the concrete plane;
-    under jit use ``plane_cuts(...).system``).
+    under jit use ``plane_cuts(...).system``). Each call cuts a copy of the model on the host (its earlier cuts made
+    again, then the slab's Booleans): for many planes near one another, ``plane_cuts`` once and its ``system``.
 
     Args:
         model: the ``XFEMModel`` (earlier cuts of any solids are constants).
