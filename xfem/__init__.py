@@ -19,14 +19,16 @@ indicator enrichments eq. 16-18, DOF duplication, pieces on the FEM core), ``_ca
 capacity levels so that cuts reuse the compiled step), ``_background`` (``BackgroundCuts``: cuts computed in a
 worker process, ``_cut_process`` and ``_framing``, while the model steps), ``_material`` (``Material``),
 ``_rollout`` (``rollout``: a differentiable ``lax.scan`` of steps), ``_simulate`` (trajectories across a schedule
-of cuts, differentiable through the cuts' DOF copy maps). Sec. 5: ``_scenes`` (the paper's five scenes with Table 1's parameters, a runner timing them like
-Table 2), ``_xfem_commands`` (``jaxcga xfem SCENE``).
+of cuts, differentiable through the cuts' DOF copy maps), ``_cut_system`` (slab cuts whose placement is a
+differentiable parameter). Sec. 5: ``_scenes`` (the paper's five scenes with Table 1's parameters, a runner
+timing them like Table 2), ``_xfem_commands`` (``jaxcga xfem SCENE``).
 """
 
 from xfem._assembly import AssemblyPattern, assemble_matrix, assemble_vector, assembly_pattern
 from xfem._background import BackgroundCuts
 from xfem._backward_euler import FEMSystem, State, backward_euler_step, fem_from_mesh, fem_system, mechanical_energy
 from xfem._capacity import wait_for_compilations
+from xfem._cut_system import PlaneCuts, cut_system, plane_cuts
 from xfem._cuts import cut_solid, plane_cut_solid, sweep_between, swept_surface, thicken
 from xfem._integration import element_piece_integrals, moments_of_pieces, polyhedron_moments
 from xfem._linear_tet import body_force, consistent_mass, lumped_mass, shape_functions, shape_gradients
@@ -66,6 +68,9 @@ __all__ = [
     "piece_surfaces",
     "run_scene",
     "scene",
+    "PlaneCuts",
+    "cut_system",
+    "plane_cuts",
     "cut_solid",
     "plane_cut_solid",
     "sweep_between",
