@@ -335,7 +335,8 @@ def rollout_run(size: str, steps: int = 100):
     print(f"accordion ({size}) after its cuts, {3 * system.n} DOFs: a {steps}-step rollout {t_forward:.2f} s, its "
           f"value and gradient (Young's modulus, initial velocity) {t_gradient:.2f} s; forward / gradient "
           f"{ratios[f'accordion_grad_vs_forward_{steps}']:.3f} (target >= 0.25)")
-    return {"figures": figures, "ratios": ratios, "units": units | {k: "x (forward time / gradient time)" for k in ratios}}
+    ratio_units = {k: "x (forward time / gradient time)" for k in ratios}
+    return {"figures": figures, "ratios": ratios, "units": units | ratio_units}
 
 
 def _memory_child(size: str, steps: int):

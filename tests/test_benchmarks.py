@@ -77,3 +77,7 @@ def test_bench_xfem_quick_writes_the_published_names(tmp_path):
     assert result["figures"]["sticks_pieces"] == 36  # the small sticks end as 36 pieces too
     for name in ("thin_cut_system_grad_ms", "thin_host_cut_system_ms", "thin_cut_replay_grad_ms"):
         assert result["figures"][name] > 0 and name in result["units"]
+    # the differentiable rollouts: 100 and 1,000 steps in the full run, 10 and 20 here
+    for name in ("accordion_rollout_10_s", "accordion_grad_10_s", "accordion_grad_20_peak_rss_gib"):
+        assert result["figures"][name] > 0 and name in result["units"]
+    assert result["ratios"]["accordion_grad_vs_forward_10"] > 0

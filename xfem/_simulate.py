@@ -110,7 +110,8 @@ def simulate(model: XFEMModel, schedule: Sequence[tuple[int, object]], material:
     for entry in schedule:
         if (not isinstance(entry, tuple) or len(entry) != 2 or not isinstance(entry[0], int)
                 or isinstance(entry[0], bool) or not 1 <= entry[0] <= steps):
-            raise ValueError(f"schedule: expected (frame, solid) pairs with an int frame in [1, {steps}], got {entry!r}")
+            raise ValueError(f"schedule: expected (frame, solid) pairs with an int frame in [1, {steps}], got "
+                             f"{entry!r}")
     if forces is not None and not callable(forces):
         raise ValueError("forces: expected None or a function (segment index, FEMSystem) -> forces")
     with jax.ensure_compile_time_eval():  # host work, also when simulate is traced (jit, grad)
