@@ -42,14 +42,27 @@ slowest cut frame takes <= 2x the average frame (``SCENE_cut_max_over_avg`` <= 2
 cut's Booleans, integrals and re-enrichment: ``SCENE_cut_step_max_over_avg``). The paper ran on an
 i9-13900K; this machine's figures come from a shared 2-core machine.
 
-    python benchmarks/bench_xfem.py [--steps N] [--quick] [--scenes SCENE ...] [--json out/bench/xfem.json]
+Differentiable rollouts (``--figures rollout memory``), on the accordion scene after all its cuts (the model cut
+by the scene's solids at rest, 38k DOFs at paper size), the paper's step (one Newton iteration):
+``accordion_rollout_100_s``, a forward ``xfem.rollout`` of 100 steps, and ``accordion_grad_100_s``, its value and
+gradient with respect to Young's modulus and the initial velocity (reverse mode through each step's implicit
+gradient), both compiled ahead and timed once; the ratio ``accordion_grad_vs_forward_100`` = forward / gradient
+time (target >= 0.25). ``accordion_grad_1000_peak_rss_gib``: the peak resident memory of a process that builds the
+model and takes the gradient of a 1,000-step rollout (``ru_maxrss``; target <= 8 GiB), with its time
+``accordion_grad_1000_s``.
+
+    python benchmarks/bench_xfem.py [--steps N] [--quick] [--scenes SCENE ...] [--figures table rollout memory]
+                                    [--json out/bench/xfem.json]
 """
 
 from __future__ import annotations
 
 import argparse
 import gc
+import json
+import resource
 import statistics
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -67,11 +80,13 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 from _report import RATIO_UNIT, add_json_argument, write_json  # noqa: E402
 
 import xfem._backward_euler as be  # noqa: E402
-from xfem._neohookean import lame  # noqa: E402
+from xfem._material import Material  # noqa: E402
+from xfem._rollout import rollout  # noqa: E402
 from xfem._scenes import run_scene, scene  # noqa: E402
 from xfem._xfem import _padded_state, wait_for_compilations  # noqa: E402
 
 SCENES = ("sticks", "thin", "accordion")
+FIGURES = ("table", "rollout", "memory")
 # frames from a background cut's start to its effect: its work (Booleans, integrals, new system, in the cut worker
 # process) spread over about this many steps on 2 cores. Sticks: a cut every 5 frames, each 7-22 ms of worker time
 # beside ~1.5 ms steps, so the cuts queue up: ~140 ms of work in all, done by frame ~125 (latency 25, 50 and 75
@@ -125,7 +140,7 @@ def run(size: str, steps: int | None, scenes=SCENES):
     figures, ratios, units = {}, {}, {}
     for name in scenes:
         sc = scene(name, size)
-        mu, lam = lame(sc.young, sc.poisson)
+        mu, lam = sc.material.lame()
         warm = run_scene(sc, steps=sc.last_cut_frame + 2)
         cold_max = max(r.seconds for r in warm.records)
         # the warm-up's last step starts compiling the level above its last one in a background thread (seconds
@@ -221,6 +236,76 @@ def run(size: str, steps: int | None, scenes=SCENES):
     return {"figures": figures, "ratios": ratios, "units": units | {k: RATIO_UNIT for k in ratios}}
 
 
+def _after_cuts(size: str):
+    """The accordion scene, its system after all its cuts (made at rest) and that state."""
+    sc = scene("accordion", size)
+    model = sc.model()
+    for cut in sc.cuts:
+        model.cut(cut.solid, cut.perturb)
+    state = be.State(jnp.asarray(model.state.x), jnp.asarray(model.state.v))
+    return sc, model.system(), state
+
+
+def _rollout_functions(sc, system, state, steps: int):
+    """The compiled forward rollout and the compiled value and gradient (Young's modulus, initial velocity) of a
+    loss on it: the mean height over all frames."""
+
+    def frames(young, v0):
+        return rollout(system, be.State(state.x, v0), Material(young, jnp.asarray(sc.poisson)), sc.h, steps,
+                       newton_iterations=sc.newton_iterations)
+
+    def loss(young, v0):
+        return jnp.mean(frames(young, v0).x[..., 2])
+
+    args = (jnp.asarray(sc.young, jnp.float64), state.v)
+    forward = jax.jit(lambda young, v0: frames(young, v0).x[-1]).lower(*args).compile()
+    gradient = jax.jit(jax.value_and_grad(loss, argnums=(0, 1))).lower(*args).compile()
+    return forward, gradient, args
+
+
+def _timed(fn, *args) -> float:
+    start = time.perf_counter()
+    jax.block_until_ready(fn(*args))
+    return time.perf_counter() - start
+
+
+def rollout_run(size: str, steps: int = 100):
+    """``accordion_rollout_{steps}_s``, ``accordion_grad_{steps}_s`` and their ratio."""
+    sc, system, state = _after_cuts(size)
+    forward, gradient, args = _rollout_functions(sc, system, state, steps)
+    t_forward, t_gradient = _timed(forward, *args), _timed(gradient, *args)
+    figures = {f"accordion_rollout_{steps}_s": t_forward, f"accordion_grad_{steps}_s": t_gradient,
+               "accordion_rollout_dofs": float(3 * system.n)}
+    units = {f"accordion_rollout_{steps}_s": "s", f"accordion_grad_{steps}_s": "s",
+             "accordion_rollout_dofs": "count (after the cuts)"}
+    ratios = {f"accordion_grad_vs_forward_{steps}": t_forward / t_gradient}
+    print(f"accordion ({size}) after its cuts, {3 * system.n} DOFs: a {steps}-step rollout {t_forward:.2f} s, its "
+          f"value and gradient (Young's modulus, initial velocity) {t_gradient:.2f} s; forward / gradient "
+          f"{ratios[f'accordion_grad_vs_forward_{steps}']:.3f} (target >= 0.25)")
+    return {"figures": figures, "ratios": ratios, "units": units | {k: "x (forward time / gradient time)" for k in ratios}}
+
+
+def _memory_child(size: str, steps: int):
+    """In the child process: the gradient of a ``steps``-step rollout; prints its time and this process's peak RSS."""
+    sc, system, state = _after_cuts(size)
+    _, gradient, args = _rollout_functions(sc, system, state, steps)
+    seconds = _timed(gradient, *args)
+    print(json.dumps({"seconds": seconds, "peak_rss_gib": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 2**20}))
+
+
+def memory_run(size: str, steps: int = 1000):
+    """``accordion_grad_{steps}_peak_rss_gib`` (and its time), from a fresh process."""
+    child = subprocess.run([sys.executable, __file__, "--memory-child", str(steps), "--size", size],
+                           capture_output=True, text=True, check=True)
+    measured = json.loads(child.stdout.strip().splitlines()[-1])
+    peak = max(measured["peak_rss_gib"], resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 2**20)
+    print(f"accordion ({size}): the gradient of a {steps}-step rollout {measured['seconds']:.1f} s, peak RSS "
+          f"{peak:.2f} GiB (target <= 8)")
+    return {"figures": {f"accordion_grad_{steps}_peak_rss_gib": peak, f"accordion_grad_{steps}_s": measured["seconds"]},
+            "ratios": {}, "units": {f"accordion_grad_{steps}_peak_rss_gib": "GiB (peak RSS of the process)",
+                                    f"accordion_grad_{steps}_s": "s"}}
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=None, help="timed frames per scene (default: the scene's)")
@@ -228,15 +313,31 @@ def main(argv=None):
                         help="the scenes' small sizes, through their last cut and 3 frames more: a smoke run")
     parser.add_argument("--scenes", nargs="+", choices=SCENES, default=list(SCENES), metavar="SCENE",
                         help=f"the scenes to run, of {', '.join(SCENES)} (default: all)")
+    parser.add_argument("--figures", nargs="+", choices=FIGURES, default=list(FIGURES),
+                        help="table: Table 2 per scene; rollout: accordion's 100-step rollout and gradient; memory: "
+                             "the peak RSS of a 1,000-step gradient, in a child process (default: all)")
+    parser.add_argument("--memory-child", type=int, default=None, help=argparse.SUPPRESS)
+    parser.add_argument("--size", choices=("paper", "small"), default="paper", help=argparse.SUPPRESS)
     add_json_argument(parser)
     args = parser.parse_args(argv)
+    if args.memory_child is not None:
+        _memory_child(args.size, args.memory_child)
+        return 0
     if args.steps is not None and args.steps < 1:
         parser.error("--steps: expected an int >= 1")
-    if args.quick:
-        steps = args.steps if args.steps is not None else max(scene(n, "small").last_cut_frame for n in args.scenes) + 3
-        write_json(args.json, run("small", steps, args.scenes))
-    else:
-        write_json(args.json, run("paper", args.steps, args.scenes))
+    size = "small" if args.quick else "paper"
+    results = []
+    if "table" in args.figures:
+        steps = args.steps
+        if args.quick and steps is None:
+            steps = max(scene(n, "small").last_cut_frame for n in args.scenes) + 3
+        results.append(run(size, steps, args.scenes))
+    if "rollout" in args.figures:
+        results.append(rollout_run(size, 10 if args.quick else 100))
+    if "memory" in args.figures:
+        results.append(memory_run(size, 20 if args.quick else 1000))
+    write_json(args.json, {key: {k: v for r in results for k, v in r[key].items()} for key in ("figures", "ratios",
+                                                                                            "units")})
     return 0
 
 

@@ -7,14 +7,17 @@ lumped mass eq. 7, body forces eq. 8), ``_neohookean`` (stable neo-Hookean energ
 PSD-projected Hessians; ``_jacobi3``, the batched 3 x 3 SVD and eigendecomposition of their eigensystem),
 ``_assembly`` (sparse patterns precomputed on the host, assembly in JAX),
 ``_backward_euler`` (eq. 10 as a minimization: projected Newton with line search, Dirichlet nodes,
-implicit gradients). The step is generic over an element list (DOF-node indices, shape gradients,
-integration weights) and any mass matrix, so the enriched XFEM elements go through the same code.
+implicit gradients), ``_material`` (``Material``: Young's modulus and Poisson's ratio), ``_rollout`` (steps in
+a checkpointed ``lax.scan``, differentiable in the initial state, material, forces and moving targets). The
+step is generic over an element list (DOF-node indices, shape gradients, integration weights) and any mass
+matrix, so the enriched XFEM elements go through the same code.
 
 Sec. 4, the generalized XFEM: ``_cuts`` (swept tool edges thickened into closed solids, sec. 4.1),
 ``_subdomains`` (nodal and element subdomains cut by manifold3d Booleans, Algorithm 1 lines 1-19),
 ``_integration`` (exact divergence-theorem moments of the pieces, eq. 13, 14, 21), ``_xfem`` (``XFEMModel``:
 indicator enrichments eq. 16-18, DOF duplication, pieces on the FEM core, systems padded to capacity levels so
-that cuts reuse the compiled step). Sec. 5: ``_scenes`` (the paper's five scenes with Table 1's parameters, a
+that cuts reuse the compiled step), ``_simulate`` (trajectories across a schedule of cuts, differentiable
+through the cuts' DOF copy maps). Sec. 5: ``_scenes`` (the paper's five scenes with Table 1's parameters, a
 runner timing them like Table 2), ``_xfem_commands`` (``jaxcga xfem SCENE``).
 """
 
@@ -23,6 +26,7 @@ from xfem._backward_euler import FEMSystem, State, backward_euler_step, fem_from
 from xfem._cuts import cut_solid, plane_cut_solid, sweep_between, swept_surface, thicken
 from xfem._integration import element_piece_integrals, moments_of_pieces, polyhedron_moments
 from xfem._linear_tet import body_force, consistent_mass, lumped_mass, shape_functions, shape_gradients
+from xfem._material import Material
 from xfem._neohookean import (
     element_energy,
     element_gradient_hessian,
@@ -30,7 +34,9 @@ from xfem._neohookean import (
     stable_neohookean_energy,
     stable_neohookean_pk1,
 )
+from xfem._rollout import rollout
 from xfem._scenes import SCENES, FrameRecord, Scene, SceneRun, ScheduledCut, piece_surfaces, run_scene, scene
+from xfem._simulate import simulate
 from xfem._subdomains import Subdomains, apply_cut, subdomains
 from xfem._tetmesh import (
     TetMesh,
@@ -68,10 +74,12 @@ __all__ = [
     "apply_cut",
     "subdomains",
     "XFEMModel",
+    "simulate",
     "wait_for_compilations",
     "xfem_model",
     "AssemblyPattern",
     "FEMSystem",
+    "Material",
     "State",
     "TetMesh",
     "assemble_matrix",
@@ -94,6 +102,7 @@ __all__ = [
     "node_rings",
     "one_tet",
     "read_tet_mesh",
+    "rollout",
     "shape_functions",
     "shape_gradients",
     "stable_neohookean_energy",

@@ -47,22 +47,23 @@ steps at 7.2k DOFs the positions differ from those of a 1e-9 solve by 1e-7, 3e-6
 With ``tolerance`` the relative residual is tightened to ``|grad E| / |grad E at the first iteration|`` (down
 to 1e-11), so that Newton converges superlinearly where the projection of the element Hessians is inactive
 near the solution (where it is active, projected Newton converges linearly). The adjoint solve of the
-gradients (below) must be exact: it uses CHOLMOD, and scipy's SuperLU when the true Hessian is not positive
-definite.
+gradients (below) must be accurate: it uses CHOLMOD (scipy's SuperLU when the true Hessian is not positive
+definite), or above ``_DIRECT_DOFS`` unknowns CG to a relative residual of 1e-10, checked.
 
 Memory. The energy, its gradient and the Newton matrix are summed over chunks of elements (and M d over
 chunks of mass entries, ``_in_chunks``), so that a step's temporaries stay small enough for glibc to reuse
 them from one call to the next (a step over every element at once page-faulted a third of its time away).
 
 Gradients (implicit differentiation). ``backward_euler_step`` is differentiable in reverse mode with
-respect to ``state.x``, ``state.v``, ``mu``, ``lam``, ``fixed_positions`` and, in the system, ``force``,
+respect to ``state.x``, ``state.v``, the ``Material``, ``fixed_positions`` and, in the system, ``force``,
 ``grads``, ``volumes`` and ``mass_values`` (e.g. XFEM integration weights that depend on a cut); not ``h``.
 At the minimizer x* the free-DOF gradient ``G(x*, theta) = grad_free E`` vanishes, so
 ``dx*/dtheta = -H^-1 dG/dtheta`` with H the TRUE (unprojected) Hessian ``M + h^2 K``: the backward pass
 solves ``H u = x_bar`` once and returns ``-(dG/dtheta)^T u`` (a vjp of autodiff's gradient of E); the fixed
 rows pass their cotangent to ``fixed_positions``. The Newton loop is never unrolled. This is the derivative
 of the exact minimizer: it matches the computed step only when the step is converged (``newton_iterations``
-~ 20 and a small ``tolerance``); after a single Newton iteration it is an approximation.
+~ 20 and a small ``tolerance``); after a single Newton iteration it is the converged step's formula evaluated
+at the executed iterate, an approximation (``xfem._rollout`` measures how close).
 """
 
 from __future__ import annotations
@@ -75,6 +76,7 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+from jax.ad_checkpoint import checkpoint_name
 from jaxtyping import Array, Float, Int
 from sksparse_minimal import SparseCholesky
 
@@ -89,16 +91,20 @@ from xfem._assembly import (
     scalar_slots,
 )
 from xfem._linear_tet import body_force, consistent_mass, shape_gradients
+from xfem._material import Material
 from xfem._neohookean import _element_energy, _element_gradient_hessian, _material, element_energy
 from xfem._tetmesh import TetMesh
 
 _CG_RTOL = 1e-4  # relative residual of the Newton direction (inexact Newton)
 _DIRECT_DOFS = 1000  # Newton systems up to this many unknowns are factorized (CHOLMOD), larger ones go to CG
 _CG_RTOL_MIN = 1e-11  # the tightest one asked for when converging (CG stalls near rounding)
+# the adjoint solve's CG residual: 5e-11 of CHOLMOD's solution on accordion's 37k unknowns, in a third of its time
+_ADJOINT_RTOL = 1e-10
 _ARMIJO = 1e-4  # sufficient-decrease constant of the line search
 _HALVINGS = 30  # the line search gives up (takes no step) after this many halvings
 _ELEMENT_CHUNK = 1024  # elements per chunk of the energy, its gradient and Hessians (``_in_chunks``)
 _MASS_CHUNK = 16384  # mass entries per chunk of M d
+_NEWTON_RESULT = "xfem_newton_result"  # checkpoint name of a step's minimizer, its implicit gradient's residual
 
 
 class FEMSystem(eqx.Module):
@@ -312,6 +318,18 @@ def _host_direct(data, rhs, indptr, indices):
     return x.astype(rhs.dtype)
 
 
+def _host_adjoint(data, rhs, indptr, indices):
+    """The implicit gradient's solve with the true Hessian: exact (``_host_direct``) up to ``_DIRECT_DOFS``
+    unknowns; above, Jacobi PCG to ``_ADJOINT_RTOL``, checked, and the direct solve where CG falls short (an
+    indefinite matrix)."""
+    if len(rhs) > _DIRECT_DOFS:
+        x = _host_cg(data, rhs, _ADJOINT_RTOL, indptr, indices)
+        residual = np.linalg.norm(_csr(data, indptr, indices) @ x - rhs)
+        if residual <= 2 * _ADJOINT_RTOL * np.linalg.norm(rhs):
+            return x
+    return _host_direct(data, rhs, indptr, indices)
+
+
 def _host_newton_direction(data, rhs, rtol, indptr, indices):
     """The Newton system's solve: CHOLMOD on systems of at most ``_DIRECT_DOFS`` unknowns, where one
     factorization costs less than CG's iterations (module docstring), Jacobi PCG to ``rtol`` otherwise and on
@@ -369,10 +387,11 @@ def _mass_times(system: FEMSystem, mass_values, d):
     return _in_chunks(mass_values.shape[0], _MASS_CHUNK, add_chunk, jnp.zeros_like(d))
 
 
-def mechanical_energy(system: FEMSystem, state: State, mu, lam):
-    """The energies of a state: kinetic ``1/2 v^T M v``, elastic ``U(x)`` (eq. 9) and the potential of the
-    external forces ``-f . x`` (gravity's, for body forces). Their sum is conserved by the exact dynamics;
-    backward Euler dissipates it. Returns three scalars (JAX, differentiable)."""
+def mechanical_energy(system: FEMSystem, state: State, material: Material):
+    """The energies of a state of ``system`` made of ``material``: kinetic ``1/2 v^T M v``, elastic ``U(x)``
+    (eq. 9) and the potential of the external forces ``-f . x`` (gravity's, for body forces). Their sum is
+    conserved by the exact dynamics; backward Euler dissipates it. Returns three scalars (JAX, differentiable)."""
+    mu, lam = material.lame()
     kinetic = 0.5 * jnp.sum(state.v * _mass_times(system, system.mass_values, state.v))
     elastic = jnp.sum(element_energy(state.x[system.T], system.grads, system.volumes, mu, lam))
     return kinetic, elastic, -jnp.sum(system.force * state.x)
@@ -513,7 +532,7 @@ def _minimize(theta, system, h, iterations, tolerance, line_search):
 @_minimize.def_fwd
 def _minimize_fwd(perturbed, theta, system, h, iterations, tolerance, line_search):
     x = _newton(theta, system, h, iterations, tolerance, line_search)
-    return x, x
+    return x, checkpoint_name(x, _NEWTON_RESULT)
 
 
 @_minimize.def_bwd
@@ -525,35 +544,41 @@ def _minimize_bwd(x, x_bar, perturbed, theta, system, h, iterations, tolerance, 
         return restrict(pattern, jax.grad(lambda z: _energy(system, z, t, h)[0])(y))
 
     _, data = _gradient_and_matrix(system, x, theta, h, project=False)
-    u = _solve(_host_direct, pattern, data, restrict(pattern, x_bar))
+    u = _solve(_host_adjoint, pattern, data, restrict(pattern, x_bar))
     grad = jax.vjp(free_gradient, theta)[1](-u)[0]
     grad = eqx.tree_at(lambda t: t.fixed_positions, grad, grad.fixed_positions + x_bar[system.fixed])
     return jax.tree.map(lambda g, p: g if p else None, grad, perturbed)
 
 
-@eqx.filter_jit
-def _step(system, state, h, mu, lam, fixed_positions, iterations, tolerance, line_search):
-    if fixed_positions is None:  # they stay where they are
-        fixed_positions = state.x[system.fixed]
-    theta = _Theta(state.x, state.v, mu, lam, fixed_positions, system.force, system.grads, system.volumes,
+def _advance(system, state, h, mu, lam, fixed_positions, force, iterations, tolerance, line_search):
+    """The step from ``state`` with Lamé parameters, the fixed nodes' new positions and the forces (n, 3)."""
+    theta = _Theta(state.x, state.v, mu, lam, fixed_positions, force, system.grads, system.volumes,
                    system.mass_values)
     # theta carries every differentiable input; the rest of the system is structure
     x = _minimize(theta, jax.lax.stop_gradient(system), h, iterations, tolerance, line_search)
     return State(x, (x - state.x) / h)
 
 
-def backward_euler_step(system: FEMSystem, state: State, h, mu, lam, fixed_positions=None,
+@eqx.filter_jit
+def _step(system, state, h, material, fixed_positions, iterations, tolerance, line_search):
+    if fixed_positions is None:  # they stay where they are
+        fixed_positions = state.x[system.fixed]
+    mu, lam = material.lame()
+    return _advance(system, state, h, mu, lam, fixed_positions, system.force, iterations, tolerance, line_search)
+
+
+def backward_euler_step(system: FEMSystem, state: State, h, material: Material, fixed_positions=None,
                         newton_iterations: int = 1, tolerance: float | None = None,
                         line_search: bool = True) -> State:
     """One backward Euler step (eq. 10) of the stable neo-Hookean system (module docstring); jit-compiled,
-    differentiable (reverse mode, implicitly) in state, mu, lam, fixed_positions and the system's force,
+    differentiable (reverse mode, implicitly) in state, the material, fixed_positions and the system's force,
     grads, volumes and mass_values.
 
     Args:
         system: the ``FEMSystem``.
         state: the ``State`` at time t, x and v of shape (n, 3) and the system's dtype.
         h: the positive time step.
-        mu, lam: Lamé parameters (``lame``), scalars or (m,) per element.
+        material: the ``Material`` (Young's modulus and Poisson's ratio, scalars or (m,) per element).
         fixed_positions: (nb, 3) positions of the fixed nodes at t + h (a moving boundary); None keeps them
             where they are, ``state.x[system.fixed]``.
         newton_iterations: the most Newton iterations (>= 1); 1 as in the paper.
@@ -563,11 +588,11 @@ def backward_euler_step(system: FEMSystem, state: State, h, mu, lam, fixed_posit
     Returns:
         The ``State`` at t + h: the fixed nodes at ``fixed_positions``, ``v = (x_{t+1} - x_t) / h``.
     """
-    return _step(*_step_arguments(system, state, h, mu, lam, fixed_positions, newton_iterations, tolerance,
+    return _step(*_step_arguments(system, state, h, material, fixed_positions, newton_iterations, tolerance,
                                   line_search))
 
 
-def _step_arguments(system, state, h, mu, lam, fixed_positions, newton_iterations, tolerance, line_search):
+def _step_arguments(system, state, h, material, fixed_positions, newton_iterations, tolerance, line_search):
     """``backward_euler_step``'s checks; the arguments of ``_step``."""
     if not isinstance(system, FEMSystem) or not isinstance(state, State):
         raise ValueError("system, state: expected an FEMSystem (fem_system) and a State")
@@ -582,6 +607,7 @@ def _step_arguments(system, state, h, mu, lam, fixed_positions, newton_iteration
         raise ValueError(f"tolerance: expected None or a positive length, got {tolerance!r}")
     if jnp.shape(h) != ():
         raise ValueError(f"h: expected a scalar time step, got shape {jnp.shape(h)}")
+    material = _checked_material(material, system, dtype)
     # concrete values are checked in numpy: eager JAX checks cost a dispatch and a sync each, a large part of
     # a small system's step; traced ones by eqx.error_if
     h = _checked(_scalar(h, dtype), lambda h, xp: ~(h > 0) | ~xp.isfinite(h), "h: expected a finite positive time step")
@@ -592,8 +618,19 @@ def _step_arguments(system, state, h, mu, lam, fixed_positions, newton_iteration
                              f"{fixed_positions.shape}")
     state = State(*(_checked(a, lambda a, xp: ~xp.isfinite(a), f"state.{name}: non-finite values (NaN or inf)")
                     for name, a in (("x", state.x), ("v", state.v))))
-    return (system, state, h, _scalar(mu, dtype), _scalar(lam, dtype), fixed_positions, int(newton_iterations),
-            tolerance, line_search)
+    return system, state, h, material, fixed_positions, int(newton_iterations), tolerance, line_search
+
+
+def _checked_material(material, system: FEMSystem, dtype) -> Material:
+    """``material`` with its parameters in ``dtype`` (``_scalar``), scalars or one per element of ``system``."""
+    if not isinstance(material, Material):
+        raise ValueError(f"material: expected an xfem.Material(young, poisson), got {type(material).__name__}")
+    m = system.T.shape[0]
+    for name, a in (("material.young", material.young), ("material.poisson", material.poisson)):
+        if jnp.ndim(a) > 1 or (jnp.ndim(a) == 1 and jnp.shape(a) != (m,)):
+            raise ValueError(f"{name}: expected a scalar or one value per element, shape ({m},), got {jnp.shape(a)}")
+    # tree_map, not Material(...): its concrete checks already ran when it was made
+    return jax.tree.map(lambda a: _scalar(a, dtype), material)
 
 
 def _scalar(a, dtype):
@@ -605,7 +642,7 @@ def _scalar(a, dtype):
     return np.asarray(a, dtype)
 
 
-def compiled_step(system: FEMSystem, state: State, h, mu, lam, newton_iterations: int = 1,
+def compiled_step(system: FEMSystem, state: State, h, material: Material, newton_iterations: int = 1,
                   tolerance: float | None = None, line_search: bool = True):
     """``backward_euler_step`` compiled ahead of time (traced and compiled, not run) for systems shaped like
     ``system`` (same array shapes and static sizes, e.g. padded to one ``SystemCapacity``) and these options.
@@ -614,17 +651,18 @@ def compiled_step(system: FEMSystem, state: State, h, mu, lam, newton_iterations
     prepares the step of the next capacity level before a cut needs it.
 
     Args:
-        system, state, h, mu, lam, newton_iterations, tolerance, line_search: as ``backward_euler_step`` (only
+        system, state, h, material, newton_iterations, tolerance, line_search: as ``backward_euler_step`` (only
             their shapes and dtypes matter, and the options' values).
     Returns:
-        A function ``(system, state, h, mu, lam) -> State`` equal to ``backward_euler_step`` with these options
+        A function ``(system, state, h, material) -> State`` equal to ``backward_euler_step`` with these options
         (fixed nodes kept in place), for systems and states of the compiled shapes.
     """
-    compiled = _step.lower(*_step_arguments(system, state, h, mu, lam, None, newton_iterations, tolerance,
+    compiled = _step.lower(*_step_arguments(system, state, h, material, None, newton_iterations, tolerance,
                                             line_search)).compile()
 
-    def step(system: FEMSystem, state: State, h, mu, lam) -> State:
-        return compiled(*_step_arguments(system, state, h, mu, lam, None, newton_iterations, tolerance, line_search))
+    def step(system: FEMSystem, state: State, h, material: Material) -> State:
+        return compiled(*_step_arguments(system, state, h, material, None, newton_iterations, tolerance,
+                                         line_search))
 
     return step
 

@@ -32,7 +32,7 @@ import numpy as np
 from jaxcga._meshfile import read_mesh_file
 from jaxcga._output import check_run_folder, run_folder, save_figure, write_json
 from xfem._backward_euler import State, backward_euler_step, fem_from_mesh, mechanical_energy
-from xfem._neohookean import lame
+from xfem._material import Material
 from xfem._tetmesh import TetMesh, box_tets, read_tet_mesh, tetrahedralize
 
 SCENES = ("bar", "cube")
@@ -101,14 +101,14 @@ def fem_command(scene: str, steps: int, out: Path, *, h: float = 0.033, young: f
         raise ValueError(f"gravity: expected three numbers whose product with the density is finite, got {gravity}")
     out = check_run_folder(out, RUN_FILES, force, RUN_DESCRIBED,
                            inputs=None if scene in SCENES else {"SCENE": Path(scene)})
-    mu, lam = lame(young, poisson)
+    material = Material(young, poisson)
     mesh, fixed = scene_mesh(scene, fix_fraction)
     system = fem_from_mesh(mesh, density, gravity, fixed)
     faces = mesh.boundary_faces()
     X = np.asarray(mesh.X)
     extent = X.max(0) - X.min(0)
     limits = (X.min(0) - 0.6 * extent.max(), X.max(0) + 0.6 * extent.max())
-    energies = jax.jit(lambda state: mechanical_energy(system, state, mu, lam))
+    energies = jax.jit(lambda state: mechanical_energy(system, state, material))
 
     with run_folder(out, RUN_FILES, "summary.json") as staging:
         def write(k: int, state: State):
@@ -129,7 +129,7 @@ def fem_command(scene: str, steps: int, out: Path, *, h: float = 0.033, young: f
         times, kinetic, potential = [], [], []
         for k in tqdm(range(1, steps + 1), desc=f"fem {Path(scene).name}", unit="step", disable=not progress):
             start = time.perf_counter()
-            state = jax.block_until_ready(backward_euler_step(system, state, h, mu, lam,
+            state = jax.block_until_ready(backward_euler_step(system, state, h, material,
                                                               newton_iterations=newton_iterations))
             times.append(time.perf_counter() - start)
             if not bool(jnp.all(jnp.isfinite(state.x))):

@@ -66,7 +66,7 @@ import trimesh
 import jaxcga as cga
 from xfem._cuts import cut_solid, plane_cut_solid, sweep_between, swept_surface
 from xfem._integration import linear_shape_coefficients
-from xfem._neohookean import lame
+from xfem._material import Material
 from xfem._tetmesh import TetMesh, box_tets, element_adjacency, five_tet_cube, one_tet, tet_mesh, tetrahedralize
 from xfem._xfem import XFEMModel, xfem_model
 
@@ -126,6 +126,11 @@ class Scene:
     cuts: tuple[ScheduledCut, ...]
     newton_iterations: int = 1
     gravity: tuple[float, float, float] = (0.0, 0.0, -9.81)
+
+    @property
+    def material(self) -> Material:
+        """The scene's ``Material`` (``young``, ``poisson``)."""
+        return Material(self.young, self.poisson)
 
     @property
     def last_cut_frame(self) -> int:
@@ -468,7 +473,6 @@ def run_scene(scene: Scene, steps: int | None = None, progress: bool = False,
         raise ValueError(f"cut_latency: expected an int >= 0 (frames), got {cut_latency!r}")
     from tqdm import tqdm
 
-    mu, lam = lame(scene.young, scene.poisson)
     model = scene.model()
     run = SceneRun(scene, model)
     pieces = 1
@@ -512,7 +516,7 @@ def run_scene(scene: Scene, steps: int | None = None, progress: bool = False,
             pieces = record.pieces = model.pieces()
         record.dofs = 3 * len(model.dof_sid)
         start = time.perf_counter()
-        state = jax.block_until_ready(model.step(scene.h, mu, lam, newton_iterations=scene.newton_iterations))
+        state = jax.block_until_ready(model.step(scene.h, scene.material, newton_iterations=scene.newton_iterations))
         record.step_seconds = time.perf_counter() - start
         if not np.all(np.isfinite(np.asarray(state.x))):  # numpy: a JAX check would compile per DOF count
             raise RuntimeError(f"{scene.name}: non-finite positions after frame {frame}")

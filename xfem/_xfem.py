@@ -54,6 +54,7 @@ from xfem._backward_euler import FEMSystem, State, SystemCapacity, compiled_step
 from xfem._cut_process import CutProcess, CutProcessError, pack_meshes, reserve_worker_core, unpack_meshes
 from xfem._integration import element_piece_integrals, linear_shape_coefficients, moments_of_pieces
 from xfem._linear_tet import shape_gradients
+from xfem._material import Material
 from xfem._subdomains import CutReport, MeshSolid, Subdomains, apply_cut, check_cut, solid_mesh, subdomains
 from xfem._tetmesh import TetMesh
 
@@ -82,7 +83,7 @@ class _Compilation:
         self.thread: threading.Thread | None = None  # the background thread building it, if any
         self.ready = threading.Event()  # set when a build has ended (step None: it failed)
 
-    def build(self, arrays, capacity: SystemCapacity, h, mu, lam, newton_iterations: int,
+    def build(self, arrays, capacity: SystemCapacity, h, material: Material, newton_iterations: int,
               system: FEMSystem | None = None):
         """Compile the step of ``system``, already padded to ``capacity``, or of the system ``arrays``
         (``XFEMModel._system_arrays``) padded here."""
@@ -93,7 +94,7 @@ class _Compilation:
                 except CapacityError:  # too small for this system's nonzeros: the model moves to a larger level
                     return
             zeros = to_device(np.zeros((capacity.nodes, 3)))  # only the state's shape matters
-            self.step = compiled_step(system, State(zeros, zeros), h, mu, lam, newton_iterations)
+            self.step = compiled_step(system, State(zeros, zeros), h, material, newton_iterations)
         finally:
             self.ready.set()
 
@@ -209,7 +210,7 @@ def _cutting_in_background(started: bool, reserve_core: bool = False) -> None:
                 _switching["saved"] = None
 
 
-# compiled steps by (capacity, newton iterations, shapes of mu and lam), for every model in the process
+# compiled steps by (capacity, newton iterations, shapes of the material's parameters), for every model in the process
 _COMPILED: dict[tuple, _Compilation] = {}
 _COMPILED_LOCK = threading.Lock()
 
@@ -344,7 +345,7 @@ class XFEMModel:
         # a replica in the worker process: the largest padded system it builds and sends (``_SENT_SYSTEM_BYTES``)
         self._sent_system_bytes: int | None = None
         self._committed: weakref.WeakSet[Future] = weakref.WeakSet()
-        self._step_options: tuple | None = None  # (h, mu, lam, newton_iterations) of the last step
+        self._step_options: tuple | None = None  # (h, material, newton_iterations) of the last step
         self._last_step_seconds = float("inf")  # wall-clock time of the last step
         self._end_background = lambda: None  # ends the pending cuts' settings (``_start_background``)
         _, _, _, M, _, _ = self._system_arrays()
@@ -537,13 +538,13 @@ class XFEMModel:
             self._padded, self._level = system, level
         return self._padded, self._level
 
-    def _compiled(self, live: _Live, level: int, h, mu, lam, newton_iterations: int, background: bool):
+    def _compiled(self, live: _Live, level: int, h, material: Material, newton_iterations: int, background: bool):
         """The step compiled for capacity ``level`` (``compiled_step``), shared by all models through
         ``_COMPILED``: found there, or compiled now (``background=False``), or compiled in a background thread
         that the step needing it will wait for (``background=True``; returns None). ``live``: the system it
         is for (a level above ``live.level`` pads ``live.arrays`` anew)."""
         capacity = self._capacity(level)
-        key = (capacity, newton_iterations, np.shape(mu), np.shape(lam))
+        key = (capacity, newton_iterations, np.shape(material.young), np.shape(material.poisson))
         system = live.system if level == live.level else None
         with _COMPILED_LOCK:  # held briefly: a compilation in one thread must not stall another's lookups
             entry = _COMPILED.get(key)
@@ -553,16 +554,16 @@ class XFEMModel:
                     return None
                 entry = _COMPILED[key] = _Compilation()
                 if background:  # never run a step here: two steps' host callbacks at once can deadlock XLA
-                    entry.thread = threading.Thread(target=entry.build, args=(live.arrays, capacity, h, mu, lam,
+                    entry.thread = threading.Thread(target=entry.build, args=(live.arrays, capacity, h, material,
                                                                               newton_iterations, system))
                     entry.thread.start()  # not a daemon: XLA must not be cut off at exit
         if background:
             return None
         if created:
-            entry.build(live.arrays, capacity, h, mu, lam, newton_iterations, system)
+            entry.build(live.arrays, capacity, h, material, newton_iterations, system)
         entry.ready.wait()
         if entry.step is None:  # its background build failed (e.g. too few nonzeros): build it here
-            entry.build(live.arrays, capacity, h, mu, lam, newton_iterations, system)
+            entry.build(live.arrays, capacity, h, material, newton_iterations, system)
         return entry.step
 
     def _live_system(self) -> _Live:
@@ -922,9 +923,9 @@ class XFEMModel:
         self._staged_sid, self._staged_node = sids, nodes
         return source
 
-    def step(self, h, mu, lam, newton_iterations: int = 1) -> State:
+    def step(self, h, material: Material, newton_iterations: int = 1) -> State:
         """One backward Euler step (eq. 10, Algorithm 1 line 26) of the current system; updates and returns
-        ``state``. mu, lam: scalar Lamé parameters. Pending ``cut_async`` cuts do not take effect here
+        ``state``. material: the ``Material``, scalar parameters. Pending ``cut_async`` cuts do not take effect here
         (``commit_cuts``).
 
         The system is padded to a capacity level (module docstring); the step of the next level is compiled
@@ -934,9 +935,9 @@ class XFEMModel:
         start = time.perf_counter()
         with self._turns.step():  # the cut worker thread's Python waits (``_Turns``)
             live = self._live_system()
-            options = (h, mu, lam, int(newton_iterations))
+            options = (h, material, int(newton_iterations))
             step = self._compiled(live, live.level, *options, background=False)
-            stepped = step(live.system, _padded_state(self.state, live.n, live.system.n), h, mu, lam)
+            stepped = step(live.system, _padded_state(self.state, live.n, live.system.n), h, material)
             # host views of the result, sliced (a JAX slice would compile anew for every DOF count)
             self.state = State(np.asarray(stepped.x)[:live.n], np.asarray(stepped.v)[:live.n])
             self._step_options = options

@@ -28,11 +28,13 @@ from xfem._backward_euler import (
     fem_system,
 )
 from xfem._linear_tet import body_force, consistent_mass, lumped_mass, shape_gradients
-from xfem._neohookean import element_energy, lame
+from xfem._material import Material
+from xfem._neohookean import element_energy
 from xfem._tetmesh import box_tets, five_tet_cube
 
 H = 0.033
-MU, LAM = lame(1e6, 0.4)
+MATERIAL = Material(1e6, 0.4)
+MU, LAM = MATERIAL.lame()
 GRAVITY = np.array([0.0, 0.0, -9.81])
 CONVERGED = dict(newton_iterations=20, tolerance=1e-12)
 
@@ -62,7 +64,7 @@ def _deformed(X, seed, scale=0.05):
 
 def test_rest_stays_at_rest():
     system = fem_from_mesh(BAR, 1e3, (0.0, 0.0, 0.0), fixed=FIXED)
-    state = backward_euler_step(system, State(BAR.X, jnp.zeros_like(BAR.X)), H, MU, LAM)
+    state = backward_euler_step(system, State(BAR.X, jnp.zeros_like(BAR.X)), H, MATERIAL)
     np.testing.assert_allclose(state.x, X, atol=1e-14)
     np.testing.assert_allclose(state.v, 0.0, atol=1e-12)
 
@@ -72,7 +74,7 @@ def test_uniform_velocity_moves_a_free_body_rigidly():
     v = jnp.broadcast_to(jnp.asarray([0.3, -1.2, 2.0]), Xs.shape)
     state = State(jnp.asarray(Xs), v)
     for _ in range(3):
-        state = backward_euler_step(system, state, H, MU, LAM, **CONVERGED)
+        state = backward_euler_step(system, state, H, MATERIAL, **CONVERGED)
     np.testing.assert_allclose(state.x, Xs + 3 * H * v, atol=1e-12)
     np.testing.assert_allclose(state.v, v, atol=1e-10)
 
@@ -80,7 +82,7 @@ def test_uniform_velocity_moves_a_free_body_rigidly():
 def test_gravity_accelerates_the_centre_of_mass_by_g():
     system, mass, Xs = _two_cubes(GRAVITY)
     x, v = _deformed(Xs, 1)  # deformed, random velocities: large elastic forces, all internal
-    after = backward_euler_step(system, State(x, v), H, MU, LAM, **CONVERGED)
+    after = backward_euler_step(system, State(x, v), H, MATERIAL, **CONVERGED)
     nodal = np.asarray(mass.sum(axis=1)).ravel()  # the nodes' shares of the mass
     for piece in (slice(0, 8), slice(8, 16)):  # each disjoint body on its own
         w = nodal[piece] / nodal[piece].sum()
@@ -109,7 +111,7 @@ def test_converged_step_zeroes_the_gradient_and_keeps_fixed_nodes():
     x = x.at[FIXED].set(X[FIXED])
     moved = X[FIXED] + np.array([0.0, 0.02, -0.03])
     for fixed_positions, expected in ((None, X[FIXED]), (moved, moved)):
-        after = backward_euler_step(CANTILEVER, State(x, v), H, MU, LAM, fixed_positions=fixed_positions,
+        after = backward_euler_step(CANTILEVER, State(x, v), H, MATERIAL, fixed_positions=fixed_positions,
                                     **CONVERGED)
         np.testing.assert_array_equal(after.x[FIXED], expected)
         gradient, scale = _potential_gradient(after.x, x, v)
@@ -149,7 +151,7 @@ def test_cantilever_stays_finite_loses_energy_and_settles():
     state = State(BAR.X, jnp.zeros_like(BAR.X))
     energies, tips = [total_energy(state)], []
     for _ in range(50):
-        state = backward_euler_step(CANTILEVER, state, H, MU, LAM)
+        state = backward_euler_step(CANTILEVER, state, H, MATERIAL)
         energies.append(total_energy(state))
         tips.append(float(state.x[X[:, 0] == 2.0, 2].mean() - 0.5))
     assert np.all(np.isfinite(np.asarray(state.x))) and np.all(np.isfinite(energies))
@@ -168,12 +170,12 @@ def test_implicit_gradients_match_central_differences():
     direction = {"v0": jnp.asarray(rng.normal(size=X.shape)), "offset": jnp.asarray(rng.normal(size=(len(FIXED), 3)))}
 
     def loss(young, v0, offset, gravity_scale, weight_scale):
-        mu, lam = lame(young, jnp.asarray(0.4))
+        material = Material(young, jnp.asarray(0.4))
         system = eqx.tree_at(lambda s: (s.force, s.volumes), CANTILEVER,
                              (gravity_scale * CANTILEVER.force, weight_scale * CANTILEVER.volumes))
 
         def step(state, _):
-            return backward_euler_step(system, state, H, mu, lam, fixed_positions=X[FIXED] + offset,
+            return backward_euler_step(system, state, H, material, fixed_positions=X[FIXED] + offset,
                                        **CONVERGED), None
 
         state = jax.lax.scan(step, State(BAR.X, v0), length=3)[0]
@@ -200,17 +202,25 @@ def test_implicit_gradients_match_central_differences():
 def test_bad_input():
     state = State(BAR.X, jnp.zeros_like(BAR.X))
     with pytest.raises(ValueError, match="state.x: expected shape"):
-        backward_euler_step(CANTILEVER, State(BAR.X[:-1], BAR.X[:-1]), H, MU, LAM)
+        backward_euler_step(CANTILEVER, State(BAR.X[:-1], BAR.X[:-1]), H, MATERIAL)
     with pytest.raises(ValueError, match="h: expected a finite positive"):
-        backward_euler_step(CANTILEVER, state, -H, MU, LAM)
+        backward_euler_step(CANTILEVER, state, -H, MATERIAL)
     with pytest.raises(ValueError, match="fixed_positions: expected shape"):
-        backward_euler_step(CANTILEVER, state, H, MU, LAM, fixed_positions=np.zeros((2, 3)))
+        backward_euler_step(CANTILEVER, state, H, MATERIAL, fixed_positions=np.zeros((2, 3)))
     with pytest.raises(ValueError, match="newton_iterations"):
-        backward_euler_step(CANTILEVER, state, H, MU, LAM, newton_iterations=0)
+        backward_euler_step(CANTILEVER, state, H, MATERIAL, newton_iterations=0)
     with pytest.raises(ValueError, match="tolerance"):
-        backward_euler_step(CANTILEVER, state, H, MU, LAM, tolerance=-1.0)
+        backward_euler_step(CANTILEVER, state, H, MATERIAL, tolerance=-1.0)
     with pytest.raises(ValueError, match="state.v: non-finite"):
-        backward_euler_step(CANTILEVER, State(BAR.X, jnp.full_like(BAR.X, jnp.nan)), H, MU, LAM)
+        backward_euler_step(CANTILEVER, State(BAR.X, jnp.full_like(BAR.X, jnp.nan)), H, MATERIAL)
+    with pytest.raises(ValueError, match="material: expected an xfem.Material"):
+        backward_euler_step(CANTILEVER, state, H, (MU, LAM))
+    with pytest.raises(ValueError, match="material.young: expected a scalar or one value per element"):
+        backward_euler_step(CANTILEVER, state, H, Material(np.full(3, 1e6), 0.4))
+    with pytest.raises(ValueError, match="young: Young's modulus must be finite and > 0"):
+        Material(-1.0, 0.4)
+    with pytest.raises(ValueError, match="poisson: Poisson's ratio"):
+        Material(1e6, 0.5)
     grads, volumes = shape_gradients(BAR.X, BAR.T)
     mass = consistent_mass(BAR.X, BAR.T, 1.0)
     with pytest.raises(ValueError, match="mass: expected a finite symmetric"):
@@ -271,13 +281,12 @@ def test_padded_system_steps_like_the_real_one():
     padded = fem_system(mesh.T, grads, volumes, mass, force, fixed, capacity=capacity)
     assert (padded.n, padded.T.shape[0], padded.fixed.shape[0], padded.pattern.nnz) == tuple(
         capacity[k] for k in (0, 1, 3, 4))
-    mu, lam = lame(1e6, 0.4)
     X = np.asarray(mesh.X)
     state = State(jnp.asarray(X), jnp.asarray(np.random.default_rng(0).normal(size=X.shape)))
     wide = State(jnp.asarray(np.vstack([X, np.zeros((20, 3))])), jnp.asarray(np.vstack([state.v, np.zeros((20, 3))])))
     for _ in range(2):
-        state = backward_euler_step(real, state, 0.033, mu, lam)
-        wide = backward_euler_step(padded, wide, 0.033, mu, lam)
+        state = backward_euler_step(real, state, 0.033, MATERIAL)
+        wide = backward_euler_step(padded, wide, 0.033, MATERIAL)
     np.testing.assert_allclose(np.asarray(wide.x)[:n], state.x, rtol=0, atol=1e-12)
     np.testing.assert_array_equal(np.asarray(wide.x)[n:], 0.0)
     with pytest.raises(CapacityError, match="capacity"):
@@ -319,8 +328,8 @@ def test_steps_in_chunks_equal_one_pass(monkeypatch):
         projected, true = (be._gradient_and_matrix(system, x, theta, H, project) for project in (True, False))
 
         def loss(young):
-            mu, lam = lame(young, jnp.asarray(0.4))
-            state = backward_euler_step(system, State(jnp.asarray(X), v), H, mu, lam, **CONVERGED)
+            state = backward_euler_step(system, State(jnp.asarray(X), v), H, Material(young, jnp.asarray(0.4)),
+                                        **CONVERGED)
             return jnp.sum(state.x**2)
 
         return (energy, dE_dx, dE_dvolumes, *projected, *true, be._mass_times(system, system.mass_values, v),

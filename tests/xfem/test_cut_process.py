@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 
 import xfem._xfem
-from tests.xfem.test_xfem import LAM, MU, RHO, G, H, _plane, _tall_box
+from tests.xfem.test_xfem import MATERIAL, RHO, G, H, _plane, _tall_box
 from xfem._cut_process import (
     CutProcess,
     CutProcessError,
@@ -46,7 +46,7 @@ def _assert_same(a, b):
     for x, y in zip(a.piece_arrays(), b.piece_arrays()):
         np.testing.assert_allclose(x, y, rtol=1e-12, atol=1e-15)
     for model in (a, b):
-        model.step(H, MU, LAM)
+        model.step(H, MATERIAL)
     np.testing.assert_allclose(np.asarray(a.state.x), np.asarray(b.state.x), rtol=0, atol=1e-12)
 
 
@@ -96,7 +96,7 @@ def test_cut_that_removes_material():
     remote, inline = _models()
     block = manifold3d.Manifold.cube((2.0, 2.0, 1.0)).translate((-0.5, -0.5, 0.93))
     for model in (remote, inline):
-        model.step(H, MU, LAM)
+        model.step(H, MATERIAL)
     remote.cut_async(block)
     inline.cut(block)
     report = remote.commit_cuts()[0]
@@ -236,12 +236,12 @@ def test_steps_and_worker_pieces_take_turns(monkeypatch):
     a step to end, unless the model's thread waits for the worker (``hurry``) or nobody steps (``_PATIENCE``)."""
     monkeypatch.setattr(xfem._xfem, "_PATIENCE", 30.0)
     model, _ = _models()
-    model.step(H, MU, LAM)  # compiled
+    model.step(H, MATERIAL)  # compiled
     turns = model._turns
     turns.paced = True  # as for a model with short steps (``_SHORT_STEP_S``)
     done = threading.Event()
     with turns.piece():
-        stepping = threading.Thread(target=lambda: (model.step(H, MU, LAM), done.set()))
+        stepping = threading.Thread(target=lambda: (model.step(H, MATERIAL), done.set()))
         stepping.start()
         assert not done.wait(0.3)
     stepping.join(30)
@@ -257,7 +257,7 @@ def test_steps_and_worker_pieces_take_turns(monkeypatch):
     waiting = threading.Thread(target=next_piece, args=(started,))
     waiting.start()
     assert not started.wait(0.3)  # no step since the last piece
-    model.step(H, MU, LAM)
+    model.step(H, MATERIAL)
     assert started.wait(10)
     waiting.join()
     started = threading.Event()

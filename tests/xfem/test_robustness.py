@@ -28,13 +28,13 @@ import pytest
 from tests.xfem.test_xfem import _deformed_state, _random_points
 from xfem._backward_euler import mechanical_energy
 from xfem._cuts import plane_cut_solid
-from xfem._neohookean import lame
+from xfem._material import Material
 from xfem._tetmesh import box_tets, one_tet
 from xfem._xfem import xfem_model
 
 RHO, EPS, PERTURB = 1e3, 1e-3, 1e-7
 H, G = 0.033, 9.81
-MU, LAM = (float(a) for a in lame(1e6, 0.4))
+MATERIAL = Material(1e6, 0.4)
 EXTENT = 3.0  # cut squares span the unit box; their bounding box diagonal (the rotation's size) exceeds this
 ROUNDING = 1e-12  # volumes of the Booleans and the exact integrals, relative to the unit box
 MARGIN = 1e-6  # field checks keep this far from every slab (> the perturbation's motion)
@@ -168,8 +168,8 @@ def test_cut_outside_the_body_is_bitwise_a_no_op():
     for name in ("T", "grads", "volumes", "mass_rows", "mass_cols", "mass_values", "mass_data", "force", "fixed"):
         np.testing.assert_array_equal(np.asarray(getattr(cut_system, name)), np.asarray(getattr(system, name)))
     for _ in range(2):
-        model.step(H, MU, LAM)
-        uncut.step(H, MU, LAM)
+        model.step(H, MATERIAL)
+        uncut.step(H, MATERIAL)
     np.testing.assert_array_equal(np.asarray(model.state.x), np.asarray(uncut.state.x))
     np.testing.assert_array_equal(np.asarray(model.state.v), np.asarray(uncut.state.v))
 
@@ -343,7 +343,7 @@ class _Run:
         self.energy = self._energy()
 
     def _energy(self):
-        return float(sum(mechanical_energy(self.model.system(), self.model.state, MU, LAM)))
+        return float(sum(mechanical_energy(self.model.system(), self.model.state, MATERIAL)))
 
     def cut(self, solid, perturb=0.0):
         report = self.model.cut(solid, perturb)
@@ -353,7 +353,7 @@ class _Run:
     def run(self, steps):
         model, scale = self.model, abs(self.energy)
         for _ in range(steps):
-            model.step(H, MU, LAM)
+            model.step(H, MATERIAL)
             self.steps += 1
             assert np.all(np.isfinite(np.asarray(model.state.x))) and np.all(np.isfinite(np.asarray(model.state.v)))
             energy = self._energy()
@@ -380,7 +380,7 @@ def test_long_run_cut_before_and_between_steps():
     run.cut(_slab((0.52, 0.5, 0.5), (1.0, 0.03, 0.02)))
     assert model.pieces() == 2 and len(run.free) == 0
     run.run(100)
-    _, elastic, _ = mechanical_energy(model.system(), model.state, MU, LAM)
+    _, elastic, _ = mechanical_energy(model.system(), model.state, MATERIAL)
     hanging = float(elastic)
     assert hanging > 0
     # a horizontal cut of the sagging body: the two lower quarters fall, the fields do not jump
@@ -394,7 +394,7 @@ def test_long_run_cut_before_and_between_steps():
     _assert_fields(model, before, points, elements, keep)
     run.run(200)
     # the lighter upper halves hang with less elastic energy than the whole body did; nothing fixed drifts
-    _, elastic, _ = mechanical_energy(model.system(), model.state, MU, LAM)
+    _, elastic, _ = mechanical_energy(model.system(), model.state, MATERIAL)
     assert float(elastic) < hanging
     held = ~np.any(run.free, axis=0)
     assert np.max(np.abs(np.asarray(model.state.x)[held] - X[model.dof_node[held]])) < 1e-2

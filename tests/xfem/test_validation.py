@@ -19,10 +19,11 @@ import numpy as np
 import scipy.linalg
 
 from tests.xfem._linear_elasticity import barycentric_gradients, static_displacement, stiffness
-from xfem import State, backward_euler_step, box_tets, fem_from_mesh, lame, mechanical_energy, tet_volumes
+from xfem import Material, State, backward_euler_step, box_tets, fem_from_mesh, mechanical_energy, tet_volumes
 
 YOUNG, POISSON, DENSITY, H = 1e6, 0.4, 1e3, 0.033
-MU, LAM = lame(YOUNG, POISSON)
+MATERIAL = Material(YOUNG, POISSON)
+MU, LAM = MATERIAL.lame()
 LENGTH = 3.0
 BAR = box_tets((6, 2, 2), size=(LENGTH, 1.0, 1.0))
 X, T = np.asarray(BAR.X), np.asarray(BAR.T)
@@ -51,30 +52,30 @@ def _rest():
     return State(BAR.X, jnp.zeros_like(BAR.X))
 
 
-def _equilibrium(system, mu=MU, lam=LAM, steps=3):
+def _equilibrium(system, material=MATERIAL, steps=3):
     """The static equilibrium: backward Euler with a huge time step and converged Newton, from rest."""
     state = _rest()
     for _ in range(steps):
-        state = backward_euler_step(system, state, QUASI_STATIC_H, mu, lam, **CONVERGED)
+        state = backward_euler_step(system, state, QUASI_STATIC_H, material, **CONVERGED)
     return state
 
 
 @jax.jit
-def _paper_steps(system, state, mu, lam):
+def _paper_steps(system, state, material):
     """``STEPS`` steps of the paper (h = 0.033, one Newton iteration): the final state, the total energy
     (kinetic + elastic + external) after each step and the deformed volume after each step."""
 
     def step(s, _):
-        s = backward_euler_step(system, s, H, mu, lam)
-        return s, (sum(mechanical_energy(system, s, mu, lam)), jnp.sum(tet_volumes(s.x, system.T)))
+        s = backward_euler_step(system, s, H, material)
+        return s, (sum(mechanical_energy(system, s, material)), jnp.sum(tet_volumes(s.x, system.T)))
 
     return jax.lax.scan(step, state, length=STEPS)
 
 
-def _simulate(system, state, mu=MU, lam=LAM):
+def _simulate(system, state, material=MATERIAL):
     """``_paper_steps`` with the initial energy prepended: (final state, (STEPS + 1,) energies, (STEPS,) volumes)."""
-    final, (energies, volumes) = _paper_steps(system, state, jnp.asarray(mu), jnp.asarray(lam))
-    first = float(sum(mechanical_energy(system, state, mu, lam)))
+    final, (energies, volumes) = _paper_steps(system, state, jax.tree.map(jnp.asarray, material))
+    first = float(sum(mechanical_energy(system, state, material)))
     return final, np.concatenate([[first], np.asarray(energies)]), np.asarray(volumes)
 
 
@@ -193,10 +194,10 @@ def test_converged_step_tames_a_violent_start():
     system = _bar((0.0, 0.0, 0.0))
     state, inverted = _violent_start()
     assert inverted > 0
-    energies = [float(sum(mechanical_energy(system, state, MU, LAM)))]
+    energies = [float(sum(mechanical_energy(system, state, MATERIAL)))]
     for _ in range(10):
-        state = backward_euler_step(system, state, H, MU, LAM, **CONVERGED)
-        energies.append(float(sum(mechanical_energy(system, state, MU, LAM))))
+        state = backward_euler_step(system, state, H, MATERIAL, **CONVERGED)
+        energies.append(float(sum(mechanical_energy(system, state, MATERIAL))))
     assert np.all(np.isfinite(energies)) and np.all(np.diff(energies) < 0)
     assert energies[-1] < 1e-3 * energies[0]
     assert np.all(np.asarray(tet_volumes(state.x, BAR.T)) > 0)
@@ -218,13 +219,12 @@ def test_near_incompressible_hanging_bar_keeps_its_volume():
     mean_strain = DENSITY * gravity * LENGTH / (2 * YOUNG)
     changes = {}
     for nu in (0.49, 0.45, 0.2, 0.0):
-        mu, lam = lame(YOUNG, nu)
-        state = _equilibrium(system, mu, lam)
+        state = _equilibrium(system, Material(YOUNG, nu))
         changes[nu] = float(jnp.sum(tet_volumes(state.x, BAR.T))) / rest_volume - 1
         assert 0.8 < changes[nu] / ((1 - 2 * nu) * mean_strain) < 1.6, (nu, changes[nu])
     assert changes[0.49] < 6e-3
     assert changes[0.49] < changes[0.45] < changes[0.2] < changes[0.0]
-    mu, lam = lame(YOUNG, 0.49)
-    _, energies, volumes = _simulate(system, _rest(), mu, lam)
-    assert np.all(np.isfinite(energies)) and np.all(np.diff(energies) <= _energy_noise(mu, lam))
+    material = Material(YOUNG, 0.49)
+    _, energies, volumes = _simulate(system, _rest(), material)
+    assert np.all(np.isfinite(energies)) and np.all(np.diff(energies) <= _energy_noise(*material.lame()))
     assert np.abs(volumes / rest_volume - 1).max() < 8e-3

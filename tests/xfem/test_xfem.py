@@ -16,11 +16,12 @@ import scipy.sparse as sp
 
 from xfem._backward_euler import State, backward_euler_step, fem_from_mesh
 from xfem._cuts import plane_cut_solid
+from xfem._material import Material
 from xfem._tetmesh import boundary_faces, box_tets, five_tet_cube
 from xfem._xfem import _COMPILED, wait_for_compilations, xfem_model
 
 RHO, EPS, H = 1e3, 1e-3, 0.01
-MU, LAM = 1e6, 1e6
+MATERIAL = Material(2.5e6, 0.25)  # Lamé mu = lam = 1e6
 G = np.array([0.0, 0.0, -9.81])
 # a plane across the tall box, tilted so that it meets no node, face or edge of the mesh exactly
 POINT, NORMAL = np.array([0.5, 0.5, 0.61]), np.array([0.07, -0.04, 1.0])
@@ -66,8 +67,8 @@ def test_uncut_model_is_plain_fem(make):
     np.testing.assert_allclose(np.asarray(system.force), np.asarray(reference.force), rtol=0, atol=1e-12)
     state = _deformed_state(mesh)
     for _ in range(5):
-        model.step(H, MU, LAM)
-        state = backward_euler_step(reference, state, H, MU, LAM)
+        model.step(H, MATERIAL)
+        state = backward_euler_step(reference, state, H, MATERIAL)
     np.testing.assert_allclose(np.asarray(model.state.x), np.asarray(state.x), rtol=0, atol=1e-12)
     np.testing.assert_allclose(np.asarray(model.state.v), np.asarray(state.v), rtol=0, atol=1e-12)
     assert model.pieces() == 1
@@ -141,7 +142,7 @@ def test_cut_through_hanging_body_separates():
     lower_x0, upper_x0 = com(model.state.x, lower), com(model.state.x, ~lower)
     previous = com(model.state.v, lower)
     for _ in range(6):
-        model.step(H, MU, LAM, newton_iterations=3)
+        model.step(H, MATERIAL, newton_iterations=3)
         velocity = com(model.state.v, lower)
         acceleration, previous = (velocity - previous) / H, velocity
     # the free part is in free fall: its centre of mass accelerates with g (backward Euler conserves its momentum
@@ -195,7 +196,7 @@ def test_cuts_within_a_capacity_level_reuse_the_compiled_step(caplog):
     mesh = _tall_box()
     model = xfem_model(mesh, RHO, gravity=G, fixed=np.flatnonzero(np.asarray(mesh.X)[:, 2] > 1.5 - 1e-9))
     cuts = [_plane(), _plane(point=(0.5, 0.5, 0.9), normal=(0.03, 0.05, 1.0))]
-    model.step(H, MU, LAM)
+    model.step(H, MATERIAL)
     assert any(c.thread is not None for c in _COMPILED.values())  # the next level, compiling in the background
     wait_for_compilations()  # it logs too
     assert all(c.ready.is_set() for c in _COMPILED.values())
@@ -204,10 +205,10 @@ def test_cuts_within_a_capacity_level_reuse_the_compiled_step(caplog):
         before = model.state
         with jax.log_compiles(), caplog.at_level(logging.WARNING):
             caplog.clear()
-            model.step(H, MU, LAM)
+            model.step(H, MATERIAL)
         assert not [r for r in caplog.records if "Compiling" in r.getMessage() and "_step" in r.getMessage()]
         assert model._level == 0
-        expected = backward_euler_step(model.system(), before, H, MU, LAM)
+        expected = backward_euler_step(model.system(), before, H, MATERIAL)
         np.testing.assert_allclose(model.state.x, expected.x, rtol=0, atol=1e-12)
 
 
@@ -219,12 +220,12 @@ def test_cut_async_takes_effect_at_commit():
     fixed = np.flatnonzero(np.asarray(mesh.X)[:, 2] > 1.5 - 1e-9)
     background, inline = (xfem_model(mesh, RHO, gravity=G, fixed=fixed) for _ in range(2))
     for model in (background, inline):
-        model.step(H, MU, LAM)
+        model.step(H, MATERIAL)
     first = background.cut_async(_plane())
     second = background.cut_async(_plane(point=(0.5, 0.5, 0.9), normal=(0.03, 0.05, 1.0)))
     n = len(background.dof_sid)
     for model in (background, inline):  # the old system: no new DOFs yet
-        model.step(H, MU, LAM)
+        model.step(H, MATERIAL)
     assert len(background.dof_sid) == n and background.pieces() == 1
     np.testing.assert_array_equal(np.asarray(background.state.x), np.asarray(inline.state.x))
     with pytest.raises(ValueError, match="until"):
@@ -234,7 +235,7 @@ def test_cut_async_takes_effect_at_commit():
     inline.cut(_plane())
     assert background.pieces() == inline.pieces() == 2
     for model in (background, inline):
-        model.step(H, MU, LAM)
+        model.step(H, MATERIAL)
     np.testing.assert_allclose(np.asarray(background.state.x), np.asarray(inline.state.x), rtol=0, atol=1e-12)
     inline.cut(_plane(point=(0.5, 0.5, 0.9), normal=(0.03, 0.05, 1.0)))
     for a, b in zip(background.piece_arrays(), inline.piece_arrays()):  # waits for the second cut
@@ -242,7 +243,7 @@ def test_cut_async_takes_effect_at_commit():
     assert second.done() and not background._pending and background.pending_cuts == 0
     assert background.commit_cuts(until=first) == [] == background.commit_cuts()  # committed already
     for model in (background, inline):
-        model.step(H, MU, LAM)
+        model.step(H, MATERIAL)
     np.testing.assert_allclose(np.asarray(background.state.x), np.asarray(inline.state.x), rtol=0, atol=1e-12)
     with pytest.raises(ValueError, match="cut"):
         background.cut_async(None)

@@ -1,0 +1,48 @@
+"""The material of the FEM and XFEM steps: Young's modulus and Poisson's ratio, one convention for every public
+function (``backward_euler_step``, ``rollout``, ``simulate``, ``XFEMModel.step``, the scenes and the CLI).
+
+The stable neo-Hookean kernels (``xfem._neohookean``) take Lamé parameters; ``Material.lame`` derives them
+inside JAX, so a gradient with respect to the Lamé parameters reaches ``young`` and ``poisson``.
+"""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import numpy as np
+from jaxtyping import Array, Float
+
+from xfem._neohookean import lame
+
+
+class Material(eqx.Module):
+    """A linear isotropic material matched by the stable neo-Hookean energy at rest (``xfem._neohookean``).
+
+    A pytree of two leaves: differentiate, jit and vmap through it like an array (``jax.grad`` of a function of
+    a ``Material`` returns a ``Material`` of derivatives).
+
+    Attributes:
+        young: Young's modulus E > 0: a python float, numpy or JAX scalar, or (m,) per element.
+        poisson: Poisson's ratio nu in (-1, 1/2), broadcastable against ``young``.
+    """
+
+    young: Float[Array, "..."] | float
+    poisson: Float[Array, "..."] | float
+
+    def __check_init__(self):
+        # concrete values are checked now (a ValueError naming the argument); traced ones by ``lame``'s
+        # eqx.error_if where the step uses them
+        if not any(isinstance(a, jax.core.Tracer) for a in (self.young, self.poisson)):
+            young, poisson = np.asarray(self.young), np.asarray(self.poisson)
+            for name, a in (("young", young), ("poisson", poisson)):
+                if not np.issubdtype(a.dtype, np.floating) and not np.issubdtype(a.dtype, np.integer):
+                    raise ValueError(f"{name}: expected a real scalar or array, got {a.dtype}")
+            try:
+                np.broadcast_shapes(young.shape, poisson.shape)
+            except ValueError:
+                raise ValueError(f"young, poisson: shapes {young.shape} and {poisson.shape} do not broadcast") from None
+            lame(young, poisson)
+
+    def lame(self) -> tuple[Float[Array, "..."], Float[Array, "..."]]:
+        """The Lamé parameters ``(mu, lam) = (E / (2 (1 + nu)), E nu / ((1 + nu)(1 - 2 nu)))`` (``xfem.lame``)."""
+        return lame(self.young, self.poisson)
