@@ -51,6 +51,10 @@ time (target >= 0.25). ``accordion_grad_1000_peak_rss_gib``: the peak resident m
 model and takes the gradient of a 1,000-step rollout (``ru_maxrss``; target <= 8 GiB), with its time
 ``accordion_grad_1000_s``.
 
+Cut placement as a parameter (issue 31): ``thin_cut_system_grad_ms``, one ``cut_system`` at the plane of thin's
+first cut plus its gradient with respect to the plane, and its ratio to the host cut and ``system()`` in the same
+process (``_cut_system_figures``).
+
     python benchmarks/bench_xfem.py [--steps N] [--quick] [--scenes SCENE ...] [--figures table rollout memory]
                                     [--json out/bench/xfem.json]
 """
@@ -80,10 +84,12 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 from _report import RATIO_UNIT, add_json_argument, write_json  # noqa: E402
 
 import xfem._backward_euler as be  # noqa: E402
+from xfem._cut_system import cut_system, plane_cuts  # noqa: E402
+from xfem._cuts import plane_cut_solid  # noqa: E402
 from xfem._material import Material  # noqa: E402
 from xfem._rollout import rollout  # noqa: E402
 from xfem._scenes import run_scene, scene  # noqa: E402
-from xfem._xfem import _padded_state, wait_for_compilations  # noqa: E402
+from xfem._xfem import _padded_state, wait_for_compilations, xfem_model  # noqa: E402
 
 SCENES = ("sticks", "thin", "accordion")
 FIGURES = ("table", "rollout", "memory")
@@ -136,8 +142,53 @@ def _breakdown(model, h, mu, lam) -> tuple[float, float]:
     return dpsi, cg
 
 
+def _cut_system_figures(size: str) -> tuple[dict, dict]:
+    """``thin_cut_system_grad_ms``: one ``cut_system`` (a copy of the uncut thin model cut by the slab of its first
+    cut's plane, the pieces replayed) plus its gradient with respect to the plane, by eager ``jax.grad``; against
+    the host path in the same process (a copy of the model built, ``cut`` by the same slab and ``system()``). Also the
+    replay alone (``plane_cuts(...).system`` and its gradient, jitted), what an optimization loop over the plane runs
+    while the pieces' combinatorics hold. Medians of 3 (5 for the replay) after a warm-up call."""
+    sc = scene("thin", size)
+    model = xfem_model(sc.mesh, sc.density, sc.gravity, sc.fixed)
+    box = np.asarray(sc.cuts[0].solid.bounding_box()).reshape(2, 3)
+    thin = int(np.argmin(box[1] - box[0]))  # the sheet cut's normal: its box's thinnest axis
+    point, normal = box.mean(axis=0), np.eye(3)[thin]
+    extent = 5 * float(np.linalg.norm(np.ptp(model.X, axis=0)))
+    weights = jnp.asarray(model.X[model.T].mean(axis=1)[:, 2])
+
+    def loss(system):  # a scalar of the volumes and masses; the tets' heights weight the uncut pieces
+        return jnp.sum(system.volumes[:weights.shape[0]] * weights) + jnp.sum(system.mass_values)
+
+    def host():
+        copy = xfem_model(sc.mesh, sc.density, sc.gravity, sc.fixed)
+        copy.cut(plane_cut_solid(point, normal, extent, sc.epsilon))
+        return copy.system().volumes
+
+    gradient = jax.value_and_grad(lambda p, n: loss(cut_system(model, p, n, sc.epsilon)), argnums=(0, 1))
+    cuts = plane_cuts(model, [(point, normal, sc.epsilon)])
+    replay = jax.jit(jax.value_and_grad(lambda p, n: loss(cuts.system(p[None], n[None])), argnums=(0, 1)))
+    p, n = jnp.asarray(point), jnp.asarray(normal)
+    host_s = _median_seconds(host, 3)
+    grad_s = _median_seconds(lambda: gradient(p, n), 3)
+    replay_s = _median_seconds(lambda: replay(p, n))
+    figures = {"thin_cut_system_grad_ms": 1e3 * grad_s, "thin_host_cut_system_ms": 1e3 * host_s,
+               "thin_cut_replay_grad_ms": 1e3 * replay_s,
+               "thin_cut_system_grad_over_host_cut": grad_s / host_s}
+    units = {"thin_cut_system_grad_ms": "ms (cut_system and its gradient w.r.t. point and normal, eager)",
+             "thin_host_cut_system_ms": "ms (a model built, cut by the slab, system(): the host path)",
+             "thin_cut_replay_grad_ms": "ms (the replayed system and its gradient, jitted)",
+             "thin_cut_system_grad_over_host_cut": "x (cut_system with gradient / the host path)"}
+    print(f"thin ({size}) cut_system at its first cut's plane ({len(cuts.reports[0].elements_touched)} elements cut): "
+          f"with its gradient {figures['thin_cut_system_grad_ms']:.0f} ms = "
+          f"{figures['thin_cut_system_grad_over_host_cut']:.2f}x the host cut and system() "
+          f"({figures['thin_host_cut_system_ms']:.0f} ms); the replay with its gradient {replay_s * 1e3:.2f} ms")
+    return figures, units
+
+
 def run(size: str, steps: int | None, scenes=SCENES):
     figures, ratios, units = {}, {}, {}
+    if "thin" in scenes:
+        figures, units = _cut_system_figures(size)
     for name in scenes:
         sc = scene(name, size)
         mu, lam = sc.material.lame()

@@ -74,3 +74,5 @@ def test_bench_xfem_quick_writes_the_published_names(tmp_path):
         assert dofs[f"{scene}_dofs_final"] > dofs[f"{scene}_dofs_initial"] > 0
         assert dofs[f"{scene}_dofs_final"] == dofs[f"{scene}_dofs"]
     assert result["figures"]["sticks_pieces"] == 36  # the small sticks end as 36 pieces too
+    for name in ("thin_cut_system_grad_ms", "thin_host_cut_system_ms", "thin_cut_replay_grad_ms"):
+        assert result["figures"][name] > 0 and name in result["units"]

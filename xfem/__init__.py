@@ -17,12 +17,14 @@ Sec. 4, the generalized XFEM: ``_cuts`` (swept tool edges thickened into closed 
 ``_integration`` (exact divergence-theorem moments of the pieces, eq. 13, 14, 21), ``_xfem`` (``XFEMModel``:
 indicator enrichments eq. 16-18, DOF duplication, pieces on the FEM core, systems padded to capacity levels so
 that cuts reuse the compiled step), ``_simulate`` (trajectories across a schedule of cuts, differentiable
-through the cuts' DOF copy maps). Sec. 5: ``_scenes`` (the paper's five scenes with Table 1's parameters, a
+through the cuts' DOF copy maps), ``_cut_system`` (slab cuts whose placement is a differentiable parameter).
+Sec. 5: ``_scenes`` (the paper's five scenes with Table 1's parameters, a
 runner timing them like Table 2), ``_xfem_commands`` (``jaxcga xfem SCENE``).
 """
 
 from xfem._assembly import AssemblyPattern, assemble_matrix, assemble_vector, assembly_pattern
 from xfem._backward_euler import FEMSystem, State, backward_euler_step, fem_from_mesh, fem_system, mechanical_energy
+from xfem._cut_system import PlaneCuts, cut_system, plane_cuts
 from xfem._cuts import cut_solid, plane_cut_solid, sweep_between, swept_surface, thicken
 from xfem._integration import element_piece_integrals, moments_of_pieces, polyhedron_moments
 from xfem._linear_tet import body_force, consistent_mass, lumped_mass, shape_functions, shape_gradients
@@ -62,6 +64,9 @@ __all__ = [
     "piece_surfaces",
     "run_scene",
     "scene",
+    "PlaneCuts",
+    "cut_system",
+    "plane_cuts",
     "cut_solid",
     "plane_cut_solid",
     "sweep_between",

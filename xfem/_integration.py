@@ -122,12 +122,7 @@ def moments_of_pieces(V, F, piece, n_pieces: int, origin=None) -> Moments:
         origin = np.broadcast_to(_host_real(origin, shape, "origin", "points"), (n_pieces, 3))
     _check_closed(F, piece)
 
-    v = V[F] - origin[piece][:, None, :]  # (m, 3 corners, 3)
-    det = np.einsum("ij,ij->i", v[:, 0], np.cross(v[:, 1], v[:, 2]))
-    s = v.sum(axis=1)
-    outer = s[:, :, None] * s[:, None, :] + np.matmul(np.swapaxes(v, 1, 2), v)  # matmul: faster than einsum here
-    values = np.concatenate([det[:, None] / 6, det[:, None] * s / 24,
-                             (det[:, None, None] * outer / 120).reshape(-1, 9)], axis=1)  # (m, 13)
+    values, det = triangle_moment_terms(np, V[F] - origin[piece][:, None, :])
     # one bincount over (piece, column) pairs: faster than np.add.at
     slots = (piece[:, None] * 13 + np.arange(13)).ravel()
     sums = np.bincount(slots, weights=values.ravel(), minlength=13 * n_pieces).reshape(n_pieces, 13)
@@ -139,6 +134,24 @@ def moments_of_pieces(V, F, piece, n_pieces: int, origin=None) -> Moments:
         raise ValueError(f"F: piece {k} is oriented inward (volume {volume[k]:.3g}); flip its triangles")
     second = sums[:, 4:].reshape(n_pieces, 3, 3)
     return Moments(volume, sums[:, 1:4], (second + np.swapaxes(second, 1, 2)) / 2)
+
+
+def triangle_moment_terms(xp, v):
+    """The closed forms of eq. 21 per boundary triangle: the moments of the tet (o, v0, v1, v2), signed.
+
+    Args:
+        xp: the array namespace, numpy or jax.numpy (``xfem._cut_system`` differentiates them).
+        v: (m, 3 corners, 3) the triangles' corners relative to the origin o.
+    Returns:
+        (m, 13) volume, first moment (3) and second moment (9, row-major) of each triangle's cone, and the
+        (m,) determinants (6 times the signed volumes).
+    """
+    det = xp.einsum("ij,ij->i", v[:, 0], xp.cross(v[:, 1], v[:, 2]))
+    s = v.sum(axis=1)
+    outer = s[:, :, None] * s[:, None, :] + xp.matmul(xp.swapaxes(v, 1, 2), v)  # matmul: faster than einsum here
+    values = xp.concatenate([det[:, None] / 6, det[:, None] * s / 24,
+                             (det[:, None, None] * outer / 120).reshape(-1, 9)], axis=1)
+    return values, det
 
 
 def polyhedron_moments(V, F, origin=None) -> Moments:
@@ -223,10 +236,16 @@ def element_piece_integrals(c, g, moments: Moments, density=1.0) -> tuple[np.nda
     rho = np.asarray(density, np.float64)
     if rho.shape not in ((), batch) or not np.all(np.isfinite(rho) & (rho > 0)):
         raise ValueError(f"density: expected finite positive values of shape () or {batch}, got {rho.shape}")
-    gm = np.einsum("...aj,...j->...a", g, first)
-    cross = c[..., :, None] * gm[..., None, :]
-    mass = (c[..., :, None] * c[..., None, :] * volume[..., None, None] + cross + np.swapaxes(cross, -1, -2)
-            + np.einsum("...ai,...ij,...bj->...ab", g, second, g))
-    load = c * volume[..., None] + gm
+    mass, load = shape_function_integrals(np, c, g, volume, first, second)
     return (np.broadcast_to(rho[..., None, None] * mass, batch + (4, 4)), np.broadcast_to(load, batch + (4,)),
             np.broadcast_to(volume, batch))
+
+
+def shape_function_integrals(xp, c, g, volume, first, second):
+    """``int N_a N_b`` (..., 4, 4) and ``int N_a`` (..., 4) over solids with moments (volume, first, second) about
+    the origin of the shape coefficients (c, g) (module docstring); xp: numpy or jax.numpy."""
+    gm = xp.einsum("...aj,...j->...a", g, first)
+    cross = c[..., :, None] * gm[..., None, :]
+    mass = (c[..., :, None] * c[..., None, :] * volume[..., None, None] + cross + xp.swapaxes(cross, -1, -2)
+            + xp.einsum("...ai,...ij,...bj->...ab", g, second, g))
+    return mass, c * volume[..., None] + gm
