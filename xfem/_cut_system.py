@@ -509,13 +509,17 @@ def _stage_replay(copy: XFEMModel, table: _Table, programs: dict, epsilons: list
     return jax.tree.unflatten(tree, to_devices(*leaves)), system, element
 
 
-def _concrete(name: str, x) -> np.ndarray:
-    """The concrete value of x (also of a tracer of eager ``jax.grad``), or ValueError naming it (under jit)."""
+_UNDER_JIT = ("cut_system finds the pieces on the host and needs a concrete plane (under jit, call plane_cuts "
+              "outside and its system(points, normals) inside)")
+
+
+def _concrete(name: str, x, advice: str = _UNDER_JIT) -> np.ndarray:
+    """The concrete value of x (also of a tracer of eager ``jax.grad``), or ValueError naming it and giving the
+    advice (under jit)."""
     try:
         return np.asarray(concrete_or_error(None, x, name))
     except jax.errors.ConcretizationTypeError:
-        raise ValueError(f"{name}: cut_system finds the pieces on the host and needs a concrete plane (under jit, "
-                         "call plane_cuts outside and its system(points, normals) inside)") from None
+        raise ValueError(f"{name}: {advice}") from None
 
 
 def cut_system(model: XFEMModel, point, normal, epsilon) -> FEMSystem:
