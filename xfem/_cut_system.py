@@ -211,7 +211,8 @@ class _Table:
             return (np.concatenate(ids), np.repeat(sides, [len(i) for i in ids]).astype(np.float64),
                     np.concatenate(kept))
 
-        ids, sides, kept = zip(*(checks(stage) for stage in self.checks))
+        # no stage: solids before the first plane (their systems are constants)
+        ids, sides, kept = zip(*(checks(stage) for stage in self.checks)) if self.checks else ((), (), ())
         return dict(consts=tuple(self.consts), lerp_a=tuple(k[:, 0].astype(np.int64) for k in lerps),
                     lerp_b=tuple(k[:, 1].astype(np.int64) for k in lerps), lerp_side=tuple(k[:, 2] for k in lerps),
                     check_ids=ids, check_side=sides, check_kept=kept, node_place=tuple(self.places))
