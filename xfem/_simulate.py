@@ -210,6 +210,7 @@ def _run(segments: list[_Segment], state: State, material: Material, h, steps: i
          tolerance, line_search: bool, forces) -> list[State]:
     """The JAX phase: each segment's rollout from the previous one's last state, mapped by its copy map."""
     trajectory = []
+    state = State(jnp.asarray(state.x), jnp.asarray(state.v))  # numpy's indexing cannot take a traced map
     for k, segment in enumerate(segments):
         if segment.source is not None:  # Algorithm 1 line 7: the new DOFs copy their source's x and v
             source = jnp.asarray(segment.source)
