@@ -1,5 +1,6 @@
 """Trajectories across cuts: a schedule of cuts on an ``XFEMModel`` and the rollouts between them, differentiable
-with respect to the material, the initial state and the forces through the cut events.
+with respect to the material, the initial state and the forces through the cut events, and with respect to the
+planes of plane cuts.
 
 A cut changes the DOFs by the duplication of eq. 16-18 (Algorithm 1 line 7): each new DOF copies the x and v of
 one old DOF, ``x_new = x_old[dof_source]`` (``CutReport.dof_source``), a gather, so reverse mode passes through
