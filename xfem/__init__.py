@@ -17,7 +17,8 @@ Sec. 4, the generalized XFEM: ``_cuts`` (swept tool edges thickened into closed 
 ``_integration`` (exact divergence-theorem moments of the pieces, eq. 13, 14, 21), ``_xfem`` (``XFEMModel``:
 indicator enrichments eq. 16-18, DOF duplication, pieces on the FEM core, systems padded to capacity levels so
 that cuts reuse the compiled step), ``_simulate`` (trajectories across a schedule of cuts, differentiable
-through the cuts' DOF copy maps), ``_cut_system`` (slab cuts whose placement is a differentiable parameter).
+through the cuts' DOF copy maps and in the planes of plane cuts), ``_cut_system`` (slab cuts whose placement is a
+differentiable parameter).
 Sec. 5: ``_scenes`` (the paper's five scenes with Table 1's parameters, a
 runner timing them like Table 2), ``_xfem_commands`` (``jaxcga xfem SCENE``).
 """
