@@ -19,8 +19,8 @@ indicator enrichments eq. 16-18, DOF duplication, pieces on the FEM core), ``_ca
 capacity levels so that cuts reuse the compiled step), ``_background`` (``BackgroundCuts``: cuts computed in a
 worker process, ``_cut_process`` and ``_framing``, while the model steps), ``_material`` (``Material``),
 ``_rollout`` (``rollout``: a differentiable ``lax.scan`` of steps), ``_simulate`` (trajectories across a schedule
-of cuts, differentiable through the cuts' DOF copy maps), ``_cut_system`` (slab cuts whose placement is a
-differentiable parameter). Sec. 5: ``_scenes`` (the paper's five scenes with Table 1's parameters, a runner
+of cuts, differentiable through the cuts' DOF copy maps and in the planes of plane cuts), ``_cut_system`` (slab
+cuts whose placement is a differentiable parameter). Sec. 5: ``_scenes`` (the paper's five scenes with Table 1's parameters, a runner
 timing them like Table 2), ``_xfem_commands`` (``jaxcga xfem SCENE``).
 """
 

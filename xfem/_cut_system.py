@@ -211,7 +211,8 @@ class _Table:
             return (np.concatenate(ids), np.repeat(sides, [len(i) for i in ids]).astype(np.float64),
                     np.concatenate(kept))
 
-        ids, sides, kept = zip(*(checks(stage) for stage in self.checks))
+        # no stage: solids before the first plane (their systems are constants)
+        ids, sides, kept = zip(*(checks(stage) for stage in self.checks)) if self.checks else ((), (), ())
         return dict(consts=tuple(self.consts), lerp_a=tuple(k[:, 0].astype(np.int64) for k in lerps),
                     lerp_b=tuple(k[:, 1].astype(np.int64) for k in lerps), lerp_side=tuple(k[:, 2] for k in lerps),
                     check_ids=ids, check_side=sides, check_kept=kept, node_place=tuple(self.places))
@@ -508,13 +509,17 @@ def _stage_replay(copy: XFEMModel, table: _Table, programs: dict, epsilons: list
     return jax.tree.unflatten(tree, to_devices(*leaves)), system, element
 
 
-def _concrete(name: str, x) -> np.ndarray:
-    """The concrete value of x (also of a tracer of eager ``jax.grad``), or ValueError naming it (under jit)."""
+_UNDER_JIT = ("cut_system finds the pieces on the host and needs a concrete plane (under jit, call plane_cuts "
+              "outside and its system(points, normals) inside)")
+
+
+def _concrete(name: str, x, advice: str = _UNDER_JIT) -> np.ndarray:
+    """The concrete value of x (also of a tracer of eager ``jax.grad``), or ValueError naming it and giving the
+    advice (under jit)."""
     try:
         return np.asarray(concrete_or_error(None, x, name))
     except jax.errors.ConcretizationTypeError:
-        raise ValueError(f"{name}: cut_system finds the pieces on the host and needs a concrete plane (under jit, "
-                         "call plane_cuts outside and its system(points, normals) inside)") from None
+        raise ValueError(f"{name}: {advice}") from None
 
 
 def cut_system(model: XFEMModel, point, normal, epsilon) -> FEMSystem:

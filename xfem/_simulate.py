@@ -1,5 +1,6 @@
 """Trajectories across cuts: a schedule of cuts on an ``XFEMModel`` and the rollouts between them, differentiable
-with respect to the material, the initial state and the forces through the cut events.
+with respect to the material, the initial state and the forces through the cut events, and with respect to the
+planes of plane cuts.
 
 A cut changes the DOFs by the duplication of eq. 16-18 (Algorithm 1 line 7): each new DOF copies the x and v of
 one old DOF, ``x_new = x_old[dof_source]`` (``CutReport.dof_source``), a gather, so reverse mode passes through
@@ -7,9 +8,15 @@ it. Which pieces exist, and so every segment's ``FEMSystem`` and copy map, is de
 own cuts, once; they are constants for the gradient (the cut solids are placed in the rest configuration, so
 they do not depend on the state).
 
-The host phase (``_segments``) yields one ``_Segment`` per cut frame, made by ``_after_cuts``: the system after
-the frame's cuts and the map from the previous segment's DOFs. A segment whose system is a JAX function of
-parameters (a plane cut placed by a traced point and normal) fits the same ``_run``.
+Plane cuts (``plane_cuts=[(frame, point, normal, epsilon), ...]``, slabs as ``plane_cut_solid`` makes them) are
+placed by parameters: the pieces they make are found on the host at the given (concrete) planes by
+``xfem.plane_cuts`` on a copy of the model, together with the schedule's solids in time order, and each segment's
+system is then ``PlaneCuts.systems(points, normals)``, a JAX function of every plane so far; the gradient with
+respect to each point and normal is exact for the combinatorics found (``xfem._cut_system``).
+
+The host phase (``_segments``, ``_plane_segments``) yields one ``_Segment`` per cut frame: the system after the
+frame's cuts (for plane cuts, the index of the frame's last cut in ``PlaneCuts.systems``) and the map from the
+previous segment's DOFs; ``_run`` rolls them out.
 """
 
 from __future__ import annotations
@@ -23,6 +30,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from xfem._backward_euler import FEMSystem, State
+from xfem._cut_system import PlaneCuts, _concrete, _plane, plane_cuts
 from xfem._material import Material
 from xfem._rollout import rollout
 from xfem._xfem import XFEMModel
@@ -30,10 +38,12 @@ from xfem._xfem import XFEMModel
 
 class _Segment(NamedTuple):
     """The frames between two cut frames: they start at ``frame`` (1-based), after the cuts of that frame, and
-    step ``system``; ``source`` (n,) maps the previous segment's DOFs to this one's (None: the first segment)."""
+    step ``system`` (an ``FEMSystem``; with plane cuts, the index of the frame's last cut in
+    ``PlaneCuts.systems``, or None before the first cut: the model's system); ``source`` (n,) maps the previous
+    segment's DOFs to this one's (None: the same DOFs)."""
 
     frame: int
-    system: FEMSystem
+    system: FEMSystem | int | None
     source: np.ndarray | None
 
 
@@ -41,6 +51,9 @@ class _Segment(NamedTuple):
 # state the model had before them, the segments); a later call with the same schedule reuses them while the model
 # has not been cut since (its cached system is the same object)
 _DONE: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+# with plane cuts, per model: (schedule key, the model's system, its state then, the PlaneCuts, the segments); a
+# later call reuses them while the model has not been cut and the pieces found still hold at its planes
+_PLANES: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
 
 
 def _after_cuts(model: XFEMModel, solids: Sequence) -> tuple[FEMSystem, np.ndarray]:
@@ -71,19 +84,79 @@ def _segments(model: XFEMModel, schedule, steps: int) -> tuple[list[_Segment], S
     return segments, start
 
 
-def simulate(model: XFEMModel, schedule: Sequence[tuple[int, object]], material: Material, h, steps: int, *,
-             newton_iterations: int = 1, tolerance: float | None = None, line_search: bool = True,
-             forces: Callable[[int, FEMSystem], jax.Array] | None = None, state: State | None = None) -> list[State]:
-    """``steps`` frames of a cutting simulation (Algorithm 1 with the cuts given in advance), every frame's state
-    returned; differentiable (reverse mode) with respect to ``material``, ``state`` and ``forces``, across the cuts
-    (module docstring; each segment's gradient as ``rollout``'s: exact for converged steps, with one Newton
-    iteration the converged step's formula at the executed iterate).
+def _plane_segments(model: XFEMModel, schedule, planes, steps: int) -> tuple[list[_Segment], State, PlaneCuts]:
+    """The segments of a schedule with plane cuts at the concrete planes ``planes`` ((frame, point, normal,
+    epsilon), numpy, by frame), the model's state and the ``PlaneCuts`` (host; the model is left uncut). A frame's
+    solids are cut before its planes."""
+    key = (steps, tuple((frame, id(solid)) for frame, solid in schedule),
+           tuple((frame, epsilon) for frame, _, _, epsilon in planes))
+    points, normals = np.stack([p[1] for p in planes]), np.stack([p[2] for p in planes])
+    system = model.system()  # pending background cuts take effect first
+    done = _PLANES.get(model)
+    if done is not None and done[0] == key and done[1] is system and bool(done[3].holds(points, normals)):
+        return done[4], done[2], done[3]
+    frames = sorted({frame for frame, _ in schedule} | {frame for frame, *_ in planes})
+    entries, ends = [], []  # plane_cuts' entries in time order; the index of each frame's last cut
+    for frame in frames:
+        entries += [solid for f, solid in schedule if f == frame]
+        entries += [(point, normal, epsilon) for f, point, normal, epsilon in planes if f == frame]
+        ends.append(len(entries) - 1)
+    cuts = plane_cuts(model, entries)
+    segments, first = [_Segment(1, None, None)], 0
+    for frame, end in zip(frames, ends):
+        source = None  # the frame's cuts' DOF copy maps composed
+        for report in cuts.reports[first:end + 1]:
+            if report.dof_source is not None:
+                source = report.dof_source if source is None else source[report.dof_source]
+        segments.append(_Segment(frame, end, source))
+        first = end + 1
+    start = State(np.array(model.state.x), np.array(model.state.v))
+    _PLANES[model] = (key, system, start, cuts, segments)
+    return segments, start, cuts
 
-    Frame f (1..steps) makes the cuts scheduled at f, then one backward Euler step, as ``run_scene`` and
-    ``XFEMModel.step`` do. The model's cuts run on the host: ``simulate`` CUTS ``model`` (afterwards it holds the
-    last segment's pieces; its own ``state`` is carried through the cuts but not stepped). Called again with the
-    same model and schedule (the same solid objects; e.g. by ``jax.grad`` or an optimizer's iterations), it reuses
-    those cuts while the model has not been cut since.
+
+def _check_planes(planes, steps: int) -> list:
+    """The checked ``plane_cuts`` of ``simulate``: (frame, point, normal, epsilon) by frame (a stable sort), the
+    point and normal as given (possibly traced) and their concrete values."""
+    checked = []
+    for k, entry in enumerate(planes):
+        if (not isinstance(entry, tuple) or len(entry) != 4 or not isinstance(entry[0], int)
+                or isinstance(entry[0], bool) or not 1 <= entry[0] <= steps):
+            raise ValueError(f"plane_cuts: expected (frame, point, normal, epsilon) with an int frame in [1, {steps}], "
+                             f"got {entry!r}")
+        frame, point, normal, epsilon = entry
+        name = f" (plane_cuts[{k}])"
+        concrete = _plane(_concrete("point" + name, point, _UNDER_JIT), _concrete("normal" + name, normal, _UNDER_JIT),
+                          epsilon, name)
+        checked.append((frame, point, normal, concrete))
+    return sorted(checked, key=lambda entry: entry[0])
+
+
+_UNDER_JIT = ("simulate finds the pieces of plane cuts on the host at concrete planes: differentiate it by eager "
+              "jax.grad (no jit around simulate), or close over the planes")
+
+
+def simulate(model: XFEMModel, schedule: Sequence[tuple[int, object]], material: Material, h, steps: int, *,
+             plane_cuts: Sequence[tuple] = (), newton_iterations: int = 1, tolerance: float | None = None,
+             line_search: bool = True, forces: Callable[[int, FEMSystem], jax.Array] | None = None,
+             state: State | None = None) -> list[State]:
+    """``steps`` frames of a cutting simulation (Algorithm 1 with the cuts given in advance), every frame's state
+    returned; differentiable (reverse mode) with respect to ``material``, ``state``, ``forces`` and the points and
+    normals of ``plane_cuts``, across the cuts (module docstring; each segment's gradient as ``rollout``'s: exact
+    for converged steps, with one Newton iteration the converged step's formula at the executed iterate; a plane's
+    exact for the pieces found at it).
+
+    Frame f (1..steps) makes the cuts scheduled at f (the solids of ``schedule``, then the slabs of
+    ``plane_cuts``, each in the order given), then one backward Euler step, as ``run_scene`` and
+    ``XFEMModel.step`` do. Without plane cuts the model's cuts run on the host: ``simulate`` CUTS ``model``
+    (afterwards it holds the last segment's pieces; its own ``state`` is carried through the cuts but not
+    stepped); called again with the same model and schedule (the same solid objects; e.g. by ``jax.grad`` or an
+    optimizer's iterations), it reuses those cuts while the model has not been cut since. With plane cuts, every
+    cut of the schedule is made on a copy (``xfem.plane_cuts``) and ``model`` is left uncut: each call finds the
+    pieces at its concrete planes (a point and normal traced by eager ``jax.grad`` have concrete values; under
+    ``jax.jit`` they must be closed over), or reuses the previous call's while they still hold there
+    (``PlaneCuts.holds``: the planes moved without crossing a node or a piece's vertex); which pieces exist is a
+    constant of the gradient.
 
     Args:
         model: the ``XFEMModel``, with the cuts made before the schedule's.
@@ -92,6 +165,10 @@ def simulate(model: XFEMModel, schedule: Sequence[tuple[int, object]], material:
         material: the ``Material`` (scalars or one value per element of every segment's system).
         h: the positive time step.
         steps: python int >= 1, the number of frames.
+        plane_cuts: ``(frame, point, normal, epsilon)``: a slab of thickness epsilon > 0 across the whole body
+            about the plane through point (3,) with the unit normal (3,) (``plane_cut_solid`` with an extent
+            covering the body), made at that frame after the frame's solids; point and normal may be JAX values
+            to differentiate (the gradient with respect to a normal is tangent to the unit sphere).
         newton_iterations, tolerance, line_search: as ``backward_euler_step``.
         forces: None (each segment's system force, e.g. gravity on its pieces), or a function ``(k, system)`` of a
             segment's index and ``FEMSystem`` returning its forces, (n_k, 3) or (frames_k, n_k, 3) per frame, as
@@ -112,10 +189,18 @@ def simulate(model: XFEMModel, schedule: Sequence[tuple[int, object]], material:
                 or isinstance(entry[0], bool) or not 1 <= entry[0] <= steps):
             raise ValueError(f"schedule: expected (frame, solid) pairs with an int frame in [1, {steps}], got "
                              f"{entry!r}")
+    planes = _check_planes(list(plane_cuts), steps)
     if forces is not None and not callable(forces):
         raise ValueError("forces: expected None or a function (segment index, FEMSystem) -> forces")
     with jax.ensure_compile_time_eval():  # host work, also when simulate is traced (jit, grad)
-        segments, start = _segments(model, schedule, steps)
+        if planes:
+            segments, start, cuts = _plane_segments(model, schedule, [(f, *c) for f, _, _, c in planes], steps)
+        else:
+            segments, start = _segments(model, schedule, steps)
+    if planes:  # the systems as JAX functions of the planes, in the order of the cuts
+        systems = cuts.systems(jnp.stack([jnp.asarray(p) for _, p, _, _ in planes]),
+                               jnp.stack([jnp.asarray(n) for _, _, n, _ in planes]))
+        segments = [s._replace(system=model.system() if s.system is None else systems[s.system]) for s in segments]
     if state is None:
         state = start
     elif not isinstance(state, State):
@@ -127,6 +212,7 @@ def _run(segments: list[_Segment], state: State, material: Material, h, steps: i
          tolerance, line_search: bool, forces) -> list[State]:
     """The JAX phase: each segment's rollout from the previous one's last state, mapped by its copy map."""
     trajectory = []
+    state = State(jnp.asarray(state.x), jnp.asarray(state.v))  # numpy's indexing cannot take a traced map
     for k, segment in enumerate(segments):
         if segment.source is not None:  # Algorithm 1 line 7: the new DOFs copy their source's x and v
             source = jnp.asarray(segment.source)

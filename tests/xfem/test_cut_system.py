@@ -221,12 +221,12 @@ def test_gradient_of_a_step_outcome(bar):
     cuts = xfem.plane_cuts(bar, [(_point(height), _normal(theta), EPS)])
     X = jnp.asarray(cuts.model.X[cuts.model.dof_node])
     state = xfem.State(X, jnp.zeros_like(X))
-    mu, lam = xfem.lame(1e5, 0.3)
+    material = xfem.Material(1e5, 0.3)
     weights = np.random.default_rng(2).normal(size=X.shape[0])
 
     def f(t):
         system = xfem.cut_system(bar, _point(height + t), _normal(theta), EPS)
-        x = xfem.backward_euler_step(system, state, 0.01, mu, lam, newton_iterations=30, tolerance=1e-13).x
+        x = xfem.backward_euler_step(system, state, 0.01, material, newton_iterations=30, tolerance=1e-13).x
         return jnp.sum(weights * x[:, 2])
 
     gradient = jax.grad(f)(0.0)

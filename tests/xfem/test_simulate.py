@@ -1,6 +1,7 @@
 """Trajectories across cuts (``xfem.simulate``): frame by frame the same as ``XFEMModel.cut`` and ``step``, and
 differentiable through the cut's DOF copy map (gradients with respect to Young's modulus, the initial velocity
-and the forces against central differences; the cut's combinatorics are fixed)."""
+and the forces against central differences; the cut's combinatorics are fixed). Plane cuts: the same as the
+solid cuts at the same planes, and differentiable in the plane's height and tilt (central differences)."""
 
 import jax
 import jax.numpy as jnp
@@ -87,3 +88,78 @@ def test_a_second_call_reuses_the_cuts_and_bad_input():
         simulate(model, [], MATERIAL, H, 0)
     with pytest.raises(ValueError, match="model: expected an XFEMModel"):
         simulate(None, [], MATERIAL, H, 2)
+
+
+# plane cuts: a bar 0.2 x 0.2 x 1 hanging from its top face, cut by a slab at a height inside the layer 0.375-0.5
+# (8 layers), tilted by theta about y
+HANGING = box_tets((2, 2, 8), (0.2, 0.2, 1.0))
+EPS, PLANE_FRAME, PLANE_STEPS = 1e-2, 2, 3
+NOTCH = plane_cut_solid(np.array([0.09, 0.1, 0.45]), np.array([1.0, 0.0, 0.0]), 0.15, 0.02)
+
+
+def _hanging():
+    return xfem_model(HANGING, RHO, fixed=np.flatnonzero(np.asarray(HANGING.X)[:, 2] > 1 - 1e-9))
+
+
+def _plane(height, theta):
+    return (jnp.stack([jnp.asarray(0.1), jnp.asarray(0.1), height]),
+            jnp.stack([jnp.sin(theta), jnp.zeros_like(theta), jnp.cos(theta)]))
+
+
+def test_plane_cuts_equal_the_solid_cuts():
+    """A notch (a solid) at frame 1 and a tilted slab at frame 2 as ``plane_cuts``: every frame equals the schedule
+    of both solids (``plane_cut_solid`` at the same plane) cut by the model; the model is left uncut."""
+    point, normal = (np.asarray(a) for a in _plane(0.43, 0.2))
+    model = _hanging()
+    n_before = len(model.dof_sid)
+    planes = simulate(model, [(1, NOTCH)], MATERIAL, H, PLANE_STEPS, plane_cuts=[(PLANE_FRAME, point, normal, EPS)])
+    assert len(model.dof_sid) == n_before and model.pieces() == 1
+    solids = simulate(_hanging(), [(1, NOTCH), (PLANE_FRAME, plane_cut_solid(point, normal, 5.0, EPS))], MATERIAL,
+                      H, PLANE_STEPS)
+    assert [s.x.shape for s in planes] == [s.x.shape for s in solids] and len(planes) == 3
+    assert planes[2].x.shape[1] > n_before
+    for a, b in zip(planes, solids, strict=True):
+        np.testing.assert_allclose(a.x, b.x, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(a.v, b.v, rtol=0, atol=1e-10)
+
+
+def test_gradient_with_respect_to_the_plane_matches_central_differences():
+    """The hanging bar's positions after the cut (a random linear functional of the last frame), differentiated
+    with respect to the slab's height and tilt through the cut and two converged steps; central differences of
+    simulate at shifted planes (the combinatorics do not change within the step: the replay, which equals the
+    Booleans, test above)."""
+    model = _hanging()
+    weights = {}
+
+    def outcome(height, theta):
+        point, normal = _plane(height, theta)
+        last = simulate(model, [], MATERIAL, H, PLANE_STEPS, plane_cuts=[(PLANE_FRAME, point, normal, EPS)],
+                        **CONVERGED)[-1]
+        if "w" not in weights:  # fixed once the DOF count after the cut is known
+            weights["w"] = np.random.default_rng(3).normal(size=last.x.shape[1:])
+        return jnp.sum(weights["w"] * last.x[-1])
+
+    height, theta = 0.43, 0.2
+    gradient = jax.grad(outcome, argnums=(0, 1))(jnp.asarray(height), jnp.asarray(theta))
+    step = 1e-5
+    for k, g in enumerate(gradient):
+        shift = step * np.eye(2)[k]
+        difference = (outcome(height + shift[0], theta + shift[1])
+                      - outcome(height - shift[0], theta - shift[1])) / (2 * step)
+        assert abs(g - difference) <= 1e-5 * abs(difference), (k, g, difference)
+    assert abs(gradient[0]) > 0 and abs(gradient[1]) > 0
+
+
+def test_plane_cuts_bad_input():
+    model = _hanging()
+    point, normal = np.array([0.1, 0.1, 0.43]), np.array([0.0, 0.0, 1.0])
+    with pytest.raises(ValueError, match="plane_cuts: expected"):
+        simulate(model, [], MATERIAL, H, 2, plane_cuts=[(3, point, normal, EPS)])
+    with pytest.raises(ValueError, match="plane_cuts: expected"):
+        simulate(model, [], MATERIAL, H, 2, plane_cuts=[(1, point, normal)])
+    with pytest.raises(ValueError, match=r"normal \(plane_cuts\[0\]\): expected a unit normal"):
+        simulate(model, [], MATERIAL, H, 2, plane_cuts=[(1, point, 2 * normal, EPS)])
+    with pytest.raises(ValueError, match=r"epsilon \(plane_cuts\[0\]\)"):
+        simulate(model, [], MATERIAL, H, 2, plane_cuts=[(1, point, normal, 0.0)])
+    with pytest.raises(ValueError, match=r"point \(plane_cuts\[0\]\): simulate finds the pieces"):
+        jax.jit(lambda p: simulate(model, [], MATERIAL, H, 2, plane_cuts=[(1, p, normal, EPS)])[-1].x)(point)
