@@ -20,8 +20,8 @@ capacity levels so that cuts reuse the compiled step), ``_background`` (``Backgr
 worker process, ``_cut_process`` and ``_framing``, while the model steps), ``_material`` (``Material``),
 ``_rollout`` (``rollout``: a differentiable ``lax.scan`` of steps), ``_simulate`` (trajectories across a schedule
 of cuts, differentiable through the cuts' DOF copy maps and in the planes of plane cuts), ``_cut_system`` (slab
-cuts whose placement is a differentiable parameter). Sec. 5: ``_scenes`` (the paper's five scenes with Table 1's parameters, a runner
-timing them like Table 2), ``_xfem_commands`` (``jaxcga xfem SCENE``).
+cuts whose placement is a differentiable parameter). Sec. 5: ``_scenes`` (the paper's five scenes with Table 1's
+parameters, a runner timing them like Table 2), ``_xfem_commands`` (``jaxcga xfem SCENE``).
 """
 
 from xfem._assembly import AssemblyPattern, assemble_matrix, assemble_vector, assembly_pattern

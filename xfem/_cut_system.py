@@ -491,7 +491,8 @@ def _stage_replay(copy: XFEMModel, table: _Table, programs: dict, epsilons: list
     n = system.n
     mass_rows, mass_cols = np.asarray(system.mass_rows, np.int64), np.asarray(system.mass_cols, np.int64)
     keys = mass_rows * n + mass_cols
-    r_, c_ = np.broadcast_to(dofs[:, :, None], mass.shape).ravel(), np.broadcast_to(dofs[:, None, :], mass.shape).ravel()
+    r_ = np.broadcast_to(dofs[:, :, None], mass.shape).ravel()
+    c_ = np.broadcast_to(dofs[:, None, :], mass.shape).ravel()
 
     def entry(key):
         at = np.minimum(np.searchsorted(keys, key), len(keys) - 1)

@@ -449,8 +449,8 @@ def run_scene(scene: Scene, steps: int | None = None, progress: bool = False,
     Cut latency. With ``cut_latency = L > 0`` a cut scheduled for frame f is started in the background
     (``BackgroundCuts.submit``) before that frame's step and takes effect (``BackgroundCuts.commit``) before the
     step of frame f + L, waiting for it if needed: frames f to f + L - 1 step the body as it was, while the cut's
-    Booleans, integrals and new system are computed beside them. The run does not depend on the threads' timing: it equals
-    the run with latency 0 of the scene whose cuts are scheduled L frames later (to the rounding of manifold3d's
+    Booleans, integrals and new system are computed beside them. The run does not depend on the threads' timing: it
+    equals the run with latency 0 of the scene whose cuts are scheduled L frames later (to the rounding of manifold3d's
     parallel Booleans, which differs with the calling thread). L = 0: each cut is done in its frame.
 
     Args:
