@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 import xfem._background
-from tests.xfem.test_xfem import MATERIAL, RHO, G, H, _plane, _tall_box
+from tests.xfem._models import MATERIAL, RHO, G, H, plane, tall_box
 from xfem._background import _ENTRY, BackgroundCuts
 from xfem._cut_process import CutProcess, CutProcessError
 from xfem._framing import decode, encode, portable, read_frame, write_frame
@@ -28,7 +28,7 @@ CUTS = [dict(point=(0.5, 0.5, 0.61), normal=(0.07, -0.04, 1.0)), dict(point=(0.5
 
 
 def _models():
-    mesh = _tall_box()
+    mesh = tall_box()
     fixed = np.flatnonzero(np.asarray(mesh.X)[:, 2] > 1.5 - 1e-9)
     return [xfem_model(mesh, RHO, gravity=G, fixed=fixed) for _ in range(2)]
 
@@ -49,7 +49,7 @@ def test_mesh_solid_round_trip():
     solid = manifold3d.Manifold.cube((1.0, 1.0, 1.0)) - manifold3d.Manifold.sphere(0.6, 24)
     rebuilt = solid_mesh(solid).build()
     assert rebuilt.volume() == pytest.approx(solid.volume(), rel=1e-14)
-    cut = _plane()
+    cut = plane()
     assert (rebuilt - cut).volume() == pytest.approx((solid - cut).volume(), rel=1e-14)
     meshes = [solid_mesh(solid), solid_mesh(cut), MeshSolid(np.zeros((0, 3)), np.zeros((0, 3), np.int64), 0.0)]
     for before, after in zip(meshes, unpack_meshes(pack_meshes(meshes))):
@@ -63,11 +63,11 @@ def test_subdomains_delta_makes_a_copy_equal():
     """``Subdomains.delta`` since a mark, applied to a copy as it was at the mark, makes it equal: the same ids,
     owners, parents, live lists and solids; a delta applied to subdomains that moved on is refused."""
     source, copy = _models()
-    source.cut(_plane(**CUTS[0]))
-    copy.cut(_plane(**CUTS[0]))
+    source.cut(plane(**CUTS[0]))
+    copy.cut(plane(**CUTS[0]))
     mark = source.sub.mark()
     for cut in CUTS[1:]:
-        source.cut(_plane(**cut))
+        source.cut(plane(**cut))
     delta = source.sub.delta(mark)
     copy.sub.apply_delta(delta)
     a, b = source.sub, copy.sub
@@ -89,11 +89,11 @@ def test_replica_replays_earlier_cuts_and_direct_cuts():
     directly while no cut is pending; the solids come back as meshes and are built on first use."""
     remote, inline = _models()
     for model in (remote, inline):
-        model.cut(_plane(**CUTS[0]))  # before any worker: in the model's process
+        model.cut(plane(**CUTS[0]))  # before any worker: in the model's process
     background = BackgroundCuts(remote)
     background.start()
-    future = background.submit(_plane(**CUTS[1]))
-    inline.cut(_plane(**CUTS[1]))
+    future = background.submit(plane(**CUTS[1]))
+    inline.cut(plane(**CUTS[1]))
     assert background.commit(until=future)[0].dof_source is not None
     received = [s for s in range(len(remote.sub._elements.owner)) if remote.sub.element_alive(s)
                 and isinstance(remote.sub._elements.solids[s], MeshSolid)]
@@ -102,8 +102,8 @@ def test_replica_replays_earlier_cuts_and_direct_cuts():
         assert remote.sub.element_solid(sid).volume() == pytest.approx(inline.sub.element_solid(sid).volume(),
                                                                       rel=1e-12)
     for model in (remote, inline):
-        model.cut(_plane(**CUTS[2]))  # directly, in the model's process
-    outside = background.submit(_plane(point=(0.5, 0.5, 5.0)))  # the replica replays CUTS[2] first
+        model.cut(plane(**CUTS[2]))  # directly, in the model's process
+    outside = background.submit(plane(point=(0.5, 0.5, 5.0)))  # the replica replays CUTS[2] first
     assert background.commit()[0].dof_source is None  # outside the body: nothing changes
     assert outside.done() and len(remote.cuts) == 4
     _assert_same(remote, inline)
@@ -136,8 +136,8 @@ def test_large_systems_are_padded_by_the_model(monkeypatch):
     remote.prepare_step = lambda arrays, n, system, level: (sent.append(system), prepare(arrays, n, system, level))[1]
     background = BackgroundCuts(remote)
     for cut in CUTS:
-        background.submit(_plane(**cut))
-        inline.cut(_plane(**cut))
+        background.submit(plane(**cut))
+        inline.cut(plane(**cut))
     background.commit()
     assert sent == [None] * len(CUTS)
     _assert_same(remote, inline)
@@ -147,20 +147,20 @@ def test_large_systems_are_padded_by_the_model(monkeypatch):
 def test_dead_worker_raises_at_commit_and_the_next_cut_starts_a_new_one():
     remote, inline = _models()
     background = BackgroundCuts(remote)
-    background.submit(_plane(**CUTS[0]))
+    background.submit(plane(**CUTS[0]))
     background.commit()
-    inline.cut(_plane(**CUTS[0]))
+    inline.cut(plane(**CUTS[0]))
     first = background._process
     first.kill()
-    failed, dropped = background.submit(_plane(**CUTS[1])), background.submit(_plane(**CUTS[2]))
+    failed, dropped = background.submit(plane(**CUTS[1])), background.submit(plane(**CUTS[2]))
     with pytest.raises(CutProcessError, match="exited"):
         background.commit()
     assert background._process is None and background.pending == 0
     assert dropped.cancelled() or isinstance(dropped.exception(), CutProcessError)
     assert failed.done()
     _assert_same(remote, inline)  # the failed cut changed nothing
-    background.submit(_plane(**CUTS[1]))  # a new worker, replaying the first cut
-    inline.cut(_plane(**CUTS[1]))
+    background.submit(plane(**CUTS[1]))  # a new worker, replaying the first cut
+    inline.cut(plane(**CUTS[1]))
     background.commit()
     assert background._process is not first
     _assert_same(remote, inline)
@@ -175,14 +175,14 @@ def test_worker_errors_come_back_and_disagreement_is_caught():
         background._process.send(("not a cut",))
         background._process.receive()
     background._drop_process()
-    background.submit(_plane(**CUTS[0]))
-    remote.cut(_plane(**CUTS[1]))  # directly, while a cut is pending: the replica cannot know
+    background.submit(plane(**CUTS[0]))
+    remote.cut(plane(**CUTS[1]))  # directly, while a cut is pending: the replica cannot know
     with pytest.raises(ValueError, match="delta"):  # checked before anything is applied
         background.commit()
-    inline.cut(_plane(**CUTS[1]))
+    inline.cut(plane(**CUTS[1]))
     _assert_same(remote, inline)
-    background.submit(_plane(**CUTS[0]))  # a new worker, replaying the direct cut
-    inline.cut(_plane(**CUTS[0]))
+    background.submit(plane(**CUTS[0]))  # a new worker, replaying the direct cut
+    inline.cut(plane(**CUTS[0]))
     background.commit()
     _assert_same(remote, inline)
     background.close()
@@ -261,9 +261,9 @@ def test_next_cut_is_sent_before_a_reply_is_prepared():
     process.send = lambda message: (events.append("send"), send(message))[1]
     remote.prepare_step = lambda *args: (events.append("prepare"), prepare(*args))[1]
     for cut in CUTS:  # queued while the worker makes the first one
-        background.submit(_plane(**cut))
+        background.submit(plane(**cut))
     for cut in CUTS:
-        inline.cut(_plane(**cut))
+        inline.cut(plane(**cut))
     background.commit()
     assert events == ["send", "send", "prepare", "send", "prepare", "prepare"]
     _assert_same(remote, inline)
@@ -292,7 +292,7 @@ def test_background_cuts_leave_the_process_settings_alone():
               sys.getswitchinterval(), dict(os.environ))
     background = BackgroundCuts(remote)
     remote.step(H, MATERIAL)
-    future = background.submit(_plane(**CUTS[0]))
+    future = background.submit(plane(**CUTS[0]))
     while not future.done():  # steps while the cut is under way, as a simulation does
         remote.step(H, MATERIAL)
         assert frozenset(os.sched_getaffinity(0)) == before[0] and sys.getswitchinterval() == before[3]
@@ -309,5 +309,5 @@ def test_background_cuts_leave_the_process_settings_alone():
     assert sys.getswitchinterval() == before[3]
     assert dict(os.environ) == before[4]
     background.close()
-    inline.cut(_plane(**CUTS[0]))
+    inline.cut(plane(**CUTS[0]))
     np.testing.assert_array_equal(remote.dof_sid, inline.dof_sid)

@@ -25,7 +25,7 @@ fields of eq. 18 (unchanged by every cut at material points, to 1e-12):
 import numpy as np
 import pytest
 
-from tests.xfem.test_xfem import _deformed_state, _random_points
+from tests.xfem._models import deformed_state, random_points
 from xfem._backward_euler import mechanical_energy
 from xfem._cuts import plane_cut_solid
 from xfem._material import Material
@@ -110,8 +110,8 @@ def test_cut_aligned_with_faces_edges_or_vertices(feature, perturb):
     X = np.asarray(mesh.X)
     d = (X - centre) @ n  # the slab is 0 <= d <= EPS
     assert np.sum(np.abs(d) < 1e-15) == on_face and np.all((np.abs(d) < 1e-15) | (np.abs(d) > 0.01))
-    model = xfem_model(mesh, RHO, state=_deformed_state(mesh))
-    points, elements, _ = _random_points(mesh, 400)
+    model = xfem_model(mesh, RHO, state=deformed_state(mesh))
+    points, elements, _ = random_points(mesh, 400)
     before = _fields(model, points, elements)
     report = model.cut(_slab_above(centre, n), perturb=perturb)
     delta = _motion_size(report.motion, X)
@@ -152,8 +152,8 @@ def test_cut_aligned_with_faces_edges_or_vertices(feature, perturb):
 
 def test_cut_outside_the_body_is_bitwise_a_no_op():
     mesh = box_tets((2, 2, 2))
-    model = xfem_model(mesh, RHO, fixed=[0, 1, 2], state=_deformed_state(mesh))
-    uncut = xfem_model(mesh, RHO, fixed=[0, 1, 2], state=_deformed_state(mesh))
+    model = xfem_model(mesh, RHO, fixed=[0, 1, 2], state=deformed_state(mesh))
+    uncut = xfem_model(mesh, RHO, fixed=[0, 1, 2], state=deformed_state(mesh))
     # x + y + z = 3.3 passes the corner (1, 1, 1) at distance 0.17, its square's bounding box holds all 48 tets';
     # the second slab is far above the box
     reports = [model.cut(_slab(point, (1.0, 1.0, 1.0))) for point in ((1.1, 1.1, 1.1), (0.5, 0.5, 5.0))]
@@ -185,9 +185,9 @@ def test_cut_touching_the_boundary(where, perturb):
     point, normal = (np.asarray(v, np.float64) for v in TOUCHING[where])
     mesh = box_tets((2, 2, 2))
     X = np.asarray(mesh.X)
-    model = xfem_model(mesh, RHO, state=_deformed_state(mesh))
+    model = xfem_model(mesh, RHO, state=deformed_state(mesh))
     reference = model.piece_arrays()
-    points, elements, _ = _random_points(mesh, 200)
+    points, elements, _ = random_points(mesh, 200)
     before = _fields(model, points, elements)
     report = model.cut(_slab_above(point, normal), perturb=perturb)
     delta = _motion_size(report.motion, X)
@@ -210,8 +210,8 @@ def test_cut_touching_the_boundary(where, perturb):
 def test_cut_shaving_the_top_layer():
     mesh = box_tets((2, 2, 2))
     X = np.asarray(mesh.X)
-    model = xfem_model(mesh, RHO, state=_deformed_state(mesh))
-    points, elements, _ = _random_points(mesh, 200)
+    model = xfem_model(mesh, RHO, state=deformed_state(mesh))
+    points, elements, _ = random_points(mesh, 200)
     before = _fields(model, points, elements)
     report = model.cut(_slab((0.5, 0.5, 1.0), (0.0, 0.0, 1.0)), perturb=PERTURB)
     # the top nodes lie inside the slab, EPS / 2 from its faces: not aligned, no perturbation; their 1-rings
@@ -225,8 +225,8 @@ def test_cut_shaving_the_top_layer():
 def test_repeated_cuts_through_the_same_elements():
     mesh = box_tets((2, 2, 2))
     X = np.asarray(mesh.X)
-    model = xfem_model(mesh, RHO, state=_deformed_state(mesh))
-    points, elements, _ = _random_points(mesh, 400)
+    model = xfem_model(mesh, RHO, state=deformed_state(mesh))
+    points, elements, _ = random_points(mesh, 400)
     before = _fields(model, points, elements)
     z = points[:, 2]
     up = (0.0, 0.0, 1.0)
@@ -292,8 +292,8 @@ def _layers(cuts):
 @pytest.mark.parametrize("layout", ["parallel", "octants"])
 def test_three_cuts_through_one_tet(layout):
     mesh = one_tet()
-    model = xfem_model(mesh, RHO, state=_deformed_state(mesh))
-    points, elements, _ = _random_points(mesh, 300)
+    model = xfem_model(mesh, RHO, state=deformed_state(mesh))
+    points, elements, _ = random_points(mesh, 300)
     before = _fields(model, points, elements)
     if layout == "parallel":  # z = 0.2, 0.4, 0.6: k + 1 layers, each reaching all four nodes' subdomains
         planes = [((0.3, 0.3, c), 2) for c in (0.2, 0.4, 0.6)]
@@ -384,7 +384,7 @@ def test_long_run_cut_before_and_between_steps():
     hanging = float(elastic)
     assert hanging > 0
     # a horizontal cut of the sagging body: the two lower quarters fall, the fields do not jump
-    points, elements, _ = _random_points(mesh, 400)
+    points, elements, _ = random_points(mesh, 400)
     before = _fields(model, points, elements)
     point, normal = np.array([0.5, 0.5, 0.45]), _unit((0.02, -0.03, 1.0))
     run.cut(_slab(point, normal))

@@ -14,27 +14,12 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
+from tests.xfem._models import EPS, MATERIAL, NORMAL, POINT, RHO, G, H, deformed_state, plane, random_points, tall_box
 from xfem._background import BackgroundCuts
 from xfem._backward_euler import State, backward_euler_step, fem_from_mesh
 from xfem._capacity import _COMPILED, wait_for_compilations
-from xfem._cuts import plane_cut_solid
-from xfem._material import Material
 from xfem._tetmesh import boundary_faces, box_tets, five_tet_cube
 from xfem._xfem import xfem_model
-
-RHO, EPS, H = 1e3, 1e-3, 0.01
-MATERIAL = Material(2.5e6, 0.25)  # Lamé mu = lam = 1e6
-G = np.array([0.0, 0.0, -9.81])
-# a plane across the tall box, tilted so that it meets no node, face or edge of the mesh exactly
-POINT, NORMAL = np.array([0.5, 0.5, 0.61]), np.array([0.07, -0.04, 1.0])
-
-
-def _tall_box():
-    return box_tets((2, 2, 3), size=(1.0, 1.0, 1.5))
-
-
-def _plane(point=POINT, normal=NORMAL, extent=3.0):
-    return plane_cut_solid(np.asarray(point, np.float64), np.asarray(normal, np.float64), extent, EPS)
 
 
 def _mass(system):
@@ -42,32 +27,18 @@ def _mass(system):
                          shape=(system.n, system.n))
 
 
-def _deformed_state(mesh, seed=0):
-    rng = np.random.default_rng(seed)
-    X = np.asarray(mesh.X)
-    return State(jnp.asarray(X + 0.02 * rng.normal(size=X.shape)), jnp.asarray(rng.normal(size=X.shape)))
-
-
-def _random_points(mesh, k, seed=1):
-    """k random points inside random tets: (k, 3) points and (k,) tets, and the barycentric weights (k, 4)."""
-    rng = np.random.default_rng(seed)
-    elements = rng.integers(0, mesh.T.shape[0], k)
-    w = rng.dirichlet(np.ones(4), k)
-    return np.einsum("ka,kaj->kj", w, np.asarray(mesh.X)[np.asarray(mesh.T)[elements]]), elements, w
-
-
 @pytest.mark.parametrize("make", [five_tet_cube, lambda: box_tets((2, 2, 2))])
 def test_uncut_model_is_plain_fem(make):
     mesh = make()
     fixed = np.flatnonzero(np.asarray(mesh.X)[:, 2] < 1e-9)
-    model = xfem_model(mesh, RHO, fixed=fixed, state=_deformed_state(mesh))
+    model = xfem_model(mesh, RHO, fixed=fixed, state=deformed_state(mesh))
     system, reference = model.system(), fem_from_mesh(mesh, RHO, fixed=fixed)
     np.testing.assert_array_equal(np.asarray(system.T), np.asarray(reference.T))
     np.testing.assert_array_equal(np.asarray(system.fixed), np.asarray(reference.fixed))
     np.testing.assert_allclose(np.asarray(system.volumes), np.asarray(reference.volumes), rtol=0, atol=1e-15)
     np.testing.assert_allclose(_mass(system).toarray(), _mass(reference).toarray(), rtol=0, atol=1e-12)
     np.testing.assert_allclose(np.asarray(system.force), np.asarray(reference.force), rtol=0, atol=1e-12)
-    state = _deformed_state(mesh)
+    state = deformed_state(mesh)
     for _ in range(5):
         model.step(H, MATERIAL)
         state = backward_euler_step(reference, state, H, MATERIAL)
@@ -77,16 +48,16 @@ def test_uncut_model_is_plain_fem(make):
 
 
 def test_cut_keeps_displacement_and_velocity():
-    mesh = _tall_box()
-    state = _deformed_state(mesh)
+    mesh = tall_box()
+    state = deformed_state(mesh)
     model = xfem_model(mesh, RHO, state=state)
-    points, elements, w = _random_points(mesh, 400)
+    points, elements, w = random_points(mesh, 400)
     # eq. 18 before any cut is the barycentric interpolation of the nodal values
     T = np.asarray(mesh.T)[elements]
     u0 = np.einsum("ka,kaj->kj", w, np.asarray(state.x)[T] - np.asarray(mesh.X)[T])
     v0 = np.einsum("ka,kaj->kj", w, np.asarray(state.v)[T])
     np.testing.assert_allclose(model.displacement_at(points, elements), u0, rtol=0, atol=1e-12)
-    report = model.cut(_plane())
+    report = model.cut(plane())
     added = sum(len(c) - 1 for c in report.node_children.values())
     assert added > 0 and len(model.dof_sid) == mesh.X.shape[0] + added
     # material points only: outside the slab of thickness EPS (with a margin)
@@ -99,7 +70,7 @@ def test_cut_keeps_displacement_and_velocity():
     assert model.pieces() == 2
     # a second, crossing cut splits subdomains made by the first: four pieces, the fields still unchanged
     point, normal = np.array([0.43, 0.5, 0.75]), np.array([1.0, 0.06, -0.03])
-    model.cut(_plane(point, normal))
+    model.cut(plane(point, normal))
     keep &= np.abs((points - point) @ (normal / np.linalg.norm(normal))) > EPS
     np.testing.assert_allclose(model.displacement_at(points[keep], elements[keep]), u0[keep], rtol=0, atol=1e-12)
     np.testing.assert_allclose(model.velocity_at(points[keep], elements[keep]), v0[keep], rtol=0, atol=1e-12)
@@ -107,12 +78,12 @@ def test_cut_keeps_displacement_and_velocity():
 
 
 def test_mass_after_cuts_is_body_minus_cuts():
-    mesh = _tall_box()
+    mesh = tall_box()
     model = xfem_model(mesh, RHO)
     # two crossing cuts: the second one also splits pieces made by the first
-    cut = _plane() + _plane((0.43, 0.5, 0.75), (1.0, 0.06, -0.03))
-    model.cut(_plane())
-    model.cut(_plane((0.43, 0.5, 0.75), (1.0, 0.06, -0.03)))
+    cut = plane() + plane((0.43, 0.5, 0.75), (1.0, 0.06, -0.03))
+    model.cut(plane())
+    model.cut(plane((0.43, 0.5, 0.75), (1.0, 0.06, -0.03)))
     X, T = np.asarray(mesh.X), np.asarray(mesh.T)
     F = boundary_faces(T)
     body = manifold3d.Manifold(manifold3d.Mesh64(vert_properties=np.array(X, np.float64),
@@ -127,11 +98,11 @@ def test_mass_after_cuts_is_body_minus_cuts():
 
 
 def test_cut_through_hanging_body_separates():
-    mesh = _tall_box()
+    mesh = tall_box()
     top = np.flatnonzero(np.asarray(mesh.X)[:, 2] > 1.5 - 1e-9)
     model = xfem_model(mesh, RHO, fixed=top)
     assert model.pieces() == 1
-    model.cut(_plane())
+    model.cut(plane())
     count, label = model.components()
     assert count == 2 == model.pieces()
     masses = np.asarray(_mass(model.system()).sum(axis=1)).ravel()  # int rho phi_i psi_i^s: COM weights
@@ -158,22 +129,22 @@ def test_cut_through_hanging_body_separates():
 
 def test_cut_outside_is_a_no_op():
     mesh = box_tets((2, 2, 2))
-    model = xfem_model(mesh, RHO, state=_deformed_state(mesh))
+    model = xfem_model(mesh, RHO, state=deformed_state(mesh))
     before = model.piece_arrays()
-    report = model.cut(_plane(point=(0.5, 0.5, 2.0)))
+    report = model.cut(plane(point=(0.5, 0.5, 2.0)))
     assert len(report.elements_touched) == 0
     for a, b in zip(before, model.piece_arrays()):
         np.testing.assert_array_equal(a, b)
     assert len(model.dof_sid) == mesh.X.shape[0]
-    np.testing.assert_array_equal(np.asarray(model.state.x), np.asarray(_deformed_state(mesh).x))
+    np.testing.assert_array_equal(np.asarray(model.state.x), np.asarray(deformed_state(mesh).x))
 
 
 def test_partial_cut_keeps_one_piece():
-    mesh = _tall_box()
+    mesh = tall_box()
     model = xfem_model(mesh, RHO)
     # a square of side 1.2 centred on the box's x = 0 face: it cuts x < 0.6 only, through the 1-rings of the
     # nodes at x = 0 but not of those at x = 0.5
-    report = model.cut(_plane(point=(0.0, 0.5, 0.61), extent=1.2))
+    report = model.cut(plane(point=(0.0, 0.5, 0.61), extent=1.2))
     assert len(report.elements_touched) > 0 and len(report.nodes_split) > 0
     assert model.pieces() == 1
     _, _, volume, _, _ = model.piece_arrays()
@@ -195,9 +166,9 @@ def test_bad_input():
 def test_cuts_within_a_capacity_level_reuse_the_compiled_step(caplog):
     """Steps run on the system padded to a capacity level: cuts that stay within it compile nothing for the step,
     and the padded step equals the real system's step."""
-    mesh = _tall_box()
+    mesh = tall_box()
     model = xfem_model(mesh, RHO, gravity=G, fixed=np.flatnonzero(np.asarray(mesh.X)[:, 2] > 1.5 - 1e-9))
-    cuts = [_plane(), _plane(point=(0.5, 0.5, 0.9), normal=(0.03, 0.05, 1.0))]
+    cuts = [plane(), plane(point=(0.5, 0.5, 0.9), normal=(0.03, 0.05, 1.0))]
     model.step(H, MATERIAL)
     assert any(c.thread is not None for c in _COMPILED.values())  # the next level, compiling in the background
     wait_for_compilations()  # it logs too
@@ -219,14 +190,14 @@ def test_background_cut_takes_effect_at_commit():
     ``commit`` makes it take effect with the state of that moment: the same model as ``cut`` called then (to the
     rounding of manifold3d's parallel Booleans, which differs between calling threads). Until then the model's
     queries answer for the committed cuts."""
-    mesh = _tall_box()
+    mesh = tall_box()
     fixed = np.flatnonzero(np.asarray(mesh.X)[:, 2] > 1.5 - 1e-9)
     model, inline = (xfem_model(mesh, RHO, gravity=G, fixed=fixed) for _ in range(2))
     for m in (model, inline):
         m.step(H, MATERIAL)
     background = BackgroundCuts(model)
-    first = background.submit(_plane())
-    second = background.submit(_plane(point=(0.5, 0.5, 0.9), normal=(0.03, 0.05, 1.0)))
+    first = background.submit(plane())
+    second = background.submit(plane(point=(0.5, 0.5, 0.9), normal=(0.03, 0.05, 1.0)))
     n = len(model.dof_sid)
     for m in (model, inline):  # the old system: no new DOFs yet
         m.step(H, MATERIAL)
@@ -237,13 +208,13 @@ def test_background_cut_takes_effect_at_commit():
         background.commit(until=Future())
     reports = background.commit(until=first)
     assert len(reports) == 1 and reports[0] is first.result() and background.pending == 1
-    expected = inline.cut(_plane())
+    expected = inline.cut(plane())
     np.testing.assert_array_equal(reports[0].dof_source, expected.dof_source)
     assert model.pieces() == inline.pieces() == 2
     for m in (model, inline):
         m.step(H, MATERIAL)
     np.testing.assert_allclose(np.asarray(model.state.x), np.asarray(inline.state.x), rtol=0, atol=1e-12)
-    inline.cut(_plane(point=(0.5, 0.5, 0.9), normal=(0.03, 0.05, 1.0)))
+    inline.cut(plane(point=(0.5, 0.5, 0.9), normal=(0.03, 0.05, 1.0)))
     assert len(background.commit()) == 1 and background.pending == 0
     for a, b in zip(model.piece_arrays(), inline.piece_arrays()):
         np.testing.assert_allclose(a, b, rtol=1e-12, atol=0)
@@ -254,7 +225,7 @@ def test_background_cut_takes_effect_at_commit():
     with pytest.raises(ValueError, match="cut"):
         background.submit(None)
     with pytest.raises(ValueError, match="perturb"):
-        background.submit(_plane(), perturb=-1.0)
+        background.submit(plane(), perturb=-1.0)
     with pytest.raises(ValueError, match="model"):
         BackgroundCuts(inline.sub)
     background.close()
