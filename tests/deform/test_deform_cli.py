@@ -76,6 +76,7 @@ def test_handles_file_with_a_translated_handle(tube, tmp_path):
     assert 0.1 < np.mean(X[middle, 0] - V[middle, 0]) < 0.2
 
 
+@pytest.mark.slow  # compile-bound, 8 s on 2 cores: in the slow job, out of `make test`'s 10 minutes
 def test_built_in_arm_by_default(tmp_path):
     out = tmp_path / "arm.npy"
     assert main(["deform", "spline", "--basis", "lagrange", "--bend", "30", "--out", str(out)]) == 0

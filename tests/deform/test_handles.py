@@ -68,6 +68,7 @@ def test_binding_to_rest_motors_gives_back_the_rest_mesh():
         bind(V, FIELD.weights, identity_motors(2))
 
 
+@pytest.mark.slow  # compile-bound, 8 s on 2 cores: in the slow job, out of `make test`'s 10 minutes
 def test_batches_of_handle_motors_under_jit_and_vmap():
     rng = np.random.default_rng(3)
     batch = cga.Multivector(jnp.stack([_motors(rng, 3).values for _ in range(4)]), cga.KINDS["motor"])

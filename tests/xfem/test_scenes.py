@@ -44,6 +44,7 @@ def _material_volume(run) -> float:
     return body.volume() - (body ^ cuts).volume()
 
 
+@pytest.mark.slow  # compile-bound, 17 s on 2 cores: in the slow job, out of `make test`'s 10 minutes
 @pytest.mark.parametrize("name", SCENES)
 def test_scene_runs_past_its_cuts(runs, name):
     run = runs(name)
@@ -126,6 +127,7 @@ def test_piece_surfaces_enclose_the_pieces():
     assert np.all(piece == 0)
 
 
+@pytest.mark.slow  # compile-bound, 13 s on 2 cores: in the slow job, out of `make test`'s 10 minutes
 def test_bad_input():
     with pytest.raises(ValueError, match="name"):
         scene("octopus")
@@ -137,6 +139,7 @@ def test_bad_input():
         run_scene("cheese")
 
 
+@pytest.mark.slow  # compile-bound, 15 s on 2 cores: in the slow job, out of `make test`'s 10 minutes
 def test_cut_latency_equals_the_cuts_done_later():
     """With a cut latency of L frames, cuts computed in the background while the body steps give the same run as
     the same cuts done in their frame L frames later (``BackgroundCuts``): the same DOFs and

@@ -25,6 +25,7 @@ def _model():
     return xfem_model(BAR, RHO, fixed=FIXED)
 
 
+@pytest.mark.slow  # compile-bound, 20 s on 2 cores: in the slow job, out of `make test`'s 10 minutes
 def test_trajectory_equals_the_model_stepped_frame_by_frame():
     model = _model()
     n_before = len(model.dof_sid)
@@ -45,6 +46,7 @@ def test_trajectory_equals_the_model_stepped_frame_by_frame():
     assert float(jnp.min(segments[1].v[-1, :, 2])) < -0.1  # the released end falls
 
 
+@pytest.mark.slow  # compile-bound, 25 s on 2 cores: in the slow job, out of `make test`'s 10 minutes
 def test_gradients_across_the_cut_match_central_differences():
     model = _model()
     rng = np.random.default_rng(5)

@@ -16,6 +16,7 @@ import functools
 import jax
 import jax.numpy as jnp
 import numpy as np
+import pytest
 import scipy.linalg
 
 from tests.xfem._linear_elasticity import barycentric_gradients, static_displacement, stiffness
@@ -130,6 +131,7 @@ def test_tiny_load_equilibrium_is_not_stalled_by_the_line_search():
         np.testing.assert_allclose(_static_error(g) / g, reference, rtol=0.02)
 
 
+@pytest.mark.slow  # compile-bound, 13 s on 2 cores: in the slow job, out of `make test`'s 10 minutes
 def test_paper_step_settles_at_the_static_equilibrium():
     """Dynamic: from rest under the suddenly applied small load (g = 0.02), 1,000 of the paper's steps (one
     Newton iteration each) dissipate the oscillation: backward Euler shrinks the slowest mode's amplitude by

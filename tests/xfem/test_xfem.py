@@ -163,6 +163,7 @@ def test_bad_input():
         xfem_model(mesh, RHO).displacement_at(np.zeros((2, 2)), np.zeros(2, int))
 
 
+@pytest.mark.slow  # compile-bound, 18 s on 2 cores: in the slow job, out of `make test`'s 10 minutes
 def test_cuts_within_a_capacity_level_reuse_the_compiled_step(caplog):
     """Steps run on the system padded to a capacity level: cuts that stay within it compile nothing for the step,
     and the padded step equals the real system's step."""
