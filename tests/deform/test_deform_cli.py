@@ -26,6 +26,7 @@ def tube(tmp_path_factory):
     return path, np.asarray(loaded.vertices), np.asarray(loaded.faces)
 
 
+@pytest.mark.slow  # compile-bound, 35 s on 2 cores: in the slow job, out of `make test`'s 10 minutes
 @pytest.mark.parametrize("method", ["spline", "handles", "ffd", "cage"])
 def test_every_method_turns_the_far_end_by_the_bend_and_keeps_the_near_end(tube, tmp_path, method, capsys):
     path, V, F = tube

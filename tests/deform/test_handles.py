@@ -33,6 +33,7 @@ def _motors(rng, k, rotation=0.5, translation=0.1):
     return generators_to_motors(jnp.asarray(generators))
 
 
+@pytest.mark.slow  # compile-bound, 7 s on 2 cores: in the slow job, out of `make test`'s 10 minutes
 def test_weights_are_the_harmonic_fields_and_identity_motors_give_the_rest_mesh():
     np.testing.assert_array_equal(FIELD.weights, harmonic_fields(V, F, HANDLES))
     np.testing.assert_allclose(FIELD.weights.sum(axis=1), 1.0, atol=1e-12)

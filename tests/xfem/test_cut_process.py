@@ -146,6 +146,7 @@ def test_large_systems_are_padded_by_the_model(monkeypatch):
     background.close()
 
 
+@pytest.mark.slow  # compile-bound, 8 s on 2 cores: in the slow job, out of `make test`'s 10 minutes
 def test_dead_worker_raises_at_commit_and_the_next_cut_starts_a_new_one():
     remote, inline = _models()
     background = BackgroundCuts(remote)

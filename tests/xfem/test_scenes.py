@@ -64,6 +64,7 @@ def test_scene_runs_past_its_cuts(runs, name):
     assert summary["step_max_s"] >= summary["step_avg_s"] > 0
 
 
+@pytest.mark.slow  # compile-bound, 14 s on 2 cores: in the slow job, out of `make test`'s 10 minutes
 def test_sticks_end_as_36_pieces(runs):
     run = runs("sticks")
     assert run.summary()["pieces"] == 36 == run.model.pieces()

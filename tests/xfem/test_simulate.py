@@ -125,6 +125,7 @@ def test_plane_cuts_equal_the_solid_cuts():
         np.testing.assert_allclose(a.v, b.v, rtol=0, atol=1e-10)
 
 
+@pytest.mark.slow  # compile-bound, 24 s on 2 cores: in the slow job, out of `make test`'s 10 minutes
 def test_gradient_with_respect_to_the_plane_matches_central_differences():
     """The hanging bar's positions after the cut (a random linear functional of the last frame), differentiated
     with respect to the slab's height and tilt through the cut and two converged steps; central differences of
