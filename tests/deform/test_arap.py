@@ -134,7 +134,7 @@ def test_negative_energies_do_not_stop_the_iterations(arm5):
     assert np.nanmin(energies) > 0
 
 
-@pytest.mark.slow  # compile-bound, 7 s on 2 cores: in the slow job, out of `make test`'s 10 minutes
+@pytest.mark.slow  # 7 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 def test_energy_decreases_and_tolerance_stops(arm):
     V, _, _, bc, data = arm
     result = arap_solve(data, jnp.asarray(bc), V0=V, max_iterations=30, tolerance=0.0)  # from the rest pose

@@ -132,7 +132,7 @@ def test_local_motor_moves_points_near_its_cage_vertex_most():
     assert distance[np.argmax(displacement)] < np.quantile(distance, 0.05)
 
 
-@pytest.mark.slow  # compile-bound, 7 s on 2 cores: in the slow job, out of `make test`'s 10 minutes
+@pytest.mark.slow  # 7 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 def test_jit_and_vmap_over_batches_of_cage_positions_and_motors():
     cage = BOUND["cube"]
     rng = np.random.default_rng(5)

@@ -26,7 +26,7 @@ def tube(tmp_path_factory):
     return path, np.asarray(loaded.vertices), np.asarray(loaded.faces)
 
 
-@pytest.mark.slow  # compile-bound, 35 s on 2 cores: in the slow job, out of `make test`'s 10 minutes
+@pytest.mark.slow  # 35 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 @pytest.mark.parametrize("method", ["spline", "handles", "ffd", "cage"])
 def test_every_method_turns_the_far_end_by_the_bend_and_keeps_the_near_end(tube, tmp_path, method, capsys):
     path, V, F = tube
@@ -77,7 +77,7 @@ def test_handles_file_with_a_translated_handle(tube, tmp_path):
     assert 0.1 < np.mean(X[middle, 0] - V[middle, 0]) < 0.2
 
 
-@pytest.mark.slow  # compile-bound, 8 s on 2 cores: in the slow job, out of `make test`'s 10 minutes
+@pytest.mark.slow  # 8 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 def test_built_in_arm_by_default(tmp_path):
     out = tmp_path / "arm.npy"
     assert main(["deform", "spline", "--basis", "lagrange", "--bend", "30", "--out", str(out)]) == 0

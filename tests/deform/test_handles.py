@@ -33,7 +33,7 @@ def _motors(rng, k, rotation=0.5, translation=0.1):
     return generators_to_motors(jnp.asarray(generators))
 
 
-@pytest.mark.slow  # compile-bound, 7 s on 2 cores: in the slow job, out of `make test`'s 10 minutes
+@pytest.mark.slow  # 7 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 def test_weights_are_the_harmonic_fields_and_identity_motors_give_the_rest_mesh():
     np.testing.assert_array_equal(FIELD.weights, harmonic_fields(V, F, HANDLES))
     np.testing.assert_allclose(FIELD.weights.sum(axis=1), 1.0, atol=1e-12)
@@ -69,7 +69,7 @@ def test_binding_to_rest_motors_gives_back_the_rest_mesh():
         bind(V, FIELD.weights, identity_motors(2))
 
 
-@pytest.mark.slow  # compile-bound, 8 s on 2 cores: in the slow job, out of `make test`'s 10 minutes
+@pytest.mark.slow  # 8 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 def test_batches_of_handle_motors_under_jit_and_vmap():
     rng = np.random.default_rng(3)
     batch = cga.Multivector(jnp.stack([_motors(rng, 3).values for _ in range(4)]), cga.KINDS["motor"])

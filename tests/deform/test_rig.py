@@ -47,7 +47,7 @@ def test_non_uniform_scale_has_no_versor():
     np.testing.assert_allclose(np.diag(m), [1, 2, 1, 1])
 
 
-@pytest.mark.slow  # compile-bound, 7 s on 2 cores: in the slow job, out of `make test`'s 10 minutes
+@pytest.mark.slow  # 7 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 def test_forward_kinematics_versors_equal_matrices():
     model = random_model(1, parents=(-1, 0, 0, 1, 3, 3, -1, 6), rest_scale=(0.5, 2.0))
     local = random_pose(2, 8, scale_range=(0.5, 1.5))
@@ -157,7 +157,7 @@ def test_keyframes_blend_linearly_and_align_signs():
         deform.Keyframes(jnp.array([0.0]), a)
 
 
-@pytest.mark.slow  # compile-bound, 8 s on 2 cores: in the slow job, out of `make test`'s 10 minutes
+@pytest.mark.slow  # 8 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 def test_clip_from_poses_round_trip():
     model = random_model(9)
     poses = cga.Multivector(jnp.stack([random_pose(k, 5).values for k in range(4)]), random_pose(0, 5).blades)

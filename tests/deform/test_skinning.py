@@ -190,7 +190,7 @@ def test_motor_blend_dilation_is_blended_in_log_space():
     np.testing.assert_allclose(deform.skin_cga(V, J, W, joints), V * (0.25 * 2.0 + 0.75 * 0.5), atol=1e-14)
 
 
-@pytest.mark.slow  # compile-bound, 15 s on 2 cores: in the slow job, out of `make test`'s 10 minutes
+@pytest.mark.slow  # 15 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 @pytest.mark.parametrize("method", deform.METHODS)
 def test_batched_poses_under_vmap_equal_one_by_one(method):
     params = jnp.stack([deform.random_parameters(jax.random.PRNGKey(k), MODEL, 0.5, 0.1, 0.0) for k in range(3)])

@@ -386,7 +386,7 @@ def test_log_motor_derivatives():
     np.testing.assert_allclose(vj[at], _embed_rows(c[at], MOTOR_GEN, cga.KINDS["motor"]), atol=1e-14)
 
 
-@pytest.mark.slow  # compile-bound, 7 s on 2 cores: in the slow job, out of `make test`'s 10 minutes
+@pytest.mark.slow  # 7 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 def test_log_similitude_derivatives():
     sims = _sims()[: len(_SIM_POINTS)]
     assert sims[0, 0] == 1.0 and not np.any(sims[0, 1:])  # exactly the identity

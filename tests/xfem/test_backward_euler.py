@@ -62,7 +62,7 @@ def _deformed(X, seed, scale=0.05):
     return jnp.asarray(X + scale * rng.normal(size=X.shape)), jnp.asarray(rng.normal(size=X.shape))
 
 
-@pytest.mark.slow  # compile-bound, 12 s on 2 cores: in the slow job, out of `make test`'s 10 minutes
+@pytest.mark.slow  # 12 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 def test_rest_stays_at_rest():
     system = fem_from_mesh(BAR, 1e3, (0.0, 0.0, 0.0), fixed=FIXED)
     state = backward_euler_step(system, State(BAR.X, jnp.zeros_like(BAR.X)), H, MATERIAL)
@@ -70,7 +70,7 @@ def test_rest_stays_at_rest():
     np.testing.assert_allclose(state.v, 0.0, atol=1e-12)
 
 
-@pytest.mark.slow  # compile-bound, 12 s on 2 cores: in the slow job, out of `make test`'s 10 minutes
+@pytest.mark.slow  # 12 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 def test_uniform_velocity_moves_a_free_body_rigidly():
     system, _, Xs = _two_cubes((0.0, 0.0, 0.0))
     v = jnp.broadcast_to(jnp.asarray([0.3, -1.2, 2.0]), Xs.shape)
@@ -108,7 +108,7 @@ def _potential_gradient(x, x_t, v_t):
     return np.asarray(jax.grad(E)(x)), np.abs(M @ np.asarray(x - x_t).ravel()).max()
 
 
-@pytest.mark.slow  # compile-bound, 17 s on 2 cores: in the slow job, out of `make test`'s 10 minutes
+@pytest.mark.slow  # 17 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 def test_converged_step_zeroes_the_gradient_and_keeps_fixed_nodes():
     x, v = _deformed(X, 2)
     x = x.at[FIXED].set(X[FIXED])
@@ -166,7 +166,7 @@ def test_cantilever_stays_finite_loses_energy_and_settles():
     np.testing.assert_allclose(tips[-1], static, rtol=0.05)
 
 
-@pytest.mark.slow  # compile-bound, 17 s on 2 cores: in the slow job, out of `make test`'s 10 minutes
+@pytest.mark.slow  # 17 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 def test_implicit_gradients_match_central_differences():
     rng = np.random.default_rng(3)
     weights = jnp.asarray(rng.normal(size=X.shape))
@@ -270,7 +270,7 @@ def test_newton_direction_is_exact_on_small_systems_and_cg_on_large_ones(monkeyp
     assert np.all(np.isfinite(x))
 
 
-@pytest.mark.slow  # compile-bound, 16 s on 2 cores: in the slow job, out of `make test`'s 10 minutes
+@pytest.mark.slow  # 16 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 def test_padded_system_steps_like_the_real_one():
     """A system padded to a capacity (extra free and fixed nodes, zero-weight elements, zero mass entries and CSR
     slots) takes the same step on its real nodes and leaves the padded ones where they are."""
@@ -312,7 +312,7 @@ def test_in_chunks_visits_every_row_once():
             assert float(_in_chunks(count, chunk, add_chunk, jnp.zeros(()))) == count * (count + 1) / 2
 
 
-@pytest.mark.slow  # compile-bound, 51 s on 2 cores: in the slow job, out of `make test`'s 10 minutes
+@pytest.mark.slow  # 51 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 def test_steps_in_chunks_equal_one_pass(monkeypatch):
     """The energy, its gradient and Newton matrix, M d, a step and its implicit gradient, summed over chunks of
     elements and mass entries that overlap at the end (3 of 30 elements, 7 of 174 mass entries), equal one pass

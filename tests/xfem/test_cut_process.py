@@ -84,7 +84,7 @@ def test_subdomains_delta_makes_a_copy_equal():
         copy.sub.apply_delta(delta)  # copy has the new ids already
 
 
-@pytest.mark.slow  # compile-bound, 11 s on 2 cores: in the slow job, out of `make test`'s 10 minutes
+@pytest.mark.slow  # 11 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 def test_replica_replays_earlier_cuts_and_direct_cuts():
     """Cuts made in the model's process before its worker started are replayed there, and so is a ``cut`` made
     directly while no cut is pending; the solids come back as meshes and are built on first use."""
@@ -111,7 +111,7 @@ def test_replica_replays_earlier_cuts_and_direct_cuts():
     background.close()
 
 
-@pytest.mark.slow  # compile-bound, 22 s on 2 cores: in the slow job, out of `make test`'s 10 minutes
+@pytest.mark.slow  # 22 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 def test_cut_that_removes_material():
     """A cut that swallows the top layer of tets (and their nodes' subdomains, with their DOFs) and cuts into the
     next one: the same model through the worker."""
@@ -146,7 +146,7 @@ def test_large_systems_are_padded_by_the_model(monkeypatch):
     background.close()
 
 
-@pytest.mark.slow  # compile-bound, 8 s on 2 cores: in the slow job, out of `make test`'s 10 minutes
+@pytest.mark.slow  # 8 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 def test_dead_worker_raises_at_commit_and_the_next_cut_starts_a_new_one():
     remote, inline = _models()
     background = BackgroundCuts(remote)
@@ -170,7 +170,7 @@ def test_dead_worker_raises_at_commit_and_the_next_cut_starts_a_new_one():
     background.close()
 
 
-@pytest.mark.slow  # compile-bound, 34 s on 2 cores: in the slow job, out of `make test`'s 10 minutes
+@pytest.mark.slow  # 34 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 def test_worker_errors_come_back_and_disagreement_is_caught():
     remote, inline = _models()
     background = BackgroundCuts(remote)
@@ -253,7 +253,7 @@ def test_messages_are_framed_whole():
     assert pickle.loads(pickle.dumps(messages[1]))[0] == "one"
 
 
-@pytest.mark.slow  # compile-bound, 12 s on 2 cores: in the slow job, out of `make test`'s 10 minutes
+@pytest.mark.slow  # 12 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 def test_next_cut_is_sent_before_a_reply_is_prepared():
     """The worker process starts the next pending cut as soon as it replies, while this process prepares the
     reply's system."""

@@ -36,7 +36,7 @@ def test_bar_writes_frames_meshes_and_a_summary(bar_run, capsys):
     assert last.cells_dict["tetra"].shape == (summary["elements"], 4)
 
 
-@pytest.mark.slow  # compile-bound, 16 s on 2 cores: in the slow job, out of `make test`'s 10 minutes
+@pytest.mark.slow  # 16 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 def test_a_surface_and_a_written_frame_are_scenes(bar_run, tmp_path, capsys):
     sphere = tmp_path / "ball.obj"
     trimesh.creation.icosphere(subdivisions=1, radius=0.3).export(sphere)

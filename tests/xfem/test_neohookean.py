@@ -243,7 +243,7 @@ def test_projected_hessian_is_the_psd_part(tets):
     assert np.sum(w[2 * M:].min(1) >= 0) >= 2
 
 
-@pytest.mark.slow  # compile-bound, 10 s on 2 cores: in the slow job, out of `make test`'s 10 minutes
+@pytest.mark.slow  # 10 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 def test_degenerate_and_inverted_elements_stay_finite(tets):
     grads, vol, X = tets
     x = jnp.asarray(_deformed(SPECIAL, X))

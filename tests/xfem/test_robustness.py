@@ -400,7 +400,7 @@ def test_long_run_cut_before_and_between_steps():
     assert np.max(np.abs(np.asarray(model.state.x)[held] - X[model.dof_node[held]])) < 1e-2
 
 
-@pytest.mark.slow  # compile-bound, 19 s on 2 cores: in the slow job, out of `make test`'s 10 minutes
+@pytest.mark.slow  # 19 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 @pytest.mark.parametrize("perturb", [0.0, PERTURB], ids=["exact", "perturbed"])
 def test_long_run_after_a_face_aligned_cut(perturb):
     mesh = box_tets((3, 3, 3))

@@ -68,7 +68,7 @@ def test_jit_and_vmap_over_young():
     assert not np.allclose(batched[0], batched[1])  # the stiffer bar sags less
 
 
-@pytest.mark.slow  # compile-bound, 14 s on 2 cores: in the slow job, out of `make test`'s 10 minutes
+@pytest.mark.slow  # 14 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 def test_converged_gradients_match_central_differences():
     """Young's modulus, the initial velocity, per-frame forces and moving targets, through 3 converged steps."""
     forces0 = jnp.broadcast_to(SYSTEM.force, (3,) + X.shape)
@@ -106,7 +106,7 @@ def _incremental_potential_gradient(x_free, x_t, v_t, young):
     return jax.grad(energy)(x_free)
 
 
-@pytest.mark.slow  # compile-bound, 19 s on 2 cores: in the slow job, out of `make test`'s 10 minutes
+@pytest.mark.slow  # 19 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 def test_one_newton_iteration_gives_the_converged_formula_at_the_executed_iterate():
     """With one Newton iteration the rollout's gradient is the implicit-function formula dx/dtheta = -H^-1 dG/dtheta
     evaluated at each step's executed iterate x_k (not the minimizer), chained through the steps: checked to 1e-8

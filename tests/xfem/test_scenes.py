@@ -44,7 +44,7 @@ def _material_volume(run) -> float:
     return body.volume() - (body ^ cuts).volume()
 
 
-@pytest.mark.slow  # compile-bound, 17 s on 2 cores: in the slow job, out of `make test`'s 10 minutes
+@pytest.mark.slow  # 17 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 @pytest.mark.parametrize("name", SCENES)
 def test_scene_runs_past_its_cuts(runs, name):
     run = runs(name)
@@ -64,7 +64,7 @@ def test_scene_runs_past_its_cuts(runs, name):
     assert summary["step_max_s"] >= summary["step_avg_s"] > 0
 
 
-@pytest.mark.slow  # compile-bound, 14 s on 2 cores: in the slow job, out of `make test`'s 10 minutes
+@pytest.mark.slow  # 14 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 def test_sticks_end_as_36_pieces(runs):
     run = runs("sticks")
     assert run.summary()["pieces"] == 36 == run.model.pieces()
@@ -128,7 +128,7 @@ def test_piece_surfaces_enclose_the_pieces():
     assert np.all(piece == 0)
 
 
-@pytest.mark.slow  # compile-bound, 13 s on 2 cores: in the slow job, out of `make test`'s 10 minutes
+@pytest.mark.slow  # 13 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 def test_bad_input():
     with pytest.raises(ValueError, match="name"):
         scene("octopus")
@@ -140,7 +140,7 @@ def test_bad_input():
         run_scene("cheese")
 
 
-@pytest.mark.slow  # compile-bound, 15 s on 2 cores: in the slow job, out of `make test`'s 10 minutes
+@pytest.mark.slow  # 15 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 def test_cut_latency_equals_the_cuts_done_later():
     """With a cut latency of L frames, cuts computed in the background while the body steps give the same run as
     the same cuts done in their frame L frames later (``BackgroundCuts``): the same DOFs and

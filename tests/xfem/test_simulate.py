@@ -25,7 +25,7 @@ def _model():
     return xfem_model(BAR, RHO, fixed=FIXED)
 
 
-@pytest.mark.slow  # compile-bound, 20 s on 2 cores: in the slow job, out of `make test`'s 10 minutes
+@pytest.mark.slow  # 20 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 def test_trajectory_equals_the_model_stepped_frame_by_frame():
     model = _model()
     n_before = len(model.dof_sid)
@@ -46,7 +46,7 @@ def test_trajectory_equals_the_model_stepped_frame_by_frame():
     assert float(jnp.min(segments[1].v[-1, :, 2])) < -0.1  # the released end falls
 
 
-@pytest.mark.slow  # compile-bound, 25 s on 2 cores: in the slow job, out of `make test`'s 10 minutes
+@pytest.mark.slow  # 25 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 def test_gradients_across_the_cut_match_central_differences():
     model = _model()
     rng = np.random.default_rng(5)
@@ -125,7 +125,7 @@ def test_plane_cuts_equal_the_solid_cuts():
         np.testing.assert_allclose(a.v, b.v, rtol=0, atol=1e-10)
 
 
-@pytest.mark.slow  # compile-bound, 24 s on 2 cores: in the slow job, out of `make test`'s 10 minutes
+@pytest.mark.slow  # 24 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 def test_gradient_with_respect_to_the_plane_matches_central_differences():
     """The hanging bar's positions after the cut (a random linear functional of the last frame), differentiated
     with respect to the slab's height and tilt through the cut and two converged steps; central differences of

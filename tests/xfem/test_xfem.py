@@ -27,7 +27,7 @@ def _mass(system):
                          shape=(system.n, system.n))
 
 
-@pytest.mark.slow  # compile-bound, 16 s on 2 cores: in the slow job, out of `make test`'s 10 minutes
+@pytest.mark.slow  # 16 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 @pytest.mark.parametrize("make", [five_tet_cube, lambda: box_tets((2, 2, 2))])
 def test_uncut_model_is_plain_fem(make):
     mesh = make()
@@ -98,7 +98,7 @@ def test_mass_after_cuts_is_body_minus_cuts():
     np.testing.assert_allclose(np.asarray(system.force).sum(axis=0), RHO * volume * G, rtol=1e-12, atol=1e-9)
 
 
-@pytest.mark.slow  # compile-bound, 7 s on 2 cores: in the slow job, out of `make test`'s 10 minutes
+@pytest.mark.slow  # 7 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 def test_cut_through_hanging_body_separates():
     mesh = tall_box()
     top = np.flatnonzero(np.asarray(mesh.X)[:, 2] > 1.5 - 1e-9)
@@ -165,7 +165,7 @@ def test_bad_input():
         xfem_model(mesh, RHO).displacement_at(np.zeros((2, 2)), np.zeros(2, int))
 
 
-@pytest.mark.slow  # compile-bound, 18 s on 2 cores: in the slow job, out of `make test`'s 10 minutes
+@pytest.mark.slow  # 18 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 def test_cuts_within_a_capacity_level_reuse_the_compiled_step(caplog):
     """Steps run on the system padded to a capacity level: cuts that stay within it compile nothing for the step,
     and the padded step equals the real system's step."""
