@@ -225,8 +225,7 @@ def replica_model(init: dict) -> XFEMModel:
     zeros = np.zeros_like(X)
     model = XFEMModel(TetMesh(X=X, T=np.asarray(init["T"], np.int64)), init["rho"], init["gravity"], init["fixed"],
                       State(zeros, zeros))
-    for cut, perturb, parallel in init["log"]:
-        model.cut(cut, perturb, parallel)
+    model.replay(init["log"])
     return model
 
 

@@ -324,11 +324,10 @@ def _plane(point, normal, epsilon, index: str = ""):
 
 
 def _copy(model: XFEMModel) -> XFEMModel:
-    """A model built from the same mesh, density, gravity and fixed nodes, cut by the model's cuts again (the
-    Booleans are deterministic, so the numbering is the model's), in the model's state."""
+    """A model built from the same mesh, density, gravity and fixed nodes, cut by the model's cuts again
+    (``XFEMModel.replay``), in the model's state."""
     copy = xfem_model(model.mesh, model.rho, model.gravity, model.fixed_nodes)
-    for cut, perturb, _ in model.cuts:
-        copy.cut(cut, perturb)
+    copy.replay(model.cuts)
     copy.state = State(np.asarray(model.state.x), np.asarray(model.state.v))
     return copy
 

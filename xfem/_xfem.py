@@ -396,6 +396,13 @@ class XFEMModel:
             self._level = self._padded.level
         return self._padded
 
+    def replay(self, cuts) -> None:
+        """Make the cuts of another model of the same mesh (its ``cuts`` log: mesh solid, perturb, parallel), in
+        order, with the same options: the Booleans are deterministic, so this model's subdomains and numbering
+        become that model's (a worker's replica, a copy to cut further)."""
+        for solid, perturb, parallel in cuts:
+            self.cut(solid, perturb, parallel)
+
     def step(self, h, material: Material, newton_iterations: int = 1) -> State:
         """One backward Euler step (eq. 10, Algorithm 1 line 26) of the current system; updates and returns
         ``state``. material: the ``Material`` (scalar parameters).
