@@ -65,7 +65,7 @@ from jaxtyping import Array, Float, Int
 from deform._harmonic import _check_mesh
 from deform._sparse import SparseSolver
 from jaxcga import KINDS, Multivector, align_points, apply_to_points
-from jaxcga._support import require
+from _jaxcga_shared.checks import require
 
 
 ENERGIES = ("spokes_and_rims", "spokes")

@@ -48,7 +48,7 @@ from jaxtyping import Array, Float
 from deform._motor_field import MotorField, bind
 from deform._sparse import SparseSolver
 from jaxcga import Multivector
-from jaxcga._support import quiet_stdout
+from _jaxcga_shared.host import quiet_stdout
 
 # points off the cage by less than this fraction of its bounding diagonal count as on it
 _SURFACE_TOLERANCE = 1e-9

@@ -23,7 +23,7 @@ from jaxtyping import Array, Float
 import jaxcga as cga
 from deform._motor_field import motor_about
 from jaxcga import KINDS, Multivector
-from jaxcga._support import require
+from _jaxcga_shared.checks import require
 
 
 def _check_chain(name: str, P):

@@ -46,7 +46,7 @@ from scipy.special import comb
 import jaxcga as cga
 from deform._motor_field import MotorField, bind, motor_about
 from jaxcga import Multivector
-from jaxcga._support import require
+from _jaxcga_shared.checks import require
 
 
 def _float_array(name: str, x, shape: tuple[int, ...]):

@@ -39,7 +39,7 @@ import jaxcga as cga
 from deform import _rig, _skinning
 from deform._model import RiggedModel
 from jaxcga._multivector import Multivector
-from jaxcga._support import plain_errors
+from _jaxcga_shared.checks import plain_errors
 
 METHODS = ("lbs", "dqs", "cga", "cga_motor_blend")
 INTERPOLATIONS = ("gltf", "log")

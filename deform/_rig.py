@@ -35,7 +35,7 @@ from jaxtyping import Array, Float
 import jaxcga as cga
 from deform._model import AnimationClip, Channel, Skeleton, SkinnedMesh
 from jaxcga._multivector import KINDS, Multivector
-from jaxcga._support import require
+from _jaxcga_shared.checks import require
 
 _SIMILITUDE = KINDS["similitude"]
 

@@ -34,7 +34,7 @@ from jaxtyping import Array, Float
 
 import jaxcga as cga
 from jaxcga._multivector import KINDS, Multivector
-from jaxcga._support import require
+from _jaxcga_shared.checks import require
 from jaxcga._versors import fused_point_coordinates
 
 

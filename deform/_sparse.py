@@ -22,7 +22,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 from sksparse_minimal import SparseCholesky
 
-from jaxcga._support import host_call
+from _jaxcga_shared.host import host_call
 
 
 class SparseSolver:
@@ -74,7 +74,7 @@ def _make_solve(solver: SparseSolver):
         return solver.host_solve(b, transpose).astype(b.dtype)
 
     def call(b, transpose):
-        # host_call, not jax.pure_callback: its device copy of b could hang a one-core machine (jaxcga._support)
+        # host_call, not jax.pure_callback: its device copy of b could hang a one-core machine (_jaxcga_shared.host)
         return host_call(functools.partial(host, transpose=transpose), jax.ShapeDtypeStruct(b.shape, b.dtype), b)
 
     @jax.custom_vjp

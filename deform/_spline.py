@@ -27,7 +27,7 @@ from deform._ffd import MAX_DEGREE
 from deform._harmonic import harmonic_precompute
 from deform._motor_field import MotorField, bind
 from jaxcga import Multivector
-from jaxcga._support import require
+from _jaxcga_shared.checks import require
 
 BASES = ("linear", "lagrange", "bezier", "bspline")
 _FIXED_KEYS = {"linear": 2, "lagrange": 3}

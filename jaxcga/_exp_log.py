@@ -23,7 +23,7 @@ import jax.numpy as jnp
 from jaxcga import _algebra as alg
 from jaxcga._multivector import KINDS, Multivector
 from jaxcga._operations import normalize
-from jaxcga._support import require
+from _jaxcga_shared.checks import require
 from jaxcga._versors import dilator
 
 MOTOR_GENERATOR = alg.parse_blades(("e12", "e13", "e23", "e1inf", "e2inf", "e3inf"))

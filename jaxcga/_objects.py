@@ -29,7 +29,7 @@ from jaxcga._operations import (
     scalar_product,
     undual,
 )
-from jaxcga._support import require
+from _jaxcga_shared.checks import require
 
 POINT_BLADES = alg.parse_blades(("e1", "e2", "e3", "eo", "einf"))
 

@@ -20,7 +20,7 @@ from jaxcga._multivector import (
     pseudoscalar,
     stack_columns,
 )
-from jaxcga._support import require
+from _jaxcga_shared.checks import require
 
 
 def geometric(a: Multivector, b: Multivector) -> Multivector:

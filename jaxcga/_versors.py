@@ -26,7 +26,7 @@ from jaxcga import _algebra as alg
 from jaxcga import _codegen
 from jaxcga._multivector import KINDS, Multivector, broadcast_batch
 from jaxcga._objects import POINT_BLADES, check_finite, check_vectors
-from jaxcga._support import require
+from _jaxcga_shared.checks import require
 
 _ROTOR = KINDS["rotor"]  # 1, e12, e13, e23
 

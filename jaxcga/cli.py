@@ -350,7 +350,7 @@ class _Parser(argparse.ArgumentParser):
 def error_line(error: BaseException) -> str:
     """The message of ``error`` on one line; for an error raised inside compiled code the check's own message,
     without the banner and the traceback around it."""
-    from jaxcga._support import compiled_error_message
+    from _jaxcga_shared.checks import compiled_error_message
 
     text = str(error).strip()
     return compiled_error_message(error) or (text.splitlines()[0] if text else type(error).__name__)

@@ -24,7 +24,7 @@ import numpy as np
 import scipy.sparse as sp
 from jaxtyping import Array, Float, Int
 
-from jaxcga._support import to_devices
+from _jaxcga_shared.host import to_devices
 
 
 class CapacityError(ValueError):

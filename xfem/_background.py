@@ -28,7 +28,7 @@ import jax
 import manifold3d
 import numpy as np
 
-from jaxcga._support import keep_on_host, to_devices
+from _jaxcga_shared.host import keep_on_host, to_devices
 from xfem._backward_euler import State
 from xfem._cut_process import CutProcess, CutProcessError, child_streams
 from xfem._framing import decode, encode, portable, read_frame, write_frame

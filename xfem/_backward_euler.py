@@ -21,7 +21,7 @@ enriched copies, sub-elements and custom mass entries go through the same code.
 
 Linear solver, chosen by measurement (benchmarks/README.md, "FEM linear solver"; ``bench_fem.py`` times the
 step against CHOLMOD): Jacobi-preconditioned CG on the host (``_host_cg``, compiled by numba without the GIL,
-``xfem._pcg``), one host call (``jaxcga._support.host_call``) per Newton iteration. CHOLMOD's wheel carries the
+``xfem._pcg``), one host call (``_jaxcga_shared.host.host_call``) per Newton iteration. CHOLMOD's wheel carries the
 reference BLAS, so its factorization is slow on large systems, and CG in JAX pays XLA's CPU gathers and scatters
 in every matrix-vector product. Small systems are the exception: up to ``_DIRECT_DOFS`` = 1,000 unknowns one
 CHOLMOD factorization costs less than CG's iterations, and the step solves exactly (``_host_newton_direction``).
@@ -63,7 +63,8 @@ from jax.ad_checkpoint import checkpoint_name
 from jaxtyping import Array, Float, Int
 from sksparse_minimal import SparseCholesky
 
-from jaxcga._support import host_call, require, to_devices
+from _jaxcga_shared.host import host_call, to_devices
+from _jaxcga_shared.checks import require
 from xfem._assembly import (
     AssemblyPattern,
     CapacityError,

@@ -15,7 +15,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from jaxcga._support import to_device
+from _jaxcga_shared.host import to_device
 from xfem._assembly import CapacityError
 from xfem._backward_euler import FEMSystem, State, SystemCapacity, compiled_step, fem_system
 from xfem._material import Material

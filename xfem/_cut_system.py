@@ -38,7 +38,8 @@ from jax.extend.core import concrete_or_error
 from jaxtyping import Array, Float, Int
 
 from jaxcga._objects import check_finite, check_vectors
-from jaxcga._support import require, to_devices
+from _jaxcga_shared.host import to_devices
+from _jaxcga_shared.checks import require
 from xfem._assembly import scalar_slots
 from xfem._backward_euler import FEMSystem, State
 from xfem._cuts import _positive, plane_cut_solid

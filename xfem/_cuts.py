@@ -28,7 +28,7 @@ from jaxtyping import Array, Float, Int
 
 import jaxcga as cga
 from jaxcga._objects import check_finite, check_vectors
-from jaxcga._support import require
+from _jaxcga_shared.checks import require
 
 
 def _grid_faces(q: int, p: int) -> np.ndarray:

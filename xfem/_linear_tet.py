@@ -22,7 +22,7 @@ import numpy as np
 import scipy.sparse as sp
 from jaxtyping import Array, Float, Int
 
-from jaxcga._support import require
+from _jaxcga_shared.checks import require
 from xfem._tetmesh import (
     _bad_index,
     _host_positions,

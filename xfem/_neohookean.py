@@ -76,7 +76,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from jaxcga._support import require
+from _jaxcga_shared.checks import require
 from xfem._jacobi3 import eigh3, svd3
 
 _LEVI_CIVITA = np.zeros((3, 3, 3))

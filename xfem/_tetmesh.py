@@ -27,7 +27,8 @@ import tetgen
 import trimesh
 from jaxtyping import Array, Float, Int
 
-from jaxcga._support import quiet_stdout, require
+from _jaxcga_shared.host import quiet_stdout
+from _jaxcga_shared.checks import require
 
 # a tet is degenerate when |6 V| <= this times the cube of its longest edge (a regular tet has 0.707)
 _DEGENERATE = 1e-12

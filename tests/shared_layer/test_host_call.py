@@ -1,4 +1,4 @@
-"""``jaxcga._support.host_call``: a host function called from traced code with numpy arrays, which does not hang a
+"""``_jaxcga_shared.host.host_call``: a host function called from traced code with numpy arrays, which does not hang a
 one-core machine (``jax.pure_callback`` did, in the XFEM step's Newton solve)."""
 
 import os
@@ -12,7 +12,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from jaxcga._support import host_call
+from _jaxcga_shared.host import host_call
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -58,7 +58,7 @@ _ONE_CORE = textwrap.dedent("""
     jax.config.update("jax_enable_x64", True)
     import jax.numpy as jnp
     import numpy as np
-    from jaxcga._support import host_call
+    from _jaxcga_shared.host import host_call
     call = host_call if sys.argv[1] == "host_call" else (
         lambda fn, result, *args: jax.pure_callback(fn, result, *args, vmap_method="sequential"))
 
