@@ -18,7 +18,7 @@ from jaxcga._exp_log import (
     log_similitude,
 )
 from jaxcga._interpolation import blend_linear, blend_log, blend_weighted
-from jaxcga._multivector import KINDS, Multivector, pseudoscalar, table_product
+from jaxcga._multivector import KINDS, Multivector, pseudoscalar, sandwich, table_product
 from jaxcga._objects import (
     circle,
     circle_center_radius_normal,
@@ -60,7 +60,6 @@ from jaxcga._operations import (
     normalize,
     outer,
     reverse,
-    sandwich,
     scalar,
     scalar_product,
     undual,

@@ -13,7 +13,7 @@ from jaxtyping import Array, Float
 
 from jaxcga._multivector import Multivector
 from jaxcga._objects import check_finite, check_vectors
-from jaxcga._versors import motor, quaternion_to_rotor
+from jaxcga._versors import apply_to_points, motor, quaternion_to_rotor
 
 
 def align_points(
@@ -54,7 +54,5 @@ def align_points(
     quat = vectors[..., :, -1]
     quat = quat * jnp.where(quat[..., :1] < 0, -1.0, 1.0)
     r = quaternion_to_rotor(quat)
-    from jaxcga._versors import apply_to_points
-
     t = cq - apply_to_points(r, cp)
     return motor(r, t)

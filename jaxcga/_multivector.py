@@ -201,8 +201,6 @@ class Multivector(eqx.Module):
         return Multivector(self.values * _signs(alg.reverse_sign, self.blades, self.dtype), self.blades)
 
     def __rshift__(self, other):
-        from jaxcga._operations import sandwich
-
         return sandwich(self, other)
 
 
@@ -251,6 +249,22 @@ def product(kind: str, a: Multivector, b: Multivector) -> Multivector:
         terms, (_codegen.LazyColumns(a.values), _codegen.LazyColumns(b.values)), batch
     )
     return Multivector(stack_columns(columns, batch, dtype), blades)
+
+
+def sandwich(v: Multivector, x: Multivector) -> Multivector:
+    """``v x v^-1`` (eq. 14) as one generated expression, bilinear in v, projected on the grades of x.
+
+    ``v`` is a versor; ``v^-1 = ~v / <v ~v>_0``, so un-normalized versors (e.g. the paper's dilator
+    of eq. 12) act correctly too."""
+    if not isinstance(v, Multivector) or not isinstance(x, Multivector):
+        raise ValueError("sandwich: v and x must be Multivectors")
+    batch = broadcast_batch("v", v.batch_shape, "x", x.batch_shape)
+    vc = _codegen.LazyColumns(v.values)
+    terms = _codegen.sandwich_terms(v.blades, x.blades)
+    blades, columns = _codegen.emit(terms, (vc, vc, _codegen.LazyColumns(x.values)), batch)
+    scale = product("scalar", v, ~v).values[..., 0]  # a versor's <v ~v>_0 is never structurally zero
+    out = Multivector(stack_columns(columns, batch, jnp.result_type(v.dtype, x.dtype)), blades)
+    return out / scale
 
 
 def table_product(kind: str, a: Multivector, b: Multivector) -> Multivector:

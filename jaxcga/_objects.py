@@ -24,6 +24,8 @@ from jaxcga._operations import (
     basis_vector,
     dual,
     inner,
+    involution,
+    left_contraction,
     meet,
     outer,
     scalar_product,
@@ -210,8 +212,6 @@ def round_radius2(X: Multivector):
     <X X^> / <K K> with K = einf _| X and ^ the grade involution; negative for imaginary rounds.
     (With K^ in the denominator the sign would flip for point pairs and spheres, whose K has odd
     grade.)"""
-    from jaxcga._operations import involution, left_contraction
-
     K = left_contraction(_einf(X.dtype), X)
     return scalar_product(X, involution(X)) / scalar_product(K, K)
 

@@ -13,8 +13,10 @@ import jax.numpy as jnp
 from jaxcga import _algebra as alg
 from jaxcga import _codegen
 from jaxcga._multivector import (
+    KINDS,
     Multivector,
     _signs,
+    as_blades,
     broadcast_batch,
     product,
     pseudoscalar,
@@ -123,8 +125,6 @@ def normalize(m: Multivector) -> Multivector:
 
 @functools.cache
 def _motor_blades():
-    from jaxcga._multivector import KINDS
-
     return KINDS["motor"]
 
 
@@ -190,25 +190,7 @@ def inverse(m: Multivector) -> Multivector:
     return Multivector(x, blades)
 
 
-def sandwich(v: Multivector, x: Multivector) -> Multivector:
-    """``v x v^-1`` (eq. 14) as one generated expression, bilinear in v, projected on the grades of x.
-
-    ``v`` is a versor; ``v^-1 = ~v / <v ~v>_0``, so un-normalized versors (e.g. the paper's dilator
-    of eq. 12) act correctly too."""
-    if not isinstance(v, Multivector) or not isinstance(x, Multivector):
-        raise ValueError("sandwich: v and x must be Multivectors")
-    batch = broadcast_batch("v", v.batch_shape, "x", x.batch_shape)
-    vc = _codegen.LazyColumns(v.values)
-    terms = _codegen.sandwich_terms(v.blades, x.blades)
-    blades, columns = _codegen.emit(terms, (vc, vc, _codegen.LazyColumns(x.values)), batch)
-    scale = scalar_product(v, ~v)
-    out = Multivector(stack_columns(columns, batch, jnp.result_type(v.dtype, x.dtype)), blades)
-    return out / scale
-
-
 def zeros(blades, batch_shape=(), dtype=None) -> Multivector:
-    from jaxcga._multivector import as_blades
-
     blades = as_blades(blades)
     return Multivector(jnp.zeros(tuple(batch_shape) + (len(blades),), dtype or jnp.result_type(float)), blades)
 
