@@ -79,16 +79,22 @@ def compiled_error_message(error: BaseException) -> str | None:
 
 def plain_errors(fn):
     """``fn`` (a jitted public function) raising a plain ``ValueError`` with the check's message when a value
-    check inside it fails on concrete input; under an outer trace nothing changes (its checks fail at run time)."""
+    check inside it fails on concrete input, on every backend (it waits for the result); under an outer trace
+    nothing changes (its checks fail at run time)."""
 
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
         try:
-            return fn(*args, **kwargs)
-        except (eqx.EquinoxRuntimeError, jax.errors.JaxRuntimeError) as error:
+            out = fn(*args, **kwargs)
+            if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(out)):
+                return out
+            # a GPU runs compiled code asynchronously: a failed check surfaces when the result is ready
+            return jax.block_until_ready(out)
+        except (eqx.EquinoxRuntimeError, jax.errors.JaxRuntimeError, ValueError) as error:
+            # JAX raises a callback's failure as a JaxRuntimeError, or a ValueError from a cached executable
             message = compiled_error_message(error)
-            if isinstance(error, jax.errors.JaxRuntimeError) and message != _FAILED["message"]:
-                raise  # not a check: an error of the computation itself
+            if not isinstance(error, eqx.EquinoxRuntimeError) and message != _FAILED["message"]:
+                raise  # not a check: an error of the computation itself, or of its arguments
             raise ValueError(message) from None
 
     return wrapper
