@@ -8,7 +8,6 @@ import functools
 import re
 
 import equinox as eqx
-import equinox.internal
 import jax
 import jax.numpy as jnp
 
@@ -54,7 +53,7 @@ def require(x, *checks):
     for bad, message in checks:
         if isinstance(bad, jax.core.Tracer):
             # unvmap_any: one flag for a whole vmap batch, so the failing branch stays a branch (not a select)
-            flag = equinox.internal.unvmap_any(jnp.any(bad))
+            flag = eqx.internal.unvmap_any(jnp.any(bad))
             x = _checked(jnp.asarray(x), flag, message)  # python scalars have nothing to thread on
         elif bool(jnp.any(bad)):
             raise ValueError(message)
