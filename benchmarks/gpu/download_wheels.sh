@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Fill .whl/ (git-ignored; it travels to the device machine with the working tree) with the wheels the GPU
+# Fill .whl/ (git-ignored: the device tool's run must carry it) with the wheels the GPU
 # machine lacks, for Python 3.12 on x86-64 Linux: the project's dependencies beyond JAX, equinox, optimistix,
 # lineax, scipy, numba and hypothesis (preinstalled there), the test peers (clifford, kingdon) and pytest-xdist.
 # No dependencies are resolved: the list is complete, at the versions the CPU suite is tested with.
@@ -18,7 +18,13 @@ wheels=(
   kingdon==3.0.0 sympy==1.14.0 mpmath==1.3.0 traitlets==5.16.1
   pytest-xdist==3.8.0 execnet==2.1.2
 )
-"$PY" -m pip download --quiet --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
+log=$(mktemp)
+if ! "$PY" -m pip download --quiet --no-deps --only-binary=:all: --python-version 3.12 --implementation cp \
   --platform manylinux2014_x86_64 --platform manylinux_2_17_x86_64 --platform manylinux_2_27_x86_64 \
-  --platform manylinux_2_28_x86_64 --dest "$dir" "${wheels[@]}" 2>&1 | grep -v "is ignored: it is neither" || true
+  --platform manylinux_2_28_x86_64 --dest "$dir" "${wheels[@]}" > "$log" 2>&1; then
+  cat "$log"
+  rm -f "$log"
+  exit 1
+fi
+rm -f "$log"
 du -sh "$dir"
