@@ -4,7 +4,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test test-slow bench install clean
+.PHONY: demo test test-slow bench bench-gpu install clean
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -38,6 +38,11 @@ bench: $(STAMP)
 	$(PY) benchmarks/bench_arap.py --json out/bench/arap.json
 	$(PY) benchmarks/bench_fem.py --json out/bench/fem.json
 	$(PY) benchmarks/bench_xfem.py --json out/bench/xfem.json
+
+## Benchmarks on a CUDA GPU: the GPU set at GPU sizes (1e7 points, 100k vertices, FEM 23k, XFEM accordion), names
+## suffixed _gpu, JSON to out/bench-gpu/ and the issue 32 targets beside the figures (benchmarks/README.md).
+bench-gpu: $(STAMP)
+	PY=$(PY) benchmarks/gpu/bench_gpu.sh out/bench-gpu
 
 clean:
 	rm -rf $(VENV) out .pytest_cache

@@ -9,7 +9,10 @@ Medians over interleaved repeats. Ratios are baseline time / ours (> 1: we are f
 energy (``iteration_vs_igl_spokes_and_rims_10k``, ``iteration_vs_igl_spokes_10k``, ...); the names
 without one (``iteration_vs_igl_10k``, ...) are the spokes energy's, as before both energies existed.
 
-    python benchmarks/bench_arap.py [--iterations 10] [--repeats 5] [--quick] [--json out/bench/arap.json]
+Sizes: ``--vertices`` (default 10000 40000; on a GPU 100000), each named by its thousands (``_100k``).
+
+    python benchmarks/bench_arap.py [--vertices 10000 40000] [--iterations 10] [--repeats 5] [--quick]
+                                    [--json out/bench/arap.json]
 """
 
 from __future__ import annotations
@@ -32,7 +35,7 @@ from scipy.spatial.transform import Rotation  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
-from _report import RATIO_UNIT, add_json_argument, write_json  # noqa: E402
+from _report import RATIO_UNIT, add_json_argument, print_device, write_json  # noqa: E402
 
 import deform  # noqa: E402
 from tests.deform._arap_reference import libigl_arap_in_numpy  # noqa: E402
@@ -128,13 +131,19 @@ def run(sizes: dict, iterations: int, repeats: int):
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--vertices", type=int, nargs="+", default=[10_000, 40_000],
+                        help="at least this many mesh vertices, one size each (default 10000 40000)")
     parser.add_argument("--iterations", type=int, default=10, help="ARAP iterations per timed solve")
     parser.add_argument("--repeats", type=int, default=5, help="timed repeats (medians)")
     parser.add_argument("--quick", action="store_true", help="3 iterations, one repeat (a smoke run for the tests)")
     add_json_argument(parser)
     args = parser.parse_args(argv)
+    print_device("bench_arap")
     iterations, repeats = (3, 1) if args.quick else (args.iterations, args.repeats)
-    write_json(args.json, run({"10k": 10_000, "40k": 40_000}, iterations, repeats))
+    if min(args.vertices) < 1:
+        parser.error("--vertices: expected positive counts")
+    write_json(args.json, run({f"{n // 1000}k" if n >= 1000 else str(n): n for n in args.vertices}, iterations,
+                              repeats))
 
 
 if __name__ == "__main__":

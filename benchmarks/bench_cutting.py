@@ -34,7 +34,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 import cutting  # noqa: E402
 import deform  # noqa: E402
-from _report import RATIO_UNIT, add_json_argument, write_json  # noqa: E402
+from _report import RATIO_UNIT, add_json_argument, print_device, write_json  # noqa: E402
 
 PAPER_MS = {"cut": 4666.0, "tear": 2437.0, "drill": 274.0}
 
@@ -144,6 +144,7 @@ def main(argv=None):
     parser.add_argument("--quick", action="store_true", help="small sizes for a smoke test")
     add_json_argument(parser)
     args = parser.parse_args(argv)
+    print_device("bench_cutting")
     if args.quick:
         args.repeats, args.faces = 2, 20_000
     result = run(args.repeats, args.faces)

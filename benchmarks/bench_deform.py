@@ -32,7 +32,7 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
-from _report import RATIO_UNIT, add_json_argument, write_json  # noqa: E402
+from _report import RATIO_UNIT, add_json_argument, print_device, write_json  # noqa: E402
 
 import cutting  # noqa: E402
 import deform  # noqa: E402
@@ -203,6 +203,7 @@ def main(argv=None):
     parser.add_argument("--harmonic-repeats", type=int, default=9, help="timed field solves")
     add_json_argument(parser)
     args = parser.parse_args(argv)
+    print_device("bench_deform")
     result = run(args.vertices, args.repeats, args.harmonic_repeats)
     write_json(args.json, result)
 

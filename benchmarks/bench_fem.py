@@ -20,7 +20,9 @@ Timing: after a first step (jit compilation included; reported as a figure), the
 
 Ratios are baseline time / ours (> 1: we are faster).
 
-    python benchmarks/bench_fem.py [--steps 10] [--quick] [--json out/bench/fem.json]
+Sizes: ``--sizes`` picks some of 1k, 7k and 23k (default all; on a GPU ``--sizes 23k``).
+
+    python benchmarks/bench_fem.py [--sizes 1k 7k 23k] [--steps 10] [--quick] [--json out/bench/fem.json]
 """
 
 from __future__ import annotations
@@ -41,7 +43,7 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
-from _report import RATIO_UNIT, add_json_argument, write_json  # noqa: E402
+from _report import RATIO_UNIT, add_json_argument, print_device, write_json  # noqa: E402
 
 import xfem  # noqa: E402
 import xfem._backward_euler as be  # noqa: E402
@@ -189,12 +191,16 @@ def run(cells: dict, steps: int):
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--sizes", nargs="+", choices=CELLS, default=list(CELLS),
+                        help="the free DOFs of the blocks to run, of 1k, 7k, 23k (default: all)")
     parser.add_argument("--steps", type=int, default=10, help="timed steps per size (medians and max)")
     parser.add_argument("--quick", action="store_true",
                         help=f"every size on one {QUICK_CELLS} block (compiled once), 2 steps: a smoke run")
     add_json_argument(parser)
     args = parser.parse_args(argv)
-    cells, steps = ({tag: QUICK_CELLS for tag in CELLS}, 2) if args.quick else (CELLS, args.steps)
+    print_device("bench_fem")
+    cells = {tag: QUICK_CELLS if args.quick else CELLS[tag] for tag in CELLS if tag in args.sizes}
+    steps = 2 if args.quick else args.steps
     write_json(args.json, run(cells, steps))
     return 0
 

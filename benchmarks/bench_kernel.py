@@ -10,7 +10,8 @@ them alike), median of the repeats:
 * compile time of the first call (trace, code generation and XLA compile), measured first thing.
 
 Ratios are baseline time / our time: larger than 1 means jaxcga is faster.
-Usage: ``python benchmarks/bench_kernel.py [--n 100000] [--repeats 30] [--json PATH]``.
+Usage: ``python benchmarks/bench_kernel.py [--points 100000] [--repeats 30] [--json PATH]`` (on a GPU
+``--points 10000000``).
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ import jaxcga as cga  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _kingdon_peer import make_kingdon_sandwich  # noqa: E402
-from _report import RATIO_UNIT, add_json_argument, write_json  # noqa: E402
+from _report import RATIO_UNIT, add_json_argument, print_device, write_json  # noqa: E402
 
 
 def _ours(motor_values, x):
@@ -134,14 +135,15 @@ def run(n: int, repeats: int) -> dict:
 
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--n", type=int, default=100_000, help="number of points (default 100000)")
+    parser.add_argument("--points", "--n", type=int, default=100_000, help="number of points (default 100000)")
     parser.add_argument("--repeats", type=int, default=30, help="timed calls per candidate")
     add_json_argument(parser)
     args = parser.parse_args(argv)
-    if args.n < 1 or args.repeats < 1:
-        parser.error("--n and --repeats must be positive")
-    result = run(args.n, args.repeats)
-    print(f"bench_kernel: {args.n} points, median of {args.repeats} round-robin calls, {jax.devices()[0].platform}")
+    print_device("bench_kernel")
+    if args.points < 1 or args.repeats < 1:
+        parser.error("--points and --repeats must be positive")
+    result = run(args.points, args.repeats)
+    print(f"bench_kernel: {args.points} points, median of {args.repeats} round-robin calls")
     for name, value in result["figures"].items():
         unit = result["units"][name]
         print(f"  {name:38s} {value:12.4g} {unit}")

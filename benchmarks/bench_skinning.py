@@ -41,7 +41,7 @@ sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 import deform  # noqa: E402
 import jaxcga as cga  # noqa: E402
-from _report import RATIO_UNIT, add_json_argument, write_json  # noqa: E402
+from _report import RATIO_UNIT, add_json_argument, print_device, write_json  # noqa: E402
 
 
 def subdivided_arm5(min_vertices: int = 0, influences: int = 4, min_faces: int = 0) -> deform.RiggedModel:
@@ -188,6 +188,7 @@ def main(argv=None):
     parser.add_argument("--quick", action="store_true", help="small sizes for a smoke test")
     add_json_argument(parser)
     args = parser.parse_args(argv)
+    print_device("bench_skinning")
     if args.quick:
         args.vertices, args.poses, args.repeats, args.batch_repeats = 5_000, 20, 3, 1
     result = run(args.vertices, args.poses, args.repeats, args.batch_repeats, args.chunk)

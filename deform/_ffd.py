@@ -112,7 +112,7 @@ def lattice_coordinates(lattice: Lattice, V: Float[Array, "n 3"]) -> Float[Array
     """Local coordinates ``(s, t, u)`` of the points ``V`` (n, 3) in the lattice, ``V = origin + (s, t, u) @ axes``.
 
     A point outside [0, 1]^3 by more than rounding (``sqrt(eps)``), or a flat lattice, raises a
-    ValueError (inside jit an ``eqx.error_if`` runtime error)."""
+    ValueError (inside jit a runtime error with the message)."""
     V = _check_points("V", V)
     axes, origin = lattice.axes.astype(V.dtype), lattice.origin.astype(V.dtype)
     local = jnp.linalg.solve(axes.T, (V - origin).T).T

@@ -3,7 +3,7 @@
 A bone's local transform is ``t = T R S`` (eq. 15). In the multivector form it becomes the
 similitude ``T R D``: translator, rotor and a dilator for a uniform scale (sec. 4.1, "the multivector
 M_i,k ... can be replaced with M_i,k D_i,k"). A non-uniform scale has no versor: it raises a ValueError
-(inside jit an ``eqx.error_if`` error); the matrix path (``local_matrices`` + ``skin_lbs``) handles it.
+(inside jit a runtime error with the message); the matrix path (``local_matrices`` + ``skin_lbs``) handles it.
 
 Sampling a clip:
 
@@ -69,7 +69,7 @@ def _rotor_xyzw(q) -> Multivector:
 
 def uniform_scale(scale: Float[Array, "... 3"], tolerance: float = 1e-5) -> Float[Array, "..."]:
     """The common factor of a uniform scale (..., 3); non-uniform (relative spread > tolerance) or
-    non-positive scales raise a ValueError (inside jit an ``eqx.error_if`` error): a dilator is a uniform
+    non-positive scales raise a ValueError (inside jit a runtime error with the message): a dilator is a uniform
     scaling (eq. 12)."""
     s = jnp.mean(scale, axis=-1)
     spread = jnp.max(jnp.abs(scale - s[..., None]), axis=-1, initial=0.0) / jnp.abs(s)

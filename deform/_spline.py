@@ -36,7 +36,7 @@ _ROUNDING = 1e-9  # how far outside [0, 1] a parameter may stray by rounding; it
 
 def check_parameter(lam) -> Float[Array, " n"]:
     """``lam`` as a float vector (n,) in [0, 1]: ValueError for a bad shape or (when concrete) values
-    outside [0, 1] beyond rounding, an ``eqx.error_if`` error inside jit; rounding is clipped away."""
+    outside [0, 1] beyond rounding, a runtime error with the message inside jit; rounding is clipped away."""
     lam = jnp.asarray(lam)
     if lam.ndim != 1:
         raise ValueError(f"lam: expected a parameter vector of shape (n,), got shape {lam.shape}")

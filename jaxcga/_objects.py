@@ -47,7 +47,7 @@ def check_vectors(name: str, x, size: int = 3):
 
 
 def check_finite(name: str, x):
-    """A ValueError when ``x`` holds NaN or infinity (inside jit an ``eqx.error_if`` error)."""
+    """A ValueError when ``x`` holds NaN or infinity (inside jit a runtime error with the message)."""
     return require(x, (~jnp.all(jnp.isfinite(x)), f"{name}: non-finite values (NaN or inf)"))
 
 

@@ -371,7 +371,7 @@ def matrix_to_similitude(matrix: Float[Array, "... 4 4"], tolerance: float = 1e-
     Args:
         matrix: (..., 4, 4) or (..., 3, 4).
         tolerance: allowed deviation of ``A^T A / s^2`` from the identity (shear or non-uniform scale
-            beyond it raises a ValueError, inside jit an ``eqx.error_if`` error)."""
+            beyond it raises a ValueError, inside jit a runtime error with the message)."""
     matrix = jnp.asarray(matrix)
     if matrix.ndim < 2 or matrix.shape[-2:] not in ((4, 4), (3, 4)):
         raise ValueError(f"matrix: expected shape (..., 4, 4) or (..., 3, 4), got {matrix.shape}")

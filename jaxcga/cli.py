@@ -359,7 +359,7 @@ def error_line(error: BaseException) -> str:
 @contextlib.contextmanager
 def _one_line_reports(command: str):
     """Warnings (a mesh welded on load, ...) as one line each, and JAX's log of a failed host callback (the
-    traceback of an ``eqx.error_if`` under ``jax.jit``) muted: that error reaches ``main`` and is printed on
+    traceback of a failed check under ``jax.jit``) muted: that error reaches ``main`` and is printed on
     one line."""
     logger = logging.getLogger("jax._src.callback")
     disabled, logger.disabled = logger.disabled, True

@@ -1,4 +1,5 @@
-"""Helpers shared by the test packages: a flat grid mesh and a finite-difference gradient check."""
+"""Helpers shared by the test packages: a flat grid mesh, a finite-difference gradient check, the comparison of
+two runs of one computation (bitwise on the CPU), and the skip of a test that needs the host (conftest.py)."""
 
 from __future__ import annotations
 
@@ -22,3 +23,24 @@ def check_gradient(loss, params, rtol: float = 1e-5, step: float = 1e-6):
     numeric = np.array([(loss(params.at[i].add(step)) - loss(params.at[i].add(-step))) / (2 * step)
                         for i in range(len(params))])
     np.testing.assert_allclose(grad, numeric, rtol=rtol, atol=1e-6 * float(np.abs(numeric).max()))
+
+
+def assert_same_run(actual, expected, atol: float):
+    """Two runs of one computation: bitwise equal on the CPU, where XLA sums a scatter-add in one order; equal to
+    ``atol`` on a GPU, whose scatter-adds are atomic and sum in an order that varies from run to run."""
+    import jax
+
+    if jax.default_backend() == "cpu":
+        np.testing.assert_array_equal(actual, expected)
+    else:
+        np.testing.assert_allclose(actual, expected, rtol=0, atol=atol)
+
+
+def host_skip_reason(marker, backend: str) -> str | None:
+    """Why a test marked ``@pytest.mark.host("why")`` is skipped on ``backend`` (None: it runs; on the CPU it
+    always does). A mark without its reason is an error."""
+    if marker is None:
+        return None
+    if len(marker.args) != 1 or not isinstance(marker.args[0], str) or not marker.args[0].strip():
+        raise ValueError(f"@pytest.mark.host: expected one reason, got {marker.args!r}")
+    return None if backend == "cpu" else f"needs the host ({backend} backend): {marker.args[0]}"

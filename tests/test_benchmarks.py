@@ -1,8 +1,8 @@
 """The benchmark scripts run (in their small --quick mode) and write the JSON names the issues
-promise. Speed itself is not asserted here: it is measured by `make bench`.
+promise, suffixed ``_gpu`` on a GPU. Speed itself is not asserted here: it is measured by `make bench`.
 
-Marked slow (each run compiles the benchmark's whole set of kernels in a fresh process): `make test` leaves them
-out, `make test-slow` runs them (with the notebooks), and CI (`.ci/run`) runs both."""
+The smoke runs are marked slow (each compiles the benchmark's whole set of kernels in a fresh process): `make test`
+leaves them out, `make test-slow` runs them (with the notebooks), and CI (`.ci/run`) runs both."""
 
 from __future__ import annotations
 
@@ -11,21 +11,62 @@ import subprocess
 import sys
 from pathlib import Path
 
+import jax
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-pytestmark = pytest.mark.slow
+sys.path.insert(0, str(ROOT / "benchmarks"))
+import _report  # noqa: E402
 
 
-def _quick(script: str, tmp_path) -> dict:
-    """Run ``benchmarks/<script> --quick`` and read back its JSON."""
+def _quick(script: str, tmp_path, *args: str) -> dict:
+    """Run ``benchmarks/<script> --quick ARGS`` and read back its JSON."""
     out = tmp_path / "result.json"
-    done = subprocess.run([sys.executable, str(ROOT / "benchmarks" / script), "--quick", "--json", str(out)],
+    done = subprocess.run([sys.executable, str(ROOT / "benchmarks" / script), "--quick", *args, "--json", str(out)],
                           capture_output=True, text=True, timeout=600, cwd=ROOT)
     assert done.returncode == 0, done.stderr[-3000:]
-    return json.loads(out.read_text())
+    result = json.loads(out.read_text())
+    assert result["platform"] == jax.default_backend() and result["device"] == jax.devices()[0].device_kind
+    return _unsuffixed(result)
 
 
+def _unsuffixed(result: dict) -> dict:
+    """``result``'s names without this platform's suffix (none on the CPU), every name checked to carry it."""
+    end = _report.suffix()
+    for key in ("figures", "ratios", "units"):
+        assert all(name.endswith(end) for name in result[key])
+    return {key: {name[: len(name) - len(end)]: v for name, v in result[key].items()}
+            for key in ("figures", "ratios", "units")}
+
+
+def test_names_carry_the_gpu_suffix_on_a_gpu_only():
+    result = {"figures": {"step_23k_s": 0.5}, "ratios": {"step_23k_vs_paper": 11.6},
+              "units": {"step_23k_s": "s", "step_23k_vs_paper": _report.RATIO_UNIT}}
+    on_cpu, on_gpu = _report.with_suffix(result, "cpu"), _report.with_suffix(result, "gpu")
+    assert {key: on_cpu[key] for key in result} == result and on_cpu["platform"] == "cpu"
+    assert on_gpu["figures"] == {"step_23k_s_gpu": 0.5} and on_gpu["ratios"] == {"step_23k_vs_paper_gpu": 11.6}
+    assert on_gpu["units"] == {"step_23k_s_gpu": "s", "step_23k_vs_paper_gpu": _report.RATIO_UNIT}
+    assert on_gpu["platform"] == "gpu" and on_gpu["device"] == jax.devices()[0].device_kind
+    assert _report.suffix("cpu") == "" and _report.suffix("gpu") == "_gpu"
+
+
+def test_bench_kernel_takes_points_and_writes_this_platforms_names(tmp_path, capsys):
+    """A tiny size in this process (one compile of each candidate, no fresh interpreter): the platform and the
+    device are printed and recorded, the names suffixed for this platform (the CPU's: none, as before)."""
+    import bench_kernel
+
+    assert bench_kernel.main(["--points", "64", "--repeats", "1", "--json", str(tmp_path / "kernel.json")]) == 0
+    printed = capsys.readouterr().out
+    assert f"bench_kernel: {jax.default_backend()}, {jax.devices()[0].device_kind}" in printed
+    assert "64 points" in printed
+    written = json.loads((tmp_path / "kernel.json").read_text())
+    result = _unsuffixed(written)
+    assert result["ratios"]["per_point_f64_vs_matrix"] > 0 and result["figures"]["per_point_f64_points_per_s"] > 0
+    if jax.default_backend() == "cpu":
+        assert "per_point_f64_vs_kingdon" in written["ratios"]  # the CPU's JSON names are unchanged
+
+
+@pytest.mark.slow
 def test_bench_skinning_quick_writes_the_published_names(tmp_path):
     result = _quick("bench_skinning.py", tmp_path)
     for name in ("cga_vs_lbs_f32", "cga_vs_lbs_f64", "cga_sum_then_project_vs_lbs_f32",
@@ -36,6 +77,7 @@ def test_bench_skinning_quick_writes_the_published_names(tmp_path):
         assert result["figures"][name] > 0 and name in result["units"]
 
 
+@pytest.mark.slow
 def test_bench_cutting_quick_writes_the_published_names(tmp_path):
     result = _quick("bench_cutting.py", tmp_path)
     for name in ("arm5_cut_ms", "arm5_cut_ga_ms", "arm5_tear_ms", "arm5_tear_ga_ms", "arm5_drill_ms",
@@ -45,9 +87,10 @@ def test_bench_cutting_quick_writes_the_published_names(tmp_path):
         assert result["ratios"][name] > 0
 
 
+@pytest.mark.slow
 def test_bench_arap_quick_writes_the_published_names(tmp_path):
-    result = _quick("bench_arap.py", tmp_path)
-    for tag in ("10k", "40k"):
+    result = _quick("bench_arap.py", tmp_path, "--vertices", "3000", "10000")
+    for tag in ("3k", "10k"):
         # each energy against libigl's same energy; the names without an energy are the spokes energy's
         for key in (tag, f"spokes_{tag}", f"spokes_and_rims_{tag}"):
             assert result["ratios"][f"iteration_vs_igl_{key}"] > 0 and result["ratios"][f"precompute_vs_igl_{key}"] > 0
@@ -55,14 +98,19 @@ def test_bench_arap_quick_writes_the_published_names(tmp_path):
             assert result["figures"][f"difference_vs_igl_float64_rotations_{key}"] < 1e-10
 
 
+@pytest.mark.slow
 def test_bench_fem_quick_writes_the_published_names(tmp_path):
     result = _quick("bench_fem.py", tmp_path)
     for name in ("step_1k_s", "step_7k_s", "step_23k_s"):
         assert result["figures"][name] > 0 and name in result["units"]
+    only = _quick("bench_fem.py", tmp_path, "--sizes", "23k")  # the GPU set's one size
+    assert {name for name in only["figures"] if name.startswith("step_")} >= {"step_23k_s"}
+    assert not any(name.endswith(("_1k_s", "_7k_s")) for name in only["figures"])
     for name in ("step_23k_vs_paper", "step_23k_vs_direct"):
         assert result["ratios"][name] > 0
 
 
+@pytest.mark.slow
 def test_bench_xfem_quick_writes_the_published_names(tmp_path):
     result = _quick("bench_xfem.py", tmp_path)
     for scene in ("sticks", "thin", "accordion"):
@@ -75,6 +123,8 @@ def test_bench_xfem_quick_writes_the_published_names(tmp_path):
         assert dofs[f"{scene}_dofs_final"] > dofs[f"{scene}_dofs_initial"] > 0
         assert dofs[f"{scene}_dofs_final"] == dofs[f"{scene}_dofs"]
     assert result["figures"]["sticks_pieces"] == 36  # the small sticks end as 36 pieces too
+    table_only = _quick("bench_xfem.py", tmp_path, "--scenes", "sticks", "--figures", "table", "--no-background")
+    assert table_only["figures"]["sticks_step_avg_s"] > 0 and "sticks_async_step_avg_s" not in table_only["figures"]
     for name in ("thin_cut_system_grad_ms", "thin_host_cut_system_ms", "thin_cut_replay_grad_ms"):
         assert result["figures"][name] > 0 and name in result["units"]
     # the differentiable rollouts: 100 and 1,000 steps in the full run, 10 and 20 here

@@ -337,7 +337,7 @@ def _solve(host, pattern: AssemblyPattern, data, rhs, *options):
     ``jax.pure_callback`` the step hung on a one-core machine): the solution of the reduced system."""
     x = host_call(host, jax.ShapeDtypeStruct(rhs.shape, rhs.dtype), data, rhs, *options, pattern.indptr,
                   pattern.indices)
-    return eqx.error_if(x, ~jnp.all(jnp.isfinite(x)), "the Newton system is singular or the state is not finite")
+    return require(x, (~jnp.all(jnp.isfinite(x)), "the Newton system is singular or the state is not finite"))
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -593,7 +593,7 @@ def _step_arguments(system, state, h, material, fixed_positions, newton_iteratio
         raise ValueError(f"h: expected a scalar time step, got shape {jnp.shape(h)}")
     material = _checked_material(material, system, dtype)
     # concrete values are checked in numpy: eager JAX checks cost a dispatch and a sync each, a large part of
-    # a small system's step; traced ones by eqx.error_if
+    # a small system's step; traced ones by require
     h = _checked(_scalar(h, dtype), lambda h, xp: ~(h > 0) | ~xp.isfinite(h), "h: expected a finite positive time step")
     if fixed_positions is not None:
         fixed_positions = jnp.asarray(fixed_positions, dtype)
@@ -653,7 +653,7 @@ def compiled_step(system: FEMSystem, state: State, h, material: Material, newton
 
 def _checked(a, bad, message: str):
     """``a``, checked by ``bad(a, xp)`` (elementwise; xp is numpy or jax.numpy): ValueError for concrete values,
-    eqx.error_if when traced."""
+    a runtime error (``require``) when traced."""
     if isinstance(a, jax.core.Tracer):
         return require(a, (bad(a, jnp), message))
     if np.any(bad(np.asarray(a), np)):

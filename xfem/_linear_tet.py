@@ -58,7 +58,7 @@ def shape_gradients(X: Float[Array, "n 3"], T: Int[Array, "m 4"]) -> tuple[Float
     Returns:
         grads (m, 4, 3): ``grads[e, a] = grad N_a`` on tet e; volumes (m,) the tets' volumes.
     Raises:
-        ValueError (inside jit an ``eqx.error_if`` error): bad shapes, indices out of range, a tet of
+        ValueError (inside jit a runtime error with the message): bad shapes, indices out of range, a tet of
         non-positive volume.
     """
     X, T = _jax_mesh_arrays(X, T)

@@ -31,7 +31,7 @@ class Material(eqx.Module):
 
     def __check_init__(self):
         # concrete values are checked now (a ValueError naming the argument); traced ones by ``lame``'s
-        # eqx.error_if where the step uses them
+        # check (``require``) where the step uses them
         if not any(isinstance(a, jax.core.Tracer) for a in (self.young, self.poisson)):
             young, poisson = np.asarray(self.young), np.asarray(self.poisson)
             for name, a in (("young", young), ("poisson", poisson)):

@@ -268,7 +268,7 @@ def test_bad_input():
     with pytest.raises(ValueError, match="outside the lattice"):
         ffd_weights(lattice, V + np.array([0.01, 0.0, 0.0]))
     with pytest.raises((eqx.EquinoxRuntimeError, jax.errors.JaxRuntimeError), match="outside the lattice"):
-        jax.jit(lattice_coordinates)(lattice, V + np.array([0.01, 0.0, 0.0]))
+        jax.block_until_ready(jax.jit(lattice_coordinates)(lattice, V + np.array([0.01, 0.0, 0.0])))
     flat = np.c_[V[:, :2], np.zeros(len(V))]
     with pytest.raises(ValueError, match="degenerate"):
         ffd_weights(bounding_lattice(flat), flat)

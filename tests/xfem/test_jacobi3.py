@@ -12,6 +12,8 @@ from scipy.spatial.transform import Rotation
 
 from xfem._jacobi3 import eigh3, svd3
 
+# float32: XLA:GPU's division, square root and hypot are approximate (a few ulp), the CPU's correctly rounded
+F32_TOL = 2e-6 if jax.default_backend() == "cpu" else 1e-5
 N = 4000  # matrices per family: every family in one batch, compiled once per dtype
 SINGULAR_VALUES = ([1, 1, 1], [2, 1, 1], [1, 1, 0], [1, 0, 0], [0, 0, 0], [1, 1 + 1e-8, 1e-8], [1, 1e-9, 1e-9],
                    [1e-12, 1, 1 + 1e-14], [3, 1e-300, 2], [1e5, 1, 1e-5])
@@ -31,7 +33,7 @@ def _rotation_error(R):
     return np.maximum(np.abs(R @ np.swapaxes(R, -1, -2) - np.eye(3)).max((-2, -1)), np.abs(np.linalg.det(R) - 1))
 
 
-@pytest.mark.parametrize("dtype, tol", [(np.float64, 1e-14), (np.float32, 2e-6)])
+@pytest.mark.parametrize("dtype, tol", [(np.float64, 1e-14), (np.float32, F32_TOL)])
 def test_svd3_is_a_rotation_variant_svd(dtype, tol):
     F = _matrices(np.random.default_rng(0)).astype(dtype)
     U, s, Vt = (np.asarray(a, np.float64) for a in jax.jit(svd3)(jnp.asarray(F)))
@@ -50,7 +52,7 @@ def test_svd3_is_a_rotation_variant_svd(dtype, tol):
     assert np.all(np.sign(s[clear, 2]) == np.sign(det[clear]))
 
 
-@pytest.mark.parametrize("dtype, tol", [(np.float64, 1e-14), (np.float32, 2e-6)])
+@pytest.mark.parametrize("dtype, tol", [(np.float64, 1e-14), (np.float32, F32_TOL)])
 def test_eigh3_is_an_eigendecomposition(dtype, tol):
     rng = np.random.default_rng(1)
     A = _matrices(rng)

@@ -1,0 +1,94 @@
+"""``_jaxcga_shared.checks``: a value check raises its message eagerly (``ValueError``) and inside jit, vmap and
+grad (a runtime error), the same on every backend this machine has (on a CPU machine only the CPU), and without a
+CPU device (``JAX_PLATFORMS=cuda``), where ``eqx.error_if``'s ``jax.pure_callback`` finds none."""
+
+from __future__ import annotations
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from _jaxcga_shared.checks import compiled_error_message, plain_errors, require
+
+MESSAGE = "x: expected non-negative values"
+
+
+def _backends():
+    found = []
+    for name in ("cpu", "gpu"):
+        try:
+            found.append(jax.devices(name)[0])
+        except RuntimeError:  # no such backend here
+            pass
+    return found
+
+
+BACKENDS = pytest.mark.parametrize("device", _backends(), ids=lambda d: d.platform)
+
+
+def _doubled(x):
+    return 2 * require(x, (x < 0, MESSAGE))
+
+
+def _raises_the_message(fn, x):
+    with pytest.raises(RuntimeError) as raised:
+        jax.block_until_ready(fn(x))
+    assert compiled_error_message(raised.value) == MESSAGE
+
+
+@BACKENDS
+def test_a_check_raises_its_message_eagerly_and_inside_jit_vmap_and_grad(device):
+    good, bad = (jax.device_put(np.array(v), device) for v in ([0.0, 1.5], [1.0, -1.0]))
+    with jax.default_device(device):
+        with pytest.raises(ValueError, match=MESSAGE):
+            _doubled(bad)
+        for fn in (jax.jit(_doubled), eqx.filter_jit(_doubled), jax.jit(jax.vmap(_doubled)),
+                   jax.jit(jax.grad(lambda x: jnp.sum(jnp.sin(_doubled(x)))))):
+            _raises_the_message(fn, bad)
+        # passing checks change nothing: values, a vmap batch, derivatives through the check
+        np.testing.assert_array_equal(jax.jit(_doubled)(good), [0.0, 3.0])
+        np.testing.assert_array_equal(jax.jit(jax.vmap(_doubled))(jnp.stack([good, good + 1])), [[0, 3], [2, 5]])
+        np.testing.assert_allclose(jax.jit(jax.grad(lambda x: jnp.sum(jnp.sin(_doubled(x)))))(good),
+                                   2 * np.cos(2 * np.array([0.0, 1.5])))
+
+
+@BACKENDS
+def test_under_vmap_one_bad_element_fails_the_batch(device):
+    batch = jax.device_put(np.array([[1.0, 2.0], [3.0, -4.0], [5.0, 6.0]]), device)
+    with jax.default_device(device):
+        _raises_the_message(jax.jit(jax.vmap(_doubled)), batch)
+
+
+@BACKENDS
+def test_plain_errors_turns_a_failed_check_into_a_value_error_and_leaves_other_errors(device):
+    good, bad = (jax.device_put(np.array([v]), device) for v in (1.0, -1.0))
+    with jax.default_device(device):
+        for jit in (eqx.filter_jit, jax.jit):
+            doubled = plain_errors(jit(_doubled))
+            np.testing.assert_array_equal(doubled(good), [2.0])
+            for _ in range(2):  # JAX raises a JaxRuntimeError, and a ValueError from the cached executable
+                with pytest.raises(ValueError, match=f"^{MESSAGE}$"):
+                    doubled(bad)
+    with pytest.raises(TypeError):  # not a check: as it was
+        plain_errors(jax.jit(_doubled))("not an array")
+
+
+def test_a_check_needs_no_cpu_device(monkeypatch):
+    """As under ``JAX_PLATFORMS=cuda``: asked for a CPU device, JAX finds none. ``eqx.error_if`` (through
+    ``jax.pure_callback``) then loses its message; ``require`` does not."""
+    import jax._src.xla_bridge as xla_bridge
+
+    local_devices = xla_bridge.local_devices
+
+    def no_cpu(*args, backend=None, **kwargs):
+        if backend == "cpu":
+            raise RuntimeError("Unknown backend cpu")
+        return local_devices(*args, backend=backend, **kwargs)
+
+    monkeypatch.setattr(xla_bridge, "local_devices", no_cpu)
+    bad = np.array([1.0, -1.0])
+    _raises_the_message(jax.jit(_doubled), bad)
+    with pytest.raises(RuntimeError, match="failed to find a local CPU device"):
+        jax.block_until_ready(jax.jit(lambda x: eqx.error_if(x, x < 0, MESSAGE))(bad))
