@@ -9,7 +9,7 @@ from typing import Any, NamedTuple
 
 import jax
 
-PLATFORM_KERNELS: dict[str, "PerPlatform"] = {}
+PLATFORM_KERNELS: dict[str, PerPlatform] = {}
 
 
 class Example(NamedTuple):

@@ -201,7 +201,8 @@ def fused_point_coordinates(v: Multivector, x: Float[Array, "... 3"], batch: tup
 
 
 def _apply_examples():
-    from jaxcga._exp_log import MOTOR_GENERATOR, SIMILITUDE_GENERATOR, exp_motor, exp_similitude  # imports us
+    # a module that imports this one
+    from jaxcga._exp_log import MOTOR_GENERATOR, SIMILITUDE_GENERATOR, exp_motor, exp_similitude
 
     rng = np.random.default_rng(7)
     motors = exp_motor(Multivector(rng.normal(size=(64, 6)), MOTOR_GENERATOR))

@@ -183,13 +183,13 @@ def test_static_options_and_transformations_pass_through():
         np.testing.assert_allclose(jax.vmap(lambda a: kernel(a, 2.0, power=3))(x), 2 * x**3)
         np.testing.assert_allclose(jax.jit(jax.grad(lambda a: kernel(a, 2.0, power=3)))(1.5), 6 * 1.5**2)
         with pytest.raises(ValueError, match="name: a platform kernel named 'test.power'"):
-            PerPlatform("test.power", cpu=cpu, gpu=gpu, examples=lambda: [])
+            PerPlatform("test.power", cpu=cpu, gpu=gpu, examples=list)
     finally:
         del PLATFORM_KERNELS["test.power"]
 
 
 def test_flag_form_binds_cpu():
-    @per_platform("test.flag", examples=lambda: [])
+    @per_platform("test.flag", examples=list)
     def kernel(x, *, cpu: bool):
         """Doubles on the CPU, triples elsewhere."""
         return 2 * x if cpu else 3 * x
