@@ -5,10 +5,23 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable
+from typing import Any, NamedTuple
 
 import jax
 
-PLATFORM_KERNELS: dict[str, "PerPlatform"] = {}
+PLATFORM_KERNELS: dict[str, PerPlatform] = {}
+
+
+class Example(NamedTuple):
+    """Inputs on which a kernel's variants must agree: positional array arguments (pytrees) and static
+    keyword arguments."""
+
+    args: tuple
+    static: dict[str, Any]
+
+
+def example(*args, **static) -> Example:
+    return Example(args, static)
 
 
 class PerPlatform:
@@ -17,27 +30,48 @@ class PerPlatform:
     function jitted once and run on each, both pick the right one). ``gpu`` also serves every platform other
     than the CPU. Both variants are reachable (``variants``) so that tests compare them on the CPU.
 
-    Registered by ``name`` in ``PLATFORM_KERNELS``: tests/shared_layer/test_platform_kernels.py checks every
-    registered kernel's variants against each other on the examples it registers."""
+    Call it with the array arguments (pytrees of arrays: the branches of the conditional) positionally and
+    static options (Python values: shapes, kinds, flags) by keyword; the keywords are bound to both
+    formulations before the choice. It passes through jit, vmap and grad as ``lax.switch`` does; called
+    outside jit the platform is known at once and the formulation runs directly.
 
-    def __init__(self, name: str, *, cpu: Callable, gpu: Callable, examples: Callable[[], list[tuple]]):
+    Registered by ``name`` in ``PLATFORM_KERNELS``: tests/shared_layer/test_platform_kernels.py checks every
+    registered kernel's variants against each other on the ``examples()`` it registers (a list of
+    ``Example``), their vector-Jacobian products too where ``differentiated``, and in float32 where
+    ``float32``."""
+
+    def __init__(self, name: str, *, cpu: Callable, gpu: Callable, examples: Callable[[], list[Example]],
+                 differentiated: bool = True, float32: bool = True):
         if name in PLATFORM_KERNELS:
             raise ValueError(f"name: a platform kernel named {name!r} is already registered")
         self.name = name
         self.variants = {"cpu": cpu, "gpu": gpu}
-        self.examples = examples  # () -> [args, ...]: inputs on which both variants must agree
-        functools.update_wrapper(self, cpu)
+        self.examples = examples
+        self.differentiated = differentiated
+        self.float32 = float32
+        functools.update_wrapper(self, cpu, updated=())
         PLATFORM_KERNELS[name] = self
 
-    def __call__(self, *args):
-        return jax.lax.platform_dependent(*args, cpu=self.variants["cpu"], default=self.variants["gpu"])
+    def __call__(self, *args, **static):
+        cpu, gpu = self.variants["cpu"], self.variants["gpu"]
+        if static:
+            cpu, gpu = functools.partial(cpu, **static), functools.partial(gpu, **static)
+        return jax.lax.platform_dependent(*args, cpu=cpu, default=gpu)
 
 
-def per_platform(name: str, *, gpu: Callable, examples: Callable[[], list[tuple]]):
-    """Decorator: the decorated function is the CPU formulation, ``gpu`` the one for GPUs (and other
-    accelerators); ``examples()`` returns argument tuples on which the two must agree (to rounding)."""
+def per_platform(name: str, *, examples: Callable[[], list[Example]], gpu: Callable | None = None,
+                 differentiated: bool = True, float32: bool = True):
+    """Decorator. With ``gpu``: the decorated function is the CPU formulation and ``gpu`` the one for GPUs
+    (and other accelerators). Without: the decorated function takes a keyword-only ``cpu: bool`` and the
+    variants are it with ``cpu=True`` and ``cpu=False`` (for formulations that differ in a few lines, such
+    as barriers and layouts, written once). ``examples`` etc.: see ``PerPlatform``."""
 
-    def wrap(cpu: Callable) -> PerPlatform:
-        return PerPlatform(name, cpu=cpu, gpu=gpu, examples=examples)
+    def wrap(fn: Callable) -> PerPlatform:
+        if gpu is not None:
+            return PerPlatform(name, cpu=fn, gpu=gpu, examples=examples, differentiated=differentiated,
+                               float32=float32)
+        kernel = PerPlatform(name, cpu=functools.partial(fn, cpu=True), gpu=functools.partial(fn, cpu=False),
+                             examples=examples, differentiated=differentiated, float32=float32)
+        return functools.update_wrapper(kernel, fn, updated=())
 
     return wrap

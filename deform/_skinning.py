@@ -29,12 +29,14 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jax import custom_batching
 from jaxtyping import Array, Float
 
 import jaxcga as cga
 from jaxcga._multivector import KINDS, Multivector
 from _jaxcga_shared.checks import require
+from _jaxcga_shared.platform import PerPlatform, example, per_platform
 from jaxcga._versors import fused_point_coordinates
 
 
@@ -85,16 +87,18 @@ def _influence_weights(W):
     return [W[:, k] for k in range(W.shape[1])]
 
 
-def _aligned_weights(J, W, rotors: Float[Array, "... j 4"], log_scales: Float[Array, "... j"] | None = None):
+def _aligned_weights(J, W, rotors: Float[Array, "... j 4"], log_scales: Float[Array, "... j"] | None, *,
+                     cpu: bool):
     """The weights of a versor blend, one (..., n) row per influence, with each influence's sign
     flipped when its rotor (or quaternion) points away from the first influence's: V and -V are the
     same transformation. With ``log_scales``, one more row: the blended log scales (unsigned).
 
     The signs come from a joint-by-joint table of rotor dot products (a tiny dot; flattened, so a
-    lookup takes one index). All rows are written in one pass, coordinate-major (..., rows, n), and
-    kept by ``jax.lax.optimization_barrier``: left to XLA, every influence's lookup became its own pass
-    over the vertices, and under vmap over poses laid out vertex-major (n, poses) against the
-    pose-major loops that read it (benchmarks/README.md, "Kernel and deformers")."""
+    lookup takes one index). On the CPU (``cpu``) all rows are written in one pass, coordinate-major
+    (..., rows, n), and kept by ``jax.lax.optimization_barrier``: left to XLA:CPU, every influence's
+    lookup became its own pass over the vertices, and under vmap over poses laid out vertex-major
+    (n, poses) against the pose-major loops that read it (benchmarks/README.md, "Kernel and deformers").
+    Elsewhere the rows are left to fuse into the blend that reads them."""
     joints = rotors.shape[-2]
     dots = jnp.einsum("...ac,...bc->...ab", rotors, rotors).reshape(rotors.shape[:-2] + (joints * joints,))
     rows = [jnp.broadcast_to(W[:, 0].astype(rotors.dtype), rotors.shape[:-2] + W.shape[:1])]
@@ -103,8 +107,35 @@ def _aligned_weights(J, W, rotors: Float[Array, "... j 4"], log_scales: Float[Ar
         rows.append(jnp.where(dots[..., J[:, 0] * joints + J[:, k]] < 0, -w, w))
     if log_scales is not None:
         rows.append(_blend_joints(J, _influence_weights(W), log_scales[..., None])[..., 0])
+    if not cpu:
+        return rows
     stacked = jax.lax.optimization_barrier(jnp.stack(rows, axis=-2))
     return [stacked[..., r, :] for r in range(len(rows))]
+
+
+def _coordinates_last(coordinates, *, cpu: bool):
+    """Stack three (..., n) coordinates as (..., n, 3). On the CPU coordinate-major, then moved last:
+    XLA:CPU's transpose emitter runs that 1.3x faster than a stack along the last axis (for per-vertex
+    blended motors); elsewhere the plain stack."""
+    if cpu:
+        return jnp.moveaxis(jnp.stack(coordinates, axis=-2), -2, -1)
+    return jnp.stack(coordinates, axis=-1)
+
+
+def _skinning_examples(dual_quaternions: bool):
+    """Small rigs on which the platform variants must agree: one pose and a batch of three."""
+    rng = np.random.default_rng(11)
+    n, k, joints = 40, 3, 6
+    V = rng.normal(size=(n, 3))
+    J = jnp.asarray(rng.integers(0, joints, size=(n, k)), jnp.int32)
+    W = rng.uniform(0.1, 1.0, size=(n, k))
+    W = W / W.sum(axis=1, keepdims=True)
+    motors = cga.exp_motor(Multivector(rng.normal(size=(3, joints, 6)), cga.MOTOR_GENERATOR)).values
+    if dual_quaternions:
+        dq = cga.motor_to_dual_quaternion(Multivector(motors, KINDS["motor"]))
+        return [example(V, J, W, dq[0]), example(V, J, W, dq)]
+    log_scale = rng.normal(size=(3, joints)) * 0.3
+    return [example(V, J, W, motors[0], log_scale[0]), example(V, J, W, motors, log_scale)]
 
 
 # Up to this many joints a batch of poses blends its dilations through a dense (joints, vertices) weight
@@ -141,8 +172,14 @@ def _blend_dilations_vmap(axis_size, in_batched, J, W, dilations):
     return _blend_dilations_by_batching(J, W, dilations), dilations_batched
 
 
+def _blend_dilations_examples():
+    _, J, W, _, log_scale = _skinning_examples(dual_quaternions=False)[1].args
+    dilations = jnp.exp(log_scale)
+    return [example(J, W, dilations[0]), example(J, W, dilations)]
+
+
 @jax.custom_jvp
-def _blend_dilations(J, W, dilations: Float[Array, "... j"]) -> Float[Array, "... n"]:
+def _blend_dilations_cpu(J, W, dilations: Float[Array, "... j"]) -> Float[Array, "... n"]:
     """``sum_k W[:, k] * dilations[..., J[:, k]]``: the eo-coefficient (lambda) row of eq. (17)'s sum.
 
     The per-vertex loop divides by it, so it is computed once per vertex and pose beforehand. For one
@@ -152,16 +189,21 @@ def _blend_dilations(J, W, dilations: Float[Array, "... j"]) -> Float[Array, "..
     ``dilations @ dense_weights`` the product keeps the pose axis first. For one pose that product is
     slower than the gather (building the dense weights is not amortized), so the choice is made by
     batching (``custom_vmap``); derivatives go through the gather (``custom_jvp``), which is linear in
-    W and in the dilations."""
+    W and in the dilations. That is for XLA:CPU's layouts: elsewhere (GPUs) the gather, which fuses into
+    the per-vertex loop for any batch, is the formulation chosen (``_blend_dilations``)."""
     return _blend_dilations_by_batching(J, W, dilations)
 
 
-@_blend_dilations.defjvp
+@_blend_dilations_cpu.defjvp
 def _blend_dilations_jvp(primals, tangents):
     J, W, dilations = primals
     _, W_dot, dilations_dot = tangents  # J's tangent: integers have none
-    out = _blend_dilations(J, W, dilations)
+    out = _blend_dilations_cpu(J, W, dilations)
     return out, _blend_dilations_sparse(J, W_dot, dilations) + _blend_dilations_sparse(J, W, dilations_dot)
+
+
+_blend_dilations = PerPlatform("deform.blend_dilations", cpu=_blend_dilations_cpu, gpu=_blend_dilations_sparse,
+                               examples=_blend_dilations_examples)
 
 
 def _blend_affine(V, J, W, maps: Float[Array, "... j r 4"]) -> Float[Array, "... n 3"]:
@@ -250,19 +292,24 @@ def skin_cga_motor_blend(V, J, W, joint_versors: Multivector) -> Float[Array, ".
     motors, log_scale = _motor_and_log_scale(joint_versors)
     motors = _materialize(motors)
     log_scale = _materialize(log_scale[..., None])[..., 0]
-    *weights, log_scale = _aligned_weights(J, W, motors[..., :4], log_scale)
-    # exp in a loop of its own, where it vectorizes: inside the gather loop it ran scalar (300 poses,
-    # float64: 1.15 -> 1.01 s)
-    scale = jax.lax.optimization_barrier(jnp.exp(log_scale))
+    return _blend_motors_and_apply(V, J, W, motors, log_scale)
+
+
+@per_platform("deform.skin_cga_motor_blend", examples=lambda: _skinning_examples(dual_quaternions=False))
+def _blend_motors_and_apply(V, J, W, motors: Float[Array, "... j 8"], log_scale: Float[Array, "... j"], *,
+                            cpu: bool) -> Float[Array, "... n 3"]:
+    *weights, log_scale = _aligned_weights(J, W, motors[..., :4], log_scale, cpu=cpu)
+    scale = jnp.exp(log_scale)
+    if cpu:  # exp in a loop of its own, where it vectorizes: inside the gather loop it ran scalar
+        scale = jax.lax.optimization_barrier(scale)
     # XLA writes the blend once per vertex by itself (one (..., n, 8) pass, as for DQS); a barrier
     # there measured within the run-to-run noise at 300 poses.
     blended = Multivector(_blend_joints(J, weights, motors), KINDS["motor"])
     # No explicit normalization: the generated point map of M up(x) ~M divides by the eo row, the
     # scalar part of M ~M, and the e123inf part of M ~M does not reach points, so the unnormalized
-    # blend moves points exactly as ``jaxcga.normalize(M)`` does (tested), inside one fused loop,
-    # written coordinate-major and then moved last (as in ``_blend_affine``).
+    # blend moves points exactly as ``jaxcga.normalize(M)`` does (tested), inside one fused loop.
     coordinates = fused_point_coordinates(blended, V * scale[..., None], blended.batch_shape)
-    return jnp.moveaxis(jnp.stack(coordinates, axis=-2), -2, -1)
+    return _coordinates_last(coordinates, cpu=cpu)
 
 
 def matrices_to_dual_quaternions(matrices: Float[Array, "... 4 4"], tolerance: float = 1e-5) -> Float[Array, "... 8"]:
@@ -290,8 +337,12 @@ def skin_dqs(V, J, W, joint_dual_quaternions: Float[Array, "... j 8"]) -> Float[
     dq = jnp.asarray(joint_dual_quaternions)
     if dq.ndim < 2 or dq.shape[-1] != 8:
         raise ValueError(f"joint_dual_quaternions: expected shape (..., j, 8), got {dq.shape}")
-    d = _materialize(dq)
-    b = _blend_joints(J, _aligned_weights(J, W, d[..., :4]), d)
+    return _blend_dual_quaternions(V, J, W, _materialize(dq))
+
+
+@per_platform("deform.skin_dqs", examples=lambda: _skinning_examples(dual_quaternions=True))
+def _blend_dual_quaternions(V, J, W, d: Float[Array, "... j 8"], *, cpu: bool) -> Float[Array, "... n 3"]:
+    b = _blend_joints(J, _aligned_weights(J, W, d[..., :4], None, cpu=cpu), d)
     w, x, y, z = (b[..., i] for i in range(4))
     dw, dx, dy, dz = (b[..., 4 + i] for i in range(4))
     inv = 1.0 / (w * w + x * x + y * y + z * z)
@@ -304,5 +355,4 @@ def skin_dqs(V, J, W, joint_dual_quaternions: Float[Array, "... j 8"]) -> Float[
     t_x = 2 * (-dw * x + dx * w - dy * z + dz * y)
     t_y = 2 * (-dw * y + dx * z + dy * w - dz * x)
     t_z = 2 * (-dw * z - dx * y + dy * x + dz * w)
-    # coordinate-major, then moved last (as in ``_blend_affine``)
-    return jnp.moveaxis(jnp.stack([(out_x + t_x) * inv, (out_y + t_y) * inv, (out_z + t_z) * inv], axis=-2), -2, -1)
+    return _coordinates_last([(out_x + t_x) * inv, (out_y + t_y) * inv, (out_z + t_z) * inv], cpu=cpu)

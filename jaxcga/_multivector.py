@@ -15,6 +15,7 @@ from jaxtyping import Array, Float
 
 from jaxcga import _algebra as alg
 from jaxcga import _codegen
+from _jaxcga_shared.platform import example, per_platform
 
 #: Named blade sets (DESIGN.md "The kernel").
 KINDS: dict[str, tuple[int, ...]] = {
@@ -267,6 +268,29 @@ def sandwich(v: Multivector, x: Multivector) -> Multivector:
     return out / scale
 
 
+def _table_product_examples():
+    rng = np.random.default_rng(3)
+    similitudes = (Multivector(rng.normal(size=(23, 16)), KINDS["similitude"]),
+                   Multivector(rng.normal(size=(23, 16)), KINDS["similitude"]))
+    motors = (Multivector(rng.normal(size=(4, 1, 8)), KINDS["motor"]), Multivector(rng.normal(size=(3, 8)), KINDS["motor"]))
+    return [example(*similitudes, kind="geometric"), example(*motors, kind="geometric"),
+            example(*motors, kind="outer")]
+
+
+def _generated_product(a: Multivector, b: Multivector, *, kind: str) -> Multivector:
+    dtype = jnp.result_type(a.dtype, b.dtype)
+    return product(kind, Multivector(a.values.astype(dtype), a.blades), Multivector(b.values.astype(dtype), b.blades))
+
+
+@per_platform("table_product", gpu=_generated_product, examples=_table_product_examples)
+def _contracted_product(a: Multivector, b: Multivector, *, kind: str) -> Multivector:
+    dtype = jnp.result_type(a.dtype, b.dtype)
+    blades, table = _codegen.bilinear_tensor(kind, a.blades, b.blades)
+    values = jnp.einsum("...i,ijk,...j->...k", a.values.astype(dtype), jnp.asarray(table, dtype),
+                        b.values.astype(dtype))
+    return Multivector(values, blades)
+
+
 def table_product(kind: str, a: Multivector, b: Multivector) -> Multivector:
     """The same product as ``product``, evaluated as one contraction with the structure tensor of the
     two blade sets (``a_i T_ijk b_j``) instead of generated per-blade expressions.
@@ -276,14 +300,11 @@ def table_product(kind: str, a: Multivector, b: Multivector) -> Multivector:
     kernels for two similitudes), and the contraction into two dots: forward kinematics takes about
     half the time (benchmarks/README.md, "Kernel and deformers"). For large batches (a versor per point)
     use ``product``: it skips the structural zeros (for two similitudes the tensor holds 256 non-zeros among 4,096
-    entries)."""
+    entries). The choice is made per platform when the computation is lowered: elsewhere than on the
+    CPU (GPUs, where XLA fuses the generated expressions into one kernel) this is ``product``."""
     _check_kind(kind)
     broadcast_batch("a", a.batch_shape, "b", b.batch_shape)
-    dtype = jnp.result_type(a.dtype, b.dtype)
-    blades, table = _codegen.bilinear_tensor(kind, a.blades, b.blades)
-    values = jnp.einsum("...i,ijk,...j->...k", a.values.astype(dtype), jnp.asarray(table, dtype),
-                        b.values.astype(dtype))
-    return Multivector(values, blades)
+    return _contracted_product(a, b, kind=kind)
 
 
 @functools.cache
