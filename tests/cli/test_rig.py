@@ -12,7 +12,7 @@ import pytest
 import trimesh
 
 import deform
-from jaxcga.cli import main
+from jaxcga_cli.main import main
 from tests.deform._gltf_reference import Reference
 from tests.deform._rigs import scaled_keys_model
 

@@ -8,7 +8,7 @@ import pytest
 import trimesh
 
 import deform
-from jaxcga.cli import main
+from jaxcga_cli.main import main
 
 
 def test_cut_writes_two_skinned_halves_that_animate(tmp_path):
