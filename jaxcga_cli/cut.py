@@ -45,9 +45,9 @@ def run(args) -> dict:
 
 
 @contextlib.contextmanager
-def coordinates(command: str, model):
+def coordinates(command: str, model, names: tuple[str, ...]):
     """Print the model's bounding box and up axis (the command takes coordinates), and add them to an error about
-    the coordinates (a plane or tool that misses the mesh, ...)."""
+    the coordinates, the arguments ``names`` (a plane or a tool that misses the mesh, ...)."""
     from jaxcga_cli.models import bounds
     from jaxcga_cli.report import error_line, say
 
@@ -56,7 +56,10 @@ def coordinates(command: str, model):
     try:
         yield
     except ValueError as error:
-        raise ValueError(f"{error_line(error)} ({where})") from None
+        line = error_line(error)
+        if line.split(":")[0].startswith(names):
+            raise ValueError(f"{line} ({where})") from None
+        raise
 
 
 def cut_command(model, plane, out_positive: Path, out_negative: Path, cap: bool = False,
@@ -69,7 +72,7 @@ def cut_command(model, plane, out_positive: Path, out_negative: Path, cap: bool 
     import cutting
     import deform
 
-    with coordinates("cut", model):
+    with coordinates("cut", model, ("plane",)):
         positive, negative = cutting.cut(model.mesh, np.asarray(plane, np.float64), cap=cap, predicates=predicates,
                                          side_weight=side_weight)
     deform.save_models({

@@ -101,20 +101,20 @@ def deform_command(method: str, V, F, out: Path, *, bend: float = 60.0, twist: f
     if keys is not None and keys > len(V):
         raise ValueError(f"keys: expected at most one key motor per vertex ({len(V)}), got {keys}")
     motion = Motion(V, bend, twist, translate)
+    # the handles, read and checked before the work starts
+    if method == "handles" and handles is not None:
+        parts, key_motors, _ = read_handles(handles, len(V))
+    elif method in ("spline", "handles"):
+        parts = list(end_handles(motion, V, handle_fraction))
+        key_motors = motion.motors(np.array([0.0, 1.0]))
     start = time.perf_counter()
     with status("deform", f"binding {len(V)} vertices ({method})"):
         if method == "spline":
-            first, last = end_handles(motion, V, handle_fraction)
             if keys is None and basis == "bspline":
                 keys = 5
-            field = deform.spline_precompute(V, F, first, last, basis=basis, num_keys=keys, laplacian=weights)
+            field = deform.spline_precompute(V, F, *parts, basis=basis, num_keys=keys, laplacian=weights)
             key_motors = motion.motors(np.linspace(0.0, 1.0, field.num_keys))
         elif method == "handles":
-            if handles is None:
-                parts = list(end_handles(motion, V, handle_fraction))
-                key_motors = motion.motors(np.array([0.0, 1.0]))
-            else:
-                parts, key_motors, _ = read_handles(handles, len(V))
             field = deform.harmonic_handles(V, F, parts, weights)
         elif method == "ffd":
             grid = deform.bounding_lattice(V, tuple(lattice), padding=0.02)

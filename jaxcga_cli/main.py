@@ -74,8 +74,9 @@ def parser() -> argparse.ArgumentParser:
     sub = top.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name in COMMANDS:
         module = command_module(name)
-        p = sub.add_parser(name, help=module.HELP, description=textwrap.fill(module.HELP[0].upper() + module.HELP[1:] + "."),
-                           epilog=f"example:\n  {module.EXAMPLE}", formatter_class=argparse.RawDescriptionHelpFormatter)
+        description = textwrap.fill(module.HELP[0].upper() + module.HELP[1:] + ".", 100, break_on_hyphens=False)
+        p = sub.add_parser(name, help=module.HELP, description=description, epilog=f"example:\n  {module.EXAMPLE}",
+                           formatter_class=argparse.RawDescriptionHelpFormatter)
         module.add_arguments(p)
     return top
 

@@ -119,8 +119,8 @@ def read_handles(path: Path, n: int, positions: bool = False):
     ``positions`` allows a "positions" entry and the file has one, each group's target positions (else None)."""
     spec = read_json(path, "handles")
     if not isinstance(spec, dict) or not isinstance(spec.get("handles"), list) or not spec["handles"]:
-        raise ValueError(f'handles: {path} must hold a JSON object {{"handles": [[i, ...], ...], ...}} with a '
-                         "non-empty 'handles' list")
+        raise ValueError(f"handles: {path} must hold a JSON object with a non-empty 'handles' list "
+                         '({"handles": [[i, ...], ...], "motors": [...]})')
     unknown = set(spec) - {"handles", "motors", "positions"}
     if unknown:
         raise ValueError(f"handles: {path} has unknown keys {sorted(unknown)}; expected 'handles' and 'motors'"

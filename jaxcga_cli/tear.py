@@ -55,7 +55,7 @@ def tear_command(model, scalpels, out: Path, opening: float = 0.0, predicates: s
     import deform
     from jaxcga_cli.cut import coordinates
 
-    with coordinates("tear", model):
+    with coordinates("tear", model, ("scalpels",)):
         torn, path = cutting.tear(model.mesh, np.asarray(scalpels, np.float64), opening=opening,
                                   predicates=predicates, side_weight=side_weight, return_path=True)
     deform.save_model(deform.RiggedModel(torn, model.skeleton, model.clips, f"{model.name}-torn"), out)

@@ -164,8 +164,9 @@ def test_overlapping_end_handles_are_named(tmp_path, capsys, command):
     _tetrahedron().export(tmp_path / "tet.stl")
     with pytest.raises(SystemExit) as exit_info:
         main([*command, str(tmp_path / "tet.stl"), "--handle-fraction", "0.6", "--out", str(tmp_path / "x.npy")])
-    warning, error = capsys.readouterr().err.splitlines()
-    assert exit_info.value.code == 2
+    lines = capsys.readouterr().err.splitlines()
+    warning, error = lines[0], lines[-1]
+    assert len(lines) == 2 and exit_info.value.code == 2
     assert warning.startswith(f"jaxcga {command[0]}: warning: mesh: ") and "welded 12 vertices into 4" in warning
     assert error.startswith(f"jaxcga {command[0]}: error: handle_fraction: 0.6 makes the two end handles overlap")
 

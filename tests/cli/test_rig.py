@@ -115,11 +115,11 @@ def test_an_error_inside_compiled_code_prints_its_message_only(tmp_path, capsys,
     line with the check's message, and no log of the failed callback."""
     import equinox as eqx
 
-    from jaxcga import cli
+    from jaxcga_cli import skin
 
     check = lambda x: eqx.error_if(x, x > 0, "x: must not be positive")  # noqa: E731
     for jit in (jax.jit, eqx.filter_jit):
-        monkeypatch.setattr(cli, "_run_deform", lambda args, jit=jit: jit(check)(jnp.ones(())))
+        monkeypatch.setattr(skin, "run", lambda args, jit=jit: jit(check)(jnp.ones(())))
         err = _error(["skin", "--out", str(tmp_path / "x.npy")], capsys)
         assert err == "jaxcga skin: error: x: must not be positive\n"
 
