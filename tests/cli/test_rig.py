@@ -90,13 +90,15 @@ def test_errors_are_reported_with_exit_code_2(tmp_path, capsys):
 
 
 def _error(argv, capsys) -> str:
-    """The one line ``main(argv)`` prints when it fails with exit code 2."""
+    """The one error line ``main(argv)`` prints when it fails with exit code 2 (after status lines, if any)."""
     with pytest.raises(SystemExit) as exit_info:
         main(argv)
     assert exit_info.value.code == 2
     err = capsys.readouterr().err
-    assert len(err.strip().splitlines()) == 1, err
-    return err
+    *status, error = err.splitlines()
+    assert error.startswith(f"jaxcga {argv[0]}: error: ") or error.startswith("usage:"), err
+    assert all(line.startswith(f"jaxcga {argv[0]}: ") and ": error: " not in line for line in status), err
+    return error + "\n"
 
 
 @pytest.mark.parametrize("value", ["nan", "inf", "-inf", "NaN", "1e999"])
