@@ -9,9 +9,9 @@ import matplotlib
 import numpy as np
 
 matplotlib.use("Agg")  # the command line writes figure files and never opens a window
-import matplotlib.pyplot as plt  # noqa: E402
+import matplotlib.pyplot as plt
 
-from _jaxcga_shared.output import replacing  # noqa: E402
+from _jaxcga_shared.output import replacing
 
 
 def figure(width: float, height: float):

@@ -6,6 +6,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+
 from deform import GLTF_OUTPUTS
 
 MESH_OUTPUTS = GLTF_OUTPUTS + (".obj", ".ply", ".stl")

@@ -27,7 +27,7 @@ EXAMPLE = "jaxcga xfem cheese --size small --steps 20 --out out/cheese"
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("scene", choices=arguments.XFEM_SCENES,
+    parser.add_argument("scene", choices=arguments.XFEM_SCENES, metavar="SCENE",
                         help="sticks (Fig. 5), thin (Fig. 1), cheese (Fig. 6), accordion (Fig. 7) or mouth (Fig. 8)")
     parser.add_argument("--steps", type=int, default=None, help="frames (default: the scene's, past its last cut)")
     parser.add_argument("--size", choices=arguments.XFEM_SIZES, default="paper",

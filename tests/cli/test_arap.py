@@ -55,7 +55,7 @@ def test_handles_file_gives_arap_solves_result(tube, tmp_path, capsys, energy):
 def test_the_handles_file_of_deform_moves_arap_handles_by_their_motors(tube, tmp_path):
     """One --handles format for deform and arap: each group of vertices moved by its motor (a rotation about an
     axis through a centre, then a translation), here against scipy's rotation of the same vertices."""
-    path, V, F = tube
+    path, V, _ = tube
     low, high = np.flatnonzero(V[:, 2] < -0.95), np.flatnonzero(V[:, 2] > 0.95)
     axis, angle, center, shift = np.array([0.8, 0.0, 0.3]), 40.0, np.array([0.0, 0.0, -1.0]), [0.1, 0.2, 0.0]
     moved = Rotation.from_rotvec(np.radians(angle) * axis / np.linalg.norm(axis)).apply(V[high] - center) + center

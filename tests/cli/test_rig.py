@@ -96,7 +96,7 @@ def _error(argv, capsys) -> str:
     assert exit_info.value.code == 2
     err = capsys.readouterr().err
     *status, error = err.splitlines()
-    assert error.startswith(f"jaxcga {argv[0]}: error: ") or error.startswith("usage:"), err
+    assert error.startswith(f"jaxcga {argv[0]}: error: "), err
     assert all(line.startswith(f"jaxcga {argv[0]}: ") and ": error: " not in line for line in status), err
     return error + "\n"
 
