@@ -53,9 +53,10 @@ def run(args) -> dict:
     from jaxcga_cli.models import load_mesh
 
     V, F = load_mesh(args.mesh)
-    return args.mesh or "built-in arm", arap_command(V, F, args.out, handles=args.handles, iterations=args.iters, tolerance=args.tolerance,
-                        bend=args.bend, twist=args.twist, translate=args.translate,
-                        handle_fraction=args.handle_fraction, energy=args.energy)
+    summary = arap_command(V, F, args.out, handles=args.handles, iterations=args.iters, tolerance=args.tolerance,
+                           bend=args.bend, twist=args.twist, translate=args.translate,
+                           handle_fraction=args.handle_fraction, energy=args.energy)
+    return args.mesh or "built-in arm", summary
 
 
 def handle_targets(path: Path, V):

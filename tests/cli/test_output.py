@@ -1,7 +1,7 @@
-"""Output that survives failure (``_jaxcga_shared.output`` and every command's writer): a failed write (a full disk, made
-with a file-size limit) leaves the previous files as they were; every path problem is found before any loading or
-computing and reported on one line with exit code 2; outputs never overwrite an input, each other, or an
-unrelated .bin; fem / xfem folders hold one run."""
+"""Output that survives failure (``_jaxcga_shared.output`` and every command's writer): a failed write (a full
+disk, made with a file-size limit) leaves the previous files as they were; every path problem is found before any
+loading or computing and reported on one line with exit code 2; outputs never overwrite an input, each other, or
+an unrelated .bin; fem / xfem folders hold one run."""
 
 from __future__ import annotations
 
