@@ -15,6 +15,7 @@ sec. III-A binding, shared by every motor deformation); ``_spline`` (spline-alig
 (as-rigid-as-possible modeling with rotors, sec. VII).
 """
 
+from deform._arap import ENERGIES as ARAP_ENERGIES
 from deform._arap import ARAPData, ARAPResult, arap_precompute, arap_solve, horn_rotors
 from deform._cage import Cage, cage_precompute, harmonic_coordinates, tube_cage
 from deform._default_arm import default_arm
@@ -43,7 +44,7 @@ from deform._fitting import (
                          random_parameters,
                          skin_parameters,
 )
-from deform._gltf import convert_with_assimp, load_model, save_model, weld
+from deform._gltf import GLTF_OUTPUTS, buffer_file, convert_with_assimp, load_model, save_model, save_models, weld
 from deform._handles import harmonic_handles
 from deform._harmonic import (
                          LAPLACIANS,
@@ -110,7 +111,9 @@ from deform._spline import (
 from deform._spline_fit import SplineFit, spline_fit_precompute
 
 __all__ = [
+    "ARAP_ENERGIES",
     "BASES",
+    "GLTF_OUTPUTS",
     "LAPLACIANS",
     "INTERPOLATIONS",
     "METHODS",
@@ -139,6 +142,7 @@ __all__ = [
     "blend_motors",
     "bounding_diagonal",
     "bounding_lattice",
+    "buffer_file",
     "cage_precompute",
     "chain_motors",
     "clamped_knots",
@@ -186,6 +190,7 @@ __all__ = [
     "sample_trs",
     "sample_versors",
     "save_model",
+    "save_models",
     "sharded_vmap",
     "signed_volume",
     "skin_cga",

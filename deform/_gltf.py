@@ -31,6 +31,7 @@ import struct
 import subprocess
 import tempfile
 import urllib.parse
+from collections.abc import Mapping
 from pathlib import Path
 
 import jax.numpy as jnp
@@ -38,8 +39,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 from trimesh import grouping
 
+from _jaxcga_shared.output import write_files
 from deform._model import INTERPOLATIONS, PATHS, AnimationClip, Channel, RiggedModel, Skeleton, SkinnedMesh
-from jaxcga._output import write_files
 
 _GLB_MAGIC = b"glTF"
 _CHUNK_JSON = 0x4E4F534A
@@ -717,7 +718,7 @@ def save_model(model: RiggedModel, path) -> None:
     loaded skeleton; another topological order comes back reordered.
 
     The file (and a .gltf's buffer) is written to a temporary file beside it and renamed into place when
-    complete (``jaxcga._output.replacing``): a failed write leaves an existing file as it was.
+    complete (``_jaxcga_shared.output.replacing``): a failed write leaves an existing file as it was.
 
     Args:
         model: RiggedModel with mesh V (n, 3), F (m, 3), J (n, k), W (n, k), inverse_bind (j, 4, 4),
@@ -735,9 +736,30 @@ def save_model(model: RiggedModel, path) -> None:
     write_files(model_files(model, path))
 
 
+def save_models(models: Mapping[str | Path, RiggedModel]) -> None:
+    """Write several RiggedModels, ``{path: model}``, as one unit (the two halves of a cut): every file is written
+    beside its target first, and none replaces an existing file unless all were written.
+
+    Args:
+        models: ``{path: model}``, each as ``save_model``'s ``path`` and ``model``; two paths that name the same
+            file are refused.
+
+    Raises:
+        ValueError: as ``save_model``, for any of the models; two paths naming the same file.
+        OSError: a file cannot be written (every existing one is left as it was).
+    """
+    files: dict[Path, bytes | str] = {}
+    for path, model in models.items():
+        for file, data in model_files(model, path).items():
+            if any(os.path.realpath(file) == os.path.realpath(other) for other in files):
+                raise ValueError(f"models: {file} is written twice; give each model its own file name")
+            files[file] = data
+    write_files(files)
+
+
 def model_files(model: RiggedModel, path) -> dict[Path, bytes | str]:
     """The files ``save_model(model, path)`` writes, ``{path: content}``: the .glb, or the .gltf and its buffer
-    (for writing several models as one unit with ``jaxcga._output.write_files``). Arguments and errors as
+    (``save_models`` writes several models as one unit). Arguments and errors as
     ``save_model``'s, except that nothing is written."""
     path = Path(path)
     if path.suffix.lower() not in GLTF_OUTPUTS:

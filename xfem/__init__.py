@@ -21,7 +21,7 @@ worker process, ``_cut_process`` and ``_framing``, while the model steps), ``_ma
 ``_rollout`` (``rollout``: a differentiable ``lax.scan`` of steps), ``_simulate`` (trajectories across a schedule
 of cuts, differentiable through the cuts' DOF copy maps and in the planes of plane cuts), ``_cut_system`` (slab
 cuts whose placement is a differentiable parameter). Sec. 5: ``_scenes`` (the paper's five scenes with Table 1's
-parameters, a runner timing them like Table 2), ``_xfem_commands`` (``jaxcga xfem SCENE``).
+parameters, a runner timing them like Table 2; ``jaxcga xfem SCENE`` runs them).
 """
 
 from xfem._assembly import AssemblyPattern, assemble_matrix, assemble_vector, assembly_pattern
@@ -41,7 +41,7 @@ from xfem._neohookean import (
     stable_neohookean_pk1,
 )
 from xfem._rollout import rollout
-from xfem._scenes import SCENES, FrameRecord, Scene, SceneRun, ScheduledCut, piece_surfaces, run_scene, scene
+from xfem._scenes import SCENES, SIZES, FrameRecord, Scene, SceneRun, ScheduledCut, piece_surfaces, run_scene, scene
 from xfem._simulate import simulate
 from xfem._subdomains import CutReport, CutStats, Subdomains, apply_cut, subdomains
 from xfem._tetmesh import (
@@ -61,6 +61,7 @@ from xfem._xfem import XFEMModel, xfem_model
 
 __all__ = [
     "SCENES",
+    "SIZES",
     "FrameRecord",
     "ScheduledCut",
     "Scene",

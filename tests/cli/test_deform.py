@@ -11,7 +11,7 @@ import pytest
 import trimesh
 from scipy.spatial.transform import Rotation
 
-from jaxcga.cli import main
+from jaxcga_cli.main import main
 
 
 @pytest.fixture(scope="module")
@@ -111,7 +111,7 @@ def test_a_mesh_file_is_read_as_it_is(tmp_path):
     vertex and go on with another mesh)."""
     import warnings
 
-    from jaxcga._meshfile import read_mesh_file
+    from jaxcga_cli.meshfile import read_mesh_file
 
     mesh = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 1]], [[0, 2, 1], [0, 1, 3], [1, 2, 4]],
                            process=False)
@@ -124,7 +124,7 @@ def test_a_mesh_file_is_read_as_it_is(tmp_path):
 
 
 def test_a_weld_or_dropped_faces_are_reported(tmp_path):
-    from jaxcga._meshfile import read_mesh_file
+    from jaxcga_cli.meshfile import read_mesh_file
 
     _tetrahedron().export(tmp_path / "tet.stl")  # an STL stores every corner apart: 12 vertices
     with pytest.warns(UserWarning, match=r"tet.stl: welded 12 vertices into 4 .* dropped 0 of 4 faces"):
@@ -149,7 +149,7 @@ def test_a_bad_obj_vertex_names_its_line(tmp_path, capsys, command, line):
 
 
 def test_a_non_finite_vertex_in_other_formats_names_its_index(tmp_path):
-    from jaxcga._meshfile import read_mesh_file
+    from jaxcga_cli.meshfile import read_mesh_file
 
     V = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, np.inf]])
     trimesh.Trimesh(V, [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]], process=False).export(tmp_path / "inf.ply")
@@ -164,8 +164,9 @@ def test_overlapping_end_handles_are_named(tmp_path, capsys, command):
     _tetrahedron().export(tmp_path / "tet.stl")
     with pytest.raises(SystemExit) as exit_info:
         main([*command, str(tmp_path / "tet.stl"), "--handle-fraction", "0.6", "--out", str(tmp_path / "x.npy")])
-    warning, error = capsys.readouterr().err.splitlines()
-    assert exit_info.value.code == 2
+    lines = capsys.readouterr().err.splitlines()
+    warning, error = lines[0], lines[-1]
+    assert len(lines) == 2 and exit_info.value.code == 2
     assert warning.startswith(f"jaxcga {command[0]}: warning: mesh: ") and "welded 12 vertices into 4" in warning
     assert error.startswith(f"jaxcga {command[0]}: error: handle_fraction: 0.6 makes the two end handles overlap")
 

@@ -1,5 +1,5 @@
-"""Output files that survive failure, shared by every writer of the packages and the command line (not part of
-jaxcga's public API).
+"""Output files that survive failure, shared by the library's writers (``deform.save_model``) and the command line
+(``jaxcga_cli``).
 
 Every file is written to a temporary file in its own folder and renamed over the target (``os.replace``) only once
 it is complete, so a failed write (a full disk, a file-size limit, an error half-way) leaves the previous file as
@@ -87,19 +87,6 @@ def write_files(files: dict) -> None:
 def write_bytes(path, data: bytes | str) -> None:
     """Write ``data`` (str as UTF-8) to ``path`` through ``replacing``."""
     write_files({path: data})
-
-
-def save_figure(fig, path, **savefig) -> Path:
-    """``fig.savefig`` (a matplotlib figure; ``savefig``: its keywords) to ``path`` through ``replacing``; the
-    figure is closed, also when the write fails. Returns ``path`` as a Path."""
-    import matplotlib.pyplot as plt
-
-    try:
-        with replacing(path) as (temp,):
-            fig.savefig(temp, **savefig)
-    finally:
-        plt.close(fig)
-    return Path(path)
 
 
 def write_json(path, data) -> None:

@@ -9,7 +9,7 @@ import meshio
 import numpy as np
 import pytest
 
-from jaxcga.cli import main
+from jaxcga_cli.main import main
 
 
 def test_cheese_writes_frames_surfaces_and_a_summary(tmp_path, capsys):

@@ -14,7 +14,7 @@ from scipy.spatial.transform import Rotation
 
 import deform
 from deform import arap_precompute, arap_solve
-from jaxcga.cli import main
+from jaxcga_cli.main import main
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 
@@ -38,7 +38,8 @@ def test_handles_file_gives_arap_solves_result(tube, tmp_path, capsys, energy):
     moved = Rotation.from_rotvec([0.8, 0.0, 0.3]).apply(V[high] - [0, 0, -1.0]) + [0.1, 0.2, -1.0]
     positions = np.concatenate([V[low], moved])
     handles = tmp_path / "handles.json"
-    handles.write_text(json.dumps({"indices": indices.tolist(), "positions": positions.tolist()}))
+    handles.write_text(json.dumps({"handles": [low.tolist(), high.tolist()],
+                                   "positions": [V[low].tolist(), moved.tolist()]}))
     out = tmp_path / "arap.npy"
     option = [] if energy is None else ["--energy", energy]
     assert main(["arap", str(path), "--handles", str(handles), "--iters", "7", "--out", str(out), *option]) == 0
@@ -49,6 +50,25 @@ def test_handles_file_gives_arap_solves_result(tube, tmp_path, capsys, energy):
     data = arap_precompute(V, F, indices, energy=energy or "spokes_and_rims")
     expected = arap_solve(data, jnp.asarray(positions), max_iterations=7).U
     np.testing.assert_allclose(X, expected, atol=1e-10)
+
+
+def test_the_handles_file_of_deform_moves_arap_handles_by_their_motors(tube, tmp_path):
+    """One --handles format for deform and arap: each group of vertices moved by its motor (a rotation about an
+    axis through a centre, then a translation), here against scipy's rotation of the same vertices."""
+    path, V, _ = tube
+    low, high = np.flatnonzero(V[:, 2] < -0.95), np.flatnonzero(V[:, 2] > 0.95)
+    axis, angle, center, shift = np.array([0.8, 0.0, 0.3]), 40.0, np.array([0.0, 0.0, -1.0]), [0.1, 0.2, 0.0]
+    moved = Rotation.from_rotvec(np.radians(angle) * axis / np.linalg.norm(axis)).apply(V[high] - center) + center
+    handles = tmp_path / "handles.json"
+    handles.write_text(json.dumps({"handles": [low.tolist(), high.tolist()], "motors": [
+        {}, {"center": center.tolist(), "axis": axis.tolist(), "angle_deg": angle, "translation": shift}]}))
+    out = tmp_path / "arap.npy"
+    assert main(["arap", str(path), "--handles", str(handles), "--iters", "2", "--out", str(out)]) == 0
+    X = np.load(out)
+    np.testing.assert_allclose(X[low], V[low], atol=1e-12)
+    np.testing.assert_allclose(X[high], moved + shift, atol=1e-12)
+    assert main(["deform", "handles", str(path), "--handles", str(handles), "--out", str(tmp_path / "d.npy")]) == 0
+    np.testing.assert_allclose(np.load(tmp_path / "d.npy")[high], moved + shift, atol=1e-9)
 
 
 @pytest.mark.slow  # ~20-50 s on 2 cores: out of `make test` (its 15-minute budget); `make test-slow` and CI run it
@@ -68,11 +88,12 @@ def test_default_handles_mesh_and_figure_outputs(tube, tmp_path):
 
 @pytest.mark.parametrize("content, message", [
     ("{", "not valid JSON"),
-    ('{"indices": [0, 1]}', "must hold"),
-    ('{"indices": [0, 100000], "positions": [[0, 0, 0], [1, 1, 1]]}', "must lie in"),
-    ('{"indices": [0, 1], "positions": [[0, 0, 0]]}', "one per index"),
-    ('{"indices": [0.5], "positions": [[0, 0, 0]]}', "vertex indices"),
-    ('{"indices": [0, 0], "positions": [[0, 0, 0], [0, 0, 0]]}', "repeated"),
+    ('{"indices": [0, 1], "positions": [[0, 0, 0], [1, 1, 1]]}', "must hold"),
+    ('{"handles": [[0, 100000]], "positions": [[[0, 0, 0], [1, 1, 1]]]}', "indices in [0, "),
+    ('{"handles": [[0, 1]], "positions": [[[0, 0, 0]]]}', "one per vertex of handle 0"),
+    ('{"handles": [[0.5]], "positions": [[[0, 0, 0]]]}', "list of vertex indices"),
+    ('{"handles": [[0], [0]], "positions": [[[0, 0, 0]], [[0, 0, 0]]]}', "vertex 0 is in the handles 2 times"),
+    ('{"handles": [[0]], "motors": [{}], "positions": [[[0, 0, 0]]]}', "give one"),
 ])
 def test_bad_handles_exit_with_a_message(tube, tmp_path, capsys, content, message):
     path, _, _ = tube
@@ -104,7 +125,7 @@ def test_one_rigid_motion_of_every_handle_gives_that_motion_on_arm5(tmp_path):
     diag = np.linalg.norm(np.ptp(V, axis=0))
     rigid = Rotation.from_rotvec([0.3, -0.5, 0.2]).apply(V) + np.array([0.1, -0.05, 0.2]) * diag
     handles = tmp_path / "handles.json"
-    handles.write_text(json.dumps({"indices": indices.tolist(), "positions": rigid[indices].tolist()}))
+    handles.write_text(json.dumps({"handles": [indices.tolist()], "positions": [rigid[indices].tolist()]}))
     out = tmp_path / "arap.npy"
     assert main(["arap", str(DATA / "Arm5.glb"), "--handles", str(handles), "--iters", "50", "--tolerance", "-1",
                  "--out", str(out)]) == 0

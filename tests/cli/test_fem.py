@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from jaxcga.cli import main
+from jaxcga_cli.main import main
 
 
 @pytest.fixture(scope="module")

@@ -1,7 +1,7 @@
-"""Output that survives failure (``jaxcga._output`` and every command's writer): a failed write (a full disk, made
-with a file-size limit) leaves the previous files as they were; every path problem is found before any loading or
-computing and reported on one line with exit code 2; outputs never overwrite an input, each other, or an
-unrelated .bin; fem / xfem folders hold one run."""
+"""Output that survives failure (``_jaxcga_shared.output`` and every command's writer): a failed write (a full
+disk, made with a file-size limit) leaves the previous files as they were; every path problem is found before any
+loading or computing and reported on one line with exit code 2; outputs never overwrite an input, each other, or
+an unrelated .bin; fem / xfem folders hold one run."""
 
 from __future__ import annotations
 
@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 
 import deform
-from jaxcga._output import replacing, write_json
-from jaxcga.cli import main
+from _jaxcga_shared.output import replacing, write_json
+from jaxcga_cli.main import main
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 ROOT = Path(__file__).resolve().parents[2]
@@ -48,10 +48,17 @@ def _fails_on_one_line(capsys, argv: list[str], *needles: str) -> str:
         main(argv)
     err = capsys.readouterr().err
     assert stop.value.code == 2, err
-    assert err.startswith(f"jaxcga {argv[0]}: error: ") and err.count("\n") == 1, err  # no traceback
+    assert _one_line_error(err, argv[0]), err
     for needle in needles:
         assert needle in err, err
     return err
+
+
+def _one_line_error(err: str, command: str) -> bool:
+    """``err`` (stderr) ends with one error line, after status lines only: no traceback."""
+    lines = err.splitlines()
+    return (err.endswith("\n") and lines[-1].startswith(f"jaxcga {command}: error: ")
+            and all(line.startswith(f"jaxcga {command}: ") and ": error: " not in line for line in lines[:-1]))
 
 
 def _snapshot(folder: Path) -> dict[str, bytes]:
@@ -64,11 +71,11 @@ def no_work(monkeypatch):
     def refuse(*args, **kwargs):
         raise AssertionError("loaded or computed before the paths were checked")
 
-    from deform import _commands, _deform_commands, _fitting
-    from xfem import _fem_commands, _xfem_commands
+    import xfem
+    from jaxcga_cli import fem, models
 
-    for module, name in ((_commands, "load_or_default"), (_fitting, "fit_pose"), (_deform_commands, "load_mesh"),
-                         (_fem_commands, "scene_mesh"), (_xfem_commands, "scene")):
+    for module, name in ((models, "load_model"), (deform, "fit_pose"), (models, "load_mesh"), (fem, "scene_mesh"),
+                         (xfem, "scene")):
         monkeypatch.setattr(module, name, refuse)
 
 
@@ -101,7 +108,7 @@ def test_write_json_refuses_non_finite_numbers(tmp_path):
 
 _LIMITED = """
 import contextlib, io, json, resource, signal, sys
-from jaxcga.cli import main
+from jaxcga_cli.main import main
 import deform
 
 signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # a write past the limit fails with EFBIG, as on a full disk
@@ -133,20 +140,22 @@ def disk_full(tmp_path_factory):
     fits and second does not; a .gltf whose JSON fits and .bin does not (the library's save_model); a fem run
     whose first frame does not fit, into the folder of an earlier run with --force."""
     import cutting
-    from deform._gltf import model_files
 
     folder = tmp_path_factory.mktemp("disk_full")
+    sizing = tmp_path_factory.mktemp("sizes")
     arm = deform.default_arm()
     plane = [1.0, 0.0, 0.0, 0.45]
     halves = cutting.cut(arm.mesh, np.asarray(plane))
-    sizes = [len(next(iter(model_files(deform.RiggedModel(h, arm.skeleton, arm.clips), folder / "x.glb").values())))
-             for h in halves]
+    sizes = []
+    for k, half in enumerate(halves):
+        deform.save_model(deform.RiggedModel(half, arm.skeleton, arm.clips), sizing / f"{k}.glb")
+        sizes.append((sizing / f"{k}.glb").stat().st_size)
     assert sizes[0] < 0.9 * sizes[1]  # the positive half fits under the limit, the negative one does not
     cut_limit = (sizes[0] + sizes[1]) // 2
     for name in ("pos.glb", "neg.glb"):  # the previous outputs: valid models
         (folder / name).write_bytes((DATA / "RiggedSimple.glb").read_bytes())
-    gltf_sizes = [len(data) for data in model_files(deform.load_model(DATA / "RiggedSimple.glb"),
-                                                    folder / "model.gltf").values()]
+    deform.save_model(deform.load_model(DATA / "RiggedSimple.glb"), sizing / "model.gltf")
+    gltf_sizes = [(sizing / name).stat().st_size for name in ("model.gltf", "model.bin")]
     assert gltf_sizes[0] < 0.9 * gltf_sizes[1]  # the JSON (written first) fits under the limit, the buffer does not
     gltf_limit = sum(gltf_sizes) // 2
     deform.save_model(deform.load_model(DATA / "PlaneWith3Bones.glb"), folder / "model.gltf")  # the previous one
@@ -171,7 +180,7 @@ def disk_full(tmp_path_factory):
 def test_disk_full_leaves_both_halves_of_a_cut_as_they_were(disk_full):
     folder, before, (cut_result, _, _) = disk_full
     code, err = cut_result
-    assert code == 2 and err.count("\n") == 1 and "File too large" in err and "left as before" in err
+    assert code == 2 and _one_line_error(err, "cut") and "File too large" in err and "left as before" in err
     for name in ("pos.glb", "neg.glb"):  # the positive half was written, but not renamed: the negative one failed
         assert (folder / name).read_bytes() == before[name]
         deform.load_model(folder / name)
@@ -188,7 +197,7 @@ def test_disk_full_leaves_a_gltf_and_its_bin_as_they_were(disk_full):
 def test_disk_full_leaves_the_previous_fem_run_as_it_was(disk_full):
     folder, before, (_, _, fem_result) = disk_full
     code, err = fem_result
-    assert code == 2 and err.count("\n") == 1 and "File too large" in err
+    assert code == 2 and _one_line_error(err, "fem") and "File too large" in err
     after = _snapshot(folder)
     assert after == before  # every file, including the earlier run's frames; no temporary file is left
     assert sorted(p.name for p in folder.iterdir()) == ["model.bin", "model.gltf", "neg.glb", "pos.glb", "run"]
@@ -299,13 +308,13 @@ def test_a_trimesh_gltf_holds_its_buffers(tmp_path):
     """skin / deform / arap write a posed mesh as .gltf through trimesh: one file, no sibling buffer to clobber."""
     import trimesh
 
-    from deform._deform_commands import write_positions
+    from jaxcga_cli.output import write_result
 
     for name in ("mesh.bin", "gltf_buffer_0.bin", "gltf_buffer.bin"):
         (tmp_path / name).write_bytes(b"someone else's buffer")
     V = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
     F = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
-    write_positions(tmp_path / "mesh.gltf", V, F)
+    write_result(tmp_path / "mesh.gltf", V, F)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["gltf_buffer.bin", "gltf_buffer_0.bin", "mesh.bin",
                                                          "mesh.gltf"]
     assert all((tmp_path / n).read_bytes() == b"someone else's buffer" for n in ("mesh.bin", "gltf_buffer_0.bin"))

@@ -12,7 +12,7 @@ import pytest
 import trimesh
 
 import deform
-from jaxcga.cli import main
+from jaxcga_cli.main import main
 from tests.deform._gltf_reference import Reference
 from tests.deform._rigs import scaled_keys_model
 
@@ -90,13 +90,15 @@ def test_errors_are_reported_with_exit_code_2(tmp_path, capsys):
 
 
 def _error(argv, capsys) -> str:
-    """The one line ``main(argv)`` prints when it fails with exit code 2."""
+    """The one error line ``main(argv)`` prints when it fails with exit code 2 (after status lines, if any)."""
     with pytest.raises(SystemExit) as exit_info:
         main(argv)
     assert exit_info.value.code == 2
     err = capsys.readouterr().err
-    assert len(err.strip().splitlines()) == 1, err
-    return err
+    *status, error = err.splitlines()
+    assert error.startswith(f"jaxcga {argv[0]}: error: "), err
+    assert all(line.startswith(f"jaxcga {argv[0]}: ") and ": error: " not in line for line in status), err
+    return error + "\n"
 
 
 @pytest.mark.parametrize("value", ["nan", "inf", "-inf", "NaN", "1e999"])
@@ -115,11 +117,11 @@ def test_an_error_inside_compiled_code_prints_its_message_only(tmp_path, capsys,
     line with the check's message, and no log of the failed callback."""
     import equinox as eqx
 
-    from jaxcga import cli
+    from jaxcga_cli import skin
 
     check = lambda x: eqx.error_if(x, x > 0, "x: must not be positive")  # noqa: E731
     for jit in (jax.jit, eqx.filter_jit):
-        monkeypatch.setattr(cli, "_run_deform", lambda args, jit=jit: jit(check)(jnp.ones(())))
+        monkeypatch.setattr(skin, "run", lambda args, jit=jit: jit(check)(jnp.ones(())))
         err = _error(["skin", "--out", str(tmp_path / "x.npy")], capsys)
         assert err == "jaxcga skin: error: x: must not be positive\n"
 

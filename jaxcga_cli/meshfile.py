@@ -1,4 +1,4 @@
-"""Reading triangle mesh files as they are (host I/O shared by ``deform`` and ``xfem``, beside ``_output``)."""
+"""Reading triangle mesh files as they are, for the commands that take a mesh file (``deform``, ``arap``, ``fem``)."""
 
 from __future__ import annotations
 

@@ -1,0 +1,135 @@
+"""``jaxcga arap``: as-rigid-as-possible deformation with rotors (deformation paper sec. VII) of a mesh whose
+handle vertices are moved.
+
+The handles come from HANDLES.json, the format of ``jaxcga deform handles`` (``jaxcga_cli.models``): each group of
+vertices moved by its motor, or put at its "positions". Without a handles file the mesh's two ends along its long
+axis are the handles: the low end stays and the high end moves by the same motion as ``jaxcga deform``
+(``--bend`` / ``--twist`` / ``--translate``).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from jaxcga_cli import arguments
+from jaxcga_cli.deform import HANDLES_HELP
+
+HELP = ("deform a mesh as rigidly as possible (every small patch keeps its shape as far as it can, ARAP) so that "
+        "its handle vertices reach where they are moved")
+EXAMPLE = "jaxcga arap tests/data/Arm5.glb --bend 90 --out bent.npy"
+
+
+def add_arguments(parser) -> None:
+    arguments.mesh_argument(parser, "the built-in arm's rest mesh")
+    parser.add_argument("--handles", type=Path, default=None,
+                        help=f"{HANDLES_HELP}; here each group may instead give its vertices' targets, "
+                             '"positions": [[[x, y, z], ...], ...]; default: the low end of the long axis fixed, the '
+                             "high end moved by --bend/--twist/--translate")
+    parser.add_argument("--iters", type=int, default=10, help="at most this many local/global iterations (default 10)")
+    parser.add_argument("--tolerance", type=float, default=1e-8,
+                        help="stop when the energy decreases by less than this fraction in one iteration "
+                             "(default 1e-8; negative: run every iteration)")
+    parser.add_argument("--energy", choices=arguments.ARAP_ENERGIES, default="spokes_and_rims",
+                        help="spokes_and_rims (default, libigl's default: a rigid motion of all handles gives that "
+                             "rigid map) or spokes (the paper's eq. 9: with obtuse triangles it can drift from "
+                             "rigid maps)")
+    parser.add_argument("--bend", type=float, default=60.0, help="default handles: degrees of bend (default 60)")
+    parser.add_argument("--twist", type=float, default=0.0, help="default handles: degrees of twist (default 0)")
+    parser.add_argument("--translate", type=float, nargs=3, default=(0.0, 0.0, 0.0), metavar=("X", "Y", "Z"),
+                        help="default handles: translation of the high end (default none)")
+    parser.add_argument("--handle-fraction", type=float, default=0.05,
+                        help="default handles: vertices within this fraction of the long axis's ends (default 0.05)")
+    parser.add_argument("--out", type=Path, required=True,
+                        help="OUT.npy: float64 (n, 3) positions; OUT.glb/.obj/.ply/.stl: the mesh; OUT.png: a figure")
+
+
+def check_paths(args) -> None:
+    from jaxcga_cli.output import DEFORM_OUTPUTS, check_files
+
+    check_files(args, ("mesh", "handles"), {"out": args.out}, DEFORM_OUTPUTS)
+
+
+def run(args) -> dict:
+    from jaxcga_cli.models import load_mesh
+
+    V, F = load_mesh(args.mesh)
+    summary = arap_command(V, F, args.out, handles=args.handles, iterations=args.iters, tolerance=args.tolerance,
+                           bend=args.bend, twist=args.twist, translate=args.translate,
+                           handle_fraction=args.handle_fraction, energy=args.energy)
+    return args.mesh or "built-in arm", summary
+
+
+def handle_targets(path: Path, V):
+    """(indices (k,), positions (k, 3)) of HANDLES.json for the mesh vertices ``V``: each group's vertices moved
+    by its motor, or put at its positions."""
+    import jax.numpy as jnp
+    import numpy as np
+
+    import jaxcga as cga
+    from jaxcga_cli.models import read_handles
+
+    groups, motors, targets = read_handles(path, len(V), positions=True)
+    if targets is None:
+        targets = [np.asarray(cga.apply_to_points(cga.Multivector(motors.values[i], motors.blades), jnp.asarray(V[g])))
+                   for i, g in enumerate(groups)]
+    return np.concatenate(groups), np.concatenate(targets)
+
+
+def default_handles(V, bend: float, twist: float, translate, fraction: float):
+    """The low end of the long axis fixed, the high end moved by ``Motion(V, bend, twist, translate)``."""
+    import jax.numpy as jnp
+    import numpy as np
+
+    from jaxcga import apply_to_points
+    from jaxcga_cli.models import Motion, end_handles
+
+    motion = Motion(V, bend, twist, translate)
+    low, high = end_handles(motion, V, fraction)
+    moved = np.asarray(apply_to_points(motion.motors(jnp.ones(len(high))), jnp.asarray(V[high])))
+    return np.concatenate([low, high]), np.concatenate([V[low], moved])
+
+
+def arap_command(V, F, out: Path, *, handles: Path | None = None, iterations: int = 10, tolerance: float = 1e-8,
+                 bend: float = 60.0, twist: float = 0.0, translate=(0.0, 0.0, 0.0),
+                 handle_fraction: float = 0.05, energy: str = "spokes_and_rims") -> dict:
+    """Deform (V, F) as rigidly as possible with the handles of ``handles`` (or the default two ends),
+    write ``out`` (.npy float64 (n, 3), a mesh, or a .png figure); returns a summary. ``energy``:
+    ``arap_precompute``'s ("spokes_and_rims" or "spokes")."""
+    import time
+
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    import deform
+    from jaxcga_cli.output import write_result
+    from jaxcga_cli.report import status
+
+    if not isinstance(iterations, int) or iterations < 1:
+        raise ValueError(f"iters: expected an int >= 1, got {iterations!r}")
+    if handles is None:
+        b, bc = default_handles(V, bend, twist, translate, handle_fraction)
+    else:
+        b, bc = handle_targets(handles, V)
+    start = time.perf_counter()
+    with status("arap", f"precomputing {len(V)} vertices, {len(b)} handles (factoring the system)"):
+        data = deform.arap_precompute(V, F, b, energy=energy)
+    precompute_ms = 1e3 * (time.perf_counter() - start)
+    start = time.perf_counter()
+    with status("arap", f"solving (compiling, then at most {iterations} local/global iterations)"):
+        result = jax.block_until_ready(deform.arap_solve(data, jnp.asarray(bc), max_iterations=iterations,
+                                                         tolerance=tolerance))
+    solve_ms = 1e3 * (time.perf_counter() - start)
+    U = np.asarray(result.U, np.float64)
+    write_result(out, U, F, V, f"ARAP, {int(result.iterations)} iterations")
+    energies = np.asarray(result.energies)[: int(result.iterations) + 1]
+    return {
+        "vertices": len(V),
+        "handles": len(b),
+        "energy_type": energy,
+        "iterations": int(result.iterations),
+        "energy": f"{energies[0]:.4g} -> {energies[-1]:.4g}",
+        "precompute_ms": round(precompute_ms, 1),
+        "solve_ms": round(solve_ms, 1),  # includes compilation
+        "out": str(out),
+    }

@@ -1,0 +1,46 @@
+"""Arguments several commands share."""
+
+from __future__ import annotations
+
+FORCE_HELP = ("replace the run in a non-empty OUT: its frame_XXXX.png/.vtu and summary.json are replaced when this "
+              "run ends; other files stay")
+METHODS_HELP = ("skinning method: lbs (linear blend skinning, matrices), dqs (dual quaternions), cga (the paper's "
+                "multivector skinning, eq. 17; default) or cga_motor_blend (eq. 17 blending motors only)")
+
+
+def model_argument(parser) -> None:
+    parser.add_argument("model", nargs="?", default=None,
+                        help="glTF (.gltf/.glb), or FBX/COLLADA through assimp; default: the built-in arm")
+    parser.add_argument("--weld", action="store_true", help="weld split vertices of the loaded model")
+
+
+def mesh_argument(parser, default: str) -> None:
+    parser.add_argument("mesh", nargs="?", default=None,
+                        help=f"a mesh file (glTF: its bind-pose mesh; .obj, .ply, .stl, ...); default: {default}")
+
+
+def interpolation_argument(parser) -> None:
+    parser.add_argument("--interpolation", choices=("gltf", "log"), default="gltf",
+                        help="key interpolation: gltf, the file's (the glTF specification's lerp / slerp / "
+                             "step / cubic spline; default), or log, the paper's logarithmic blending of "
+                             "key versors (sec. 4.1)")
+
+
+def clip(value: str) -> int | str:
+    """A clip index (an integer) or name."""
+    return int(value) if value.lstrip("-").isdigit() else value
+
+
+def clip_argument(parser) -> None:
+    parser.add_argument("--clip", type=clip, default=0, help="clip name or index (default 0)")
+
+
+# The packages' enumerations, listed here so that --help runs without importing JAX (tests/cli checks that they
+# equal the packages' own).
+BASES = ("linear", "lagrange", "bezier", "bspline")  # deform.BASES
+LAPLACIANS = ("cotangent", "mean_value")  # deform.LAPLACIANS
+ARAP_ENERGIES = ("spokes_and_rims", "spokes")  # deform.ARAP_ENERGIES
+PREDICATES = ("euclidean", "ga")  # cutting.PREDICATES
+XFEM_SCENES = ("sticks", "thin", "cheese", "accordion", "mouth")  # xfem.SCENES
+XFEM_SIZES = ("paper", "small")  # xfem.SIZES
+METHODS = ("lbs", "dqs", "cga", "cga_motor_blend")  # deform.METHODS

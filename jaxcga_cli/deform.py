@@ -1,0 +1,161 @@
+"""``jaxcga deform {spline,handles,ffd,cage}``: a mesh bent and twisted by motors, by one of the deformation
+paper's methods.
+
+Each loads a triangle mesh (any trimesh format; a glTF's bind-pose mesh, welded; default: the built-in arm's rest
+mesh), binds it to key motors by one of the methods, moves the keys by one motion along the mesh's long axis
+(``jaxcga_cli.models``), and writes the deformed mesh (.glb, .obj, .ply, .stl), its positions (.npy, float64
+(n, 3)) or a figure of the rest and deformed mesh (.png). Spline keys sit at s = j / (k - 1); harmonic handles are
+the mesh's two ends (the low end fixed, the high end at s = 1) unless a handles file is given; lattice points and
+cage vertices sit at their own s; ``--positional`` moves FFD control points or cage vertices by the same motors
+instead (classic FFD, positional cage) for comparison.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from jaxcga_cli import arguments
+
+HELP = ("bend and twist a mesh smoothly with motors (rigid motions: a rotation and a translation) by one of the "
+        "deformation paper's methods: a spline of key motors, handles, a lattice (FFD) or a cage")
+EXAMPLE = "jaxcga deform ffd tests/data/Arm5.glb --bend 60 --twist 30 --out bent.png"
+DEFORMATIONS = ("spline", "handles", "ffd", "cage")
+HANDLES_HELP = ('HANDLES.json {"handles": [[i, ...], ...], "motors": [{"center": [x, y, z], "axis": [x, y, z], '
+                '"angle_deg": a, "translation": [x, y, z]}, ...]}: groups of vertex indices, one rigid motion per '
+                "group (every motor key optional; jaxcga arap reads the same file)")
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("method", choices=DEFORMATIONS,
+                        help="spline: key motors along a spline, blended along the mesh (eq. 1-2); handles: groups "
+                             "of vertices moved rigidly, the rest follows smoothly (harmonic weights, sec. IV); ffd: "
+                             "free-form deformation, the mesh moves with a lattice of control motors around it "
+                             "(eq. 7-8); cage: the mesh moves with a coarse closed cage around it (harmonic "
+                             "coordinates, sec. VI)")
+    arguments.mesh_argument(parser, "the built-in arm")
+    parser.add_argument("--bend", type=float, default=60.0,
+                        help="degrees of bend across the long axis at its far end (default 60)")
+    parser.add_argument("--twist", type=float, default=0.0, help="degrees of twist about the long axis (default 0)")
+    parser.add_argument("--translate", type=float, nargs=3, default=(0.0, 0.0, 0.0), metavar=("X", "Y", "Z"),
+                        help="translation at the far end (default none)")
+    parser.add_argument("--basis", choices=arguments.BASES, default="bspline",
+                        help="spline: weights of the key motors (default bspline)")
+    parser.add_argument("--keys", type=int, default=None,
+                        help="spline: number of key motors for bezier / bspline (default 4 / 5; linear has 2, "
+                             "lagrange 3)")
+    parser.add_argument("--weights", choices=arguments.LAPLACIANS, default="cotangent",
+                        help="spline, handles: Laplacian weights of the harmonic fields (default cotangent)")
+    parser.add_argument("--handle-fraction", type=float, default=0.05,
+                        help="spline, handles: the end handles hold the vertices within this fraction of the "
+                             "long axis's ends (default 0.05)")
+    parser.add_argument("--handles", type=Path, default=None, help=f"handles: {HANDLES_HELP}, instead of the two ends")
+    parser.add_argument("--lattice", type=int, nargs=3, default=(4, 4, 4), metavar=("L", "M", "N"),
+                        help="ffd: control points per axis (default 4 4 4)")
+    parser.add_argument("--cage", type=Path, default=None,
+                        help="cage: a closed cage mesh around the model (default: a tube cage of 7 rings of 8 "
+                             "along the long axis, deform.tube_cage)")
+    parser.add_argument("--positional", action="store_true",
+                        help="ffd, cage: move control points / cage vertices instead (classic FFD, positional cage)")
+    parser.add_argument("--out", type=Path, required=True,
+                        help="OUT.glb/.obj/.ply/.stl: the deformed mesh; OUT.npy: float64 (n, 3); OUT.png: a figure")
+
+
+def check_paths(args) -> None:
+    from jaxcga_cli.output import DEFORM_OUTPUTS, check_files
+
+    check_files(args, ("mesh", "handles", "cage"), {"out": args.out}, DEFORM_OUTPUTS)
+
+
+def run(args) -> dict:
+    from jaxcga_cli.models import load_mesh
+
+    V, F = load_mesh(args.mesh)
+    return f"{args.method} {args.mesh or 'built-in arm'}", deform_command(
+        args.method, V, F, args.out, bend=args.bend, twist=args.twist, translate=args.translate, basis=args.basis,
+        keys=args.keys, weights=args.weights, handle_fraction=args.handle_fraction, handles=args.handles,
+        lattice=args.lattice, cage=args.cage, positional=args.positional)
+
+
+def deform_command(method: str, V, F, out: Path, *, bend: float = 60.0, twist: float = 0.0,
+                   translate=(0.0, 0.0, 0.0), basis: str = "bspline", keys: int | None = None,
+                   weights: str = "cotangent", handle_fraction: float = 0.05, handles: Path | None = None,
+                   lattice=(4, 4, 4), cage: Path | None = None, positional: bool = False) -> dict:
+    """Bind (V, F) by ``method`` (one of ``DEFORMATIONS``), move the keys, write ``out``; returns a
+    summary (vertices, keys, precompute and per-frame milliseconds, volume and edge-length change)."""
+    import time
+
+    import jax
+    import jax.numpy as jnp
+    import numpy as np
+
+    import deform
+    import jaxcga as cga
+    from jaxcga_cli.models import Motion, end_handles, load_mesh, read_handles
+    from jaxcga_cli.output import write_result
+    from jaxcga_cli.report import status
+
+    if method not in DEFORMATIONS:
+        raise ValueError(f"method: expected one of {DEFORMATIONS}, got {method!r}")
+    if positional and method not in ("ffd", "cage"):
+        raise ValueError("positional: only the ffd and cage deformations have a positional form")
+    if keys is not None and keys > len(V):
+        raise ValueError(f"keys: expected at most one key motor per vertex ({len(V)}), got {keys}")
+    motion = Motion(V, bend, twist, translate)
+    # the handles, read and checked before the work starts
+    if method == "handles" and handles is not None:
+        parts, key_motors, _ = read_handles(handles, len(V))
+    elif method in ("spline", "handles"):
+        parts = list(end_handles(motion, V, handle_fraction))
+        key_motors = motion.motors(np.array([0.0, 1.0]))
+    start = time.perf_counter()
+    with status("deform", f"binding {len(V)} vertices ({method})"):
+        if method == "spline":
+            if keys is None and basis == "bspline":
+                keys = 5
+            field = deform.spline_precompute(V, F, *parts, basis=basis, num_keys=keys, laplacian=weights)
+            key_motors = motion.motors(np.linspace(0.0, 1.0, field.num_keys))
+        elif method == "handles":
+            field = deform.harmonic_handles(V, F, parts, weights)
+        elif method == "ffd":
+            grid = deform.bounding_lattice(V, tuple(lattice), padding=0.02)
+            field = deform.ffd_motor_field(grid, V)
+            points = deform.lattice_points(grid)
+            key_motors = motion.motors(motion.fraction(points))
+            control = cga.apply_to_points(key_motors, points)
+        else:
+            if cage is None:
+                cage_V, cage_F = deform.tube_cage(V, axis=motion.long)
+            else:
+                cage_V, cage_F = load_mesh(cage, "cage")
+            bound = deform.cage_precompute(cage_V, cage_F, V)
+            field = bound.field
+            key_motors = motion.motors(motion.fraction(cage_V))
+            control = cga.apply_to_points(key_motors, jnp.asarray(cage_V))
+    precompute_ms = 1e3 * (time.perf_counter() - start)
+
+    if positional:
+        frame = jax.jit(lambda P: deform.ffd_positions(field.weights, P))
+        argument = control
+    else:
+        frame = jax.jit(field.__call__)
+        argument = key_motors
+    with status("deform", "compiling the deformation"):
+        positions = jax.block_until_ready(frame(argument))
+    start = time.perf_counter()
+    positions = jax.block_until_ready(frame(argument))
+    frame_ms = 1e3 * (time.perf_counter() - start)
+    positions = np.asarray(positions, np.float64)
+    if not np.all(np.isfinite(positions)):
+        raise ValueError("the deformation produced non-finite positions")
+    write_result(out, positions, F, V, f"{method}{' (positional)' if positional else ''}")
+    measured = deform.distortion(V, positions, F)
+    return {
+        "method": method + (" (positional)" if positional else ""),
+        "vertices": len(V),
+        "keys": field.num_keys,
+        "precompute_ms": round(precompute_ms, 1),
+        "frame_ms": round(frame_ms, 2),
+        "volume_ratio": round(float(measured["volume_ratio"]), 4),
+        "mean_edge_change": round(float(measured["edge_mean"]), 4),
+        "out": str(out),
+    }
