@@ -5,7 +5,6 @@ that leaves compilation out, the model's bounding box around coordinates, animat
 
 from __future__ import annotations
 
-import ast
 import importlib.metadata
 import shlex
 import subprocess
@@ -152,21 +151,3 @@ def test_animate_refuses_a_request_larger_than_this_machines_memory(tmp_path, ca
     assert animate.available_memory() > 0
     assert _exit(["animate", "--frames", str(10**13), "--out", str(tmp_path / "a.glb")]) == 2
     assert "of memory available now" in capsys.readouterr().err
-
-
-def _imports(folder: Path) -> set[str]:
-    names = set()
-    for path in folder.rglob("*.py"):
-        for node in ast.walk(ast.parse(path.read_text())):
-            if isinstance(node, ast.Import):
-                names.update(alias.name.split(".")[0] for alias in node.names)
-            elif isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
-                names.add(node.module.split(".")[0])
-    return names
-
-
-def test_the_library_never_imports_the_command_line_and_the_kernel_nothing_above_it():
-    assert not _imports(ROOT / "jaxcga") & {"deform", "cutting", "xfem", "jaxcga_cli"}
-    for package in ("_jaxcga_shared", "deform", "cutting", "xfem"):
-        assert "jaxcga_cli" not in _imports(ROOT / package), package
-    assert not _imports(ROOT / "_jaxcga_shared") & {"jaxcga", "deform", "cutting", "xfem"}
