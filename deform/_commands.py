@@ -19,6 +19,7 @@ from deform._deform_commands import POSITION_OUTPUTS, write_positions
 from deform._gltf import GLTF_OUTPUTS, buffer_file, load_model, save_model
 from deform._model import RiggedModel
 from jaxcga._output import check_output, save_figure, write_json
+from _jaxcga_shared.mesh import bounding_diagonal
 
 
 def load_or_default(path: str | Path | None, weld: bool = False) -> RiggedModel:
@@ -98,7 +99,7 @@ def fit_command(model: RiggedModel, target: Path, out: Path, method: str = "cga"
                             method=method, regularization=regularization, max_steps=max_steps,
                             fit_scale=fit_scale and method != "dqs")
     translation, rotation, scale = _rig.versor_to_trs(fit.local)
-    diagonal = float(_fitting.bounding_diagonal(model))
+    diagonal = bounding_diagonal(_pose.rest_pose(model, "lbs"))
     result = {
         "model": model.name,
         "method": method,

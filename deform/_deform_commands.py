@@ -26,9 +26,9 @@ import numpy as np
 import jaxcga as cga
 from deform._cage import cage_precompute, tube_cage
 from deform._default_arm import default_arm
-from deform._ffd import bounding_lattice, distortion, ffd_motor_field, ffd_positions, lattice_points
-from deform._handles import harmonic_handles
-from deform._motor_field import motor_about
+from deform._ffd import bounding_lattice, distortion, ffd_precompute, lattice_points
+from deform._handles import handles_precompute
+from deform._motor_field import blend_positions, motor_about, motor_field_solve
 from deform._spline import spline_precompute
 from jaxcga._meshfile import read_mesh_file
 from jaxcga._output import check_output, replacing, save_figure, write_bytes
@@ -169,10 +169,10 @@ def deform_command(method: str, V, F, out: Path, *, bend: float = 60.0, twist: f
             key_motors = motion.motors(np.array([0.0, 1.0]))
         else:
             parts, key_motors = _handles_file(handles, len(V))
-        field = harmonic_handles(V, F, parts, weights)
+        field = handles_precompute(V, F, parts, laplacian=weights)
     elif method == "ffd":
         grid = bounding_lattice(V, tuple(lattice), padding=0.02)
-        field = ffd_motor_field(grid, V)
+        field = ffd_precompute(V, grid)
         points = lattice_points(grid)
         key_motors = motion.motors(motion.fraction(points))
         control = cga.apply_to_points(key_motors, points)
@@ -181,17 +181,16 @@ def deform_command(method: str, V, F, out: Path, *, bend: float = 60.0, twist: f
             cage_V, cage_F = tube_cage(V, axis=motion.long)
         else:
             cage_V, cage_F = load_mesh(cage, "cage")
-        bound = cage_precompute(cage_V, cage_F, V)
-        field = bound.field
+        field = cage_precompute(V, cage_V, cage_F)
         key_motors = motion.motors(motion.fraction(cage_V))
         control = cga.apply_to_points(key_motors, jnp.asarray(cage_V))
     precompute_ms = 1e3 * (time.perf_counter() - start)
 
     if positional:
-        frame = jax.jit(lambda P: ffd_positions(field.weights, P))
+        frame = jax.jit(lambda P: blend_positions(field.weights, P))
         argument = control
     else:
-        frame = jax.jit(field.__call__)
+        frame = jax.jit(lambda motors: motor_field_solve(field, motors))
         argument = key_motors
     positions = jax.block_until_ready(frame(argument))
     start = time.perf_counter()
@@ -201,7 +200,7 @@ def deform_command(method: str, V, F, out: Path, *, bend: float = 60.0, twist: f
     if not np.all(np.isfinite(positions)):
         raise ValueError("the deformation produced non-finite positions")
     _write(out, V, positions, F, f"{method}{' (positional)' if positional else ''}")
-    measured = distortion(V, positions, F)
+    measured = distortion(V, F, positions)
     return {
         "method": method + (" (positional)" if positional else ""),
         "vertices": len(V),
