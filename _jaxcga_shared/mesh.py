@@ -22,6 +22,5 @@ def signed_volume(V: Float[Array, "... n 3"], F: Int[Array, "m 3"]) -> Float[Arr
     """Signed volume enclosed by a closed, consistently oriented triangle mesh, ``sum_f det(v0, v1, v2) / 6``
     (positive for outward normals); leading axes of V are batches. JAX, differentiable in V; the caller
     checks the shapes and indices."""
-    F = np.asarray(F)
     a, b, c = (V[..., F[:, k], :] for k in range(3))
     return jnp.sum(a * jnp.cross(b, c), axis=(-2, -1)) / 6

@@ -159,6 +159,8 @@ def harmonic_precompute(V, F, constrained, *, laplacian: str = "cotangent") -> H
     Raises:
         ValueError: bad mesh, indices out of range or repeated, no constrained or no free vertex, or
             a free part with no path to a constrained vertex (the system is singular)."""
+    if laplacian not in LAPLACIANS:
+        raise ValueError(f"laplacian: expected one of {LAPLACIANS}, got {laplacian!r}")
     V, F = _check_mesh(V, F)
     constrained = np.asarray(constrained)
     if constrained.ndim != 1 or not np.issubdtype(constrained.dtype, np.integer) or len(constrained) == 0:
