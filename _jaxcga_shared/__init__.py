@@ -1,4 +1,5 @@
 """The shared internal layer of the jaxcga distribution, below every package (``_jaxcga_shared`` <- ``jaxcga`` <-
 ``deform`` <- ``cutting``; ``_jaxcga_shared`` <- ``xfem``): argument checks (``checks``), host machinery and the host
-call (``host``), mesh utilities (``mesh``), batches split over devices (``devices``). Nothing here is public API: the leading underscore of the package says so, as ``_pytest`` does for
-pytest, and its modules import nothing of the packages above."""
+call (``host``), mesh utilities (``mesh``), batches split over devices (``devices``). Nothing here is public API:
+the leading underscore of the package says so, as ``_pytest`` does for pytest, and its modules import nothing of
+the packages above."""

@@ -14,9 +14,9 @@ Relation to the paper's ``p_i = M_i o ~M_i``: there the motors carry the point a
 vertex, i.e. the rest motors are the translators ``T_{P_j}`` (then ``exp(sum_j lambda_j log T_{P_j}) =
 T_{p_i}`` by linear precision). That is the binding of sec. III-A with rest motors ``T_{P_j}``
 (``motor_field_precompute(V, coords, rest_motors=translator(P))`` gives back the paper's formula). Here the
-rest motors are the identity, so the key motors are motions of space, ``p'_i = M_i p_i ~M_i``: identity motors leave the
-mesh at rest, the same rigid motor G on every cage vertex moves the mesh rigidly by G, and translators
-``T_{d_j}`` give the positional cage ``p_i + sum_j lambda_j d_j`` (the two bindings agree there).
+rest motors are the identity, so the key motors are motions of space, ``p'_i = M_i p_i ~M_i``: identity
+motors leave the mesh at rest, the same rigid motor G on every cage vertex moves the mesh rigidly by G, and
+translators ``T_{d_j}`` give the positional cage ``p_i + sum_j lambda_j d_j`` (the two bindings agree there).
 
 Discretization: the cage surface is first midpoint-subdivided (its new vertices carry the hat functions'
 exact values, averages of their parents'), then the interior is tetrahedralized with TetGen (switches
