@@ -90,7 +90,7 @@ def run(sizes: dict, iterations: int, repeats: int):
 
             data_igl = igl_precompute()
             ours = deform.arap_precompute(V, F, b, energy=energy)
-            solve = jax.jit(lambda c, x0, ours=ours: deform.arap_solve(ours, c, x0, max_iterations=iterations,
+            solve = jax.jit(lambda c, x0, ours=ours: deform.arap_solve(ours, c, V0=x0, max_iterations=iterations,
                                                                         tolerance=-1.0).U)
             jax.block_until_ready(solve(jnp.asarray(bc), jnp.asarray(U0)))
             U = np.asarray(solve(jnp.asarray(bc), jnp.asarray(U0)))

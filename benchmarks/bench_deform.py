@@ -100,7 +100,7 @@ def as_dtype(tree, dtype):
     return jax.tree_util.tree_map(lambda x: x.astype(dtype) if jnp.issubdtype(x.dtype, jnp.floating) else x, tree)
 
 
-def harmonic_solve(V, F, repeats: int):
+def harmonic_timings(V, F, repeats: int):
     """Median seconds of ``deform.harmonic_fields`` and ``igl.harmonic`` (interleaved) on the same
     handles, of a re-solve for new boundary values with the prefactored solver (``igl.harmonic`` has
     to start again), and the largest difference between the fields."""
@@ -110,13 +110,13 @@ def harmonic_solve(V, F, repeats: int):
     bc[np.arange(len(b)), np.repeat(np.arange(len(handles)), [len(h) for h in handles])] = 1.0
     ours = np.asarray(deform.harmonic_fields(V, F, handles))  # warm up (JAX dispatch)
     difference = float(np.abs(ours - igl.harmonic(V, F, b, bc, 1)).max())
-    solver = deform.harmonic_precompute(V, F, b)
+    data = deform.harmonic_precompute(V, F, b)
     new_values = jnp.asarray(np.random.default_rng(0).random(bc.shape))
-    jax.block_until_ready(solver(new_values))
+    jax.block_until_ready(deform.harmonic_solve(data, new_values))
     times = {"ours": [], "igl": [], "resolve": []}
     for _ in range(repeats):
         start = time.perf_counter()
-        jax.block_until_ready(solver(new_values))
+        jax.block_until_ready(deform.harmonic_solve(data, new_values))
         times["resolve"].append(time.perf_counter() - start)
         start = time.perf_counter()
         np.asarray(deform.harmonic_fields(V, F, handles))
@@ -134,7 +134,7 @@ def run(vertices: int, repeats: int, harmonic_repeats: int):
     print(f"mesh: welded Arm5 refined to {n} vertices, {len(F)} faces ({time.perf_counter() - start:.1f} s)")
     figures, ratios, units = {"vertices": float(n)}, {}, {"vertices": "count"}
 
-    seconds, difference = harmonic_solve(V, F, harmonic_repeats)
+    seconds, difference = harmonic_timings(V, F, harmonic_repeats)
     figures.update(harmonic_100k_s=seconds["ours"], harmonic_igl_100k_s=seconds["igl"],
                    harmonic_resolve_100k_s=seconds["resolve"])
     units.update(harmonic_100k_s="s", harmonic_igl_100k_s="s", harmonic_resolve_100k_s="s")
@@ -149,12 +149,12 @@ def run(vertices: int, repeats: int, harmonic_repeats: int):
     shoulder, fingertips = handles[0], handles[1]
     start = time.perf_counter()
     spline = deform.spline_precompute(V, F, shoulder, fingertips, basis="bspline", num_keys=6)
-    handle_field = deform.harmonic_handles(V, F, handles)
+    handle_field = deform.handles_precompute(V, F, handles)
     lattice = deform.bounding_lattice(V, (4, 4, 4), padding=0.01)
-    ffd = deform.ffd_motor_field(lattice, V)
+    ffd = deform.ffd_precompute(V, lattice)
     ffd_weights = ffd.weights
     cage_V, cage_F = deform.tube_cage(V)  # 58 vertices: 7 rings of 8 along the arm, and 2 caps
-    cage = deform.cage_precompute(cage_V, cage_F, V)
+    cage = deform.cage_precompute(V, cage_V, cage_F)
     print(f"precompute (spline, handles, FFD 4x4x4, cage of {len(cage_V)} vertices): "
           f"{time.perf_counter() - start:.1f} s")
 
@@ -169,12 +169,12 @@ def run(vertices: int, repeats: int, harmonic_repeats: int):
             "spline": (as_dtype(spline, dtype), bend_motors(6, V, dtype=dtype), None),
             "handles": (as_dtype(handle_field, dtype), bend_motors(3, V, dtype=dtype), None),
             "ffd": (as_dtype(ffd, dtype), lattice_motors, ("positional FFD", jnp.asarray(ffd_weights, dtype), P_twist)),
-            "cage": (as_dtype(cage.field, dtype), cage_motors,
-                     ("positional cage", as_dtype(cage.coords, dtype), cage_positions)),
+            "cage": (as_dtype(cage, dtype), cage_motors,
+                     ("positional cage", as_dtype(cage.weights, dtype), cage_positions)),
         }
         for name, (field, motors, positional) in cases.items():
             # the bound data are arguments, not constants folded into the compiled code
-            ours = jax.jit(lambda f, m: f(m))
+            ours = jax.jit(deform.motor_field_solve)
             if positional is None:
                 label = "matrix blend"
                 base = jax.jit(lambda f, m: matrix_blend(f.weights, f.bound)(m))

@@ -77,7 +77,7 @@ def run(n: int, repeats: int) -> dict:
     kingdon64 = make_kingdon_sandwich(jnp.float64)
     kingdon_compile_s = _first_call_seconds(kingdon64, motors64, x64)
 
-    matrices64 = cga.motor_to_matrix(cga.Multivector(motors64, "motor"))[:, :3, :]
+    matrices64 = cga.versor_to_matrix(cga.Multivector(motors64, "motor"))[:, :3, :]
     motors32, x32, matrices32 = (a.astype(jnp.float32) for a in (motors64, x64, matrices64))
     one64, one32 = motors64[0], motors32[0]
     ours, unrolled, matmul = jax.jit(_ours), jax.jit(_matrix_unrolled), jax.jit(_matrix_matmul)

@@ -32,11 +32,12 @@ from typing import NamedTuple
 import jax.numpy as jnp
 import numpy as np
 
-from cutting._geometry import (MeshEdges, bounding_diagonal, check_mesh_arrays, mesh_edges, poor_pieces, posed_vertices,
+from cutting._geometry import (MeshEdges, check_mesh_arrays, mesh_edges, poor_pieces, posed_vertices,
                                rest_positions, skinned_mesh_like, smallest_doubled_area)
 from cutting._predicates import check_plane, check_predicates, edge_points, signed_distances
 from cutting._weights import blend_weights
 from deform._model import SkinnedMesh
+from _jaxcga_shared.mesh import bounding_diagonal
 
 
 def _split_tables(diagonal: int):

@@ -38,11 +38,12 @@ from typing import NamedTuple
 import jax.numpy as jnp
 import numpy as np
 
-from cutting._geometry import (MeshEdges, bounding_diagonal, check_mesh_arrays, check_point, fan_triangles, mesh_edges,
+from cutting._geometry import (MeshEdges, check_mesh_arrays, check_point, fan_triangles, mesh_edges,
                                poor_pieces, posed_vertices, rest_positions, segment_hits, skinned_mesh_like,
                                smallest_doubled_area)
 from cutting._weights import blend_weights
 from deform._model import SkinnedMesh
+from _jaxcga_shared.mesh import bounding_diagonal
 
 
 class Drilling(NamedTuple):

@@ -50,14 +50,6 @@ def mesh_edges(F) -> MeshEdges:
     return MeshEdges(np.stack([keys // n, keys % n], axis=1), inverse.reshape(-1, 3), edge_faces, counts)
 
 
-def bounding_diagonal(V) -> float:
-    """Length of the diagonal of the axis-aligned bounding box of V (n, 3) (0 when empty)."""
-    # column by column: numpy's axis-0 reduction over (n, 3) rows is some 20x slower
-    if not len(V):
-        return 0.0
-    return float(np.sqrt(sum((V[:, k].max() - V[:, k].min()) ** 2 for k in range(V.shape[1]))))
-
-
 def check_mesh_arrays(V, F) -> tuple[np.ndarray, np.ndarray]:
     """(V float64 (n, 3), F int (m, 3)) with clear errors for bad shapes, indices or values."""
     V = np.asarray(V, np.float64)

@@ -35,12 +35,13 @@ import jax.numpy as jnp
 import numpy as np
 
 import jaxcga as cga
-from cutting._geometry import (PIECE_ANGLE, PIECE_AREA, MeshEdges, bounding_diagonal, check_mesh_arrays, cross3,
+from cutting._geometry import (PIECE_ANGLE, PIECE_AREA, MeshEdges, check_mesh_arrays, cross3,
                                cross_rows, fan_triangles, mesh_edges, posed_vertices, rest_positions, segment_hits,
                                skinned_mesh_like, smallest_doubled_area, triangle_quality)
 from cutting._predicates import check_predicates, edge_points, signed_distances
 from cutting._weights import blend_weights
 from deform._model import SkinnedMesh
+from _jaxcga_shared.mesh import bounding_diagonal
 
 # A tear point keeps at least this fraction of its edge from both ends; the plane is moved (in steps
 # of _SHIFT_STEP mean edge lengths of the starting face) until every point does: no sliver triangles.

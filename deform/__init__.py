@@ -5,7 +5,7 @@ multivector form (17) with per-bone dilation, keyframe blending, and fitting pos
 
 Where things live: ``_model`` (bundles), ``_rig`` (TRS -> matrices / versors, forward kinematics,
 clip sampling, keyframes; eq. 15), ``_skinning`` (eq. 16, eq. 17 in both variants, DQS), ``_pose``
-(model-level posing, batches over devices), ``_fitting`` (poses from target positions); from the
+(model-level posing), ``_fitting`` (poses from target positions); from the
 mesh-deformation paper: ``_harmonic`` (harmonic fields, sec. VIII) on ``_sparse`` (a sparse system
 factored once on the host and solved from JAX); ``_motor_field`` (per-vertex ``exp(sum w log R)`` and the
 sec. III-A binding, shared by every motor deformation); ``_spline`` (spline-aligned deformation, eq. 1-2),
@@ -13,24 +13,27 @@ sec. III-A binding, shared by every motor deformation); ``_spline`` (spline-alig
 5), ``_handles`` (harmonic motor handles, sec. IV), ``_ffd`` (classic and motor FFD, eq. 6-8), ``_cage``
 (harmonic-coordinate cages, sec. VI); ``_field_fitting`` (key motors from target positions); ``_arap``
 (as-rigid-as-possible modeling with rotors, sec. VII).
+
+One convention for every deformer: ``X_precompute(V, F, constraints, *, options) -> data`` (an ``eqx.Module``;
+mesh first, ``laplacian=`` where a Laplacian is chosen) does the work that does not depend on the handle
+values, and ``X_solve(data, values)`` is a JAX function of them (jit, vmap, grad): ``harmonic_``,
+``arap_``, ``spline_fit_``; the motor deformations (``spline_``, ``handles_``, ``ffd_``, ``cage_precompute``
+and the general ``motor_field_precompute``) all return a ``MotorField``, solved by ``motor_field_solve``.
 """
 
 from deform._arap import ENERGIES as ARAP_ENERGIES
 from deform._arap import ARAPData, ARAPResult, arap_precompute, arap_solve, horn_rotors
-from deform._cage import Cage, cage_precompute, harmonic_coordinates, tube_cage
+from deform._cage import cage_precompute, harmonic_coordinates, tube_cage
 from deform._default_arm import default_arm
 from deform._fabrik import chain_motors, fabrik, rotor_between
 from deform._ffd import (
                          Lattice,
-                         bernstein,
                          bounding_lattice,
                          distortion,
-                         ffd_motor_field,
-                         ffd_positions,
+                         ffd_precompute,
                          ffd_weights,
                          lattice_coordinates,
                          lattice_points,
-                         signed_volume,
                          twist_lattice,
 )
 from deform._field_fitting import MotorFit, fit_key_motors, generators_to_motors
@@ -38,29 +41,31 @@ from deform._fitting import (
                          PARAMETERS_PER_BONE,
                          SOLVERS,
                          PoseFit,
-                         bounding_diagonal,
                          fit_pose,
                          pose_from_parameters,
                          random_parameters,
                          skin_parameters,
 )
 from deform._gltf import GLTF_OUTPUTS, buffer_file, convert_with_assimp, load_model, save_model, save_models, weld
-from deform._handles import harmonic_handles
+from deform._handles import handles_precompute
 from deform._harmonic import (
                          LAPLACIANS,
-                         HarmonicSolver,
+                         HarmonicData,
                          harmonic_fields,
                          harmonic_precompute,
+                         harmonic_solve,
                          laplacian,
                          mean_value_laplacian,
 )
 from deform._model import AnimationClip, Channel, RiggedModel, Skeleton, SkinnedMesh
 from deform._motor_field import (
                          MotorField,
-                         bind,
                          blend_motors,
+                         blend_positions,
                          identity_motors,
                          motor_about,
+                         motor_field_precompute,
+                         motor_field_solve,
                          motor_logs,
 )
 from deform._pose import (
@@ -68,7 +73,6 @@ from deform._pose import (
                          METHODS,
                          rest_pose,
                          sample_pose,
-                         sharded_vmap,
                          skin_model,
                          skin_pose,
 )
@@ -108,7 +112,7 @@ from deform._spline import (
                          spline_precompute,
                          spline_weights,
 )
-from deform._spline_fit import SplineFit, spline_fit_precompute
+from deform._spline_fit import SplineFitData, spline_fit_precompute, spline_fit_solve
 
 __all__ = [
     "ARAP_ENERGIES",
@@ -122,9 +126,8 @@ __all__ = [
     "ARAPData",
     "ARAPResult",
     "AnimationClip",
-    "Cage",
     "Channel",
-    "HarmonicSolver",
+    "HarmonicData",
     "Keyframes",
     "Lattice",
     "MotorField",
@@ -134,13 +137,11 @@ __all__ = [
     "Skeleton",
     "SkinnedMesh",
     "SparseSolver",
-    "SplineFit",
+    "SplineFitData",
     "arap_precompute",
     "arap_solve",
-    "bernstein",
-    "bind",
     "blend_motors",
-    "bounding_diagonal",
+    "blend_positions",
     "bounding_lattice",
     "buffer_file",
     "cage_precompute",
@@ -151,19 +152,19 @@ __all__ = [
     "default_arm",
     "distortion",
     "fabrik",
-    "ffd_motor_field",
-    "ffd_positions",
+    "ffd_precompute",
     "ffd_weights",
     "fit_key_motors",
     "fit_pose",
     "forward_kinematics",
     "forward_kinematics_matrices",
     "generators_to_motors",
+    "handles_precompute",
     "harmonic_coordinates",
     "horn_rotors",
     "harmonic_fields",
-    "harmonic_handles",
     "harmonic_precompute",
+    "harmonic_solve",
     "identity_motors",
     "inverse_bind_versors",
     "joint_matrices",
@@ -177,6 +178,8 @@ __all__ = [
     "matrices_to_dual_quaternions",
     "mean_value_laplacian",
     "motor_about",
+    "motor_field_precompute",
+    "motor_field_solve",
     "motor_logs",
     "pose_from_parameters",
     "quaternion_xyzw_to_matrix",
@@ -191,8 +194,6 @@ __all__ = [
     "sample_versors",
     "save_model",
     "save_models",
-    "sharded_vmap",
-    "signed_volume",
     "skin_cga",
     "skin_cga_motor_blend",
     "skin_dqs",
@@ -201,6 +202,7 @@ __all__ = [
     "skin_parameters",
     "skin_pose",
     "spline_fit_precompute",
+    "spline_fit_solve",
     "spline_parameter",
     "spline_precompute",
     "spline_weights",

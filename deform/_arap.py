@@ -108,7 +108,7 @@ def _padded(rows, columns, values, n):
     return table, padded
 
 
-def arap_precompute(V, F, b, energy: str = "spokes_and_rims") -> ARAPData:
+def arap_precompute(V, F, b, *, energy: str = "spokes_and_rims") -> ARAPData:
     """Precompute ARAP (cotangent weights) for a mesh with handle vertices ``b``.
 
     Args:
@@ -315,7 +315,7 @@ def _aligned_rest(data: ARAPData, bc) -> Float[Array, "n 3"]:
     return apply_to_points(align_points(rest[data.b], bc), rest)
 
 
-def arap_solve(data: ARAPData, bc, V0=None, max_iterations: int = 10, tolerance: float = 1e-8) -> ARAPResult:
+def arap_solve(data: ARAPData, bc, *, V0=None, max_iterations: int = 10, tolerance: float = 1e-8) -> ARAPResult:
     """Deform the mesh so that the handles ``data.b`` sit at ``bc``, as rigidly as possible.
 
     Args:

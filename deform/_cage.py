@@ -8,15 +8,15 @@ linear functions (``sum_j lambda_j P_j = p``) and interpolate at the cage vertic
 
 * the positional cage moves vertex i to ``p_i = sum_j lambda^i_j P_j`` (the classic HC deformation);
 * the motor cage replaces every cage vertex by a motor ``R_j`` and moves vertex i by
-  ``M_i = exp(sum_j lambda^i_j log R_j)`` (sec. VI), through ``deform._motor_field.MotorField``.
+  ``M_i = exp(sum_j lambda^i_j log R_j)`` (sec. VI), through ``deform._motor_field``.
 
 Relation to the paper's ``p_i = M_i o ~M_i``: there the motors carry the point at the origin o to the
 vertex, i.e. the rest motors are the translators ``T_{P_j}`` (then ``exp(sum_j lambda_j log T_{P_j}) =
 T_{p_i}`` by linear precision). That is the binding of sec. III-A with rest motors ``T_{P_j}``
-(``bind(V, coords, translator(P))`` gives back the paper's formula). Here the rest motors are the
-identity, so the key motors are motions of space, ``p'_i = M_i p_i ~M_i``: identity motors leave the
-mesh at rest, the same rigid motor G on every cage vertex moves the mesh rigidly by G, and translators
-``T_{d_j}`` give the positional cage ``p_i + sum_j lambda_j d_j`` (the two bindings agree there).
+(``motor_field_precompute(V, coords, rest_motors=translator(P))`` gives back the paper's formula). Here the
+rest motors are the identity, so the key motors are motions of space, ``p'_i = M_i p_i ~M_i``: identity
+motors leave the mesh at rest, the same rigid motor G on every cage vertex moves the mesh rigidly by G, and
+translators ``T_{d_j}`` give the positional cage ``p_i + sum_j lambda_j d_j`` (the two bindings agree there).
 
 Discretization: the cage surface is first midpoint-subdivided (its new vertices carry the hat functions'
 exact values, averages of their parents'), then the interior is tetrahedralized with TetGen (switches
@@ -36,19 +36,17 @@ TetGen is AGPL-3.0 (its Python wrapper ``tetgen`` is MIT); it is used here as a 
 
 from __future__ import annotations
 
-import equinox as eqx
 import igl
 import jax.numpy as jnp
 import numpy as np
 import scipy.sparse as sp
 import tetgen
 import trimesh
-from jaxtyping import Array, Float
 
-from deform._motor_field import MotorField, bind
+from deform._motor_field import MotorField, motor_field_precompute
 from deform._sparse import SparseSolver
-from jaxcga import Multivector
 from _jaxcga_shared.host import quiet_stdout
+from _jaxcga_shared.mesh import bounding_diagonal
 
 # points off the cage by less than this fraction of its bounding diagonal count as on it
 _SURFACE_TOLERANCE = 1e-9
@@ -120,7 +118,7 @@ def _tetrahedralize(cage_V, cage_F, sV, sF, max_tet_volume):
     facets = igl.boundary_facets(TT)[0]
     # Y keeps the surface, but TetGen may still split a few surface triangles: harmless as long as every
     # boundary facet lies in one cage face, where the hat functions are linear
-    tolerance = _SURFACE_TOLERANCE * np.linalg.norm(np.ptp(cage_V, axis=0))
+    tolerance = _SURFACE_TOLERANCE * bounding_diagonal(cage_V)
     _, face, _ = igl.point_mesh_squared_distance(TV[facets].mean(axis=1), cage_V, cage_F)
     corners = cage_V[cage_F[face]].transpose(1, 0, 2)
     normal = np.cross(corners[1] - corners[0], corners[2] - corners[0])
@@ -134,7 +132,7 @@ def _tetrahedralize(cage_V, cage_F, sV, sF, max_tet_volume):
     return TV, TT, np.unique(facets)
 
 
-def harmonic_coordinates(cage_V, cage_F, max_tet_volume: float = 1e-4, subdivisions: int | None = None):
+def harmonic_coordinates(cage_V, cage_F, *, max_tet_volume: float = 1e-4, subdivisions: int | None = None):
     """Harmonic coordinates of a closed cage on a tetrahedralization of its interior.
 
     Args:
@@ -198,7 +196,7 @@ def _interpolate(cage_V, cage_F, TV, TT, H, V):
     off = np.flatnonzero(~inside)
     if len(off):
         values, distance = _hat_values(cage_V, cage_F, V[off])
-        far = distance > _SURFACE_TOLERANCE * np.linalg.norm(np.ptp(cage_V, axis=0))
+        far = distance > _SURFACE_TOLERANCE * bounding_diagonal(cage_V)
         if far.any():
             i = int(off[np.argmax(far)])
             winding = float(igl.winding_number(cage_V, cage_F, V[i]))
@@ -208,52 +206,21 @@ def _interpolate(cage_V, cage_F, TV, TT, H, V):
     return coords
 
 
-class Cage(eqx.Module):
-    """A mesh bound to a cage by harmonic coordinates (``cage_precompute``).
-
-    Attributes:
-        field: the motor field whose weights are the harmonic coordinates (n, c) and whose bound
-            positions are the rest mesh V (n, 3) (identity rest motors).
-        rest: (c, 3) the cage's rest vertices.
-    """
-
-    field: MotorField
-    rest: Float[Array, "c 3"]
-
-    @property
-    def coords(self) -> Float[Array, "n c"]:
-        """The harmonic coordinates ``lambda^i_j`` (n, c)."""
-        return self.field.weights
-
-    def __call__(self, P: Float[Array, "... c 3"]) -> Float[Array, "... n 3"]:
-        """Positional cage: ``p_i = sum_j lambda^i_j P_j`` for moved cage vertices P (..., c, 3)."""
-        P = jnp.asarray(P)
-        c = self.rest.shape[0]
-        if P.ndim < 2 or P.shape[-2:] != (c, 3):
-            raise ValueError(f"P: expected cage positions of shape (..., {c}, 3), got {P.shape}")
-        return jnp.einsum("nc,...cd->...nd", self.coords, P.astype(self.coords.dtype))
-
-    def motors(self, key_motors: Multivector) -> Multivector:
-        """Per-vertex motors ``M_i = exp(sum_j lambda^i_j log R_j)`` (batch shape (..., n)) for cage motors
-        with batch shape (..., c)."""
-        return self.field.motors(key_motors)
-
-    def motor_deform(self, key_motors: Multivector) -> Float[Array, "... n 3"]:
-        """Motor cage (sec. VI): ``p'_i = M_i p_i ~M_i`` for cage motors with batch shape (..., c)."""
-        return self.field(key_motors)
-
-
-def cage_precompute(cage_V, cage_F, V, max_tet_volume: float = 1e-4, subdivisions: int | None = None) -> Cage:
+def cage_precompute(V, cage_V, cage_F, *, max_tet_volume: float = 1e-4, subdivisions: int | None = None) \
+        -> MotorField:
     """Bind the mesh vertices V to a cage by harmonic coordinates (sec. VI).
 
     Args:
+        V: (n, 3) mesh vertices, all inside the cage (or on it).
         cage_V: (c, 3) cage vertices. cage_F: (m, 3) int faces of a closed, consistently oriented
             2-manifold (inward orientation is flipped).
-        V: (n, 3) mesh vertices, all inside the cage (or on it).
         max_tet_volume, subdivisions: the resolution, see ``harmonic_coordinates``.
     Returns:
-        a ``Cage``; its coordinates have the default JAX float dtype (``jax.tree.map(lambda a:
-        a.astype(jnp.float32), cage)`` makes a float32 one).
+        a ``MotorField`` whose weights are the harmonic coordinates ``lambda^i_j`` (n, c) and whose bound
+        positions are V (identity rest motors): ``motor_field_solve`` on it and cage motors (batch shape
+        (..., c)) is the motor cage, ``blend_positions(field.weights, P)`` on moved cage vertices P the
+        positional cage. Its arrays have the default JAX float dtype (``jax.tree.map(lambda a:
+        a.astype(jnp.float32), field)`` makes a float32 one).
     Raises:
         ValueError: see ``harmonic_coordinates``; V of the wrong shape or not finite; a vertex of V
             outside the cage (the message names it and its winding number)."""
@@ -264,7 +231,7 @@ def cage_precompute(cage_V, cage_F, V, max_tet_volume: float = 1e-4, subdivision
     TV, TT, H = _harmonic_coordinates(cage_V, cage_F, volume, max_tet_volume, subdivisions)
     coords = _interpolate(cage_V, cage_F, TV, TT, H, V)
     dtype = jnp.result_type(float)
-    return Cage(bind(jnp.asarray(V, dtype), jnp.asarray(coords, dtype)), jnp.asarray(cage_V, dtype))
+    return motor_field_precompute(jnp.asarray(V, dtype), jnp.asarray(coords, dtype))
 
 
 def tube_cage(V, axis: int | None = None, segments: int = 6, sides: int = 8, margin: float = 1.05):

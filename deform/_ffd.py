@@ -9,14 +9,14 @@ s a_0 + t a_1 + u a_2``) and tensor-product Bernstein (Bezier) weights, eq. (8),
 flattened row-major over (a, b, c), the order of ``lattice_points``. The weights are non-negative and
 sum to one; Bernstein bases have linear precision, so the rest control points give back the points.
 
-Classic FFD, eq. (6): ``p_i = sum_j w_ij P_j`` (``ffd_positions``), a linear map of the control points.
+Classic FFD, eq. (6): ``p_i = sum_j w_ij P_j`` (``blend_positions``), a linear map of the control points.
 
 Motor FFD, eq. (7)-(8): the control points are replaced by motors ``R_j`` and every point moves by
 ``M_i = exp(sum_j w_ij log R_j)`` (``deform._motor_field``). The paper writes ``p_i = M_i o ~M_i`` with
 ``o`` the point at the origin: there the rest lattice motors are the translators ``T_j`` to the lattice
 points, and by linear precision ``exp(sum_j w_ij log T_j)`` is the translator to ``p_i``; that is
-``bind(V, W, rest_motors=cga.translator(lattice_points(lattice)))``, whose bound points are the origin.
-``ffd_motor_field`` binds with identity rest motors instead: the lattice motors are *motions of space*,
+``motor_field_precompute(V, W, rest_motors=cga.translator(lattice_points(lattice)))``, whose bound points
+are the origin. ``ffd_precompute`` binds with identity rest motors instead: the lattice motors are *motions of space*,
 ``p_i'' = M_i p_i ~M_i``, and the identity lattice is the rest mesh.
 
 * Translators only: both forms are the classic FFD (translators by ``d_j`` blend to the translator by
@@ -44,9 +44,10 @@ from jaxtyping import Array, Float, Int
 from scipy.special import comb
 
 import jaxcga as cga
-from deform._motor_field import MotorField, bind, motor_about
+from deform._motor_field import MotorField, motor_about, motor_field_precompute
 from jaxcga import Multivector
 from _jaxcga_shared.checks import require
+from _jaxcga_shared.mesh import signed_volume
 
 
 def _float_array(name: str, x, shape: tuple[int, ...]):
@@ -108,7 +109,7 @@ def bounding_lattice(V: Float[Array, "n 3"], counts=(4, 4, 4), padding: float = 
     return Lattice(low - pad, jnp.diag(high - low + 2 * pad), counts)
 
 
-def lattice_coordinates(lattice: Lattice, V: Float[Array, "n 3"]) -> Float[Array, "n 3"]:
+def lattice_coordinates(V: Float[Array, "n 3"], lattice: Lattice) -> Float[Array, "n 3"]:
     """Local coordinates ``(s, t, u)`` of the points ``V`` (n, 3) in the lattice, ``V = origin + (s, t, u) @ axes``.
 
     A point outside [0, 1]^3 by more than rounding (``sqrt(eps)``), or a flat lattice, raises a
@@ -122,7 +123,7 @@ def lattice_coordinates(lattice: Lattice, V: Float[Array, "n 3"]) -> Float[Array
                            "or the lattice axes are degenerate"))
 
 
-def bernstein(degree: int, t: Float[Array, "..."]) -> Float[Array, "... degree+1"]:
+def _bernstein(degree: int, t: Float[Array, "..."]) -> Float[Array, "... degree+1"]:
     """The Bernstein basis ``B^d_j(t) = C(d, j) t^j (1 - t)^(d - j)``, j = 0..d, stacked on a last axis."""
     if int(degree) != degree or not 0 <= degree <= MAX_DEGREE:
         raise ValueError(f"degree: expected an integer in [0, {MAX_DEGREE}], got {degree}")
@@ -135,10 +136,10 @@ def bernstein(degree: int, t: Float[Array, "..."]) -> Float[Array, "... degree+1
                       for j in range(degree + 1)], axis=-1)
 
 
-def ffd_weights(lattice: Lattice, V: Float[Array, "n 3"]) -> Float[Array, "n k"]:
+def ffd_weights(V: Float[Array, "n 3"], lattice: Lattice) -> Float[Array, "n k"]:
     """Tensor-product Bezier weights (n, l m n) of the points ``V`` in the lattice, eq. (8)."""
-    local = lattice_coordinates(lattice, V)
-    b = [bernstein(c - 1, local[:, axis]) for axis, c in enumerate(lattice.counts)]
+    local = lattice_coordinates(V, lattice)
+    b = [_bernstein(c - 1, local[:, axis]) for axis, c in enumerate(lattice.counts)]
     return jnp.einsum("pa,pb,pc->pabc", *b).reshape(V.shape[0], lattice.size)
 
 
@@ -153,25 +154,14 @@ def lattice_points(lattice: Lattice) -> Float[Array, "k 3"]:
     return lattice.origin + _local_grid(lattice) @ lattice.axes
 
 
-def ffd_positions(weights: Float[Array, "n k"], P: Float[Array, "... k 3"]) -> Float[Array, "... n 3"]:
-    """Classic FFD, eq. (6): ``p_i = sum_j w_ij P_j``; leading axes of the control points ``P`` are batches."""
-    weights = jnp.asarray(weights)
-    if weights.ndim != 2:
-        raise ValueError(f"weights: expected shape (n, k), got {weights.shape}")
-    P = jnp.asarray(P)
-    if P.ndim < 2 or P.shape[-2:] != (weights.shape[1], 3):
-        raise ValueError(f"P: expected shape (..., {weights.shape[1]}, 3), got {P.shape}")
-    return jnp.einsum("nk,...kc->...nc", weights, P.astype(weights.dtype))
-
-
-def ffd_motor_field(lattice: Lattice, V: Float[Array, "n 3"]) -> MotorField:
+def ffd_precompute(V: Float[Array, "n 3"], lattice: Lattice) -> MotorField:
     """Motor FFD, eq. (7)-(8): ``V`` bound to one motor per lattice point with identity rest motors.
 
-    Calling the result on lattice motors with batch shape (..., l m n) gives the deformed positions
-    (..., n, 3); the identity motors give back ``V``, translators by ``d_j`` the classic FFD with control
-    points ``P_j + d_j``, and the same motor G everywhere moves the mesh rigidly by G."""
+    ``motor_field_solve`` on the result and lattice motors with batch shape (..., l m n) gives the deformed
+    positions (..., n, 3); the identity motors give back ``V``, translators by ``d_j`` the classic FFD with
+    control points ``P_j + d_j``, and the same motor G everywhere moves the mesh rigidly by G."""
     V = _check_points("V", V)
-    return bind(V, ffd_weights(lattice, V))
+    return motor_field_precompute(V, ffd_weights(V, lattice))
 
 
 def twist_lattice(lattice: Lattice, angle, axis: int | None = None) -> tuple[Float[Array, "k 3"], Multivector]:
@@ -188,8 +178,8 @@ def twist_lattice(lattice: Lattice, angle, axis: int | None = None) -> tuple[Flo
         axis: 0, 1 or 2, the edge to twist about; None for the longest one.
 
     Returns:
-        P: (l m n, 3) the turned control points (for ``ffd_positions``).
-        motors: (l m n,) the rotations about the centre line (for the ``ffd_motor_field``); applied to
+        P: (l m n, 3) the turned control points (for ``blend_positions``).
+        motors: (l m n,) the rotations about the centre line (for ``ffd_precompute``'s field); applied to
             ``lattice_points(lattice)`` they give ``P``.
     """
     if axis not in (0, 1, 2, None):
@@ -213,19 +203,8 @@ def _check_faces(F, n: int) -> np.ndarray:
     return F
 
 
-def _volume(V, F):
-    a, b, c = (V[..., F[:, k], :] for k in range(3))
-    return jnp.sum(a * jnp.cross(b, c), axis=(-2, -1)) / 6
-
-
-def signed_volume(V: Float[Array, "n 3"], F: Int[Array, "m 3"]) -> Float[Array, ""]:
-    """Signed volume enclosed by a closed, consistently oriented mesh: ``sum_f det(v0, v1, v2) / 6``."""
-    V = _check_points("V", V)
-    return _volume(V, _check_faces(F, V.shape[0]))
-
-
-def distortion(V0: Float[Array, "n 3"], V1: Float[Array, "... n 3"], F: Int[Array, "m 3"]) -> dict[str, Array]:
-    """How a deformation ``V0 -> V1`` of a closed mesh changes volume and edge lengths.
+def distortion(V0: Float[Array, "n 3"], F: Int[Array, "m 3"], V1: Float[Array, "... n 3"]) -> dict[str, Array]:
+    """How a deformation ``V0 -> V1`` of a closed mesh (V0, F) changes volume and edge lengths.
 
     Returns a dict of arrays with the batch shape of ``V1``:
         ``volume_ratio``: signed volume of V1 over that of V0 (1 for a volume-preserving map);
@@ -241,5 +220,5 @@ def distortion(V0: Float[Array, "n 3"], V1: Float[Array, "... n 3"], F: Int[Arra
     rest = jnp.linalg.norm(V0[E[:, 1]] - V0[E[:, 0]], axis=-1)
     length = jnp.linalg.norm(V1[..., E[:, 1], :] - V1[..., E[:, 0], :], axis=-1)
     change = jnp.abs(length / rest - 1)
-    return {"volume_ratio": _volume(V1, F) / _volume(V0, F), "edge_mean": jnp.mean(change, axis=-1),
+    return {"volume_ratio": signed_volume(V1, F) / signed_volume(V0, F), "edge_mean": jnp.mean(change, axis=-1),
             "edge_max": jnp.max(change, axis=-1)}

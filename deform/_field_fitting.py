@@ -21,8 +21,9 @@ from jaxtyping import Array, Float, Int
 
 import jaxcga as cga
 from deform._fitting import SOLVERS, check_targets, run_solver
-from deform._motor_field import MotorField, identity_motors
+from deform._motor_field import MotorField, identity_motors, motor_field_solve
 from jaxcga import KINDS, Multivector
+from _jaxcga_shared.mesh import bounding_diagonal
 
 
 class MotorFit(eqx.Module):
@@ -67,7 +68,7 @@ def _motors_of(y, data: _FitData) -> Multivector:
 
 
 def _residuals(y, data: _FitData):
-    r = ((data.field(_motors_of(y, data)) - data.targets) / data.scale).ravel()
+    r = ((motor_field_solve(data.field, _motors_of(y, data)) - data.targets) / data.scale).ravel()
     return jnp.concatenate([r, data.root_regularization * y.ravel()])
 
 
@@ -88,7 +89,8 @@ def fit_key_motors(
     """Fit the key motors of ``field`` so that its vertices ``vertices`` reach ``targets``.
 
     Args:
-        field: a ``MotorField`` (from ``spline_precompute``, ``harmonic_handles``, an FFD or a cage).
+        field: a ``MotorField`` (from ``spline_precompute``, ``handles_precompute``, ``ffd_precompute``,
+            ``cage_precompute`` or ``motor_field_precompute``).
         targets: (t, 3) target positions (t = n when ``vertices`` is None).
         vertices: (t,) int vertex indices, or None for all.
         free: indices of the keys to fit (default all); the others keep ``fixed_motors``.
@@ -124,11 +126,11 @@ def fit_key_motors(
     # args and the residual is a module-level function, so a second fit of the same sizes reuses the
     # compiled solver (closed-over arrays would also be folded into the code as constants).
     data = _FitData(MotorField(field.weights[index], field.bound[index]), targets, fixed_values, jnp.asarray(free),
-                    jnp.linalg.norm(jnp.max(field.bound, axis=0) - jnp.min(field.bound, axis=0)),
+                    jnp.asarray(bounding_diagonal(field.bound), dtype),
                     jnp.sqrt(jnp.asarray(regularization, dtype)))
     sol = run_solver(_residuals, solver, y0, data, max_steps, rtol, atol)
     motors = _motors_of(sol.value, data)
-    positions = field(motors)
+    positions = motor_field_solve(field, motors)
     dist = jnp.linalg.norm(positions[index] - targets, axis=-1)
     return MotorFit(
         generators=jnp.zeros((k, 6), dtype).at[free].set(sol.value),

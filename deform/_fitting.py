@@ -25,6 +25,7 @@ import jaxcga as cga
 from deform import _pose, _rig
 from deform._model import RiggedModel, SkinnedMesh
 from jaxcga._multivector import KINDS, Multivector
+from _jaxcga_shared.mesh import bounding_diagonal
 
 SOLVERS = ("levenberg_marquardt", "gauss_newton", "bfgs", "gradient_descent")
 PARAMETERS_PER_BONE = 7  # six motor-generator components and one log-scale
@@ -53,10 +54,9 @@ def skin_parameters(model: RiggedModel, params, method: str = "cga"):
     return _pose.skin_pose(model, pose_from_parameters(model, params), method)
 
 
-def bounding_diagonal(model: RiggedModel) -> Float[Array, ""]:
+def _rest_diagonal(model: RiggedModel) -> float:
     """Bounding-box diagonal of the skinned rest pose (world space), the unit of fitting errors."""
-    rest = _pose.rest_pose(model, "lbs")
-    return jnp.linalg.norm(jnp.max(rest, axis=0) - jnp.min(rest, axis=0))
+    return bounding_diagonal(_pose.rest_pose(model, "lbs"))
 
 
 class PoseFit(eqx.Module):
@@ -185,7 +185,7 @@ def fit_pose(
     if method == "dqs" and fit_scale:
         raise ValueError("method: dual-quaternion skinning cannot represent dilations; use fit_scale=False")
     dtype = model.mesh.V.dtype
-    diagonal = bounding_diagonal(model)
+    diagonal = jnp.asarray(_rest_diagonal(model), dtype)
     width = PARAMETERS_PER_BONE if fit_scale else 6
     y0 = jnp.zeros((b, width), dtype) if init is None else jnp.asarray(init, dtype)[:, :width]
     if y0.shape != (b, width):
@@ -222,7 +222,7 @@ def random_parameters(key, model: RiggedModel, rotation: float = 0.4, translatio
     b = model.skeleton.num_bones
     dtype = dtype or model.mesh.V.dtype
     k1, k2, k3 = jax.random.split(key, 3)
-    diagonal = bounding_diagonal(model)
+    diagonal = _rest_diagonal(model)
     rot = jax.random.uniform(k1, (b, 3), dtype, -rotation, rotation)
     trans = jax.random.uniform(k2, (b, 3), dtype, -translation, translation) * diagonal
     scale = jax.random.uniform(k3, (b, 1), dtype, -log_scale, log_scale)

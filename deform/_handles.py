@@ -5,7 +5,7 @@ Each handle H_j (a set of vertices; the fixed region is a handle whose motor sta
 a harmonic field lambda_j: 1 on H_j, 0 on every other handle, harmonic elsewhere (sec. VIII,
 ``deform.harmonic_fields``). The fields sum to one at every vertex: they are harmonic coordinates of
 the vertices with respect to the handle motors, computed on the surface. A vertex then moves by
-``M_i = exp(sum_j lambda_j^i log R_j)`` (``deform.MotorField``): vertices of H_j move rigidly by R_j,
+``M_i = exp(sum_j lambda_j^i log R_j)`` (``deform.motor_field_solve``): vertices of H_j move rigidly by R_j,
 the rest blend the handle motions, rotations included.
 """
 
@@ -14,19 +14,19 @@ from __future__ import annotations
 from typing import Sequence
 
 from deform._harmonic import harmonic_fields
-from deform._motor_field import MotorField, bind
+from deform._motor_field import MotorField, motor_field_precompute
 
 
-def harmonic_handles(V, F, handles: Sequence, weights: str = "cotangent") -> MotorField:
+def handles_precompute(V, F, handles: Sequence, *, laplacian: str = "cotangent") -> MotorField:
     """Bind a mesh to motor handles through one harmonic field per handle (sec. IV).
 
     Args:
         V: (n, 3) rest positions. F: (m, 3) int faces.
         handles: h >= 1 disjoint, non-empty vertex index arrays; include the fixed region as a handle
             (its motor the identity), or every vertex follows the moving handles.
-        weights: Laplacian weights, ``"cotangent"`` or ``"mean_value"`` (the paper's choice).
+        laplacian: ``"cotangent"`` or ``"mean_value"`` (the paper's choice).
     Returns:
-        A ``MotorField``: call it on h handle motors (batch shape (..., h); identity motors give the
-        rest mesh) to get the deformed positions (..., n, 3)."""
-    fields = harmonic_fields(V, F, handles, weights)
-    return bind(V, fields)
+        A ``MotorField``: ``motor_field_solve`` on it and h handle motors (batch shape (..., h); identity
+        motors give the rest mesh) gives the deformed positions (..., n, 3)."""
+    fields = harmonic_fields(V, F, handles, laplacian=laplacian)
+    return motor_field_precompute(V, fields)

@@ -3,7 +3,7 @@
 A field ``l`` solves Laplace's equation ``L l = 0`` on the free vertices with Dirichlet values on
 constrained vertex sets (handles, fixed regions). With the rows of the constrained vertices removed,
 the free values solve ``L_ff l_f = -L_fc l_c``; ``L_ff`` is factored once (``harmonic_precompute``) and
-every set of boundary values is one back-substitution (``HarmonicSolver``), a JAX function of those
+every set of boundary values is one back-substitution (``harmonic_solve``), a JAX function of those
 values (differentiable, jit- and vmap-able).
 
 Weights of ``L``:
@@ -23,10 +23,12 @@ from __future__ import annotations
 
 from typing import Sequence
 
+import equinox as eqx
 import igl
 import jax.numpy as jnp
 import numpy as np
 import scipy.sparse as sp
+from jaxtyping import Array, Float, Int
 from scipy.sparse.csgraph import connected_components
 
 from deform._sparse import SparseSolver
@@ -67,77 +69,98 @@ def mean_value_laplacian(V, F) -> sp.csr_matrix:
     return (W - sp.diags(np.asarray(W.sum(axis=1)).ravel())).tocsr()
 
 
-def laplacian(V, F, weights: str = "cotangent") -> sp.sparray:
-    """The mesh Laplacian (n, n) with ``weights`` in ``LAPLACIANS``; rows sum to zero (a scipy sparse
+def laplacian(V, F, kind: str = "cotangent") -> sp.sparray:
+    """The mesh Laplacian (n, n) with the weights ``kind`` in ``LAPLACIANS``; rows sum to zero (a scipy sparse
     matrix: CSC for cotangent weights, as libigl returns it; CSR for mean-value weights)."""
-    if weights not in LAPLACIANS:
-        raise ValueError(f"weights: expected one of {LAPLACIANS}, got {weights!r}")
-    if weights == "mean_value":
+    return _laplacian(V, F, kind)
+
+
+def _laplacian(V, F, kind: str) -> sp.sparray:
+    # ``laplacian``'s body, also reached from ``harmonic_precompute``, whose keyword ``laplacian`` shadows it
+    if kind not in LAPLACIANS:
+        raise ValueError(f"kind: expected one of {LAPLACIANS}, got {kind!r}")
+    if kind == "mean_value":
         return mean_value_laplacian(V, F)
     V, F = _check_mesh(V, F)
     return sp.csc_matrix(igl.cotmatrix(V, F))
 
 
-class HarmonicSolver:
-    """Precomputed Dirichlet problem (``harmonic_precompute``). Call it on boundary values
-    ``bc (c,)`` or ``(c, h)`` (one column per field, rows in the order of ``constrained``) to get the
-    fields ``(n,)`` or ``(n, h)`` at every vertex: a JAX function of ``bc``."""
+class HarmonicData(eqx.Module):
+    """The factored Dirichlet problem (``harmonic_precompute``), the argument of ``harmonic_solve``.
 
-    def __init__(self, L, constrained, n: int, symmetric: bool):
-        self.n = n
-        self.constrained = constrained
-        is_free = np.ones(n, bool)
-        is_free[constrained] = False
-        self.free = np.flatnonzero(is_free)  # a mask, not setdiff1d: that sorts (0.1 s at 160k)
-        L = sp.csc_matrix(L)  # columns, then rows: 7 ms at 130k vertices, against 50 ms for rows first on CSR
-        self._coupling = L[:, constrained][self.free].tocsr()  # L_fc
-        self._solve = SparseSolver(-L[:, self.free][self.free], symmetric=symmetric)
+    Attributes:
+        constrained: (c,) the vertices with prescribed values. free: (f,) the other vertices, in order.
+        coupling_rows, coupling_columns, coupling_values: ``L_fc`` (f, c) in coordinate form.
+        solver: ``-L_ff``, factored. n: the number of vertices.
+    """
 
-    def _check_bc(self, bc):
-        if bc.ndim not in (1, 2) or bc.shape[0] != len(self.constrained):
-            raise ValueError(f"bc: expected shape ({len(self.constrained)},) or ({len(self.constrained)}, h), "
-                             f"got {bc.shape}")
-
-    def host(self, bc) -> np.ndarray:
-        """The fields for boundary values known on the host, in numpy (float64): the same values as a
-        call, without JAX's per-operation dispatch (85 ms at 130k vertices)."""
-        bc = np.asarray(bc, np.float64)
-        self._check_bc(bc)
-        out = np.empty((self.n,) + bc.shape[1:])
-        out[self.constrained] = bc
-        out[self.free] = self._solve.host_solve(self._coupling @ bc)
-        return out
-
-    def __call__(self, bc):
-        bc = jnp.asarray(bc)
-        self._check_bc(bc)
-        if not jnp.issubdtype(bc.dtype, jnp.floating):
-            bc = bc.astype(jnp.float64)
-        coupling = _sparse_matmul(self._coupling, bc)
-        free_values = self._solve(coupling)  # -L_ff l_f = L_fc l_c
-        out = jnp.zeros((self.n,) + bc.shape[1:], bc.dtype)
-        return out.at[self.constrained].set(bc).at[self.free].set(free_values)
+    # numpy, float64: the host solve keeps full precision, the JAX solve casts to the values' dtype
+    constrained: Int[np.ndarray, " c"]
+    free: Int[np.ndarray, " f"]
+    coupling_rows: Int[np.ndarray, " e"]
+    coupling_columns: Int[np.ndarray, " e"]
+    coupling_values: Float[np.ndarray, " e"]
+    solver: SparseSolver = eqx.field(static=True)
+    n: int = eqx.field(static=True)
 
 
-def _sparse_matmul(A: sp.csr_matrix, x):
-    """``A @ x`` for a constant scipy CSR matrix and a JAX array (rows gathered and summed)."""
-    A = A.tocoo()
-    rows, cols = np.asarray(A.row), np.asarray(A.col)
-    values = jnp.asarray(A.data, x.dtype)
-    contributions = values.reshape((-1,) + (1,) * (x.ndim - 1)) * x[cols]
-    return jnp.zeros((A.shape[0],) + x.shape[1:], x.dtype).at[rows].add(contributions)
+def _check_bc(data: HarmonicData, bc):
+    c = len(data.constrained)
+    if bc.ndim not in (1, 2) or bc.shape[0] != c:
+        raise ValueError(f"bc: expected shape ({c},) or ({c}, h), got {bc.shape}")
 
 
-def harmonic_precompute(V, F, constrained, weights: str = "cotangent") -> HarmonicSolver:
-    """Factor the Dirichlet problem of ``weights``' Laplacian with the vertices ``constrained`` fixed.
+def _host_solve(data: HarmonicData, bc) -> np.ndarray:
+    """``harmonic_solve`` for boundary values known on the host, in numpy (float64): the same values, without
+    JAX's per-operation dispatch."""
+    bc = np.asarray(bc, np.float64)
+    _check_bc(data, bc)
+    coupling = sp.csr_matrix((data.coupling_values, (data.coupling_rows, data.coupling_columns)),
+                             shape=(len(data.free), len(data.constrained)))
+    out = np.empty((data.n,) + bc.shape[1:])
+    out[data.constrained] = bc
+    out[data.free] = data.solver.host_solve(coupling @ bc)
+    return out
+
+
+def harmonic_solve(data: HarmonicData, bc: Float[Array, "c ..."]) -> Float[Array, "n ..."]:
+    """The harmonic fields for boundary values ``bc``: a JAX function of ``bc`` (differentiable, jit- and
+    vmap-able).
+
+    Args:
+        data: ``harmonic_precompute``'s output.
+        bc: (c,) or (c, h) boundary values, one column per field, rows in the order of ``constrained``.
+    Returns:
+        (n,) or (n, h) the fields at every vertex."""
+    if not isinstance(data, HarmonicData):
+        raise ValueError("data: expected the HarmonicData returned by harmonic_precompute")
+    bc = jnp.asarray(bc)
+    _check_bc(data, bc)
+    if not jnp.issubdtype(bc.dtype, jnp.floating):
+        bc = bc.astype(jnp.float64)
+    # L_fc l_c, rows gathered and summed
+    values = jnp.asarray(data.coupling_values, bc.dtype).reshape((-1,) + (1,) * (bc.ndim - 1))
+    coupling = jnp.zeros((len(data.free),) + bc.shape[1:], bc.dtype).at[data.coupling_rows].add(
+        values * bc[data.coupling_columns])
+    free_values = data.solver(coupling)  # -L_ff l_f = L_fc l_c
+    out = jnp.zeros((data.n,) + bc.shape[1:], bc.dtype)
+    return out.at[data.constrained].set(bc).at[data.free].set(free_values)
+
+
+def harmonic_precompute(V, F, constrained, *, laplacian: str = "cotangent") -> HarmonicData:
+    """Factor the Dirichlet problem of the Laplacian ``laplacian`` with the vertices ``constrained`` fixed.
 
     Args:
         V: (n, 3) vertex positions. F: (m, 3) int faces.
         constrained: (c,) int distinct vertex indices with prescribed values.
-        weights: ``"cotangent"`` or ``"mean_value"``.
+        laplacian: ``"cotangent"`` or ``"mean_value"`` (``LAPLACIANS``).
+    Returns:
+        ``HarmonicData``, the argument of ``harmonic_solve``.
     Raises:
         ValueError: bad mesh, indices out of range or repeated, no constrained or no free vertex, or
             a free part with no path to a constrained vertex (the system is singular)."""
+    if laplacian not in LAPLACIANS:
+        raise ValueError(f"laplacian: expected one of {LAPLACIANS}, got {laplacian!r}")
     V, F = _check_mesh(V, F)
     constrained = np.asarray(constrained)
     if constrained.ndim != 1 or not np.issubdtype(constrained.dtype, np.integer) or len(constrained) == 0:
@@ -148,7 +171,7 @@ def harmonic_precompute(V, F, constrained, weights: str = "cotangent") -> Harmon
         raise ValueError("constrained: a vertex is listed twice")
     if len(constrained) == len(V):
         raise ValueError("constrained: every vertex is constrained; nothing to solve")
-    L = laplacian(V, F, weights)
+    L = _laplacian(V, F, laplacian)
     # every connected part of the mesh needs a constrained vertex, or L_ff is singular there
     parts, labels = connected_components(L, directed=False)
     reached = np.zeros(parts, bool)
@@ -157,17 +180,25 @@ def harmonic_precompute(V, F, constrained, weights: str = "cotangent") -> Harmon
     if len(unreached):
         raise ValueError(f"constrained: {len(unreached)} connected part(s) of the mesh hold no constrained vertex "
                          f"(e.g. vertex {int(np.flatnonzero(labels == unreached[0])[0])}); their fields are undefined")
-    return HarmonicSolver(L, constrained, len(V), symmetric=weights == "cotangent")
+    n = len(V)
+    is_free = np.ones(n, bool)
+    is_free[constrained] = False
+    free = np.flatnonzero(is_free)  # a mask, not setdiff1d: that sorts (0.1 s at 160k)
+    L = sp.csc_matrix(L)  # columns, then rows: 7 ms at 130k vertices, against 50 ms for rows first on CSR
+    coupling = L[:, constrained][free].tocoo()  # L_fc
+    solver = SparseSolver(-L[:, free][free], symmetric=laplacian == "cotangent")
+    return HarmonicData(constrained.astype(np.int64), free, coupling.row.astype(np.int64),
+                        coupling.col.astype(np.int64), coupling.data, solver, n)
 
 
-def harmonic_fields(V, F, handles: Sequence, weights: str = "cotangent"):
+def harmonic_fields(V, F, handles: Sequence, *, laplacian: str = "cotangent") -> Float[Array, "n h"]:
     """One harmonic field per handle (sec. VIII): 1 on the handle's vertices, 0 on the other handles',
     harmonic elsewhere; the fields sum to one at every vertex.
 
     Args:
         V: (n, 3) vertex positions. F: (m, 3) int faces.
         handles: h >= 1 disjoint, non-empty index arrays (the fixed region counts as a handle).
-        weights: ``"cotangent"`` or ``"mean_value"``.
+        laplacian: ``"cotangent"`` or ``"mean_value"``.
     Returns:
         (n, h) fields, a JAX array."""
     if isinstance(handles, np.ndarray) or len(handles) == 0:
@@ -180,4 +211,5 @@ def harmonic_fields(V, F, handles: Sequence, weights: str = "cotangent"):
         raise ValueError("handles: the handles must be disjoint (a vertex is in two handles or twice in one)")
     bc = np.zeros((len(constrained), len(parts)))
     bc[np.arange(len(constrained)), np.repeat(np.arange(len(parts)), [len(p) for p in parts])] = 1.0
-    return jnp.asarray(harmonic_precompute(V, F, constrained, weights).host(bc))  # constant bc: no autodiff needed
+    data = harmonic_precompute(V, F, constrained, laplacian=laplacian)
+    return jnp.asarray(_host_solve(data, bc))  # constant bc: no autodiff needed

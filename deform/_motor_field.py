@@ -9,7 +9,8 @@ Binding (sec. III-A): with rest key motors ``R^0`` the rest point is carried bac
 ``p'_i = ~M^0_i p_i M^0_i``, and the deformed point is ``M_i p'_i ~M_i``; the rest key motors then give
 back the rest mesh exactly. With identity rest motors (``rest_motors=None``) ``p' = p`` and the key
 motors are motions of space: when every key motor is the same motor G the weights sum out
-(``exp(log G) = G``) and the mesh moves rigidly by G, whatever the weights.
+(``exp(log G) = G``) and the mesh moves rigidly by G, whatever the weights. The positional counterpart,
+``blend_positions``, blends control points with the same weights (classic FFD, eq. 6; positional cages).
 
 Speed: the logarithms are taken once per key motor, the per-vertex blend is one dense product
 ``W (n, k) @ logs (k, 6)``, and the per-vertex exponential and sandwich are fused elementwise code
@@ -67,7 +68,9 @@ def blend_motors(weights: Float[Array, "n k"], key_motors: Multivector) -> Multi
 
 
 class MotorField(eqx.Module):
-    """Vertices bound to key motors through per-vertex weights (sec. III-A binding).
+    """Vertices bound to key motors through per-vertex weights (sec. III-A binding): the data of every
+    motor deformation (``motor_field_precompute``, ``spline_precompute``, ``handles_precompute``,
+    ``ffd_precompute``, ``cage_precompute``), the argument of ``motor_field_solve``.
 
     Attributes:
         weights: (n, k) weight of key motor j at vertex i.
@@ -81,17 +84,24 @@ class MotorField(eqx.Module):
     def num_keys(self) -> int:
         return self.weights.shape[1]
 
-    def motors(self, key_motors: Multivector) -> Multivector:
-        """The deforming motors ``M_i`` (batch shape (..., n)) for key motors with batch shape (..., k)."""
-        return blend_motors(self.weights, key_motors)
 
-    def __call__(self, key_motors: Multivector) -> Float[Array, "... n 3"]:
-        """Deformed positions ``M_i p'_i ~M_i`` (eq. 2); leading batch axes of the key motors lead the
-        result (vmap-free batches of poses)."""
-        return cga.apply_to_points(self.motors(key_motors), self.bound.astype(self.weights.dtype), fused=True)
+def motor_field_solve(field: MotorField, key_motors: Multivector) -> Float[Array, "... n 3"]:
+    """Deformed positions ``M_i p'_i ~M_i`` (eq. 2), ``M_i = exp(sum_j w_ij log R_j)``.
+
+    Args:
+        field: a ``MotorField``.
+        key_motors: motors with batch shape (..., k); leading batch axes lead the result (vmap-free
+            batches of poses).
+    Returns:
+        (..., n, 3) positions."""
+    if not isinstance(field, MotorField):
+        raise ValueError(f"field: expected a MotorField, got {type(field).__name__}")
+    return cga.apply_to_points(blend_motors(field.weights, key_motors), field.bound.astype(field.weights.dtype),
+                               fused=True)
 
 
-def bind(V: Float[Array, "n 3"], weights: Float[Array, "n k"], rest_motors: Multivector | None = None) -> MotorField:
+def motor_field_precompute(V: Float[Array, "n 3"], weights: Float[Array, "n k"], *,
+                           rest_motors: Multivector | None = None) -> MotorField:
     """Bind rest positions to key motors (sec. III-A): ``p'_i = ~M^0_i p_i M^0_i`` with
     ``M^0_i = exp(sum_j w_ij log R^0_j)``; ``rest_motors=None`` means identity rest motors (p' = p).
 
@@ -99,6 +109,8 @@ def bind(V: Float[Array, "n 3"], weights: Float[Array, "n k"], rest_motors: Mult
         V: (n, 3) rest positions.
         weights: (n, k) weights.
         rest_motors: None or motors with batch shape (k,).
+    Returns:
+        a ``MotorField``, the argument of ``motor_field_solve``.
     """
     V = jnp.asarray(V)
     if V.ndim != 2 or V.shape[1] != 3:
@@ -129,3 +141,15 @@ def motor_about(center: Float[Array, "... 3"], rotation: Multivector, translatio
     if translation is None:
         return turn
     return (cga.translator(jnp.asarray(translation, center.dtype)) * turn).embed(KINDS["motor"])
+
+
+def blend_positions(weights: Float[Array, "n k"], P: Float[Array, "... k 3"]) -> Float[Array, "... n 3"]:
+    """Positions ``p_i = sum_j w_ij P_j`` (classic FFD, eq. 6; the positional cage of sec. VI with harmonic
+    coordinates); leading axes of the control points ``P`` are batches."""
+    weights = jnp.asarray(weights)
+    if weights.ndim != 2:
+        raise ValueError(f"weights: expected shape (n, k), got {weights.shape}")
+    P = jnp.asarray(P)
+    if P.ndim < 2 or P.shape[-2:] != (weights.shape[1], 3):
+        raise ValueError(f"P: expected shape (..., {weights.shape[1]}, 3), got {P.shape}")
+    return jnp.einsum("nk,...kc->...nc", weights, P.astype(weights.dtype))

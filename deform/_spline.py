@@ -16,16 +16,15 @@ H_n move rigidly by R_1 and R_n. The per-vertex work is ``deform._motor_field``'
 
 from __future__ import annotations
 
-import math
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
-from deform._ffd import MAX_DEGREE
-from deform._harmonic import harmonic_precompute
-from deform._motor_field import MotorField, bind
+from deform._ffd import MAX_DEGREE, _bernstein
+from deform._harmonic import harmonic_precompute, harmonic_solve
+from deform._motor_field import MotorField, motor_field_precompute
 from jaxcga import Multivector
 from _jaxcga_shared.checks import require
 
@@ -115,13 +114,11 @@ def spline_weights(lam: Float[Array, " n"], basis: str = "bspline", num_keys: in
     if basis == "lagrange":
         return _powers(lam, 2) @ jnp.asarray([[1.0, 0.0, 0.0], [-3.0, 4.0, -1.0], [2.0, -4.0, 2.0]], lam.dtype)
     if basis == "bezier":
-        n = k - 1
-        comb = jnp.asarray([math.comb(n, j) for j in range(k)], lam.dtype)
-        return comb * _powers(lam, n) * _powers(1 - lam, n)[:, ::-1]
+        return _bernstein(k - 1, lam)
     return _bspline(lam, k, degree)
 
 
-def spline_parameter(V, F, start, end, laplacian: str = "cotangent") -> Float[Array, " n"]:
+def spline_parameter(V, F, start, end, *, laplacian: str = "cotangent") -> Float[Array, " n"]:
     """The harmonic field ``lambda`` (sec. III-A, VIII): 0 on the ``start`` vertices (H_1), 1 on the
     ``end`` vertices (H_n), harmonic elsewhere, clipped to [0, 1] (the cotangent Laplacian has no
     maximum principle on obtuse meshes, and the bases are defined on [0, 1] only).
@@ -136,12 +133,12 @@ def spline_parameter(V, F, start, end, laplacian: str = "cotangent") -> Float[Ar
         raise ValueError("start, end: both handles need at least one vertex")
     if np.intersect1d(start, end).size:
         raise ValueError("start, end: the handles must be disjoint")
-    solver = harmonic_precompute(V, F, np.concatenate([start, end]), laplacian)
+    data = harmonic_precompute(V, F, np.concatenate([start, end]), laplacian=laplacian)
     bc = np.concatenate([np.zeros(len(start)), np.ones(len(end))])
-    return jnp.clip(solver(jnp.asarray(bc)), 0.0, 1.0)
+    return jnp.clip(harmonic_solve(data, jnp.asarray(bc)), 0.0, 1.0)
 
 
-def spline_precompute(V, F, start, end, rest_motors: Multivector | None = None, basis: str = "bspline",
+def spline_precompute(V, F, start, end, *, rest_motors: Multivector | None = None, basis: str = "bspline",
                       num_keys: int | None = None, degree: int = 3, laplacian: str = "cotangent") -> MotorField:
     """Bind a mesh to k key motors along a spline path (eq. 1-2, sec. III-A).
 
@@ -153,8 +150,8 @@ def spline_precompute(V, F, start, end, rest_motors: Multivector | None = None, 
         basis, num_keys, degree: the spline basis, see ``spline_weights``.
         laplacian: ``"cotangent"`` or ``"mean_value"`` for the harmonic field.
     Returns:
-        A ``MotorField``: call it on key motors with batch shape (..., k) for the deformed positions
-        (..., n, 3).
+        A ``MotorField``: ``motor_field_solve`` on it and key motors with batch shape (..., k) gives the
+        deformed positions (..., n, 3).
     """
-    lam = spline_parameter(V, F, start, end, laplacian)
-    return bind(V, spline_weights(lam, basis, num_keys, degree), rest_motors)
+    lam = spline_parameter(V, F, start, end, laplacian=laplacian)
+    return motor_field_precompute(V, spline_weights(lam, basis, num_keys, degree), rest_motors=rest_motors)

@@ -8,7 +8,7 @@ sense through the normal equations ``A^T A R = A^T Q`` (eq. 5), one right-hand s
 The parameters are fixed, so ``A`` is factored once on the host (``spline_fit_precompute``): by Cholesky
 when ``cond(A^T A)`` is at most ``max_condition``, else (the knot vector leaves a key without data, or too
 few parameters) by SVD, whose pseudo-inverse gives the minimum-norm least-squares solution. Each fit is
-then a JAX function of the Q_i (jit, vmap, grad). The fitted key motors drive ``deform._spline``.
+then a JAX function of the Q_i (``spline_fit_solve``: jit, vmap, grad). The fitted key motors drive ``deform._spline``.
 """
 
 from __future__ import annotations
@@ -28,9 +28,9 @@ from jaxcga import KINDS, MOTOR_GENERATOR, Multivector
 METHODS = ("cholesky", "svd")
 
 
-class SplineFit(eqx.Module):
-    """The factored least-squares problem of eq. (5) for fixed parameters (``spline_fit_precompute``).
-    Call it on motors Q with batch shape (..., m) for the k fitted key motors (..., k).
+class SplineFitData(eqx.Module):
+    """The factored least-squares problem of eq. (5) for fixed parameters (``spline_fit_precompute``), the
+    argument of ``spline_fit_solve``.
 
     Attributes:
         A: (m, k) basis matrix ``N_j(lambda_i)``.
@@ -45,25 +45,27 @@ class SplineFit(eqx.Module):
     method: str = eqx.field(static=True)
     condition: float = eqx.field(static=True)
 
-    def logs(self, Q: Multivector) -> Float[Array, "... k 6"]:
-        """The fitted ``log R_j`` (six components e12, e13, e23, e1inf, e2inf, e3inf per key)."""
-        m, k = self.A.shape
-        Q = _check_key_motors("Q", Q, m)
-        q = motor_logs(Q)
-        if self.method == "svd":
-            return jnp.einsum("km,...mc->...kc", self.factor.astype(q.dtype), q)
-        rhs = jnp.einsum("mk,...mc->...kc", self.A.astype(q.dtype), q)  # A^T Q
+
+def spline_fit_solve(data: SplineFitData, Q: Multivector) -> Multivector:
+    """The fitted key motors ``R_j = exp(log R_j)`` (batch shape (..., k)) for motors Q with batch shape
+    (..., m) at the parameters of ``data``: the least-squares fit of eq. (5) in the logarithms."""
+    if not isinstance(data, SplineFitData):
+        raise ValueError("data: expected the SplineFitData returned by spline_fit_precompute")
+    m, k = data.A.shape
+    Q = _check_key_motors("Q", Q, m)
+    q = motor_logs(Q)
+    if data.method == "svd":
+        logs = jnp.einsum("km,...mc->...kc", data.factor.astype(q.dtype), q)
+    else:
+        rhs = jnp.einsum("mk,...mc->...kc", data.A.astype(q.dtype), q)  # A^T Q
         columns = jnp.moveaxis(rhs, -2, 0).reshape(k, -1)
-        solved = jsl.cho_solve((self.factor.astype(q.dtype), True), columns)
-        return jnp.moveaxis(solved.reshape((k,) + rhs.shape[:-2] + (6,)), 0, -2)
-
-    def __call__(self, Q: Multivector) -> Multivector:
-        """The fitted key motors ``R_j = exp(log R_j)``, batch shape (..., k)."""
-        return cga.exp_motor(Multivector(self.logs(Q), MOTOR_GENERATOR)).embed(KINDS["motor"])
+        solved = jsl.cho_solve((data.factor.astype(q.dtype), True), columns)
+        logs = jnp.moveaxis(solved.reshape((k,) + rhs.shape[:-2] + (6,)), 0, -2)
+    return cga.exp_motor(Multivector(logs, MOTOR_GENERATOR)).embed(KINDS["motor"])
 
 
-def spline_fit_precompute(lam, num_keys: int, degree: int = 3, max_condition: float = 1e8,
-                          rcond: float | None = None) -> SplineFit:
+def spline_fit_precompute(lam, num_keys: int, *, degree: int = 3, max_condition: float = 1e8,
+                          rcond: float | None = None) -> SplineFitData:
     """Factor the least-squares fit of k key motors to motors given at parameters ``lam`` (eq. 3-5).
 
     Args:
@@ -94,4 +96,4 @@ def spline_fit_precompute(lam, num_keys: int, degree: int = 3, max_condition: fl
         inverse = np.divide(1.0, s, out=np.zeros_like(s), where=s > cutoff)
         factor = (Vt.T * inverse) @ U.T
         method = "svd"
-    return SplineFit(jnp.asarray(A), jnp.asarray(factor), method, condition)
+    return SplineFitData(jnp.asarray(A), jnp.asarray(factor), method, condition)

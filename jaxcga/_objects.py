@@ -69,9 +69,6 @@ def up(x: Float[Array, "... 3"]) -> Multivector:
     return _vector(x, 1.0, 0.5 * jnp.sum(x * x, axis=-1))
 
 
-point = up
-
-
 def down(X: Multivector) -> Float[Array, "... 3"]:
     """Euclidean point of a conformal point (any scale): x = X_e / X_eo, where X_eo = -X . einf."""
     _require_vector("X", X)

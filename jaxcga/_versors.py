@@ -296,9 +296,6 @@ def versor_to_matrix(v: Multivector, normalized: bool = True) -> Float[Array, ".
     return jnp.stack([jnp.stack(r, axis=-1) for r in rows], axis=-2)
 
 
-motor_to_matrix = versor_to_matrix
-
-
 # ---------------------------------------------------------------- quaternions
 def rotor_to_quaternion(r: Multivector) -> Float[Array, "... 4"]:
     """Unit quaternion (w, x, y, z) of the same rotation as the rotor (same sign convention as

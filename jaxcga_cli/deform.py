@@ -43,8 +43,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--keys", type=int, default=None,
                         help="spline: number of key motors for bezier / bspline (default 4 / 5; linear has 2, "
                              "lagrange 3)")
-    parser.add_argument("--weights", choices=arguments.LAPLACIANS, default="cotangent",
-                        help="spline, handles: Laplacian weights of the harmonic fields (default cotangent)")
+    parser.add_argument("--laplacian", choices=arguments.LAPLACIANS, default="cotangent",
+                        help="spline, handles: the Laplacian of the harmonic fields (default cotangent)")
     parser.add_argument("--handle-fraction", type=float, default=0.05,
                         help="spline, handles: the end handles hold the vertices within this fraction of the "
                              "long axis's ends (default 0.05)")
@@ -72,13 +72,13 @@ def run(args) -> dict:
     V, F = load_mesh(args.mesh)
     return f"{args.method} {args.mesh or 'built-in arm'}", deform_command(
         args.method, V, F, args.out, bend=args.bend, twist=args.twist, translate=args.translate, basis=args.basis,
-        keys=args.keys, weights=args.weights, handle_fraction=args.handle_fraction, handles=args.handles,
+        keys=args.keys, laplacian=args.laplacian, handle_fraction=args.handle_fraction, handles=args.handles,
         lattice=args.lattice, cage=args.cage, positional=args.positional)
 
 
 def deform_command(method: str, V, F, out: Path, *, bend: float = 60.0, twist: float = 0.0,
                    translate=(0.0, 0.0, 0.0), basis: str = "bspline", keys: int | None = None,
-                   weights: str = "cotangent", handle_fraction: float = 0.05, handles: Path | None = None,
+                   laplacian: str = "cotangent", handle_fraction: float = 0.05, handles: Path | None = None,
                    lattice=(4, 4, 4), cage: Path | None = None, positional: bool = False) -> dict:
     """Bind (V, F) by ``method`` (one of ``DEFORMATIONS``), move the keys, write ``out``; returns a
     summary (vertices, keys, precompute and per-frame milliseconds, volume and edge-length change)."""
@@ -112,13 +112,13 @@ def deform_command(method: str, V, F, out: Path, *, bend: float = 60.0, twist: f
         if method == "spline":
             if keys is None and basis == "bspline":
                 keys = 5
-            field = deform.spline_precompute(V, F, *parts, basis=basis, num_keys=keys, laplacian=weights)
+            field = deform.spline_precompute(V, F, *parts, basis=basis, num_keys=keys, laplacian=laplacian)
             key_motors = motion.motors(np.linspace(0.0, 1.0, field.num_keys))
         elif method == "handles":
-            field = deform.harmonic_handles(V, F, parts, weights)
+            field = deform.handles_precompute(V, F, parts, laplacian=laplacian)
         elif method == "ffd":
             grid = deform.bounding_lattice(V, tuple(lattice), padding=0.02)
-            field = deform.ffd_motor_field(grid, V)
+            field = deform.ffd_precompute(V, grid)
             points = deform.lattice_points(grid)
             key_motors = motion.motors(motion.fraction(points))
             control = cga.apply_to_points(key_motors, points)
@@ -127,17 +127,16 @@ def deform_command(method: str, V, F, out: Path, *, bend: float = 60.0, twist: f
                 cage_V, cage_F = deform.tube_cage(V, axis=motion.long)
             else:
                 cage_V, cage_F = load_mesh(cage, "cage")
-            bound = deform.cage_precompute(cage_V, cage_F, V)
-            field = bound.field
+            field = deform.cage_precompute(V, cage_V, cage_F)
             key_motors = motion.motors(motion.fraction(cage_V))
             control = cga.apply_to_points(key_motors, jnp.asarray(cage_V))
     precompute_ms = 1e3 * (time.perf_counter() - start)
 
     if positional:
-        frame = jax.jit(lambda P: deform.ffd_positions(field.weights, P))
+        frame = jax.jit(lambda P: deform.blend_positions(field.weights, P))
         argument = control
     else:
-        frame = jax.jit(field.__call__)
+        frame = jax.jit(lambda motors: deform.motor_field_solve(field, motors))
         argument = key_motors
     with status("deform", "compiling the deformation"):
         positions = jax.block_until_ready(frame(argument))
@@ -148,7 +147,7 @@ def deform_command(method: str, V, F, out: Path, *, bend: float = 60.0, twist: f
     if not np.all(np.isfinite(positions)):
         raise ValueError("the deformation produced non-finite positions")
     write_result(out, positions, F, V, f"{method}{' (positional)' if positional else ''}")
-    measured = deform.distortion(V, positions, F)
+    measured = deform.distortion(V, F, positions)
     return {
         "method": method + (" (positional)" if positional else ""),
         "vertices": len(V),

@@ -45,6 +45,7 @@ def fit_command(model, target: Path, out: Path, method: str = "cga", vertices: P
     import numpy as np
 
     import deform
+    from _jaxcga_shared.mesh import bounding_diagonal
     from _jaxcga_shared.output import write_json
     from jaxcga_cli.report import status
 
@@ -60,7 +61,7 @@ def fit_command(model, target: Path, out: Path, method: str = "cga", vertices: P
                               method=method, regularization=regularization, max_steps=max_steps,
                               fit_scale=fit_scale and method != "dqs")
         translation, rotation, scale = deform.versor_to_trs(fit.local)
-    diagonal = float(deform.bounding_diagonal(model))
+    diagonal = bounding_diagonal(deform.rest_pose(model, "lbs"))
     result = {
         "model": model.name,
         "method": method,

@@ -68,7 +68,7 @@ def test_handles_file_with_a_translated_handle(tube, tmp_path):
     handles = tmp_path / "handles.json"
     handles.write_text(json.dumps(spec))
     out = tmp_path / "moved.npy"
-    assert main(["deform", "handles", str(path), "--handles", str(handles), "--weights", "mean_value",
+    assert main(["deform", "handles", str(path), "--handles", str(handles), "--laplacian", "mean_value",
                  "--out", str(out)]) == 0
     X = np.load(out)
     np.testing.assert_allclose(X[z > 0.99], V[z > 0.99] + [0.3, 0, 0], atol=1e-12)

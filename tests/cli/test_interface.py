@@ -69,7 +69,7 @@ def test_the_command_lines_enumerations_are_the_packages():
     (["skin", "--method", "quaternions", "--out", "x.npy"], "--method"),
     (["cut", "--plane", "1", "0", "0", "0", "--predicates", "exact", "--out", "a.glb", "b.glb"], "--predicates"),
     (["deform", "spline", "--basis", "nurbs", "--out", "x.npy"], "--basis"),
-    (["deform", "handles", "--weights", "uniform", "--out", "x.npy"], "--weights"),
+    (["deform", "handles", "--laplacian", "uniform", "--out", "x.npy"], "--laplacian"),
     (["arap", "--energy", "rims", "--out", "x.npy"], "--energy"),
     (["xfem", "cake", "--out", "out"], "SCENE"),
     (["xfem", "cheese", "--size", "huge", "--out", "out"], "--size"),

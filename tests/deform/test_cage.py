@@ -14,8 +14,8 @@ import trimesh
 
 import deform
 import jaxcga as cga
-from deform._cage import Cage, cage_precompute, harmonic_coordinates, tube_cage
-from deform._motor_field import bind, identity_motors, motor_about
+from deform import (blend_positions, cage_precompute, harmonic_coordinates, identity_motors, motor_about,
+                    motor_field_precompute, motor_field_solve, tube_cage)
 from tests.shared import check_gradient
 
 ARM_V = np.asarray(deform.default_arm().mesh.V, np.float64)
@@ -31,7 +31,7 @@ CAGES = {
     "cube": (BOX_V, BOX_F, np.concatenate([BOX_POINTS, BOX_V])),
     "arm": (TUBE_V, TUBE_F, np.concatenate([ARM_V, TUBE_V])),
 }
-BOUND = {name: cage_precompute(*args) for name, args in CAGES.items()}
+BOUND = {name: cage_precompute(V, cage_V, cage_F) for name, (cage_V, cage_F, V) in CAGES.items()}
 
 
 def _barycentric(P, X):
@@ -45,14 +45,14 @@ def test_single_tetrahedron_cage_gives_barycentric_coordinates():
     assert len(TV) > 50  # interior nodes exist, so the solve is tested
     np.testing.assert_allclose(H, _barycentric(TET_V, TV), atol=1e-10)
     X = np.random.default_rng(1).dirichlet(np.ones(4), 200) @ TET_V
-    cage = cage_precompute(TET_V, TET_F, X, max_tet_volume=1e-3)
-    np.testing.assert_allclose(cage.coords, _barycentric(TET_V, X), atol=1e-10)
+    cage = cage_precompute(X, TET_V, TET_F, max_tet_volume=1e-3)
+    np.testing.assert_allclose(cage.weights, _barycentric(TET_V, X), atol=1e-10)
 
 
 @pytest.mark.parametrize("name", ["cube", "arm"])
 def test_partition_of_unity_linear_precision_and_interpolation(name):
     cage_V, _, V = CAGES[name]
-    coords = np.asarray(BOUND[name].coords)
+    coords = np.asarray(BOUND[name].weights)
     np.testing.assert_allclose(coords.sum(axis=1), 1.0, atol=1e-12)
     np.testing.assert_allclose(coords @ cage_V, V, atol=1e-10)
     c = len(cage_V)
@@ -66,19 +66,19 @@ def test_coordinates_are_nonnegative_on_well_shaped_cages(name):
     cage_V, cage_F, _ = CAGES[name]
     _, _, H = harmonic_coordinates(cage_V, cage_F)
     assert H.min() >= -1e-12 and H.max() <= 1.0 + 1e-12
-    assert BOUND[name].coords.min() >= -1e-12
+    assert BOUND[name].weights.min() >= -1e-12
 
 
 def test_inward_oriented_cage_gives_the_same_coordinates():
-    flipped = cage_precompute(BOX_V, BOX_F[:, ::-1], BOX_POINTS)
-    np.testing.assert_allclose(flipped.coords, BOUND["cube"].coords[: len(BOX_POINTS)], atol=1e-12)
+    flipped = cage_precompute(BOX_POINTS, BOX_V, BOX_F[:, ::-1])
+    np.testing.assert_allclose(flipped.weights, BOUND["cube"].weights[: len(BOX_POINTS)], atol=1e-12)
 
 
 def test_points_on_the_cage_up_to_round_off_take_the_face_coordinates():
     on_face = np.array([[1.0, 0.3, -0.2], [0.1, -1.0, 0.7]])
     normals = np.array([[1.0, 0, 0], [0, -1.0, 0]])
-    exact = cage_precompute(BOX_V, BOX_F, on_face).coords
-    outside = cage_precompute(BOX_V, BOX_F, on_face + 1e-13 * normals).coords
+    exact = cage_precompute(on_face, BOX_V, BOX_F).weights
+    outside = cage_precompute(on_face + 1e-13 * normals, BOX_V, BOX_F).weights
     np.testing.assert_allclose(outside, exact, atol=1e-12)
     np.testing.assert_allclose(np.asarray(outside) @ BOX_V, on_face, atol=1e-12)
 
@@ -88,7 +88,7 @@ def test_affine_map_of_the_cage_moves_the_mesh_by_it(name):
     cage_V, _, V = CAGES[name]
     rng = np.random.default_rng(2)
     A, b = np.eye(3) + 0.3 * rng.normal(size=(3, 3)), rng.normal(size=3)
-    np.testing.assert_allclose(BOUND[name](cage_V @ A.T + b), V @ A.T + b, atol=1e-10)
+    np.testing.assert_allclose(blend_positions(BOUND[name].weights, cage_V @ A.T + b), V @ A.T + b, atol=1e-10)
 
 
 def _random_motor(rng):
@@ -98,12 +98,12 @@ def _random_motor(rng):
 
 @pytest.mark.parametrize("name", ["cube", "arm"])
 def test_same_motor_on_every_cage_vertex_moves_the_mesh_rigidly(name):
-    cage: Cage = BOUND[name]
+    cage = BOUND[name]
     V = CAGES[name][2]
-    motor_deform = jax.jit(Cage.motor_deform)
-    np.testing.assert_allclose(motor_deform(cage, identity_motors(cage.rest.shape[0])), V, atol=1e-12)
+    motor_deform = jax.jit(motor_field_solve)
+    np.testing.assert_allclose(motor_deform(cage, identity_motors(cage.num_keys)), V, atol=1e-12)
     G = _random_motor(np.random.default_rng(3))
-    motors = cga.Multivector(jnp.broadcast_to(G.values, (cage.rest.shape[0], G.values.shape[-1])), G.blades)
+    motors = cga.Multivector(jnp.broadcast_to(G.values, (cage.num_keys, G.values.shape[-1])), G.blades)
     np.testing.assert_allclose(motor_deform(cage, motors), cga.apply_to_points(G, jnp.asarray(V)), atol=1e-10)
 
 
@@ -111,12 +111,14 @@ def test_same_motor_on_every_cage_vertex_moves_the_mesh_rigidly(name):
 def test_translator_cage_motors_equal_the_positional_cage_in_both_bindings():
     cage = BOUND["arm"]
     d = np.random.default_rng(4).normal(scale=0.05, size=TUBE_V.shape)
-    positional = cage(TUBE_V + d)
-    np.testing.assert_allclose(cage.motor_deform(cga.translator(jnp.asarray(d))), positional, atol=1e-10)
+    positional = blend_positions(cage.weights, TUBE_V + d)
+    np.testing.assert_allclose(motor_field_solve(cage, cga.translator(jnp.asarray(d))), positional, atol=1e-10)
     # the paper's p_i = M_i o ~M_i: rest motors T_{P_j} carry the origin to the vertices
-    paper = bind(jnp.asarray(CAGES["arm"][2]), cage.coords, cga.translator(jnp.asarray(TUBE_V)))
+    paper = motor_field_precompute(jnp.asarray(CAGES["arm"][2]), cage.weights,
+                                   rest_motors=cga.translator(jnp.asarray(TUBE_V)))
     np.testing.assert_allclose(paper.bound, 0.0, atol=1e-12)
-    np.testing.assert_allclose(paper(cga.translator(jnp.asarray(TUBE_V + d))), positional, atol=1e-10)
+    np.testing.assert_allclose(motor_field_solve(paper, cga.translator(jnp.asarray(TUBE_V + d))), positional,
+                               atol=1e-10)
 
 
 def test_local_motor_moves_points_near_its_cage_vertex_most():
@@ -124,7 +126,7 @@ def test_local_motor_moves_points_near_its_cage_vertex_most():
     j = 3 * 8 + 2  # a vertex of the middle ring
     turn = motor_about(jnp.asarray(TUBE_V[j]), cga.rotor(jnp.array([0.0, 0.0, 1.0]), 0.6), jnp.array([0.0, 0.05, 0.0]))
     values = identity_motors(len(TUBE_V)).values.at[j].set(turn.values)
-    moved = np.asarray(cage.motor_deform(cga.Multivector(values, turn.blades)))[: len(V)]
+    moved = np.asarray(motor_field_solve(cage, cga.Multivector(values, turn.blades)))[: len(V)]
     displacement = np.linalg.norm(moved - V, axis=1)
     distance = np.linalg.norm(V - TUBE_V[j], axis=1)
     near, far = distance < np.quantile(distance, 0.05), distance > np.quantile(distance, 0.5)
@@ -137,30 +139,30 @@ def test_jit_and_vmap_over_batches_of_cage_positions_and_motors():
     cage = BOUND["cube"]
     rng = np.random.default_rng(5)
     P = jnp.asarray(BOX_V + rng.normal(scale=0.1, size=(4, 8, 3)))
-    expected = np.stack([np.asarray(cage.coords) @ np.asarray(p) for p in P])
-    np.testing.assert_allclose(cage(P), expected, atol=1e-12)
-    np.testing.assert_allclose(jax.jit(Cage.__call__)(cage, P), expected, atol=1e-12)
-    np.testing.assert_allclose(jax.vmap(cage)(P), expected, atol=1e-12)
+    expected = np.stack([np.asarray(cage.weights) @ np.asarray(p) for p in P])
+    np.testing.assert_allclose(blend_positions(cage.weights, P), expected, atol=1e-12)
+    np.testing.assert_allclose(jax.jit(blend_positions)(cage.weights, P), expected, atol=1e-12)
+    np.testing.assert_allclose(jax.vmap(lambda p: blend_positions(cage.weights, p))(P), expected, atol=1e-12)
     logs = jnp.asarray(rng.normal(scale=0.3, size=(4, 8, 6)))
     motors = cga.exp_motor(cga.Multivector(logs, cga.MOTOR_GENERATOR))
-    deform_one = jax.jit(Cage.motor_deform)
+    deform_one = jax.jit(motor_field_solve)
     one_by_one = np.stack([deform_one(cage, cga.Multivector(m, motors.blades)) for m in motors.values])
     np.testing.assert_allclose(deform_one(cage, motors), one_by_one, atol=1e-12)  # batch axes lead
-    vmapped = jax.jit(jax.vmap(Cage.motor_deform, in_axes=(None, 0)))
+    vmapped = jax.jit(jax.vmap(motor_field_solve, in_axes=(None, 0)))
     np.testing.assert_allclose(vmapped(cage, motors), one_by_one, atol=1e-12)
 
 
 @pytest.mark.slow  # 14 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 def test_gradients_against_finite_differences():
-    cage = cage_precompute(BOX_V, BOX_F, BOX_POINTS[:20])
+    cage = cage_precompute(BOX_POINTS[:20], BOX_V, BOX_F)
     target = jnp.asarray(BOX_POINTS[:20] + 0.1)
-    check_gradient(jax.jit(lambda p: jnp.sum(jnp.sin(cage(p.reshape(8, 3)) - target) ** 2)),
+    check_gradient(jax.jit(lambda p: jnp.sum(jnp.sin(blend_positions(cage.weights, p.reshape(8, 3)) - target) ** 2)),
                    jnp.asarray(BOX_V).ravel() * 1.1)
 
     @jax.jit
     def motor_loss(logs):
         motors = cga.exp_motor(cga.Multivector(logs.reshape(8, 6), cga.MOTOR_GENERATOR))
-        return jnp.sum((cage.motor_deform(motors) - target) ** 2)
+        return jnp.sum((motor_field_solve(cage, motors) - target) ** 2)
 
     check_gradient(motor_loss, jnp.asarray(np.random.default_rng(6).normal(scale=0.3, size=48)))
 
@@ -168,14 +170,15 @@ def test_gradients_against_finite_differences():
 def test_float32_cage():
     cage = jax.tree.map(lambda a: a.astype(jnp.float32), BOUND["arm"])
     P = jnp.asarray(TUBE_V * 1.1, jnp.float32)
-    assert cage(P).dtype == jnp.float32
+    assert blend_positions(cage.weights, P).dtype == jnp.float32
     # on a GPU, JAX multiplies float32 matrices in TF32 (10-bit mantissa) by default: the sum over the cage's
     # vertices is good to about 2^-10 of its terms' magnitudes there
-    terms = np.abs(np.asarray(cage.coords, np.float64)) @ np.abs(TUBE_V * 1.1)
+    terms = np.abs(np.asarray(cage.weights, np.float64)) @ np.abs(TUBE_V * 1.1)
     atol = 1e-5 if jax.default_backend() == "cpu" else 2**-10 * float(terms.max())
-    np.testing.assert_allclose(cage(P), BOUND["arm"](TUBE_V * 1.1), atol=atol)
+    np.testing.assert_allclose(blend_positions(cage.weights, P), blend_positions(BOUND["arm"].weights, TUBE_V * 1.1),
+                               atol=atol)
     motors = cga.exp_motor(cga.Multivector(jnp.full((len(TUBE_V), 6), 0.1, jnp.float32), cga.MOTOR_GENERATOR))
-    motor_deform = jax.jit(Cage.motor_deform)
+    motor_deform = jax.jit(motor_field_solve)
     out = motor_deform(cage, motors)
     assert out.dtype == jnp.float32
     reference = motor_deform(BOUND["arm"], jax.tree.map(lambda a: a.astype(jnp.float64), motors))
@@ -184,26 +187,26 @@ def test_float32_cage():
 
 def test_bad_input():
     with pytest.raises(ValueError, match="cage_F: the cage must be a closed"):
-        cage_precompute(BOX_V, BOX_F[:-1], BOX_POINTS)
+        cage_precompute(BOX_POINTS, BOX_V, BOX_F[:-1])
     with pytest.raises(ValueError, match="V: 1 vertices lie outside the cage, the first is vertex 2"):
-        cage_precompute(BOX_V, BOX_F, np.array([[0.0, 0, 0], [0.5, 0.5, 0.5], [1.5, 0, 0]]))
+        cage_precompute(np.array([[0.0, 0, 0], [0.5, 0.5, 0.5], [1.5, 0, 0]]), BOX_V, BOX_F)
     with pytest.raises(ValueError, match=r"cage_V: expected finite positions of shape \(c, 3\)"):
-        cage_precompute(BOX_V[:, :2], BOX_F, BOX_POINTS)
+        cage_precompute(BOX_POINTS, BOX_V[:, :2], BOX_F)
     with pytest.raises(ValueError, match=r"V: expected finite positions of shape \(n, 3\)"):
-        cage_precompute(BOX_V, BOX_F, BOX_POINTS[:, :2])
+        cage_precompute(BOX_POINTS[:, :2], BOX_V, BOX_F)
     with pytest.raises(ValueError, match="cage_F: expected integer faces"):
-        cage_precompute(BOX_V, BOX_F.astype(float), BOX_POINTS)
+        cage_precompute(BOX_POINTS, BOX_V, BOX_F.astype(float))
     with pytest.raises(ValueError, match="max_tet_volume"):
-        cage_precompute(BOX_V, BOX_F, BOX_POINTS, max_tet_volume=2.0)
+        cage_precompute(BOX_POINTS, BOX_V, BOX_F, max_tet_volume=2.0)
     with pytest.raises(ValueError, match="subdivisions"):
-        cage_precompute(BOX_V, BOX_F, BOX_POINTS, subdivisions=-1)
+        cage_precompute(BOX_POINTS, BOX_V, BOX_F, subdivisions=-1)
     with pytest.raises(ValueError, match="cage_V: vertex 8 is on no face"):
-        cage_precompute(np.concatenate([BOX_V, [[0.0, 0, 0]]]), BOX_F, BOX_POINTS)
+        cage_precompute(BOX_POINTS, np.concatenate([BOX_V, [[0.0, 0, 0]]]), BOX_F)
     cage = BOUND["cube"]
-    with pytest.raises(ValueError, match=r"P: expected cage positions of shape \(\.\.\., 8, 3\)"):
-        cage(jnp.zeros((7, 3)))
+    with pytest.raises(ValueError, match=r"P: expected shape \(\.\.\., 8, 3\)"):
+        blend_positions(cage.weights, jnp.zeros((7, 3)))
     with pytest.raises(ValueError, match="key_motors"):
-        cage.motor_deform(identity_motors(7))
+        motor_field_solve(cage, identity_motors(7))
 
 
 def test_tube_cage_is_closed_encloses_the_mesh_and_follows_the_axis():
@@ -227,5 +230,5 @@ def test_tetgen_failure_on_a_subdivided_cylinder_cage_falls_back_to_fewer_subdiv
     cylinder = trimesh.creation.cylinder(radius=0.2, height=2.0, sections=16).subdivide().subdivide()
     V = np.asarray(cylinder.vertices)
     cage_V, cage_F = tube_cage(V)
-    cage = cage_precompute(cage_V, cage_F, V, subdivisions=3)
-    np.testing.assert_allclose(np.asarray(cage.coords) @ cage_V, V, atol=1e-10)
+    cage = cage_precompute(V, cage_V, cage_F, subdivisions=3)
+    np.testing.assert_allclose(np.asarray(cage.weights) @ cage_V, V, atol=1e-10)

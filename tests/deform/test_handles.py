@@ -11,20 +11,16 @@ import numpy as np
 import pytest
 
 import jaxcga as cga
-from deform import default_arm
-from deform._ffd import bounding_lattice, ffd_motor_field
-from deform._field_fitting import fit_key_motors, generators_to_motors
-from deform._handles import harmonic_handles
-from deform._harmonic import harmonic_fields
-from deform._motor_field import bind, identity_motors, motor_about
-from deform._spline import spline_precompute
+from deform import (bounding_lattice, default_arm, ffd_precompute, fit_key_motors, generators_to_motors,
+                    handles_precompute, harmonic_fields, identity_motors, motor_about, motor_field_precompute,
+                    motor_field_solve, spline_precompute)
 from tests.shared import check_gradient
 
 ARM = default_arm().mesh
 V, F = np.asarray(ARM.V, np.float64), np.asarray(ARM.F)
 X = V[:, 0]
 HANDLES = [np.flatnonzero(X < 0.0), np.flatnonzero(X > 0.75), np.flatnonzero(np.abs(X - 0.4) < 0.01)]
-FIELD = harmonic_handles(V, F, HANDLES)
+FIELD = handles_precompute(V, F, HANDLES)
 
 
 def _motors(rng, k, rotation=0.5, translation=0.1):
@@ -37,14 +33,14 @@ def _motors(rng, k, rotation=0.5, translation=0.1):
 def test_weights_are_the_harmonic_fields_and_identity_motors_give_the_rest_mesh():
     np.testing.assert_array_equal(FIELD.weights, harmonic_fields(V, F, HANDLES))
     np.testing.assert_allclose(FIELD.weights.sum(axis=1), 1.0, atol=1e-12)
-    np.testing.assert_allclose(FIELD(identity_motors(3)), V, atol=1e-14)
+    np.testing.assert_allclose(motor_field_solve(FIELD, identity_motors(3)), V, atol=1e-14)
 
 
-@pytest.mark.parametrize("weights", ["cotangent", "mean_value"])
-def test_handle_vertices_move_rigidly_by_their_motor(weights):
-    field = harmonic_handles(V, F, HANDLES, weights=weights)
+@pytest.mark.parametrize("laplacian", ["cotangent", "mean_value"])
+def test_handle_vertices_move_rigidly_by_their_motor(laplacian):
+    field = handles_precompute(V, F, HANDLES, laplacian=laplacian)
     motors = _motors(np.random.default_rng(1), 3)
-    moved = np.asarray(field(motors))
+    moved = np.asarray(motor_field_solve(field, motors))
     for j, part in enumerate(HANDLES):
         one = cga.Multivector(motors.values[j], motors.blades)
         np.testing.assert_allclose(moved[part], cga.apply_to_points(one, V[part]), atol=1e-12)
@@ -58,24 +54,24 @@ def test_handle_vertices_move_rigidly_by_their_motor(weights):
 def test_the_same_motor_on_every_handle_is_that_rigid_map():
     G = motor_about(jnp.array([0.3, 0.1, -0.2]), cga.rotor(jnp.array([1.0, 2.0, 0.5]), 2.5), jnp.array([0.4, 0, 1]))
     motors = cga.Multivector(jnp.broadcast_to(G.values, (3, 8)), G.blades)
-    np.testing.assert_allclose(FIELD(motors), cga.apply_to_points(G, V), atol=1e-12)
+    np.testing.assert_allclose(motor_field_solve(FIELD, motors), cga.apply_to_points(G, V), atol=1e-12)
 
 
 def test_binding_to_rest_motors_gives_back_the_rest_mesh():
     rest = _motors(np.random.default_rng(2), 3)
-    bound = bind(V, FIELD.weights, rest)
-    np.testing.assert_allclose(bound(rest), V, atol=1e-12)
+    bound = motor_field_precompute(V, FIELD.weights, rest_motors=rest)
+    np.testing.assert_allclose(motor_field_solve(bound, rest), V, atol=1e-12)
     with pytest.raises(ValueError, match="rest_motors"):
-        bind(V, FIELD.weights, identity_motors(2))
+        motor_field_precompute(V, FIELD.weights, rest_motors=identity_motors(2))
 
 
 @pytest.mark.slow  # 8 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 def test_batches_of_handle_motors_under_jit_and_vmap():
     rng = np.random.default_rng(3)
     batch = cga.Multivector(jnp.stack([_motors(rng, 3).values for _ in range(4)]), cga.KINDS["motor"])
-    one_by_one = np.stack([FIELD(cga.Multivector(batch.values[i], batch.blades)) for i in range(4)])
-    np.testing.assert_allclose(jax.jit(FIELD.__call__)(batch), one_by_one, atol=1e-12)  # leading batch axes
-    mapped = jax.vmap(lambda values: FIELD(cga.Multivector(values, batch.blades)))(batch.values)
+    one_by_one = np.stack([motor_field_solve(FIELD, cga.Multivector(batch.values[i], batch.blades)) for i in range(4)])
+    np.testing.assert_allclose(jax.jit(motor_field_solve)(FIELD, batch), one_by_one, atol=1e-12)  # leading batch axes
+    mapped = jax.vmap(lambda values: motor_field_solve(FIELD, cga.Multivector(values, batch.blades)))(batch.values)
     np.testing.assert_allclose(mapped, one_by_one, atol=1e-12)
 
 
@@ -86,7 +82,7 @@ def test_gradient_with_respect_to_handle_generators_matches_finite_differences()
     params0 = jnp.asarray(rng.uniform(-0.3, 0.3, 18))
 
     def loss(params):
-        return jnp.sum((FIELD(generators_to_motors(params.reshape(3, 6))) - target) ** 2)
+        return jnp.sum((motor_field_solve(FIELD, generators_to_motors(params.reshape(3, 6))) - target) ** 2)
 
     check_gradient(jax.jit(loss), params0)
 
@@ -104,11 +100,11 @@ def test_fit_recovers_known_key_motors(method, solver):
     elif method == "handles":
         field, free = FIELD, [1, 2]
     else:
-        field, free = ffd_motor_field(bounding_lattice(V, (2, 2, 2), padding=0.05), V), None
+        field, free = ffd_precompute(V, bounding_lattice(V, (2, 2, 2), padding=0.05)), None
     keys = np.arange(field.num_keys) if free is None else np.asarray(free)
     truth = np.zeros((field.num_keys, 6))
     truth[keys] = np.concatenate([rng.uniform(-0.4, 0.4, (len(keys), 3)), rng.uniform(-0.1, 0.1, (len(keys), 3))], 1)
-    targets = jax.jit(field.__call__)(generators_to_motors(jnp.asarray(truth)))
+    targets = jax.jit(motor_field_solve)(field, generators_to_motors(jnp.asarray(truth)))
     fit = fit_key_motors(field, targets, free=free, solver=solver)
     diagonal = np.linalg.norm(V.max(axis=0) - V.min(axis=0))
     assert bool(fit.converged) and float(fit.max_error) < 1e-6 * diagonal
@@ -123,7 +119,7 @@ def test_fit_by_gradient_based_minimisation():
     rng = np.random.default_rng(7)
     truth = np.zeros((3, 6))
     truth[1:] = np.concatenate([rng.uniform(-0.3, 0.3, (2, 3)), rng.uniform(-0.05, 0.05, (2, 3))], axis=1)
-    targets = FIELD(generators_to_motors(jnp.asarray(truth)))
+    targets = motor_field_solve(FIELD, generators_to_motors(jnp.asarray(truth)))
     fit = fit_key_motors(FIELD, targets, free=[1, 2], solver="bfgs", max_steps=400)
     diagonal = np.linalg.norm(V.max(axis=0) - V.min(axis=0))
     assert float(fit.max_error) < 1e-6 * diagonal
@@ -143,9 +139,9 @@ def test_fit_to_a_handful_of_vertices_with_a_regularizer():
 
 def test_bad_input():
     with pytest.raises(ValueError, match="handles"):
-        harmonic_handles(V, F, [HANDLES[0], HANDLES[0]])
+        handles_precompute(V, F, [HANDLES[0], HANDLES[0]])
     with pytest.raises(ValueError, match="key_motors"):
-        FIELD(identity_motors(2))
+        motor_field_solve(FIELD, identity_motors(2))
     with pytest.raises(ValueError, match="targets"):
         fit_key_motors(FIELD, V[:3], [0, 1])
     with pytest.raises(ValueError, match="free"):
@@ -153,4 +149,6 @@ def test_bad_input():
     with pytest.raises(ValueError, match="field"):
         fit_key_motors("field", V)
     with pytest.raises(ValueError, match="weights"):
-        bind(V, np.ones((len(V) - 1, 3)))
+        motor_field_precompute(V, np.ones((len(V) - 1, 3)))
+    with pytest.raises(ValueError, match="field"):
+        motor_field_solve(FIELD.weights, identity_motors(3))

@@ -52,7 +52,7 @@ def test_cotangent_fields_equal_igl_harmonic(name):
 
 def test_mean_value_fields_sum_to_one_and_keep_the_maximum_principle():
     V, F = np.asarray(ARM.V, np.float64), np.asarray(ARM.F)
-    fields = np.asarray(deform.harmonic_fields(V, F, _arm_handles(V), weights="mean_value"))
+    fields = np.asarray(deform.harmonic_fields(V, F, _arm_handles(V), laplacian="mean_value"))
     np.testing.assert_allclose(fields.sum(axis=1), 1.0, atol=1e-10)
     assert fields.min() >= -1e-12 and fields.max() <= 1.0 + 1e-12
     # harmonic: the rows of free vertices of L annihilate every field
@@ -61,31 +61,35 @@ def test_mean_value_fields_sum_to_one_and_keep_the_maximum_principle():
     assert np.abs(L[free] @ fields).max() < 1e-10
 
 
-@pytest.mark.parametrize("weights", deform.LAPLACIANS)
-def test_both_laplacians_reproduce_linear_functions_on_a_flat_mesh(weights):
+@pytest.mark.parametrize("kind", deform.LAPLACIANS)
+def test_both_laplacians_reproduce_linear_functions_on_a_flat_mesh(kind):
     """Linear precision: on a planar mesh, a linear function is harmonic at interior vertices, so its
     boundary values reproduce it exactly (an independent check of the assembled weights)."""
     V, F = grid(12)
     rng = np.random.default_rng(0)
     interior = (V[:, 0] > 0) & (V[:, 0] < 1) & (V[:, 1] > 0) & (V[:, 1] < 1)
     V[interior, :2] += rng.uniform(-0.03, 0.03, (interior.sum(), 2))  # an irregular, still planar mesh
-    L = deform.laplacian(V, F, weights)
+    L = deform.laplacian(V, F, kind)
     assert np.abs(L[np.flatnonzero(interior)] @ V).max() < 1e-12
     np.testing.assert_allclose(np.asarray(L.sum(axis=1)).ravel(), 0.0, atol=1e-12)
     boundary = np.flatnonzero(~interior)
     linear = 0.3 + 2.0 * V[:, 0] - 1.5 * V[:, 1]
-    solver = deform.harmonic_precompute(V, F, boundary, weights)
-    np.testing.assert_allclose(solver(jnp.asarray(linear[boundary])), linear, atol=1e-12)
+    data = deform.harmonic_precompute(V, F, boundary, laplacian=kind)
+    np.testing.assert_allclose(deform.harmonic_solve(data, jnp.asarray(linear[boundary])), linear, atol=1e-12)
 
 
-@pytest.mark.parametrize("weights", deform.LAPLACIANS)
-def test_the_solve_is_a_differentiable_batched_jax_function(weights):
+@pytest.mark.parametrize("kind", deform.LAPLACIANS)
+def test_the_solve_is_a_differentiable_batched_jax_function(kind):
     V, F = np.asarray(ARM.V, np.float64), np.asarray(ARM.F)
     handles = _arm_handles(V)
     b, bc = _one_hot(handles)
-    solver = deform.harmonic_precompute(V, F, b, weights)
-    np.testing.assert_allclose(jax.jit(solver)(jnp.asarray(bc)), deform.harmonic_fields(V, F, handles, weights),
-                               atol=1e-12)
+    data = deform.harmonic_precompute(V, F, b, laplacian=kind)
+
+    def solver(values):
+        return deform.harmonic_solve(data, values)
+
+    np.testing.assert_allclose(jax.jit(deform.harmonic_solve)(data, jnp.asarray(bc)),
+                               deform.harmonic_fields(V, F, handles, laplacian=kind), atol=1e-12)
     # vmap over boundary values equals one solve per column
     batched = jax.vmap(solver, in_axes=1, out_axes=1)(jnp.asarray(bc))
     np.testing.assert_allclose(batched, solver(jnp.asarray(bc)), atol=1e-12)
@@ -114,8 +118,10 @@ def test_sparse_solver_checks_its_input():
 def test_bad_input():
     V, F = np.asarray(ARM.V, np.float64), np.asarray(ARM.F)
     handles = _arm_handles(V)
-    with pytest.raises(ValueError, match="weights"):
-        deform.harmonic_fields(V, F, handles, weights="uniform")
+    with pytest.raises(ValueError, match="laplacian"):
+        deform.harmonic_fields(V, F, handles, laplacian="uniform")
+    with pytest.raises(ValueError, match="kind"):
+        deform.laplacian(V, F, "uniform")
     with pytest.raises(ValueError, match="disjoint"):
         deform.harmonic_fields(V, F, [handles[0], handles[0][:3]])
     with pytest.raises(ValueError, match="at least one vertex"):
@@ -123,7 +129,7 @@ def test_bad_input():
     with pytest.raises(ValueError, match="lie in"):
         deform.harmonic_precompute(V, F, np.array([0, len(V)]))
     with pytest.raises(ValueError, match="bc: expected shape"):
-        deform.harmonic_precompute(V, F, handles[0])(jnp.ones(3))
+        deform.harmonic_solve(deform.harmonic_precompute(V, F, handles[0]), jnp.ones(3))
     # two disjoint copies of the arm, constrained on one only: the other's fields are undefined
     two = np.concatenate([V, V + 2.0])
     with pytest.raises(ValueError, match="connected part"):

@@ -182,14 +182,15 @@ def test_sharded_batch_equals_unsharded(thousand_frames, tmp_path):
         import jax, jax.numpy as jnp, numpy as np
         jax.config.update("jax_enable_x64", True)
         import deform
+        from _jaxcga_shared.devices import sharded_vmap
         assert len(jax.devices()) == 4, jax.devices()
         model = deform.load_model({str(DATA / "CesiumMan.glb")!r})
         times = jnp.linspace(0.0, 2.0, 1000)
         skin = lambda t: deform.skin_model(model, t, "cga")
-        sharded = deform.sharded_vmap(skin, times)
+        sharded = sharded_vmap(skin, times)
         assert len(sharded.sharding.device_set) == 4
         np.save({str(tmp_path / "sharded.npy")!r}, np.asarray(sharded))
-        odd = deform.sharded_vmap(skin, times[:998])  # padded to a multiple of 4, then cut
+        odd = sharded_vmap(skin, times[:998])  # padded to a multiple of 4, then cut
         np.save({str(tmp_path / "odd.npy")!r}, np.asarray(odd))
         print("sharded ok")
     """)
@@ -215,7 +216,7 @@ def test_fit_recovers_known_random_poses(models, name):
     truth = deform.random_parameters(jax.random.PRNGKey(3), model, rotation=0.3, translation=0.02, log_scale=0.1)
     targets = deform.skin_parameters(model, truth)
     fit = deform.fit_pose(model, targets)
-    diagonal = float(deform.bounding_diagonal(model))
+    diagonal = _diagonal(deform.rest_pose(model, "lbs"))
     assert bool(fit.converged)
     assert float(fit.max_error) <= 1e-6 * diagonal
 
@@ -226,7 +227,7 @@ def test_gradient_descent_fit_recovers_a_known_pose_of_the_default_arm():
     arm = deform.default_arm()
     truth = deform.random_parameters(jax.random.PRNGKey(0), arm, rotation=0.5, translation=0.02, log_scale=0.1)
     fit = deform.fit_pose(arm, deform.skin_parameters(arm, truth), solver="gradient_descent", max_steps=10_000)
-    diagonal = float(deform.bounding_diagonal(arm))
+    diagonal = _diagonal(deform.rest_pose(arm, "lbs"))
     assert bool(fit.converged) and int(fit.steps) < 10_000
     assert float(fit.max_error) <= 1e-6 * diagonal
     np.testing.assert_allclose(fit.params, truth, atol=1e-5)
@@ -240,7 +241,7 @@ def test_fit_to_a_handful_of_vertices_with_regularization(models):
     index = jnp.arange(0, model.mesh.num_vertices, 400)  # 8 vertices
     loose = deform.fit_pose(model, targets[index], index, regularization=1e-6)
     tight = deform.fit_pose(model, targets[index], index, regularization=1e-2)
-    diagonal = float(deform.bounding_diagonal(model))
+    diagonal = _diagonal(deform.rest_pose(model, "lbs"))
     assert float(loose.max_error) <= 1e-3 * diagonal
     # the regularizer pulls toward the rest pose: smaller parameters, larger residual
     assert float(jnp.linalg.norm(tight.params)) < float(jnp.linalg.norm(loose.params))

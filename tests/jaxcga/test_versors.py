@@ -307,7 +307,7 @@ def test_versor_to_matrix_matches_scipy(seed):
     t = rng.normal(size=3) * 5
     M = cga.motor(cga.rotor(axis, angle), t)
     H = _a(_to_matrix(M))
-    np.testing.assert_allclose(_a(cga.motor_to_matrix(M)), H, atol=1e-15)  # the alias, eager
+    np.testing.assert_allclose(_a(cga.versor_to_matrix(M)), H, atol=1e-15)  # eager, as jitted
     assert H.shape == (4, 4)
     np.testing.assert_allclose(H[:3, :3], Rotation.from_rotvec(angle * axis).as_matrix(), atol=1e-14)
     np.testing.assert_allclose(H[:3, 3], t, atol=1e-13)
