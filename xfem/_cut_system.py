@@ -48,8 +48,8 @@ from xfem._integration import (
     shape_function_integrals,
     triangle_moment_terms,
 )
-from xfem._subdomains import _FACES, CutReport, check_cut, solid_mesh
-from xfem._tetmesh import tet_volumes
+from xfem._subdomains import CutReport, check_cut, solid_mesh
+from xfem._tetmesh import TET_FACES, tet_volumes
 from xfem._xfem import XFEMModel, xfem_model
 
 # a replayed piece's volume must equal the Boolean piece's to this fraction of its tet's volume
@@ -455,8 +455,8 @@ def _cut_by_plane(copy: XFEMModel, table: _Table, programs: dict, point, normal,
             elif origin in start:
                 mesh, at = start[origin]
                 faces = [tuple(f) for f in at[mesh.F].tolist()]
-            else:  # the whole tet (a TetMesh's tets are positively oriented: _FACES are outward)
-                faces = [tuple(f) for f in table.corners[T[e]][_FACES].tolist()]
+            else:  # the whole tet (a TetMesh's tets are positively oriented: TET_FACES are outward)
+                faces = [tuple(f) for f in table.corners[T[e]][TET_FACES].tolist()]
             clipped = _clip(table, faces, side, s_table, half)
             if clipped is None:
                 raise ValueError(f"model: piece {sid} of element {e} is not on the side of the slab its point is")

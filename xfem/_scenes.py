@@ -68,7 +68,8 @@ from xfem._background import BackgroundCuts
 from xfem._cuts import cut_solid, plane_cut_solid, sweep_between, swept_surface
 from xfem._integration import linear_shape_coefficients
 from xfem._material import Material
-from xfem._tetmesh import TetMesh, box_tets, element_adjacency, five_tet_cube, one_tet, tet_mesh, tetrahedralize
+from xfem._tetmesh import (TET_FACES, TetMesh, box_tets, element_adjacency, five_tet_cube, one_tet, tet_mesh,
+                           tetrahedralize)
 from xfem._xfem import XFEMModel, xfem_model
 
 SCENES = ("sticks", "thin", "cheese", "accordion", "mouth")
@@ -553,9 +554,8 @@ def piece_surfaces(model: XFEMModel) -> tuple[np.ndarray, np.ndarray, np.ndarray
     cut = np.array([model.sub.element_built(e) for e in range(len(T))], bool)  # pieces have solids
     # uncut elements: their outer faces, rest corners = the tet's nodes, mapped by the piece's DOFs
     uncut = np.flatnonzero(~cut[element])
-    opposite = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]])
     k, a = np.nonzero(neighbour[element[uncut]] < 0)
-    corners = [x[dofs[uncut[k]][np.arange(len(k))[:, None], opposite[a]]]]
+    corners = [x[dofs[uncut[k]][np.arange(len(k))[:, None], TET_FACES[a]]]]
     owner = [label[dofs[uncut[k], 0]]]
     # cut elements: each piece's solid, one pass over its sids in the order piece_arrays lists them
     for e in np.unique(element[cut[element]]).tolist():

@@ -49,7 +49,7 @@ import manifold3d
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from xfem._tetmesh import TetMesh, node_rings
+from xfem._tetmesh import TET_FACES, TetMesh, node_rings
 
 # pieces and volume changes below this fraction of a subdomain's volume are rounding, not material
 _RELATIVE_VOLUME = 1e-12
@@ -61,8 +61,6 @@ _ALIGNED = 1e-2
 # tet-triangle pairs tested at once in the culling, and its contact tolerance relative to the boxes' size
 _PAIRS = 1 << 20
 _SLACK = 1e-12
-# the faces of a tet, outward when it is positively oriented (the opposite of local vertex 0, 1, 2, 3)
-_FACES = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]])
 
 
 def _solid(V: np.ndarray, F: np.ndarray, what: str) -> manifold3d.Manifold:
@@ -338,7 +336,7 @@ class Subdomains:
             owner = np.repeat(np.arange(len(nodes)), counts)
             first = np.cumsum(counts) - counts
             tets = self.ring_elements[np.repeat(self.ring_offsets[nodes] - first, counts) + np.arange(counts.sum())]
-            faces = self.T[tets][:, _FACES].reshape(-1, 3)  # by ring, by tet, as boundary_faces of each ring
+            faces = self.T[tets][:, TET_FACES].reshape(-1, 3)  # by ring, by tet, as boundary_faces of each ring
             face_owner = np.repeat(owner, 4)
             keys = np.sort(faces, axis=1)
             order = np.lexsort((keys[:, 2], keys[:, 1], keys[:, 0], face_owner))
@@ -365,7 +363,7 @@ class Subdomains:
         if len(elements):
             T = self.T[elements]
             rank = np.argsort(np.argsort(T, axis=1), axis=1)  # each node's place among its tet's sorted nodes
-            V, F = self.X[np.sort(T, axis=1)], rank[:, _FACES]
+            V, F = self.X[np.sort(T, axis=1)], rank[:, TET_FACES]
             for j, e in enumerate(elements.tolist()):
                 self._elements.solids[e] = _solid(V[j], F[j], f"tet {e}")
 
@@ -528,7 +526,7 @@ def _tet_triangle_overlap(P: np.ndarray, Q: np.ndarray, slack: float) -> np.ndar
     convex polytopes). Conservative: gaps below slack times the axis length count as contact."""
     tet_edges = P[:, [1, 2, 3, 2, 3, 3]] - P[:, [0, 0, 0, 1, 1, 2]]
     tri_edges = Q[:, [1, 2, 0]] - Q
-    faces = P[:, _FACES]
+    faces = P[:, TET_FACES]
     axes = np.concatenate([
         np.cross(faces[:, :, 1] - faces[:, :, 0], faces[:, :, 2] - faces[:, :, 0]),
         np.cross(tri_edges[:, :1], tri_edges[:, 1:2]),

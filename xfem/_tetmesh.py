@@ -35,7 +35,7 @@ _DEGENERATE = 1e-12
 
 # the face opposite local vertex a, ordered so that its normal (right-hand rule) points out of a
 # positively oriented tet
-_OPPOSITE = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]])
+TET_FACES = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]])
 
 
 class TetMesh(eqx.Module):
@@ -337,7 +337,7 @@ def _face_matching(T):
     """The outward faces (m, 4, 3) of the tets (face a opposite local vertex a), the index of each face's
     vertex set among the distinct ones (4m,) and the number of tets using each distinct face."""
     T = _host_tets(T)
-    faces = T[:, _OPPOSITE]
+    faces = T[:, TET_FACES]
     keys = np.sort(faces.reshape(-1, 3), axis=1)
     n = int(T.max()) + 1 if T.size else 0
     if n < 2**21:  # one int64 per face: a 1-D unique is ~10x faster than unique(axis=0)
