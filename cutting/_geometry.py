@@ -7,6 +7,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
+from jaxtyping import ArrayLike, Int
 
 from deform._model import SkinnedMesh
 
@@ -22,14 +23,19 @@ class MeshEdges(NamedTuple):
         edge_counts: (e,) int faces on each edge (2 inside a manifold, 1 on its boundary).
     """
 
-    edges: np.ndarray
-    face_edges: np.ndarray
-    edge_faces: np.ndarray
-    edge_counts: np.ndarray
+    edges: Int[np.ndarray, "e 2"]
+    face_edges: Int[np.ndarray, "m 3"]
+    edge_faces: Int[np.ndarray, "e 2"]
+    edge_counts: Int[np.ndarray, " e"]
 
 
-def mesh_edges(F) -> MeshEdges:
-    """Unique edges of the faces F (m, 3) and each face's edge ids."""
+def mesh_edges(F: Int[ArrayLike, "m 3"]) -> MeshEdges:
+    """The reusable adjacency of a triangle mesh: its unique edges and each face's edge ids.
+
+    Args:
+        F: (m, 3) int faces.
+    Returns:
+        The ``MeshEdges`` (pass it as ``edges=`` to the cut, tear and drill of meshes with these faces)."""
     F = np.asarray(F)
     if F.ndim != 2 or F.shape[1] != 3:
         raise ValueError(f"F: expected shape (m, 3), got {F.shape}")
@@ -71,13 +77,6 @@ def check_mesh_arrays(V, F) -> tuple[np.ndarray, np.ndarray]:
     if F.size and (F.min() < 0 or F.max() >= len(V)):
         raise ValueError(f"F: vertex indices must lie in [0, {len(V)})")
     return V, F
-
-
-def check_point(name: str, value) -> np.ndarray:
-    point = np.asarray(value, np.float64)
-    if point.shape != (3,) or not np.all(np.isfinite(point)):
-        raise ValueError(f"{name}: expected 3 finite coordinates, got {value!r}")
-    return point
 
 
 def posed_vertices(mesh: SkinnedMesh, joint_matrices) -> tuple[np.ndarray, np.ndarray | None]:
