@@ -278,8 +278,8 @@ def drill_topology(V: Float[ArrayLike, "n 3"], F: Int[ArrayLike, "m 3"], drill: 
         raise ValueError(f"edges: computed for another mesh (face_edges {edges.face_edges.shape}, F {F.shape})")
     reach = float(_axis_distance(V, tip, base).max())
     if reach <= radius:
-        raise ValueError(f"drill.radius: {radius:.4g} exceeds the model's size: every vertex lies within {reach:.4g} of "
-                         "the drill's axis; give a smaller radius")
+        raise ValueError(f"drill.radius: {radius:.4g} exceeds the model's size: every vertex lies within "
+                         f"{reach:.4g} of the drill's axis; give a smaller radius")
     margin = tolerance * bounding_diagonal(V)
     smallest = smallest_doubled_area(V, F)  # the input's: refinement only adds smaller faces
     all_parents, refinements = [], 0

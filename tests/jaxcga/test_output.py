@@ -138,7 +138,7 @@ def disk_full(tmp_path_factory):
     folder = tmp_path_factory.mktemp("disk_full")
     arm = deform.default_arm()
     plane = [1.0, 0.0, 0.0, 0.45]
-    halves = cutting.cut(arm.mesh, np.asarray(plane))
+    halves = cutting.cut(arm.mesh, cutting.Plane(plane[:3], plane[3]))
     sizes = [len(next(iter(model_files(deform.RiggedModel(h, arm.skeleton, arm.clips), folder / "x.glb").values())))
              for h in halves]
     assert sizes[0] < 0.9 * sizes[1]  # the positive half fits under the limit, the negative one does not
