@@ -183,7 +183,20 @@ def _crossed(axis: _Axis, V, pairs, radius, margin):
     return _cylinder_roots(ends[:, 0], ends[:, 1], radius, np.sqrt(np.einsum("ij,ij->i", spans, spans)), margin)
 
 
-def _drill_once(V, F, edges: MeshEdges, tip, base, radius, margin):
+class _Pass(NamedTuple):
+    """One drilling pass: the affected faces (m,) bool, the crossings (edge ids, alpha, root sign), the
+    drill's axis, the number of holes and the fewest boundary points of a hole."""
+
+    affected: np.ndarray
+    index: np.ndarray
+    alpha: np.ndarray
+    sign: np.ndarray
+    axis: _Axis
+    holes: int
+    fewest: int
+
+
+def _drill_once(V, F, edges: MeshEdges, tip, base, radius, margin) -> _Pass:
     """One drilling pass (Algorithm 3, steps 1-3): the seeds pierced by the axis, the breadth-first
     search over the faces around them, and the crossings on the edges of the affected faces."""
     direction = (tip - base) / np.linalg.norm(tip - base)
@@ -245,8 +258,7 @@ def _drill_once(V, F, edges: MeshEdges, tip, base, radius, margin):
     first = edges.edge_faces[index, 0]
     face_of_edge = np.where(affected[first], first, edges.edge_faces[index, 1])
     counts = np.bincount(labels[local[face_of_edge]], minlength=holes)
-    return dict(affected=affected, index=index, alpha=alpha, sign=sign, axis=axis, holes=holes,
-                fewest=int(counts.min()))
+    return _Pass(affected, index, alpha, sign, axis, holes, int(counts.min()))
 
 
 def drill_topology(V: Float[ArrayLike, "n 3"], F: Int[ArrayLike, "m 3"], drill: Drill, *, min_points: int = 6,
@@ -285,20 +297,20 @@ def drill_topology(V: Float[ArrayLike, "n 3"], F: Int[ArrayLike, "m 3"], drill: 
     all_parents, refinements = [], 0
     while True:
         state = _drill_once(V, F, edges, tip, base, radius, margin)
-        if state["fewest"] >= min_points or refinements == max_refinements:
+        if state.fewest >= min_points or refinements == max_refinements:
             break
-        V, F, parents = _refine(V, F, edges, state["affected"])
+        V, F, parents = _refine(V, F, edges, state.affected)
         all_parents.append(parents)
         edges = mesh_edges(F)
         refinements += 1
-    if state["fewest"] == 0 and _axis_distance(V[F[state["affected"]]], tip, base).max() <= radius:
+    if state.fewest == 0 and _axis_distance(V[F[state.affected]], tip, base).max() <= radius:
         # every face around a hole lies inside the drill: no edge crosses its surface
         raise ValueError(f"drill.radius: {radius:.4g} is wider than the part of the model the drill meets (its faces "
                          "all lie inside the drill); give a smaller radius")
-    if state["fewest"] < 3:
-        raise ValueError(f"drill.radius: a hole has {state['fewest']} boundary points after {refinements} refinements "
+    if state.fewest < 3:
+        raise ValueError(f"drill.radius: a hole has {state.fewest} boundary points after {refinements} refinements "
                          "(the drill is too thin for the faces it meets; raise max_refinements or the radius)")
-    index, alpha, sign = state["index"], state["alpha"], state["sign"]
+    index, alpha, sign = state.index, state.alpha, state.sign
     # Each pass drops at least one new point (it snaps to the vertex or point next to it), so this ends.
     for _ in range(len(index) + 1):
         crossing = edges.edges[index]
@@ -314,7 +326,7 @@ def drill_topology(V: Float[ArrayLike, "n 3"], F: Int[ArrayLike, "m 3"], drill: 
     kept = np.flatnonzero(used)
     local = np.cumsum(used) - 1
     parents = np.concatenate(all_parents) if all_parents else np.zeros((0, 2), np.int64)
-    return DrillTopology(parents, refinements, V, crossing, alpha, sign, points, local[faces], kept, state["holes"])
+    return DrillTopology(parents, refinements, V, crossing, alpha, sign, points, local[faces], kept, state.holes)
 
 
 def _axis_distance(X, tip, base) -> np.ndarray:
@@ -323,17 +335,17 @@ def _axis_distance(X, tip, base) -> np.ndarray:
     return np.linalg.norm(offsets - (offsets @ direction)[..., None] * direction, axis=-1)
 
 
-def _retriangulate(V, F, edges: MeshEdges, state, index, alpha, points, crossing, radius, smallest):
+def _retriangulate(V, F, edges: MeshEdges, state: _Pass, index, alpha, points, crossing, radius, smallest):
     """Faces of the drilled mesh (Algorithm 3, step 5) in the extended numbering, and the new points
     to drop: in each face whose pieces are slivers (``poor_pieces``), the new point (or the two on one
     edge) closest to its neighbour on the face's boundary, relative to that edge's length; without it
     the hole's boundary passes through the neighbour. Per affected face in plain Python: the faces
     near a hole are few, and small arrays cost more than they save."""
-    affected = np.flatnonzero(state["affected"])
+    affected = np.flatnonzero(state.affected)
     n = len(V)
     corners = F[affected]
     # radial vectors P(x) - B of the corners and the new points (the projection is affine)
-    axis = state["axis"]
+    axis = state.axis
     radial = dict(zip(corners.ravel().tolist(), axis.radial(V, corners.ravel()).tolist()))
     point_radial = (alpha[:, None] * axis.radial(V, crossing[:, 0])
                     + (1.0 - alpha[:, None]) * axis.radial(V, crossing[:, 1]))
@@ -392,7 +404,7 @@ def _retriangulate(V, F, edges: MeshEdges, state, index, alpha, points, crossing
         if steps:
             _, i = min(steps)
             drop += [v - n for v in (cycle[i], cycle[(i + 1) % m]) if v >= n]
-    return np.concatenate([F[~state["affected"]], pieces]), np.unique(np.asarray(drop, np.int64))
+    return np.concatenate([F[~state.affected], pieces]), np.unique(np.asarray(drop, np.int64))
 
 
 def _midpoint_levels(parents: Int[np.ndarray, "r 2"], n: int) -> list[Int[np.ndarray, "l 2"]]:

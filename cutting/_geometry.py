@@ -109,9 +109,9 @@ def rest_positions(J_new, W_new, targets, joint_matrices):
 def skinned_mesh_like(mesh: SkinnedMesh, V, F, J, W) -> SkinnedMesh:
     """A SkinnedMesh with ``mesh``'s joints, inverse binds and dtypes. Numpy arrays (host data,
     traced like JAX arrays by jit): no per-array device transfer on the interactive path."""
-    return SkinnedMesh(np.asarray(V).astype(mesh.V.dtype), np.asarray(F).astype(mesh.F.dtype),
-                       np.asarray(J).astype(mesh.J.dtype), np.asarray(W).astype(mesh.W.dtype),
-                       mesh.inverse_bind, mesh.joints)
+    V, F, J, W = (np.asarray(x).astype(like.dtype) for x, like in ((V, mesh.V), (F, mesh.F), (J, mesh.J), (W, mesh.W)))
+    # numpy on purpose (see above), where SkinnedMesh's fields are annotated as JAX arrays
+    return SkinnedMesh(V, F, J, W, mesh.inverse_bind, mesh.joints)  # pyright: ignore[reportArgumentType]
 
 
 def cross_rows(a, b):

@@ -12,10 +12,12 @@ Both return the same numbers up to rounding; the benchmark times them side by si
 
 from __future__ import annotations
 
+from typing import cast
+
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import ArrayLike, Float
+from jaxtyping import Array, ArrayLike, Float
 
 import jaxcga as cga
 
@@ -30,16 +32,22 @@ def check_predicates(predicates: str) -> None:
 
 @jax.jit
 def _ga_side(V, plane_values):
-    plane = cga.Multivector(plane_values, cga.plane(jnp.ones(3), 0.0).blades)
+    plane = cga.Multivector(plane_values, cga.plane(jnp.ones(3), jnp.zeros(())).blades)
     return cga.plane_signed_distance(plane, cga.up(V))
 
 
 @jax.jit
 def _ga_edge_points(A, B, plane_values):
-    plane = cga.Multivector(plane_values, cga.plane(jnp.ones(3), 0.0).blades)
+    plane = cga.Multivector(plane_values, cga.plane(jnp.ones(3), jnp.zeros(())).blades)
     flat = cga.meet(cga.line(cga.up(A), cga.up(B)), cga.undual(plane))
     # A flat point is lambda (x ^ einf + eo ^ einf): divide out lambda.
-    return jnp.stack([flat[f"e{i}inf"] for i in (1, 2, 3)], axis=-1) / flat["eoinf"][..., None]
+    x = jnp.stack([_coefficient(flat, f"e{i}inf") for i in (1, 2, 3)], axis=-1)
+    return x / _coefficient(flat, "eoinf")[..., None]
+
+
+def _coefficient(m: cga.Multivector, blade: str) -> Array:
+    # a blade name selects its coefficient array (Multivector.__getitem__ is not annotated)
+    return cast(Array, m[blade])
 
 
 def signed_distances(V: Float[ArrayLike, "n 3"], n: Float[np.ndarray, "3"], d: float,

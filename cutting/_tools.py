@@ -79,7 +79,7 @@ def check_plane(plane: Plane) -> tuple[np.ndarray, float]:
         raise ValueError(f"plane: expected a (3,) normal and a scalar distance, got shapes {n.shape}, {d.shape}")
     if not np.all(np.isfinite(n)) or not np.isfinite(d):
         raise ValueError("plane: normal and distance must be finite")
-    length = np.linalg.norm(n)
+    length = float(np.linalg.norm(n))
     if length == 0:
         raise ValueError("plane: zero-length normal")
     return n / length, float(d) / length
