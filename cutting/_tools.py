@@ -1,18 +1,31 @@
 """The tools of cut, tear and drill as explicit values: ``Plane`` (Algorithm 1), ``Scalpel``
 (Algorithm 2) and ``Drill`` (Algorithm 3).
 
-Each is an ``eqx.Module`` (a pytree): the host topology functions read it as float64 numpy, and the
+Each is an ``eqx.Module`` (a pytree) of arrays: JAX arrays (tracers included) are kept as given, anything
+else becomes float64 numpy. The host topology functions read the tool as float64 numpy, and the
 ``*_positions`` functions take it as JAX arrays, so ``jax.grad`` with respect to a tool returns a tool of
 the same kind holding the gradients.
 """
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import equinox as eqx
+import jax
 import numpy as np
-from jaxtyping import ArrayLike, Float
+from jaxtyping import Array, ArrayLike, Float
 
 import jaxcga as cga
+
+# What a tool's fields are given as: arrays (numpy or JAX, traced under jax.grad) or nested lists of numbers.
+Given = ArrayLike | Sequence[float] | Sequence[Sequence[float]]
+
+
+def _array(value: Given) -> Array | np.ndarray:
+    # JAX arrays stay (tracers, device arrays: differentiable, no transfer); the rest is float64 on the host,
+    # so that a topology computed without x64 keeps full precision
+    return value if isinstance(value, jax.Array) else np.asarray(value, np.float64)
 
 
 class Plane(eqx.Module):
@@ -24,13 +37,14 @@ class Plane(eqx.Module):
         distance: () the offset d.
     """
 
-    normal: Float[ArrayLike, "3"]
-    distance: Float[ArrayLike, ""]
+    normal: Float[Array | np.ndarray, "3"] = eqx.field(converter=_array)
+    distance: Float[Array | np.ndarray, ""] = eqx.field(converter=_array)
 
     @classmethod
-    def through(cls, point: Float[ArrayLike, "3"], normal: Float[ArrayLike, "3"]) -> Plane:
+    def through(cls, point: Given, normal: Given) -> Plane:
         """The plane through ``point`` (3,) with ``normal`` (3,) (JAX arrays stay differentiable)."""
-        return cls(normal, sum(normal[k] * point[k] for k in range(3)))  # type: ignore[index]
+        point, normal = _array(point), _array(normal)
+        return cls(normal, sum(normal[k] * point[k] for k in range(3)))
 
     @classmethod
     def from_multivector(cls, plane: cga.Multivector) -> Plane:
@@ -49,8 +63,8 @@ class Scalpel(eqx.Module):
         tip: (k+1, 3) the other end.
     """
 
-    handle: Float[ArrayLike, "s 3"]
-    tip: Float[ArrayLike, "s 3"]
+    handle: Float[Array | np.ndarray, "s 3"] = eqx.field(converter=_array)
+    tip: Float[Array | np.ndarray, "s 3"] = eqx.field(converter=_array)
 
 
 class Drill(eqx.Module):
@@ -63,9 +77,9 @@ class Drill(eqx.Module):
         radius: () the radius r > 0.
     """
 
-    tip: Float[ArrayLike, "3"]
-    base: Float[ArrayLike, "3"]
-    radius: Float[ArrayLike, ""]
+    tip: Float[Array | np.ndarray, "3"] = eqx.field(converter=_array)
+    base: Float[Array | np.ndarray, "3"] = eqx.field(converter=_array)
+    radius: Float[Array | np.ndarray, ""] = eqx.field(converter=_array)
 
 
 def check_plane(plane: Plane) -> tuple[np.ndarray, float]:
@@ -109,11 +123,11 @@ def check_drill(drill: Drill) -> tuple[np.ndarray, np.ndarray, float]:
     for name, value in (("tip", drill.tip), ("base", drill.base)):
         point = np.asarray(value, np.float64)
         if point.shape != (3,) or not np.all(np.isfinite(point)):
-            raise ValueError(f"drill.{name}: expected 3 finite coordinates, got {value!r}")
+            raise ValueError(f"drill.{name}: expected 3 finite coordinates, got {point.tolist()}")
         ends.append(point)
     radius = np.asarray(drill.radius, np.float64)
     if radius.shape != () or not (np.isfinite(radius) and radius > 0):
-        raise ValueError(f"drill.radius: expected a positive finite number, got {drill.radius!r}")
+        raise ValueError(f"drill.radius: expected a positive finite number, got {radius.tolist()}")
     if np.linalg.norm(ends[0] - ends[1]) == 0:
         raise ValueError("drill.tip, drill.base: the drill's endpoints coincide (no axis)")
     return ends[0], ends[1], float(radius)

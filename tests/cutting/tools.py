@@ -253,9 +253,9 @@ def fuzz(mesh, tool: str, count: int, seed: int):
                 off = np.abs(topology.points @ plane.normal - plane.distance)
                 snapped = np.abs(V @ plane.normal - plane.distance)[topology.distances == 0]
             elif tool == "drill":
-                tool = random_drill(V, F, rng)
-                tip, base, radius = tool.tip, tool.base, tool.radius
-                drilled, topology = cutting.drill(mesh, tool, edges=edges, return_topology=True)
+                drill = random_drill(V, F, rng)
+                tip, base, radius = drill.tip, drill.base, drill.radius
+                drilled, topology = cutting.drill(mesh, drill, edges=edges, return_topology=True)
                 outputs = [(drilled, topology.kept)]
                 axis = (tip - base) / np.linalg.norm(tip - base)
                 relative = topology.points - base
