@@ -226,7 +226,7 @@ def test_tear_positions_follow_a_perturbed_plane():
     assert path.shift[0] != 0
     np.testing.assert_allclose(path.planes[0, 3], path.planes[0, :3] @ path.sample_points[0] + path.shift[0],
                                atol=1e-12)
-    _, left, right = cutting.tear_positions(V, path, scalpel_of(segments))
+    _, left, _ = cutting.tear_positions(V, path, scalpel_of(segments))
     np.testing.assert_allclose(left, path.points, atol=1e-9)
     # the mirrored scalpel reverses the path's direction, and so the orientation of its plane
     flipped = cutting.tear_topology(V, F, scalpel_of(segments[::-1]))
