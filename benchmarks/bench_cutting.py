@@ -49,14 +49,14 @@ def median_ms(fn, repeats: int) -> float:
     return 1e3 * statistics.median(times)
 
 
-def plane_through_middle(V) -> np.ndarray:
+def plane_through_middle(V) -> cutting.Plane:
     """A plane across the mesh's longest extent, through its middle, slightly tilted."""
     V = np.asarray(V)
     axis = np.argmax(V.max(axis=0) - V.min(axis=0))
     n = np.full(3, 0.1)
     n[axis] = 1.0
     n /= np.linalg.norm(n)
-    return np.append(n, float(np.median(V @ n)))
+    return cutting.Plane(n, float(np.median(V @ n)))
 
 
 def surface_point(V, F, near):
@@ -67,15 +67,15 @@ def surface_point(V, F, near):
     return closest[0], normal / np.linalg.norm(normal)
 
 
-def tools(V, F):
-    """(scalpels (2, 2, 3), (tip, base)): a scalpel crossing the skin near the middle of the mesh,
-    moved 6 units along the arm, and a drill entering the skin there."""
+def tools(V, F) -> tuple[cutting.Scalpel, cutting.Drill]:
+    """A scalpel (2 samples) crossing the skin near the middle of the mesh, moved 6 units along the arm,
+    and a drill of radius 1.5 entering the skin there."""
     middle = 0.5 * (V.min(axis=0) + V.max(axis=0))
     start, normal = surface_point(V, F, middle + np.array([0.0, 0.0, 20.0]))
     end, normal_end = surface_point(V, F, start + np.array([0.0, 6.0, 0.0]))
-    scalpels = np.array([[start + 2.0 * normal, start - 2.0 * normal],
-                         [end + 2.0 * normal_end, end - 2.0 * normal_end]])
-    return scalpels, (start - 3.0 * normal, start + 3.0 * normal)
+    scalpel = cutting.Scalpel(np.array([start + 2.0 * normal, end + 2.0 * normal_end]),
+                              np.array([start - 2.0 * normal, end - 2.0 * normal_end]))
+    return scalpel, cutting.Drill(start - 3.0 * normal, start + 3.0 * normal, 1.5)
 
 
 def refined_arm5(min_faces: int) -> deform.SkinnedMesh:
@@ -113,16 +113,15 @@ def run(repeats: int, faces_100k: int):
         welded = deform.SkinnedMesh(np.asarray(welded.V), np.asarray(welded.F), np.asarray(welded.J),
                                     np.asarray(welded.W), welded.inverse_bind, welded.joints)
         welded_edges = cutting.mesh_edges(welded.F)
-        scalpels, (tip, base) = tools(np.asarray(welded.V, np.float64), np.asarray(welded.F))
+        scalpel, drill = tools(np.asarray(welded.V, np.float64), np.asarray(welded.F))
         for predicates in cutting.PREDICATES:
             suffix = "" if predicates == "euclidean" else "_ga"
             figures[f"{tag}_tear{suffix}_ms"] = median_ms(
-                lambda: cutting.tear(welded, scalpels, opening=0.2, edges=welded_edges, predicates=predicates),
+                lambda: cutting.tear(welded, scalpel, opening=0.2, edges=welded_edges, predicates=predicates),
                 repeats)
-        figures[f"{tag}_drill_ms"] = median_ms(lambda: cutting.drill(welded, tip, base, 1.5, edges=welded_edges),
-                                               repeats)
-        _, path = cutting.tear(welded, scalpels, opening=0.2, edges=welded_edges, return_path=True)
-        _, hole = cutting.drill(welded, tip, base, 1.5, edges=welded_edges, return_topology=True)
+        figures[f"{tag}_drill_ms"] = median_ms(lambda: cutting.drill(welded, drill, edges=welded_edges), repeats)
+        _, path = cutting.tear(welded, scalpel, opening=0.2, edges=welded_edges, return_topology=True)
+        _, hole = cutting.drill(welded, drill, edges=welded_edges, return_topology=True)
         print(f"  tear, Euclidean predicates {figures[f'{tag}_tear_ms']:7.2f} ms  ({len(path.t)} tear points)")
         print(f"  tear, GA predicates       {figures[f'{tag}_tear_ga_ms']:8.2f} ms")
         print(f"  drill                     {figures[f'{tag}_drill_ms']:8.2f} ms  ({len(hole.points)} hole points, "

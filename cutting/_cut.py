@@ -20,21 +20,23 @@ Vertices on the plane and new vertices belong to both halves (each half has its 
 original vertices keep their rest positions, joints and weights, so skinning a half at any pose gives,
 at every original vertex, exactly what skinning the input gives.
 
-For a fixed topology the positions of new vertices are a JAX function of the plane and the vertices
-(``cut_positions``), so they can be differentiated with respect to the tool.
+For a fixed topology (``CutTopology``) the positions of new vertices are a JAX function of the vertices
+and the ``Plane`` (``cut_positions``), so they can be differentiated with respect to the tool.
 """
 
 from __future__ import annotations
 
 import itertools
-from typing import NamedTuple
+from typing import Literal, NamedTuple, overload
 
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, ArrayLike, Float, Int
 
 from cutting._geometry import (MeshEdges, check_mesh_arrays, mesh_edges, poor_pieces, posed_vertices,
                                rest_positions, skinned_mesh_like, smallest_doubled_area)
-from cutting._predicates import check_plane, check_predicates, edge_points, signed_distances
+from cutting._predicates import check_predicates, edge_points, signed_distances
+from cutting._tools import Plane, check_plane
 from cutting._weights import blend_weights
 from deform._model import SkinnedMesh
 from _jaxcga_shared.mesh import bounding_diagonal
@@ -76,9 +78,9 @@ def _split_tables(diagonal: int):
 _TABLES = (_split_tables(0), _split_tables(1))
 
 
-class PlaneCut(NamedTuple):
-    """The topology of a planar cut, in an extended vertex numbering: the n input vertices, then one
-    new vertex per crossing edge.
+class CutTopology(NamedTuple):
+    """The topology of a planar cut (``cut_topology``), in an extended vertex numbering: the n input
+    vertices, then one new vertex per crossing edge.
 
     Attributes:
         crossing: (p, 2) int the edges (i, j) that carry the new vertices n .. n + p - 1.
@@ -90,14 +92,14 @@ class PlaneCut(NamedTuple):
         distances: (n,) signed distances of the input vertices after snapping (0: on the plane).
     """
 
-    crossing: np.ndarray
-    t: np.ndarray
-    points: np.ndarray
-    positive: np.ndarray
-    positive_faces: np.ndarray
-    negative: np.ndarray
-    negative_faces: np.ndarray
-    distances: np.ndarray
+    crossing: Int[np.ndarray, "p 2"]
+    t: Float[np.ndarray, " p"]
+    points: Float[np.ndarray, "p 3"]
+    positive: Int[np.ndarray, " a"]
+    positive_faces: Int[np.ndarray, "fa 3"]
+    negative: Int[np.ndarray, " b"]
+    negative_faces: Int[np.ndarray, "fb 3"]
+    distances: Float[np.ndarray, " n"]
 
 
 def _is_closed(edges: MeshEdges) -> bool:
@@ -157,14 +159,15 @@ def _split(V, F, edges: MeshEdges, s, sign, n, d, predicates, smallest):
     return crossing, t, points, pieces, diagonal, np.unique(snap)
 
 
-def plane_cut(V, F, plane, *, predicates: str = "euclidean", tolerance: float = 1e-6, cap: bool = False,
-              edges: MeshEdges | None = None) -> PlaneCut:
+def cut_topology(V: Float[ArrayLike, "n 3"], F: Int[ArrayLike, "m 3"], plane: Plane, *, predicates: str = "euclidean",
+                 tolerance: float = 1e-6, cap: bool = False, edges: MeshEdges | None = None) -> CutTopology:
     """Topology and new vertices of cutting the triangle mesh (V, F) by a plane (Algorithm 1).
 
     Args:
         V: (n, 3) vertex positions (the mesh as it is cut: rest pose or posed).
         F: (m, 3) int faces.
-        plane: ``(nx, ny, nz, d)`` or a jaxcga plane vector ``n + d einf`` (eq. 5).
+        plane: the ``Plane`` (``Plane(normal, distance)``, ``Plane.through(point, normal)`` or
+            ``Plane.from_multivector`` of a jaxcga plane vector, eq. 5).
         predicates: ``"euclidean"`` or ``"ga"`` (Table 1).
         tolerance: vertices closer to the plane than ``tolerance`` times the bounding-box diagonal
             count as on it; so does a vertex next to which a crossing would leave a sliver piece.
@@ -224,7 +227,7 @@ def plane_cut(V, F, plane, *, predicates: str = "euclidean", tolerance: float = 
         used[faces] = True
         local = np.cumsum(used) - 1
         halves += [np.flatnonzero(used), local[faces]]
-    return PlaneCut(crossing, t, points, halves[0], halves[1], halves[2], halves[3], s)
+    return CutTopology(crossing, t, points, halves[0], halves[1], halves[2], halves[3], s)
 
 
 def _cap(extended, positive_faces, n):
@@ -268,24 +271,44 @@ def _cap(extended, positive_faces, n):
     return faces
 
 
-def cut_positions(V, crossing, plane_normal, plane_distance):
-    """Positions (p, 3) of the new vertices of a cut as a JAX function of the vertices and the plane,
-    for a fixed topology (``PlaneCut.crossing``): differentiable with respect to the tool.
+def cut_positions(V: Float[ArrayLike, "n 3"], topology: CutTopology, plane: Plane) -> Float[Array, "p 3"]:
+    """Positions of the new vertices of a cut as a JAX function of the vertices and the plane, for a
+    fixed topology: differentiable with respect to both (``jax.grad`` over a ``Plane`` gives a ``Plane``).
 
     Args:
-        V: (n, 3) vertex positions.
-        crossing: (p, 2) int crossing edges of the cut.
-        plane_normal: (3,) normal (need not be unit length: the intersection does not depend on it).
-        plane_distance: scalar d (with a non-unit normal, the plane is ``normal . x = d``)."""
+        V: (n, 3) vertex positions, as cut (posed, when cut with ``joint_matrices``).
+        topology: the cut's ``CutTopology`` (its ``crossing`` edges are used).
+        plane: the ``Plane``; its normal need not be unit length (the intersection does not depend on it).
+    Returns:
+        (p, 3) the new vertices, in the order of ``topology.crossing``."""
     V = jnp.asarray(V)
+    if V.shape != (len(topology.distances), 3):
+        raise ValueError(f"V: expected the {len(topology.distances)} vertices that were cut, shape "
+                         f"({len(topology.distances)}, 3), got {V.shape}")
+    crossing = topology.crossing
+    normal, distance = jnp.asarray(plane.normal), jnp.asarray(plane.distance)
     A, B = V[crossing[:, 0]], V[crossing[:, 1]]
-    sA, sB = A @ plane_normal - plane_distance, B @ plane_normal - plane_distance
+    sA, sB = A @ normal - distance, B @ normal - distance
     t = sA / (sA - sB)
     return A + t[:, None] * (B - A)
 
 
-def cut(mesh: SkinnedMesh, plane, *, cap: bool = False, predicates: str = "euclidean", side_weight: float = 0.0,
-        tolerance: float = 1e-6, joint_matrices=None, edges: MeshEdges | None = None):
+@overload
+def cut(mesh: SkinnedMesh, plane: Plane, *, cap: bool = ..., predicates: str = ..., side_weight: float = ...,
+        tolerance: float = ..., joint_matrices: Float[ArrayLike, "j 4 4"] | None = ..., edges: MeshEdges | None = ...,
+        return_topology: Literal[False] = ...) -> tuple[SkinnedMesh, SkinnedMesh]: ...
+
+
+@overload
+def cut(mesh: SkinnedMesh, plane: Plane, *, cap: bool = ..., predicates: str = ..., side_weight: float = ...,
+        tolerance: float = ..., joint_matrices: Float[ArrayLike, "j 4 4"] | None = ..., edges: MeshEdges | None = ...,
+        return_topology: Literal[True]) -> tuple[tuple[SkinnedMesh, SkinnedMesh], CutTopology]: ...
+
+
+def cut(mesh: SkinnedMesh, plane: Plane, *, cap: bool = False, predicates: str = "euclidean", side_weight: float = 0.0,
+        tolerance: float = 1e-6, joint_matrices: Float[ArrayLike, "j 4 4"] | None = None,
+        edges: MeshEdges | None = None, return_topology: bool = False
+        ) -> tuple[SkinnedMesh, SkinnedMesh] | tuple[tuple[SkinnedMesh, SkinnedMesh], CutTopology]:
     """Cut a skinned mesh by a plane (Algorithm 1): the positive side (``n . x > d``), then the negative.
 
     Both halves are SkinnedMeshes with the input's joints and inverse bind matrices; they animate with
@@ -293,27 +316,29 @@ def cut(mesh: SkinnedMesh, plane, *, cap: bool = False, predicates: str = "eucli
 
     Args:
         mesh: the SkinnedMesh (``deform``).
-        plane: ``(nx, ny, nz, d)`` or a jaxcga plane vector (eq. 5), in the space of the mesh as cut:
-            the bind pose, or the pose given by ``joint_matrices``.
+        plane: the ``Plane``, in the space of the mesh as cut: the bind pose, or the pose given by
+            ``joint_matrices``.
         cap: close both halves (the input must be closed).
         predicates: ``"euclidean"`` or ``"ga"`` (Table 1).
         side_weight: in [0, 1]; 0 gives every new vertex the barycentric weights of its edge
             (sec. 4.3, the same in both halves); towards 1 each half's copy leans to the weights of its
             own side's endpoint (the variant that favours one side), 1 uses that endpoint's alone.
-        tolerance: snapping distance relative to the bounding-box diagonal (see ``plane_cut``).
+        tolerance: snapping distance relative to the bounding-box diagonal (see ``cut_topology``).
         joint_matrices: (j, 4, 4) joint matrices of a pose (``deform.joint_matrices``): cut the mesh
             *in that pose* (after animation), the plane in world space. New vertices get the rest
             positions whose LBS image in that pose is their position on the cut (exact for LBS, and
             for eq. (17) with rigid joints; other methods within their difference from LBS).
         edges: ``mesh_edges(mesh.F)``, precomputed.
+        return_topology: also return the ``CutTopology`` (for ``cut_positions``).
     Returns:
-        (positive, negative) SkinnedMeshes."""
+        (positive, negative) SkinnedMeshes, and ``((positive, negative), topology)`` when
+        ``return_topology``."""
     if not 0.0 <= side_weight <= 1.0:
         raise ValueError(f"side_weight: expected a number in [0, 1], got {side_weight}")
     V, F = np.asarray(mesh.V, np.float64), np.asarray(mesh.F)
     J, W = np.asarray(mesh.J), np.asarray(mesh.W)
     cut_space, joint_matrices = posed_vertices(mesh, joint_matrices)
-    topology = plane_cut(cut_space, F, plane, predicates=predicates, tolerance=tolerance, cap=cap, edges=edges)
+    topology = cut_topology(cut_space, F, plane, predicates=predicates, tolerance=tolerance, cap=cap, edges=edges)
     crossing, t = topology.crossing, topology.t
     coefficients = np.stack([1.0 - t, t], axis=1)
     J_bary, W_bary = blend_weights(J, W, crossing, coefficients)
@@ -336,4 +361,6 @@ def cut(mesh: SkinnedMesh, plane, *, cap: bool = False, predicates: str = "eucli
         ext_J = np.concatenate([J, J_new])
         ext_W = np.concatenate([W, W_new])
         halves.append(skinned_mesh_like(mesh, ext_V[keep], faces, ext_J[keep], ext_W[keep]))
+    if return_topology:
+        return (halves[0], halves[1]), topology
     return halves[0], halves[1]

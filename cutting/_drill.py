@@ -1,8 +1,8 @@
 """Drilling a (skinned) triangle mesh with a cylindrical drill: Algorithm 3 of the cut/tear/drill
 paper (sec. 4.2.3), with the weights of new vertices of sec. 4.3.
 
-The drill is given by its tip A, its base B and its radius r; Pi is the plane through B perpendicular
-to the axis, P the projection onto it.
+The drill (``Drill(tip, base, radius)``) is given by its tip A, its base B and its radius r; Pi is the
+plane through B perpendicular to the axis, P the projection onto it.
 
 1. a vertex is inside the drill when |P(v) - B| < r (on it within ``tolerance``); as in the paper,
    the cylinder is unbounded along its axis (the tip only picks the sheets drilled, step 2), so a
@@ -26,29 +26,30 @@ affected faces are split (midpoints of their edges; neighbours get conforming 2-
 and the mesh is drilled again, at most ``max_refinements`` times (the paper's "split and drill
 again").
 
-For a fixed topology the new points are a JAX function of the vertices and the drill
-(``drill_positions``), so they can be differentiated with respect to the tool.
+For a fixed topology (``DrillTopology``) the new points are a JAX function of the vertices and the
+``Drill`` (``drill_positions``), so they can be differentiated with respect to the tool.
 """
 
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from typing import Literal, NamedTuple, overload
 
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, ArrayLike, Float, Int
 
-from cutting._geometry import (MeshEdges, check_mesh_arrays, check_point, fan_triangles, mesh_edges,
-                               poor_pieces, posed_vertices, rest_positions, segment_hits, skinned_mesh_like,
-                               smallest_doubled_area)
+from cutting._geometry import (MeshEdges, check_mesh_arrays, fan_triangles, mesh_edges, poor_pieces, posed_vertices,
+                               rest_positions, segment_hits, skinned_mesh_like, smallest_doubled_area)
+from cutting._tools import Drill, check_drill
 from cutting._weights import blend_weights
 from deform._model import SkinnedMesh
 from _jaxcga_shared.mesh import bounding_diagonal
 
 
-class Drilling(NamedTuple):
-    """The topology of a drilled hole, in an extended vertex numbering: the vertices of the mesh as
-    drilled (the input's, then ``parents``' midpoints from refinement), then the new points.
+class DrillTopology(NamedTuple):
+    """The topology of a drilled hole (``drill_topology``), in an extended vertex numbering: the vertices
+    of the mesh as drilled (the input's, then ``parents``' midpoints from refinement), then the new points.
 
     Attributes:
         parents: (r, 2) int refinement: vertex n + k is the midpoint of vertices ``parents[k]``.
@@ -64,15 +65,15 @@ class Drilling(NamedTuple):
         holes: number of holes (connected drilled regions).
     """
 
-    parents: np.ndarray
+    parents: Int[np.ndarray, "r 2"]
     refinements: int
-    vertices: np.ndarray
-    crossing: np.ndarray
-    alpha: np.ndarray
-    root: np.ndarray
-    points: np.ndarray
-    faces: np.ndarray
-    kept: np.ndarray
+    vertices: Float[np.ndarray, "nr 3"]
+    crossing: Int[np.ndarray, "p 2"]
+    alpha: Float[np.ndarray, " p"]
+    root: Float[np.ndarray, " p"]
+    points: Float[np.ndarray, "p 3"]
+    faces: Int[np.ndarray, "f 3"]
+    kept: Int[np.ndarray, " k"]
     holes: int
 
 
@@ -116,11 +117,19 @@ def _refine(V, F, edges: MeshEdges, face_mask):
     return np.concatenate([V, 0.5 * (V[parents[:, 0]] + V[parents[:, 1]])]), faces, parents
 
 
-def refine(mesh: SkinnedMesh, faces=None, *, joint_matrices=None) -> SkinnedMesh:
-    """The paper's "split" of sec. 4.2.3 on a skinned mesh: every edge of the given faces (all faces
-    when None) is split at its midpoint, faces on split edges are re-triangulated conformingly (4, 3
-    or 2 triangles); a midpoint gets its edge's blended weights (sec. 4.3). With ``joint_matrices``
-    the split is made in that pose (midpoints of the posed edges, rest positions by inverse LBS)."""
+def refine(mesh: SkinnedMesh, faces: Int[ArrayLike, " f"] | None = None, *,
+           joint_matrices: Float[ArrayLike, "j 4 4"] | None = None) -> SkinnedMesh:
+    """The paper's "split" of sec. 4.2.3 on a skinned mesh: every edge of the given faces is split at
+    its midpoint, faces on split edges are re-triangulated conformingly (4, 3 or 2 triangles); a
+    midpoint gets its edge's blended weights (sec. 4.3).
+
+    Args:
+        mesh: the SkinnedMesh (``deform``).
+        faces: (f,) int the faces to split (all faces when None).
+        joint_matrices: (j, 4, 4) joint matrices of a pose: split in that pose (midpoints of the posed
+            edges, rest positions by inverse LBS).
+    Returns:
+        The refined SkinnedMesh (the input's vertices first, in order, then the midpoints)."""
     F = np.asarray(mesh.F)
     mask = np.ones(len(F), bool)
     if faces is not None:
@@ -175,7 +184,20 @@ def _crossed(axis: _Axis, V, pairs, radius, margin):
     return _cylinder_roots(ends[:, 0], ends[:, 1], radius, np.sqrt(np.einsum("ij,ij->i", spans, spans)), margin)
 
 
-def _drill_once(V, F, edges: MeshEdges, tip, base, radius, margin):
+class _Pass(NamedTuple):
+    """One drilling pass: the affected faces (m,) bool, the crossings (edge ids, alpha, root sign), the
+    drill's axis, the number of holes and the fewest boundary points of a hole."""
+
+    affected: np.ndarray
+    index: np.ndarray
+    alpha: np.ndarray
+    sign: np.ndarray
+    axis: _Axis
+    holes: int
+    fewest: int
+
+
+def _drill_once(V, F, edges: MeshEdges, tip, base, radius, margin) -> _Pass:
     """One drilling pass (Algorithm 3, steps 1-3): the seeds pierced by the axis, the breadth-first
     search over the faces around them, and the crossings on the edges of the affected faces."""
     direction = (tip - base) / np.linalg.norm(tip - base)
@@ -186,7 +208,7 @@ def _drill_once(V, F, edges: MeshEdges, tip, base, radius, margin):
     inside = squared < (radius - margin) ** 2
     seeds, _, _ = segment_hits(V, F, base, tip)
     if len(seeds) == 0:
-        raise ValueError("tip, base: the drill misses the mesh (its axis from base to tip crosses no face)")
+        raise ValueError("drill: misses the mesh (its axis from base to tip crosses no face)")
     # BFS: a neighbour is affected when a corner lies inside the drill or an edge passes through it
     visited = np.zeros(len(F), bool)
     visited[seeds] = True
@@ -237,19 +259,18 @@ def _drill_once(V, F, edges: MeshEdges, tip, base, radius, margin):
     first = edges.edge_faces[index, 0]
     face_of_edge = np.where(affected[first], first, edges.edge_faces[index, 1])
     counts = np.bincount(labels[local[face_of_edge]], minlength=holes)
-    return dict(affected=affected, index=index, alpha=alpha, sign=sign, axis=axis, holes=holes,
-                fewest=int(counts.min()))
+    return _Pass(affected, index, alpha, sign, axis, holes, int(counts.min()))
 
 
-def drill_mesh(V, F, tip, base, radius, *, min_points: int = 6, max_refinements: int = 4, tolerance: float = 1e-6,
-               edges: MeshEdges | None = None) -> Drilling:
+def drill_topology(V: Float[ArrayLike, "n 3"], F: Int[ArrayLike, "m 3"], drill: Drill, *, min_points: int = 6,
+                   max_refinements: int = 4, tolerance: float = 1e-6, edges: MeshEdges | None = None) -> DrillTopology:
     """The topology of drilling the triangle mesh (V, F) (Algorithm 3).
 
     Args:
-        V: (n, 3) vertex positions (rest pose or posed). F: (m, 3) int faces.
-        tip, base: (3,) the drill's endpoints A (tip) and B (base); it drills the sheets of the
+        V: (n, 3) vertex positions (rest pose or posed).
+        F: (m, 3) int faces.
+        drill: the ``Drill``: tip A and base B (3,) and radius r > 0; it drills the sheets of the
             surface that the segment B -> A pierces.
-        radius: the drill's radius r > 0.
         min_points: fewest boundary points per hole before the affected faces are split and drilled
             again (the paper suggests 6).
         max_refinements: how many times at most.
@@ -260,11 +281,7 @@ def drill_mesh(V, F, tip, base, radius, *, min_points: int = 6, max_refinements:
         ValueError: bad input, a drill that misses the mesh, a drill wider than the part of the mesh it
             meets, or a hole that stays below three boundary points after ``max_refinements`` splits."""
     V, F = check_mesh_arrays(V, F)
-    tip, base = check_point("tip", tip), check_point("base", base)
-    if not (np.isfinite(radius) and radius > 0):
-        raise ValueError(f"radius: expected a positive finite number, got {radius}")
-    if np.linalg.norm(tip - base) == 0:
-        raise ValueError("tip, base: the drill's endpoints coincide (no axis)")
+    tip, base, radius = check_drill(drill)
     if min_points < 3 or max_refinements < 0:
         raise ValueError(f"min_points, max_refinements: expected >= 3 and >= 0, got {min_points}, {max_refinements}")
     if not tolerance >= 0:
@@ -274,27 +291,27 @@ def drill_mesh(V, F, tip, base, radius, *, min_points: int = 6, max_refinements:
         raise ValueError(f"edges: computed for another mesh (face_edges {edges.face_edges.shape}, F {F.shape})")
     reach = float(_axis_distance(V, tip, base).max())
     if reach <= radius:
-        raise ValueError(f"radius: {radius:.4g} exceeds the model's size: every vertex lies within {reach:.4g} of the "
-                         "drill's axis; give a smaller radius")
+        raise ValueError(f"drill.radius: {radius:.4g} exceeds the model's size: every vertex lies within "
+                         f"{reach:.4g} of the drill's axis; give a smaller radius")
     margin = tolerance * bounding_diagonal(V)
     smallest = smallest_doubled_area(V, F)  # the input's: refinement only adds smaller faces
     all_parents, refinements = [], 0
     while True:
         state = _drill_once(V, F, edges, tip, base, radius, margin)
-        if state["fewest"] >= min_points or refinements == max_refinements:
+        if state.fewest >= min_points or refinements == max_refinements:
             break
-        V, F, parents = _refine(V, F, edges, state["affected"])
+        V, F, parents = _refine(V, F, edges, state.affected)
         all_parents.append(parents)
         edges = mesh_edges(F)
         refinements += 1
-    if state["fewest"] == 0 and _axis_distance(V[F[state["affected"]]], tip, base).max() <= radius:
+    if state.fewest == 0 and _axis_distance(V[F[state.affected]], tip, base).max() <= radius:
         # every face around a hole lies inside the drill: no edge crosses its surface
-        raise ValueError(f"radius: {radius:.4g} is wider than the part of the model the drill meets (its faces all "
-                         "lie inside the drill); give a smaller radius")
-    if state["fewest"] < 3:
-        raise ValueError(f"radius: a hole has {state['fewest']} boundary points after {refinements} refinements "
+        raise ValueError(f"drill.radius: {radius:.4g} is wider than the part of the model the drill meets (its faces "
+                         "all lie inside the drill); give a smaller radius")
+    if state.fewest < 3:
+        raise ValueError(f"drill.radius: a hole has {state.fewest} boundary points after {refinements} refinements "
                          "(the drill is too thin for the faces it meets; raise max_refinements or the radius)")
-    index, alpha, sign = state["index"], state["alpha"], state["sign"]
+    index, alpha, sign = state.index, state.alpha, state.sign
     # Each pass drops at least one new point (it snaps to the vertex or point next to it), so this ends.
     for _ in range(len(index) + 1):
         crossing = edges.edges[index]
@@ -310,7 +327,7 @@ def drill_mesh(V, F, tip, base, radius, *, min_points: int = 6, max_refinements:
     kept = np.flatnonzero(used)
     local = np.cumsum(used) - 1
     parents = np.concatenate(all_parents) if all_parents else np.zeros((0, 2), np.int64)
-    return Drilling(parents, refinements, V, crossing, alpha, sign, points, local[faces], kept, state["holes"])
+    return DrillTopology(parents, refinements, V, crossing, alpha, sign, points, local[faces], kept, state.holes)
 
 
 def _axis_distance(X, tip, base) -> np.ndarray:
@@ -319,17 +336,17 @@ def _axis_distance(X, tip, base) -> np.ndarray:
     return np.linalg.norm(offsets - (offsets @ direction)[..., None] * direction, axis=-1)
 
 
-def _retriangulate(V, F, edges: MeshEdges, state, index, alpha, points, crossing, radius, smallest):
+def _retriangulate(V, F, edges: MeshEdges, state: _Pass, index, alpha, points, crossing, radius, smallest):
     """Faces of the drilled mesh (Algorithm 3, step 5) in the extended numbering, and the new points
     to drop: in each face whose pieces are slivers (``poor_pieces``), the new point (or the two on one
     edge) closest to its neighbour on the face's boundary, relative to that edge's length; without it
     the hole's boundary passes through the neighbour. Per affected face in plain Python: the faces
     near a hole are few, and small arrays cost more than they save."""
-    affected = np.flatnonzero(state["affected"])
+    affected = np.flatnonzero(state.affected)
     n = len(V)
     corners = F[affected]
     # radial vectors P(x) - B of the corners and the new points (the projection is affine)
-    axis = state["axis"]
+    axis = state.axis
     radial = dict(zip(corners.ravel().tolist(), axis.radial(V, corners.ravel()).tolist()))
     point_radial = (alpha[:, None] * axis.radial(V, crossing[:, 0])
                     + (1.0 - alpha[:, None]) * axis.radial(V, crossing[:, 1]))
@@ -388,43 +405,61 @@ def _retriangulate(V, F, edges: MeshEdges, state, index, alpha, points, crossing
         if steps:
             _, i = min(steps)
             drop += [v - n for v in (cycle[i], cycle[(i + 1) % m]) if v >= n]
-    return np.concatenate([F[~state["affected"]], pieces]), np.unique(np.asarray(drop, np.int64))
+    return np.concatenate([F[~state.affected], pieces]), np.unique(np.asarray(drop, np.int64))
 
 
-def drill(mesh: SkinnedMesh, tip, base, radius, *, min_points: int = 6, max_refinements: int = 4,
-          tolerance: float = 1e-6, joint_matrices=None, edges: MeshEdges | None = None, return_topology: bool = False):
-    """Drill a hole into a skinned mesh with a cylinder from ``base`` to ``tip`` (Algorithm 3).
+def _midpoint_levels(parents: Int[np.ndarray, "r 2"], n: int) -> list[Int[np.ndarray, "l 2"]]:
+    """The refinement midpoints (vertex n + k is the midpoint of ``parents[k]``) in levels whose parents
+    all precede the level (they may be midpoints of an earlier one): each level is one vectorized step."""
+    levels, done = [], 0
+    while done < len(parents):
+        pending = parents[done:]
+        later = np.flatnonzero(pending.max(axis=1) >= n + done)
+        levels.append(pending[:later[0] if len(later) else len(pending)])
+        done += len(levels[-1])
+    return levels
+
+
+@overload
+def drill(mesh: SkinnedMesh, drill: Drill, *, min_points: int = ..., max_refinements: int = ..., tolerance: float = ...,
+          joint_matrices: Float[ArrayLike, "j 4 4"] | None = ..., edges: MeshEdges | None = ...,
+          return_topology: Literal[False] = ...) -> SkinnedMesh: ...
+
+
+@overload
+def drill(mesh: SkinnedMesh, drill: Drill, *, min_points: int = ..., max_refinements: int = ..., tolerance: float = ...,
+          joint_matrices: Float[ArrayLike, "j 4 4"] | None = ..., edges: MeshEdges | None = ...,
+          return_topology: Literal[True]) -> tuple[SkinnedMesh, DrillTopology]: ...
+
+
+def drill(mesh: SkinnedMesh, drill: Drill, *, min_points: int = 6, max_refinements: int = 4, tolerance: float = 1e-6,
+          joint_matrices: Float[ArrayLike, "j 4 4"] | None = None, edges: MeshEdges | None = None,
+          return_topology: bool = False) -> SkinnedMesh | tuple[SkinnedMesh, DrillTopology]:
+    """Drill a hole into a skinned mesh with a cylinder from the drill's base to its tip (Algorithm 3).
 
     Args:
         mesh: the SkinnedMesh (``deform``).
-        tip, base, radius: the drill (see ``drill_mesh``), in the space of the mesh as drilled: the
-            bind pose, or the pose of ``joint_matrices``.
-        min_points, max_refinements, tolerance: see ``drill_mesh``.
+        drill: the ``Drill`` (see ``drill_topology``), in the space of the mesh as drilled: the bind
+            pose, or the pose of ``joint_matrices``.
+        min_points, max_refinements, tolerance: see ``drill_topology``.
         joint_matrices: (j, 4, 4) joint matrices of a pose (``deform.joint_matrices``): drill the mesh
             *in that pose*, the drill in world space. New vertices get the rest positions whose LBS
             image in that pose is their drilled position (exact for LBS).
         edges: ``mesh_edges(mesh.F)``, precomputed.
-        return_topology: also return the ``Drilling``.
+        return_topology: also return the ``DrillTopology`` (for ``drill_positions``).
     Returns:
         The drilled SkinnedMesh (its vertices: the input's outside the hole, in order, then refinement
-        midpoints and new points), and the Drilling when ``return_topology``."""
+        midpoints and new points), and the DrillTopology when ``return_topology``."""
     J, W = np.asarray(mesh.J), np.asarray(mesh.W)
     space, joint_matrices = posed_vertices(mesh, joint_matrices)
-    topology = drill_mesh(space, mesh.F, tip, base, radius, min_points=min_points, max_refinements=max_refinements,
-                          tolerance=tolerance, edges=edges)
+    topology = drill_topology(space, mesh.F, drill, min_points=min_points, max_refinements=max_refinements,
+                              tolerance=tolerance, edges=edges)
     rest = np.asarray(mesh.V, np.float64)
-    # refinement midpoints, level by level: a level's parents all precede it (they may be midpoints
-    # of an earlier level), so each level is one vectorized blend
-    done = 0
-    while done < len(topology.parents):
-        pending = topology.parents[done:]
-        later = np.flatnonzero(pending.max(axis=1) >= len(rest))
-        level = pending[:later[0] if len(later) else len(pending)]
+    for level in _midpoint_levels(topology.parents, len(rest)):
         J_mid, W_mid = blend_weights(J, W, level, np.full(level.shape, 0.5))
         target = 0.5 * (topology.vertices[level[:, 0]] + topology.vertices[level[:, 1]])
         rest = np.concatenate([rest, rest_positions(J_mid, W_mid, target, joint_matrices)])
         J, W = np.concatenate([J, J_mid]), np.concatenate([W, W_mid])
-        done += len(level)
     J_new, W_new = blend_weights(J, W, topology.crossing, np.stack([topology.alpha, 1.0 - topology.alpha], axis=1))
     rest = np.concatenate([rest, rest_positions(J_new, W_new, topology.points, joint_matrices)])
     J, W = np.concatenate([J, J_new]), np.concatenate([W, W_new])
@@ -433,11 +468,26 @@ def drill(mesh: SkinnedMesh, tip, base, radius, *, min_points: int = 6, max_refi
     return (drilled, topology) if return_topology else drilled
 
 
-def drill_positions(V, crossing, root, tip, base, radius):
-    """Positions (p, 3) of a drill's new points as a JAX function of the vertices and the drill, for
-    a fixed topology (``Drilling.crossing``, ``Drilling.root``; V: ``Drilling.vertices``):
-    eq. (18-20) solved for alpha, the point ``alpha V_i + (1 - alpha) V_j``."""
+def drill_positions(V: Float[ArrayLike, "n 3"], topology: DrillTopology, drill: Drill) -> Float[Array, "p 3"]:
+    """Positions of a drill's new points as a JAX function of the vertices and the drill, for a fixed
+    topology: differentiable with respect to both (``jax.grad`` over a ``Drill`` gives a ``Drill``). The
+    refinement midpoints are formed from V (``topology.parents``), then eq. (18-20) is solved for
+    each point's alpha (the root of ``topology.root``): the point ``alpha V_i + (1 - alpha) V_j``.
+
+    Args:
+        V: (n, 3) the input's vertex positions, as drilled (posed, when drilled with ``joint_matrices``).
+        topology: the hole's ``DrillTopology``.
+        drill: the ``Drill``.
+    Returns:
+        (p, 3) the new points, in the order of ``topology.crossing``."""
     V = jnp.asarray(V)
+    n = len(topology.vertices) - len(topology.parents)
+    if V.shape != (n, 3):
+        raise ValueError(f"V: expected the {n} vertices that were drilled, shape ({n}, 3), got {V.shape}")
+    for level in _midpoint_levels(topology.parents, n):
+        V = jnp.concatenate([V, 0.5 * (V[level[:, 0]] + V[level[:, 1]])])
+    tip, base, radius = jnp.asarray(drill.tip), jnp.asarray(drill.base), jnp.asarray(drill.radius)
+    crossing = topology.crossing
     axis = (tip - base) / jnp.linalg.norm(tip - base)
     relative = V - base
     radial = relative - (relative @ axis)[:, None] * axis
@@ -445,5 +495,5 @@ def drill_positions(V, crossing, root, tip, base, radius):
     K = jnp.sum((mu - nu) ** 2, -1)
     L = 2.0 * jnp.sum((mu - nu) * nu, -1)
     N = jnp.sum(nu * nu, -1) - radius**2
-    alpha = (-L + jnp.asarray(root) * jnp.sqrt(L * L - 4.0 * K * N)) / (2.0 * K)
+    alpha = (-L + jnp.asarray(topology.root) * jnp.sqrt(L * L - 4.0 * K * N)) / (2.0 * K)
     return alpha[:, None] * V[crossing[:, 0]] + (1.0 - alpha[:, None]) * V[crossing[:, 1]]

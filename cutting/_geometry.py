@@ -7,6 +7,7 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
+from jaxtyping import ArrayLike, Int
 
 from deform._model import SkinnedMesh
 
@@ -22,14 +23,19 @@ class MeshEdges(NamedTuple):
         edge_counts: (e,) int faces on each edge (2 inside a manifold, 1 on its boundary).
     """
 
-    edges: np.ndarray
-    face_edges: np.ndarray
-    edge_faces: np.ndarray
-    edge_counts: np.ndarray
+    edges: Int[np.ndarray, "e 2"]
+    face_edges: Int[np.ndarray, "m 3"]
+    edge_faces: Int[np.ndarray, "e 2"]
+    edge_counts: Int[np.ndarray, " e"]
 
 
-def mesh_edges(F) -> MeshEdges:
-    """Unique edges of the faces F (m, 3) and each face's edge ids."""
+def mesh_edges(F: Int[ArrayLike, "m 3"]) -> MeshEdges:
+    """The reusable adjacency of a triangle mesh: its unique edges and each face's edge ids.
+
+    Args:
+        F: (m, 3) int faces.
+    Returns:
+        The ``MeshEdges`` (pass it as ``edges=`` to the cut, tear and drill of meshes with these faces)."""
     F = np.asarray(F)
     if F.ndim != 2 or F.shape[1] != 3:
         raise ValueError(f"F: expected shape (m, 3), got {F.shape}")
@@ -65,13 +71,6 @@ def check_mesh_arrays(V, F) -> tuple[np.ndarray, np.ndarray]:
     return V, F
 
 
-def check_point(name: str, value) -> np.ndarray:
-    point = np.asarray(value, np.float64)
-    if point.shape != (3,) or not np.all(np.isfinite(point)):
-        raise ValueError(f"{name}: expected 3 finite coordinates, got {value!r}")
-    return point
-
-
 def posed_vertices(mesh: SkinnedMesh, joint_matrices) -> tuple[np.ndarray, np.ndarray | None]:
     """The mesh's vertices in the space it is operated in: the bind pose when ``joint_matrices`` is
     None, else their LBS image (eq. 16) under the (j, 4, 4) joint matrices of a pose."""
@@ -102,9 +101,9 @@ def rest_positions(J_new, W_new, targets, joint_matrices):
 def skinned_mesh_like(mesh: SkinnedMesh, V, F, J, W) -> SkinnedMesh:
     """A SkinnedMesh with ``mesh``'s joints, inverse binds and dtypes. Numpy arrays (host data,
     traced like JAX arrays by jit): no per-array device transfer on the interactive path."""
-    return SkinnedMesh(np.asarray(V).astype(mesh.V.dtype), np.asarray(F).astype(mesh.F.dtype),
-                       np.asarray(J).astype(mesh.J.dtype), np.asarray(W).astype(mesh.W.dtype),
-                       mesh.inverse_bind, mesh.joints)
+    V, F, J, W = (np.asarray(x).astype(like.dtype) for x, like in ((V, mesh.V), (F, mesh.F), (J, mesh.J), (W, mesh.W)))
+    # numpy on purpose (see above), where SkinnedMesh's fields are annotated as JAX arrays
+    return SkinnedMesh(V, F, J, W, mesh.inverse_bind, mesh.joints)  # pyright: ignore[reportArgumentType]
 
 
 def cross_rows(a, b):

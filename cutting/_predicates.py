@@ -12,54 +12,46 @@ Both return the same numbers up to rounding; the benchmark times them side by si
 
 from __future__ import annotations
 
+from typing import cast
+
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, ArrayLike, Float
 
 import jaxcga as cga
 
-PREDICATES = ("euclidean", "ga")
+PREDICATES: tuple[str, ...] = ("euclidean", "ga")
+"""The predicate families of Table 1 that ``predicates=`` selects."""
 
 
-def check_predicates(predicates: str):
+def check_predicates(predicates: str) -> None:
     if predicates not in PREDICATES:
         raise ValueError(f"predicates: expected one of {PREDICATES}, got {predicates!r}")
 
 
-def check_plane(plane) -> tuple[np.ndarray, float]:
-    """(unit normal (3,), distance) of a plane given as a jaxcga plane vector ``n + d einf`` or as
-    ``(nx, ny, nz, d)`` (eq. 5: the points x with ``n . x = d``)."""
-    if isinstance(plane, cga.Multivector):
-        n, d = cga.plane_normal_distance(plane)
-        n, d = np.asarray(n, np.float64), float(d)
-    else:
-        values = np.asarray(plane, dtype=np.float64)
-        if values.shape != (4,):
-            raise ValueError(f"plane: expected (nx, ny, nz, d) or a jaxcga plane vector, got shape {values.shape}")
-        n, d = values[:3], float(values[3])
-    if not np.all(np.isfinite(n)) or not np.isfinite(d):
-        raise ValueError("plane: normal and distance must be finite")
-    length = np.linalg.norm(n)
-    if length == 0:
-        raise ValueError("plane: zero-length normal")
-    return n / length, d / length
-
-
 @jax.jit
 def _ga_side(V, plane_values):
-    plane = cga.Multivector(plane_values, cga.plane(jnp.ones(3), 0.0).blades)
+    plane = cga.Multivector(plane_values, cga.plane(jnp.ones(3), jnp.zeros(())).blades)
     return cga.plane_signed_distance(plane, cga.up(V))
 
 
 @jax.jit
 def _ga_edge_points(A, B, plane_values):
-    plane = cga.Multivector(plane_values, cga.plane(jnp.ones(3), 0.0).blades)
+    plane = cga.Multivector(plane_values, cga.plane(jnp.ones(3), jnp.zeros(())).blades)
     flat = cga.meet(cga.line(cga.up(A), cga.up(B)), cga.undual(plane))
     # A flat point is lambda (x ^ einf + eo ^ einf): divide out lambda.
-    return jnp.stack([flat[f"e{i}inf"] for i in (1, 2, 3)], axis=-1) / flat["eoinf"][..., None]
+    x = jnp.stack([_coefficient(flat, f"e{i}inf") for i in (1, 2, 3)], axis=-1)
+    return x / _coefficient(flat, "eoinf")[..., None]
 
 
-def signed_distances(V, n, d, predicates: str = "euclidean") -> np.ndarray:
+def _coefficient(m: cga.Multivector, blade: str) -> Array:
+    # a blade name selects its coefficient array (Multivector.__getitem__ is not annotated)
+    return cast(Array, m[blade])
+
+
+def signed_distances(V: Float[ArrayLike, "n 3"], n: Float[np.ndarray, "3"], d: float,
+                     predicates: str = "euclidean") -> Float[np.ndarray, " n"]:
     """Signed distance ``n . x - d`` of every vertex (n, 3) from the plane."""
     if predicates == "ga":
         plane = cga.plane(jnp.asarray(n), jnp.asarray(d))
@@ -67,7 +59,9 @@ def signed_distances(V, n, d, predicates: str = "euclidean") -> np.ndarray:
     return np.asarray(V, np.float64) @ n - d
 
 
-def edge_points(A, B, sA, sB, n, d, predicates: str = "euclidean"):
+def edge_points(A: Float[np.ndarray, "p 3"], B: Float[np.ndarray, "p 3"], sA: Float[np.ndarray, " p"],
+                sB: Float[np.ndarray, " p"], n: Float[np.ndarray, "3"], d: float,
+                predicates: str = "euclidean") -> tuple[Float[np.ndarray, "p 3"], Float[np.ndarray, " p"]]:
     """Intersection of the segments A-B (p, 3) with the plane, and their parameters t along A->B.
     The segments must cross the plane (signed distances sA, sB of opposite signs)."""
     t = sA / (sA - sB)

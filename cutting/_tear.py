@@ -1,9 +1,9 @@
 """Tearing a (skinned) triangle mesh with a scalpel: Algorithm 2 of the cut/tear/drill paper
 (sec. 4.2.2), with the weights of new vertices of sec. 4.3.
 
-The scalpel is a segment known at time steps t_0 .. t_k (``scalpels[i] = (X0, X1)``; X0 is the
-handle side: where the segment crosses the surface more than once, the crossing nearest X0 counts),
-given as segments or as a blade moved by motors (``scalpel_path``).
+The scalpel is a segment known at time steps t_0 .. t_k (``Scalpel(handle, tip)``: at t_i it runs
+from ``handle[i]`` to ``tip[i]``; where it crosses the surface more than once, the crossing nearest the
+handle counts), given by its endpoints or as a blade moved by motors (``scalpel_path``).
 
 1. S_i, the crossing of the scalpel with the surface at t_i (the tear points);
 2. for each step i, the plane Pi_i through S_i and the scalpel's endpoints at t_{i+1};
@@ -21,24 +21,26 @@ samples). A plane that passes within ``tolerance`` of a vertex of the path, that
 point within 2% of an edge's length from its end, or that would leave a piece of a face smaller or
 thinner than the sliver rule of ``_geometry.poor_pieces`` allows, is moved along its normal in steps of
 5% of an edge (a gentle perturbation, as the XFEM paper's sec. 6.1 does for cuts through vertices), so
-that no sliver triangle is created; ``TearPath.shift`` records the move.
+that no sliver triangle is created; ``TearTopology.shift`` records the move.
 
-For a fixed topology (``TearPath``), the positions of the new vertices are a JAX function of the
-scalpel samples, the vertices and the opening (``tear_positions``), so they can be differentiated.
+For a fixed topology (``TearTopology``), the positions of the new vertices are a JAX function of the
+vertices, the ``Scalpel`` and the opening (``tear_positions``), so they can be differentiated.
 """
 
 from __future__ import annotations
 
-from typing import NamedTuple
+from typing import Literal, NamedTuple, overload
 
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, ArrayLike, Float, Int
 
 import jaxcga as cga
 from cutting._geometry import (PIECE_ANGLE, PIECE_AREA, MeshEdges, check_mesh_arrays, cross3,
                                cross_rows, fan_triangles, mesh_edges, posed_vertices, rest_positions, segment_hits,
                                skinned_mesh_like, smallest_doubled_area, triangle_quality)
 from cutting._predicates import check_predicates, edge_points, signed_distances
+from cutting._tools import Scalpel, check_scalpel
 from cutting._weights import blend_weights
 from deform._model import SkinnedMesh
 from _jaxcga_shared.mesh import bounding_diagonal
@@ -56,11 +58,12 @@ _TIP_MARGIN = 0.02
 _PIECE_HEADROOM = 1.1
 
 
-class TearPath(NamedTuple):
-    """The topology of a tear, and the geometry it was computed from.
+class TearTopology(NamedTuple):
+    """The topology of a tear (``tear_topology``), and the geometry it was computed from.
 
     Attributes:
         sample_faces: (k+1,) int the face crossed by the scalpel at each sample t_i.
+        sample_corners: (k+1, 3) int that face's vertices (``F[sample_faces]``).
         sample_points: (k+1, 3) the crossings S_i.
         sample_barycentric: (k+1, 3) barycentric coordinates of S_i in its face.
         faces: (p,) int the faces on the tear path, in order from S_0's face to S_k's face.
@@ -77,52 +80,47 @@ class TearPath(NamedTuple):
             ``planes[i, 3] = planes[i, :3] . S_i + shift[i]``.
     """
 
-    sample_faces: np.ndarray
-    sample_points: np.ndarray
-    sample_barycentric: np.ndarray
-    faces: np.ndarray
-    edge_ids: np.ndarray
-    crossing: np.ndarray
-    t: np.ndarray
-    points: np.ndarray
-    step: np.ndarray
-    planes: np.ndarray
-    orientation: np.ndarray
-    shift: np.ndarray
+    sample_faces: Int[np.ndarray, " s"]
+    sample_corners: Int[np.ndarray, "s 3"]
+    sample_points: Float[np.ndarray, "s 3"]
+    sample_barycentric: Float[np.ndarray, "s 3"]
+    faces: Int[np.ndarray, " f"]
+    edge_ids: Int[np.ndarray, " q"]
+    crossing: Int[np.ndarray, "q 2"]
+    t: Float[np.ndarray, " q"]
+    points: Float[np.ndarray, "q 3"]
+    step: Int[np.ndarray, " q"]
+    planes: Float[np.ndarray, "k 4"]
+    orientation: Float[np.ndarray, " k"]
+    shift: Float[np.ndarray, " k"]
 
 
-def check_scalpels(scalpels) -> np.ndarray:
-    """Scalpel samples as a (k+1, 2, 3) array (k+1 >= 2 positions of a segment)."""
-    scalpels = np.asarray(scalpels, np.float64)
-    if scalpels.ndim != 3 or scalpels.shape[1:] != (2, 3) or scalpels.shape[0] < 2:
-        raise ValueError(f"scalpels: expected (k+1, 2, 3) segment endpoints at k+1 >= 2 time steps, got "
-                         f"shape {scalpels.shape}")
-    if not np.all(np.isfinite(scalpels)):
-        raise ValueError("scalpels: endpoints must be finite")
-    if np.any(np.linalg.norm(scalpels[:, 1] - scalpels[:, 0], axis=1) == 0):
-        raise ValueError("scalpels: a scalpel sample has two equal endpoints")
-    return scalpels
-
-
-def scalpel_path(blade, motors) -> np.ndarray:
-    """Scalpel samples from a blade moved by motors: the segment ``blade`` (2, 3) (handle end first)
+def scalpel_path(blade: Float[ArrayLike, "2 3"], motors: cga.Multivector) -> Scalpel:
+    """A scalpel from a blade moved by motors: the segment ``blade`` (2, 3) (handle end first)
     carried by each of the k+1 versors ``motors`` (a jaxcga Multivector of motors or similitudes with
     batch shape (k+1,), e.g. two motors for the paper's two time steps, or a motor spline sampled at
-    t_0 .. t_k). Returns the (k+1, 2, 3) samples that ``tear`` takes."""
+    t_0 .. t_k).
+
+    Args:
+        blade: (2, 3) the segment's handle end and tip at rest.
+        motors: versors with batch shape (k+1,).
+    Returns:
+        The ``Scalpel`` (float64 numpy ends (k+1, 3)) that ``tear`` takes."""
     blade = np.asarray(blade, np.float64)
     if blade.shape != (2, 3) or not np.all(np.isfinite(blade)):
         raise ValueError(f"blade: expected 2 finite endpoints of shape (2, 3), got {blade.shape}")
     if not isinstance(motors, cga.Multivector) or len(motors.batch_shape) != 1 or motors.batch_shape[0] < 2:
         raise ValueError("motors: expected a jaxcga versor Multivector with batch shape (k+1,), k+1 >= 2")
     per_sample = cga.Multivector(motors.values[:, None, :], motors.blades)  # (k+1, 1) against (2,) points
-    return np.asarray(cga.apply_to_points(per_sample, jnp.asarray(blade)), np.float64)
+    samples = np.asarray(cga.apply_to_points(per_sample, jnp.asarray(blade)), np.float64)
+    return Scalpel(samples[:, 0], samples[:, 1])
 
 
-def _tip(V, F, scalpel, index):
-    faces, barycentric, _ = segment_hits(V, F, scalpel[0], scalpel[1])
+def _tip(V, F, segment, index):
+    faces, barycentric, _ = segment_hits(V, F, segment[0], segment[1])
     if len(faces) == 0:
-        raise ValueError(f"scalpels[{index}]: the scalpel does not cross the surface (no face between "
-                         f"{scalpel[0].tolist()} and {scalpel[1].tolist()})")
+        raise ValueError(f"scalpel (sample {index}): the scalpel does not cross the surface (no face between "
+                         f"{segment[0].tolist()} and {segment[1].tolist()})")
     b = np.maximum(barycentric[0], _TIP_MARGIN)
     b /= b.sum()
     return int(faces[0]), b, b @ V[F[faces[0]]]
@@ -217,23 +215,24 @@ def _walk(V, F, edges: MeshEdges, s, margin, start, entry_edge, entry_point, ori
                 raise _NearVertex
             return crossed, entered
         if g == start:
-            raise ValueError("scalpels: the tear plane's curve on the surface does not reach the next sample "
+            raise ValueError("scalpel: the tear plane's curve on the surface does not reach the next sample "
                              "(it closes on itself; the samples are too far apart)")
         if g in visited:
-            raise ValueError("scalpels: the tear path crosses itself")
+            raise ValueError("scalpel: the tear path crosses itself")
         visited.add(g)
         f, e_from, point_in = g, e, point_out
-    raise ValueError("scalpels: the tear path does not reach the next sample")
+    raise ValueError("scalpel: the tear path does not reach the next sample")
 
 
-def tear_path(V, F, scalpels, *, predicates: str = "euclidean", tolerance: float = 1e-6,
-              edges: MeshEdges | None = None) -> TearPath:
+def tear_topology(V: Float[ArrayLike, "n 3"], F: Int[ArrayLike, "m 3"], scalpel: Scalpel, *,
+                  predicates: str = "euclidean", tolerance: float = 1e-6,
+                  edges: MeshEdges | None = None) -> TearTopology:
     """The tear path of a scalpel moving over the mesh (V, F) (Algorithm 2, steps 1-3).
 
     Args:
         V: (n, 3) vertex positions (rest pose or posed).
         F: (m, 3) int faces.
-        scalpels: (k+1, 2, 3) scalpel endpoints (handle side first) at k+1 time steps.
+        scalpel: the ``Scalpel``: handle and tip ends (k+1, 3) at k+1 >= 2 time steps.
         predicates: ``"euclidean"`` or ``"ga"`` (Table 1) for the side of a vertex and the edge points.
         tolerance: planes passing closer than ``tolerance`` times the bounding-box diagonal to a path
             vertex are moved away from it (see the module docstring).
@@ -243,7 +242,7 @@ def tear_path(V, F, scalpels, *, predicates: str = "euclidean", tolerance: float
             (it stays inside one face), reaches the boundary, crosses itself or cannot be followed."""
     check_predicates(predicates)
     V, F = check_mesh_arrays(V, F)
-    scalpels = check_scalpels(scalpels)
+    segments = check_scalpel(scalpel)
     if not tolerance >= 0:
         raise ValueError(f"tolerance: expected a non-negative number, got {tolerance}")
     edges = mesh_edges(F) if edges is None else edges
@@ -252,7 +251,7 @@ def tear_path(V, F, scalpels, *, predicates: str = "euclidean", tolerance: float
     diagonal = bounding_diagonal(V)
     margin = tolerance * diagonal
     smallest = smallest_doubled_area(V, F)
-    samples = [_tip(V, F, scalpel, i) for i, scalpel in enumerate(scalpels)]
+    samples = [_tip(V, F, segment, i) for i, segment in enumerate(segments)]
     sample_faces = np.array([f for f, _, _ in samples])
     sample_points = np.array([p for _, _, p in samples])
     sample_barycentric = np.array([b for _, b, _ in samples])
@@ -261,13 +260,13 @@ def tear_path(V, F, scalpels, *, predicates: str = "euclidean", tolerance: float
     planes, orientation, shifts, point_chunks, t_chunks = [], [], [], [], []
     visited = {faces[0]}
     entry_edge, entry_point = None, sample_points[0]
-    for i in range(len(scalpels) - 1):
+    for i in range(len(segments) - 1):
         origin, goal = sample_points[i], sample_points[i + 1]
-        A, B = scalpels[i + 1]
+        A, B = segments[i + 1]
         normal = cross_rows(A - origin, B - origin)
         length = np.linalg.norm(normal)
         if length <= 1e-12 * diagonal**2:
-            raise ValueError(f"scalpels[{i + 1}]: the scalpel passes through the previous tear point, so the "
+            raise ValueError(f"scalpel (sample {i + 1}): the scalpel passes through the previous tear point, so the "
                              "tear plane is not defined (move the scalpel between samples)")
         n = normal / length
         d = float(n @ origin)
@@ -283,14 +282,14 @@ def tear_path(V, F, scalpels, *, predicates: str = "euclidean", tolerance: float
                 try:
                     step_edges, step_faces = _walk(V, F, edges, s, margin, faces[-1], entry_edge, entry_point,
                                                    origin, goal, target, set(visited), smallest,
-                                                   final=i == len(scalpels) - 2)
+                                                   final=i == len(segments) - 2)
                     break
                 except _NearVertex:
-                    failure = (f"scalpels[{i + 1}]: the tear plane keeps passing through or next to "
+                    failure = (f"scalpel (sample {i + 1}): the tear plane keeps passing through or next to "
                                "vertices of the mesh (within the tolerance, or leaving sliver triangles); move "
                                "the scalpel slightly")
                 except _Lost:
-                    failure = ("scalpels: the tear plane leaves the surface's path between two samples (the "
+                    failure = ("scalpel: the tear plane leaves the surface's path between two samples (the "
                                "samples are too far apart or the tear turns back)")
             else:
                 raise ValueError(failure)
@@ -316,25 +315,25 @@ def tear_path(V, F, scalpels, *, predicates: str = "euclidean", tolerance: float
         if step_edges:
             entry_edge, entry_point = step_edges[-1], points[-1]
     if not crossed:
-        raise ValueError("scalpels: the tear crosses no edge of the mesh (it stays inside one face); move the "
+        raise ValueError("scalpel: the tear crosses no edge of the mesh (it stays inside one face); move the "
                          "scalpel farther between samples")
     crossed = np.asarray(crossed)
-    return TearPath(sample_faces, sample_points, sample_barycentric, np.asarray(faces), crossed, edges.edges[crossed],
-                    np.concatenate(t_chunks), np.concatenate(point_chunks), np.asarray(steps), np.asarray(planes),
-                    np.asarray(orientation), np.asarray(shifts))
+    return TearTopology(sample_faces, F[sample_faces], sample_points, sample_barycentric, np.asarray(faces), crossed,
+                        edges.edges[crossed], np.concatenate(t_chunks), np.concatenate(point_chunks),
+                        np.asarray(steps), np.asarray(planes), np.asarray(orientation), np.asarray(shifts))
 
 
-def _retriangulate(V, F, edges: MeshEdges, path: TearPath, n_vertices: int):
+def _retriangulate(V, F, edges: MeshEdges, topology: TearTopology, n_vertices: int):
     """Triangles replacing the path faces (Algorithm 2, step 5). Vertex ids: the input's, then S_0
     (n), S_k (n+1), the left copies of Q_j (n+2+j), the right copies (n+2+q+j). Per path face in
     plain Python: a path crosses few faces, and small arrays cost more than they save."""
-    q = len(path.t)
+    q = len(topology.t)
     tips = (n_vertices, n_vertices + 1)
-    point_of_edge = {e: j for j, e in enumerate(path.edge_ids.tolist())}
-    corners_of = F[path.faces].tolist()
+    point_of_edge = {e: j for j, e in enumerate(topology.edge_ids.tolist())}
+    corners_of = F[topology.faces].tolist()
     position = dict(zip(np.ravel(corners_of).tolist(), V[np.ravel(corners_of)].tolist()))
-    points = path.points.tolist()
-    sample_points = path.sample_points[[0, -1]].tolist()
+    points = topology.points.tolist()
+    sample_points = topology.sample_points[[0, -1]].tolist()
 
     def sub(a, b):
         return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
@@ -347,8 +346,8 @@ def _retriangulate(V, F, edges: MeshEdges, path: TearPath, n_vertices: int):
         return dot(cross3(normal, direction), sub(position[corner], origin)) > 0
 
     triangles = []
-    last = len(path.faces) - 1
-    for at, (corners, local) in enumerate(zip(corners_of, edges.face_edges[path.faces].tolist())):
+    last = len(topology.faces) - 1
+    for at, (corners, local) in enumerate(zip(corners_of, edges.face_edges[topology.faces].tolist())):
         a, b, c = (position[v] for v in corners)
         normal = cross3(sub(b, a), sub(c, a))
         entry = at - 1 if at > 0 else None
@@ -393,14 +392,27 @@ def _copy(j, q, n_vertices, is_left):
     return n_vertices + 2 + j if is_left else n_vertices + 2 + q + j
 
 
-def tear(mesh: SkinnedMesh, scalpels, *, opening: float = 0.0, predicates: str = "euclidean",
-         side_weight: float = 0.0, tolerance: float = 1e-6, joint_matrices=None, edges: MeshEdges | None = None,
-         return_path: bool = False):
-    """Tear a skinned mesh with a scalpel moving through the samples ``scalpels`` (Algorithm 2).
+@overload
+def tear(mesh: SkinnedMesh, scalpel: Scalpel, *, opening: float = ..., predicates: str = ..., side_weight: float = ...,
+         tolerance: float = ..., joint_matrices: Float[ArrayLike, "j 4 4"] | None = ...,
+         edges: MeshEdges | None = ..., return_topology: Literal[False] = ...) -> SkinnedMesh: ...
+
+
+@overload
+def tear(mesh: SkinnedMesh, scalpel: Scalpel, *, opening: float = ..., predicates: str = ..., side_weight: float = ...,
+         tolerance: float = ..., joint_matrices: Float[ArrayLike, "j 4 4"] | None = ...,
+         edges: MeshEdges | None = ..., return_topology: Literal[True]) -> tuple[SkinnedMesh, TearTopology]: ...
+
+
+def tear(mesh: SkinnedMesh, scalpel: Scalpel, *, opening: float = 0.0, predicates: str = "euclidean",
+         side_weight: float = 0.0, tolerance: float = 1e-6, joint_matrices: Float[ArrayLike, "j 4 4"] | None = None,
+         edges: MeshEdges | None = None, return_topology: bool = False
+         ) -> SkinnedMesh | tuple[SkinnedMesh, TearTopology]:
+    """Tear a skinned mesh with a scalpel moving through its samples (Algorithm 2).
 
     Args:
         mesh: the SkinnedMesh (``deform``).
-        scalpels: (k+1, 2, 3) the scalpel segment (handle end first) at time steps t_0 .. t_k, in the
+        scalpel: the ``Scalpel``: its handle and tip ends (k+1, 3) at time steps t_0 .. t_k, in the
             space of the mesh as torn: the bind pose, or the pose of ``joint_matrices``. Two samples
             are the paper's ``scalpel_0, scalpel_1``; more make one tear along the whole path.
         opening: the distance between the two copies of every interior tear point (each is pushed
@@ -408,15 +420,15 @@ def tear(mesh: SkinnedMesh, scalpels, *, opening: float = 0.0, predicates: str =
         predicates: ``"euclidean"`` or ``"ga"`` (Table 1).
         side_weight: in [0, 1]; 0 gives both copies of a tear point the barycentric weights of its
             edge (sec. 4.3); towards 1 each copy leans to the weights of its own side's endpoint.
-        tolerance: see ``tear_path``.
+        tolerance: see ``tear_topology``.
         joint_matrices: (j, 4, 4) joint matrices of a pose (``deform.joint_matrices``): tear the mesh
             *in that pose*, the scalpel in world space. New vertices get the rest positions whose LBS
             image in that pose is their torn position (exact for LBS).
         edges: ``mesh_edges(mesh.F)``, precomputed.
-        return_path: also return the ``TearPath`` (for ``tear_positions``).
+        return_topology: also return the ``TearTopology`` (for ``tear_positions``).
     Returns:
         The torn SkinnedMesh (the input's vertices first, in order; then S_0, S_k, the left copies of
-        the Q_j, the right copies), and the TearPath when ``return_path``."""
+        the Q_j, the right copies), and the TearTopology when ``return_topology``."""
     if not 0.0 <= side_weight <= 1.0:
         raise ValueError(f"side_weight: expected a number in [0, 1], got {side_weight}")
     if not (np.isfinite(opening) and opening >= 0):
@@ -425,18 +437,18 @@ def tear(mesh: SkinnedMesh, scalpels, *, opening: float = 0.0, predicates: str =
     J, W = np.asarray(mesh.J), np.asarray(mesh.W)
     space, joint_matrices = posed_vertices(mesh, joint_matrices)
     edges = mesh_edges(F) if edges is None else edges
-    path = tear_path(space, F, scalpels, predicates=predicates, tolerance=tolerance, edges=edges)
-    n_vertices, q = len(space), len(path.t)
+    topology = tear_topology(space, F, scalpel, predicates=predicates, tolerance=tolerance, edges=edges)
+    n_vertices, q = len(space), len(topology.t)
 
-    tip_faces = path.sample_faces[[0, -1]]
-    J_tips, W_tips = blend_weights(J, W, F[tip_faces], path.sample_barycentric[[0, -1]])
-    J_q, W_q = blend_weights(J, W, path.crossing, np.stack([1.0 - path.t, path.t], axis=1))
-    normals = path.planes[path.step, :3]
+    tip_faces = topology.sample_faces[[0, -1]]
+    J_tips, W_tips = blend_weights(J, W, F[tip_faces], topology.sample_barycentric[[0, -1]])
+    J_q, W_q = blend_weights(J, W, topology.crossing, np.stack([1.0 - topology.t, topology.t], axis=1))
+    normals = topology.planes[topology.step, :3]
     copies_J, copies_W = [], []
     for side in (1.0, -1.0):
         if side_weight > 0 and q:
-            own = np.where(side * np.einsum("ij,ij->i", space[path.crossing[:, 0]] - path.points, normals) > 0,
-                           path.crossing[:, 0], path.crossing[:, 1])
+            own = np.where(side * np.einsum("ij,ij->i", space[topology.crossing[:, 0]] - topology.points, normals) > 0,
+                           topology.crossing[:, 0], topology.crossing[:, 1])
             Jc, Wc = blend_weights(np.concatenate([J, J_q]), np.concatenate([W, W_q]),
                                    np.stack([n_vertices + np.arange(q), own], axis=1),
                                    np.broadcast_to([1.0 - side_weight, side_weight], (q, 2)))
@@ -446,34 +458,44 @@ def tear(mesh: SkinnedMesh, scalpels, *, opening: float = 0.0, predicates: str =
         copies_W.append(Wc)
     J_new = np.concatenate([J_tips] + copies_J)
     W_new = np.concatenate([W_tips] + copies_W)
-    world = np.concatenate([path.sample_points[[0, -1]], path.points + 0.5 * opening * normals,
-                            path.points - 0.5 * opening * normals])
+    world = np.concatenate([topology.sample_points[[0, -1]], topology.points + 0.5 * opening * normals,
+                            topology.points - 0.5 * opening * normals])
     rest = rest_positions(J_new, W_new, world, joint_matrices)
 
     keep = np.ones(len(F), bool)
-    keep[path.faces] = False
-    triangles = _retriangulate(space, F, edges, path, n_vertices)
+    keep[topology.faces] = False
+    triangles = _retriangulate(space, F, edges, topology, n_vertices)
     torn = skinned_mesh_like(mesh, np.concatenate([np.asarray(mesh.V, np.float64), rest]),
                              np.concatenate([F[keep], triangles]), np.concatenate([J, J_new]),
                              np.concatenate([W, W_new]))
-    return (torn, path) if return_path else torn
+    return (torn, topology) if return_topology else torn
 
 
-def tear_positions(V, F, path: TearPath, scalpels, opening=0.0):
-    """Positions of a tear's new vertices as a JAX function of the vertices, the scalpel samples
-    and the opening, for a fixed topology (``path``): differentiable with respect to the tool.
+def tear_positions(V: Float[ArrayLike, "n 3"], topology: TearTopology, scalpel: Scalpel, *,
+                   opening: Float[ArrayLike, ""] = 0.0
+                   ) -> tuple[Float[Array, "2 3"], Float[Array, "q 3"], Float[Array, "q 3"]]:
+    """Positions of a tear's new vertices as a JAX function of the vertices, the scalpel and the
+    opening, for a fixed topology: differentiable with respect to all three (``jax.grad`` over a
+    ``Scalpel`` gives a ``Scalpel``). Each S_i is the scalpel's crossing with its face's plane, kept the
+    same 2% (barycentric) off the face's edges as in ``tear_topology``.
 
-    Returns (tips (2, 3): S_0 and S_k, left (q, 3), right (q, 3): the two copies of every Q_j).
-    Each S_i is the scalpel's crossing with its face's plane, kept the same 2% (barycentric) off the
-    face's edges as in ``tear_path``."""
+    Args:
+        V: (n, 3) vertex positions, as torn (posed, when torn with ``joint_matrices``).
+        topology: the tear's ``TearTopology``.
+        scalpel: the ``Scalpel``, with as many samples (k+1) as the topology was computed from.
+        opening: () the distance between the two copies of every Q_j (see ``tear``).
+    Returns:
+        (tips (2, 3): S_0 and S_k, left (q, 3), right (q, 3): the two copies of every Q_j)."""
     V = jnp.asarray(V)
-    scalpels = jnp.asarray(scalpels)
-    corners = V[jnp.asarray(F)[jnp.asarray(path.sample_faces)]]  # (k+1, 3, 3)
+    X0, X1 = jnp.asarray(scalpel.handle), jnp.asarray(scalpel.tip)
+    if X0.shape != (len(topology.sample_faces), 3) or X1.shape != X0.shape:
+        raise ValueError(f"scalpel: expected handle and tip ends of shape ({len(topology.sample_faces)}, 3) (the "
+                         f"topology's samples), got {X0.shape}, {X1.shape}")
+    corners = V[jnp.asarray(topology.sample_corners)]  # (k+1, 3, 3)
     face_normals = jnp.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
-    X0, X1 = scalpels[:, 0], scalpels[:, 1]
     s = jnp.sum(face_normals * (corners[:, 0] - X0), -1) / jnp.sum(face_normals * (X1 - X0), -1)
     crossings = X0 + s[:, None] * (X1 - X0)
-    # barycentric coordinates in the face, with tear_path's margin (piecewise smooth in the tool)
+    # barycentric coordinates in the face, with tear_topology's margin (piecewise smooth in the tool)
     squared = jnp.sum(face_normals * face_normals, -1)
     barycentric = jnp.stack([jnp.sum(face_normals * jnp.cross(corners[:, (k + 1) % 3] - crossings,
                                                               corners[:, (k + 2) % 3] - crossings), -1)
@@ -481,12 +503,12 @@ def tear_positions(V, F, path: TearPath, scalpels, opening=0.0):
     barycentric = jnp.maximum(barycentric, _TIP_MARGIN)
     barycentric = barycentric / jnp.sum(barycentric, -1, keepdims=True)
     samples = jnp.einsum("sk,skc->sc", barycentric, corners)
-    normals = jnp.cross(scalpels[1:, 0] - samples[:-1], scalpels[1:, 1] - samples[:-1])
-    normals = jnp.asarray(path.orientation)[:, None] * normals / jnp.linalg.norm(normals, axis=-1, keepdims=True)
-    offsets = jnp.sum(normals * samples[:-1], -1) + jnp.asarray(path.shift)
-    step = jnp.asarray(path.step)
+    normals = jnp.cross(X0[1:] - samples[:-1], X1[1:] - samples[:-1])
+    normals = jnp.asarray(topology.orientation)[:, None] * normals / jnp.linalg.norm(normals, axis=-1, keepdims=True)
+    offsets = jnp.sum(normals * samples[:-1], -1) + jnp.asarray(topology.shift)
+    step = jnp.asarray(topology.step)
     n, d = normals[step], offsets[step]
-    A, B = V[path.crossing[:, 0]], V[path.crossing[:, 1]]
+    A, B = V[topology.crossing[:, 0]], V[topology.crossing[:, 1]]
     sA, sB = jnp.sum(A * n, -1) - d, jnp.sum(B * n, -1) - d
     Q = A + (sA / (sA - sB))[:, None] * (B - A)
     half = 0.5 * opening * n

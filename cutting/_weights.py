@@ -8,9 +8,12 @@ A new vertex X on a face or an edge gets the barycentric blend of its corners' w
 from __future__ import annotations
 
 import numpy as np
+from jaxtyping import ArrayLike, Float, Int
 
 
-def blend_weights(J, W, corners, coefficients, influences: int | None = None):
+def blend_weights(J: Int[ArrayLike, "n k"], W: Float[ArrayLike, "n k"], corners: Int[ArrayLike, "p c"],
+                  coefficients: Float[ArrayLike, "p c"], influences: int | None = None
+                  ) -> tuple[Int[np.ndarray, "p i"], Float[np.ndarray, "p i"]]:
     """Barycentric blend of vertex weights, the top ``influences`` bones kept and renormalized.
 
     Args:

@@ -73,8 +73,9 @@ def cut_command(model, plane, out_positive: Path, out_negative: Path, cap: bool 
     import deform
 
     with coordinates("cut", model, ("plane",)):
-        positive, negative = cutting.cut(model.mesh, np.asarray(plane, np.float64), cap=cap, predicates=predicates,
-                                         side_weight=side_weight)
+        plane = np.asarray(plane, np.float64)
+        positive, negative = cutting.cut(model.mesh, cutting.Plane(plane[:3], plane[3]), cap=cap,
+                                         predicates=predicates, side_weight=side_weight)
     deform.save_models({
         out_positive: deform.RiggedModel(positive, model.skeleton, model.clips, f"{model.name}-positive"),
         out_negative: deform.RiggedModel(negative, model.skeleton, model.clips, f"{model.name}-negative"),

@@ -179,7 +179,8 @@ def demo(out: Path, steps: int, figure: bool) -> None:
         path = skinning_figure(arm, out / "arm.png")
         print(f"  figure: the arm along its clip         -> {path}")
 
-    plane = jnp.array([1.0, 0.15, 0.0, float(jnp.median(arm.mesh.V @ jnp.array([1.0, 0.15, 0.0])))])
+    normal = jnp.array([1.0, 0.15, 0.0])
+    plane = cutting.Plane(normal, float(jnp.median(arm.mesh.V @ normal)))
     start = time.perf_counter()
     upper, lower = cutting.cut(arm.mesh, plane, cap=True)
     took = 1e3 * (time.perf_counter() - start)

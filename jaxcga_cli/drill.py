@@ -47,8 +47,8 @@ def drill_command(model, tip, base, radius: float, out: Path, min_points: int = 
     import deform
     from jaxcga_cli.cut import coordinates
 
-    with coordinates("drill", model, ("tip", "base")):
-        drilled, topology = cutting.drill(model.mesh, tip, base, radius, min_points=min_points,
+    with coordinates("drill", model, ("drill",)):
+        drilled, topology = cutting.drill(model.mesh, cutting.Drill(tip, base, radius), min_points=min_points,
                                           max_refinements=max_refinements, return_topology=True)
     deform.save_model(deform.RiggedModel(drilled, model.skeleton, model.clips, f"{model.name}-drilled"), out)
     return {"holes": topology.holes, "hole_points": len(topology.points), "refinements": topology.refinements,

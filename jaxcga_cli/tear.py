@@ -55,9 +55,10 @@ def tear_command(model, scalpels, out: Path, opening: float = 0.0, predicates: s
     import deform
     from jaxcga_cli.cut import coordinates
 
-    with coordinates("tear", model, ("scalpels",)):
-        torn, path = cutting.tear(model.mesh, np.asarray(scalpels, np.float64), opening=opening,
-                                  predicates=predicates, side_weight=side_weight, return_path=True)
+    scalpels = np.asarray(scalpels, np.float64)
+    with coordinates("tear", model, ("scalpel",)):
+        torn, topology = cutting.tear(model.mesh, cutting.Scalpel(scalpels[:, 0], scalpels[:, 1]), opening=opening,
+                                      predicates=predicates, side_weight=side_weight, return_topology=True)
     deform.save_model(deform.RiggedModel(torn, model.skeleton, model.clips, f"{model.name}-torn"), out)
-    return {"tear_points": len(path.t), "faces": int(torn.F.shape[0]),
+    return {"tear_points": len(topology.t), "faces": int(torn.F.shape[0]),
             "new_vertices": torn.num_vertices - model.mesh.num_vertices, "out": str(out)}

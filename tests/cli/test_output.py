@@ -145,7 +145,7 @@ def disk_full(tmp_path_factory):
     sizing = tmp_path_factory.mktemp("sizes")
     arm = deform.default_arm()
     plane = [1.0, 0.0, 0.0, 0.45]
-    halves = cutting.cut(arm.mesh, np.asarray(plane))
+    halves = cutting.cut(arm.mesh, cutting.Plane(plane[:3], plane[3]))
     sizes = []
     for k, half in enumerate(halves):
         deform.save_model(deform.RiggedModel(half, arm.skeleton, arm.clips), sizing / f"{k}.glb")

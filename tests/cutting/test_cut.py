@@ -4,6 +4,7 @@ finite differences, both predicate families, and bad input."""
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -35,7 +36,7 @@ def _random_plane(V, direction, offset):
     n = np.asarray(direction, np.float64)
     n /= np.linalg.norm(n)
     heights = np.asarray(V) @ n
-    return np.append(n, heights.min() + offset * (heights.max() - heights.min()))
+    return cutting.Plane(n, heights.min() + offset * (heights.max() - heights.min()))
 
 
 directions = st.tuples(*[st.floats(-1, 1) for _ in range(3)]).filter(lambda v: np.linalg.norm(v) > 0.1)
@@ -56,13 +57,13 @@ def test_cut_invariants_on_real_models(name, direction, offset, predicates):
     total = _area(V, mesh.F).sum()
     assert abs(areas[0].sum() + areas[1].sum() - total) <= 1e-9 * total
     # no sliver: pieces of faces keep 1e-3 of the smallest face's area and angles of 1e-3 rad
-    topology = cutting.plane_cut(V, mesh.F, plane, predicates=predicates)
+    topology = cutting.cut_topology(V, mesh.F, plane, predicates=predicates)
     for half, keep in ((positive, topology.positive), (negative, topology.negative)):
         problems, _, _ = piece_quality(V, mesh.F, half.V, half.F, keep)
         assert not problems + consistency_problems(half, mesh, keep)
     # sides: the positive half's input vertices have n.x >= d, or were snapped onto the plane (distance
     # 0) because a crossing next to them would have left a sliver
-    n, d = plane[:3], plane[3]
+    n, d = plane.normal, plane.distance
     for keep, sign in ((topology.positive, 1), (topology.negative, -1)):
         assert np.all(sign * topology.distances[keep[keep < len(V)]] >= 0)
     for half in (positive, negative):
@@ -74,7 +75,7 @@ def test_cut_invariants_on_real_models(name, direction, offset, predicates):
     assert np.all(np.abs(topology.points @ n - d) <= 1e-9 * diagonal)
     assert np.all((topology.t > 0) & (topology.t < 1))
     # the differentiable positions follow the snapped topology
-    np.testing.assert_allclose(np.asarray(cutting.cut_positions(V, topology.crossing, jnp.asarray(n), d)),
+    np.testing.assert_allclose(np.asarray(cutting.cut_positions(V, topology, plane)),
                                topology.points, rtol=0, atol=1e-12 * diagonal)
 
 
@@ -103,7 +104,7 @@ def test_halves_are_manifold_and_caps_close_them_with_the_right_volume():
     V, F = np.asarray(cylinder.vertices), np.asarray(cylinder.faces)
     mesh = deform.SkinnedMesh(jnp.asarray(V), jnp.asarray(F, jnp.int32), jnp.zeros((len(V), 1), jnp.int32),
                               jnp.ones((len(V), 1)), jnp.eye(4)[None], (0,))
-    for plane, lower in (([0.0, 0.0, 1.0, 0.5], 2.5), ([0.0, 0.3, 1.0, 0.2], None)):
+    for plane, lower in ((cutting.Plane([0.0, 0.0, 1.0], 0.5), 2.5), (cutting.Plane([0.0, 0.3, 1.0], 0.2), None)):
         positive, negative = cutting.cut(mesh, plane, cap=True)
         halves = [trimesh.Trimesh(np.asarray(h.V), np.asarray(h.F), process=False) for h in (positive, negative)]
         merged = [trimesh.Trimesh(np.asarray(h.V), np.asarray(h.F)) for h in (positive, negative)]
@@ -137,8 +138,8 @@ def test_cap_of_the_builtin_arm():
 def test_planes_through_vertices_and_along_edges_make_no_slivers():
     grid = trimesh.creation.box(extents=(2, 2, 2)).subdivide().subdivide()
     V, F = np.asarray(grid.vertices), np.asarray(grid.faces)
-    for plane in ([1.0, 0.0, 0.0, 0.0], [1.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.5], [1.0, 0.0, 0.0, 1e-12]):
-        topology = cutting.plane_cut(V, F, plane)
+    for n, d in (([1.0, 0.0, 0.0], 0.0), ([1.0, 1.0, 0.0], 0.0), ([0.0, 0.0, 1.0], 0.5), ([1.0, 0.0, 0.0], 1e-12)):
+        topology = cutting.cut_topology(V, F, cutting.Plane(n, d))
         for keep, faces in ((topology.positive, topology.positive_faces), (topology.negative, topology.negative_faces)):
             ext = np.concatenate([V, topology.points])[keep]
             assert _area(ext, faces).min() > 1e-6
@@ -153,13 +154,18 @@ def test_planes_through_vertices_and_along_edges_make_no_slivers():
 def test_ga_and_euclidean_predicates_agree():
     mesh = MODELS["Arm5"].mesh
     plane = _random_plane(mesh.V, [0.2, 1.0, 0.4], 0.4)
-    a = cutting.plane_cut(mesh.V, mesh.F, plane, predicates="euclidean")
-    b = cutting.plane_cut(mesh.V, mesh.F, plane, predicates="ga")
+    a = cutting.cut_topology(mesh.V, mesh.F, plane, predicates="euclidean")
+    b = cutting.cut_topology(mesh.V, mesh.F, plane, predicates="ga")
     np.testing.assert_array_equal(a.crossing, b.crossing)
     np.testing.assert_allclose(a.points, b.points, atol=1e-9 * _diagonal(mesh.V))
-    # the plane as a jaxcga plane vector
-    c = cutting.plane_cut(mesh.V, mesh.F, cga.plane(jnp.asarray(plane[:3]), plane[3]))
+    # the plane as a jaxcga plane vector, and through a point
+    c = cutting.cut_topology(mesh.V, mesh.F, cutting.Plane.from_multivector(cga.plane(jnp.asarray(plane.normal),
+                                                                                      plane.distance)))
     np.testing.assert_array_equal(a.positive_faces, c.positive_faces)
+    point = plane.distance * plane.normal + np.cross(plane.normal, [0.3, -0.2, 0.5])  # on the plane
+    through = cutting.Plane.through(point, 2.0 * plane.normal)
+    np.testing.assert_allclose(through.distance, 2.0 * plane.distance, rtol=1e-12)
+    np.testing.assert_array_equal(a.crossing, cutting.cut_topology(mesh.V, mesh.F, through).crossing)
 
 
 def test_new_vertex_weights_are_the_barycentric_blend():
@@ -178,8 +184,8 @@ def test_new_vertex_weights_are_the_barycentric_blend():
 def test_side_weight_favours_each_halfs_own_side():
     mesh = ARM.mesh
     plane = _random_plane(mesh.V, [1.0, 0.0, 0.0], 0.5)
-    topology = cutting.plane_cut(mesh.V, mesh.F, plane)
-    positive, negative = cutting.cut(mesh, plane, side_weight=1.0)
+    (positive, negative), topology = cutting.cut(mesh, plane, side_weight=1.0, return_topology=True)
+    np.testing.assert_array_equal(topology.crossing, cutting.cut_topology(mesh.V, mesh.F, plane).crossing)
     V = np.asarray(mesh.V)
     rows = _original_rows(positive, V)
     new_positions = np.asarray(positive.V)[rows < 0]
@@ -206,7 +212,7 @@ def test_cut_in_a_pose_reproduces_the_cut_when_posed_again(method):
     for half in (positive, negative):
         again = np.asarray(deform.skin_pose(deform.RiggedModel(half, model.skeleton), pose, method))
         rows = _original_rows(half, model.mesh.V)
-        assert np.all(np.abs(again[rows < 0] @ plane[:3] - plane[3]) <= 1e-9 * _diagonal(posed))
+        assert np.all(np.abs(again[rows < 0] @ plane.normal - plane.distance) <= 1e-9 * _diagonal(posed))
         # animating on keeps working: another time of the clip gives finite positions
         later = deform.skin_pose(deform.RiggedModel(half, model.skeleton), deform.sample_pose(model, 1.6, "lbs"), "lbs")
         assert np.all(np.isfinite(np.asarray(later)))
@@ -215,34 +221,43 @@ def test_cut_in_a_pose_reproduces_the_cut_when_posed_again(method):
 def test_new_vertex_positions_are_differentiable_in_the_plane():
     mesh = MODELS["3Cylinder4bones"].mesh
     plane = _random_plane(mesh.V, [0.1, 1.0, 0.2], 0.5)
-    topology = cutting.plane_cut(mesh.V, mesh.F, plane)
-    positions = cutting.cut_positions(mesh.V, topology.crossing, jnp.asarray(plane[:3]), plane[3])
+    topology = cutting.cut_topology(mesh.V, mesh.F, plane)
+    positions = cutting.cut_positions(mesh.V, topology, plane)
     np.testing.assert_allclose(positions, topology.points, atol=1e-12)
 
     def loss(params):
-        return jnp.sum(cutting.cut_positions(mesh.V, topology.crossing, params[:3], params[3]) ** 2)
+        return jnp.sum(cutting.cut_positions(mesh.V, topology, cutting.Plane(params[:3], params[3])) ** 2)
 
-    params = jnp.asarray(plane)
+    params = jnp.append(jnp.asarray(plane.normal), plane.distance)
     check_gradient(loss, params, rtol=1e-6)
+    # the gradient with respect to the Plane itself is a Plane holding the same numbers
+    grad = jax.grad(lambda tool: jnp.sum(cutting.cut_positions(mesh.V, topology, tool) ** 2))(
+        cutting.Plane(jnp.asarray(plane.normal), jnp.asarray(plane.distance)))
+    np.testing.assert_allclose(jnp.append(grad.normal, grad.distance), jax.grad(loss)(params), rtol=1e-12)
+    with pytest.raises(ValueError, match="V: expected the"):
+        cutting.cut_positions(mesh.V[:-1], topology, plane)
 
 
 def test_bad_input():
     mesh = ARM.mesh
+    x = cutting.Plane([1.0, 0.0, 0.0], 0.0)
     with pytest.raises(ValueError, match="misses the mesh"):
-        cutting.cut(mesh, [1.0, 0.0, 0.0, 1e6])
-    with pytest.raises(ValueError, match="plane"):
-        cutting.cut(mesh, [1.0, 0.0, 0.0])
+        cutting.cut(mesh, cutting.Plane([1.0, 0.0, 0.0], 1e6))
+    with pytest.raises(ValueError, match="plane: expected a cutting.Plane"):
+        cutting.cut(mesh, [1.0, 0.0, 0.0, 0.0])  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="plane: expected a .3,. normal"):
+        cutting.cut(mesh, cutting.Plane([1.0, 0.0], 0.0))
     with pytest.raises(ValueError, match="zero-length"):
-        cutting.cut(mesh, [0.0, 0.0, 0.0, 1.0])
+        cutting.cut(mesh, cutting.Plane([0.0, 0.0, 0.0], 1.0))
     with pytest.raises(ValueError, match="finite"):
-        cutting.cut(mesh, [np.nan, 0.0, 1.0, 0.0])
+        cutting.cut(mesh, cutting.Plane([np.nan, 0.0, 1.0], 0.0))
     with pytest.raises(ValueError, match="predicates"):
-        cutting.cut(mesh, [1.0, 0.0, 0.0, 0.0], predicates="exact")
+        cutting.cut(mesh, x, predicates="exact")
     with pytest.raises(ValueError, match="joint_matrices"):
-        cutting.cut(mesh, [1.0, 0.0, 0.0, 0.0], joint_matrices=np.eye(4))
+        cutting.cut(mesh, x, joint_matrices=np.eye(4))
     with pytest.raises(ValueError, match="F"):
-        cutting.plane_cut(np.zeros((3, 3)), np.array([[0, 1, 5]]), [1.0, 0.0, 0.0, 0.0])
+        cutting.cut_topology(np.zeros((3, 3)), np.array([[0, 1, 5]]), x)
     with pytest.raises(ValueError, match="V"):
-        cutting.plane_cut(np.full((3, 3), np.inf), np.array([[0, 1, 2]]), [1.0, 0.0, 0.0, 0.0])
+        cutting.cut_topology(np.full((3, 3), np.inf), np.array([[0, 1, 2]]), x)
     with pytest.raises(ValueError, match="edges"):
-        cutting.plane_cut(mesh.V, mesh.F, [1.0, 0.0, 0.0, 0.0], edges=cutting.mesh_edges(np.array([[0, 1, 2]])))
+        cutting.cut_topology(mesh.V, mesh.F, x, edges=cutting.mesh_edges(np.array([[0, 1, 2]])))

@@ -70,7 +70,7 @@ def test_drill_invariants_on_real_models(name, seed, radius, depth):
     before_edges, before_counts = _edge_counts(F)
     rim = V[np.unique(before_edges[before_counts == 1])]
     assume(len(rim) == 0 or np.linalg.norm(rim - V[F[face]].mean(axis=0), axis=1).min() > (radius + depth + 2) * edge)
-    drilled, topology = cutting.drill(mesh, tip, base, radius * edge, return_topology=True)
+    drilled, topology = cutting.drill(mesh, cutting.Drill(tip, base, radius * edge), return_topology=True)
     Vd, Fd = np.asarray(drilled.V, np.float64), np.asarray(drilled.F)
     diagonal = _diagonal(V)
     # new points on the cylinder; no sliver (issue 30): pieces keep 1e-3 of the smallest face's area and
@@ -78,8 +78,9 @@ def test_drill_invariants_on_real_models(name, seed, radius, depth):
     assert np.all(np.abs(_radial_distance(topology.points, tip, base) - radius * edge) <= 1e-9 * diagonal)
     problems, _, _ = piece_quality(V, F, Vd, Fd, topology.kept)
     # the differentiable positions follow the topology left after dropping points
-    np.testing.assert_allclose(np.asarray(cutting.drill_positions(topology.vertices, topology.crossing, topology.root,
-                                                                  jnp.asarray(tip), jnp.asarray(base), radius * edge)),
+    np.testing.assert_allclose(np.asarray(cutting.drill_positions(V, topology, cutting.Drill(jnp.asarray(tip),
+                                                                                             jnp.asarray(base),
+                                                                                             radius * edge))),
                                topology.points, rtol=0, atol=1e-9 * diagonal)
     assert not problems + consistency_problems(drilled, mesh, topology.kept)
     assert _area(Vd, Fd).sum() < _area(V, F).sum()
@@ -108,7 +109,7 @@ def test_hole_in_a_flat_plate_is_the_inscribed_polygon():
         plate = plate.subdivide()
     V, F = np.asarray(plate.vertices), np.asarray(plate.faces)
     tip, base, r = np.array([0.1, 0.05, 0.0]), np.array([0.1, 0.05, 2.0]), 0.7
-    drilled = cutting.drill_mesh(V, F, tip, base, r)
+    drilled = cutting.drill_topology(V, F, cutting.Drill(tip, base, r))
     assert drilled.holes == 1
     top_before = _area(V, F)[V[F].mean(axis=1)[:, 2] > 0.49].sum()
     extended = np.concatenate([drilled.vertices, drilled.points])[drilled.kept]
@@ -127,7 +128,7 @@ def test_hole_in_a_flat_plate_is_the_inscribed_polygon():
     assert abs(_area(extended, drilled.faces)[extended[drilled.faces].mean(axis=1)[:, 2] < -0.49].sum() - bottom) \
         <= 1e-12 * bottom
     # a longer drill goes through both sides
-    through = cutting.drill_mesh(V, F, np.array([0.1, 0.05, -2.0]), base, r)
+    through = cutting.drill_topology(V, F, cutting.Drill(np.array([0.1, 0.05, -2.0]), base, r))
     assert through.holes == 2
 
 
@@ -136,8 +137,13 @@ def test_a_drill_thinner_than_the_faces_splits_them_and_drills_again():
     V, F = np.asarray(mesh.V), np.asarray(mesh.F)
     tip, base = drill_into(V, F, 1000, mean_edge(V, F))
     radius = 0.08 * mean_edge(V, F)
-    drilled, topology = cutting.drill(mesh, tip, base, radius, return_topology=True)
+    drilled, topology = cutting.drill(mesh, cutting.Drill(tip, base, radius), return_topology=True)
     assert topology.refinements >= 1 and len(topology.points) >= 6
+    # the differentiable positions form the midpoints (level after level) from the input's vertices
+    np.testing.assert_allclose(cutting.drill_positions(V, topology, cutting.Drill(tip, base, radius)), topology.points,
+                               atol=1e-9 * _diagonal(V))
+    with pytest.raises(ValueError, match="V: expected the"):
+        cutting.drill_positions(topology.vertices, topology, cutting.Drill(tip, base, radius))
     np.testing.assert_allclose(_radial_distance(topology.points, tip, base), radius, atol=1e-9 * _diagonal(V))
     # refinement midpoints (of midpoints, level after level) sit halfway along their parents
     vertices = topology.vertices
@@ -148,7 +154,7 @@ def test_a_drill_thinner_than_the_faces_splits_them_and_drills_again():
     np.testing.assert_allclose(np.asarray(drilled.V)[midpoints], vertices[kept[midpoints]], atol=1e-5)
     assert np.all(np.asarray(drilled.W)[midpoints].sum(axis=1) > 0.999)
     with pytest.raises(ValueError, match="too thin"):
-        cutting.drill(mesh, tip, base, radius, max_refinements=0)
+        cutting.drill(mesh, cutting.Drill(tip, base, radius), max_refinements=0)
 
 
 @pytest.mark.parametrize("method", deform.METHODS)
@@ -156,7 +162,7 @@ def test_skinning_the_drilled_mesh_gives_the_original_at_original_vertices(metho
     model = ARM
     V, F = np.asarray(model.mesh.V), np.asarray(model.mesh.F)
     tip, base = drill_into(V, F, 3000, 0.05)
-    drilled, topology = cutting.drill(model.mesh, tip, base, 0.02, return_topology=True)
+    drilled, topology = cutting.drill(model.mesh, cutting.Drill(tip, base, 0.02), return_topology=True)
     pose = deform.sample_pose(model, 0.7, method)
     original = np.asarray(deform.skin_pose(model, pose, method))
     posed = np.asarray(deform.skin_pose(deform.RiggedModel(drilled, model.skeleton), pose, method))
@@ -171,7 +177,8 @@ def test_drill_in_a_pose_reproduces_the_hole_when_posed_again(method):
     local, joints, posed = posed_arm(model, 0.9)
     F = np.asarray(model.mesh.F)
     tip, base = drill_into(posed, F, 5000, 0.05)
-    drilled, topology = cutting.drill(model.mesh, tip, base, 0.015, joint_matrices=joints, return_topology=True)
+    drilled, topology = cutting.drill(model.mesh, cutting.Drill(tip, base, 0.015), joint_matrices=joints,
+                                      return_topology=True)
     pose = local if method == "lbs" else cga.matrix_to_similitude(local)
     again = np.asarray(deform.skin_pose(deform.RiggedModel(drilled, model.skeleton), pose, method))
     new = topology.kept >= len(topology.vertices)
@@ -185,14 +192,12 @@ def test_new_vertex_positions_are_differentiable_in_the_drill():
     mesh = MODELS["3Cylinder4bones"].mesh
     V, F = np.asarray(mesh.V), np.asarray(mesh.F)
     tip, base = drill_into(V, F, 100, 0.5)
-    topology = cutting.drill_mesh(V, F, tip, base, 0.3)
-    positions = cutting.drill_positions(topology.vertices, topology.crossing, topology.root, tip, base, 0.3)
+    topology = cutting.drill_topology(V, F, cutting.Drill(tip, base, 0.3))
+    positions = cutting.drill_positions(V, topology, cutting.Drill(tip, base, 0.3))
     np.testing.assert_allclose(positions, topology.points, atol=1e-12)
 
     def loss(params):
-        points = cutting.drill_positions(topology.vertices, topology.crossing, topology.root, params[:3], params[3:6],
-                                         params[6])
-        return jnp.sum(jnp.sin(points))
+        return jnp.sum(jnp.sin(cutting.drill_positions(V, topology, cutting.Drill(params[:3], params[3:6], params[6]))))
 
     params = jnp.concatenate([jnp.asarray(tip), jnp.asarray(base), jnp.array([0.3])])
     check_gradient(loss, params)
@@ -203,19 +208,21 @@ def test_bad_input():
     V, F = np.asarray(mesh.V), np.asarray(mesh.F)
     tip, base = drill_into(V, F, 3000, 0.05)
     with pytest.raises(ValueError, match="misses the mesh"):
-        cutting.drill(mesh, tip + 10.0, base + 10.0, 0.02)
-    with pytest.raises(ValueError, match="radius"):
-        cutting.drill(mesh, tip, base, -1.0)
+        cutting.drill(mesh, cutting.Drill(tip + 10.0, base + 10.0, 0.02))
+    with pytest.raises(ValueError, match="drill.radius"):
+        cutting.drill(mesh, cutting.Drill(tip, base, -1.0))
     with pytest.raises(ValueError, match="coincide"):
-        cutting.drill(mesh, tip, tip, 0.02)
-    with pytest.raises(ValueError, match="tip"):
-        cutting.drill(mesh, [0.0, 1.0], base, 0.02)
-    with pytest.raises(ValueError, match="base"):
-        cutting.drill(mesh, tip, [np.nan, 0.0, 0.0], 0.02)
+        cutting.drill(mesh, cutting.Drill(tip, tip, 0.02))
+    with pytest.raises(ValueError, match="drill.tip"):
+        cutting.drill(mesh, cutting.Drill([0.0, 1.0], base, 0.02))
+    with pytest.raises(ValueError, match="drill.base"):
+        cutting.drill(mesh, cutting.Drill(tip, [np.nan, 0.0, 0.0], 0.02))
+    with pytest.raises(ValueError, match="drill: expected a cutting.Drill"):
+        cutting.drill(mesh, (tip, base, 0.02))  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="min_points"):
-        cutting.drill(mesh, tip, base, 0.02, min_points=2)
+        cutting.drill(mesh, cutting.Drill(tip, base, 0.02), min_points=2)
     with pytest.raises(ValueError, match="joint_matrices"):
-        cutting.drill(mesh, tip, base, 0.02, joint_matrices=np.eye(4))
+        cutting.drill(mesh, cutting.Drill(tip, base, 0.02), joint_matrices=np.eye(4))
 
 
 def _plate_with_a_fin():
@@ -233,16 +240,17 @@ def _plate_with_a_fin():
 def test_non_manifold_input():
     V, F = _plate_with_a_fin()
     # far from the fin the plate drills normally; across it the drill is refused
-    away = cutting.drill_mesh(V, F, np.array([0.25, 0.2, -1.0]), np.array([0.25, 0.2, 1.0]), 0.12)
+    away = cutting.drill_topology(V, F, cutting.Drill(np.array([0.25, 0.2, -1.0]), np.array([0.25, 0.2, 1.0]), 0.12))
     assert away.holes == 1 and len(away.points) >= 6
     with pytest.raises(ValueError, match="non-manifold"):
-        cutting.drill_mesh(V, F, np.array([0.5, 0.52, -1.0]), np.array([0.5, 0.52, 1.0]), 0.12)
+        cutting.drill_topology(V, F, cutting.Drill(np.array([0.5, 0.52, -1.0]), np.array([0.5, 0.52, 1.0]), 0.12))
     # a tear that reaches the fin's edges is refused too
-    scalpels = np.array([[[0.52, 0.3, 1.0], [0.52, 0.3, -1.0]], [[0.52, 0.7, 1.0], [0.52, 0.7, -1.0]]])
+    scalpel = cutting.Scalpel(np.array([[0.52, 0.3, 1.0], [0.52, 0.7, 1.0]]), np.array([[0.52, 0.3, -1.0],
+                                                                                         [0.52, 0.7, -1.0]]))
     with pytest.raises(ValueError, match="non-manifold"):
-        cutting.tear_path(V, F, scalpels)
+        cutting.tear_topology(V, F, scalpel)
     # a cut goes through (it works face by face)
-    topology = cutting.plane_cut(V, F, [1.0, 0.0, 0.0, 0.55])
+    topology = cutting.cut_topology(V, F, cutting.Plane([1.0, 0.0, 0.0], 0.55))
     assert len(topology.points) > 0
 
 
@@ -251,7 +259,7 @@ def test_a_drill_through_grid_vertices_makes_no_slivers():
     V, F = grid()
     centre = np.array([0.5, 0.5, 0.0])
     for radius in (0.2, 0.1 * np.sqrt(5.0), 0.3 + 1e-12):
-        hole = cutting.drill_mesh(V, F, centre - [0, 0, 1], centre + [0, 0, 1], radius)
+        hole = cutting.drill_topology(V, F, cutting.Drill(centre - [0, 0, 1], centre + [0, 0, 1], radius))
         extended = np.concatenate([hole.vertices, hole.points])[hole.kept]
         assert _area(extended, hole.faces).min() > 1e-9
         removed = 1.0 - _area(extended, hole.faces).sum()
@@ -268,8 +276,9 @@ def test_a_drill_wider_than_what_it_meets_says_so_not_too_thin():
                   [5, 5, 0], [6, 5, 0], [6, 6, 0], [5, 6, 0.0]])
     F = np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]])
     tip, base = np.array([0.0, 0.0, -1.0]), np.array([0.0, 0.0, 1.0])
-    with pytest.raises(ValueError, match=r"radius: 0.2 is wider than the part of the model the drill meets"):
-        cutting.drill_mesh(V, F, tip, base, 0.2)
-    with pytest.raises(ValueError, match=r"radius: 20 exceeds the model's size: every vertex lies within 8.485 "):
-        cutting.drill_mesh(V, F, tip, base, 20.0)
-    assert len(cutting.drill_mesh(V, F, tip, base, 0.01, max_refinements=8).points) >= 6  # a fitting radius drills
+    with pytest.raises(ValueError, match=r"drill.radius: 0.2 is wider than the part of the model the drill meets"):
+        cutting.drill_topology(V, F, cutting.Drill(tip, base, 0.2))
+    with pytest.raises(ValueError, match=r"drill.radius: 20 exceeds the model's size: every vertex lies within 8.485 "):
+        cutting.drill_topology(V, F, cutting.Drill(tip, base, 20.0))
+    fitting = cutting.drill_topology(V, F, cutting.Drill(tip, base, 0.01), max_refinements=8)
+    assert len(fitting.points) >= 6  # a fitting radius drills

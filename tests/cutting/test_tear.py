@@ -17,7 +17,7 @@ import jaxcga as cga
 from tests.cutting.tools import area as _area
 from tests.cutting.tools import consistency_problems, piece_quality
 from tests.cutting.tools import diagonal as _diagonal
-from tests.cutting.tools import TOOL_REFUSALS, edge_counts, load_models, mean_edge, scalpels_over
+from tests.cutting.tools import TOOL_REFUSALS, edge_counts, load_models, mean_edge, scalpel_of, scalpels_over
 from tests.cutting.tools import posed as posed_arm
 from tests.shared import check_gradient, grid
 
@@ -33,7 +33,7 @@ ARM = deform.default_arm()
 
 def _tear_or_refusal(mesh, scalpels, **kwargs):
     try:
-        return cutting.tear(mesh, scalpels, return_path=True, **kwargs)
+        return cutting.tear(mesh, scalpels, return_topology=True, **kwargs)
     except ValueError as error:
         assert any(reason in str(error) for reason in TOOL_REFUSALS), error
         assume(False)
@@ -60,7 +60,7 @@ def test_tear_invariants_on_real_models(name, seed, samples, steps, predicates):
     n, d = path.planes[path.step, :3], path.planes[path.step, 3]
     assert np.all(np.abs(np.einsum("ij,ij->i", path.points, n) - d) <= 1e-9 * diagonal)
     for i in (0, -1):
-        a, b = scalpels[i]
+        a, b = scalpels.handle[i], scalpels.tip[i]
         off_line = np.linalg.norm(np.cross(path.sample_points[i] - a, b - a)) / np.linalg.norm(b - a)
         corners = V[F[path.sample_faces[i]]]
         longest = np.linalg.norm(corners - np.roll(corners, 1, axis=0), axis=1).max()
@@ -83,7 +83,7 @@ def test_opening_parts_the_two_sides_along_the_plane_normal():
     mesh = MODELS["Arm5"].mesh
     V, F = np.asarray(mesh.V), np.asarray(mesh.F)
     scalpels = scalpels_over(V, F, 2000, [0.0, 1.0, 0.0], 3, 3 * mean_edge(V, F))
-    torn, path = cutting.tear(mesh, scalpels, opening=0.4, return_path=True)
+    torn, path = cutting.tear(mesh, scalpels, opening=0.4, return_topology=True)
     q, n = len(path.t), len(V)
     left, right = np.asarray(torn.V)[n + 2:n + 2 + q], np.asarray(torn.V)[n + 2 + q:]
     np.testing.assert_allclose(np.linalg.norm(left - right, axis=1), 0.4, rtol=1e-6)
@@ -109,8 +109,8 @@ def test_successive_samples_make_one_tear_along_the_path():
     mesh = MODELS["3Cylinder4bones"].mesh
     V, F = np.asarray(mesh.V), np.asarray(mesh.F)
     step = 2 * mean_edge(V, F)
-    short = cutting.tear_path(V, F, scalpels_over(V, F, 100, [0.0, 1.0, 0.0], 2, step))
-    long = cutting.tear_path(V, F, scalpels_over(V, F, 100, [0.0, 1.0, 0.0], 5, step))
+    short = cutting.tear_topology(V, F, scalpels_over(V, F, 100, [0.0, 1.0, 0.0], 2, step))
+    long = cutting.tear_topology(V, F, scalpels_over(V, F, 100, [0.0, 1.0, 0.0], 5, step))
     assert len(long.t) > len(short.t)
     assert set(np.unique(long.step)) > {0}
     # consecutive path faces share the edge of the tear point between them
@@ -125,7 +125,7 @@ def test_tear_in_a_pose_reproduces_the_tear_when_posed_again(method):
     local, joints, posed = posed_arm(model, 0.9)
     F = np.asarray(model.mesh.F)
     scalpels = scalpels_over(posed, F, 5000, [0.0, 1.0, 1.0], 3, 3 * mean_edge(posed, F))
-    torn, path = cutting.tear(model.mesh, scalpels, opening=0.004, joint_matrices=joints, return_path=True)
+    torn, path = cutting.tear(model.mesh, scalpels, opening=0.004, joint_matrices=joints, return_topology=True)
     pose = local if method == "lbs" else cga.matrix_to_similitude(local)
     again = np.asarray(deform.skin_pose(deform.RiggedModel(torn, model.skeleton), pose, method))
     n, q = len(posed), len(path.t)
@@ -143,34 +143,43 @@ def test_new_vertex_positions_are_differentiable_in_the_scalpel():
     mesh = MODELS["3Cylinder4bones"].mesh
     V, F = np.asarray(mesh.V), np.asarray(mesh.F)
     scalpels = scalpels_over(V, F, 100, [0.0, 1.0, 0.0], 3, 2 * mean_edge(V, F))
-    path = cutting.tear_path(V, F, scalpels)
-    tips, left, right = cutting.tear_positions(V, F, path, scalpels, 0.1)
+    path = cutting.tear_topology(V, F, scalpels)
+    tips, left, right = cutting.tear_positions(V, path, scalpels, opening=0.1)
     np.testing.assert_allclose(left - 0.05 * path.planes[path.step, :3], path.points, atol=1e-12)
     np.testing.assert_allclose(tips, path.sample_points[[0, -1]], atol=1e-12)
+    shape = scalpels.handle.shape
 
     def loss(params):
-        tips, left, right = cutting.tear_positions(V, F, path, params[:-1].reshape(scalpels.shape), params[-1])
+        scalpel = cutting.Scalpel(params[:-1].reshape(2, *shape)[0], params[:-1].reshape(2, *shape)[1])
+        tips, left, right = cutting.tear_positions(V, path, scalpel, opening=params[-1])
         return jnp.sum(jnp.sin(tips)) + jnp.sum(left**2) + jnp.sum(jnp.cos(right))
 
-    params = jnp.append(jnp.asarray(scalpels).ravel(), 0.1)
+    params = jnp.concatenate([jnp.asarray(scalpels.handle).ravel(), jnp.asarray(scalpels.tip).ravel(),
+                              jnp.array([0.1])])
     check_gradient(loss, params)
+    with pytest.raises(ValueError, match="scalpel: expected handle and tip ends of shape"):
+        cutting.tear_positions(V, path, cutting.Scalpel(scalpels.handle[:2], scalpels.tip[:2]))
 
 
 def test_bad_input():
     mesh = ARM.mesh
     V, F = np.asarray(mesh.V), np.asarray(mesh.F)
     good = scalpels_over(V, F, 3000, [1.0, 0.0, 0.0], 2, 3 * mean_edge(V, F))
-    far = good + np.array([0.0, 0.0, 100.0])
-    with pytest.raises(ValueError, match=r"scalpels\[0\]: the scalpel does not cross the surface"):
+    far = cutting.Scalpel(good.handle + np.array([0.0, 0.0, 100.0]), good.tip + np.array([0.0, 0.0, 100.0]))
+    with pytest.raises(ValueError, match=r"scalpel \(sample 0\): the scalpel does not cross the surface"):
         cutting.tear(mesh, far)
     with pytest.raises(ValueError, match="inside one face"):
         cutting.tear(mesh, scalpels_over(V, F, 3000, [1.0, 0.0, 0.0], 2, 0.05 * mean_edge(V, F)))
     with pytest.raises(ValueError, match="tear plane is not defined"):
         cutting.tear(mesh, scalpels_over(V, F, 3000, [1.0, 0.0, 0.0], 2, 1e-12 * mean_edge(V, F)))
-    with pytest.raises(ValueError, match="scalpels: expected"):
-        cutting.tear(mesh, good[0])
+    with pytest.raises(ValueError, match="scalpel: expected handle and tip ends"):
+        cutting.tear(mesh, cutting.Scalpel(good.handle[0], good.tip[0]))
+    with pytest.raises(ValueError, match="scalpel: expected a cutting.Scalpel"):
+        cutting.tear(mesh, np.stack([good.handle, good.tip], axis=1))  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="finite"):
-        cutting.tear(mesh, np.full((2, 2, 3), np.nan))
+        cutting.tear(mesh, cutting.Scalpel(np.full((2, 3), np.nan), np.full((2, 3), np.nan)))
+    with pytest.raises(ValueError, match="equal handle and tip"):
+        cutting.tear(mesh, cutting.Scalpel(good.handle, good.handle))
     with pytest.raises(ValueError, match="opening"):
         cutting.tear(mesh, good, opening=-1.0)
     with pytest.raises(ValueError, match="side_weight"):
@@ -185,8 +194,8 @@ def test_bad_input():
     top = np.flatnonzero(Vp[Fp].mean(axis=1)[:, 2] > 0.04)
     Fo = Fp[top]
     off = np.array([[[0.5, 0.0, 1.0], [0.5, 0.0, 0.0]], [[3.0, 0.0, 1.0], [3.0, 0.0, 0.0]]])
-    with pytest.raises(ValueError, match=r"scalpels\[1\]"):
-        cutting.tear_path(Vp, Fo, off)
+    with pytest.raises(ValueError, match=r"scalpel \(sample 1\)"):
+        cutting.tear_topology(Vp, Fo, scalpel_of(off))
 
 
 
@@ -196,8 +205,8 @@ def test_a_tear_along_a_row_of_vertices_makes_no_slivers():
     V, F = grid()
     mesh = deform.SkinnedMesh(jnp.asarray(V), jnp.asarray(F, jnp.int32), jnp.zeros((len(V), 1), jnp.int32),
                               jnp.ones((len(V), 1)), jnp.eye(4)[None], (0,))
-    scalpels = np.array([[[0.5, 0.23, 1.0], [0.5, 0.23, -1.0]], [[0.5, 0.77, 1.0], [0.5, 0.77, -1.0]]])
-    torn, path = cutting.tear(mesh, scalpels, return_path=True)
+    scalpels = scalpel_of([[[0.5, 0.23, 1.0], [0.5, 0.23, -1.0]], [[0.5, 0.77, 1.0], [0.5, 0.77, -1.0]]])
+    torn, path = cutting.tear(mesh, scalpels, return_topology=True)
     assert abs(path.shift[0]) > 0
     Vt, Ft = np.asarray(torn.V), np.asarray(torn.F)
     # no sliver: every piece keeps a share of its face (a tear point stays 2% of an edge from its ends)
@@ -212,16 +221,16 @@ def test_tear_positions_follow_a_perturbed_plane():
     """With the plane moved off a row of vertices, the differentiable positions still reproduce the
     tear points (the recorded shift is along the oriented normal)."""
     V, F = grid()
-    scalpels = np.array([[[0.5, 0.23, 1.0], [0.5, 0.23, -1.0]], [[0.5, 0.77, 1.0], [0.5, 0.77, -1.0]]])
-    path = cutting.tear_path(V, F, scalpels)
+    segments = np.array([[[0.5, 0.23, 1.0], [0.5, 0.23, -1.0]], [[0.5, 0.77, 1.0], [0.5, 0.77, -1.0]]])
+    path = cutting.tear_topology(V, F, scalpel_of(segments))
     assert path.shift[0] != 0
     np.testing.assert_allclose(path.planes[0, 3], path.planes[0, :3] @ path.sample_points[0] + path.shift[0],
                                atol=1e-12)
-    _, left, right = cutting.tear_positions(V, F, path, scalpels, 0.0)
+    _, left, _ = cutting.tear_positions(V, path, scalpel_of(segments))
     np.testing.assert_allclose(left, path.points, atol=1e-9)
     # the mirrored scalpel reverses the path's direction, and so the orientation of its plane
-    flipped = cutting.tear_path(V, F, scalpels[::-1])
-    _, left, _ = cutting.tear_positions(V, F, flipped, scalpels[::-1], 0.0)
+    flipped = cutting.tear_topology(V, F, scalpel_of(segments[::-1]))
+    _, left, _ = cutting.tear_positions(V, flipped, scalpel_of(segments[::-1]))
     np.testing.assert_allclose(left, flipped.points, atol=1e-9)
 
 
@@ -229,9 +238,9 @@ def test_a_blade_moved_by_two_motors_gives_the_same_tear_as_its_segments():
     mesh = MODELS["3Cylinder4bones"].mesh
     V, F = np.asarray(mesh.V), np.asarray(mesh.F)
     segments = scalpels_over(V, F, 100, [0.0, 1.0, 0.0], 2, 2 * mean_edge(V, F))
-    blade = segments[0]
+    blade = np.stack([segments.handle[0], segments.tip[0]])
     # the motor T R taking the blade onto the second sample: R turns its direction, T its midpoint
-    moved = segments[1]
+    moved = np.stack([segments.handle[1], segments.tip[1]])
     axis = np.cross(blade[1] - blade[0], moved[1] - moved[0])
     angle = np.arctan2(np.linalg.norm(axis), np.dot(blade[1] - blade[0], moved[1] - moved[0]))
     rotation = cga.rotor(jnp.asarray(axis / np.linalg.norm(axis)), angle)
@@ -240,10 +249,10 @@ def test_a_blade_moved_by_two_motors_gives_the_same_tear_as_its_segments():
     first = cga.motor(cga.rotor(jnp.array([0.0, 0.0, 1.0]), 0.0), jnp.zeros(3))
     motors = cga.Multivector(jnp.stack([first.values, second.values]), first.blades)
     samples = cutting.scalpel_path(blade, motors)
-    np.testing.assert_allclose(samples[0], blade, atol=1e-12)
-    np.testing.assert_allclose(samples[1, 1] - samples[1, 0], moved[1] - moved[0], atol=1e-9)
-    np.testing.assert_allclose(samples[1].mean(axis=0), moved.mean(axis=0), atol=1e-9)
-    np.testing.assert_allclose(cutting.tear_path(V, F, samples).points, cutting.tear_path(V, F, segments).points,
-                               atol=1e-9)
+    np.testing.assert_allclose(np.stack([samples.handle[0], samples.tip[0]]), blade, atol=1e-12)
+    np.testing.assert_allclose(samples.tip[1] - samples.handle[1], moved[1] - moved[0], atol=1e-9)
+    np.testing.assert_allclose(0.5 * (samples.handle[1] + samples.tip[1]), moved.mean(axis=0), atol=1e-9)
+    np.testing.assert_allclose(cutting.tear_topology(V, F, samples).points,
+                               cutting.tear_topology(V, F, segments).points, atol=1e-9)
     with pytest.raises(ValueError, match="motors"):
         cutting.scalpel_path(blade, first)

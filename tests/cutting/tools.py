@@ -50,8 +50,16 @@ def mean_edge(V, F) -> float:
     return float(np.linalg.norm(V[F[:, 1]] - V[F[:, 0]], axis=1).mean())
 
 
+def scalpel_of(segments):
+    """A ``cutting.Scalpel`` from its (samples, 2, 3) segment endpoints (handle end first)."""
+    import cutting
+
+    segments = np.asarray(segments, np.float64)
+    return cutting.Scalpel(segments[:, 0], segments[:, 1])
+
+
 def scalpels_over(V, F, face, direction, samples: int, step: float, depth: float | None = None):
-    """(samples, 2, 3) scalpel positions walking over the surface: from ``face``'s centre, each sample
+    """A ``cutting.Scalpel`` of ``samples`` positions walking over the surface: from ``face``'s centre, each sample
     moves ``step`` along ``direction`` (projected onto the tangent plane) and back onto the surface
     (closest point); the scalpel is the segment along the surface normal there, handle outside."""
     V, F = np.asarray(V, np.float64), np.asarray(F)
@@ -69,7 +77,7 @@ def scalpels_over(V, F, face, direction, samples: int, step: float, depth: float
             direction = closest[0] - point  # keep going the same way over the curved surface
             point, normal = closest[0], _frame(V, F, faces[0])[1]
         scalpels.append([point + depth * normal, point - depth * normal])
-    return np.asarray(scalpels)
+    return scalpel_of(scalpels)
 
 
 def drill_into(V, F, face, depth: float):
@@ -175,11 +183,14 @@ def consistency_problems(mesh, input_mesh, ids):
 
 
 def random_plane(V, rng):
-    """A plane with a random normal through the mesh (between 1% and 99% of its extent along it)."""
+    """A ``cutting.Plane`` with a random unit normal through the mesh (between 1% and 99% of its extent
+    along it)."""
+    import cutting
+
     n = rng.normal(size=3)
     n /= np.linalg.norm(n)
     heights = np.asarray(V) @ n
-    return np.append(n, heights.min() + rng.uniform(0.01, 0.99) * (heights.max() - heights.min()))
+    return cutting.Plane(n, heights.min() + rng.uniform(0.01, 0.99) * (heights.max() - heights.min()))
 
 
 def random_surface_point(V, F, rng):
@@ -193,13 +204,15 @@ def random_surface_point(V, F, rng):
 
 
 def random_drill(V, F, rng):
-    """(tip, base, radius): a drill along the normal at a random surface point, radius 0.3 to 2 mean
+    """A ``cutting.Drill``: a drill along the normal at a random surface point, radius 0.3 to 2 mean
     edges, its axis piercing the surface there."""
     _, point, normal = random_surface_point(V, F, rng)
     edge = mean_edge(V, F)
     radius = rng.uniform(0.3, 2.0) * edge
     depth = rng.uniform(0.5, 2.0) * edge
-    return point - depth * normal, point + depth * normal, radius
+    import cutting
+
+    return cutting.Drill(point - depth * normal, point + depth * normal, radius)
 
 
 def random_scalpels(V, F, rng):
@@ -235,14 +248,14 @@ def fuzz(mesh, tool: str, count: int, seed: int):
         try:
             if tool == "plane":
                 plane = random_plane(V, rng)
-                topology = cutting.plane_cut(V, F, plane, edges=edges)
-                halves = cutting.cut(mesh, plane, edges=edges)
+                halves, topology = cutting.cut(mesh, plane, edges=edges, return_topology=True)
                 outputs = [(h, keep) for h, keep in zip(halves, (topology.positive, topology.negative))]
-                off = np.abs(topology.points @ plane[:3] - plane[3])
-                snapped = np.abs(V @ plane[:3] - plane[3])[topology.distances == 0]
+                off = np.abs(topology.points @ plane.normal - plane.distance)
+                snapped = np.abs(V @ plane.normal - plane.distance)[topology.distances == 0]
             elif tool == "drill":
-                tip, base, radius = random_drill(V, F, rng)
-                drilled, topology = cutting.drill(mesh, tip, base, radius, edges=edges, return_topology=True)
+                drill = random_drill(V, F, rng)
+                tip, base, radius = drill.tip, drill.base, drill.radius
+                drilled, topology = cutting.drill(mesh, drill, edges=edges, return_topology=True)
                 outputs = [(drilled, topology.kept)]
                 axis = (tip - base) / np.linalg.norm(tip - base)
                 relative = topology.points - base
@@ -256,7 +269,7 @@ def fuzz(mesh, tool: str, count: int, seed: int):
                 snapped = np.abs(np.linalg.norm(relative - np.outer(relative @ axis, axis), axis=1) - radius)
             else:
                 scalpels = random_scalpels(V, F, rng)
-                torn, path = cutting.tear(mesh, scalpels, edges=edges, return_path=True)
+                torn, path = cutting.tear(mesh, scalpels, edges=edges, return_topology=True)
                 outputs = [(torn, np.arange(len(torn.V)))]
                 normals, offsets = path.planes[path.step, :3], path.planes[path.step, 3]
                 off = np.abs(np.einsum("ij,ij->i", path.points, normals) - offsets)
