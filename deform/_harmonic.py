@@ -29,7 +29,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.csgraph import connected_components
 
-from deform._sparse import SparseSolver
+from _jaxcga_shared.sparse import SparseSolver
 
 LAPLACIANS = ("cotangent", "mean_value")
 
