@@ -286,7 +286,8 @@ def _host_newton_direction(data, rhs, rtol, indptr, indices):
     a matrix CHOLMOD finds not positive definite."""
     if len(rhs) <= _DIRECT_DOFS:
         try:
-            return factorize(host_csr(data, indptr, indices), symmetric=True)(np.asarray(rhs, np.float64)).astype(rhs.dtype)
+            solve = factorize(host_csr(data, indptr, indices), symmetric=True)
+            return solve(np.asarray(rhs, np.float64)).astype(rhs.dtype)
         except ValueError:
             pass
     return host_pcg(data, rhs, rtol, indptr, indices)

@@ -20,14 +20,17 @@ import deform
 from _jaxcga_shared.sparse import (
     SPD_SOLVE,
     SparseSolver,
+    checked_device_pcg,
     csr_pattern,
     device_pcg,
     host_direct,
+    host_pcg,
     spd_solve,
 )
 from tests.shared import check_gradient
 from tests.xfem._models import MATERIAL, RHO, H, deformed_state, plane, tall_box
-from xfem._backward_euler import backward_euler_step
+from xfem._assembly import assemble_matrix, to_scipy
+from xfem._backward_euler import backward_euler_step, fem_from_mesh
 from xfem._xfem import xfem_model
 
 DATA = Path(__file__).resolve().parents[1] / "data"
@@ -74,9 +77,10 @@ def test_device_pcg_solves_a_cotangent_laplacian_like_cholmod():
     # the registered kernel's two variants agree on its examples
     for example in SPD_SOLVE.examples():
         cpu, gpu = (np.asarray(jax.jit(SPD_SOLVE.variants[k])(*example)) for k in ("cpu", "gpu"))
-        np.testing.assert_allclose(gpu, cpu, rtol=1e-10, atol=1e-12)
+        np.testing.assert_allclose(gpu, cpu, rtol=1e-13, atol=1e-14)
 
 
+@pytest.mark.slow  # ARAP compiled for both paths on Arm5: ~40 s on the shared 2 cores
 def test_harmonic_fields_and_arap_on_the_device_path_equal_the_host_path():
     V, F = np.asarray(ARM5.V, np.float64), np.asarray(ARM5.F, np.int64)
     x = V[:, 0]
@@ -96,6 +100,29 @@ def test_harmonic_fields_and_arap_on_the_device_path_equal_the_host_path():
     np.testing.assert_allclose(arap, host_arap, rtol=0, atol=1e-7 * np.ptp(V))
 
 
+def test_block_jacobi_pcg_solves_an_fem_system_like_cholmod_and_the_host_cg():
+    """M + h^2 K on the test box's free DOFs (K: elementwise Laplacian stiffness (x) I3, the FEM's sparsity and
+    3 x 3 node blocks), to a tight and to the Newton direction's tolerance."""
+    mesh = tall_box()
+    system = fem_from_mesh(mesh, RHO, fixed=np.flatnonzero(np.asarray(mesh.X)[:, 2] > 1.5 - 1e-9))
+    grads, volumes = np.asarray(system.grads), np.asarray(system.volumes)
+    K = np.kron(volumes[:, None, None] * grads @ grads.transpose(0, 2, 1), np.eye(3)[None]) * MATERIAL.young
+    pattern = system.pattern
+    data = system.mass_data + H**2 * assemble_matrix(pattern, jnp.asarray(K))
+    A = to_scipy(pattern, data)
+    b = np.random.default_rng(4).normal(size=A.shape[0])
+    exact = host_direct(np.asarray(data), b, np.asarray(pattern.indptr), np.asarray(pattern.indices))
+    solve = jax.jit(lambda d, r, rtol: checked_device_pcg(pattern.csr, d, r, rtol))
+    tight = np.asarray(solve(data, jnp.asarray(b), 1e-11))
+    np.testing.assert_allclose(tight, exact, rtol=0, atol=1e-9 * np.abs(exact).max())
+    for rtol in (1e-4, 1e-8):
+        x = np.asarray(solve(data, jnp.asarray(b), rtol))
+        assert np.linalg.norm(A @ x - b) <= rtol * np.linalg.norm(b)
+        on_host = host_pcg(np.asarray(data), b, rtol, np.asarray(pattern.indptr), np.asarray(pattern.indices))
+        assert np.linalg.norm(x - exact) <= 10 * max(np.linalg.norm(on_host - exact), rtol * np.linalg.norm(exact))
+
+
+@pytest.mark.slow  # two converged steps and their gradients, compiled for both paths: ~60 s on the shared 2 cores
 def test_fem_newton_step_and_xfem_gradient_on_the_device_path_equal_the_host_path():
     """A converged FEM step (Newton systems by block-Jacobi PCG on the device, CHOLMOD on the host) and the
     implicit gradient of a cut XFEM system's step (its adjoint solve)."""
