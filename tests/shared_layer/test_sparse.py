@@ -17,6 +17,7 @@ import pytest
 import scipy.sparse as sp
 
 import deform
+from _jaxcga_shared import sparse
 from _jaxcga_shared.sparse import (
     SPD_SOLVE,
     SparseSolver,
@@ -30,6 +31,7 @@ from _jaxcga_shared.sparse import (
 from tests.shared import check_gradient
 from tests.xfem._models import MATERIAL, RHO, H, deformed_state, plane, tall_box
 from xfem._assembly import assemble_matrix, to_scipy
+import xfem._backward_euler as be
 from xfem._backward_euler import backward_euler_step, fem_from_mesh
 from xfem._xfem import xfem_model
 
@@ -40,14 +42,22 @@ ARM5 = deform.load_model(DATA / "Arm5.glb", weld=True).mesh
 @contextlib.contextmanager
 def _device_path():
     """Every ``jax.lax.platform_dependent`` takes its non-CPU branch (the GPU's) while inside; JAX's caches are
-    cleared on the way in and out, so that no function traced for one path runs on the other."""
-    original = jax.lax.platform_dependent
+    cleared on the way in and out, so that no function traced for one path runs on the other. Yields the list of
+    the host calls the solves traced (none, unless a device solve falls back to the host)."""
+    original, original_host_call = jax.lax.platform_dependent, sparse.host_call
+    traced = []
+
+    def recorded(fn, *args):
+        traced.append(fn)
+        return original_host_call(fn, *args)
+
     jax.clear_caches()
     jax.lax.platform_dependent = lambda *args, default, **_: default(*args)
+    sparse.host_call = recorded
     try:
-        yield
+        yield traced
     finally:
-        jax.lax.platform_dependent = original
+        jax.lax.platform_dependent, sparse.host_call = original, original_host_call
         jax.clear_caches()
 
 
@@ -93,9 +103,10 @@ def test_harmonic_fields_and_arap_on_the_device_path_equal_the_host_path():
     moved = V[b] + np.where(np.isin(b, hand), 1.0, 0.0)[:, None] * np.array([0.0, 0.1, 0.05])
     host_fields = harmonic.host(bc)
     host_arap = np.asarray(deform.arap_solve(data, jnp.asarray(moved), max_iterations=3).U)
-    with _device_path():
+    with _device_path() as host_calls:
         fields = np.asarray(harmonic(jnp.asarray(bc)))
         arap = np.asarray(deform.arap_solve(data, jnp.asarray(moved), max_iterations=3).U)
+    assert host_calls == []
     np.testing.assert_allclose(fields, host_fields, rtol=0, atol=1e-7)
     np.testing.assert_allclose(arap, host_arap, rtol=0, atol=1e-7 * np.ptp(V))
 
@@ -141,8 +152,9 @@ def test_fem_newton_step_and_xfem_gradient_on_the_device_path_equal_the_host_pat
 
     young = jnp.asarray(MATERIAL.young)
     host_x, host_grad = np.asarray(step(young).x), float(jax.grad(loss)(young))
-    with _device_path():
+    with _device_path() as host_calls:
         x, grad = np.asarray(step(young).x), float(jax.grad(loss)(young))
+    assert all(fn is be._host_adjoint for fn in host_calls)  # only the adjoint's fallback, traced, not necessarily run
     np.testing.assert_allclose(x, host_x, rtol=0, atol=1e-9)
     np.testing.assert_allclose(grad, host_grad, rtol=1e-6)
 
@@ -152,10 +164,11 @@ def test_gradient_and_vmap_through_the_device_path():
     solver = SparseSolver(A, symmetric=True)
     probe = jnp.asarray(np.random.default_rng(0).normal(size=30))
     b = jnp.asarray(np.random.default_rng(1).uniform(size=30))
-    with _device_path():
+    with _device_path() as host_calls:
         check_gradient(jax.jit(lambda b: jnp.sum(jnp.sin(solver(b)) * probe)), b, rtol=1e-6)
         batch = jnp.stack([b, 2 * b + 1, -b])
         solved = np.asarray(jax.jit(jax.vmap(solver))(batch))
+    assert host_calls == []
     np.testing.assert_allclose(solved, np.linalg.solve(A.toarray(), np.asarray(batch).T).T, rtol=1e-8)
 
 
