@@ -65,7 +65,7 @@ import scipy.sparse as sp
 from jax.ad_checkpoint import checkpoint_name
 from jaxtyping import Array, Float, Int
 
-from _jaxcga_shared.host import host_call, to_devices
+from _jaxcga_shared.host import to_devices
 from _jaxcga_shared.checks import require
 from _jaxcga_shared.sparse import factorize, host_csr, host_direct, host_pcg, spd_solve
 from xfem._assembly import (
