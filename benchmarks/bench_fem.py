@@ -12,11 +12,12 @@ Timing: after a first step (jit compilation included; reported as a figure), the
 
 * the paper's averages per step (Table 2, "Ours", cut and uncut frames): 5.785 s for the 22.8k-DOF accordion
   and 0.627 s for the 7.2k-DOF "Thin" model, on an i9-13900K (ratios ``step_23k_vs_paper``, ``step_7k_vs_paper``);
-* the same step with the Newton system solved exactly by CHOLMOD (the module's ``_host_direct``) instead of the
+* the same step with the Newton system solved exactly by CHOLMOD (``_jaxcga_shared.sparse.host_direct``) instead of the
   inexact Jacobi-preconditioned CG, from the same states (``step_<size>_vs_direct``);
 * a breakdown from the same states: projected element gradients and Hessians
   (``element_gradient_hessian``), their assembly (``assemble_matrix``), the CG and the CHOLMOD solves of the
-  Newton system (host, as the step's callback runs them) and the line search.
+  Newton system (host, as the step's callback runs them), the block-Jacobi CG in JAX that a GPU runs instead
+  (``device_pcg``, jitted, here on the CPU: ``device_cg_solve``) and the line search.
 
 Ratios are baseline time / ours (> 1: we are faster).
 
@@ -47,6 +48,7 @@ from _report import RATIO_UNIT, add_json_argument, print_device, write_json  # n
 
 import xfem  # noqa: E402
 import xfem._backward_euler as be  # noqa: E402
+from _jaxcga_shared.sparse import device_pcg, host_direct, host_pcg  # noqa: E402
 
 YOUNG, POISSON, DENSITY, H = 1e6, 0.4, 1e3, 0.033
 CELL = 0.13  # m
@@ -88,14 +90,23 @@ def newton_start(system, state, h, mu, lam):
 
 @eqx.filter_jit
 def direct_step(system, state, h, mu, lam):
-    """``backward_euler_step`` with one Newton iteration whose system is solved by CHOLMOD (``_host_direct``)
+    """``backward_euler_step`` with one Newton iteration whose system is solved by CHOLMOD (``host_direct``)
     instead of CG: the body of ``_newton`` with the same gradient, matrix and line search (keep in step)."""
     theta = _theta(system, state, h, mu, lam)
     x, gradient, data = newton_start(system, state, h, mu, lam)
-    step = -be._solve(be._host_direct, system.pattern, data, gradient)
+    step = -be._solve(_direct, system.pattern, data, gradient, 0.0, "error")
     alpha = be._line_search(system, x, step.reshape(-1, 3), jnp.dot(gradient, step), theta, h)
     x = x.at[system.pattern.free].add(alpha * step.reshape(-1, 3))
     return xfem.State(x, (x - state.x) / h)
+
+
+def _direct(data, rhs, rtol, indptr, indices):
+    return host_direct(data, rhs, indptr, indices)
+
+
+@eqx.filter_jit
+def device_solve(system, data, gradient):
+    return device_pcg(system.pattern.csr, data, gradient, CG_RTOL)[0]
 
 
 @eqx.filter_jit
@@ -117,18 +128,20 @@ def line_search(system, state, x, gradient, step, h, mu, lam):
 def breakdown(system, states, h, mu, lam):
     """Median seconds of the parts of a step from each of ``states`` (the first call of each compiles)."""
     indptr, indices = np.asarray(system.pattern.indptr), np.asarray(system.pattern.indices)
-    times = {"hessians": [], "assembly": [], "cg_solve": [], "direct_solve": [], "line_search": []}
+    times = {"hessians": [], "assembly": [], "cg_solve": [], "direct_solve": [], "device_cg_solve": [],
+             "line_search": []}
     for i, state in enumerate(states):
         x, gradient, data = newton_start(system, state, h, mu, lam)
         (_, Hs), t_hessians = seconds(lambda: element_hessians(system, x, mu, lam))
         _, t_assembly = seconds(lambda: assembly(system, Hs))
         rhs, A = np.asarray(gradient), np.asarray(data)
-        step, t_cg = seconds(lambda: -be._host_cg(A, rhs, CG_RTOL, indptr, indices))
-        _, t_direct = seconds(lambda: be._host_direct(A, rhs, indptr, indices))
+        step, t_cg = seconds(lambda: -host_pcg(A, rhs, CG_RTOL, indptr, indices))
+        _, t_direct = seconds(lambda: host_direct(A, rhs, indptr, indices))
+        _, t_device = seconds(lambda: device_solve(system, data, gradient))
         step = jnp.asarray(step)
         _, t_line = seconds(lambda: line_search(system, state, x, gradient, step, h, mu, lam))
         if i > 0:  # the first state compiles
-            for key, t in zip(times, (t_hessians, t_assembly, t_cg, t_direct, t_line)):
+            for key, t in zip(times, (t_hessians, t_assembly, t_cg, t_direct, t_device, t_line)):
                 times[key].append(t)
     return {key: statistics.median(t) for key, t in times.items()}
 

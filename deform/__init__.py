@@ -6,8 +6,8 @@ multivector form (17) with per-bone dilation, keyframe blending, and fitting pos
 Where things live: ``_model`` (bundles), ``_rig`` (TRS -> matrices / versors, forward kinematics,
 clip sampling, keyframes; eq. 15), ``_skinning`` (eq. 16, eq. 17 in both variants, DQS), ``_pose``
 (model-level posing), ``_fitting`` (poses from target positions); from the
-mesh-deformation paper: ``_harmonic`` (harmonic fields, sec. VIII) on ``_sparse`` (a sparse system
-factored once on the host and solved from JAX); ``_motor_field`` (per-vertex ``exp(sum w log R)`` and the
+mesh-deformation paper: ``_harmonic`` (harmonic fields, sec. VIII) on ``_jaxcga_shared.sparse`` (sparse
+solves from JAX, on the host or the device); ``_motor_field`` (per-vertex ``exp(sum w log R)`` and the
 sec. III-A binding, shared by every motor deformation); ``_spline`` (spline-aligned deformation, eq. 1-2),
 ``_spline_fit`` (B-spline fitting of key motors, eq. 3-5), ``_fabrik`` (FABRIK inverse kinematics, Fig.
 5), ``_handles`` (harmonic motor handles, sec. IV), ``_ffd`` (classic and motor FFD, eq. 6-8), ``_cage``
@@ -104,7 +104,6 @@ from deform._skinning import (
                          skin_dqs,
                          skin_lbs,
 )
-from deform._sparse import SparseSolver
 from deform._spline import (
                          BASES,
                          clamped_knots,
@@ -136,7 +135,6 @@ __all__ = [
     "RiggedModel",
     "Skeleton",
     "SkinnedMesh",
-    "SparseSolver",
     "SplineFitData",
     "arap_precompute",
     "arap_solve",

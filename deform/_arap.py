@@ -63,7 +63,7 @@ import scipy.sparse as sp
 from jaxtyping import Array, Float, Int
 
 from deform._harmonic import _check_mesh
-from deform._sparse import SparseSolver
+from _jaxcga_shared.sparse import SparseSolver
 from jaxcga import KINDS, Multivector, align_points, apply_to_points
 from _jaxcga_shared.checks import require
 

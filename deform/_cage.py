@@ -27,7 +27,7 @@ subdivision is what lets TetGen refine the interior at all: under ``Y`` it rejec
 that encroaches on a large cage face (a cube cage otherwise gets one interior node whatever the volume
 bound). The coordinates
 solve the tetrahedral cotangent Laplace equation (``igl.cotmatrix`` on the tets) with those Dirichlet
-values (``deform._sparse.SparseSolver``, factored and solved on the host as in ``deform._harmonic``),
+values (``_jaxcga_shared.sparse.SparseSolver``, factored and solved on the host as in ``deform._harmonic``),
 and every mesh vertex gets the coordinates of the tet that contains it (``igl.in_element`` on an AABB
 tree), interpolated linearly; vertices on the cage up to round-off take the hat functions of its face.
 
@@ -44,7 +44,7 @@ import tetgen
 import trimesh
 
 from deform._motor_field import MotorField, motor_field_precompute
-from deform._sparse import SparseSolver
+from _jaxcga_shared.sparse import SparseSolver
 from _jaxcga_shared.host import quiet_stdout
 from _jaxcga_shared.mesh import bounding_diagonal
 

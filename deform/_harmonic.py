@@ -31,7 +31,7 @@ import scipy.sparse as sp
 from jaxtyping import Array, Float, Int
 from scipy.sparse.csgraph import connected_components
 
-from deform._sparse import SparseSolver
+from _jaxcga_shared.sparse import SparseSolver
 
 LAPLACIANS = ("cotangent", "mean_value")
 

@@ -140,7 +140,8 @@ def forward_kinematics(parents: tuple[int, ...], local: Multivector) -> Multivec
     return Multivector(jnp.moveaxis(_scan_chain(parents, values, identity, compose), 0, -2), blades)
 
 
-def forward_kinematics_matrices(parents: tuple[int, ...], local: Float[Array, "... b 4 4"]) -> Float[Array, "... b 4 4"]:
+def forward_kinematics_matrices(parents: tuple[int, ...],
+                                local: Float[Array, "... b 4 4"]) -> Float[Array, "... b 4 4"]:
     """Global bone matrices ``T_i = T_parent(i) t_i`` (sec. 3)."""
     local = jnp.asarray(local)
     if local.ndim < 3 or local.shape[-2:] != (4, 4):

@@ -25,6 +25,7 @@ import scipy.sparse as sp
 from jaxtyping import Array, Float, Int
 
 from _jaxcga_shared.host import to_devices
+from _jaxcga_shared.sparse import CSRPattern, csr_matvec, csr_pattern
 
 
 class CapacityError(ValueError):
@@ -42,9 +43,10 @@ class AssemblyPattern(eqx.Module):
         m: the number of elements the pattern was built for.
         free: (n_free,) the free nodes, ascending: reduced node r is node ``free[r]``.
         free_index: (n,) the reduced index of each node, -1 for a fixed node.
-        indptr: (3 n_free + 1,) CSR row pointers; ``indptr[-1]`` <= nnz (the rest is padding).
-        indices: (nnz,) CSR column indices, ascending within a row.
-        rows: (nnz,) the row of each entry (the COO twin of indptr, for matrix-vector products).
+        csr: the ``_jaxcga_shared.sparse.CSRPattern`` of the matrix (3 x 3 node blocks), which the solves take;
+            its ``indptr`` (3 n_free + 1,) CSR row pointers, ``indptr[-1]`` <= nnz (the rest is padding),
+            ``indices`` (nnz,) column indices, ascending within a row, and ``rows`` (nnz,) the row of each entry
+            (3 n_free for padding) are also the pattern's.
         hessian_slots: (144 m,) the data slot of each element Hessian entry ``H[e, r, c]`` (flattened in C
             order); ``nnz`` or more (out of bounds) for entries on a fixed node's row or column, which are
             discarded.
@@ -56,10 +58,20 @@ class AssemblyPattern(eqx.Module):
     m: int = eqx.field(static=True)
     free: Int[Array, " n_free"]
     free_index: Int[Array, " n"]
-    indptr: Int[Array, " rows_plus_one"]
-    indices: Int[Array, " nnz"]
-    rows: Int[Array, " nnz"]
+    csr: CSRPattern
     hessian_slots: Int[Array, " entries"]
+
+    @property
+    def indptr(self) -> Int[Array, " rows_plus_one"]:
+        return self.csr.indptr
+
+    @property
+    def indices(self) -> Int[Array, " nnz"]:
+        return self.csr.indices
+
+    @property
+    def rows(self) -> Int[Array, " nnz"]:
+        return self.csr.rows
 
 
 def _host_fixed(fixed, n: int) -> np.ndarray:
@@ -142,7 +154,6 @@ def assembly_pattern(T, n: int, fixed=(), coupling=None, nnz_capacity: int | Non
     t = np.arange(3 * len(keys)) - np.repeat(3 * node_indptr[:-1], 3 * degree)
     pair_of_entry = np.repeat(node_indptr[:-1], 3 * degree) + t % np.repeat(np.maximum(degree, 1), 3 * degree)
     indices = (3 * node_cols[pair_of_entry][:, None] + k3).ravel()
-    rows = np.repeat(np.arange(3 * nf), np.diff(indptr))
 
     if nnz_capacity is not None and (int(nnz_capacity) != nnz_capacity or nnz_capacity < nnz or nf < 1):
         raise CapacityError(f"nnz_capacity: expected an int >= the pattern's {nnz} entries (and a free node), got "
@@ -162,16 +173,14 @@ def assembly_pattern(T, n: int, fixed=(), coupling=None, nnz_capacity: int | Non
 
     if nnz_capacity is not None:
         pad = stored - nnz
-        # padded entries lie past indptr[-1] (the host solvers cut them off); for matvec they sit in the last
-        # row with zero data, keeping ``rows`` sorted
+        # padded entries lie past indptr[-1]: the solves and matvec ignore them
         indices = np.concatenate([indices, np.full(pad, 3 * nf - 1, indices.dtype)])
-        rows = np.concatenate([rows, np.full(pad, 3 * nf - 1, rows.dtype)])
         nnz = stored
 
-    free, free_index, indptr, indices, rows, slots = to_devices(*(np.asarray(a, index) for a in (
-        free, free_index, indptr, indices, rows, slots)))
-    return AssemblyPattern(n=n, n_free=nf, nnz=nnz, m=len(T), free=free, free_index=free_index, indptr=indptr,
-                           indices=indices, rows=rows, hessian_slots=slots)
+    csr = csr_pattern(np.asarray(indptr, index), np.asarray(indices, index), block=3)
+    free, free_index, slots = to_devices(*(np.asarray(a, index) for a in (free, free_index, slots)))
+    return AssemblyPattern(n=n, n_free=nf, nnz=nnz, m=len(T), free=free, free_index=free_index, csr=csr,
+                           hessian_slots=slots)
 
 
 def _host_pairs(pattern: AssemblyPattern):
@@ -290,8 +299,7 @@ def matvec(pattern: AssemblyPattern, data: Float[Array, " nnz"], x: Float[Array,
     Returns:
         (3 n_free,) the product.
     """
-    return jax.ops.segment_sum(data * x[pattern.indices], pattern.rows, num_segments=3 * pattern.n_free,
-                               indices_are_sorted=True)
+    return csr_matvec(pattern.csr, data, x)
 
 
 def to_scipy(pattern: AssemblyPattern, data) -> sp.csr_matrix:

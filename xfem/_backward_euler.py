@@ -19,19 +19,23 @@ gradients and integration weight (``volumes``), plus any symmetric scalar (n, n)
 forces. Nothing assumes the nodes are mesh vertices or that the mass is ``consistent_mass``, so XFEM's
 enriched copies, sub-elements and custom mass entries go through the same code.
 
-Linear solver, chosen by measurement (benchmarks/README.md, "FEM linear solver"; ``bench_fem.py`` times the
-step against CHOLMOD): Jacobi-preconditioned CG on the host (``_host_cg``, compiled by numba without the GIL,
-``xfem._pcg``), one host call (``_jaxcga_shared.host.host_call``) per Newton iteration. CHOLMOD's wheel carries the
-reference BLAS, so its factorization is slow on large systems, and CG in JAX pays XLA's CPU gathers and scatters
-in every matrix-vector product. Small systems are the exception: up to ``_DIRECT_DOFS`` = 1,000 unknowns one
-CHOLMOD factorization costs less than CG's iterations, and the step solves exactly (``_host_newton_direction``).
+Linear solver (``_jaxcga_shared.sparse``), chosen per platform when the step is lowered. On the CPU, by
+measurement (benchmarks/README.md, "FEM linear solver"; ``bench_fem.py`` times the step against CHOLMOD):
+Jacobi-preconditioned CG on the host (``host_pcg``, compiled by numba without the GIL), one host call
+(``_jaxcga_shared.host.host_call``) per Newton iteration. CHOLMOD's wheel carries the reference BLAS, so its
+factorization is slow on large systems, and CG in JAX pays XLA's CPU gathers and scatters in every matrix-vector
+product. Small systems are the exception: up to ``_DIRECT_DOFS`` = 1,000 unknowns one CHOLMOD factorization costs
+less than CG's iterations, and the step solves exactly (``_host_newton_direction``). On a GPU, CG in JAX on the
+device, preconditioned by the inverse 3 x 3 node blocks (``device_pcg``): no copy to the host and back.
 CG's Newton direction is solved to a relative residual of 1e-4 (an inexact Newton step: a tighter residual costs
-more iterations and moves the positions by a small fraction of the displacement).
+more iterations and moves the positions by a small fraction of the displacement); after n iterations the iterate
+is taken as it is (it still decreases the quadratic model, so it remains a descent direction).
 With ``tolerance`` the relative residual is tightened to ``|grad E| / |grad E at the first iteration|`` (down
 to 1e-11), so that Newton converges superlinearly where the projection of the element Hessians is inactive
 near the solution (where it is active, projected Newton converges linearly). The adjoint solve of the
 gradients (below) must be accurate: it uses CHOLMOD (scipy's SuperLU when the true Hessian is not positive
-definite), or above ``_DIRECT_DOFS`` unknowns CG to a relative residual of 1e-10, checked.
+definite), or above ``_DIRECT_DOFS`` unknowns CG to a relative residual of 1e-10, checked; on a GPU the device
+CG to 1e-10, and the host's solve where it falls short.
 
 Memory. The energy, its gradient and the Newton matrix are summed over chunks of elements (and M d over
 chunks of mass entries, ``_in_chunks``), so that a step's temporaries stay small enough for glibc to reuse
@@ -58,13 +62,12 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import scipy.sparse as sp
-import scipy.sparse.linalg as spla
 from jax.ad_checkpoint import checkpoint_name
 from jaxtyping import Array, Float, Int
-from sksparse_minimal import SparseCholesky
 
-from _jaxcga_shared.host import host_call, to_devices
+from _jaxcga_shared.host import to_devices
 from _jaxcga_shared.checks import require
+from _jaxcga_shared.sparse import factorize, host_csr, host_direct, host_pcg, spd_solve
 from xfem._assembly import (
     AssemblyPattern,
     CapacityError,
@@ -266,52 +269,15 @@ def fem_from_mesh(mesh: TetMesh, density, gravity=(0.0, 0.0, -9.81), fixed=()) -
 # host linear solves
 
 
-def _csr(data, indptr, indices):
-    N, used = len(indptr) - 1, int(indptr[-1])  # entries past indptr[-1] are padding (``nnz_capacity``)
-    return sp.csr_matrix((np.asarray(data, np.float64)[:used], np.asarray(indices)[:used], np.asarray(indptr)),
-                         shape=(N, N))
-
-
-def _host_cg(data, rhs, rtol, indptr, indices):
-    """Jacobi-preconditioned CG to the relative residual ``rtol``, starting at 0 (``xfem._pcg``: compiled,
-    without the GIL).
-
-    Not scipy's ``cg``: its vector dot products go to numpy's multithreaded BLAS, whose threads stall on a
-    loaded 2-core machine (benchmarks/README.md, "FEM linear solver"). Not a numpy
-    loop either: its ~14 array operations per iteration each hand the GIL over, and wait for a background cut's
-    manifold3d or libigl call to give it back. An unconverged iterate still decreases the quadratic model, so it
-    remains a descent direction."""
-    from xfem._pcg import jacobi_pcg  # numba compiles on first use, not when the module is imported
-
-    A = _csr(data, indptr, indices)
-    return jacobi_pcg(A.data, A.indptr, A.indices, 1 / A.diagonal(), np.asarray(rhs, np.float64),
-                      float(rtol)).astype(rhs.dtype)
-
-
-def _host_direct(data, rhs, indptr, indices):
-    """The exact solve: CHOLMOD, or SuperLU for an indefinite matrix, NaN for a singular one."""
-    A = _csr(data, indptr, indices)
-    b = np.asarray(rhs, np.float64)
-    try:
-        x = _cholesky_solve(A, b)
-    except ValueError:  # not positive definite (the true Hessian of a strongly compressed state)
-        try:
-            x = spla.splu(A.tocsc()).solve(b)
-        except RuntimeError:  # exactly singular
-            x = np.full_like(b, np.nan)
-    return x.astype(rhs.dtype)
-
-
-def _host_adjoint(data, rhs, indptr, indices):
-    """The implicit gradient's solve with the true Hessian: exact (``_host_direct``) up to ``_DIRECT_DOFS``
-    unknowns; above, Jacobi PCG to ``_ADJOINT_RTOL``, checked, and the direct solve where CG falls short (an
-    indefinite matrix)."""
+def _host_adjoint(data, rhs, rtol, indptr, indices):
+    """The implicit gradient's solve with the true Hessian: exact (``host_direct``) up to ``_DIRECT_DOFS``
+    unknowns; above, Jacobi PCG to ``rtol`` (``_ADJOINT_RTOL``), checked, and the direct solve where CG falls short
+    (an indefinite matrix)."""
     if len(rhs) > _DIRECT_DOFS:
-        x = _host_cg(data, rhs, _ADJOINT_RTOL, indptr, indices)
-        residual = np.linalg.norm(_csr(data, indptr, indices) @ x - rhs)
-        if residual <= 2 * _ADJOINT_RTOL * np.linalg.norm(rhs):
+        x = host_pcg(data, rhs, rtol, indptr, indices)
+        if np.linalg.norm(host_csr(data, indptr, indices) @ x - rhs) <= 2 * rtol * np.linalg.norm(rhs):
             return x
-    return _host_direct(data, rhs, indptr, indices)
+    return host_direct(data, rhs, indptr, indices)
 
 
 def _host_newton_direction(data, rhs, rtol, indptr, indices):
@@ -320,23 +286,18 @@ def _host_newton_direction(data, rhs, rtol, indptr, indices):
     a matrix CHOLMOD finds not positive definite."""
     if len(rhs) <= _DIRECT_DOFS:
         try:
-            return _cholesky_solve(_csr(data, indptr, indices), np.asarray(rhs, np.float64)).astype(rhs.dtype)
+            solve = factorize(host_csr(data, indptr, indices), symmetric=True)
+            return solve(np.asarray(rhs, np.float64)).astype(rhs.dtype)
         except ValueError:
             pass
-    return _host_cg(data, rhs, rtol, indptr, indices)
+    return host_pcg(data, rhs, rtol, indptr, indices)
 
 
-def _cholesky_solve(A: sp.csr_matrix, b: np.ndarray) -> np.ndarray:
-    """A^-1 b by CHOLMOD for a symmetric A (its CSR arrays are its CSC arrays); ValueError if A is not positive
-    definite."""
-    return SparseCholesky(A.tocsc()).solve_A(b)
-
-
-def _solve(host, pattern: AssemblyPattern, data, rhs, *options):
-    """``host(data, rhs, *options, indptr, indices)`` on the host, with numpy arrays (``host_call``; with
-    ``jax.pure_callback`` the step hung on a one-core machine): the solution of the reduced system."""
-    x = host_call(host, jax.ShapeDtypeStruct(rhs.shape, rhs.dtype), data, rhs, *options, pattern.indptr,
-                  pattern.indices)
+def _solve(host, pattern: AssemblyPattern, data, rhs, rtol, on_failure: str):
+    """The reduced system's solution (``_jaxcga_shared.sparse.spd_solve``): on the CPU ``host(data, rhs, rtol,
+    indptr, indices)`` on the host, with numpy arrays (``host_call``); on a GPU block-Jacobi PCG on the device to
+    rtol, ``on_failure`` saying what an unconverged one gives."""
+    x = spd_solve(pattern.csr, data, rhs, rtol, host=host, on_failure=on_failure, what="the Newton system")
     return require(x, (~jnp.all(jnp.isfinite(x)), "the Newton system is singular or the state is not finite"))
 
 
@@ -497,7 +458,7 @@ def _newton(theta: _Theta, system: FEMSystem, h, iterations: int, tolerance, lin
         rtol = _CG_RTOL
         if tolerance is not None:  # converging: tighten the solves as grad E falls, for superlinear convergence
             rtol = jnp.clip(norm / first_norm, _CG_RTOL_MIN, _CG_RTOL)
-        step = -_solve(_host_newton_direction, system.pattern, data, gradient, jnp.asarray(rtol, x.dtype))
+        step = -_solve(_host_newton_direction, system.pattern, data, gradient, rtol, "accept")
         alpha = _line_search(system, x, step.reshape(-1, 3), jnp.dot(gradient, step), theta, h) if line_search else 1
         x = x.at[free].add(alpha * step.reshape(-1, 3))
         # converged, or stalled (the line search found no decrease above rounding)
@@ -528,7 +489,7 @@ def _minimize_bwd(x, x_bar, perturbed, theta, system, h, iterations, tolerance, 
         return restrict(pattern, jax.grad(lambda z: _energy(system, z, t, h)[0])(y))
 
     _, data = _gradient_and_matrix(system, x, theta, h, project=False)
-    u = _solve(_host_adjoint, pattern, data, restrict(pattern, x_bar))
+    u = _solve(_host_adjoint, pattern, data, restrict(pattern, x_bar), _ADJOINT_RTOL, "host")
     grad = jax.vjp(free_gradient, theta)[1](-u)[0]
     grad = eqx.tree_at(lambda t: t.fixed_positions, grad, grad.fixed_positions + x_bar[system.fixed])
     return jax.tree.map(lambda g, p: g if p else None, grad, perturbed)

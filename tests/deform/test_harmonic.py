@@ -11,7 +11,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-import scipy.sparse as sp
 
 import deform
 from tests.shared import check_gradient, grid
@@ -102,17 +101,6 @@ def test_the_solve_is_a_differentiable_batched_jax_function(kind):
 
     params = jnp.asarray(np.random.default_rng(2).uniform(size=len(b)))
     check_gradient(jax.jit(loss), params, rtol=1e-6)
-
-
-def test_sparse_solver_checks_its_input():
-    with pytest.raises(ValueError, match="singular"):
-        deform.SparseSolver(sp.csc_matrix(np.array([[1.0, 1.0], [1.0, 1.0]])))
-    with pytest.raises(ValueError, match="square"):
-        deform.SparseSolver(sp.csc_matrix(np.ones((2, 3))))
-    solver = deform.SparseSolver(sp.csc_matrix(np.array([[2.0, 1.0], [0.0, 1.0]])))
-    np.testing.assert_allclose(solver(jnp.array([3.0, 1.0])), [1.0, 1.0])
-    with pytest.raises(ValueError, match="b: expected shape"):
-        solver(jnp.ones(3))
 
 
 def test_bad_input():

@@ -20,7 +20,6 @@ from xfem._assembly import CapacityError
 from xfem._backward_euler import (
     State,
     SystemCapacity,
-    _host_direct,
     _host_newton_direction,
     _in_chunks,
     backward_euler_step,
@@ -234,15 +233,6 @@ def test_bad_input():
         fem_system(BAR.T, grads, volumes, mass, CANTILEVER.force[:-1])
     with pytest.raises(ValueError, match="gravity"):
         fem_from_mesh(BAR, 1.0, gravity=(0.0, -9.81))
-
-
-def test_adjoint_solve_of_an_indefinite_or_singular_hessian():
-    # the true Hessian of a strongly compressed state may be indefinite: CHOLMOD refuses it, SuperLU solves it
-    A = sp.csr_matrix(np.array([[1.0, 2.0, 0.0], [2.0, 1.0, 0.0], [0.0, 0.0, 3.0]]))
-    b = np.array([1.0, -2.0, 3.0])
-    np.testing.assert_allclose(_host_direct(A.data, b, A.indptr, A.indices), np.linalg.solve(A.toarray(), b))
-    A = sp.csr_matrix(np.array([[1.0, 1.0], [1.0, 1.0]]))
-    assert np.all(np.isnan(_host_direct(A.data, b[:2], A.indptr, A.indices)))
 
 
 def test_newton_direction_is_exact_on_small_systems_and_cg_on_large_ones(monkeypatch):

@@ -1,6 +1,7 @@
 """Jacobi-preconditioned conjugate gradients on a CSR matrix, compiled by numba, without the GIL.
 
-The Newton solve of a large step (``xfem._backward_euler._host_newton_direction``) runs on the host. As a numpy
+The Newton solve of a large FEM step (``xfem._backward_euler._host_newton_direction``, through
+``_jaxcga_shared.sparse.host_pcg``) runs on the host on a CPU. As a numpy
 loop each CG iteration is ~14 array operations, and each releases the GIL and takes it back: thousands of
 hand-overs per step, each a chance to wait for another thread (the background cuts' thread, the next capacity
 level's compilation, the application's own threads). Here the iteration

@@ -1,4 +1,4 @@
-"""The compiled Jacobi PCG (``xfem._pcg``) against numpy's dense solve and the numpy loop it replaced."""
+"""The compiled Jacobi PCG (``_jaxcga_shared.pcg``) against numpy's dense solve and the numpy loop it replaced."""
 
 import threading
 import time
@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
-from xfem._backward_euler import _host_cg
-from xfem._pcg import _pcg, jacobi_pcg
+from _jaxcga_shared.pcg import _pcg, jacobi_pcg
+from _jaxcga_shared.sparse import host_pcg
 
 
 def _stiffness_like(m: int, shift: float = 0.05) -> sp.csr_matrix:
@@ -22,7 +22,7 @@ def _stiffness_like(m: int, shift: float = 0.05) -> sp.csr_matrix:
 
 
 def _numpy_pcg(A: sp.csr_matrix, b: np.ndarray, rtol: float) -> np.ndarray:
-    """The numpy loop ``_host_cg`` ran before: the same algorithm and stopping rule."""
+    """The numpy loop ``host_pcg`` ran before: the same algorithm and stopping rule."""
     inverse_diagonal = 1 / A.diagonal()
     x, r = np.zeros_like(b), b.copy()
     z = inverse_diagonal * r
@@ -59,13 +59,13 @@ def test_pcg_edge_cases_and_the_host_callback_wrapper():
     A = _stiffness_like(3)
     zero = jacobi_pcg(A.data, A.indptr, A.indices, 1 / A.diagonal(), np.zeros(A.shape[0]), 1e-4)
     assert np.array_equal(zero, np.zeros(A.shape[0]))
-    # _host_cg: padded CSR slots past indptr[-1] are ignored, float32 in gives float32 out
+    # host_pcg: padded CSR slots past indptr[-1] are ignored, float32 in gives float32 out
     b = np.random.default_rng(2).normal(size=A.shape[0])
     padded = np.concatenate([A.data, np.full(7, 1e30)])
     indices = np.concatenate([A.indices, np.zeros(7, A.indices.dtype)])
-    x = _host_cg(padded, b, 1e-6, A.indptr, indices)
+    x = host_pcg(padded, b, 1e-6, A.indptr, indices)
     np.testing.assert_allclose(x, _numpy_pcg(A, b, 1e-6), rtol=1e-10, atol=1e-14)
-    x32 = _host_cg(padded.astype(np.float32), b.astype(np.float32), 1e-3, A.indptr, indices)
+    x32 = host_pcg(padded.astype(np.float32), b.astype(np.float32), 1e-3, A.indptr, indices)
     assert x32.dtype == np.float32 and np.linalg.norm(A @ x32 - b) <= 2e-3 * np.linalg.norm(b)
 
 

@@ -1,0 +1,393 @@
+"""Sparse linear solves from JAX, one implementation for every package (DESIGN.md, "Sparse linear algebra").
+Private to the distribution.
+
+A system is a CSR pattern (``CSRPattern``: row pointers, column indices, and what a solve needs of them, analysed
+once on the host by ``csr_pattern``) and its values (``data``, which may change from call to call: the FEM Newton
+matrix is reassembled every iteration). Two paths, chosen when the computation is lowered
+(``jax.lax.platform_dependent``, as ``_jaxcga_shared.platform``):
+
+* CPU: on the host, behind ``host_call``. Direct solves by CHOLMOD's sparse Cholesky (``sksparse_minimal``) for
+  symmetric positive definite matrices and SuperLU (scipy) otherwise (``factorize``, ``host_direct``); the
+  Jacobi-preconditioned CG compiled by numba without the GIL (``host_pcg``, ``_jaxcga_shared.pcg``) for the
+  large FEM Newton systems.
+* GPU (and every platform other than the CPU): a preconditioned conjugate gradient in JAX (``device_pcg``):
+  the matrix-vector product is one ``jax.ops.segment_sum`` over the CSR entries, the preconditioner the inverse of
+  the diagonal, or of the diagonal 3 x 3 blocks for the FEM systems (one block per node). No copy to the host.
+  A sparse Cholesky on the device (cuDSS) is the alternative to measure there; it is not here because it cannot
+  be tested without a GPU.
+
+``SparseSolver`` is a fixed matrix factored once (the harmonic fields, ARAP's global step, the cage's Dirichlet
+problem), solved for many right-hand sides, with its adjoint through ``jax.custom_vjp``; ``spd_solve`` solves a
+symmetric positive definite system whose values are traced (XFEM's Newton direction and implicit gradient).
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable
+
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+from jaxtyping import Array, Float, Int
+from sksparse_minimal import SparseCholesky
+
+from _jaxcga_shared.checks import require
+from _jaxcga_shared.host import host_call, to_devices
+from _jaxcga_shared.platform import PerPlatform
+
+DEVICE_RTOL = 1e-10  # relative residual of a prefactored system's device solve (the host's is a direct solve)
+
+
+class CSRPattern(eqx.Module):
+    """The structure of an (n, n) CSR matrix, analysed once (``csr_pattern``); its data is passed with each solve.
+
+    Attributes:
+        indptr: (n + 1,) row pointers; entries past ``indptr[-1]`` are padding (a fixed capacity), ignored.
+        indices: (nnz,) column indices.
+        rows: (nnz,) the row of each entry, n for padding (dropped by the matrix-vector product's segment sum).
+        block_slots: (nnz,) where each entry goes in the (n / block, block, block) diagonal blocks (flattened),
+            ``n * block`` (dropped) for the entries off them and the padding.
+        n: the number of rows.
+        block: the preconditioner's block size (1: Jacobi; 3: one block per node of a 3-D FEM system).
+    """
+
+    indptr: Int[Array, " n_plus_one"]
+    indices: Int[Array, " nnz"]
+    rows: Int[Array, " nnz"]
+    block_slots: Int[Array, " nnz"]
+    n: int = eqx.field(static=True)
+    block: int = eqx.field(static=True)
+
+
+def csr_pattern(indptr, indices, *, block: int = 1) -> CSRPattern:
+    """Analyse a CSR structure (host, numpy): each entry's row and its slot in the diagonal blocks.
+
+    Args:
+        indptr: (n + 1,) int row pointers.
+        indices: (nnz,) int column indices, nnz >= ``indptr[-1]`` (the rest is padding).
+        block: the preconditioner's block size, dividing n.
+    Returns:
+        The ``CSRPattern`` (device arrays; numpy after ``keep_on_host``).
+    """
+    indptr, indices = np.asarray(indptr), np.asarray(indices)
+    n = len(indptr) - 1
+    if indptr.ndim != 1 or n < 0 or indptr[0] != 0 or np.any(np.diff(indptr) < 0) or indptr[-1] > len(indices):
+        raise ValueError(f"indptr: expected non-decreasing row pointers from 0 to at most {len(indices)}")
+    if block < 1 or n % block:
+        raise ValueError(f"block: expected a positive divisor of the {n} rows, got {block}")
+    used = int(indptr[-1])
+    if used and (indices[:used].min() < 0 or indices[:used].max() >= n):
+        raise ValueError(f"indices: column indices must lie in [0, {n})")
+    rows = np.concatenate([np.repeat(np.arange(n), np.diff(indptr)), np.full(len(indices) - used, n)])
+    columns = np.where(rows < n, indices, 0)
+    slots = np.where((rows < n) & (rows // block == columns // block), rows * block + columns % block, n * block)
+    index = indices.dtype if np.issubdtype(indices.dtype, np.integer) else np.int64
+    if n * block >= np.iinfo(index).max:
+        index = np.int64
+    indptr, indices, rows, slots = to_devices(*(a.astype(index) for a in (indptr, indices, rows, slots)))
+    return CSRPattern(indptr=indptr, indices=indices, rows=rows, block_slots=slots, n=n, block=block)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# the host path (numpy, float64)
+
+
+def host_csr(data, indptr, indices) -> sp.csr_matrix:
+    n, used = len(indptr) - 1, int(indptr[-1])  # entries past indptr[-1] are padding
+    return sp.csr_matrix((np.asarray(data, np.float64)[:used], np.asarray(indices)[:used], np.asarray(indptr)),
+                         shape=(n, n))
+
+
+def factorize(A, symmetric: bool) -> Callable:
+    """The factored ``A`` (host): CHOLMOD for a symmetric positive definite A, SuperLU otherwise. Returns
+    ``solve(b, transpose=False)``. ValueError naming A if it is singular (or not positive definite)."""
+    A = sp.csc_matrix(A, dtype=np.float64)
+    if symmetric:
+        try:
+            factor = SparseCholesky(A)
+        except ValueError as error:  # CHOLMOD: a zero or negative pivot
+            raise ValueError(f"A: the matrix is singular or not positive definite ({error})") from None
+        return lambda b, transpose=False: factor.solve_A(b)
+    try:
+        lu = spla.splu(A)
+    except RuntimeError as error:  # SuperLU reports an exactly singular matrix this way
+        raise ValueError(f"A: the matrix is singular ({error})") from None
+    return lambda b, transpose=False: lu.solve(b, trans="T" if transpose else "N")
+
+
+def host_direct(data, b, indptr, indices) -> np.ndarray:
+    """The exact solve of a symmetric CSR system (host): CHOLMOD, SuperLU for an indefinite matrix, NaN for a
+    singular one (checked by the caller inside jit)."""
+    A = host_csr(data, indptr, indices)
+    rhs = np.asarray(b, np.float64)
+    for symmetric in (True, False):
+        try:
+            return factorize(A, symmetric)(rhs).astype(b.dtype)
+        except ValueError:  # not positive definite (CHOLMOD), then singular (SuperLU)
+            pass
+    return np.full_like(b, np.nan)
+
+
+def host_pcg(data, b, rtol, indptr, indices) -> np.ndarray:
+    """Jacobi-preconditioned CG on the host to the relative residual ``rtol``, from 0, at most n iterations
+    (``_jaxcga_shared.pcg``: compiled, without the GIL).
+
+    Not scipy's ``cg``: its vector dot products go to numpy's multithreaded BLAS, whose threads stall on a loaded
+    2-core machine (benchmarks/README.md, "FEM linear solver"). Not a numpy loop either: its ~14 array operations
+    per iteration each hand the GIL over, and wait for a background thread (a cut's manifold3d or libigl call) to
+    give it back."""
+    from _jaxcga_shared.pcg import jacobi_pcg  # numba is imported on first use, not with every package
+
+    A = host_csr(data, indptr, indices)
+    return jacobi_pcg(A.data, A.indptr, A.indices, 1 / A.diagonal(), np.asarray(b, np.float64),
+                      float(rtol)).astype(b.dtype)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# the device path (JAX)
+
+
+def csr_matvec(pattern: CSRPattern, data, x):
+    """``A x`` for the CSR matrix (pattern, data) and x of shape (n,) or (n, k): one segment sum."""
+    products = (data if x.ndim == 1 else data[:, None]) * x[pattern.indices]
+    return jax.ops.segment_sum(products, pattern.rows, num_segments=pattern.n, indices_are_sorted=True)
+
+
+def _preconditioner(pattern: CSRPattern, data):
+    """The inverse diagonal blocks of A as a function ``r -> P r``, and whether they are all positive definite
+    (a necessary condition for A; a zero or negative diagonal entry is the common failure)."""
+    size = pattern.block
+    count = pattern.n // size
+    blocks = jax.ops.segment_sum(data, pattern.block_slots, num_segments=pattern.n * size)
+    blocks = blocks.reshape(count, size, size)
+    if size == 1:
+        diagonal = blocks[:, 0, 0]
+        positive = jnp.all(diagonal > 0)
+        inverse = 1 / jnp.where(diagonal > 0, diagonal, 1)
+        return (lambda r: inverse.reshape((-1,) + (1,) * (r.ndim - 1)) * r), positive
+    # Cholesky of every block: NaN where one is not positive definite
+    factor = jnp.linalg.cholesky(blocks)
+    positive = jnp.all(jnp.isfinite(factor))
+    identity = jnp.broadcast_to(jnp.eye(size, dtype=data.dtype), blocks.shape)
+    inverse = jnp.where(jnp.isfinite(factor).all((1, 2))[:, None, None],
+                        jax.scipy.linalg.cho_solve((factor, True), identity), identity)
+
+    def apply(r):
+        columns = r.reshape(count, size, -1)
+        return jnp.einsum("bij,bjk->bik", inverse, columns).reshape(r.shape)
+
+    return apply, positive
+
+
+class PCGInfo(eqx.Module):
+    """How a ``device_pcg`` ended.
+
+    Attributes:
+        iterations: the iterations run.
+        relative_residual: (k,) or () ``|r| / |b|`` of the iterate (the recurrence's residual, as the host CG).
+        converged: () whether every column reached the tolerance.
+        breakdown: () whether A showed it is not positive definite (a non-positive ``p.Ap`` or diagonal block).
+    """
+
+    iterations: Int[Array, ""]
+    relative_residual: Float[Array, "..."]
+    converged: Array
+    breakdown: Array
+
+
+def device_pcg(pattern: CSRPattern, data, b, rtol, max_iterations: int | None = None):
+    """Block-Jacobi preconditioned CG in JAX for a symmetric positive definite A: x with
+    ``|A x - b| <= rtol |b|`` (each column of a (n, k) b), from 0, at most ``max_iterations`` iterations (default
+    n). Runs anywhere (jit, vmap); differentiate the solve with an implicit rule, not through the loop.
+
+    Returns:
+        x of b's shape and a ``PCGInfo``. On a breakdown the loop stops with the iterate so far."""
+    n = pattern.n
+    limit = n if max_iterations is None else int(max_iterations)
+    precondition, positive = _preconditioner(pattern, data)
+
+    def dot(u, v):
+        return jnp.sum(u * v, axis=0)
+
+    bb = dot(b, b)
+    stop = jnp.asarray(rtol, b.dtype) ** 2 * bb
+    z = precondition(b)
+    start = (0, jnp.zeros_like(b), b, z, dot(b, z), bb, ~positive)
+
+    def cond(carry):
+        k, _, _, _, _, rr, broken = carry
+        return (k < limit) & jnp.any(rr > stop) & ~broken
+
+    def body(carry):
+        k, x, r, p, rz, rr, broken = carry
+        Ap = csr_matvec(pattern, data, p)
+        pAp = dot(p, Ap)
+        active = rr > stop
+        broken = jnp.any(active & ~(pAp > 0))
+        alpha = jnp.where(active & (pAp > 0), rz / jnp.where(pAp > 0, pAp, 1), 0)
+        x = x + alpha * p
+        r = r - alpha * Ap
+        z = precondition(r)
+        rz_new = dot(r, z)
+        beta = jnp.where(active & (rz != 0), rz_new / jnp.where(rz != 0, rz, 1), 0)
+        return k + 1, x, r, z + beta * p, rz_new, dot(r, r), broken
+
+    k, x, _, _, _, rr, broken = jax.lax.while_loop(cond, body, start)
+    relative = jnp.sqrt(rr / jnp.where(bb > 0, bb, 1))
+    return x, PCGInfo(iterations=jnp.asarray(k), relative_residual=relative, converged=jnp.all(rr <= stop) & ~broken,
+                      breakdown=broken)
+
+
+def _not_converged(what: str, limit: str) -> str:
+    return (f"{what}: the conjugate gradient did not reach its tolerance in {limit} iterations (the matrix is "
+            "singular, not positive definite, or too ill-conditioned)")
+
+
+def checked_device_pcg(pattern: CSRPattern, data, b, rtol, max_iterations: int | None = None, *, what: str = "A"):
+    """``device_pcg``'s x, with a runtime check (``checks.require``) naming ``what`` when it broke down or did not
+    converge."""
+    x, info = device_pcg(pattern, data, b, rtol, max_iterations)
+    limit = str(pattern.n if max_iterations is None else max_iterations)
+    return require(x, (~info.converged, _not_converged(what, limit)))
+
+
+# ---------------------------------------------------------------------------------------------------------
+# traced values: XFEM's Newton direction and implicit gradient
+
+
+def _direct(data, b, rtol, indptr, indices):
+    return host_direct(data, b, indptr, indices)
+
+
+def _on_host(host, pattern, data, b, rtol):
+    return host_call(host, jax.ShapeDtypeStruct(b.shape, b.dtype), data, b, rtol, pattern.indptr, pattern.indices)
+
+
+def _on_device(host, max_iterations, on_failure, what, pattern, data, b, rtol):
+    if on_failure == "error":
+        return checked_device_pcg(pattern, data, b, rtol, max_iterations, what=what)
+    x, info = device_pcg(pattern, data, b, rtol, max_iterations)
+    if on_failure == "accept":
+        return jnp.where(info.breakdown & (info.iterations == 0), jnp.nan, x)  # not positive definite at all
+    return jax.lax.cond(info.converged, lambda: x, lambda: _on_host(host, pattern, data, b, rtol))
+
+
+def spd_solve(pattern: CSRPattern, data, b, rtol, *, host: Callable = _direct, max_iterations=None,
+              on_failure: str = "error", what: str = "A"):
+    """Solve the symmetric positive definite CSR system (pattern, data) for b (n,) from traced code.
+
+    CPU: ``host(data, b, rtol, indptr, indices)`` through ``host_call`` (numpy arrays; by default
+    ``host_direct``, which has no use for rtol). Elsewhere: ``device_pcg`` to ``rtol``; when it falls short,
+    ``on_failure`` decides: ``"error"`` (a runtime check naming ``what``), ``"host"`` (``host`` on the host,
+    as the CPU does) or ``"accept"`` (the iterate: an inexact Newton direction, as the host CG's after its n
+    iterations). Not differentiable (the callers differentiate implicitly)."""
+    if on_failure not in ("error", "host", "accept"):
+        raise ValueError(f"on_failure: expected 'error', 'host' or 'accept', got {on_failure!r}")
+    return jax.lax.platform_dependent(
+        pattern, data, b, jnp.asarray(rtol, b.dtype), cpu=functools.partial(_on_host, host),
+        default=functools.partial(_on_device, host, max_iterations, on_failure, what))
+
+
+def _spd_examples() -> list[tuple]:
+    """A 1-D Laplacian plus a mass term, 3 DOFs per node with coupled blocks (the FEM's block structure)."""
+    m = 12
+    L = sp.diags([-1.0, 2.1, -1.0], [-1, 0, 1], shape=(m, m))
+    block = np.array([[2.0, 0.5, 0.1], [0.5, 1.5, 0.2], [0.1, 0.2, 1.0]])
+    A = sp.csr_matrix(sp.kron(L, block) + sp.identity(3 * m))
+    b = np.random.default_rng(0).normal(size=3 * m)
+    pattern = csr_pattern(A.indptr, A.indices, block=3)
+    # CG to 1e-14 (well conditioned: 32 iterations) agrees with CHOLMOD to a few units of rounding
+    return [(pattern, jnp.asarray(A.data), jnp.asarray(b), jnp.asarray(1e-14))]
+
+
+# ``spd_solve``'s default configuration, registered for the CPU test of its two variants' agreement
+SPD_SOLVE = PerPlatform("sparse_spd_solve", cpu=functools.partial(_on_host, _direct),
+                        gpu=functools.partial(_on_device, _direct, None, "error", "A"), examples=_spd_examples)
+
+
+# ---------------------------------------------------------------------------------------------------------
+# a fixed matrix, factored once
+
+
+class SparseSolver:
+    """``A x = b`` for a fixed square sparse A (float64), prepared once: factored on the host (CHOLMOD for
+    ``symmetric=True``, a promise that A is symmetric positive definite; SuperLU otherwise) and, when symmetric,
+    its CSR pattern analysed for the device CG (``device_rtol``, checked: an unconverged solve is an error).
+
+    Call it on b of shape (n,) or (n, k) inside or outside jit: on the CPU the factor solves it on the host; on
+    other platforms a symmetric system is solved on the device by ``device_pcg`` (an unsymmetric one on the host).
+    Differentiable in reverse mode with respect to b (the adjoint is the solve with A^T: the same solve for a
+    symmetric A); works under vmap. Hashable by identity (a static argument, or closed over).
+
+    Raises:
+        ValueError: A is not square, empty, not symmetric when promised, or singular (not positive definite)."""
+
+    def __init__(self, A, symmetric: bool = False, device_rtol: float = DEVICE_RTOL):
+        A = sp.csr_matrix(A, dtype=np.float64)
+        if A.ndim != 2 or A.shape[0] != A.shape[1]:
+            raise ValueError(f"A: expected a square sparse matrix, got shape {A.shape}")
+        if A.shape[0] == 0:
+            raise ValueError("A: the system is empty")
+        self.n = A.shape[0]
+        self.symmetric = symmetric
+        if symmetric and abs(A - A.T).max() > 1e-12 * abs(A).max():
+            raise ValueError("A: symmetric=True but the matrix is not symmetric")
+        self._factor = factorize(A, symmetric)
+        self._A = A
+        self.device_rtol = device_rtol
+        self._solve = _prefactored(self)
+
+    def host_solve(self, b, transpose: bool = False) -> np.ndarray:
+        """The solve in numpy (float64), for host code."""
+        return self._factor(np.asarray(b, np.float64), transpose)
+
+    @functools.cached_property
+    def _device_system(self):
+        """The CSR pattern and values of A for ``device_pcg`` (analysed on first use: host-only users skip it)."""
+        A = self._A.copy()
+        A.sort_indices()
+        with jax.ensure_compile_time_eval():  # first used while tracing: device arrays, not the trace's values
+            return csr_pattern(A.indptr, A.indices), to_devices(A.data)[0]
+
+    def device_solve(self, b):
+        """The device path (``device_pcg`` to ``device_rtol``, checked), on any platform: what a GPU runs."""
+        if not self.symmetric:
+            raise ValueError("symmetric: the device solve needs a symmetric positive definite system (symmetric=True)")
+        pattern, data = self._device_system
+        return checked_device_pcg(pattern, data.astype(b.dtype), b, self.device_rtol, 2 * self.n)
+
+    def __call__(self, b):
+        b = jnp.asarray(b)
+        if b.ndim not in (1, 2) or b.shape[0] != self.n:
+            raise ValueError(f"b: expected shape ({self.n},) or ({self.n}, k), got {b.shape}")
+        return self._solve(b)
+
+
+def _prefactored(solver: SparseSolver):
+    def host(b, transpose):
+        return solver.host_solve(b, transpose).astype(b.dtype)
+
+    def call(b, transpose):
+        def on_host(b):
+            return host_call(functools.partial(host, transpose=transpose), jax.ShapeDtypeStruct(b.shape, b.dtype), b)
+
+        if not solver.symmetric:
+            return on_host(b)
+        return jax.lax.platform_dependent(b, cpu=on_host, default=solver.device_solve)
+
+    @jax.custom_vjp
+    def solve(b):
+        return call(b, False)
+
+    def forward(b):
+        return call(b, False), None
+
+    def backward(_, g):
+        return (call(g, True),)  # (A^-1)^T g
+
+    solve.defvjp(forward, backward)
+    return solve

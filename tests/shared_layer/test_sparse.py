@@ -1,0 +1,218 @@
+"""The sparse solves of every package (``_jaxcga_shared.sparse``): the device path (block-Jacobi PCG in JAX, what
+a GPU runs) forced on the CPU against the host path (CHOLMOD, SuperLU, the numba CG) on real systems (harmonic
+fields and ARAP on Arm5, an FEM Newton step and an XFEM implicit gradient on the test box), gradients against
+finite differences, vmap, and the errors of singular, indefinite and unconverged systems."""
+
+from __future__ import annotations
+
+import contextlib
+from pathlib import Path
+
+import equinox as eqx
+import igl
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+import deform
+from _jaxcga_shared import sparse
+from _jaxcga_shared.sparse import (
+    SPD_SOLVE,
+    SparseSolver,
+    checked_device_pcg,
+    csr_pattern,
+    device_pcg,
+    host_direct,
+    host_pcg,
+    spd_solve,
+)
+from tests.shared import check_gradient
+from tests.xfem._models import MATERIAL, RHO, H, deformed_state, plane, tall_box
+from xfem._assembly import assemble_matrix, to_scipy
+import xfem._backward_euler as be
+from xfem._backward_euler import backward_euler_step, fem_from_mesh
+from xfem._xfem import xfem_model
+
+DATA = Path(__file__).resolve().parents[1] / "data"
+ARM5 = deform.load_model(DATA / "Arm5.glb", weld=True).mesh
+
+
+@contextlib.contextmanager
+def _device_path():
+    """Every ``jax.lax.platform_dependent`` takes its non-CPU branch (the GPU's) while inside; JAX's caches are
+    cleared on the way in and out, so that no function traced for one path runs on the other. Yields the list of
+    the host calls the solves traced (none, unless a device solve falls back to the host)."""
+    original, original_host_call = jax.lax.platform_dependent, sparse.host_call
+    traced = []
+
+    def recorded(fn, *args):
+        traced.append(fn)
+        return original_host_call(fn, *args)
+
+    jax.clear_caches()
+    jax.lax.platform_dependent = lambda *args, default, **_: default(*args)
+    sparse.host_call = recorded
+    try:
+        yield traced
+    finally:
+        jax.lax.platform_dependent, sparse.host_call = original, original_host_call
+        jax.clear_caches()
+
+
+def _arm5_dirichlet():
+    """-L_ff of Arm5's cotangent Laplacian with both ends fixed, and L_fc bc for two harmonic fields."""
+    V, F = np.asarray(ARM5.V, np.float64), np.asarray(ARM5.F, np.int64)
+    x = V[:, 0]
+    ends = [np.flatnonzero(x < np.quantile(x, 0.05)), np.flatnonzero(x > np.quantile(x, 0.95))]
+    b = np.concatenate(ends)
+    free = np.setdiff1d(np.arange(len(V)), b)
+    L = sp.csr_matrix(igl.cotmatrix(V, F))
+    bc = np.zeros((len(b), 2))
+    bc[: len(ends[0]), 0] = 1.0
+    bc[len(ends[0]):, 1] = 1.0
+    return -L[free][:, free], L[free][:, b] @ bc
+
+
+def test_device_pcg_solves_a_cotangent_laplacian_like_cholmod():
+    A, rhs = _arm5_dirichlet()
+    solver = SparseSolver(A, symmetric=True)
+    host = solver.host_solve(rhs)
+    device = np.asarray(jax.jit(solver.device_solve)(jnp.asarray(rhs)))
+    residual = np.linalg.norm(A @ device - rhs, axis=0) / np.linalg.norm(rhs, axis=0)
+    assert np.all(residual <= solver.device_rtol)
+    # fields in [0, 1]: the error of a 1e-10 residual on this conditioning
+    np.testing.assert_allclose(device, host, rtol=0, atol=1e-7)
+    # the registered kernel's two variants agree on its examples
+    for example in SPD_SOLVE.examples():
+        cpu, gpu = (np.asarray(jax.jit(SPD_SOLVE.variants[k])(*example)) for k in ("cpu", "gpu"))
+        np.testing.assert_allclose(gpu, cpu, rtol=1e-13, atol=1e-14)
+
+
+@pytest.mark.slow  # ARAP compiled for both paths on Arm5: ~40 s on the shared 2 cores
+def test_harmonic_fields_and_arap_on_the_device_path_equal_the_host_path():
+    V, F = np.asarray(ARM5.V, np.float64), np.asarray(ARM5.F, np.int64)
+    x = V[:, 0]
+    fixed, hand = np.flatnonzero(x < np.quantile(x, 0.05)), np.flatnonzero(x > np.quantile(x, 0.95))
+    b = np.concatenate([fixed, hand])
+    bc = np.zeros((len(b), 2))
+    bc[: len(fixed), 0], bc[len(fixed):, 1] = 1.0, 1.0
+    harmonic = deform.harmonic_precompute(V, F, b)
+    data = deform.arap_precompute(V, F, b)
+    moved = V[b] + np.where(np.isin(b, hand), 1.0, 0.0)[:, None] * np.array([0.0, 0.1, 0.05])
+    host_fields = harmonic.host(bc)
+    host_arap = np.asarray(deform.arap_solve(data, jnp.asarray(moved), max_iterations=3).U)
+    with _device_path() as host_calls:
+        fields = np.asarray(harmonic(jnp.asarray(bc)))
+        arap = np.asarray(deform.arap_solve(data, jnp.asarray(moved), max_iterations=3).U)
+    assert host_calls == []
+    np.testing.assert_allclose(fields, host_fields, rtol=0, atol=1e-7)
+    np.testing.assert_allclose(arap, host_arap, rtol=0, atol=1e-7 * np.ptp(V))
+
+
+def test_block_jacobi_pcg_solves_an_fem_system_like_cholmod_and_the_host_cg():
+    """M + h^2 K on the test box's free DOFs (K: elementwise Laplacian stiffness (x) I3, the FEM's sparsity and
+    3 x 3 node blocks), to a tight and to the Newton direction's tolerance."""
+    mesh = tall_box()
+    system = fem_from_mesh(mesh, RHO, fixed=np.flatnonzero(np.asarray(mesh.X)[:, 2] > 1.5 - 1e-9))
+    grads, volumes = np.asarray(system.grads), np.asarray(system.volumes)
+    K = np.kron(volumes[:, None, None] * grads @ grads.transpose(0, 2, 1), np.eye(3)[None]) * MATERIAL.young
+    pattern = system.pattern
+    data = system.mass_data + H**2 * assemble_matrix(pattern, jnp.asarray(K))
+    A = to_scipy(pattern, data)
+    b = np.random.default_rng(4).normal(size=A.shape[0])
+    exact = host_direct(np.asarray(data), b, np.asarray(pattern.indptr), np.asarray(pattern.indices))
+    solve = jax.jit(lambda d, r, rtol: checked_device_pcg(pattern.csr, d, r, rtol))
+    tight = np.asarray(solve(data, jnp.asarray(b), 1e-11))
+    np.testing.assert_allclose(tight, exact, rtol=0, atol=1e-9 * np.abs(exact).max())
+    for rtol in (1e-4, 1e-8):
+        x = np.asarray(solve(data, jnp.asarray(b), rtol))
+        assert np.linalg.norm(A @ x - b) <= rtol * np.linalg.norm(b)
+        on_host = host_pcg(np.asarray(data), b, rtol, np.asarray(pattern.indptr), np.asarray(pattern.indices))
+        assert np.linalg.norm(x - exact) <= 10 * max(np.linalg.norm(on_host - exact), rtol * np.linalg.norm(exact))
+
+
+@pytest.mark.slow  # two converged steps and their gradients, compiled for both paths: ~60 s on the shared 2 cores
+def test_fem_newton_step_and_xfem_gradient_on_the_device_path_equal_the_host_path():
+    """A converged FEM step (Newton systems by block-Jacobi PCG on the device, CHOLMOD on the host) and the
+    implicit gradient of a cut XFEM system's step (its adjoint solve)."""
+    mesh = tall_box()
+    top = np.flatnonzero(np.asarray(mesh.X)[:, 2] > 1.5 - 1e-9)
+    model = xfem_model(mesh, RHO, fixed=top, state=deformed_state(mesh))
+    model.cut(plane())
+    system, state = model.system(), model.state
+
+    def step(young):
+        return backward_euler_step(system, state, H, type(MATERIAL)(young, MATERIAL.poisson), newton_iterations=20,
+                                   tolerance=1e-11)
+
+    def loss(young):
+        return jnp.sum(jnp.sin(step(young).x))
+
+    young = jnp.asarray(MATERIAL.young)
+    host_x, host_grad = np.asarray(step(young).x), float(jax.grad(loss)(young))
+    with _device_path() as host_calls:
+        x, grad = np.asarray(step(young).x), float(jax.grad(loss)(young))
+    assert all(fn is be._host_adjoint for fn in host_calls)  # only the adjoint's fallback, traced, not necessarily run
+    np.testing.assert_allclose(x, host_x, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(grad, host_grad, rtol=1e-6)
+
+
+def test_gradient_and_vmap_through_the_device_path():
+    A = sp.csr_matrix(sp.diags([-1.0, 2.2, -1.0], [-1, 0, 1], shape=(30, 30)))
+    solver = SparseSolver(A, symmetric=True)
+    probe = jnp.asarray(np.random.default_rng(0).normal(size=30))
+    b = jnp.asarray(np.random.default_rng(1).uniform(size=30))
+    with _device_path() as host_calls:
+        check_gradient(jax.jit(lambda b: jnp.sum(jnp.sin(solver(b)) * probe)), b, rtol=1e-6)
+        batch = jnp.stack([b, 2 * b + 1, -b])
+        solved = np.asarray(jax.jit(jax.vmap(solver))(batch))
+    assert host_calls == []
+    np.testing.assert_allclose(solved, np.linalg.solve(A.toarray(), np.asarray(batch).T).T, rtol=1e-8)
+
+
+def test_singular_indefinite_and_unconverged_systems_are_reported():
+    singular = sp.csr_matrix(np.array([[1.0, 1.0], [1.0, 1.0]]))
+    with pytest.raises(ValueError, match="A: the matrix is singular or not positive definite"):
+        SparseSolver(singular, symmetric=True)
+    with pytest.raises(ValueError, match="A: the matrix is singular"):
+        SparseSolver(singular)
+    with pytest.raises(ValueError, match="A: expected a square"):
+        SparseSolver(sp.csr_matrix(np.ones((2, 3))))
+    with pytest.raises(ValueError, match="A: symmetric=True but"):
+        SparseSolver(sp.csr_matrix(np.array([[2.0, 1.0], [0.0, 1.0]])), symmetric=True)
+    unsymmetric = SparseSolver(sp.csc_matrix(np.array([[2.0, 1.0], [0.0, 1.0]])))
+    np.testing.assert_allclose(unsymmetric(jnp.array([3.0, 1.0])), [1.0, 1.0])
+    with pytest.raises(ValueError, match="b: expected shape"):
+        unsymmetric(jnp.ones(3))
+
+    # host_direct: SuperLU for an indefinite matrix, NaN for a singular one
+    indefinite = sp.csr_matrix(np.array([[1.0, 2.0, 0.0], [2.0, 1.0, 0.0], [0.0, 0.0, 3.0]]))
+    b = np.array([1.0, -2.0, 3.0])
+    exact = np.linalg.solve(indefinite.toarray(), b)
+    np.testing.assert_allclose(host_direct(indefinite.data, b, indefinite.indptr, indefinite.indices), exact)
+    assert np.all(np.isnan(host_direct(singular.data, b[:2], singular.indptr, singular.indices)))
+
+    # the device CG inside jit: an error naming the system, or the host's solve where asked
+    pattern = csr_pattern(indefinite.indptr, indefinite.indices)
+    data, rhs = jnp.asarray(indefinite.data), jnp.asarray(b)
+    with _device_path():
+        with pytest.raises(eqx.EquinoxRuntimeError, match="A: the conjugate gradient did not reach its tolerance"):
+            eqx.filter_jit(lambda d, r: spd_solve(pattern, d, r, 1e-10))(data, rhs).block_until_ready()
+        fallback = jax.jit(lambda d, r: spd_solve(pattern, d, r, 1e-10, on_failure="host"))(data, rhs)
+    np.testing.assert_allclose(np.asarray(fallback), exact, rtol=1e-12)
+    _, info = jax.jit(lambda d, r: device_pcg(pattern, d, r, 1e-10))(data, rhs)
+    assert bool(info.breakdown) and not bool(info.converged)
+
+    # an SPD system stopped after 2 iterations: reported, not silent
+    A = sp.csr_matrix(sp.diags([-1.0, 2.01, -1.0], [-1, 0, 1], shape=(50, 50)))
+    pattern = csr_pattern(A.indptr, A.indices)
+    with _device_path():
+        with pytest.raises(eqx.EquinoxRuntimeError, match="the Newton system: the conjugate gradient did not reach"):
+            eqx.filter_jit(lambda d, r: spd_solve(pattern, d, r, 1e-10, max_iterations=2, what="the Newton system"))(
+                jnp.asarray(A.data), jnp.ones(50)).block_until_ready()
+    _, info = device_pcg(pattern, jnp.asarray(A.data), jnp.ones(50), 1e-10, 2)
+    assert int(info.iterations) == 2 and not bool(info.converged) and not bool(info.breakdown)
+    with pytest.raises(ValueError, match="block: expected a positive divisor"):
+        csr_pattern(A.indptr, A.indices, block=3)
