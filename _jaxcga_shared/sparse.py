@@ -37,7 +37,7 @@ from sksparse_minimal import SparseCholesky
 
 from _jaxcga_shared.checks import require
 from _jaxcga_shared.host import host_call, to_devices
-from _jaxcga_shared.platform import PerPlatform
+from _jaxcga_shared.platform import Example, PerPlatform, example
 
 DEVICE_RTOL = 1e-10  # relative residual of a prefactored system's device solve (the host's is a direct solve)
 
@@ -292,7 +292,7 @@ def spd_solve(pattern: CSRPattern, data, b, rtol, *, host: Callable = _direct, m
         default=functools.partial(_on_device, host, max_iterations, on_failure, what))
 
 
-def _spd_examples() -> list[tuple]:
+def _spd_examples() -> list[Example]:
     """A 1-D Laplacian plus a mass term, 3 DOFs per node with coupled blocks (the FEM's block structure)."""
     m = 12
     L = sp.diags([-1.0, 2.1, -1.0], [-1, 0, 1], shape=(m, m))
@@ -301,12 +301,13 @@ def _spd_examples() -> list[tuple]:
     b = np.random.default_rng(0).normal(size=3 * m)
     pattern = csr_pattern(A.indptr, A.indices, block=3)
     # CG to 1e-14 (well conditioned: 32 iterations) agrees with CHOLMOD to a few units of rounding
-    return [(pattern, jnp.asarray(A.data), jnp.asarray(b), jnp.asarray(1e-14))]
+    return [example(pattern, jnp.asarray(A.data), jnp.asarray(b), jnp.asarray(1e-14))]
 
 
 # ``spd_solve``'s default configuration, registered for the CPU test of its two variants' agreement
 SPD_SOLVE = PerPlatform("sparse_spd_solve", cpu=functools.partial(_on_host, _direct),
-                        gpu=functools.partial(_on_device, _direct, None, "error", "A"), examples=_spd_examples)
+                        gpu=functools.partial(_on_device, _direct, None, "error", "A"), examples=_spd_examples,
+                        differentiated=False, float32=False)  # CHOLMOD is float64; gradients: tests/shared_layer/test_sparse.py
 
 
 # ---------------------------------------------------------------------------------------------------------

@@ -131,8 +131,14 @@ def test_lowering_picks_the_platform_variant(name):
     dispatch = functools.partial(kernel, **static)
     cpu, gpu = (functools.partial(kernel.variants[v], **static) for v in ("cpu", "gpu"))
     assert _operations(dispatch, args, "cpu") == _operations(cpu, args, "cpu")
-    assert _operations(dispatch, args, "cuda") == _operations(gpu, args, "cuda")
-    assert _operations(cpu, args, "cuda") != _operations(gpu, args, "cuda")
+    assert _operations(cpu, args, "cpu") != _operations(gpu, args, "cpu")
+    try:
+        assert _operations(dispatch, args, "cuda") == _operations(gpu, args, "cuda")
+        assert _operations(cpu, args, "cuda") != _operations(gpu, args, "cuda")
+    except ValueError as error:
+        if "lowering platform" not in str(error):
+            raise
+        pytest.skip(f"{name} calls the host (a solve or a runtime check): lowering it for CUDA needs a CUDA backend")
 
 
 def _public_calls():
