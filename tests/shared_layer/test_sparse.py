@@ -19,7 +19,6 @@ import scipy.sparse as sp
 import deform
 from _jaxcga_shared import sparse
 from _jaxcga_shared.sparse import (
-    SPD_SOLVE,
     SparseSolver,
     checked_device_pcg,
     csr_pattern,
@@ -84,10 +83,6 @@ def test_device_pcg_solves_a_cotangent_laplacian_like_cholmod():
     assert np.all(residual <= solver.device_rtol)
     # fields in [0, 1]: the error of a 1e-10 residual on this conditioning
     np.testing.assert_allclose(device, host, rtol=0, atol=1e-7)
-    # the registered kernel's two variants agree on its examples
-    for example in SPD_SOLVE.examples():
-        cpu, gpu = (np.asarray(jax.jit(SPD_SOLVE.variants[k])(*example)) for k in ("cpu", "gpu"))
-        np.testing.assert_allclose(gpu, cpu, rtol=1e-13, atol=1e-14)
 
 
 @pytest.mark.slow  # ARAP compiled for both paths on Arm5: ~40 s on the shared 2 cores
@@ -198,7 +193,7 @@ def test_singular_indefinite_and_unconverged_systems_are_reported():
     pattern = csr_pattern(indefinite.indptr, indefinite.indices)
     data, rhs = jnp.asarray(indefinite.data), jnp.asarray(b)
     with _device_path():
-        with pytest.raises(eqx.EquinoxRuntimeError, match="A: the conjugate gradient did not reach its tolerance"):
+        with pytest.raises((eqx.EquinoxRuntimeError, jax.errors.JaxRuntimeError), match="A: the conjugate gradient did not reach its tolerance"):
             eqx.filter_jit(lambda d, r: spd_solve(pattern, d, r, 1e-10))(data, rhs).block_until_ready()
         fallback = jax.jit(lambda d, r: spd_solve(pattern, d, r, 1e-10, on_failure="host"))(data, rhs)
     np.testing.assert_allclose(np.asarray(fallback), exact, rtol=1e-12)
@@ -209,7 +204,7 @@ def test_singular_indefinite_and_unconverged_systems_are_reported():
     A = sp.csr_matrix(sp.diags([-1.0, 2.01, -1.0], [-1, 0, 1], shape=(50, 50)))
     pattern = csr_pattern(A.indptr, A.indices)
     with _device_path():
-        with pytest.raises(eqx.EquinoxRuntimeError, match="the Newton system: the conjugate gradient did not reach"):
+        with pytest.raises((eqx.EquinoxRuntimeError, jax.errors.JaxRuntimeError), match="the Newton system: the conjugate gradient did not reach"):
             eqx.filter_jit(lambda d, r: spd_solve(pattern, d, r, 1e-10, max_iterations=2, what="the Newton system"))(
                 jnp.asarray(A.data), jnp.ones(50)).block_until_ready()
     _, info = device_pcg(pattern, jnp.asarray(A.data), jnp.ones(50), 1e-10, 2)
