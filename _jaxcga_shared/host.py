@@ -68,7 +68,8 @@ def _host_call_lowering(ctx, *operands, fn, result):
         return (np.asarray(fn(*arrays), result.dtype),)
 
     outputs, _, _ = jax._src.callback.emit_python_callback(
-        ctx, call, None, list(operands), ctx.avals_in, ctx.avals_out, has_side_effect=False, returns_token=False)
+        ctx, call, None, list(operands), ctx.avals_in, ctx.avals_out, has_side_effect=False, returns_token=False
+    )
     return outputs
 
 
@@ -78,8 +79,10 @@ jax.interpreters.mlir.register_lowering(_host_call_p, _host_call_lowering, cache
 def _host_call_batched(args, dims, *, fn, result):
     """vmap: one call per batch element, in order (``jax.lax.map``), as ``vmap_method="sequential"``."""
     size = next(a.shape[d] for a, d in zip(args, dims) if d is not None)  # None: an unbatched argument
-    args = [jnp.moveaxis(a, d, 0) if d is not None else jnp.broadcast_to(a, (size, *np.shape(a)))
-            for a, d in zip(args, dims)]
+    args = [
+        jnp.moveaxis(a, d, 0) if d is not None else jnp.broadcast_to(a, (size, *np.shape(a)))
+        for a, d in zip(args, dims)
+    ]
     return jax.lax.map(lambda xs: _host_call_p.bind(*xs, fn=fn, result=result), args), 0
 
 

@@ -66,8 +66,9 @@ def replacing(*paths) -> Iterator[tuple[Path, ...]]:
         except OSError as error:
             if error.filename is None or str(error.filename) in map(str, temporary):
                 what = ", ".join(str(t) for t in targets)
-                raise type(error)(error.errno, f"{error.strerror or error}; nothing written, left as before",
-                                  what) from error
+                raise type(error)(
+                    error.errno, f"{error.strerror or error}; nothing written, left as before", what
+                ) from error
             raise
         for temp, target in zip(temporary, targets):
             os.replace(temp, target)
@@ -163,8 +164,9 @@ def _run_files(folder: Path, own: re.Pattern) -> list[Path]:
     return sorted(p for p in folder.iterdir() if own.fullmatch(p.name) and p.is_file())
 
 
-def check_run_folder(folder, own: re.Pattern, force: bool, described: str, what: str = "out",
-                     inputs: dict[str, Path] | None = None) -> Path:
+def check_run_folder(
+    folder, own: re.Pattern, force: bool, described: str, what: str = "out", inputs: dict[str, Path] | None = None
+) -> Path:
     """``folder`` as the folder of one run: not a file, in a folder this process may write in, and empty unless
     ``force`` (then its files matching ``own``, ``described`` in messages, are replaced at the end of the run;
     no other file is touched). An input among those files is refused. Returns it as a Path; ``ValueError``
@@ -173,10 +175,12 @@ def check_run_folder(folder, own: re.Pattern, force: bool, described: str, what:
     if folder.is_dir() and any(folder.iterdir()):
         if not force:
             names = sorted(p.name for p in folder.iterdir())
-            raise ValueError(f"{what}: the folder {folder} is not empty ({len(names)} "
-                             f"{'entry' if len(names) == 1 else 'entries'}: "
-                             f"{', '.join(names[:3])}{', ...' if len(names) > 3 else ''}); give --force to replace "
-                             f"the run in it (its {described}; nothing else is removed) or another folder")
+            raise ValueError(
+                f"{what}: the folder {folder} is not empty ({len(names)} "
+                f"{'entry' if len(names) == 1 else 'entries'}: "
+                f"{', '.join(names[:3])}{', ...' if len(names) > 3 else ''}); give --force to replace "
+                f"the run in it (its {described}; nothing else is removed) or another folder"
+            )
         old = {os.path.realpath(p) for p in _run_files(folder, own)}
         for name, path in (inputs or {}).items():
             if path is not None and os.path.realpath(path) in old:
@@ -199,8 +203,11 @@ def run_folder(folder, own: re.Pattern, last: str) -> Iterator[Path]:
             yield staging
         except OSError as error:
             if error.filename is None or str(staging) in str(error.filename):
-                raise type(error)(error.errno, f"{error.strerror or error}; the run's files were not written, the "
-                                  "folder is as before", str(folder)) from error
+                raise type(error)(
+                    error.errno,
+                    f"{error.strerror or error}; the run's files were not written, the folder is as before",
+                    str(folder),
+                ) from error
             raise
         new = sorted(staging.iterdir(), key=lambda p: (p.name == last, p.name))
         for path in new:

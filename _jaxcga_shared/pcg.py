@@ -60,14 +60,20 @@ def _pcg(data, indptr, indices, inverse_diagonal, b, rtol):  # pragma: no cover 
     return x
 
 
-def jacobi_pcg(data: np.ndarray, indptr: np.ndarray, indices: np.ndarray, inverse_diagonal: np.ndarray,
-               b: np.ndarray, rtol: float) -> np.ndarray:
+def jacobi_pcg(
+    data: np.ndarray, indptr: np.ndarray, indices: np.ndarray, inverse_diagonal: np.ndarray, b: np.ndarray, rtol: float
+) -> np.ndarray:
     """x with ||A x - b|| <= rtol ||b|| (or the iterate after n iterations), A the CSR matrix (data, indptr,
     indices) of n rows, preconditioned by ``inverse_diagonal`` = 1 / diag(A). float64, x_0 = 0; runs without the
     GIL. An unconverged iterate still decreases the quadratic model, so it is still a descent direction."""
     # unsigned indices: numba then skips the wrap-around of negative ones (the CSR product took 2x scipy's time
     # with int32 or int64, the same time with uint32), and 32 bits read half the bytes of 64
     index = np.uint32 if max(len(data), len(b)) < np.iinfo(np.uint32).max else np.uint64
-    return _pcg(np.ascontiguousarray(data, np.float64), np.ascontiguousarray(indptr, index),
-                np.ascontiguousarray(indices, index), np.ascontiguousarray(inverse_diagonal, np.float64),
-                np.ascontiguousarray(b, np.float64), float(rtol))
+    return _pcg(
+        np.ascontiguousarray(data, np.float64),
+        np.ascontiguousarray(indptr, index),
+        np.ascontiguousarray(indices, index),
+        np.ascontiguousarray(inverse_diagonal, np.float64),
+        np.ascontiguousarray(b, np.float64),
+        float(rtol),
+    )

@@ -40,8 +40,16 @@ class PerPlatform:
     ``Example``), their vector-Jacobian products too where ``differentiated``, and in float32 where
     ``float32``."""
 
-    def __init__(self, name: str, *, cpu: Callable, gpu: Callable, examples: Callable[[], list[Example]],
-                 differentiated: bool = True, float32: bool = True):
+    def __init__(
+        self,
+        name: str,
+        *,
+        cpu: Callable,
+        gpu: Callable,
+        examples: Callable[[], list[Example]],
+        differentiated: bool = True,
+        float32: bool = True,
+    ):
         if name in PLATFORM_KERNELS:
             raise ValueError(f"name: a platform kernel named {name!r} is already registered")
         self.name = name
@@ -59,8 +67,14 @@ class PerPlatform:
         return jax.lax.platform_dependent(*args, cpu=cpu, default=gpu)
 
 
-def per_platform(name: str, *, examples: Callable[[], list[Example]], gpu: Callable | None = None,
-                 differentiated: bool = True, float32: bool = True):
+def per_platform(
+    name: str,
+    *,
+    examples: Callable[[], list[Example]],
+    gpu: Callable | None = None,
+    differentiated: bool = True,
+    float32: bool = True,
+):
     """Decorator. With ``gpu``: the decorated function is the CPU formulation and ``gpu`` the one for GPUs
     (and other accelerators). Without: the decorated function takes a keyword-only ``cpu: bool`` and the
     variants are it with ``cpu=True`` and ``cpu=False`` (for formulations that differ in a few lines, such
@@ -68,10 +82,15 @@ def per_platform(name: str, *, examples: Callable[[], list[Example]], gpu: Calla
 
     def wrap(fn: Callable) -> PerPlatform:
         if gpu is not None:
-            return PerPlatform(name, cpu=fn, gpu=gpu, examples=examples, differentiated=differentiated,
-                               float32=float32)
-        kernel = PerPlatform(name, cpu=functools.partial(fn, cpu=True), gpu=functools.partial(fn, cpu=False),
-                             examples=examples, differentiated=differentiated, float32=float32)
+            return PerPlatform(name, cpu=fn, gpu=gpu, examples=examples, differentiated=differentiated, float32=float32)
+        kernel = PerPlatform(
+            name,
+            cpu=functools.partial(fn, cpu=True),
+            gpu=functools.partial(fn, cpu=False),
+            examples=examples,
+            differentiated=differentiated,
+            float32=float32,
+        )
         return functools.update_wrapper(kernel, fn, updated=())
 
     return wrap

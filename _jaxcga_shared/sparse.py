@@ -98,8 +98,9 @@ def csr_pattern(indptr, indices, *, block: int = 1) -> CSRPattern:
 
 def host_csr(data, indptr, indices) -> sp.csr_matrix:
     n, used = len(indptr) - 1, int(indptr[-1])  # entries past indptr[-1] are padding
-    return sp.csr_matrix((np.asarray(data, np.float64)[:used], np.asarray(indices)[:used], np.asarray(indptr)),
-                         shape=(n, n))
+    return sp.csr_matrix(
+        (np.asarray(data, np.float64)[:used], np.asarray(indices)[:used], np.asarray(indptr)), shape=(n, n)
+    )
 
 
 def factorize(A, symmetric: bool) -> Callable:
@@ -143,8 +144,9 @@ def host_pcg(data, b, rtol, indptr, indices) -> np.ndarray:
     from _jaxcga_shared.pcg import jacobi_pcg  # numba is imported on first use, not with every package
 
     A = host_csr(data, indptr, indices)
-    return jacobi_pcg(A.data, A.indptr, A.indices, 1 / A.diagonal(), np.asarray(b, np.float64),
-                      float(rtol)).astype(b.dtype)
+    return jacobi_pcg(A.data, A.indptr, A.indices, 1 / A.diagonal(), np.asarray(b, np.float64), float(rtol)).astype(
+        b.dtype
+    )
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -173,8 +175,9 @@ def _preconditioner(pattern: CSRPattern, data):
     factor = jnp.linalg.cholesky(blocks)
     positive = jnp.all(jnp.isfinite(factor))
     identity = jnp.broadcast_to(jnp.eye(size, dtype=data.dtype), blocks.shape)
-    inverse = jnp.where(jnp.isfinite(factor).all((1, 2))[:, None, None],
-                        jax.scipy.linalg.cho_solve((factor, True), identity), identity)
+    inverse = jnp.where(
+        jnp.isfinite(factor).all((1, 2))[:, None, None], jax.scipy.linalg.cho_solve((factor, True), identity), identity
+    )
 
     def apply(r):
         columns = r.reshape(count, size, -1)
@@ -194,7 +197,7 @@ class PCGInfo(eqx.Module):
     """
 
     iterations: Int[Array, ""]
-    relative_residual: Float[Array, "..."]
+    relative_residual: Float[Array, ...]
     converged: Array
     breakdown: Array
 
@@ -238,13 +241,16 @@ def device_pcg(pattern: CSRPattern, data, b, rtol, max_iterations: int | None = 
 
     k, x, _, _, _, rr, broken = jax.lax.while_loop(cond, body, start)
     relative = jnp.sqrt(rr / jnp.where(bb > 0, bb, 1))
-    return x, PCGInfo(iterations=jnp.asarray(k), relative_residual=relative, converged=jnp.all(rr <= stop) & ~broken,
-                      breakdown=broken)
+    return x, PCGInfo(
+        iterations=jnp.asarray(k), relative_residual=relative, converged=jnp.all(rr <= stop) & ~broken, breakdown=broken
+    )
 
 
 def _not_converged(what: str, limit: str) -> str:
-    return (f"{what}: the conjugate gradient did not reach its tolerance in {limit} iterations (the matrix is "
-            "singular, not positive definite, or too ill-conditioned)")
+    return (
+        f"{what}: the conjugate gradient did not reach its tolerance in {limit} iterations (the matrix is "
+        "singular, not positive definite, or too ill-conditioned)"
+    )
 
 
 def checked_device_pcg(pattern: CSRPattern, data, b, rtol, max_iterations: int | None = None, *, what: str = "A"):
@@ -276,8 +282,17 @@ def _on_device(host, max_iterations, on_failure, what, pattern, data, b, rtol):
     return jax.lax.cond(info.converged, lambda: x, lambda: _on_host(host, pattern, data, b, rtol))
 
 
-def spd_solve(pattern: CSRPattern, data, b, rtol, *, host: Callable = _direct, max_iterations=None,
-              on_failure: str = "error", what: str = "A"):
+def spd_solve(
+    pattern: CSRPattern,
+    data,
+    b,
+    rtol,
+    *,
+    host: Callable = _direct,
+    max_iterations=None,
+    on_failure: str = "error",
+    what: str = "A",
+):
     """Solve the symmetric positive definite CSR system (pattern, data) for b (n,) from traced code.
 
     CPU: ``host(data, b, rtol, indptr, indices)`` through ``host_call`` (numpy arrays; by default
@@ -288,8 +303,13 @@ def spd_solve(pattern: CSRPattern, data, b, rtol, *, host: Callable = _direct, m
     if on_failure not in ("error", "host", "accept"):
         raise ValueError(f"on_failure: expected 'error', 'host' or 'accept', got {on_failure!r}")
     return jax.lax.platform_dependent(
-        pattern, data, b, jnp.asarray(rtol, b.dtype), cpu=functools.partial(_on_host, host),
-        default=functools.partial(_on_device, host, max_iterations, on_failure, what))
+        pattern,
+        data,
+        b,
+        jnp.asarray(rtol, b.dtype),
+        cpu=functools.partial(_on_host, host),
+        default=functools.partial(_on_device, host, max_iterations, on_failure, what),
+    )
 
 
 def _spd_examples() -> list[Example]:
@@ -305,9 +325,14 @@ def _spd_examples() -> list[Example]:
 
 
 # ``spd_solve``'s default configuration, registered for the CPU test of its two variants' agreement
-SPD_SOLVE = PerPlatform("sparse_spd_solve", cpu=functools.partial(_on_host, _direct),
-                        gpu=functools.partial(_on_device, _direct, None, "error", "A"), examples=_spd_examples,
-                        differentiated=False, float32=False)  # CHOLMOD is float64; gradients: tests/shared_layer/test_sparse.py
+SPD_SOLVE = PerPlatform(
+    "sparse_spd_solve",
+    cpu=functools.partial(_on_host, _direct),
+    gpu=functools.partial(_on_device, _direct, None, "error", "A"),
+    examples=_spd_examples,
+    differentiated=False,
+    float32=False,
+)  # CHOLMOD is float64; gradients: tests/shared_layer/test_sparse.py
 
 
 # ---------------------------------------------------------------------------------------------------------

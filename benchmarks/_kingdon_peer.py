@@ -20,17 +20,17 @@ kingdon generates (and CSEs) a specialised sandwich for the sparse motor key
 set x vector at trace time; XLA then compiles it.  Component arrays carry the
 blade index first, i.e. values of shape (k, N).
 """
-from functools import lru_cache
+
+from functools import cache
 
 import jax
 import jax.numpy as jnp
 from kingdon import Algebra
 
-_MOTOR_KEYS = ('e', 'e12', 'e13', 'e23', 'e14', 'e15', 'e24', 'e25',
-               'e34', 'e35', 'e1234', 'e1235')
+_MOTOR_KEYS = ("e", "e12", "e13", "e23", "e14", "e15", "e24", "e25", "e34", "e35", "e1234", "e1235")
 
 
-@lru_cache(maxsize=None)
+@cache
 def _algebra():
     return Algebra(4, 1)
 
@@ -40,15 +40,14 @@ def make_kingdon_sandwich(dtype):
 
     @jax.jit
     def f(motors, points):
-        m = jnp.asarray(motors, dtype).T          # (8, N) or (8,)
-        p = jnp.asarray(points, dtype).T          # (3, N)
+        m = jnp.asarray(motors, dtype).T  # (8, N) or (8,)
+        p = jnp.asarray(points, dtype).T  # (3, N)
         s, b12, b13, b23, t1, t2, t3, q = m
-        M = alg.evenmv(keys=_MOTOR_KEYS,
-                       values=[s, b12, b13, b23, t1, t1, t2, t2, t3, t3, q, q])
+        M = alg.evenmv(keys=_MOTOR_KEYS, values=[s, b12, b13, b23, t1, t1, t2, t2, t3, t3, q, q])
         h = 0.5 * jnp.sum(p * p, axis=0)
         X = alg.vector(values=[p[0], p[1], p[2], h - 0.5, h + 0.5])
         Y = M >> X
-        w = Y.e5 - Y.e4                           # eo coefficient = -Y.einf
+        w = Y.e5 - Y.e4  # eo coefficient = -Y.einf
         return jnp.stack([Y.e1, Y.e2, Y.e3], axis=-1) / w[..., None]
 
     return f

@@ -38,8 +38,9 @@ def with_suffix(result: dict, on: str | None = None) -> dict:
     """``result`` with every figure, ratio and unit name suffixed for platform ``on`` (``suffix``), and the
     platform and device recorded beside them."""
     end = suffix(on)
-    named = {key: {f"{name}{end}": value for name, value in result[key].items()}
-             for key in ("figures", "ratios", "units")}
+    named = {
+        key: {f"{name}{end}": value for name, value in result[key].items()} for key in ("figures", "ratios", "units")
+    }
     return named | {"platform": platform() if on is None else on, "device": jax.devices()[0].device_kind}
 
 

@@ -81,6 +81,7 @@ def run(sizes: dict, iterations: int, repeats: int):
         U0[b] = bc
         diag = np.linalg.norm(np.ptp(V, axis=0))
         for energy, igl_energy in ENERGIES.items():
+
             def igl_precompute():
                 data = igl.ARAPData()
                 data.energy = igl_energy
@@ -90,8 +91,9 @@ def run(sizes: dict, iterations: int, repeats: int):
 
             data_igl = igl_precompute()
             ours = deform.arap_precompute(V, F, b, energy=energy)
-            solve = jax.jit(lambda c, x0, ours=ours: deform.arap_solve(ours, c, V0=x0, max_iterations=iterations,
-                                                                        tolerance=-1.0).U)
+            solve = jax.jit(
+                lambda c, x0, ours=ours: deform.arap_solve(ours, c, V0=x0, max_iterations=iterations, tolerance=-1.0).U
+            )
             jax.block_until_ready(solve(jnp.asarray(bc), jnp.asarray(U0)))
             U = np.asarray(solve(jnp.asarray(bc), jnp.asarray(U0)))
             difference = np.abs(U - igl.arap_solve(bc, data_igl, U0)).max() / diag
@@ -101,29 +103,37 @@ def run(sizes: dict, iterations: int, repeats: int):
             for _ in range(repeats):
                 t["pre_ours"].append(timed(lambda: deform.arap_precompute(V, F, b, energy=energy), 1))
                 t["pre_igl"].append(timed(igl_precompute, 1))
-                t["it_ours"].append(timed(lambda: jax.block_until_ready(solve(jnp.asarray(bc), jnp.asarray(U0))),
-                                          1) / iterations)
+                t["it_ours"].append(
+                    timed(lambda: jax.block_until_ready(solve(jnp.asarray(bc), jnp.asarray(U0))), 1) / iterations
+                )
                 t["it_igl"].append(timed(lambda: igl.arap_solve(bc, data_igl, U0), 1) / iterations)
             m = {k: statistics.median(v) for k, v in t.items()}
             key = f"{energy}_{tag}"
-            new_figures = {f"precompute_{key}_s": (m["pre_ours"], "s"), f"precompute_igl_{key}_s": (m["pre_igl"], "s"),
-                           f"iteration_{key}_ms": (1e3 * m["it_ours"], "ms"),
-                           f"iteration_igl_{key}_ms": (1e3 * m["it_igl"], "ms"),
-                           f"difference_vs_igl_{key}": (difference, "diagonal"),
-                           f"difference_vs_igl_float64_rotations_{key}": (exact, "diagonal")}
-            new_ratios = {f"iteration_vs_igl_{key}": m["it_igl"] / m["it_ours"],
-                          f"precompute_vs_igl_{key}": m["pre_igl"] / m["pre_ours"]}
+            new_figures = {
+                f"precompute_{key}_s": (m["pre_ours"], "s"),
+                f"precompute_igl_{key}_s": (m["pre_igl"], "s"),
+                f"iteration_{key}_ms": (1e3 * m["it_ours"], "ms"),
+                f"iteration_igl_{key}_ms": (1e3 * m["it_igl"], "ms"),
+                f"difference_vs_igl_{key}": (difference, "diagonal"),
+                f"difference_vs_igl_float64_rotations_{key}": (exact, "diagonal"),
+            }
+            new_ratios = {
+                f"iteration_vs_igl_{key}": m["it_igl"] / m["it_ours"],
+                f"precompute_vs_igl_{key}": m["pre_igl"] / m["pre_ours"],
+            }
             if energy == OLD_NAMES:
                 new_figures |= {name.replace(key, tag): value for name, value in new_figures.items()}
                 new_ratios |= {name.replace(key, tag): value for name, value in new_ratios.items()}
             figures.update({name: value for name, (value, _) in new_figures.items()})
             units.update({name: unit for name, (_, unit) in new_figures.items()})
             ratios.update(new_ratios)
-            print(f"{tag} ({len(V)} vertices), {energy}: precompute ours {m['pre_ours']:.3f} s, igl "
-                  f"{m['pre_igl']:.3f} s -> {ratios[f'precompute_vs_igl_{key}']:.2f}x; per iteration ours "
-                  f"{1e3 * m['it_ours']:.2f} ms, igl {1e3 * m['it_igl']:.2f} ms -> "
-                  f"{ratios[f'iteration_vs_igl_{key}']:.2f}x; after {iterations} iterations ours - igl.arap_solve = "
-                  f"{difference:.1e} of the diagonal, ours - libigl's iteration with float64 rotations = {exact:.1e}")
+            print(
+                f"{tag} ({len(V)} vertices), {energy}: precompute ours {m['pre_ours']:.3f} s, igl "
+                f"{m['pre_igl']:.3f} s -> {ratios[f'precompute_vs_igl_{key}']:.2f}x; per iteration ours "
+                f"{1e3 * m['it_ours']:.2f} ms, igl {1e3 * m['it_igl']:.2f} ms -> "
+                f"{ratios[f'iteration_vs_igl_{key}']:.2f}x; after {iterations} iterations ours - igl.arap_solve = "
+                f"{difference:.1e} of the diagonal, ours - libigl's iteration with float64 rotations = {exact:.1e}"
+            )
         figures[f"vertices_{tag}"] = float(len(V))
         units[f"vertices_{tag}"] = "count"
     return {"figures": figures, "ratios": ratios, "units": units | {k: RATIO_UNIT for k in ratios}}
@@ -131,8 +141,13 @@ def run(sizes: dict, iterations: int, repeats: int):
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--vertices", type=int, nargs="+", default=[10_000, 40_000],
-                        help="at least this many mesh vertices, one size each (default 10000 40000)")
+    parser.add_argument(
+        "--vertices",
+        type=int,
+        nargs="+",
+        default=[10_000, 40_000],
+        help="at least this many mesh vertices, one size each (default 10000 40000)",
+    )
     parser.add_argument("--iterations", type=int, default=10, help="ARAP iterations per timed solve")
     parser.add_argument("--repeats", type=int, default=5, help="timed repeats (medians)")
     parser.add_argument("--quick", action="store_true", help="3 iterations, one repeat (a smoke run for the tests)")
@@ -142,8 +157,9 @@ def main(argv=None):
     iterations, repeats = (3, 1) if args.quick else (args.iterations, args.repeats)
     if min(args.vertices) < 1:
         parser.error("--vertices: expected positive counts")
-    write_json(args.json, run({f"{n // 1000}k" if n >= 1000 else str(n): n for n in args.vertices}, iterations,
-                              repeats))
+    write_json(
+        args.json, run({f"{n // 1000}k" if n >= 1000 else str(n): n for n in args.vertices}, iterations, repeats)
+    )
 
 
 if __name__ == "__main__":

@@ -32,9 +32,10 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
+from _report import RATIO_UNIT, add_json_argument, print_device, write_json  # noqa: E402
+
 import cutting  # noqa: E402
 import deform  # noqa: E402
-from _report import RATIO_UNIT, add_json_argument, print_device, write_json  # noqa: E402
 
 PAPER_MS = {"cut": 4666.0, "tear": 2437.0, "drill": 274.0}
 
@@ -73,8 +74,10 @@ def tools(V, F) -> tuple[cutting.Scalpel, cutting.Drill]:
     middle = 0.5 * (V.min(axis=0) + V.max(axis=0))
     start, normal = surface_point(V, F, middle + np.array([0.0, 0.0, 20.0]))
     end, normal_end = surface_point(V, F, start + np.array([0.0, 6.0, 0.0]))
-    scalpel = cutting.Scalpel(np.array([start + 2.0 * normal, end + 2.0 * normal_end]),
-                              np.array([start - 2.0 * normal, end - 2.0 * normal_end]))
+    scalpel = cutting.Scalpel(
+        np.array([start + 2.0 * normal, end + 2.0 * normal_end]),
+        np.array([start - 2.0 * normal, end - 2.0 * normal_end]),
+    )
     return scalpel, cutting.Drill(start - 3.0 * normal, start + 3.0 * normal, 1.5)
 
 
@@ -85,7 +88,7 @@ def refined_arm5(min_faces: int) -> deform.SkinnedMesh:
         mesh = cutting.refine(mesh)
     if mesh.F.shape[0] < min_faces:  # split the lowest faces once more (each adds at least 3)
         V, F = np.asarray(mesh.V), np.asarray(mesh.F)
-        lowest = np.argsort(V[F].mean(axis=1)[:, 1])[:-(-(min_faces - len(F)) // 3)]
+        lowest = np.argsort(V[F].mean(axis=1)[:, 1])[: -(-(min_faces - len(F)) // 3)]
         mesh = cutting.refine(mesh, lowest)
     return mesh
 
@@ -102,30 +105,41 @@ def run(repeats: int, faces_100k: int):
         for predicates in cutting.PREDICATES:
             suffix = "" if predicates == "euclidean" else "_ga"
             figures[f"{tag}_cut{suffix}_ms"] = median_ms(
-                lambda: cutting.cut(mesh, plane, edges=edges, predicates=predicates), repeats)
+                lambda: cutting.cut(mesh, plane, edges=edges, predicates=predicates), repeats
+            )
         positive, negative = cutting.cut(mesh, plane, edges=edges)
-        print(f"{tag}: {mesh.F.shape[0]} faces, {mesh.num_vertices} vertices; halves of {positive.F.shape[0]} "
-              f"and {negative.F.shape[0]} faces")
+        print(
+            f"{tag}: {mesh.F.shape[0]} faces, {mesh.num_vertices} vertices; halves of {positive.F.shape[0]} "
+            f"and {negative.F.shape[0]} faces"
+        )
         print(f"  preprocess (mesh_edges)  {figures[f'{tag}_preprocess_ms']:8.2f} ms")
         print(f"  cut, Euclidean predicates {figures[f'{tag}_cut_ms']:8.2f} ms")
         print(f"  cut, GA predicates        {figures[f'{tag}_cut_ga_ms']:8.2f} ms")
         welded = deform.weld(mesh) if tag == "arm5" else mesh
-        welded = deform.SkinnedMesh(np.asarray(welded.V), np.asarray(welded.F), np.asarray(welded.J),
-                                    np.asarray(welded.W), welded.inverse_bind, welded.joints)
+        welded = deform.SkinnedMesh(
+            np.asarray(welded.V),
+            np.asarray(welded.F),
+            np.asarray(welded.J),
+            np.asarray(welded.W),
+            welded.inverse_bind,
+            welded.joints,
+        )
         welded_edges = cutting.mesh_edges(welded.F)
         scalpel, drill = tools(np.asarray(welded.V, np.float64), np.asarray(welded.F))
         for predicates in cutting.PREDICATES:
             suffix = "" if predicates == "euclidean" else "_ga"
             figures[f"{tag}_tear{suffix}_ms"] = median_ms(
-                lambda: cutting.tear(welded, scalpel, opening=0.2, edges=welded_edges, predicates=predicates),
-                repeats)
+                lambda: cutting.tear(welded, scalpel, opening=0.2, edges=welded_edges, predicates=predicates), repeats
+            )
         figures[f"{tag}_drill_ms"] = median_ms(lambda: cutting.drill(welded, drill, edges=welded_edges), repeats)
         _, path = cutting.tear(welded, scalpel, opening=0.2, edges=welded_edges, return_topology=True)
         _, hole = cutting.drill(welded, drill, edges=welded_edges, return_topology=True)
         print(f"  tear, Euclidean predicates {figures[f'{tag}_tear_ms']:7.2f} ms  ({len(path.t)} tear points)")
         print(f"  tear, GA predicates       {figures[f'{tag}_tear_ga_ms']:8.2f} ms")
-        print(f"  drill                     {figures[f'{tag}_drill_ms']:8.2f} ms  ({len(hole.points)} hole points, "
-              f"{hole.refinements} refinements)")
+        print(
+            f"  drill                     {figures[f'{tag}_drill_ms']:8.2f} ms  ({len(hole.points)} hole points, "
+            f"{hole.refinements} refinements)"
+        )
     for op, paper in PAPER_MS.items():
         ratios[f"arm5_{op}_vs_paper"] = paper / figures[f"arm5_{op}_ms"]
         print(f"ratio arm5_{op}_vs_paper: {ratios[f'arm5_{op}_vs_paper']:.0f}x (paper {paper:.0f} ms)")

@@ -48,7 +48,7 @@ def refined_arm5(min_vertices: int):
         mesh = cutting.refine(mesh)
     while mesh.V.shape[0] < min_vertices:  # split the lowest faces (each adds about 1.5 vertices)
         V, F = np.asarray(mesh.V), np.asarray(mesh.F)
-        lowest = np.argsort(V[F].mean(axis=1)[:, 1])[:max(16, (min_vertices - len(V)) // 2)]
+        lowest = np.argsort(V[F].mean(axis=1)[:, 1])[: max(16, (min_vertices - len(V)) // 2)]
         mesh = cutting.refine(mesh, lowest)
     return np.asarray(mesh.V, np.float64), np.asarray(mesh.F, np.int64)
 
@@ -135,15 +135,20 @@ def run(vertices: int, repeats: int, harmonic_repeats: int):
     figures, ratios, units = {"vertices": float(n)}, {}, {"vertices": "count"}
 
     seconds, difference = harmonic_timings(V, F, harmonic_repeats)
-    figures.update(harmonic_100k_s=seconds["ours"], harmonic_igl_100k_s=seconds["igl"],
-                   harmonic_resolve_100k_s=seconds["resolve"])
+    figures.update(
+        harmonic_100k_s=seconds["ours"], harmonic_igl_100k_s=seconds["igl"], harmonic_resolve_100k_s=seconds["resolve"]
+    )
     units.update(harmonic_100k_s="s", harmonic_igl_100k_s="s", harmonic_resolve_100k_s="s")
     ratios["harmonic_vs_igl"] = seconds["igl"] / seconds["ours"]
     ratios["harmonic_resolve_vs_igl"] = seconds["igl"] / seconds["resolve"]
-    print(f"harmonic fields (3 handles, cotangent), from scratch: ours {seconds['ours']:.3f} s, igl.harmonic "
-          f"{seconds['igl']:.3f} s -> {ratios['harmonic_vs_igl']:.2f}x; largest difference {difference:.1e}")
-    print(f"  new boundary values on the prefactored system: {1e3 * seconds['resolve']:.1f} ms -> "
-          f"{ratios['harmonic_resolve_vs_igl']:.1f}x igl.harmonic")
+    print(
+        f"harmonic fields (3 handles, cotangent), from scratch: ours {seconds['ours']:.3f} s, igl.harmonic "
+        f"{seconds['igl']:.3f} s -> {ratios['harmonic_vs_igl']:.2f}x; largest difference {difference:.1e}"
+    )
+    print(
+        f"  new boundary values on the prefactored system: {1e3 * seconds['resolve']:.1f} ms -> "
+        f"{ratios['harmonic_resolve_vs_igl']:.1f}x igl.harmonic"
+    )
 
     handles = arm_handles(V)
     shoulder, fingertips = handles[0], handles[1]
@@ -155,22 +160,29 @@ def run(vertices: int, repeats: int, harmonic_repeats: int):
     ffd_weights = ffd.weights
     cage_V, cage_F = deform.tube_cage(V)  # 58 vertices: 7 rings of 8 along the arm, and 2 caps
     cage = deform.cage_precompute(V, cage_V, cage_F)
-    print(f"precompute (spline, handles, FFD 4x4x4, cage of {len(cage_V)} vertices): "
-          f"{time.perf_counter() - start:.1f} s")
+    print(
+        f"precompute (spline, handles, FFD 4x4x4, cage of {len(cage_V)} vertices): {time.perf_counter() - start:.1f} s"
+    )
 
     for dtype, tag in ((jnp.float64, "f64"), (jnp.float32, "f32")):
         P_twist, lattice_motors = deform.twist_lattice(as_dtype(lattice, dtype), 1.5)
         cage_motors = bend_motors(len(cage_V), V, dtype=dtype)
         cage_positions = cga.apply_to_points(
-            deform.motor_about(jnp.asarray(cage_V.mean(axis=0), dtype), cga.rotor(jnp.asarray([0, 1.0, 0], dtype),
-                                                                                 jnp.asarray(0.3, dtype))),
-            jnp.asarray(cage_V, dtype))
+            deform.motor_about(
+                jnp.asarray(cage_V.mean(axis=0), dtype),
+                cga.rotor(jnp.asarray([0, 1.0, 0], dtype), jnp.asarray(0.3, dtype)),
+            ),
+            jnp.asarray(cage_V, dtype),
+        )
         cases = {
             "spline": (as_dtype(spline, dtype), bend_motors(6, V, dtype=dtype), None),
             "handles": (as_dtype(handle_field, dtype), bend_motors(3, V, dtype=dtype), None),
             "ffd": (as_dtype(ffd, dtype), lattice_motors, ("positional FFD", jnp.asarray(ffd_weights, dtype), P_twist)),
-            "cage": (as_dtype(cage, dtype), cage_motors,
-                     ("positional cage", as_dtype(cage.weights, dtype), cage_positions)),
+            "cage": (
+                as_dtype(cage, dtype),
+                cage_motors,
+                ("positional cage", as_dtype(cage.weights, dtype), cage_positions),
+            ),
         }
         for name, (field, motors, positional) in cases.items():
             # the bound data are arguments, not constants folded into the compiled code
@@ -191,8 +203,10 @@ def run(vertices: int, repeats: int, harmonic_repeats: int):
             units[f"{name}_100k_{tag}_ms"] = "ms"
             ratios[f"{name}_vs_{label.replace(' ', '_')}_{tag}"] = ms["base"] / ms["ours"]
             verdict = "meets" if fps >= TARGET_FPS else "MISSES"
-            print(f"{name:8s} {tag}: {ms['ours']:7.2f} ms/frame = {fps:6.1f} frames/s ({verdict} {TARGET_FPS:.0f}); "
-                  f"{label} {ms['base']:.2f} ms -> {ms['base'] / ms['ours']:.2f}x")
+            print(
+                f"{name:8s} {tag}: {ms['ours']:7.2f} ms/frame = {fps:6.1f} frames/s ({verdict} {TARGET_FPS:.0f}); "
+                f"{label} {ms['base']:.2f} ms -> {ms['base'] / ms['ours']:.2f}x"
+            )
     return {"figures": figures, "ratios": ratios, "units": units | {k: RATIO_UNIT for k in ratios}}
 
 

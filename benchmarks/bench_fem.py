@@ -76,8 +76,9 @@ def seconds(fn):
 
 
 def _theta(system, state, h, mu, lam):
-    return be._Theta(state.x, state.v, mu, lam, state.x[system.fixed], system.force, system.grads, system.volumes,
-                     system.mass_values)
+    return be._Theta(
+        state.x, state.v, mu, lam, state.x[system.fixed], system.force, system.grads, system.volumes, system.mass_values
+    )
 
 
 @eqx.filter_jit
@@ -121,15 +122,22 @@ def assembly(system, Hs):
 
 @eqx.filter_jit
 def line_search(system, state, x, gradient, step, h, mu, lam):
-    return be._line_search(system, x, step.reshape(-1, 3), jnp.dot(gradient, step), _theta(system, state, h, mu, lam),
-                           h)
+    return be._line_search(
+        system, x, step.reshape(-1, 3), jnp.dot(gradient, step), _theta(system, state, h, mu, lam), h
+    )
 
 
 def breakdown(system, states, h, mu, lam):
     """Median seconds of the parts of a step from each of ``states`` (the first call of each compiles)."""
     indptr, indices = np.asarray(system.pattern.indptr), np.asarray(system.pattern.indices)
-    times = {"hessians": [], "assembly": [], "cg_solve": [], "direct_solve": [], "device_cg_solve": [],
-             "line_search": []}
+    times = {
+        "hessians": [],
+        "assembly": [],
+        "cg_solve": [],
+        "direct_solve": [],
+        "device_cg_solve": [],
+        "line_search": [],
+    }
     for i, state in enumerate(states):
         x, gradient, data = newton_start(system, state, h, mu, lam)
         (_, Hs), t_hessians = seconds(lambda: element_hessians(system, x, mu, lam))
@@ -175,8 +183,12 @@ def run(cells: dict, steps: int):
 
         step, direct = statistics.median(t_ours), statistics.median(t_direct)
         other = step - sum(parts[key] for key in ("hessians", "assembly", "cg_solve", "line_search"))
-        f = {f"step_{tag}_s": step, f"step_max_{tag}_s": max(t_ours), f"step_first_{tag}_s": first,
-             f"step_direct_{tag}_s": direct}
+        f = {
+            f"step_{tag}_s": step,
+            f"step_max_{tag}_s": max(t_ours),
+            f"step_first_{tag}_s": first,
+            f"step_direct_{tag}_s": direct,
+        }
         units.update({k: "s" for k in f})
         f |= {f"{key}_{tag}_ms": 1e3 * t for key, t in parts.items()}
         units.update({f"{key}_{tag}_ms": "ms" for key in parts})
@@ -186,16 +198,25 @@ def run(cells: dict, steps: int):
         units[f"direct_difference_{tag}"] = "largest displacement"
         figures |= f
         ratios[f"step_{tag}_vs_direct"] = direct / step
-        print(f"{tag}: cells {c}, {3 * n_free} free DOFs ({3 * system.n} with the {system.n - n_free} fixed nodes), "
-              f"{len(system.T)} tets; largest displacement after {steps + 1} steps {sag:.3g} m")
-        print(f"  step (CG, ours): median {step:.4f} s, max {max(t_ours):.4f} s over {steps} steps; "
-              f"first step (with compilation) {first:.2f} s")
-        print(f"  step with CHOLMOD: median {direct:.4f} s -> step_{tag}_vs_direct "
-              f"{ratios[f'step_{tag}_vs_direct']:.2f}x; positions differ by at most "
-              f"{f[f'direct_difference_{tag}']:.1e} of the largest displacement")
-        print("  breakdown (medians): " + ", ".join(f"{key} {1e3 * t:.1f} ms" for key, t in parts.items())
-              + f"; the rest of the CG step {1e3 * other:.1f} ms "
-              "(gather, gradient and mass products, callback)")
+        print(
+            f"{tag}: cells {c}, {3 * n_free} free DOFs ({3 * system.n} with the {system.n - n_free} fixed nodes), "
+            f"{len(system.T)} tets; largest displacement after {steps + 1} steps {sag:.3g} m"
+        )
+        print(
+            f"  step (CG, ours): median {step:.4f} s, max {max(t_ours):.4f} s over {steps} steps; "
+            f"first step (with compilation) {first:.2f} s"
+        )
+        print(
+            f"  step with CHOLMOD: median {direct:.4f} s -> step_{tag}_vs_direct "
+            f"{ratios[f'step_{tag}_vs_direct']:.2f}x; positions differ by at most "
+            f"{f[f'direct_difference_{tag}']:.1e} of the largest displacement"
+        )
+        print(
+            "  breakdown (medians): "
+            + ", ".join(f"{key} {1e3 * t:.1f} ms" for key, t in parts.items())
+            + f"; the rest of the CG step {1e3 * other:.1f} ms "
+            "(gather, gradient and mass products, callback)"
+        )
         if tag in PAPER_S:
             ratios[f"step_{tag}_vs_paper"] = PAPER_S[tag] / step
             print(f"  step_{tag}_vs_paper {ratios[f'step_{tag}_vs_paper']:.1f}x (paper {PAPER_S[tag]} s a step)")
@@ -204,11 +225,19 @@ def run(cells: dict, steps: int):
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--sizes", nargs="+", choices=CELLS, default=list(CELLS),
-                        help="the free DOFs of the blocks to run, of 1k, 7k, 23k (default: all)")
+    parser.add_argument(
+        "--sizes",
+        nargs="+",
+        choices=CELLS,
+        default=list(CELLS),
+        help="the free DOFs of the blocks to run, of 1k, 7k, 23k (default: all)",
+    )
     parser.add_argument("--steps", type=int, default=10, help="timed steps per size (medians and max)")
-    parser.add_argument("--quick", action="store_true",
-                        help=f"every size on one {QUICK_CELLS} block (compiled once), 2 steps: a smoke run")
+    parser.add_argument(
+        "--quick",
+        action="store_true",
+        help=f"every size on one {QUICK_CELLS} block (compiled once), 2 steps: a smoke run",
+    )
     add_json_argument(parser)
     args = parser.parse_args(argv)
     print_device("bench_fem")

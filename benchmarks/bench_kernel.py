@@ -40,9 +40,7 @@ def _ours(motor_values, x):
 
 
 def _matrix_unrolled(a, x):
-    return (
-        a[..., 0] * x[..., 0:1] + a[..., 1] * x[..., 1:2] + a[..., 2] * x[..., 2:3] + a[..., 3]
-    )
+    return a[..., 0] * x[..., 0:1] + a[..., 1] * x[..., 1:2] + a[..., 2] * x[..., 2:3] + a[..., 3]
 
 
 def _matrix_matmul(a, x):

@@ -39,9 +39,10 @@ import trimesh  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
+from _report import RATIO_UNIT, add_json_argument, print_device, write_json  # noqa: E402
+
 import deform  # noqa: E402
 import jaxcga as cga  # noqa: E402
-from _report import RATIO_UNIT, add_json_argument, print_device, write_json  # noqa: E402
 
 
 def subdivided_arm5(min_vertices: int = 0, influences: int = 4, min_faces: int = 0) -> deform.RiggedModel:
@@ -68,8 +69,14 @@ def subdivided_arm5(min_vertices: int = 0, influences: int = 4, min_faces: int =
     W = np.take_along_axis(dense, J, axis=1)
     W[W.sum(axis=1) == 0, 0] = 1.0  # a few Arm5 vertices carry no weight: bind them to one joint
     W = W / W.sum(axis=1, keepdims=True)
-    big = deform.SkinnedMesh(jnp.asarray(V), jnp.asarray(F, jnp.int32), jnp.asarray(J, jnp.int32), jnp.asarray(W),
-                             mesh.inverse_bind, mesh.joints)
+    big = deform.SkinnedMesh(
+        jnp.asarray(V),
+        jnp.asarray(F, jnp.int32),
+        jnp.asarray(J, jnp.int32),
+        jnp.asarray(W),
+        mesh.inverse_bind,
+        mesh.joints,
+    )
     return deform.RiggedModel(big, model.skeleton, (), "Arm5-subdivided")
 
 
@@ -94,8 +101,9 @@ def pipelines(model: deform.RiggedModel):
         return deform.skin_dqs(mesh.V, mesh.J, mesh.W, deform.matrices_to_dual_quaternions(joints))
 
     def versors(local_v):
-        return deform.joint_versors(mesh, deform.forward_kinematics(parents, cga.Multivector(local_v, blades)),
-                                    inverse_bind)
+        return deform.joint_versors(
+            mesh, deform.forward_kinematics(parents, cga.Multivector(local_v, blades)), inverse_bind
+        )
 
     def cga_sandwich(local_v, _):
         return deform.skin_cga(mesh.V, mesh.J, mesh.W, versors(local_v))
@@ -106,8 +114,13 @@ def pipelines(model: deform.RiggedModel):
     def cga_motor_blend(local_v, _):
         return deform.skin_cga_motor_blend(mesh.V, mesh.J, mesh.W, versors(local_v))
 
-    return {"lbs": lbs, "dqs": dqs, "cga": cga_sandwich, "cga_sum_then_project": cga_sum_then_project,
-            "cga_motor_blend": cga_motor_blend}
+    return {
+        "lbs": lbs,
+        "dqs": dqs,
+        "cga": cga_sandwich,
+        "cga_sum_then_project": cga_sum_then_project,
+        "cga_motor_blend": cga_motor_blend,
+    }
 
 
 def round_robin_times(fns: dict, args, repeats: int) -> dict:
@@ -134,13 +147,16 @@ def round_robin_times(fns: dict, args, repeats: int) -> dict:
 def run(vertices: int, poses: int, repeats: int, batch_repeats: int, chunk: int):
     base = subdivided_arm5(vertices)
     params = jax.vmap(lambda k: deform.random_parameters(k, base, rotation=0.5, translation=0.01))(
-        jax.random.split(jax.random.PRNGKey(0), poses))
+        jax.random.split(jax.random.PRNGKey(0), poses)
+    )
     local = deform.pose_from_parameters(base, params)  # (poses, b) rigid similitudes
     local_m = cga.versor_to_matrix(local)
     figures, ratios, units = {}, {}, {}
-    print(f"model: {base.name}, {base.mesh.num_vertices} vertices, {base.mesh.num_joints} joints, "
-          f"{base.mesh.J.shape[1]} influences; {poses} poses; {jax.device_count()} device(s), "
-          f"{jax.devices()[0].platform}")
+    print(
+        f"model: {base.name}, {base.mesh.num_vertices} vertices, {base.mesh.num_joints} joints, "
+        f"{base.mesh.J.shape[1]} influences; {poses} poses; {jax.device_count()} device(s), "
+        f"{jax.devices()[0].platform}"
+    )
     for dtype, tag in ((jnp.float32, "f32"), (jnp.float64, "f64")):
         model = as_dtype(base, dtype)
         fns = pipelines(model)
@@ -148,8 +164,10 @@ def run(vertices: int, poses: int, repeats: int, batch_repeats: int, chunk: int)
         # Single poses first, all methods, then the batches: the large batch outputs would otherwise
         # sit in memory while the small calls are timed.
         t_one = round_robin_times({name: jax.jit(fn) for name, fn in fns.items()}, (lv[0], lm[0]), repeats)
-        many = {name: jax.jit(lambda lv, lm, fn=fn: jax.lax.map(lambda a: fn(*a), (lv, lm), batch_size=chunk))
-                for name, fn in fns.items()}
+        many = {
+            name: jax.jit(lambda lv, lm, fn=fn: jax.lax.map(lambda a: fn(*a), (lv, lm), batch_size=chunk))
+            for name, fn in fns.items()
+        }
         reference = many["lbs"](lv, lm)
         gaps = {}
         for name, fn in many.items():
@@ -164,14 +182,19 @@ def run(vertices: int, poses: int, repeats: int, batch_repeats: int, chunk: int)
             units[f"{name}_1_pose_{tag}_ms"] = "ms"
             units[f"{name}_{poses}_poses_{tag}_s"] = "s"
             rate = poses * model.mesh.num_vertices / t_many[name]
-            print(f"  {tag} {name:16s} one pose {1e3 * t_one[name]:8.2f} ms   {poses} poses {t_many[name]:7.3f} s "
-                  f"({rate:.3g} vertex-poses/s)   max |x - lbs| {gaps[name]:.1e}", flush=True)
+            print(
+                f"  {tag} {name:16s} one pose {1e3 * t_one[name]:8.2f} ms   {poses} poses {t_many[name]:7.3f} s "
+                f"({rate:.3g} vertex-poses/s)   max |x - lbs| {gaps[name]:.1e}",
+                flush=True,
+            )
         for ours, baseline in (("cga", "lbs"), ("cga_sum_then_project", "lbs"), ("cga_motor_blend", "dqs")):
             key = f"{ours}_vs_{baseline}_{tag}"
             ratios[key] = results[baseline][0] / results[ours][0]
             ratios[f"{ours}_vs_{baseline}_{poses}_poses_{tag}"] = results[baseline][1] / results[ours][1]
-            print(f"  {tag} ratio {key}: {ratios[key]:.2f} (one pose), "
-                  f"{ratios[f'{ours}_vs_{baseline}_{poses}_poses_{tag}']:.2f} ({poses} poses)")
+            print(
+                f"  {tag} ratio {key}: {ratios[key]:.2f} (one pose), "
+                f"{ratios[f'{ours}_vs_{baseline}_{poses}_poses_{tag}']:.2f} ({poses} poses)"
+            )
     for name in ratios:
         units[name] = RATIO_UNIT
     return {"figures": figures, "ratios": ratios, "units": units}
@@ -183,8 +206,12 @@ def main(argv=None):
     parser.add_argument("--poses", type=int, default=1000, help="poses in the vmap batch (default 1000)")
     parser.add_argument("--repeats", type=int, default=100, help="timed repetitions for one pose")
     parser.add_argument("--batch-repeats", type=int, default=5, help="timed repetitions for the batch")
-    parser.add_argument("--chunk", type=int, default=50,
-                        help="poses per vmapped chunk of the batch (jax.lax.map batch_size; bounds memory)")
+    parser.add_argument(
+        "--chunk",
+        type=int,
+        default=50,
+        help="poses per vmapped chunk of the batch (jax.lax.map batch_size; bounds memory)",
+    )
     parser.add_argument("--quick", action="store_true", help="small sizes for a smoke test")
     add_json_argument(parser)
     args = parser.parse_args(argv)

@@ -107,8 +107,17 @@ PAPER = {
     "thin": (7200, 0.289, 9.59, 3.875, 0.293, 3.355, 0.627, 123.3, 282.4),
     "accordion": (22800, 0.061, 6.437, 8.796, 4.811, 9.203, 5.785, 1088, 3124),
 }
-COLUMNS = ("dofs", "integral_ms", "boolean_ms", "dpsi_ms", "cg_s", "step_max_s", "step_avg_s", "total_cut_frames_s",
-           "total_s")
+COLUMNS = (
+    "dofs",
+    "integral_ms",
+    "boolean_ms",
+    "dpsi_ms",
+    "cg_s",
+    "step_max_s",
+    "step_avg_s",
+    "total_cut_frames_s",
+    "total_s",
+)
 
 
 def _median_seconds(fn, repeats: int = 5) -> float:
@@ -125,8 +134,9 @@ def _median_seconds(fn, repeats: int = 5) -> float:
 def _newton_system(system, state, h, mu, lam):
     """The free gradient of E and the CSR data of ``M + h^2 K_+`` where one Newton iteration starts."""
     x = (state.x + h * state.v).at[system.fixed].set(state.x[system.fixed])
-    theta = be._Theta(state.x, state.v, mu, lam, state.x[system.fixed], system.force, system.grads, system.volumes,
-                      system.mass_values)
+    theta = be._Theta(
+        state.x, state.v, mu, lam, state.x[system.fixed], system.force, system.grads, system.volumes, system.mass_values
+    )
     return be._gradient_and_matrix(system, x, theta, h, project=True)
 
 
@@ -158,7 +168,7 @@ def _cut_system_figures(size: str) -> tuple[dict, dict]:
     weights = jnp.asarray(model.X[model.T].mean(axis=1)[:, 2])
 
     def loss(system):  # a scalar of the volumes and masses; the tets' heights weight the uncut pieces
-        return jnp.sum(system.volumes[:weights.shape[0]] * weights) + jnp.sum(system.mass_values)
+        return jnp.sum(system.volumes[: weights.shape[0]] * weights) + jnp.sum(system.mass_values)
 
     def host():
         copy = xfem_model(sc.mesh, sc.density, sc.gravity, sc.fixed)
@@ -172,17 +182,24 @@ def _cut_system_figures(size: str) -> tuple[dict, dict]:
     host_s = _median_seconds(host, 3)
     grad_s = _median_seconds(lambda: gradient(p, n), 3)
     replay_s = _median_seconds(lambda: replay(p, n))
-    figures = {"thin_cut_system_grad_ms": 1e3 * grad_s, "thin_host_cut_system_ms": 1e3 * host_s,
-               "thin_cut_replay_grad_ms": 1e3 * replay_s,
-               "thin_cut_system_grad_over_host_cut": grad_s / host_s}
-    units = {"thin_cut_system_grad_ms": "ms (cut_system and its gradient w.r.t. point and normal, eager)",
-             "thin_host_cut_system_ms": "ms (a model built, cut by the slab, system(): the host path)",
-             "thin_cut_replay_grad_ms": "ms (the replayed system and its gradient, jitted)",
-             "thin_cut_system_grad_over_host_cut": "x (cut_system with gradient / the host path)"}
-    print(f"thin ({size}) cut_system at its first cut's plane ({len(cuts.reports[0].elements_touched)} elements cut): "
-          f"with its gradient {figures['thin_cut_system_grad_ms']:.0f} ms = "
-          f"{figures['thin_cut_system_grad_over_host_cut']:.2f}x the host cut and system() "
-          f"({figures['thin_host_cut_system_ms']:.0f} ms); the replay with its gradient {replay_s * 1e3:.2f} ms")
+    figures = {
+        "thin_cut_system_grad_ms": 1e3 * grad_s,
+        "thin_host_cut_system_ms": 1e3 * host_s,
+        "thin_cut_replay_grad_ms": 1e3 * replay_s,
+        "thin_cut_system_grad_over_host_cut": grad_s / host_s,
+    }
+    units = {
+        "thin_cut_system_grad_ms": "ms (cut_system and its gradient w.r.t. point and normal, eager)",
+        "thin_host_cut_system_ms": "ms (a model built, cut by the slab, system(): the host path)",
+        "thin_cut_replay_grad_ms": "ms (the replayed system and its gradient, jitted)",
+        "thin_cut_system_grad_over_host_cut": "x (cut_system with gradient / the host path)",
+    }
+    print(
+        f"thin ({size}) cut_system at its first cut's plane ({len(cuts.reports[0].elements_touched)} elements cut): "
+        f"with its gradient {figures['thin_cut_system_grad_ms']:.0f} ms = "
+        f"{figures['thin_cut_system_grad_over_host_cut']:.2f}x the host cut and system() "
+        f"({figures['thin_host_cut_system_ms']:.0f} ms); the replay with its gradient {replay_s * 1e3:.2f} ms"
+    )
     return figures, units
 
 
@@ -210,15 +227,26 @@ def run(size: str, steps: int | None, scenes=SCENES, cuts_in_background: bool = 
         # out, it builds the model's system) over their average
         plain_steps = [r.step_seconds for r in timed.records[1:] if not r.cuts]
         dpsi, cg = _breakdown(timed.model, sc.h, mu, lam)
-        ours = {"dofs": summary["dofs"], "integral_ms": summary["integral_ms"], "boolean_ms": summary["boolean_ms"],
-                "dpsi_ms": 1e3 * dpsi, "cg_s": cg, "step_max_s": summary["step_max_s"],
-                "step_avg_s": summary["step_avg_s"], "total_cut_frames_s": summary["total_cut_frames_s"],
-                "total_s": summary["total_s"]}
+        ours = {
+            "dofs": summary["dofs"],
+            "integral_ms": summary["integral_ms"],
+            "boolean_ms": summary["boolean_ms"],
+            "dpsi_ms": 1e3 * dpsi,
+            "cg_s": cg,
+            "step_max_s": summary["step_max_s"],
+            "step_avg_s": summary["step_avg_s"],
+            "total_cut_frames_s": summary["total_cut_frames_s"],
+            "total_s": summary["total_s"],
+        }
         for column in COLUMNS:
             figures[f"{name}_{column}"] = float(ours[column])
             units[f"{name}_{column}"] = "count" if column == "dofs" else ("ms" if column.endswith("_ms") else "s")
-        extra = {"cut_max_s": cut_max, "cut_step_max_s": cut_step_max, "uncut_step_avg_s": summary["uncut_step_avg_s"],
-                 "cold_max_s": cold_max}
+        extra = {
+            "cut_max_s": cut_max,
+            "cut_step_max_s": cut_step_max,
+            "uncut_step_avg_s": summary["uncut_step_avg_s"],
+            "cold_max_s": cold_max,
+        }
         for key, value in extra.items():
             figures[f"{name}_{key}"] = float(value)
             units[f"{name}_{key}"] = "s"
@@ -235,29 +263,39 @@ def run(size: str, steps: int | None, scenes=SCENES, cuts_in_background: bool = 
         units[f"{name}_cut_step_max_over_avg"] = "x (slowest step of a cut frame, the cut excluded / average frame)"
         plain_max_over_avg = max(plain_steps) / statistics.mean(plain_steps) if plain_steps else 0.0
         figures[f"{name}_uncut_step_max_over_avg"] = plain_max_over_avg
-        units[f"{name}_uncut_step_max_over_avg"] = ("x (slowest step of a frame without cuts, after the first / their "
-                                                    "average: the machine's jitter, no cut work under way)")
+        units[f"{name}_uncut_step_max_over_avg"] = (
+            "x (slowest step of a frame without cuts, after the first / their "
+            "average: the machine's jitter, no cut work under way)"
+        )
         paper = dict(zip(COLUMNS, PAPER[name]))
         ratios[f"{name}_step_avg_vs_paper"] = paper["step_avg_s"] / summary["step_avg_s"]
         ratios[f"{name}_boolean_vs_paper"] = paper["boolean_ms"] / summary["boolean_ms"]
         ratios[f"{name}_step_max_vs_paper"] = paper["step_max_s"] / summary["step_max_s"]
 
-        print(f"{name} ({size}): {summary['frames']} frames, {summary['cuts']} cuts, {summary['pieces']} pieces, "
-              f"{summary['element_pieces']} element pieces, {summary['booleans']} Booleans")
+        print(
+            f"{name} ({size}): {summary['frames']} frames, {summary['cuts']} cuts, {summary['pieces']} pieces, "
+            f"{summary['element_pieces']} element pieces, {summary['booleans']} Booleans"
+        )
         print(f"  {'':>22} {'ours':>10} {'paper':>10}")
         print(f"  {'dofs (initial)':>22} {summary['dofs_initial']:>10.4g} {paper['dofs']:>10.4g}")
         print(f"  {'dofs (final)':>22} {summary['dofs']:>10.4g} {paper['dofs']:>10.4g}")
         for column in COLUMNS[1:]:
             print(f"  {column:>22} {ours[column]:>10.4g} {paper[column]:>10.4g}")
-        print(f"  slowest cut frame {cut_max:.4f} s = {figures[f'{name}_cut_max_over_avg']:.2f}x the average "
-              f"frame (target <= 2); uncut frames average {summary['uncut_step_avg_s']:.4f} s; the warm-up run's "
-              f"slowest frame (with compilation) {cold_max:.2f} s")
-        print(f"  the step alone on cut frames: at most {cut_step_max:.4f} s = "
-              f"{figures[f'{name}_cut_step_max_over_avg']:.2f}x the average frame; frames without cuts: slowest step "
-              f"{figures[f'{name}_uncut_step_max_over_avg']:.2f}x their average (the machine's jitter)")
-        print(f"  {name}_step_avg_vs_paper {ratios[f'{name}_step_avg_vs_paper']:.2f}x, "
-              f"{name}_boolean_vs_paper {ratios[f'{name}_boolean_vs_paper']:.1f}x "
-              f"({summary['boolean_ms']:.3f} ms per Boolean; target <= 0.5 ms)")
+        print(
+            f"  slowest cut frame {cut_max:.4f} s = {figures[f'{name}_cut_max_over_avg']:.2f}x the average "
+            f"frame (target <= 2); uncut frames average {summary['uncut_step_avg_s']:.4f} s; the warm-up run's "
+            f"slowest frame (with compilation) {cold_max:.2f} s"
+        )
+        print(
+            f"  the step alone on cut frames: at most {cut_step_max:.4f} s = "
+            f"{figures[f'{name}_cut_step_max_over_avg']:.2f}x the average frame; frames without cuts: slowest step "
+            f"{figures[f'{name}_uncut_step_max_over_avg']:.2f}x their average (the machine's jitter)"
+        )
+        print(
+            f"  {name}_step_avg_vs_paper {ratios[f'{name}_step_avg_vs_paper']:.2f}x, "
+            f"{name}_boolean_vs_paper {ratios[f'{name}_boolean_vs_paper']:.1f}x "
+            f"({summary['boolean_ms']:.3f} ms per Boolean; target <= 0.5 ms)"
+        )
         if cuts_in_background:
             async_figures, async_units = _background(sc, frames, paper["step_avg_s"])
             figures |= async_figures
@@ -288,16 +326,19 @@ def _background(sc, frames: int, paper_step_avg_s: float) -> tuple[dict, dict]:
     target = f"target <= {ASYNC_TARGET[name]}" if name in ASYNC_TARGET else "reported, not targeted"
     units[f"{name}_async_cut_max_over_avg"] = f"x (slowest frame while cutting / average frame; {target})"
     figures[f"{name}_async_uncut_max_over_avg"] = auncut_max / asummary["step_avg_s"]
-    units[f"{name}_async_uncut_max_over_avg"] = ("x (slowest frame after the first with no cut under way / average "
-                                                 "frame: jitter)")
+    units[f"{name}_async_uncut_max_over_avg"] = (
+        "x (slowest frame after the first with no cut under way / average frame: jitter)"
+    )
     figures[f"{name}_async_latency"] = float(LATENCY[name])
     units[f"{name}_async_latency"] = "frames"
-    print(f"  cuts in the background, latency {LATENCY[name]} frames: average frame "
-          f"{asummary['step_avg_s']:.4f} s ({paper_step_avg_s / asummary['step_avg_s']:.2f}x the paper's), "
-          f"slowest frame while cutting {acut_max:.4f} s = {figures[f'{name}_async_cut_max_over_avg']:.2f}x the "
-          f"average ({target}; frame {slowest.frame}: cut work {1e3 * slowest.cut_seconds:.1f} ms, step "
-          f"{1e3 * slowest.step_seconds:.1f} ms), {asummary['pieces']} pieces; outside the cut windows at most "
-          f"{figures[f'{name}_async_uncut_max_over_avg']:.2f}x the average")
+    print(
+        f"  cuts in the background, latency {LATENCY[name]} frames: average frame "
+        f"{asummary['step_avg_s']:.4f} s ({paper_step_avg_s / asummary['step_avg_s']:.2f}x the paper's), "
+        f"slowest frame while cutting {acut_max:.4f} s = {figures[f'{name}_async_cut_max_over_avg']:.2f}x the "
+        f"average ({target}; frame {slowest.frame}: cut work {1e3 * slowest.cut_seconds:.1f} ms, step "
+        f"{1e3 * slowest.step_seconds:.1f} ms), {asummary['pieces']} pieces; outside the cut windows at most "
+        f"{figures[f'{name}_async_uncut_max_over_avg']:.2f}x the average"
+    )
     return figures, units
 
 
@@ -316,8 +357,14 @@ def _rollout_functions(sc, system, state, steps: int):
     loss on it: the mean height over all frames."""
 
     def frames(young, v0):
-        return rollout(system, be.State(state.x, v0), Material(young, jnp.asarray(sc.poisson)), sc.h, steps,
-                       newton_iterations=sc.newton_iterations)
+        return rollout(
+            system,
+            be.State(state.x, v0),
+            Material(young, jnp.asarray(sc.poisson)),
+            sc.h,
+            steps,
+            newton_iterations=sc.newton_iterations,
+        )
 
     def loss(young, v0):
         return jnp.mean(frames(young, v0).x[..., 2])
@@ -339,14 +386,22 @@ def rollout_run(size: str, steps: int = 100):
     sc, system, state = _after_cuts(size)
     forward, gradient, args = _rollout_functions(sc, system, state, steps)
     t_forward, t_gradient = _timed(forward, *args), _timed(gradient, *args)
-    figures = {f"accordion_rollout_{steps}_s": t_forward, f"accordion_grad_{steps}_s": t_gradient,
-               "accordion_rollout_dofs": float(3 * system.n)}
-    units = {f"accordion_rollout_{steps}_s": "s", f"accordion_grad_{steps}_s": "s",
-             "accordion_rollout_dofs": "count (after the cuts)"}
+    figures = {
+        f"accordion_rollout_{steps}_s": t_forward,
+        f"accordion_grad_{steps}_s": t_gradient,
+        "accordion_rollout_dofs": float(3 * system.n),
+    }
+    units = {
+        f"accordion_rollout_{steps}_s": "s",
+        f"accordion_grad_{steps}_s": "s",
+        "accordion_rollout_dofs": "count (after the cuts)",
+    }
     ratios = {f"accordion_grad_vs_forward_{steps}": t_forward / t_gradient}
-    print(f"accordion ({size}) after its cuts, {3 * system.n} DOFs: a {steps}-step rollout {t_forward:.2f} s, its "
-          f"value and gradient (Young's modulus, initial velocity) {t_gradient:.2f} s; forward / gradient "
-          f"{ratios[f'accordion_grad_vs_forward_{steps}']:.3f} (target >= 0.25)")
+    print(
+        f"accordion ({size}) after its cuts, {3 * system.n} DOFs: a {steps}-step rollout {t_forward:.2f} s, its "
+        f"value and gradient (Young's modulus, initial velocity) {t_gradient:.2f} s; forward / gradient "
+        f"{ratios[f'accordion_grad_vs_forward_{steps}']:.3f} (target >= 0.25)"
+    )
     ratio_units = {k: "x (forward time / gradient time)" for k in ratios}
     return {"figures": figures, "ratios": ratios, "units": units | ratio_units}
 
@@ -361,30 +416,59 @@ def _memory_child(size: str, steps: int):
 
 def memory_run(size: str, steps: int = 1000):
     """``accordion_grad_{steps}_peak_rss_gib`` (and its time), from a fresh process."""
-    child = subprocess.run([sys.executable, __file__, "--memory-child", str(steps), "--size", size],
-                           capture_output=True, text=True, check=True)
+    child = subprocess.run(
+        [sys.executable, __file__, "--memory-child", str(steps), "--size", size],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
     measured = json.loads(child.stdout.strip().splitlines()[-1])
     peak = max(measured["peak_rss_gib"], resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 2**20)
-    print(f"accordion ({size}): the gradient of a {steps}-step rollout {measured['seconds']:.1f} s, peak RSS "
-          f"{peak:.2f} GiB (target <= 8)")
-    return {"figures": {f"accordion_grad_{steps}_peak_rss_gib": peak, f"accordion_grad_{steps}_s": measured["seconds"]},
-            "ratios": {}, "units": {f"accordion_grad_{steps}_peak_rss_gib": "GiB (peak RSS of the process)",
-                                    f"accordion_grad_{steps}_s": "s"}}
+    print(
+        f"accordion ({size}): the gradient of a {steps}-step rollout {measured['seconds']:.1f} s, peak RSS "
+        f"{peak:.2f} GiB (target <= 8)"
+    )
+    return {
+        "figures": {f"accordion_grad_{steps}_peak_rss_gib": peak, f"accordion_grad_{steps}_s": measured["seconds"]},
+        "ratios": {},
+        "units": {
+            f"accordion_grad_{steps}_peak_rss_gib": "GiB (peak RSS of the process)",
+            f"accordion_grad_{steps}_s": "s",
+        },
+    }
 
 
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--steps", type=int, default=None, help="timed frames per scene (default: the scene's)")
-    parser.add_argument("--quick", action="store_true",
-                        help="the scenes' small sizes, through their last cut and 3 frames more: a smoke run")
-    parser.add_argument("--scenes", nargs="+", choices=SCENES, default=list(SCENES), metavar="SCENE",
-                        help=f"the scenes to run, of {', '.join(SCENES)} (default: all)")
-    parser.add_argument("--figures", nargs="+", choices=FIGURES, default=list(FIGURES),
-                        help="table: Table 2 per scene; rollout: accordion's 100-step rollout and gradient; memory: "
-                             "the peak RSS of a 1,000-step gradient, in a child process (default: all)")
-    parser.add_argument("--background", action=argparse.BooleanOptionalAction, default=True,
-                        help="with the table, a third run per scene with its cuts in the cut worker process (the "
-                             "SCENE_async_* figures; default: on)")
+    parser.add_argument(
+        "--quick",
+        action="store_true",
+        help="the scenes' small sizes, through their last cut and 3 frames more: a smoke run",
+    )
+    parser.add_argument(
+        "--scenes",
+        nargs="+",
+        choices=SCENES,
+        default=list(SCENES),
+        metavar="SCENE",
+        help=f"the scenes to run, of {', '.join(SCENES)} (default: all)",
+    )
+    parser.add_argument(
+        "--figures",
+        nargs="+",
+        choices=FIGURES,
+        default=list(FIGURES),
+        help="table: Table 2 per scene; rollout: accordion's 100-step rollout and gradient; memory: "
+        "the peak RSS of a 1,000-step gradient, in a child process (default: all)",
+    )
+    parser.add_argument(
+        "--background",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="with the table, a third run per scene with its cuts in the cut worker process (the "
+        "SCENE_async_* figures; default: on)",
+    )
     parser.add_argument("--memory-child", type=int, default=None, help=argparse.SUPPRESS)
     parser.add_argument("--size", choices=("paper", "small"), default="paper", help=argparse.SUPPRESS)
     add_json_argument(parser)
@@ -406,8 +490,9 @@ def main(argv=None):
         results.append(rollout_run(size, 10 if args.quick else 100))
     if "memory" in args.figures:
         results.append(memory_run(size, 20 if args.quick else 1000))
-    write_json(args.json, {key: {k: v for r in results for k, v in r[key].items()} for key in ("figures", "ratios",
-                                                                                            "units")})
+    write_json(
+        args.json, {key: {k: v for r in results for k, v in r[key].items()} for key in ("figures", "ratios", "units")}
+    )
     return 0
 
 

@@ -21,6 +21,26 @@ from cutting._tear import TearTopology, scalpel_path, tear, tear_positions, tear
 from cutting._tools import Drill, Plane, Scalpel
 from cutting._weights import blend_weights
 
-__all__ = ["PREDICATES", "CutTopology", "Drill", "DrillTopology", "MeshEdges", "Plane", "Scalpel", "TearTopology",
-           "blend_weights", "cut", "cut_positions", "cut_topology", "drill", "drill_positions", "drill_topology",
-           "mesh_edges", "refine", "scalpel_path", "tear", "tear_positions", "tear_topology"]
+__all__ = [
+    "PREDICATES",
+    "CutTopology",
+    "Drill",
+    "DrillTopology",
+    "MeshEdges",
+    "Plane",
+    "Scalpel",
+    "TearTopology",
+    "blend_weights",
+    "cut",
+    "cut_positions",
+    "cut_topology",
+    "drill",
+    "drill_positions",
+    "drill_topology",
+    "mesh_edges",
+    "refine",
+    "scalpel_path",
+    "tear",
+    "tear_positions",
+    "tear_topology",
+]

@@ -33,13 +33,21 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
-from cutting._geometry import (MeshEdges, check_mesh_arrays, mesh_edges, poor_pieces, posed_vertices,
-                               rest_positions, skinned_mesh_like, smallest_doubled_area)
+from _jaxcga_shared.mesh import bounding_diagonal
+from cutting._geometry import (
+    MeshEdges,
+    check_mesh_arrays,
+    mesh_edges,
+    poor_pieces,
+    posed_vertices,
+    rest_positions,
+    skinned_mesh_like,
+    smallest_doubled_area,
+)
 from cutting._predicates import check_predicates, edge_points, signed_distances
 from cutting._tools import Plane, check_plane
 from cutting._weights import blend_weights
 from deform._model import SkinnedMesh
-from _jaxcga_shared.mesh import bounding_diagonal
 
 
 def _split_tables(diagonal: int):
@@ -124,8 +132,9 @@ def _split(V, F, edges: MeshEdges, s, sign, n, d, predicates, smallest):
     e = edges.edges
     crossing_mask = sign[e[:, 0]] * sign[e[:, 1]] < 0
     crossing = e[crossing_mask]
-    points, t = edge_points(V[crossing[:, 0]], V[crossing[:, 1]], s[crossing[:, 0]], s[crossing[:, 1]], n, d,
-                            predicates)
+    points, t = edge_points(
+        V[crossing[:, 0]], V[crossing[:, 1]], s[crossing[:, 0]], s[crossing[:, 1]], n, d, predicates
+    )
     new_index = np.full(len(e), -1, np.int64)
     new_index[crossing_mask] = len(V) + np.arange(len(crossing))
     face_signs = sign[F]
@@ -159,8 +168,16 @@ def _split(V, F, edges: MeshEdges, s, sign, n, d, predicates, smallest):
     return crossing, t, points, pieces, diagonal, np.unique(snap)
 
 
-def cut_topology(V: Float[ArrayLike, "n 3"], F: Int[ArrayLike, "m 3"], plane: Plane, *, predicates: str = "euclidean",
-                 tolerance: float = 1e-6, cap: bool = False, edges: MeshEdges | None = None) -> CutTopology:
+def cut_topology(
+    V: Float[ArrayLike, "n 3"],
+    F: Int[ArrayLike, "m 3"],
+    plane: Plane,
+    *,
+    predicates: str = "euclidean",
+    tolerance: float = 1e-6,
+    cap: bool = False,
+    edges: MeshEdges | None = None,
+) -> CutTopology:
     """Topology and new vertices of cutting the triangle mesh (V, F) by a plane (Algorithm 1).
 
     Args:
@@ -197,8 +214,10 @@ def cut_topology(V: Float[ArrayLike, "n 3"], F: Int[ArrayLike, "m 3"], plane: Pl
             break
         sign[snap] = 0
     if not (np.any(sign[F] > 0) and np.any(sign[F] < 0)):
-        raise ValueError("plane: only grazes the mesh (every vertex on one side of it lies so close to it that "
-                         "cutting there would leave sliver faces); nothing to cut")
+        raise ValueError(
+            "plane: only grazes the mesh (every vertex on one side of it lies so close to it that "
+            "cutting there would leave sliver faces); nothing to cut"
+        )
     s = np.where(sign == 0, 0.0, s)
 
     face_signs = sign[F]
@@ -207,8 +226,9 @@ def cut_topology(V: Float[ArrayLike, "n 3"], F: Int[ArrayLike, "m 3"], plane: Pl
     flat = F[in_plane]
     normal = np.cross(V[flat[:, 1]] - V[flat[:, 0]], V[flat[:, 2]] - V[flat[:, 0]])
     sides = []
-    for k, (sign_of_side, whole) in enumerate(((1, (lowest >= 0) & (highest > 0)),
-                                               (-1, (highest <= 0) & (lowest < 0)))):
+    for k, (sign_of_side, whole) in enumerate(
+        ((1, (lowest >= 0) & (highest > 0)), (-1, (highest <= 0) & (lowest < 0)))
+    ):
         chosen = np.where(diagonal[:, None, None] == 0, pieces[0][k], pieces[1][k])
         valid = chosen[:, :, 0] >= 0
         # A face lying in the plane closes the half that its normal points away from.
@@ -283,8 +303,10 @@ def cut_positions(V: Float[ArrayLike, "n 3"], topology: CutTopology, plane: Plan
         (p, 3) the new vertices, in the order of ``topology.crossing``."""
     V = jnp.asarray(V)
     if V.shape != (len(topology.distances), 3):
-        raise ValueError(f"V: expected the {len(topology.distances)} vertices that were cut, shape "
-                         f"({len(topology.distances)}, 3), got {V.shape}")
+        raise ValueError(
+            f"V: expected the {len(topology.distances)} vertices that were cut, shape "
+            f"({len(topology.distances)}, 3), got {V.shape}"
+        )
     crossing = topology.crossing
     normal, distance = jnp.asarray(plane.normal), jnp.asarray(plane.distance)
     A, B = V[crossing[:, 0]], V[crossing[:, 1]]
@@ -294,21 +316,47 @@ def cut_positions(V: Float[ArrayLike, "n 3"], topology: CutTopology, plane: Plan
 
 
 @overload
-def cut(mesh: SkinnedMesh, plane: Plane, *, cap: bool = ..., predicates: str = ..., side_weight: float = ...,
-        tolerance: float = ..., joint_matrices: Float[ArrayLike, "j 4 4"] | None = ..., edges: MeshEdges | None = ...,
-        return_topology: Literal[False] = ...) -> tuple[SkinnedMesh, SkinnedMesh]: ...
+def cut(
+    mesh: SkinnedMesh,
+    plane: Plane,
+    *,
+    cap: bool = ...,
+    predicates: str = ...,
+    side_weight: float = ...,
+    tolerance: float = ...,
+    joint_matrices: Float[ArrayLike, "j 4 4"] | None = ...,
+    edges: MeshEdges | None = ...,
+    return_topology: Literal[False] = ...,
+) -> tuple[SkinnedMesh, SkinnedMesh]: ...
 
 
 @overload
-def cut(mesh: SkinnedMesh, plane: Plane, *, cap: bool = ..., predicates: str = ..., side_weight: float = ...,
-        tolerance: float = ..., joint_matrices: Float[ArrayLike, "j 4 4"] | None = ..., edges: MeshEdges | None = ...,
-        return_topology: Literal[True]) -> tuple[tuple[SkinnedMesh, SkinnedMesh], CutTopology]: ...
+def cut(
+    mesh: SkinnedMesh,
+    plane: Plane,
+    *,
+    cap: bool = ...,
+    predicates: str = ...,
+    side_weight: float = ...,
+    tolerance: float = ...,
+    joint_matrices: Float[ArrayLike, "j 4 4"] | None = ...,
+    edges: MeshEdges | None = ...,
+    return_topology: Literal[True],
+) -> tuple[tuple[SkinnedMesh, SkinnedMesh], CutTopology]: ...
 
 
-def cut(mesh: SkinnedMesh, plane: Plane, *, cap: bool = False, predicates: str = "euclidean", side_weight: float = 0.0,
-        tolerance: float = 1e-6, joint_matrices: Float[ArrayLike, "j 4 4"] | None = None,
-        edges: MeshEdges | None = None, return_topology: bool = False
-        ) -> tuple[SkinnedMesh, SkinnedMesh] | tuple[tuple[SkinnedMesh, SkinnedMesh], CutTopology]:
+def cut(
+    mesh: SkinnedMesh,
+    plane: Plane,
+    *,
+    cap: bool = False,
+    predicates: str = "euclidean",
+    side_weight: float = 0.0,
+    tolerance: float = 1e-6,
+    joint_matrices: Float[ArrayLike, "j 4 4"] | None = None,
+    edges: MeshEdges | None = None,
+    return_topology: bool = False,
+) -> tuple[SkinnedMesh, SkinnedMesh] | tuple[tuple[SkinnedMesh, SkinnedMesh], CutTopology]:
     """Cut a skinned mesh by a plane (Algorithm 1): the positive side (``n . x > d``), then the negative.
 
     Both halves are SkinnedMeshes with the input's joints and inverse bind matrices; they animate with
@@ -348,15 +396,20 @@ def cut(mesh: SkinnedMesh, plane: Plane, *, cap: bool = False, predicates: str =
         rest = rest_positions(J_bary, W_bary, topology.points, joint_matrices)
 
     halves = []
-    for keep, faces, sign in ((topology.positive, topology.positive_faces, 1),
-                              (topology.negative, topology.negative_faces, -1)):
+    for keep, faces, sign in (
+        (topology.positive, topology.positive_faces, 1),
+        (topology.negative, topology.negative_faces, -1),
+    ):
         J_new, W_new = J_bary, W_bary
         if side_weight > 0:
             # the endpoint on this half's side of each crossing edge
             own = np.where(sign * topology.distances[crossing[:, 0]] > 0, crossing[:, 0], crossing[:, 1])
-            J_new, W_new = blend_weights(np.concatenate([J, J_bary]), np.concatenate([W, W_bary]),
-                                         np.stack([len(V) + np.arange(len(t)), own], axis=1),
-                                         np.broadcast_to([1.0 - side_weight, side_weight], (len(t), 2)))
+            J_new, W_new = blend_weights(
+                np.concatenate([J, J_bary]),
+                np.concatenate([W, W_bary]),
+                np.stack([len(V) + np.arange(len(t)), own], axis=1),
+                np.broadcast_to([1.0 - side_weight, side_weight], (len(t), 2)),
+            )
         ext_V = np.concatenate([V, rest])
         ext_J = np.concatenate([J, J_new])
         ext_W = np.concatenate([W, W_new])

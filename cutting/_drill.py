@@ -39,12 +39,22 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
-from cutting._geometry import (MeshEdges, check_mesh_arrays, fan_triangles, mesh_edges, poor_pieces, posed_vertices,
-                               rest_positions, segment_hits, skinned_mesh_like, smallest_doubled_area)
+from _jaxcga_shared.mesh import bounding_diagonal
+from cutting._geometry import (
+    MeshEdges,
+    check_mesh_arrays,
+    fan_triangles,
+    mesh_edges,
+    poor_pieces,
+    posed_vertices,
+    rest_positions,
+    segment_hits,
+    skinned_mesh_like,
+    smallest_doubled_area,
+)
 from cutting._tools import Drill, check_drill
 from cutting._weights import blend_weights
 from deform._model import SkinnedMesh
-from _jaxcga_shared.mesh import bounding_diagonal
 
 
 class DrillTopology(NamedTuple):
@@ -94,7 +104,7 @@ def _refine_tables():
             tris = [(3 + k, k1, 3 + k1), (k, 3 + k, 3 + k1), (k, 3 + k1, (k + 2) % 3)]
         else:
             tris = [(0, 3, 5), (3, 1, 4), (5, 4, 2), (3, 4, 5)]
-        table[code, :len(tris)] = tris
+        table[code, : len(tris)] = tris
     return table
 
 
@@ -117,8 +127,12 @@ def _refine(V, F, edges: MeshEdges, face_mask):
     return np.concatenate([V, 0.5 * (V[parents[:, 0]] + V[parents[:, 1]])]), faces, parents
 
 
-def refine(mesh: SkinnedMesh, faces: Int[ArrayLike, " f"] | None = None, *,
-           joint_matrices: Float[ArrayLike, "j 4 4"] | None = None) -> SkinnedMesh:
+def refine(
+    mesh: SkinnedMesh,
+    faces: Int[ArrayLike, " f"] | None = None,
+    *,
+    joint_matrices: Float[ArrayLike, "j 4 4"] | None = None,
+) -> SkinnedMesh:
     """The paper's "split" of sec. 4.2.3 on a skinned mesh: every edge of the given faces is split at
     its midpoint, faces on split edges are re-triangulated conformingly (4, 3 or 2 triangles); a
     midpoint gets its edge's blended weights (sec. 4.3).
@@ -139,9 +153,14 @@ def refine(mesh: SkinnedMesh, faces: Int[ArrayLike, " f"] | None = None, *,
     refined, F_new, parents = _refine(space, F, mesh_edges(F), mask)
     J, W = np.asarray(mesh.J), np.asarray(mesh.W)
     J_mid, W_mid = blend_weights(J, W, parents, np.full(parents.shape, 0.5))
-    rest = rest_positions(J_mid, W_mid, refined[len(space):], joint_matrices)
-    return skinned_mesh_like(mesh, np.concatenate([np.asarray(mesh.V, np.float64), rest]), F_new,
-                             np.concatenate([J, J_mid]), np.concatenate([W, W_mid]))
+    rest = rest_positions(J_mid, W_mid, refined[len(space) :], joint_matrices)
+    return skinned_mesh_like(
+        mesh,
+        np.concatenate([np.asarray(mesh.V, np.float64), rest]),
+        F_new,
+        np.concatenate([J, J_mid]),
+        np.concatenate([W, W_mid]),
+    )
 
 
 def _cylinder_roots(mu, nu, radius, lengths, margin):
@@ -233,8 +252,10 @@ def _drill_once(V, F, edges: MeshEdges, tip, base, radius, margin) -> _Pass:
     on_affected = np.unique(edges.face_edges[affected_faces])
     if edges.edge_counts[on_affected].max() > 2:
         bad = edges.edges[on_affected[np.argmax(edges.edge_counts[on_affected])]]
-        raise ValueError(f"mesh: the drill meets a non-manifold edge {bad.tolist()} (more than two faces on it); "
-                         "the hole around it is not defined")
+        raise ValueError(
+            f"mesh: the drill meets a non-manifold edge {bad.tolist()} (more than two faces on it); "
+            "the hole around it is not defined"
+        )
     index, alpha, sign = _crossed(axis, V, edges.edges[on_affected], radius, margin)
     index = on_affected[index]
     # holes: connected components of the affected faces (union-find over their shared edges: a few
@@ -262,8 +283,16 @@ def _drill_once(V, F, edges: MeshEdges, tip, base, radius, margin) -> _Pass:
     return _Pass(affected, index, alpha, sign, axis, holes, int(counts.min()))
 
 
-def drill_topology(V: Float[ArrayLike, "n 3"], F: Int[ArrayLike, "m 3"], drill: Drill, *, min_points: int = 6,
-                   max_refinements: int = 4, tolerance: float = 1e-6, edges: MeshEdges | None = None) -> DrillTopology:
+def drill_topology(
+    V: Float[ArrayLike, "n 3"],
+    F: Int[ArrayLike, "m 3"],
+    drill: Drill,
+    *,
+    min_points: int = 6,
+    max_refinements: int = 4,
+    tolerance: float = 1e-6,
+    edges: MeshEdges | None = None,
+) -> DrillTopology:
     """The topology of drilling the triangle mesh (V, F) (Algorithm 3).
 
     Args:
@@ -291,8 +320,10 @@ def drill_topology(V: Float[ArrayLike, "n 3"], F: Int[ArrayLike, "m 3"], drill: 
         raise ValueError(f"edges: computed for another mesh (face_edges {edges.face_edges.shape}, F {F.shape})")
     reach = float(_axis_distance(V, tip, base).max())
     if reach <= radius:
-        raise ValueError(f"drill.radius: {radius:.4g} exceeds the model's size: every vertex lies within "
-                         f"{reach:.4g} of the drill's axis; give a smaller radius")
+        raise ValueError(
+            f"drill.radius: {radius:.4g} exceeds the model's size: every vertex lies within "
+            f"{reach:.4g} of the drill's axis; give a smaller radius"
+        )
     margin = tolerance * bounding_diagonal(V)
     smallest = smallest_doubled_area(V, F)  # the input's: refinement only adds smaller faces
     all_parents, refinements = [], 0
@@ -306,11 +337,15 @@ def drill_topology(V: Float[ArrayLike, "n 3"], F: Int[ArrayLike, "m 3"], drill: 
         refinements += 1
     if state.fewest == 0 and _axis_distance(V[F[state.affected]], tip, base).max() <= radius:
         # every face around a hole lies inside the drill: no edge crosses its surface
-        raise ValueError(f"drill.radius: {radius:.4g} is wider than the part of the model the drill meets (its faces "
-                         "all lie inside the drill); give a smaller radius")
+        raise ValueError(
+            f"drill.radius: {radius:.4g} is wider than the part of the model the drill meets (its faces "
+            "all lie inside the drill); give a smaller radius"
+        )
     if state.fewest < 3:
-        raise ValueError(f"drill.radius: a hole has {state.fewest} boundary points after {refinements} refinements "
-                         "(the drill is too thin for the faces it meets; raise max_refinements or the radius)")
+        raise ValueError(
+            f"drill.radius: a hole has {state.fewest} boundary points after {refinements} refinements "
+            "(the drill is too thin for the faces it meets; raise max_refinements or the radius)"
+        )
     index, alpha, sign = state.index, state.alpha, state.sign
     # Each pass drops at least one new point (it snaps to the vertex or point next to it), so this ends.
     for _ in range(len(index) + 1):
@@ -348,8 +383,9 @@ def _retriangulate(V, F, edges: MeshEdges, state: _Pass, index, alpha, points, c
     # radial vectors P(x) - B of the corners and the new points (the projection is affine)
     axis = state.axis
     radial = dict(zip(corners.ravel().tolist(), axis.radial(V, corners.ravel()).tolist()))
-    point_radial = (alpha[:, None] * axis.radial(V, crossing[:, 0])
-                    + (1.0 - alpha[:, None]) * axis.radial(V, crossing[:, 1]))
+    point_radial = alpha[:, None] * axis.radial(V, crossing[:, 0]) + (1.0 - alpha[:, None]) * axis.radial(
+        V, crossing[:, 1]
+    )
     radial.update(zip(range(n, n + len(points)), point_radial.tolist()))
     position = dict(zip(corners.ravel().tolist(), V[corners.ravel()].tolist()))
     position.update(zip(range(n, n + len(points)), points.tolist()))
@@ -400,8 +436,11 @@ def _retriangulate(V, F, edges: MeshEdges, state: _Pass, index, alpha, points, c
     for f in np.unique(np.asarray(parents, np.int64)[poor]).tolist():
         cycle, spans = cycles[f]
         m = len(cycle)
-        steps = [(math.dist(position[cycle[i]], position[cycle[(i + 1) % m]]) / spans[i], i) for i in range(m)
-                 if max(cycle[i], cycle[(i + 1) % m]) >= n]
+        steps = [
+            (math.dist(position[cycle[i]], position[cycle[(i + 1) % m]]) / spans[i], i)
+            for i in range(m)
+            if max(cycle[i], cycle[(i + 1) % m]) >= n
+        ]
         if steps:
             _, i = min(steps)
             drop += [v - n for v in (cycle[i], cycle[(i + 1) % m]) if v >= n]
@@ -415,26 +454,50 @@ def _midpoint_levels(parents: Int[np.ndarray, "r 2"], n: int) -> list[Int[np.nda
     while done < len(parents):
         pending = parents[done:]
         later = np.flatnonzero(pending.max(axis=1) >= n + done)
-        levels.append(pending[:later[0] if len(later) else len(pending)])
+        levels.append(pending[: later[0] if len(later) else len(pending)])
         done += len(levels[-1])
     return levels
 
 
 @overload
-def drill(mesh: SkinnedMesh, drill: Drill, *, min_points: int = ..., max_refinements: int = ..., tolerance: float = ...,
-          joint_matrices: Float[ArrayLike, "j 4 4"] | None = ..., edges: MeshEdges | None = ...,
-          return_topology: Literal[False] = ...) -> SkinnedMesh: ...
+def drill(
+    mesh: SkinnedMesh,
+    drill: Drill,
+    *,
+    min_points: int = ...,
+    max_refinements: int = ...,
+    tolerance: float = ...,
+    joint_matrices: Float[ArrayLike, "j 4 4"] | None = ...,
+    edges: MeshEdges | None = ...,
+    return_topology: Literal[False] = ...,
+) -> SkinnedMesh: ...
 
 
 @overload
-def drill(mesh: SkinnedMesh, drill: Drill, *, min_points: int = ..., max_refinements: int = ..., tolerance: float = ...,
-          joint_matrices: Float[ArrayLike, "j 4 4"] | None = ..., edges: MeshEdges | None = ...,
-          return_topology: Literal[True]) -> tuple[SkinnedMesh, DrillTopology]: ...
+def drill(
+    mesh: SkinnedMesh,
+    drill: Drill,
+    *,
+    min_points: int = ...,
+    max_refinements: int = ...,
+    tolerance: float = ...,
+    joint_matrices: Float[ArrayLike, "j 4 4"] | None = ...,
+    edges: MeshEdges | None = ...,
+    return_topology: Literal[True],
+) -> tuple[SkinnedMesh, DrillTopology]: ...
 
 
-def drill(mesh: SkinnedMesh, drill: Drill, *, min_points: int = 6, max_refinements: int = 4, tolerance: float = 1e-6,
-          joint_matrices: Float[ArrayLike, "j 4 4"] | None = None, edges: MeshEdges | None = None,
-          return_topology: bool = False) -> SkinnedMesh | tuple[SkinnedMesh, DrillTopology]:
+def drill(
+    mesh: SkinnedMesh,
+    drill: Drill,
+    *,
+    min_points: int = 6,
+    max_refinements: int = 4,
+    tolerance: float = 1e-6,
+    joint_matrices: Float[ArrayLike, "j 4 4"] | None = None,
+    edges: MeshEdges | None = None,
+    return_topology: bool = False,
+) -> SkinnedMesh | tuple[SkinnedMesh, DrillTopology]:
     """Drill a hole into a skinned mesh with a cylinder from the drill's base to its tip (Algorithm 3).
 
     Args:
@@ -452,8 +515,9 @@ def drill(mesh: SkinnedMesh, drill: Drill, *, min_points: int = 6, max_refinemen
         midpoints and new points), and the DrillTopology when ``return_topology``."""
     J, W = np.asarray(mesh.J), np.asarray(mesh.W)
     space, joint_matrices = posed_vertices(mesh, joint_matrices)
-    topology = drill_topology(space, mesh.F, drill, min_points=min_points, max_refinements=max_refinements,
-                              tolerance=tolerance, edges=edges)
+    topology = drill_topology(
+        space, mesh.F, drill, min_points=min_points, max_refinements=max_refinements, tolerance=tolerance, edges=edges
+    )
     rest = np.asarray(mesh.V, np.float64)
     for level in _midpoint_levels(topology.parents, len(rest)):
         J_mid, W_mid = blend_weights(J, W, level, np.full(level.shape, 0.5))

@@ -82,8 +82,9 @@ def posed_vertices(mesh: SkinnedMesh, joint_matrices) -> tuple[np.ndarray, np.nd
         raise ValueError(f"joint_matrices: expected shape ({mesh.num_joints}, 4, 4), got {joint_matrices.shape}")
     M = joint_matrices[:, :3, :]
     homogeneous = np.concatenate([V, np.ones((len(V), 1))], axis=1)
-    return np.einsum("nk,nkij,nj->ni", np.asarray(mesh.W, np.float64), M[np.asarray(mesh.J)], homogeneous), \
-        joint_matrices
+    return np.einsum(
+        "nk,nkij,nj->ni", np.asarray(mesh.W, np.float64), M[np.asarray(mesh.J)], homogeneous
+    ), joint_matrices
 
 
 def rest_positions(J_new, W_new, targets, joint_matrices):
@@ -130,7 +131,7 @@ def _straddling_faces(V, F, start, end):
     u /= np.linalg.norm(u)
     w = np.cross(d, u)
     a, b, s = ((V - start) @ np.stack([u, w, d], axis=1)).T
-    code = ((a <= 0) | (a >= 0) << 1 | (b <= 0) << 2 | (b >= 0) << 3 | (s <= length) << 4 | (s >= 0) << 5)
+    code = (a <= 0) | (a >= 0) << 1 | (b <= 0) << 2 | (b >= 0) << 3 | (s <= length) << 4 | (s >= 0) << 5
     code = code.astype(np.uint8)[F]
     return np.flatnonzero((code[:, 0] | code[:, 1] | code[:, 2]) == 63)
 

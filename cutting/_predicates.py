@@ -50,8 +50,9 @@ def _coefficient(m: cga.Multivector, blade: str) -> Array:
     return cast(Array, m[blade])
 
 
-def signed_distances(V: Float[ArrayLike, "n 3"], n: Float[np.ndarray, "3"], d: float,
-                     predicates: str = "euclidean") -> Float[np.ndarray, " n"]:
+def signed_distances(
+    V: Float[ArrayLike, "n 3"], n: Float[np.ndarray, 3], d: float, predicates: str = "euclidean"
+) -> Float[np.ndarray, " n"]:
     """Signed distance ``n . x - d`` of every vertex (n, 3) from the plane."""
     if predicates == "ga":
         plane = cga.plane(jnp.asarray(n), jnp.asarray(d))
@@ -59,9 +60,15 @@ def signed_distances(V: Float[ArrayLike, "n 3"], n: Float[np.ndarray, "3"], d: f
     return np.asarray(V, np.float64) @ n - d
 
 
-def edge_points(A: Float[np.ndarray, "p 3"], B: Float[np.ndarray, "p 3"], sA: Float[np.ndarray, " p"],
-                sB: Float[np.ndarray, " p"], n: Float[np.ndarray, "3"], d: float,
-                predicates: str = "euclidean") -> tuple[Float[np.ndarray, "p 3"], Float[np.ndarray, " p"]]:
+def edge_points(
+    A: Float[np.ndarray, "p 3"],
+    B: Float[np.ndarray, "p 3"],
+    sA: Float[np.ndarray, " p"],
+    sB: Float[np.ndarray, " p"],
+    n: Float[np.ndarray, 3],
+    d: float,
+    predicates: str = "euclidean",
+) -> tuple[Float[np.ndarray, "p 3"], Float[np.ndarray, " p"]]:
     """Intersection of the segments A-B (p, 3) with the plane, and their parameters t along A->B.
     The segments must cross the plane (signed distances sA, sB of opposite signs)."""
     t = sA / (sA - sB)

@@ -36,14 +36,27 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
 import jaxcga as cga
-from cutting._geometry import (PIECE_ANGLE, PIECE_AREA, MeshEdges, check_mesh_arrays, cross3,
-                               cross_rows, fan_triangles, mesh_edges, posed_vertices, rest_positions, segment_hits,
-                               skinned_mesh_like, smallest_doubled_area, triangle_quality)
+from _jaxcga_shared.mesh import bounding_diagonal
+from cutting._geometry import (
+    PIECE_ANGLE,
+    PIECE_AREA,
+    MeshEdges,
+    check_mesh_arrays,
+    cross3,
+    cross_rows,
+    fan_triangles,
+    mesh_edges,
+    posed_vertices,
+    rest_positions,
+    segment_hits,
+    skinned_mesh_like,
+    smallest_doubled_area,
+    triangle_quality,
+)
 from cutting._predicates import check_predicates, edge_points, signed_distances
 from cutting._tools import Scalpel, check_scalpel
 from cutting._weights import blend_weights
 from deform._model import SkinnedMesh
-from _jaxcga_shared.mesh import bounding_diagonal
 
 # A tear point keeps at least this fraction of its edge from both ends; the plane is moved (in steps
 # of _SHIFT_STEP mean edge lengths of the starting face) until every point does: no sliver triangles.
@@ -119,8 +132,10 @@ def scalpel_path(blade: Float[ArrayLike, "2 3"], motors: cga.Multivector) -> Sca
 def _tip(V, F, segment, index):
     faces, barycentric, _ = segment_hits(V, F, segment[0], segment[1])
     if len(faces) == 0:
-        raise ValueError(f"scalpel (sample {index}): the scalpel does not cross the surface (no face between "
-                         f"{segment[0].tolist()} and {segment[1].tolist()})")
+        raise ValueError(
+            f"scalpel (sample {index}): the scalpel does not cross the surface (no face between "
+            f"{segment[0].tolist()} and {segment[1].tolist()})"
+        )
     b = np.maximum(barycentric[0], _TIP_MARGIN)
     b /= b.sum()
     return int(faces[0]), b, b @ V[F[faces[0]]]
@@ -158,19 +173,23 @@ def _poor_face(V, F, edges: MeshEdges, f, pieces_of, smallest):
         cycle = cycle[start:] + cycle[:start]
         stop = next(m for m, z in enumerate(cycle) if z[0] == "point" and m > 0)
         triangles = []
-        for piece in (cycle[:stop + 1], cycle[stop:] + cycle[:1]):
+        for piece in (cycle[: stop + 1], cycle[stop:] + cycle[:1]):
             coordinates = [z[1] for z in piece]
-            triangles += [tuple(coordinates[m] for m in ids)
-                          for ids in fan_triangles(list(range(len(piece))), coordinates)]
+            triangles += [
+                tuple(coordinates[m] for m in ids) for ids in fan_triangles(list(range(len(piece))), coordinates)
+            ]
     triangles = np.asarray(triangles, np.float64)
     area, angle = triangle_quality(triangles[:, 0], triangles[:, 1], triangles[:, 2])
     _, face_angle = triangle_quality(corners[None, 0], corners[None, 1], corners[None, 2])
-    return bool(np.any(area < _PIECE_HEADROOM * PIECE_AREA * smallest)
-                or np.any(angle < min(_PIECE_HEADROOM * PIECE_ANGLE, face_angle[0])))
+    return bool(
+        np.any(area < _PIECE_HEADROOM * PIECE_AREA * smallest)
+        or np.any(angle < min(_PIECE_HEADROOM * PIECE_ANGLE, face_angle[0]))
+    )
 
 
-def _walk(V, F, edges: MeshEdges, s, margin, start, entry_edge, entry_point, origin, goal, target, visited,
-          smallest, final):
+def _walk(
+    V, F, edges: MeshEdges, s, margin, start, entry_edge, entry_point, origin, goal, target, visited, smallest, final
+):
     """Follow the zero set of the signed distances s from face ``start`` (entered over
     ``entry_edge`` at ``entry_point``, or from the tip ``origin`` inside it) to face ``target`` (the
     last sample's face, holding the tip ``goal``, when ``final``).
@@ -180,8 +199,9 @@ def _walk(V, F, edges: MeshEdges, s, margin, start, entry_edge, entry_point, ori
     for _ in range(len(F) + 1):
         if np.abs(s[F[f]]).min() <= margin:
             raise _NearVertex
-        candidates = [int(e) for e in edges.face_edges[f] if e != e_from
-                      and s[edges.edges[e, 0]] * s[edges.edges[e, 1]] < 0]
+        candidates = [
+            int(e) for e in edges.face_edges[f] if e != e_from and s[edges.edges[e, 0]] * s[edges.edges[e, 1]] < 0
+        ]
         if not candidates:
             raise _Lost
         if len(candidates) > 1:
@@ -190,6 +210,7 @@ def _walk(V, F, edges: MeshEdges, s, margin, start, entry_edge, entry_point, ori
                 i, j = edges.edges[e]
                 x = V[i] + s[i] / (s[i] - s[j]) * (V[j] - V[i])
                 return float((x - origin) @ (goal - origin))
+
             candidates.sort(key=progress, reverse=True)
         e = candidates[0]
         i, j = edges.edges[e]
@@ -204,9 +225,11 @@ def _walk(V, F, edges: MeshEdges, s, margin, start, entry_edge, entry_point, ori
         if _poor_face(V, F, edges, f, pieces_of, smallest):
             raise _NearVertex
         if edges.edge_counts[e] != 2:
-            raise ValueError("mesh: the tear reaches the boundary of the surface or a non-manifold edge "
-                             f"(edge {edges.edges[e].tolist()}; if the mesh has seams of split vertices, weld "
-                             "it first: deform.weld or load_model(..., weld=True))")
+            raise ValueError(
+                "mesh: the tear reaches the boundary of the surface or a non-manifold edge "
+                f"(edge {edges.edges[e].tolist()}; if the mesh has seams of split vertices, weld "
+                "it first: deform.weld or load_model(..., weld=True))"
+            )
         g = int(edges.edge_faces[e, 0] if edges.edge_faces[e, 0] != f else edges.edge_faces[e, 1])
         crossed.append(e)
         entered.append(g)
@@ -215,8 +238,10 @@ def _walk(V, F, edges: MeshEdges, s, margin, start, entry_edge, entry_point, ori
                 raise _NearVertex
             return crossed, entered
         if g == start:
-            raise ValueError("scalpel: the tear plane's curve on the surface does not reach the next sample "
-                             "(it closes on itself; the samples are too far apart)")
+            raise ValueError(
+                "scalpel: the tear plane's curve on the surface does not reach the next sample "
+                "(it closes on itself; the samples are too far apart)"
+            )
         if g in visited:
             raise ValueError("scalpel: the tear path crosses itself")
         visited.add(g)
@@ -224,9 +249,15 @@ def _walk(V, F, edges: MeshEdges, s, margin, start, entry_edge, entry_point, ori
     raise ValueError("scalpel: the tear path does not reach the next sample")
 
 
-def tear_topology(V: Float[ArrayLike, "n 3"], F: Int[ArrayLike, "m 3"], scalpel: Scalpel, *,
-                  predicates: str = "euclidean", tolerance: float = 1e-6,
-                  edges: MeshEdges | None = None) -> TearTopology:
+def tear_topology(
+    V: Float[ArrayLike, "n 3"],
+    F: Int[ArrayLike, "m 3"],
+    scalpel: Scalpel,
+    *,
+    predicates: str = "euclidean",
+    tolerance: float = 1e-6,
+    edges: MeshEdges | None = None,
+) -> TearTopology:
     """The tear path of a scalpel moving over the mesh (V, F) (Algorithm 2, steps 1-3).
 
     Args:
@@ -266,8 +297,10 @@ def tear_topology(V: Float[ArrayLike, "n 3"], F: Int[ArrayLike, "m 3"], scalpel:
         normal = cross_rows(A - origin, B - origin)
         length = np.linalg.norm(normal)
         if length <= 1e-12 * diagonal**2:
-            raise ValueError(f"scalpel (sample {i + 1}): the scalpel passes through the previous tear point, so the "
-                             "tear plane is not defined (move the scalpel between samples)")
+            raise ValueError(
+                f"scalpel (sample {i + 1}): the scalpel passes through the previous tear point, so the "
+                "tear plane is not defined (move the scalpel between samples)"
+            )
         n = normal / length
         d = float(n @ origin)
         target = int(sample_faces[i + 1])
@@ -280,17 +313,34 @@ def tear_topology(V: Float[ArrayLike, "n 3"], F: Int[ArrayLike, "m 3"], scalpel:
             for shift in unit * np.array([0.0, 1.0, -1.0, 2.0, -2.0, 3.0, -3.0, 4.0, -4.0]):
                 s = signed_distances(V, n, d + shift, predicates)
                 try:
-                    step_edges, step_faces = _walk(V, F, edges, s, margin, faces[-1], entry_edge, entry_point,
-                                                   origin, goal, target, set(visited), smallest,
-                                                   final=i == len(segments) - 2)
+                    step_edges, step_faces = _walk(
+                        V,
+                        F,
+                        edges,
+                        s,
+                        margin,
+                        faces[-1],
+                        entry_edge,
+                        entry_point,
+                        origin,
+                        goal,
+                        target,
+                        set(visited),
+                        smallest,
+                        final=i == len(segments) - 2,
+                    )
                     break
                 except _NearVertex:
-                    failure = (f"scalpel (sample {i + 1}): the tear plane keeps passing through or next to "
-                               "vertices of the mesh (within the tolerance, or leaving sliver triangles); move "
-                               "the scalpel slightly")
+                    failure = (
+                        f"scalpel (sample {i + 1}): the tear plane keeps passing through or next to "
+                        "vertices of the mesh (within the tolerance, or leaving sliver triangles); move "
+                        "the scalpel slightly"
+                    )
                 except _Lost:
-                    failure = ("scalpel: the tear plane leaves the surface's path between two samples (the "
-                               "samples are too far apart or the tear turns back)")
+                    failure = (
+                        "scalpel: the tear plane leaves the surface's path between two samples (the "
+                        "samples are too far apart or the tear turns back)"
+                    )
             else:
                 raise ValueError(failure)
             # Orient the normal to the left of the path: face normal x direction of travel.
@@ -300,8 +350,9 @@ def tear_topology(V: Float[ArrayLike, "n 3"], F: Int[ArrayLike, "m 3"], scalpel:
             sign = 1.0 if n @ left >= 0 else -1.0
             visited.update(step_faces)
             pairs = edges.edges[step_edges]
-            points, t = edge_points(V[pairs[:, 0]], V[pairs[:, 1]], s[pairs[:, 0]], s[pairs[:, 1]], n, d + shift,
-                                    predicates)
+            points, t = edge_points(
+                V[pairs[:, 0]], V[pairs[:, 1]], s[pairs[:, 0]], s[pairs[:, 1]], n, d + shift, predicates
+            )
         else:
             points, t = np.zeros((0, 3)), np.zeros(0)
         planes.append(np.append(sign * n, sign * (d + shift)))
@@ -315,12 +366,26 @@ def tear_topology(V: Float[ArrayLike, "n 3"], F: Int[ArrayLike, "m 3"], scalpel:
         if step_edges:
             entry_edge, entry_point = step_edges[-1], points[-1]
     if not crossed:
-        raise ValueError("scalpel: the tear crosses no edge of the mesh (it stays inside one face); move the "
-                         "scalpel farther between samples")
+        raise ValueError(
+            "scalpel: the tear crosses no edge of the mesh (it stays inside one face); move the "
+            "scalpel farther between samples"
+        )
     crossed = np.asarray(crossed)
-    return TearTopology(sample_faces, F[sample_faces], sample_points, sample_barycentric, np.asarray(faces), crossed,
-                        edges.edges[crossed], np.concatenate(t_chunks), np.concatenate(point_chunks),
-                        np.asarray(steps), np.asarray(planes), np.asarray(orientation), np.asarray(shifts))
+    return TearTopology(
+        sample_faces,
+        F[sample_faces],
+        sample_points,
+        sample_barycentric,
+        np.asarray(faces),
+        crossed,
+        edges.edges[crossed],
+        np.concatenate(t_chunks),
+        np.concatenate(point_chunks),
+        np.asarray(steps),
+        np.asarray(planes),
+        np.asarray(orientation),
+        np.asarray(shifts),
+    )
 
 
 def _retriangulate(V, F, edges: MeshEdges, topology: TearTopology, n_vertices: int):
@@ -379,7 +444,7 @@ def _retriangulate(V, F, edges: MeshEdges, topology: TearTopology, n_vertices: i
         cycle = cycle[start:] + cycle[:start]
         stop = cycle.index(("point", exit_))
         direction = sub(points[exit_], points[entry])
-        for piece in (cycle[:stop + 1], cycle[stop:] + cycle[:1]):
+        for piece in (cycle[: stop + 1], cycle[stop:] + cycle[:1]):
             corner = next(z[1] for z in piece if z[0] == "corner")
             left = is_left(normal, points[entry], direction, corner)
             ids = [_copy(z[1], q, n_vertices, left) if z[0] == "point" else z[1] for z in piece]
@@ -393,21 +458,47 @@ def _copy(j, q, n_vertices, is_left):
 
 
 @overload
-def tear(mesh: SkinnedMesh, scalpel: Scalpel, *, opening: float = ..., predicates: str = ..., side_weight: float = ...,
-         tolerance: float = ..., joint_matrices: Float[ArrayLike, "j 4 4"] | None = ...,
-         edges: MeshEdges | None = ..., return_topology: Literal[False] = ...) -> SkinnedMesh: ...
+def tear(
+    mesh: SkinnedMesh,
+    scalpel: Scalpel,
+    *,
+    opening: float = ...,
+    predicates: str = ...,
+    side_weight: float = ...,
+    tolerance: float = ...,
+    joint_matrices: Float[ArrayLike, "j 4 4"] | None = ...,
+    edges: MeshEdges | None = ...,
+    return_topology: Literal[False] = ...,
+) -> SkinnedMesh: ...
 
 
 @overload
-def tear(mesh: SkinnedMesh, scalpel: Scalpel, *, opening: float = ..., predicates: str = ..., side_weight: float = ...,
-         tolerance: float = ..., joint_matrices: Float[ArrayLike, "j 4 4"] | None = ...,
-         edges: MeshEdges | None = ..., return_topology: Literal[True]) -> tuple[SkinnedMesh, TearTopology]: ...
+def tear(
+    mesh: SkinnedMesh,
+    scalpel: Scalpel,
+    *,
+    opening: float = ...,
+    predicates: str = ...,
+    side_weight: float = ...,
+    tolerance: float = ...,
+    joint_matrices: Float[ArrayLike, "j 4 4"] | None = ...,
+    edges: MeshEdges | None = ...,
+    return_topology: Literal[True],
+) -> tuple[SkinnedMesh, TearTopology]: ...
 
 
-def tear(mesh: SkinnedMesh, scalpel: Scalpel, *, opening: float = 0.0, predicates: str = "euclidean",
-         side_weight: float = 0.0, tolerance: float = 1e-6, joint_matrices: Float[ArrayLike, "j 4 4"] | None = None,
-         edges: MeshEdges | None = None, return_topology: bool = False
-         ) -> SkinnedMesh | tuple[SkinnedMesh, TearTopology]:
+def tear(
+    mesh: SkinnedMesh,
+    scalpel: Scalpel,
+    *,
+    opening: float = 0.0,
+    predicates: str = "euclidean",
+    side_weight: float = 0.0,
+    tolerance: float = 1e-6,
+    joint_matrices: Float[ArrayLike, "j 4 4"] | None = None,
+    edges: MeshEdges | None = None,
+    return_topology: bool = False,
+) -> SkinnedMesh | tuple[SkinnedMesh, TearTopology]:
     """Tear a skinned mesh with a scalpel moving through its samples (Algorithm 2).
 
     Args:
@@ -447,33 +538,48 @@ def tear(mesh: SkinnedMesh, scalpel: Scalpel, *, opening: float = 0.0, predicate
     copies_J, copies_W = [], []
     for side in (1.0, -1.0):
         if side_weight > 0 and q:
-            own = np.where(side * np.einsum("ij,ij->i", space[topology.crossing[:, 0]] - topology.points, normals) > 0,
-                           topology.crossing[:, 0], topology.crossing[:, 1])
-            Jc, Wc = blend_weights(np.concatenate([J, J_q]), np.concatenate([W, W_q]),
-                                   np.stack([n_vertices + np.arange(q), own], axis=1),
-                                   np.broadcast_to([1.0 - side_weight, side_weight], (q, 2)))
+            own = np.where(
+                side * np.einsum("ij,ij->i", space[topology.crossing[:, 0]] - topology.points, normals) > 0,
+                topology.crossing[:, 0],
+                topology.crossing[:, 1],
+            )
+            Jc, Wc = blend_weights(
+                np.concatenate([J, J_q]),
+                np.concatenate([W, W_q]),
+                np.stack([n_vertices + np.arange(q), own], axis=1),
+                np.broadcast_to([1.0 - side_weight, side_weight], (q, 2)),
+            )
         else:
             Jc, Wc = J_q, W_q
         copies_J.append(Jc)
         copies_W.append(Wc)
     J_new = np.concatenate([J_tips] + copies_J)
     W_new = np.concatenate([W_tips] + copies_W)
-    world = np.concatenate([topology.sample_points[[0, -1]], topology.points + 0.5 * opening * normals,
-                            topology.points - 0.5 * opening * normals])
+    world = np.concatenate(
+        [
+            topology.sample_points[[0, -1]],
+            topology.points + 0.5 * opening * normals,
+            topology.points - 0.5 * opening * normals,
+        ]
+    )
     rest = rest_positions(J_new, W_new, world, joint_matrices)
 
     keep = np.ones(len(F), bool)
     keep[topology.faces] = False
     triangles = _retriangulate(space, F, edges, topology, n_vertices)
-    torn = skinned_mesh_like(mesh, np.concatenate([np.asarray(mesh.V, np.float64), rest]),
-                             np.concatenate([F[keep], triangles]), np.concatenate([J, J_new]),
-                             np.concatenate([W, W_new]))
+    torn = skinned_mesh_like(
+        mesh,
+        np.concatenate([np.asarray(mesh.V, np.float64), rest]),
+        np.concatenate([F[keep], triangles]),
+        np.concatenate([J, J_new]),
+        np.concatenate([W, W_new]),
+    )
     return (torn, topology) if return_topology else torn
 
 
-def tear_positions(V: Float[ArrayLike, "n 3"], topology: TearTopology, scalpel: Scalpel, *,
-                   opening: Float[ArrayLike, ""] = 0.0
-                   ) -> tuple[Float[Array, "2 3"], Float[Array, "q 3"], Float[Array, "q 3"]]:
+def tear_positions(
+    V: Float[ArrayLike, "n 3"], topology: TearTopology, scalpel: Scalpel, *, opening: Float[ArrayLike, ""] = 0.0
+) -> tuple[Float[Array, "2 3"], Float[Array, "q 3"], Float[Array, "q 3"]]:
     """Positions of a tear's new vertices as a JAX function of the vertices, the scalpel and the
     opening, for a fixed topology: differentiable with respect to all three (``jax.grad`` over a
     ``Scalpel`` gives a ``Scalpel``). Each S_i is the scalpel's crossing with its face's plane, kept the
@@ -489,17 +595,29 @@ def tear_positions(V: Float[ArrayLike, "n 3"], topology: TearTopology, scalpel: 
     V = jnp.asarray(V)
     X0, X1 = jnp.asarray(scalpel.handle), jnp.asarray(scalpel.tip)
     if X0.shape != (len(topology.sample_faces), 3) or X1.shape != X0.shape:
-        raise ValueError(f"scalpel: expected handle and tip ends of shape ({len(topology.sample_faces)}, 3) (the "
-                         f"topology's samples), got {X0.shape}, {X1.shape}")
+        raise ValueError(
+            f"scalpel: expected handle and tip ends of shape ({len(topology.sample_faces)}, 3) (the "
+            f"topology's samples), got {X0.shape}, {X1.shape}"
+        )
     corners = V[jnp.asarray(topology.sample_corners)]  # (k+1, 3, 3)
     face_normals = jnp.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
     s = jnp.sum(face_normals * (corners[:, 0] - X0), -1) / jnp.sum(face_normals * (X1 - X0), -1)
     crossings = X0 + s[:, None] * (X1 - X0)
     # barycentric coordinates in the face, with tear_topology's margin (piecewise smooth in the tool)
     squared = jnp.sum(face_normals * face_normals, -1)
-    barycentric = jnp.stack([jnp.sum(face_normals * jnp.cross(corners[:, (k + 1) % 3] - crossings,
-                                                              corners[:, (k + 2) % 3] - crossings), -1)
-                             for k in range(3)], axis=-1) / squared[:, None]
+    barycentric = (
+        jnp.stack(
+            [
+                jnp.sum(
+                    face_normals * jnp.cross(corners[:, (k + 1) % 3] - crossings, corners[:, (k + 2) % 3] - crossings),
+                    -1,
+                )
+                for k in range(3)
+            ],
+            axis=-1,
+        )
+        / squared[:, None]
+    )
     barycentric = jnp.maximum(barycentric, _TIP_MARGIN)
     barycentric = barycentric / jnp.sum(barycentric, -1, keepdims=True)
     samples = jnp.einsum("sk,skc->sc", barycentric, corners)

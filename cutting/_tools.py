@@ -37,7 +37,7 @@ class Plane(eqx.Module):
         distance: () the offset d.
     """
 
-    normal: Float[Array | np.ndarray, "3"] = eqx.field(converter=_array)
+    normal: Float[Array | np.ndarray, 3] = eqx.field(converter=_array)
     distance: Float[Array | np.ndarray, ""] = eqx.field(converter=_array)
 
     @classmethod
@@ -77,16 +77,18 @@ class Drill(eqx.Module):
         radius: () the radius r > 0.
     """
 
-    tip: Float[Array | np.ndarray, "3"] = eqx.field(converter=_array)
-    base: Float[Array | np.ndarray, "3"] = eqx.field(converter=_array)
+    tip: Float[Array | np.ndarray, 3] = eqx.field(converter=_array)
+    base: Float[Array | np.ndarray, 3] = eqx.field(converter=_array)
     radius: Float[Array | np.ndarray, ""] = eqx.field(converter=_array)
 
 
 def check_plane(plane: Plane) -> tuple[np.ndarray, float]:
     """(unit normal (3,), distance) of a ``Plane`` as float64, with clear errors."""
     if not isinstance(plane, Plane):
-        raise ValueError(f"plane: expected a cutting.Plane (Plane(normal, distance), Plane.through(point, normal) "
-                         f"or Plane.from_multivector), got {type(plane).__name__}")
+        raise ValueError(
+            f"plane: expected a cutting.Plane (Plane(normal, distance), Plane.through(point, normal) "
+            f"or Plane.from_multivector), got {type(plane).__name__}"
+        )
     n = np.asarray(plane.normal, np.float64)
     d = np.asarray(plane.distance, np.float64)
     if n.shape != (3,) or d.shape != ():
@@ -105,8 +107,10 @@ def check_scalpel(scalpel: Scalpel) -> np.ndarray:
         raise ValueError(f"scalpel: expected a cutting.Scalpel(handle, tip), got {type(scalpel).__name__}")
     handle, tip = np.asarray(scalpel.handle, np.float64), np.asarray(scalpel.tip, np.float64)
     if handle.ndim != 2 or handle.shape[1:] != (3,) or handle.shape != tip.shape or len(handle) < 2:
-        raise ValueError(f"scalpel: expected handle and tip ends of shape (k+1, 3) at k+1 >= 2 time steps, got "
-                         f"shapes {handle.shape}, {tip.shape}")
+        raise ValueError(
+            f"scalpel: expected handle and tip ends of shape (k+1, 3) at k+1 >= 2 time steps, got "
+            f"shapes {handle.shape}, {tip.shape}"
+        )
     samples = np.stack([handle, tip], axis=1)
     if not np.all(np.isfinite(samples)):
         raise ValueError("scalpel: endpoints must be finite")

@@ -11,9 +11,13 @@ import numpy as np
 from jaxtyping import ArrayLike, Float, Int
 
 
-def blend_weights(J: Int[ArrayLike, "n k"], W: Float[ArrayLike, "n k"], corners: Int[ArrayLike, "p c"],
-                  coefficients: Float[ArrayLike, "p c"], influences: int | None = None
-                  ) -> tuple[Int[np.ndarray, "p i"], Float[np.ndarray, "p i"]]:
+def blend_weights(
+    J: Int[ArrayLike, "n k"],
+    W: Float[ArrayLike, "n k"],
+    corners: Int[ArrayLike, "p c"],
+    coefficients: Float[ArrayLike, "p c"],
+    influences: int | None = None,
+) -> tuple[Int[np.ndarray, "p i"], Float[np.ndarray, "p i"]]:
     """Barycentric blend of vertex weights, the top ``influences`` bones kept and renormalized.
 
     Args:

@@ -62,11 +62,10 @@ import numpy as np
 import scipy.sparse as sp
 from jaxtyping import Array, Float, Int
 
-from deform._harmonic import _check_mesh
-from _jaxcga_shared.sparse import SparseSolver
-from jaxcga import KINDS, Multivector, align_points, apply_to_points
 from _jaxcga_shared.checks import require
-
+from _jaxcga_shared.sparse import SparseSolver
+from deform._harmonic import _check_mesh
+from jaxcga import KINDS, Multivector, align_points, apply_to_points
 
 ENERGIES = ("spokes_and_rims", "spokes")
 
@@ -140,13 +139,15 @@ def arap_precompute(V, F, b, *, energy: str = "spokes_and_rims") -> ARAPData:
     try:
         solver = SparseSolver(-L[free][:, free], symmetric=True)
     except ValueError as error:
-        raise ValueError(f"F, b: the constrained Laplacian is singular (a component without a handle?): {error}") \
-            from None
+        raise ValueError(
+            f"F, b: the constrained Laplacian is singular (a component without a handle?): {error}"
+        ) from None
     # corner k of every face: its vertex i, the other two (j1, j2) and the weights of the edges i-j1
     # (opposite j2) and i-j2 (opposite j1); the rim j1-j2 is opposite i
     C = igl.cotmatrix_entries(V, F)  # (m, 3): column k is the edge opposite corner k
-    corners = [(F[:, k], F[:, (k + 1) % 3], F[:, (k + 2) % 3], C[:, (k + 2) % 3], C[:, (k + 1) % 3], C[:, k])
-               for k in range(3)]
+    corners = [
+        (F[:, k], F[:, (k + 1) % 3], F[:, (k + 2) % 3], C[:, (k + 2) % 3], C[:, (k + 1) % 3], C[:, k]) for k in range(3)
+    ]
     i, j1, j2, c1, c2, c_rim = (np.concatenate(x) for x in zip(*corners))
     # global step: the face's share at i, its two edges at i, is turned by all three rotors of the face
     u = c1[:, None] * (V[i] - V[j1]) + c2[:, None] * (V[i] - V[j2])
@@ -169,24 +170,42 @@ def arap_precompute(V, F, b, *, energy: str = "spokes_and_rims") -> ARAPData:
         # every face's edges are in three cells; sum_ij w_ij |v'_ij|^2 counts every edge twice
         y, rhs_scale, quadratic_scale = wv + rim, 1.0 / 3.0, 1.5
     return ARAPData(
-        V=jnp.asarray(V), b=jnp.asarray(b), free=jnp.asarray(free), ring=jnp.asarray(ring), w=jnp.asarray(w),
-        wv_sum=jnp.asarray(wv.sum(1)), y=jnp.asarray(y), z=jnp.asarray(z), degree=jnp.asarray(w.sum(1)),
+        V=jnp.asarray(V),
+        b=jnp.asarray(b),
+        free=jnp.asarray(free),
+        ring=jnp.asarray(ring),
+        w=jnp.asarray(w),
+        wv_sum=jnp.asarray(wv.sum(1)),
+        y=jnp.asarray(y),
+        z=jnp.asarray(z),
+        degree=jnp.asarray(w.sum(1)),
         rest_energy=jnp.asarray(quadratic_scale * np.einsum("ndk,ndk->", wv, V[:, None, :] - V[ring])),
-        solver=solver, n=n, energy=energy, rhs_scale=rhs_scale, quadratic_scale=quadratic_scale,
+        solver=solver,
+        n=n,
+        energy=energy,
+        rhs_scale=rhs_scale,
+        quadratic_scale=quadratic_scale,
     )
 
 
 def _det3(a):
-    return (a[..., 0, 0] * (a[..., 1, 1] * a[..., 2, 2] - a[..., 1, 2] * a[..., 2, 1])
-            - a[..., 0, 1] * (a[..., 1, 0] * a[..., 2, 2] - a[..., 1, 2] * a[..., 2, 0])
-            + a[..., 0, 2] * (a[..., 1, 0] * a[..., 2, 1] - a[..., 1, 1] * a[..., 2, 0]))
+    return (
+        a[..., 0, 0] * (a[..., 1, 1] * a[..., 2, 2] - a[..., 1, 2] * a[..., 2, 1])
+        - a[..., 0, 1] * (a[..., 1, 0] * a[..., 2, 2] - a[..., 1, 2] * a[..., 2, 0])
+        + a[..., 0, 2] * (a[..., 1, 0] * a[..., 2, 1] - a[..., 1, 1] * a[..., 2, 0])
+    )
 
 
 def _adjugate_and_det4(a):
     """Adjugate (transpose of the cofactor matrix) and determinant of (..., 4, 4) matrices."""
     idx = [[k for k in range(4) if k != i] for i in range(4)]
-    cof = jnp.stack([jnp.stack([(-1.0) ** (i + j) * _det3(a[..., idx[i], :][..., :, idx[j]]) for j in range(4)], -1)
-                     for i in range(4)], -2)
+    cof = jnp.stack(
+        [
+            jnp.stack([(-1.0) ** (i + j) * _det3(a[..., idx[i], :][..., :, idx[j]]) for j in range(4)], -1)
+            for i in range(4)
+        ],
+        -2,
+    )
     return jnp.swapaxes(cof, -1, -2), jnp.einsum("...j,...j->...", a[..., 0, :], cof[..., 0, :])
 
 
@@ -198,12 +217,15 @@ def horn_rotors(S: Float[Array, "n 3 3"], newton_steps: int = 24):
     sxx, sxy, sxz = S[:, 0, 0], S[:, 0, 1], S[:, 0, 2]
     syx, syy, syz = S[:, 1, 0], S[:, 1, 1], S[:, 1, 2]
     szx, szy, szz = S[:, 2, 0], S[:, 2, 1], S[:, 2, 2]
-    P = jnp.stack([
-        jnp.stack([sxx + syy + szz, syz - szy, szx - sxz, sxy - syx], -1),
-        jnp.stack([syz - szy, sxx - syy - szz, sxy + syx, szx + sxz], -1),
-        jnp.stack([szx - sxz, sxy + syx, -sxx + syy - szz, syz + szy], -1),
-        jnp.stack([sxy - syx, szx + sxz, syz + szy, -sxx - syy + szz], -1),
-    ], -2)
+    P = jnp.stack(
+        [
+            jnp.stack([sxx + syy + szz, syz - szy, szx - sxz, sxy - syx], -1),
+            jnp.stack([syz - szy, sxx - syy - szz, sxy + syx, szx + sxz], -1),
+            jnp.stack([szx - sxz, sxy + syx, -sxx + syy - szz, syz + szy], -1),
+            jnp.stack([sxy - syx, szx + sxz, syz + szy, -sxx - syy + szz], -1),
+        ],
+        -2,
+    )
     norm2 = jnp.sum(S * S, axis=(1, 2))
     c2, c1 = -2.0 * norm2, -8.0 * _det3(S)
     _, c0 = _adjugate_and_det4(P)

@@ -43,10 +43,10 @@ import scipy.sparse as sp
 import tetgen
 import trimesh
 
-from deform._motor_field import MotorField, motor_field_precompute
-from _jaxcga_shared.sparse import SparseSolver
 from _jaxcga_shared.host import quiet_stdout
 from _jaxcga_shared.mesh import bounding_diagonal
+from _jaxcga_shared.sparse import SparseSolver
+from deform._motor_field import MotorField, motor_field_precompute
 
 # points off the cage by less than this fraction of its bounding diagonal count as on it
 _SURFACE_TOLERANCE = 1e-9
@@ -67,8 +67,10 @@ def _check_cage(cage_V, cage_F):
         raise ValueError(f"cage_V: vertex {int(unused[0])} is on no face of cage_F; every cage vertex must be")
     mesh = trimesh.Trimesh(cage_V, cage_F, process=False)
     if not mesh.is_watertight or not mesh.is_winding_consistent:
-        raise ValueError("cage_F: the cage must be a closed, consistently oriented 2-manifold "
-                         f"(watertight: {mesh.is_watertight}, winding consistent: {mesh.is_winding_consistent})")
+        raise ValueError(
+            "cage_F: the cage must be a closed, consistently oriented 2-manifold "
+            f"(watertight: {mesh.is_watertight}, winding consistent: {mesh.is_winding_consistent})"
+        )
     if abs(mesh.volume) <= 1e-12 * mesh.scale**3:
         raise ValueError("cage_V: the cage encloses no volume")
     if mesh.volume < 0:  # inward normals: flip, so that inside means winding number +1
@@ -87,8 +89,12 @@ def _subdivide(cage_V, cage_F, levels: int):
         mid = S.shape[0] + index.reshape(3, -1)  # midpoint of edge 01, 12, 20 of each face
         S = sp.vstack([S, (S[unique[:, 0]] + S[unique[:, 1]]) * 0.5]).tocsr()
         a, b, c = F.T
-        F = np.concatenate([np.stack(rows, 1) for rows in
-                            ([a, mid[0], mid[2]], [mid[0], b, mid[1]], [mid[2], mid[1], c], [mid[0], mid[1], mid[2]])])
+        F = np.concatenate(
+            [
+                np.stack(rows, 1)
+                for rows in ([a, mid[0], mid[2]], [mid[0], b, mid[1]], [mid[2], mid[1], c], [mid[0], mid[1], mid[2]])
+            ]
+        )
     return S @ cage_V, F, S
 
 
@@ -97,8 +103,9 @@ def _hat_values(cage_V, cage_F, X):
     distance2, face, closest = igl.point_mesh_squared_distance(X, cage_V, cage_F)
     corners = cage_F[face]
     values = np.zeros((len(X), len(cage_V)))
-    np.put_along_axis(values, corners, igl.barycentric_coordinates(closest, *cage_V[corners].transpose(1, 0, 2)),
-                      axis=1)
+    np.put_along_axis(
+        values, corners, igl.barycentric_coordinates(closest, *cage_V[corners].transpose(1, 0, 2)), axis=1
+    )
     return values, np.sqrt(distance2)
 
 
@@ -125,10 +132,11 @@ def _tetrahedralize(cage_V, cage_F, sV, sF, max_tet_volume):
     normal /= np.linalg.norm(normal, axis=1, keepdims=True)
     bary = np.stack([igl.barycentric_coordinates(TV[facets[:, k]], *corners) for k in range(3)])
     off_plane = np.abs(np.einsum("kij,ij->ki", TV[facets.T] - corners[0], normal))
-    if (len(TV) < len(sV) or not np.array_equal(TV[: len(sV)], sV) or bary.min() < -1e-9
-            or off_plane.max() > tolerance):
-        raise ValueError("cage_F: TetGen changed the cage surface (a boundary facet leaves its cage face); "
-                         "remove self-intersections or near-degenerate faces from the cage")
+    if len(TV) < len(sV) or not np.array_equal(TV[: len(sV)], sV) or bary.min() < -1e-9 or off_plane.max() > tolerance:
+        raise ValueError(
+            "cage_F: TetGen changed the cage surface (a boundary facet leaves its cage face); "
+            "remove self-intersections or near-degenerate faces from the cage"
+        )
     return TV, TT, np.unique(facets)
 
 
@@ -200,14 +208,15 @@ def _interpolate(cage_V, cage_F, TV, TT, H, V):
         if far.any():
             i = int(off[np.argmax(far)])
             winding = float(igl.winding_number(cage_V, cage_F, V[i]))
-            raise ValueError(f"V: {int(far.sum())} vertices lie outside the cage, the first is vertex {i} at "
-                             f"{V[i].tolist()} (winding number {winding:.3g}, expected 1)")
+            raise ValueError(
+                f"V: {int(far.sum())} vertices lie outside the cage, the first is vertex {i} at "
+                f"{V[i].tolist()} (winding number {winding:.3g}, expected 1)"
+            )
         coords[off] = values
     return coords
 
 
-def cage_precompute(V, cage_V, cage_F, *, max_tet_volume: float = 1e-4, subdivisions: int | None = None) \
-        -> MotorField:
+def cage_precompute(V, cage_V, cage_F, *, max_tet_volume: float = 1e-4, subdivisions: int | None = None) -> MotorField:
     """Bind the mesh vertices V to a cage by harmonic coordinates (sec. VI).
 
     Args:
@@ -263,20 +272,31 @@ def tube_cage(V, axis: int | None = None, segments: int = 6, sides: int = 8, mar
     ring_radius = np.maximum(np.r_[slab_radius[0], slab_radius], np.r_[slab_radius, slab_radius[-1]])
     ring_radius *= margin / np.cos(np.pi / sides)  # the polygon's sides, not only its corners, cover the radius
     angle = 2 * np.pi * np.arange(sides) / sides
-    rings = [np.column_stack([np.full(sides, x), centre[0] + r * np.cos(angle), centre[1] + r * np.sin(angle)])
-             for x, r in zip(xs, ring_radius)]
+    rings = [
+        np.column_stack([np.full(sides, x), centre[0] + r * np.cos(angle), centre[1] + r * np.sin(angle)])
+        for x, r in zip(xs, ring_radius)
+    ]
     cage_V = np.concatenate(rings + [[[xs[0], *centre]], [[xs[-1], *centre]]])
     k, j = np.meshgrid(np.arange(segments), np.arange(sides), indexing="ij")
     a, b = k * sides + j, k * sides + (j + 1) % sides
-    quads = np.concatenate([np.stack([a, b, b + sides], -1).reshape(-1, 3),
-                            np.stack([a, b + sides, a + sides], -1).reshape(-1, 3)])
+    quads = np.concatenate(
+        [np.stack([a, b, b + sides], -1).reshape(-1, 3), np.stack([a, b + sides, a + sides], -1).reshape(-1, 3)]
+    )
     first, last = len(cage_V) - 2, len(cage_V) - 1
-    caps = np.concatenate([np.column_stack([np.full(sides, first), (np.arange(sides) + 1) % sides, np.arange(sides)]),
-                           np.column_stack([np.full(sides, last), segments * sides + np.arange(sides),
-                                            segments * sides + (np.arange(sides) + 1) % sides])])
+    caps = np.concatenate(
+        [
+            np.column_stack([np.full(sides, first), (np.arange(sides) + 1) % sides, np.arange(sides)]),
+            np.column_stack(
+                [
+                    np.full(sides, last),
+                    segments * sides + np.arange(sides),
+                    segments * sides + (np.arange(sides) + 1) % sides,
+                ]
+            ),
+        ]
+    )
     cage_F = np.concatenate([quads, caps])
     cage_V = cage_V[:, np.argsort(order)]
     if trimesh.Trimesh(cage_V, cage_F, process=False).volume < 0:
         cage_F = cage_F[:, ::-1]
     return cage_V, cage_F
-

@@ -21,9 +21,9 @@ import jax.numpy as jnp
 from jaxtyping import Array, Float
 
 import jaxcga as cga
+from _jaxcga_shared.checks import require
 from deform._motor_field import motor_about
 from jaxcga import KINDS, Multivector
-from _jaxcga_shared.checks import require
 
 
 def _check_chain(name: str, P):
@@ -49,8 +49,9 @@ def _bones(P):
     return lengths, d / lengths[:, None]
 
 
-def fabrik(P: Float[Array, "m1 3"], target: Float[Array, "3"], max_iterations: int = 100,
-           tolerance: float = 1e-10) -> Float[Array, "m1 3"]:
+def fabrik(
+    P: Float[Array, "m1 3"], target: Float[Array, 3], max_iterations: int = 100, tolerance: float = 1e-10
+) -> Float[Array, "m1 3"]:
     """Solve the chain ``P`` for ``target`` (FABRIK, Aristidou & Lasenby 2011).
 
     Args:
@@ -110,8 +111,9 @@ def rotor_between(u: Float[Array, "... 3"], v: Float[Array, "... 3"]) -> Multive
     u, v = _unit(jnp.asarray(u), 0.0), _unit(jnp.asarray(v), 0.0)
     cross = jnp.cross(u, v)
     # v u = u.v - u^v, with u^v = c3 e12 - c2 e13 + c1 e23 for the cross product c = u x v
-    half = jnp.concatenate([1 + jnp.sum(u * v, axis=-1, keepdims=True), -cross[..., 2:], cross[..., 1:2],
-                            -cross[..., :1]], axis=-1)
+    half = jnp.concatenate(
+        [1 + jnp.sum(u * v, axis=-1, keepdims=True), -cross[..., 2:], cross[..., 1:2], -cross[..., :1]], axis=-1
+    )
     # opposite: any axis normal to u; cross u with the basis axis least aligned with it
     least = jax.nn.one_hot(jnp.argmin(jnp.abs(u), axis=-1), 3, dtype=u.dtype)
     axis = _unit(jnp.cross(u, least), 0.0)

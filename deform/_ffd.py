@@ -44,10 +44,10 @@ from jaxtyping import Array, Float, Int
 from scipy.special import comb
 
 import jaxcga as cga
-from deform._motor_field import MotorField, motor_about, motor_field_precompute
-from jaxcga import Multivector
 from _jaxcga_shared.checks import require
 from _jaxcga_shared.mesh import signed_volume
+from deform._motor_field import MotorField, motor_about, motor_field_precompute
+from jaxcga import Multivector
 
 
 def _float_array(name: str, x, shape: tuple[int, ...]):
@@ -71,7 +71,7 @@ class Lattice(eqx.Module):
         counts: (l, m, n) control points per axis (static, each >= 2; the Bezier degree is count - 1).
     """
 
-    origin: Float[Array, "3"]
+    origin: Float[Array, 3]
     axes: Float[Array, "3 3"]
     counts: tuple[int, int, int] = eqx.field(static=True)
 
@@ -119,11 +119,16 @@ def lattice_coordinates(V: Float[Array, "n 3"], lattice: Lattice) -> Float[Array
     local = jnp.linalg.solve(axes.T, (V - origin).T).T
     tolerance = float(np.sqrt(np.finfo(V.dtype).eps))
     outside = ~jnp.all((local >= -tolerance) & (local <= 1 + tolerance))
-    return require(local, (outside, "V: points lie outside the lattice (local coordinates outside [0, 1]) "
-                           "or the lattice axes are degenerate"))
+    return require(
+        local,
+        (
+            outside,
+            "V: points lie outside the lattice (local coordinates outside [0, 1]) or the lattice axes are degenerate",
+        ),
+    )
 
 
-def _bernstein(degree: int, t: Float[Array, "..."]) -> Float[Array, "... degree+1"]:
+def _bernstein(degree: int, t: Float[Array, ...]) -> Float[Array, "... degree+1"]:
     """The Bernstein basis ``B^d_j(t) = C(d, j) t^j (1 - t)^(d - j)``, j = 0..d, stacked on a last axis."""
     if int(degree) != degree or not 0 <= degree <= MAX_DEGREE:
         raise ValueError(f"degree: expected an integer in [0, {MAX_DEGREE}], got {degree}")
@@ -132,8 +137,9 @@ def _bernstein(degree: int, t: Float[Array, "..."]) -> Float[Array, "... degree+
     if not jnp.issubdtype(t.dtype, jnp.floating):
         t = t.astype(jnp.result_type(float))
     # integer powers keep the derivative finite at t = 0 and t = 1 (no 0 * inf from t^(j - 1))
-    return jnp.stack([float(comb(degree, j, exact=True)) * t**j * (1 - t) ** (degree - j)
-                      for j in range(degree + 1)], axis=-1)
+    return jnp.stack(
+        [float(comb(degree, j, exact=True)) * t**j * (1 - t) ** (degree - j) for j in range(degree + 1)], axis=-1
+    )
 
 
 def ffd_weights(V: Float[Array, "n 3"], lattice: Lattice) -> Float[Array, "n k"]:
@@ -144,8 +150,9 @@ def ffd_weights(V: Float[Array, "n 3"], lattice: Lattice) -> Float[Array, "n k"]
 
 
 def _local_grid(lattice: Lattice) -> Float[Array, "k 3"]:
-    grids = jnp.meshgrid(*[jnp.linspace(0.0, 1.0, c, dtype=lattice.origin.dtype) for c in lattice.counts],
-                         indexing="ij")
+    grids = jnp.meshgrid(
+        *[jnp.linspace(0.0, 1.0, c, dtype=lattice.origin.dtype) for c in lattice.counts], indexing="ij"
+    )
     return jnp.stack([g.ravel() for g in grids], axis=-1)
 
 
@@ -220,5 +227,8 @@ def distortion(V0: Float[Array, "n 3"], F: Int[Array, "m 3"], V1: Float[Array, "
     rest = jnp.linalg.norm(V0[E[:, 1]] - V0[E[:, 0]], axis=-1)
     length = jnp.linalg.norm(V1[..., E[:, 1], :] - V1[..., E[:, 0], :], axis=-1)
     change = jnp.abs(length / rest - 1)
-    return {"volume_ratio": signed_volume(V1, F) / signed_volume(V0, F), "edge_mean": jnp.mean(change, axis=-1),
-            "edge_max": jnp.max(change, axis=-1)}
+    return {
+        "volume_ratio": signed_volume(V1, F) / signed_volume(V0, F),
+        "edge_mean": jnp.mean(change, axis=-1),
+        "edge_max": jnp.max(change, axis=-1),
+    }

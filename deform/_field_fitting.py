@@ -20,10 +20,10 @@ import optimistix as optx
 from jaxtyping import Array, Float, Int
 
 import jaxcga as cga
+from _jaxcga_shared.mesh import bounding_diagonal
 from deform._fitting import SOLVERS, check_targets, run_solver
 from deform._motor_field import MotorField, identity_motors, motor_field_solve
 from jaxcga import KINDS, Multivector
-from _jaxcga_shared.mesh import bounding_diagonal
 
 
 class MotorFit(eqx.Module):
@@ -107,8 +107,13 @@ def fit_key_motors(
     dtype = field.weights.dtype
     targets, index = check_targets(targets, vertices, n, dtype)
     free = np.arange(k) if free is None else np.asarray(free).reshape(-1)
-    if not np.issubdtype(free.dtype, np.integer) or len(free) == 0 or free.min() < 0 or free.max() >= k \
-            or len(np.unique(free)) != len(free):
+    if (
+        not np.issubdtype(free.dtype, np.integer)
+        or len(free) == 0
+        or free.min() < 0
+        or free.max() >= k
+        or len(np.unique(free)) != len(free)
+    ):
         raise ValueError(f"free: expected distinct key indices in [0, {k}), got {free}")
     if regularization < 0:
         raise ValueError(f"regularization: expected >= 0, got {regularization}")
@@ -125,9 +130,14 @@ def fit_key_motors(
     # Only the targeted vertices are deformed inside the solver. Everything travels as the solver's
     # args and the residual is a module-level function, so a second fit of the same sizes reuses the
     # compiled solver (closed-over arrays would also be folded into the code as constants).
-    data = _FitData(MotorField(field.weights[index], field.bound[index]), targets, fixed_values, jnp.asarray(free),
-                    jnp.asarray(bounding_diagonal(field.bound), dtype),
-                    jnp.sqrt(jnp.asarray(regularization, dtype)))
+    data = _FitData(
+        MotorField(field.weights[index], field.bound[index]),
+        targets,
+        fixed_values,
+        jnp.asarray(free),
+        jnp.asarray(bounding_diagonal(field.bound), dtype),
+        jnp.sqrt(jnp.asarray(regularization, dtype)),
+    )
     sol = run_solver(_residuals, solver, y0, data, max_steps, rtol, atol)
     motors = _motors_of(sol.value, data)
     positions = motor_field_solve(field, motors)

@@ -22,10 +22,10 @@ import optimistix as optx
 from jaxtyping import Array, Float, Int
 
 import jaxcga as cga
+from _jaxcga_shared.mesh import bounding_diagonal
 from deform import _pose, _rig
 from deform._model import RiggedModel, SkinnedMesh
 from jaxcga._multivector import KINDS, Multivector
-from _jaxcga_shared.mesh import bounding_diagonal
 
 SOLVERS = ("levenberg_marquardt", "gauss_newton", "bfgs", "gradient_descent")
 PARAMETERS_PER_BONE = 7  # six motor-generator components and one log-scale
@@ -193,8 +193,9 @@ def fit_pose(
 
     # Only the targeted vertices are skinned inside the solver.
     mesh = model.mesh
-    subset = SkinnedMesh(mesh.V[index], jnp.zeros((0, 3), jnp.int32), mesh.J[index], mesh.W[index],
-                         mesh.inverse_bind, mesh.joints)
+    subset = SkinnedMesh(
+        mesh.V[index], jnp.zeros((0, 3), jnp.int32), mesh.J[index], mesh.W[index], mesh.inverse_bind, mesh.joints
+    )
     reduced = RiggedModel(subset, model.skeleton, (), model.name)
     # the data travel as solver arguments, the residual is one module-level function: fits of one size and
     # kind share optimistix's compiled solver (a closure per call compiled it anew, ~10 s each)
@@ -215,8 +216,9 @@ def fit_pose(
     )
 
 
-def random_parameters(key, model: RiggedModel, rotation: float = 0.4, translation: float = 0.0,
-                      log_scale: float = 0.0, dtype=None) -> Float[Array, "b 7"]:
+def random_parameters(
+    key, model: RiggedModel, rotation: float = 0.4, translation: float = 0.0, log_scale: float = 0.0, dtype=None
+) -> Float[Array, "b 7"]:
     """Random pose parameters (b, 7): uniform in [-rotation, rotation] for the rotation bivector,
     translation in units of the mesh's bounding-box diagonal, and log-scale, for tests and examples."""
     b = model.skeleton.num_bones

@@ -200,9 +200,7 @@ class _Document:
         if sparse:
             n, ind, val = sparse["count"], sparse["indices"], sparse["values"]
             if ind.get("componentType") not in (5121, 5123, 5125):
-                raise ValueError(
-                    f"{self._at(what)} (accessor {index}) has sparse indices of an invalid componentType"
-                )
+                raise ValueError(f"{self._at(what)} (accessor {index}) has sparse indices of an invalid componentType")
             idx = self._view(
                 ind["bufferView"], ind.get("byteOffset", 0), n, 1, np.dtype(_COMPONENT[ind["componentType"]]), what
             )
@@ -217,8 +215,10 @@ class _Document:
         bad = ~np.isfinite(out).all(axis=1)
         if bad.any():  # a corrupt buffer: blame it here rather than on whatever it would break later
             named = f" {acc['name']!r}" if "name" in acc else ""
-            raise ValueError(f"{self._at(what)} (accessor {index}{named}) holds {int(bad.sum())} non-finite "
-                             f"elements (NaN or infinity) of {count}, the first at element {int(np.argmax(bad))}")
+            raise ValueError(
+                f"{self._at(what)} (accessor {index}{named}) holds {int(bad.sum())} non-finite "
+                f"elements (NaN or infinity) of {count}, the first at element {int(np.argmax(bad))}"
+            )
         return out.astype(np.float64)
 
 
@@ -261,8 +261,9 @@ def _node_trs(node: dict, where: str) -> tuple[np.ndarray, np.ndarray, np.ndarra
     if t.shape != (3,) or r.shape != (4,) or s.shape != (3,):
         raise ValueError(f"{where}: translation, rotation, scale must have 3, 4, 3 numbers")
     if not (np.isfinite(t).all() and np.isfinite(r).all() and np.isfinite(s).all()):
-        raise ValueError(f"{where}: translation, rotation, scale must be finite, got {t.tolist()}, {r.tolist()}, "
-                         f"{s.tolist()}")
+        raise ValueError(
+            f"{where}: translation, rotation, scale must be finite, got {t.tolist()}, {r.tolist()}, {s.tolist()}"
+        )
     return t, r, s
 
 

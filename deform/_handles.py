@@ -11,7 +11,7 @@ the rest blend the handle motions, rotations included.
 
 from __future__ import annotations
 
-from typing import Sequence
+from collections.abc import Sequence
 
 from deform._harmonic import harmonic_fields
 from deform._motor_field import MotorField, motor_field_precompute

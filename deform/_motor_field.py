@@ -96,12 +96,14 @@ def motor_field_solve(field: MotorField, key_motors: Multivector) -> Float[Array
         (..., n, 3) positions."""
     if not isinstance(field, MotorField):
         raise ValueError(f"field: expected a MotorField, got {type(field).__name__}")
-    return cga.apply_to_points(blend_motors(field.weights, key_motors), field.bound.astype(field.weights.dtype),
-                               fused=True)
+    return cga.apply_to_points(
+        blend_motors(field.weights, key_motors), field.bound.astype(field.weights.dtype), fused=True
+    )
 
 
-def motor_field_precompute(V: Float[Array, "n 3"], weights: Float[Array, "n k"], *,
-                           rest_motors: Multivector | None = None) -> MotorField:
+def motor_field_precompute(
+    V: Float[Array, "n 3"], weights: Float[Array, "n k"], *, rest_motors: Multivector | None = None
+) -> MotorField:
     """Bind rest positions to key motors (sec. III-A): ``p'_i = ~M^0_i p_i M^0_i`` with
     ``M^0_i = exp(sum_j w_ij log R^0_j)``; ``rest_motors=None`` means identity rest motors (p' = p).
 

@@ -33,10 +33,10 @@ import equinox as eqx
 import jax.numpy as jnp
 
 import jaxcga as cga
+from _jaxcga_shared.checks import plain_errors
 from deform import _rig, _skinning
 from deform._model import RiggedModel
 from jaxcga._multivector import Multivector
-from _jaxcga_shared.checks import plain_errors
 
 METHODS = ("lbs", "dqs", "cga", "cga_motor_blend")
 INTERPOLATIONS = ("gltf", "log")
@@ -139,4 +139,3 @@ def skin_model(model: RiggedModel, t, method: str = "cga", clip: int | str = 0, 
 @eqx.filter_jit
 def _skin_model(model: RiggedModel, t, method: str, animation, interpolation: str):
     return skin_pose(model, _sample_pose(model, t, method, animation, interpolation), method)
-

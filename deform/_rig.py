@@ -33,9 +33,9 @@ import numpy as np
 from jaxtyping import Array, Float
 
 import jaxcga as cga
+from _jaxcga_shared.checks import require
 from deform._model import AnimationClip, Channel, Skeleton, SkinnedMesh
 from jaxcga._multivector import KINDS, Multivector
-from _jaxcga_shared.checks import require
 
 _SIMILITUDE = KINDS["similitude"]
 
@@ -67,16 +67,20 @@ def _rotor_xyzw(q) -> Multivector:
     return cga.quaternion_to_rotor(jnp.concatenate([q[..., 3:], q[..., :3]], axis=-1))
 
 
-def uniform_scale(scale: Float[Array, "... 3"], tolerance: float = 1e-5) -> Float[Array, "..."]:
+def uniform_scale(scale: Float[Array, "... 3"], tolerance: float = 1e-5) -> Float[Array, ...]:
     """The common factor of a uniform scale (..., 3); non-uniform (relative spread > tolerance) or
     non-positive scales raise a ValueError (inside jit a runtime error with the message): a dilator is a uniform
     scaling (eq. 12)."""
     s = jnp.mean(scale, axis=-1)
     spread = jnp.max(jnp.abs(scale - s[..., None]), axis=-1, initial=0.0) / jnp.abs(s)
-    s = require(s, (
-        jnp.any(spread > tolerance) | jnp.any(s <= 0),
-        "scale: non-uniform or non-positive bone scale has no versor (dilators scale uniformly); "
-        "use the matrix path (local_matrices / skin_lbs) for such rigs"))
+    s = require(
+        s,
+        (
+            jnp.any(spread > tolerance) | jnp.any(s <= 0),
+            "scale: non-uniform or non-positive bone scale has no versor (dilators scale uniformly); "
+            "use the matrix path (local_matrices / skin_lbs) for such rigs",
+        ),
+    )
     return s
 
 
@@ -140,8 +144,9 @@ def forward_kinematics(parents: tuple[int, ...], local: Multivector) -> Multivec
     return Multivector(jnp.moveaxis(_scan_chain(parents, values, identity, compose), 0, -2), blades)
 
 
-def forward_kinematics_matrices(parents: tuple[int, ...],
-                                local: Float[Array, "... b 4 4"]) -> Float[Array, "... b 4 4"]:
+def forward_kinematics_matrices(
+    parents: tuple[int, ...], local: Float[Array, "... b 4 4"]
+) -> Float[Array, "... b 4 4"]:
     """Global bone matrices ``T_i = T_parent(i) t_i`` (sec. 3)."""
     local = jnp.asarray(local)
     if local.ndim < 3 or local.shape[-2:] != (4, 4):
@@ -165,8 +170,9 @@ def inverse_bind_versors(mesh: SkinnedMesh) -> Multivector:
     return cga.matrix_to_similitude(mesh.inverse_bind)
 
 
-def joint_versors(mesh: SkinnedMesh, global_versors: Multivector,
-                  inverse_bind: Multivector | None = None) -> Multivector:
+def joint_versors(
+    mesh: SkinnedMesh, global_versors: Multivector, inverse_bind: Multivector | None = None
+) -> Multivector:
     """Joint versors ``M_n,k B_n`` of eq. (17), batch shape (..., j).
 
     Args:
@@ -179,8 +185,10 @@ def joint_versors(mesh: SkinnedMesh, global_versors: Multivector,
     if inverse_bind is None:
         inverse_bind = inverse_bind_versors(mesh)
     elif not isinstance(inverse_bind, Multivector) or inverse_bind.batch_shape[-1:] != (len(mesh.joints),):
-        raise ValueError(f"inverse_bind: expected versors with batch shape ({len(mesh.joints)},), "
-                         f"got {getattr(inverse_bind, 'batch_shape', type(inverse_bind).__name__)}")
+        raise ValueError(
+            f"inverse_bind: expected versors with batch shape ({len(mesh.joints)},), "
+            f"got {getattr(inverse_bind, 'batch_shape', type(inverse_bind).__name__)}"
+        )
     bones = global_versors[..., jnp.asarray(mesh.joints, jnp.int32)]
     return cga.table_product("geometric", bones, inverse_bind).embed(_SIMILITUDE)
 
@@ -253,8 +261,12 @@ def _sample_rows(path: str, interpolation: str, times, values, counts, t):
         s = alpha[:, None]
         s2, s3 = s**2, s**3
         vk, vk1 = _rows(values, k), _rows(values, k1)
-        value = ((2 * s3 - 3 * s2 + 1) * vk[:, 1] + td * (s3 - 2 * s2 + s) * vk[:, 2]
-                 + (-2 * s3 + 3 * s2) * vk1[:, 1] + td * (s3 - s2) * vk1[:, 0])
+        value = (
+            (2 * s3 - 3 * s2 + 1) * vk[:, 1]
+            + td * (s3 - 2 * s2 + s) * vk[:, 2]
+            + (-2 * s3 + 3 * s2) * vk1[:, 1]
+            + td * (s3 - s2) * vk1[:, 0]
+        )
         return value / jnp.linalg.norm(value, axis=-1, keepdims=True) if path == "rotation" else value
     if interpolation == "STEP":
         return _rows(values, jnp.where(alpha >= 1, k1, k))
@@ -327,8 +339,9 @@ def sample_versors(skeleton: Skeleton, clip: AnimationClip, t) -> Multivector:
     for (path, interpolation), channels in _groups(clip).items():
         times, values, counts, bones = _stack(channels)
         versors = _versor_rows(path, interpolation, times, values, counts, t)
-        parts[path] = parts[path].at[jnp.asarray(bones)].set(versors.embed(_PART_BLADES[path]).values
-                                                              .astype(parts[path].dtype))
+        parts[path] = (
+            parts[path].at[jnp.asarray(bones)].set(versors.embed(_PART_BLADES[path]).values.astype(parts[path].dtype))
+        )
     t_, r_, d_ = (Multivector(parts[p], _PART_BLADES[p]) for p in ("translation", "rotation", "scale"))
     return (t_ * r_ * d_).embed(_SIMILITUDE)
 
@@ -377,8 +390,9 @@ def versor_to_trs(versors: Multivector):
     return matrix[..., :3, 3], rotation, jnp.repeat(scale[..., None], 3, axis=-1)
 
 
-def clip_from_poses(times: Float[Array, " K"], local: Multivector, name: str = "clip",
-                    scale: bool | None = None) -> AnimationClip:
+def clip_from_poses(
+    times: Float[Array, " K"], local: Multivector, name: str = "clip", scale: bool | None = None
+) -> AnimationClip:
     """A LINEAR AnimationClip with translation, rotation (and scale) channels on every bone, keyed by
     local versors (batch shape (K, b)) at ``times``; consecutive quaternions are sign-aligned so the
     glTF slerp follows the versors' shortest arcs.

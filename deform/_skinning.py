@@ -34,9 +34,9 @@ from jax import custom_batching
 from jaxtyping import Array, Float
 
 import jaxcga as cga
-from jaxcga._multivector import KINDS, Multivector
 from _jaxcga_shared.checks import require
 from _jaxcga_shared.platform import PerPlatform, example, per_platform
+from jaxcga._multivector import KINDS, Multivector
 from jaxcga._versors import fused_point_coordinates
 
 
@@ -87,8 +87,7 @@ def _influence_weights(W):
     return [W[:, k] for k in range(W.shape[1])]
 
 
-def _aligned_weights(J, W, rotors: Float[Array, "... j 4"], log_scales: Float[Array, "... j"] | None, *,
-                     cpu: bool):
+def _aligned_weights(J, W, rotors: Float[Array, "... j 4"], log_scales: Float[Array, "... j"] | None, *, cpu: bool):
     """The weights of a versor blend, one (..., n) row per influence, with each influence's sign
     flipped when its rotor (or quaternion) points away from the first influence's: V and -V are the
     same transformation. With ``log_scales``, one more row: the blended log scales (unsigned).
@@ -202,8 +201,9 @@ def _blend_dilations_jvp(primals, tangents):
     return out, _blend_dilations_sparse(J, W_dot, dilations) + _blend_dilations_sparse(J, W, dilations_dot)
 
 
-_blend_dilations = PerPlatform("deform.blend_dilations", cpu=_blend_dilations_cpu, gpu=_blend_dilations_sparse,
-                               examples=_blend_dilations_examples)
+_blend_dilations = PerPlatform(
+    "deform.blend_dilations", cpu=_blend_dilations_cpu, gpu=_blend_dilations_sparse, examples=_blend_dilations_examples
+)
 
 
 def _blend_affine(V, J, W, maps: Float[Array, "... j r 4"]) -> Float[Array, "... n 3"]:
@@ -296,8 +296,9 @@ def skin_cga_motor_blend(V, J, W, joint_versors: Multivector) -> Float[Array, ".
 
 
 @per_platform("deform.skin_cga_motor_blend", examples=lambda: _skinning_examples(dual_quaternions=False))
-def _blend_motors_and_apply(V, J, W, motors: Float[Array, "... j 8"], log_scale: Float[Array, "... j"], *,
-                            cpu: bool) -> Float[Array, "... n 3"]:
+def _blend_motors_and_apply(
+    V, J, W, motors: Float[Array, "... j 8"], log_scale: Float[Array, "... j"], *, cpu: bool
+) -> Float[Array, "... n 3"]:
     *weights, log_scale = _aligned_weights(J, W, motors[..., :4], log_scale, cpu=cpu)
     scale = jnp.exp(log_scale)
     if cpu:  # exp in a loop of its own, where it vectorizes: inside the gather loop it ran scalar
@@ -320,8 +321,14 @@ def matrices_to_dual_quaternions(matrices: Float[Array, "... 4 4"], tolerance: f
         raise ValueError(f"matrices: expected shape (..., 4, 4), got {matrices.shape}")
     rot = matrices[..., :3, :3]
     err = jnp.max(jnp.abs(jnp.swapaxes(rot, -1, -2) @ rot - jnp.eye(3, dtype=rot.dtype)), initial=0.0)
-    rot = require(rot, (err > tolerance, "matrices: dual-quaternion skinning needs rigid joint transforms "
-                       "(no scale or shear); use skin_cga for dilations"))
+    rot = require(
+        rot,
+        (
+            err > tolerance,
+            "matrices: dual-quaternion skinning needs rigid joint transforms "
+            "(no scale or shear); use skin_cga for dilations",
+        ),
+    )
     return cga.motor_to_dual_quaternion(cga.matrix_to_motor(matrices.at[..., :3, :3].set(rot)))
 
 

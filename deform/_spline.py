@@ -16,17 +16,16 @@ H_n move rigidly by R_1 and R_n. The per-vertex work is ``deform._motor_field``'
 
 from __future__ import annotations
 
-
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from _jaxcga_shared.checks import require
 from deform._ffd import MAX_DEGREE, _bernstein
 from deform._harmonic import harmonic_precompute, harmonic_solve
 from deform._motor_field import MotorField, motor_field_precompute
 from jaxcga import Multivector
-from _jaxcga_shared.checks import require
 
 BASES = ("linear", "lagrange", "bezier", "bspline")
 _FIXED_KEYS = {"linear": 2, "lagrange": 3}
@@ -81,8 +80,9 @@ def _bspline(lam, num_keys: int, degree: int):
     return N
 
 
-def spline_weights(lam: Float[Array, " n"], basis: str = "bspline", num_keys: int | None = None,
-                   degree: int = 3) -> Float[Array, "n k"]:
+def spline_weights(
+    lam: Float[Array, " n"], basis: str = "bspline", num_keys: int | None = None, degree: int = 3
+) -> Float[Array, "n k"]:
     """The weights ``W_j(lambda_i)`` of eq. (1): an (n, k) partition of unity.
 
     Args:
@@ -138,8 +138,18 @@ def spline_parameter(V, F, start, end, *, laplacian: str = "cotangent") -> Float
     return jnp.clip(harmonic_solve(data, jnp.asarray(bc)), 0.0, 1.0)
 
 
-def spline_precompute(V, F, start, end, *, rest_motors: Multivector | None = None, basis: str = "bspline",
-                      num_keys: int | None = None, degree: int = 3, laplacian: str = "cotangent") -> MotorField:
+def spline_precompute(
+    V,
+    F,
+    start,
+    end,
+    *,
+    rest_motors: Multivector | None = None,
+    basis: str = "bspline",
+    num_keys: int | None = None,
+    degree: int = 3,
+    laplacian: str = "cotangent",
+) -> MotorField:
     """Bind a mesh to k key motors along a spline path (eq. 1-2, sec. III-A).
 
     Args:

@@ -64,8 +64,9 @@ def spline_fit_solve(data: SplineFitData, Q: Multivector) -> Multivector:
     return cga.exp_motor(Multivector(logs, MOTOR_GENERATOR)).embed(KINDS["motor"])
 
 
-def spline_fit_precompute(lam, num_keys: int, *, degree: int = 3, max_condition: float = 1e8,
-                          rcond: float | None = None) -> SplineFitData:
+def spline_fit_precompute(
+    lam, num_keys: int, *, degree: int = 3, max_condition: float = 1e8, rcond: float | None = None
+) -> SplineFitData:
     """Factor the least-squares fit of k key motors to motors given at parameters ``lam`` (eq. 3-5).
 
     Args:
@@ -83,8 +84,9 @@ def spline_fit_precompute(lam, num_keys: int, *, degree: int = 3, max_condition:
         raise ValueError(f"rcond: expected a number in [0, 1), got {rcond!r}")
     if isinstance(lam, jax.core.Tracer):
         raise ValueError("lam: expected concrete parameters (the fit is factored on the host), got a tracer")
-    A = np.asarray(spline_weights(check_parameter(np.asarray(lam, np.float64)), "bspline", num_keys, degree),
-                   np.float64)
+    A = np.asarray(
+        spline_weights(check_parameter(np.asarray(lam, np.float64)), "bspline", num_keys, degree), np.float64
+    )
     m, k = A.shape
     U, s, Vt = np.linalg.svd(A, full_matrices=False)
     condition = float((s[0] / s[-1]) ** 2) if m >= k and s[-1] > 0 else float("inf")

@@ -16,9 +16,7 @@ from jaxcga._objects import check_finite, check_vectors
 from jaxcga._versors import apply_to_points, motor, quaternion_to_rotor
 
 
-def align_points(
-    source: Float[Array, "... n 3"], target: Float[Array, "... n 3"], weights=None
-) -> Multivector:
+def align_points(source: Float[Array, "... n 3"], target: Float[Array, "... n 3"], weights=None) -> Multivector:
     """Motor M minimizing sum_i w_i |M(source_i) - target_i|^2.
 
     Args:

@@ -20,10 +20,10 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 
+from _jaxcga_shared.checks import require
 from jaxcga import _algebra as alg
 from jaxcga._multivector import KINDS, Multivector
 from jaxcga._operations import normalize
-from _jaxcga_shared.checks import require
 from jaxcga._versors import dilator
 
 MOTOR_GENERATOR = alg.parse_blades(("e12", "e13", "e23", "e1inf", "e2inf", "e3inf"))
@@ -41,8 +41,15 @@ def _where_small(x, small, series, closed):
 def _cos_sinc_g(x):
     """cos(sqrt x), sin(sqrt x)/sqrt x and (cos - sinc)/x, analytic in x >= 0."""
     small = x < _SERIES_BELOW
-    cos = _where_small(x, small, lambda y: 1 - y / 2 * (1 - y / 12 * (1 - y / 30 * (1 - y / 56))), lambda y: jnp.cos(jnp.sqrt(y)))
-    sinc = _where_small(x, small, lambda y: 1 - y / 6 * (1 - y / 20 * (1 - y / 42 * (1 - y / 72))), lambda y: jnp.sin(jnp.sqrt(y)) / jnp.sqrt(y))
+    cos = _where_small(
+        x, small, lambda y: 1 - y / 2 * (1 - y / 12 * (1 - y / 30 * (1 - y / 56))), lambda y: jnp.cos(jnp.sqrt(y))
+    )
+    sinc = _where_small(
+        x,
+        small,
+        lambda y: 1 - y / 6 * (1 - y / 20 * (1 - y / 42 * (1 - y / 72))),
+        lambda y: jnp.sin(jnp.sqrt(y)) / jnp.sqrt(y),
+    )
     g = _where_small(
         x,
         small,
@@ -87,7 +94,14 @@ def _atan_ratio(u, a):
         w2 = v / safe_a**2  # tan^2(theta)
         k = (1 - w2 / 3 + w2**2 / 5 - w2**3 / 7 + w2**4 / 9 - w2**5 / 11) / safe_a
         # (k - a) / u with 1 - a^2 = u substituted exactly.
-        m = (1 - 1 / (3 * safe_a**2) + v / (5 * safe_a**4) - v**2 / (7 * safe_a**6) + v**3 / (9 * safe_a**8) - v**4 / (11 * safe_a**10)) / safe_a
+        m = (
+            1
+            - 1 / (3 * safe_a**2)
+            + v / (5 * safe_a**4)
+            - v**2 / (7 * safe_a**6)
+            + v**3 / (9 * safe_a**8)
+            - v**4 / (11 * safe_a**10)
+        ) / safe_a
         return k, m
 
     def closed(v):
@@ -166,10 +180,17 @@ def _v_coefficients(lam, x):
     lam_c, x_c = jnp.where(small, 1.0, lam), jnp.where(small, 1.0, x)
     z2_c = lam_c * lam_c + x_c
     cos, sinc, _ = _cos_sinc_g(x_c)
-    one_minus_cos = _where_small(x_c, x_c < _SERIES_BELOW, lambda y: 0.5 - y / 24 + y**2 / 720 - y**3 / 40320, lambda y: (1 - jnp.cos(jnp.sqrt(y))) / y)
+    one_minus_cos = _where_small(
+        x_c,
+        x_c < _SERIES_BELOW,
+        lambda y: 0.5 - y / 24 + y**2 / 720 - y**3 / 40320,
+        lambda y: (1 - jnp.cos(jnp.sqrt(y))) / y,
+    )
     e = jnp.exp(lam_c)
     lam_tiny = jnp.abs(lam_c) < 1e-4
-    phi0 = jnp.where(lam_tiny, 1 + lam_c / 2 + lam_c**2 / 6 + lam_c**3 / 24, jnp.expm1(lam_c) / jnp.where(lam_tiny, 1.0, lam_c))
+    phi0 = jnp.where(
+        lam_tiny, 1 + lam_c / 2 + lam_c**2 / 6 + lam_c**3 / 24, jnp.expm1(lam_c) / jnp.where(lam_tiny, 1.0, lam_c)
+    )
     c1 = (lam_c * e * sinc - e * cos + 1) / z2_c
     c2 = (e * lam_c * one_minus_cos + phi0 - e * sinc) / z2_c
     return jnp.where(small, a0, phi0), jnp.where(small, a1, c1), jnp.where(small, a2, c2)

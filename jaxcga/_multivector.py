@@ -13,9 +13,9 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from _jaxcga_shared.platform import example, per_platform
 from jaxcga import _algebra as alg
 from jaxcga import _codegen
-from _jaxcga_shared.platform import example, per_platform
 
 #: Named blade sets (DESIGN.md "The kernel").
 KINDS: dict[str, tuple[int, ...]] = {
@@ -125,9 +125,7 @@ class Multivector(eqx.Module):
         blades = as_blades(blades)
         missing = set(self.blades) - set(blades)
         if missing:
-            raise ValueError(
-                f"blades: cannot embed, {[alg.blade_name(b) for b in missing]} not in target set"
-            )
+            raise ValueError(f"blades: cannot embed, {[alg.blade_name(b) for b in missing]} not in target set")
         return Multivector(_gather(self.values, self.blades, blades), blades)
 
     def full(self) -> Float[Array, "... 32"]:
@@ -157,7 +155,9 @@ class Multivector(eqx.Module):
         blades = alg.sort_blades(self.blades + other.blades)
         if blades == self.blades == other.blades:
             return Multivector(self.values + other.values, blades)
-        return Multivector(_gather(self.values, self.blades, blades) + _gather(other.values, other.blades, blades), blades)
+        return Multivector(
+            _gather(self.values, self.blades, blades) + _gather(other.values, other.blades, blades), blades
+        )
 
     __radd__ = __add__
 
@@ -246,9 +246,7 @@ def product(kind: str, a: Multivector, b: Multivector) -> Multivector:
     batch = broadcast_batch("a", a.batch_shape, "b", b.batch_shape)
     dtype = jnp.result_type(a.dtype, b.dtype)
     terms = _codegen.bilinear_terms(kind, a.blades, b.blades)
-    blades, columns = _codegen.emit(
-        terms, (_codegen.LazyColumns(a.values), _codegen.LazyColumns(b.values)), batch
-    )
+    blades, columns = _codegen.emit(terms, (_codegen.LazyColumns(a.values), _codegen.LazyColumns(b.values)), batch)
     return Multivector(stack_columns(columns, batch, dtype), blades)
 
 
@@ -270,11 +268,15 @@ def sandwich(v: Multivector, x: Multivector) -> Multivector:
 
 def _table_product_examples():
     rng = np.random.default_rng(3)
-    similitudes = (Multivector(rng.normal(size=(23, 16)), KINDS["similitude"]),
-                   Multivector(rng.normal(size=(23, 16)), KINDS["similitude"]))
-    motors = (Multivector(rng.normal(size=(4, 1, 8)), KINDS["motor"]), Multivector(rng.normal(size=(3, 8)), KINDS["motor"]))
-    return [example(*similitudes, kind="geometric"), example(*motors, kind="geometric"),
-            example(*motors, kind="outer")]
+    similitudes = (
+        Multivector(rng.normal(size=(23, 16)), KINDS["similitude"]),
+        Multivector(rng.normal(size=(23, 16)), KINDS["similitude"]),
+    )
+    motors = (
+        Multivector(rng.normal(size=(4, 1, 8)), KINDS["motor"]),
+        Multivector(rng.normal(size=(3, 8)), KINDS["motor"]),
+    )
+    return [example(*similitudes, kind="geometric"), example(*motors, kind="geometric"), example(*motors, kind="outer")]
 
 
 def _generated_product(a: Multivector, b: Multivector, *, kind: str) -> Multivector:
@@ -286,8 +288,9 @@ def _generated_product(a: Multivector, b: Multivector, *, kind: str) -> Multivec
 def _contracted_product(a: Multivector, b: Multivector, *, kind: str) -> Multivector:
     dtype = jnp.result_type(a.dtype, b.dtype)
     blades, table = _codegen.bilinear_tensor(kind, a.blades, b.blades)
-    values = jnp.einsum("...i,ijk,...j->...k", a.values.astype(dtype), jnp.asarray(table, dtype),
-                        b.values.astype(dtype))
+    values = jnp.einsum(
+        "...i,ijk,...j->...k", a.values.astype(dtype), jnp.asarray(table, dtype), b.values.astype(dtype)
+    )
     return Multivector(values, blades)
 
 
@@ -317,4 +320,3 @@ def pseudoscalar(dtype=None) -> Multivector:
     """The paper's pseudoscalar I = e1^e2^e3^e+^e- (eq. 6); I * I = -1."""
     blades, values = _pseudoscalar()
     return Multivector(jnp.asarray(values, dtype or jnp.result_type(float)), blades)
-

@@ -17,6 +17,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
+from _jaxcga_shared.checks import require
 from jaxcga import _algebra as alg
 from jaxcga._multivector import Multivector, broadcast_batch
 from jaxcga._operations import (
@@ -31,7 +32,6 @@ from jaxcga._operations import (
     scalar_product,
     undual,
 )
-from _jaxcga_shared.checks import require
 
 POINT_BLADES = alg.parse_blades(("e1", "e2", "e3", "eo", "einf"))
 
@@ -77,7 +77,7 @@ def down(X: Multivector) -> Float[Array, "... 3"]:
     return jnp.stack([X["e1"], X["e2"], X["e3"]], axis=-1) / w[..., None]
 
 
-def sphere(center: Float[Array, "... 3"], radius: Float[Array, "..."]) -> Multivector:
+def sphere(center: Float[Array, "... 3"], radius: Float[Array, ...]) -> Multivector:
     """Sphere in vector form, S = X - r^2/2 einf (eq. 4). A negative r^2 is an imaginary sphere; pass
     ``radius`` >= 0 here."""
     c = _euclidean_checked("center", center)
@@ -86,7 +86,7 @@ def sphere(center: Float[Array, "... 3"], radius: Float[Array, "..."]) -> Multiv
     return _vector(c, 1.0, 0.5 * (jnp.sum(c * c, axis=-1) - r * r))
 
 
-def plane(normal: Float[Array, "... 3"], distance: Float[Array, "..."]) -> Multivector:
+def plane(normal: Float[Array, "... 3"], distance: Float[Array, ...]) -> Multivector:
     """Plane in vector form, P = n + d einf (eq. 5): the points x with x . n = d (n is normalized)."""
     n = _euclidean_checked("normal", normal)
     d = check_finite("distance", jnp.asarray(distance, n.dtype))

@@ -10,6 +10,7 @@ import functools
 
 import jax.numpy as jnp
 
+from _jaxcga_shared.checks import require
 from jaxcga import _algebra as alg
 from jaxcga import _codegen
 from jaxcga._multivector import (
@@ -17,12 +18,9 @@ from jaxcga._multivector import (
     Multivector,
     _signs,
     as_blades,
-    broadcast_batch,
     product,
     pseudoscalar,
-    stack_columns,
 )
-from _jaxcga_shared.checks import require
 
 
 def geometric(a: Multivector, b: Multivector) -> Multivector:
@@ -136,9 +134,7 @@ def _normalize_motor(m: Multivector) -> Multivector:
     s, p = mm["1"], mm["e123inf"]
     s = require(s, (s <= 0, "normalize: motor has non-positive norm M~M"))
     alpha = 1.0 / jnp.sqrt(s)
-    correction = Multivector(
-        jnp.stack([alpha, -alpha * p / (2 * s)], axis=-1), alg.parse_blades(("1", "e123inf"))
-    )
+    correction = Multivector(jnp.stack([alpha, -alpha * p / (2 * s)], axis=-1), alg.parse_blades(("1", "e123inf")))
     return (m * correction).embed(_motor_blades())
 
 
@@ -154,12 +150,7 @@ def _closure(blades: tuple[int, ...]) -> tuple[int, ...]:
     """Smallest blade set containing 1 and ``blades`` that is closed under the geometric product."""
     closed = set(blades) | {0}
     while True:
-        new = {
-            c
-            for a in closed
-            for b in closed
-            for c, _ in alg.blade_product("geometric", a, b)
-        } | closed
+        new = {c for a in closed for b in closed for c, _ in alg.blade_product("geometric", a, b)} | closed
         if new == closed:
             return alg.sort_blades(closed)
         closed = new

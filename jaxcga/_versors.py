@@ -23,12 +23,12 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float
 
+from _jaxcga_shared.checks import require
+from _jaxcga_shared.platform import example, per_platform
 from jaxcga import _algebra as alg
 from jaxcga import _codegen
 from jaxcga._multivector import KINDS, Multivector, broadcast_batch
 from jaxcga._objects import POINT_BLADES, check_finite, check_vectors
-from _jaxcga_shared.checks import require
-from _jaxcga_shared.platform import example, per_platform
 
 _ROTOR = KINDS["rotor"]  # 1, e12, e13, e23
 
@@ -55,7 +55,7 @@ def _rotor_in_plane(name: str, plane, angle, what: str) -> Multivector:
     return _stack(c, -s * b[..., 0], -s * b[..., 1], -s * b[..., 2], blades=_ROTOR)
 
 
-def rotor(axis: Float[Array, "... 3"], angle: Float[Array, "..."]) -> Multivector:
+def rotor(axis: Float[Array, "... 3"], angle: Float[Array, ...]) -> Multivector:
     """Rotor by ``angle`` (radians, right-handed) about ``axis`` (normalized here), eq. 8:
     the rotation plane is u I3 = u1 e23 - u2 e13 + u3 e12."""
     u = check_finite("axis", check_vectors("axis", axis))
@@ -63,7 +63,7 @@ def rotor(axis: Float[Array, "... 3"], angle: Float[Array, "..."]) -> Multivecto
     return _rotor_in_plane("axis", plane, angle, "rotation axis")
 
 
-def rotor_from_bivector(plane: Float[Array, "... 3"], angle: Float[Array, "..."]) -> Multivector:
+def rotor_from_bivector(plane: Float[Array, "... 3"], angle: Float[Array, ...]) -> Multivector:
     """Rotor ``exp(-b angle / 2)`` in the plane of the Euclidean bivector b with components
     (e12, e13, e23) (normalized here), eq. 8."""
     b = check_finite("plane", check_vectors("plane", plane))
@@ -76,7 +76,7 @@ def _float_scalar(value):
     return value if jnp.issubdtype(value.dtype, jnp.floating) else value.astype(jnp.result_type(float))
 
 
-def dilator(scale: Float[Array, "..."]) -> Multivector:
+def dilator(scale: Float[Array, ...]) -> Multivector:
     """Normalized dilator about the origin by the factor ``scale`` > 0 (eq. 12-13)."""
     d = check_finite("scale", _float_scalar(scale))
     d = require(d, (jnp.any(d <= 0), "scale: dilation factor must be > 0"))
@@ -118,8 +118,7 @@ _EO_EINF = 0b11000  # the bits of eo and einf: the dilation plane eo^einf
 def _factored_pairs(blades_v: tuple[int, ...]) -> tuple[tuple[int, int], ...]:
     """Index pairs (X, X^eo^einf) of V's blades: a dilation's two halves."""
     index = {b: k for k, b in enumerate(blades_v)}
-    return tuple((index[b], index[b | _EO_EINF]) for b in blades_v
-                 if not b & _EO_EINF and b | _EO_EINF in index)
+    return tuple((index[b], index[b | _EO_EINF]) for b in blades_v if not b & _EO_EINF and b | _EO_EINF in index)
 
 
 @functools.cache
@@ -149,8 +148,11 @@ def _point_map(blades_v: tuple[int, ...]):
                 for b, cb in substitute[j]:
                     key = (min(a, b), max(a, b))
                     acc[key] = acc.get(key, 0) + Fraction(coef) * ca * cb
-    return {key: tuple((ij, float(c)) for ij, c in sorted(acc.items()) if c != 0)
-            for key, acc in entries.items() if any(c != 0 for c in acc.values())}
+    return {
+        key: tuple((ij, float(c)) for ij, c in sorted(acc.items()) if c != 0)
+        for key, acc in entries.items()
+        if any(c != 0 for c in acc.values())
+    }
 
 
 class _FactoredColumns:
@@ -209,10 +211,12 @@ def _apply_examples():
     similitude = exp_similitude(Multivector(rng.normal(size=7) * [1, 1, 1, 1, 1, 1, 0.3], SIMILITUDE_GENERATOR))
     rotors = rotor(rng.normal(size=(2, 5, 3)), rng.normal(size=(2, 5)))
     dilators = dilator(rng.uniform(0.1, 10.0, size=64))
-    return [example(motors, rng.normal(size=(64, 3))),  # one versor per point
-            example(similitude, rng.normal(size=(64, 3))),  # one for all points
-            example(rotors, rng.normal(size=(5, 3))),  # batches broadcast
-            example(dilators, rng.normal(size=(64, 3)))]
+    return [
+        example(motors, rng.normal(size=(64, 3))),  # one versor per point
+        example(similitude, rng.normal(size=(64, 3))),  # one for all points
+        example(rotors, rng.normal(size=(5, 3))),  # batches broadcast
+        example(dilators, rng.normal(size=(64, 3))),
+    ]
 
 
 def _point_major(v: Multivector, x):
@@ -227,9 +231,7 @@ def _component_major(v: Multivector, x):
     faster than on the interleaved (..., k) layout); the barriers keep XLA from fusing the transposes back
     into the arithmetic. On a GPU the layout changes and barriers cost more than they save."""
     batch = broadcast_batch("v", v.batch_shape, "x", x.shape[:-1])
-    v_rows, x_rows = jax.lax.optimization_barrier(
-        (jnp.moveaxis(v.values, -1, 0), jnp.moveaxis(x, -1, 0))
-    )
+    v_rows, x_rows = jax.lax.optimization_barrier((jnp.moveaxis(v.values, -1, 0), jnp.moveaxis(x, -1, 0)))
     a = _map_entries(v, columns=v_rows)
     xs = [x_rows[0], x_rows[1], x_rows[2]]
     needs_sq = any(col == 4 for (_, col) in a)
@@ -365,10 +367,36 @@ def matrix_to_quaternion(rotation: Float[Array, "... 3 3"]) -> Float[Array, "...
     tr = m[..., 0, 0] + m[..., 1, 1] + m[..., 2, 2]
     cands = jnp.stack(
         [
-            jnp.stack([1 + tr, m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]], -1),
-            jnp.stack([m[..., 2, 1] - m[..., 1, 2], 1 + 2 * m[..., 0, 0] - tr, m[..., 0, 1] + m[..., 1, 0], m[..., 0, 2] + m[..., 2, 0]], -1),
-            jnp.stack([m[..., 0, 2] - m[..., 2, 0], m[..., 0, 1] + m[..., 1, 0], 1 + 2 * m[..., 1, 1] - tr, m[..., 1, 2] + m[..., 2, 1]], -1),
-            jnp.stack([m[..., 1, 0] - m[..., 0, 1], m[..., 0, 2] + m[..., 2, 0], m[..., 1, 2] + m[..., 2, 1], 1 + 2 * m[..., 2, 2] - tr], -1),
+            jnp.stack(
+                [1 + tr, m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0], m[..., 1, 0] - m[..., 0, 1]], -1
+            ),
+            jnp.stack(
+                [
+                    m[..., 2, 1] - m[..., 1, 2],
+                    1 + 2 * m[..., 0, 0] - tr,
+                    m[..., 0, 1] + m[..., 1, 0],
+                    m[..., 0, 2] + m[..., 2, 0],
+                ],
+                -1,
+            ),
+            jnp.stack(
+                [
+                    m[..., 0, 2] - m[..., 2, 0],
+                    m[..., 0, 1] + m[..., 1, 0],
+                    1 + 2 * m[..., 1, 1] - tr,
+                    m[..., 1, 2] + m[..., 2, 1],
+                ],
+                -1,
+            ),
+            jnp.stack(
+                [
+                    m[..., 1, 0] - m[..., 0, 1],
+                    m[..., 0, 2] + m[..., 2, 0],
+                    m[..., 1, 2] + m[..., 2, 1],
+                    1 + 2 * m[..., 2, 2] - tr,
+                ],
+                -1,
+            ),
         ],
         axis=-2,
     )
@@ -411,4 +439,3 @@ def matrix_to_similitude(matrix: Float[Array, "... 4 4"], tolerance: float = 1e-
     err = jnp.max(jnp.abs(jnp.swapaxes(rot, -1, -2) @ rot - jnp.eye(3, dtype=rot.dtype)), initial=0.0)
     rot = require(rot, (err > tolerance, "matrix: not a similitude (shear or non-uniform scale)"))
     return similitude(quaternion_to_rotor(matrix_to_quaternion(rot)), matrix[..., :3, 3], s)
-

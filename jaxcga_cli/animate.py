@@ -7,8 +7,10 @@ from pathlib import Path
 
 from jaxcga_cli import arguments
 
-HELP = ("re-sample a rigged model's animation at FRAMES times through conformal-geometric-algebra versors "
-        "(rotation, translation and scale in one object) and write it as an animated glTF")
+HELP = (
+    "re-sample a rigged model's animation at FRAMES times through conformal-geometric-algebra versors "
+    "(rotation, translation and scale in one object) and write it as an animated glTF"
+)
 EXAMPLE = "jaxcga animate tests/data/CesiumMan.glb --frames 120 --interpolation log --out walk.glb"
 
 # Peak memory per bone and frame while sampling (the vmapped versors, their TRS and the glTF buffers), measured
@@ -57,8 +59,10 @@ def check_memory(frames: int, bones: int) -> None:
     have = available_memory()
     if need > have:
         fit = max(2, have // (bones * BYTES_PER_BONE_FRAME))
-        raise ValueError(f"frames: {frames} frames of {bones} bones need about {need / 2**30:.1f} GiB, more than the "
-                         f"{have / 2**30:.1f} GiB of memory available now; give at most --frames {fit}")
+        raise ValueError(
+            f"frames: {frames} frames of {bones} bones need about {need / 2**30:.1f} GiB, more than the "
+            f"{have / 2**30:.1f} GiB of memory available now; give at most --frames {fit}"
+        )
 
 
 def animate_command(model, frames: int, out: Path, clip: int | str = 0, interpolation: str = "gltf") -> dict:

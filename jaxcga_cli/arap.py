@@ -14,33 +14,61 @@ from pathlib import Path
 from jaxcga_cli import arguments
 from jaxcga_cli.deform import HANDLES_HELP
 
-HELP = ("deform a mesh as rigidly as possible (every small patch keeps its shape as far as it can, ARAP) so that "
-        "its handle vertices reach where they are moved")
+HELP = (
+    "deform a mesh as rigidly as possible (every small patch keeps its shape as far as it can, ARAP) so that "
+    "its handle vertices reach where they are moved"
+)
 EXAMPLE = "jaxcga arap tests/data/Arm5.glb --bend 90 --out bent.npy"
 
 
 def add_arguments(parser) -> None:
     arguments.mesh_argument(parser, "the built-in arm's rest mesh")
-    parser.add_argument("--handles", type=Path, default=None,
-                        help=f"{HANDLES_HELP}; here each group may instead give its vertices' targets, "
-                             '"positions": [[[x, y, z], ...], ...]; default: the low end of the long axis fixed, the '
-                             "high end moved by --bend/--twist/--translate")
+    parser.add_argument(
+        "--handles",
+        type=Path,
+        default=None,
+        help=f"{HANDLES_HELP}; here each group may instead give its vertices' targets, "
+        '"positions": [[[x, y, z], ...], ...]; default: the low end of the long axis fixed, the '
+        "high end moved by --bend/--twist/--translate",
+    )
     parser.add_argument("--iters", type=int, default=10, help="at most this many local/global iterations (default 10)")
-    parser.add_argument("--tolerance", type=float, default=1e-8,
-                        help="stop when the energy decreases by less than this fraction in one iteration "
-                             "(default 1e-8; negative: run every iteration)")
-    parser.add_argument("--energy", choices=arguments.ARAP_ENERGIES, default="spokes_and_rims",
-                        help="spokes_and_rims (default, libigl's default: a rigid motion of all handles gives that "
-                             "rigid map) or spokes (the paper's eq. 9: with obtuse triangles it can drift from "
-                             "rigid maps)")
+    parser.add_argument(
+        "--tolerance",
+        type=float,
+        default=1e-8,
+        help="stop when the energy decreases by less than this fraction in one iteration "
+        "(default 1e-8; negative: run every iteration)",
+    )
+    parser.add_argument(
+        "--energy",
+        choices=arguments.ARAP_ENERGIES,
+        default="spokes_and_rims",
+        help="spokes_and_rims (default, libigl's default: a rigid motion of all handles gives that "
+        "rigid map) or spokes (the paper's eq. 9: with obtuse triangles it can drift from "
+        "rigid maps)",
+    )
     parser.add_argument("--bend", type=float, default=60.0, help="default handles: degrees of bend (default 60)")
     parser.add_argument("--twist", type=float, default=0.0, help="default handles: degrees of twist (default 0)")
-    parser.add_argument("--translate", type=float, nargs=3, default=(0.0, 0.0, 0.0), metavar=("X", "Y", "Z"),
-                        help="default handles: translation of the high end (default none)")
-    parser.add_argument("--handle-fraction", type=float, default=0.05,
-                        help="default handles: vertices within this fraction of the long axis's ends (default 0.05)")
-    parser.add_argument("--out", type=Path, required=True,
-                        help="OUT.npy: float64 (n, 3) positions; OUT.glb/.obj/.ply/.stl: the mesh; OUT.png: a figure")
+    parser.add_argument(
+        "--translate",
+        type=float,
+        nargs=3,
+        default=(0.0, 0.0, 0.0),
+        metavar=("X", "Y", "Z"),
+        help="default handles: translation of the high end (default none)",
+    )
+    parser.add_argument(
+        "--handle-fraction",
+        type=float,
+        default=0.05,
+        help="default handles: vertices within this fraction of the long axis's ends (default 0.05)",
+    )
+    parser.add_argument(
+        "--out",
+        type=Path,
+        required=True,
+        help="OUT.npy: float64 (n, 3) positions; OUT.glb/.obj/.ply/.stl: the mesh; OUT.png: a figure",
+    )
 
 
 def check_paths(args) -> None:
@@ -53,9 +81,19 @@ def run(args) -> dict:
     from jaxcga_cli.models import load_mesh
 
     V, F = load_mesh(args.mesh)
-    summary = arap_command(V, F, args.out, handles=args.handles, iterations=args.iters, tolerance=args.tolerance,
-                           bend=args.bend, twist=args.twist, translate=args.translate,
-                           handle_fraction=args.handle_fraction, energy=args.energy)
+    summary = arap_command(
+        V,
+        F,
+        args.out,
+        handles=args.handles,
+        iterations=args.iters,
+        tolerance=args.tolerance,
+        bend=args.bend,
+        twist=args.twist,
+        translate=args.translate,
+        handle_fraction=args.handle_fraction,
+        energy=args.energy,
+    )
     return args.mesh or "built-in arm", summary
 
 
@@ -70,8 +108,10 @@ def handle_targets(path: Path, V):
 
     groups, motors, targets = read_handles(path, len(V), positions=True)
     if targets is None:
-        targets = [np.asarray(cga.apply_to_points(cga.Multivector(motors.values[i], motors.blades), jnp.asarray(V[g])))
-                   for i, g in enumerate(groups)]
+        targets = [
+            np.asarray(cga.apply_to_points(cga.Multivector(motors.values[i], motors.blades), jnp.asarray(V[g])))
+            for i, g in enumerate(groups)
+        ]
     return np.concatenate(groups), np.concatenate(targets)
 
 
@@ -89,9 +129,20 @@ def default_handles(V, bend: float, twist: float, translate, fraction: float):
     return np.concatenate([low, high]), np.concatenate([V[low], moved])
 
 
-def arap_command(V, F, out: Path, *, handles: Path | None = None, iterations: int = 10, tolerance: float = 1e-8,
-                 bend: float = 60.0, twist: float = 0.0, translate=(0.0, 0.0, 0.0),
-                 handle_fraction: float = 0.05, energy: str = "spokes_and_rims") -> dict:
+def arap_command(
+    V,
+    F,
+    out: Path,
+    *,
+    handles: Path | None = None,
+    iterations: int = 10,
+    tolerance: float = 1e-8,
+    bend: float = 60.0,
+    twist: float = 0.0,
+    translate=(0.0, 0.0, 0.0),
+    handle_fraction: float = 0.05,
+    energy: str = "spokes_and_rims",
+) -> dict:
     """Deform (V, F) as rigidly as possible with the handles of ``handles`` (or the default two ends),
     write ``out`` (.npy float64 (n, 3), a mesh, or a .png figure); returns a summary. ``energy``:
     ``arap_precompute``'s ("spokes_and_rims" or "spokes")."""
@@ -117,8 +168,9 @@ def arap_command(V, F, out: Path, *, handles: Path | None = None, iterations: in
     precompute_ms = 1e3 * (time.perf_counter() - start)
     start = time.perf_counter()
     with status("arap", f"solving (compiling, then at most {iterations} local/global iterations)"):
-        result = jax.block_until_ready(deform.arap_solve(data, jnp.asarray(bc), max_iterations=iterations,
-                                                         tolerance=tolerance))
+        result = jax.block_until_ready(
+            deform.arap_solve(data, jnp.asarray(bc), max_iterations=iterations, tolerance=tolerance)
+        )
     solve_ms = 1e3 * (time.perf_counter() - start)
     U = np.asarray(result.U, np.float64)
     write_result(out, U, F, V, f"ARAP, {int(result.iterations)} iterations")

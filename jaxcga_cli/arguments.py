@@ -2,28 +2,44 @@
 
 from __future__ import annotations
 
-FORCE_HELP = ("replace the run in a non-empty OUT: its frame_XXXX.png/.vtu and summary.json are replaced when this "
-              "run ends; other files stay")
-METHODS_HELP = ("skinning method: lbs (linear blend skinning, matrices), dqs (dual quaternions), cga (the paper's "
-                "multivector skinning, eq. 17; default) or cga_motor_blend (eq. 17 blending motors only)")
+FORCE_HELP = (
+    "replace the run in a non-empty OUT: its frame_XXXX.png/.vtu and summary.json are replaced when this "
+    "run ends; other files stay"
+)
+METHODS_HELP = (
+    "skinning method: lbs (linear blend skinning, matrices), dqs (dual quaternions), cga (the paper's "
+    "multivector skinning, eq. 17; default) or cga_motor_blend (eq. 17 blending motors only)"
+)
 
 
 def model_argument(parser) -> None:
-    parser.add_argument("model", nargs="?", default=None,
-                        help="glTF (.gltf/.glb), or FBX/COLLADA through assimp; default: the built-in arm")
+    parser.add_argument(
+        "model",
+        nargs="?",
+        default=None,
+        help="glTF (.gltf/.glb), or FBX/COLLADA through assimp; default: the built-in arm",
+    )
     parser.add_argument("--weld", action="store_true", help="weld split vertices of the loaded model")
 
 
 def mesh_argument(parser, default: str) -> None:
-    parser.add_argument("mesh", nargs="?", default=None,
-                        help=f"a mesh file (glTF: its bind-pose mesh; .obj, .ply, .stl, ...); default: {default}")
+    parser.add_argument(
+        "mesh",
+        nargs="?",
+        default=None,
+        help=f"a mesh file (glTF: its bind-pose mesh; .obj, .ply, .stl, ...); default: {default}",
+    )
 
 
 def interpolation_argument(parser) -> None:
-    parser.add_argument("--interpolation", choices=("gltf", "log"), default="gltf",
-                        help="key interpolation: gltf, the file's (the glTF specification's lerp / slerp / "
-                             "step / cubic spline; default), or log, the paper's logarithmic blending of "
-                             "key versors (sec. 4.1)")
+    parser.add_argument(
+        "--interpolation",
+        choices=("gltf", "log"),
+        default="gltf",
+        help="key interpolation: gltf, the file's (the glTF specification's lerp / slerp / "
+        "step / cubic spline; default), or log, the paper's logarithmic blending of "
+        "key versors (sec. 4.1)",
+    )
 
 
 def clip(value: str) -> int | str:

@@ -16,48 +16,94 @@ from pathlib import Path
 
 from jaxcga_cli import arguments
 
-HELP = ("bend and twist a mesh smoothly with motors (rigid motions: a rotation and a translation) by one of the "
-        "deformation paper's methods: a spline of key motors, handles, a lattice (FFD) or a cage")
+HELP = (
+    "bend and twist a mesh smoothly with motors (rigid motions: a rotation and a translation) by one of the "
+    "deformation paper's methods: a spline of key motors, handles, a lattice (FFD) or a cage"
+)
 EXAMPLE = "jaxcga deform ffd tests/data/Arm5.glb --bend 60 --twist 30 --out bent.png"
 DEFORMATIONS = ("spline", "handles", "ffd", "cage")
-HANDLES_HELP = ('HANDLES.json {"handles": [[i, ...], ...], "motors": [{"center": [x, y, z], "axis": [x, y, z], '
-                '"angle_deg": a, "translation": [x, y, z]}, ...]}: groups of vertex indices, one rigid motion per '
-                "group (every motor key optional; jaxcga arap reads the same file)")
+HANDLES_HELP = (
+    'HANDLES.json {"handles": [[i, ...], ...], "motors": [{"center": [x, y, z], "axis": [x, y, z], '
+    '"angle_deg": a, "translation": [x, y, z]}, ...]}: groups of vertex indices, one rigid motion per '
+    "group (every motor key optional; jaxcga arap reads the same file)"
+)
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("method", choices=DEFORMATIONS,
-                        help="spline: key motors along a spline, blended along the mesh (eq. 1-2); handles: groups "
-                             "of vertices moved rigidly, the rest follows smoothly (harmonic weights, sec. IV); ffd: "
-                             "free-form deformation, the mesh moves with a lattice of control motors around it "
-                             "(eq. 7-8); cage: the mesh moves with a coarse closed cage around it (harmonic "
-                             "coordinates, sec. VI)")
+    parser.add_argument(
+        "method",
+        choices=DEFORMATIONS,
+        help="spline: key motors along a spline, blended along the mesh (eq. 1-2); handles: groups "
+        "of vertices moved rigidly, the rest follows smoothly (harmonic weights, sec. IV); ffd: "
+        "free-form deformation, the mesh moves with a lattice of control motors around it "
+        "(eq. 7-8); cage: the mesh moves with a coarse closed cage around it (harmonic "
+        "coordinates, sec. VI)",
+    )
     arguments.mesh_argument(parser, "the built-in arm")
-    parser.add_argument("--bend", type=float, default=60.0,
-                        help="degrees of bend across the long axis at its far end (default 60)")
+    parser.add_argument(
+        "--bend", type=float, default=60.0, help="degrees of bend across the long axis at its far end (default 60)"
+    )
     parser.add_argument("--twist", type=float, default=0.0, help="degrees of twist about the long axis (default 0)")
-    parser.add_argument("--translate", type=float, nargs=3, default=(0.0, 0.0, 0.0), metavar=("X", "Y", "Z"),
-                        help="translation at the far end (default none)")
-    parser.add_argument("--basis", choices=arguments.BASES, default="bspline",
-                        help="spline: weights of the key motors (default bspline)")
-    parser.add_argument("--keys", type=int, default=None,
-                        help="spline: number of key motors for bezier / bspline (default 4 / 5; linear has 2, "
-                             "lagrange 3)")
-    parser.add_argument("--laplacian", choices=arguments.LAPLACIANS, default="cotangent",
-                        help="spline, handles: the Laplacian of the harmonic fields (default cotangent)")
-    parser.add_argument("--handle-fraction", type=float, default=0.05,
-                        help="spline, handles: the end handles hold the vertices within this fraction of the "
-                             "long axis's ends (default 0.05)")
+    parser.add_argument(
+        "--translate",
+        type=float,
+        nargs=3,
+        default=(0.0, 0.0, 0.0),
+        metavar=("X", "Y", "Z"),
+        help="translation at the far end (default none)",
+    )
+    parser.add_argument(
+        "--basis",
+        choices=arguments.BASES,
+        default="bspline",
+        help="spline: weights of the key motors (default bspline)",
+    )
+    parser.add_argument(
+        "--keys",
+        type=int,
+        default=None,
+        help="spline: number of key motors for bezier / bspline (default 4 / 5; linear has 2, lagrange 3)",
+    )
+    parser.add_argument(
+        "--laplacian",
+        choices=arguments.LAPLACIANS,
+        default="cotangent",
+        help="spline, handles: the Laplacian of the harmonic fields (default cotangent)",
+    )
+    parser.add_argument(
+        "--handle-fraction",
+        type=float,
+        default=0.05,
+        help="spline, handles: the end handles hold the vertices within this fraction of the "
+        "long axis's ends (default 0.05)",
+    )
     parser.add_argument("--handles", type=Path, default=None, help=f"handles: {HANDLES_HELP}, instead of the two ends")
-    parser.add_argument("--lattice", type=int, nargs=3, default=(4, 4, 4), metavar=("L", "M", "N"),
-                        help="ffd: control points per axis (default 4 4 4)")
-    parser.add_argument("--cage", type=Path, default=None,
-                        help="cage: a closed cage mesh around the model (default: a tube cage of 7 rings of 8 "
-                             "along the long axis, deform.tube_cage)")
-    parser.add_argument("--positional", action="store_true",
-                        help="ffd, cage: move control points / cage vertices instead (classic FFD, positional cage)")
-    parser.add_argument("--out", type=Path, required=True,
-                        help="OUT.glb/.obj/.ply/.stl: the deformed mesh; OUT.npy: float64 (n, 3); OUT.png: a figure")
+    parser.add_argument(
+        "--lattice",
+        type=int,
+        nargs=3,
+        default=(4, 4, 4),
+        metavar=("L", "M", "N"),
+        help="ffd: control points per axis (default 4 4 4)",
+    )
+    parser.add_argument(
+        "--cage",
+        type=Path,
+        default=None,
+        help="cage: a closed cage mesh around the model (default: a tube cage of 7 rings of 8 "
+        "along the long axis, deform.tube_cage)",
+    )
+    parser.add_argument(
+        "--positional",
+        action="store_true",
+        help="ffd, cage: move control points / cage vertices instead (classic FFD, positional cage)",
+    )
+    parser.add_argument(
+        "--out",
+        type=Path,
+        required=True,
+        help="OUT.glb/.obj/.ply/.stl: the deformed mesh; OUT.npy: float64 (n, 3); OUT.png: a figure",
+    )
 
 
 def check_paths(args) -> None:
@@ -71,15 +117,42 @@ def run(args) -> dict:
 
     V, F = load_mesh(args.mesh)
     return f"{args.method} {args.mesh or 'built-in arm'}", deform_command(
-        args.method, V, F, args.out, bend=args.bend, twist=args.twist, translate=args.translate, basis=args.basis,
-        keys=args.keys, laplacian=args.laplacian, handle_fraction=args.handle_fraction, handles=args.handles,
-        lattice=args.lattice, cage=args.cage, positional=args.positional)
+        args.method,
+        V,
+        F,
+        args.out,
+        bend=args.bend,
+        twist=args.twist,
+        translate=args.translate,
+        basis=args.basis,
+        keys=args.keys,
+        laplacian=args.laplacian,
+        handle_fraction=args.handle_fraction,
+        handles=args.handles,
+        lattice=args.lattice,
+        cage=args.cage,
+        positional=args.positional,
+    )
 
 
-def deform_command(method: str, V, F, out: Path, *, bend: float = 60.0, twist: float = 0.0,
-                   translate=(0.0, 0.0, 0.0), basis: str = "bspline", keys: int | None = None,
-                   laplacian: str = "cotangent", handle_fraction: float = 0.05, handles: Path | None = None,
-                   lattice=(4, 4, 4), cage: Path | None = None, positional: bool = False) -> dict:
+def deform_command(
+    method: str,
+    V,
+    F,
+    out: Path,
+    *,
+    bend: float = 60.0,
+    twist: float = 0.0,
+    translate=(0.0, 0.0, 0.0),
+    basis: str = "bspline",
+    keys: int | None = None,
+    laplacian: str = "cotangent",
+    handle_fraction: float = 0.05,
+    handles: Path | None = None,
+    lattice=(4, 4, 4),
+    cage: Path | None = None,
+    positional: bool = False,
+) -> dict:
     """Bind (V, F) by ``method`` (one of ``DEFORMATIONS``), move the keys, write ``out``; returns a
     summary (vertices, keys, precompute and per-frame milliseconds, volume and edge-length change)."""
     import time

@@ -54,8 +54,11 @@ def blending_figure(path: Path, steps: int = 8) -> Path:
     logarithmic = cga.apply_to_points(cga.blend_log(bottom, top, alphas[:, 0])[:, None], triangle)
 
     fig = figures.figure(13, 4.5)
-    panels = [("(a) linear", [(linear, "tab:blue")]), ("(b) logarithmic", [(logarithmic, "tab:red")]),
-              ("(c) superimposed", [(linear, "tab:blue"), (logarithmic, "tab:red")])]
+    panels = [
+        ("(a) linear", [(linear, "tab:blue")]),
+        ("(b) logarithmic", [(logarithmic, "tab:red")]),
+        ("(c) superimposed", [(linear, "tab:blue"), (logarithmic, "tab:red")]),
+    ]
     for k, (title, series) in enumerate(panels):
         ax = figures.axes_3d(fig, 1, 3, k + 1)
         for frames, color in series:
@@ -112,8 +115,10 @@ def cut_figure(arm, upper, lower, path: Path) -> Path:
     from jaxcga_cli import figures
 
     fig = figures.figure(10, 4.5)
-    halves = [(deform.RiggedModel(upper, arm.skeleton, arm.clips), 1.2, "tab:blue"),
-              (deform.RiggedModel(lower, arm.skeleton, arm.clips), 1.2, "tab:red")]
+    halves = [
+        (deform.RiggedModel(upper, arm.skeleton, arm.clips), 1.2, "tab:blue"),
+        (deform.RiggedModel(lower, arm.skeleton, arm.clips), 1.2, "tab:red"),
+    ]
     panels = [("before the cut (t = 0 s)", [(arm, 0.0, "tab:gray")]), ("after: both halves posed at t = 1.2 s", halves)]
     for k, (title, parts) in enumerate(panels):
         ax = figures.axes_3d(fig, 1, 2, k + 1)
@@ -148,7 +153,7 @@ def demo(out: Path, steps: int, figure: bool) -> None:
     print("jaxcga demo: the CGA kernel G(4,1) in the null basis {e1, e2, e3, eo, einf}")
     pts = cga.up(jnp.array([[1.0, 0.0, 0.0], [0.0, 2.0, 0.0], [0.0, 0.0, 3.0], [0.0, 0.0, 0.0]]))
     a, b, c, d = (cga.Multivector(pts.values[i], pts.blades) for i in range(4))
-    print(f"  distance |a - b| from -2 A.B          : {float(cga.distance(a, b)):.6f}  (sqrt 5 = {5 ** 0.5:.6f})")
+    print(f"  distance |a - b| from -2 A.B          : {float(cga.distance(a, b)):.6f}  (sqrt 5 = {5**0.5:.6f})")
     center, radius = cga.sphere_center_radius(cga.sphere_through(a, b, c, d))
     print(f"  sphere through 4 points (a^b^c^d)      : center {center.round(6).tolist()}, radius {float(radius):.6f}")
     circle = cga.meet(cga.sphere_through(a, b, c, d), cga.plane_through(a, b, d))
@@ -168,8 +173,10 @@ def demo(out: Path, steps: int, figure: bool) -> None:
         print(f"  figure: linear vs logarithmic blending -> {path}")
 
     arm = deform.default_arm()
-    print(f"\nThe built-in rigged arm: {arm.mesh.num_vertices} vertices, bones {list(arm.skeleton.names)}, "
-          f"clip {arm.clips[0].name!r} ({arm.clips[0].end:.1f} s)")
+    print(
+        f"\nThe built-in rigged arm: {arm.mesh.num_vertices} vertices, bones {list(arm.skeleton.names)}, "
+        f"clip {arm.clips[0].name!r} ({arm.clips[0].end:.1f} s)"
+    )
     frames = jax.vmap(lambda t: deform.skin_model(arm, t, "cga"))(jnp.linspace(0.0, arm.clips[0].end, 9))
     reach = jnp.linalg.norm(frames, axis=-1).max(axis=-1)
     print(f"  eq. (17) skinning of 9 frames (vmap)    : reach {reach.min():.3f} .. {reach.max():.3f} m")
@@ -184,8 +191,10 @@ def demo(out: Path, steps: int, figure: bool) -> None:
     start = time.perf_counter()
     upper, lower = cutting.cut(arm.mesh, plane, cap=True)
     took = 1e3 * (time.perf_counter() - start)
-    print(f"\nCut (Algorithm 1, capped) across the forearm: halves of {upper.F.shape[0]} and {lower.F.shape[0]} "
-          f"faces in {took:.1f} ms")
+    print(
+        f"\nCut (Algorithm 1, capped) across the forearm: halves of {upper.F.shape[0]} and {lower.F.shape[0]} "
+        f"faces in {took:.1f} ms"
+    )
     if figure:
         path = cut_figure(arm, upper, lower, out / "arm_cut.png")
         print(f"  figure: before / after the cut, posed again -> {path}")
@@ -193,19 +202,32 @@ def demo(out: Path, steps: int, figure: bool) -> None:
     scalpels = [[[0.2, 0.0, 0.1], [0.2, 0.0, 0.0]], [[0.3, 0.0, 0.1], [0.3, 0.0, 0.0]]]
     start = time.perf_counter()
     summary = tear_command(arm, scalpels, out / "arm_torn.glb", opening=0.005)
-    print(f"Tear (Algorithm 2) along the upper arm: {summary['tear_points']} tear points, opened by 5 mm, in "
-          f"{1e3 * (time.perf_counter() - start):.1f} ms with the file -> {summary['out']}")
+    print(
+        f"Tear (Algorithm 2) along the upper arm: {summary['tear_points']} tear points, opened by 5 mm, in "
+        f"{1e3 * (time.perf_counter() - start):.1f} ms with the file -> {summary['out']}"
+    )
     start = time.perf_counter()
     summary = drill_command(arm, [0.4, 0.0, 0.0], [0.4, 0.0, 0.1], 0.015, out / "arm_drilled.glb")
-    print(f"Drill (Algorithm 3) of radius 15 mm into the forearm: {summary['hole_points']} points around the hole, "
-          f"in {1e3 * (time.perf_counter() - start):.1f} ms with the file -> {summary['out']}")
+    print(
+        f"Drill (Algorithm 3) of radius 15 mm into the forearm: {summary['hole_points']} points around the hole, "
+        f"in {1e3 * (time.perf_counter() - start):.1f} ms with the file -> {summary['out']}"
+    )
 
     V, F = load_mesh(None)
     print("\nMotor deformations (the deformation paper): the same 120 degree twist of a 4x4x4 lattice")
     for positional in (True, False):
         out_file = out / ("arm_ffd_classic" if positional else "arm_ffd_motor")
-        summary = deform_command("ffd", V, F, out_file.with_suffix(".png" if figure else ".npy"),
-                                 bend=0.0, twist=120.0, positional=positional)
-        print(f"  {'classic FFD (eq. 6)' if positional else 'motor FFD (eq. 7-8)':22s}: volume ratio "
-              f"{summary['volume_ratio']:.4f}, mean edge change {summary['mean_edge_change']:.4f}, "
-              f"{summary['frame_ms']:.2f} ms per frame -> {summary['out']}")
+        summary = deform_command(
+            "ffd",
+            V,
+            F,
+            out_file.with_suffix(".png" if figure else ".npy"),
+            bend=0.0,
+            twist=120.0,
+            positional=positional,
+        )
+        print(
+            f"  {'classic FFD (eq. 6)' if positional else 'motor FFD (eq. 7-8)':22s}: volume ratio "
+            f"{summary['volume_ratio']:.4f}, mean edge change {summary['mean_edge_change']:.4f}, "
+            f"{summary['frame_ms']:.2f} ms per frame -> {summary['out']}"
+        )

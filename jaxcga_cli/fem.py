@@ -23,8 +23,10 @@ from pathlib import Path
 
 from jaxcga_cli import arguments
 
-HELP = ("simulate an elastic body (a soft solid of tetrahedra, stable neo-Hookean material) sagging under gravity "
-        "and write its frames as images and ParaView files")
+HELP = (
+    "simulate an elastic body (a soft solid of tetrahedra, stable neo-Hookean material) sagging under gravity "
+    "and write its frames as images and ParaView files"
+)
 EXAMPLE = "jaxcga fem bar --steps 50 --out out/bar"
 SCENES = ("bar", "cube")
 RUN_FILES = re.compile(r"frame_\d{4,}\.(png|vtu)|summary\.json")  # one run's files in its OUT folder
@@ -33,26 +35,43 @@ SURFACE_FORMATS = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf")
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("scene", help="bar (a cantilever), cube (hanging from its top face), a tet mesh file "
-                                      "(meshio: .msh, .vtu, ...) or a closed surface (.obj, .ply, .stl, .off, glTF) "
-                                      "to tetrahedralize")
+    parser.add_argument(
+        "scene",
+        help="bar (a cantilever), cube (hanging from its top face), a tet mesh file "
+        "(meshio: .msh, .vtu, ...) or a closed surface (.obj, .ply, .stl, .off, glTF) "
+        "to tetrahedralize",
+    )
     parser.add_argument("--steps", type=int, default=100, help="time steps (default 100)")
     parser.add_argument("--dt", type=float, default=0.033, help="time step h in seconds (default 0.033, the paper's)")
     parser.add_argument("--young", type=float, default=1e6, help="Young's modulus (stiffness) in Pa (default 1e6)")
-    parser.add_argument("--poisson", type=float, default=0.4,
-                        help="Poisson's ratio (how much the body keeps its volume; below 0.5; default 0.4)")
+    parser.add_argument(
+        "--poisson",
+        type=float,
+        default=0.4,
+        help="Poisson's ratio (how much the body keeps its volume; below 0.5; default 0.4)",
+    )
     parser.add_argument("--density", type=float, default=1e3, help="mass density in kg/m^3 (default 1e3)")
-    parser.add_argument("--gravity", type=float, nargs=3, default=(0.0, 0.0, -9.81), metavar=("GX", "GY", "GZ"),
-                        help="gravitational acceleration (default 0 0 -9.81)")
+    parser.add_argument(
+        "--gravity",
+        type=float,
+        nargs=3,
+        default=(0.0, 0.0, -9.81),
+        metavar=("GX", "GY", "GZ"),
+        help="gravitational acceleration (default 0 0 -9.81)",
+    )
     parser.add_argument("--newton", type=int, default=1, help="Newton iterations per step (default 1, the paper's)")
     parser.add_argument("--every", type=int, default=10, help="write a frame every this many steps (default 10)")
-    parser.add_argument("--fix-fraction", type=float, default=0.02,
-                        help="mesh files: clamp the nodes within this fraction of the height below the top "
-                             "(default 0.02)")
+    parser.add_argument(
+        "--fix-fraction",
+        type=float,
+        default=0.02,
+        help="mesh files: clamp the nodes within this fraction of the height below the top (default 0.02)",
+    )
     parser.add_argument("--no-figures", action="store_true", help="write the .vtu meshes and summary.json only")
     parser.add_argument("--force", action="store_true", help=arguments.FORCE_HELP)
-    parser.add_argument("--out", type=Path, required=True,
-                        help="folder for frame_XXXX.png, frame_XXXX.vtu and summary.json")
+    parser.add_argument(
+        "--out", type=Path, required=True, help="folder for frame_XXXX.png, frame_XXXX.vtu and summary.json"
+    )
 
 
 def check_paths(args) -> None:
@@ -66,11 +85,23 @@ def check_paths(args) -> None:
 
 def run(args) -> dict:
     summary = fem_command(
-        args.scene, args.steps, args.out, h=args.dt, young=args.young, poisson=args.poisson, density=args.density,
-        gravity=tuple(args.gravity), newton_iterations=args.newton, every=args.every, fix_fraction=args.fix_fraction,
-        figures=not args.no_figures, force=args.force)
-    shown = {k: summary[k] for k in ("nodes", "dofs", "elements", "steps", "step_avg_s", "step_max_s",
-                                     "max_displacement")}
+        args.scene,
+        args.steps,
+        args.out,
+        h=args.dt,
+        young=args.young,
+        poisson=args.poisson,
+        density=args.density,
+        gravity=tuple(args.gravity),
+        newton_iterations=args.newton,
+        every=args.every,
+        fix_fraction=args.fix_fraction,
+        figures=not args.no_figures,
+        force=args.force,
+    )
+    shown = {
+        k: summary[k] for k in ("nodes", "dofs", "elements", "steps", "step_avg_s", "step_max_s", "max_displacement")
+    }
     return args.scene, rounded(shown) | {"out": args.out}
 
 
@@ -123,17 +154,31 @@ def surface_frame(V, F, limits, path: Path, title: str, colours=None) -> None:
     fig = figures.figure(5, 5)
     ax = figures.axes_3d(fig)
     if colours is None:
-        ax.plot_trisurf(V[:, 0], V[:, 1], V[:, 2], triangles=F, color="tab:orange", linewidth=0.1, edgecolor="k",
-                        alpha=0.95)
+        ax.plot_trisurf(
+            V[:, 0], V[:, 1], V[:, 2], triangles=F, color="tab:orange", linewidth=0.1, edgecolor="k", alpha=0.95
+        )
     else:
         ax.add_collection3d(Poly3DCollection(V[F], facecolors=colours, edgecolors="k", linewidths=0.05, alpha=0.95))
     figures.set_box(ax, *limits, title, floor=1e-3)
     figures.save_figure(fig, path, dpi=80, bbox_inches="tight")
 
 
-def fem_command(scene: str, steps: int, out: Path, *, h: float = 0.033, young: float = 1e6, poisson: float = 0.4,
-                density: float = 1e3, gravity=(0.0, 0.0, -9.81), newton_iterations: int = 1, every: int = 10,
-                fix_fraction: float = 0.02, figures: bool = True, force: bool = False) -> dict:
+def fem_command(
+    scene: str,
+    steps: int,
+    out: Path,
+    *,
+    h: float = 0.033,
+    young: float = 1e6,
+    poisson: float = 0.4,
+    density: float = 1e3,
+    gravity=(0.0, 0.0, -9.81),
+    newton_iterations: int = 1,
+    every: int = 10,
+    fix_fraction: float = 0.02,
+    figures: bool = True,
+    force: bool = False,
+) -> dict:
     """Simulate ``scene`` for ``steps`` backward Euler steps and write frames into ``out``; returns the summary.
     ``out`` must be empty unless ``force``; the run's files replace the previous run's when it ends
     (``_jaxcga_shared.output.run_folder``)."""
@@ -158,8 +203,9 @@ def fem_command(scene: str, steps: int, out: Path, *, h: float = 0.033, young: f
         raise ValueError(f"density: expected a positive density, got {density}")
     if len(gravity) != 3 or not np.isfinite(max(abs(float(g)) for g in gravity) * float(density)):
         raise ValueError(f"gravity: expected three numbers whose product with the density is finite, got {gravity}")
-    out = check_run_folder(out, RUN_FILES, force, RUN_DESCRIBED,
-                           inputs=None if scene in SCENES else {"SCENE": Path(scene)})
+    out = check_run_folder(
+        out, RUN_FILES, force, RUN_DESCRIBED, inputs=None if scene in SCENES else {"SCENE": Path(scene)}
+    )
     material = xfem.Material(young, poisson)
     mesh, fixed = scene_mesh(scene, fix_fraction)
     system = xfem.fem_from_mesh(mesh, density, gravity, fixed)
@@ -170,14 +216,19 @@ def fem_command(scene: str, steps: int, out: Path, *, h: float = 0.033, young: f
     energies = jax.jit(lambda state: xfem.mechanical_energy(system, state, material))
 
     with run_folder(out, RUN_FILES, "summary.json") as staging:
+
         def write(k: int, state):
             x = np.asarray(state.x)
-            meshio.write(staging / f"frame_{k:04d}.vtu", meshio.Mesh(
-                x, [("tetra", np.asarray(mesh.T))],
-                point_data={"displacement": x - X, "velocity": np.asarray(state.v)}))
+            meshio.write(
+                staging / f"frame_{k:04d}.vtu",
+                meshio.Mesh(
+                    x,
+                    [("tetra", np.asarray(mesh.T))],
+                    point_data={"displacement": x - X, "velocity": np.asarray(state.v)},
+                ),
+            )
             if figures:
-                surface_frame(x, faces, limits, staging / f"frame_{k:04d}.png",
-                              f"{scene}: step {k}, t = {k * h:.3f} s")
+                surface_frame(x, faces, limits, staging / f"frame_{k:04d}.png", f"{scene}: step {k}, t = {k * h:.3f} s")
 
         state = xfem.State(mesh.X, jnp.zeros_like(mesh.X))
         write(0, state)
@@ -185,8 +236,9 @@ def fem_command(scene: str, steps: int, out: Path, *, h: float = 0.033, young: f
         with StepProgress("fem", steps, "step", f"fem {Path(scene).name}") as progress:
             for k in range(1, steps + 1):
                 start = time.perf_counter()
-                state = jax.block_until_ready(xfem.backward_euler_step(system, state, h, material,
-                                                                       newton_iterations=newton_iterations))
+                state = jax.block_until_ready(
+                    xfem.backward_euler_step(system, state, h, material, newton_iterations=newton_iterations)
+                )
                 times.append(time.perf_counter() - start)
                 if not bool(jnp.all(jnp.isfinite(state.x))):
                     raise RuntimeError(f"fem: non-finite positions at step {k}; try a smaller --dt or more --newton")
@@ -197,12 +249,22 @@ def fem_command(scene: str, steps: int, out: Path, *, h: float = 0.033, young: f
                     write(k, state)
                 progress.step()
         summary = {
-            "scene": scene, "nodes": int(mesh.n_nodes), "dofs": 3 * (int(mesh.n_nodes) - len(fixed)),
-            "elements": int(mesh.n_elements), "fixed_nodes": len(fixed), "steps": steps, "dt": h,
-            "young": young, "poisson": poisson, "density": density, "newton_iterations": newton_iterations,
-            "first_step_s": times[0], "step_avg_s": float(np.mean(times[1:])) if steps > 1 else times[0],
+            "scene": scene,
+            "nodes": int(mesh.n_nodes),
+            "dofs": 3 * (int(mesh.n_nodes) - len(fixed)),
+            "elements": int(mesh.n_elements),
+            "fixed_nodes": len(fixed),
+            "steps": steps,
+            "dt": h,
+            "young": young,
+            "poisson": poisson,
+            "density": density,
+            "newton_iterations": newton_iterations,
+            "first_step_s": times[0],
+            "step_avg_s": float(np.mean(times[1:])) if steps > 1 else times[0],
             "step_max_s": float(np.max(times[1:])) if steps > 1 else times[0],
-            "kinetic_energy": kinetic, "potential_energy": potential,
+            "kinetic_energy": kinetic,
+            "potential_energy": potential,
             "max_displacement": float(np.abs(np.asarray(state.x) - X).max()),
         }
         write_json(staging / "summary.json", summary)

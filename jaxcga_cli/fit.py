@@ -6,15 +6,21 @@ from pathlib import Path
 
 from jaxcga_cli import arguments
 
-HELP = ("find the pose of a rigged model (a motor, i.e. a rotation and translation, and a scale per bone) whose "
-        "skinned vertices best match target positions, and write it as JSON")
+HELP = (
+    "find the pose of a rigged model (a motor, i.e. a rotation and translation, and a scale per bone) whose "
+    "skinned vertices best match target positions, and write it as JSON"
+)
 EXAMPLE = "jaxcga fit tests/data/Arm5.glb --target posed.npy --max-steps 100 --out pose.json"
 
 
 def add_arguments(parser) -> None:
     arguments.model_argument(parser)
-    parser.add_argument("--target", type=Path, required=True,
-                        help="TARGET.npy: (n, 3) world-space positions (for example from jaxcga skin)")
+    parser.add_argument(
+        "--target",
+        type=Path,
+        required=True,
+        help="TARGET.npy: (n, 3) world-space positions (for example from jaxcga skin)",
+    )
     parser.add_argument("--vertices", type=Path, default=None, help="IDX.npy: (t,) vertex indices of (t, 3) targets")
     parser.add_argument("--method", choices=arguments.METHODS, default="cga", help=arguments.METHODS_HELP)
     parser.add_argument("--regularization", type=float, default=0.0, help="weight of |params|^2 toward the rest pose")
@@ -33,12 +39,21 @@ def run(args) -> dict:
     from jaxcga_cli.models import load_model
 
     model = load_model(args.model, weld=args.weld)
-    return model.name, fit_command(model, args.target, args.out, args.method, args.vertices, args.regularization,
-                       args.max_steps, not args.no_scale)
+    return model.name, fit_command(
+        model, args.target, args.out, args.method, args.vertices, args.regularization, args.max_steps, not args.no_scale
+    )
 
 
-def fit_command(model, target: Path, out: Path, method: str = "cga", vertices: Path | None = None,
-                regularization: float = 0.0, max_steps: int = 200, fit_scale: bool = True) -> dict:
+def fit_command(
+    model,
+    target: Path,
+    out: Path,
+    method: str = "cga",
+    vertices: Path | None = None,
+    regularization: float = 0.0,
+    max_steps: int = 200,
+    fit_scale: bool = True,
+) -> dict:
     """Fit bone motors (and dilations) to target positions (.npy (n, 3), or (t, 3) with a vertex index
     file) and write the pose as JSON."""
     import jax.numpy as jnp
@@ -52,14 +67,25 @@ def fit_command(model, target: Path, out: Path, method: str = "cga", vertices: P
     targets = _read_array("target", target)
     index = None if vertices is None else _read_array("vertices", vertices)
     if index is None and targets.shape != (model.mesh.num_vertices, 3):
-        raise ValueError(f"target: expected shape ({model.mesh.num_vertices}, 3) (every vertex), got "
-                         f"{targets.shape}; give --vertices for a subset")
+        raise ValueError(
+            f"target: expected shape ({model.mesh.num_vertices}, 3) (every vertex), got "
+            f"{targets.shape}; give --vertices for a subset"
+        )
     dtype = model.mesh.V.dtype
-    with status("fit", f"fitting {model.skeleton.num_bones} bones to {len(targets)} target positions (compiling, "
-                       f"then at most {max_steps} solver steps)"):
-        fit = deform.fit_pose(model, jnp.asarray(targets, dtype), None if index is None else jnp.asarray(index),
-                              method=method, regularization=regularization, max_steps=max_steps,
-                              fit_scale=fit_scale and method != "dqs")
+    with status(
+        "fit",
+        f"fitting {model.skeleton.num_bones} bones to {len(targets)} target positions (compiling, "
+        f"then at most {max_steps} solver steps)",
+    ):
+        fit = deform.fit_pose(
+            model,
+            jnp.asarray(targets, dtype),
+            None if index is None else jnp.asarray(index),
+            method=method,
+            regularization=regularization,
+            max_steps=max_steps,
+            fit_scale=fit_scale and method != "dqs",
+        )
         translation, rotation, scale = deform.versor_to_trs(fit.local)
     diagonal = bounding_diagonal(deform.rest_pose(model, "lbs"))
     result = {
@@ -71,7 +97,7 @@ def fit_command(model, target: Path, out: Path, method: str = "cga", vertices: P
         "steps": int(fit.steps),
         "converged": bool(fit.converged),
         "parameters": "per bone: motor generator (e12, e13, e23, e1inf, e2inf, e3inf) and log-scale, applied "
-                      "in the bone's frame after its rest transform",
+        "in the bone's frame after its rest transform",
         "bones": [
             {
                 "name": name,

@@ -25,9 +25,11 @@ COMMANDS = {
     "fem": "fem",
     "xfem": "xfem",
 }
-DESCRIPTION = ("jaxcga: differentiable geometry and simulation in JAX on a conformal geometric algebra kernel: pose, "
-               "cut, tear, drill, deform and simulate meshes from the command line. Run 'jaxcga COMMAND --help' for "
-               "a command's options and an example.")
+DESCRIPTION = (
+    "jaxcga: differentiable geometry and simulation in JAX on a conformal geometric algebra kernel: pose, "
+    "cut, tear, drill, deform and simulate meshes from the command line. Run 'jaxcga COMMAND --help' for "
+    "a command's options and an example."
+)
 
 
 def version() -> str:
@@ -55,8 +57,9 @@ class _Parser(argparse.ArgumentParser):
     def __init__(self, *args, **kwargs):
         super().__init__(*args, **kwargs)
         self.register("type", float, _finite_float)
-        self._negative_number_matcher = re.compile(r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^-(inf|infinity|nan)$",
-                                                   re.IGNORECASE)
+        self._negative_number_matcher = re.compile(
+            r"^-(\d+\.?\d*|\.\d+)([eE][-+]?\d+)?$|^-(inf|infinity|nan)$", re.IGNORECASE
+        )
 
     def error(self, message):
         self.exit(2, f"{self.prog}: error: {message}\n")
@@ -75,8 +78,13 @@ def parser() -> argparse.ArgumentParser:
     for name in COMMANDS:
         module = command_module(name)
         description = textwrap.fill(module.HELP[0].upper() + module.HELP[1:] + ".", 100, break_on_hyphens=False)
-        p = sub.add_parser(name, help=module.HELP, description=description, epilog=f"example:\n  {module.EXAMPLE}",
-                           formatter_class=argparse.RawDescriptionHelpFormatter)
+        p = sub.add_parser(
+            name,
+            help=module.HELP,
+            description=description,
+            epilog=f"example:\n  {module.EXAMPLE}",
+            formatter_class=argparse.RawDescriptionHelpFormatter,
+        )
         module.add_arguments(p)
     return top
 

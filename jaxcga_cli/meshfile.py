@@ -29,8 +29,9 @@ def read_mesh_file(path: str | Path, name: str = "mesh"):
         loaded = trimesh.load(path, force="mesh", process=False)
     except (ValueError, KeyError, IndexError, TypeError, AttributeError) as error:  # trimesh's parsers
         line = _bad_obj_vertex(path)
-        raise ValueError(f"{name}: {path}: {line}" if line else f"{name}: trimesh cannot read {path} ({error})"
-                         ) from None
+        raise ValueError(
+            f"{name}: {path}: {line}" if line else f"{name}: trimesh cannot read {path} ({error})"
+        ) from None
     if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
         raise ValueError(f"{name}: {path} holds no triangles")
     V, F = np.asarray(loaded.vertices, np.float64), np.asarray(loaded.faces, np.int64)
@@ -48,9 +49,11 @@ def read_mesh_file(path: str | Path, name: str = "mesh"):
     W, G = W[used], renumber[G[keep]]
     if len(G) == 0:
         raise ValueError(f"{name}: {path} holds no triangle with three distinct corners")
-    warnings.warn(f"{name}: {path}: welded {len(V)} vertices into {len(W)} (same positions merged, unused ones "
-                  f"dropped) and dropped {int((~keep).sum())} of {len(F)} faces with two equal corners",
-                  stacklevel=2)
+    warnings.warn(
+        f"{name}: {path}: welded {len(V)} vertices into {len(W)} (same positions merged, unused ones "
+        f"dropped) and dropped {int((~keep).sum())} of {len(F)} faces with two equal corners",
+        stacklevel=2,
+    )
     return W, G
 
 

@@ -84,15 +84,20 @@ class Motion:
         axes = np.eye(3)
         bend = cga.rotor(jnp.broadcast_to(jnp.asarray(axes[self.across]), s.shape + (3,)), self.bend * s)
         twist = cga.rotor(jnp.broadcast_to(jnp.asarray(axes[self.long]), s.shape + (3,)), self.twist * s)
-        return deform.motor_about(jnp.asarray(self.pivot), (bend * twist).embed(cga.KINDS["rotor"]),
-                                  s[..., None] * jnp.asarray(self.translate))
+        return deform.motor_about(
+            jnp.asarray(self.pivot),
+            (bend * twist).embed(cga.KINDS["rotor"]),
+            s[..., None] * jnp.asarray(self.translate),
+        )
 
 
 def end_handles(motion: Motion, V, fraction: float):
     """The vertices within ``fraction`` of the long axis's low and high ends (two index arrays)."""
     if fraction >= 0.5:
-        raise ValueError(f"handle_fraction: {fraction} makes the two end handles overlap (each holds the vertices "
-                         "within this fraction of the long axis from its end); expected a fraction below 0.5")
+        raise ValueError(
+            f"handle_fraction: {fraction} makes the two end handles overlap (each holds the vertices "
+            "within this fraction of the long axis from its end); expected a fraction below 0.5"
+        )
     if not fraction >= 0:
         raise ValueError(f"handle_fraction: expected a fraction in [0, 0.5), got {fraction}")
     s = motion.fraction(V)
@@ -119,12 +124,16 @@ def read_handles(path: Path, n: int, positions: bool = False):
     ``positions`` allows a "positions" entry and the file has one, each group's target positions (else None)."""
     spec = read_json(path, "handles")
     if not isinstance(spec, dict) or not isinstance(spec.get("handles"), list) or not spec["handles"]:
-        raise ValueError(f"handles: {path} must hold a JSON object with a non-empty 'handles' list "
-                         '({"handles": [[i, ...], ...], "motors": [...]})')
+        raise ValueError(
+            f"handles: {path} must hold a JSON object with a non-empty 'handles' list "
+            '({"handles": [[i, ...], ...], "motors": [...]})'
+        )
     unknown = set(spec) - {"handles", "motors", "positions"}
     if unknown:
-        raise ValueError(f"handles: {path} has unknown keys {sorted(unknown)}; expected 'handles' and 'motors'"
-                         + (" or 'positions'" if positions else ""))
+        raise ValueError(
+            f"handles: {path} has unknown keys {sorted(unknown)}; expected 'handles' and 'motors'"
+            + (" or 'positions'" if positions else "")
+        )
     try:
         handles = [np.asarray(h).reshape(-1) for h in spec["handles"]]
     except (TypeError, ValueError):
@@ -138,8 +147,10 @@ def read_handles(path: Path, n: int, positions: bool = False):
         raise ValueError(f"handles: vertex {values[np.argmax(counts)]} is in the handles {counts.max()} times")
     if "positions" in spec:
         if not positions:
-            raise ValueError(f"handles: {path} gives 'positions'; this command moves each handle by a motor: give "
-                             "'motors' (jaxcga arap takes either)")
+            raise ValueError(
+                f"handles: {path} gives 'positions'; this command moves each handle by a motor: give "
+                "'motors' (jaxcga arap takes either)"
+            )
         if "motors" in spec:
             raise ValueError(f"handles: {path} gives both 'motors' and 'positions'; give one")
         return handles, None, _targets(spec["positions"], handles, path)
@@ -148,8 +159,9 @@ def read_handles(path: Path, n: int, positions: bool = False):
 
 def _targets(given, handles, path):
     if not isinstance(given, list) or len(given) != len(handles):
-        raise ValueError(f"handles: 'positions' in {path} must be a list of one list of positions per handle "
-                         f"({len(handles)})")
+        raise ValueError(
+            f"handles: 'positions' in {path} must be a list of one list of positions per handle ({len(handles)})"
+        )
     targets = []
     for i, (p, h) in enumerate(zip(given, handles)):
         try:
@@ -157,8 +169,10 @@ def _targets(given, handles, path):
         except (TypeError, ValueError):
             p = np.zeros(0)
         if p.shape != (len(h), 3) or not np.all(np.isfinite(p)):
-            raise ValueError(f"handles: positions {i} in {path} must be {len(h)} finite [x, y, z] triples (one per "
-                             f"vertex of handle {i}), got shape {p.shape}")
+            raise ValueError(
+                f"handles: positions {i} in {path} must be {len(h)} finite [x, y, z] triples (one per "
+                f"vertex of handle {i}), got shape {p.shape}"
+            )
         targets.append(p)
     return targets
 
@@ -169,11 +183,13 @@ def _motors(motors, count: int, path):
     values = []
     for i, m in enumerate(motors):
         if not isinstance(m, dict) or set(m) - set(_MOTOR_KEYS):
-            raise ValueError(f"handles: motor {i} in {path} must be an object with keys among {tuple(_MOTOR_KEYS)}, "
-                             f"got {m!r}")
+            raise ValueError(
+                f"handles: motor {i} in {path} must be an object with keys among {tuple(_MOTOR_KEYS)}, got {m!r}"
+            )
         try:
-            axis, center, translation = (np.asarray(m.get(k, _MOTOR_KEYS[k]), np.float64).reshape(3)
-                                         for k in ("axis", "center", "translation"))
+            axis, center, translation = (
+                np.asarray(m.get(k, _MOTOR_KEYS[k]), np.float64).reshape(3) for k in ("axis", "center", "translation")
+            )
             angle = float(m.get("angle_deg", 0.0))
         except (TypeError, ValueError):
             raise ValueError(f"handles: motor {i} in {path} needs [x, y, z] lists and a number angle_deg") from None

@@ -35,7 +35,8 @@ def write_result(out: Path, positions, F, rest=None, title: str = "") -> None:
 
         file_type = suffix[1:]
         data = trimesh.Trimesh(np.asarray(positions), np.asarray(F), process=False).export(
-            file_type=file_type, **({"embed_buffers": True} if file_type == "gltf" else {}))
+            file_type=file_type, **({"embed_buffers": True} if file_type == "gltf" else {})
+        )
         write_bytes(out, data["model.gltf"] if isinstance(data, dict) else data)
 
 
@@ -54,8 +55,9 @@ def result_figure(V, positions, F, path: Path, title: str) -> Path:
     return figures.save_figure(fig, path, dpi=90, bbox_inches="tight")
 
 
-def check_files(args, inputs: tuple[str, ...], outputs: dict[str, Path], suffixes: tuple[str, ...],
-                gltf: bool = False) -> None:
+def check_files(
+    args, inputs: tuple[str, ...], outputs: dict[str, Path], suffixes: tuple[str, ...], gltf: bool = False
+) -> None:
     """Every input and output path of a command, before anything is loaded or computed: the ``inputs`` (names
     of ``args``' attributes; None skipped) are files; the ``outputs`` ({name: path}) have one of ``suffixes``,
     are no folder and lie in a folder this process may write in; no output is an input or another output; with

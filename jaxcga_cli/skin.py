@@ -16,9 +16,12 @@ def add_arguments(parser) -> None:
     parser.add_argument("--method", choices=arguments.METHODS, default="cga", help=arguments.METHODS_HELP)
     arguments.clip_argument(parser)
     arguments.interpolation_argument(parser)
-    parser.add_argument("--out", type=Path, required=True,
-                        help="OUT.npy: float64 (n, 3) world-space positions; OUT.glb/.gltf/.obj/.ply/.stl: the "
-                             "posed mesh")
+    parser.add_argument(
+        "--out",
+        type=Path,
+        required=True,
+        help="OUT.npy: float64 (n, 3) world-space positions; OUT.glb/.gltf/.obj/.ply/.stl: the posed mesh",
+    )
 
 
 def check_paths(args) -> None:
@@ -50,5 +53,10 @@ def skin_command(model, time: float, method: str, clip: int | str, out: Path, in
         if not bool(jnp.all(jnp.isfinite(positions))):
             raise ValueError("skinning produced non-finite positions")
     write_result(out, positions, model.mesh.F)
-    return {"vertices": int(positions.shape[0]), "method": method, "interpolation": interpolation, "time": time,
-            "out": str(out)}
+    return {
+        "vertices": int(positions.shape[0]),
+        "method": method,
+        "interpolation": interpolation,
+        "time": time,
+        "out": str(out),
+    }

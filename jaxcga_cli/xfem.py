@@ -21,26 +21,45 @@ from pathlib import Path
 from jaxcga_cli import arguments
 from jaxcga_cli.fem import RUN_DESCRIBED, RUN_FILES, rounded
 
-HELP = ("run one of the XFEM paper's cutting scenes (soft bodies cut while they move; the extended finite element "
-        "method keeps the cuts exact without remeshing) and write its frames and timings")
+HELP = (
+    "run one of the XFEM paper's cutting scenes (soft bodies cut while they move; the extended finite element "
+    "method keeps the cuts exact without remeshing) and write its frames and timings"
+)
 EXAMPLE = "jaxcga xfem cheese --size small --steps 20 --out out/cheese"
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("scene", choices=arguments.XFEM_SCENES, metavar="SCENE",
-                        help="sticks (Fig. 5), thin (Fig. 1), cheese (Fig. 6), accordion (Fig. 7) or mouth (Fig. 8)")
+    parser.add_argument(
+        "scene",
+        choices=arguments.XFEM_SCENES,
+        metavar="SCENE",
+        help="sticks (Fig. 5), thin (Fig. 1), cheese (Fig. 6), accordion (Fig. 7) or mouth (Fig. 8)",
+    )
     parser.add_argument("--steps", type=int, default=None, help="frames (default: the scene's, past its last cut)")
-    parser.add_argument("--size", choices=arguments.XFEM_SIZES, default="paper",
-                        help="paper (Table 1's meshes, the default) or small (coarse)")
-    parser.add_argument("--every", type=int, default=10,
-                        help="write a frame every this many frames, besides cut frames and the last (default 10)")
-    parser.add_argument("--cut-latency", type=int, default=0,
-                        help="compute each cut in the background while the body steps; it takes effect this many "
-                             "frames after its scheduled frame (default 0: in its frame, as Algorithm 1)")
+    parser.add_argument(
+        "--size",
+        choices=arguments.XFEM_SIZES,
+        default="paper",
+        help="paper (Table 1's meshes, the default) or small (coarse)",
+    )
+    parser.add_argument(
+        "--every",
+        type=int,
+        default=10,
+        help="write a frame every this many frames, besides cut frames and the last (default 10)",
+    )
+    parser.add_argument(
+        "--cut-latency",
+        type=int,
+        default=0,
+        help="compute each cut in the background while the body steps; it takes effect this many "
+        "frames after its scheduled frame (default 0: in its frame, as Algorithm 1)",
+    )
     parser.add_argument("--no-figures", action="store_true", help="write the .vtu surfaces and summary.json only")
     parser.add_argument("--force", action="store_true", help=arguments.FORCE_HELP)
-    parser.add_argument("--out", type=Path, required=True,
-                        help="folder for frame_XXXX.png, frame_XXXX.vtu and summary.json")
+    parser.add_argument(
+        "--out", type=Path, required=True, help="folder for frame_XXXX.png, frame_XXXX.vtu and summary.json"
+    )
 
 
 def check_paths(args) -> None:
@@ -50,15 +69,47 @@ def check_paths(args) -> None:
 
 
 def run(args) -> dict:
-    summary = xfem_command(args.scene, args.out, args.steps, size=args.size, every=args.every,
-                           figures=not args.no_figures, cut_latency=args.cut_latency, force=args.force)
-    shown = {k: summary[k] for k in ("size", "nodes", "dofs", "pieces", "frames", "cuts", "booleans", "boolean_ms",
-                                     "integral_ms", "step_avg_s", "step_max_s", "total_s")}
+    summary = xfem_command(
+        args.scene,
+        args.out,
+        args.steps,
+        size=args.size,
+        every=args.every,
+        figures=not args.no_figures,
+        cut_latency=args.cut_latency,
+        force=args.force,
+    )
+    shown = {
+        k: summary[k]
+        for k in (
+            "size",
+            "nodes",
+            "dofs",
+            "pieces",
+            "frames",
+            "cuts",
+            "booleans",
+            "boolean_ms",
+            "integral_ms",
+            "step_avg_s",
+            "step_max_s",
+            "total_s",
+        )
+    }
     return args.scene, rounded(shown) | {"out": args.out}
 
 
-def xfem_command(name: str, out: Path, steps: int | None = None, *, size: str = "paper", every: int = 10,
-                 figures: bool = True, cut_latency: int = 0, force: bool = False) -> dict:
+def xfem_command(
+    name: str,
+    out: Path,
+    steps: int | None = None,
+    *,
+    size: str = "paper",
+    every: int = 10,
+    figures: bool = True,
+    cut_latency: int = 0,
+    force: bool = False,
+) -> dict:
     """Run scene ``name`` for ``steps`` frames (None: the scene's default) and write frames into ``out``; returns
     the summary (module docstring). ``cut_latency``: as ``xfem.run_scene``; ``force``: as ``fem_command``'s."""
     import meshio
@@ -91,17 +142,25 @@ def xfem_command(name: str, out: Path, steps: int | None = None, *, size: str = 
     written = []
 
     with run_folder(out, RUN_FILES, "summary.json") as staging:
+
         def write(frame: int, model):
             V, F, piece = xfem.piece_surfaces(model)
-            meshio.write(staging / f"frame_{frame:04d}.vtu",
-                         meshio.Mesh(V, [("triangle", F)], cell_data={"piece": [piece]}))
+            meshio.write(
+                staging / f"frame_{frame:04d}.vtu", meshio.Mesh(V, [("triangle", F)], cell_data={"piece": [piece]})
+            )
             if figures:
-                surface_frame(V, F, limits, staging / f"frame_{frame:04d}.png",
-                              f"{name}: frame {frame}, t = {frame * sc.h:.3f} s, {int(piece.max()) + 1} pieces",
-                              colormap("tab20")(piece % 20))
+                surface_frame(
+                    V,
+                    F,
+                    limits,
+                    staging / f"frame_{frame:04d}.png",
+                    f"{name}: frame {frame}, t = {frame * sc.h:.3f} s, {int(piece.max()) + 1} pieces",
+                    colormap("tab20")(piece % 20),
+                )
             written.append(frame)
 
         with StepProgress("xfem", steps, "frame", f"xfem {name}") as progress:
+
             def on_frame(record, model):
                 if record.cuts or record.frame % every == 0 or record.frame == steps:
                     write(record.frame, model)
@@ -110,14 +169,24 @@ def xfem_command(name: str, out: Path, steps: int | None = None, *, size: str = 
             write(0, sc.model())
             run = xfem.run_scene(sc, steps, on_frame=on_frame, cut_latency=cut_latency)
         summary = run.summary()
-        summary.update({
-            "steps": steps, "dt": sc.h, "young": sc.young, "poisson": sc.poisson, "density": sc.density,
-            "epsilon": sc.epsilon, "newton_iterations": sc.newton_iterations, "fixed_nodes": int(len(sc.fixed)),
-            "cut_latency": cut_latency,
-            "cut_frames": sorted({c.frame for c in sc.cuts if c.frame <= steps}), "frames_written": written,
-            "frame_pieces": [r.pieces for r in run.records], "frame_dofs": [r.dofs for r in run.records],
-            "frame_seconds": [r.seconds for r in run.records],
-            "max_displacement": float(np.abs(np.asarray(run.model.state.x) - X[run.model.dof_node]).max()),
-        })
+        summary.update(
+            {
+                "steps": steps,
+                "dt": sc.h,
+                "young": sc.young,
+                "poisson": sc.poisson,
+                "density": sc.density,
+                "epsilon": sc.epsilon,
+                "newton_iterations": sc.newton_iterations,
+                "fixed_nodes": int(len(sc.fixed)),
+                "cut_latency": cut_latency,
+                "cut_frames": sorted({c.frame for c in sc.cuts if c.frame <= steps}),
+                "frames_written": written,
+                "frame_pieces": [r.pieces for r in run.records],
+                "frame_dofs": [r.dofs for r in run.records],
+                "frame_seconds": [r.seconds for r in run.records],
+                "max_displacement": float(np.abs(np.asarray(run.model.state.x) - X[run.model.dof_node]).max()),
+            }
+        )
         write_json(staging / "summary.json", summary)
     return summary

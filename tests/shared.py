@@ -20,8 +20,9 @@ def check_gradient(loss, params, rtol: float = 1e-5, step: float = 1e-6):
     import jax
 
     grad = jax.grad(loss)(params)
-    numeric = np.array([(loss(params.at[i].add(step)) - loss(params.at[i].add(-step))) / (2 * step)
-                        for i in range(len(params))])
+    numeric = np.array(
+        [(loss(params.at[i].add(step)) - loss(params.at[i].add(-step))) / (2 * step) for i in range(len(params))]
+    )
     np.testing.assert_allclose(grad, numeric, rtol=rtol, atol=1e-6 * float(np.abs(numeric).max()))
 
 

@@ -22,8 +22,13 @@ import _report  # noqa: E402
 def _quick(script: str, tmp_path, *args: str) -> dict:
     """Run ``benchmarks/<script> --quick ARGS`` and read back its JSON."""
     out = tmp_path / "result.json"
-    done = subprocess.run([sys.executable, str(ROOT / "benchmarks" / script), "--quick", *args, "--json", str(out)],
-                          capture_output=True, text=True, timeout=600, cwd=ROOT)
+    done = subprocess.run(
+        [sys.executable, str(ROOT / "benchmarks" / script), "--quick", *args, "--json", str(out)],
+        capture_output=True,
+        text=True,
+        timeout=600,
+        cwd=ROOT,
+    )
     assert done.returncode == 0, done.stderr[-3000:]
     result = json.loads(out.read_text())
     assert result["platform"] == jax.default_backend() and result["device"] == jax.devices()[0].device_kind
@@ -35,13 +40,18 @@ def _unsuffixed(result: dict) -> dict:
     end = _report.suffix()
     for key in ("figures", "ratios", "units"):
         assert all(name.endswith(end) for name in result[key])
-    return {key: {name[: len(name) - len(end)]: v for name, v in result[key].items()}
-            for key in ("figures", "ratios", "units")}
+    return {
+        key: {name[: len(name) - len(end)]: v for name, v in result[key].items()}
+        for key in ("figures", "ratios", "units")
+    }
 
 
 def test_names_carry_the_gpu_suffix_on_a_gpu_only():
-    result = {"figures": {"step_23k_s": 0.5}, "ratios": {"step_23k_vs_paper": 11.6},
-              "units": {"step_23k_s": "s", "step_23k_vs_paper": _report.RATIO_UNIT}}
+    result = {
+        "figures": {"step_23k_s": 0.5},
+        "ratios": {"step_23k_vs_paper": 11.6},
+        "units": {"step_23k_s": "s", "step_23k_vs_paper": _report.RATIO_UNIT},
+    }
     on_cpu, on_gpu = _report.with_suffix(result, "cpu"), _report.with_suffix(result, "gpu")
     assert {key: on_cpu[key] for key in result} == result and on_cpu["platform"] == "cpu"
     assert on_gpu["figures"] == {"step_23k_s_gpu": 0.5} and on_gpu["ratios"] == {"step_23k_vs_paper_gpu": 11.6}
@@ -69,9 +79,14 @@ def test_bench_kernel_takes_points_and_writes_this_platforms_names(tmp_path, cap
 @pytest.mark.slow
 def test_bench_skinning_quick_writes_the_published_names(tmp_path):
     result = _quick("bench_skinning.py", tmp_path)
-    for name in ("cga_vs_lbs_f32", "cga_vs_lbs_f64", "cga_sum_then_project_vs_lbs_f32",
-                 "cga_sum_then_project_vs_lbs_f64",
-                 "cga_motor_blend_vs_dqs_f32", "cga_motor_blend_vs_dqs_f64"):
+    for name in (
+        "cga_vs_lbs_f32",
+        "cga_vs_lbs_f64",
+        "cga_sum_then_project_vs_lbs_f32",
+        "cga_sum_then_project_vs_lbs_f64",
+        "cga_motor_blend_vs_dqs_f32",
+        "cga_motor_blend_vs_dqs_f64",
+    ):
         assert result["ratios"][name] > 0
     for name in ("cga_20_poses_f32_s", "lbs_20_poses_f32_s"):  # cga_1000_poses_f32_s with the default --poses
         assert result["figures"][name] > 0 and name in result["units"]
@@ -80,8 +95,18 @@ def test_bench_skinning_quick_writes_the_published_names(tmp_path):
 @pytest.mark.slow
 def test_bench_cutting_quick_writes_the_published_names(tmp_path):
     result = _quick("bench_cutting.py", tmp_path)
-    for name in ("arm5_cut_ms", "arm5_cut_ga_ms", "arm5_tear_ms", "arm5_tear_ga_ms", "arm5_drill_ms",
-                 "arm5_preprocess_ms", "100k_cut_ms", "100k_tear_ms", "100k_drill_ms", "100k_preprocess_ms"):
+    for name in (
+        "arm5_cut_ms",
+        "arm5_cut_ga_ms",
+        "arm5_tear_ms",
+        "arm5_tear_ga_ms",
+        "arm5_drill_ms",
+        "arm5_preprocess_ms",
+        "100k_cut_ms",
+        "100k_tear_ms",
+        "100k_drill_ms",
+        "100k_preprocess_ms",
+    ):
         assert result["figures"][name] > 0 and name in result["units"]
     for name in ("arm5_cut_vs_paper", "arm5_tear_vs_paper", "arm5_drill_vs_paper"):
         assert result["ratios"][name] > 0
@@ -114,8 +139,16 @@ def test_bench_fem_quick_writes_the_published_names(tmp_path):
 def test_bench_xfem_quick_writes_the_published_names(tmp_path):
     result = _quick("bench_xfem.py", tmp_path)
     for scene in ("sticks", "thin", "accordion"):
-        for name in ("boolean_ms", "step_avg_s", "step_max_s", "integral_ms", "dpsi_ms", "cg_s", "cut_max_over_avg",
-                     "async_cut_max_over_avg"):
+        for name in (
+            "boolean_ms",
+            "step_avg_s",
+            "step_max_s",
+            "integral_ms",
+            "dpsi_ms",
+            "cg_s",
+            "cut_max_over_avg",
+            "async_cut_max_over_avg",
+        ):
             assert result["figures"][f"{scene}_{name}"] > 0 and f"{scene}_{name}" in result["units"]
         assert result["ratios"][f"{scene}_step_avg_vs_paper"] > 0
         # cuts only duplicate DOFs: the final count is the one reported in the Table 2 column

@@ -51,11 +51,17 @@ def test_no_upward_import(package):
 def test_no_import_cycle(package):
     if not (ROOT / package).is_dir():
         pytest.skip(f"{package} is not in this checkout")
-    modules = {f"{package}.{p.stem}" if p.stem != "__init__" else package: p
-               for p in (ROOT / package).glob("*.py")}
-    graph = {m: {n for name in _imports(p, package, top_level_only=True) for n in modules
-                 if n != package and (name == n or name.startswith(n + "."))} - {m}
-             for m, p in modules.items()}
+    modules = {f"{package}.{p.stem}" if p.stem != "__init__" else package: p for p in (ROOT / package).glob("*.py")}
+    graph = {
+        m: {
+            n
+            for name in _imports(p, package, top_level_only=True)
+            for n in modules
+            if n != package and (name == n or name.startswith(n + "."))
+        }
+        - {m}
+        for m, p in modules.items()
+    }
     state: dict[str, int] = {}
 
     def visit(module, trail):

@@ -156,8 +156,9 @@ def assembly_pattern(T, n: int, fixed=(), coupling=None, nnz_capacity: int | Non
     indices = (3 * node_cols[pair_of_entry][:, None] + k3).ravel()
 
     if nnz_capacity is not None and (int(nnz_capacity) != nnz_capacity or nnz_capacity < nnz or nf < 1):
-        raise CapacityError(f"nnz_capacity: expected an int >= the pattern's {nnz} entries (and a free node), got "
-                            f"{nnz_capacity!r}")
+        raise CapacityError(
+            f"nnz_capacity: expected an int >= the pattern's {nnz} entries (and a free node), got {nnz_capacity!r}"
+        )
     stored = nnz if nnz_capacity is None else int(nnz_capacity)
     index = np.int32 if stored + 3 < 2**31 - 1 else np.int64
 
@@ -168,8 +169,9 @@ def assembly_pattern(T, n: int, fixed=(), coupling=None, nnz_capacity: int | Non
     start, row_degree = node_indptr[np.where(kept, ra, 0)], degree[np.where(kept, ra, 0)] if nf else 0
     base = np.where(kept, 9 * start + 3 * (pair - start), stored).astype(index)  # stored + c: past the end
     stride = np.where(kept, 3 * row_degree, 0).astype(index)
-    slots = (base[:, :, None, :, None] + stride[:, :, None, :, None] * k3.astype(index)[:, None, None]
-             + k3.astype(index)).reshape(-1)
+    slots = (
+        base[:, :, None, :, None] + stride[:, :, None, :, None] * k3.astype(index)[:, None, None] + k3.astype(index)
+    ).reshape(-1)
 
     if nnz_capacity is not None:
         pad = stored - nnz
@@ -179,8 +181,9 @@ def assembly_pattern(T, n: int, fixed=(), coupling=None, nnz_capacity: int | Non
 
     csr = csr_pattern(np.asarray(indptr, index), np.asarray(indices, index), block=3)
     free, free_index, slots = to_devices(*(np.asarray(a, index) for a in (free, free_index, slots)))
-    return AssemblyPattern(n=n, n_free=nf, nnz=nnz, m=len(T), free=free, free_index=free_index, csr=csr,
-                           hessian_slots=slots)
+    return AssemblyPattern(
+        n=n, n_free=nf, nnz=nnz, m=len(T), free=free, free_index=free_index, csr=csr, hessian_slots=slots
+    )
 
 
 def _host_pairs(pattern: AssemblyPattern):
@@ -205,8 +208,11 @@ def scalar_slots(pattern: AssemblyPattern, rows, cols) -> np.ndarray:
         (k, 3) int slots for ``assemble_scalar``; ``nnz`` (discarded) where r or c is fixed.
     """
     rows, cols = np.asarray(rows), np.asarray(cols)
-    if rows.ndim != 1 or rows.shape != cols.shape or not (np.issubdtype(rows.dtype, np.integer)
-                                                          and np.issubdtype(cols.dtype, np.integer)):
+    if (
+        rows.ndim != 1
+        or rows.shape != cols.shape
+        or not (np.issubdtype(rows.dtype, np.integer) and np.issubdtype(cols.dtype, np.integer))
+    ):
         raise ValueError(f"rows, cols: expected two 1-D integer arrays of one length, got {rows.shape}, {cols.shape}")
     if rows.size and (min(rows.min(), cols.min()) < 0 or max(rows.max(), cols.max()) >= pattern.n):
         raise ValueError(f"rows, cols: node indices must lie in [0, {pattern.n})")
@@ -219,8 +225,10 @@ def scalar_slots(pattern: AssemblyPattern, rows, cols) -> np.ndarray:
     missing = valid & (keys[p] != wanted) if len(keys) else valid
     if np.any(missing):
         e = int(np.argmax(missing))
-        raise ValueError(f"rows, cols: the node pair ({rows[e]}, {cols[e]}) is not in the pattern; pass the matrix "
-                         "as coupling to assembly_pattern")
+        raise ValueError(
+            f"rows, cols: the node pair ({rows[e]}, {cols[e]}) is not in the pattern; pass the matrix "
+            "as coupling to assembly_pattern"
+        )
     k3 = np.arange(3)
     slots = _block_slots(node_indptr, degree, np.where(valid, ra, pattern.n_free)[:, None], p[:, None], k3, k3)
     return np.where(valid[:, None], slots, pattern.nnz)
@@ -241,8 +249,9 @@ def assemble_matrix(pattern: AssemblyPattern, H: Float[Array, "m 12 12"]) -> Flo
     return jnp.zeros(pattern.nnz, H.dtype).at[pattern.hessian_slots].add(H.reshape(-1), mode="drop")
 
 
-def assemble_scalar(pattern: AssemblyPattern, slots: Int[Array, "k 3"], values: Float[Array, " k"]
-                    ) -> Float[Array, " nnz"]:
+def assemble_scalar(
+    pattern: AssemblyPattern, slots: Int[Array, "k 3"], values: Float[Array, " k"]
+) -> Float[Array, " nnz"]:
     """The CSR data of a scalar (n, n) matrix expanded by ``(x) I3`` and reduced to the free nodes.
 
     Args:
@@ -255,8 +264,9 @@ def assemble_scalar(pattern: AssemblyPattern, slots: Int[Array, "k 3"], values: 
     values = jnp.asarray(values)
     if slots.ndim != 2 or slots.shape[1] != 3 or values.shape != slots.shape[:1]:
         raise ValueError(f"slots, values: expected shapes (k, 3) and (k,), got {slots.shape}, {values.shape}")
-    return jnp.zeros(pattern.nnz, values.dtype).at[slots].add(
-        jnp.broadcast_to(values[:, None], slots.shape), mode="drop")
+    return (
+        jnp.zeros(pattern.nnz, values.dtype).at[slots].add(jnp.broadcast_to(values[:, None], slots.shape), mode="drop")
+    )
 
 
 def assemble_vector(T: Int[Array, "m 4"], g: Float[Array, "m 12"], n: int) -> Float[Array, "n 3"]:
@@ -313,5 +323,7 @@ def to_scipy(pattern: AssemblyPattern, data) -> sp.csr_matrix:
     """
     indptr = np.asarray(pattern.indptr)
     used = int(indptr[-1])  # the rest is padding (``nnz_capacity``)
-    return sp.csr_matrix((np.asarray(data)[:used], np.asarray(pattern.indices)[:used], indptr),
-                         shape=(3 * pattern.n_free, 3 * pattern.n_free))
+    return sp.csr_matrix(
+        (np.asarray(data)[:used], np.asarray(pattern.indices)[:used], indptr),
+        shape=(3 * pattern.n_free, 3 * pattern.n_free),
+    )

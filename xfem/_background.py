@@ -162,14 +162,23 @@ class BackgroundCuts:
             if log is None:
                 raise CutProcessError("the cut worker process was lost")
             model = self.model
-            self._process = CutProcess(dict(X=np.asarray(model.X), T=np.asarray(model.T), rho=model.rho,
-                                            gravity=model.gravity, fixed=model.fixed_nodes, log=list(log),
-                                            sent_system_bytes=_SENT_SYSTEM_BYTES), _ENTRY,
-                                       {"JAX_ENABLE_X64": "1" if jax.config.jax_enable_x64 else "0"})
+            self._process = CutProcess(
+                dict(
+                    X=np.asarray(model.X),
+                    T=np.asarray(model.T),
+                    rho=model.rho,
+                    gravity=model.gravity,
+                    fixed=model.fixed_nodes,
+                    log=list(log),
+                    sent_system_bytes=_SENT_SYSTEM_BYTES,
+                ),
+                _ENTRY,
+                {"JAX_ENABLE_X64": "1" if jax.config.jax_enable_x64 else "0"},
+            )
             self._process_closer = weakref.finalize(self, self._process.close)
             self._replica_cuts = len(log)
         elif log is not None:
-            for cut, perturb, parallel in log[self._replica_cuts:]:
+            for cut, perturb, parallel in log[self._replica_cuts :]:
                 self._process.send((cut, perturb, parallel, False))
                 self._process.receive()
             self._replica_cuts = len(log)
@@ -223,14 +232,18 @@ def replica_model(init: dict) -> XFEMModel:
     replayed."""
     X = np.asarray(init["X"], np.float64)
     zeros = np.zeros_like(X)
-    model = XFEMModel(TetMesh(X=X, T=np.asarray(init["T"], np.int64)), init["rho"], init["gravity"], init["fixed"],
-                      State(zeros, zeros))
+    model = XFEMModel(
+        TetMesh(X=X, T=np.asarray(init["T"], np.int64)),
+        init["rho"],
+        init["gravity"],
+        init["fixed"],
+        State(zeros, zeros),
+    )
     model.replay(init["log"])
     return model
 
 
-def replica_cut(model: XFEMModel, cut: MeshSolid, perturb: float, parallel: bool, delta: bool,
-                sent_system_bytes: int):
+def replica_cut(model: XFEMModel, cut: MeshSolid, perturb: float, parallel: bool, delta: bool, sent_system_bytes: int):
     """A cut made on the replica, and what it changed.
 
     Returns:

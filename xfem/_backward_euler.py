@@ -65,8 +65,8 @@ import scipy.sparse as sp
 from jax.ad_checkpoint import checkpoint_name
 from jaxtyping import Array, Float, Int
 
-from _jaxcga_shared.host import to_devices
 from _jaxcga_shared.checks import require
+from _jaxcga_shared.host import to_devices
 from _jaxcga_shared.sparse import factorize, host_csr, host_direct, host_pcg, spd_solve
 from xfem._assembly import (
     AssemblyPattern,
@@ -238,10 +238,29 @@ def fem_system(T, grads, volumes, mass, force, fixed=(), capacity: SystemCapacit
     mass_data = np.zeros(pattern.nnz, dtype)
     np.add.at(mass_data, slots[kept], np.broadcast_to(values[:, None], slots.shape)[kept])
     T, grads, volumes, rows, cols, values, mass_data, force, fixed = to_devices(
-        T.astype(index), grads.astype(dtype), volumes.astype(dtype), rows.astype(index), cols.astype(index), values,
-        mass_data, force.astype(dtype), fixed.astype(index))
-    return FEMSystem(T=T, grads=grads, volumes=volumes, mass_rows=rows, mass_cols=cols, mass_values=values,
-                     mass_data=mass_data, force=force, fixed=fixed, pattern=pattern, n=n)
+        T.astype(index),
+        grads.astype(dtype),
+        volumes.astype(dtype),
+        rows.astype(index),
+        cols.astype(index),
+        values,
+        mass_data,
+        force.astype(dtype),
+        fixed.astype(index),
+    )
+    return FEMSystem(
+        T=T,
+        grads=grads,
+        volumes=volumes,
+        mass_rows=rows,
+        mass_cols=cols,
+        mass_values=values,
+        mass_data=mass_data,
+        force=force,
+        fixed=fixed,
+        pattern=pattern,
+        n=n,
+    )
 
 
 def fem_from_mesh(mesh: TetMesh, density, gravity=(0.0, 0.0, -9.81), fixed=()) -> FEMSystem:
@@ -310,8 +329,8 @@ class _Theta(eqx.Module):
 
     x: Float[Array, "n 3"]  # x_t
     v: Float[Array, "n 3"]  # v_t
-    mu: Float[Array, "..."]
-    lam: Float[Array, "..."]
+    mu: Float[Array, ...]
+    lam: Float[Array, ...]
     fixed_positions: Float[Array, "nb 3"]
     force: Float[Array, "n 3"]
     grads: Float[Array, "m 4 3"]
@@ -326,8 +345,7 @@ def _mass_times(system: FEMSystem, mass_values, d):
     def add_chunk(start, size, own, Md):
         take = _slicer(start, size)
         values = jnp.where(own, take(mass_values), 0)
-        return Md.at[take(system.mass_rows)].add(values[:, None] * d[take(system.mass_cols)],
-                                                 indices_are_sorted=True)
+        return Md.at[take(system.mass_rows)].add(values[:, None] * d[take(system.mass_cols)], indices_are_sorted=True)
 
     return _in_chunks(mass_values.shape[0], _MASS_CHUNK, add_chunk, jnp.zeros_like(d))
 
@@ -377,8 +395,7 @@ def _energy(system: FEMSystem, x, theta: _Theta, h):
     def add_chunk(start, size, own, total):
         take = _slicer(start, size)
         volumes = jnp.where(own, take(theta.volumes), 0)
-        return total + jnp.sum(_element_energy(x[take(system.T)], take(theta.grads), volumes, take(mu_s),
-                                               take(lam_s)))
+        return total + jnp.sum(_element_energy(x[take(system.T)], take(theta.grads), volumes, take(mu_s), take(lam_s)))
 
     elastic = _in_chunks(m, _ELEMENT_CHUNK, add_chunk, jnp.zeros((), x.dtype))
     work = jnp.sum(theta.force * x)
@@ -497,8 +514,7 @@ def _minimize_bwd(x, x_bar, perturbed, theta, system, h, iterations, tolerance, 
 
 def _advance(system, state, h, mu, lam, fixed_positions, force, iterations, tolerance, line_search):
     """The step from ``state`` with Lamé parameters, the fixed nodes' new positions and the forces (n, 3)."""
-    theta = _Theta(state.x, state.v, mu, lam, fixed_positions, force, system.grads, system.volumes,
-                   system.mass_values)
+    theta = _Theta(state.x, state.v, mu, lam, fixed_positions, force, system.grads, system.volumes, system.mass_values)
     # theta carries every differentiable input; the rest of the system is structure
     x = _minimize(theta, jax.lax.stop_gradient(system), h, iterations, tolerance, line_search)
     return State(x, (x - state.x) / h)
@@ -512,9 +528,16 @@ def _step(system, state, h, material, fixed_positions, iterations, tolerance, li
     return _advance(system, state, h, mu, lam, fixed_positions, system.force, iterations, tolerance, line_search)
 
 
-def backward_euler_step(system: FEMSystem, state: State, h, material: Material, fixed_positions=None,
-                        newton_iterations: int = 1, tolerance: float | None = None,
-                        line_search: bool = True) -> State:
+def backward_euler_step(
+    system: FEMSystem,
+    state: State,
+    h,
+    material: Material,
+    fixed_positions=None,
+    newton_iterations: int = 1,
+    tolerance: float | None = None,
+    line_search: bool = True,
+) -> State:
     """One backward Euler step (eq. 10) of the stable neo-Hookean system (module docstring); jit-compiled,
     differentiable (reverse mode, implicitly) in state, the material, fixed_positions and the system's force,
     grads, volumes and mass_values.
@@ -533,8 +556,9 @@ def backward_euler_step(system: FEMSystem, state: State, h, material: Material, 
     Returns:
         The ``State`` at t + h: the fixed nodes at ``fixed_positions``, ``v = (x_{t+1} - x_t) / h``.
     """
-    return _step(*_step_arguments(system, state, h, material, fixed_positions, newton_iterations, tolerance,
-                                  line_search))
+    return _step(
+        *_step_arguments(system, state, h, material, fixed_positions, newton_iterations, tolerance, line_search)
+    )
 
 
 def _step_arguments(system, state, h, material, fixed_positions, newton_iterations, tolerance, line_search):
@@ -544,8 +568,9 @@ def _step_arguments(system, state, h, material, fixed_positions, newton_iteratio
     dtype = system.grads.dtype
     for name, a in (("state.x", state.x), ("state.v", state.v)):
         if jnp.shape(a) != (system.n, 3) or jnp.result_type(a) != dtype:
-            raise ValueError(f"{name}: expected shape ({system.n}, 3) and dtype {dtype}, got "
-                             f"{jnp.result_type(a)} {jnp.shape(a)}")
+            raise ValueError(
+                f"{name}: expected shape ({system.n}, 3) and dtype {dtype}, got {jnp.result_type(a)} {jnp.shape(a)}"
+            )
     if int(newton_iterations) != newton_iterations or newton_iterations < 1:
         raise ValueError(f"newton_iterations: expected an int >= 1, got {newton_iterations!r}")
     if tolerance is not None and not tolerance > 0:
@@ -559,10 +584,15 @@ def _step_arguments(system, state, h, material, fixed_positions, newton_iteratio
     if fixed_positions is not None:
         fixed_positions = jnp.asarray(fixed_positions, dtype)
         if fixed_positions.shape != system.fixed.shape + (3,):
-            raise ValueError(f"fixed_positions: expected shape ({system.fixed.shape[0]}, 3), got "
-                             f"{fixed_positions.shape}")
-    state = State(*(_checked(a, lambda a, xp: ~xp.isfinite(a), f"state.{name}: non-finite values (NaN or inf)")
-                    for name, a in (("x", state.x), ("v", state.v))))
+            raise ValueError(
+                f"fixed_positions: expected shape ({system.fixed.shape[0]}, 3), got {fixed_positions.shape}"
+            )
+    state = State(
+        *(
+            _checked(a, lambda a, xp: ~xp.isfinite(a), f"state.{name}: non-finite values (NaN or inf)")
+            for name, a in (("x", state.x), ("v", state.v))
+        )
+    )
     return system, state, h, material, fixed_positions, int(newton_iterations), tolerance, line_search
 
 
@@ -587,8 +617,15 @@ def _scalar(a, dtype):
     return np.asarray(a, dtype)
 
 
-def compiled_step(system: FEMSystem, state: State, h, material: Material, newton_iterations: int = 1,
-                  tolerance: float | None = None, line_search: bool = True):
+def compiled_step(
+    system: FEMSystem,
+    state: State,
+    h,
+    material: Material,
+    newton_iterations: int = 1,
+    tolerance: float | None = None,
+    line_search: bool = True,
+):
     """``backward_euler_step`` compiled ahead of time (traced and compiled, not run) for systems shaped like
     ``system`` (same array shapes and static sizes, e.g. padded to one ``SystemCapacity``) and these options.
 
@@ -602,12 +639,12 @@ def compiled_step(system: FEMSystem, state: State, h, material: Material, newton
         A function ``(system, state, h, material) -> State`` equal to ``backward_euler_step`` with these options
         (fixed nodes kept in place), for systems and states of the compiled shapes.
     """
-    compiled = _step.lower(*_step_arguments(system, state, h, material, None, newton_iterations, tolerance,
-                                            line_search)).compile()
+    compiled = _step.lower(
+        *_step_arguments(system, state, h, material, None, newton_iterations, tolerance, line_search)
+    ).compile()
 
     def step(system: FEMSystem, state: State, h, material: Material) -> State:
-        return compiled(*_step_arguments(system, state, h, material, None, newton_iterations, tolerance,
-                                         line_search))
+        return compiled(*_step_arguments(system, state, h, material, None, newton_iterations, tolerance, line_search))
 
     return step
 

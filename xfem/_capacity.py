@@ -55,15 +55,20 @@ class Capacities:
         fixed = size[0]
         nodes = size[0] + fixed
         # the padded free nodes' unit masses add a mass entry and a 3 x 3 block each
-        return SystemCapacity(nodes=nodes, elements=size[1], mass_entries=size[2] + nodes, fixed=fixed,
-                              nonzeros=size[3] + 9 * nodes)
+        return SystemCapacity(
+            nodes=nodes, elements=size[1], mass_entries=size[2] + nodes, fixed=fixed, nonzeros=size[3] + 9 * nodes
+        )
 
     def fits(self, level: int, arrays: tuple, n: int) -> bool:
         """Whether the system ``arrays`` over n DOFs fits ``level`` (its nonzeros aside)."""
         dofs, _, _, M, _, fixed = arrays
         capacity = self.capacity(level)
-        return (n <= capacity.nodes - capacity.fixed and len(dofs) <= capacity.elements
-                and M.nnz <= capacity.mass_entries - capacity.nodes and len(fixed) <= capacity.fixed)
+        return (
+            n <= capacity.nodes - capacity.fixed
+            and len(dofs) <= capacity.elements
+            and M.nnz <= capacity.mass_entries - capacity.nodes
+            and len(fixed) <= capacity.fixed
+        )
 
     def smallest_level(self, arrays: tuple, n: int, level: int) -> int:
         """The smallest level from ``level`` up that holds the system (its nonzeros aside)."""
@@ -94,8 +99,15 @@ class _Compilation:
         self.thread: threading.Thread | None = None  # the background thread building it, if any
         self.ready = threading.Event()  # set when a build has ended (step None: it failed)
 
-    def build(self, arrays, capacity: SystemCapacity, h, material: Material, newton_iterations: int,
-              system: FEMSystem | None = None):
+    def build(
+        self,
+        arrays,
+        capacity: SystemCapacity,
+        h,
+        material: Material,
+        newton_iterations: int,
+        system: FEMSystem | None = None,
+    ):
         """Compile the step of ``system``, already padded to ``capacity``, or of ``arrays`` padded here."""
         try:
             if system is None:
@@ -124,8 +136,15 @@ def wait_for_compilations() -> None:
         thread.join()
 
 
-def compiled(capacities: Capacities, padded: PaddedSystem, level: int, h, material: Material, newton_iterations: int,
-             background: bool):
+def compiled(
+    capacities: Capacities,
+    padded: PaddedSystem,
+    level: int,
+    h,
+    material: Material,
+    newton_iterations: int,
+    background: bool,
+):
     """The step compiled for capacity ``level`` (``compiled_step``), shared through ``_COMPILED``: found there, or
     compiled now (``background=False``), or compiled in a background thread that the step needing it will wait for
     (``background=True``; returns None). ``padded``: the system it is for (a level above ``padded.level`` pads
@@ -141,8 +160,9 @@ def compiled(capacities: Capacities, padded: PaddedSystem, level: int, h, materi
                 return None
             entry = _COMPILED[key] = _Compilation()
             if background:  # never run a step here: two steps' host callbacks at once can deadlock XLA
-                entry.thread = threading.Thread(target=entry.build, args=(padded.arrays, capacity, h, material,
-                                                                          newton_iterations, system))
+                entry.thread = threading.Thread(
+                    target=entry.build, args=(padded.arrays, capacity, h, material, newton_iterations, system)
+                )
                 entry.thread.start()  # not a daemon: XLA must not be cut off at exit
     if background:
         return None

@@ -48,10 +48,18 @@ class CutProcess:
         module, function = entry.split(":")
         # the child's environment only (a copy): the replica builds host systems and must never take an
         # accelerator; it imports what the parent imports, from any directory
-        env = {**os.environ, **(env or {}), "JAX_PLATFORMS": "cpu",
-               "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)}
-        self._child = subprocess.Popen([sys.executable, "-c", _CHILD_START.format(module=module, function=function)],
-                                       stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env)
+        env = {
+            **os.environ,
+            **(env or {}),
+            "JAX_PLATFORMS": "cpu",
+            "PYTHONPATH": os.pathsep.join(p for p in sys.path if p),
+        }
+        self._child = subprocess.Popen(
+            [sys.executable, "-c", _CHILD_START.format(module=module, function=function)],
+            stdin=subprocess.PIPE,
+            stdout=subprocess.PIPE,
+            env=env,
+        )
         self._ready = False
         self.send(init)
 
@@ -65,8 +73,9 @@ class CutProcess:
         try:
             write_frame(self._child.stdin, *encoded)
         except (BrokenPipeError, OSError) as error:
-            raise CutProcessError(f"the cut worker process exited (code {self._child.poll()}; see its stderr)") \
-                from error
+            raise CutProcessError(
+                f"the cut worker process exited (code {self._child.poll()}; see its stderr)"
+            ) from error
 
     def receive(self):
         """The next reply (after the child's ready message); raises the error the child raised, if any."""
@@ -77,8 +86,9 @@ class CutProcess:
         try:
             kind, payload = decode(*read_frame(self._child.stdout))  # waits for the whole reply, without the GIL
         except (EOFError, OSError, pickle.UnpicklingError) as error:
-            raise CutProcessError(f"the cut worker process exited (code {self._child.poll()}; see its stderr)") \
-                from error
+            raise CutProcessError(
+                f"the cut worker process exited (code {self._child.poll()}; see its stderr)"
+            ) from error
         if kind == "error":
             raise payload
         return payload

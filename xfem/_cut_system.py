@@ -37,9 +37,9 @@ import numpy as np
 from jax.extend.core import concrete_or_error
 from jaxtyping import Array, Float, Int
 
-from jaxcga._objects import check_finite, check_vectors
-from _jaxcga_shared.host import to_devices
 from _jaxcga_shared.checks import require
+from _jaxcga_shared.host import to_devices
+from jaxcga._objects import check_finite, check_vectors
 from xfem._assembly import scalar_slots
 from xfem._backward_euler import FEMSystem, State
 from xfem._cuts import _positive, plane_cut_solid
@@ -88,7 +88,7 @@ class _Replay(eqx.Module):
     load: Float[Array, "p 4"]
     dofs: Int[Array, "p 4"]
     weight: Float[Array, " p"]  # the density of each piece's element (its load times gravity is the force)
-    gravity: Float[Array, "3"]
+    gravity: Float[Array, 3]
     entry: Int[Array, " e"]  # for each piece mass entry (p, a, b), its mass entry (r, c) (k where dropped)
     transposed: Int[Array, " e"]  # and its entry (c, r)
     slots: Int[Array, "k 3"]  # ``scalar_slots`` of the mass entries
@@ -136,17 +136,26 @@ def _fields(replay: _Replay, points, normals):
     values, _ = triangle_moment_terms(jnp, positions[replay.triangles] - replay.origin[replay.triangle_row][:, None])
     sums = jax.ops.segment_sum(values, replay.triangle_row, r)
     second = sums[:, 4:].reshape(r, 3, 3)
-    mass, load = shape_function_integrals(jnp, replay.c, replay.g, sums[:, 0], sums[:, 1:4],
-                                          (second + jnp.swapaxes(second, 1, 2)) / 2)
+    mass, load = shape_function_integrals(
+        jnp, replay.c, replay.g, sums[:, 0], sums[:, 1:4], (second + jnp.swapaxes(second, 1, 2)) / 2
+    )
     volume = replay.volume.at[replay.rows].set(sums[:, 0])
     mass = replay.mass.at[replay.rows].set(replay.rho[:, None, None] * mass)
     load = replay.load.at[replay.rows].set(load)
     # M = (M + M^T) / 2 of the summed piece blocks, as XFEMModel._system_arrays
     flat = mass.reshape(-1)
-    values = 0.5 * (jax.ops.segment_sum(flat, replay.entry, replay.entries + 1)
-                    + jax.ops.segment_sum(flat, replay.transposed, replay.entries + 1))[:-1]
-    mass_data = jnp.zeros(replay.nnz, values.dtype).at[replay.slots].add(
-        jnp.broadcast_to(values[:, None], replay.slots.shape), mode="drop")
+    values = (
+        0.5
+        * (
+            jax.ops.segment_sum(flat, replay.entry, replay.entries + 1)
+            + jax.ops.segment_sum(flat, replay.transposed, replay.entries + 1)
+        )[:-1]
+    )
+    mass_data = (
+        jnp.zeros(replay.nnz, values.dtype)
+        .at[replay.slots]
+        .add(jnp.broadcast_to(values[:, None], replay.slots.shape), mode="drop")
+    )
     weights = load * replay.weight[:, None]
     force = jnp.zeros((replay.n, 3), values.dtype).at[replay.dofs].add(weights[:, :, None] * replay.gravity)
     return volume, values, mass_data, force
@@ -209,14 +218,24 @@ class _Table:
             if not stage:
                 return np.zeros(0, np.int64), np.zeros(0), np.zeros(0, bool)
             ids, sides, kept = zip(*stage)
-            return (np.concatenate(ids), np.repeat(sides, [len(i) for i in ids]).astype(np.float64),
-                    np.concatenate(kept))
+            return (
+                np.concatenate(ids),
+                np.repeat(sides, [len(i) for i in ids]).astype(np.float64),
+                np.concatenate(kept),
+            )
 
         # no stage: solids before the first plane (their systems are constants)
         ids, sides, kept = zip(*(checks(stage) for stage in self.checks)) if self.checks else ((), (), ())
-        return dict(consts=tuple(self.consts), lerp_a=tuple(k[:, 0].astype(np.int64) for k in lerps),
-                    lerp_b=tuple(k[:, 1].astype(np.int64) for k in lerps), lerp_side=tuple(k[:, 2] for k in lerps),
-                    check_ids=ids, check_side=sides, check_kept=kept, node_place=tuple(self.places))
+        return dict(
+            consts=tuple(self.consts),
+            lerp_a=tuple(k[:, 0].astype(np.int64) for k in lerps),
+            lerp_b=tuple(k[:, 1].astype(np.int64) for k in lerps),
+            lerp_side=tuple(k[:, 2] for k in lerps),
+            check_ids=ids,
+            check_side=sides,
+            check_kept=kept,
+            node_place=tuple(self.places),
+        )
 
 
 def _clip(table: _Table, faces: list[tuple[int, ...]], side: float, s: np.ndarray, half: float):
@@ -263,8 +282,16 @@ class PlaneCuts:
             thicknesses.
     """
 
-    def __init__(self, model: XFEMModel, reports: list[CutReport], points, normals, epsilons,
-                 replays: list[_Replay], systems: list[FEMSystem]):
+    def __init__(
+        self,
+        model: XFEMModel,
+        reports: list[CutReport],
+        points,
+        normals,
+        epsilons,
+        replays: list[_Replay],
+        systems: list[FEMSystem],
+    ):
         self.model, self.reports = model, reports
         self.points, self.normals, self.epsilons = points, normals, epsilons
         self._replays, self._systems = replays, systems
@@ -296,8 +323,9 @@ class PlaneCuts:
         points, normals = points.astype(dtype), normals.astype(dtype)
         length = jnp.linalg.norm(normals, axis=-1)
         points = require(points, (~jnp.all(jnp.isfinite(points)), "points: non-finite values (NaN or inf)"))
-        normals = require(normals, (~jnp.all(jnp.isfinite(length) & (length > 0)),
-                                    "normals: expected finite nonzero normals"))
+        normals = require(
+            normals, (~jnp.all(jnp.isfinite(length) & (length > 0)), "normals: expected finite nonzero normals")
+        )
         return points, normals
 
     def system(self, points, normals) -> FEMSystem:
@@ -351,8 +379,9 @@ def _entry(entry, index: str):
         return None, entry[0], float(entry[1])
     if isinstance(entry, (tuple, list)) and len(entry) == 3:
         return _plane(*entry, index=index)
-    raise ValueError(f"cuts{index}: expected (point, normal, epsilon) or a cut solid (a manifold3d.Manifold, or "
-                     "(solid, perturb))")
+    raise ValueError(
+        f"cuts{index}: expected (point, normal, epsilon) or a cut solid (a manifold3d.Manifold, or (solid, perturb))"
+    )
 
 
 def plane_cuts(model: XFEMModel, cuts) -> PlaneCuts:
@@ -400,19 +429,31 @@ def plane_cuts(model: XFEMModel, cuts) -> PlaneCuts:
         reports.append(report)
         replay, system, elements = _stage_replay(copy, table, programs, [c[2] for c in planes])
         if planes:  # the replay at the planes found must give the Booleans' pieces
-            volume = _fields(replay, jnp.asarray(np.stack([c[0] for c in planes])),
-                             jnp.asarray(np.stack([c[1] for c in planes])))[0]
+            volume = _fields(
+                replay, jnp.asarray(np.stack([c[0] for c in planes])), jnp.asarray(np.stack([c[1] for c in planes]))
+            )[0]
             rows = np.asarray(replay.rows)
-            bad = np.abs(np.asarray(volume)[rows] - np.asarray(system.volumes)[rows]) > _MATCH * tet_volume[
-                elements[rows]]
+            bad = (
+                np.abs(np.asarray(volume)[rows] - np.asarray(system.volumes)[rows])
+                > _MATCH * tet_volume[elements[rows]]
+            )
             if np.any(bad):
                 e = int(elements[rows][np.argmax(bad)])
-                raise ValueError(f"model: the pieces of element {e} after cut {k} are not the slabs' half-spaces of "
-                                 "its earlier pieces (a non-convex piece split into several?)")
+                raise ValueError(
+                    f"model: the pieces of element {e} after cut {k} are not the slabs' half-spaces of "
+                    "its earlier pieces (a non-convex piece split into several?)"
+                )
         replays.append(replay)
         systems.append(system)
-    return PlaneCuts(copy, reports, np.stack([c[0] for c in planes]), np.stack([c[1] for c in planes]),
-                     np.array([c[2] for c in planes]), replays, systems)
+    return PlaneCuts(
+        copy,
+        reports,
+        np.stack([c[0] for c in planes]),
+        np.stack([c[1] for c in planes]),
+        np.array([c[2] for c in planes]),
+        replays,
+        systems,
+    )
 
 
 def _cut_by_plane(copy: XFEMModel, table: _Table, programs: dict, point, normal, epsilon, name: str) -> CutReport:
@@ -421,12 +462,14 @@ def _cut_by_plane(copy: XFEMModel, table: _Table, programs: dict, point, normal,
     X, T = copy.X, copy.T
     half = epsilon / 2
     s_nodes = (X - point) @ normal
-    near = np.flatnonzero((s_nodes[T].min(axis=1) <= half * (1 + 1e-9))
-                          & (s_nodes[T].max(axis=1) >= -half * (1 + 1e-9)))
+    near = np.flatnonzero(
+        (s_nodes[T].min(axis=1) <= half * (1 + 1e-9)) & (s_nodes[T].max(axis=1) >= -half * (1 + 1e-9))
+    )
     exact = copy._exact
     prior = {e: list(copy.sub.element_subdomains(e)) for e in near.tolist()}
-    solids = {sid: copy.sub.element_solid(sid) for e in near.tolist() if e in exact
-              for sid in prior[e] if sid not in programs}
+    solids = {
+        sid: copy.sub.element_solid(sid) for e in near.tolist() if e in exact for sid in prior[e] if sid not in programs
+    }
     extent = _COVER * 2 * float(np.max(np.linalg.norm(X - point, axis=1)))
     report = copy.cut(plane_cut_solid(point, normal, extent, epsilon))
     touched = report.elements_touched
@@ -482,8 +525,11 @@ def _stage_replay(copy: XFEMModel, table: _Table, programs: dict, epsilons: list
     triangles, triangle_row = [np.zeros((0, 3), np.int64)], [np.zeros(0, np.int64)]
     for length, (faces, owners) in by_length.items():
         faces, i = np.asarray(faces, np.int64), np.arange(1, length - 1)
-        triangles.append(np.stack([np.repeat(faces[:, :1], length - 2, axis=1), faces[:, i], faces[:, i + 1]],
-                                  axis=-1).reshape(-1, 3))
+        triangles.append(
+            np.stack([np.repeat(faces[:, :1], length - 2, axis=1), faces[:, i], faces[:, i + 1]], axis=-1).reshape(
+                -1, 3
+            )
+        )
         triangle_row.append(np.repeat(np.asarray(owners, np.int64), length - 2))
     Xe = copy.X[copy.T[element[rows]]]
     origin = Xe.mean(axis=1)
@@ -500,18 +546,36 @@ def _stage_replay(copy: XFEMModel, table: _Table, programs: dict, epsilons: list
 
     rho = copy.rho[element]
     replay = _Replay(
-        **table.arrays(), epsilon=np.asarray(epsilons, np.float64),
-        triangles=np.concatenate(triangles), triangle_row=np.concatenate(triangle_row),
-        origin=origin, c=c, g=g, rho=rho[rows], rows=rows, volume=volume, mass=mass, load=load, dofs=dofs,
-        weight=rho, gravity=np.asarray(copy.gravity, np.float64), entry=entry(r_ * n + c_),
-        transposed=entry(c_ * n + r_), slots=scalar_slots(system.pattern, mass_rows, mass_cols),
-        entries=len(keys), nnz=int(system.pattern.nnz), n=n)
+        **table.arrays(),
+        epsilon=np.asarray(epsilons, np.float64),
+        triangles=np.concatenate(triangles),
+        triangle_row=np.concatenate(triangle_row),
+        origin=origin,
+        c=c,
+        g=g,
+        rho=rho[rows],
+        rows=rows,
+        volume=volume,
+        mass=mass,
+        load=load,
+        dofs=dofs,
+        weight=rho,
+        gravity=np.asarray(copy.gravity, np.float64),
+        entry=entry(r_ * n + c_),
+        transposed=entry(c_ * n + r_),
+        slots=scalar_slots(system.pattern, mass_rows, mass_cols),
+        entries=len(keys),
+        nnz=int(system.pattern.nnz),
+        n=n,
+    )
     leaves, tree = jax.tree.flatten(replay)
     return jax.tree.unflatten(tree, to_devices(*leaves)), system, element
 
 
-_UNDER_JIT = ("cut_system finds the pieces on the host and needs a concrete plane (under jit, call plane_cuts "
-              "outside and its system(points, normals) inside)")
+_UNDER_JIT = (
+    "cut_system finds the pieces on the host and needs a concrete plane (under jit, call plane_cuts "
+    "outside and its system(points, normals) inside)"
+)
 
 
 def _concrete(name: str, x, advice: str = _UNDER_JIT) -> np.ndarray:

@@ -27,8 +27,8 @@ import numpy as np
 from jaxtyping import Array, Float, Int
 
 import jaxcga as cga
-from jaxcga._objects import check_finite, check_vectors
 from _jaxcga_shared.checks import require
+from jaxcga._objects import check_finite, check_vectors
 
 
 def _grid_faces(q: int, p: int) -> np.ndarray:
@@ -213,10 +213,12 @@ def thicken(
     boundary = _boundary_edges(F, n)
 
     V2, degenerate, fold, flipped = _offset(V, jnp.asarray(F), jnp.asarray(epsilon / 2, V.dtype))
-    V2 = require(V2, (degenerate, "F: degenerate (zero-area) triangle"),
-                 (fold, "V: a vertex normal is at 90 degrees or more from one of its faces (fold)"),
-                 (flipped, f"epsilon: an offset copy flips a triangle (the surface folds tighter than "
-                           f"epsilon = {epsilon})"))
+    V2 = require(
+        V2,
+        (degenerate, "F: degenerate (zero-area) triangle"),
+        (fold, "V: a vertex normal is at 90 degrees or more from one of its faces (fold)"),
+        (flipped, f"epsilon: an offset copy flips a triangle (the surface folds tighter than epsilon = {epsilon})"),
+    )
     a, b = boundary[:, 0], boundary[:, 1]
     walls = np.concatenate([np.stack([a + n, b + n, b], -1), np.stack([a + n, b, a], -1)])
     F2 = np.concatenate([F, F[:, ::-1] + n, walls])
@@ -238,17 +240,19 @@ def cut_solid(V: Float[Array, "n 3"], F: Int[np.ndarray, "m 3"], epsilon: float)
     """
     V2, F2 = thicken(V, F, epsilon)
     # writable C-contiguous copies: the bindings refuse read-only (JAX-backed) buffers
-    mesh = manifold3d.Mesh64(vert_properties=np.array(V2, np.float64, order="C"),
-                             tri_verts=np.array(F2, np.uint64, order="C"))
+    mesh = manifold3d.Mesh64(
+        vert_properties=np.array(V2, np.float64, order="C"), tri_verts=np.array(F2, np.uint64, order="C")
+    )
     solid = manifold3d.Manifold(mesh)
     if solid.status() != manifold3d.Error.NoError or solid.volume() <= 0:
-        raise ValueError(f"V, F: manifold3d rejected the thickened cut (status {solid.status().name}, "
-                         f"volume {solid.volume()})")
+        raise ValueError(
+            f"V, F: manifold3d rejected the thickened cut (status {solid.status().name}, volume {solid.volume()})"
+        )
     return solid
 
 
 def plane_cut_solid(
-    point: Float[Array, "3"], normal: Float[Array, "3"], extent: float, epsilon: float
+    point: Float[Array, 3], normal: Float[Array, 3], extent: float, epsilon: float
 ) -> manifold3d.Manifold:
     """A flat square cut of side ``extent`` centred at ``point`` across ``normal``, thickened by epsilon
     (a slab extent x extent x epsilon).

@@ -62,7 +62,7 @@ def read_frame(stream) -> tuple[bytes, list[np.ndarray]]:
     for size in lengths[1:]:
         block = np.empty(size + _ALIGN, np.uint8)
         start = -block.ctypes.data % _ALIGN
-        buffer = block[start:start + size]
+        buffer = block[start : start + size]
         view, done = memoryview(buffer), 0
         while done < size:
             got = stream.readinto(view[done:])

@@ -30,8 +30,10 @@ from typing import NamedTuple
 
 import numpy as np
 
-_CLOSED_MESSAGE = ("F: each piece must be a closed, consistently oriented triangle mesh (every directed edge "
-                   "(a, b) matched by an edge (b, a) of the same piece)")
+_CLOSED_MESSAGE = (
+    "F: each piece must be a closed, consistently oriented triangle mesh (every directed edge "
+    "(a, b) matched by an edge (b, a) of the same piece)"
+)
 
 
 class Moments(NamedTuple):
@@ -51,8 +53,11 @@ class Moments(NamedTuple):
 def _host_real(x, shape: tuple, name: str, what: str) -> np.ndarray:
     """x as finite float64 with the given shape (None: any length), or ValueError naming it."""
     x = np.asarray(x)
-    if (x.ndim != len(shape) or any(s is not None and s != d for s, d in zip(shape, x.shape))
-            or not (np.issubdtype(x.dtype, np.floating) or np.issubdtype(x.dtype, np.integer))):
+    if (
+        x.ndim != len(shape)
+        or any(s is not None and s != d for s, d in zip(shape, x.shape))
+        or not (np.issubdtype(x.dtype, np.floating) or np.issubdtype(x.dtype, np.integer))
+    ):
         expected = ", ".join("n" if s is None else str(s) for s in shape)
         raise ValueError(f"{name}: expected {what} of shape ({expected}), got {x.dtype} {x.shape}")
     x = x.astype(np.float64)
@@ -63,8 +68,11 @@ def _host_real(x, shape: tuple, name: str, what: str) -> np.ndarray:
 
 def _host_index(x, shape: tuple, bound: int, name: str, what: str) -> np.ndarray:
     x = np.asarray(x)
-    if x.ndim != len(shape) or any(s is not None and s != d for s, d in zip(shape, x.shape)) or \
-            not np.issubdtype(x.dtype, np.integer):
+    if (
+        x.ndim != len(shape)
+        or any(s is not None and s != d for s, d in zip(shape, x.shape))
+        or not np.issubdtype(x.dtype, np.integer)
+    ):
         expected = ", ".join("m" if s is None else str(s) for s in shape)
         raise ValueError(f"{name}: expected integer {what} of shape ({expected}), got {x.dtype} {x.shape}")
     x = x.astype(np.int64)
@@ -149,8 +157,9 @@ def triangle_moment_terms(xp, v):
     det = xp.einsum("ij,ij->i", v[:, 0], xp.cross(v[:, 1], v[:, 2]))
     s = v.sum(axis=1)
     outer = s[:, :, None] * s[:, None, :] + xp.matmul(xp.swapaxes(v, 1, 2), v)  # matmul: faster than einsum here
-    values = xp.concatenate([det[:, None] / 6, det[:, None] * s / 24,
-                             (det[:, None, None] * outer / 120).reshape(-1, 9)], axis=1)
+    values = xp.concatenate(
+        [det[:, None] / 6, det[:, None] * s / 24, (det[:, None, None] * outer / 120).reshape(-1, 9)], axis=1
+    )
     return values, det
 
 
@@ -191,8 +200,11 @@ def linear_shape_coefficients(Xe, origin=None) -> tuple[np.ndarray, np.ndarray]:
     if Xe.ndim < 2:
         raise ValueError(f"Xe: expected tet corners of shape (..., 4, 3), got {Xe.shape}")
     Xe = _host_real(Xe, Xe.shape[:-2] + (4, 3), "Xe", "tet corners")
-    origin = np.zeros(Xe.shape[:-2] + (3,)) if origin is None else _host_real(
-        origin, Xe.shape[:-2] + (3,), "origin", "points")
+    origin = (
+        np.zeros(Xe.shape[:-2] + (3,))
+        if origin is None
+        else _host_real(origin, Xe.shape[:-2] + (3,), "origin", "points")
+    )
     a, b, c = (Xe[..., k, :] - Xe[..., 0, :] for k in (1, 2, 3))
     bc, ca, ab = np.cross(b, c), np.cross(c, a), np.cross(a, b)
     det = np.sum(a * bc, axis=-1)
@@ -223,22 +235,33 @@ def element_piece_integrals(c, g, moments: Moments, density=1.0) -> tuple[np.nda
     """
     c, g = np.asarray(c, np.float64), np.asarray(g, np.float64)
     volume, first, second = (np.asarray(m, np.float64) for m in moments)
-    tails = (("c", c, (4,)), ("g", g, (4, 3)), ("moments.volume", volume, ()), ("moments.first", first, (3,)),
-             ("moments.second", second, (3, 3)))
+    tails = (
+        ("c", c, (4,)),
+        ("g", g, (4, 3)),
+        ("moments.volume", volume, ()),
+        ("moments.first", first, (3,)),
+        ("moments.second", second, (3, 3)),
+    )
     for name, x, tail in tails:
-        if x.ndim < len(tail) or x.shape[x.ndim - len(tail):] != tail:
+        if x.ndim < len(tail) or x.shape[x.ndim - len(tail) :] != tail:
             raise ValueError(f"{name}: expected shape (..., {', '.join(map(str, tail))}), got {x.shape}")
     try:
-        batch = np.broadcast_shapes(*(x.shape[:x.ndim - len(tail)] for _, x, tail in tails))
+        batch = np.broadcast_shapes(*(x.shape[: x.ndim - len(tail)] for _, x, tail in tails))
     except ValueError:
-        raise ValueError("c, g, moments: batch shapes " + ", ".join(
-            str(x.shape[:x.ndim - len(tail)]) for _, x, tail in tails) + " do not broadcast") from None
+        raise ValueError(
+            "c, g, moments: batch shapes "
+            + ", ".join(str(x.shape[: x.ndim - len(tail)]) for _, x, tail in tails)
+            + " do not broadcast"
+        ) from None
     rho = np.asarray(density, np.float64)
     if rho.shape not in ((), batch) or not np.all(np.isfinite(rho) & (rho > 0)):
         raise ValueError(f"density: expected finite positive values of shape () or {batch}, got {rho.shape}")
     mass, load = shape_function_integrals(np, c, g, volume, first, second)
-    return (np.broadcast_to(rho[..., None, None] * mass, batch + (4, 4)), np.broadcast_to(load, batch + (4,)),
-            np.broadcast_to(volume, batch))
+    return (
+        np.broadcast_to(rho[..., None, None] * mass, batch + (4, 4)),
+        np.broadcast_to(load, batch + (4,)),
+        np.broadcast_to(volume, batch),
+    )
 
 
 def shape_function_integrals(xp, c, g, volume, first, second):
@@ -246,6 +269,10 @@ def shape_function_integrals(xp, c, g, volume, first, second):
     the origin of the shape coefficients (c, g) (module docstring); xp: numpy or jax.numpy."""
     gm = xp.einsum("...aj,...j->...a", g, first)
     cross = c[..., :, None] * gm[..., None, :]
-    mass = (c[..., :, None] * c[..., None, :] * volume[..., None, None] + cross + xp.swapaxes(cross, -1, -2)
-            + xp.einsum("...ai,...ij,...bj->...ab", g, second, g))
+    mass = (
+        c[..., :, None] * c[..., None, :] * volume[..., None, None]
+        + cross
+        + xp.swapaxes(cross, -1, -2)
+        + xp.einsum("...ai,...ij,...bj->...ab", g, second, g)
+    )
     return mass, c * volume[..., None] + gm

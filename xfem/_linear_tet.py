@@ -73,8 +73,9 @@ def _shape_gradients(X, T):
     return grads, det / 6, _bad_index(T, X.shape[0]), _bad_volume(det)
 
 
-def shape_functions(X: Float[Array, "n 3"], T: Int[Array, "m 4"], points: Float[Array, "k 3"],
-                    elements: Int[Array, " k"]) -> Float[Array, "k 4"]:
+def shape_functions(
+    X: Float[Array, "n 3"], T: Int[Array, "m 4"], points: Float[Array, "k 3"], elements: Int[Array, " k"]
+) -> Float[Array, "k 4"]:
     """The four shape functions ``N_a`` of tet ``elements[i]`` at ``points[i]`` (its barycentric coordinates).
 
     A point outside its tet gets the affine extension (some ``N_a < 0``); nothing checks containment.
@@ -92,11 +93,17 @@ def shape_functions(X: Float[Array, "n 3"], T: Int[Array, "m 4"], points: Float[
     if points.ndim != 2 or points.shape[1] != 3 or not jnp.issubdtype(points.dtype, jnp.floating):
         raise ValueError(f"points: expected float positions of shape (k, 3), got {points.dtype} {points.shape}")
     if elements.shape != points.shape[:1] or not jnp.issubdtype(elements.dtype, jnp.integer):
-        raise ValueError(f"elements: expected integer tet indices of shape ({points.shape[0]},), "
-                         f"got {elements.dtype} {elements.shape}")
+        raise ValueError(
+            f"elements: expected integer tet indices of shape ({points.shape[0]},), "
+            f"got {elements.dtype} {elements.shape}"
+        )
     N, bad_elements, bad_index, bad_volume = _shape_functions(X, T, jnp.asarray(points, X.dtype), elements)
-    return require(N, (bad_elements, f"elements: tet indices must lie in [0, {T.shape[0]})"),
-                    (bad_index, _index_message(X.shape[0])), (bad_volume, _VOLUME_MESSAGE))
+    return require(
+        N,
+        (bad_elements, f"elements: tet indices must lie in [0, {T.shape[0]})"),
+        (bad_index, _index_message(X.shape[0])),
+        (bad_volume, _VOLUME_MESSAGE),
+    )
 
 
 @jax.jit
@@ -111,8 +118,9 @@ def _shape_functions(X, T, points, elements):
 
 def _host_density(density, m: int) -> np.ndarray:
     rho = np.asarray(density)
-    if rho.shape not in ((), (m,)) or not (np.issubdtype(rho.dtype, np.floating) or
-                                           np.issubdtype(rho.dtype, np.integer)):
+    if rho.shape not in ((), (m,)) or not (
+        np.issubdtype(rho.dtype, np.floating) or np.issubdtype(rho.dtype, np.integer)
+    ):
         raise ValueError(f"density: expected a scalar or shape ({m},), got {rho.dtype} {rho.shape}")
     rho = rho.astype(np.float64)
     if not np.all(np.isfinite(rho)) or np.any(rho <= 0):
@@ -139,8 +147,9 @@ def consistent_mass(X, T, density) -> sp.csr_matrix:
     volume = _host_volumes(X, T)
     if np.any(volume <= 0):
         e = int(np.argmax(volume <= 0))
-        raise ValueError(f"T: tet {e} = {T[e].tolist()} has non-positive volume {volume[e]:.3g}; "
-                         "orient the tets with tet_mesh")
+        raise ValueError(
+            f"T: tet {e} = {T[e].tolist()} has non-positive volume {volume[e]:.3g}; orient the tets with tet_mesh"
+        )
     weight = _host_density(density, len(T)) * volume / 20
     values = weight[:, None, None] * (1 + np.eye(4))
     rows = np.broadcast_to(T[:, :, None], values.shape)
@@ -168,8 +177,12 @@ def lumped_mass(X: Float[Array, "n 3"], T: Int[Array, "m 4"], density) -> Float[
     """
     X, T = _jax_mesh_arrays(X, T)
     masses, bad_density, bad_index, bad_volume = _lumped_mass(X, T, _jax_density(density, T.shape[0], X.dtype))
-    return require(masses, (bad_density, "density: expected finite positive values"),
-                    (bad_index, _index_message(X.shape[0])), (bad_volume, _VOLUME_MESSAGE))
+    return require(
+        masses,
+        (bad_density, "density: expected finite positive values"),
+        (bad_index, _index_message(X.shape[0])),
+        (bad_volume, _VOLUME_MESSAGE),
+    )
 
 
 @jax.jit
@@ -196,8 +209,12 @@ def body_force(X: Float[Array, "n 3"], T: Int[Array, "m 4"], b) -> Float[Array, 
     if b.shape not in ((3,), (T.shape[0], 3)):
         raise ValueError(f"b: expected a force density of shape (3,) or ({T.shape[0]}, 3), got {b.shape}")
     f, bad_b, bad_index, bad_volume = _body_force(X, T, jnp.asarray(b, X.dtype))
-    return require(f, (bad_b, "b: non-finite values (NaN or inf)"), (bad_index, _index_message(X.shape[0])),
-                    (bad_volume, _VOLUME_MESSAGE))
+    return require(
+        f,
+        (bad_b, "b: non-finite values (NaN or inf)"),
+        (bad_index, _index_message(X.shape[0])),
+        (bad_volume, _VOLUME_MESSAGE),
+    )
 
 
 @jax.jit

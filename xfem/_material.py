@@ -26,8 +26,8 @@ class Material(eqx.Module):
         poisson: Poisson's ratio nu in (-1, 1/2), broadcastable against ``young``.
     """
 
-    young: Float[Array, "..."] | float
-    poisson: Float[Array, "..."] | float
+    young: Float[Array, ...] | float
+    poisson: Float[Array, ...] | float
 
     def __check_init__(self):
         # concrete values are checked now (a ValueError naming the argument); traced ones by ``lame``'s
@@ -43,6 +43,6 @@ class Material(eqx.Module):
                 raise ValueError(f"young, poisson: shapes {young.shape} and {poisson.shape} do not broadcast") from None
             lame(young, poisson)
 
-    def lame(self) -> tuple[Float[Array, "..."], Float[Array, "..."]]:
+    def lame(self) -> tuple[Float[Array, ...], Float[Array, ...]]:
         """The Lamé parameters ``(mu, lam) = (E / (2 (1 + nu)), E nu / ((1 + nu)(1 - 2 nu)))`` (``xfem.lame``)."""
         return lame(self.young, self.poisson)

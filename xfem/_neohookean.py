@@ -239,7 +239,7 @@ def _projected_hessian_jvp(primals, tangents):
 _psi_jit, _pk1_jit = eqx.filter_jit(_psi), eqx.filter_jit(_pk1)
 
 
-def stable_neohookean_energy(F: Float[Array, "... 3 3"], mu, lam) -> Float[Array, "..."]:
+def stable_neohookean_energy(F: Float[Array, "... 3 3"], mu, lam) -> Float[Array, ...]:
     """Stable neo-Hookean energy density Psi(F) ([SGK18] eq. 14, module docstring), ``Psi(I) = 0``.
 
     Args:

@@ -28,10 +28,19 @@ from xfem._backward_euler import _NEWTON_RESULT, FEMSystem, State, _advance, _st
 from xfem._material import Material
 
 
-def rollout(system: FEMSystem, state: State, material: Material, h, steps: int, *, newton_iterations: int = 1,
-            tolerance: float | None = None, line_search: bool = True,
-            forces: Float[Array, "n 3"] | Float[Array, "steps n 3"] | None = None,
-            targets: Float[Array, "steps nb 3"] | None = None) -> State:
+def rollout(
+    system: FEMSystem,
+    state: State,
+    material: Material,
+    h,
+    steps: int,
+    *,
+    newton_iterations: int = 1,
+    tolerance: float | None = None,
+    line_search: bool = True,
+    forces: Float[Array, "n 3"] | Float[Array, "steps n 3"] | None = None,
+    targets: Float[Array, "steps nb 3"] | None = None,
+) -> State:
     """``steps`` backward Euler steps from ``state`` (``backward_euler_step`` in a ``jax.lax.scan``); jit-,
     vmap- and grad-able (reverse mode through each step's implicit gradient, module docstring).
 
@@ -50,21 +59,25 @@ def rollout(system: FEMSystem, state: State, material: Material, h, steps: int, 
         The ``State`` of every frame: x and v of shape (steps, n, 3), frame k after k + 1 steps.
     """
     system, state, h, material, _, iterations, tolerance, line_search = _step_arguments(
-        system, state, h, material, None, newton_iterations, tolerance, line_search)
+        system, state, h, material, None, newton_iterations, tolerance, line_search
+    )
     if not isinstance(steps, int) or isinstance(steps, bool) or steps < 0:
         raise ValueError(f"steps: expected an int >= 0, got {steps!r}")
     dtype, n, nb = system.grads.dtype, system.n, system.fixed.shape[0]
     if forces is not None:
         forces = jnp.asarray(forces)
         if forces.shape not in ((n, 3), (steps, n, 3)) or not jnp.issubdtype(forces.dtype, jnp.floating):
-            raise ValueError(f"forces: expected float forces of shape ({n}, 3) or ({steps}, {n}, 3), got "
-                             f"{forces.dtype} {forces.shape}")
+            raise ValueError(
+                f"forces: expected float forces of shape ({n}, 3) or ({steps}, {n}, 3), got "
+                f"{forces.dtype} {forces.shape}"
+            )
         forces = forces.astype(dtype)
     if targets is not None:
         targets = jnp.asarray(targets)
         if targets.shape != (steps, nb, 3) or not jnp.issubdtype(targets.dtype, jnp.floating):
-            raise ValueError(f"targets: expected float positions of shape ({steps}, {nb}, 3), got {targets.dtype} "
-                             f"{targets.shape}")
+            raise ValueError(
+                f"targets: expected float positions of shape ({steps}, {nb}, 3), got {targets.dtype} {targets.shape}"
+            )
         targets = targets.astype(dtype)
     return _rollout(system, state, h, material, forces, targets, steps, iterations, tolerance, line_search)
 
@@ -77,12 +90,25 @@ def _rollout(system, state, h, material, forces, targets, steps, iterations, tol
     fixed_start = state.x[system.fixed]
 
     # only the Newton result is kept for the reverse pass: it re-runs the cheap parts of a step, not its Newton
-    @functools.partial(jax.checkpoint, prevent_cse=False,  # no CSE across scan iterations to prevent
-                       policy=jax.checkpoint_policies.save_only_these_names(_NEWTON_RESULT))
+    @functools.partial(
+        jax.checkpoint,
+        prevent_cse=False,  # no CSE across scan iterations to prevent
+        policy=jax.checkpoint_policies.save_only_these_names(_NEWTON_RESULT),
+    )
     def body(s, frame):
         force, target = frame
-        s = _advance(system, s, h, mu, lam, fixed_start if target is None else target,
-                     force if per_frame else constant, iterations, tolerance, line_search)
+        s = _advance(
+            system,
+            s,
+            h,
+            mu,
+            lam,
+            fixed_start if target is None else target,
+            force if per_frame else constant,
+            iterations,
+            tolerance,
+            line_search,
+        )
         return s, s
 
     return jax.lax.scan(body, state, (forces if per_frame else None, targets), length=steps)[1]

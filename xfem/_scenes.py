@@ -68,8 +68,16 @@ from xfem._background import BackgroundCuts
 from xfem._cuts import cut_solid, plane_cut_solid, sweep_between, swept_surface
 from xfem._integration import linear_shape_coefficients
 from xfem._material import Material
-from xfem._tetmesh import (TET_FACES, TetMesh, box_tets, element_adjacency, five_tet_cube, one_tet, tet_mesh,
-                           tetrahedralize)
+from xfem._tetmesh import (
+    TET_FACES,
+    TetMesh,
+    box_tets,
+    element_adjacency,
+    five_tet_cube,
+    one_tet,
+    tet_mesh,
+    tetrahedralize,
+)
 from xfem._xfem import XFEMModel, xfem_model
 
 SCENES = ("sticks", "thin", "cheese", "accordion", "mouth")
@@ -173,8 +181,9 @@ def _swept(edge, pivot, axis, angles, shifts, epsilon: float, samples: int = 6) 
     pivot = np.asarray(pivot, np.float64)
     angles = np.asarray(angles, np.float64)
     axes = np.broadcast_to(np.asarray(axis, np.float64), (len(angles), 3))
-    motors = cga.motor(cga.rotor(jnp.asarray(axes), jnp.asarray(angles)),
-                       jnp.asarray(pivot + np.asarray(shifts, np.float64)))
+    motors = cga.motor(
+        cga.rotor(jnp.asarray(axes), jnp.asarray(angles)), jnp.asarray(pivot + np.asarray(shifts, np.float64))
+    )
     V, F = swept_surface(jnp.asarray(np.asarray(edge, np.float64) - pivot), motors, samples)
     return cut_solid(V, F, epsilon)
 
@@ -195,13 +204,13 @@ def _sticks(size: str) -> Scene:
             point, normal = np.full(3, 0.5), np.eye(3)[axis]
             point[axis] = levels[i]
             frame = 5 * (k + 1) if size == "paper" else (1 if axis == 1 else 2)
-            cuts.append(ScheduledCut(frame, plane_cut_solid(point, normal, 1.6, epsilon), perturb,
-                                     f"{name} = {levels[i]:.3f}"))
+            cuts.append(
+                ScheduledCut(frame, plane_cut_solid(point, normal, 1.6, epsilon), perturb, f"{name} = {levels[i]:.3f}")
+            )
             k += 1
     cuts.sort(key=lambda c: c.frame)
     fixed = np.flatnonzero(np.asarray(mesh.X)[:, 0] < 1e-9)
-    return Scene("sticks", size, mesh, fixed, 1e6, 0.4, 1e3, 0.033, epsilon, 150 if size == "paper" else 3,
-                 tuple(cuts))
+    return Scene("sticks", size, mesh, fixed, 1e6, 0.4, 1e3, 0.033, epsilon, 150 if size == "paper" else 3, tuple(cuts))
 
 
 def _thin(size: str) -> Scene:
@@ -216,16 +225,34 @@ def _thin(size: str) -> Scene:
     cuts = []
     for frame, level in zip(frames[:4], (0.5, 0.625, 0.75, 0.875)):
         x0, x1 = start, L + margin
-        cuts.append(ScheduledCut(frame, _rectangle(((x0 + x1) / 2, W / 2, level * T), (1, 0, 0), (0, 1, 0),
-                                                   (x1 - x0) / 2, W / 2 + margin, epsilon),
-                                 perturb, f"sheet z = {level} T"))
+        cuts.append(
+            ScheduledCut(
+                frame,
+                _rectangle(
+                    ((x0 + x1) / 2, W / 2, level * T), (1, 0, 0), (0, 1, 0), (x1 - x0) / 2, W / 2 + margin, epsilon
+                ),
+                perturb,
+                f"sheet z = {level} T",
+            )
+        )
     x0, x1, z0, z1 = 0.5 * L, L + margin, 0.4 * T, T + margin
-    cuts.append(ScheduledCut(frames[4], _rectangle(((x0 + x1) / 2, 0.5 * W + 0.013 * T, (z0 + z1) / 2), (1, 0, 0),
-                                                   (0, 0, 1), (x1 - x0) / 2, (z1 - z0) / 2, epsilon),
-                             perturb, "across the sheets y = W / 2"))
+    cuts.append(
+        ScheduledCut(
+            frames[4],
+            _rectangle(
+                ((x0 + x1) / 2, 0.5 * W + 0.013 * T, (z0 + z1) / 2),
+                (1, 0, 0),
+                (0, 0, 1),
+                (x1 - x0) / 2,
+                (z1 - z0) / 2,
+                epsilon,
+            ),
+            perturb,
+            "across the sheets y = W / 2",
+        )
+    )
     fixed = np.flatnonzero(np.asarray(mesh.X)[:, 0] < 1e-9 * L)
-    return Scene("thin", size, mesh, fixed, 1e6, 0.4, 1e3, 0.033, epsilon, 200 if size == "paper" else 4,
-                 tuple(cuts))
+    return Scene("thin", size, mesh, fixed, 1e6, 0.4, 1e3, 0.033, epsilon, 200 if size == "paper" else 4, tuple(cuts))
 
 
 def _wave(a, b, normal, amplitude: float, waves: float, points: int = 33) -> np.ndarray:
@@ -245,28 +272,69 @@ def _cheese(size: str) -> Scene:
     frames = _frames(size, [10, 20, 30, 40, 50], [1, 1, 1, 2, 2])
     cuts = [
         # full wavy cuts: a sinusoidal edge along y swept along x (waves in z), one along x swept along z (in y)
-        ScheduledCut(frames[0], _swept(_wave((-m, -m, 0.31 * s), (-m, s + m, 0.31 * s), (0, 0, 1), 0.05 * s, 2.5),
-                                       (0, 0, 0), (0, 0, 1), zero2, [(0, 0, 0), (s + 2 * m, 0, 0)], epsilon),
-                     perturb, "wavy z ~ 0.31 s"),
-        ScheduledCut(frames[1], _swept(_wave((-m, 0.27 * s, -m), (s + m, 0.27 * s, -m), (0, 1, 0), 0.06 * s, 2.0),
-                                       (0, 0, 0), (0, 0, 1), zero2, [(0, 0, 0), (0, 0, s + 2 * m)], epsilon),
-                     perturb, "wavy y ~ 0.27 s"),
+        ScheduledCut(
+            frames[0],
+            _swept(
+                _wave((-m, -m, 0.31 * s), (-m, s + m, 0.31 * s), (0, 0, 1), 0.05 * s, 2.5),
+                (0, 0, 0),
+                (0, 0, 1),
+                zero2,
+                [(0, 0, 0), (s + 2 * m, 0, 0)],
+                epsilon,
+            ),
+            perturb,
+            "wavy z ~ 0.31 s",
+        ),
+        ScheduledCut(
+            frames[1],
+            _swept(
+                _wave((-m, 0.27 * s, -m), (s + m, 0.27 * s, -m), (0, 1, 0), 0.06 * s, 2.0),
+                (0, 0, 0),
+                (0, 0, 1),
+                zero2,
+                [(0, 0, 0), (0, 0, s + 2 * m)],
+                epsilon,
+            ),
+            perturb,
+            "wavy y ~ 0.27 s",
+        ),
         # partial flat cuts
-        ScheduledCut(frames[2], _rectangle((0.23 * s, 0.2 * s, 0.2 * s), (0, 1, 0), (0, 0, 1), 0.35 * s, 0.35 * s,
-                                           epsilon), perturb, "flat x = 0.23 s, partial"),
-        ScheduledCut(frames[3], _rectangle((0.3 * s, 0.3 * s, 0.12 * s), np.array([1, -1, 0]) / np.sqrt(2),
-                                           np.array([1, 1, -1.5]) / np.sqrt(4.25), 0.3 * s, 0.25 * s, epsilon),
-                     perturb, "flat oblique, partial"),
+        ScheduledCut(
+            frames[2],
+            _rectangle((0.23 * s, 0.2 * s, 0.2 * s), (0, 1, 0), (0, 0, 1), 0.35 * s, 0.35 * s, epsilon),
+            perturb,
+            "flat x = 0.23 s, partial",
+        ),
+        ScheduledCut(
+            frames[3],
+            _rectangle(
+                (0.3 * s, 0.3 * s, 0.12 * s),
+                np.array([1, -1, 0]) / np.sqrt(2),
+                np.array([1, 1, -1.5]) / np.sqrt(4.25),
+                0.3 * s,
+                0.25 * s,
+                epsilon,
+            ),
+            perturb,
+            "flat oblique, partial",
+        ),
         # a wavy edge swept by a 70 degree rotation about the vertical axis through the apex: a partial fan
-        ScheduledCut(frames[4], _swept(_wave((0.05 * s, 0.05 * s, 0.45 * s), (0.55 * s, 0.05 * s, 0.45 * s),
-                                             (0, 0, 1), 0.03 * s, 1.5),
-                                       (0.02 * s, 0.02 * s, 0.45 * s), (0, 0, 1), [0.0, np.radians(70)],
-                                       np.zeros((2, 3)), epsilon),
-                     perturb, "wavy fan, partial"),
+        ScheduledCut(
+            frames[4],
+            _swept(
+                _wave((0.05 * s, 0.05 * s, 0.45 * s), (0.55 * s, 0.05 * s, 0.45 * s), (0, 0, 1), 0.03 * s, 1.5),
+                (0.02 * s, 0.02 * s, 0.45 * s),
+                (0, 0, 1),
+                [0.0, np.radians(70)],
+                np.zeros((2, 3)),
+                epsilon,
+            ),
+            perturb,
+            "wavy fan, partial",
+        ),
     ]
     fixed = np.flatnonzero(np.asarray(mesh.X)[:, 2] < 1e-9 * s)
-    return Scene("cheese", size, mesh, fixed, 1e6, 0.4, 1e3, 0.033, epsilon, 100 if size == "paper" else 3,
-                 tuple(cuts))
+    return Scene("cheese", size, mesh, fixed, 1e6, 0.4, 1e3, 0.033, epsilon, 100 if size == "paper" else 3, tuple(cuts))
 
 
 def _accordion(size: str) -> Scene:
@@ -283,19 +351,47 @@ def _accordion(size: str) -> Scene:
     for k, z in enumerate(levels):
         x0, x1 = (-margin, 0.8 * W) if k % 2 == 0 else (0.2 * W, W + margin)
         frame = every * (k + 1) if size == "paper" else 1
-        cuts.append(ScheduledCut(frame, _rectangle(((x0 + x1) / 2, D / 2, z), (1, 0, 0), (0, 1, 0), (x1 - x0) / 2,
-                                                   D / 2 + margin, epsilon),
-                                 perturb, f"partial z = {z / H:.3f} H from x {'= 0' if k % 2 == 0 else '= W'}"))
+        cuts.append(
+            ScheduledCut(
+                frame,
+                _rectangle(((x0 + x1) / 2, D / 2, z), (1, 0, 0), (0, 1, 0), (x1 - x0) / 2, D / 2 + margin, epsilon),
+                perturb,
+                f"partial z = {z / H:.3f} H from x {'= 0' if k % 2 == 0 else '= W'}",
+            )
+        )
     # between the first two levels: the first one's span covers x < 0.8 W, the second one's x > 0.2 W
     cell = H / nz
     z0, z1 = levels[1] - 0.5 * cell, levels[0] + 0.5 * cell
     frame = cuts[-1].frame + (every if size == "paper" else 1)
-    cuts.append(ScheduledCut(frame, _rectangle((0.6 * W + 0.013 * cell, D / 2, (z0 + z1) / 2), (0, 1, 0), (0, 0, 1),
-                                               D / 2 + margin, (z1 - z0) / 2, epsilon),
-                             perturb, "vertical x = 0.6 W: the release"))
+    cuts.append(
+        ScheduledCut(
+            frame,
+            _rectangle(
+                (0.6 * W + 0.013 * cell, D / 2, (z0 + z1) / 2),
+                (0, 1, 0),
+                (0, 0, 1),
+                D / 2 + margin,
+                (z1 - z0) / 2,
+                epsilon,
+            ),
+            perturb,
+            "vertical x = 0.6 W: the release",
+        )
+    )
     fixed = np.flatnonzero(np.asarray(mesh.X)[:, 2] > H * (1 - 1e-9))
-    return Scene("accordion", size, mesh, fixed, 1e6, 0.4, 1e3, 0.033, epsilon,
-                 frame + 60 if size == "paper" else frame + 1, tuple(cuts))
+    return Scene(
+        "accordion",
+        size,
+        mesh,
+        fixed,
+        1e6,
+        0.4,
+        1e3,
+        0.033,
+        epsilon,
+        frame + 60 if size == "paper" else frame + 1,
+        tuple(cuts),
+    )
 
 
 def head_surface(radius: float, subdivisions: int) -> tuple[np.ndarray, np.ndarray]:
@@ -336,8 +432,10 @@ def _mouth(size: str) -> Scene:
     z0, z1 = -1.3 * Rz, z_mouth + 0.06 * Rz
     jaw = _rectangle((0.45 * Rx, 0.0, (z0 + z1) / 2), (0, 1, 0), (0, 0, 1), 0.45 * Ry, (z1 - z0) / 2, epsilon)
     frames = _frames(size, [20, 40], [1, 2])
-    cuts = (ScheduledCut(frames[0], mouth, perturb, "the mouth: a smiling wavy edge swept into the front"),
-            ScheduledCut(frames[1], jaw, perturb, "the jaw: vertical, crossing the mouth"))
+    cuts = (
+        ScheduledCut(frames[0], mouth, perturb, "the mouth: a smiling wavy edge swept into the front"),
+        ScheduledCut(frames[1], jaw, perturb, "the jaw: vertical, crossing the mouth"),
+    )
     X = np.asarray(mesh.X)
     fixed = np.flatnonzero(X[:, 0] < X[:, 0].min() + 0.15 * (X[:, 0].max() - X[:, 0].min()))
     return Scene("mouth", size, mesh, fixed, 1e7, 0.4, 1e3, 0.033, epsilon, 120 if size == "paper" else 3, cuts)
@@ -428,23 +526,35 @@ class SceneRun:
         integrated = sum(r.pieces_integrated for r in records)
         uncut_steps = [r.step_seconds for r in records if r.cuts == 0]
         return {
-            "scene": self.scene.name, "size": self.scene.size, "frames": len(records),
-            "cuts": sum(r.cuts for r in records), "nodes": int(self.scene.mesh.n_nodes),
-            "elements": int(self.scene.mesh.n_elements), "pieces": records[-1].pieces if records else 1,
-            "dofs_initial": 3 * int(self.scene.mesh.n_nodes), "dofs": records[-1].dofs if records else
-            3 * int(self.scene.mesh.n_nodes), "element_pieces": int(len(self.model.piece_arrays()[0])),
-            "booleans": booleans, "boolean_ms": 1e3 * sum(r.boolean_seconds for r in records) / max(booleans, 1),
+            "scene": self.scene.name,
+            "size": self.scene.size,
+            "frames": len(records),
+            "cuts": sum(r.cuts for r in records),
+            "nodes": int(self.scene.mesh.n_nodes),
+            "elements": int(self.scene.mesh.n_elements),
+            "pieces": records[-1].pieces if records else 1,
+            "dofs_initial": 3 * int(self.scene.mesh.n_nodes),
+            "dofs": records[-1].dofs if records else 3 * int(self.scene.mesh.n_nodes),
+            "element_pieces": int(len(self.model.piece_arrays()[0])),
+            "booleans": booleans,
+            "boolean_ms": 1e3 * sum(r.boolean_seconds for r in records) / max(booleans, 1),
             "pieces_integrated": integrated,
             "integral_ms": 1e3 * sum(r.integration_seconds for r in records) / max(integrated, 1),
             "step_avg_s": float(frame_s.mean()) if len(records) else 0.0,
             "step_max_s": float(frame_s.max()) if len(records) else 0.0,
             "uncut_step_avg_s": float(np.mean(uncut_steps)) if uncut_steps else 0.0,
-            "total_cut_frames_s": float(frame_s[cut].sum()), "total_s": float(frame_s.sum()),
+            "total_cut_frames_s": float(frame_s[cut].sum()),
+            "total_s": float(frame_s.sum()),
         }
 
 
-def run_scene(scene: Scene, steps: int | None = None, progress: bool = False,
-              on_frame: Callable[[FrameRecord, XFEMModel], None] | None = None, cut_latency: int = 0) -> SceneRun:
+def run_scene(
+    scene: Scene,
+    steps: int | None = None,
+    progress: bool = False,
+    on_frame: Callable[[FrameRecord, XFEMModel], None] | None = None,
+    cut_latency: int = 0,
+) -> SceneRun:
     """Simulate a scene: in each frame its scheduled cuts (Algorithm 1 lines 1-25), then one backward Euler step.
 
     Cut latency. With ``cut_latency = L > 0`` a cut scheduled for frame f is started in the background
@@ -502,7 +612,7 @@ def run_scene(scene: Scene, steps: int | None = None, progress: bool = False,
         record = FrameRecord(frame, 0, 0.0, 0, 0.0, 0, 0.0, 0.0, 0, pieces, cutting=bool(pending))
         due = [p for p in pending if p[0] <= frame]
         if due:
-            pending = pending[len(due):]
+            pending = pending[len(due) :]
             commit(record, due)
         for scheduled in (c for c in scene.cuts if c.frame == frame):
             record.cuts_started += 1

@@ -88,8 +88,11 @@ def _plane_segments(model: XFEMModel, schedule, planes, steps: int) -> tuple[lis
     """The segments of a schedule with plane cuts at the concrete planes ``planes`` ((frame, point, normal,
     epsilon), numpy, by frame), the model's state and the ``PlaneCuts`` (host; the model is left uncut). A frame's
     solids are cut before its planes."""
-    key = (steps, tuple((frame, id(solid)) for frame, solid in schedule),
-           tuple((frame, epsilon) for frame, _, _, epsilon in planes))
+    key = (
+        steps,
+        tuple((frame, id(solid)) for frame, solid in schedule),
+        tuple((frame, epsilon) for frame, _, _, epsilon in planes),
+    )
     points, normals = np.stack([p[1] for p in planes]), np.stack([p[2] for p in planes])
     system = model.system()  # pending background cuts take effect first
     done = _PLANES.get(model)
@@ -105,7 +108,7 @@ def _plane_segments(model: XFEMModel, schedule, planes, steps: int) -> tuple[lis
     segments, first = [_Segment(1, None, None)], 0
     for frame, end in zip(frames, ends):
         source = None  # the frame's cuts' DOF copy maps composed
-        for report in cuts.reports[first:end + 1]:
+        for report in cuts.reports[first : end + 1]:
             if report.dof_source is not None:
                 source = report.dof_source if source is None else source[report.dof_source]
         segments.append(_Segment(frame, end, source))
@@ -120,26 +123,45 @@ def _check_planes(planes, steps: int) -> list:
     point and normal as given (possibly traced) and their concrete values."""
     checked = []
     for k, entry in enumerate(planes):
-        if (not isinstance(entry, tuple) or len(entry) != 4 or not isinstance(entry[0], int)
-                or isinstance(entry[0], bool) or not 1 <= entry[0] <= steps):
-            raise ValueError(f"plane_cuts: expected (frame, point, normal, epsilon) with an int frame in [1, {steps}], "
-                             f"got {entry!r}")
+        if (
+            not isinstance(entry, tuple)
+            or len(entry) != 4
+            or not isinstance(entry[0], int)
+            or isinstance(entry[0], bool)
+            or not 1 <= entry[0] <= steps
+        ):
+            raise ValueError(
+                f"plane_cuts: expected (frame, point, normal, epsilon) with an int frame in [1, {steps}], got {entry!r}"
+            )
         frame, point, normal, epsilon = entry
         name = f" (plane_cuts[{k}])"
-        concrete = _plane(_concrete("point" + name, point, _UNDER_JIT), _concrete("normal" + name, normal, _UNDER_JIT),
-                          epsilon, name)
+        concrete = _plane(
+            _concrete("point" + name, point, _UNDER_JIT), _concrete("normal" + name, normal, _UNDER_JIT), epsilon, name
+        )
         checked.append((frame, point, normal, concrete))
     return sorted(checked, key=lambda entry: entry[0])
 
 
-_UNDER_JIT = ("simulate finds the pieces of plane cuts on the host at concrete planes: differentiate it by eager "
-              "jax.grad (no jit around simulate), or close over the planes")
+_UNDER_JIT = (
+    "simulate finds the pieces of plane cuts on the host at concrete planes: differentiate it by eager "
+    "jax.grad (no jit around simulate), or close over the planes"
+)
 
 
-def simulate(model: XFEMModel, schedule: Sequence[tuple[int, object]], material: Material, h, steps: int, *,
-             plane_cuts: Sequence[tuple] = (), newton_iterations: int = 1, tolerance: float | None = None,
-             line_search: bool = True, forces: Callable[[int, FEMSystem], jax.Array] | None = None,
-             state: State | None = None) -> list[State]:
+def simulate(
+    model: XFEMModel,
+    schedule: Sequence[tuple[int, object]],
+    material: Material,
+    h,
+    steps: int,
+    *,
+    plane_cuts: Sequence[tuple] = (),
+    newton_iterations: int = 1,
+    tolerance: float | None = None,
+    line_search: bool = True,
+    forces: Callable[[int, FEMSystem], jax.Array] | None = None,
+    state: State | None = None,
+) -> list[State]:
     """``steps`` frames of a cutting simulation (Algorithm 1 with the cuts given in advance), every frame's state
     returned; differentiable (reverse mode) with respect to ``material``, ``state``, ``forces`` and the points and
     normals of ``plane_cuts``, across the cuts (module docstring; each segment's gradient as ``rollout``'s: exact
@@ -185,10 +207,16 @@ def simulate(model: XFEMModel, schedule: Sequence[tuple[int, object]], material:
         raise ValueError(f"steps: expected an int >= 1, got {steps!r}")
     schedule = list(schedule)
     for entry in schedule:
-        if (not isinstance(entry, tuple) or len(entry) != 2 or not isinstance(entry[0], int)
-                or isinstance(entry[0], bool) or not 1 <= entry[0] <= steps):
-            raise ValueError(f"schedule: expected (frame, solid) pairs with an int frame in [1, {steps}], got "
-                             f"{entry!r}")
+        if (
+            not isinstance(entry, tuple)
+            or len(entry) != 2
+            or not isinstance(entry[0], int)
+            or isinstance(entry[0], bool)
+            or not 1 <= entry[0] <= steps
+        ):
+            raise ValueError(
+                f"schedule: expected (frame, solid) pairs with an int frame in [1, {steps}], got {entry!r}"
+            )
     planes = _check_planes(list(plane_cuts), steps)
     if forces is not None and not callable(forces):
         raise ValueError("forces: expected None or a function (segment index, FEMSystem) -> forces")
@@ -198,8 +226,9 @@ def simulate(model: XFEMModel, schedule: Sequence[tuple[int, object]], material:
         else:
             segments, start = _segments(model, schedule, steps)
     if planes:  # the systems as JAX functions of the planes, in the order of the cuts
-        systems = cuts.systems(jnp.stack([jnp.asarray(p) for _, p, _, _ in planes]),
-                               jnp.stack([jnp.asarray(n) for _, _, n, _ in planes]))
+        systems = cuts.systems(
+            jnp.stack([jnp.asarray(p) for _, p, _, _ in planes]), jnp.stack([jnp.asarray(n) for _, _, n, _ in planes])
+        )
         segments = [s._replace(system=model.system() if s.system is None else systems[s.system]) for s in segments]
     if state is None:
         state = start
@@ -208,8 +237,17 @@ def simulate(model: XFEMModel, schedule: Sequence[tuple[int, object]], material:
     return _run(segments, state, material, h, steps, newton_iterations, tolerance, line_search, forces)
 
 
-def _run(segments: list[_Segment], state: State, material: Material, h, steps: int, newton_iterations: int,
-         tolerance, line_search: bool, forces) -> list[State]:
+def _run(
+    segments: list[_Segment],
+    state: State,
+    material: Material,
+    h,
+    steps: int,
+    newton_iterations: int,
+    tolerance,
+    line_search: bool,
+    forces,
+) -> list[State]:
     """The JAX phase: each segment's rollout from the previous one's last state, mapped by its copy map."""
     trajectory = []
     state = State(jnp.asarray(state.x), jnp.asarray(state.v))  # numpy's indexing cannot take a traced map
@@ -218,9 +256,17 @@ def _run(segments: list[_Segment], state: State, material: Material, h, steps: i
             source = jnp.asarray(segment.source)
             state = State(state.x[source], state.v[source])
         end = segments[k + 1].frame if k + 1 < len(segments) else steps + 1
-        frames = rollout(segment.system, state, material, h, end - segment.frame, newton_iterations=newton_iterations,
-                         tolerance=tolerance, line_search=line_search,
-                         forces=None if forces is None else forces(k, segment.system))
+        frames = rollout(
+            segment.system,
+            state,
+            material,
+            h,
+            end - segment.frame,
+            newton_iterations=newton_iterations,
+            tolerance=tolerance,
+            line_search=line_search,
+            forces=None if forces is None else forces(k, segment.system),
+        )
         trajectory.append(frames)
         if end > segment.frame:
             state = State(frames.x[-1], frames.v[-1])

@@ -65,12 +65,15 @@ _SLACK = 1e-12
 
 def _solid(V: np.ndarray, F: np.ndarray, what: str) -> manifold3d.Manifold:
     """A Manifold from its vertices V and outward triangles F (into V)."""
-    mesh = manifold3d.Mesh64(vert_properties=np.ascontiguousarray(V, np.float64),
-                             tri_verts=np.ascontiguousarray(F, np.uint64))
+    mesh = manifold3d.Mesh64(
+        vert_properties=np.ascontiguousarray(V, np.float64), tri_verts=np.ascontiguousarray(F, np.uint64)
+    )
     solid = manifold3d.Manifold(mesh)
     if solid.status() != manifold3d.Error.NoError or solid.volume() <= 0:
-        raise ValueError(f"mesh: manifold3d rejected the boundary of {what} (status {solid.status().name}); "
-                         "the mesh must be manifold around every node")
+        raise ValueError(
+            f"mesh: manifold3d rejected the boundary of {what} (status {solid.status().name}); "
+            "the mesh must be manifold around every node"
+        )
     return solid
 
 
@@ -84,16 +87,23 @@ class MeshSolid(NamedTuple):
 
     def build(self) -> manifold3d.Manifold:
         # copies: manifold3d takes writable arrays only, and a received mesh may be a read-only view
-        return manifold3d.Manifold(manifold3d.Mesh64(
-            vert_properties=np.array(self.V, np.float64, order="C"), tri_verts=np.array(self.F, np.uint64, order="C"),
-            tolerance=self.tolerance))
+        return manifold3d.Manifold(
+            manifold3d.Mesh64(
+                vert_properties=np.array(self.V, np.float64, order="C"),
+                tri_verts=np.array(self.F, np.uint64, order="C"),
+                tolerance=self.tolerance,
+            )
+        )
 
 
 def solid_mesh(solid: manifold3d.Manifold) -> MeshSolid:
     """The ``MeshSolid`` of a Manifold (its vertices and triangles also feed the integrals and distance queries)."""
     mesh = solid.to_mesh64()
-    return MeshSolid(np.ascontiguousarray(np.asarray(mesh.vert_properties, np.float64)[:, :3]),
-                     np.ascontiguousarray(np.asarray(mesh.tri_verts, np.int64)), float(solid.get_tolerance()))
+    return MeshSolid(
+        np.ascontiguousarray(np.asarray(mesh.vert_properties, np.float64)[:, :3]),
+        np.ascontiguousarray(np.asarray(mesh.tri_verts, np.int64)),
+        float(solid.get_tolerance()),
+    )
 
 
 @dataclass
@@ -145,13 +155,20 @@ class _Kind:
     def delta(self, since: tuple[int, int, int]) -> KindDelta:
         start, retired, reshaped = since
         retired, reshaped = self.retired[retired:], self.reshaped[reshaped:]
-        changed = sorted({s for s in range(start, len(self.owner)) if self.alive[s]}
-                         | {s for s in reshaped if self.alive[s]})
+        changed = sorted(
+            {s for s in range(start, len(self.owner)) if self.alive[s]} | {s for s in reshaped if self.alive[s]}
+        )
         owners = {self.owner[s] for s in (*range(start, len(self.owner)), *retired, *reshaped)}
-        return KindDelta(start, np.asarray(self.owner[start:], np.int64), np.asarray(self.parent[start:], np.int64),
-                         np.asarray(retired, np.int64), np.asarray(reshaped, np.int64),
-                         {o: list(self.live[o]) for o in sorted(owners)}, np.asarray(changed, np.int64),
-                         pack_meshes([_as_mesh(self.solids[s]) for s in changed]))
+        return KindDelta(
+            start,
+            np.asarray(self.owner[start:], np.int64),
+            np.asarray(self.parent[start:], np.int64),
+            np.asarray(retired, np.int64),
+            np.asarray(reshaped, np.int64),
+            {o: list(self.live[o]) for o in sorted(owners)},
+            np.asarray(changed, np.int64),
+            pack_meshes([_as_mesh(self.solids[s]) for s in changed]),
+        )
 
     def apply(self, delta: KindDelta) -> None:
         added = len(delta.owner)
@@ -205,19 +222,26 @@ def _as_mesh(solid) -> MeshSolid:
 def pack_meshes(meshes: list[MeshSolid]) -> tuple:
     """``MeshSolid``s as a few flat arrays (one pickle of thousands of small arrays holds the GIL for long)."""
     if not meshes:
-        return np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64), \
-            np.zeros(0)
-    return (np.concatenate([m.V for m in meshes]), np.concatenate([m.F for m in meshes]),
-            np.array([len(m.V) for m in meshes]), np.array([len(m.F) for m in meshes]),
-            np.array([m.tolerance for m in meshes], np.float64))
+        return np.zeros((0, 3)), np.zeros((0, 3), np.int64), np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros(0)
+    return (
+        np.concatenate([m.V for m in meshes]),
+        np.concatenate([m.F for m in meshes]),
+        np.array([len(m.V) for m in meshes]),
+        np.array([len(m.F) for m in meshes]),
+        np.array([m.tolerance for m in meshes], np.float64),
+    )
 
 
 def unpack_meshes(packed: tuple) -> list[MeshSolid]:
     """``pack_meshes`` undone (views into the flat arrays)."""
     V, F, vertex_counts, face_counts, tolerances = packed
     vertex_ends, face_ends = np.cumsum(vertex_counts).tolist(), np.cumsum(face_counts).tolist()
-    return [MeshSolid(V[v_end - nv:v_end], F[f_end - nf:f_end], tol) for v_end, nv, f_end, nf, tol in
-            zip(vertex_ends, vertex_counts.tolist(), face_ends, face_counts.tolist(), tolerances.tolist())]
+    return [
+        MeshSolid(V[v_end - nv : v_end], F[f_end - nf : f_end], tol)
+        for v_end, nv, f_end, nf, tol in zip(
+            vertex_ends, vertex_counts.tolist(), face_ends, face_counts.tolist(), tolerances.tolist()
+        )
+    ]
 
 
 class Subdomains:
@@ -265,8 +289,10 @@ class Subdomains:
             raise ValueError(f"delta: expected a SubdomainsDelta, got {type(delta).__name__}")
         counts = (len(self._nodes.owner), len(self._elements.owner))
         if (delta.nodes.start, delta.elements.start) != counts:
-            raise ValueError(f"delta: made from subdomains with {delta.nodes.start} nodal and {delta.elements.start} "
-                             f"element ids, these have {counts[0]} and {counts[1]}")
+            raise ValueError(
+                f"delta: made from subdomains with {delta.nodes.start} nodal and {delta.elements.start} "
+                f"element ids, these have {counts[0]} and {counts[1]}"
+            )
         self._nodes.apply(delta.nodes)
         self._elements.apply(delta.elements)
 
@@ -329,8 +355,9 @@ class Subdomains:
         by one, the per-ring numpy calls took as long as the Booleans themselves, holding the GIL the Boolean
         threads share."""
         n = len(self.X)
-        nodes = np.array([s for s in node_sids if s < n and self._nodes.solids[s] is None and self._nodes.alive[s]],
-                         np.int64)
+        nodes = np.array(
+            [s for s in node_sids if s < n and self._nodes.solids[s] is None and self._nodes.alive[s]], np.int64
+        )
         if len(nodes):
             counts = self.ring_offsets[nodes + 1] - self.ring_offsets[nodes]
             owner = np.repeat(np.arange(len(nodes)), counts)
@@ -355,11 +382,16 @@ class Subdomains:
             local = local.reshape(-1, 3) - vertex_start[F_owner][:, None]
             vertices = self.X[used % n]
             for j, i in enumerate(nodes.tolist()):
-                self._nodes.solids[i] = _solid(vertices[vertex_start[j]:vertex_start[j + 1]],
-                                               local[face_start[j]:face_start[j + 1]], f"the 1-ring of node {i}")
+                self._nodes.solids[i] = _solid(
+                    vertices[vertex_start[j] : vertex_start[j + 1]],
+                    local[face_start[j] : face_start[j + 1]],
+                    f"the 1-ring of node {i}",
+                )
         m = len(self.T)
-        elements = np.array([s for s in element_sids if s < m and self._elements.solids[s] is None
-                             and self._elements.alive[s]], np.int64)
+        elements = np.array(
+            [s for s in element_sids if s < m and self._elements.solids[s] is None and self._elements.alive[s]],
+            np.int64,
+        )
         if len(elements):
             T = self.T[elements]
             rank = np.argsort(np.argsort(T, axis=1), axis=1)  # each node's place among its tet's sorted nodes
@@ -477,8 +509,15 @@ def _booleans() -> ThreadPoolExecutor:
     return ThreadPoolExecutor(_BOOLEAN_THREADS, thread_name_prefix="xfem-boolean")
 
 
-def _cut_kind(kind: _Kind, owners, solid_of, cut: manifold3d.Manifold, tally: list,
-              children: dict[int, tuple[int, ...]], parallel: bool) -> tuple[list[int], list[int]]:
+def _cut_kind(
+    kind: _Kind,
+    owners,
+    solid_of,
+    cut: manifold3d.Manifold,
+    tally: list,
+    children: dict[int, tuple[int, ...]],
+    parallel: bool,
+) -> tuple[list[int], list[int]]:
     """Algorithm 1 lines 2-8 (or 12-17) for the given owners: the owners met and those split."""
     met, split = [], []
     sids = [sid for owner in owners for sid in kind.live[owner]]
@@ -527,11 +566,14 @@ def _tet_triangle_overlap(P: np.ndarray, Q: np.ndarray, slack: float) -> np.ndar
     tet_edges = P[:, [1, 2, 3, 2, 3, 3]] - P[:, [0, 0, 0, 1, 1, 2]]
     tri_edges = Q[:, [1, 2, 0]] - Q
     faces = P[:, TET_FACES]
-    axes = np.concatenate([
-        np.cross(faces[:, :, 1] - faces[:, :, 0], faces[:, :, 2] - faces[:, :, 0]),
-        np.cross(tri_edges[:, :1], tri_edges[:, 1:2]),
-        np.cross(tet_edges[:, :, None], tri_edges[:, None]).reshape(-1, 18, 3),
-    ], axis=1)
+    axes = np.concatenate(
+        [
+            np.cross(faces[:, :, 1] - faces[:, :, 0], faces[:, :, 2] - faces[:, :, 0]),
+            np.cross(tri_edges[:, :1], tri_edges[:, 1:2]),
+            np.cross(tet_edges[:, :, None], tri_edges[:, None]).reshape(-1, 18, 3),
+        ],
+        axis=1,
+    )
     p = np.einsum("kav,kjv->kaj", axes, P)
     q = np.einsum("kav,kjv->kaj", axes, Q)
     gap = slack * np.linalg.norm(axes, axis=2)
@@ -558,7 +600,7 @@ def _candidates(sub: Subdomains, cut: manifold3d.Manifold) -> tuple[np.ndarray, 
     near = np.zeros(len(boxed), bool)
     chunk = max(1, _PAIRS // len(boxed))  # bounds the (tets, triangles) pair arrays
     for start in range(0, len(F), chunk):
-        t_low, t_high = tri_low[start:start + chunk], tri_high[start:start + chunk]
+        t_low, t_high = tri_low[start : start + chunk], tri_high[start : start + chunk]
         pairs = np.all((low[:, None] <= t_high[None] + slack) & (high[:, None] >= t_low[None] - slack), axis=2)
         pairs[near] = False  # already known to meet the cut
         k, j = np.nonzero(pairs)
@@ -579,8 +621,9 @@ def check_cut(cut: manifold3d.Manifold, perturb: float) -> None:
         raise ValueError(f"perturb: expected a distance >= 0, got {perturb!r}")
 
 
-def apply_cut(sub: Subdomains, cut: manifold3d.Manifold, perturb: float = 0.0, seed: int = 0,
-              parallel: bool = True) -> CutReport:
+def apply_cut(
+    sub: Subdomains, cut: manifold3d.Manifold, perturb: float = 0.0, seed: int = 0, parallel: bool = True
+) -> CutReport:
     """Cut all subdomains by one cut solid (Algorithm 1 lines 1-19), in place.
 
     Args:
@@ -607,8 +650,9 @@ def apply_cut(sub: Subdomains, cut: manifold3d.Manifold, perturb: float = 0.0, s
         original, tries = cut, 0
         while _aligned(sub, candidates, cut, _ALIGNED * perturb):
             if tries == _PERTURB_TRIES:
-                raise ValueError(f"perturb: the cut stays within {_ALIGNED * perturb} of mesh nodes after {tries} "
-                                 "random motions")
+                raise ValueError(
+                    f"perturb: the cut stays within {_ALIGNED * perturb} of mesh nodes after {tries} random motions"
+                )
             tries += 1
             axis = rng.normal(size=3)
             R = Rotation.from_rotvec(axis / np.linalg.norm(axis) * perturb / size).as_matrix()
@@ -623,15 +667,24 @@ def apply_cut(sub: Subdomains, cut: manifold3d.Manifold, perturb: float = 0.0, s
     start = time.perf_counter()  # the solids' building counts as Boolean time (as when built one by one)
     sub._build_initial((), candidates.tolist())
     tally[1] += time.perf_counter() - start
-    met, elements_split = _cut_kind(sub._elements, candidates.tolist(), sub.element_solid, cut, tally,
-                                    element_children, parallel)
+    met, elements_split = _cut_kind(
+        sub._elements, candidates.tolist(), sub.element_solid, cut, tally, element_children, parallel
+    )
     elements_touched = np.asarray(met, np.int64)
     nodes_touched = np.unique(sub.T[elements_touched]) if met else np.zeros(0, np.int64)
     start = time.perf_counter()
     sub._build_initial(nodes_touched.tolist(), ())
     tally[1] += time.perf_counter() - start
-    _, nodes_split = _cut_kind(sub._nodes, nodes_touched.tolist(), sub.node_solid, cut, tally, node_children,
-                               parallel)
-    return CutReport(boxed, candidates, elements_touched, nodes_touched, node_children, element_children,
-                     np.asarray(nodes_split, np.int64), np.asarray(elements_split, np.int64), motion,
-                     CutStats(n_booleans=tally[0], boolean_seconds=tally[1]))
+    _, nodes_split = _cut_kind(sub._nodes, nodes_touched.tolist(), sub.node_solid, cut, tally, node_children, parallel)
+    return CutReport(
+        boxed,
+        candidates,
+        elements_touched,
+        nodes_touched,
+        node_children,
+        element_children,
+        np.asarray(nodes_split, np.int64),
+        np.asarray(elements_split, np.int64),
+        motion,
+        CutStats(n_booleans=tally[0], boolean_seconds=tally[1]),
+    )

@@ -27,8 +27,8 @@ import tetgen
 import trimesh
 from jaxtyping import Array, Float, Int
 
-from _jaxcga_shared.host import quiet_stdout
 from _jaxcga_shared.checks import require
+from _jaxcga_shared.host import quiet_stdout
 
 # a tet is degenerate when |6 V| <= this times the cube of its longest edge (a regular tet has 0.707)
 _DEGENERATE = 1e-12
@@ -70,8 +70,11 @@ class TetMesh(eqx.Module):
 def _host_positions(X, name: str = "X") -> np.ndarray:
     """X as a finite float64 (n, 3) numpy array, or ValueError naming it."""
     X = np.asarray(X)
-    if X.ndim != 2 or X.shape[1] != 3 or not (np.issubdtype(X.dtype, np.floating) or
-                                              np.issubdtype(X.dtype, np.integer)):
+    if (
+        X.ndim != 2
+        or X.shape[1] != 3
+        or not (np.issubdtype(X.dtype, np.floating) or np.issubdtype(X.dtype, np.integer))
+    ):
         raise ValueError(f"{name}: expected real positions of shape (n, 3), got {X.dtype} {X.shape}")
     X = X.astype(np.float64)
     if not np.all(np.isfinite(X)):
@@ -165,8 +168,10 @@ def tet_mesh(X, T) -> TetMesh:
         raise ValueError(f"T: {len(flat)} degenerate (zero-volume) tetrahedra, the first is tet {e} = {T[e].tolist()}")
     unused = np.setdiff1d(np.arange(len(X)), T)
     if len(unused):
-        raise ValueError(f"X: nodes {unused[:10].tolist()}{' ...' if len(unused) > 10 else ''} "
-                         f"({len(unused)} in all) are in no tetrahedron")
+        raise ValueError(
+            f"X: nodes {unused[:10].tolist()}{' ...' if len(unused) > 10 else ''} "
+            f"({len(unused)} in all) are in no tetrahedron"
+        )
     T = np.where((volume < 0)[:, None], T[:, [0, 1, 3, 2]], T)
     return TetMesh(jnp.asarray(X), jnp.asarray(T))
 
@@ -211,8 +216,14 @@ def box_tets(cells=(1, 1, 1), size=(1.0, 1.0, 1.0), origin=(0.0, 0.0, 0.0)) -> T
     low = index[:-1, :-1, :-1].ravel()
     step = np.array([(cells[1] + 1) * (cells[2] + 1), cells[2] + 1, 1])  # index offsets along x, y, z
     tets = []
-    for order, even in (((0, 1, 2), True), ((1, 2, 0), True), ((2, 0, 1), True),
-                        ((0, 2, 1), False), ((2, 1, 0), False), ((1, 0, 2), False)):
+    for order, even in (
+        ((0, 1, 2), True),
+        ((1, 2, 0), True),
+        ((2, 0, 1), True),
+        ((0, 2, 1), False),
+        ((2, 1, 0), False),
+        ((1, 0, 2), False),
+    ):
         path = np.cumsum(step[list(order)])  # the corners after one, two and three steps
         corners = [low, low + path[0], low + path[1], low + path[2]]
         if not even:  # an odd order of the axes flips the orientation
@@ -345,8 +356,10 @@ def _face_matching(T):
     _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
     if len(counts) and counts.max() > 2:
         f = int(np.argmax(counts[inverse] > 2))
-        raise ValueError(f"T: face {faces.reshape(-1, 3)[f].tolist()} is shared by {counts[inverse[f]]} "
-                         "tetrahedra, expected at most 2 (a non-manifold mesh)")
+        raise ValueError(
+            f"T: face {faces.reshape(-1, 3)[f].tolist()} is shared by {counts[inverse[f]]} "
+            "tetrahedra, expected at most 2 (a non-manifold mesh)"
+        )
     return faces, inverse.reshape(-1), counts
 
 

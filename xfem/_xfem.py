@@ -267,8 +267,13 @@ class XFEMModel:
                 load.append(ld[None])
         element = np.concatenate(element)
         order = np.argsort(element, kind="stable")
-        return (element[order], np.concatenate(nodal)[order], np.concatenate(volume)[order],
-                np.concatenate(mass)[order], np.concatenate(load)[order])
+        return (
+            element[order],
+            np.concatenate(nodal)[order],
+            np.concatenate(volume)[order],
+            np.concatenate(mass)[order],
+            np.concatenate(load)[order],
+        )
 
     def piece_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The element pieces, element by element (an uncut model: one piece per tet, in mesh order).
@@ -328,13 +333,17 @@ class XFEMModel:
         start = time.perf_counter()
         # nodes whose subdomain lists changed: their elements' pieces are enriched anew (line 21)
         changed = {self.sub.node_of(s) for s in report.node_children} | set(report.nodes_split.tolist())
-        ring = [self.sub.ring_elements[self.sub.ring_offsets[i]:self.sub.ring_offsets[i + 1]] for i in changed]
+        ring = [self.sub.ring_elements[self.sub.ring_offsets[i] : self.sub.ring_offsets[i + 1]] for i in changed]
         self._enrich(np.unique(np.concatenate([touched, *ring])))
         source = self._renumber()
         enrichment_seconds = time.perf_counter() - start
         self._copy_state(source)
-        stats = dataclasses.replace(report.stats, pieces_integrated=integrated,
-                                    integration_seconds=integration_seconds, enrichment_seconds=enrichment_seconds)
+        stats = dataclasses.replace(
+            report.stats,
+            pieces_integrated=integrated,
+            integration_seconds=integration_seconds,
+            enrichment_seconds=enrichment_seconds,
+        )
         return dataclasses.replace(report, stats=stats, dof_source=source)
 
     def _renumber(self) -> np.ndarray:
@@ -416,7 +425,7 @@ class XFEMModel:
         step = compiled(self._capacities, padded, padded.level, *options, background=False)
         stepped = step(padded.system, padded_state(self.state, padded.n, padded.system.n), h, material)
         # host views of the result, sliced (a JAX slice would compile anew for every DOF count)
-        self.state = State(np.asarray(stepped.x)[:padded.n], np.asarray(stepped.v)[:padded.n])
+        self.state = State(np.asarray(stepped.x)[: padded.n], np.asarray(stepped.v)[: padded.n])
         self._step_options = options
         compiled(self._capacities, padded, padded.level + 1, *options, background=True)
         return self.state
@@ -436,15 +445,25 @@ class XFEMModel:
         pieces = [sid for e in touched for sid in self.sub.element_subdomains(e)]
         integrals = [self._integrals[sid] for sid in pieces]
         volume = np.array([v[0] for v in integrals], np.float64)
-        mass, load, point = (np.stack([v[k] for v in integrals]) if integrals else np.zeros((0, *shape))
-                             for k, shape in ((1, (4, 4)), (2, (4,)), (3, (3,))))
+        mass, load, point = (
+            np.stack([v[k] for v in integrals]) if integrals else np.zeros((0, *shape))
+            for k, shape in ((1, (4, 4)), (2, (4,)), (3, (3,)))
+        )
         set_enriched = [sid for sid, value in self._enriched.items() if enriched.get(sid) is not value]
         return CutDelta(
-            changes, np.asarray(pieces, np.int64), volume, mass, load, point,
+            changes,
+            np.asarray(pieces, np.int64),
+            volume,
+            mass,
+            load,
+            point,
             np.asarray(set_enriched, np.int64),
             np.stack([self._enriched[sid] for sid in set_enriched]) if set_enriched else np.zeros((0, 4), np.int64),
             np.asarray([sid for sid in enriched if sid not in self._enriched], np.int64),
-            self.dof_sid, self.dof_node, tuple(self.cuts[cuts:]))
+            self.dof_sid,
+            self.dof_node,
+            tuple(self.cuts[cuts:]),
+        )
 
     def apply_delta(self, delta: CutDelta, padded: PaddedSystem | None = None) -> np.ndarray:
         """Make the cuts of ``delta`` (``delta`` of a model of the same mesh, equal to this one at its mark) take
@@ -503,8 +522,11 @@ class XFEMModel:
         elements = np.asarray(elements)
         if points.ndim != 2 or points.shape[1] != 3 or not np.all(np.isfinite(points)):
             raise ValueError(f"points: expected finite points of shape (k, 3), got {points.shape}")
-        if elements.shape != (len(points),) or not np.issubdtype(elements.dtype, np.integer) or (
-                elements.size and (elements.min() < 0 or elements.max() >= len(self.T))):
+        if (
+            elements.shape != (len(points),)
+            or not np.issubdtype(elements.dtype, np.integer)
+            or (elements.size and (elements.min() < 0 or elements.max() >= len(self.T)))
+        ):
             raise ValueError(f"elements: expected ({len(points)},) element indices in [0, {len(self.T)})")
         c, _ = linear_shape_coefficients(self.X[self.T[elements]], points)  # phi_a(X): barycentric coordinates
         result = np.zeros((len(points), values.shape[1]))
@@ -570,22 +592,34 @@ def xfem_model(mesh: TetMesh, density, gravity=(0.0, 0.0, -9.81), fixed=(), stat
         raise ValueError(f"mesh: expected a TetMesh, got {type(mesh).__name__}")
     m, n = mesh.T.shape[0], mesh.X.shape[0]
     rho = np.asarray(density)
-    if rho.shape not in ((), (m,)) or not np.issubdtype(rho.dtype, np.number) or not np.all(
-            np.isfinite(rho) & (rho > 0)):
+    if (
+        rho.shape not in ((), (m,))
+        or not np.issubdtype(rho.dtype, np.number)
+        or not np.all(np.isfinite(rho) & (rho > 0))
+    ):
         raise ValueError(f"density: expected finite positive values of shape () or ({m},), got {rho.shape}")
     rho = np.broadcast_to(rho.astype(np.float64), (m,)).copy()
     gravity = np.asarray(gravity, np.float64)
     if gravity.shape != (3,) or not np.all(np.isfinite(gravity)):
         raise ValueError(f"gravity: expected a finite (3,) acceleration, got {gravity.shape}")
     fixed = np.asarray(fixed).reshape(-1)
-    if fixed.size and (not np.issubdtype(fixed.dtype, np.integer) or fixed.min() < 0 or fixed.max() >= n
-                       or len(np.unique(fixed)) != len(fixed)):
+    if fixed.size and (
+        not np.issubdtype(fixed.dtype, np.integer)
+        or fixed.min() < 0
+        or fixed.max() >= n
+        or len(np.unique(fixed)) != len(fixed)
+    ):
         raise ValueError(f"fixed: expected distinct int node indices in [0, {n})")
     fixed = fixed.astype(np.int64)
     if state is None:
         X = jnp.asarray(mesh.X, jnp.float64)
         state = State(X, jnp.zeros_like(X))
-    elif not isinstance(state, State) or jnp.shape(state.x) != (n, 3) or jnp.shape(state.v) != (n, 3) or \
-            jnp.result_type(state.x) != jnp.float64 or jnp.result_type(state.v) != jnp.float64:
+    elif (
+        not isinstance(state, State)
+        or jnp.shape(state.x) != (n, 3)
+        or jnp.shape(state.v) != (n, 3)
+        or jnp.result_type(state.x) != jnp.float64
+        or jnp.result_type(state.v) != jnp.float64
+    ):
         raise ValueError(f"state: expected a float64 State with x, v of shape ({n}, 3)")
     return XFEMModel(mesh, rho, gravity, fixed, state)

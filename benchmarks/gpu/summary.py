@@ -37,8 +37,12 @@ def lines(folder: Path) -> list[str]:
         if result is None:
             out.append(f"  {file}.json missing: no {pattern}")
             continue
-        found = {name: value for key in ("figures", "ratios") for name, value in result[key].items()
-                 if re.fullmatch(pattern, name)}
+        found = {
+            name: value
+            for key in ("figures", "ratios")
+            for name, value in result[key].items()
+            if re.fullmatch(pattern, name)
+        }
         if not found:
             out.append(f"  {file}.json has no {pattern}")
         for name, value in found.items():

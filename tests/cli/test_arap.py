@@ -38,8 +38,9 @@ def test_handles_file_gives_arap_solves_result(tube, tmp_path, capsys, energy):
     moved = Rotation.from_rotvec([0.8, 0.0, 0.3]).apply(V[high] - [0, 0, -1.0]) + [0.1, 0.2, -1.0]
     positions = np.concatenate([V[low], moved])
     handles = tmp_path / "handles.json"
-    handles.write_text(json.dumps({"handles": [low.tolist(), high.tolist()],
-                                   "positions": [V[low].tolist(), moved.tolist()]}))
+    handles.write_text(
+        json.dumps({"handles": [low.tolist(), high.tolist()], "positions": [V[low].tolist(), moved.tolist()]})
+    )
     out = tmp_path / "arap.npy"
     option = [] if energy is None else ["--energy", energy]
     assert main(["arap", str(path), "--handles", str(handles), "--iters", "7", "--out", str(out), *option]) == 0
@@ -60,8 +61,17 @@ def test_the_handles_file_of_deform_moves_arap_handles_by_their_motors(tube, tmp
     axis, angle, center, shift = np.array([0.8, 0.0, 0.3]), 40.0, np.array([0.0, 0.0, -1.0]), [0.1, 0.2, 0.0]
     moved = Rotation.from_rotvec(np.radians(angle) * axis / np.linalg.norm(axis)).apply(V[high] - center) + center
     handles = tmp_path / "handles.json"
-    handles.write_text(json.dumps({"handles": [low.tolist(), high.tolist()], "motors": [
-        {}, {"center": center.tolist(), "axis": axis.tolist(), "angle_deg": angle, "translation": shift}]}))
+    handles.write_text(
+        json.dumps(
+            {
+                "handles": [low.tolist(), high.tolist()],
+                "motors": [
+                    {},
+                    {"center": center.tolist(), "axis": axis.tolist(), "angle_deg": angle, "translation": shift},
+                ],
+            }
+        )
+    )
     out = tmp_path / "arap.npy"
     assert main(["arap", str(path), "--handles", str(handles), "--iters", "2", "--out", str(out)]) == 0
     X = np.load(out)
@@ -79,22 +89,26 @@ def test_default_handles_mesh_and_figure_outputs(tube, tmp_path):
     X = trimesh.load(glb, force="mesh", process=False).vertices
     assert X.shape == V.shape
     far = V[:, 2] > 0.95  # the far end is turned by 90 degrees about x about the centre of the low end
-    np.testing.assert_allclose(X[far], Rotation.from_rotvec([np.pi / 2, 0, 0]).apply(V[far] - [0, 0, -1]) + [0, 0, -1],
-                               atol=1e-5)  # float32 in the glb
+    np.testing.assert_allclose(
+        X[far], Rotation.from_rotvec([np.pi / 2, 0, 0]).apply(V[far] - [0, 0, -1]) + [0, 0, -1], atol=1e-5
+    )  # float32 in the glb
     png = tmp_path / "arap.png"
     assert main(["arap", "--iters", "2", "--out", str(png)]) == 0  # the built-in arm
     assert png.stat().st_size > 10_000
 
 
-@pytest.mark.parametrize("content, message", [
-    ("{", "not valid JSON"),
-    ('{"indices": [0, 1], "positions": [[0, 0, 0], [1, 1, 1]]}', "must hold"),
-    ('{"handles": [[0, 100000]], "positions": [[[0, 0, 0], [1, 1, 1]]]}', "indices in [0, "),
-    ('{"handles": [[0, 1]], "positions": [[[0, 0, 0]]]}', "one per vertex of handle 0"),
-    ('{"handles": [[0.5]], "positions": [[[0, 0, 0]]]}', "list of vertex indices"),
-    ('{"handles": [[0], [0]], "positions": [[[0, 0, 0]], [[0, 0, 0]]]}', "vertex 0 is in the handles 2 times"),
-    ('{"handles": [[0]], "motors": [{}], "positions": [[[0, 0, 0]]]}', "give one"),
-])
+@pytest.mark.parametrize(
+    "content, message",
+    [
+        ("{", "not valid JSON"),
+        ('{"indices": [0, 1], "positions": [[0, 0, 0], [1, 1, 1]]}', "must hold"),
+        ('{"handles": [[0, 100000]], "positions": [[[0, 0, 0], [1, 1, 1]]]}', "indices in [0, "),
+        ('{"handles": [[0, 1]], "positions": [[[0, 0, 0]]]}', "one per vertex of handle 0"),
+        ('{"handles": [[0.5]], "positions": [[[0, 0, 0]]]}', "list of vertex indices"),
+        ('{"handles": [[0], [0]], "positions": [[[0, 0, 0]], [[0, 0, 0]]]}', "vertex 0 is in the handles 2 times"),
+        ('{"handles": [[0]], "motors": [{}], "positions": [[[0, 0, 0]]]}', "give one"),
+    ],
+)
 def test_bad_handles_exit_with_a_message(tube, tmp_path, capsys, content, message):
     path, _, _ = tube
     handles = tmp_path / "bad.json"
@@ -107,9 +121,11 @@ def test_bad_handles_exit_with_a_message(tube, tmp_path, capsys, content, messag
 
 def test_bad_output_and_iterations(tube, tmp_path, capsys):
     path, _, _ = tube
-    for args, message in ((["--out", str(tmp_path / "x.txt")], "out: expected"),
-                          (["--iters", "0", "--out", str(tmp_path / "x.npy")], "iters"),
-                          (["--energy", "rims", "--out", str(tmp_path / "x.npy")], "--energy")):
+    for args, message in (
+        (["--out", str(tmp_path / "x.txt")], "out: expected"),
+        (["--iters", "0", "--out", str(tmp_path / "x.npy")], "iters"),
+        (["--energy", "rims", "--out", str(tmp_path / "x.npy")], "--energy"),
+    ):
         with pytest.raises(SystemExit):
             main(["arap", str(path), *args])
         assert message in capsys.readouterr().err
@@ -127,6 +143,21 @@ def test_one_rigid_motion_of_every_handle_gives_that_motion_on_arm5(tmp_path):
     handles = tmp_path / "handles.json"
     handles.write_text(json.dumps({"handles": [indices.tolist()], "positions": [rigid[indices].tolist()]}))
     out = tmp_path / "arap.npy"
-    assert main(["arap", str(DATA / "Arm5.glb"), "--handles", str(handles), "--iters", "50", "--tolerance", "-1",
-                 "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "arap",
+                str(DATA / "Arm5.glb"),
+                "--handles",
+                str(handles),
+                "--iters",
+                "50",
+                "--tolerance",
+                "-1",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     assert np.abs(np.load(out) - rigid).max() < 1e-6 * diag

@@ -41,9 +41,39 @@ def test_cut_errors_exit_with_code_2(tmp_path, capsys):
 
 def test_tear_writes_a_skinned_model_with_an_open_slit(tmp_path):
     out = tmp_path / "torn.glb"
-    assert main(["tear", "--scalpel0", "0.2", "0", "0.1", "0.2", "0", "0", "--scalpel1", "0.3", "0", "0.1", "0.3", "0",
-                 "0", "--scalpel-next", "0.35", "0.01", "0.1", "0.35", "0.01", "0", "--opening", "0.005",
-                 "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "tear",
+                "--scalpel0",
+                "0.2",
+                "0",
+                "0.1",
+                "0.2",
+                "0",
+                "0",
+                "--scalpel1",
+                "0.3",
+                "0",
+                "0.1",
+                "0.3",
+                "0",
+                "0",
+                "--scalpel-next",
+                "0.35",
+                "0.01",
+                "0.1",
+                "0.35",
+                "0.01",
+                "0",
+                "--opening",
+                "0.005",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     arm = deform.default_arm()
     torn = deform.load_model(out)
     assert torn.skeleton.names == arm.skeleton.names and len(torn.clips) == len(arm.clips)
@@ -57,8 +87,10 @@ def test_tear_writes_a_skinned_model_with_an_open_slit(tmp_path):
 
 def test_drill_writes_a_skinned_model_with_a_hole(tmp_path):
     out = tmp_path / "drilled.glb"
-    assert main(["drill", "--tip", "0.4", "0", "0", "--base", "0.4", "0", "0.1", "--radius", "0.015",
-                 "--out", str(out)]) == 0
+    assert (
+        main(["drill", "--tip", "0.4", "0", "0", "--base", "0.4", "0", "0.1", "--radius", "0.015", "--out", str(out)])
+        == 0
+    )
     drilled = deform.load_model(out)
     V, F = np.asarray(drilled.mesh.V), np.asarray(drilled.mesh.F)
     mesh = trimesh.Trimesh(V, F, process=False)
@@ -68,22 +100,78 @@ def test_drill_writes_a_skinned_model_with_a_hole(tmp_path):
 
 def test_tear_and_drill_errors_exit_with_code_2(tmp_path, capsys):
     with pytest.raises(SystemExit) as stop:
-        main(["tear", "--scalpel0", "5", "5", "5", "5", "5", "6", "--scalpel1", "0.3", "0", "0.1", "0.3", "0", "0",
-              "--out", str(tmp_path / "t.glb")])
+        main(
+            [
+                "tear",
+                "--scalpel0",
+                "5",
+                "5",
+                "5",
+                "5",
+                "5",
+                "6",
+                "--scalpel1",
+                "0.3",
+                "0",
+                "0.1",
+                "0.3",
+                "0",
+                "0",
+                "--out",
+                str(tmp_path / "t.glb"),
+            ]
+        )
     assert stop.value.code == 2 and "does not cross" in capsys.readouterr().err
     with pytest.raises(SystemExit) as stop:
-        main(["drill", "--tip", "5", "5", "5", "--base", "5", "5", "6", "--radius", "0.01",
-              "--out", str(tmp_path / "d.glb")])
+        main(
+            [
+                "drill",
+                "--tip",
+                "5",
+                "5",
+                "5",
+                "--base",
+                "5",
+                "5",
+                "6",
+                "--radius",
+                "0.01",
+                "--out",
+                str(tmp_path / "d.glb"),
+            ]
+        )
     assert stop.value.code == 2 and "misses" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("value, parsed", [("-1e0", "-1.0"), ("-1E+0", "-1.0"), ("-.5e1", "-5.0"), ("-2.", "-2.0"),
-                                           ("-1e12", "-1000000000000.0"), ("-0.3", "-0.3")])
+@pytest.mark.parametrize(
+    "value, parsed",
+    [
+        ("-1e0", "-1.0"),
+        ("-1E+0", "-1.0"),
+        ("-.5e1", "-5.0"),
+        ("-2.", "-2.0"),
+        ("-1e12", "-1000000000000.0"),
+        ("-0.3", "-0.3"),
+    ],
+)
 def test_negative_numbers_parse_in_any_notation(tmp_path, capsys, value, parsed):
     """argparse's own test takes ``-1e0`` for an option: every notation reaches the command as a number."""
     with pytest.raises(SystemExit) as stop:
-        main(["cut", "--plane", "1", "0", "0", "0.3", "--side-weight", value, "--out", str(tmp_path / "a.glb"),
-              str(tmp_path / "b.glb")])
+        main(
+            [
+                "cut",
+                "--plane",
+                "1",
+                "0",
+                "0",
+                "0.3",
+                "--side-weight",
+                value,
+                "--out",
+                str(tmp_path / "a.glb"),
+                str(tmp_path / "b.glb"),
+            ]
+        )
     err = capsys.readouterr().err
     assert stop.value.code == 2
     assert err.splitlines()[-1] == f"jaxcga cut: error: side_weight: expected a number in [0, 1], got {parsed}"
@@ -91,8 +179,23 @@ def test_negative_numbers_parse_in_any_notation(tmp_path, capsys, value, parsed)
 
 def test_a_drill_wider_than_the_model_says_so(tmp_path, capsys):
     with pytest.raises(SystemExit) as stop:
-        main(["drill", "--tip", "0.4", "0", "0", "--base", "0.4", "0", "0.1", "--radius", "10",
-              "--out", str(tmp_path / "d.glb")])
+        main(
+            [
+                "drill",
+                "--tip",
+                "0.4",
+                "0",
+                "0",
+                "--base",
+                "0.4",
+                "0",
+                "0.1",
+                "--radius",
+                "10",
+                "--out",
+                str(tmp_path / "d.glb"),
+            ]
+        )
     err = capsys.readouterr().err
     assert stop.value.code == 2 and len(err.splitlines()) == 2  # the bounding box, the error
     assert "radius: 10 exceeds the model's size: every vertex lies within 0.45 of the drill's axis" in err

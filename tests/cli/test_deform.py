@@ -63,13 +63,19 @@ def test_figure_mesh_and_positional_outputs(tube, tmp_path):
 def test_handles_file_with_a_translated_handle(tube, tmp_path):
     path, V, F = tube
     z = V[:, 2]
-    spec = {"handles": [np.flatnonzero(z < -0.99).tolist(), np.flatnonzero(z > 0.99).tolist()],
-            "motors": [{}, {"translation": [0.3, 0.0, 0.0]}]}
+    spec = {
+        "handles": [np.flatnonzero(z < -0.99).tolist(), np.flatnonzero(z > 0.99).tolist()],
+        "motors": [{}, {"translation": [0.3, 0.0, 0.0]}],
+    }
     handles = tmp_path / "handles.json"
     handles.write_text(json.dumps(spec))
     out = tmp_path / "moved.npy"
-    assert main(["deform", "handles", str(path), "--handles", str(handles), "--laplacian", "mean_value",
-                 "--out", str(out)]) == 0
+    assert (
+        main(
+            ["deform", "handles", str(path), "--handles", str(handles), "--laplacian", "mean_value", "--out", str(out)]
+        )
+        == 0
+    )
     X = np.load(out)
     np.testing.assert_allclose(X[z > 0.99], V[z > 0.99] + [0.3, 0, 0], atol=1e-12)
     np.testing.assert_allclose(X[z < -0.99], V[z < -0.99], atol=1e-12)
@@ -84,12 +90,15 @@ def test_built_in_arm_by_default(tmp_path):
     assert np.load(out).shape[1] == 3
 
 
-@pytest.mark.parametrize("argv, message", [
-    (["deform", "spline", "--positional", "--out", "x.npy"], "positional"),
-    (["deform", "ffd", "--out", "x.txt"], "out"),
-    (["deform", "spline", "missing.ply", "--out", "x.npy"], "no such file"),
-    (["deform", "spline", "--basis", "lagrange", "--keys", "4", "--out", "x.npy"], "num_keys"),
-])
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["deform", "spline", "--positional", "--out", "x.npy"], "positional"),
+        (["deform", "ffd", "--out", "x.txt"], "out"),
+        (["deform", "spline", "missing.ply", "--out", "x.npy"], "no such file"),
+        (["deform", "spline", "--basis", "lagrange", "--keys", "4", "--out", "x.npy"], "num_keys"),
+    ],
+)
 def test_errors_name_the_problem(tmp_path, argv, message, capsys):
     argv = [a if a != "x.npy" and a != "x.txt" else str(tmp_path / a) for a in argv]
     with pytest.raises(SystemExit) as exit_info:
@@ -102,8 +111,9 @@ TETRAHEDRON = "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 
 
 
 def _tetrahedron() -> trimesh.Trimesh:
-    return trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]], [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]],
-                           process=False)
+    return trimesh.Trimesh(
+        [[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1.0]], [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]], process=False
+    )
 
 
 def test_a_mesh_file_is_read_as_it_is(tmp_path):
@@ -113,8 +123,9 @@ def test_a_mesh_file_is_read_as_it_is(tmp_path):
 
     from jaxcga_cli.meshfile import read_mesh_file
 
-    mesh = trimesh.Trimesh([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 1]], [[0, 2, 1], [0, 1, 3], [1, 2, 4]],
-                           process=False)
+    mesh = trimesh.Trimesh(
+        [[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 1]], [[0, 2, 1], [0, 1, 3], [1, 2, 4]], process=False
+    )
     mesh.export(tmp_path / "five.ply")
     with warnings.catch_warnings():
         warnings.simplefilter("error")
@@ -177,15 +188,21 @@ def test_more_keys_than_vertices_are_refused(tmp_path, capsys):
     assert "keys: expected at most one key motor per vertex (3266), got 100000" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("content, message", [
-    ("", "is not valid JSON"),
-    ('{"handles": 5}', "must hold a JSON object with a non-empty 'handles' list"),
-    ('{"handles": [["a"]]}', "must be a list of vertex indices"),
-    ('{"handles": [[0], [1]], "motors": [{"angle": 5}, {}]}', "motor 0 in .* must be an object with keys among"),
-    ('{"handles": [[0], [1]], "motors": [{"axis": [1, 0]}, {}]}', r"motor 0 in .* needs \[x, y, z\] lists"),
-    ('{"handles": [[0], [1]], "motors": [{"axis": [0, 0, 0]}, {}]}', "motor 0 .* needs finite numbers and a non-zero"),
-    ('{"handles": [[0], [1]], "motors": [{"center": [NaN, 0, 0]}, {}]}', "motor 0 in .* needs finite numbers"),
-])
+@pytest.mark.parametrize(
+    "content, message",
+    [
+        ("", "is not valid JSON"),
+        ('{"handles": 5}', "must hold a JSON object with a non-empty 'handles' list"),
+        ('{"handles": [["a"]]}', "must be a list of vertex indices"),
+        ('{"handles": [[0], [1]], "motors": [{"angle": 5}, {}]}', "motor 0 in .* must be an object with keys among"),
+        ('{"handles": [[0], [1]], "motors": [{"axis": [1, 0]}, {}]}', r"motor 0 in .* needs \[x, y, z\] lists"),
+        (
+            '{"handles": [[0], [1]], "motors": [{"axis": [0, 0, 0]}, {}]}',
+            "motor 0 .* needs finite numbers and a non-zero",
+        ),
+        ('{"handles": [[0], [1]], "motors": [{"center": [NaN, 0, 0]}, {}]}', "motor 0 in .* needs finite numbers"),
+    ],
+)
 def test_bad_handle_files_are_named(tmp_path, capsys, content, message):
     (tmp_path / "h.json").write_text(content)
     with pytest.raises(SystemExit) as exit_info:

@@ -22,8 +22,15 @@ def bar_run(tmp_path_factory):
 
 def test_bar_writes_frames_meshes_and_a_summary(bar_run, capsys):
     names = sorted(p.name for p in bar_run.iterdir())
-    assert names == ["frame_0000.png", "frame_0000.vtu", "frame_0002.png", "frame_0002.vtu", "frame_0003.png",
-                     "frame_0003.vtu", "summary.json"]
+    assert names == [
+        "frame_0000.png",
+        "frame_0000.vtu",
+        "frame_0002.png",
+        "frame_0002.vtu",
+        "frame_0003.png",
+        "frame_0003.vtu",
+        "summary.json",
+    ]
     summary = json.loads((bar_run / "summary.json").read_text())
     assert summary["steps"] == 3 and summary["nodes"] == 17 * 5 * 5 and summary["elements"] == 6 * 16 * 4 * 4
     assert summary["dofs"] == 3 * (summary["nodes"] - summary["fixed_nodes"]) and summary["fixed_nodes"] == 25
@@ -61,22 +68,32 @@ def test_force_replaces_the_previous_run_and_nothing_else(tmp_path):
     (out / "frame_0001.vtu.bak").write_text("not the run's either")
     (out / "keep").mkdir()
     assert main(["fem", "bar", "--steps", "1", "--no-figures", "--force", "--out", str(out)]) == 0
-    assert sorted(p.name for p in out.iterdir()) == ["frame_0000.vtu", "frame_0001.vtu", "frame_0001.vtu.bak", "keep",
-                                                     "notes.txt", "summary.json"]
+    assert sorted(p.name for p in out.iterdir()) == [
+        "frame_0000.vtu",
+        "frame_0001.vtu",
+        "frame_0001.vtu.bak",
+        "keep",
+        "notes.txt",
+        "summary.json",
+    ]
     assert (out / "notes.txt").read_text() == "not the run's"
     summary = json.loads((out / "summary.json").read_text())
     assert summary["steps"] == 1 and meshio.read(out / "frame_0001.vtu").points.shape == (summary["nodes"], 3)
     # summary.json is renamed into the folder last: it marks a complete run
-    assert (out / "summary.json").stat().st_ctime_ns >= max((out / f"frame_000{k}.vtu").stat().st_ctime_ns
-                                                            for k in (0, 1))
+    assert (out / "summary.json").stat().st_ctime_ns >= max(
+        (out / f"frame_000{k}.vtu").stat().st_ctime_ns for k in (0, 1)
+    )
 
 
-@pytest.mark.parametrize("args, message", [
-    (["nowhere.msh"], "SCENE"),
-    (["bar", "--steps", "0"], "steps"),
-    (["bar", "--poisson", "0.5"], "poisson"),
-    (["bar", "--dt", "-1"], "dt"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["nowhere.msh"], "SCENE"),
+        (["bar", "--steps", "0"], "steps"),
+        (["bar", "--poisson", "0.5"], "poisson"),
+        (["bar", "--dt", "-1"], "dt"),
+    ],
+)
 def test_bad_arguments_exit_with_a_message(tmp_path, capsys, args, message):
     with pytest.raises(SystemExit) as exit_info:
         main(["fem", *args, "--out", str(tmp_path / "x")])
@@ -87,11 +104,17 @@ def test_bad_arguments_exit_with_a_message(tmp_path, capsys, args, message):
 def test_corrupt_scenes_and_overflowing_gravity_are_named(tmp_path, capsys):
     (tmp_path / "nan.obj").write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 nan\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n")
     (tmp_path / "junk.msh").write_text("not a mesh")
-    for args, message in ((["bar", "--gravity", "0", "0", "-1e308"], "gravity: expected three numbers whose product "
-                                                                       "with the density is finite"),
-                          ([str(tmp_path / "nan.obj")], f"SCENE: {tmp_path / 'nan.obj'}: line 4: 'v 0 0 nan' is not a "
-                                                        "vertex of three finite numbers"),
-                          ([str(tmp_path / "junk.msh")], "SCENE: meshio cannot read")):
+    for args, message in (
+        (
+            ["bar", "--gravity", "0", "0", "-1e308"],
+            "gravity: expected three numbers whose product with the density is finite",
+        ),
+        (
+            [str(tmp_path / "nan.obj")],
+            f"SCENE: {tmp_path / 'nan.obj'}: line 4: 'v 0 0 nan' is not a vertex of three finite numbers",
+        ),
+        ([str(tmp_path / "junk.msh")], "SCENE: meshio cannot read"),
+    ):
         with pytest.raises(SystemExit) as exit_info:
             main(["fem", *args, "--out", str(tmp_path / "x")])
         err = capsys.readouterr().err

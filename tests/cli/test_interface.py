@@ -34,8 +34,14 @@ def _exit(argv: list[str]) -> int:
 def test_version_is_the_distributions(capsys):
     assert _exit(["--version"]) == 0
     assert capsys.readouterr().out.strip() == f"jaxcga {importlib.metadata.version('jaxcga')}"
-    done = subprocess.run([sys.executable, "-m", "jaxcga_cli", "--version"], capture_output=True, text=True,
-                          cwd=ROOT, timeout=120, check=False)
+    done = subprocess.run(
+        [sys.executable, "-m", "jaxcga_cli", "--version"],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        timeout=120,
+        check=False,
+    )
     assert done.returncode == 0 and done.stdout.startswith("jaxcga "), done.stderr
 
 
@@ -65,16 +71,19 @@ def test_the_command_lines_enumerations_are_the_packages():
     assert arguments.XFEM_SIZES == xfem.SIZES
 
 
-@pytest.mark.parametrize("argv, option", [
-    (["skin", "--method", "quaternions", "--out", "x.npy"], "--method"),
-    (["cut", "--plane", "1", "0", "0", "0", "--predicates", "exact", "--out", "a.glb", "b.glb"], "--predicates"),
-    (["deform", "spline", "--basis", "nurbs", "--out", "x.npy"], "--basis"),
-    (["deform", "handles", "--laplacian", "uniform", "--out", "x.npy"], "--laplacian"),
-    (["arap", "--energy", "rims", "--out", "x.npy"], "--energy"),
-    (["xfem", "cake", "--out", "out"], "SCENE"),
-    (["xfem", "cheese", "--size", "huge", "--out", "out"], "--size"),
-    (["animate", "--interpolation", "cubic", "--out", "x.glb"], "--interpolation"),
-])
+@pytest.mark.parametrize(
+    "argv, option",
+    [
+        (["skin", "--method", "quaternions", "--out", "x.npy"], "--method"),
+        (["cut", "--plane", "1", "0", "0", "0", "--predicates", "exact", "--out", "a.glb", "b.glb"], "--predicates"),
+        (["deform", "spline", "--basis", "nurbs", "--out", "x.npy"], "--basis"),
+        (["deform", "handles", "--laplacian", "uniform", "--out", "x.npy"], "--laplacian"),
+        (["arap", "--energy", "rims", "--out", "x.npy"], "--energy"),
+        (["xfem", "cake", "--out", "out"], "SCENE"),
+        (["xfem", "cheese", "--size", "huge", "--out", "out"], "--size"),
+        (["animate", "--interpolation", "cubic", "--out", "x.glb"], "--interpolation"),
+    ],
+)
 def test_enumerations_are_choices(argv, option, capsys):
     assert _exit(argv) == 2
     err = capsys.readouterr().err
@@ -122,8 +131,26 @@ def test_a_cut_that_misses_the_mesh_gives_the_bounding_box_and_up_axis(tmp_path,
 
 def test_a_drill_that_misses_the_mesh_gives_the_bounding_box(tmp_path, capsys):
     box = _box(deform.default_arm().mesh.V)
-    assert _exit(["drill", "--tip", "3", "3", "3", "--base", "3", "3", "4", "--radius", "0.01",
-                  "--out", str(tmp_path / "d.glb")]) == 2
+    assert (
+        _exit(
+            [
+                "drill",
+                "--tip",
+                "3",
+                "3",
+                "3",
+                "--base",
+                "3",
+                "3",
+                "4",
+                "--radius",
+                "0.01",
+                "--out",
+                str(tmp_path / "d.glb"),
+            ]
+        )
+        == 2
+    )
     error = capsys.readouterr().err.splitlines()[-1]
     assert "misses the mesh" in error and f"bounding box is {box}; up is +y" in error
 

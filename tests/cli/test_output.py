@@ -28,8 +28,15 @@ COMMANDS = {
     "animate": ["animate", "--out", "OUT.glb"],
     "fit": ["fit", "--target", str(DATA / "RiggedSimple.glb"), "--out", "OUT.json"],
     "cut": ["cut", "--plane", "1", "0", "0", "0.3", "--out", "OUT.glb", "OUT_other.glb"],
-    "tear": ["tear", "--scalpel0", *"0.2 0 0.1 0.2 0 0".split(), "--scalpel1", *"0.3 0 0.1 0.3 0 0".split(),
-             "--out", "OUT.glb"],
+    "tear": [
+        "tear",
+        "--scalpel0",
+        *"0.2 0 0.1 0.2 0 0".split(),
+        "--scalpel1",
+        *"0.3 0 0.1 0.3 0 0".split(),
+        "--out",
+        "OUT.glb",
+    ],
     "drill": ["drill", "--tip", "0.4", "0", "0", "--base", "0.4", "0", "0.1", "--radius", "0.015", "--out", "OUT.glb"],
     "deform": ["deform", "ffd", "--out", "OUT.png"],
     "arap": ["arap", "--out", "OUT.npy"],
@@ -57,8 +64,11 @@ def _fails_on_one_line(capsys, argv: list[str], *needles: str) -> str:
 def _one_line_error(err: str, command: str) -> bool:
     """``err`` (stderr) ends with one error line, after status lines only: no traceback."""
     lines = err.splitlines()
-    return (err.endswith("\n") and lines[-1].startswith(f"jaxcga {command}: error: ")
-            and all(line.startswith(f"jaxcga {command}: ") and ": error: " not in line for line in lines[:-1]))
+    return (
+        err.endswith("\n")
+        and lines[-1].startswith(f"jaxcga {command}: error: ")
+        and all(line.startswith(f"jaxcga {command}: ") and ": error: " not in line for line in lines[:-1])
+    )
 
 
 def _snapshot(folder: Path) -> dict[str, bytes]:
@@ -68,14 +78,20 @@ def _snapshot(folder: Path) -> dict[str, bytes]:
 @pytest.fixture
 def no_work(monkeypatch):
     """Loading and computing raise: a test with it checks that paths are refused before any of that."""
+
     def refuse(*args, **kwargs):
         raise AssertionError("loaded or computed before the paths were checked")
 
     import xfem
     from jaxcga_cli import fem, models
 
-    for module, name in ((models, "load_model"), (deform, "fit_pose"), (models, "load_mesh"), (fem, "scene_mesh"),
-                         (xfem, "scene")):
+    for module, name in (
+        (models, "load_model"),
+        (deform, "fit_pose"),
+        (models, "load_mesh"),
+        (fem, "scene_mesh"),
+        (xfem, "scene"),
+    ):
         monkeypatch.setattr(module, name, refuse)
 
 
@@ -170,8 +186,14 @@ def disk_full(tmp_path_factory):
         [4096, ["fem", "bar", "--steps", "2", "--no-figures", "--force", "--out", str(run)]],
     ]
     env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
-    done = subprocess.run([sys.executable, "-c", _LIMITED, json.dumps(probes)], capture_output=True, text=True,
-                          cwd=folder, env=env, timeout=600)
+    done = subprocess.run(
+        [sys.executable, "-c", _LIMITED, json.dumps(probes)],
+        capture_output=True,
+        text=True,
+        cwd=folder,
+        env=env,
+        timeout=600,
+    )
     assert done.returncode == 0, done.stderr[-3000:]
     return folder, before, json.loads(done.stdout.splitlines()[-1])
 
@@ -202,7 +224,8 @@ def test_disk_full_leaves_the_previous_fem_run_as_it_was(disk_full):
     assert after == before  # every file, including the earlier run's frames; no temporary file is left
     assert sorted(p.name for p in folder.iterdir()) == ["model.bin", "model.gltf", "neg.glb", "pos.glb", "run"]
     assert sorted(p.name for p in (folder / "run").iterdir()) == sorted(
-        ["frame_0000.vtu", "frame_0010.vtu", "summary.json", "notes.txt"])
+        ["frame_0000.vtu", "frame_0010.vtu", "summary.json", "notes.txt"]
+    )
 
 
 # ------------------------------------------------------------------------------ paths checked before any work
@@ -252,10 +275,14 @@ def test_fit_checks_its_output_before_loading_and_optimizing(tmp_path, capsys, n
     target = tmp_path / "target.npy"
     np.save(target, np.zeros((3, 3)))
     _fails_on_one_line(capsys, ["fit", "--target", str(target), "--out", str(tmp_path / "pose.json")], "is a folder")
-    _fails_on_one_line(capsys, ["fit", "--target", str(tmp_path / "missing.npy"), "--out", str(tmp_path / "p.json")],
-                       "target: no such file")
-    _fails_on_one_line(capsys, ["fit", "--target", str(target), "--out", str(tmp_path / "pose.txt")],
-                       "expected a .json file")
+    _fails_on_one_line(
+        capsys,
+        ["fit", "--target", str(tmp_path / "missing.npy"), "--out", str(tmp_path / "p.json")],
+        "target: no such file",
+    )
+    _fails_on_one_line(
+        capsys, ["fit", "--target", str(target), "--out", str(tmp_path / "pose.txt")], "expected a .json file"
+    )
 
 
 # ------------------------------------------------------------------------------ outputs that clobber each other
@@ -263,23 +290,32 @@ def test_fit_checks_its_output_before_loading_and_optimizing(tmp_path, capsys, n
 
 def test_identical_outputs_and_an_output_that_is_the_input_are_refused(tmp_path, capsys, no_work):
     same = tmp_path / "same.glb"
-    _fails_on_one_line(capsys, ["cut", "--plane", "1", "0", "0", "0.3", "--out", str(same), str(same)],
-                       "same file as the output out (positive half)")
-    _fails_on_one_line(capsys, ["cut", "--plane", "1", "0", "0", "0.3", "--out", str(same),
-                                str(tmp_path / "." / "same.glb")], "same file")
+    _fails_on_one_line(
+        capsys,
+        ["cut", "--plane", "1", "0", "0", "0.3", "--out", str(same), str(same)],
+        "same file as the output out (positive half)",
+    )
+    _fails_on_one_line(
+        capsys,
+        ["cut", "--plane", "1", "0", "0", "0.3", "--out", str(same), str(tmp_path / "." / "same.glb")],
+        "same file",
+    )
     model = tmp_path / "model.glb"
     model.write_bytes((DATA / "RiggedSimple.glb").read_bytes())
-    for argv in (["tear", str(model), *COMMANDS["tear"][1:-1], str(model)],
-                 ["animate", str(model), "--out", str(model)],
-                 ["deform", "ffd", str(model), "--out", str(model)]):
+    for argv in (
+        ["tear", str(model), *COMMANDS["tear"][1:-1], str(model)],
+        ["animate", str(model), "--out", str(model)],
+        ["deform", "ffd", str(model), "--out", str(model)],
+    ):
         _fails_on_one_line(capsys, argv, "same file as the input")
     assert model.read_bytes() == (DATA / "RiggedSimple.glb").read_bytes()
     # fem --force would remove its own input, a frame of the earlier run in that folder
     run = tmp_path / "run"
     run.mkdir()
     (run / "frame_0000.vtu").write_text("an earlier frame")
-    _fails_on_one_line(capsys, ["fem", str(run / "frame_0000.vtu"), "--force", "--out", str(run)],
-                       "that --force would remove")
+    _fails_on_one_line(
+        capsys, ["fem", str(run / "frame_0000.vtu"), "--force", "--out", str(run)], "that --force would remove"
+    )
 
 
 def test_an_unrelated_bin_beside_a_gltf_is_not_replaced(tmp_path, capsys, no_work):
@@ -315,8 +351,12 @@ def test_a_trimesh_gltf_holds_its_buffers(tmp_path):
     V = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
     F = np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
     write_result(tmp_path / "mesh.gltf", V, F)
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["gltf_buffer.bin", "gltf_buffer_0.bin", "mesh.bin",
-                                                         "mesh.gltf"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == [
+        "gltf_buffer.bin",
+        "gltf_buffer_0.bin",
+        "mesh.bin",
+        "mesh.gltf",
+    ]
     assert all((tmp_path / n).read_bytes() == b"someone else's buffer" for n in ("mesh.bin", "gltf_buffer_0.bin"))
     np.testing.assert_allclose(trimesh.load(tmp_path / "mesh.gltf", force="mesh", process=False).vertices, V)
 
@@ -335,8 +375,16 @@ def test_a_non_empty_run_folder_needs_force(tmp_path, capsys, no_work, command):
 def test_json_errors_are_one_line(tmp_path, capsys):
     handles = tmp_path / "handles.json"
     handles.write_text('{"handles": [[0]], "motors": [')
-    _fails_on_one_line(capsys, ["deform", "handles", "--handles", str(handles), "--out", str(tmp_path / "x.npy")],
-                       "handles:", "not valid JSON")
+    _fails_on_one_line(
+        capsys,
+        ["deform", "handles", "--handles", str(handles), "--out", str(tmp_path / "x.npy")],
+        "handles:",
+        "not valid JSON",
+    )
     handles.write_text('{"handles": [[0]], "motors": [3]}')
-    _fails_on_one_line(capsys, ["deform", "handles", "--handles", str(handles), "--out", str(tmp_path / "x.npy")],
-                       "motor 0", "must be an object")
+    _fails_on_one_line(
+        capsys,
+        ["deform", "handles", "--handles", str(handles), "--out", str(tmp_path / "x.npy")],
+        "motor 0",
+        "must be an object",
+    )

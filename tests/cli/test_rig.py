@@ -135,18 +135,19 @@ def test_fit_names_unreadable_target_and_vertex_files(tmp_path, capsys):
     np.save(tmp_path / "i.npy", np.array([0, 1]))
     argv = ["fit", "--target", str(tmp_path / "t.npy"), "--out", out]
     assert "vertices: no such file" in _error(argv + ["--vertices", str(tmp_path / "none.npy")], capsys)
-    assert "max_steps: expected an int >= 1, got 0" in _error(argv + ["--vertices", str(tmp_path / "i.npy"),
-                                                                      "--max-steps", "0"], capsys)
+    assert "max_steps: expected an int >= 1, got 0" in _error(
+        argv + ["--vertices", str(tmp_path / "i.npy"), "--max-steps", "0"], capsys
+    )
 
 
 def test_a_corrupt_buffer_is_blamed_on_its_accessor(tmp_path, capsys):
     raw = bytearray((DATA / "RiggedSimple.glb").read_bytes())
     length = int.from_bytes(raw[12:16], "little")
-    doc = json.loads(raw[20:20 + length])
+    doc = json.loads(raw[20 : 20 + length])
     accessor = doc["accessors"][doc["meshes"][0]["primitives"][0]["attributes"]["POSITION"]]
     start = 20 + length + 8 + doc["bufferViews"][accessor["bufferView"]].get("byteOffset", 0)
     start += accessor.get("byteOffset", 0)
-    raw[start:start + 12] = b"\xff" * 12  # NaN bit patterns: the first vertex
+    raw[start : start + 12] = b"\xff" * 12  # NaN bit patterns: the first vertex
     (tmp_path / "corrupt.glb").write_bytes(bytes(raw))
     err = _error(["skin", str(tmp_path / "corrupt.glb"), "--out", str(tmp_path / "x.npy")], capsys)
     assert "POSITION (accessor" in err and "non-finite" in err
@@ -162,17 +163,46 @@ def test_skin_and_animate_interpolation(tmp_path):
     diagonal = float(np.linalg.norm(np.ptp(expected, axis=0)))
     for interpolation in ("gltf", "log"):
         out = tmp_path / f"{interpolation}.npy"
-        assert main(["skin", str(tmp_path / "scaled.glb"), "--time", "0.75", "--method", "cga",
-                     "--interpolation", interpolation, "--out", str(out)]) == 0
+        assert (
+            main(
+                [
+                    "skin",
+                    str(tmp_path / "scaled.glb"),
+                    "--time",
+                    "0.75",
+                    "--method",
+                    "cga",
+                    "--interpolation",
+                    interpolation,
+                    "--out",
+                    str(out),
+                ]
+            )
+            == 0
+        )
         gap = np.abs(np.load(out) - expected).max() / diagonal
         assert gap < 1e-6 if interpolation == "gltf" else gap > 1e-2, (interpolation, gap)
-    np.testing.assert_allclose(np.load(tmp_path / "log.npy"),
-                               deform.skin_model(model, 0.75, "cga", interpolation="log"), atol=1e-12)
+    np.testing.assert_allclose(
+        np.load(tmp_path / "log.npy"), deform.skin_model(model, 0.75, "cga", interpolation="log"), atol=1e-12
+    )
     # animate re-samples at 0, 0.5, 1.0, 1.5 s: its keys hold the chosen sampling there
     for interpolation in ("gltf", "log"):
         out = tmp_path / f"{interpolation}.glb"
-        assert main(["animate", str(tmp_path / "scaled.glb"), "--frames", "4", "--interpolation", interpolation,
-                     "--out", str(out)]) == 0
+        assert (
+            main(
+                [
+                    "animate",
+                    str(tmp_path / "scaled.glb"),
+                    "--frames",
+                    "4",
+                    "--interpolation",
+                    interpolation,
+                    "--out",
+                    str(out),
+                ]
+            )
+            == 0
+        )
         animated = deform.load_model(out)
         wanted = deform.skin_model(model, 0.5, "lbs", interpolation=interpolation)
         np.testing.assert_allclose(deform.skin_model(animated, 0.5, "lbs"), wanted, atol=1e-5 * diagonal)

@@ -19,10 +19,24 @@ def test_cheese_writes_frames_surfaces_and_a_summary(tmp_path, capsys):
     # frame 0, the cut frames 1 and 2, frame 4 (every 4 and the last)
     frames = [0, 1, 2, 4]
     assert sorted(p.name for p in out.iterdir()) == sorted(
-        [f"frame_{k:04d}.{ext}" for k in frames for ext in ("png", "vtu")] + ["summary.json"])
+        [f"frame_{k:04d}.{ext}" for k in frames for ext in ("png", "vtu")] + ["summary.json"]
+    )
     summary = json.loads((out / "summary.json").read_text())
-    for key in ("pieces", "dofs", "dofs_initial", "booleans", "boolean_ms", "integral_ms", "step_avg_s",
-                "step_max_s", "total_cut_frames_s", "total_s", "epsilon", "cut_frames", "frame_pieces"):
+    for key in (
+        "pieces",
+        "dofs",
+        "dofs_initial",
+        "booleans",
+        "boolean_ms",
+        "integral_ms",
+        "step_avg_s",
+        "step_max_s",
+        "total_cut_frames_s",
+        "total_s",
+        "epsilon",
+        "cut_frames",
+        "frame_pieces",
+    ):
         assert key in summary
     assert summary["frames"] == summary["steps"] == 4 and summary["cuts"] == 5 and summary["size"] == "small"
     assert summary["cut_frames"] == [1, 2] and summary["frames_written"] == frames
@@ -48,8 +62,26 @@ def test_cut_latency_defers_cuts(tmp_path):
     """--cut-latency 2: the cuts of frames 1 and 2 are computed in the background and take effect in frames 3 and
     4; every frame is written, showing the cuts that have taken effect (frames 1 and 2: the uncut body)."""
     out = tmp_path / "latency"
-    assert main(["xfem", "cheese", "--size", "small", "--steps", "5", "--every", "1", "--cut-latency", "2",
-                 "--no-figures", "--out", str(out)]) == 0
+    assert (
+        main(
+            [
+                "xfem",
+                "cheese",
+                "--size",
+                "small",
+                "--steps",
+                "5",
+                "--every",
+                "1",
+                "--cut-latency",
+                "2",
+                "--no-figures",
+                "--out",
+                str(out),
+            ]
+        )
+        == 0
+    )
     summary = json.loads((out / "summary.json").read_text())
     assert summary["cut_latency"] == 2 and summary["cuts"] == 5
     assert summary["frame_pieces"][:2] == [1, 1] and summary["frame_pieces"][3] == summary["pieces"] >= 6
@@ -58,13 +90,16 @@ def test_cut_latency_defers_cuts(tmp_path):
         assert meshio.read(out / f"frame_{frame:04d}.vtu").cell_data["piece"][0].max() + 1 == pieces
 
 
-@pytest.mark.parametrize("args, message", [
-    (["octopus"], "SCENE"),
-    (["cheese", "--cut-latency", "-1"], "cut_latency"),
-    (["cheese", "--steps", "0"], "steps"),
-    (["cheese", "--size", "huge"], "size"),
-    (["cheese", "--every", "0"], "every"),
-])
+@pytest.mark.parametrize(
+    "args, message",
+    [
+        (["octopus"], "SCENE"),
+        (["cheese", "--cut-latency", "-1"], "cut_latency"),
+        (["cheese", "--steps", "0"], "steps"),
+        (["cheese", "--size", "huge"], "size"),
+        (["cheese", "--every", "0"], "every"),
+    ],
+)
 def test_bad_arguments_exit_with_a_message(tmp_path, capsys, args, message):
     with pytest.raises(SystemExit) as exit_info:
         main(["xfem", *args, "--out", str(tmp_path / "x")])

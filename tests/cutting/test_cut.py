@@ -16,18 +16,13 @@ import cutting
 import deform
 import jaxcga as cga
 from tests.cutting.tools import area as _area
-from tests.cutting.tools import consistency_problems, piece_quality
+from tests.cutting.tools import consistency_problems, load_models, piece_quality
 from tests.cutting.tools import diagonal as _diagonal
-from tests.cutting.tools import load_models
 from tests.cutting.tools import posed as posed_arm
 from tests.shared import check_gradient
 
 MODELS = load_models(weld=False)
 ARM = deform.default_arm()
-
-
-
-
 
 
 def _random_plane(V, direction, offset):
@@ -44,8 +39,12 @@ directions = st.tuples(*[st.floats(-1, 1) for _ in range(3)]).filter(lambda v: n
 
 @pytest.mark.slow  # 17 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 @settings(max_examples=15, deadline=None)
-@given(name=st.sampled_from(sorted(MODELS)), direction=directions, offset=st.floats(0.1, 0.9),
-       predicates=st.sampled_from(cutting.PREDICATES))
+@given(
+    name=st.sampled_from(sorted(MODELS)),
+    direction=directions,
+    offset=st.floats(0.1, 0.9),
+    predicates=st.sampled_from(cutting.PREDICATES),
+)
 def test_cut_invariants_on_real_models(name, direction, offset, predicates):
     mesh = MODELS[name].mesh
     plane = _random_plane(mesh.V, direction, offset)
@@ -68,15 +67,16 @@ def test_cut_invariants_on_real_models(name, direction, offset, predicates):
         assert np.all(sign * topology.distances[keep[keep < len(V)]] >= 0)
     for half in (positive, negative):
         W = np.asarray(half.W)
-        np.testing.assert_allclose(W.sum(axis=1)[len(V):], 1.0, atol=1e-12)
+        np.testing.assert_allclose(W.sum(axis=1)[len(V) :], 1.0, atol=1e-12)
         assert half.J.shape[1] == mesh.J.shape[1]
         assert np.all(np.asarray(half.J) < mesh.num_joints)
     # new vertices (not among the original positions) lie on the plane
     assert np.all(np.abs(topology.points @ n - d) <= 1e-9 * diagonal)
     assert np.all((topology.t > 0) & (topology.t < 1))
     # the differentiable positions follow the snapped topology
-    np.testing.assert_allclose(np.asarray(cutting.cut_positions(V, topology, plane)),
-                               topology.points, rtol=0, atol=1e-12 * diagonal)
+    np.testing.assert_allclose(
+        np.asarray(cutting.cut_positions(V, topology, plane)), topology.points, rtol=0, atol=1e-12 * diagonal
+    )
 
 
 def _original_rows(half, V):
@@ -102,8 +102,14 @@ def test_skinning_the_halves_gives_the_original_at_original_vertices(method):
 def test_halves_are_manifold_and_caps_close_them_with_the_right_volume():
     cylinder = trimesh.creation.cylinder(radius=1.0, height=4.0, sections=64)
     V, F = np.asarray(cylinder.vertices), np.asarray(cylinder.faces)
-    mesh = deform.SkinnedMesh(jnp.asarray(V), jnp.asarray(F, jnp.int32), jnp.zeros((len(V), 1), jnp.int32),
-                              jnp.ones((len(V), 1)), jnp.eye(4)[None], (0,))
+    mesh = deform.SkinnedMesh(
+        jnp.asarray(V),
+        jnp.asarray(F, jnp.int32),
+        jnp.zeros((len(V), 1), jnp.int32),
+        jnp.ones((len(V), 1)),
+        jnp.eye(4)[None],
+        (0,),
+    )
     for plane, lower in ((cutting.Plane([0.0, 0.0, 1.0], 0.5), 2.5), (cutting.Plane([0.0, 0.3, 1.0], 0.2), None)):
         positive, negative = cutting.cut(mesh, plane, cap=True)
         halves = [trimesh.Trimesh(np.asarray(h.V), np.asarray(h.F), process=False) for h in (positive, negative)]
@@ -145,9 +151,10 @@ def test_planes_through_vertices_and_along_edges_make_no_slivers():
             assert _area(ext, faces).min() > 1e-6
             assert abs(_area(ext, faces).sum()) > 0
         total = _area(V, F).sum()
-        pieces = sum(_area(np.concatenate([V, topology.points])[k], f).sum()
-                     for k, f in ((topology.positive, topology.positive_faces),
-                                  (topology.negative, topology.negative_faces)))
+        pieces = sum(
+            _area(np.concatenate([V, topology.points])[k], f).sum()
+            for k, f in ((topology.positive, topology.positive_faces), (topology.negative, topology.negative_faces))
+        )
         assert abs(pieces - total) <= 1e-12 * total
 
 
@@ -159,8 +166,9 @@ def test_ga_and_euclidean_predicates_agree():
     np.testing.assert_array_equal(a.crossing, b.crossing)
     np.testing.assert_allclose(a.points, b.points, atol=1e-9 * _diagonal(mesh.V))
     # the plane as a jaxcga plane vector, and through a point
-    c = cutting.cut_topology(mesh.V, mesh.F, cutting.Plane.from_multivector(cga.plane(jnp.asarray(plane.normal),
-                                                                                      plane.distance)))
+    c = cutting.cut_topology(
+        mesh.V, mesh.F, cutting.Plane.from_multivector(cga.plane(jnp.asarray(plane.normal), plane.distance))
+    )
     np.testing.assert_array_equal(a.positive_faces, c.positive_faces)
     point = plane.distance * plane.normal + np.cross(plane.normal, [0.3, -0.2, 0.5])  # on the plane
     through = cutting.Plane.through(point, 2.0 * plane.normal)
@@ -194,8 +202,11 @@ def test_side_weight_favours_each_halfs_own_side():
     index = {tuple(p): k for k, p in enumerate(topology.points.tolist())}
     k = np.array([index[tuple(p)] for p in new_positions.tolist()])
     dense = lambda J, W: np.stack([np.bincount(j, w, minlength=mesh.num_joints) for j, w in zip(J, W)])  # noqa: E731
-    np.testing.assert_allclose(dense(np.asarray(positive.J)[rows < 0], np.asarray(positive.W)[rows < 0]),
-                               dense(np.asarray(mesh.J)[own[k]], np.asarray(mesh.W)[own[k]]), atol=1e-12)
+    np.testing.assert_allclose(
+        dense(np.asarray(positive.J)[rows < 0], np.asarray(positive.W)[rows < 0]),
+        dense(np.asarray(mesh.J)[own[k]], np.asarray(mesh.W)[own[k]]),
+        atol=1e-12,
+    )
     with pytest.raises(ValueError, match="side_weight"):
         cutting.cut(mesh, plane, side_weight=1.5)
 
@@ -232,7 +243,8 @@ def test_new_vertex_positions_are_differentiable_in_the_plane():
     check_gradient(loss, params, rtol=1e-6)
     # the gradient with respect to the Plane itself is a Plane holding the same numbers
     grad = jax.grad(lambda tool: jnp.sum(cutting.cut_positions(mesh.V, topology, tool) ** 2))(
-        cutting.Plane(jnp.asarray(plane.normal), jnp.asarray(plane.distance)))
+        cutting.Plane(jnp.asarray(plane.normal), jnp.asarray(plane.distance))
+    )
     np.testing.assert_allclose(jnp.append(grad.normal, grad.distance), jax.grad(loss)(params), rtol=1e-12)
     with pytest.raises(ValueError, match="V: expected the"):
         cutting.cut_positions(mesh.V[:-1], topology, plane)

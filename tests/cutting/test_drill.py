@@ -16,21 +16,14 @@ import cutting
 import deform
 import jaxcga as cga
 from tests.cutting.tools import area as _area
-from tests.cutting.tools import consistency_problems, piece_quality
+from tests.cutting.tools import consistency_problems, drill_into, load_models, mean_edge, piece_quality
 from tests.cutting.tools import diagonal as _diagonal
-from tests.cutting.tools import drill_into, load_models, mean_edge
 from tests.cutting.tools import edge_counts as _edge_counts
 from tests.cutting.tools import posed as posed_arm
 from tests.shared import check_gradient, grid
 
 MODELS = load_models(weld=True)
 ARM = deform.default_arm()
-
-
-
-
-
-
 
 
 def _radial_distance(points, tip, base):
@@ -54,8 +47,12 @@ def _loops(boundary_edges):
 
 @pytest.mark.slow  # 10 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 @settings(max_examples=12, deadline=None)
-@given(name=st.sampled_from(sorted(MODELS)), seed=st.integers(0, 10_000), radius=st.floats(0.4, 1.0),
-       depth=st.floats(0.5, 3.0))
+@given(
+    name=st.sampled_from(sorted(MODELS)),
+    seed=st.integers(0, 10_000),
+    radius=st.floats(0.4, 1.0),
+    depth=st.floats(0.5, 3.0),
+)
 def test_drill_invariants_on_real_models(name, seed, radius, depth):
     mesh = MODELS[name].mesh
     V, F = np.asarray(mesh.V, np.float64), np.asarray(mesh.F)
@@ -78,10 +75,14 @@ def test_drill_invariants_on_real_models(name, seed, radius, depth):
     assert np.all(np.abs(_radial_distance(topology.points, tip, base) - radius * edge) <= 1e-9 * diagonal)
     problems, _, _ = piece_quality(V, F, Vd, Fd, topology.kept)
     # the differentiable positions follow the topology left after dropping points
-    np.testing.assert_allclose(np.asarray(cutting.drill_positions(V, topology, cutting.Drill(jnp.asarray(tip),
-                                                                                             jnp.asarray(base),
-                                                                                             radius * edge))),
-                               topology.points, rtol=0, atol=1e-9 * diagonal)
+    np.testing.assert_allclose(
+        np.asarray(
+            cutting.drill_positions(V, topology, cutting.Drill(jnp.asarray(tip), jnp.asarray(base), radius * edge))
+        ),
+        topology.points,
+        rtol=0,
+        atol=1e-9 * diagonal,
+    )
     assert not problems + consistency_problems(drilled, mesh, topology.kept)
     assert _area(Vd, Fd).sum() < _area(V, F).sum()
     # weights of new vertices (refinement midpoints and hole points)
@@ -92,12 +93,13 @@ def test_drill_invariants_on_real_models(name, seed, radius, depth):
     edges, counts = _edge_counts(Fd)
     assert counts.max() <= 2
     assert trimesh.Trimesh(Vd, Fd, process=False).is_winding_consistent
-    new_loops = _loops(edges[counts == 1]) - (_loops(before_edges[before_counts == 1]) if np.any(before_counts == 1)
-                                              else 0)
+    new_loops = _loops(edges[counts == 1]) - (
+        _loops(before_edges[before_counts == 1]) if np.any(before_counts == 1) else 0
+    )
     assert new_loops == topology.holes >= 1
     # the input's vertices outside the hole keep their rest positions, in order
     original = topology.kept[topology.kept < len(V)]
-    np.testing.assert_array_equal(Vd[:len(original)], V[original])
+    np.testing.assert_array_equal(Vd[: len(original)], V[original])
 
 
 def test_hole_in_a_flat_plate_is_the_inscribed_polygon():
@@ -125,8 +127,10 @@ def test_hole_in_a_flat_plate_is_the_inscribed_polygon():
     assert 0.9 * np.pi * r**2 < polygon < np.pi * r**2
     # the bottom of the plate is not reached by the drill's axis: untouched
     bottom = _area(V, F)[V[F].mean(axis=1)[:, 2] < -0.49].sum()
-    assert abs(_area(extended, drilled.faces)[extended[drilled.faces].mean(axis=1)[:, 2] < -0.49].sum() - bottom) \
+    assert (
+        abs(_area(extended, drilled.faces)[extended[drilled.faces].mean(axis=1)[:, 2] < -0.49].sum() - bottom)
         <= 1e-12 * bottom
+    )
     # a longer drill goes through both sides
     through = cutting.drill_topology(V, F, cutting.Drill(np.array([0.1, 0.05, -2.0]), base, r))
     assert through.holes == 2
@@ -140,15 +144,19 @@ def test_a_drill_thinner_than_the_faces_splits_them_and_drills_again():
     drilled, topology = cutting.drill(mesh, cutting.Drill(tip, base, radius), return_topology=True)
     assert topology.refinements >= 1 and len(topology.points) >= 6
     # the differentiable positions form the midpoints (level after level) from the input's vertices
-    np.testing.assert_allclose(cutting.drill_positions(V, topology, cutting.Drill(tip, base, radius)), topology.points,
-                               atol=1e-9 * _diagonal(V))
+    np.testing.assert_allclose(
+        cutting.drill_positions(V, topology, cutting.Drill(tip, base, radius)),
+        topology.points,
+        atol=1e-9 * _diagonal(V),
+    )
     with pytest.raises(ValueError, match="V: expected the"):
         cutting.drill_positions(topology.vertices, topology, cutting.Drill(tip, base, radius))
     np.testing.assert_allclose(_radial_distance(topology.points, tip, base), radius, atol=1e-9 * _diagonal(V))
     # refinement midpoints (of midpoints, level after level) sit halfway along their parents
     vertices = topology.vertices
-    np.testing.assert_allclose(vertices[len(V):], 0.5 * (vertices[topology.parents[:, 0]]
-                                                          + vertices[topology.parents[:, 1]]), atol=1e-12)
+    np.testing.assert_allclose(
+        vertices[len(V) :], 0.5 * (vertices[topology.parents[:, 0]] + vertices[topology.parents[:, 1]]), atol=1e-12
+    )
     kept = topology.kept
     midpoints = (kept >= len(V)) & (kept < len(vertices))
     np.testing.assert_allclose(np.asarray(drilled.V)[midpoints], vertices[kept[midpoints]], atol=1e-5)
@@ -167,7 +175,7 @@ def test_skinning_the_drilled_mesh_gives_the_original_at_original_vertices(metho
     original = np.asarray(deform.skin_pose(model, pose, method))
     posed = np.asarray(deform.skin_pose(deform.RiggedModel(drilled, model.skeleton), pose, method))
     kept = topology.kept[topology.kept < len(V)]
-    np.testing.assert_allclose(posed[:len(kept)], original[kept], atol=1e-12)
+    np.testing.assert_allclose(posed[: len(kept)], original[kept], atol=1e-12)
     assert np.all(np.isfinite(posed))
 
 
@@ -177,8 +185,9 @@ def test_drill_in_a_pose_reproduces_the_hole_when_posed_again(method):
     local, joints, posed = posed_arm(model, 0.9)
     F = np.asarray(model.mesh.F)
     tip, base = drill_into(posed, F, 5000, 0.05)
-    drilled, topology = cutting.drill(model.mesh, cutting.Drill(tip, base, 0.015), joint_matrices=joints,
-                                      return_topology=True)
+    drilled, topology = cutting.drill(
+        model.mesh, cutting.Drill(tip, base, 0.015), joint_matrices=joints, return_topology=True
+    )
     pose = local if method == "lbs" else cga.matrix_to_similitude(local)
     again = np.asarray(deform.skin_pose(deform.RiggedModel(drilled, model.skeleton), pose, method))
     new = topology.kept >= len(topology.vertices)
@@ -245,8 +254,9 @@ def test_non_manifold_input():
     with pytest.raises(ValueError, match="non-manifold"):
         cutting.drill_topology(V, F, cutting.Drill(np.array([0.5, 0.52, -1.0]), np.array([0.5, 0.52, 1.0]), 0.12))
     # a tear that reaches the fin's edges is refused too
-    scalpel = cutting.Scalpel(np.array([[0.52, 0.3, 1.0], [0.52, 0.7, 1.0]]), np.array([[0.52, 0.3, -1.0],
-                                                                                         [0.52, 0.7, -1.0]]))
+    scalpel = cutting.Scalpel(
+        np.array([[0.52, 0.3, 1.0], [0.52, 0.7, 1.0]]), np.array([[0.52, 0.3, -1.0], [0.52, 0.7, -1.0]])
+    )
     with pytest.raises(ValueError, match="non-manifold"):
         cutting.tear_topology(V, F, scalpel)
     # a cut goes through (it works face by face)
@@ -272,8 +282,18 @@ def test_a_drill_through_grid_vertices_makes_no_slivers():
 def test_a_drill_wider_than_what_it_meets_says_so_not_too_thin():
     """A small plate and a far one: a radius wider than the small plate, or than the whole mesh, is named as
     such (it used to read "the drill is too thin ... raise the radius")."""
-    V = np.array([[-0.05, -0.05, 0], [0.05, -0.05, 0], [0.05, 0.05, 0], [-0.05, 0.05, 0],
-                  [5, 5, 0], [6, 5, 0], [6, 6, 0], [5, 6, 0.0]])
+    V = np.array(
+        [
+            [-0.05, -0.05, 0],
+            [0.05, -0.05, 0],
+            [0.05, 0.05, 0],
+            [-0.05, 0.05, 0],
+            [5, 5, 0],
+            [6, 5, 0],
+            [6, 6, 0],
+            [5, 6, 0.0],
+        ]
+    )
     F = np.array([[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]])
     tip, base = np.array([0.0, 0.0, -1.0]), np.array([0.0, 0.0, 1.0])
     with pytest.raises(ValueError, match=r"drill.radius: 0.2 is wider than the part of the model the drill meets"):

@@ -14,21 +14,23 @@ from hypothesis import strategies as st
 import cutting
 import deform
 import jaxcga as cga
+from tests.cutting.tools import (
+    TOOL_REFUSALS,
+    consistency_problems,
+    edge_counts,
+    load_models,
+    mean_edge,
+    piece_quality,
+    scalpel_of,
+    scalpels_over,
+)
 from tests.cutting.tools import area as _area
-from tests.cutting.tools import consistency_problems, piece_quality
 from tests.cutting.tools import diagonal as _diagonal
-from tests.cutting.tools import TOOL_REFUSALS, edge_counts, load_models, mean_edge, scalpel_of, scalpels_over
 from tests.cutting.tools import posed as posed_arm
 from tests.shared import check_gradient, grid
 
 MODELS = load_models(weld=True)
 ARM = deform.default_arm()
-
-
-
-
-
-
 
 
 def _tear_or_refusal(mesh, scalpels, **kwargs):
@@ -40,8 +42,13 @@ def _tear_or_refusal(mesh, scalpels, **kwargs):
 
 
 @settings(max_examples=15, deadline=None)
-@given(name=st.sampled_from(sorted(MODELS)), seed=st.integers(0, 10_000), samples=st.integers(2, 4),
-       steps=st.floats(1.5, 4.0), predicates=st.sampled_from(cutting.PREDICATES))
+@given(
+    name=st.sampled_from(sorted(MODELS)),
+    seed=st.integers(0, 10_000),
+    samples=st.integers(2, 4),
+    steps=st.floats(1.5, 4.0),
+    predicates=st.sampled_from(cutting.PREDICATES),
+)
 def test_tear_invariants_on_real_models(name, seed, samples, steps, predicates):
     mesh = MODELS[name].mesh
     V, F = np.asarray(mesh.V, np.float64), np.asarray(mesh.F)
@@ -66,8 +73,8 @@ def test_tear_invariants_on_real_models(name, seed, samples, steps, predicates):
         longest = np.linalg.norm(corners - np.roll(corners, 1, axis=0), axis=1).max()
         assert off_line <= 0.06 * longest  # the tip keeps a 2% barycentric margin from its face's edges
     # the original vertices first and unchanged; weights of new vertices
-    np.testing.assert_array_equal(Vt[:len(V)], V)
-    W = np.asarray(torn.W)[len(V):]
+    np.testing.assert_array_equal(Vt[: len(V)], V)
+    W = np.asarray(torn.W)[len(V) :]
     np.testing.assert_allclose(W.sum(axis=1), 1.0, atol=1e-12)
     assert torn.J.shape[1] == mesh.J.shape[1] and np.all(np.asarray(torn.J) < mesh.num_joints)
     # manifold where the input was, with the slit as one new boundary loop of 2 (q + 1) edges
@@ -85,7 +92,7 @@ def test_opening_parts_the_two_sides_along_the_plane_normal():
     scalpels = scalpels_over(V, F, 2000, [0.0, 1.0, 0.0], 3, 3 * mean_edge(V, F))
     torn, path = cutting.tear(mesh, scalpels, opening=0.4, return_topology=True)
     q, n = len(path.t), len(V)
-    left, right = np.asarray(torn.V)[n + 2:n + 2 + q], np.asarray(torn.V)[n + 2 + q:]
+    left, right = np.asarray(torn.V)[n + 2 : n + 2 + q], np.asarray(torn.V)[n + 2 + q :]
     np.testing.assert_allclose(np.linalg.norm(left - right, axis=1), 0.4, rtol=1e-6)
     np.testing.assert_allclose(left - right, 0.4 * path.planes[path.step, :3], atol=1e-6)
     # the tips stay where the scalpel met the surface
@@ -101,7 +108,7 @@ def test_skinning_the_torn_mesh_gives_the_original_at_original_vertices(method):
     pose = deform.sample_pose(model, 0.7, method)
     original = np.asarray(deform.skin_pose(model, pose, method))
     posed = np.asarray(deform.skin_pose(deform.RiggedModel(torn, model.skeleton), pose, method))
-    np.testing.assert_allclose(posed[:len(V)], original, atol=1e-12)
+    np.testing.assert_allclose(posed[: len(V)], original, atol=1e-12)
     assert np.all(np.isfinite(posed))
 
 
@@ -130,8 +137,9 @@ def test_tear_in_a_pose_reproduces_the_tear_when_posed_again(method):
     again = np.asarray(deform.skin_pose(deform.RiggedModel(torn, model.skeleton), pose, method))
     n, q = len(posed), len(path.t)
     normals = path.planes[path.step, :3]
-    expected = np.concatenate([path.sample_points[[0, -1]], path.points + 0.002 * normals,
-                               path.points - 0.002 * normals])
+    expected = np.concatenate(
+        [path.sample_points[[0, -1]], path.points + 0.002 * normals, path.points - 0.002 * normals]
+    )
     np.testing.assert_allclose(again[n:], expected, atol=1e-9 * _diagonal(posed))
     np.testing.assert_allclose(again[:n], posed, atol=1e-12)
     later = deform.skin_pose(deform.RiggedModel(torn, model.skeleton), deform.sample_pose(model, 1.6, "lbs"), "lbs")
@@ -154,8 +162,9 @@ def test_new_vertex_positions_are_differentiable_in_the_scalpel():
         tips, left, right = cutting.tear_positions(V, path, scalpel, opening=params[-1])
         return jnp.sum(jnp.sin(tips)) + jnp.sum(left**2) + jnp.sum(jnp.cos(right))
 
-    params = jnp.concatenate([jnp.asarray(scalpels.handle).ravel(), jnp.asarray(scalpels.tip).ravel(),
-                              jnp.array([0.1])])
+    params = jnp.concatenate(
+        [jnp.asarray(scalpels.handle).ravel(), jnp.asarray(scalpels.tip).ravel(), jnp.array([0.1])]
+    )
     check_gradient(loss, params)
     with pytest.raises(ValueError, match="scalpel: expected handle and tip ends of shape"):
         cutting.tear_positions(V, path, cutting.Scalpel(scalpels.handle[:2], scalpels.tip[:2]))
@@ -198,13 +207,17 @@ def test_bad_input():
         cutting.tear_topology(Vp, Fo, scalpel_of(off))
 
 
-
-
 def test_a_tear_along_a_row_of_vertices_makes_no_slivers():
     """The tear plane x = 0.5 holds a row of grid vertices: it is moved off them (gentle perturbation)."""
     V, F = grid()
-    mesh = deform.SkinnedMesh(jnp.asarray(V), jnp.asarray(F, jnp.int32), jnp.zeros((len(V), 1), jnp.int32),
-                              jnp.ones((len(V), 1)), jnp.eye(4)[None], (0,))
+    mesh = deform.SkinnedMesh(
+        jnp.asarray(V),
+        jnp.asarray(F, jnp.int32),
+        jnp.zeros((len(V), 1), jnp.int32),
+        jnp.ones((len(V), 1)),
+        jnp.eye(4)[None],
+        (0,),
+    )
     scalpels = scalpel_of([[[0.5, 0.23, 1.0], [0.5, 0.23, -1.0]], [[0.5, 0.77, 1.0], [0.5, 0.77, -1.0]]])
     torn, path = cutting.tear(mesh, scalpels, return_topology=True)
     assert abs(path.shift[0]) > 0
@@ -224,8 +237,9 @@ def test_tear_positions_follow_a_perturbed_plane():
     segments = np.array([[[0.5, 0.23, 1.0], [0.5, 0.23, -1.0]], [[0.5, 0.77, 1.0], [0.5, 0.77, -1.0]]])
     path = cutting.tear_topology(V, F, scalpel_of(segments))
     assert path.shift[0] != 0
-    np.testing.assert_allclose(path.planes[0, 3], path.planes[0, :3] @ path.sample_points[0] + path.shift[0],
-                               atol=1e-12)
+    np.testing.assert_allclose(
+        path.planes[0, 3], path.planes[0, :3] @ path.sample_points[0] + path.shift[0], atol=1e-12
+    )
     _, left, _ = cutting.tear_positions(V, path, scalpel_of(segments))
     np.testing.assert_allclose(left, path.points, atol=1e-9)
     # the mirrored scalpel reverses the path's direction, and so the orientation of its plane
@@ -252,7 +266,8 @@ def test_a_blade_moved_by_two_motors_gives_the_same_tear_as_its_segments():
     np.testing.assert_allclose(np.stack([samples.handle[0], samples.tip[0]]), blade, atol=1e-12)
     np.testing.assert_allclose(samples.tip[1] - samples.handle[1], moved[1] - moved[0], atol=1e-9)
     np.testing.assert_allclose(0.5 * (samples.handle[1] + samples.tip[1]), moved.mean(axis=0), atol=1e-9)
-    np.testing.assert_allclose(cutting.tear_topology(V, F, samples).points,
-                               cutting.tear_topology(V, F, segments).points, atol=1e-9)
+    np.testing.assert_allclose(
+        cutting.tear_topology(V, F, samples).points, cutting.tear_topology(V, F, segments).points, atol=1e-9
+    )
     with pytest.raises(ValueError, match="motors"):
         cutting.scalpel_path(blade, first)

@@ -95,8 +95,15 @@ def posed(model, t: float):
 
 
 # A tear fails for these reasons only on surfaces it cannot follow (a random scalpel may).
-TOOL_REFUSALS = ("does not cross", "boundary", "crosses itself", "turns back", "inside one face", "does not reach",
-                 "keeps passing")
+TOOL_REFUSALS = (
+    "does not cross",
+    "boundary",
+    "crosses itself",
+    "turns back",
+    "inside one face",
+    "does not reach",
+    "keeps passing",
+)
 
 # --- Sliver fuzzing (issue 30, item 2) --------------------------------------------------------------
 # A cut, tear or drill may not make a face smaller than AREA_RATIO x the input's smallest face, nor
@@ -127,6 +134,7 @@ def piece_quality(V, F, V_out, F_out, ids):
     V, F = np.asarray(V, np.float64), np.asarray(F)
     V_out, F_out, ids = np.asarray(V_out, np.float64), np.asarray(F_out), np.asarray(ids)
     problems = []
+
     def keys(faces):  # one integer per face, whatever its rotation
         faces = np.sort(faces, axis=1).astype(np.int64)
         return (faces[:, 0] * (len(V) + 1) + faces[:, 1]) * (len(V) + 1) + faces[:, 2]
@@ -240,8 +248,15 @@ def fuzz(mesh, tool: str, count: int, seed: int):
     edges = cutting.mesh_edges(F)
     scale = diagonal(V)
     rng = np.random.default_rng(seed)
-    stats = {"runs": 0, "refused": [], "failures": [], "area_ratio": np.inf, "angle": np.inf, "off_tool": 0.0,
-             "snapped": 0.0}
+    stats = {
+        "runs": 0,
+        "refused": [],
+        "failures": [],
+        "area_ratio": np.inf,
+        "angle": np.inf,
+        "off_tool": 0.0,
+        "snapped": 0.0,
+    }
     for trial in range(3 * count):
         if stats["runs"] == count:
             break

@@ -76,7 +76,7 @@ class Reference:
             elif sampler.interpolation == "STEP":
                 v = values[k + 1] if tc >= times[k + 1] else values[k]
             elif ch.target.path == "rotation":
-                v = Slerp(times[k:k + 2], Rotation.from_quat(values[k:k + 2]))([tc]).as_quat()[0]
+                v = Slerp(times[k : k + 2], Rotation.from_quat(values[k : k + 2]))([tc]).as_quat()[0]
             else:
                 a = (tc - times[k]) / (times[k + 1] - times[k])
                 v = (1 - a) * values[k] + a * values[k + 1]

@@ -44,8 +44,9 @@ def random_pose(seed, b, scale_range=None):
     rng = np.random.default_rng(seed)
     scale = np.ones(b) if scale_range is None else rng.uniform(*scale_range, b)
     q = unit_quaternions(rng, b)
-    return cga.similitude(cga.quaternion_to_rotor(jnp.asarray(q)), jnp.asarray(rng.normal(size=(b, 3))),
-                          jnp.asarray(scale))
+    return cga.similitude(
+        cga.quaternion_to_rotor(jnp.asarray(q)), jnp.asarray(rng.normal(size=(b, 3))), jnp.asarray(scale)
+    )
 
 
 def scaled_keys_model(path, seed=7):
@@ -58,9 +59,11 @@ def scaled_keys_model(path, seed=7):
     channels = []
     for bone in range(model.skeleton.num_bones):
         scale = np.repeat(rng.uniform(0.5, 2.5, (4, 1)), 3, axis=1)
-        channels += [deform.Channel(times, jnp.asarray(rng.normal(size=(4, 3))), bone, "translation", "LINEAR"),
-                     deform.Channel(times, jnp.asarray(unit_quaternions(rng, 4)), bone, "rotation", "LINEAR"),
-                     deform.Channel(times, jnp.asarray(scale), bone, "scale", "LINEAR")]
+        channels += [
+            deform.Channel(times, jnp.asarray(rng.normal(size=(4, 3))), bone, "translation", "LINEAR"),
+            deform.Channel(times, jnp.asarray(unit_quaternions(rng, 4)), bone, "rotation", "LINEAR"),
+            deform.Channel(times, jnp.asarray(scale), bone, "scale", "LINEAR"),
+        ]
     clip = deform.AnimationClip(tuple(channels), "scaled")
     deform.save_model(deform.RiggedModel(model.mesh, model.skeleton, (clip,), "scaled_keys"), path)
     return deform.load_model(path)

@@ -201,6 +201,8 @@ def test_rigid_motion_is_reached_from_the_rest_pose(name, bound):
         errors.append(np.abs(np.asarray(x) - rigid).max() / diag)
     ratios = np.asarray(errors[1:]) / np.asarray(errors[:-1])
     assert np.all(ratios < 0.8) and errors[-1] < bound, errors
+
+
 def test_bad_input(arm):
     V, F, b, bc, data = arm
     with pytest.raises(ValueError, match="V"):
@@ -253,8 +255,10 @@ def test_implicit_gradient_matches_finite_differences_and_fits_a_handle():
     target = jnp.asarray(V[marker] + np.array([0.05, -0.1, 0.2]))
     shift = 0.1 * jnp.asarray(np.random.default_rng(1).normal(size=3))
     step = 1e-6
-    numeric = [(loss(shift.at[i].add(step), target)[0] - loss(shift.at[i].add(-step), target)[0]) / (2 * step)
-               for i in range(3)]
+    numeric = [
+        (loss(shift.at[i].add(step), target)[0] - loss(shift.at[i].add(-step), target)[0]) / (2 * step)
+        for i in range(3)
+    ]
     np.testing.assert_allclose(loss(shift, target)[1], numeric, rtol=1e-4, atol=1e-8)
 
     target = jnp.asarray(V[marker] + np.array([0.0, 0.1, 0.15]))

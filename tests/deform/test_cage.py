@@ -14,8 +14,16 @@ import trimesh
 
 import deform
 import jaxcga as cga
-from deform import (blend_positions, cage_precompute, harmonic_coordinates, identity_motors, motor_about,
-                    motor_field_precompute, motor_field_solve, tube_cage)
+from deform import (
+    blend_positions,
+    cage_precompute,
+    harmonic_coordinates,
+    identity_motors,
+    motor_about,
+    motor_field_precompute,
+    motor_field_solve,
+    tube_cage,
+)
 from tests.shared import check_gradient
 
 ARM_V = np.asarray(deform.default_arm().mesh.V, np.float64)
@@ -114,11 +122,13 @@ def test_translator_cage_motors_equal_the_positional_cage_in_both_bindings():
     positional = blend_positions(cage.weights, TUBE_V + d)
     np.testing.assert_allclose(motor_field_solve(cage, cga.translator(jnp.asarray(d))), positional, atol=1e-10)
     # the paper's p_i = M_i o ~M_i: rest motors T_{P_j} carry the origin to the vertices
-    paper = motor_field_precompute(jnp.asarray(CAGES["arm"][2]), cage.weights,
-                                   rest_motors=cga.translator(jnp.asarray(TUBE_V)))
+    paper = motor_field_precompute(
+        jnp.asarray(CAGES["arm"][2]), cage.weights, rest_motors=cga.translator(jnp.asarray(TUBE_V))
+    )
     np.testing.assert_allclose(paper.bound, 0.0, atol=1e-12)
-    np.testing.assert_allclose(motor_field_solve(paper, cga.translator(jnp.asarray(TUBE_V + d))), positional,
-                               atol=1e-10)
+    np.testing.assert_allclose(
+        motor_field_solve(paper, cga.translator(jnp.asarray(TUBE_V + d))), positional, atol=1e-10
+    )
 
 
 def test_local_motor_moves_points_near_its_cage_vertex_most():
@@ -156,8 +166,10 @@ def test_jit_and_vmap_over_batches_of_cage_positions_and_motors():
 def test_gradients_against_finite_differences():
     cage = cage_precompute(BOX_POINTS[:20], BOX_V, BOX_F)
     target = jnp.asarray(BOX_POINTS[:20] + 0.1)
-    check_gradient(jax.jit(lambda p: jnp.sum(jnp.sin(blend_positions(cage.weights, p.reshape(8, 3)) - target) ** 2)),
-                   jnp.asarray(BOX_V).ravel() * 1.1)
+    check_gradient(
+        jax.jit(lambda p: jnp.sum(jnp.sin(blend_positions(cage.weights, p.reshape(8, 3)) - target) ** 2)),
+        jnp.asarray(BOX_V).ravel() * 1.1,
+    )
 
     @jax.jit
     def motor_loss(logs):
@@ -175,8 +187,9 @@ def test_float32_cage():
     # vertices is good to about 2^-10 of its terms' magnitudes there
     terms = np.abs(np.asarray(cage.weights, np.float64)) @ np.abs(TUBE_V * 1.1)
     atol = 1e-5 if jax.default_backend() == "cpu" else 2**-10 * float(terms.max())
-    np.testing.assert_allclose(blend_positions(cage.weights, P), blend_positions(BOUND["arm"].weights, TUBE_V * 1.1),
-                               atol=atol)
+    np.testing.assert_allclose(
+        blend_positions(cage.weights, P), blend_positions(BOUND["arm"].weights, TUBE_V * 1.1), atol=atol
+    )
     motors = cga.exp_motor(cga.Multivector(jnp.full((len(TUBE_V), 6), 0.1, jnp.float32), cga.MOTOR_GENERATOR))
     motor_deform = jax.jit(motor_field_solve)
     out = motor_deform(cage, motors)
@@ -216,8 +229,11 @@ def test_tube_cage_is_closed_encloses_the_mesh_and_follows_the_axis():
     assert cage_V.shape == (5 * 6 + 2, 3)
     assert np.all(igl.winding_number(cage_V, cage_F, ARM_V) > 0.5)
     along_z, _ = tube_cage(ARM_V[:, [1, 2, 0]], axis=2)  # the same mesh turned: the rings follow z
-    np.testing.assert_allclose(np.sort(np.unique(along_z[:, 2].round(12))),
-                               np.sort(np.unique(tube_cage(ARM_V, axis=0)[0][:, 0].round(12))), atol=1e-12)
+    np.testing.assert_allclose(
+        np.sort(np.unique(along_z[:, 2].round(12))),
+        np.sort(np.unique(tube_cage(ARM_V, axis=0)[0][:, 0].round(12))),
+        atol=1e-12,
+    )
     with pytest.raises(ValueError, match="axis"):
         tube_cage(ARM_V, axis=3)
     with pytest.raises(ValueError, match="segments"):

@@ -16,9 +16,21 @@ from scipy.spatial.transform import Rotation
 
 import deform
 import jaxcga as cga
-from deform import (Lattice, blend_positions, bounding_lattice, distortion, ffd_precompute, ffd_weights,
-                    identity_motors, lattice_coordinates, lattice_points, motor_field_precompute, motor_field_solve,
-                    spline_weights, twist_lattice)
+from deform import (
+    Lattice,
+    blend_positions,
+    bounding_lattice,
+    distortion,
+    ffd_precompute,
+    ffd_weights,
+    identity_motors,
+    lattice_coordinates,
+    lattice_points,
+    motor_field_precompute,
+    motor_field_solve,
+    spline_weights,
+    twist_lattice,
+)
 from jaxcga import KINDS, MOTOR_GENERATOR, Multivector
 from tests.shared import check_gradient
 
@@ -191,8 +203,7 @@ def test_jit_and_vmap_over_batches_of_lattice_motors_and_control_points():
     assert motors.batch_shape == (3, lattice.size) and P.shape == (3, lattice.size, 3)
     loop = np.stack([np.asarray(_deform(field, Multivector(motors.values[b], motors.blades))) for b in range(3)])
     np.testing.assert_allclose(_deform(field, motors), loop, atol=1e-12)
-    np.testing.assert_allclose(jax.jit(jax.vmap(motor_field_solve, in_axes=(None, 0)))(field, motors), loop,
-                               atol=1e-12)
+    np.testing.assert_allclose(jax.jit(jax.vmap(motor_field_solve, in_axes=(None, 0)))(field, motors), loop, atol=1e-12)
     loop = np.stack([np.asarray(W @ P[b]) for b in range(3)])
     np.testing.assert_allclose(jax.jit(blend_positions)(W, P), loop, atol=1e-12)
     np.testing.assert_allclose(jax.vmap(blend_positions, in_axes=(None, 0))(W, P), loop, atol=1e-12)
@@ -228,8 +239,9 @@ def test_gradient_with_respect_to_control_points_and_embedded_points():
     # through the weights: the points' local coordinates move with them (strictly inside the lattice)
     local = np.random.default_rng(7).uniform(0.2, 0.8, (5, 3))
     inner = jnp.asarray(np.asarray(lattice.origin) + local @ np.asarray(lattice.axes))
-    check_gradient(jax.jit(lambda x: jnp.sum(blend_positions(ffd_weights(x.reshape(-1, 3), lattice), bent) ** 2)),
-                   inner.ravel())
+    check_gradient(
+        jax.jit(lambda x: jnp.sum(blend_positions(ffd_weights(x.reshape(-1, 3), lattice), bent) ** 2)), inner.ravel()
+    )
 
 
 def test_float32():

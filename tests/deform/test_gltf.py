@@ -1,4 +1,5 @@
-"""glTF 2.0 / FBX / COLLADA reading and writing (deform._gltf), checked against trimesh, pygltflib and hand-built files."""
+"""glTF 2.0 / FBX / COLLADA reading and writing (deform._gltf), checked against trimesh, pygltflib and
+hand-built files."""
 
 import base64
 import json
@@ -182,8 +183,13 @@ def _quaternion_sign(a, b):
 def test_collada_matches_the_gltf_it_was_made_from(tmp_path):
     # RiggedSimple: an animated two-joint rig (assimp 5.2 cannot write CesiumMan's or Arm5's embedded textures)
     dae = tmp_path / "RiggedSimple.dae"
-    done = subprocess.run(["assimp", "export", str(DATA / "RiggedSimple.glb"), str(dae), "-f", "collada"],
-                          capture_output=True, text=True, timeout=120, check=False)
+    done = subprocess.run(
+        ["assimp", "export", str(DATA / "RiggedSimple.glb"), str(dae), "-f", "collada"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+        check=False,
+    )
     assert done.returncode == 0 and dae.is_file(), done.stdout + done.stderr
     collada, glb = load_model(dae), load_model(DATA / "RiggedSimple.glb")
     assert collada.skeleton.names == glb.skeleton.names and collada.skeleton.parents == glb.skeleton.parents
@@ -191,8 +197,11 @@ def test_collada_matches_the_gltf_it_was_made_from(tmp_path):
     np.testing.assert_array_equal(collada.mesh.F, glb.mesh.F)
     np.testing.assert_allclose(collada.mesh.inverse_bind, glb.mesh.inverse_bind, atol=1e-6)
     for name in ("translation", "rotation", "scale"):
-        np.testing.assert_allclose(_quaternion_sign(getattr(collada.skeleton, name), getattr(glb.skeleton, name)),
-                                   getattr(glb.skeleton, name), atol=1e-6)
+        np.testing.assert_allclose(
+            _quaternion_sign(getattr(collada.skeleton, name), getattr(glb.skeleton, name)),
+            getattr(glb.skeleton, name),
+            atol=1e-6,
+        )
     # assimp reads glTF key times as milliseconds (1000 ticks per second) and its COLLADA exporter writes the
     # ticks as seconds: the .dae's clip runs 1000 times slower, keys and values otherwise the same
     (a,), (b,) = collada.clips, glb.clips
@@ -205,8 +214,11 @@ def test_collada_matches_the_gltf_it_was_made_from(tmp_path):
         np.testing.assert_allclose(_quaternion_sign(ca.values, cb.values), cb.values, atol=1e-6)
     diagonal = float(np.linalg.norm(np.ptp(np.asarray(rest_pose(glb, "lbs")), axis=0)))
     for t in (0.0, 0.7, 1.3, 2.05):  # rest, between keys, and near the clip's end
-        np.testing.assert_allclose(skin_model(collada, jnp.asarray(ratio * t), "lbs"),
-                                   skin_model(glb, jnp.asarray(t), "lbs"), atol=1e-6 * diagonal)
+        np.testing.assert_allclose(
+            skin_model(collada, jnp.asarray(ratio * t), "lbs"),
+            skin_model(glb, jnp.asarray(t), "lbs"),
+            atol=1e-6 * diagonal,
+        )
 
 
 @needs_assimp
@@ -519,7 +531,7 @@ def _corrupt_glb(tmp_path, pick, name=None):
     of a corrupt buffer), and that accessor named ``name``: (path, accessor index)."""
     raw = bytearray((DATA / "RiggedSimple.glb").read_bytes())
     length = struct.unpack_from("<I", raw, 12)[0]
-    doc = json.loads(raw[20:20 + length])
+    doc = json.loads(raw[20 : 20 + length])
     index = pick(doc)
     accessor = doc["accessors"][index]
     view = doc["bufferViews"][accessor["bufferView"]]
@@ -531,7 +543,7 @@ def _corrupt_glb(tmp_path, pick, name=None):
         accessor["name"] = name
         text = json.dumps(doc).encode()
         text += b" " * (-len(text) % 4)
-        binary = raw[20 + length:]
+        binary = raw[20 + length :]
         raw = bytearray(struct.pack("<III", 0x46546C67, 2, 12 + 8 + len(text) + len(binary)))
         raw += struct.pack("<II", len(text), 0x4E4F534A) + text + binary
     path = tmp_path / "corrupt.glb"
@@ -543,8 +555,11 @@ def test_a_non_finite_accessor_is_named(tmp_path):
     """A NaN in a float buffer is caught where it is read, naming the accessor and what reads it (before:
     positions loaded as NaN and a later step failed with an unrelated message)."""
     path, index = _corrupt_glb(tmp_path, lambda d: d["meshes"][0]["primitives"][0]["attributes"]["POSITION"])
-    with pytest.raises(ValueError, match=rf"POSITION \(accessor {index}\) holds 1 non-finite elements .* the "
-                                         r"first at element 1"):
+    with pytest.raises(
+        ValueError,
+        match=rf"POSITION \(accessor {index}\) holds 1 non-finite elements .* the "
+        r"first at element 1",
+    ):
         load_model(path)
     path, index = _corrupt_glb(tmp_path, lambda d: d["animations"][0]["samplers"][0]["output"], name="keys")
     with pytest.raises(ValueError, match=rf"animation 0 .* output \(accessor {index} 'keys'\) holds 1 non-finite"):

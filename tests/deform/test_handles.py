@@ -11,9 +11,20 @@ import numpy as np
 import pytest
 
 import jaxcga as cga
-from deform import (bounding_lattice, default_arm, ffd_precompute, fit_key_motors, generators_to_motors,
-                    handles_precompute, harmonic_fields, identity_motors, motor_about, motor_field_precompute,
-                    motor_field_solve, spline_precompute)
+from deform import (
+    bounding_lattice,
+    default_arm,
+    ffd_precompute,
+    fit_key_motors,
+    generators_to_motors,
+    handles_precompute,
+    harmonic_fields,
+    identity_motors,
+    motor_about,
+    motor_field_precompute,
+    motor_field_solve,
+    spline_precompute,
+)
 from tests.shared import check_gradient
 
 ARM = default_arm().mesh
@@ -24,8 +35,9 @@ FIELD = handles_precompute(V, F, HANDLES)
 
 
 def _motors(rng, k, rotation=0.5, translation=0.1):
-    generators = np.concatenate([rng.uniform(-rotation, rotation, (k, 3)),
-                                 rng.uniform(-translation, translation, (k, 3))], axis=1)
+    generators = np.concatenate(
+        [rng.uniform(-rotation, rotation, (k, 3)), rng.uniform(-translation, translation, (k, 3))], axis=1
+    )
     return generators_to_motors(jnp.asarray(generators))
 
 
@@ -46,8 +58,9 @@ def test_handle_vertices_move_rigidly_by_their_motor(laplacian):
         np.testing.assert_allclose(moved[part], cga.apply_to_points(one, V[part]), atol=1e-12)
     # between the handles the motion blends: nowhere equal to a handle's rigid map
     free = np.setdiff1d(np.arange(len(V)), np.concatenate(HANDLES))
-    rigid = [np.asarray(cga.apply_to_points(cga.Multivector(motors.values[j], motors.blades), V[free]))
-             for j in range(3)]
+    rigid = [
+        np.asarray(cga.apply_to_points(cga.Multivector(motors.values[j], motors.blades), V[free])) for j in range(3)
+    ]
     assert all(np.abs(moved[free] - r).max() > 1e-3 for r in rigid)
 
 
@@ -87,8 +100,9 @@ def test_gradient_with_respect_to_handle_generators_matches_finite_differences()
     check_gradient(jax.jit(loss), params0)
 
 
-@pytest.mark.parametrize("method, solver", [("spline", "gauss_newton"), ("handles", "levenberg_marquardt"),
-                                            ("ffd", "levenberg_marquardt")])
+@pytest.mark.parametrize(
+    "method, solver", [("spline", "gauss_newton"), ("handles", "levenberg_marquardt"), ("ffd", "levenberg_marquardt")]
+)
 @pytest.mark.slow  # ~20-50 s on 2 cores: out of `make test` (its 15-minute budget); `make test-slow` and CI run it
 def test_fit_recovers_known_key_motors(method, solver):
     """Targets from known key motors of the spline (eq. 1-2), the harmonic handles (sec. IV) and the motor

@@ -87,8 +87,11 @@ def test_the_solve_is_a_differentiable_batched_jax_function(kind):
     def solver(values):
         return deform.harmonic_solve(data, values)
 
-    np.testing.assert_allclose(jax.jit(deform.harmonic_solve)(data, jnp.asarray(bc)),
-                               deform.harmonic_fields(V, F, handles, laplacian=kind), atol=1e-12)
+    np.testing.assert_allclose(
+        jax.jit(deform.harmonic_solve)(data, jnp.asarray(bc)),
+        deform.harmonic_fields(V, F, handles, laplacian=kind),
+        atol=1e-12,
+    )
     # vmap over boundary values equals one solve per column
     batched = jax.vmap(solver, in_axes=1, out_axes=1)(jnp.asarray(bc))
     np.testing.assert_allclose(batched, solver(jnp.asarray(bc)), atol=1e-12)

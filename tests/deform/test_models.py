@@ -59,8 +59,12 @@ _BLEND_OF_MATRICES = {
 
 
 # CesiumMan's DQS and motor-blend cases take ~30 s each on 2 cores: in the slow job
-_SPEC_CASES = [(name, method) for name in ("RiggedSimple", "scaled_keys") for method in deform.METHODS
-               if (name, method) != ("scaled_keys", "dqs")]
+_SPEC_CASES = [
+    (name, method)
+    for name in ("RiggedSimple", "scaled_keys")
+    for method in deform.METHODS
+    if (name, method) != ("scaled_keys", "dqs")
+]
 _SPEC_CASES += [("CesiumMan", "lbs"), ("CesiumMan", "cga")]
 _SPEC_CASES += [pytest.param("CesiumMan", method, marks=pytest.mark.slow) for method in ("dqs", "cga_motor_blend")]
 
@@ -79,8 +83,11 @@ def test_skinning_follows_the_specification(models, scaled_keys, name, method):
     skin = jax.jit(lambda t: deform.skin_model(model, t, method))
     for t in _spec_times(model.clips[0]):
         lbs = reference.skin(0, t)
-        expected = lbs if method == "lbs" else _BLEND_OF_MATRICES[method](mesh.V, mesh.J, mesh.W,
-                                                                       jnp.asarray(reference.joint_matrices(0, t)))
+        expected = (
+            lbs
+            if method == "lbs"
+            else _BLEND_OF_MATRICES[method](mesh.V, mesh.J, mesh.W, jnp.asarray(reference.joint_matrices(0, t)))
+        )
         # the file's float32 inverse bind matrices are similitudes to ~1e-7 only: the multivector
         # methods take their nearest similitudes, before or after the product with the bone
         tol = (1e-7 if method in ("lbs", "dqs") else 1e-6) * _diagonal(lbs)
@@ -99,8 +106,9 @@ def test_log_interpolation_is_the_papers_sampling(scaled_keys):
         expected = reference.skin(0, t)
         local = deform.sample_versors(model.skeleton, clip, t)
         np.testing.assert_allclose(log(t, "cga"), deform.skin_pose(model, local, "cga"), atol=1e-12)
-        np.testing.assert_allclose(log(t, "lbs"), deform.skin_pose(model, cga.versor_to_matrix(local), "lbs"),
-                                   atol=1e-12)
+        np.testing.assert_allclose(
+            log(t, "lbs"), deform.skin_pose(model, cga.versor_to_matrix(local), "lbs"), atol=1e-12
+        )
         gap = np.abs(np.asarray(log(t, "lbs")) - expected).max() / _diagonal(expected)
         assert gap < 1e-7 if t == 0.4 else gap > 1e-2, (t, gap)
     with pytest.raises(ValueError, match="interpolation"):
@@ -196,8 +204,9 @@ def test_sharded_batch_equals_unsharded(thousand_frames, tmp_path):
     """)
     env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=4", JAX_PLATFORMS="cpu")
     root = Path(__file__).resolve().parents[2]
-    done = subprocess.run([sys.executable, "-c", script], env=env, cwd=root, capture_output=True, text=True,
-                          timeout=600)
+    done = subprocess.run(
+        [sys.executable, "-c", script], env=env, cwd=root, capture_output=True, text=True, timeout=600
+    )
     assert done.returncode == 0, done.stderr[-3000:]
     assert "sharded ok" in done.stdout
     _, plain = thousand_frames

@@ -95,7 +95,7 @@ def test_cubic_spline_reproduces_a_cubic():
     times = np.array([0.0, 0.5, 1.7, 2.0])
 
     def p(t):
-        return np.stack([t**3 - 2 * t, 0.5 * t**2 + 1, -t**3 + t], axis=-1)
+        return np.stack([t**3 - 2 * t, 0.5 * t**2 + 1, -(t**3) + t], axis=-1)
 
     def dp(t):
         return np.stack([3 * t**2 - 2, t, -3 * t**2 + 1], axis=-1)
@@ -165,8 +165,9 @@ def test_clip_from_poses_round_trip():
     clip = deform.clip_from_poses(times, poses, "made")
     assert len(clip.channels) == 10  # translation + rotation per bone, no scale channel
     for k, t in enumerate(times):
-        np.testing.assert_allclose(deform.sample_matrices(model.skeleton, clip, t), cga.versor_to_matrix(poses[k]),
-                                   atol=1e-12)
+        np.testing.assert_allclose(
+            deform.sample_matrices(model.skeleton, clip, t), cga.versor_to_matrix(poses[k]), atol=1e-12
+        )
     rotation = [c for c in clip.channels if c.path == "rotation"][0].values
     assert np.all(np.sum(np.asarray(rotation[1:] * rotation[:-1]), axis=-1) >= 0)
 

@@ -67,16 +67,16 @@ def test_cga_with_dilations_against_numpy_lbs():
     moved = moved + matrices[np.asarray(MESH.J), :3, 3]
     weight = np.asarray(MESH.W) / scale[np.asarray(MESH.J)]
     literal = np.einsum("nk,nki->ni", weight, moved) / weight.sum(axis=1, keepdims=True)
-    np.testing.assert_allclose(deform.skin_cga(MESH.V, MESH.J, MESH.W, joints, normalize_points=False), literal,
-                               atol=1e-12)
+    np.testing.assert_allclose(
+        deform.skin_cga(MESH.V, MESH.J, MESH.W, joints, normalize_points=False), literal, atol=1e-12
+    )
     assert np.max(np.abs(literal - expected)) > 1e-2  # dilations make the two evaluations differ
 
 
 def test_cga_equals_lbs_for_rigid_joints():
     model = random_model(11)
     local = random_pose(11, B)
-    np.testing.assert_allclose(deform.skin_pose(model, local, "cga"), deform.skin_pose(model, local, "lbs"),
-                               atol=1e-12)
+    np.testing.assert_allclose(deform.skin_pose(model, local, "cga"), deform.skin_pose(model, local, "lbs"), atol=1e-12)
 
 
 def test_cga_equals_literal_equation_17():
@@ -88,8 +88,9 @@ def test_cga_equals_literal_equation_17():
     terms = jnp.einsum("nk,nkc->nc", MESH.W, cga.down(moved))
     np.testing.assert_allclose(deform.skin_pose(MODEL, local, "cga"), terms, atol=1e-11)
     summed = cga.Multivector(jnp.einsum("nk,nkc->nc", MESH.W, moved.values), moved.blades)
-    np.testing.assert_allclose(deform.skin_cga(MESH.V, MESH.J, MESH.W, joints, normalize_points=False),
-                               cga.down(summed), atol=1e-11)
+    np.testing.assert_allclose(
+        deform.skin_cga(MESH.V, MESH.J, MESH.W, joints, normalize_points=False), cga.down(summed), atol=1e-11
+    )
 
 
 @pytest.mark.slow  # 9 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
@@ -109,6 +110,7 @@ def test_motor_blend_equals_dqs_for_rigid_poses():
 def _numpy_dqs(V, J, W, dq):
     """Kavan et al.'s DQS per vertex, in numpy: align each influence's sign with the first's, blend,
     normalize by the real part's norm, rotate and translate."""
+
     def qmul(a, b):
         w1, v1, w2, v2 = a[0], a[1:], b[0], b[1:]
         return np.concatenate([[w1 * w2 - v1 @ v2], w1 * v2 + w2 * v1 + np.cross(v1, v2)])
@@ -141,8 +143,9 @@ def test_dqs_and_motor_blend_against_numpy_dqs_with_flipped_signs():
         np.testing.assert_allclose(deform.skin_cga_motor_blend(V, J, W, flipped), expected, atol=1e-12)
     # and under vmap over poses (the weights are computed for the whole batch in one pass)
     batch = jnp.stack([dq, dq * flips])
-    np.testing.assert_allclose(jax.vmap(lambda d: deform.skin_dqs(V, J, W, d))(batch), np.stack([expected] * 2),
-                               atol=1e-12)
+    np.testing.assert_allclose(
+        jax.vmap(lambda d: deform.skin_dqs(V, J, W, d))(batch), np.stack([expected] * 2), atol=1e-12
+    )
 
 
 @pytest.mark.parametrize("method", deform.METHODS)
@@ -165,8 +168,9 @@ def test_same_similitude_on_every_bone_gives_that_map(method):
     roots = jnp.asarray([p < 0 for p in model.skeleton.parents])[:, None]
     moved = (sim * local).embed(cga.KINDS["similitude"])
     local = cga.Multivector(jnp.where(roots, moved.values, local.values), local.blades)
-    np.testing.assert_allclose(deform.skin_pose(model, local, method), cga.apply_to_points(sim, model.mesh.V),
-                               atol=1e-12)
+    np.testing.assert_allclose(
+        deform.skin_pose(model, local, method), cga.apply_to_points(sim, model.mesh.V), atol=1e-12
+    )
 
 
 def test_dqs_rejects_scaled_joints():
@@ -184,8 +188,9 @@ def test_motor_blend_dilation_is_blended_in_log_space():
     out = deform.skin_cga_motor_blend(V, J, W, joints)
     np.testing.assert_allclose(out, V * 2.0**0.25 * 0.5**0.75, atol=1e-14)
     # eq. (17) down-projected after the sum blends the scales harmonically (each point weighted by 1 / scale)
-    np.testing.assert_allclose(deform.skin_cga(V, J, W, joints, normalize_points=False),
-                               V / (0.25 / 2.0 + 0.75 / 0.5), atol=1e-14)
+    np.testing.assert_allclose(
+        deform.skin_cga(V, J, W, joints, normalize_points=False), V / (0.25 / 2.0 + 0.75 / 0.5), atol=1e-14
+    )
     # down-projected term by term (the default), linearly
     np.testing.assert_allclose(deform.skin_cga(V, J, W, joints), V * (0.25 * 2.0 + 0.75 * 0.5), atol=1e-14)
 
@@ -199,8 +204,9 @@ def test_batched_poses_under_vmap_equal_one_by_one(method):
         local = deform.pose_from_parameters(random_model(0), params)
     model = random_model(0) if method == "dqs" else MODEL
     # vmap, and leading batch axes without vmap, in one compiled call
-    batched, broadcast = jax.jit(lambda L: (jax.vmap(lambda p: deform.skin_pose(model, p, method))(L),
-                                            deform.skin_pose(model, L, method)))(local)
+    batched, broadcast = jax.jit(
+        lambda L: (jax.vmap(lambda p: deform.skin_pose(model, p, method))(L), deform.skin_pose(model, L, method))
+    )(local)
     for k in range(3):
         np.testing.assert_allclose(batched[k], deform.skin_pose(model, local[k], method), atol=1e-12)
     np.testing.assert_allclose(broadcast, batched, atol=1e-12)
@@ -219,15 +225,18 @@ def test_dilation_blend_paths_agree_under_vmap_and_grad(dense, monkeypatch):
     J, W = np.asarray(MESH.J), np.asarray(MESH.W)
     dilations = jnp.asarray(rng.uniform(0.5, 2.0, size=(3, int(J.max()) + 1)))
     expected = np.einsum("nk,pnk->pn", W, np.asarray(dilations)[:, J])
-    np.testing.assert_allclose(jax.vmap(lambda d: _skinning._blend_dilations(MESH.J, MESH.W, d))(dilations),
-                               expected, atol=1e-14)
+    np.testing.assert_allclose(
+        jax.vmap(lambda d: _skinning._blend_dilations(MESH.J, MESH.W, d))(dilations), expected, atol=1e-14
+    )
     np.testing.assert_allclose(_skinning._blend_dilations(MESH.J, MESH.W, dilations), expected, atol=1e-14)
     weights = jnp.stack([MESH.W, MESH.W[:, ::-1]])  # a batch of meshes (weights) under vmap
-    np.testing.assert_allclose(jax.vmap(lambda w: _skinning._blend_dilations(MESH.J, w, dilations[0]))(weights),
-                               np.einsum("bnk,nk->bn", np.asarray(weights), np.asarray(dilations)[0, J]), atol=1e-14)
+    np.testing.assert_allclose(
+        jax.vmap(lambda w: _skinning._blend_dilations(MESH.J, w, dilations[0]))(weights),
+        np.einsum("bnk,nk->bn", np.asarray(weights), np.asarray(dilations)[0, J]),
+        atol=1e-14,
+    )
     grad_w = jax.grad(lambda w: jnp.sum(_skinning._blend_dilations(MESH.J, w, dilations) ** 2))(MESH.W)
-    np.testing.assert_allclose(grad_w, np.einsum("pn,pnk->nk", 2 * expected, np.asarray(dilations)[:, J]),
-                               atol=1e-12)
+    np.testing.assert_allclose(grad_w, np.einsum("pn,pnk->nk", 2 * expected, np.asarray(dilations)[:, J]), atol=1e-12)
 
 
 @pytest.mark.slow  # a backward-pass compile per method (~10-30 s each): `make test-slow` and CI run it
@@ -253,8 +262,9 @@ def test_gradients_match_finite_differences(method):
 
 @pytest.mark.slow  # 13 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 def test_float32_skinning():
-    model = jax.tree_util.tree_map(lambda x: x.astype(jnp.float32) if jnp.issubdtype(x.dtype, jnp.floating) else x,
-                                   random_model(9))
+    model = jax.tree_util.tree_map(
+        lambda x: x.astype(jnp.float32) if jnp.issubdtype(x.dtype, jnp.floating) else x, random_model(9)
+    )
     local = deform.local_versors(model.skeleton)
     for method in deform.METHODS:
         out = deform.skin_pose(model, local, method)
@@ -282,8 +292,10 @@ def test_bad_input_is_named():
 
 
 _RIGID_MODEL = random_model(12)
-_SKIN = {method: jax.jit(lambda local, m=method: deform.skin_pose(_RIGID_MODEL, local, m))
-         for method in ("lbs", "cga", "cga_motor_blend")}
+_SKIN = {
+    method: jax.jit(lambda local, m=method: deform.skin_pose(_RIGID_MODEL, local, m))
+    for method in ("lbs", "cga", "cga_motor_blend")
+}
 
 
 @pytest.mark.parametrize("d", [1e-4, *(pytest.param(d, marks=pytest.mark.slow) for d in (1e-2, 1.0, 1e2)), 1e4])

@@ -14,8 +14,19 @@ from scipy.interpolate import BSpline
 from scipy.spatial.transform import Rotation
 
 import jaxcga as cga
-from deform import (blend_motors, clamped_knots, identity_motors, motor_about, motor_field_solve, motor_logs,
-                    spline_fit_precompute, spline_fit_solve, spline_parameter, spline_precompute, spline_weights)
+from deform import (
+    blend_motors,
+    clamped_knots,
+    identity_motors,
+    motor_about,
+    motor_field_solve,
+    motor_logs,
+    spline_fit_precompute,
+    spline_fit_solve,
+    spline_parameter,
+    spline_precompute,
+    spline_weights,
+)
 from jaxcga import KINDS, MOTOR_GENERATOR, Multivector
 from tests.shared import check_gradient
 
@@ -136,8 +147,9 @@ def test_rest_motors_give_the_rest_mesh_and_handles_move_rigidly(basis, num_keys
     field = spline_precompute(V, F, START, END, rest_motors=rest, basis=basis, num_keys=num_keys)
     assert field.num_keys == k
     np.testing.assert_allclose(deformed(field, rest), V, atol=1e-12)
-    np.testing.assert_allclose(deformed(spline_precompute(V, F, START, END, basis=basis, num_keys=num_keys),
-                                        identity_motors(k)), V, atol=1e-15)
+    np.testing.assert_allclose(
+        deformed(spline_precompute(V, F, START, END, basis=basis, num_keys=num_keys), identity_motors(k)), V, atol=1e-15
+    )
     keys = random_motors(rng, k)
     X = np.asarray(deformed(field, keys))
     # lambda = 0 on H_1, 1 on H_n: those vertices move by R_1 ~R^0_1 and R_n ~R^0_n
@@ -174,8 +186,9 @@ def test_jit_and_vmap_over_batches_of_key_motors():
     batch = Multivector(jnp.stack([random_motors(rng, 5).values for _ in range(3)]), KINDS["motor"])
     one_by_one = np.stack([deformed(field, Multivector(batch.values[b], batch.blades)) for b in range(3)])
     np.testing.assert_allclose(deformed(field, batch), one_by_one, atol=1e-13)  # leading batch axes
-    np.testing.assert_allclose(jax.jit(jax.vmap(lambda keys: motor_field_solve(field, keys)))(batch), one_by_one,
-                               atol=1e-13)
+    np.testing.assert_allclose(
+        jax.jit(jax.vmap(lambda keys: motor_field_solve(field, keys)))(batch), one_by_one, atol=1e-13
+    )
 
 
 @pytest.mark.slow  # ~20-50 s on 2 cores: out of `make test` (its 15-minute budget); `make test-slow` and CI run it

@@ -151,7 +151,9 @@ def test_align_points_is_differentiable():
     h = 1e-6
     for _ in range(3):
         d = rng.normal(size=tgt.shape)
-        fd = (float(value_and_grad(jnp.asarray(tgt + h * d))[0]) - float(value_and_grad(jnp.asarray(tgt - h * d))[0])) / (2 * h)
+        fd = (
+            float(value_and_grad(jnp.asarray(tgt + h * d))[0]) - float(value_and_grad(jnp.asarray(tgt - h * d))[0])
+        ) / (2 * h)
         np.testing.assert_allclose(np.sum(g * d), fd, rtol=1e-6, atol=1e-6 * max(1.0, abs(fd)))
     # At noise-free data (an exact fit) the gradient is finite too.
     _, g0 = value_and_grad(jnp.asarray(clean))

@@ -142,9 +142,7 @@ def test_exp_of_a_rotation_generator_matches_scipy():
     angle = 2.1
     R = cga.exp(Multivector(_rotation_generator(axis, angle), ("e12", "e13", "e23")))
     x = rng.normal(size=(4, 3))
-    np.testing.assert_allclose(
-        _a(cga.apply_to_points(R, x)), Rotation.from_rotvec(angle * axis).apply(x), atol=1e-13
-    )
+    np.testing.assert_allclose(_a(cga.apply_to_points(R, x)), Rotation.from_rotvec(angle * axis).apply(x), atol=1e-13)
 
 
 def test_exp_dispatch_and_log_dispatch():
@@ -441,9 +439,15 @@ def test_jit_and_vmap_match_eager():
     # jit (the single-versor compiled functions of the tests above) equals eager.
     for k in range(0, ROWS, 6):
         np.testing.assert_allclose(_a(_exp_jit(Multivector(b[k], SIM_GEN)).values), sims[k], rtol=1e-14, atol=1e-14)
-        np.testing.assert_allclose(_a(_log_jit(Multivector(sims[k], "similitude")).values), sim_logs[k], rtol=1e-13, atol=1e-13)
-        np.testing.assert_allclose(_a(_exp_jit(Multivector(b[k, :6], MOTOR_GEN)).values), motors[k], rtol=1e-14, atol=1e-14)
-        np.testing.assert_allclose(_a(_log_jit(Multivector(motors[k], "motor")).values), motor_logs[k], rtol=1e-13, atol=1e-13)
+        np.testing.assert_allclose(
+            _a(_log_jit(Multivector(sims[k], "similitude")).values), sim_logs[k], rtol=1e-13, atol=1e-13
+        )
+        np.testing.assert_allclose(
+            _a(_exp_jit(Multivector(b[k, :6], MOTOR_GEN)).values), motors[k], rtol=1e-14, atol=1e-14
+        )
+        np.testing.assert_allclose(
+            _a(_log_jit(Multivector(motors[k], "motor")).values), motor_logs[k], rtol=1e-13, atol=1e-13
+        )
     # vmap of the per-versor functions equals the natively batched ones. (Motors only: vmapping the
     # similitude code compiles a few hundred new kernels, seconds, for the same batching rules.)
     np.testing.assert_allclose(_a(jax.vmap(_f_exp_motor)(jnp.asarray(b[:, :6]))), motors, rtol=1e-14, atol=1e-14)

@@ -14,7 +14,6 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 import jaxcga as cga
-
 from tests.jaxcga._helpers import SETTINGS, _a, _unit, seeds
 
 

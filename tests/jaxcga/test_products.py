@@ -407,7 +407,10 @@ def test_batch_broadcasting_scalar_product_and_sandwich():
     assert s.shape == (4, 3)
     for i in range(4):
         for j in range(3):
-            ai, bj = ref.to_clifford(Multivector(a.values[i, 0], a.blades)), ref.to_clifford(Multivector(b.values[j], b.blades))
+            ai, bj = (
+                ref.to_clifford(Multivector(a.values[i, 0], a.blades)),
+                ref.to_clifford(Multivector(b.values[j], b.blades)),
+            )
             assert s[i, j] == pytest.approx((ai * bj).value[0], abs=TOL)
     # sandwich: versors (2, 1) with points (3,)
     motor = VERSORS["motor"]
@@ -433,8 +436,12 @@ def test_scaling_by_batch_array():
 
 
 # ---------------------------------------------------------------- the structure-tensor evaluation
-TABLE_KINDS = {"geometric": lambda a, b: a * b, "outer": lambda a, b: a ^ b, "inner": lambda a, b: a | b,
-               "left_contraction": lambda a, b: a.lc(b)}
+TABLE_KINDS = {
+    "geometric": lambda a, b: a * b,
+    "outer": lambda a, b: a ^ b,
+    "inner": lambda a, b: a | b,
+    "left_contraction": lambda a, b: a.lc(b),
+}
 
 
 @pytest.mark.slow  # 23 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
@@ -447,8 +454,13 @@ def test_table_product_equals_generated_product_on_every_kind_pair():
         for kind in TABLE_KINDS:
             ours, generated = jaxcga.table_product(kind, a, b), generated_product(kind, a, b)
             assert ours.blades == generated.blades, (kind, kind_a, kind_b)
-            np.testing.assert_allclose(np.asarray(ours.values), np.asarray(generated.values), atol=TOL, rtol=TOL,
-                                       err_msg=f"table_product({kind!r}, {kind_a}, {kind_b})")
+            np.testing.assert_allclose(
+                np.asarray(ours.values),
+                np.asarray(generated.values),
+                atol=TOL,
+                rtol=TOL,
+                err_msg=f"table_product({kind!r}, {kind_a}, {kind_b})",
+            )
 
 
 @pytest.mark.parametrize("kind_a,kind_b", [("similitude", "similitude"), ("motor", "vector"), ("full", "full")])
@@ -456,8 +468,13 @@ def test_table_product_matches_clifford(kind_a, kind_b):
     a, b = OPERANDS_A[kind_a], OPERANDS_B[kind_b]
     xs, ys = _elements(a), _elements(b)
     for kind, theirs in TABLE_KINDS.items():
-        ref.assert_mv_close(jaxcga.table_product(kind, a, b), [theirs(x, y) for x, y in zip(xs, ys)], atol=TOL,
-                            rtol=TOL, err_msg=f"table_product({kind!r}, {kind_a}, {kind_b})")
+        ref.assert_mv_close(
+            jaxcga.table_product(kind, a, b),
+            [theirs(x, y) for x, y in zip(xs, ys)],
+            atol=TOL,
+            rtol=TOL,
+            err_msg=f"table_product({kind!r}, {kind_a}, {kind_b})",
+        )
 
 
 def test_table_product_gradient_equals_generated_product():

@@ -35,9 +35,11 @@ def points(batch=(B,)):
 
 
 def unit_vectors(batch=(B,)):
-    return arrays(np.float64, tuple(batch) + (3,), elements=_floats).filter(
-        lambda v: np.all(np.linalg.norm(v, axis=-1) > 0.3)
-    ).map(lambda v: v / np.linalg.norm(v, axis=-1, keepdims=True))
+    return (
+        arrays(np.float64, tuple(batch) + (3,), elements=_floats)
+        .filter(lambda v: np.all(np.linalg.norm(v, axis=-1) > 0.3))
+        .map(lambda v: v / np.linalg.norm(v, axis=-1, keepdims=True))
+    )
 
 
 def _scalars(lo, hi):
@@ -151,8 +153,12 @@ def test_normalized_motor_preserves_distances(M, x, y):
     X, Y = jaxcga.up(jnp.asarray(x)), jaxcga.up(jnp.asarray(y))
     MX, MY = M >> X, M >> Y
     # X . Y = -|x - y|^2 / 2, and normalized points stay normalized (eo coefficient 1)
-    np.testing.assert_allclose(np.asarray(jaxcga.scalar_product(MX, MY)), np.asarray(jaxcga.scalar_product(X, Y)), atol=1e-9)
-    np.testing.assert_allclose(np.asarray(jaxcga.scalar_product(MX, MY)), -0.5 * np.sum((x - y) ** 2, axis=-1), atol=1e-9)
+    np.testing.assert_allclose(
+        np.asarray(jaxcga.scalar_product(MX, MY)), np.asarray(jaxcga.scalar_product(X, Y)), atol=1e-9
+    )
+    np.testing.assert_allclose(
+        np.asarray(jaxcga.scalar_product(MX, MY)), -0.5 * np.sum((x - y) ** 2, axis=-1), atol=1e-9
+    )
     np.testing.assert_allclose(np.asarray(MX["eo"]), 1.0, atol=1e-12)
     np.testing.assert_allclose(np.asarray(jaxcga.scalar_product(MX, MX)), 0.0, atol=1e-9)  # still null
 

@@ -11,7 +11,6 @@ from hypothesis import strategies as st
 from scipy.spatial.transform import Rotation
 
 import jaxcga as cga
-
 from tests.jaxcga._helpers import SETTINGS, _a, _unit, seeds
 
 
@@ -93,9 +92,7 @@ def test_rotor_from_bivector(seed):
     R = cga.rotor_from_bivector(b, angle)
     np.testing.assert_allclose(_a(R.values), _a(cga.rotor(axis, angle).values), atol=1e-15)
     x = rng.normal(size=(4, 3))
-    np.testing.assert_allclose(
-        _apply(R, x), Rotation.from_rotvec(angle * axis).apply(x), atol=1e-13
-    )
+    np.testing.assert_allclose(_apply(R, x), Rotation.from_rotvec(angle * axis).apply(x), atol=1e-13)
     # R = exp(-b angle / 2) for the unit b: compare with the exponential.
     bu = b / np.linalg.norm(b)
     E = cga.exp(cga.Multivector(-0.5 * angle * bu, ("e12", "e13", "e23")))
@@ -196,8 +193,9 @@ def test_similitude_keeps_precision_at_any_scale(d):
         error = np.linalg.norm(_apply(S, x) - ref, axis=1) / np.linalg.norm(ref, axis=1)
         assert error.max() <= max(1e-13, _representation_limit(d)), (d, error.max())
         H = _a(_to_matrix(S))
-        np.testing.assert_allclose(H[:3, :3], d * rotation.as_matrix(), rtol=0,
-                                   atol=max(1e-13, _representation_limit(d)) * d)
+        np.testing.assert_allclose(
+            H[:3, :3], d * rotation.as_matrix(), rtol=0, atol=max(1e-13, _representation_limit(d)) * d
+        )
     for D in (cga.dilator(d), cga.dilator_paper(d)):
         np.testing.assert_allclose(_apply(D, x), d * x, rtol=max(1e-13, _representation_limit(d)))
 
@@ -428,9 +426,7 @@ def test_quaternion_to_rotor_matches_scipy(seed):
     # Products correspond: R2 R1 <-> q2 q1 (Hamilton).
     q2 = _unit(rng.normal(size=4))
     R2 = cga.quaternion_to_rotor(q2)
-    np.testing.assert_allclose(
-        _a(cga.rotor_to_quaternion(R2 * R)), _qmul(q2, q / np.linalg.norm(q)), atol=1e-14
-    )
+    np.testing.assert_allclose(_a(cga.rotor_to_quaternion(R2 * R)), _qmul(q2, q / np.linalg.norm(q)), atol=1e-14)
 
 
 def test_quaternion_to_rotor_rejects_bad_shape():

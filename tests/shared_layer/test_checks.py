@@ -44,14 +44,19 @@ def test_a_check_raises_its_message_eagerly_and_inside_jit_vmap_and_grad(device)
     with jax.default_device(device):
         with pytest.raises(ValueError, match=MESSAGE):
             _doubled(bad)
-        for fn in (jax.jit(_doubled), eqx.filter_jit(_doubled), jax.jit(jax.vmap(_doubled)),
-                   jax.jit(jax.grad(lambda x: jnp.sum(jnp.sin(_doubled(x)))))):
+        for fn in (
+            jax.jit(_doubled),
+            eqx.filter_jit(_doubled),
+            jax.jit(jax.vmap(_doubled)),
+            jax.jit(jax.grad(lambda x: jnp.sum(jnp.sin(_doubled(x))))),
+        ):
             _raises_the_message(fn, bad)
         # passing checks change nothing: values, a vmap batch, derivatives through the check
         np.testing.assert_array_equal(jax.jit(_doubled)(good), [0.0, 3.0])
         np.testing.assert_array_equal(jax.jit(jax.vmap(_doubled))(jnp.stack([good, good + 1])), [[0, 3], [2, 5]])
-        np.testing.assert_allclose(jax.jit(jax.grad(lambda x: jnp.sum(jnp.sin(_doubled(x)))))(good),
-                                   2 * np.cos(2 * np.array([0.0, 1.5])))
+        np.testing.assert_allclose(
+            jax.jit(jax.grad(lambda x: jnp.sum(jnp.sin(_doubled(x)))))(good), 2 * np.cos(2 * np.array([0.0, 1.5]))
+        )
 
 
 @BACKENDS

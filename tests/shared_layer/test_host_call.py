@@ -47,8 +47,9 @@ def test_host_call_under_vmap_calls_once_per_batch_element():
 
 def test_host_call_reports_a_result_of_the_wrong_shape():
     with pytest.raises(Exception, match="Incorrect output shape"):
-        jax.block_until_ready(jax.jit(lambda y: host_call(lambda a: a[:2], jax.ShapeDtypeStruct((3,), y.dtype), y))(
-            np.ones(3)))
+        jax.block_until_ready(
+            jax.jit(lambda y: host_call(lambda a: a[:2], jax.ShapeDtypeStruct((3,), y.dtype), y))(np.ones(3))
+        )
 
 
 _ONE_CORE = textwrap.dedent("""
@@ -80,8 +81,7 @@ _ONE_CORE = textwrap.dedent("""
 
 def _run_on_one_core(call: str):
     env = dict(os.environ, PYTHONPATH=str(ROOT), JAX_PLATFORMS="cpu")
-    return subprocess.run([sys.executable, "-c", _ONE_CORE, call], capture_output=True, text=True, env=env,
-                          timeout=120)
+    return subprocess.run([sys.executable, "-c", _ONE_CORE, call], capture_output=True, text=True, env=env, timeout=120)
 
 
 @pytest.mark.skipif(not hasattr(os, "sched_setaffinity"), reason="needs CPU affinity (Linux)")

@@ -20,13 +20,19 @@ DTYPES = {jnp.float64: 1e-12, jnp.float32: 2e-5}  # tolerance relative to the la
 
 
 def test_kernels_are_registered():
-    assert {"apply_to_points", "table_product", "deform.skin_dqs", "deform.skin_cga_motor_blend",
-            "deform.blend_dilations"} <= set(KERNELS)
+    assert {
+        "apply_to_points",
+        "table_product",
+        "deform.skin_dqs",
+        "deform.skin_cga_motor_blend",
+        "deform.blend_dilations",
+    } <= set(KERNELS)
 
 
 def _cast(tree, dtype):
-    return jax.tree.map(lambda a: a.astype(dtype) if jnp.issubdtype(a.dtype, jnp.floating) else a,
-                        jax.tree.map(jnp.asarray, tree))
+    return jax.tree.map(
+        lambda a: a.astype(dtype) if jnp.issubdtype(a.dtype, jnp.floating) else a, jax.tree.map(jnp.asarray, tree)
+    )
 
 
 def _assert_close(got, expected, rtol):
@@ -105,8 +111,9 @@ def test_dispatch_on_cpu_is_the_cpu_variant(name):
 def _operations(fn, args, platform: str) -> collections.Counter:
     """The StableHLO operations of ``fn`` lowered for ``platform``, less the conditional's own."""
     text = jax.jit(fn).trace(*args).lower(lowering_platforms=(platform,)).as_text()
-    return collections.Counter(op for op in re.findall(r"stablehlo\.(\w+)", text)
-                               if op not in ("case", "return", "constant"))
+    return collections.Counter(
+        op for op in re.findall(r"stablehlo\.(\w+)", text) if op not in ("case", "return", "constant")
+    )
 
 
 def _lowers_for_cuda():
@@ -117,8 +124,9 @@ def _lowers_for_cuda():
     return None
 
 
-needs_cuda_lowering = pytest.mark.skipif(_lowers_for_cuda() is not None,
-                                         reason=f"this JAX cannot lower for CUDA without a GPU: {_lowers_for_cuda()}")
+needs_cuda_lowering = pytest.mark.skipif(
+    _lowers_for_cuda() is not None, reason=f"this JAX cannot lower for CUDA without a GPU: {_lowers_for_cuda()}"
+)
 
 
 @needs_cuda_lowering
@@ -150,11 +158,15 @@ def _public_calls():
     motors = cga.exp_motor(cga.Multivector(rng.normal(size=(joints, 6)), cga.MOTOR_GENERATOR))
     dq = cga.motor_to_dual_quaternion(motors)
     return {
-        "apply_to_points": (lambda m, x: cga.apply_to_points(cga.Multivector(m, "motor"), x),
-                            (jnp.asarray(rng.normal(size=(n, 8))), V)),
+        "apply_to_points": (
+            lambda m, x: cga.apply_to_points(cga.Multivector(m, "motor"), x),
+            (jnp.asarray(rng.normal(size=(n, 8))), V),
+        ),
         "skin_dqs": (lambda d: deform.skin_dqs(V, J, W, d), (dq,)),
-        "skin_cga_motor_blend": (lambda m: deform.skin_cga_motor_blend(V, J, W, cga.Multivector(m, "motor")),
-                                 (motors.values,)),
+        "skin_cga_motor_blend": (
+            lambda m: deform.skin_cga_motor_blend(V, J, W, cga.Multivector(m, "motor")),
+            (motors.values,),
+        ),
         "skin_dqs_batch": (lambda d: deform.skin_dqs(V, J, W, d), (jnp.stack([dq, dq]),)),
     }
 

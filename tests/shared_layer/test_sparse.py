@@ -17,6 +17,7 @@ import pytest
 import scipy.sparse as sp
 
 import deform
+import xfem._backward_euler as be
 from _jaxcga_shared import sparse
 from _jaxcga_shared.sparse import (
     SparseSolver,
@@ -30,7 +31,6 @@ from _jaxcga_shared.sparse import (
 from tests.shared import check_gradient
 from tests.xfem._models import MATERIAL, RHO, H, deformed_state, plane, tall_box
 from xfem._assembly import assemble_matrix, to_scipy
-import xfem._backward_euler as be
 from xfem._backward_euler import backward_euler_step, fem_from_mesh
 from xfem._xfem import xfem_model
 
@@ -70,7 +70,7 @@ def _arm5_dirichlet():
     L = sp.csr_matrix(igl.cotmatrix(V, F))
     bc = np.zeros((len(b), 2))
     bc[: len(ends[0]), 0] = 1.0
-    bc[len(ends[0]):, 1] = 1.0
+    bc[len(ends[0]) :, 1] = 1.0
     return -L[free][:, free], L[free][:, b] @ bc
 
 
@@ -92,7 +92,7 @@ def test_harmonic_fields_and_arap_on_the_device_path_equal_the_host_path():
     fixed, hand = np.flatnonzero(x < np.quantile(x, 0.05)), np.flatnonzero(x > np.quantile(x, 0.95))
     b = np.concatenate([fixed, hand])
     bc = np.zeros((len(b), 2))
-    bc[: len(fixed), 0], bc[len(fixed):, 1] = 1.0, 1.0
+    bc[: len(fixed), 0], bc[len(fixed) :, 1] = 1.0, 1.0
     harmonic = deform.harmonic_precompute(V, F, b)
     data = deform.arap_precompute(V, F, b)
     moved = V[b] + np.where(np.isin(b, hand), 1.0, 0.0)[:, None] * np.array([0.0, 0.1, 0.05])
@@ -139,8 +139,9 @@ def test_fem_newton_step_and_xfem_gradient_on_the_device_path_equal_the_host_pat
     system, state = model.system(), model.state
 
     def step(young):
-        return backward_euler_step(system, state, H, type(MATERIAL)(young, MATERIAL.poisson), newton_iterations=20,
-                                   tolerance=1e-11)
+        return backward_euler_step(
+            system, state, H, type(MATERIAL)(young, MATERIAL.poisson), newton_iterations=20, tolerance=1e-11
+        )
 
     def loss(young):
         return jnp.sum(jnp.sin(step(young).x))
@@ -193,7 +194,10 @@ def test_singular_indefinite_and_unconverged_systems_are_reported():
     pattern = csr_pattern(indefinite.indptr, indefinite.indices)
     data, rhs = jnp.asarray(indefinite.data), jnp.asarray(b)
     with _device_path():
-        with pytest.raises((eqx.EquinoxRuntimeError, jax.errors.JaxRuntimeError), match="A: the conjugate gradient did not reach its tolerance"):
+        with pytest.raises(
+            (eqx.EquinoxRuntimeError, jax.errors.JaxRuntimeError),
+            match="A: the conjugate gradient did not reach its tolerance",
+        ):
             eqx.filter_jit(lambda d, r: spd_solve(pattern, d, r, 1e-10))(data, rhs).block_until_ready()
         fallback = jax.jit(lambda d, r: spd_solve(pattern, d, r, 1e-10, on_failure="host"))(data, rhs)
     np.testing.assert_allclose(np.asarray(fallback), exact, rtol=1e-12)
@@ -204,9 +208,13 @@ def test_singular_indefinite_and_unconverged_systems_are_reported():
     A = sp.csr_matrix(sp.diags([-1.0, 2.01, -1.0], [-1, 0, 1], shape=(50, 50)))
     pattern = csr_pattern(A.indptr, A.indices)
     with _device_path():
-        with pytest.raises((eqx.EquinoxRuntimeError, jax.errors.JaxRuntimeError), match="the Newton system: the conjugate gradient did not reach"):
+        with pytest.raises(
+            (eqx.EquinoxRuntimeError, jax.errors.JaxRuntimeError),
+            match="the Newton system: the conjugate gradient did not reach",
+        ):
             eqx.filter_jit(lambda d, r: spd_solve(pattern, d, r, 1e-10, max_iterations=2, what="the Newton system"))(
-                jnp.asarray(A.data), jnp.ones(50)).block_until_ready()
+                jnp.asarray(A.data), jnp.ones(50)
+            ).block_until_ready()
     _, info = device_pcg(pattern, jnp.asarray(A.data), jnp.ones(50), 1e-10, 2)
     assert int(info.iterations) == 2 and not bool(info.converged) and not bool(info.breakdown)
     with pytest.raises(ValueError, match="block: expected a positive divisor"):

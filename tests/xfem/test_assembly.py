@@ -69,8 +69,9 @@ def test_reduced_matrix_is_the_full_one_without_fixed_rows_and_columns():
     keep = _free_dofs(N, fixed)
     assert_same_run(A_reduced, A_full[np.ix_(keep, keep)], atol=1e-13)
     np.testing.assert_array_equal(np.asarray(reduced.free_index)[fixed], -1)
-    np.testing.assert_array_equal(np.asarray(reduced.free)[np.asarray(reduced.free_index)[reduced.free]],
-                                  np.asarray(reduced.free))
+    np.testing.assert_array_equal(
+        np.asarray(reduced.free)[np.asarray(reduced.free_index)[reduced.free]], np.asarray(reduced.free)
+    )
 
 
 def test_scalar_matrix_expands_by_the_identity():

@@ -89,8 +89,7 @@ def test_gravity_accelerates_the_centre_of_mass_by_g():
         w = nodal[piece] / nodal[piece].sum()
         centre = w @ np.asarray(x)[piece] + H * w @ np.asarray(v)[piece]
         np.testing.assert_allclose(w @ np.asarray(after.x)[piece], centre + H**2 * GRAVITY, atol=1e-10)
-        np.testing.assert_allclose(w @ np.asarray(after.v)[piece], w @ np.asarray(v)[piece] + H * GRAVITY,
-                                   atol=1e-8)
+        np.testing.assert_allclose(w @ np.asarray(after.v)[piece], w @ np.asarray(v)[piece] + H * GRAVITY, atol=1e-8)
 
 
 def _potential_gradient(x, x_t, v_t):
@@ -113,8 +112,7 @@ def test_converged_step_zeroes_the_gradient_and_keeps_fixed_nodes():
     x = x.at[FIXED].set(X[FIXED])
     moved = X[FIXED] + np.array([0.0, 0.02, -0.03])
     for fixed_positions, expected in ((None, X[FIXED]), (moved, moved)):
-        after = backward_euler_step(CANTILEVER, State(x, v), H, MATERIAL, fixed_positions=fixed_positions,
-                                    **CONVERGED)
+        after = backward_euler_step(CANTILEVER, State(x, v), H, MATERIAL, fixed_positions=fixed_positions, **CONVERGED)
         np.testing.assert_array_equal(after.x[FIXED], expected)
         gradient, scale = _potential_gradient(after.x, x, v)
         free = np.setdiff1d(np.arange(len(X)), FIXED)
@@ -133,8 +131,13 @@ def _static_deflection():
         x = jnp.asarray(X).at[free].set(y.reshape(-1, 3))
         return jnp.sum(element_energy(x[BAR.T], grads, volumes, MU, LAM)) - jnp.sum(force * x)
 
-    result = scipy.optimize.minimize(jax.value_and_grad(potential), X[free].ravel(), jac=True, method="L-BFGS-B",
-                                     options=dict(gtol=1e-9, ftol=1e-15, maxiter=5000))
+    result = scipy.optimize.minimize(
+        jax.value_and_grad(potential),
+        X[free].ravel(),
+        jac=True,
+        method="L-BFGS-B",
+        options=dict(gtol=1e-9, ftol=1e-15, maxiter=5000),
+    )
     x = X.copy()
     x[free] = result.x.reshape(-1, 3)
     return x[X[:, 0] == 2.0, 2].mean() - 0.5
@@ -174,12 +177,14 @@ def test_implicit_gradients_match_central_differences():
 
     def loss(young, v0, offset, gravity_scale, weight_scale):
         material = Material(young, jnp.asarray(0.4))
-        system = eqx.tree_at(lambda s: (s.force, s.volumes), CANTILEVER,
-                             (gravity_scale * CANTILEVER.force, weight_scale * CANTILEVER.volumes))
+        system = eqx.tree_at(
+            lambda s: (s.force, s.volumes),
+            CANTILEVER,
+            (gravity_scale * CANTILEVER.force, weight_scale * CANTILEVER.volumes),
+        )
 
         def step(state, _):
-            return backward_euler_step(system, state, H, material, fixed_positions=X[FIXED] + offset,
-                                       **CONVERGED), None
+            return backward_euler_step(system, state, H, material, fixed_positions=X[FIXED] + offset, **CONVERGED), None
 
         state = jax.lax.scan(step, State(BAR.X, v0), length=3)[0]
         return jnp.sum(weights * state.x) + 0.5 * jnp.sum(state.v**2)
@@ -196,8 +201,7 @@ def test_implicit_gradients_match_central_differences():
 
     np.testing.assert_allclose(grad[0], central(0, 1.0, 1e-4 * float(args[0])), rtol=1e-5)
     np.testing.assert_allclose(jnp.sum(grad[1] * direction["v0"]), central(1, direction["v0"], 1e-5), rtol=1e-5)
-    np.testing.assert_allclose(jnp.sum(grad[2] * direction["offset"]), central(2, direction["offset"], 1e-6),
-                               rtol=1e-5)
+    np.testing.assert_allclose(jnp.sum(grad[2] * direction["offset"]), central(2, direction["offset"], 1e-6), rtol=1e-5)
     np.testing.assert_allclose(grad[3], central(3, 1.0, 1e-4), rtol=1e-5)  # through system.force
     np.testing.assert_allclose(grad[4], central(4, 1.0, 1e-4), rtol=1e-5)  # through the integration weights
 
@@ -227,8 +231,7 @@ def test_bad_input():
     grads, volumes = shape_gradients(BAR.X, BAR.T)
     mass = consistent_mass(BAR.X, BAR.T, 1.0)
     with pytest.raises(ValueError, match="mass: expected a finite symmetric"):
-        fem_system(BAR.T, grads, volumes, mass + sp.coo_matrix(([1.0], ([0], [1])), shape=mass.shape),
-                   CANTILEVER.force)
+        fem_system(BAR.T, grads, volumes, mass + sp.coo_matrix(([1.0], ([0], [1])), shape=mass.shape), CANTILEVER.force)
     with pytest.raises(ValueError, match="force: expected"):
         fem_system(BAR.T, grads, volumes, mass, CANTILEVER.force[:-1])
     with pytest.raises(ValueError, match="gravity"):
@@ -244,8 +247,12 @@ def test_newton_direction_is_exact_on_small_systems_and_cg_on_large_ones(monkeyp
     n = 64  # a mass-like diagonal plus a 4 x 4 x 4 grid Laplacian, like M + h^2 K
     D = sp.diags([-1.0, 2.0, -1.0], [-1, 0, 1], shape=(4, 4))
     eye = sp.identity(4)
-    A = sp.csr_matrix(sp.kron(sp.kron(D, eye), eye) + sp.kron(sp.kron(eye, D), eye) + sp.kron(sp.kron(eye, eye), D)
-                      + 0.5 * sp.identity(n))
+    A = sp.csr_matrix(
+        sp.kron(sp.kron(D, eye), eye)
+        + sp.kron(sp.kron(eye, D), eye)
+        + sp.kron(sp.kron(eye, eye), D)
+        + 0.5 * sp.identity(n)
+    )
     b = rng.normal(size=n)
     exact = np.linalg.solve(A.toarray(), b)
     direct = _host_newton_direction(A.data, b, 1e-2, A.indptr, A.indices)
@@ -271,11 +278,17 @@ def test_padded_system_steps_like_the_real_one():
     grads, volumes = shape_gradients(mesh.X, mesh.T)
     mass = consistent_mass(mesh.X, mesh.T, 1e3)
     force = body_force(mesh.X, mesh.T, 1e3 * np.array([0.0, 0.0, -9.81]))
-    capacity = SystemCapacity(nodes=n + 20, elements=m + 7, mass_entries=real.mass_values.shape[0] + 40,
-                              fixed=len(fixed) + 5, nonzeros=real.pattern.nnz + 9 * 15 + 99)  # 15 free padded nodes
+    capacity = SystemCapacity(
+        nodes=n + 20,
+        elements=m + 7,
+        mass_entries=real.mass_values.shape[0] + 40,
+        fixed=len(fixed) + 5,
+        nonzeros=real.pattern.nnz + 9 * 15 + 99,
+    )  # 15 free padded nodes
     padded = fem_system(mesh.T, grads, volumes, mass, force, fixed, capacity=capacity)
     assert (padded.n, padded.T.shape[0], padded.fixed.shape[0], padded.pattern.nnz) == tuple(
-        capacity[k] for k in (0, 1, 3, 4))
+        capacity[k] for k in (0, 1, 3, 4)
+    )
     X = np.asarray(mesh.X)
     state = State(jnp.asarray(X), jnp.asarray(np.random.default_rng(0).normal(size=X.shape)))
     wide = State(jnp.asarray(np.vstack([X, np.zeros((20, 3))])), jnp.asarray(np.vstack([state.v, np.zeros((20, 3))])))
@@ -313,8 +326,17 @@ def test_steps_in_chunks_equal_one_pass(monkeypatch):
     X = np.asarray(mesh.X)
     system = fem_from_mesh(mesh, 1e3, GRAVITY, fixed=np.flatnonzero(X[:, 0] == 0))
     x, v = _deformed(X, 4)
-    theta = be._Theta(jnp.asarray(X), v, jnp.asarray(MU), jnp.asarray(LAM), x[system.fixed], system.force,
-                      system.grads, system.volumes, system.mass_values)
+    theta = be._Theta(
+        jnp.asarray(X),
+        v,
+        jnp.asarray(MU),
+        jnp.asarray(LAM),
+        x[system.fixed],
+        system.force,
+        system.grads,
+        system.volumes,
+        system.mass_values,
+    )
 
     def everything():
         jax.clear_caches()  # the step's trace reads the chunk sizes
@@ -324,12 +346,20 @@ def test_steps_in_chunks_equal_one_pass(monkeypatch):
         projected, true = (be._gradient_and_matrix(system, x, theta, H, project) for project in (True, False))
 
         def loss(young):
-            state = backward_euler_step(system, State(jnp.asarray(X), v), H, Material(young, jnp.asarray(0.4)),
-                                        **CONVERGED)
+            state = backward_euler_step(
+                system, State(jnp.asarray(X), v), H, Material(young, jnp.asarray(0.4)), **CONVERGED
+            )
             return jnp.sum(state.x**2)
 
-        return (energy, dE_dx, dE_dvolumes, *projected, *true, be._mass_times(system, system.mass_values, v),
-                *jax.value_and_grad(loss)(jnp.asarray(1e6)))
+        return (
+            energy,
+            dE_dx,
+            dE_dvolumes,
+            *projected,
+            *true,
+            be._mass_times(system, system.mass_values, v),
+            *jax.value_and_grad(loss)(jnp.asarray(1e6)),
+        )
 
     assert (system.T.shape[0], system.mass_values.shape[0]) == (30, 174)
     one_pass = everything()

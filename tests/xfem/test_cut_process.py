@@ -23,8 +23,11 @@ from xfem._framing import decode, encode, portable, read_frame, write_frame
 from xfem._subdomains import MeshSolid, pack_meshes, solid_mesh, unpack_meshes
 from xfem._xfem import xfem_model
 
-CUTS = [dict(point=(0.5, 0.5, 0.61), normal=(0.07, -0.04, 1.0)), dict(point=(0.5, 0.5, 0.9), normal=(0.03, 0.05, 1.0)),
-        dict(point=(0.52, 0.5, 0.7), normal=(1.0, 0.04, 0.02))]
+CUTS = [
+    dict(point=(0.5, 0.5, 0.61), normal=(0.07, -0.04, 1.0)),
+    dict(point=(0.5, 0.5, 0.9), normal=(0.03, 0.05, 1.0)),
+    dict(point=(0.52, 0.5, 0.7), normal=(1.0, 0.04, 0.02)),
+]
 
 
 def _models():
@@ -78,7 +81,8 @@ def test_subdomains_delta_makes_a_copy_equal():
         for sid in (s for ids in live for s in ids):
             assert getattr(a, f"{kind}_parent")(sid) == getattr(b, f"{kind}_parent")(sid)
             assert getattr(b, f"{kind}_solid")(sid).volume() == pytest.approx(
-                getattr(a, f"{kind}_solid")(sid).volume(), rel=1e-12)
+                getattr(a, f"{kind}_solid")(sid).volume(), rel=1e-12
+            )
     assert len(delta.elements.retired) > 0 and len(delta.elements.changed) > 0
     with pytest.raises(ValueError, match="delta"):
         copy.sub.apply_delta(delta)  # copy has the new ids already
@@ -96,12 +100,16 @@ def test_replica_replays_earlier_cuts_and_direct_cuts():
     future = background.submit(plane(**CUTS[1]))
     inline.cut(plane(**CUTS[1]))
     assert background.commit(until=future)[0].dof_source is not None
-    received = [s for s in range(len(remote.sub._elements.owner)) if remote.sub.element_alive(s)
-                and isinstance(remote.sub._elements.solids[s], MeshSolid)]
+    received = [
+        s
+        for s in range(len(remote.sub._elements.owner))
+        if remote.sub.element_alive(s) and isinstance(remote.sub._elements.solids[s], MeshSolid)
+    ]
     assert received  # pieces made by the worker, not built yet
     for sid in received:
-        assert remote.sub.element_solid(sid).volume() == pytest.approx(inline.sub.element_solid(sid).volume(),
-                                                                      rel=1e-12)
+        assert remote.sub.element_solid(sid).volume() == pytest.approx(
+            inline.sub.element_solid(sid).volume(), rel=1e-12
+        )
     for model in (remote, inline):
         model.cut(plane(**CUTS[2]))  # directly, in the model's process
     outside = background.submit(plane(point=(0.5, 0.5, 5.0)))  # the replica replays CUTS[2] first
@@ -212,8 +220,17 @@ def test_worker_ends_with_its_background_cuts():
 
 
 def test_worker_startup_failure_is_reported():
-    process = CutProcess(dict(X=np.zeros((1, 3)), T=np.zeros((1, 4), np.int64), rho=np.ones(1),
-                              gravity=np.zeros(3), fixed=np.zeros(0, np.int64), log=[]), _ENTRY)
+    process = CutProcess(
+        dict(
+            X=np.zeros((1, 3)),
+            T=np.zeros((1, 4), np.int64),
+            rho=np.ones(1),
+            gravity=np.zeros(3),
+            fixed=np.zeros(0, np.int64),
+            log=[],
+        ),
+        _ENTRY,
+    )
     try:
         with pytest.raises(ValueError, match="positive volume"):  # a flat tet: the replica's own check, raised here
             process.wait_ready()
@@ -225,8 +242,11 @@ def test_messages_are_framed_whole():
     """Each message is its lengths, its pickle and its large arrays' buffers, read back whole, each buffer aligned to
     64 bytes (XLA's CPU client aliases such host arrays); a stream that ends early is an EOFError, not a hang."""
     large = np.arange(3000, dtype=np.float64).reshape(1000, 3)
-    messages = [b"", ("one", np.arange(5)), {"system": (large, np.asfortranarray(large[:, :2]).astype(np.int32)),
-                                            "small": np.ones(3)}]
+    messages = [
+        b"",
+        ("one", np.arange(5)),
+        {"system": (large, np.asfortranarray(large[:, :2]).astype(np.int32)), "small": np.ones(3)},
+    ]
     stream = io.BytesIO()
     for message in messages:
         write_frame(stream, *encode(message))
@@ -286,15 +306,21 @@ def _thread_affinities() -> dict[int, frozenset]:
     return affinities
 
 
-@pytest.mark.skipif(not hasattr(os, "sched_getaffinity") or not os.path.isdir("/proc/self/task"),
-                    reason="needs Linux's CPU affinity")
+@pytest.mark.skipif(
+    not hasattr(os, "sched_getaffinity") or not os.path.isdir("/proc/self/task"), reason="needs Linux's CPU affinity"
+)
 def test_background_cuts_leave_the_process_settings_alone():
     """A background cut changes nothing process-wide in the user's process: its CPU affinity and every thread's,
     its priority, the interpreter's switch interval and the environment stay as they were; the worker process
     runs with this process's priority and CPUs."""
     remote, inline = _models()
-    before = (frozenset(os.sched_getaffinity(0)), _thread_affinities(), os.getpriority(os.PRIO_PROCESS, 0),
-              sys.getswitchinterval(), dict(os.environ))
+    before = (
+        frozenset(os.sched_getaffinity(0)),
+        _thread_affinities(),
+        os.getpriority(os.PRIO_PROCESS, 0),
+        sys.getswitchinterval(),
+        dict(os.environ),
+    )
     background = BackgroundCuts(remote)
     remote.step(H, MATERIAL)
     future = background.submit(plane(**CUTS[0]))

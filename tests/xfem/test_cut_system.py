@@ -126,8 +126,9 @@ def test_solid_cuts_between_the_planes(bar):
     assert replayed.points.shape == (2, 3)
     reference = _bar()
     for cut, system in zip(cuts, replayed.systems(replayed.points, replayed.normals)):
-        reference.cut(cut[0] if len(cut) == 2 else xfem.plane_cut_solid(np.asarray(cut[0]), np.asarray(cut[1]), 5.0,
-                                                                           EPS))
+        reference.cut(
+            cut[0] if len(cut) == 2 else xfem.plane_cut_solid(np.asarray(cut[0]), np.asarray(cut[1]), 5.0, EPS)
+        )
         _close(system, reference.system())
 
 
@@ -168,7 +169,8 @@ def test_jit_and_two_planes(bar):
         for sign in (1, -1):
             shifted = thetas + sign * step * np.eye(2)[k]
             system = xfem.plane_cuts(bar, [(p, _normal(t), EPS) for (p, _, _), t in zip(planes, shifted)]).system(
-                cuts.points, jax.vmap(_normal)(shifted))
+                cuts.points, jax.vmap(_normal)(shifted)
+            )
             values.append(_scalar(system, weights))
         difference = (values[0] - values[1]) / (2 * step)
         assert abs(gradient[k] - difference) <= 1e-5 * abs(difference)

@@ -184,4 +184,3 @@ def test_bad_input():
         plane_cut_solid(np.zeros(3), np.zeros(3), 1.0, 0.1)
     with pytest.raises(ValueError, match="extent"):
         plane_cut_solid(np.zeros(3), np.ones(3), 0.0, 0.1)
-

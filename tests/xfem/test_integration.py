@@ -52,8 +52,9 @@ def _box_mesh(lo, hi):
 
 
 def _to_manifold(V, F):
-    return m3.Manifold(m3.Mesh64(vert_properties=np.ascontiguousarray(V, np.float64),
-                                 tri_verts=np.ascontiguousarray(F, np.uint64)))
+    return m3.Manifold(
+        m3.Mesh64(vert_properties=np.ascontiguousarray(V, np.float64), tri_verts=np.ascontiguousarray(F, np.uint64))
+    )
 
 
 def _mesh64(manifold):
@@ -80,14 +81,22 @@ def test_tet_moments_against_affine_images_of_the_unit_simplex():
         A, t = (x[1:] - x[0]).T, x[0]  # X = A Y + t maps the unit simplex onto the tet
         J = np.linalg.det(A)
         Af = A @ unit.first
-        want = Moments(J * unit.volume, J * (Af + t * unit.volume),
-                       J * (A @ unit.second @ A.T + np.outer(Af, t) + np.outer(t, Af) + np.outer(t, t) * unit.volume))
+        want = Moments(
+            J * unit.volume,
+            J * (Af + t * unit.volume),
+            J * (A @ unit.second @ A.T + np.outer(Af, t) + np.outer(t, Af) + np.outer(t, t) * unit.volume),
+        )
         _assert_moments(polyhedron_moments(x, TET_FACES), want, 1e-14)
 
 
-@pytest.mark.parametrize("mesh", [trimesh.creation.icosphere(subdivisions=2, radius=0.7),
-                                  trimesh.creation.cylinder(radius=0.4, height=1.3, sections=24)],
-                         ids=["icosphere", "cylinder"])
+@pytest.mark.parametrize(
+    "mesh",
+    [
+        trimesh.creation.icosphere(subdivisions=2, radius=0.7),
+        trimesh.creation.cylinder(radius=0.4, height=1.3, sections=24),
+    ],
+    ids=["icosphere", "cylinder"],
+)
 def test_against_trimesh_mass_properties(mesh):
     mesh = mesh.copy()
     mesh.apply_translation([0.3, -1.2, 2.0])
@@ -113,9 +122,9 @@ def test_whole_tets_give_the_fem_consistent_mass_and_body_force():
     M = consistent_mass(V, T, density).toarray()
     f = np.asarray(body_force(V, T, np.array([1.0, 0.0, 0.0])))[:, 0]
     for e in range(6):
-        block = M[4 * e:4 * e + 4, 4 * e:4 * e + 4]
+        block = M[4 * e : 4 * e + 4, 4 * e : 4 * e + 4]
         np.testing.assert_allclose(mass[e], block, rtol=0, atol=1e-13 * np.abs(block).max())
-        np.testing.assert_allclose(load[e], f[4 * e:4 * e + 4], rtol=0, atol=1e-13 * volume[e])
+        np.testing.assert_allclose(load[e], f[4 * e : 4 * e + 4], rtol=0, atol=1e-13 * volume[e])
     np.testing.assert_allclose(volume, np.linalg.det(x[:, 1:] - x[:, :1]) / 6, rtol=1e-13)
 
 
@@ -141,8 +150,7 @@ def test_plane_splits_add_up_to_the_tet():
         V = np.concatenate([sides[0][0], sides[1][0]])
         F = np.concatenate([sides[0][1], sides[1][1] + len(sides[0][0])])
         piece = np.repeat([0, 1], [len(sides[0][1]), len(sides[1][1])])
-        mass, load, volume = element_piece_integrals(
-            c, g, moments_of_pieces(V, F, piece, 2, origin=Xe.mean(axis=0)))
+        mass, load, volume = element_piece_integrals(c, g, moments_of_pieces(V, F, piece, 2, origin=Xe.mean(axis=0)))
         assert np.all(volume > 0.01 * whole[2])
         np.testing.assert_allclose(mass.sum(axis=0), whole[0], rtol=0, atol=1e-12 * np.abs(whole[0]).max())
         np.testing.assert_allclose(load.sum(axis=0), whole[1], rtol=0, atol=1e-12 * whole[2])
@@ -208,8 +216,11 @@ def test_cube_minus_a_polyhedral_sphere():
 
 
 def test_batched_pieces_equal_one_call_per_piece():
-    meshes = [_box_mesh((0, 0, 0), (1, 2, 3)), (_random_tets(1)[0], TET_FACES),
-              (trimesh.creation.icosphere(1).vertices, trimesh.creation.icosphere(1).faces)]
+    meshes = [
+        _box_mesh((0, 0, 0), (1, 2, 3)),
+        (_random_tets(1)[0], TET_FACES),
+        (trimesh.creation.icosphere(1).vertices, trimesh.creation.icosphere(1).faces),
+    ]
     origins = RNG.normal(size=(4, 3))
     starts = np.cumsum([0] + [len(V) for V, _ in meshes])
     V = np.concatenate([V for V, _ in meshes])

@@ -15,13 +15,26 @@ from xfem._jacobi3 import eigh3, svd3
 # float32: XLA:GPU's division, square root and hypot are approximate (a few ulp), the CPU's correctly rounded
 F32_TOL = 2e-6 if jax.default_backend() == "cpu" else 1e-5
 N = 4000  # matrices per family: every family in one batch, compiled once per dtype
-SINGULAR_VALUES = ([1, 1, 1], [2, 1, 1], [1, 1, 0], [1, 0, 0], [0, 0, 0], [1, 1 + 1e-8, 1e-8], [1, 1e-9, 1e-9],
-                   [1e-12, 1, 1 + 1e-14], [3, 1e-300, 2], [1e5, 1, 1e-5])
+SINGULAR_VALUES = (
+    [1, 1, 1],
+    [2, 1, 1],
+    [1, 1, 0],
+    [1, 0, 0],
+    [0, 0, 0],
+    [1, 1 + 1e-8, 1e-8],
+    [1, 1e-9, 1e-9],
+    [1e-12, 1, 1 + 1e-14],
+    [3, 1e-300, 2],
+    [1e5, 1, 1e-5],
+)
 
 
 def _matrices(rng, n=N):
-    families = [rng.standard_normal((n, 3, 3)), np.eye(3) + 1e-9 * rng.standard_normal((n, 3, 3)),
-                np.where(rng.random((n, 3, 3)) < 0.6, 0.0, np.round(rng.standard_normal((n, 3, 3))))]
+    families = [
+        rng.standard_normal((n, 3, 3)),
+        np.eye(3) + 1e-9 * rng.standard_normal((n, 3, 3)),
+        np.where(rng.random((n, 3, 3)) < 0.6, 0.0, np.round(rng.standard_normal((n, 3, 3)))),
+    ]
     U, V = (Rotation.random(n, random_state=rng).as_matrix() for _ in range(2))
     for s in SINGULAR_VALUES:  # random rotations and signs around prescribed singular values
         signed = np.array(s) * np.where(rng.random((n, 3)) < 0.5, 1.0, -1.0)

@@ -80,8 +80,9 @@ def test_gradients_reproduce_linear_fields(name):
     x = np.asarray(mesh.X) @ A.T + c
     F = jnp.einsum("eai,eaj->eij", x[np.asarray(mesh.T)], grads)  # F_e = sum_a x_a grad N_a^T
     np.testing.assert_allclose(F, np.broadcast_to(A, F.shape), atol=1e-11)
-    np.testing.assert_allclose(jnp.einsum("eai,eaj->eij", mesh.X[mesh.T], grads), np.broadcast_to(np.eye(3), F.shape),
-                               atol=1e-12)
+    np.testing.assert_allclose(
+        jnp.einsum("eai,eaj->eij", mesh.X[mesh.T], grads), np.broadcast_to(np.eye(3), F.shape), atol=1e-12
+    )
 
 
 def test_gradients_by_finite_differences():
@@ -95,8 +96,12 @@ def test_gradients_by_finite_differences():
     def loss(flat):
         X = flat.reshape(-1, 3)
         grads, volumes = shape_gradients(X, T)
-        return (jnp.sum(jnp.tanh(grads) * W) + jnp.sum(volumes**2) + jnp.sum(lumped_mass(X, T, 2.0) * w)
-                + jnp.sum(body_force(X, T, jnp.array([0.3, -1.0, 0.5])) * forces))
+        return (
+            jnp.sum(jnp.tanh(grads) * W)
+            + jnp.sum(volumes**2)
+            + jnp.sum(lumped_mass(X, T, 2.0) * w)
+            + jnp.sum(body_force(X, T, jnp.array([0.3, -1.0, 0.5])) * forces)
+        )
 
     check_gradient(loss, mesh.X.ravel() + 0.02 * jnp.asarray(RNG.normal(size=24)))
 

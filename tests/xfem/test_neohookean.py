@@ -98,8 +98,14 @@ def test_lame_closed_form_and_errors():
     np.testing.assert_allclose(mu, [0.4, 0.8])
     np.testing.assert_allclose(lam, [0.4, 0.8])
     assert jax.grad(lambda e: lame(e, 0.3)[0])(2.0) == pytest.approx(1 / 2.6)
-    bad = [(0.0, 0.3, "young"), (-1.0, 0.3, "young"), (np.array([1.0, -2.0]), 0.3, "young"),
-           (1.0, 0.5, "poisson"), (1.0, -1.0, "poisson"), (1.0, np.nan, "poisson")]
+    bad = [
+        (0.0, 0.3, "young"),
+        (-1.0, 0.3, "young"),
+        (np.array([1.0, -2.0]), 0.3, "young"),
+        (1.0, 0.5, "poisson"),
+        (1.0, -1.0, "poisson"),
+        (1.0, np.nan, "poisson"),
+    ]
     for young, poisson, name in bad:
         with pytest.raises(ValueError, match=name):
             lame(young, poisson)
@@ -208,10 +214,10 @@ def test_element_gradient_and_hessian_finite_differences(tets):
     rows = [*range(8), *range(12, 16)]  # x (12, 4, 3) is evaluated as x[0:8] and x[4:12]
 
     def energy(x):
-        return np.concatenate([element_energy(x[k:k + M], grads, vol, MU, LAM) for k in (0, 4)])[rows]
+        return np.concatenate([element_energy(x[k : k + M], grads, vol, MU, LAM) for k in (0, 4)])[rows]
 
     def gradient(x):
-        return np.concatenate([element_gradient_hessian(x[k:k + M], grads, vol, MU, LAM)[0] for k in (0, 4)])[rows]
+        return np.concatenate([element_gradient_hessian(x[k : k + M], grads, vol, MU, LAM)[0] for k in (0, 4)])[rows]
 
     fd_g = (energy(plus) - energy(minus)) / (2 * h)
     fd_H = (gradient(plus) - gradient(minus)) / (2 * h)
@@ -231,16 +237,17 @@ def test_projected_hessian_is_the_psd_part(tets):
     A_plus = np.einsum("mik,mk,mjk->mij", Q, np.maximum(w, 0), Q)
     for k, F in enumerate(Fs):
         H = np.asarray(element_gradient_hessian(jnp.asarray(_deformed(F, X)), grads, vol, MU, LAM)[1])
-        H_ref = _sandwich_np(np.asarray(grads), A_plus[k * M:(k + 1) * M], np.asarray(vol))
+        H_ref = _sandwich_np(np.asarray(grads), A_plus[k * M : (k + 1) * M], np.asarray(vol))
         Hs = np.abs(H_ref).max((1, 2)) + 1e-12 * E
         assert np.all(np.abs(H - H_ref).max((1, 2)) <= 1e-10 * Hs)
         assert np.all(np.linalg.eigvalsh(H).min(1) >= -1e-9 * Hs)
         # where dP/dF is already PSD (some near rest), the projection changes nothing
-        psd = w[k * M:(k + 1) * M].min(1) >= 0
-        H_unprojected = np.asarray(element_gradient_hessian(jnp.asarray(_deformed(F, X)), grads, vol, MU, LAM,
-                                                            project=False)[1])
+        psd = w[k * M : (k + 1) * M].min(1) >= 0
+        H_unprojected = np.asarray(
+            element_gradient_hessian(jnp.asarray(_deformed(F, X)), grads, vol, MU, LAM, project=False)[1]
+        )
         assert np.all(np.abs(H - H_unprojected)[psd].max((1, 2)) <= 1e-10 * Hs[psd])
-    assert np.sum(w[2 * M:].min(1) >= 0) >= 2
+    assert np.sum(w[2 * M :].min(1) >= 0) >= 2
 
 
 @pytest.mark.slow  # 10 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
@@ -270,8 +277,10 @@ def test_projected_hessian_derivative(tets):
     dx = jnp.asarray(rng.standard_normal((M, 4, 3)))
     tangent = _hessian_jvp(x, grads, vol, E, dx, 1e5, True)[1]
     h = 1e-6
-    fd = (element_gradient_hessian(x + h * dx, grads, vol, *lame(E + h * 1e5, NU))[1]
-          - element_gradient_hessian(x - h * dx, grads, vol, *lame(E - h * 1e5, NU))[1]) / (2 * h)
+    fd = (
+        element_gradient_hessian(x + h * dx, grads, vol, *lame(E + h * 1e5, NU))[1]
+        - element_gradient_hessian(x - h * dx, grads, vol, *lame(E - h * 1e5, NU))[1]
+    ) / (2 * h)
     assert np.all(np.abs(tangent - fd) <= 1e-6 * np.abs(fd).max((1, 2), keepdims=True))
 
 

@@ -86,7 +86,7 @@ def _ring_extents(model, d):
     sub = model.sub
     extents = np.empty((sub.n_nodes, 2))
     for i in range(sub.n_nodes):
-        ring = np.unique(sub.T[sub.ring_elements[sub.ring_offsets[i]:sub.ring_offsets[i + 1]]])
+        ring = np.unique(sub.T[sub.ring_elements[sub.ring_offsets[i] : sub.ring_offsets[i + 1]]])
         extents[i] = d[ring].min(), d[ring].max()
     return extents
 
@@ -176,8 +176,11 @@ def test_cut_outside_the_body_is_bitwise_a_no_op():
 
 
 # slabs outside the unit box whose lower face touches its top face, its edge x = z = 1, its corner (1, 1, 1)
-TOUCHING = {"face": ((0.5, 0.5, 1.0), (0.0, 0.0, 1.0)), "edge": ((1.0, 0.5, 1.0), (1.0, 0.0, 1.0)),
-            "corner": ((1.0, 1.0, 1.0), (1.0, 1.0, 1.0))}
+TOUCHING = {
+    "face": ((0.5, 0.5, 1.0), (0.0, 0.0, 1.0)),
+    "edge": ((1.0, 0.5, 1.0), (1.0, 0.0, 1.0)),
+    "corner": ((1.0, 1.0, 1.0), (1.0, 1.0, 1.0)),
+}
 
 
 @pytest.mark.parametrize("perturb", [0.0, PERTURB], ids=["exact", "perturbed"])
@@ -391,7 +394,8 @@ def test_long_run_cut_before_and_between_steps():
     run.cut(_slab(point, normal))
     assert model.pieces() == 4 and len(run.free) == 2
     keep = (np.abs((points - point) @ normal) > EPS / 2 + MARGIN) & (
-        np.abs((points - (0.52, 0.5, 0.5)) @ _unit((1.0, 0.03, 0.02))) > EPS / 2 + MARGIN)
+        np.abs((points - (0.52, 0.5, 0.5)) @ _unit((1.0, 0.03, 0.02))) > EPS / 2 + MARGIN
+    )
     _assert_fields(model, before, points, elements, keep)
     run.run(200)
     # the lighter upper halves hang with less elastic energy than the whole body did; nothing fixed drifts

@@ -50,8 +50,9 @@ def test_rollout_equals_a_loop_of_steps():
     loop = State(REST.x, V0)
     for _ in range(2):
         loop = backward_euler_step(SYSTEM, loop, H, MATERIAL, fixed_positions=X[FIXED])
-    np.testing.assert_allclose(rollout(SYSTEM, State(REST.x, V0), MATERIAL, H, 2, forces=SYSTEM.force).x[-1], loop.x,
-                               rtol=0, atol=1e-12)
+    np.testing.assert_allclose(
+        rollout(SYSTEM, State(REST.x, V0), MATERIAL, H, 2, forces=SYSTEM.force).x[-1], loop.x, rtol=0, atol=1e-12
+    )
 
 
 @pytest.mark.slow  # two compilations of a 3-step rollout (jit, vmap): ~45 s on the shared 2 cores
@@ -75,8 +76,16 @@ def test_converged_gradients_match_central_differences():
     targets0 = _moving(3)
 
     def loss(young, v0, forces, targets):
-        trajectory = rollout(SYSTEM, State(REST.x, v0), Material(young, jnp.asarray(0.4)), H, 3, forces=forces,
-                             targets=targets, **CONVERGED)
+        trajectory = rollout(
+            SYSTEM,
+            State(REST.x, v0),
+            Material(young, jnp.asarray(0.4)),
+            H,
+            3,
+            forces=forces,
+            targets=targets,
+            **CONVERGED,
+        )
         return _loss(trajectory)
 
     args = (jnp.asarray(2e5), V0, forces0, targets0)
@@ -129,8 +138,11 @@ def test_one_newton_iteration_gives_the_converged_formula_at_the_executed_iterat
     dloss = 0.0
     G = _incremental_potential_gradient
     jacobian = jax.jit(jax.jacfwd(G))
-    tangent = jax.jit(lambda y, xt, vt, E, dx, dv: jax.jvp(lambda xt, vt, E: G(y, xt, vt, E), (xt, vt, E),
-                                                          (dx, dv, jnp.ones_like(E)))[1])
+    tangent = jax.jit(
+        lambda y, xt, vt, E, dx, dv: jax.jvp(
+            lambda xt, vt, E: G(y, xt, vt, E), (xt, vt, E), (dx, dv, jnp.ones_like(E))
+        )[1]
+    )
     for k in range(steps):
         x_next = trajectory.x[k]
         hessian = jacobian(x_next[free], x_t, v_t, young).reshape(3 * len(free), 3 * len(free))

@@ -33,8 +33,9 @@ def runs():
 
 def _body(mesh) -> manifold3d.Manifold:
     F = boundary_faces(np.asarray(mesh.T))
-    return manifold3d.Manifold(manifold3d.Mesh64(vert_properties=np.array(mesh.X, np.float64),
-                                                 tri_verts=np.array(F, np.uint64)))
+    return manifold3d.Manifold(
+        manifold3d.Mesh64(vert_properties=np.array(mesh.X, np.float64), tri_verts=np.array(F, np.uint64))
+    )
 
 
 def _material_volume(run) -> float:
@@ -156,10 +157,12 @@ def test_cut_latency_equals_the_cuts_done_later():
         assert a.cuts_started == (a.frame in {c.frame for c in sc.cuts}) * sum(c.frame == a.frame for c in sc.cuts)
     assert [r.frame for r in background.records if r.cutting] == list(range(1, sc.last_cut_frame + latency + 1))
     np.testing.assert_array_equal(background.model.dof_sid, inline.model.dof_sid)
-    np.testing.assert_allclose(np.asarray(background.model.state.x), np.asarray(inline.model.state.x), rtol=0,
-                               atol=1e-12)
-    np.testing.assert_allclose(np.asarray(background.model.state.v), np.asarray(inline.model.state.v), rtol=0,
-                               atol=1e-10)
+    np.testing.assert_allclose(
+        np.asarray(background.model.state.x), np.asarray(inline.model.state.x), rtol=0, atol=1e-12
+    )
+    np.testing.assert_allclose(
+        np.asarray(background.model.state.v), np.asarray(inline.model.state.v), rtol=0, atol=1e-10
+    )
     assert background.model.pieces() == 36
     # cuts not yet due when the run ends take effect after its last step
     short = run_scene(sc, steps=1, cut_latency=latency)

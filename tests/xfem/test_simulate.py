@@ -54,9 +54,16 @@ def test_gradients_across_the_cut_match_central_differences():
     direction = jnp.asarray(rng.normal(size=X.shape))
 
     def loss(young, v0, scale):
-        segments = simulate(model, [(CUT_FRAME, CUT)], Material(young, jnp.asarray(0.4)), H, STEPS,
-                            forces=lambda k, system: scale * system.force, state=State(jnp.asarray(X), v0),
-                            **CONVERGED)
+        segments = simulate(
+            model,
+            [(CUT_FRAME, CUT)],
+            Material(young, jnp.asarray(0.4)),
+            H,
+            STEPS,
+            forces=lambda k, system: scale * system.force,
+            state=State(jnp.asarray(X), v0),
+            **CONVERGED,
+        )
         # fixed weights per segment (the DOF counts are known once the model is cut)
         weights = [jnp.asarray(np.random.default_rng(k).normal(size=s.x.shape)) for k, s in enumerate(segments)]
         return sum(jnp.sum(w * s.x) + 0.5 * jnp.sum(s.v**2) for w, s in zip(weights, segments, strict=True))
@@ -104,8 +111,10 @@ def _hanging():
 
 
 def _plane(height, theta):
-    return (jnp.stack([jnp.asarray(0.1), jnp.asarray(0.1), height]),
-            jnp.stack([jnp.sin(theta), jnp.zeros_like(theta), jnp.cos(theta)]))
+    return (
+        jnp.stack([jnp.asarray(0.1), jnp.asarray(0.1), height]),
+        jnp.stack([jnp.sin(theta), jnp.zeros_like(theta), jnp.cos(theta)]),
+    )
 
 
 def test_plane_cuts_equal_the_solid_cuts():
@@ -116,8 +125,9 @@ def test_plane_cuts_equal_the_solid_cuts():
     n_before = len(model.dof_sid)
     planes = simulate(model, [(1, NOTCH)], MATERIAL, H, PLANE_STEPS, plane_cuts=[(PLANE_FRAME, point, normal, EPS)])
     assert len(model.dof_sid) == n_before and model.pieces() == 1
-    solids = simulate(_hanging(), [(1, NOTCH), (PLANE_FRAME, plane_cut_solid(point, normal, 5.0, EPS))], MATERIAL,
-                      H, PLANE_STEPS)
+    solids = simulate(
+        _hanging(), [(1, NOTCH), (PLANE_FRAME, plane_cut_solid(point, normal, 5.0, EPS))], MATERIAL, H, PLANE_STEPS
+    )
     assert [s.x.shape for s in planes] == [s.x.shape for s in solids] and len(planes) == 3
     assert planes[2].x.shape[1] > n_before
     for a, b in zip(planes, solids, strict=True):
@@ -136,8 +146,9 @@ def test_gradient_with_respect_to_the_plane_matches_central_differences():
 
     def outcome(height, theta):
         point, normal = _plane(height, theta)
-        last = simulate(model, [], MATERIAL, H, PLANE_STEPS, plane_cuts=[(PLANE_FRAME, point, normal, EPS)],
-                        **CONVERGED)[-1]
+        last = simulate(
+            model, [], MATERIAL, H, PLANE_STEPS, plane_cuts=[(PLANE_FRAME, point, normal, EPS)], **CONVERGED
+        )[-1]
         if "w" not in weights:  # fixed once the DOF count after the cut is known
             weights["w"] = np.random.default_rng(3).normal(size=last.x.shape[1:])
         return jnp.sum(weights["w"] * last.x[-1])
@@ -147,8 +158,9 @@ def test_gradient_with_respect_to_the_plane_matches_central_differences():
     step = 1e-5
     for k, g in enumerate(gradient):
         shift = step * np.eye(2)[k]
-        difference = (outcome(height + shift[0], theta + shift[1])
-                      - outcome(height - shift[0], theta - shift[1])) / (2 * step)
+        difference = (outcome(height + shift[0], theta + shift[1]) - outcome(height - shift[0], theta - shift[1])) / (
+            2 * step
+        )
         assert abs(g - difference) <= 1e-5 * abs(difference), (k, g, difference)
     assert abs(gradient[0]) > 0 and abs(gradient[1]) > 0
 

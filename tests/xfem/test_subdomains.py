@@ -86,14 +86,14 @@ def test_only_the_1_rings_the_plane_crosses_are_split():
     X, T = np.asarray(mesh.X), np.asarray(mesh.T)
     offsets, elements = sub.ring_offsets, sub.ring_elements
     for i in range(sub.n_nodes):
-        ring = T[elements[offsets[i]:offsets[i + 1]]]
+        ring = T[elements[offsets[i] : offsets[i + 1]]]
         d = _signed(X[np.unique(ring)], point, normal)
         crossed = d.min() < -EPS / 2 and d.max() > EPS / 2  # the ring reaches both sides of the slab
         assert len(sub.node_subdomains(i)) == (2 if crossed else 1), i
         assert sub.node_built(i) == (d.min() < EPS / 2)
         # nodal pieces lose what the element pieces of the ring's tets lose
         kept = sum(_moments(sub.node_solid(s)).volume for s in sub.node_subdomains(i))
-        ring_tets = elements[offsets[i]:offsets[i + 1]]
+        ring_tets = elements[offsets[i] : offsets[i + 1]]
         element_kept = sum(_moments(sub.element_solid(s)).volume for e in ring_tets for s in sub.element_subdomains(e))
         assert abs(kept - element_kept) < 1e-13
     assert set(report.nodes_split.tolist()) == set(np.flatnonzero(X[:, 2] < 0.6).tolist())
@@ -131,7 +131,7 @@ def test_perpendicular_cuts_give_four_pieces():
 
     assert [len(sub.element_subdomains(e)) for e in range(5)] == [quadrants(t) for t in T] == [4, 3, 3, 3, 3]
     for i in range(8):
-        ring = np.unique(T[sub.ring_elements[sub.ring_offsets[i]:sub.ring_offsets[i + 1]]])
+        ring = np.unique(T[sub.ring_elements[sub.ring_offsets[i] : sub.ring_offsets[i + 1]]])
         assert len(sub.node_subdomains(i)) == quadrants(ring) == (4 if i in (0, 3, 5, 6) else 3)
     assert set(second.node_children) <= {s for c in first.node_children.values() for s in c}
     for i in range(8):
@@ -181,7 +181,7 @@ def test_aabb_culling_and_touched_sets_on_a_3x3x3_box():
     assert [sub.element_built(e) for e in range(len(T))] == meets.tolist()
     assert [sub.node_built(i) for i in range(sub.n_nodes)] == np.isin(np.arange(sub.n_nodes), T[meets]).tolist()
     for i in range(sub.n_nodes):
-        ring = d[np.unique(T[sub.ring_elements[sub.ring_offsets[i]:sub.ring_offsets[i + 1]]])]
+        ring = d[np.unique(T[sub.ring_elements[sub.ring_offsets[i] : sub.ring_offsets[i + 1]]])]
         assert len(sub.node_subdomains(i)) == (2 if ring.min() < -EPS / 2 and ring.max() > EPS / 2 else 1)
     _check_ids(sub, report)
     # the Boolean count: one per candidate element, one per touched node (each had one subdomain)
@@ -196,8 +196,9 @@ def test_gentle_perturbation_moves_an_aligned_cut_off_the_nodes():
     assert not np.allclose(report.motion, np.eye(4)[:3], rtol=0, atol=1e-9)
     moved = aligned.transform(report.motion)
     mesh64 = moved.to_mesh64()
-    distance2 = igl.point_mesh_squared_distance(np.asarray(mesh.X), np.asarray(mesh64.vert_properties)[:, :3],
-                                                np.asarray(mesh64.tri_verts, np.int64))[0]
+    distance2 = igl.point_mesh_squared_distance(
+        np.asarray(mesh.X), np.asarray(mesh64.vert_properties)[:, :3], np.asarray(mesh64.tri_verts, np.int64)
+    )[0]
     assert distance2.min() >= 1e-18  # farther than perturb / 100
     # a rigid motion keeps the slab's thickness; the tilt changes its section by ~1e-14
     assert abs(sum(v for v, _ in _element_pieces(sub)) - (1 - EPS)) < 1e-12
@@ -251,13 +252,16 @@ def test_batch_built_solids_are_the_rings_and_tets():
     nodes, elements = list(range(sub.n_nodes)), list(range(sub.n_elements))
     sub._build_initial(nodes, elements)
     assert all(sub.node_built(i) for i in nodes) and all(sub.element_built(e) for e in elements)
-    pairs = [(sub.node_solid(i), boundary_faces(T[sub.ring_elements[sub.ring_offsets[i]:sub.ring_offsets[i + 1]]]))
-             for i in nodes]
+    pairs = [
+        (sub.node_solid(i), boundary_faces(T[sub.ring_elements[sub.ring_offsets[i] : sub.ring_offsets[i + 1]]]))
+        for i in nodes
+    ]
     pairs += [(sub.element_solid(e), T[e][[[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]]]) for e in elements]
     for solid, faces in pairs:  # against the Manifold of the same mesh built directly (it orders its output)
         used, local = np.unique(faces, return_inverse=True)
-        reference = manifold3d.Manifold(manifold3d.Mesh64(vert_properties=X[used],
-                                                          tri_verts=local.reshape(-1, 3).astype(np.uint64)))
+        reference = manifold3d.Manifold(
+            manifold3d.Mesh64(vert_properties=X[used], tri_verts=local.reshape(-1, 3).astype(np.uint64))
+        )
         built, expected = solid.to_mesh64(), reference.to_mesh64()
         np.testing.assert_array_equal(np.asarray(built.vert_properties), np.asarray(expected.vert_properties))
         np.testing.assert_array_equal(np.asarray(built.tri_verts), np.asarray(expected.tri_verts))

@@ -65,8 +65,10 @@ def test_one_tet():
     _check_boundary(mesh, 1 / 6, 1.5 + np.sqrt(3) / 2)
 
 
-@pytest.mark.parametrize("cells, size, origin", [((1, 1, 1), (1.0, 1.0, 1.0), (0.0, 0.0, 0.0)),
-                                                 ((3, 2, 4), (2.0, 3.0, 0.5), (-1.0, 0.5, 2.0))])
+@pytest.mark.parametrize(
+    "cells, size, origin",
+    [((1, 1, 1), (1.0, 1.0, 1.0), (0.0, 0.0, 0.0)), ((3, 2, 4), (2.0, 3.0, 0.5), (-1.0, 0.5, 2.0))],
+)
 def test_box_tets_volumes_faces_and_conformity(cells, size, origin):
     mesh = box_tets(cells, size, origin)
     n, m, k = cells
@@ -75,8 +77,9 @@ def test_box_tets_volumes_faces_and_conformity(cells, size, origin):
     np.testing.assert_allclose(X.min(axis=0), origin, rtol=1e-15)
     np.testing.assert_allclose(X.max(axis=0), np.add(origin, size), rtol=1e-15)
     i, j, l_ = 1 % (n + 1), 1 % (m + 1), 1 % (k + 1)  # the documented node numbering
-    np.testing.assert_allclose(X[(i * (m + 1) + j) * (k + 1) + l_], np.add(origin, np.multiply((i, j, l_), size) /
-                                                                          np.array(cells)), rtol=1e-15)
+    np.testing.assert_allclose(
+        X[(i * (m + 1) + j) * (k + 1) + l_], np.add(origin, np.multiply((i, j, l_), size) / np.array(cells)), rtol=1e-15
+    )
     volume = np.prod(size)
     volumes = np.asarray(mesh.volumes())
     np.testing.assert_allclose(volumes, volume / (6 * n * m * k), rtol=1e-13)
@@ -91,8 +94,11 @@ def test_box_tets_volumes_faces_and_conformity(cells, size, origin):
 
 
 @settings(max_examples=25, deadline=None)
-@given(cells=st.tuples(*[st.integers(1, 3)] * 3), size=st.tuples(*[st.floats(0.1, 10.0)] * 3),
-       origin=st.tuples(*[st.floats(-5.0, 5.0)] * 3))
+@given(
+    cells=st.tuples(*[st.integers(1, 3)] * 3),
+    size=st.tuples(*[st.floats(0.1, 10.0)] * 3),
+    origin=st.tuples(*[st.floats(-5.0, 5.0)] * 3),
+)
 def test_box_tets_invariants(cells, size, origin):
     mesh = box_tets(cells, size, origin)
     T = np.asarray(mesh.T)
@@ -138,7 +144,7 @@ def test_element_adjacency_and_node_rings_against_brute_force():
     offsets, elements = node_rings(T, n=mesh.n_nodes + 2)
     assert offsets.shape == (mesh.n_nodes + 3,) and elements.shape == (4 * len(T),)
     for i in range(mesh.n_nodes + 2):
-        np.testing.assert_array_equal(elements[offsets[i]:offsets[i + 1]], np.flatnonzero((T == i).any(axis=1)))
+        np.testing.assert_array_equal(elements[offsets[i] : offsets[i + 1]], np.flatnonzero((T == i).any(axis=1)))
     np.testing.assert_array_equal(node_rings(T)[0], offsets[:-2])
     # node indices too large for the one-int64 face keys take the row-wise path
     np.testing.assert_array_equal(element_adjacency(T + 2**21), element_adjacency(T))
@@ -160,17 +166,20 @@ def test_tet_mesh_reorients_and_keeps_vertex_sets():
 X4 = np.vstack([np.zeros(3), np.eye(3)])
 
 
-@pytest.mark.parametrize("X, T, match", [
-    (X4[:, :2], [[0, 1, 2, 3]], "X: expected real positions of shape"),
-    (np.where(X4 == 1, np.nan, X4), [[0, 1, 2, 3]], "X: non-finite"),
-    (X4, [[0, 1, 2]], r"T: expected integer tets of shape \(m, 4\)"),
-    (X4, [[0.0, 1.0, 2.0, 3.0]], "T: expected integer tets"),
-    (X4, [[0, 1, 2, 4]], r"T: node indices must lie in \[0, 4\)"),
-    (X4, np.zeros((0, 4), int), "T: expected at least one"),
-    (X4, [[0, 1, 2, 2]], "T: 1 degenerate"),
-    (np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], float), [[0, 1, 2, 3]], "T: 1 degenerate"),
-    (np.vstack([X4, [[5.0, 5.0, 5.0]]]), [[0, 1, 2, 3]], r"X: nodes \[4\] \(1 in all\) are in no tetrahedron"),
-])
+@pytest.mark.parametrize(
+    "X, T, match",
+    [
+        (X4[:, :2], [[0, 1, 2, 3]], "X: expected real positions of shape"),
+        (np.where(X4 == 1, np.nan, X4), [[0, 1, 2, 3]], "X: non-finite"),
+        (X4, [[0, 1, 2]], r"T: expected integer tets of shape \(m, 4\)"),
+        (X4, [[0.0, 1.0, 2.0, 3.0]], "T: expected integer tets"),
+        (X4, [[0, 1, 2, 4]], r"T: node indices must lie in \[0, 4\)"),
+        (X4, np.zeros((0, 4), int), "T: expected at least one"),
+        (X4, [[0, 1, 2, 2]], "T: 1 degenerate"),
+        (np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], float), [[0, 1, 2, 3]], "T: 1 degenerate"),
+        (np.vstack([X4, [[5.0, 5.0, 5.0]]]), [[0, 1, 2, 3]], r"X: nodes \[4\] \(1 in all\) are in no tetrahedron"),
+    ],
+)
 def test_tet_mesh_bad_input(X, T, match):
     with pytest.raises(ValueError, match=match):
         tet_mesh(X, T)
@@ -293,8 +302,13 @@ def test_read_tet_mesh_round_trip(tmp_path, suffix):
     np.testing.assert_array_equal(back.T, T)
     # a node in no tet (first) and a triangle block: the node is dropped, the rest renumbered
     extra = tmp_path / f"extra{suffix}"
-    meshio.write(extra, meshio.Mesh(np.vstack([[9.0, 9.0, 9.0], X]),
-                                    [("triangle", np.array([[0, 1, 2]])), ("tetra", T[:6] + 1), ("tetra", T[6:] + 1)]))
+    meshio.write(
+        extra,
+        meshio.Mesh(
+            np.vstack([[9.0, 9.0, 9.0], X]),
+            [("triangle", np.array([[0, 1, 2]])), ("tetra", T[:6] + 1), ("tetra", T[6:] + 1)],
+        ),
+    )
     back = read_tet_mesh(extra)
     np.testing.assert_array_equal(back.X, X)
     np.testing.assert_array_equal(back.T, T)

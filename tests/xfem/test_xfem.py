@@ -24,8 +24,10 @@ from xfem._xfem import xfem_model
 
 
 def _mass(system):
-    return sp.csr_matrix((np.asarray(system.mass_values), (np.asarray(system.mass_rows), np.asarray(system.mass_cols))),
-                         shape=(system.n, system.n))
+    return sp.csr_matrix(
+        (np.asarray(system.mass_values), (np.asarray(system.mass_rows), np.asarray(system.mass_cols))),
+        shape=(system.n, system.n),
+    )
 
 
 @pytest.mark.slow  # 16 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
@@ -88,8 +90,9 @@ def test_mass_after_cuts_is_body_minus_cuts():
     model.cut(plane((0.43, 0.5, 0.75), (1.0, 0.06, -0.03)))
     X, T = np.asarray(mesh.X), np.asarray(mesh.T)
     F = boundary_faces(T)
-    body = manifold3d.Manifold(manifold3d.Mesh64(vert_properties=np.array(X, np.float64),
-                                                 tri_verts=np.array(F, np.uint64)))
+    body = manifold3d.Manifold(
+        manifold3d.Mesh64(vert_properties=np.array(X, np.float64), tri_verts=np.array(F, np.uint64))
+    )
     volume = body.volume() - (body ^ cut).volume()
     system = model.system()
     _, _, piece_volume, _, load = model.piece_arrays()
