@@ -86,13 +86,17 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 from _report import RATIO_UNIT, add_json_argument, print_device, write_json  # noqa: E402
 
 import xfem._backward_euler as be  # noqa: E402
+from xfem import (  # noqa: E402  # noqa: E402
+    Material,  # noqa: E402
+    cut_system,
+    plane_cut_solid,  # noqa: E402
+    plane_cuts,
+    rollout,  # noqa: E402
+    run_scene,
+    scene,
+    xfem_model,  # noqa: E402
+)
 from xfem._capacity import padded_state, wait_for_compilations  # noqa: E402
-from xfem._cut_system import cut_system, plane_cuts  # noqa: E402
-from xfem._cuts import plane_cut_solid  # noqa: E402
-from xfem._material import Material  # noqa: E402
-from xfem._rollout import rollout  # noqa: E402
-from xfem._scenes import run_scene, scene  # noqa: E402
-from xfem._xfem import xfem_model  # noqa: E402
 
 SCENES = ("sticks", "thin", "accordion")
 FIGURES = ("table", "rollout", "memory")

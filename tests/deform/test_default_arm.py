@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from deform._default_arm import default_arm
+from deform import default_arm
 
 
 @pytest.fixture(scope="module")

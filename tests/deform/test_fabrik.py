@@ -11,8 +11,15 @@ import numpy as np
 import pytest
 
 import jaxcga as cga
-from deform import motor_field_solve, spline_fit_precompute, spline_fit_solve, spline_precompute
-from deform._fabrik import chain_motors, fabrik, rotor_between
+from deform import (
+    chain_motors,
+    fabrik,
+    motor_field_solve,
+    rotor_between,
+    spline_fit_precompute,
+    spline_fit_solve,
+    spline_precompute,
+)
 from jaxcga import Multivector
 from tests.deform.test_spline import tube
 from tests.shared import check_gradient

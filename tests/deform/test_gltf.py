@@ -15,9 +15,7 @@ import pygltflib
 import pytest
 import trimesh
 
-from deform import rest_pose, skin_model
-from deform._gltf import load_model, save_model, weld
-from deform._model import SkinnedMesh
+from deform import SkinnedMesh, load_model, rest_pose, save_model, skin_model, weld
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 MODELS = ["Arm5", "3Cylinder4bones", "PlaneWith3Bones", "RiggedSimple", "CesiumMan"]

@@ -30,9 +30,8 @@ from _jaxcga_shared.sparse import (
 )
 from tests.shared import check_gradient
 from tests.xfem._models import MATERIAL, RHO, H, deformed_state, plane, tall_box
+from xfem import backward_euler_step, fem_from_mesh, xfem_model
 from xfem._assembly import assemble_matrix, to_scipy
-from xfem._backward_euler import backward_euler_step, fem_from_mesh
-from xfem._xfem import xfem_model
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 ARM5 = deform.load_model(DATA / "Arm5.glb", weld=True).mesh

@@ -4,10 +4,7 @@ points, and the material and step constants."""
 import jax.numpy as jnp
 import numpy as np
 
-from xfem._backward_euler import State
-from xfem._cuts import plane_cut_solid
-from xfem._material import Material
-from xfem._tetmesh import box_tets
+from xfem import Material, State, box_tets, plane_cut_solid
 
 RHO, EPS, H = 1e3, 1e-3, 0.01
 MATERIAL = Material(2.5e6, 0.25)  # Lamé mu = lam = 1e6

@@ -12,6 +12,7 @@ import pytest
 import scipy.sparse as sp
 
 from tests.shared import assert_same_run
+from xfem import box_tets, consistent_mass
 from xfem._assembly import (
     assemble_matrix,
     assemble_scalar,
@@ -22,8 +23,6 @@ from xfem._assembly import (
     scalar_slots,
     to_scipy,
 )
-from xfem._linear_tet import consistent_mass
-from xfem._tetmesh import box_tets
 
 MESH = box_tets((2, 2, 1))
 T = np.asarray(MESH.T)

@@ -16,6 +16,16 @@ import pytest
 import scipy.optimize
 import scipy.sparse as sp
 
+from xfem import (
+    Material,
+    body_force,
+    box_tets,
+    consistent_mass,
+    element_energy,
+    five_tet_cube,
+    lumped_mass,
+    shape_gradients,
+)
 from xfem._assembly import CapacityError
 from xfem._backward_euler import (
     State,
@@ -26,10 +36,6 @@ from xfem._backward_euler import (
     fem_from_mesh,
     fem_system,
 )
-from xfem._linear_tet import body_force, consistent_mass, lumped_mass, shape_gradients
-from xfem._material import Material
-from xfem._neohookean import element_energy
-from xfem._tetmesh import box_tets, five_tet_cube
 
 H = 0.033
 MATERIAL = Material(1e6, 0.4)

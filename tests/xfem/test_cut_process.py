@@ -17,11 +17,11 @@ import pytest
 
 import xfem._background
 from tests.xfem._models import MATERIAL, RHO, G, H, plane, tall_box
+from xfem import xfem_model
 from xfem._background import _ENTRY, BackgroundCuts
 from xfem._cut_process import CutProcess, CutProcessError
 from xfem._framing import decode, encode, portable, read_frame, write_frame
 from xfem._subdomains import MeshSolid, pack_meshes, solid_mesh, unpack_meshes
-from xfem._xfem import xfem_model
 
 CUTS = [
     dict(point=(0.5, 0.5, 0.61), normal=(0.07, -0.04, 1.0)),

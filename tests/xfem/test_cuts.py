@@ -10,8 +10,8 @@ import trimesh
 from scipy.spatial.transform import Rotation
 
 import jaxcga as cga
-from xfem._cuts import cut_solid as make_cut_solid
-from xfem._cuts import plane_cut_solid, sweep_between, swept_surface, thicken
+from xfem import cut_solid as make_cut_solid
+from xfem import plane_cut_solid, sweep_between, swept_surface, thicken
 
 
 def _triangle_areas(V, F):

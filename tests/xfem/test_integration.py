@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 import trimesh
 
+from xfem import body_force, consistent_mass
 from xfem._integration import (
     Moments,
     element_piece_integrals,
@@ -19,7 +20,6 @@ from xfem._integration import (
     moments_of_pieces,
     polyhedron_moments,
 )
-from xfem._linear_tet import body_force, consistent_mass
 
 RNG = np.random.default_rng(11)
 TET_FACES = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]])  # outward for a positively oriented tet

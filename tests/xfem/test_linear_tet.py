@@ -12,8 +12,7 @@ import numpy as np
 import pytest
 
 from tests.shared import check_gradient
-from xfem._linear_tet import body_force, consistent_mass, lumped_mass, shape_functions, shape_gradients
-from xfem._tetmesh import box_tets, one_tet, tet_mesh
+from xfem import body_force, box_tets, consistent_mass, lumped_mass, one_tet, shape_functions, shape_gradients, tet_mesh
 
 RNG = np.random.default_rng(7)
 # 40 independent random tets (reoriented by tet_mesh) and a small box mesh with jittered nodes

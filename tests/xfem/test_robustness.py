@@ -27,11 +27,7 @@ import pytest
 
 from tests.shared import assert_same_run
 from tests.xfem._models import deformed_state, random_points
-from xfem._backward_euler import mechanical_energy
-from xfem._cuts import plane_cut_solid
-from xfem._material import Material
-from xfem._tetmesh import box_tets, one_tet
-from xfem._xfem import xfem_model
+from xfem import Material, box_tets, mechanical_energy, one_tet, plane_cut_solid, xfem_model
 
 RHO, EPS, PERTURB = 1e3, 1e-3, 1e-7
 H, G = 0.033, 9.81

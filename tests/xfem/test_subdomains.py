@@ -8,10 +8,7 @@ import manifold3d
 import numpy as np
 import pytest
 
-from xfem._cuts import plane_cut_solid
-from xfem._integration import polyhedron_moments
-from xfem._subdomains import apply_cut, subdomains
-from xfem._tetmesh import boundary_faces, box_tets, five_tet_cube
+from xfem import apply_cut, boundary_faces, box_tets, five_tet_cube, plane_cut_solid, polyhedron_moments, subdomains
 
 EPS = 1e-3
 

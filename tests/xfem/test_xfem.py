@@ -16,11 +16,17 @@ import scipy.sparse as sp
 
 from tests.shared import assert_same_run
 from tests.xfem._models import EPS, MATERIAL, NORMAL, POINT, RHO, G, H, deformed_state, plane, random_points, tall_box
-from xfem._background import BackgroundCuts
-from xfem._backward_euler import State, backward_euler_step, fem_from_mesh
+from xfem import (
+    BackgroundCuts,
+    State,
+    backward_euler_step,
+    boundary_faces,
+    box_tets,
+    fem_from_mesh,
+    five_tet_cube,
+    xfem_model,
+)
 from xfem._capacity import _COMPILED, wait_for_compilations
-from xfem._tetmesh import boundary_faces, box_tets, five_tet_cube
-from xfem._xfem import xfem_model
 
 
 def _mass(system):
