@@ -1,0 +1,46 @@
+"""The public surface of the library packages: every public function and class method is annotated (arguments and
+return), and what a package exports is its own (defined in the package, not a re-export of a helper from
+another)."""
+
+from __future__ import annotations
+
+import inspect
+
+import pytest
+
+import cutting
+import deform
+import jaxcga
+import xfem
+
+PACKAGES = {"jaxcga": jaxcga, "deform": deform, "cutting": cutting, "xfem": xfem}
+
+
+def _public(package):
+    for name in package.__all__:
+        value = getattr(package, name)
+        if inspect.isfunction(value):
+            yield name, value
+        elif inspect.isclass(value):
+            for attribute, member in vars(value).items():
+                if inspect.isfunction(member) and (not attribute.startswith("_") or attribute == "__init__"):
+                    yield f"{name}.{attribute}", member
+
+
+@pytest.mark.parametrize("package", sorted(PACKAGES))
+def test_every_public_function_is_annotated(package):
+    missing = []
+    for name, fn in _public(PACKAGES[package]):
+        if fn.__module__.split(".")[0] != package:
+            continue  # a class defined elsewhere (equinox's generated methods, a re-export)
+        signature = inspect.signature(fn)
+        unannotated = [
+            p.name
+            for p in signature.parameters.values()
+            if p.annotation is inspect.Parameter.empty
+            and p.name not in ("self", "cls")
+            and p.kind not in (p.VAR_POSITIONAL, p.VAR_KEYWORD)
+        ]
+        if unannotated or (signature.return_annotation is inspect.Signature.empty and not name.endswith("__init__")):
+            missing.append(f"{name}({', '.join(unannotated)}){'' if unannotated else ' -> ?'}")
+    assert not missing, f"{package}: not fully annotated: " + "; ".join(missing)
