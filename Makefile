@@ -4,7 +4,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test test-slow bench bench-gpu install clean
+.PHONY: demo test test-slow lint bench bench-gpu install clean
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -27,6 +27,12 @@ test: $(STAMP)
 test-slow: $(STAMP)
 	$(PY) -m pytest -n 2 -m slow tests
 	$(PY) -m pytest -n 2 --nbmake notebooks
+
+## Lint, format and type checks (CI runs them): ruff on the tree, pyright (basic) on the library packages.
+lint: $(STAMP)
+	$(VENV)/bin/ruff check .
+	$(VENV)/bin/ruff format --check .
+	$(VENV)/bin/pyright
 
 ## Benchmarks: print figures and ratios, write JSON to out/bench/.
 bench: $(STAMP)
