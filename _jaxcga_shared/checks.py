@@ -6,10 +6,13 @@ from __future__ import annotations
 import dataclasses
 import functools
 import re
+from typing import TypeVar
 
 import equinox as eqx
 import jax
+import jax.core
 import jax.numpy as jnp
+from jaxtyping import ArrayLike
 
 from _jaxcga_shared.host import host_call
 
@@ -17,7 +20,9 @@ from _jaxcga_shared.host import host_call
 # ``JAX_PLATFORMS=cuda`` there is none, and a failing check raised "failed to find a local CPU device" instead of
 # its message. A check here raises from a ``host_call`` (the backend's own callback, no CPU device) that runs
 # only when the check fails; its message is kept here too, since a GPU's error text adds XLA's context to it.
-_FAILED = {"message": None}
+_FAILED: dict[str, str | None] = {"message": None}
+
+_T = TypeVar("_T")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -46,7 +51,7 @@ def _checked_jvp(message, primals, tangents):
     return _checked(x, flag, message), tangents[0]
 
 
-def require(x, *checks):
+def require(x: _T, *checks: tuple[ArrayLike, str]) -> _T:
     """Value checks, pairs ``(bad, message)``: a ``ValueError`` on concrete input; inside jit, vmap or grad
     (traced flags) a runtime error with the message, raised when ``x`` is computed (under vmap when any batch
     element is bad). Returns ``x`` (to be used, so the traced check is kept)."""

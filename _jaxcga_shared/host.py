@@ -12,6 +12,7 @@ import sys
 import jax
 import jax._src.callback
 import jax._src.dispatch
+import jax.core
 import jax.extend.core
 import jax.interpreters.batching
 import jax.interpreters.mlir

@@ -91,6 +91,7 @@ def per_platform(
             differentiated=differentiated,
             float32=float32,
         )
-        return functools.update_wrapper(kernel, fn, updated=())
+        functools.update_wrapper(kernel, fn, updated=())
+        return kernel
 
     return wrap

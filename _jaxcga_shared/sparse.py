@@ -197,7 +197,7 @@ class PCGInfo(eqx.Module):
     """
 
     iterations: Int[Array, ""]
-    relative_residual: Float[Array, ...]
+    relative_residual: Float[Array, "*k"]
     converged: Array
     breakdown: Array
 
@@ -315,7 +315,8 @@ def spd_solve(
 def _spd_examples() -> list[Example]:
     """A 1-D Laplacian plus a mass term, 3 DOFs per node with coupled blocks (the FEM's block structure)."""
     m = 12
-    L = sp.diags([-1.0, 2.1, -1.0], [-1, 0, 1], shape=(m, m))
+    # scipy is not annotated: pyright takes the type of ``offsets`` from its default, 0
+    L = sp.diags([-1.0, 2.1, -1.0], [-1, 0, 1], shape=(m, m))  # pyright: ignore[reportArgumentType]
     block = np.array([[2.0, 0.5, 0.1], [0.5, 1.5, 0.2], [0.1, 0.2, 1.0]])
     A = sp.csr_matrix(sp.kron(L, block) + sp.identity(3 * m))
     b = np.random.default_rng(0).normal(size=3 * m)
@@ -354,11 +355,13 @@ class SparseSolver:
 
     def __init__(self, A, symmetric: bool = False, device_rtol: float = DEVICE_RTOL):
         A = sp.csr_matrix(A, dtype=np.float64)
-        if A.ndim != 2 or A.shape[0] != A.shape[1]:
-            raise ValueError(f"A: expected a square sparse matrix, got shape {A.shape}")
-        if A.shape[0] == 0:
+        # scipy is not annotated: pyright infers from its code that a matrix's shape may be None
+        shape: tuple[int, ...] = A.shape  # pyright: ignore[reportAssignmentType]
+        if A.ndim != 2 or shape[0] != shape[1]:
+            raise ValueError(f"A: expected a square sparse matrix, got shape {shape}")
+        if shape[0] == 0:
             raise ValueError("A: the system is empty")
-        self.n = A.shape[0]
+        self.n = shape[0]
         self.symmetric = symmetric
         if symmetric and abs(A - A.T).max() > 1e-12 * abs(A).max():
             raise ValueError("A: symmetric=True but the matrix is not symmetric")

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import functools
 import itertools
+from collections.abc import Iterable, Iterator
 from fractions import Fraction
 
 import numpy as np
@@ -55,7 +56,7 @@ ALL_BLADES: tuple[int, ...] = tuple(sorted(range(N_BLADES), key=_canonical_key))
 BLADE_BY_NAME: dict[str, int] = {blade_name(b): b for b in ALL_BLADES}
 
 
-def sort_blades(blades) -> tuple[int, ...]:
+def sort_blades(blades: Iterable[int]) -> tuple[int, ...]:
     """A set of blades in canonical order, without repeats."""
     return tuple(sorted(set(blades), key=_canonical_key))
 
@@ -64,7 +65,7 @@ def blades_of_grades(*grades: int) -> tuple[int, ...]:
     return tuple(b for b in ALL_BLADES if grade_of(b) in grades)
 
 
-def parse_blades(names) -> tuple[int, ...]:
+def parse_blades(names: Iterable[str]) -> tuple[int, ...]:
     """Blade names such as ``("1", "e12", "e1inf")`` to bitmasks, keeping the given order."""
     try:
         return tuple(BLADE_BY_NAME[n] for n in names)
@@ -133,7 +134,7 @@ def _ortho_to_null() -> np.ndarray:
     inverse = np.linalg.inv(forward)
     exact = np.empty_like(inverse, dtype=object)
     for idx, value in np.ndenumerate(inverse):
-        exact[idx] = Fraction(value).limit_denominator(64)
+        exact[idx] = Fraction(float(value)).limit_denominator(64)
     return exact
 
 
@@ -214,5 +215,7 @@ def pseudoscalar_terms() -> dict[int, Fraction]:
     return {PSEUDOSCALAR: Fraction(-1)}
 
 
-def all_pairs(blades_a, blades_b):
+def all_pairs(
+    blades_a: tuple[int, ...], blades_b: tuple[int, ...]
+) -> Iterator[tuple[tuple[int, int], tuple[int, int]]]:
     return itertools.product(enumerate(blades_a), enumerate(blades_b))

@@ -11,18 +11,28 @@ XLA fuses them into one elementwise loop, which is what makes a per-point sandwi
 from __future__ import annotations
 
 import functools
+import operator
+from collections.abc import Sequence
 from fractions import Fraction
+from typing import Protocol
 
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array
 
 from jaxcga import _algebra as alg
 
 Terms = tuple[tuple[int, tuple[tuple[tuple[int, ...], float], ...]], ...]
 
 
+class Columns(Protocol):
+    """A factor of the generated terms: its idx-th component (an array of batch shape) by ``columns[idx]``."""
+
+    def __getitem__(self, idx: int, /) -> Array: ...
+
+
 @functools.cache
-def bilinear_terms(kind: str, blades_a: tuple[int, ...], blades_b: tuple[int, ...]):
+def bilinear_terms(kind: str, blades_a: tuple[int, ...], blades_b: tuple[int, ...]) -> Terms:
     """((out_blade, ((ia, ib), coef), ...), ...) for the product ``kind`` of the two blade sets."""
     acc: dict[int, dict[tuple[int, int], Fraction]] = {}
     for (ia, a), (ib, b) in alg.all_pairs(blades_a, blades_b):
@@ -33,7 +43,9 @@ def bilinear_terms(kind: str, blades_a: tuple[int, ...], blades_b: tuple[int, ..
 
 
 @functools.cache
-def bilinear_tensor(kind: str, blades_a: tuple[int, ...], blades_b: tuple[int, ...]):
+def bilinear_tensor(
+    kind: str, blades_a: tuple[int, ...], blades_b: tuple[int, ...]
+) -> tuple[tuple[int, ...], np.ndarray]:
     """The same product as a dense structure tensor: (out_blades, T) with ``T[ia, ib, k]`` the
     coefficient of ``out_blades[k]`` in ``a[ia] b[ib]`` (for ``table_product``)."""
     terms = bilinear_terms(kind, blades_a, blades_b)
@@ -46,7 +58,7 @@ def bilinear_tensor(kind: str, blades_a: tuple[int, ...], blades_b: tuple[int, .
 
 
 @functools.cache
-def sandwich_terms(blades_v: tuple[int, ...], blades_x: tuple[int, ...]):
+def sandwich_terms(blades_v: tuple[int, ...], blades_x: tuple[int, ...]) -> Terms:
     """Terms of <V X ~V> projected on the grades of X, as ((out, ((i, j, l), coef), ...), ...),
     meaning sum coef * V[i] * V[j] * X[l] with i <= j."""
     grades = {alg.grade_of(b) for b in blades_x}
@@ -64,7 +76,7 @@ def sandwich_terms(blades_v: tuple[int, ...], blades_x: tuple[int, ...]):
     return _finish(acc)
 
 
-def _finish(acc) -> Terms:
+def _finish(acc: dict[int, dict]) -> Terms:
     out = []
     for blade in alg.sort_blades(acc):
         terms = tuple((key, float(c)) for key, c in sorted(acc[blade].items()) if c != 0)
@@ -73,7 +85,7 @@ def _finish(acc) -> Terms:
     return tuple(out)
 
 
-def emit(terms: Terms, factors, shape_hint):
+def emit(terms: Terms, factors: Sequence[Columns], shape_hint: tuple[int, ...]) -> tuple[tuple[int, ...], list[Array]]:
     """Evaluate generated terms. ``factors[p][idx]`` is the idx-th component (an array) of the p-th
     factor of each term. Returns the tuple of output blades and one array per output blade.
 
@@ -81,7 +93,7 @@ def emit(terms: Terms, factors, shape_hint):
     +-1 or +-2), which saves a multiply per term on the hot path."""
     columns = []
     for _, blade_terms in terms:
-        groups: dict[float, object] = {}
+        groups: dict[float, Array] = {}
         for key, coef in blade_terms:
             prod = factors[0][key[0]]
             for p in range(1, len(key)):
@@ -91,10 +103,7 @@ def emit(terms: Terms, factors, shape_hint):
                 groups[mag] = groups[mag] + prod if coef > 0 else groups[mag] - prod
             else:
                 groups[mag] = prod if coef > 0 else -prod
-        acc = None
-        for mag, total in groups.items():
-            term = total if mag == 1.0 else mag * total
-            acc = term if acc is None else acc + term
+        acc = functools.reduce(operator.add, [total if mag == 1.0 else mag * total for mag, total in groups.items()])
         columns.append(jnp.broadcast_to(acc, shape_hint) if acc.shape != shape_hint else acc)
     return tuple(b for b, _ in terms), columns
 
@@ -102,11 +111,11 @@ def emit(terms: Terms, factors, shape_hint):
 class LazyColumns:
     """``values[..., i]`` on first use, so unused components of a factor cost nothing."""
 
-    def __init__(self, values):
+    def __init__(self, values: Array):
         self._values = values
-        self._cache: dict[int, object] = {}
+        self._cache: dict[int, Array] = {}
 
-    def __getitem__(self, i):
+    def __getitem__(self, i: int) -> Array:
         if i not in self._cache:
             self._cache[i] = self._values[..., i]
         return self._cache[i]

@@ -9,14 +9,18 @@ while the largest eigenvalue is simple, i.e. the points are not degenerate)."""
 from __future__ import annotations
 
 import jax.numpy as jnp
-from jaxtyping import Array, Float
+from jaxtyping import ArrayLike, Float
 
 from jaxcga._multivector import Multivector
 from jaxcga._objects import check_finite, check_vectors
 from jaxcga._versors import apply_to_points, motor, quaternion_to_rotor
 
 
-def align_points(source: Float[Array, "... n 3"], target: Float[Array, "... n 3"], weights=None) -> Multivector:
+def align_points(
+    source: Float[ArrayLike, "... n 3"],
+    target: Float[ArrayLike, "... n 3"],
+    weights: Float[ArrayLike, "... n"] | None = None,
+) -> Multivector:
     """Motor M minimizing sum_i w_i |M(source_i) - target_i|^2.
 
     Args:

@@ -18,7 +18,10 @@ for pure translations (no sqrt(0) on any differentiated path).
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import jax.numpy as jnp
+from jaxtyping import Array, Bool, Float
 
 from _jaxcga_shared.checks import require
 from jaxcga import _algebra as alg
@@ -33,12 +36,19 @@ _SCALAR_P = alg.parse_blades(("1", "e123inf"))
 _SERIES_BELOW = 1e-2  # squared angle below which Taylor series replace the closed forms
 
 
-def _where_small(x, small, series, closed):
+def _where_small(
+    x: Float[Array, "*shape"],
+    small: Bool[Array, "*shape"],
+    series: Callable[[Array], Array],
+    closed: Callable[[Array], Array],
+) -> Float[Array, "*shape"]:
     """``series(x)`` where ``small`` else ``closed(x)``, with safe inputs on both branches."""
     return jnp.where(small, series(jnp.where(small, x, 0.0)), closed(jnp.where(small, 1.0, x)))
 
 
-def _cos_sinc_g(x):
+def _cos_sinc_g(
+    x: Float[Array, "*shape"],
+) -> tuple[Float[Array, "*shape"], Float[Array, "*shape"], Float[Array, "*shape"]]:
     """cos(sqrt x), sin(sqrt x)/sqrt x and (cos - sinc)/x, analytic in x >= 0."""
     small = x < _SERIES_BELOW
     cos = _where_small(
@@ -59,7 +69,7 @@ def _cos_sinc_g(x):
     return cos, sinc, g
 
 
-def _require_generator(name: str, b: Multivector, blades: tuple[int, ...], what: str):
+def _require_generator(name: str, b: Multivector, blades: tuple[int, ...], what: str) -> None:
     if not isinstance(b, Multivector) or not set(b.blades) <= set(blades):
         raise ValueError(
             f"{name}: expected a {what} (a bivector on {[alg.blade_name(x) for x in blades]}), "
@@ -67,7 +77,7 @@ def _require_generator(name: str, b: Multivector, blades: tuple[int, ...], what:
         )
 
 
-def _scalar_p(s, p) -> Multivector:
+def _scalar_p(s: Float[Array, "*batch"], p: Float[Array, "*batch"]) -> Multivector:
     """The dual number s + p P as a multivector."""
     s, p = jnp.broadcast_arrays(s, p)
     return Multivector(jnp.stack([s, p], axis=-1), _SCALAR_P)
@@ -85,12 +95,14 @@ def exp_motor(b: Multivector) -> Multivector:
     return m.embed(KINDS["motor"])
 
 
-def _atan_ratio(u, a):
+def _atan_ratio(
+    u: Float[Array, "*shape"], a: Float[Array, "*shape"]
+) -> tuple[Float[Array, "*shape"], Float[Array, "*shape"]]:
     """theta / s and (theta / s - a) / s^2 for theta = atan2(s, a), s = sqrt(u), a^2 + u = 1."""
     small = (u < _SERIES_BELOW) & (a > 0)
     safe_a = jnp.where(small, a, 1.0)
 
-    def series(v):
+    def series(v: Array) -> tuple[Array, Array]:
         w2 = v / safe_a**2  # tan^2(theta)
         k = (1 - w2 / 3 + w2**2 / 5 - w2**3 / 7 + w2**4 / 9 - w2**5 / 11) / safe_a
         # (k - a) / u with 1 - a^2 = u substituted exactly.
@@ -104,7 +116,7 @@ def _atan_ratio(u, a):
         ) / safe_a
         return k, m
 
-    def closed(v):
+    def closed(v: Array) -> tuple[Array, Array]:
         s = jnp.sqrt(v)
         k = jnp.arctan2(s, a) / s
         return k, (k - a) / v
@@ -158,12 +170,14 @@ def log_motor(m: Multivector) -> Multivector:
 
 
 # ---------------------------------------------------------------- similitudes
-def _rotation_vector(b_rot):
+def _rotation_vector(b_rot: Float[Array, "... 3"]) -> Float[Array, "... 3"]:
     """w (the rotation vector) of a rotation generator with components (e12, e13, e23)."""
     return jnp.stack([-2 * b_rot[..., 2], 2 * b_rot[..., 1], -2 * b_rot[..., 0]], axis=-1)
 
 
-def _v_coefficients(lam, x):
+def _v_coefficients(
+    lam: Float[Array, "*shape"], x: Float[Array, "*shape"]
+) -> tuple[Float[Array, "*shape"], Float[Array, "*shape"], Float[Array, "*shape"]]:
     """a0, a1, a2 of V = int_0^1 e^{s lam} Rot(s w) ds = a0 I + a1 W + a2 W^2, with x = |w|^2."""
     z2 = lam * lam + x
     small = z2 < 1.0
@@ -196,13 +210,13 @@ def _v_coefficients(lam, x):
     return jnp.where(small, a0, phi0), jnp.where(small, a1, c1), jnp.where(small, a2, c2)
 
 
-def _apply_v(lam, w, v):
+def _apply_v(lam: Float[Array, "*batch"], w: Float[Array, "... 3"], v: Float[Array, "... 3"]) -> Float[Array, "... 3"]:
     a0, a1, a2 = _v_coefficients(lam, jnp.sum(w * w, axis=-1))
     wv = jnp.cross(w, v)
     return a0[..., None] * v + a1[..., None] * wv + a2[..., None] * jnp.cross(w, wv)
 
 
-def _v_matrix(lam, w):
+def _v_matrix(lam: Float[Array, "*batch"], w: Float[Array, "... 3"]) -> Float[Array, "... 3 3"]:
     a0, a1, a2 = _v_coefficients(lam, jnp.sum(w * w, axis=-1))
     zero = jnp.zeros_like(w[..., 0])
     W = jnp.stack(

@@ -9,19 +9,22 @@
 from __future__ import annotations
 
 import jax.numpy as jnp
+from jaxtyping import ArrayLike, Float
 
 from jaxcga._exp_log import exp, log
 from jaxcga._multivector import KINDS, Multivector, broadcast_batch
 from jaxcga._operations import normalize, versor_inverse
 
 
-def _check_pair(m1: Multivector, m2: Multivector):
+def _check_pair(m1: Multivector, m2: Multivector) -> None:
     if not isinstance(m1, Multivector) or not isinstance(m2, Multivector):
         raise ValueError("m1, m2: expected Multivectors")
     broadcast_batch("m1", m1.batch_shape, "m2", m2.batch_shape)
 
 
-def blend_linear(m1: Multivector, m2: Multivector, alpha, renormalize: bool = True) -> Multivector:
+def blend_linear(
+    m1: Multivector, m2: Multivector, alpha: Float[ArrayLike, "*batch"], renormalize: bool = True
+) -> Multivector:
     """``(1 - alpha) m1 + alpha m2``; with ``renormalize`` the result is a unit versor again.
 
     ``alpha`` broadcasts against the batch shape (an array of alphas gives a batch of blends)."""
@@ -37,7 +40,7 @@ def blend_linear(m1: Multivector, m2: Multivector, alpha, renormalize: bool = Tr
     return exp(log(out.embed(KINDS["similitude"])))
 
 
-def blend_log(m1: Multivector, m2: Multivector, alpha) -> Multivector:
+def blend_log(m1: Multivector, m2: Multivector, alpha: Float[ArrayLike, "*batch"]) -> Multivector:
     """``m1 exp(alpha log(m1^-1 m2))`` for motors or similitudes; symmetric under swapping
     (m1, alpha) with (m2, 1 - alpha)."""
     _check_pair(m1, m2)
@@ -49,7 +52,7 @@ def blend_log(m1: Multivector, m2: Multivector, alpha) -> Multivector:
     return (m1 * step).embed(blades)
 
 
-def blend_weighted(versors: Multivector, weights) -> Multivector:
+def blend_weighted(versors: Multivector, weights: Float[ArrayLike, "... k"]) -> Multivector:
     """``exp(sum_j w_j log V_j)`` (deformation paper eq. 1).
 
     Args:

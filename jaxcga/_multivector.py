@@ -7,11 +7,14 @@ two static blade sets (``_codegen``) and compute only structurally non-zero term
 from __future__ import annotations
 
 import functools
+from collections.abc import Callable, Sequence
+from types import EllipsisType
+from typing import Any, overload
 
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, ArrayLike, DTypeLike, Float
 
 from _jaxcga_shared.platform import example, per_platform
 from jaxcga import _algebra as alg
@@ -36,31 +39,38 @@ KINDS: dict[str, tuple[int, ...]] = {
 }
 
 
-def as_blades(blades) -> tuple[int, ...]:
+#: A blade set as the constructors take it: a kind name, blade names or bitmasks.
+Blades = str | Sequence[str] | Sequence[int]
+#: What indexes a multivector's batch axes (as numpy indexes an array).
+BatchIndex = int | slice | EllipsisType | None | ArrayLike | tuple[Any, ...]
+
+
+def as_blades(blades: Blades) -> tuple[int, ...]:
     """A kind name, a sequence of blade names, or a sequence of blade bitmasks, as bitmasks."""
     if isinstance(blades, str):
         if blades not in KINDS:
             raise ValueError(f"blades: unknown kind {blades!r}; expected one of {sorted(KINDS)}")
         return KINDS[blades]
-    blades = tuple(blades)
-    if all(isinstance(b, str) for b in blades):
-        blades = alg.parse_blades(blades)
-    elif not all(isinstance(b, (int, np.integer)) and 0 <= b < alg.N_BLADES for b in blades):
-        raise ValueError(f"blades: expected blade names or bitmasks in [0, 32), got {blades!r}")
-    blades = tuple(int(b) for b in blades)
-    if len(set(blades)) != len(blades):
-        raise ValueError(f"blades: repeated blade in {blades!r}")
-    return blades
+    items = tuple(blades)
+    names = [b for b in items if isinstance(b, str)]
+    if len(names) == len(items):
+        items = alg.parse_blades(names)
+    elif not all(isinstance(b, (int, np.integer)) and 0 <= b < alg.N_BLADES for b in items):
+        raise ValueError(f"blades: expected blade names or bitmasks in [0, 32), got {items!r}")
+    bits = tuple(int(b) for b in items)
+    if len(set(bits)) != len(bits):
+        raise ValueError(f"blades: repeated blade in {bits!r}")
+    return bits
 
 
-def _float_array(values):
+def _float_array(values: ArrayLike) -> Array:
     values = jnp.asarray(values)
     if not jnp.issubdtype(values.dtype, jnp.floating):
         values = values.astype(jnp.result_type(float))
     return values
 
 
-def broadcast_batch(name_a: str, shape_a, name_b: str, shape_b) -> tuple[int, ...]:
+def broadcast_batch(name_a: str, shape_a: Sequence[int], name_b: str, shape_b: Sequence[int]) -> tuple[int, ...]:
     try:
         return tuple(np.broadcast_shapes(tuple(shape_a), tuple(shape_b)))
     except ValueError:
@@ -85,7 +95,7 @@ class Multivector(eqx.Module):
     values: Float[Array, "... k"]
     blades: tuple[int, ...] = eqx.field(static=True)
 
-    def __init__(self, values, blades):
+    def __init__(self, values: Float[ArrayLike, "... k"], blades: Blades):
         blades = as_blades(blades)
         values = _float_array(values)
         if values.ndim == 0 or values.shape[-1] != len(blades):
@@ -102,14 +112,20 @@ class Multivector(eqx.Module):
         return self.values.shape[:-1]
 
     @property
-    def dtype(self):
+    def dtype(self) -> np.dtype:
         return self.values.dtype
 
     @property
     def names(self) -> tuple[str, ...]:
         return tuple(alg.blade_name(b) for b in self.blades)
 
-    def __getitem__(self, name):
+    @overload
+    def __getitem__(self, name: str) -> Float[Array, "*batch"]: ...
+
+    @overload
+    def __getitem__(self, name: BatchIndex) -> Multivector: ...
+
+    def __getitem__(self, name: str | BatchIndex) -> Float[Array, "*batch"] | Multivector:
         """``m["e12"]``: the coefficient of one blade (zero if the blade is not carried).
         Anything else indexes the batch axes: ``m[0]``, ``m[:, None]``, ``m[mask]``."""
         if not isinstance(name, str):
@@ -120,7 +136,7 @@ class Multivector(eqx.Module):
             return self.values[..., self.blades.index(blade)]
         return jnp.zeros(self.batch_shape, self.dtype)
 
-    def embed(self, blades) -> Multivector:
+    def embed(self, blades: Blades) -> Multivector:
         """The same multivector carried on a larger blade set (missing blades get zeros)."""
         blades = as_blades(blades)
         missing = set(self.blades) - set(blades)
@@ -133,7 +149,7 @@ class Multivector(eqx.Module):
         return _gather(self.values, self.blades, alg.ALL_BLADES)
 
     @classmethod
-    def from_full(cls, values) -> Multivector:
+    def from_full(cls, values: Float[ArrayLike, "... 32"]) -> Multivector:
         return cls(values, alg.ALL_BLADES)
 
     def grade(self, *grades: int) -> Multivector:
@@ -141,7 +157,7 @@ class Multivector(eqx.Module):
         keep = [i for i, b in enumerate(self.blades) if alg.grade_of(b) in grades]
         return Multivector(self.values[..., keep], tuple(self.blades[i] for i in keep))
 
-    def scalar(self):
+    def scalar(self) -> Float[Array, "*batch"]:
         """The scalar part as an array of batch shape."""
         return self["1"]
 
@@ -149,7 +165,7 @@ class Multivector(eqx.Module):
         return f"Multivector(blades={list(self.names)}, values={self.values!r})"
 
     # ---------------------------------------------------------------- linear
-    def __add__(self, other):
+    def __add__(self, other: Multivector | ArrayLike) -> Multivector:
         other = _coerce(other, self)
         broadcast_batch("a", self.batch_shape, "b", other.batch_shape)
         blades = alg.sort_blades(self.blades + other.blades)
@@ -161,16 +177,16 @@ class Multivector(eqx.Module):
 
     __radd__ = __add__
 
-    def __neg__(self):
+    def __neg__(self) -> Multivector:
         return Multivector(-self.values, self.blades)
 
-    def __sub__(self, other):
+    def __sub__(self, other: Multivector | ArrayLike) -> Multivector:
         return self + (-_coerce(other, self))
 
-    def __rsub__(self, other):
+    def __rsub__(self, other: ArrayLike) -> Multivector:
         return _coerce(other, self) - self
 
-    def __truediv__(self, other):
+    def __truediv__(self, other: Multivector | ArrayLike) -> Multivector:
         if isinstance(other, Multivector):
             from jaxcga._operations import inverse
 
@@ -178,49 +194,49 @@ class Multivector(eqx.Module):
         return Multivector(self.values / _scalar_field(other), self.blades)
 
     # ---------------------------------------------------------------- products
-    def __mul__(self, other):
+    def __mul__(self, other: Multivector | ArrayLike) -> Multivector:
         if not isinstance(other, Multivector):
             return Multivector(self.values * _scalar_field(other), self.blades)
         return product("geometric", self, other)
 
-    def __rmul__(self, other):
+    def __rmul__(self, other: ArrayLike) -> Multivector:
         return Multivector(self.values * _scalar_field(other), self.blades)
 
-    def __xor__(self, other):
+    def __xor__(self, other: Multivector | ArrayLike) -> Multivector:
         return product("outer", self, _coerce(other, self))
 
-    def __rxor__(self, other):
+    def __rxor__(self, other: ArrayLike) -> Multivector:
         return product("outer", _coerce(other, self), self)
 
-    def __or__(self, other):
+    def __or__(self, other: Multivector | ArrayLike) -> Multivector:
         return product("inner", self, _coerce(other, self))
 
-    def __ror__(self, other):
+    def __ror__(self, other: ArrayLike) -> Multivector:
         return product("inner", _coerce(other, self), self)
 
-    def __invert__(self):
+    def __invert__(self) -> Multivector:
         return Multivector(self.values * _signs(alg.reverse_sign, self.blades, self.dtype), self.blades)
 
-    def __rshift__(self, other):
+    def __rshift__(self, other: Multivector) -> Multivector:
         return sandwich(self, other)
 
 
-def _scalar_field(s):
+def _scalar_field(s: ArrayLike) -> Array:
     s = jnp.asarray(s)
     return s[..., None]
 
 
-def _coerce(x, like: Multivector) -> Multivector:
+def _coerce(x: Multivector | ArrayLike, like: Multivector) -> Multivector:
     if isinstance(x, Multivector):
         return x
     return Multivector(jnp.asarray(x, like.dtype)[..., None], (0,))
 
 
-def _signs(rule, blades, dtype):
+def _signs(rule: Callable[[int], int], blades: tuple[int, ...], dtype: DTypeLike) -> Array:
     return jnp.asarray(np.array([rule(b) for b in blades], dtype=float), dtype)
 
 
-def _gather(values, source: tuple[int, ...], target: tuple[int, ...]):
+def _gather(values: Array, source: tuple[int, ...], target: tuple[int, ...]) -> Array:
     """Reorder / zero-pad the last axis from blade set ``source`` to ``target`` (a superset)."""
     if source == target:
         return values
@@ -229,13 +245,13 @@ def _gather(values, source: tuple[int, ...], target: tuple[int, ...]):
     return jnp.stack([values[..., index[b]] if b in index else zero for b in target], axis=-1)
 
 
-def stack_columns(columns, batch_shape, dtype):
+def stack_columns(columns: Sequence[Array], batch_shape: tuple[int, ...], dtype: DTypeLike) -> Array:
     if not columns:
         return jnp.zeros(tuple(batch_shape) + (0,), dtype)
     return jnp.stack(columns, axis=-1)
 
 
-def _check_kind(kind: str):
+def _check_kind(kind: str) -> None:
     if kind not in alg.GRADE_RULES:
         raise ValueError(f"kind: expected one of {sorted(alg.GRADE_RULES)}, got {kind!r}")
 
@@ -316,7 +332,7 @@ def _pseudoscalar() -> tuple[tuple[int, ...], np.ndarray]:
     return tuple(terms), np.array([float(c) for c in terms.values()])
 
 
-def pseudoscalar(dtype=None) -> Multivector:
+def pseudoscalar(dtype: DTypeLike | None = None) -> Multivector:
     """The paper's pseudoscalar I = e1^e2^e3^e+^e- (eq. 6); I * I = -1."""
     blades, values = _pseudoscalar()
     return Multivector(jnp.asarray(values, dtype or jnp.result_type(float)), blades)

@@ -15,7 +15,7 @@ Every constructor returns a ``Multivector`` with a batch shape broadcast from it
 from __future__ import annotations
 
 import jax.numpy as jnp
-from jaxtyping import Array, Float
+from jaxtyping import Array, ArrayLike, DTypeLike, Float
 
 from _jaxcga_shared.checks import require
 from jaxcga import _algebra as alg
@@ -36,7 +36,7 @@ from jaxcga._operations import (
 POINT_BLADES = alg.parse_blades(("e1", "e2", "e3", "eo", "einf"))
 
 
-def check_vectors(name: str, x, size: int = 3):
+def check_vectors(name: str, x: ArrayLike, size: int = 3) -> Float[Array, "... size"]:
     """``x`` as a float array of shape (..., size), or a ValueError naming ``name``."""
     x = jnp.asarray(x)
     if not jnp.issubdtype(x.dtype, jnp.floating):
@@ -46,16 +46,16 @@ def check_vectors(name: str, x, size: int = 3):
     return x
 
 
-def check_finite(name: str, x):
+def check_finite(name: str, x: Float[Array, "*shape"]) -> Float[Array, "*shape"]:
     """A ValueError when ``x`` holds NaN or infinity (inside jit a runtime error with the message)."""
     return require(x, (~jnp.all(jnp.isfinite(x)), f"{name}: non-finite values (NaN or inf)"))
 
 
-def _euclidean_checked(name: str, x):
+def _euclidean_checked(name: str, x: ArrayLike) -> Float[Array, "... 3"]:
     return check_finite(name, check_vectors(name, x))
 
 
-def _vector(e123, eo, einf) -> Multivector:
+def _vector(e123: Float[Array, "... 3"], eo: Float[ArrayLike, "*batch"], einf: Float[Array, "*batch"]) -> Multivector:
     batch = broadcast_batch("components", e123.shape[:-1], "components", jnp.shape(einf))
     e123 = jnp.broadcast_to(e123, batch + (3,))
     eo = jnp.broadcast_to(jnp.asarray(eo, e123.dtype), batch)
@@ -63,7 +63,7 @@ def _vector(e123, eo, einf) -> Multivector:
     return Multivector(jnp.concatenate([e123, eo[..., None], einf[..., None]], axis=-1), POINT_BLADES)
 
 
-def up(x: Float[Array, "... 3"]) -> Multivector:
+def up(x: Float[ArrayLike, "... 3"]) -> Multivector:
     """Up-projection of Euclidean points, X = x + |x|^2/2 einf + eo (eq. 3)."""
     x = _euclidean_checked("x", x)
     return _vector(x, 1.0, 0.5 * jnp.sum(x * x, axis=-1))
@@ -77,7 +77,7 @@ def down(X: Multivector) -> Float[Array, "... 3"]:
     return jnp.stack([X["e1"], X["e2"], X["e3"]], axis=-1) / w[..., None]
 
 
-def sphere(center: Float[Array, "... 3"], radius: Float[Array, ...]) -> Multivector:
+def sphere(center: Float[ArrayLike, "... 3"], radius: Float[ArrayLike, "*batch"]) -> Multivector:
     """Sphere in vector form, S = X - r^2/2 einf (eq. 4). A negative r^2 is an imaginary sphere; pass
     ``radius`` >= 0 here."""
     c = _euclidean_checked("center", center)
@@ -86,7 +86,7 @@ def sphere(center: Float[Array, "... 3"], radius: Float[Array, ...]) -> Multivec
     return _vector(c, 1.0, 0.5 * (jnp.sum(c * c, axis=-1) - r * r))
 
 
-def plane(normal: Float[Array, "... 3"], distance: Float[Array, ...]) -> Multivector:
+def plane(normal: Float[ArrayLike, "... 3"], distance: Float[ArrayLike, "*batch"]) -> Multivector:
     """Plane in vector form, P = n + d einf (eq. 5): the points x with x . n = d (n is normalized)."""
     n = _euclidean_checked("normal", normal)
     d = check_finite("distance", jnp.asarray(distance, n.dtype))
@@ -95,17 +95,17 @@ def plane(normal: Float[Array, "... 3"], distance: Float[Array, ...]) -> Multive
     return _vector(n / length[..., None], 0.0, d)
 
 
-def _require_vector(name: str, m: Multivector):
+def _require_vector(name: str, m: Multivector) -> None:
     if not isinstance(m, Multivector) or any(alg.grade_of(b) != 1 for b in m.blades):
         raise ValueError(f"{name}: expected a grade-1 Multivector (a conformal vector)")
 
 
-def _require_grade(name: str, m: Multivector, grade: int, what: str):
+def _require_grade(name: str, m: Multivector, grade: int, what: str) -> None:
     if not isinstance(m, Multivector) or any(alg.grade_of(b) != grade for b in m.blades):
         raise ValueError(f"{name}: expected {what}, a grade-{grade} Multivector")
 
 
-def _einf(dtype) -> Multivector:
+def _einf(dtype: DTypeLike) -> Multivector:
     return basis_vector("einf", dtype)
 
 
@@ -136,25 +136,25 @@ def sphere_through(a: Multivector, b: Multivector, c: Multivector, d: Multivecto
 
 
 # ---------------------------------------------------------------- distances
-def squared_distance(a: Multivector, b: Multivector):
+def squared_distance(a: Multivector, b: Multivector) -> Float[Array, "*batch"]:
     """|x - y|^2 = -2 X . Y / (X_eo Y_eo) for conformal points of any scale (sec. 2.2)."""
     _require_vector("a", a)
     _require_vector("b", b)
     return -2.0 * scalar_product(a, b) / (a["eo"] * b["eo"])
 
 
-def distance(a: Multivector, b: Multivector):
+def distance(a: Multivector, b: Multivector) -> Float[Array, "*batch"]:
     """Euclidean distance between two conformal points."""
     return _safe_sqrt_abs(jnp.maximum(squared_distance(a, b), 0.0))
 
 
-def plane_signed_distance(plane_vector: Multivector, X: Multivector):
+def plane_signed_distance(plane_vector: Multivector, X: Multivector) -> Float[Array, "*batch"]:
     """Signed distance of a point from a plane given in vector form: X . P = x . n - d."""
     _require_vector("plane_vector", plane_vector)
     return scalar_product(X, plane_vector) / X["eo"]
 
 
-def sphere_power(sphere_vector: Multivector, X: Multivector):
+def sphere_power(sphere_vector: Multivector, X: Multivector) -> Float[Array, "*batch"]:
     """X . S / X_eo = (r^2 - |x - c|^2) / 2: positive inside the sphere, zero on it, negative outside."""
     _require_vector("sphere_vector", sphere_vector)
     return scalar_product(X, sphere_vector) / (X["eo"] * sphere_vector["eo"])
@@ -169,7 +169,7 @@ def _as_vector_form(name: str, m: Multivector) -> Multivector:
     return m
 
 
-def sphere_center_radius(S: Multivector):
+def sphere_center_radius(S: Multivector) -> tuple[Float[Array, "... 3"], Float[Array, "*batch"]]:
     """(center (..., 3), radius (...)) of a sphere in vector or direct form. An imaginary sphere
     (r^2 < 0) gets a negative radius: -sqrt(-r^2)."""
     S = _as_vector_form("S", S)
@@ -180,7 +180,7 @@ def sphere_center_radius(S: Multivector):
     return c, jnp.sign(r2) * _safe_sqrt_abs(r2)
 
 
-def plane_normal_distance(P: Multivector):
+def plane_normal_distance(P: Multivector) -> tuple[Float[Array, "... 3"], Float[Array, "*batch"]]:
     """(unit normal (..., 3), distance (...)) of a plane in vector or direct form, x . n = d."""
     P = _as_vector_form("P", P)
     n = jnp.stack([P["e1"], P["e2"], P["e3"]], axis=-1)
@@ -189,7 +189,7 @@ def plane_normal_distance(P: Multivector):
     return n / length[..., None], P["einf"] / length
 
 
-def line_point_direction(L: Multivector):
+def line_point_direction(L: Multivector) -> tuple[Float[Array, "... 3"], Float[Array, "... 3"]]:
     """(point of the line closest to the origin (..., 3), unit direction (..., 3)) of a line in
     direct form ``a ^ b ^ einf``; the direction points from a to b."""
     _require_grade("L", L, 3, "a line in direct form")
@@ -204,7 +204,7 @@ def line_point_direction(L: Multivector):
     return jnp.cross(m / length[..., None], u), u
 
 
-def round_radius2(X: Multivector):
+def round_radius2(X: Multivector) -> Float[Array, "*batch"]:
     """Squared radius of a round (point pair, circle or sphere) in direct form:
     <X X^> / <K K> with K = einf _| X and ^ the grade involution; negative for imaginary rounds.
     (With K^ in the denominator the sign would flip for point pairs and spheres, whose K has odd
@@ -213,14 +213,16 @@ def round_radius2(X: Multivector):
     return scalar_product(X, involution(X)) / scalar_product(K, K)
 
 
-def round_center(X: Multivector):
+def round_center(X: Multivector) -> Float[Array, "... 3"]:
     """Center (..., 3) of a round in direct form: X einf X is the flat point at the center."""
     S = (X * _einf(X.dtype) * X).grade(1)
     center, _ = sphere_center_radius(S)
     return center
 
 
-def circle_center_radius_normal(C: Multivector):
+def circle_center_radius_normal(
+    C: Multivector,
+) -> tuple[Float[Array, "... 3"], Float[Array, "*batch"], Float[Array, "... 3"]]:
     """(center (..., 3), radius (...), unit normal (..., 3)) of a circle in direct form ``a ^ b ^ c``."""
     _require_grade("C", C, 3, "a circle in direct form")
     r2 = round_radius2(C)
@@ -228,7 +230,7 @@ def circle_center_radius_normal(C: Multivector):
     return round_center(C), jnp.sign(r2) * _safe_sqrt_abs(r2), n
 
 
-def point_pair_points(T: Multivector):
+def point_pair_points(T: Multivector) -> Float[Array, "... 2 3"]:
     """The two Euclidean points (..., 2, 3) of a point pair in direct form ``a ^ b``:
     (T -/+ sqrt(T . T)) (einf _| T), down-projected. Imaginary pairs give non-finite output and an
     error."""

@@ -7,14 +7,17 @@ broadcast over leading batch axes.
 from __future__ import annotations
 
 import functools
+from collections.abc import Sequence
 
 import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Bool, DTypeLike, Float
 
 from _jaxcga_shared.checks import require
 from jaxcga import _algebra as alg
 from jaxcga import _codegen
 from jaxcga._multivector import (
     KINDS,
+    Blades,
     Multivector,
     _signs,
     as_blades,
@@ -45,7 +48,7 @@ def inner(a: Multivector, b: Multivector) -> Multivector:
     return product("inner", a, b)
 
 
-def scalar_product(a: Multivector, b: Multivector):
+def scalar_product(a: Multivector, b: Multivector) -> Float[Array, "*batch"]:
     """Scalar part of ``a b``, as an array of batch shape."""
     out = product("scalar", a, b)
     return out.values[..., 0] if out.blades else jnp.zeros(out.batch_shape, out.dtype)
@@ -94,19 +97,19 @@ def grade(m: Multivector, *grades: int) -> Multivector:
     return m.grade(*grades)
 
 
-def norm2(m: Multivector):
+def norm2(m: Multivector) -> Float[Array, "*batch"]:
     """``<~m m>_0`` (may be negative in this mixed-signature algebra)."""
     return scalar_product(~m, m)
 
 
-def _safe_sqrt_abs(x):
+def _safe_sqrt_abs(x: Float[Array, "*shape"]) -> Float[Array, "*shape"]:
     # sqrt has an infinite derivative at 0; the double where keeps gradients finite there.
     ax = jnp.abs(x)
     positive = ax > 0
     return jnp.where(positive, jnp.sqrt(jnp.where(positive, ax, 1.0)), 0.0)
 
 
-def norm(m: Multivector):
+def norm(m: Multivector) -> Float[Array, "*batch"]:
     """``sqrt(|<~m m>_0|)``, as clifford's ``abs``."""
     return _safe_sqrt_abs(norm2(m))
 
@@ -122,7 +125,7 @@ def normalize(m: Multivector) -> Multivector:
 
 
 @functools.cache
-def _motor_blades():
+def _motor_blades() -> tuple[int, ...]:
     return KINDS["motor"]
 
 
@@ -181,21 +184,21 @@ def inverse(m: Multivector) -> Multivector:
     return Multivector(x, blades)
 
 
-def zeros(blades, batch_shape=(), dtype=None) -> Multivector:
+def zeros(blades: Blades, batch_shape: Sequence[int] = (), dtype: DTypeLike | None = None) -> Multivector:
     blades = as_blades(blades)
     return Multivector(jnp.zeros(tuple(batch_shape) + (len(blades),), dtype or jnp.result_type(float)), blades)
 
 
-def scalar(value, dtype=None) -> Multivector:
+def scalar(value: Float[ArrayLike, "*batch"], dtype: DTypeLike | None = None) -> Multivector:
     """A (batch of) scalar multivector(s)."""
     value = jnp.asarray(value, dtype or jnp.result_type(float))
     return Multivector(value[..., None], (0,))
 
 
-def basis_vector(name: str, dtype=None) -> Multivector:
+def basis_vector(name: str, dtype: DTypeLike | None = None) -> Multivector:
     """One basis blade by name, e.g. ``basis_vector("einf")`` or ``basis_vector("e12")``."""
     return Multivector(jnp.ones((1,), dtype or jnp.result_type(float)), (name,))
 
 
-def is_finite(m: Multivector):
+def is_finite(m: Multivector) -> Bool[Array, ""]:
     return jnp.all(jnp.isfinite(m.values))

@@ -16,15 +16,17 @@ Conventions (checked against scipy's rotations in the tests):
 from __future__ import annotations
 
 import functools
+import operator
+from collections.abc import Iterator
 from fractions import Fraction
 
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, ArrayLike, Float
 
 from _jaxcga_shared.checks import require
-from _jaxcga_shared.platform import example, per_platform
+from _jaxcga_shared.platform import Example, example, per_platform
 from jaxcga import _algebra as alg
 from jaxcga import _codegen
 from jaxcga._multivector import KINDS, Multivector, broadcast_batch
@@ -33,19 +35,21 @@ from jaxcga._objects import POINT_BLADES, check_finite, check_vectors
 _ROTOR = KINDS["rotor"]  # 1, e12, e13, e23
 
 
-def _stack(*columns, blades):
+def _stack(*columns: Float[Array, "*batch"], blades: tuple[int, ...]) -> Multivector:
     batch = jnp.broadcast_shapes(*(jnp.shape(c) for c in columns))
     return Multivector(jnp.stack([jnp.broadcast_to(c, batch) for c in columns], axis=-1), blades)
 
 
-def translator(t: Float[Array, "... 3"]) -> Multivector:
+def translator(t: Float[ArrayLike, "... 3"]) -> Multivector:
     """Translator ``T = 1 - t einf / 2`` by the Euclidean vector t (eq. 10)."""
     t = check_finite("t", check_vectors("t", t))
     one = jnp.ones(t.shape[:-1], t.dtype)
     return _stack(one, -0.5 * t[..., 0], -0.5 * t[..., 1], -0.5 * t[..., 2], blades=KINDS["translator"])
 
 
-def _rotor_in_plane(name: str, plane, angle, what: str) -> Multivector:
+def _rotor_in_plane(
+    name: str, plane: Float[Array, "... 3"], angle: Float[ArrayLike, "*batch"], what: str
+) -> Multivector:
     """``exp(-b angle / 2)`` for the Euclidean bivector b = plane (e12, e13, e23), normalized here."""
     angle = check_finite("angle", jnp.asarray(angle, plane.dtype))
     length = jnp.linalg.norm(plane, axis=-1)
@@ -55,7 +59,7 @@ def _rotor_in_plane(name: str, plane, angle, what: str) -> Multivector:
     return _stack(c, -s * b[..., 0], -s * b[..., 1], -s * b[..., 2], blades=_ROTOR)
 
 
-def rotor(axis: Float[Array, "... 3"], angle: Float[Array, ...]) -> Multivector:
+def rotor(axis: Float[ArrayLike, "... 3"], angle: Float[ArrayLike, "*batch"]) -> Multivector:
     """Rotor by ``angle`` (radians, right-handed) about ``axis`` (normalized here), eq. 8:
     the rotation plane is u I3 = u1 e23 - u2 e13 + u3 e12."""
     u = check_finite("axis", check_vectors("axis", axis))
@@ -63,20 +67,20 @@ def rotor(axis: Float[Array, "... 3"], angle: Float[Array, ...]) -> Multivector:
     return _rotor_in_plane("axis", plane, angle, "rotation axis")
 
 
-def rotor_from_bivector(plane: Float[Array, "... 3"], angle: Float[Array, ...]) -> Multivector:
+def rotor_from_bivector(plane: Float[ArrayLike, "... 3"], angle: Float[ArrayLike, "*batch"]) -> Multivector:
     """Rotor ``exp(-b angle / 2)`` in the plane of the Euclidean bivector b with components
     (e12, e13, e23) (normalized here), eq. 8."""
     b = check_finite("plane", check_vectors("plane", plane))
     return _rotor_in_plane("plane", b, angle, "bivector")
 
 
-def _float_scalar(value):
+def _float_scalar(value: ArrayLike) -> Float[Array, "*batch"]:
     """Keep a floating input's dtype (float32 stays float32); integers become the default float."""
     value = jnp.asarray(value)
     return value if jnp.issubdtype(value.dtype, jnp.floating) else value.astype(jnp.result_type(float))
 
 
-def dilator(scale: Float[Array, ...]) -> Multivector:
+def dilator(scale: Float[ArrayLike, "*batch"]) -> Multivector:
     """Normalized dilator about the origin by the factor ``scale`` > 0 (eq. 12-13)."""
     d = check_finite("scale", _float_scalar(scale))
     d = require(d, (jnp.any(d <= 0), "scale: dilation factor must be > 0"))
@@ -84,28 +88,30 @@ def dilator(scale: Float[Array, ...]) -> Multivector:
     return _stack((1 + d) / (2 * root), (d - 1) / (2 * root), blades=KINDS["dilator"])
 
 
-def dilator_paper(scale) -> Multivector:
+def dilator_paper(scale: Float[ArrayLike, "*batch"]) -> Multivector:
     """The paper's un-normalized dilator ``D = 1 + (1 - d)/(1 + d) einf^eo`` (eq. 12)."""
     d = _float_scalar(scale)
     return _stack(jnp.ones_like(d), (d - 1) / (d + 1), blades=KINDS["dilator"])
 
 
-def _require_blades(name: str, m: Multivector, kind: str):
+def _require_blades(name: str, m: Multivector, kind: str) -> None:
     if not isinstance(m, Multivector) or not set(m.blades) <= set(KINDS[kind]):
         raise ValueError(f"{name}: expected a {kind} Multivector (blades {list(_names(kind))})")
 
 
-def _names(kind):
+def _names(kind: str) -> Iterator[str]:
     return (alg.blade_name(b) for b in KINDS[kind])
 
 
-def motor(rotation: Multivector, translation: Float[Array, "... 3"]) -> Multivector:
+def motor(rotation: Multivector, translation: Float[ArrayLike, "... 3"]) -> Multivector:
     """Motor ``T R``: rotate by the rotor, then translate by ``translation``."""
     _require_blades("rotation", rotation, "rotor")
     return (translator(translation) * rotation).embed(KINDS["motor"])
 
 
-def similitude(rotation: Multivector, translation: Float[Array, "... 3"], scale) -> Multivector:
+def similitude(
+    rotation: Multivector, translation: Float[ArrayLike, "... 3"], scale: Float[ArrayLike, "*batch"]
+) -> Multivector:
     """Similitude ``T R D``: x -> scale R x + translation (16 even components)."""
     _require_blades("rotation", rotation, "rotor")
     return (translator(translation) * rotation * dilator(scale)).embed(KINDS["similitude"])
@@ -122,7 +128,7 @@ def _factored_pairs(blades_v: tuple[int, ...]) -> tuple[tuple[int, int], ...]:
 
 
 @functools.cache
-def _point_map(blades_v: tuple[int, ...]):
+def _point_map(blades_v: tuple[int, ...]) -> dict[tuple[int, int], tuple[tuple[tuple[int, int], float], ...]]:
     """Generated affine form of ``V X ~V`` on up-projected points. Rows e1, e2, e3, eo of the output,
     columns e1, e2, e3, eo (=1), einf (=|x|^2/2) of the input: {(row, col): ((i, j), coef)...}.
 
@@ -134,7 +140,7 @@ def _point_map(blades_v: tuple[int, ...]):
     rows = {b: k for k, b in enumerate(POINT_BLADES[:4])}
     pairs = _factored_pairs(blades_v)
     # v_X = (z_X + z_Y) / 2 and v_Y = (z_X - z_Y) / 2 in the factored components z
-    substitute = {i: ((i, Fraction(1)),) for i in range(len(blades_v))}
+    substitute: dict[int, tuple[tuple[int, Fraction], ...]] = {i: ((i, Fraction(1)),) for i in range(len(blades_v))}
     for x, y in pairs:
         substitute[x] = ((x, Fraction(1, 2)), (y, Fraction(1, 2)))
         substitute[y] = ((x, Fraction(1, 2)), (y, Fraction(-1, 2)))
@@ -158,12 +164,12 @@ def _point_map(blades_v: tuple[int, ...]):
 class _FactoredColumns:
     """V's factored components (``_point_map``), each computed on first use from the stored ones."""
 
-    def __init__(self, columns, pairs):
+    def __init__(self, columns: _codegen.Columns, pairs: tuple[tuple[int, int], ...]):
         self._columns = columns
         self._pairs = {x: (x, y, 1) for x, y in pairs} | {y: (x, y, -1) for x, y in pairs}
-        self._cache: dict[int, object] = {}
+        self._cache: dict[int, Array] = {}
 
-    def __getitem__(self, i):
+    def __getitem__(self, i: int) -> Array:
         if i not in self._pairs:
             return self._columns[i]
         if i not in self._cache:
@@ -172,8 +178,8 @@ class _FactoredColumns:
         return self._cache[i]
 
 
-def _map_entries(v: Multivector, columns=None):
-    cols = _codegen.LazyColumns(v.values) if columns is None else columns
+def _map_entries(v: Multivector, columns: _codegen.Columns | None = None) -> dict[tuple[int, int], Array]:
+    cols: _codegen.Columns = _codegen.LazyColumns(v.values) if columns is None else columns
     pairs = _factored_pairs(v.blades)
     if pairs:
         cols = _FactoredColumns(cols, pairs)
@@ -184,25 +190,34 @@ def _map_entries(v: Multivector, columns=None):
     return entries
 
 
-def fused_point_coordinates(v: Multivector, x: Float[Array, "... 3"], batch: tuple[int, ...]) -> list:
+def fused_point_coordinates(
+    v: Multivector, x: Float[Array, "... 3"], batch: tuple[int, ...]
+) -> list[Float[Array, "*batch"]]:
     """The three coordinates (each of shape ``batch``) of ``apply_to_points(v, x, fused=True)``, written
     elementwise so that XLA fuses them with the computation of v; the caller chooses how to stack them
     (e.g. coordinate-major, then moved last: XLA:CPU's transpose emitter runs that 1.3x faster than a
     stack along the last axis for per-vertex blended motors)."""
     a = _map_entries(v)
-    xs = [x[..., 0], x[..., 1], x[..., 2]]
-    sq = 0.5 * (xs[0] ** 2 + xs[1] ** 2 + xs[2] ** 2) if any(col == 4 for (_, col) in a) else None
-    inputs = xs + [None, sq]
-
-    def fused_row(r):
-        terms = [a[(r, c)] if c == 3 else a[(r, c)] * inputs[c] for c in range(5) if (r, c) in a]
-        return functools.reduce(lambda p, q: p + q, terms)
-
-    inv_w = 1.0 / fused_row(3)
-    return [jnp.broadcast_to(fused_row(k) * inv_w, batch) for k in range(3)]
+    inputs = _map_inputs(a, [x[..., 0], x[..., 1], x[..., 2]])
+    inv_w = 1.0 / _map_row(a, inputs, 3)
+    return [jnp.broadcast_to(_map_row(a, inputs, k) * inv_w, batch) for k in range(3)]
 
 
-def _apply_examples():
+def _map_inputs(a: dict[tuple[int, int], Array], xs: list[Array]) -> dict[int, Array]:
+    """The map's input columns but eo (= 1): e1, e2, e3 (the coordinates xs) and einf (|x|^2 / 2, where used)."""
+    inputs = dict(enumerate(xs))
+    if any(col == 4 for (_, col) in a):
+        inputs[4] = 0.5 * (xs[0] ** 2 + xs[1] ** 2 + xs[2] ** 2)
+    return inputs
+
+
+def _map_row(a: dict[tuple[int, int], Array], inputs: dict[int, Array], r: int) -> Array:
+    """Row r of the affine map ``a`` (``_map_entries``) applied to the input columns."""
+    terms = [a[(r, c)] if c == 3 else a[(r, c)] * inputs[c] for c in range(5) if (r, c) in a]
+    return functools.reduce(operator.add, terms)
+
+
+def _apply_examples() -> list[Example]:
     # a module that imports this one
     from jaxcga._exp_log import MOTOR_GENERATOR, SIMILITUDE_GENERATOR, exp_motor, exp_similitude
 
@@ -219,42 +234,32 @@ def _apply_examples():
     ]
 
 
-def _point_major(v: Multivector, x):
+def _point_major(v: Multivector, x: Float[Array, "... 3"]) -> Float[Array, "... 3"]:
     """Point-major: three coordinates, written elementwise and stacked last, left for XLA to fuse."""
     batch = broadcast_batch("v", v.batch_shape, "x", x.shape[:-1])
     return jnp.stack(fused_point_coordinates(v, x, batch), axis=-1)
 
 
 @per_platform("apply_to_points", gpu=_point_major, examples=_apply_examples)
-def _component_major(v: Multivector, x):
+def _component_major(v: Multivector, x: Float[Array, "... 3"]) -> Float[Array, "... 3"]:
     """Component-major: XLA:CPU then vectorizes the generated arithmetic along the points (measured 2-3x
     faster than on the interleaved (..., k) layout); the barriers keep XLA from fusing the transposes back
     into the arithmetic. On a GPU the layout changes and barriers cost more than they save."""
     batch = broadcast_batch("v", v.batch_shape, "x", x.shape[:-1])
     v_rows, x_rows = jax.lax.optimization_barrier((jnp.moveaxis(v.values, -1, 0), jnp.moveaxis(x, -1, 0)))
     a = _map_entries(v, columns=v_rows)
-    xs = [x_rows[0], x_rows[1], x_rows[2]]
-    needs_sq = any(col == 4 for (_, col) in a)
-    inputs = xs + [None, 0.5 * (xs[0] ** 2 + xs[1] ** 2 + xs[2] ** 2) if needs_sq else None]
-
-    def row(r):
-        acc = None
-        for col in range(5):
-            if (r, col) not in a:
-                continue
-            term = a[(r, col)] if col == 3 else a[(r, col)] * inputs[col]
-            acc = term if acc is None else acc + term
-        return acc
-
-    inv_w = 1.0 / row(3)
+    inputs = _map_inputs(a, [x_rows[0], x_rows[1], x_rows[2]])
+    inv_w = 1.0 / _map_row(a, inputs, 3)
     # Three separate outputs form one multi-output loop that shares the generated products between
     # the rows; a stacked output would recompute them for every coordinate.
-    rows = jax.lax.optimization_barrier(tuple(jnp.broadcast_to(row(k) * inv_w, batch) for k in range(3)))
+    rows = jax.lax.optimization_barrier(
+        tuple(jnp.broadcast_to(_map_row(a, inputs, k) * inv_w, batch) for k in range(3))
+    )
     out = jax.lax.optimization_barrier(jnp.stack(rows, axis=0))
     return jnp.moveaxis(out, 0, -1)
 
 
-def apply_to_points(v: Multivector, x: Float[Array, "... 3"], fused: bool = False) -> Float[Array, "... 3"]:
+def apply_to_points(v: Multivector, x: Float[ArrayLike, "... 3"], fused: bool = False) -> Float[Array, "... 3"]:
     """Apply a versor (rotor, translator, dilator, motor, similitude) to Euclidean points: the
     sandwich ``V up(x) V^-1`` down-projected, evaluated as the affine map whose entries are generated
     from V's components. Batch shapes of v and x broadcast: one motor per point or one for all.
@@ -306,16 +311,16 @@ def rotor_to_quaternion(r: Multivector) -> Float[Array, "... 4"]:
     return jnp.stack([r["1"], -r["e23"], r["e13"], -r["e12"]], axis=-1)
 
 
-def quaternion_to_rotor(q: Float[Array, "... 4"]) -> Multivector:
+def quaternion_to_rotor(q: Float[ArrayLike, "... 4"]) -> Multivector:
     """Rotor of a quaternion (w, x, y, z) (normalized here)."""
     q = check_finite("q", check_vectors("q", q, 4))
     length = jnp.linalg.norm(q, axis=-1)
     length = require(length, (jnp.any(length == 0), "q: zero quaternion"))
-    q = q / length[..., None]
-    return _stack(q[..., 0], -q[..., 3], q[..., 2], -q[..., 1], blades=_ROTOR)
+    unit = q / length[..., None]
+    return _stack(unit[..., 0], -unit[..., 3], unit[..., 2], -unit[..., 1], blades=_ROTOR)
 
 
-def _quat_mul(p, q):
+def _quat_mul(p: Float[Array, "... 4"], q: Float[Array, "... 4"]) -> Float[Array, "... 4"]:
     pw, px, py, pz = (p[..., i] for i in range(4))
     qw, qx, qy, qz = (q[..., i] for i in range(4))
     return jnp.stack(
@@ -329,7 +334,7 @@ def _quat_mul(p, q):
     )
 
 
-def motor_rotor_translation(m: Multivector):
+def motor_rotor_translation(m: Multivector) -> tuple[Multivector, Float[Array, "... 3"]]:
     """Split a motor ``M = T R`` into its rotor R (a Multivector) and translation t (..., 3)."""
     _require_blades("m", m, "motor")
     m = m.embed(KINDS["motor"])
@@ -349,7 +354,7 @@ def motor_to_dual_quaternion(m: Multivector) -> Float[Array, "... 8"]:
     return jnp.concatenate([q, 0.5 * _quat_mul(t_quat, q)], axis=-1)
 
 
-def dual_quaternion_to_motor(dq: Float[Array, "... 8"]) -> Multivector:
+def dual_quaternion_to_motor(dq: Float[ArrayLike, "... 8"]) -> Multivector:
     """Motor of a unit dual quaternion (real part, dual part), translation t = 2 q_d q_r^*."""
     dq = check_finite("dq", check_vectors("dq", dq, 8))
     q, qd = dq[..., :4], dq[..., 4:]
@@ -360,10 +365,10 @@ def dual_quaternion_to_motor(dq: Float[Array, "... 8"]) -> Multivector:
     return motor(quaternion_to_rotor(q), t)
 
 
-def matrix_to_quaternion(rotation: Float[Array, "... 3 3"]) -> Float[Array, "... 4"]:
+def matrix_to_quaternion(rotation: Float[ArrayLike, "... 3 3"]) -> Float[Array, "... 4"]:
     """Quaternion (w, x, y, z), w >= 0, of a rotation matrix (Shepperd's method: the best-
     conditioned of four formulas, chosen per matrix)."""
-    m = rotation
+    m = jnp.asarray(rotation)
     tr = m[..., 0, 0] + m[..., 1, 1] + m[..., 2, 2]
     cands = jnp.stack(
         [
@@ -407,7 +412,7 @@ def matrix_to_quaternion(rotation: Float[Array, "... 3 3"]) -> Float[Array, "...
     return q * jnp.where(q[..., :1] < 0, -1.0, 1.0)
 
 
-def matrix_to_motor(matrix: Float[Array, "... 4 4"]) -> Multivector:
+def matrix_to_motor(matrix: Float[ArrayLike, "... 4 4"]) -> Multivector:
     """Motor of a rigid homogeneous 4x4 matrix (rotation block must be orthonormal, det +1)."""
     matrix = jnp.asarray(matrix)
     if matrix.ndim < 2 or matrix.shape[-2:] not in ((4, 4), (3, 4)):
@@ -419,7 +424,7 @@ def matrix_to_motor(matrix: Float[Array, "... 4 4"]) -> Multivector:
     return motor(quaternion_to_rotor(matrix_to_quaternion(rot)), matrix[..., :3, 3])
 
 
-def matrix_to_similitude(matrix: Float[Array, "... 4 4"], tolerance: float = 1e-5) -> Multivector:
+def matrix_to_similitude(matrix: Float[ArrayLike, "... 4 4"], tolerance: float = 1e-5) -> Multivector:
     """Similitude ``T R D`` of a homogeneous matrix ``[s Q | t]`` with Q a rotation and s > 0 a
     uniform scale (glTF inverse bind matrices, node matrices with uniform scale).
 
