@@ -35,13 +35,16 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from collections.abc import Sequence
 from typing import NamedTuple
 
 import igl
 import jax.numpy as jnp
 import manifold3d
 import numpy as np
+import numpy.typing as npt
 import scipy.sparse as sp
+from jaxtyping import Array, Float, Int
 from scipy.sparse.csgraph import connected_components
 
 from xfem._backward_euler import FEMSystem, State, fem_system
@@ -88,7 +91,7 @@ def _nearest_subdomain(meshes: list[tuple[np.ndarray, ...]], points: np.ndarray)
         at = np.flatnonzero(boxed[s] & (chosen < 0))
         if len(at):
             V, F = meshes[s][:2]
-            chosen[at[igl.winding_number(V, F, points[at]) > 0.5]] = s
+            chosen[at[np.asarray(igl.winding_number(V, F, points[at])) > 0.5]] = s  # igl's stubs: ArrayLike
     rest = np.flatnonzero(chosen < 0)
     if len(rest):
         distance = np.stack([igl.point_mesh_squared_distance(points[rest], V, F)[0] for V, F, _, _ in meshes])
@@ -405,14 +408,14 @@ class XFEMModel:
             self._level = self._padded.level
         return self._padded
 
-    def replay(self, cuts) -> None:
+    def replay(self, cuts: Sequence[tuple[MeshSolid, float, bool]]) -> None:
         """Make the cuts of another model of the same mesh (its ``cuts`` log: mesh solid, perturb, parallel), in
         order, with the same options: the Booleans are deterministic, so this model's subdomains and numbering
         become that model's (a worker's replica, a copy to cut further)."""
         for solid, perturb, parallel in cuts:
             self.cut(solid, perturb, parallel)
 
-    def step(self, h, material: Material, newton_iterations: int = 1) -> State:
+    def step(self, h: float | Float[Array, ""], material: Material, newton_iterations: int = 1) -> State:
         """One backward Euler step (eq. 10, Algorithm 1 line 26) of the current system; updates and returns
         ``state``. material: the ``Material`` (scalar parameters).
 
@@ -423,7 +426,8 @@ class XFEMModel:
         padded = self.padded_system()
         options = (h, material, int(newton_iterations))
         step = compiled(self._capacities, padded, padded.level, *options, background=False)
-        stepped = step(padded.system, padded_state(self.state, padded.n, padded.system.n), h, material)
+        # compiled(background=False) returns the step (built here if its background build failed)
+        stepped = step(padded.system, padded_state(self.state, padded.n, padded.system.n), h, material)  # pyright: ignore[reportOptionalCall]
         # host views of the result, sliced (a JAX slice would compile anew for every DOF count)
         self.state = State(np.asarray(stepped.x)[: padded.n], np.asarray(stepped.v)[: padded.n])
         self._step_options = options
@@ -545,7 +549,9 @@ class XFEMModel:
                 result[at] += c[at, a, None] * values[dofs]
         return result
 
-    def displacement_at(self, points, elements) -> np.ndarray:
+    def displacement_at(
+        self, points: Float[npt.ArrayLike, "k 3"], elements: Int[npt.ArrayLike, " k"]
+    ) -> Float[np.ndarray, "k 3"]:
         """u(X) = sum_i sum_s u_i^s phi_i(X) psi_i^s(X) (eq. 18), u_i^s = x_i^s - X_i.
 
         Args:
@@ -556,7 +562,9 @@ class XFEMModel:
         """
         return self._field(np.asarray(self.state.x) - self.X[self.dof_node], points, elements)
 
-    def velocity_at(self, points, elements) -> np.ndarray:
+    def velocity_at(
+        self, points: Float[npt.ArrayLike, "k 3"], elements: Int[npt.ArrayLike, " k"]
+    ) -> Float[np.ndarray, "k 3"]:
         """The velocity field of eq. 18 (coefficients v_i^s) at points (k, 3) in elements (k,); (k, 3)."""
         return self._field(np.asarray(self.state.v), points, elements)
 
@@ -576,7 +584,13 @@ class XFEMModel:
         return self.components()[0]
 
 
-def xfem_model(mesh: TetMesh, density, gravity=(0.0, 0.0, -9.81), fixed=(), state: State | None = None) -> XFEMModel:
+def xfem_model(
+    mesh: TetMesh,
+    density: float | Float[npt.ArrayLike, " m"],
+    gravity: Float[npt.ArrayLike, " 3"] = (0.0, 0.0, -9.81),
+    fixed: Int[npt.ArrayLike, " nb"] = (),
+    state: State | None = None,
+) -> XFEMModel:
     """An uncut XFEM model: one DOF per node (its 1-ring), one piece per tet.
 
     Args:
