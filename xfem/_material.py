@@ -9,8 +9,9 @@ from __future__ import annotations
 
 import equinox as eqx
 import jax
+import jax.core
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, ArrayLike, Float
 
 from xfem._neohookean import lame
 
@@ -43,6 +44,6 @@ class Material(eqx.Module):
                 raise ValueError(f"young, poisson: shapes {young.shape} and {poisson.shape} do not broadcast") from None
             lame(young, poisson)
 
-    def lame(self) -> tuple[Float[Array, ...], Float[Array, ...]]:
+    def lame(self) -> tuple[Float[ArrayLike, ...], Float[ArrayLike, ...]]:
         """The Lamé parameters ``(mu, lam) = (E / (2 (1 + nu)), E nu / ((1 + nu)(1 - 2 nu)))`` (``xfem.lame``)."""
         return lame(self.young, self.poisson)

@@ -603,7 +603,7 @@ def run_scene(
 
     def commit(record: FrameRecord, due: list) -> None:
         start = time.perf_counter()
-        reports = background.commit(until=due[-1][2])
+        reports = background.commit(until=due[-1][2])  # pyright: ignore[reportOptionalMemberAccess]  # cuts pend only with a background
         record.cut_seconds += time.perf_counter() - start
         for (_, scheduled, _), report in zip(due, reports):
             took_effect(record, scheduled, report)
@@ -618,7 +618,7 @@ def run_scene(
             record.cuts_started += 1
             record.cutting = True
             start = time.perf_counter()
-            if cut_latency:
+            if background is not None:  # cut_latency > 0
                 pending.append((frame + cut_latency, scheduled, background.submit(scheduled.solid, scheduled.perturb)))
                 record.cut_seconds += time.perf_counter() - start
             else:

@@ -335,8 +335,9 @@ class Subdomains:
         if self._nodes.solids[sid] is None:  # an unbuilt subdomain is the initial one, whose id is the node
             self._build_initial([sid], ())
         elif isinstance(self._nodes.solids[sid], MeshSolid):
-            self._nodes.solids[sid] = self._nodes.solids[sid].build()
-        return self._nodes.solids[sid]
+            # pyright does not narrow solids[sid] (a variable index): a MeshSolid here, a Manifold once built
+            self._nodes.solids[sid] = self._nodes.solids[sid].build()  # pyright: ignore[reportAttributeAccessIssue, reportOptionalMemberAccess]
+        return self._nodes.solids[sid]  # pyright: ignore[reportReturnType]
 
     def element_solid(self, sid: int) -> manifold3d.Manifold:
         """The closed solid of current element subdomain sid (built on first use for an uncut tet)."""
@@ -345,8 +346,9 @@ class Subdomains:
         if self._elements.solids[sid] is None:
             self._build_initial((), [sid])
         elif isinstance(self._elements.solids[sid], MeshSolid):
-            self._elements.solids[sid] = self._elements.solids[sid].build()
-        return self._elements.solids[sid]
+            # as in node_solid
+            self._elements.solids[sid] = self._elements.solids[sid].build()  # pyright: ignore[reportAttributeAccessIssue, reportOptionalMemberAccess]
+        return self._elements.solids[sid]  # pyright: ignore[reportReturnType]
 
     def _build_initial(self, node_sids, element_sids) -> None:
         """Build the solids of the given subdomains that are initial and not built yet, in one vectorized pass:
@@ -607,7 +609,7 @@ def _candidates(sub: Subdomains, cut: manifold3d.Manifold) -> tuple[np.ndarray, 
         hit = _tet_triangle_overlap(sub.X[sub.T[boxed[k]]], triangles[start + j], slack)
         near[k[hit]] = True
     far = boxed[~near]
-    inside = igl.winding_number(V, F, sub.X[sub.T[far, 0]]) > 0.5
+    inside = np.asarray(igl.winding_number(V, F, sub.X[sub.T[far, 0]])) > 0.5  # igl's stubs: ArrayLike
     return boxed, np.sort(np.concatenate([boxed[near], far[inside]]))
 
 
