@@ -339,8 +339,8 @@ class _Theta(eqx.Module):
 
     x: Float[Array, "n 3"]  # x_t
     v: Float[Array, "n 3"]  # v_t
-    mu: Float[Array, ...]
-    lam: Float[Array, ...]
+    mu: Float[Array, "*#batch"]
+    lam: Float[Array, "*#batch"]
     fixed_positions: Float[Array, "nb 3"]
     force: Float[Array, "n 3"]
     grads: Float[Array, "m 4 3"]

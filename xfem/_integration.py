@@ -47,9 +47,9 @@ class Moments(NamedTuple):
         second: (..., 3, 3) ``int (X - o)(X - o)^T``, symmetric.
     """
 
-    volume: Float[np.ndarray, ...]
-    first: Float[np.ndarray, "... 3"]
-    second: Float[np.ndarray, "... 3 3"]
+    volume: Float[np.ndarray, "*batch"]
+    first: Float[np.ndarray, "*batch 3"]
+    second: Float[np.ndarray, "*batch 3 3"]
 
 
 def _host_real(x, shape: tuple, name: str, what: str) -> np.ndarray:
@@ -227,11 +227,11 @@ def linear_shape_coefficients(Xe, origin=None) -> tuple[np.ndarray, np.ndarray]:
 
 
 def element_piece_integrals(
-    c: Float[npt.ArrayLike, "... 4"],
-    g: Float[npt.ArrayLike, "... 4 3"],
+    c: Float[npt.ArrayLike, "*#batch 4"],
+    g: Float[npt.ArrayLike, "*#batch 4 3"],
     moments: Moments,
-    density: float | Float[npt.ArrayLike, ...] = 1.0,
-) -> tuple[Float[np.ndarray, "... 4 4"], Float[np.ndarray, "... 4"], Float[np.ndarray, ...]]:
+    density: float | Float[npt.ArrayLike, "*#batch"] = 1.0,
+) -> tuple[Float[np.ndarray, "*batch 4 4"], Float[np.ndarray, "*batch 4"], Float[np.ndarray, "*batch"]]:
     """Exact mass (eq. 13) and load (eq. 14) integrals of a tet's linear shape functions over its pieces.
 
     The batch shapes ``...`` of the arguments broadcast: one tet's (c, g) with (k,) pieces' moments

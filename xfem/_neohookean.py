@@ -87,8 +87,8 @@ _PAIRS = ((1, 2, 0), (0, 2, 1), (0, 1, 2))
 
 
 def lame(
-    young: float | Float[ArrayLike, ...], poisson: float | Float[ArrayLike, ...]
-) -> tuple[Float[ArrayLike, ...], Float[ArrayLike, ...]]:
+    young: float | Float[ArrayLike, "*#batch"], poisson: float | Float[ArrayLike, "*#batch"]
+) -> tuple[Float[ArrayLike, "*batch"], Float[ArrayLike, "*batch"]]:
     """Lamé parameters of a linear isotropic material, the ``(mu, lam)`` the functions of this module take.
 
     Args:
@@ -243,8 +243,8 @@ _psi_jit, _pk1_jit = eqx.filter_jit(_psi), eqx.filter_jit(_pk1)
 
 
 def stable_neohookean_energy(
-    F: Float[ArrayLike, "... 3 3"], mu: float | Float[ArrayLike, ...], lam: float | Float[ArrayLike, ...]
-) -> Float[Array, ...]:
+    F: Float[ArrayLike, "*batch 3 3"], mu: float | Float[ArrayLike, "*#batch"], lam: float | Float[ArrayLike, "*#batch"]
+) -> Float[Array, "*batch"]:
     """Stable neo-Hookean energy density Psi(F) ([SGK18] eq. 14, module docstring), ``Psi(I) = 0``.
 
     Args:
@@ -258,8 +258,8 @@ def stable_neohookean_energy(
 
 
 def stable_neohookean_pk1(
-    F: Float[ArrayLike, "... 3 3"], mu: float | Float[ArrayLike, ...], lam: float | Float[ArrayLike, ...]
-) -> Float[Array, "... 3 3"]:
+    F: Float[ArrayLike, "*batch 3 3"], mu: float | Float[ArrayLike, "*#batch"], lam: float | Float[ArrayLike, "*#batch"]
+) -> Float[Array, "*batch 3 3"]:
     """First Piola-Kirchhoff stress ``P = dPsi/dF = mu' (1 - 1/(I_C + 1)) F + lam' (J - alpha) cof F``.
 
     Args:

@@ -28,7 +28,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, ArrayLike, Float
 
 from xfem._backward_euler import FEMSystem, State
 from xfem._cut_system import PlaneCuts, _concrete, _plane, plane_cuts
@@ -156,11 +156,11 @@ def simulate(
     h: float | Float[Array, ""],
     steps: int,
     *,
-    plane_cuts: Sequence[tuple] = (),
+    plane_cuts: Sequence[tuple[int, Float[ArrayLike, " 3"], Float[ArrayLike, " 3"], float]] = (),
     newton_iterations: int = 1,
     tolerance: float | None = None,
     line_search: bool = True,
-    forces: Callable[[int, FEMSystem], jax.Array] | None = None,
+    forces: Callable[[int, FEMSystem], Float[Array, "n 3"] | Float[Array, "frames n 3"]] | None = None,
     state: State | None = None,
 ) -> list[State]:
     """``steps`` frames of a cutting simulation (Algorithm 1 with the cuts given in advance), every frame's state

@@ -47,6 +47,7 @@ from typing import NamedTuple
 import igl
 import manifold3d
 import numpy as np
+from jaxtyping import Float, Int
 from scipy.spatial.transform import Rotation
 
 from xfem._tetmesh import TET_FACES, TetMesh, node_rings
@@ -464,17 +465,17 @@ class CutReport:
             ``apply_cut``, and from an ``XFEMModel`` cut that met no element (nothing changed).
     """
 
-    boxed: np.ndarray
-    candidates: np.ndarray
-    elements_touched: np.ndarray
-    nodes_touched: np.ndarray
+    boxed: Int[np.ndarray, " b"]
+    candidates: Int[np.ndarray, " c"]
+    elements_touched: Int[np.ndarray, " t"]
+    nodes_touched: Int[np.ndarray, " u"]
     node_children: dict[int, tuple[int, ...]]
     element_children: dict[int, tuple[int, ...]]
-    nodes_split: np.ndarray
-    elements_split: np.ndarray
-    motion: np.ndarray = field(default_factory=lambda: np.eye(4)[:3])
+    nodes_split: Int[np.ndarray, " p"]
+    elements_split: Int[np.ndarray, " q"]
+    motion: Float[np.ndarray, "3 4"] = field(default_factory=lambda: np.eye(4)[:3])
     stats: CutStats = CutStats()
-    dof_source: np.ndarray | None = None
+    dof_source: Int[np.ndarray, " n_dofs"] | None = None
 
 
 def _difference(solid: manifold3d.Manifold, cut: manifold3d.Manifold):

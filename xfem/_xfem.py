@@ -147,7 +147,14 @@ class XFEMModel:
         cuts: the cuts made so far, in order: (the cut solid's ``MeshSolid``, perturb, parallel).
     """
 
-    def __init__(self, mesh: TetMesh, rho: np.ndarray, gravity: np.ndarray, fixed: np.ndarray, state: State):
+    def __init__(
+        self,
+        mesh: TetMesh,
+        rho: Float[np.ndarray, " m"],
+        gravity: Float[np.ndarray, " 3"],
+        fixed: Int[np.ndarray, " nb"],
+        state: State,
+    ):
         self.mesh = mesh
         self.sub: Subdomains = subdomains(mesh)
         self.X, self.T = self.sub.X, self.sub.T
@@ -278,7 +285,15 @@ class XFEMModel:
             np.concatenate(load)[order],
         )
 
-    def piece_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def piece_arrays(
+        self,
+    ) -> tuple[
+        Int[np.ndarray, " P"],
+        Int[np.ndarray, "P 4"],
+        Float[np.ndarray, " P"],
+        Float[np.ndarray, "P 4 4"],
+        Float[np.ndarray, "P 4"],
+    ]:
         """The element pieces, element by element (an uncut model: one piece per tet, in mesh order).
 
         Returns:
@@ -469,7 +484,7 @@ class XFEMModel:
             tuple(self.cuts[cuts:]),
         )
 
-    def apply_delta(self, delta: CutDelta, padded: PaddedSystem | None = None) -> np.ndarray:
+    def apply_delta(self, delta: CutDelta, padded: PaddedSystem | None = None) -> Int[np.ndarray, " n_dofs"]:
         """Make the cuts of ``delta`` (``delta`` of a model of the same mesh, equal to this one at its mark) take
         effect here, as ``cut`` would: the bookkeeping, the numbering, the state copied to it (line 7).
 
@@ -568,7 +583,7 @@ class XFEMModel:
         """The velocity field of eq. 18 (coefficients v_i^s) at points (k, 3) in elements (k,); (k, 3)."""
         return self._field(np.asarray(self.state.v), points, elements)
 
-    def components(self) -> tuple[int, np.ndarray]:
+    def components(self) -> tuple[int, Int[np.ndarray, " n_dofs"]]:
         """The connected pieces of the body: components of the graph of element pieces sharing a DOF.
 
         Returns:
