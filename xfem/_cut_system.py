@@ -332,14 +332,24 @@ class PlaneCuts:
         return points, normals
 
     def system(self, points: Float[ArrayLike, "k 3"], normals: Float[ArrayLike, "k 3"]) -> FEMSystem:
-        """The system after the last cut (``systems``)."""
+        """The system after the last cut (``systems``).
+
+        Args:
+            points: (k, 3) the planes' points.
+            normals: (k, 3) their normals.
+        """
         return self.systems(points, normals)[-1]
 
     def holds(self, points: Float[ArrayLike, "k 3"], normals: Float[ArrayLike, "k 3"]) -> Bool[Array, ""]:
         """Whether ``systems`` is exact at these planes: every node and every vertex of the replayed pieces lies on
         the side of each slab it lay on at the planes found (a JAX bool; jit-able). Where it is False, the
         pieces' combinatorics may differ: cut anew (``plane_cuts``) at these planes. Not checked: the vertices of
-        earlier non-planar cuts' pieces that the slabs did not meet."""
+        earlier non-planar cuts' pieces that the slabs did not meet.
+
+        Args:
+            points: (k, 3) the planes' points.
+            normals: (k, 3) their normals.
+        """
         points, normals = self._planes(points, normals)
         return _holds(self._replays[-1], points, normals)
 

@@ -432,10 +432,18 @@ class XFEMModel:
 
     def step(self, h: float | Float[Array, ""], material: Material, newton_iterations: int = 1) -> State:
         """One backward Euler step (eq. 10, Algorithm 1 line 26) of the current system; updates and returns
-        ``state``. material: the ``Material`` (scalar parameters).
+        ``state``.
 
         The system is padded to a capacity level (``padded_system``); the step of the next level is compiled in
-        the background meanwhile, so that a cut that moves the model there finds it ready."""
+        the background meanwhile, so that a cut that moves the model there finds it ready.
+
+        Args:
+            h: the positive time step.
+            material: the ``Material`` (scalar parameters).
+            newton_iterations: the most Newton iterations (>= 1).
+        Returns:
+            The new ``State``: x and v of shape (n_dofs, 3), host arrays.
+        """
         if int(newton_iterations) != newton_iterations or newton_iterations < 1:
             raise ValueError(f"newton_iterations: expected an int >= 1, got {newton_iterations!r}")
         padded = self.padded_system()
