@@ -21,6 +21,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+import numpy.typing as npt
 import scipy.sparse as sp
 from jaxtyping import Array, Float, Int
 
@@ -103,7 +104,13 @@ def _block_slots(node_indptr, degree, a, p, k, c):
     return 9 * node_indptr[a] + 3 * k * degree[a] + 3 * (p - node_indptr[a]) + c
 
 
-def assembly_pattern(T, n: int, fixed=(), coupling=None, nnz_capacity: int | None = None) -> AssemblyPattern:
+def assembly_pattern(
+    T: Int[npt.ArrayLike, "m 4"],
+    n: int,
+    fixed: Int[npt.ArrayLike, " k"] = (),
+    coupling: sp.spmatrix | sp.sparray | Float[npt.ArrayLike, "n n"] | None = None,
+    nnz_capacity: int | None = None,
+) -> AssemblyPattern:
     """Precompute the sparsity of the free-DOF system and the scatter map of the element Hessians (host).
 
     Args:
@@ -195,7 +202,9 @@ def _host_pairs(pattern: AssemblyPattern):
     return keys, node_indptr, np.diff(node_indptr)
 
 
-def scalar_slots(pattern: AssemblyPattern, rows, cols) -> np.ndarray:
+def scalar_slots(
+    pattern: AssemblyPattern, rows: Int[npt.ArrayLike, " k"], cols: Int[npt.ArrayLike, " k"]
+) -> Int[np.ndarray, "k 3"]:
     """The data slots of the entries ``(3 r + k, 3 c + k)``, k = 0, 1, 2, of a scalar (n, n) matrix expanded by
     ``(x) I3`` (the mass matrix of eq. 7); host, numpy.
 
@@ -312,7 +321,7 @@ def matvec(pattern: AssemblyPattern, data: Float[Array, " nnz"], x: Float[Array,
     return csr_matvec(pattern.csr, data, x)
 
 
-def to_scipy(pattern: AssemblyPattern, data) -> sp.csr_matrix:
+def to_scipy(pattern: AssemblyPattern, data: Float[npt.ArrayLike, " nnz"]) -> sp.csr_matrix:
     """The reduced matrix as a scipy CSR matrix (host).
 
     Args:

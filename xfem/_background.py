@@ -173,7 +173,8 @@ class BackgroundCuts:
                     sent_system_bytes=_SENT_SYSTEM_BYTES,
                 ),
                 _ENTRY,
-                {"JAX_ENABLE_X64": "1" if jax.config.jax_enable_x64 else "0"},
+                # JAX defines its Config flags at run time
+                {"JAX_ENABLE_X64": "1" if jax.config.jax_enable_x64 else "0"},  # pyright: ignore[reportAttributeAccessIssue]
             )
             self._process_closer = weakref.finalize(self, self._process.close)
             self._replica_cuts = len(log)
@@ -260,7 +261,7 @@ def replica_cut(model: XFEMModel, cut: MeshSolid, perturb: float, parallel: bool
     if model._capacities.padded_bytes_at_least(arrays, n, model._level) <= sent_system_bytes:
         padded = model.padded_system()
         system, level = padded.system, padded.level
-    return report, model.delta(mark), (arrays, n, system, level)
+    return report, model.delta(mark), (arrays, n, system, level)  # pyright: ignore[reportArgumentType]  # marked: delta
 
 
 def serve() -> None:
@@ -285,7 +286,7 @@ def serve() -> None:
         except EOFError:
             return
         try:
-            reply("ok", replica_cut(model, *message, init["sent_system_bytes"]))
+            reply("ok", replica_cut(model, *message, sent_system_bytes=init["sent_system_bytes"]))
         except BaseException as error:  # noqa: BLE001
             reply("error", portable(error))
             return

@@ -55,12 +55,15 @@ at the executed iterate, an approximation (``xfem._rollout`` measures how close)
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import NamedTuple
 
 import equinox as eqx
 import jax
+import jax.core
 import jax.numpy as jnp
 import numpy as np
+import numpy.typing as npt
 import scipy.sparse as sp
 from jax.ad_checkpoint import checkpoint_name
 from jaxtyping import Array, Float, Int
@@ -111,29 +114,29 @@ class FEMSystem(eqx.Module):
         n: the number of DOF nodes.
     """
 
-    T: Int[Array, "m 4"]
-    grads: Float[Array, "m 4 3"]
-    volumes: Float[Array, " m"]
-    mass_rows: Int[Array, " k"]
-    mass_cols: Int[Array, " k"]
-    mass_values: Float[Array, " k"]
-    mass_data: Float[Array, " nnz"]
-    force: Float[Array, "n 3"]
-    fixed: Int[Array, " nb"]
+    T: Int[Array | np.ndarray, "m 4"]
+    grads: Float[Array | np.ndarray, "m 4 3"]
+    volumes: Float[Array | np.ndarray, " m"]
+    mass_rows: Int[Array | np.ndarray, " k"]
+    mass_cols: Int[Array | np.ndarray, " k"]
+    mass_values: Float[Array | np.ndarray, " k"]
+    mass_data: Float[Array | np.ndarray, " nnz"]
+    force: Float[Array | np.ndarray, "n 3"]
+    fixed: Int[Array | np.ndarray, " nb"]
     pattern: AssemblyPattern
     n: int = eqx.field(static=True)
 
 
 class State(eqx.Module):
-    """Positions and velocities of the n DOF nodes.
+    """Positions and velocities of the n DOF nodes (device or host arrays).
 
     Attributes:
         x: (n, 3) positions.
         v: (n, 3) velocities.
     """
 
-    x: Float[Array, "n 3"]
-    v: Float[Array, "n 3"]
+    x: Float[Array | np.ndarray, "n 3"]
+    v: Float[Array | np.ndarray, "n 3"]
 
 
 class SystemCapacity(NamedTuple):
@@ -160,7 +163,9 @@ class SystemCapacity(NamedTuple):
     nonzeros: int
 
 
-def _pad(T, grads, volumes, mass, force, fixed, capacity: SystemCapacity):
+def _pad(
+    T, grads, volumes, mass, force, fixed, capacity: SystemCapacity
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, sp.csr_matrix, np.ndarray, np.ndarray]:
     """The padded arrays of ``SystemCapacity`` (host)."""
     n, m = mass.shape[0], len(T)
     extra_nodes, extra_fixed = capacity.nodes - n, capacity.fixed - len(fixed)
@@ -174,10 +179,19 @@ def _pad(T, grads, volumes, mass, force, fixed, capacity: SystemCapacity):
         mass = sp.block_diag([mass, sp.identity(extra_nodes)], format="csr")
     force = np.concatenate([force, np.zeros((extra_nodes, 3), force.dtype)])
     fixed = np.concatenate([fixed, np.arange(capacity.nodes - extra_fixed, capacity.nodes)])
-    return T, grads, volumes, mass, force, fixed
+    # block_diag(format="csr") is typed as a coo matrix in scipy's stubs
+    return T, grads, volumes, mass, force, fixed  # pyright: ignore[reportReturnType]
 
 
-def fem_system(T, grads, volumes, mass, force, fixed=(), capacity: SystemCapacity | None = None) -> FEMSystem:
+def fem_system(
+    T: Int[npt.ArrayLike, "m 4"],
+    grads: Float[npt.ArrayLike, "m 4 3"],
+    volumes: Float[npt.ArrayLike, " m"],
+    mass: sp.spmatrix | sp.sparray | Float[npt.ArrayLike, "n n"],
+    force: Float[npt.ArrayLike, "n 3"],
+    fixed: Int[npt.ArrayLike, " nb"] = (),
+    capacity: SystemCapacity | None = None,
+) -> FEMSystem:
     """Bundle an element list, a mass matrix, forces and Dirichlet nodes for ``backward_euler_step`` (host).
 
     Args:
@@ -203,7 +217,7 @@ def fem_system(T, grads, volumes, mass, force, fixed=(), capacity: SystemCapacit
     if not (np.all(np.isfinite(grads)) and np.all(np.isfinite(volumes)) and np.all(np.asarray(volumes) >= 0)):
         raise ValueError("grads, volumes: expected finite values and non-negative weights")
     mass = sp.csr_matrix(mass, dtype=np.float64)
-    n = mass.shape[0]
+    n = mass.shape[0]  # pyright: ignore[reportOptionalSubscript]  # scipy's stubs type a matrix's shape Optional
     if mass.shape != (n, n) or n < 1:
         raise ValueError(f"mass: expected a square (n, n) matrix, got shape {mass.shape}")
     mass.sum_duplicates()
@@ -237,33 +251,29 @@ def fem_system(T, grads, volumes, mass, force, fixed=(), capacity: SystemCapacit
     kept = slots < pattern.nnz
     mass_data = np.zeros(pattern.nnz, dtype)
     np.add.at(mass_data, slots[kept], np.broadcast_to(values[:, None], slots.shape)[kept])
-    T, grads, volumes, rows, cols, values, mass_data, force, fixed = to_devices(
-        T.astype(index),
-        grads.astype(dtype),
-        volumes.astype(dtype),
-        rows.astype(index),
-        cols.astype(index),
-        values,
-        mass_data,
-        force.astype(dtype),
-        fixed.astype(index),
-    )
-    return FEMSystem(
-        T=T,
-        grads=grads,
-        volumes=volumes,
-        mass_rows=rows,
-        mass_cols=cols,
-        mass_values=values,
-        mass_data=mass_data,
-        force=force,
-        fixed=fixed,
+    return FEMSystem(  # the arrays in FEMSystem's field order
+        *to_devices(
+            T.astype(index),
+            grads.astype(dtype),
+            volumes.astype(dtype),
+            rows.astype(index),
+            cols.astype(index),
+            values,
+            mass_data,
+            force.astype(dtype),
+            fixed.astype(index),
+        ),
         pattern=pattern,
         n=n,
     )
 
 
-def fem_from_mesh(mesh: TetMesh, density, gravity=(0.0, 0.0, -9.81), fixed=()) -> FEMSystem:
+def fem_from_mesh(
+    mesh: TetMesh,
+    density: float | Float[npt.ArrayLike, " m"],
+    gravity: Float[npt.ArrayLike, " 3"] = (0.0, 0.0, -9.81),
+    fixed: Int[npt.ArrayLike, " nb"] = (),
+) -> FEMSystem:
     """The FEM system of a tet mesh: linear elements, consistent mass (eq. 7), gravity as body force (eq. 8).
 
     Args:
@@ -329,8 +339,8 @@ class _Theta(eqx.Module):
 
     x: Float[Array, "n 3"]  # x_t
     v: Float[Array, "n 3"]  # v_t
-    mu: Float[Array, ...]
-    lam: Float[Array, ...]
+    mu: Float[Array, "*#batch"]
+    lam: Float[Array, "*#batch"]
     fixed_positions: Float[Array, "nb 3"]
     force: Float[Array, "n 3"]
     grads: Float[Array, "m 4 3"]
@@ -350,7 +360,9 @@ def _mass_times(system: FEMSystem, mass_values, d):
     return _in_chunks(mass_values.shape[0], _MASS_CHUNK, add_chunk, jnp.zeros_like(d))
 
 
-def mechanical_energy(system: FEMSystem, state: State, material: Material):
+def mechanical_energy(
+    system: FEMSystem, state: State, material: Material
+) -> tuple[Float[Array, ""], Float[Array, ""], Float[Array, ""]]:
     """The energies of a state of ``system`` made of ``material``: kinetic ``1/2 v^T M v``, elastic ``U(x)``
     (eq. 9) and the potential of the external forces ``-f . x`` (gravity's, for body forces). Their sum is
     conserved by the exact dynamics; backward Euler dissipates it. Returns three scalars (JAX, differentiable)."""
@@ -531,9 +543,9 @@ def _step(system, state, h, material, fixed_positions, iterations, tolerance, li
 def backward_euler_step(
     system: FEMSystem,
     state: State,
-    h,
+    h: float | Float[Array, ""],
     material: Material,
-    fixed_positions=None,
+    fixed_positions: Float[Array | np.ndarray, "nb 3"] | None = None,
     newton_iterations: int = 1,
     tolerance: float | None = None,
     line_search: bool = True,
@@ -620,12 +632,12 @@ def _scalar(a, dtype):
 def compiled_step(
     system: FEMSystem,
     state: State,
-    h,
+    h: float | Float[Array, ""],
     material: Material,
     newton_iterations: int = 1,
     tolerance: float | None = None,
     line_search: bool = True,
-):
+) -> Callable[[FEMSystem, State, float | Float[Array, ""], Material], State]:
     """``backward_euler_step`` compiled ahead of time (traced and compiled, not run) for systems shaped like
     ``system`` (same array shapes and static sizes, e.g. padded to one ``SystemCapacity``) and these options.
 
@@ -643,7 +655,7 @@ def compiled_step(
         *_step_arguments(system, state, h, material, None, newton_iterations, tolerance, line_search)
     ).compile()
 
-    def step(system: FEMSystem, state: State, h, material: Material) -> State:
+    def step(system: FEMSystem, state: State, h: float | Float[Array, ""], material: Material) -> State:
         return compiled(*_step_arguments(system, state, h, material, None, newton_iterations, tolerance, line_search))
 
     return step

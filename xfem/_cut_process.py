@@ -108,7 +108,7 @@ class CutProcess:
         """Close the child's stdin (it exits) and wait for it; kill it if it does not exit in 10 s."""
         if self._child.poll() is None:
             try:
-                self._child.stdin.close()
+                self._child.stdin.close()  # pyright: ignore[reportOptionalMemberAccess]  # Popen(stdin=PIPE)
             except OSError:
                 pass
             try:
@@ -118,7 +118,7 @@ class CutProcess:
                 self._child.wait()
         for pipe in (self._child.stdin, self._child.stdout):
             try:
-                pipe.close()
+                pipe.close()  # pyright: ignore[reportOptionalMemberAccess]  # Popen(stdin=PIPE, stdout=PIPE)
             except OSError:
                 pass
 

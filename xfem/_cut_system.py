@@ -29,13 +29,16 @@ anew at every call).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import manifold3d
 import numpy as np
+import numpy.typing as npt
 from jax.extend.core import concrete_or_error
-from jaxtyping import Array, Float, Int
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from _jaxcga_shared.checks import require
 from _jaxcga_shared.host import to_devices
@@ -286,9 +289,9 @@ class PlaneCuts:
         self,
         model: XFEMModel,
         reports: list[CutReport],
-        points,
-        normals,
-        epsilons,
+        points: Float[np.ndarray, "k 3"],
+        normals: Float[np.ndarray, "k 3"],
+        epsilons: Float[np.ndarray, " k"],
         replays: list[_Replay],
         systems: list[FEMSystem],
     ):
@@ -296,7 +299,7 @@ class PlaneCuts:
         self.points, self.normals, self.epsilons = points, normals, epsilons
         self._replays, self._systems = replays, systems
 
-    def systems(self, points, normals) -> list[FEMSystem]:
+    def systems(self, points: Float[ArrayLike, "k 3"], normals: Float[ArrayLike, "k 3"]) -> list[FEMSystem]:
         """The system after each cut, a JAX function of the planes (differentiable, jit-able).
 
         Args:
@@ -328,15 +331,25 @@ class PlaneCuts:
         )
         return points, normals
 
-    def system(self, points, normals) -> FEMSystem:
-        """The system after the last cut (``systems``)."""
+    def system(self, points: Float[ArrayLike, "k 3"], normals: Float[ArrayLike, "k 3"]) -> FEMSystem:
+        """The system after the last cut (``systems``).
+
+        Args:
+            points: (k, 3) the planes' points.
+            normals: (k, 3) their normals.
+        """
         return self.systems(points, normals)[-1]
 
-    def holds(self, points, normals):
+    def holds(self, points: Float[ArrayLike, "k 3"], normals: Float[ArrayLike, "k 3"]) -> Bool[Array, ""]:
         """Whether ``systems`` is exact at these planes: every node and every vertex of the replayed pieces lies on
         the side of each slab it lay on at the planes found (a JAX bool; jit-able). Where it is False, the
         pieces' combinatorics may differ: cut anew (``plane_cuts``) at these planes. Not checked: the vertices of
-        earlier non-planar cuts' pieces that the slabs did not meet."""
+        earlier non-planar cuts' pieces that the slabs did not meet.
+
+        Args:
+            points: (k, 3) the planes' points.
+            normals: (k, 3) their normals.
+        """
         points, normals = self._planes(points, normals)
         return _holds(self._replays[-1], points, normals)
 
@@ -375,7 +388,7 @@ def _entry(entry, index: str):
     if isinstance(entry, manifold3d.Manifold):
         entry = (entry, 0.0)
     if isinstance(entry, (tuple, list)) and len(entry) == 2 and isinstance(entry[0], manifold3d.Manifold):
-        check_cut(*entry)
+        check_cut(*entry)  # pyright: ignore[reportArgumentType]  # check_cut validates the user's solid, perturb
         return None, entry[0], float(entry[1])
     if isinstance(entry, (tuple, list)) and len(entry) == 3:
         return _plane(*entry, index=index)
@@ -384,7 +397,14 @@ def _entry(entry, index: str):
     )
 
 
-def plane_cuts(model: XFEMModel, cuts) -> PlaneCuts:
+def plane_cuts(
+    model: XFEMModel,
+    cuts: Sequence[
+        tuple[Float[npt.ArrayLike, " 3"], Float[npt.ArrayLike, " 3"], float]
+        | manifold3d.Manifold
+        | tuple[manifold3d.Manifold, float]
+    ],
+) -> PlaneCuts:
     """Cut a copy of the model by slabs (``plane_cut_solid`` covering the body), in order, and replay the pieces
     they make as JAX functions of the planes (module docstring).
 
@@ -499,7 +519,8 @@ def _cut_by_plane(copy: XFEMModel, table: _Table, programs: dict, point, normal,
                 mesh, at = start[origin]
                 faces = [tuple(f) for f in at[mesh.F].tolist()]
             else:  # the whole tet (a TetMesh's tets are positively oriented: TET_FACES are outward)
-                faces = [tuple(f) for f in table.corners[T[e]][TET_FACES].tolist()]
+                corners = table.corners  # set by the first stage
+                faces = [tuple(f) for f in corners[T[e]][TET_FACES].tolist()]  # pyright: ignore[reportOptionalSubscript]
             clipped = _clip(table, faces, side, s_table, half)
             if clipped is None:
                 raise ValueError(f"model: piece {sid} of element {e} is not on the side of the slab its point is")
@@ -545,7 +566,7 @@ def _stage_replay(copy: XFEMModel, table: _Table, programs: dict, epsilons: list
         return np.where(keys[at] == key, at, len(keys))  # an entry fem_system dropped (an exact zero)
 
     rho = copy.rho[element]
-    replay = _Replay(
+    host = dict(  # the array fields, put on the device in one batch
         **table.arrays(),
         epsilon=np.asarray(epsilons, np.float64),
         triangles=np.concatenate(triangles),
@@ -564,12 +585,12 @@ def _stage_replay(copy: XFEMModel, table: _Table, programs: dict, epsilons: list
         entry=entry(r_ * n + c_),
         transposed=entry(c_ * n + r_),
         slots=scalar_slots(system.pattern, mass_rows, mass_cols),
-        entries=len(keys),
-        nnz=int(system.pattern.nnz),
-        n=n,
     )
-    leaves, tree = jax.tree.flatten(replay)
-    return jax.tree.unflatten(tree, to_devices(*leaves)), system, element
+    leaves, tree = jax.tree.flatten(host)
+    replay = _Replay(
+        **jax.tree.unflatten(tree, to_devices(*leaves)), entries=len(keys), nnz=int(system.pattern.nnz), n=n
+    )
+    return replay, system, element
 
 
 _UNDER_JIT = (
@@ -587,7 +608,9 @@ def _concrete(name: str, x, advice: str = _UNDER_JIT) -> np.ndarray:
         raise ValueError(f"{name}: {advice}") from None
 
 
-def cut_system(model: XFEMModel, point, normal, epsilon) -> FEMSystem:
+def cut_system(
+    model: XFEMModel, point: Float[ArrayLike, " 3"], normal: Float[ArrayLike, " 3"], epsilon: float
+) -> FEMSystem:
     """The system of the model as if cut by the slab of thickness epsilon across the plane (point, normal)
     (``plane_cut_solid`` with an extent covering the body, ``XFEMModel.cut``), the model left uncut: its DOF
     numbering is the cut model's, and its volumes, mass values, mass data and forces are JAX functions of point and

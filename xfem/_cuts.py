@@ -24,6 +24,7 @@ import jax
 import jax.numpy as jnp
 import manifold3d
 import numpy as np
+import numpy.typing as npt
 from jaxtyping import Array, Float, Int
 
 import jaxcga as cga
@@ -87,7 +88,8 @@ def _sweep_points(edge, motors, s):
     # (k-1, s) blended poses, flattened interval by interval, then the last key closes the sweep
     blended = cga.blend_log(motors[:-1][:, None], motors[1:][:, None], t[None, :])
     poses = jnp.concatenate([blended.values.reshape(-1, blended.values.shape[-1]), motors.values[-1:]])
-    return cga.apply_to_points(cga.Multivector(poses, motors.blades)[:, None], edge.astype(poses.dtype)[None])
+    versors = cga.Multivector(poses, motors.blades)[:, None]  # a Multivector (its __getitem__ is typed loosely)
+    return cga.apply_to_points(versors, edge.astype(poses.dtype)[None])  # pyright: ignore[reportArgumentType]
 
 
 def sweep_between(
@@ -252,7 +254,7 @@ def cut_solid(V: Float[Array, "n 3"], F: Int[np.ndarray, "m 3"], epsilon: float)
 
 
 def plane_cut_solid(
-    point: Float[Array, 3], normal: Float[Array, 3], extent: float, epsilon: float
+    point: Float[npt.ArrayLike, " 3"], normal: Float[npt.ArrayLike, " 3"], extent: float, epsilon: float
 ) -> manifold3d.Manifold:
     """A flat square cut of side ``extent`` centred at ``point`` across ``normal``, thickened by epsilon
     (a slab extent x extent x epsilon).

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import pickle
 import struct
+from collections.abc import Sequence
 
 import numpy as np
 
@@ -39,7 +40,7 @@ def decode(data: bytes, buffers: list[np.ndarray]):
     return pickle.loads(data, buffers=buffers)
 
 
-def write_frame(stream, data: bytes, buffers: list = ()) -> None:
+def write_frame(stream, data: bytes, buffers: Sequence = ()) -> None:
     """One message: the number of buffers, the pickle's and the buffers' lengths, the pickle, the buffers."""
     lengths = [len(data), *(memoryview(b).nbytes for b in buffers)]
     stream.write(struct.pack(f"<{len(lengths) + 1}Q", len(buffers), *lengths))
@@ -63,7 +64,8 @@ def read_frame(stream) -> tuple[bytes, list[np.ndarray]]:
         block = np.empty(size + _ALIGN, np.uint8)
         start = -block.ctypes.data % _ALIGN
         buffer = block[start : start + size]
-        view, done = memoryview(buffer), 0
+        # an ndarray has the buffer protocol (numpy's stubs declare __buffer__ only for Python >= 3.12)
+        view, done = memoryview(buffer), 0  # pyright: ignore[reportArgumentType]
         while done < size:
             got = stream.readinto(view[done:])
             if not got:

@@ -29,6 +29,8 @@ from __future__ import annotations
 from typing import NamedTuple
 
 import numpy as np
+import numpy.typing as npt
+from jaxtyping import Float, Int
 
 _CLOSED_MESSAGE = (
     "F: each piece must be a closed, consistently oriented triangle mesh (every directed edge "
@@ -45,9 +47,9 @@ class Moments(NamedTuple):
         second: (..., 3, 3) ``int (X - o)(X - o)^T``, symmetric.
     """
 
-    volume: np.ndarray
-    first: np.ndarray
-    second: np.ndarray
+    volume: Float[np.ndarray, "*batch"]
+    first: Float[np.ndarray, "*batch 3"]
+    second: Float[np.ndarray, "*batch 3 3"]
 
 
 def _host_real(x, shape: tuple, name: str, what: str) -> np.ndarray:
@@ -95,7 +97,13 @@ def _check_closed(F: np.ndarray, piece: np.ndarray) -> None:
         raise ValueError(f"{_CLOSED_MESSAGE}; piece {bad[0]} has an unmatched edge near ({bad[1]}, {bad[2]})")
 
 
-def moments_of_pieces(V, F, piece, n_pieces: int, origin=None) -> Moments:
+def moments_of_pieces(
+    V: Float[npt.ArrayLike, "n 3"],
+    F: Int[npt.ArrayLike, "m 3"],
+    piece: Int[npt.ArrayLike, " m"],
+    n_pieces: int,
+    origin: Float[npt.ArrayLike, " 3"] | Float[npt.ArrayLike, "n_pieces 3"] | None = None,
+) -> Moments:
     """Volume, first and second moments of many closed triangle meshes at once (eq. 21, exact).
 
     All pieces share the vertex array; triangle t belongs to piece ``piece[t]``. One vectorized pass
@@ -163,7 +171,9 @@ def triangle_moment_terms(xp, v):
     return values, det
 
 
-def polyhedron_moments(V, F, origin=None) -> Moments:
+def polyhedron_moments(
+    V: Float[npt.ArrayLike, "n 3"], F: Int[npt.ArrayLike, "m 3"], origin: Float[npt.ArrayLike, " 3"] | None = None
+) -> Moments:
     """Volume, first and second moments of the solid bounded by one closed triangle mesh (eq. 21, exact).
 
     Args:
@@ -216,7 +226,12 @@ def linear_shape_coefficients(Xe, origin=None) -> tuple[np.ndarray, np.ndarray]:
     return np.concatenate([1 - lam.sum(axis=-1, keepdims=True), lam], axis=-1), g
 
 
-def element_piece_integrals(c, g, moments: Moments, density=1.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def element_piece_integrals(
+    c: Float[npt.ArrayLike, "*#batch 4"],
+    g: Float[npt.ArrayLike, "*#batch 4 3"],
+    moments: Moments,
+    density: float | Float[npt.ArrayLike, "*#batch"] = 1.0,
+) -> tuple[Float[np.ndarray, "*batch 4 4"], Float[np.ndarray, "*batch 4"], Float[np.ndarray, "*batch"]]:
     """Exact mass (eq. 13) and load (eq. 14) integrals of a tet's linear shape functions over its pieces.
 
     The batch shapes ``...`` of the arguments broadcast: one tet's (c, g) with (k,) pieces' moments

@@ -19,8 +19,9 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
+import numpy.typing as npt
 import scipy.sparse as sp
-from jaxtyping import Array, Float, Int
+from jaxtyping import Array, ArrayLike, Float, Int
 
 from _jaxcga_shared.checks import require
 from xfem._tetmesh import (
@@ -49,7 +50,9 @@ def _bad_volume(det):
 _VOLUME_MESSAGE = "X: every tetrahedron needs a positive volume (T positively oriented, see tet_mesh)"
 
 
-def shape_gradients(X: Float[Array, "n 3"], T: Int[Array, "m 4"]) -> tuple[Float[Array, "m 4 3"], Float[Array, " m"]]:
+def shape_gradients(
+    X: Float[ArrayLike, "n 3"], T: Int[ArrayLike, "m 4"]
+) -> tuple[Float[Array, "m 4 3"], Float[Array, " m"]]:
     """The constant gradients of the four linear shape functions of each tet (JAX, differentiable in X).
 
     Args:
@@ -74,7 +77,10 @@ def _shape_gradients(X, T):
 
 
 def shape_functions(
-    X: Float[Array, "n 3"], T: Int[Array, "m 4"], points: Float[Array, "k 3"], elements: Int[Array, " k"]
+    X: Float[ArrayLike, "n 3"],
+    T: Int[ArrayLike, "m 4"],
+    points: Float[ArrayLike, "k 3"],
+    elements: Int[ArrayLike, " k"],
 ) -> Float[Array, "k 4"]:
     """The four shape functions ``N_a`` of tet ``elements[i]`` at ``points[i]`` (its barycentric coordinates).
 
@@ -128,7 +134,9 @@ def _host_density(density, m: int) -> np.ndarray:
     return rho
 
 
-def consistent_mass(X, T, density) -> sp.csr_matrix:
+def consistent_mass(
+    X: Float[npt.ArrayLike, "n 3"], T: Int[npt.ArrayLike, "m 4"], density: float | Float[npt.ArrayLike, " m"]
+) -> sp.csr_matrix:
     """The consistent mass matrix of eq. 7, scalar factor: ``M_ij = int rho phi_i phi_j`` (host, scipy).
 
     Per tet ``M_e[a, b] = rho_e V_e (1 + delta_ab) / 20`` (exact). The full eq. 7 matrix is
@@ -165,7 +173,9 @@ def _jax_density(density, m: int, dtype):
     return jnp.asarray(rho, dtype)
 
 
-def lumped_mass(X: Float[Array, "n 3"], T: Int[Array, "m 4"], density) -> Float[Array, " n"]:
+def lumped_mass(
+    X: Float[ArrayLike, "n 3"], T: Int[ArrayLike, "m 4"], density: float | Float[ArrayLike, " m"]
+) -> Float[Array, " n"]:
     """The row-sum lumped mass: each tet gives ``rho_e V_e / 4`` to each of its nodes (JAX, differentiable).
 
     Args:
@@ -193,7 +203,9 @@ def _lumped_mass(X, T, rho):
     return masses, jnp.any(~(rho > 0) | ~jnp.isfinite(rho)), _bad_index(T, X.shape[0]), _bad_volume(det)
 
 
-def body_force(X: Float[Array, "n 3"], T: Int[Array, "m 4"], b) -> Float[Array, "n 3"]:
+def body_force(
+    X: Float[ArrayLike, "n 3"], T: Int[ArrayLike, "m 4"], b: Float[ArrayLike, " 3"] | Float[ArrayLike, "m 3"]
+) -> Float[Array, "n 3"]:
     """Nodal body forces of eq. 8, ``f_i = int b phi_i``, exact for a force density constant per tet:
     each tet gives ``b_e V_e / 4`` to each of its nodes (JAX, differentiable in X and b).
 

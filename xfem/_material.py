@@ -9,8 +9,9 @@ from __future__ import annotations
 
 import equinox as eqx
 import jax
+import jax.core
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import ArrayLike, Float
 
 from xfem._neohookean import lame
 
@@ -26,8 +27,8 @@ class Material(eqx.Module):
         poisson: Poisson's ratio nu in (-1, 1/2), broadcastable against ``young``.
     """
 
-    young: Float[Array, ...] | float
-    poisson: Float[Array, ...] | float
+    young: Float[ArrayLike, "*#batch"] | float
+    poisson: Float[ArrayLike, "*#batch"] | float
 
     def __check_init__(self):
         # concrete values are checked now (a ValueError naming the argument); traced ones by ``lame``'s
@@ -43,6 +44,6 @@ class Material(eqx.Module):
                 raise ValueError(f"young, poisson: shapes {young.shape} and {poisson.shape} do not broadcast") from None
             lame(young, poisson)
 
-    def lame(self) -> tuple[Float[Array, ...], Float[Array, ...]]:
+    def lame(self) -> tuple[Float[ArrayLike, "*batch"], Float[ArrayLike, "*batch"]]:
         """The Lamé parameters ``(mu, lam) = (E / (2 (1 + nu)), E nu / ((1 + nu)(1 - 2 nu)))`` (``xfem.lame``)."""
         return lame(self.young, self.poisson)

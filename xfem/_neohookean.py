@@ -74,7 +74,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, ArrayLike, Float
 
 from _jaxcga_shared.checks import require
 from xfem._jacobi3 import eigh3, svd3
@@ -86,14 +86,17 @@ for _i, _j, _k in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
 _PAIRS = ((1, 2, 0), (0, 2, 1), (0, 1, 2))
 
 
-def lame(young, poisson):
+def lame(
+    young: float | Float[ArrayLike, "*#batch"], poisson: float | Float[ArrayLike, "*#batch"]
+) -> tuple[Float[ArrayLike, "*batch"], Float[ArrayLike, "*batch"]]:
     """Lamé parameters of a linear isotropic material, the ``(mu, lam)`` the functions of this module take.
 
     Args:
         young: Young's modulus E > 0; python float, array or JAX array (traced too), any shape.
         poisson: Poisson's ratio nu in (-1, 1/2), broadcastable against ``young``.
     Returns:
-        ``(mu, lam) = (E / (2 (1 + nu)), E nu / ((1 + nu)(1 - 2 nu)))``."""
+        ``(mu, lam) = (E / (2 (1 + nu)), E nu / ((1 + nu)(1 - 2 nu)))``, broadcast shape (python floats for python
+        floats)."""
     bad = ~(jnp.asarray(young) > 0) | ~jnp.isfinite(young)
     young = require(young, (bad, "young: Young's modulus must be finite and > 0"))
     outside = ~((jnp.asarray(poisson) > -1) & (jnp.asarray(poisson) < 0.5))
@@ -239,7 +242,9 @@ def _projected_hessian_jvp(primals, tangents):
 _psi_jit, _pk1_jit = eqx.filter_jit(_psi), eqx.filter_jit(_pk1)
 
 
-def stable_neohookean_energy(F: Float[Array, "... 3 3"], mu, lam) -> Float[Array, ...]:
+def stable_neohookean_energy(
+    F: Float[ArrayLike, "*batch 3 3"], mu: float | Float[ArrayLike, "*#batch"], lam: float | Float[ArrayLike, "*#batch"]
+) -> Float[Array, "*batch"]:
     """Stable neo-Hookean energy density Psi(F) ([SGK18] eq. 14, module docstring), ``Psi(I) = 0``.
 
     Args:
@@ -252,7 +257,9 @@ def stable_neohookean_energy(F: Float[Array, "... 3 3"], mu, lam) -> Float[Array
     return _psi_jit(F, *_material(mu, lam, F.dtype, F.shape[:-2]))
 
 
-def stable_neohookean_pk1(F: Float[Array, "... 3 3"], mu, lam) -> Float[Array, "... 3 3"]:
+def stable_neohookean_pk1(
+    F: Float[ArrayLike, "*batch 3 3"], mu: float | Float[ArrayLike, "*#batch"], lam: float | Float[ArrayLike, "*#batch"]
+) -> Float[Array, "*batch 3 3"]:
     """First Piola-Kirchhoff stress ``P = dPsi/dF = mu' (1 - 1/(I_C + 1)) F + lam' (J - alpha) cof F``.
 
     Args:
@@ -282,7 +289,11 @@ def _element_energy(x, grads, volumes, mu_s, lam_s):
 
 
 def element_energy(
-    x: Float[Array, "m 4 3"], grads: Float[Array, "m 4 3"], volumes: Float[Array, " m"], mu, lam
+    x: Float[ArrayLike, "m 4 3"],
+    grads: Float[ArrayLike, "m 4 3"],
+    volumes: Float[ArrayLike, " m"],
+    mu: float | Float[ArrayLike, " m"],
+    lam: float | Float[ArrayLike, " m"],
 ) -> Float[Array, " m"]:
     """Elastic energy ``vol Psi(F_e)`` of each linear tetrahedron, ``F_e = sum_a x[e, a] grads[e, a]^T``.
 
@@ -310,7 +321,12 @@ def _element_gradient_hessian(x, grads, volumes, mu_s, lam_s, project):
 
 
 def element_gradient_hessian(
-    x: Float[Array, "m 4 3"], grads: Float[Array, "m 4 3"], volumes: Float[Array, " m"], mu, lam, project: bool = True
+    x: Float[ArrayLike, "m 4 3"],
+    grads: Float[ArrayLike, "m 4 3"],
+    volumes: Float[ArrayLike, " m"],
+    mu: float | Float[ArrayLike, " m"],
+    lam: float | Float[ArrayLike, " m"],
+    project: bool = True,
 ) -> tuple[Float[Array, "m 12"], Float[Array, "m 12 12"]]:
     """Gradient and Hessian of ``element_energy`` with respect to each tet's 12 node coordinates.
 

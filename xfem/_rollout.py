@@ -32,7 +32,7 @@ def rollout(
     system: FEMSystem,
     state: State,
     material: Material,
-    h,
+    h: float | Float[Array, ""],
     steps: int,
     *,
     newton_iterations: int = 1,

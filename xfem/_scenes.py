@@ -62,6 +62,7 @@ import jax.numpy as jnp
 import manifold3d
 import numpy as np
 import trimesh
+from jaxtyping import Float, Int
 
 import jaxcga as cga
 from xfem._background import BackgroundCuts
@@ -126,7 +127,7 @@ class Scene:
     name: str
     size: str
     mesh: TetMesh
-    fixed: np.ndarray
+    fixed: Int[np.ndarray, " nb"]
     young: float
     poisson: float
     density: float
@@ -514,7 +515,7 @@ class SceneRun:
     records: list[FrameRecord] = field(default_factory=list)
     applied: list[manifold3d.Manifold] = field(default_factory=list)
 
-    def summary(self) -> dict:
+    def summary(self) -> dict[str, str | int | float]:
         """Table 2's figures as far as the runner measures them (times in seconds unless named ``_ms``):
         pieces and DOFs at the end, initial DOFs, Booleans and ms per Boolean (MB), pieces integrated and ms
         per piece (EI), step avg / max over all frames (a cut frame's time is its cuts plus its step), totals
@@ -603,7 +604,7 @@ def run_scene(
 
     def commit(record: FrameRecord, due: list) -> None:
         start = time.perf_counter()
-        reports = background.commit(until=due[-1][2])
+        reports = background.commit(until=due[-1][2])  # pyright: ignore[reportOptionalMemberAccess]  # cuts pend only with a background
         record.cut_seconds += time.perf_counter() - start
         for (_, scheduled, _), report in zip(due, reports):
             took_effect(record, scheduled, report)
@@ -618,7 +619,7 @@ def run_scene(
             record.cuts_started += 1
             record.cutting = True
             start = time.perf_counter()
-            if cut_latency:
+            if background is not None:  # cut_latency > 0
                 pending.append((frame + cut_latency, scheduled, background.submit(scheduled.solid, scheduled.perturb)))
                 record.cut_seconds += time.perf_counter() - start
             else:
@@ -643,7 +644,7 @@ def run_scene(
     return run
 
 
-def piece_surfaces(model: XFEMModel) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def piece_surfaces(model: XFEMModel) -> tuple[Float[np.ndarray, "v 3"], Int[np.ndarray, "f 3"], Int[np.ndarray, " f"]]:
     """The deformed surfaces of the body's pieces: the mesh's boundary faces and the cut faces, each element
     piece's triangles mapped by its own DOFs (eq. 18: x(X) = sum_a phi_a(X) x_a^s on the piece).
 

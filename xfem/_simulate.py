@@ -28,6 +28,7 @@ from typing import NamedTuple
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jaxtyping import Array, ArrayLike, Float
 
 from xfem._backward_euler import FEMSystem, State
 from xfem._cut_system import PlaneCuts, _concrete, _plane, plane_cuts
@@ -152,14 +153,14 @@ def simulate(
     model: XFEMModel,
     schedule: Sequence[tuple[int, object]],
     material: Material,
-    h,
+    h: float | Float[Array, ""],
     steps: int,
     *,
-    plane_cuts: Sequence[tuple] = (),
+    plane_cuts: Sequence[tuple[int, Float[ArrayLike, " 3"], Float[ArrayLike, " 3"], float]] = (),
     newton_iterations: int = 1,
     tolerance: float | None = None,
     line_search: bool = True,
-    forces: Callable[[int, FEMSystem], jax.Array] | None = None,
+    forces: Callable[[int, FEMSystem], Float[Array, "n 3"] | Float[Array, "frames n 3"]] | None = None,
     state: State | None = None,
 ) -> list[State]:
     """``steps`` frames of a cutting simulation (Algorithm 1 with the cuts given in advance), every frame's state
@@ -229,7 +230,10 @@ def simulate(
         systems = cuts.systems(
             jnp.stack([jnp.asarray(p) for _, p, _, _ in planes]), jnp.stack([jnp.asarray(n) for _, _, n, _ in planes])
         )
-        segments = [s._replace(system=model.system() if s.system is None else systems[s.system]) for s in segments]
+        segments = [  # a plane segment's system is the index of its cut (_plane_segments)
+            s._replace(system=model.system() if s.system is None else systems[s.system])  # pyright: ignore[reportCallIssue, reportArgumentType]
+            for s in segments
+        ]
     if state is None:
         state = start
     elif not isinstance(state, State):
@@ -257,7 +261,7 @@ def _run(
             state = State(state.x[source], state.v[source])
         end = segments[k + 1].frame if k + 1 < len(segments) else steps + 1
         frames = rollout(
-            segment.system,
+            segment.system,  # pyright: ignore[reportArgumentType]  # simulate resolved every segment's system
             state,
             material,
             h,

@@ -47,6 +47,7 @@ from typing import NamedTuple
 import igl
 import manifold3d
 import numpy as np
+from jaxtyping import Float, Int
 from scipy.spatial.transform import Rotation
 
 from xfem._tetmesh import TET_FACES, TetMesh, node_rings
@@ -335,8 +336,9 @@ class Subdomains:
         if self._nodes.solids[sid] is None:  # an unbuilt subdomain is the initial one, whose id is the node
             self._build_initial([sid], ())
         elif isinstance(self._nodes.solids[sid], MeshSolid):
-            self._nodes.solids[sid] = self._nodes.solids[sid].build()
-        return self._nodes.solids[sid]
+            # pyright does not narrow solids[sid] (a variable index): a MeshSolid here, a Manifold once built
+            self._nodes.solids[sid] = self._nodes.solids[sid].build()  # pyright: ignore[reportAttributeAccessIssue, reportOptionalMemberAccess]
+        return self._nodes.solids[sid]  # pyright: ignore[reportReturnType]
 
     def element_solid(self, sid: int) -> manifold3d.Manifold:
         """The closed solid of current element subdomain sid (built on first use for an uncut tet)."""
@@ -345,8 +347,9 @@ class Subdomains:
         if self._elements.solids[sid] is None:
             self._build_initial((), [sid])
         elif isinstance(self._elements.solids[sid], MeshSolid):
-            self._elements.solids[sid] = self._elements.solids[sid].build()
-        return self._elements.solids[sid]
+            # as in node_solid
+            self._elements.solids[sid] = self._elements.solids[sid].build()  # pyright: ignore[reportAttributeAccessIssue, reportOptionalMemberAccess]
+        return self._elements.solids[sid]  # pyright: ignore[reportReturnType]
 
     def _build_initial(self, node_sids, element_sids) -> None:
         """Build the solids of the given subdomains that are initial and not built yet, in one vectorized pass:
@@ -462,17 +465,17 @@ class CutReport:
             ``apply_cut``, and from an ``XFEMModel`` cut that met no element (nothing changed).
     """
 
-    boxed: np.ndarray
-    candidates: np.ndarray
-    elements_touched: np.ndarray
-    nodes_touched: np.ndarray
+    boxed: Int[np.ndarray, " b"]
+    candidates: Int[np.ndarray, " c"]
+    elements_touched: Int[np.ndarray, " t"]
+    nodes_touched: Int[np.ndarray, " u"]
     node_children: dict[int, tuple[int, ...]]
     element_children: dict[int, tuple[int, ...]]
-    nodes_split: np.ndarray
-    elements_split: np.ndarray
-    motion: np.ndarray = field(default_factory=lambda: np.eye(4)[:3])
+    nodes_split: Int[np.ndarray, " p"]
+    elements_split: Int[np.ndarray, " q"]
+    motion: Float[np.ndarray, "3 4"] = field(default_factory=lambda: np.eye(4)[:3])
     stats: CutStats = CutStats()
-    dof_source: np.ndarray | None = None
+    dof_source: Int[np.ndarray, " n_dofs"] | None = None
 
 
 def _difference(solid: manifold3d.Manifold, cut: manifold3d.Manifold):
@@ -607,7 +610,7 @@ def _candidates(sub: Subdomains, cut: manifold3d.Manifold) -> tuple[np.ndarray, 
         hit = _tet_triangle_overlap(sub.X[sub.T[boxed[k]]], triangles[start + j], slack)
         near[k[hit]] = True
     far = boxed[~near]
-    inside = igl.winding_number(V, F, sub.X[sub.T[far, 0]]) > 0.5
+    inside = np.asarray(igl.winding_number(V, F, sub.X[sub.T[far, 0]])) > 0.5  # igl's stubs: ArrayLike
     return boxed, np.sort(np.concatenate([boxed[near], far[inside]]))
 
 

@@ -15,6 +15,7 @@ TetGen is AGPL-3.0 (its Python wrapper ``tetgen`` is MIT); it is used here as a 
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import equinox as eqx
@@ -23,9 +24,10 @@ import jax
 import jax.numpy as jnp
 import meshio
 import numpy as np
+import numpy.typing as npt
 import tetgen
 import trimesh
-from jaxtyping import Array, Float, Int
+from jaxtyping import Array, ArrayLike, Float, Int
 
 from _jaxcga_shared.checks import require
 from _jaxcga_shared.host import quiet_stdout
@@ -47,8 +49,8 @@ class TetMesh(eqx.Module):
             at least one tet.
     """
 
-    X: Float[Array, "n 3"]
-    T: Int[Array, "m 4"]
+    X: Float[Array | np.ndarray, "n 3"]
+    T: Int[Array | np.ndarray, "m 4"]
 
     @property
     def n_nodes(self) -> int:
@@ -62,7 +64,7 @@ class TetMesh(eqx.Module):
         """(m,) the tets' volumes (``tet_volumes``)."""
         return tet_volumes(self.X, self.T)
 
-    def boundary_faces(self) -> np.ndarray:
+    def boundary_faces(self) -> Int[np.ndarray, "k 3"]:
         """(k, 3) the outward oriented boundary triangles (``boundary_faces``; host, numpy)."""
         return boundary_faces(np.asarray(self.T))
 
@@ -119,7 +121,7 @@ def _host_volumes(X: np.ndarray, T: np.ndarray) -> np.ndarray:
     return np.einsum("ij,ij->i", x[:, 1] - x[:, 0], np.cross(x[:, 2] - x[:, 0], x[:, 3] - x[:, 0])) / 6
 
 
-def tet_volumes(X: Float[Array, "n 3"], T: Int[Array, "m 4"]) -> Float[Array, " m"]:
+def tet_volumes(X: Float[ArrayLike, "n 3"], T: Int[ArrayLike, "m 4"]) -> Float[Array, " m"]:
     """Signed volumes ``(X1 - X0) . ((X2 - X0) x (X3 - X0)) / 6`` of the tets (JAX, differentiable in X).
 
     Args:
@@ -140,7 +142,7 @@ def _tet_volumes(X, T):
     return jnp.sum(a * jnp.cross(b, c), axis=-1) / 6, _bad_index(T, X.shape[0])
 
 
-def tet_mesh(X, T) -> TetMesh:
+def tet_mesh(X: Float[npt.ArrayLike, "n 3"], T: Int[npt.ArrayLike, "m 4"]) -> TetMesh:
     """Validate raw arrays and orient every tet positively.
 
     Args:
@@ -186,7 +188,11 @@ def _triple(value, name: str, kind: type) -> tuple:
     return values
 
 
-def box_tets(cells=(1, 1, 1), size=(1.0, 1.0, 1.0), origin=(0.0, 0.0, 0.0)) -> TetMesh:
+def box_tets(
+    cells: tuple[int, int, int] | Int[npt.ArrayLike, " 3"] = (1, 1, 1),
+    size: tuple[float, float, float] | Float[npt.ArrayLike, " 3"] = (1.0, 1.0, 1.0),
+    origin: tuple[float, float, float] | Float[npt.ArrayLike, " 3"] = (0.0, 0.0, 0.0),
+) -> TetMesh:
     """The box ``origin + [0, size]`` as a grid of cells, each split into 6 tets (Kuhn / Freudenthal split).
 
     Every tet of a cell runs from its lowest corner to its highest corner along the cell's edges, one tet per
@@ -233,7 +239,9 @@ def box_tets(cells=(1, 1, 1), size=(1.0, 1.0, 1.0), origin=(0.0, 0.0, 0.0)) -> T
     return TetMesh(jnp.asarray(X), jnp.asarray(T))
 
 
-def five_tet_cube(size: float = 1.0, origin=(0.0, 0.0, 0.0)) -> TetMesh:
+def five_tet_cube(
+    size: float = 1.0, origin: tuple[float, float, float] | Float[npt.ArrayLike, " 3"] = (0.0, 0.0, 0.0)
+) -> TetMesh:
     """The cube ``origin + [0, size]^3`` as 5 tets: a central regular tet on the four corners of even
     parity (volume 1/3 of the cube) and one tet at each odd corner (volume 1/6 each).
 
@@ -261,7 +269,9 @@ def one_tet() -> TetMesh:
     return tet_mesh(np.vstack([np.zeros(3), np.eye(3)]), np.array([[0, 1, 2, 3]]))
 
 
-def tetrahedralize(V, F, max_volume: float | None = None, quality: bool = True) -> TetMesh:
+def tetrahedralize(
+    V: Float[npt.ArrayLike, "v 3"], F: Int[npt.ArrayLike, "f 3"], max_volume: float | None = None, quality: bool = True
+) -> TetMesh:
     """Tetrahedralize the inside of a closed triangle surface with TetGen.
 
     TetGen keeps the surface: the input vertices are the first ``len(V)`` nodes, unchanged, and the
@@ -296,7 +306,9 @@ def tetrahedralize(V, F, max_volume: float | None = None, quality: bool = True) 
         raise ValueError("F: the surface is not closed (trimesh is_watertight is False); TetGen needs a closed one")
     # TetGen reports self-intersections but corrupts the heap doing so (measured: "free(): invalid next size"
     # and an abort later): detect them first (CGAL, exact predicates)
-    pairs = igl.copyleft.cgal.remesh_self_intersections(V, F.astype(np.int64), detect_only=True, first_only=True)[2]
+    pairs = np.asarray(  # igl's stubs type the result ArrayLike
+        igl.copyleft.cgal.remesh_self_intersections(V, F.astype(np.int64), detect_only=True, first_only=True)[2]
+    )
     if len(pairs):
         raise ValueError(f"F: the surface intersects itself (faces {int(pairs[0, 0])} and {int(pairs[0, 1])} cross)")
     switches = "pMQ" + ("q1.414" if quality else "")  # M: no merging of coplanar facets, the surface is kept
@@ -312,7 +324,7 @@ def tetrahedralize(V, F, max_volume: float | None = None, quality: bool = True) 
     return tet_mesh(np.asarray(TV, np.float64), np.asarray(TT, np.int64))
 
 
-def read_tet_mesh(path) -> TetMesh:
+def read_tet_mesh(path: str | os.PathLike) -> TetMesh:
     """Read the tetrahedra of a volume mesh file (any format meshio reads: .vtu, .vtk, .msh, .mesh, ...).
 
     All "tetra" cell blocks are taken, other cells ignored; nodes in no tetrahedron (gmsh's geometry points,
@@ -363,7 +375,7 @@ def _face_matching(T):
     return faces, inverse.reshape(-1), counts
 
 
-def boundary_faces(T) -> np.ndarray:
+def boundary_faces(T: Int[npt.ArrayLike, "m 4"]) -> Int[np.ndarray, "k 3"]:
     """The boundary triangles: faces used by exactly one tet, oriented outward (their normal points away
     from their tet when T is positively oriented).
 
@@ -377,7 +389,7 @@ def boundary_faces(T) -> np.ndarray:
     return faces.reshape(-1, 3)[counts[inverse] == 1]
 
 
-def element_adjacency(T) -> np.ndarray:
+def element_adjacency(T: Int[npt.ArrayLike, "m 4"]) -> Int[np.ndarray, "m 4"]:
     """The neighbours of the tets across their faces.
 
     Args:
@@ -398,7 +410,9 @@ def element_adjacency(T) -> np.ndarray:
     return adjacency.reshape(-1, 4)
 
 
-def node_rings(T, n: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+def node_rings(
+    T: Int[npt.ArrayLike, "m 4"], n: int | None = None
+) -> tuple[Int[np.ndarray, " n+1"], Int[np.ndarray, " 4*m"]]:
     """The tets incident to each node (the one-ring E^i of sec. 3.2), in compressed-row form.
 
     Args:

@@ -35,13 +35,16 @@ from __future__ import annotations
 
 import dataclasses
 import time
+from collections.abc import Sequence
 from typing import NamedTuple
 
 import igl
 import jax.numpy as jnp
 import manifold3d
 import numpy as np
+import numpy.typing as npt
 import scipy.sparse as sp
+from jaxtyping import Array, Float, Int
 from scipy.sparse.csgraph import connected_components
 
 from xfem._backward_euler import FEMSystem, State, fem_system
@@ -88,7 +91,7 @@ def _nearest_subdomain(meshes: list[tuple[np.ndarray, ...]], points: np.ndarray)
         at = np.flatnonzero(boxed[s] & (chosen < 0))
         if len(at):
             V, F = meshes[s][:2]
-            chosen[at[igl.winding_number(V, F, points[at]) > 0.5]] = s
+            chosen[at[np.asarray(igl.winding_number(V, F, points[at])) > 0.5]] = s  # igl's stubs: ArrayLike
     rest = np.flatnonzero(chosen < 0)
     if len(rest):
         distance = np.stack([igl.point_mesh_squared_distance(points[rest], V, F)[0] for V, F, _, _ in meshes])
@@ -144,7 +147,14 @@ class XFEMModel:
         cuts: the cuts made so far, in order: (the cut solid's ``MeshSolid``, perturb, parallel).
     """
 
-    def __init__(self, mesh: TetMesh, rho: np.ndarray, gravity: np.ndarray, fixed: np.ndarray, state: State):
+    def __init__(
+        self,
+        mesh: TetMesh,
+        rho: Float[np.ndarray, " m"],
+        gravity: Float[np.ndarray, " 3"],
+        fixed: Int[np.ndarray, " nb"],
+        state: State,
+    ):
         self.mesh = mesh
         self.sub: Subdomains = subdomains(mesh)
         self.X, self.T = self.sub.X, self.sub.T
@@ -275,7 +285,15 @@ class XFEMModel:
             np.concatenate(load)[order],
         )
 
-    def piece_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def piece_arrays(
+        self,
+    ) -> tuple[
+        Int[np.ndarray, " P"],
+        Int[np.ndarray, "P 4"],
+        Float[np.ndarray, " P"],
+        Float[np.ndarray, "P 4 4"],
+        Float[np.ndarray, "P 4"],
+    ]:
         """The element pieces, element by element (an uncut model: one piece per tet, in mesh order).
 
         Returns:
@@ -405,25 +423,34 @@ class XFEMModel:
             self._level = self._padded.level
         return self._padded
 
-    def replay(self, cuts) -> None:
+    def replay(self, cuts: Sequence[tuple[MeshSolid, float, bool]]) -> None:
         """Make the cuts of another model of the same mesh (its ``cuts`` log: mesh solid, perturb, parallel), in
         order, with the same options: the Booleans are deterministic, so this model's subdomains and numbering
         become that model's (a worker's replica, a copy to cut further)."""
         for solid, perturb, parallel in cuts:
             self.cut(solid, perturb, parallel)
 
-    def step(self, h, material: Material, newton_iterations: int = 1) -> State:
+    def step(self, h: float | Float[Array, ""], material: Material, newton_iterations: int = 1) -> State:
         """One backward Euler step (eq. 10, Algorithm 1 line 26) of the current system; updates and returns
-        ``state``. material: the ``Material`` (scalar parameters).
+        ``state``.
 
         The system is padded to a capacity level (``padded_system``); the step of the next level is compiled in
-        the background meanwhile, so that a cut that moves the model there finds it ready."""
+        the background meanwhile, so that a cut that moves the model there finds it ready.
+
+        Args:
+            h: the positive time step.
+            material: the ``Material`` (scalar parameters).
+            newton_iterations: the most Newton iterations (>= 1).
+        Returns:
+            The new ``State``: x and v of shape (n_dofs, 3), host arrays.
+        """
         if int(newton_iterations) != newton_iterations or newton_iterations < 1:
             raise ValueError(f"newton_iterations: expected an int >= 1, got {newton_iterations!r}")
         padded = self.padded_system()
         options = (h, material, int(newton_iterations))
         step = compiled(self._capacities, padded, padded.level, *options, background=False)
-        stepped = step(padded.system, padded_state(self.state, padded.n, padded.system.n), h, material)
+        # compiled(background=False) returns the step (built here if its background build failed)
+        stepped = step(padded.system, padded_state(self.state, padded.n, padded.system.n), h, material)  # pyright: ignore[reportOptionalCall]
         # host views of the result, sliced (a JAX slice would compile anew for every DOF count)
         self.state = State(np.asarray(stepped.x)[: padded.n], np.asarray(stepped.v)[: padded.n])
         self._step_options = options
@@ -465,7 +492,7 @@ class XFEMModel:
             tuple(self.cuts[cuts:]),
         )
 
-    def apply_delta(self, delta: CutDelta, padded: PaddedSystem | None = None) -> np.ndarray:
+    def apply_delta(self, delta: CutDelta, padded: PaddedSystem | None = None) -> Int[np.ndarray, " n_dofs"]:
         """Make the cuts of ``delta`` (``delta`` of a model of the same mesh, equal to this one at its mark) take
         effect here, as ``cut`` would: the bookkeeping, the numbering, the state copied to it (line 7).
 
@@ -545,7 +572,9 @@ class XFEMModel:
                 result[at] += c[at, a, None] * values[dofs]
         return result
 
-    def displacement_at(self, points, elements) -> np.ndarray:
+    def displacement_at(
+        self, points: Float[npt.ArrayLike, "k 3"], elements: Int[npt.ArrayLike, " k"]
+    ) -> Float[np.ndarray, "k 3"]:
         """u(X) = sum_i sum_s u_i^s phi_i(X) psi_i^s(X) (eq. 18), u_i^s = x_i^s - X_i.
 
         Args:
@@ -556,11 +585,13 @@ class XFEMModel:
         """
         return self._field(np.asarray(self.state.x) - self.X[self.dof_node], points, elements)
 
-    def velocity_at(self, points, elements) -> np.ndarray:
+    def velocity_at(
+        self, points: Float[npt.ArrayLike, "k 3"], elements: Int[npt.ArrayLike, " k"]
+    ) -> Float[np.ndarray, "k 3"]:
         """The velocity field of eq. 18 (coefficients v_i^s) at points (k, 3) in elements (k,); (k, 3)."""
         return self._field(np.asarray(self.state.v), points, elements)
 
-    def components(self) -> tuple[int, np.ndarray]:
+    def components(self) -> tuple[int, Int[np.ndarray, " n_dofs"]]:
         """The connected pieces of the body: components of the graph of element pieces sharing a DOF.
 
         Returns:
@@ -576,7 +607,13 @@ class XFEMModel:
         return self.components()[0]
 
 
-def xfem_model(mesh: TetMesh, density, gravity=(0.0, 0.0, -9.81), fixed=(), state: State | None = None) -> XFEMModel:
+def xfem_model(
+    mesh: TetMesh,
+    density: float | Float[npt.ArrayLike, " m"],
+    gravity: Float[npt.ArrayLike, " 3"] = (0.0, 0.0, -9.81),
+    fixed: Int[npt.ArrayLike, " nb"] = (),
+    state: State | None = None,
+) -> XFEMModel:
     """An uncut XFEM model: one DOF per node (its 1-ring), one piece per tet.
 
     Args:
