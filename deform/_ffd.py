@@ -245,7 +245,7 @@ def distortion(
     length = jnp.linalg.norm(V1[..., E[:, 1], :] - V1[..., E[:, 0], :], axis=-1)
     change = jnp.abs(length / rest - 1)
     return {
-        "volume_ratio": signed_volume(V1, F) / signed_volume(V0, F),
+        "volume_ratio": signed_volume(V1, jnp.asarray(F)) / signed_volume(V0, jnp.asarray(F)),
         "edge_mean": jnp.mean(change, axis=-1),
         "edge_max": jnp.max(change, axis=-1),
     }

@@ -21,7 +21,8 @@ def handles_precompute(V, F, handles: Sequence, *, laplacian: str = "cotangent")
     """Bind a mesh to motor handles through one harmonic field per handle (sec. IV).
 
     Args:
-        V: (n, 3) rest positions. F: (m, 3) int faces.
+        V: (n, 3) rest positions.
+        F: (m, 3) int faces.
         handles: h >= 1 disjoint, non-empty vertex index arrays; include the fixed region as a handle
             (its motor the identity), or every vertex follows the moving handles.
         laplacian: ``"cotangent"`` or ``"mean_value"`` (the paper's choice).

@@ -30,7 +30,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, ArrayLike, Float
 
 import jaxcga as cga
 from _jaxcga_shared.checks import require
@@ -54,9 +54,15 @@ def quaternion_xyzw_to_matrix(q: Float[Array, "... 4"]) -> Float[Array, "... 3 3
     )
 
 
-def trs_to_matrix(translation, rotation, scale) -> Float[Array, "... 4 4"]:
-    """Homogeneous matrix ``T R S`` (eq. 15) of translation (..., 3), glTF quaternion (..., 4), scale
-    (..., 3)."""
+def trs_to_matrix(
+    translation: Float[Array, "... 3"], rotation: Float[Array, "... 4"], scale: Float[Array, "... 3"]
+) -> Float[Array, "... 4 4"]:
+    """Homogeneous matrix ``T R S`` (eq. 15) of a local TRS.
+
+    Args:
+        translation: (..., 3) translations.
+        rotation: (..., 4) unit quaternions in glTF order (x, y, z, w).
+        scale: (..., 3) per-axis scales."""
     rs = quaternion_xyzw_to_matrix(rotation) * scale[..., None, :]
     top = jnp.concatenate([rs, translation[..., :, None]], axis=-1)
     bottom = jnp.broadcast_to(jnp.asarray([0, 0, 0, 1], rs.dtype), top.shape[:-2] + (1, 4))
@@ -84,8 +90,15 @@ def uniform_scale(scale: Float[Array, "... 3"], tolerance: float = 1e-5) -> Floa
     return s
 
 
-def trs_to_versor(translation, rotation, scale) -> Multivector:
-    """Similitude ``T R D`` of a local TRS (the multivector form of eq. 15, sec. 4.1)."""
+def trs_to_versor(
+    translation: Float[Array, "... 3"], rotation: Float[Array, "... 4"], scale: Float[Array, "... 3"]
+) -> Multivector:
+    """Similitude ``T R D`` of a local TRS (the multivector form of eq. 15, sec. 4.1), batch shape (...,).
+
+    Args:
+        translation: (..., 3) translations.
+        rotation: (..., 4) unit quaternions in glTF order (x, y, z, w).
+        scale: (..., 3) uniform scales (see ``uniform_scale``)."""
     return cga.similitude(_rotor_xyzw(rotation), translation, uniform_scale(scale))
 
 
@@ -276,15 +289,26 @@ def _sample_rows(path: str, interpolation: str, times, values, counts, t):
     return (1 - alpha[:, None]) * a + alpha[:, None] * b
 
 
-def sample_channel(channel: Channel, t) -> Float[Array, " d"]:
-    """Value of one channel at time t per the glTF specification."""
+def sample_channel(channel: Channel, t: Float[ArrayLike, ""]) -> Float[Array, " d"]:
+    """Value (d,) of one channel at time t per the glTF specification.
+
+    Args:
+        channel: the Channel.
+        t: () the time (clamped to the key range)."""
     times, values, counts, _ = _stack([channel])
     return _sample_rows(channel.path, channel.interpolation, times, values, counts, t)[0]
 
 
-def sample_trs(skeleton: Skeleton, clip: AnimationClip, t):
+def sample_trs(
+    skeleton: Skeleton, clip: AnimationClip, t: Float[ArrayLike, ""]
+) -> tuple[Float[Array, "b 3"], Float[Array, "b 4"], Float[Array, "b 3"]]:
     """Local TRS of every bone at time t per the glTF specification (unanimated properties keep
-    the rest value). Returns translation (b, 3), rotation (b, 4) in (x, y, z, w), scale (b, 3)."""
+    the rest value). Returns translation (b, 3), rotation (b, 4) in (x, y, z, w), scale (b, 3).
+
+    Args:
+        skeleton: the Skeleton (its rest TRS).
+        clip: the AnimationClip.
+        t: () the time (clamped to the key range)."""
     trs = {"translation": skeleton.translation, "rotation": skeleton.rotation, "scale": skeleton.scale}
     for (path, interpolation), channels in _groups(clip).items():
         times, values, counts, bones = _stack(channels)
@@ -293,8 +317,13 @@ def sample_trs(skeleton: Skeleton, clip: AnimationClip, t):
     return trs["translation"], trs["rotation"], trs["scale"]
 
 
-def sample_matrices(skeleton: Skeleton, clip: AnimationClip, t) -> Float[Array, "b 4 4"]:
-    """Local matrices ``T R S`` (eq. 15) of every bone at time t (specification sampling)."""
+def sample_matrices(skeleton: Skeleton, clip: AnimationClip, t: Float[ArrayLike, ""]) -> Float[Array, "b 4 4"]:
+    """Local matrices ``T R S`` (eq. 15) of every bone at time t (specification sampling).
+
+    Args:
+        skeleton: the Skeleton (its rest TRS).
+        clip: the AnimationClip.
+        t: () the time (clamped to the key range)."""
     return trs_to_matrix(*sample_trs(skeleton, clip, t))
 
 
@@ -328,9 +357,14 @@ def _versor_rows(path: str, interpolation: str, times, values, counts, t) -> Mul
     return _project(cga.blend_log(_key_versors(path, a), _key_versors(path, b), alpha), _PART_BLADES[path])
 
 
-def sample_versors(skeleton: Skeleton, clip: AnimationClip, t) -> Multivector:
+def sample_versors(skeleton: Skeleton, clip: AnimationClip, t: Float[ArrayLike, ""]) -> Multivector:
     """Local similitudes ``T R D`` of every bone at time t, keys blended logarithmically (sec. 2.5,
-    4.1). Batch shape (b,)."""
+    4.1). Batch shape (b,).
+
+    Args:
+        skeleton: the Skeleton (its rest TRS).
+        clip: the AnimationClip.
+        t: () the time (clamped to the key range)."""
     parts = {
         "translation": cga.translator(skeleton.translation).values,
         "rotation": _rotor_xyzw(skeleton.rotation).values,
@@ -366,8 +400,12 @@ class Keyframes(eqx.Module):
             raise ValueError(f"times: expected shape ({self.poses.batch_shape[0]},), got {jnp.shape(self.times)}")
 
 
-def sample_keyframes(keyframes: Keyframes, t) -> Multivector:
-    """Local versors at time t: linear blending of the two surrounding keys, renormalized."""
+def sample_keyframes(keyframes: Keyframes, t: Float[ArrayLike, ""]) -> Multivector:
+    """Local versors at time t, batch shape (b,): linear blending of the two surrounding keys, renormalized.
+
+    Args:
+        keyframes: the Keyframes.
+        t: () the time (clamped to the key range)."""
     poses = keyframes.poses.embed(_SIMILITUDE)
     if keyframes.times.shape[0] == 1:
         return poses[0]
@@ -380,9 +418,12 @@ def sample_keyframes(keyframes: Keyframes, t) -> Multivector:
 
 
 # ---------------------------------------------------------------- versors back to TRS / clips
-def versor_to_trs(versors: Multivector):
+def versor_to_trs(versors: Multivector) -> tuple[Float[Array, "... 3"], Float[Array, "... 4"], Float[Array, "... 3"]]:
     """Translation (..., 3), glTF quaternion (..., 4) and uniform scale (..., 3) of motors or
-    similitudes: the inverse of ``trs_to_versor``."""
+    similitudes: the inverse of ``trs_to_versor``.
+
+    Args:
+        versors: motors or similitudes, batch shape (...,)."""
     matrix = cga.versor_to_matrix(versors)
     scale = jnp.cbrt(jnp.linalg.det(matrix[..., :3, :3]))
     wxyz = cga.matrix_to_quaternion(matrix[..., :3, :3] / scale[..., None, None])

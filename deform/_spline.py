@@ -124,7 +124,8 @@ def spline_parameter(V, F, start, end, *, laplacian: str = "cotangent") -> Float
     maximum principle on obtuse meshes, and the bases are defined on [0, 1] only).
 
     Args:
-        V: (n, 3) vertex positions. F: (m, 3) int faces.
+        V: (n, 3) vertex positions.
+        F: (m, 3) int faces.
         start, end: disjoint non-empty index arrays of the two handles.
         laplacian: ``"cotangent"`` or ``"mean_value"``.
     """
@@ -153,7 +154,8 @@ def spline_precompute(
     """Bind a mesh to k key motors along a spline path (eq. 1-2, sec. III-A).
 
     Args:
-        V: (n, 3) rest positions. F: (m, 3) int faces.
+        V: (n, 3) rest positions.
+        F: (m, 3) int faces.
         start, end: index arrays of the handles H_1 (lambda = 0) and H_n (lambda = 1).
         rest_motors: None (identity rest motors: key motors are motions of space) or motors with batch
             shape (k,) that give back the rest mesh.
