@@ -17,7 +17,7 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
-from jaxtyping import Array, Float, Int
+from jaxtyping import Array, ArrayLike, Float, Int
 
 import jaxcga as cga
 from _jaxcga_shared.mesh import bounding_diagonal
@@ -74,10 +74,10 @@ def _residuals(y, data: _FitData):
 
 def fit_key_motors(
     field: MotorField,
-    targets: Float[Array, "t 3"],
-    vertices: Int[Array, " t"] | None = None,
+    targets: Float[ArrayLike, "t 3"],
+    vertices: Int[ArrayLike, " t"] | None = None,
     *,
-    free=None,
+    free: Int[ArrayLike, " f"] | None = None,
     fixed_motors: Multivector | None = None,
     regularization: float = 0.0,
     solver: str = "levenberg_marquardt",
@@ -93,7 +93,7 @@ def fit_key_motors(
             ``cage_precompute`` or ``motor_field_precompute``).
         targets: (t, 3) target positions (t = n when ``vertices`` is None).
         vertices: (t,) int vertex indices, or None for all.
-        free: indices of the keys to fit (default all); the others keep ``fixed_motors``.
+        free: (f,) int indices of the keys to fit (default all); the others keep ``fixed_motors``.
         fixed_motors: motors (batch shape (k,)) for the keys not fitted; default identities.
         regularization: weight of ``lambda |B|^2`` toward the rest (use it with few targets).
         solver: one of ``deform.SOLVERS``.

@@ -41,7 +41,7 @@ _SIMILITUDE = KINDS["similitude"]
 
 
 # ---------------------------------------------------------------- TRS -> matrix / versor
-def quaternion_xyzw_to_matrix(q: Float[Array, "... 4"]) -> Float[Array, "... 3 3"]:
+def quaternion_xyzw_to_matrix(q: Float[Array | np.ndarray, "... 4"]) -> Float[Array, "... 3 3"]:
     """Rotation matrix of a unit quaternion in glTF order (x, y, z, w)."""
     x, y, z, w = (q[..., i] for i in range(4))
     return jnp.stack(
@@ -55,7 +55,9 @@ def quaternion_xyzw_to_matrix(q: Float[Array, "... 4"]) -> Float[Array, "... 3 3
 
 
 def trs_to_matrix(
-    translation: Float[Array, "... 3"], rotation: Float[Array, "... 4"], scale: Float[Array, "... 3"]
+    translation: Float[Array | np.ndarray, "... 3"],
+    rotation: Float[Array | np.ndarray, "... 4"],
+    scale: Float[Array | np.ndarray, "... 3"],
 ) -> Float[Array, "... 4 4"]:
     """Homogeneous matrix ``T R S`` (eq. 15) of a local TRS.
 
@@ -73,7 +75,7 @@ def _rotor_xyzw(q) -> Multivector:
     return cga.quaternion_to_rotor(jnp.concatenate([q[..., 3:], q[..., :3]], axis=-1))
 
 
-def uniform_scale(scale: Float[Array, "... 3"], tolerance: float = 1e-5) -> Float[Array, ...]:
+def uniform_scale(scale: Float[Array | np.ndarray, "... 3"], tolerance: float = 1e-5) -> Float[Array, ...]:
     """The common factor of a uniform scale (..., 3); non-uniform (relative spread > tolerance) or
     non-positive scales raise a ValueError (inside jit a runtime error with the message): a dilator is a uniform
     scaling (eq. 12)."""
@@ -91,7 +93,9 @@ def uniform_scale(scale: Float[Array, "... 3"], tolerance: float = 1e-5) -> Floa
 
 
 def trs_to_versor(
-    translation: Float[Array, "... 3"], rotation: Float[Array, "... 4"], scale: Float[Array, "... 3"]
+    translation: Float[Array | np.ndarray, "... 3"],
+    rotation: Float[Array | np.ndarray, "... 4"],
+    scale: Float[Array | np.ndarray, "... 3"],
 ) -> Multivector:
     """Similitude ``T R D`` of a local TRS (the multivector form of eq. 15, sec. 4.1), batch shape (...,).
 
