@@ -118,11 +118,15 @@ def bounding_lattice(V: Float[ArrayLike, "n 3"], counts: Sequence[int] = (4, 4, 
     return Lattice(low - pad, jnp.diag(high - low + 2 * pad), counts)
 
 
-def lattice_coordinates(V: Float[Array, "n 3"], lattice: Lattice) -> Float[Array, "n 3"]:
+def lattice_coordinates(V: Float[ArrayLike, "n 3"], lattice: Lattice) -> Float[Array, "n 3"]:
     """Local coordinates ``(s, t, u)`` of the points ``V`` (n, 3) in the lattice, ``V = origin + (s, t, u) @ axes``.
 
     A point outside [0, 1]^3 by more than rounding (``sqrt(eps)``), or a flat lattice, raises a
-    ValueError (inside jit a runtime error with the message)."""
+    ValueError (inside jit a runtime error with the message).
+
+    Args:
+        V: (n, 3) points inside the lattice.
+        lattice: the Lattice."""
     V = _check_points("V", V)
     axes, origin = lattice.axes.astype(V.dtype), lattice.origin.astype(V.dtype)
     local = jnp.linalg.solve(axes.T, (V - origin).T).T
@@ -151,11 +155,15 @@ def _bernstein(degree: int, t: Float[Array, ...]) -> Float[Array, "... degree+1"
     )
 
 
-def ffd_weights(V: Float[Array, "n 3"], lattice: Lattice) -> Float[Array, "n k"]:
-    """Tensor-product Bezier weights (n, l m n) of the points ``V`` in the lattice, eq. (8)."""
+def ffd_weights(V: Float[ArrayLike, "n 3"], lattice: Lattice) -> Float[Array, "n k"]:
+    """Tensor-product Bezier weights (n, l m n) of the points ``V`` in the lattice, eq. (8).
+
+    Args:
+        V: (n, 3) points inside the lattice.
+        lattice: the Lattice."""
     local = lattice_coordinates(V, lattice)
     b = [_bernstein(c - 1, local[:, axis]) for axis, c in enumerate(lattice.counts)]
-    return jnp.einsum("pa,pb,pc->pabc", *b).reshape(V.shape[0], lattice.size)
+    return jnp.einsum("pa,pb,pc->pabc", *b).reshape(local.shape[0], lattice.size)
 
 
 def _local_grid(lattice: Lattice) -> Float[Array, "k 3"]:
@@ -166,16 +174,23 @@ def _local_grid(lattice: Lattice) -> Float[Array, "k 3"]:
 
 
 def lattice_points(lattice: Lattice) -> Float[Array, "k 3"]:
-    """The rest control points (l m n, 3), row-major over the (a, b, c) grid like ``ffd_weights``."""
+    """The rest control points (l m n, 3), row-major over the (a, b, c) grid like ``ffd_weights``.
+
+    Args:
+        lattice: the Lattice."""
     return lattice.origin + _local_grid(lattice) @ lattice.axes
 
 
-def ffd_precompute(V: Float[Array, "n 3"], lattice: Lattice) -> MotorField:
+def ffd_precompute(V: Float[ArrayLike, "n 3"], lattice: Lattice) -> MotorField:
     """Motor FFD, eq. (7)-(8): ``V`` bound to one motor per lattice point with identity rest motors.
 
     ``motor_field_solve`` on the result and lattice motors with batch shape (..., l m n) gives the deformed
     positions (..., n, 3); the identity motors give back ``V``, translators by ``d_j`` the classic FFD with
-    control points ``P_j + d_j``, and the same motor G everywhere moves the mesh rigidly by G."""
+    control points ``P_j + d_j``, and the same motor G everywhere moves the mesh rigidly by G.
+
+    Args:
+        V: (n, 3) points inside the lattice.
+        lattice: the Lattice."""
     V = _check_points("V", V)
     return motor_field_precompute(V, ffd_weights(V, lattice))
 

@@ -47,7 +47,10 @@ class MotorFit(eqx.Module):
 
 
 def generators_to_motors(generators: Float[Array, "... k 6"]) -> Multivector:
-    """Key motors ``exp(B_j)`` from (..., k, 6) motor generators."""
+    """Key motors ``exp(B_j)``, batch shape (..., k), from motor generators.
+
+    Args:
+        generators: (..., k, 6) motor generators (e12, e13, e23, e1inf, e2inf, e3inf)."""
     generators = jnp.asarray(generators)
     if generators.ndim < 1 or generators.shape[-1] != 6:
         raise ValueError(f"generators: expected shape (..., k, 6), got {generators.shape}")

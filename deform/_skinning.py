@@ -332,9 +332,17 @@ def _blend_motors_and_apply(
     return _coordinates_last(coordinates, cpu=cpu)
 
 
-def matrices_to_dual_quaternions(matrices: Float[Array, "... 4 4"], tolerance: float = 1e-5) -> Float[Array, "... 8"]:
+def matrices_to_dual_quaternions(
+    matrices: Float[ArrayLike, "... 4 4"], tolerance: float = 1e-5
+) -> Float[Array, "... 8"]:
     """Unit dual quaternions (real w, x, y, z; dual w, x, y, z) of rigid 4x4 matrices; a matrix with a
-    scale or shear raises inside jit (DQS cannot represent a dilation, the paper's sec. 3)."""
+    scale or shear raises inside jit (DQS cannot represent a dilation, the paper's sec. 3).
+
+    Args:
+        matrices: (..., 4, 4) or (..., 3, 4) rigid matrices.
+        tolerance: the largest entry of ``|R^T R - I|`` accepted, R the upper-left 3x3 block.
+    Returns:
+        (..., 8) unit dual quaternions."""
     matrices = jnp.asarray(matrices)
     if matrices.ndim < 2 or matrices.shape[-2:] not in ((4, 4), (3, 4)):
         raise ValueError(f"matrices: expected shape (..., 4, 4), got {matrices.shape}")

@@ -55,7 +55,11 @@ def _powers(lam, degree: int):
 
 def clamped_knots(num_keys: int, degree: int) -> np.ndarray:
     """The clamped uniform knot vector (num_keys + degree + 1,): degree + 1 zeros, uniform interior
-    knots, degree + 1 ones."""
+    knots, degree + 1 ones.
+
+    Args:
+        num_keys: k >= degree + 1 control points.
+        degree: the B-spline degree."""
     interior = np.linspace(0.0, 1.0, num_keys - degree + 1)
     return np.concatenate([np.zeros(degree), interior, np.ones(degree)])
 
