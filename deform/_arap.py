@@ -60,7 +60,7 @@ import jax.numpy as jnp
 import lineax as lx
 import numpy as np
 import scipy.sparse as sp
-from jaxtyping import Array, Float, Int
+from jaxtyping import Array, ArrayLike, Float, Int
 
 from _jaxcga_shared.checks import require
 from _jaxcga_shared.sparse import SparseSolver
@@ -107,7 +107,9 @@ def _padded(rows, columns, values, n):
     return table, padded
 
 
-def arap_precompute(V, F, b, *, energy: str = "spokes_and_rims") -> ARAPData:
+def arap_precompute(
+    V: Float[ArrayLike, "n 3"], F: Int[ArrayLike, "m 3"], b: Int[ArrayLike, " nb"], *, energy: str = "spokes_and_rims"
+) -> ARAPData:
     """Precompute ARAP (cotangent weights) for a mesh with handle vertices ``b``.
 
     Args:
@@ -144,7 +146,7 @@ def arap_precompute(V, F, b, *, energy: str = "spokes_and_rims") -> ARAPData:
         ) from None
     # corner k of every face: its vertex i, the other two (j1, j2) and the weights of the edges i-j1
     # (opposite j2) and i-j2 (opposite j1); the rim j1-j2 is opposite i
-    C = igl.cotmatrix_entries(V, F)  # (m, 3): column k is the edge opposite corner k
+    C = np.asarray(igl.cotmatrix_entries(V, F))  # (m, 3): column k is the edge opposite corner k
     corners = [
         (F[:, k], F[:, (k + 1) % 3], F[:, (k + 2) % 3], C[:, (k + 2) % 3], C[:, (k + 1) % 3], C[:, k]) for k in range(3)
     ]
@@ -209,11 +211,16 @@ def _adjugate_and_det4(a):
     return jnp.swapaxes(cof, -1, -2), jnp.einsum("...j,...j->...", a[..., 0, :], cof[..., 0, :])
 
 
-def horn_rotors(S: Float[Array, "n 3 3"], newton_steps: int = 24):
+def horn_rotors(S: Float[Array, "n 3 3"], newton_steps: int = 24) -> tuple[Multivector, Float[Array, " n"]]:
     """Rotors maximizing ``sum_j w_j (M v_j ~M) . v'_j`` for ``S = sum_j w_j v_j v'_j^T`` (sec. VII):
     the top eigenvector of Horn's matrix P, in closed form (Newton on the characteristic quartic,
-    then the adjugate of ``P - l I``). Returns the rotors (a rotor Multivector, batch (n,)) and the
-    largest eigenvalues l (n,)."""
+    then the adjugate of ``P - l I``).
+
+    Args:
+        S: (n, 3, 3) covariances ``sum_j w_j v_j v'_j^T``, one per cell.
+        newton_steps: Newton iterations on the characteristic quartic.
+    Returns:
+        The rotors (a rotor Multivector, batch (n,)) and the largest eigenvalues l (n,)."""
     sxx, sxy, sxz = S[:, 0, 0], S[:, 0, 1], S[:, 0, 2]
     syx, syy, syz = S[:, 1, 0], S[:, 1, 1], S[:, 1, 2]
     szx, szy, szz = S[:, 2, 0], S[:, 2, 1], S[:, 2, 2]
@@ -337,7 +344,14 @@ def _aligned_rest(data: ARAPData, bc) -> Float[Array, "n 3"]:
     return apply_to_points(align_points(rest[data.b], bc), rest)
 
 
-def arap_solve(data: ARAPData, bc, *, V0=None, max_iterations: int = 10, tolerance: float = 1e-8) -> ARAPResult:
+def arap_solve(
+    data: ARAPData,
+    bc: Float[ArrayLike, "nb 3"],
+    *,
+    V0: Float[ArrayLike, "n 3"] | None = None,
+    max_iterations: int = 10,
+    tolerance: float = 1e-8,
+) -> ARAPResult:
     """Deform the mesh so that the handles ``data.b`` sit at ``bc``, as rigidly as possible.
 
     Args:

@@ -42,6 +42,7 @@ import numpy as np
 import scipy.sparse as sp
 import tetgen
 import trimesh
+from jaxtyping import ArrayLike, Float, Int
 
 from _jaxcga_shared.host import quiet_stdout
 from _jaxcga_shared.mesh import bounding_diagonal
@@ -81,12 +82,13 @@ def _check_cage(cage_V, cage_F):
 def _subdivide(cage_V, cage_F, levels: int):
     """Midpoint subdivision (each triangle into 4, ``levels`` times): the surface vertices sV, faces sF,
     and S (len(sV), c) sparse, row i the cage hat functions at surface vertex i (sV = S cage_V)."""
-    S = sp.identity(len(cage_V), format="csr")
+    S = sp.identity(len(cage_V), format="csr").tocsr()  # tocsr: scipy's stubs type identity as dia
     F = cage_F
     for _ in range(levels):
         edges = np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1)
         unique, index = np.unique(edges, axis=0, return_inverse=True)
-        mid = S.shape[0] + index.reshape(3, -1)  # midpoint of edge 01, 12, 20 of each face
+        # midpoint of edge 01, 12, 20 of each face (scipy's stubs allow a shape of None)
+        mid = S.shape[0] + index.reshape(3, -1)  # pyright: ignore[reportOptionalSubscript]
         S = sp.vstack([S, (S[unique[:, 0]] + S[unique[:, 1]]) * 0.5]).tocsr()
         a, b, c = F.T
         F = np.concatenate(
@@ -122,7 +124,7 @@ def _tetrahedralize(cage_V, cage_F, sV, sF, max_tet_volume):
     except RuntimeError as error:
         raise _TetGenFailure(f"cage_F: TetGen failed to tetrahedralize the cage ({error})") from None
     TV, TT = np.asarray(TV, np.float64), np.asarray(TT, np.int64)
-    facets = igl.boundary_facets(TT)[0]
+    facets = np.asarray(igl.boundary_facets(TT)[0])
     # Y keeps the surface, but TetGen may still split a few surface triangles: harmless as long as every
     # boundary facet lies in one cage face, where the hat functions are linear
     tolerance = _SURFACE_TOLERANCE * bounding_diagonal(cage_V)
@@ -140,12 +142,18 @@ def _tetrahedralize(cage_V, cage_F, sV, sF, max_tet_volume):
     return TV, TT, np.unique(facets)
 
 
-def harmonic_coordinates(cage_V, cage_F, *, max_tet_volume: float = 1e-4, subdivisions: int | None = None):
+def harmonic_coordinates(
+    cage_V: Float[ArrayLike, "c 3"],
+    cage_F: Int[ArrayLike, "m 3"],
+    *,
+    max_tet_volume: float = 1e-4,
+    subdivisions: int | None = None,
+) -> tuple[Float[np.ndarray, "N 3"], Int[np.ndarray, "t 4"], Float[np.ndarray, "N c"]]:
     """Harmonic coordinates of a closed cage on a tetrahedralization of its interior.
 
     Args:
-        cage_V: (c, 3) cage vertex positions. cage_F: (m, 3) int faces of a closed, consistently oriented
-            2-manifold (either orientation).
+        cage_V: (c, 3) cage vertex positions.
+        cage_F: (m, 3) int faces of a closed, consistently oriented 2-manifold (either orientation).
         max_tet_volume: the largest tet volume as a fraction of the cage's volume (the resolution).
         subdivisions: midpoint subdivisions of the cage surface before meshing (TetGen keeps the surface,
             so large cage faces would leave the interior coarse); None: enough to bring the median cage
@@ -194,11 +202,11 @@ def _interpolate(cage_V, cage_F, TV, TT, H, V):
     """Coordinates of the points V: linear in their tet, or on the cage face they lie on."""
     tree = igl.AABB()
     tree.init(TV, TT)
-    tet = igl.in_element(TV, TT, V, tree)
+    tet = np.asarray(igl.in_element(TV, TT, V, tree))
     coords = np.empty((len(V), H.shape[1]))
     inside = tet >= 0
     corners = TT[tet[inside]]
-    bary = igl.barycentric_coordinates(V[inside], *(TV[corners[:, k]] for k in range(4)))
+    bary = np.asarray(igl.barycentric_coordinates(V[inside], *(TV[corners[:, k]] for k in range(4))))
     coords[inside] = np.einsum("nk,nkc->nc", bary, H[corners])
     # in_element has no tolerance: points on the cage up to round-off take the face's hat functions
     off = np.flatnonzero(~inside)
@@ -207,7 +215,7 @@ def _interpolate(cage_V, cage_F, TV, TT, H, V):
         far = distance > _SURFACE_TOLERANCE * bounding_diagonal(cage_V)
         if far.any():
             i = int(off[np.argmax(far)])
-            winding = float(igl.winding_number(cage_V, cage_F, V[i]))
+            winding = float(np.asarray(igl.winding_number(cage_V, cage_F, V[i])))
             raise ValueError(
                 f"V: {int(far.sum())} vertices lie outside the cage, the first is vertex {i} at "
                 f"{V[i].tolist()} (winding number {winding:.3g}, expected 1)"
@@ -216,13 +224,20 @@ def _interpolate(cage_V, cage_F, TV, TT, H, V):
     return coords
 
 
-def cage_precompute(V, cage_V, cage_F, *, max_tet_volume: float = 1e-4, subdivisions: int | None = None) -> MotorField:
+def cage_precompute(
+    V: Float[ArrayLike, "n 3"],
+    cage_V: Float[ArrayLike, "c 3"],
+    cage_F: Int[ArrayLike, "m 3"],
+    *,
+    max_tet_volume: float = 1e-4,
+    subdivisions: int | None = None,
+) -> MotorField:
     """Bind the mesh vertices V to a cage by harmonic coordinates (sec. VI).
 
     Args:
         V: (n, 3) mesh vertices, all inside the cage (or on it).
-        cage_V: (c, 3) cage vertices. cage_F: (m, 3) int faces of a closed, consistently oriented
-            2-manifold (inward orientation is flipped).
+        cage_V: (c, 3) cage vertices.
+        cage_F: (m, 3) int faces of a closed, consistently oriented 2-manifold (inward orientation is flipped).
         max_tet_volume, subdivisions: the resolution, see ``harmonic_coordinates``.
     Returns:
         a ``MotorField`` whose weights are the harmonic coordinates ``lambda^i_j`` (n, c) and whose bound
@@ -243,11 +258,19 @@ def cage_precompute(V, cage_V, cage_F, *, max_tet_volume: float = 1e-4, subdivis
     return motor_field_precompute(jnp.asarray(V, dtype), jnp.asarray(coords, dtype))
 
 
-def tube_cage(V, axis: int | None = None, segments: int = 6, sides: int = 8, margin: float = 1.05):
+def tube_cage(
+    V: Float[ArrayLike, "n 3"], axis: int | None = None, segments: int = 6, sides: int = 8, margin: float = 1.05
+) -> tuple[Float[np.ndarray, "c 3"], Int[np.ndarray, "m 3"]]:
     """A coarse closed cage around a mesh elongated along ``axis`` (default: its longest extent): rings
     of regular polygons (``segments + 1`` of them, ``sides`` vertices each) whose radii cover the
     vertices of the slabs they bound, times ``margin``, capped by a fan at each end.
 
+    Args:
+        V: (n, 3) mesh vertices, n >= 2.
+        axis: the tube's axis, 0, 1 or 2; None: the mesh's longest extent.
+        segments: rings along the axis, minus one (>= 1).
+        sides: vertices per ring (>= 3).
+        margin: the rings' radii over the slabs' largest vertex radius (>= 1).
     Returns:
         (cage_V (c, 3), cage_F (m, 3)), outward oriented; c = (segments + 1) sides + 2."""
     V = np.asarray(V, np.float64)

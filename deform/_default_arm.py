@@ -12,6 +12,7 @@ import math
 
 import jax.numpy as jnp
 import numpy as np
+from jax.typing import DTypeLike
 from scipy.interpolate import PchipInterpolator
 from scipy.spatial.transform import Rotation
 
@@ -111,7 +112,9 @@ def _wave_clip(rest_translation, rest_rotation, dtype):
     return AnimationClip(channels, name="wave")
 
 
-def default_arm(*, ring_vertices: int = 24, rings_per_unit: float = 150.0, dtype=None) -> RiggedModel:
+def default_arm(
+    *, ring_vertices: int = 24, rings_per_unit: float = 150.0, dtype: DTypeLike | None = None
+) -> RiggedModel:
     """The built-in default model: a rigged human-like right arm, generated procedurally.
 
     Skeleton (glTF conventions, every bone's local +y runs along the bone; world +y up, +z forward):

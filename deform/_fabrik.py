@@ -107,7 +107,13 @@ def fabrik(
 
 def rotor_between(u: Float[Array, "... 3"], v: Float[Array, "... 3"]) -> Multivector:
     """The rotor of the smallest rotation that turns direction ``u`` onto direction ``v`` (normalized
-    here): ``(1 + v u) / |1 + v u|``; for opposite directions, a half turn about an axis normal to u."""
+    here): ``(1 + v u) / |1 + v u|``; for opposite directions, a half turn about an axis normal to u.
+
+    Args:
+        u: (..., 3) directions to turn from.
+        v: (..., 3) directions to turn onto.
+    Returns:
+        rotors, batch shape (...,)."""
     u, v = _unit(jnp.asarray(u), 0.0), _unit(jnp.asarray(v), 0.0)
     cross = jnp.cross(u, v)
     # v u = u.v - u^v, with u^v = c3 e12 - c2 e13 + c1 e23 for the cross product c = u x v
@@ -127,7 +133,11 @@ def rotor_between(u: Float[Array, "... 3"], v: Float[Array, "... 3"]) -> Multive
 def chain_motors(rest: Float[Array, "m1 3"], posed: Float[Array, "m1 3"]) -> Multivector:
     """One motor per joint (batch shape (m + 1,)) from a rest chain to a posed chain with the same bone
     lengths: Q_0 the root's translation, Q_{i+1} bone i's rigid motion (minimal rotation of its direction
-    about rest joint i, then rest joint i to posed joint i). Q_i maps rest joint i onto posed joint i."""
+    about rest joint i, then rest joint i to posed joint i). Q_i maps rest joint i onto posed joint i.
+
+    Args:
+        rest: (m + 1, 3) rest joint positions, root first.
+        posed: (m + 1, 3) posed joint positions, the same bone lengths."""
     rest, posed = _check_chain("rest", rest), _check_chain("posed", posed)
     if rest.shape != posed.shape:
         raise ValueError(f"posed: expected the shape of rest {rest.shape}, got {posed.shape}")

@@ -37,10 +37,12 @@ a deformation causes, for the comparison in the paper's Fig. 7.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float, Int
+from jaxtyping import Array, ArrayLike, Float, Int
 from scipy.special import comb
 
 import jaxcga as cga
@@ -75,7 +77,9 @@ class Lattice(eqx.Module):
     axes: Float[Array, "3 3"]
     counts: tuple[int, int, int] = eqx.field(static=True)
 
-    def __init__(self, origin, axes, counts=(4, 4, 4)):
+    def __init__(
+        self, origin: Float[ArrayLike, 3], axes: Float[ArrayLike, "3 3"], counts: Sequence[int] = (4, 4, 4)
+    ) -> None:
         origin = _float_array("origin", origin, (3,))
         axes = _float_array("axes", axes, (3, 3))
         counts = tuple(int(c) for c in counts) if np.ndim(counts) == 1 else ()
@@ -98,9 +102,14 @@ def _check_points(name: str, V):
     return V
 
 
-def bounding_lattice(V: Float[Array, "n 3"], counts=(4, 4, 4), padding: float = 0.0) -> Lattice:
+def bounding_lattice(V: Float[ArrayLike, "n 3"], counts: Sequence[int] = (4, 4, 4), padding: float = 0.0) -> Lattice:
     """The axis-aligned bounding box of ``V`` as a lattice, grown by ``padding`` times the largest box
-    extent on every side (use ``padding > 0`` for a flat mesh, whose box is degenerate)."""
+    extent on every side (use ``padding > 0`` for a flat mesh, whose box is degenerate).
+
+    Args:
+        V: (n, 3) points.
+        counts: (l, m, n) control points per axis, each >= 2.
+        padding: >= 0, the margin on every side as a fraction of the largest box extent."""
     V = _check_points("V", V)
     if padding < 0:
         raise ValueError(f"padding: expected >= 0, got {padding}")
@@ -109,11 +118,15 @@ def bounding_lattice(V: Float[Array, "n 3"], counts=(4, 4, 4), padding: float = 
     return Lattice(low - pad, jnp.diag(high - low + 2 * pad), counts)
 
 
-def lattice_coordinates(V: Float[Array, "n 3"], lattice: Lattice) -> Float[Array, "n 3"]:
+def lattice_coordinates(V: Float[ArrayLike, "n 3"], lattice: Lattice) -> Float[Array, "n 3"]:
     """Local coordinates ``(s, t, u)`` of the points ``V`` (n, 3) in the lattice, ``V = origin + (s, t, u) @ axes``.
 
     A point outside [0, 1]^3 by more than rounding (``sqrt(eps)``), or a flat lattice, raises a
-    ValueError (inside jit a runtime error with the message)."""
+    ValueError (inside jit a runtime error with the message).
+
+    Args:
+        V: (n, 3) points inside the lattice.
+        lattice: the Lattice."""
     V = _check_points("V", V)
     axes, origin = lattice.axes.astype(V.dtype), lattice.origin.astype(V.dtype)
     local = jnp.linalg.solve(axes.T, (V - origin).T).T
@@ -142,11 +155,15 @@ def _bernstein(degree: int, t: Float[Array, ...]) -> Float[Array, "... degree+1"
     )
 
 
-def ffd_weights(V: Float[Array, "n 3"], lattice: Lattice) -> Float[Array, "n k"]:
-    """Tensor-product Bezier weights (n, l m n) of the points ``V`` in the lattice, eq. (8)."""
+def ffd_weights(V: Float[ArrayLike, "n 3"], lattice: Lattice) -> Float[Array, "n k"]:
+    """Tensor-product Bezier weights (n, l m n) of the points ``V`` in the lattice, eq. (8).
+
+    Args:
+        V: (n, 3) points inside the lattice.
+        lattice: the Lattice."""
     local = lattice_coordinates(V, lattice)
     b = [_bernstein(c - 1, local[:, axis]) for axis, c in enumerate(lattice.counts)]
-    return jnp.einsum("pa,pb,pc->pabc", *b).reshape(V.shape[0], lattice.size)
+    return jnp.einsum("pa,pb,pc->pabc", *b).reshape(local.shape[0], lattice.size)
 
 
 def _local_grid(lattice: Lattice) -> Float[Array, "k 3"]:
@@ -157,21 +174,30 @@ def _local_grid(lattice: Lattice) -> Float[Array, "k 3"]:
 
 
 def lattice_points(lattice: Lattice) -> Float[Array, "k 3"]:
-    """The rest control points (l m n, 3), row-major over the (a, b, c) grid like ``ffd_weights``."""
+    """The rest control points (l m n, 3), row-major over the (a, b, c) grid like ``ffd_weights``.
+
+    Args:
+        lattice: the Lattice."""
     return lattice.origin + _local_grid(lattice) @ lattice.axes
 
 
-def ffd_precompute(V: Float[Array, "n 3"], lattice: Lattice) -> MotorField:
+def ffd_precompute(V: Float[ArrayLike, "n 3"], lattice: Lattice) -> MotorField:
     """Motor FFD, eq. (7)-(8): ``V`` bound to one motor per lattice point with identity rest motors.
 
     ``motor_field_solve`` on the result and lattice motors with batch shape (..., l m n) gives the deformed
     positions (..., n, 3); the identity motors give back ``V``, translators by ``d_j`` the classic FFD with
-    control points ``P_j + d_j``, and the same motor G everywhere moves the mesh rigidly by G."""
+    control points ``P_j + d_j``, and the same motor G everywhere moves the mesh rigidly by G.
+
+    Args:
+        V: (n, 3) points inside the lattice.
+        lattice: the Lattice."""
     V = _check_points("V", V)
     return motor_field_precompute(V, ffd_weights(V, lattice))
 
 
-def twist_lattice(lattice: Lattice, angle, axis: int | None = None) -> tuple[Float[Array, "k 3"], Multivector]:
+def twist_lattice(
+    lattice: Lattice, angle: Float[ArrayLike, ""], axis: int | None = None
+) -> tuple[Float[Array, "k 3"], Multivector]:
     """One twist of the lattice, as control points and as lattice motors.
 
     Every lattice point turns about the lattice's centre line along ``axes[axis]`` (default: the longest
@@ -193,10 +219,10 @@ def twist_lattice(lattice: Lattice, angle, axis: int | None = None) -> tuple[Flo
         raise ValueError(f"axis: expected 0, 1, 2 or None, got {axis}")
     local = _local_grid(lattice)
     # a traced index, so that the default (longest edge) also works on traced lattices
-    axis = jnp.argmax(jnp.linalg.norm(lattice.axes, axis=1)) if axis is None else axis
+    along = jnp.argmax(jnp.linalg.norm(lattice.axes, axis=1)) if axis is None else axis
     centre = lattice.origin + 0.5 * jnp.sum(lattice.axes, axis=0)
-    direction = jnp.broadcast_to(lattice.axes[axis], local.shape)
-    turn = jnp.asarray(angle, local.dtype) * (local[:, axis] - 0.5)
+    direction = jnp.broadcast_to(lattice.axes[along], local.shape)
+    turn = jnp.asarray(angle, local.dtype) * (local[:, along] - 0.5)
     motors = motor_about(centre, cga.rotor(direction, turn))
     return cga.apply_to_points(motors, lattice_points(lattice)), motors
 
@@ -210,9 +236,15 @@ def _check_faces(F, n: int) -> np.ndarray:
     return F
 
 
-def distortion(V0: Float[Array, "n 3"], F: Int[Array, "m 3"], V1: Float[Array, "... n 3"]) -> dict[str, Array]:
+def distortion(
+    V0: Float[ArrayLike, "n 3"], F: Int[ArrayLike, "m 3"], V1: Float[ArrayLike, "... n 3"]
+) -> dict[str, Float[Array, ...]]:
     """How a deformation ``V0 -> V1`` of a closed mesh (V0, F) changes volume and edge lengths.
 
+    Args:
+        V0: (n, 3) rest positions.
+        F: (m, 3) int triangles of a closed mesh.
+        V1: (..., n, 3) deformed positions.
     Returns a dict of arrays with the batch shape of ``V1``:
         ``volume_ratio``: signed volume of V1 over that of V0 (1 for a volume-preserving map);
         ``edge_mean``, ``edge_max``: mean and max over the edges of ``|len_1 / len_0 - 1|``.
@@ -228,7 +260,7 @@ def distortion(V0: Float[Array, "n 3"], F: Int[Array, "m 3"], V1: Float[Array, "
     length = jnp.linalg.norm(V1[..., E[:, 1], :] - V1[..., E[:, 0], :], axis=-1)
     change = jnp.abs(length / rest - 1)
     return {
-        "volume_ratio": signed_volume(V1, F) / signed_volume(V0, F),
+        "volume_ratio": signed_volume(V1, jnp.asarray(F)) / signed_volume(V0, jnp.asarray(F)),
         "edge_mean": jnp.mean(change, axis=-1),
         "edge_max": jnp.max(change, axis=-1),
     }

@@ -17,7 +17,7 @@ import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 import optimistix as optx
-from jaxtyping import Array, Float, Int
+from jaxtyping import Array, ArrayLike, Float, Int
 
 import jaxcga as cga
 from _jaxcga_shared.mesh import bounding_diagonal
@@ -47,7 +47,10 @@ class MotorFit(eqx.Module):
 
 
 def generators_to_motors(generators: Float[Array, "... k 6"]) -> Multivector:
-    """Key motors ``exp(B_j)`` from (..., k, 6) motor generators."""
+    """Key motors ``exp(B_j)``, batch shape (..., k), from motor generators.
+
+    Args:
+        generators: (..., k, 6) motor generators (e12, e13, e23, e1inf, e2inf, e3inf)."""
     generators = jnp.asarray(generators)
     if generators.ndim < 1 or generators.shape[-1] != 6:
         raise ValueError(f"generators: expected shape (..., k, 6), got {generators.shape}")
@@ -74,10 +77,10 @@ def _residuals(y, data: _FitData):
 
 def fit_key_motors(
     field: MotorField,
-    targets: Float[Array, "t 3"],
-    vertices: Int[Array, " t"] | None = None,
+    targets: Float[ArrayLike, "t 3"],
+    vertices: Int[ArrayLike, " t"] | None = None,
     *,
-    free=None,
+    free: Int[ArrayLike, " f"] | None = None,
     fixed_motors: Multivector | None = None,
     regularization: float = 0.0,
     solver: str = "levenberg_marquardt",
@@ -93,7 +96,7 @@ def fit_key_motors(
             ``cage_precompute`` or ``motor_field_precompute``).
         targets: (t, 3) target positions (t = n when ``vertices`` is None).
         vertices: (t,) int vertex indices, or None for all.
-        free: indices of the keys to fit (default all); the others keep ``fixed_motors``.
+        free: (f,) int indices of the keys to fit (default all); the others keep ``fixed_motors``.
         fixed_motors: motors (batch shape (k,)) for the keys not fitted; default identities.
         regularization: weight of ``lambda |B|^2`` toward the rest (use it with few targets).
         solver: one of ``deform.SOLVERS``.

@@ -19,7 +19,8 @@ import jax.numpy as jnp
 import numpy as np
 import optax
 import optimistix as optx
-from jaxtyping import Array, Float, Int
+from jax.typing import DTypeLike
+from jaxtyping import Array, ArrayLike, Float, Int, PRNGKeyArray
 
 import jaxcga as cga
 from _jaxcga_shared.mesh import bounding_diagonal
@@ -32,7 +33,7 @@ PARAMETERS_PER_BONE = 7  # six motor-generator components and one log-scale
 _ADAM_RATE = 1e-2  # gradient_descent's initial step per parameter (radians, log-scale, model units)
 
 
-def pose_from_parameters(model: RiggedModel, params: Float[Array, "... b 7"]) -> Multivector:
+def pose_from_parameters(model: RiggedModel, params: Float[ArrayLike, "... b 7"]) -> Multivector:
     """Local similitudes ``L_rest exp(B) D(exp(sigma))`` of every bone, batch shape (..., b).
 
     Args:
@@ -49,8 +50,15 @@ def pose_from_parameters(model: RiggedModel, params: Float[Array, "... b 7"]) ->
     return (rest * motion * dilation).embed(KINDS["similitude"])
 
 
-def skin_parameters(model: RiggedModel, params, method: str = "cga"):
-    """Skinned positions (..., n, 3) for parameters (..., b, 7) (see ``pose_from_parameters``)."""
+def skin_parameters(
+    model: RiggedModel, params: Float[ArrayLike, "... b 7"], method: str = "cga"
+) -> Float[Array, "... n 3"]:
+    """Skinned positions (..., n, 3) for parameters (..., b, 7) (see ``pose_from_parameters``).
+
+    Args:
+        model: the RiggedModel.
+        params: (..., b, 7) parameters, see ``pose_from_parameters``.
+        method: skinning method (``deform.METHODS``)."""
     return _pose.skin_pose(model, pose_from_parameters(model, params), method)
 
 
@@ -115,7 +123,7 @@ def run_solver(residuals, name: str, y0, args, max_steps: int, rtol: float, atol
     """optimistix on ``residuals(y, args)``: least squares for Levenberg-Marquardt / Gauss-Newton, else
     minimisation of the squared residual (BFGS, gradient descent). Returns the solution object."""
     opt = _solver(name, rtol, atol, max_steps)
-    if name in ("levenberg_marquardt", "gauss_newton"):
+    if not isinstance(opt, optx.AbstractMinimiser):  # Levenberg-Marquardt, Gauss-Newton
         return optx.least_squares(residuals, opt, y0, args=args, max_steps=max_steps, throw=False)
     if name == "gradient_descent":
         # optax mixes its int32 step count with floats (schedule, bias correction): standard promotion for this
@@ -188,7 +196,7 @@ def fit_pose(
     diagonal = jnp.asarray(_rest_diagonal(model), dtype)
     width = PARAMETERS_PER_BONE if fit_scale else 6
     y0 = jnp.zeros((b, width), dtype) if init is None else jnp.asarray(init, dtype)[:, :width]
-    if y0.shape != (b, width):
+    if init is not None and y0.shape != (b, width):
         raise ValueError(f"init: expected shape ({b}, {PARAMETERS_PER_BONE}), got {jnp.shape(init)}")
 
     # Only the targeted vertices are skinned inside the solver.
@@ -217,10 +225,21 @@ def fit_pose(
 
 
 def random_parameters(
-    key, model: RiggedModel, rotation: float = 0.4, translation: float = 0.0, log_scale: float = 0.0, dtype=None
+    key: PRNGKeyArray,
+    model: RiggedModel,
+    rotation: float = 0.4,
+    translation: float = 0.0,
+    log_scale: float = 0.0,
+    dtype: DTypeLike | None = None,
 ) -> Float[Array, "b 7"]:
     """Random pose parameters (b, 7): uniform in [-rotation, rotation] for the rotation bivector,
-    translation in units of the mesh's bounding-box diagonal, and log-scale, for tests and examples."""
+    translation in units of the mesh's bounding-box diagonal, and log-scale, for tests and examples.
+
+    Args:
+        key: a JAX random key.
+        model: the RiggedModel (its bone count b and rest diagonal).
+        rotation, translation, log_scale: the half-widths of the uniform ranges.
+        dtype: the parameters' dtype; None: the mesh's."""
     b = model.skeleton.num_bones
     dtype = dtype or model.mesh.V.dtype
     k1, k2, k3 = jax.random.split(key, 3)

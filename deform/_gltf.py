@@ -136,7 +136,7 @@ class _Document:
             raise ValueError(f"{self._at(what)} refers to {kind}[{index}], the file has {len(items)} {kind}")
         return items[index]
 
-    def buffer(self, index: int) -> bytes:
+    def buffer(self, index: int | None) -> bytes:  # None: a view without "buffer", refused by item()
         if index not in self._buffers:
             spec = self.item("buffers", index, "a buffer view")
             uri = spec.get("uri")
@@ -465,7 +465,7 @@ def _read_model(doc: _Document, name: str) -> RiggedModel:
     return RiggedModel(mesh=_mesh(doc, skinned, bone_of), skeleton=skeleton, clips=_clips(doc, bone_of), name=name)
 
 
-def convert_with_assimp(path, out=None) -> Path:
+def convert_with_assimp(path: str | Path, out: str | Path | None = None) -> Path:
     """Convert a model file (FBX, COLLADA, ... anything assimp imports) to GLB with the assimp CLI.
 
     Runs ``assimp export path out -f glb2``. Needs the ``assimp`` executable on PATH (Debian package
@@ -507,7 +507,7 @@ def convert_with_assimp(path, out=None) -> Path:
     return out
 
 
-def load_model(path, *, weld: bool = False) -> RiggedModel:
+def load_model(path: str | Path, *, weld: bool = False) -> RiggedModel:
     """Read a rigged model: a glTF 2.0 file (``.gltf`` or ``.glb``), or FBX / COLLADA / ... through assimp.
 
     Every node with both ``mesh`` and ``skin`` contributes its primitives, in node order, to one
@@ -675,9 +675,12 @@ def _animation_json(clip: AnimationClip, writer: _Writer) -> dict:
     return {"name": clip.name, "samplers": samplers, "channels": channels}
 
 
-def buffer_file(path, what: str = "path") -> Path | None:
+def buffer_file(path: str | Path, what: str = "path") -> Path | None:
     """The buffer file ``save_model`` writes beside ``path``: ``<stem>.bin`` for a .gltf, None for a .glb.
-    ``what``: the argument named in the error.
+
+    Args:
+        path: str or Path of the .gltf or .glb to write.
+        what: the argument named in the error.
 
     Raises:
         ValueError: that file exists and is not a buffer of the .gltf at ``path`` (none there, or one that
@@ -702,7 +705,7 @@ def buffer_file(path, what: str = "path") -> Path | None:
     return bin_path
 
 
-def save_model(model: RiggedModel, path) -> None:
+def save_model(model: RiggedModel, path: str | Path) -> None:
     """Write a RiggedModel as glTF 2.0: ``.glb``, or ``.gltf`` with a sibling ``<stem>.bin``.
 
     Bones become nodes 0..b-1 (name, translation, rotation, scale, children); a mesh node named
@@ -758,7 +761,7 @@ def save_models(models: Mapping[str | Path, RiggedModel]) -> None:
     write_files(files)
 
 
-def model_files(model: RiggedModel, path) -> dict[Path, bytes | str]:
+def model_files(model: RiggedModel, path: str | Path) -> dict[Path, bytes | str]:
     """The files ``save_model(model, path)`` writes, ``{path: content}``: the .glb, or the .gltf and its buffer
     (``save_models`` writes several models as one unit). Arguments and errors as
     ``save_model``'s, except that nothing is written."""
@@ -790,7 +793,7 @@ def model_files(model: RiggedModel, path) -> dict[Path, bytes | str]:
     roots = [i for i, p in enumerate(skeleton.parents) if p == -1] + [b]
     animations = [_animation_json(clip, writer) for clip in model.clips if clip.channels]
     blob = writer.blob()
-    buffer = {"byteLength": len(blob)}
+    buffer: dict[str, int | str] = {"byteLength": len(blob)}
     if bin_path is not None:
         buffer["uri"] = urllib.parse.quote(bin_path.name)
     doc = {

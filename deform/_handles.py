@@ -13,15 +13,24 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+from jaxtyping import ArrayLike, Float, Int
+
 from deform._harmonic import harmonic_fields
 from deform._motor_field import MotorField, motor_field_precompute
 
 
-def handles_precompute(V, F, handles: Sequence, *, laplacian: str = "cotangent") -> MotorField:
+def handles_precompute(
+    V: Float[ArrayLike, "n 3"],
+    F: Int[ArrayLike, "m 3"],
+    handles: Sequence[Int[ArrayLike, ...]],
+    *,
+    laplacian: str = "cotangent",
+) -> MotorField:
     """Bind a mesh to motor handles through one harmonic field per handle (sec. IV).
 
     Args:
-        V: (n, 3) rest positions. F: (m, 3) int faces.
+        V: (n, 3) rest positions.
+        F: (m, 3) int faces.
         handles: h >= 1 disjoint, non-empty vertex index arrays; include the fixed region as a handle
             (its motor the identity), or every vertex follows the moving handles.
         laplacian: ``"cotangent"`` or ``"mean_value"`` (the paper's choice).

@@ -28,7 +28,7 @@ import igl
 import jax.numpy as jnp
 import numpy as np
 import scipy.sparse as sp
-from jaxtyping import Array, Float, Int
+from jaxtyping import Array, ArrayLike, Float, Int
 from scipy.sparse.csgraph import connected_components
 
 from _jaxcga_shared.sparse import SparseSolver
@@ -48,8 +48,12 @@ def _check_mesh(V, F):
     return V, F.astype(np.int64)
 
 
-def mean_value_laplacian(V, F) -> sp.csr_matrix:
-    """Floater's mean-value Laplacian (n, n): ``L_ij = w_ij``, ``L_ii = -sum_j w_ij`` (rows sum to 0)."""
+def mean_value_laplacian(V: Float[ArrayLike, "n 3"], F: Int[ArrayLike, "m 3"]) -> sp.csr_matrix:
+    """Floater's mean-value Laplacian (n, n): ``L_ij = w_ij``, ``L_ii = -sum_j w_ij`` (rows sum to 0).
+
+    Args:
+        V: (n, 3) vertex positions.
+        F: (m, 3) int faces."""
     V, F = _check_mesh(V, F)
     rows, cols, values = [], [], []
     for k in range(3):
@@ -69,13 +73,20 @@ def mean_value_laplacian(V, F) -> sp.csr_matrix:
     return (W - sp.diags(np.asarray(W.sum(axis=1)).ravel())).tocsr()
 
 
-def laplacian(V, F, kind: str = "cotangent") -> sp.sparray:
+def laplacian(
+    V: Float[ArrayLike, "n 3"], F: Int[ArrayLike, "m 3"], kind: str = "cotangent"
+) -> sp.csc_matrix | sp.csr_matrix:
     """The mesh Laplacian (n, n) with the weights ``kind`` in ``LAPLACIANS``; rows sum to zero (a scipy sparse
-    matrix: CSC for cotangent weights, as libigl returns it; CSR for mean-value weights)."""
+    matrix: CSC for cotangent weights, as libigl returns it; CSR for mean-value weights).
+
+    Args:
+        V: (n, 3) vertex positions.
+        F: (m, 3) int faces.
+        kind: ``"cotangent"`` or ``"mean_value"``."""
     return _laplacian(V, F, kind)
 
 
-def _laplacian(V, F, kind: str) -> sp.sparray:
+def _laplacian(V, F, kind: str) -> sp.csc_matrix | sp.csr_matrix:
     # ``laplacian``'s body, also reached from ``harmonic_precompute``, whose keyword ``laplacian`` shadows it
     if kind not in LAPLACIANS:
         raise ValueError(f"kind: expected one of {LAPLACIANS}, got {kind!r}")
@@ -125,7 +136,7 @@ def _host_solve(data: HarmonicData, bc) -> np.ndarray:
     return out
 
 
-def harmonic_solve(data: HarmonicData, bc: Float[Array, "c ..."]) -> Float[Array, "n ..."]:
+def harmonic_solve(data: HarmonicData, bc: Float[ArrayLike, "c ..."]) -> Float[Array, "n ..."]:
     """The harmonic fields for boundary values ``bc``: a JAX function of ``bc`` (differentiable, jit- and
     vmap-able).
 
@@ -152,11 +163,18 @@ def harmonic_solve(data: HarmonicData, bc: Float[Array, "c ..."]) -> Float[Array
     return out.at[data.constrained].set(bc).at[data.free].set(free_values)
 
 
-def harmonic_precompute(V, F, constrained, *, laplacian: str = "cotangent") -> HarmonicData:
+def harmonic_precompute(
+    V: Float[ArrayLike, "n 3"],
+    F: Int[ArrayLike, "m 3"],
+    constrained: Int[ArrayLike, " c"],
+    *,
+    laplacian: str = "cotangent",
+) -> HarmonicData:
     """Factor the Dirichlet problem of the Laplacian ``laplacian`` with the vertices ``constrained`` fixed.
 
     Args:
-        V: (n, 3) vertex positions. F: (m, 3) int faces.
+        V: (n, 3) vertex positions.
+        F: (m, 3) int faces.
         constrained: (c,) int distinct vertex indices with prescribed values.
         laplacian: ``"cotangent"`` or ``"mean_value"`` (``LAPLACIANS``).
     Returns:
@@ -205,12 +223,19 @@ def harmonic_precompute(V, F, constrained, *, laplacian: str = "cotangent") -> H
     )
 
 
-def harmonic_fields(V, F, handles: Sequence, *, laplacian: str = "cotangent") -> Float[Array, "n h"]:
+def harmonic_fields(
+    V: Float[ArrayLike, "n 3"],
+    F: Int[ArrayLike, "m 3"],
+    handles: Sequence[Int[ArrayLike, ...]],
+    *,
+    laplacian: str = "cotangent",
+) -> Float[Array, "n h"]:
     """One harmonic field per handle (sec. VIII): 1 on the handle's vertices, 0 on the other handles',
     harmonic elsewhere; the fields sum to one at every vertex.
 
     Args:
-        V: (n, 3) vertex positions. F: (m, 3) int faces.
+        V: (n, 3) vertex positions.
+        F: (m, 3) int faces.
         handles: h >= 1 disjoint, non-empty index arrays (the fixed region counts as a handle).
         laplacian: ``"cotangent"`` or ``"mean_value"``.
     Returns:

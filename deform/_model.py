@@ -63,7 +63,10 @@ class Skeleton(eqx.Module):
         return len(self.parents)
 
     def index(self, name: str) -> int:
-        """Index of the bone called ``name`` (ValueError listing the names when absent)."""
+        """Index of the bone called ``name`` (ValueError listing the names when absent).
+
+        Args:
+            name: the bone's name."""
         try:
             return self.names.index(name)
         except ValueError:
@@ -211,7 +214,10 @@ class RiggedModel(eqx.Module):
                 raise ValueError(f"clips: clip {clip.name!r} animates a bone outside [0, {b})")
 
     def clip(self, name: str | int = 0) -> AnimationClip:
-        """The clip called ``name`` (or at that position)."""
+        """The clip called ``name`` (or at that position).
+
+        Args:
+            name: the clip's name, or its index in ``clips``."""
         if isinstance(name, int):
             if not -len(self.clips) <= name < len(self.clips):
                 raise ValueError(f"name: model has {len(self.clips)} clips, no clip {name}")

@@ -21,7 +21,8 @@ from __future__ import annotations
 
 import equinox as eqx
 import jax.numpy as jnp
-from jaxtyping import Array, Float
+from jax.typing import DTypeLike
+from jaxtyping import Array, ArrayLike, Float
 
 import jaxcga as cga
 from jaxcga import KINDS, MOTOR_GENERATOR, Multivector
@@ -47,13 +48,16 @@ def _check_key_motors(name: str, motors, k: int) -> Multivector:
 
 
 def motor_logs(key_motors: Multivector) -> Float[Array, "... k 6"]:
-    """The six bivector components of ``log R_j`` (e12, e13, e23, e1inf, e2inf, e3inf) per key motor."""
+    """The six bivector components of ``log R_j`` (e12, e13, e23, e1inf, e2inf, e3inf) per key motor.
+
+    Args:
+        key_motors: motors with batch shape (..., k)."""
     if not isinstance(key_motors, Multivector) or not set(key_motors.blades) <= set(KINDS["motor"]):
         raise ValueError("key_motors: expected a motor Multivector")
     return cga.log_motor(key_motors.embed(KINDS["motor"])).embed(MOTOR_GENERATOR).values
 
 
-def blend_motors(weights: Float[Array, "n k"], key_motors: Multivector) -> Multivector:
+def blend_motors(weights: Float[ArrayLike, "n k"], key_motors: Multivector) -> Multivector:
     """Per-vertex motors ``M_i = exp(sum_j w_ij log R_j)`` (eq. 1, 7), batch shape (..., n).
 
     Args:
@@ -102,7 +106,7 @@ def motor_field_solve(field: MotorField, key_motors: Multivector) -> Float[Array
 
 
 def motor_field_precompute(
-    V: Float[Array, "n 3"], weights: Float[Array, "n k"], *, rest_motors: Multivector | None = None
+    V: Float[ArrayLike, "n 3"], weights: Float[ArrayLike, "n k"], *, rest_motors: Multivector | None = None
 ) -> MotorField:
     """Bind rest positions to key motors (sec. III-A): ``p'_i = ~M^0_i p_i M^0_i`` with
     ``M^0_i = exp(sum_j w_ij log R^0_j)``; ``rest_motors=None`` means identity rest motors (p' = p).
@@ -128,15 +132,28 @@ def motor_field_precompute(
     return MotorField(weights, cga.apply_to_points(cga.reverse(rest), V))
 
 
-def identity_motors(k: int, dtype=jnp.float64) -> Multivector:
-    """k identity motors (batch shape (k,))."""
+def identity_motors(k: int, dtype: DTypeLike = jnp.float64) -> Multivector:
+    """k identity motors (batch shape (k,)).
+
+    Args:
+        k: the number of motors.
+        dtype: their float dtype."""
     values = jnp.zeros((k, 8), dtype).at[:, 0].set(1.0)
     return Multivector(values, KINDS["motor"])
 
 
-def motor_about(center: Float[Array, "... 3"], rotation: Multivector, translation=None) -> Multivector:
+def motor_about(
+    center: Float[ArrayLike, "... 3"], rotation: Multivector, translation: Float[ArrayLike, "... 3"] | None = None
+) -> Multivector:
     """The motor that rotates by ``rotation`` about ``center`` (then translates by ``translation``):
-    ``T_t T_c R T_-c``; the way to turn a lattice point, handle or cage vertex in place."""
+    ``T_t T_c R T_-c``; the way to turn a lattice point, handle or cage vertex in place.
+
+    Args:
+        center: (..., 3) the centres of rotation.
+        rotation: rotors, batch shape broadcasting with (...,).
+        translation: (..., 3) translations applied after the rotation, or None.
+    Returns:
+        motors, batch shape (...,)."""
     center = jnp.asarray(center)
     shift = cga.translator(center)
     turn = (shift * rotation * cga.reverse(shift)).embed(KINDS["motor"])
@@ -145,9 +162,13 @@ def motor_about(center: Float[Array, "... 3"], rotation: Multivector, translatio
     return (cga.translator(jnp.asarray(translation, center.dtype)) * turn).embed(KINDS["motor"])
 
 
-def blend_positions(weights: Float[Array, "n k"], P: Float[Array, "... k 3"]) -> Float[Array, "... n 3"]:
+def blend_positions(weights: Float[ArrayLike, "n k"], P: Float[ArrayLike, "... k 3"]) -> Float[Array, "... n 3"]:
     """Positions ``p_i = sum_j w_ij P_j`` (classic FFD, eq. 6; the positional cage of sec. VI with harmonic
-    coordinates); leading axes of the control points ``P`` are batches."""
+    coordinates); leading axes of the control points ``P`` are batches.
+
+    Args:
+        weights: (n, k) weights.
+        P: (..., k, 3) control points."""
     weights = jnp.asarray(weights)
     if weights.ndim != 2:
         raise ValueError(f"weights: expected shape (n, k), got {weights.shape}")

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import equinox as eqx
 import jax.numpy as jnp
+from jaxtyping import Array, ArrayLike, Float
 
 import jaxcga as cga
 from _jaxcga_shared.checks import plain_errors
@@ -54,7 +55,9 @@ def _check_interpolation(interpolation: str):
 
 @plain_errors
 @eqx.filter_jit
-def skin_pose(model: RiggedModel, local, method: str = "cga"):
+def skin_pose(
+    model: RiggedModel, local: Multivector | Float[ArrayLike, "... b 4 4"], method: str = "cga"
+) -> Float[Array, "... n 3"]:
     """Skinned positions (..., n, 3) of the model in a pose given by local bone transforms.
 
     Args:
@@ -81,8 +84,12 @@ def skin_pose(model: RiggedModel, local, method: str = "cga"):
 
 @plain_errors
 @eqx.filter_jit
-def rest_pose(model: RiggedModel, method: str = "cga"):
-    """Skinned positions (n, 3) in the skeleton's rest pose (the nodes' own TRS)."""
+def rest_pose(model: RiggedModel, method: str = "cga") -> Float[Array, "n 3"]:
+    """Skinned positions (n, 3) in the skeleton's rest pose (the nodes' own TRS).
+
+    Args:
+        model: the RiggedModel.
+        method: one of ``METHODS``."""
     _check_method(method)
     if method in ("cga", "cga_motor_blend"):
         return skin_pose(model, _rig.local_versors(model.skeleton), method)
@@ -90,13 +97,19 @@ def rest_pose(model: RiggedModel, method: str = "cga"):
 
 
 @plain_errors
-def sample_pose(model: RiggedModel, t, method: str = "cga", clip: int | str = 0, interpolation: str = "gltf"):
+def sample_pose(
+    model: RiggedModel,
+    t: Float[ArrayLike, ""],
+    method: str = "cga",
+    clip: int | str = 0,
+    interpolation: str = "gltf",
+) -> Multivector | Float[Array, "b 4 4"]:
     """Local bone transforms of clip ``clip`` at time t: versors (b,) for the multivector methods,
     matrices (b, 4, 4) for the matrix methods.
 
     Args:
         model: the RiggedModel.
-        t: time in seconds (clamped to the clip's key range).
+        t: () time in seconds (clamped to the clip's key range).
         method: one of ``METHODS``: picks the form of the result.
         clip: clip name or index.
         interpolation: ``"gltf"`` (the specification's, default) or ``"log"`` (the paper's
@@ -118,13 +131,19 @@ def _sample_pose(model: RiggedModel, t, method: str, animation, interpolation: s
 
 
 @plain_errors
-def skin_model(model: RiggedModel, t, method: str = "cga", clip: int | str = 0, interpolation: str = "gltf"):
+def skin_model(
+    model: RiggedModel,
+    t: Float[ArrayLike, ""],
+    method: str = "cga",
+    clip: int | str = 0,
+    interpolation: str = "gltf",
+) -> Float[Array, "n 3"]:
     """Skinned positions (n, 3) of the model at time t of a clip (rest pose when it has no clip).
     vmap over t for many frames.
 
     Args:
         model: the RiggedModel.
-        t: time in seconds (clamped to the clip's key range).
+        t: () time in seconds (clamped to the clip's key range).
         method: one of ``METHODS``.
         clip: clip name or index.
         interpolation: ``"gltf"`` (the specification's, default) or ``"log"`` (the paper's); module

@@ -31,7 +31,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import custom_batching
-from jaxtyping import Array, Float
+from jaxtyping import Array, ArrayLike, Float, Int
 
 import jaxcga as cga
 from _jaxcga_shared.checks import require
@@ -80,6 +80,8 @@ def _blend_joints(J, weights, data, joint_axis: int = -2):
         w = w.astype(data.dtype)
         term = w * data[..., J[:, k]] if joint_axis == -1 else w[..., None] * data[..., J[:, k], :]
         acc = term if acc is None else acc + term
+    if acc is None:
+        raise ValueError("J: expected at least one influence per vertex (k >= 1)")
     return acc
 
 
@@ -226,7 +228,12 @@ def _blend_affine(V, J, W, maps: Float[Array, "... j r 4"]) -> Float[Array, "...
     return jnp.moveaxis(out, -2, -1)
 
 
-def skin_lbs(V, J, W, joint_matrices: Float[Array, "... j 4 4"]) -> Float[Array, "... n 3"]:
+def skin_lbs(
+    V: Float[ArrayLike, "n 3"],
+    J: Int[ArrayLike, "n k"],
+    W: Float[ArrayLike, "n k"],
+    joint_matrices: Float[ArrayLike, "... j 4 4"],
+) -> Float[Array, "... n 3"]:
     """Linear blend skinning, eq. (16).
 
     Args:
@@ -250,11 +257,19 @@ def _check_versors(name: str, versors):
         raise ValueError(f"{name}: expected motors or similitudes, got blades {versors.names}")
 
 
-def skin_cga(V, J, W, joint_versors: Multivector, normalize_points: bool = True) -> Float[Array, "... n 3"]:
+def skin_cga(
+    V: Float[ArrayLike, "n 3"],
+    J: Int[ArrayLike, "n k"],
+    W: Float[ArrayLike, "n k"],
+    joint_versors: Multivector,
+    normalize_points: bool = True,
+) -> Float[Array, "... n 3"]:
     """Multivector skinning, eq. (17): blend after the sandwich, with per-bone dilation.
 
     Args:
-        V, J, W: as in ``skin_lbs``.
+        V: (n, 3) bind-pose positions.
+        J: (n, k) int joint indices.
+        W: (n, k) weights (rows sum to one).
         joint_versors: motors or similitudes ``M_n,k B_n``, batch shape (..., j).
         normalize_points: True (default): down-project (normalize) every sandwiched conformal point,
             then blend: the paper's evaluation (sec. 4.3). False: blend the conformal points and
@@ -278,12 +293,16 @@ def _motor_and_log_scale(versors: Multivector):
     return cga.matrix_to_motor(rigid).values, log_scale
 
 
-def skin_cga_motor_blend(V, J, W, joint_versors: Multivector) -> Float[Array, "... n 3"]:
+def skin_cga_motor_blend(
+    V: Float[ArrayLike, "n 3"], J: Int[ArrayLike, "n k"], W: Float[ArrayLike, "n k"], joint_versors: Multivector
+) -> Float[Array, "... n 3"]:
     """Multivector skinning with the versors blended first (normalized, like DQS) and per-bone
     dilation blended in log space.
 
     Args:
-        V, J, W: as in ``skin_lbs``.
+        V: (n, 3) bind-pose positions.
+        J: (n, k) int joint indices.
+        W: (n, k) weights (rows sum to one).
         joint_versors: motors or similitudes ``M_n,k B_n``, batch shape (..., j).
     Returns:
         (..., n, 3) skinned positions."""
@@ -313,9 +332,17 @@ def _blend_motors_and_apply(
     return _coordinates_last(coordinates, cpu=cpu)
 
 
-def matrices_to_dual_quaternions(matrices: Float[Array, "... 4 4"], tolerance: float = 1e-5) -> Float[Array, "... 8"]:
+def matrices_to_dual_quaternions(
+    matrices: Float[ArrayLike, "... 4 4"], tolerance: float = 1e-5
+) -> Float[Array, "... 8"]:
     """Unit dual quaternions (real w, x, y, z; dual w, x, y, z) of rigid 4x4 matrices; a matrix with a
-    scale or shear raises inside jit (DQS cannot represent a dilation, the paper's sec. 3)."""
+    scale or shear raises inside jit (DQS cannot represent a dilation, the paper's sec. 3).
+
+    Args:
+        matrices: (..., 4, 4) or (..., 3, 4) rigid matrices.
+        tolerance: the largest entry of ``|R^T R - I|`` accepted, R the upper-left 3x3 block.
+    Returns:
+        (..., 8) unit dual quaternions."""
     matrices = jnp.asarray(matrices)
     if matrices.ndim < 2 or matrices.shape[-2:] not in ((4, 4), (3, 4)):
         raise ValueError(f"matrices: expected shape (..., 4, 4), got {matrices.shape}")
@@ -332,11 +359,18 @@ def matrices_to_dual_quaternions(matrices: Float[Array, "... 4 4"], tolerance: f
     return cga.motor_to_dual_quaternion(cga.matrix_to_motor(matrices.at[..., :3, :3].set(rot)))
 
 
-def skin_dqs(V, J, W, joint_dual_quaternions: Float[Array, "... j 8"]) -> Float[Array, "... n 3"]:
+def skin_dqs(
+    V: Float[ArrayLike, "n 3"],
+    J: Int[ArrayLike, "n k"],
+    W: Float[ArrayLike, "n k"],
+    joint_dual_quaternions: Float[ArrayLike, "... j 8"],
+) -> Float[Array, "... n 3"]:
     """Dual-quaternion skinning (Kavan et al. 2008): blend, normalize by the real part's norm, apply.
 
     Args:
-        V, J, W: as in ``skin_lbs``.
+        V: (n, 3) bind-pose positions.
+        J: (n, k) int joint indices.
+        W: (n, k) weights (rows sum to one).
         joint_dual_quaternions: (..., j, 8) unit dual quaternions of the joint transforms.
     Returns:
         (..., n, 3) skinned positions."""

@@ -19,7 +19,7 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, ArrayLike, Float, Int
 
 from _jaxcga_shared.checks import require
 from deform._ffd import MAX_DEGREE, _bernstein
@@ -55,7 +55,11 @@ def _powers(lam, degree: int):
 
 def clamped_knots(num_keys: int, degree: int) -> np.ndarray:
     """The clamped uniform knot vector (num_keys + degree + 1,): degree + 1 zeros, uniform interior
-    knots, degree + 1 ones."""
+    knots, degree + 1 ones.
+
+    Args:
+        num_keys: k >= degree + 1 control points.
+        degree: the B-spline degree."""
     interior = np.linspace(0.0, 1.0, num_keys - degree + 1)
     return np.concatenate([np.zeros(degree), interior, np.ones(degree)])
 
@@ -118,14 +122,23 @@ def spline_weights(
     return _bspline(lam, k, degree)
 
 
-def spline_parameter(V, F, start, end, *, laplacian: str = "cotangent") -> Float[Array, " n"]:
+def spline_parameter(
+    V: Float[ArrayLike, "n 3"],
+    F: Int[ArrayLike, "m 3"],
+    start: Int[ArrayLike, " s"],
+    end: Int[ArrayLike, " e"],
+    *,
+    laplacian: str = "cotangent",
+) -> Float[Array, " n"]:
     """The harmonic field ``lambda`` (sec. III-A, VIII): 0 on the ``start`` vertices (H_1), 1 on the
     ``end`` vertices (H_n), harmonic elsewhere, clipped to [0, 1] (the cotangent Laplacian has no
     maximum principle on obtuse meshes, and the bases are defined on [0, 1] only).
 
     Args:
-        V: (n, 3) vertex positions. F: (m, 3) int faces.
-        start, end: disjoint non-empty index arrays of the two handles.
+        V: (n, 3) vertex positions.
+        F: (m, 3) int faces.
+        start: (s,) int vertex indices of the first handle (lambda = 0).
+        end: (e,) int vertex indices of the second handle (lambda = 1), disjoint from ``start``, both non-empty.
         laplacian: ``"cotangent"`` or ``"mean_value"``.
     """
     start, end = np.asarray(start).reshape(-1), np.asarray(end).reshape(-1)
@@ -139,10 +152,10 @@ def spline_parameter(V, F, start, end, *, laplacian: str = "cotangent") -> Float
 
 
 def spline_precompute(
-    V,
-    F,
-    start,
-    end,
+    V: Float[ArrayLike, "n 3"],
+    F: Int[ArrayLike, "m 3"],
+    start: Int[ArrayLike, " s"],
+    end: Int[ArrayLike, " e"],
     *,
     rest_motors: Multivector | None = None,
     basis: str = "bspline",
@@ -153,8 +166,10 @@ def spline_precompute(
     """Bind a mesh to k key motors along a spline path (eq. 1-2, sec. III-A).
 
     Args:
-        V: (n, 3) rest positions. F: (m, 3) int faces.
-        start, end: index arrays of the handles H_1 (lambda = 0) and H_n (lambda = 1).
+        V: (n, 3) rest positions.
+        F: (m, 3) int faces.
+        start: (s,) int vertex indices of the handle H_1 (lambda = 0).
+        end: (e,) int vertex indices of the handle H_n (lambda = 1).
         rest_motors: None (identity rest motors: key motors are motions of space) or motors with batch
             shape (k,) that give back the rest mesh.
         basis, num_keys, degree: the spline basis, see ``spline_weights``.

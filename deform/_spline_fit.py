@@ -15,10 +15,11 @@ from __future__ import annotations
 
 import equinox as eqx
 import jax
+import jax.core
 import jax.numpy as jnp
 import jax.scipy.linalg as jsl
 import numpy as np
-from jaxtyping import Array, Float
+from jaxtyping import Array, ArrayLike, Float
 
 import jaxcga as cga
 from deform._motor_field import _check_key_motors, motor_logs
@@ -48,7 +49,11 @@ class SplineFitData(eqx.Module):
 
 def spline_fit_solve(data: SplineFitData, Q: Multivector) -> Multivector:
     """The fitted key motors ``R_j = exp(log R_j)`` (batch shape (..., k)) for motors Q with batch shape
-    (..., m) at the parameters of ``data``: the least-squares fit of eq. (5) in the logarithms."""
+    (..., m) at the parameters of ``data``: the least-squares fit of eq. (5) in the logarithms.
+
+    Args:
+        data: ``spline_fit_precompute``'s output.
+        Q: motors at the parameters, batch shape (..., m)."""
     if not isinstance(data, SplineFitData):
         raise ValueError("data: expected the SplineFitData returned by spline_fit_precompute")
     m, k = data.A.shape
@@ -65,7 +70,12 @@ def spline_fit_solve(data: SplineFitData, Q: Multivector) -> Multivector:
 
 
 def spline_fit_precompute(
-    lam, num_keys: int, *, degree: int = 3, max_condition: float = 1e8, rcond: float | None = None
+    lam: Float[ArrayLike, " m"],
+    num_keys: int,
+    *,
+    degree: int = 3,
+    max_condition: float = 1e8,
+    rcond: float | None = None,
 ) -> SplineFitData:
     """Factor the least-squares fit of k key motors to motors given at parameters ``lam`` (eq. 3-5).
 
