@@ -51,7 +51,7 @@ def _coefficient(m: cga.Multivector, blade: str) -> Array:
 
 
 def signed_distances(
-    V: Float[ArrayLike, "n 3"], n: Float[np.ndarray, 3], d: float, predicates: str = "euclidean"
+    V: Float[ArrayLike, "n 3"], n: Float[np.ndarray, "3"], d: float, predicates: str = "euclidean"
 ) -> Float[np.ndarray, " n"]:
     """Signed distance ``n . x - d`` of every vertex (n, 3) from the plane."""
     if predicates == "ga":
@@ -65,7 +65,7 @@ def edge_points(
     B: Float[np.ndarray, "p 3"],
     sA: Float[np.ndarray, " p"],
     sB: Float[np.ndarray, " p"],
-    n: Float[np.ndarray, 3],
+    n: Float[np.ndarray, "3"],
     d: float,
     predicates: str = "euclidean",
 ) -> tuple[Float[np.ndarray, "p 3"], Float[np.ndarray, " p"]]:

@@ -37,7 +37,7 @@ class Plane(eqx.Module):
         distance: () the offset d.
     """
 
-    normal: Float[Array | np.ndarray, 3] = eqx.field(converter=_array)
+    normal: Float[Array | np.ndarray, "3"] = eqx.field(converter=_array)
     distance: Float[Array | np.ndarray, ""] = eqx.field(converter=_array)
 
     @classmethod
@@ -77,8 +77,8 @@ class Drill(eqx.Module):
         radius: () the radius r > 0.
     """
 
-    tip: Float[Array | np.ndarray, 3] = eqx.field(converter=_array)
-    base: Float[Array | np.ndarray, 3] = eqx.field(converter=_array)
+    tip: Float[Array | np.ndarray, "3"] = eqx.field(converter=_array)
+    base: Float[Array | np.ndarray, "3"] = eqx.field(converter=_array)
     radius: Float[Array | np.ndarray, ""] = eqx.field(converter=_array)
 
 

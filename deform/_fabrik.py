@@ -50,7 +50,7 @@ def _bones(P):
 
 
 def fabrik(
-    P: Float[Array, "m1 3"], target: Float[Array, 3], max_iterations: int = 100, tolerance: float = 1e-10
+    P: Float[Array, "m1 3"], target: Float[Array, "3"], max_iterations: int = 100, tolerance: float = 1e-10
 ) -> Float[Array, "m1 3"]:
     """Solve the chain ``P`` for ``target`` (FABRIK, Aristidou & Lasenby 2011).
 

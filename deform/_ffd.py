@@ -73,12 +73,12 @@ class Lattice(eqx.Module):
         counts: (l, m, n) control points per axis (static, each >= 2; the Bezier degree is count - 1).
     """
 
-    origin: Float[Array, 3]
+    origin: Float[Array, "3"]
     axes: Float[Array, "3 3"]
     counts: tuple[int, int, int] = eqx.field(static=True)
 
     def __init__(
-        self, origin: Float[ArrayLike, 3], axes: Float[ArrayLike, "3 3"], counts: Sequence[int] = (4, 4, 4)
+        self, origin: Float[ArrayLike, "3"], axes: Float[ArrayLike, "3 3"], counts: Sequence[int] = (4, 4, 4)
     ) -> None:
         origin = _float_array("origin", origin, (3,))
         axes = _float_array("axes", axes, (3, 3))
@@ -141,7 +141,7 @@ def lattice_coordinates(V: Float[ArrayLike, "n 3"], lattice: Lattice) -> Float[A
     )
 
 
-def _bernstein(degree: int, t: Float[Array, ...]) -> Float[Array, "... degree+1"]:
+def _bernstein(degree: int, t: Float[Array, "*batch"]) -> Float[Array, "*batch degree+1"]:
     """The Bernstein basis ``B^d_j(t) = C(d, j) t^j (1 - t)^(d - j)``, j = 0..d, stacked on a last axis."""
     if int(degree) != degree or not 0 <= degree <= MAX_DEGREE:
         raise ValueError(f"degree: expected an integer in [0, {MAX_DEGREE}], got {degree}")
@@ -238,7 +238,7 @@ def _check_faces(F, n: int) -> np.ndarray:
 
 def distortion(
     V0: Float[ArrayLike, "n 3"], F: Int[ArrayLike, "m 3"], V1: Float[ArrayLike, "... n 3"]
-) -> dict[str, Float[Array, ...]]:
+) -> dict[str, Float[Array, "*batch"]]:
     """How a deformation ``V0 -> V1`` of a closed mesh (V0, F) changes volume and edge lengths.
 
     Args:

@@ -22,7 +22,7 @@ from deform._motor_field import MotorField, motor_field_precompute
 def handles_precompute(
     V: Float[ArrayLike, "n 3"],
     F: Int[ArrayLike, "m 3"],
-    handles: Sequence[Int[ArrayLike, ...]],
+    handles: Sequence[Int[ArrayLike, "*k"]],
     *,
     laplacian: str = "cotangent",
 ) -> MotorField:

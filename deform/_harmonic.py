@@ -226,7 +226,7 @@ def harmonic_precompute(
 def harmonic_fields(
     V: Float[ArrayLike, "n 3"],
     F: Int[ArrayLike, "m 3"],
-    handles: Sequence[Int[ArrayLike, ...]],
+    handles: Sequence[Int[ArrayLike, "*k"]],
     *,
     laplacian: str = "cotangent",
 ) -> Float[Array, "n h"]:

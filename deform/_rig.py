@@ -78,7 +78,7 @@ def _rotor_xyzw(q) -> Multivector:
     return cga.quaternion_to_rotor(jnp.concatenate([q[..., 3:], q[..., :3]], axis=-1))
 
 
-def uniform_scale(scale: Float[Array | np.ndarray, "... 3"], tolerance: float = 1e-5) -> Float[Array, ...]:
+def uniform_scale(scale: Float[Array | np.ndarray, "... 3"], tolerance: float = 1e-5) -> Float[Array, "*batch"]:
     """The common factor of a uniform scale (..., 3); non-uniform (relative spread > tolerance) or
     non-positive scales raise a ValueError (inside jit a runtime error with the message): a dilator is a uniform
     scaling (eq. 12).

@@ -91,7 +91,7 @@ class _Replay(eqx.Module):
     load: Float[Array, "p 4"]
     dofs: Int[Array, "p 4"]
     weight: Float[Array, " p"]  # the density of each piece's element (its load times gravity is the force)
-    gravity: Float[Array, 3]
+    gravity: Float[Array, "3"]
     entry: Int[Array, " e"]  # for each piece mass entry (p, a, b), its mass entry (r, c) (k where dropped)
     transposed: Int[Array, " e"]  # and its entry (c, r)
     slots: Int[Array, "k 3"]  # ``scalar_slots`` of the mass entries

@@ -265,8 +265,8 @@ def plane_cut_solid(
         extent: side length > 0.
         epsilon: thickness > 0.
     """
-    point = np.asarray(check_finite("point", check_vectors("point", point)), np.float64)
-    normal = np.asarray(check_finite("normal", check_vectors("normal", normal)), np.float64)
+    point = np.asarray(check_finite("point", check_vectors("point", np.asarray(point))), np.float64)
+    normal = np.asarray(check_finite("normal", check_vectors("normal", np.asarray(normal))), np.float64)
     if point.shape != (3,) or normal.shape != (3,):
         raise ValueError(f"point, normal: expected shape (3,), got {point.shape} and {normal.shape}")
     length = np.linalg.norm(normal)
