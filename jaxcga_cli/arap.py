@@ -47,22 +47,7 @@ def add_arguments(parser) -> None:
         "rigid map) or spokes (the paper's eq. 9: with obtuse triangles it can drift from "
         "rigid maps)",
     )
-    parser.add_argument("--bend", type=float, default=60.0, help="default handles: degrees of bend (default 60)")
-    parser.add_argument("--twist", type=float, default=0.0, help="default handles: degrees of twist (default 0)")
-    parser.add_argument(
-        "--translate",
-        type=float,
-        nargs=3,
-        default=(0.0, 0.0, 0.0),
-        metavar=("X", "Y", "Z"),
-        help="default handles: translation of the high end (default none)",
-    )
-    parser.add_argument(
-        "--handle-fraction",
-        type=float,
-        default=0.05,
-        help="default handles: vertices within this fraction of the long axis's ends (default 0.05)",
-    )
+    arguments.motion_arguments(parser, "default handles", "default handles")
     parser.add_argument(
         "--out",
         type=Path,

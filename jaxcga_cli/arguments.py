@@ -42,6 +42,29 @@ def interpolation_argument(parser) -> None:
     )
 
 
+def motion_arguments(parser, scope: str, fraction_scope: str) -> None:
+    """--bend, --twist, --translate of the built-in motion of the long axis's far end, and --handle-fraction (the
+    vertices near the ends that hold it), for ``deform`` and ``arap``; the scopes say where they apply."""
+    parser.add_argument("--bend", type=float, default=60.0, help=f"{scope}: degrees of bend (default 60)")
+    parser.add_argument(
+        "--twist", type=float, default=0.0, help=f"{scope}: degrees of twist about the long axis (default 0)"
+    )
+    parser.add_argument(
+        "--translate",
+        type=float,
+        nargs=3,
+        default=(0.0, 0.0, 0.0),
+        metavar=("X", "Y", "Z"),
+        help=f"{scope}: translation of the far end (default none)",
+    )
+    parser.add_argument(
+        "--handle-fraction",
+        type=float,
+        default=0.05,
+        help=f"{fraction_scope}: the end handles hold the vertices within this fraction of the long axis's ends (default 0.05)",
+    )
+
+
 def clip(value: str) -> int | str:
     """A clip index (an integer) or name."""
     return int(value) if value.lstrip("-").isdigit() else value

@@ -41,18 +41,6 @@ def add_arguments(parser) -> None:
     )
     arguments.mesh_argument(parser, "the built-in arm")
     parser.add_argument(
-        "--bend", type=float, default=60.0, help="degrees of bend across the long axis at its far end (default 60)"
-    )
-    parser.add_argument("--twist", type=float, default=0.0, help="degrees of twist about the long axis (default 0)")
-    parser.add_argument(
-        "--translate",
-        type=float,
-        nargs=3,
-        default=(0.0, 0.0, 0.0),
-        metavar=("X", "Y", "Z"),
-        help="translation at the far end (default none)",
-    )
-    parser.add_argument(
         "--basis",
         choices=arguments.BASES,
         default="bspline",
@@ -70,13 +58,7 @@ def add_arguments(parser) -> None:
         default="cotangent",
         help="spline, handles: the Laplacian of the harmonic fields (default cotangent)",
     )
-    parser.add_argument(
-        "--handle-fraction",
-        type=float,
-        default=0.05,
-        help="spline, handles: the end handles hold the vertices within this fraction of the "
-        "long axis's ends (default 0.05)",
-    )
+    arguments.motion_arguments(parser, "the built-in motion", "spline, handles")
     parser.add_argument("--handles", type=Path, default=None, help=f"handles: {HANDLES_HELP}, instead of the two ends")
     parser.add_argument(
         "--lattice",
