@@ -61,7 +61,8 @@ def motion_arguments(parser, scope: str, fraction_scope: str) -> None:
         "--handle-fraction",
         type=float,
         default=0.05,
-        help=f"{fraction_scope}: the end handles hold the vertices within this fraction of the long axis's ends (default 0.05)",
+        help=f"{fraction_scope}: the end handles hold the vertices within this fraction of the long axis's ends "
+        "(default 0.05)",
     )
 
 
