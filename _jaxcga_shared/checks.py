@@ -1,5 +1,6 @@
 """Argument and value checks shared by every package: a ``ValueError`` naming the argument on concrete input, a
-runtime error with the same message inside jit, on every backend. Private to the distribution."""
+runtime error with the same message inside jit, on every backend; and the host-side checks of points, faces and
+index arrays that every package takes. Private to the distribution."""
 
 from __future__ import annotations
 
@@ -10,6 +11,9 @@ import re
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
+from jaxtyping import Array, Float
+from numpy.typing import ArrayLike
 
 from _jaxcga_shared.host import host_call
 
@@ -97,3 +101,68 @@ def plain_errors(fn):
             raise ValueError(message) from None
 
     return wrapper
+
+
+def check_index_range(name: str, indices: np.ndarray, n: int | None, what: str = "vertex") -> None:
+    """A ValueError naming ``name`` when an integer array ``indices`` holds an index outside ``[0, n)`` (n None:
+    only negative indices are refused); a JAX gather would clamp it silently."""
+    if indices.size and (indices.min() < 0 or (n is not None and indices.max() >= n)):
+        bound = "" if n is None else f", {n}"
+        raise ValueError(f"{name}: {what} indices must lie in [0{bound}), got [{indices.min()}, {indices.max()}]")
+
+
+def check_points(name: str, V: ArrayLike, *, min_count: int = 0, rows: str = "n") -> np.ndarray:
+    """``V`` as a finite float64 (rows, 3) host array with at least ``min_count`` rows, or a ValueError naming
+    ``name`` (``rows`` is the letter its message gives the row count)."""
+    V = np.asarray(V)
+    real = np.issubdtype(V.dtype, np.floating) or np.issubdtype(V.dtype, np.integer)
+    if V.ndim != 2 or V.shape[1] != 3 or len(V) < min_count or not real:
+        least = f", {rows} >= {min_count}" if min_count else ""
+        raise ValueError(f"{name}: expected finite positions of shape ({rows}, 3){least}, got {V.dtype} {V.shape}")
+    V = V.astype(np.float64)
+    if not np.all(np.isfinite(V)):
+        raise ValueError(f"{name}: non-finite positions (NaN or inf)")
+    return V
+
+
+def check_faces(name: str, F: ArrayLike, n: int, *, min_count: int = 1) -> np.ndarray:
+    """``F`` as an int64 (m, 3) host array of triangles with m >= ``min_count`` and vertex indices in
+    ``[0, n)``, or a ValueError naming ``name``."""
+    F = np.asarray(F)
+    if F.ndim != 2 or F.shape[1] != 3 or len(F) < min_count or not np.issubdtype(F.dtype, np.integer):
+        least = f", m >= {min_count}" if min_count else ""
+        raise ValueError(f"{name}: expected integer faces of shape (m, 3){least}, got {F.dtype} {F.shape}")
+    check_index_range(name, F, n)
+    return F.astype(np.int64)
+
+
+def check_triangle_mesh(
+    V: ArrayLike,
+    F: ArrayLike,
+    *,
+    names: tuple[str, str] = ("V", "F"),
+    min_vertices: int = 0,
+    min_faces: int = 1,
+) -> tuple[np.ndarray, np.ndarray]:
+    """A triangle mesh as host arrays: (V finite float64 (n, 3), F int64 (m, 3) indexing V), or a ValueError
+    naming the argument (``names``); ``min_faces=0`` accepts a mesh with no faces."""
+    V = check_points(names[0], V, min_count=min_vertices)
+    return V, check_faces(names[1], F, len(V), min_count=min_faces)
+
+
+def check_vectors(name: str, x: ArrayLike, size: int = 3, *, rows: str | None = None) -> Float[Array, "... size"]:
+    """``x`` as a float JAX array of shape (..., size), or exactly (rows, size) when ``rows`` (the letter its
+    message gives the row count) is given; a ValueError naming ``name`` otherwise. Traceable: shapes only."""
+    x = jnp.asarray(x)
+    if not jnp.issubdtype(x.dtype, jnp.floating):
+        x = x.astype(jnp.result_type(float))
+    if rows is None and (x.ndim == 0 or x.shape[-1] != size):
+        raise ValueError(f"{name}: expected an array of shape (..., {size}), got shape {x.shape}")
+    if rows is not None and (x.ndim != 2 or x.shape[1] != size):
+        raise ValueError(f"{name}: expected shape ({rows}, {size}), got {x.shape}")
+    return x
+
+
+def check_finite(name: str, x: ArrayLike) -> Array:
+    """``x``, or a ValueError when it holds NaN or infinity (inside jit a runtime error with the message)."""
+    return require(x, (~jnp.all(jnp.isfinite(x)), f"{name}: non-finite values (NaN or inf)"))

@@ -44,7 +44,7 @@ from jaxtyping import Array, Float, Int
 from scipy.special import comb
 
 import jaxcga as cga
-from _jaxcga_shared.checks import require
+from _jaxcga_shared.checks import check_faces, check_vectors, require
 from _jaxcga_shared.mesh import signed_volume
 from deform._motor_field import MotorField, motor_about, motor_field_precompute
 from jaxcga import Multivector
@@ -89,19 +89,10 @@ class Lattice(eqx.Module):
         return self.counts[0] * self.counts[1] * self.counts[2]
 
 
-def _check_points(name: str, V):
-    V = jnp.asarray(V)
-    if V.ndim != 2 or V.shape[1] != 3:
-        raise ValueError(f"{name}: expected shape (n, 3), got {V.shape}")
-    if not jnp.issubdtype(V.dtype, jnp.floating):
-        V = V.astype(jnp.result_type(float))
-    return V
-
-
 def bounding_lattice(V: Float[Array, "n 3"], counts=(4, 4, 4), padding: float = 0.0) -> Lattice:
     """The axis-aligned bounding box of ``V`` as a lattice, grown by ``padding`` times the largest box
     extent on every side (use ``padding > 0`` for a flat mesh, whose box is degenerate)."""
-    V = _check_points("V", V)
+    V = check_vectors("V", V, rows="n")
     if padding < 0:
         raise ValueError(f"padding: expected >= 0, got {padding}")
     low, high = jnp.min(V, axis=0), jnp.max(V, axis=0)
@@ -114,7 +105,7 @@ def lattice_coordinates(V: Float[Array, "n 3"], lattice: Lattice) -> Float[Array
 
     A point outside [0, 1]^3 by more than rounding (``sqrt(eps)``), or a flat lattice, raises a
     ValueError (inside jit a runtime error with the message)."""
-    V = _check_points("V", V)
+    V = check_vectors("V", V, rows="n")
     axes, origin = lattice.axes.astype(V.dtype), lattice.origin.astype(V.dtype)
     local = jnp.linalg.solve(axes.T, (V - origin).T).T
     tolerance = float(np.sqrt(np.finfo(V.dtype).eps))
@@ -167,7 +158,7 @@ def ffd_precompute(V: Float[Array, "n 3"], lattice: Lattice) -> MotorField:
     ``motor_field_solve`` on the result and lattice motors with batch shape (..., l m n) gives the deformed
     positions (..., n, 3); the identity motors give back ``V``, translators by ``d_j`` the classic FFD with
     control points ``P_j + d_j``, and the same motor G everywhere moves the mesh rigidly by G."""
-    V = _check_points("V", V)
+    V = check_vectors("V", V, rows="n")
     return motor_field_precompute(V, ffd_weights(V, lattice))
 
 
@@ -201,15 +192,6 @@ def twist_lattice(lattice: Lattice, angle, axis: int | None = None) -> tuple[Flo
     return cga.apply_to_points(motors, lattice_points(lattice)), motors
 
 
-def _check_faces(F, n: int) -> np.ndarray:
-    F = np.asarray(F)
-    if F.ndim != 2 or F.shape[1] != 3 or len(F) == 0 or not np.issubdtype(F.dtype, np.integer):
-        raise ValueError(f"F: expected integer faces of shape (m, 3), m > 0, got {F.dtype} {F.shape}")
-    if F.min() < 0 or F.max() >= n:
-        raise ValueError(f"F: vertex indices must lie in [0, {n})")
-    return F
-
-
 def distortion(V0: Float[Array, "n 3"], F: Int[Array, "m 3"], V1: Float[Array, "... n 3"]) -> dict[str, Array]:
     """How a deformation ``V0 -> V1`` of a closed mesh (V0, F) changes volume and edge lengths.
 
@@ -217,12 +199,12 @@ def distortion(V0: Float[Array, "n 3"], F: Int[Array, "m 3"], V1: Float[Array, "
         ``volume_ratio``: signed volume of V1 over that of V0 (1 for a volume-preserving map);
         ``edge_mean``, ``edge_max``: mean and max over the edges of ``|len_1 / len_0 - 1|``.
     """
-    V0 = _check_points("V0", V0)
+    V0 = check_vectors("V0", V0, rows="n")
     V1 = jnp.asarray(V1)
     if V1.shape[-2:] != V0.shape:
         raise ValueError(f"V1: expected shape (..., {V0.shape[0]}, 3), got {V1.shape}")
     V1 = V1.astype(V0.dtype)
-    F = _check_faces(F, V0.shape[0])
+    F = check_faces("F", F, V0.shape[0])
     E = np.unique(np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1), axis=0)
     rest = jnp.linalg.norm(V0[E[:, 1]] - V0[E[:, 0]], axis=-1)
     length = jnp.linalg.norm(V1[..., E[:, 1], :] - V1[..., E[:, 0], :], axis=-1)

@@ -22,6 +22,7 @@ import optimistix as optx
 from jaxtyping import Array, Float, Int
 
 import jaxcga as cga
+from _jaxcga_shared.checks import check_index_range
 from _jaxcga_shared.mesh import bounding_diagonal
 from deform import _pose, _rig
 from deform._model import RiggedModel, SkinnedMesh
@@ -102,8 +103,7 @@ def check_targets(targets, vertices, n: int, dtype):
     index = np.arange(n) if vertices is None else np.asarray(vertices)
     if index.ndim != 1 or not np.issubdtype(index.dtype, np.integer):
         raise ValueError(f"vertices: expected a (t,) integer array, got {index.dtype} {index.shape}")
-    if index.size and (index.min() < 0 or index.max() >= n):
-        raise ValueError(f"vertices: indices must lie in [0, {n})")
+    check_index_range("vertices", index, n)
     if targets.shape != (len(index), 3):
         raise ValueError(f"targets: expected shape ({len(index)}, 3), got {targets.shape}")
     if not bool(jnp.all(jnp.isfinite(targets))):

@@ -31,26 +31,15 @@ import scipy.sparse as sp
 from jaxtyping import Array, Float, Int
 from scipy.sparse.csgraph import connected_components
 
+from _jaxcga_shared.checks import check_index_range, check_triangle_mesh
 from _jaxcga_shared.sparse import SparseSolver
 
 LAPLACIANS = ("cotangent", "mean_value")
 
 
-def _check_mesh(V, F):
-    V = np.asarray(V, np.float64)
-    F = np.asarray(F)
-    if V.ndim != 2 or V.shape[1] != 3 or not np.all(np.isfinite(V)):
-        raise ValueError(f"V: expected finite positions of shape (n, 3), got {V.shape}")
-    if F.ndim != 2 or F.shape[1] != 3 or not np.issubdtype(F.dtype, np.integer) or len(F) == 0:
-        raise ValueError(f"F: expected integer faces of shape (m, 3), m > 0, got {F.dtype} {F.shape}")
-    if F.min() < 0 or F.max() >= len(V):
-        raise ValueError(f"F: vertex indices must lie in [0, {len(V)})")
-    return V, F.astype(np.int64)
-
-
 def mean_value_laplacian(V, F) -> sp.csr_matrix:
     """Floater's mean-value Laplacian (n, n): ``L_ij = w_ij``, ``L_ii = -sum_j w_ij`` (rows sum to 0)."""
-    V, F = _check_mesh(V, F)
+    V, F = check_triangle_mesh(V, F)
     rows, cols, values = [], [], []
     for k in range(3):
         a, b, c = F[:, k], F[:, (k + 1) % 3], F[:, (k + 2) % 3]
@@ -81,7 +70,7 @@ def _laplacian(V, F, kind: str) -> sp.sparray:
         raise ValueError(f"kind: expected one of {LAPLACIANS}, got {kind!r}")
     if kind == "mean_value":
         return mean_value_laplacian(V, F)
-    V, F = _check_mesh(V, F)
+    V, F = check_triangle_mesh(V, F)
     return sp.csc_matrix(igl.cotmatrix(V, F))
 
 
@@ -166,12 +155,11 @@ def harmonic_precompute(V, F, constrained, *, laplacian: str = "cotangent") -> H
             a free part with no path to a constrained vertex (the system is singular)."""
     if laplacian not in LAPLACIANS:
         raise ValueError(f"laplacian: expected one of {LAPLACIANS}, got {laplacian!r}")
-    V, F = _check_mesh(V, F)
+    V, F = check_triangle_mesh(V, F)
     constrained = np.asarray(constrained)
     if constrained.ndim != 1 or not np.issubdtype(constrained.dtype, np.integer) or len(constrained) == 0:
         raise ValueError(f"constrained: expected a non-empty 1-D array of vertex indices, got {constrained!r}")
-    if constrained.min() < 0 or constrained.max() >= len(V):
-        raise ValueError(f"constrained: vertex indices must lie in [0, {len(V)})")
+    check_index_range("constrained", constrained, len(V))
     if len(np.unique(constrained)) != len(constrained):
         raise ValueError("constrained: a vertex is listed twice")
     if len(constrained) == len(V):

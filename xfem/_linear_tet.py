@@ -22,10 +22,9 @@ import numpy as np
 import scipy.sparse as sp
 from jaxtyping import Array, Float, Int
 
-from _jaxcga_shared.checks import require
+from _jaxcga_shared.checks import check_points, require
 from xfem._tetmesh import (
     _bad_index,
-    _host_positions,
     _host_tets,
     _host_volumes,
     _index_message,
@@ -142,7 +141,7 @@ def consistent_mass(X, T, density) -> sp.csr_matrix:
         (n, n) float64 ``scipy.sparse.csr_matrix``, exactly symmetric, positive definite when every node
         is in a tet (as in a ``TetMesh``).
     """
-    X = _host_positions(X)
+    X = check_points("X", X)
     T = _host_tets(T, len(X))
     volume = _host_volumes(X, T)
     if np.any(volume <= 0):

@@ -15,10 +15,11 @@ import manifold3d
 import numpy as np
 import pytest
 
+# the worker process, its framing and the mesh packing are internal to BackgroundCuts: tested here directly
 import xfem._background
 from tests.xfem._models import MATERIAL, RHO, G, H, plane, tall_box
-from xfem import xfem_model
-from xfem._background import _ENTRY, BackgroundCuts
+from xfem import BackgroundCuts, xfem_model
+from xfem._background import _ENTRY
 from xfem._cut_process import CutProcess, CutProcessError
 from xfem._framing import decode, encode, portable, read_frame, write_frame
 from xfem._subdomains import MeshSolid, pack_meshes, solid_mesh, unpack_meshes
