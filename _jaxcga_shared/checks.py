@@ -150,7 +150,9 @@ def check_triangle_mesh(
     return V, check_faces(names[1], F, len(V), min_count=min_faces)
 
 
-def check_vectors(name: str, x: ArrayLike, size: int = 3, *, rows: str | None = None) -> Float[Array, "... size"]:
+def check_vectors(
+    name: str, x: jax.typing.ArrayLike, size: int = 3, *, rows: str | None = None
+) -> Float[Array, "... size"]:
     """``x`` as a float JAX array of shape (..., size), or exactly (rows, size) when ``rows`` (the letter its
     message gives the row count) is given; a ValueError naming ``name`` otherwise. Traceable: shapes only."""
     x = jnp.asarray(x)
@@ -163,6 +165,8 @@ def check_vectors(name: str, x: ArrayLike, size: int = 3, *, rows: str | None = 
     return x
 
 
-def check_finite(name: str, x: ArrayLike) -> Array:
-    """``x``, or a ValueError when it holds NaN or infinity (inside jit a runtime error with the message)."""
+def check_finite(name: str, x: jax.typing.ArrayLike) -> Array:
+    """``x`` as a JAX array, or a ValueError when it holds NaN or infinity (inside jit a runtime error with the
+    message)."""
+    x = jnp.asarray(x)
     return require(x, (~jnp.all(jnp.isfinite(x)), f"{name}: non-finite values (NaN or inf)"))
