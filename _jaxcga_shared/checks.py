@@ -7,11 +7,13 @@ from __future__ import annotations
 import dataclasses
 import functools
 import re
+from collections.abc import Collection
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.core import Tracer
 from jaxtyping import Array, Float
 from numpy.typing import ArrayLike
 
@@ -21,7 +23,7 @@ from _jaxcga_shared.host import host_call
 # ``JAX_PLATFORMS=cuda`` there is none, and a failing check raised "failed to find a local CPU device" instead of
 # its message. A check here raises from a ``host_call`` (the backend's own callback, no CPU device) that runs
 # only when the check fails; its message is kept here too, since a GPU's error text adds XLA's context to it.
-_FAILED = {"message": None}
+_FAILED: dict[str, str | None] = {"message": None}
 
 
 @dataclasses.dataclass(frozen=True)
@@ -55,7 +57,7 @@ def require(x, *checks):
     (traced flags) a runtime error with the message, raised when ``x`` is computed (under vmap when any batch
     element is bad). Returns ``x`` (to be used, so the traced check is kept)."""
     for bad, message in checks:
-        if isinstance(bad, jax.core.Tracer):
+        if isinstance(bad, Tracer):
             # unvmap_any: one flag for a whole vmap batch, so the failing branch stays a branch (not a select)
             flag = eqx.internal.unvmap_any(jnp.any(bad))
             x = _checked(jnp.asarray(x), flag, message)  # python scalars have nothing to thread on
@@ -89,7 +91,7 @@ def plain_errors(fn):
     def wrapper(*args, **kwargs):
         try:
             out = fn(*args, **kwargs)
-            if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(out)):
+            if any(isinstance(leaf, Tracer) for leaf in jax.tree.leaves(out)):
                 return out
             # a GPU runs compiled code asynchronously: a failed check surfaces when the result is ready
             return jax.block_until_ready(out)
@@ -111,17 +113,46 @@ def check_index_range(name: str, indices: np.ndarray, n: int | None, what: str =
         raise ValueError(f"{name}: {what} indices must lie in [0{bound}), got [{indices.min()}, {indices.max()}]")
 
 
+def check_real(
+    name: str, x: ArrayLike, shape: tuple[int | None, ...], what: str = "values", rows: str = "n"
+) -> np.ndarray:
+    """``x`` as a finite float64 host array of ``shape`` (None: any length, written ``rows`` in the message), or a
+    ValueError naming ``name`` (``what`` says what the values are)."""
+    x = np.asarray(x)
+    if (
+        x.ndim != len(shape)
+        or any(s is not None and s != d for s, d in zip(shape, x.shape))
+        or not (np.issubdtype(x.dtype, np.floating) or np.issubdtype(x.dtype, np.integer))
+    ):
+        expected = ", ".join(rows if s is None else str(s) for s in shape)
+        if len(shape) == 1:
+            expected += ","
+        raise ValueError(f"{name}: expected {what} of shape ({expected}), got {x.dtype} {x.shape}")
+    x = x.astype(np.float64)
+    if not np.all(np.isfinite(x)):
+        raise ValueError(f"{name}: non-finite values (NaN or inf)")
+    return x
+
+
+def check_positive(name: str, x: ArrayLike, shapes: tuple[tuple[int, ...], ...] = ((),)) -> np.ndarray:
+    """``x`` as a float64 host array of finite positive values whose shape is one of ``shapes`` (a density, a
+    stiffness: per element or one for all), or a ValueError naming ``name``."""
+    x = np.asarray(x)
+    real = np.issubdtype(x.dtype, np.floating) or np.issubdtype(x.dtype, np.integer)
+    if x.shape not in shapes or not real or not np.all(np.isfinite(x) & (x > 0)):
+        expected = " or ".join(dict.fromkeys(str(shape) for shape in shapes))
+        raise ValueError(f"{name}: expected finite positive values of shape {expected}, got {x.dtype} {x.shape}")
+    return x.astype(np.float64)
+
+
 def check_points(name: str, V: ArrayLike, *, min_count: int = 0, rows: str = "n") -> np.ndarray:
     """``V`` as a finite float64 (rows, 3) host array with at least ``min_count`` rows, or a ValueError naming
     ``name`` (``rows`` is the letter its message gives the row count)."""
-    V = np.asarray(V)
-    real = np.issubdtype(V.dtype, np.floating) or np.issubdtype(V.dtype, np.integer)
-    if V.ndim != 2 or V.shape[1] != 3 or len(V) < min_count or not real:
-        least = f", {rows} >= {min_count}" if min_count else ""
-        raise ValueError(f"{name}: expected finite positions of shape ({rows}, 3){least}, got {V.dtype} {V.shape}")
-    V = V.astype(np.float64)
-    if not np.all(np.isfinite(V)):
-        raise ValueError(f"{name}: non-finite positions (NaN or inf)")
+    V = check_real(name, V, (None, 3), "finite positions", rows)
+    if len(V) < min_count:
+        raise ValueError(
+            f"{name}: expected finite positions of shape ({rows}, 3), {rows} >= {min_count}, got {V.shape}"
+        )
     return V
 
 
@@ -170,3 +201,9 @@ def check_finite(name: str, x: jax.typing.ArrayLike) -> Array:
     message)."""
     x = jnp.asarray(x)
     return require(x, (~jnp.all(jnp.isfinite(x)), f"{name}: non-finite values (NaN or inf)"))
+
+
+def check_choice(name: str, value: object, choices: Collection[object]) -> None:
+    """A ValueError naming ``name`` when ``value`` is not one of ``choices`` (an option's enumeration)."""
+    if value not in choices:
+        raise ValueError(f"{name}: expected one of {choices}, got {value!r}")

@@ -33,7 +33,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
-from _jaxcga_shared.checks import check_triangle_mesh
+from _jaxcga_shared.checks import check_choice, check_triangle_mesh
 from _jaxcga_shared.mesh import bounding_diagonal
 from cutting._geometry import (
     MeshEdges,
@@ -44,7 +44,7 @@ from cutting._geometry import (
     skinned_mesh_like,
     smallest_doubled_area,
 )
-from cutting._predicates import check_predicates, edge_points, signed_distances
+from cutting._predicates import PREDICATES, edge_points, signed_distances
 from cutting._tools import Plane, check_plane
 from cutting._weights import blend_weights
 from deform._model import SkinnedMesh
@@ -193,7 +193,7 @@ def cut_topology(
     Raises:
         ValueError: bad shapes, non-finite input, or a plane that misses the mesh (all vertices on one
             side: there is nothing to cut) or only grazes it (all on one side once snapped)."""
-    check_predicates(predicates)
+    check_choice("predicates", predicates, PREDICATES)
     V, F = check_triangle_mesh(V, F, min_faces=0)
     if not tolerance >= 0:
         raise ValueError(f"tolerance: expected a non-negative number, got {tolerance}")

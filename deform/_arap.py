@@ -62,7 +62,7 @@ import numpy as np
 import scipy.sparse as sp
 from jaxtyping import Array, Float, Int
 
-from _jaxcga_shared.checks import check_index_range, check_triangle_mesh, require
+from _jaxcga_shared.checks import check_choice, check_index_range, check_triangle_mesh, require
 from _jaxcga_shared.sparse import SparseSolver
 from jaxcga import KINDS, Multivector, align_points, apply_to_points
 
@@ -119,8 +119,7 @@ def arap_precompute(V, F, b, *, energy: str = "spokes_and_rims") -> ARAPData:
             eq. 9; with obtuse triangles it can go negative and drift away from rigid maps, as on Arm5).
     Returns:
         ``ARAPData``, the argument of ``arap_solve``."""
-    if energy not in ENERGIES:
-        raise ValueError(f"energy: expected one of {ENERGIES}, got {energy!r}")
+    check_choice("energy", energy, ENERGIES)
     V, F = check_triangle_mesh(V, F)
     n = len(V)
     b = np.asarray(b)

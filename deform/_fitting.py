@@ -22,7 +22,7 @@ import optimistix as optx
 from jaxtyping import Array, Float, Int
 
 import jaxcga as cga
-from _jaxcga_shared.checks import check_index_range
+from _jaxcga_shared.checks import check_choice, check_index_range
 from _jaxcga_shared.mesh import bounding_diagonal
 from deform import _pose, _rig
 from deform._model import RiggedModel, SkinnedMesh
@@ -181,7 +181,7 @@ def fit_pose(
         raise ValueError(f"regularization: expected >= 0, got {regularization}")
     if not isinstance(max_steps, int) or max_steps < 1:
         raise ValueError(f"max_steps: expected an int >= 1, got {max_steps!r}")
-    _pose._check_method(method)
+    check_choice("method", method, _pose.METHODS)
     if method == "dqs" and fit_scale:
         raise ValueError("method: dual-quaternion skinning cannot represent dilations; use fit_scale=False")
     dtype = model.mesh.V.dtype

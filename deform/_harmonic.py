@@ -31,7 +31,7 @@ import scipy.sparse as sp
 from jaxtyping import Array, Float, Int
 from scipy.sparse.csgraph import connected_components
 
-from _jaxcga_shared.checks import check_index_range, check_triangle_mesh
+from _jaxcga_shared.checks import check_choice, check_index_range, check_triangle_mesh
 from _jaxcga_shared.sparse import SparseSolver
 
 LAPLACIANS = ("cotangent", "mean_value")
@@ -66,8 +66,7 @@ def laplacian(V, F, kind: str = "cotangent") -> sp.sparray:
 
 def _laplacian(V, F, kind: str) -> sp.sparray:
     # ``laplacian``'s body, also reached from ``harmonic_precompute``, whose keyword ``laplacian`` shadows it
-    if kind not in LAPLACIANS:
-        raise ValueError(f"kind: expected one of {LAPLACIANS}, got {kind!r}")
+    check_choice("kind", kind, LAPLACIANS)
     if kind == "mean_value":
         return mean_value_laplacian(V, F)
     V, F = check_triangle_mesh(V, F)
@@ -153,8 +152,7 @@ def harmonic_precompute(V, F, constrained, *, laplacian: str = "cotangent") -> H
     Raises:
         ValueError: bad mesh, indices out of range or repeated, no constrained or no free vertex, or
             a free part with no path to a constrained vertex (the system is singular)."""
-    if laplacian not in LAPLACIANS:
-        raise ValueError(f"laplacian: expected one of {LAPLACIANS}, got {laplacian!r}")
+    check_choice("laplacian", laplacian, LAPLACIANS)
     V, F = check_triangle_mesh(V, F)
     constrained = np.asarray(constrained)
     if constrained.ndim != 1 or not np.issubdtype(constrained.dtype, np.integer) or len(constrained) == 0:

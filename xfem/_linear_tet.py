@@ -22,7 +22,7 @@ import numpy as np
 import scipy.sparse as sp
 from jaxtyping import Array, Float, Int
 
-from _jaxcga_shared.checks import check_points, require
+from _jaxcga_shared.checks import check_points, check_positive, require
 from xfem._tetmesh import (
     _bad_index,
     _host_tets,
@@ -115,18 +115,6 @@ def _shape_functions(X, T, points, elements):
     return N, jnp.any((elements < 0) | (elements >= T.shape[0])), _bad_index(tets, X.shape[0]), _bad_volume(det)
 
 
-def _host_density(density, m: int) -> np.ndarray:
-    rho = np.asarray(density)
-    if rho.shape not in ((), (m,)) or not (
-        np.issubdtype(rho.dtype, np.floating) or np.issubdtype(rho.dtype, np.integer)
-    ):
-        raise ValueError(f"density: expected a scalar or shape ({m},), got {rho.dtype} {rho.shape}")
-    rho = rho.astype(np.float64)
-    if not np.all(np.isfinite(rho)) or np.any(rho <= 0):
-        raise ValueError("density: expected finite positive values")
-    return rho
-
-
 def consistent_mass(X, T, density) -> sp.csr_matrix:
     """The consistent mass matrix of eq. 7, scalar factor: ``M_ij = int rho phi_i phi_j`` (host, scipy).
 
@@ -149,7 +137,7 @@ def consistent_mass(X, T, density) -> sp.csr_matrix:
         raise ValueError(
             f"T: tet {e} = {T[e].tolist()} has non-positive volume {volume[e]:.3g}; orient the tets with tet_mesh"
         )
-    weight = _host_density(density, len(T)) * volume / 20
+    weight = check_positive("density", density, ((), (len(T),))) * volume / 20
     values = weight[:, None, None] * (1 + np.eye(4))
     rows = np.broadcast_to(T[:, :, None], values.shape)
     cols = np.broadcast_to(T[:, None, :], values.shape)
