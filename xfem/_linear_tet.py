@@ -148,7 +148,7 @@ def consistent_mass(X, T, density) -> sp.csr_matrix:
 def _jax_density(density, m: int, dtype):
     rho = jnp.asarray(density)
     if rho.shape not in ((), (m,)):
-        raise ValueError(f"density: expected a scalar or shape ({m},), got {rho.shape}")
+        raise ValueError(f"density: expected finite positive values of shape () or ({m},), got {rho.shape}")
     return jnp.asarray(rho, dtype)
 
 
