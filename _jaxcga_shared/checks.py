@@ -98,8 +98,8 @@ def plain_errors(fn):
         except (eqx.EquinoxRuntimeError, jax.errors.JaxRuntimeError, ValueError) as error:
             # JAX raises a callback's failure as a JaxRuntimeError, or a ValueError from a cached executable
             message = compiled_error_message(error)
-            if not isinstance(error, eqx.EquinoxRuntimeError) and message != _FAILED["message"]:
-                raise  # not a check: an error of the computation itself, or of its arguments
+            if not isinstance(error, eqx.EquinoxRuntimeError) and (message is None or message != _FAILED["message"]):
+                raise  # not a check: an error of the computation or of its arguments (None: no check failed yet)
             raise ValueError(message) from None
 
     return wrapper
