@@ -1,18 +1,24 @@
 """Argument and value checks shared by every package: a ``ValueError`` naming the argument on concrete input, a
-runtime error with the same message inside jit, on every backend. Private to the distribution."""
+runtime error with the same message inside jit, on every backend; and the host-side checks of points, faces and
+index arrays that every package takes. Private to the distribution."""
 
 from __future__ import annotations
 
 import dataclasses
 import functools
 import re
+from collections.abc import Collection
 from typing import TypeVar
 
 import equinox as eqx
 import jax
 import jax.core
 import jax.numpy as jnp
-from jaxtyping import ArrayLike
+import numpy as np
+from jax.core import Tracer
+from jax.typing import ArrayLike as JaxArrayLike
+from jaxtyping import Array, Float
+from numpy.typing import ArrayLike
 
 from _jaxcga_shared.host import host_call
 
@@ -51,12 +57,12 @@ def _checked_jvp(message, primals, tangents):
     return _checked(x, flag, message), tangents[0]
 
 
-def require(x: _T, *checks: tuple[ArrayLike, str]) -> _T:
+def require(x: _T, *checks: tuple[JaxArrayLike, str]) -> _T:
     """Value checks, pairs ``(bad, message)``: a ``ValueError`` on concrete input; inside jit, vmap or grad
     (traced flags) a runtime error with the message, raised when ``x`` is computed (under vmap when any batch
     element is bad). Returns ``x`` (to be used, so the traced check is kept)."""
     for bad, message in checks:
-        if isinstance(bad, jax.core.Tracer):
+        if isinstance(bad, Tracer):
             # unvmap_any: one flag for a whole vmap batch, so the failing branch stays a branch (not a select)
             flag = eqx.internal.unvmap_any(jnp.any(bad))
             x = _checked(jnp.asarray(x), flag, message)  # python scalars have nothing to thread on
@@ -90,15 +96,119 @@ def plain_errors(fn):
     def wrapper(*args, **kwargs):
         try:
             out = fn(*args, **kwargs)
-            if any(isinstance(leaf, jax.core.Tracer) for leaf in jax.tree.leaves(out)):
+            if any(isinstance(leaf, Tracer) for leaf in jax.tree.leaves(out)):
                 return out
             # a GPU runs compiled code asynchronously: a failed check surfaces when the result is ready
             return jax.block_until_ready(out)
         except (eqx.EquinoxRuntimeError, jax.errors.JaxRuntimeError, ValueError) as error:
             # JAX raises a callback's failure as a JaxRuntimeError, or a ValueError from a cached executable
             message = compiled_error_message(error)
-            if not isinstance(error, eqx.EquinoxRuntimeError) and message != _FAILED["message"]:
-                raise  # not a check: an error of the computation itself, or of its arguments
+            if not isinstance(error, eqx.EquinoxRuntimeError) and (message is None or message != _FAILED["message"]):
+                raise  # not a check: an error of the computation or of its arguments (None: no check failed yet)
             raise ValueError(message) from None
 
     return wrapper
+
+
+def check_index_range(name: str, indices: np.ndarray, n: int | None, what: str = "vertex") -> None:
+    """A ValueError naming ``name`` when an integer array ``indices`` holds an index outside ``[0, n)`` (n None:
+    only negative indices are refused); a JAX gather would clamp it silently."""
+    if indices.size and (indices.min() < 0 or (n is not None and indices.max() >= n)):
+        bound = "" if n is None else f", {n}"
+        raise ValueError(f"{name}: {what} indices must lie in [0{bound}), got [{indices.min()}, {indices.max()}]")
+
+
+def check_real(
+    name: str, x: ArrayLike, shape: tuple[int | None, ...], what: str = "values", rows: str = "n"
+) -> np.ndarray:
+    """``x`` as a finite float64 host array of ``shape`` (None: any length, written ``rows`` in the message), or a
+    ValueError naming ``name`` (``what`` says what the values are)."""
+    x = np.asarray(x)
+    if (
+        x.ndim != len(shape)
+        or any(s is not None and s != d for s, d in zip(shape, x.shape))
+        or not (np.issubdtype(x.dtype, np.floating) or np.issubdtype(x.dtype, np.integer))
+    ):
+        expected = ", ".join(rows if s is None else str(s) for s in shape)
+        if len(shape) == 1:
+            expected += ","
+        raise ValueError(f"{name}: expected {what} of shape ({expected}), got {x.dtype} {x.shape}")
+    x = x.astype(np.float64)
+    if not np.all(np.isfinite(x)):
+        raise ValueError(f"{name}: non-finite values (NaN or inf)")
+    return x
+
+
+def check_positive(name: str, x: ArrayLike, shapes: tuple[tuple[int, ...], ...] = ((),)) -> np.ndarray:
+    """``x`` as a float64 host array of finite positive values whose shape is one of ``shapes`` (a density, a
+    stiffness: per element or one for all), or a ValueError naming ``name``."""
+    x = np.asarray(x)
+    real = np.issubdtype(x.dtype, np.floating) or np.issubdtype(x.dtype, np.integer)
+    if x.shape not in shapes or not real or not np.all(np.isfinite(x) & (x > 0)):
+        expected = " or ".join(dict.fromkeys(str(shape) for shape in shapes))
+        raise ValueError(f"{name}: expected finite positive values of shape {expected}, got {x.dtype} {x.shape}")
+    return x.astype(np.float64)
+
+
+def check_points(name: str, V: ArrayLike, *, min_count: int = 0, rows: str = "n") -> np.ndarray:
+    """``V`` as a finite float64 (rows, 3) host array with at least ``min_count`` rows, or a ValueError naming
+    ``name`` (``rows`` is the letter its message gives the row count)."""
+    V = check_real(name, V, (None, 3), "finite positions", rows)
+    if len(V) < min_count:
+        raise ValueError(
+            f"{name}: expected finite positions of shape ({rows}, 3), {rows} >= {min_count}, got {V.shape}"
+        )
+    return V
+
+
+def check_faces(name: str, F: ArrayLike, n: int, *, min_count: int = 1) -> np.ndarray:
+    """``F`` as an int64 (m, 3) host array of triangles with m >= ``min_count`` and vertex indices in
+    ``[0, n)``, or a ValueError naming ``name``."""
+    F = np.asarray(F)
+    if F.ndim != 2 or F.shape[1] != 3 or len(F) < min_count or not np.issubdtype(F.dtype, np.integer):
+        least = f", m >= {min_count}" if min_count else ""
+        raise ValueError(f"{name}: expected integer faces of shape (m, 3){least}, got {F.dtype} {F.shape}")
+    check_index_range(name, F, n)
+    return F.astype(np.int64)
+
+
+def check_triangle_mesh(
+    V: ArrayLike,
+    F: ArrayLike,
+    *,
+    names: tuple[str, str] = ("V", "F"),
+    min_vertices: int = 0,
+    min_faces: int = 1,
+) -> tuple[np.ndarray, np.ndarray]:
+    """A triangle mesh as host arrays: (V finite float64 (n, 3), F int64 (m, 3) indexing V), or a ValueError
+    naming the argument (``names``); ``min_faces=0`` accepts a mesh with no faces."""
+    V = check_points(names[0], V, min_count=min_vertices)
+    return V, check_faces(names[1], F, len(V), min_count=min_faces)
+
+
+def check_vectors(
+    name: str, x: jax.typing.ArrayLike, size: int = 3, *, rows: str | None = None
+) -> Float[Array, "... size"]:
+    """``x`` as a float JAX array of shape (..., size), or exactly (rows, size) when ``rows`` (the letter its
+    message gives the row count) is given; a ValueError naming ``name`` otherwise. Traceable: shapes only."""
+    x = jnp.asarray(x)
+    if not jnp.issubdtype(x.dtype, jnp.floating):
+        x = x.astype(jnp.result_type(float))
+    if rows is None and (x.ndim == 0 or x.shape[-1] != size):
+        raise ValueError(f"{name}: expected an array of shape (..., {size}), got shape {x.shape}")
+    if rows is not None and (x.ndim != 2 or x.shape[1] != size):
+        raise ValueError(f"{name}: expected shape ({rows}, {size}), got {x.shape}")
+    return x
+
+
+def check_finite(name: str, x: jax.typing.ArrayLike) -> Array:
+    """``x`` as a JAX array, or a ValueError when it holds NaN or infinity (inside jit a runtime error with the
+    message)."""
+    x = jnp.asarray(x)
+    return require(x, (~jnp.all(jnp.isfinite(x)), f"{name}: non-finite values (NaN or inf)"))
+
+
+def check_choice(name: str, value: object, choices: Collection[object]) -> None:
+    """A ValueError naming ``name`` when ``value`` is not one of ``choices`` (an option's enumeration)."""
+    if value not in choices:
+        raise ValueError(f"{name}: expected one of {choices}, got {value!r}")

@@ -47,6 +47,8 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 from _report import RATIO_UNIT, add_json_argument, print_device, write_json  # noqa: E402
 
 import xfem  # noqa: E402
+
+# times the step's internal kernels (gradient and matrix, solve, line search) one by one
 import xfem._backward_euler as be  # noqa: E402
 from _jaxcga_shared.sparse import device_pcg, host_direct, host_pcg  # noqa: E402
 

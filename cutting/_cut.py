@@ -33,10 +33,10 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
+from _jaxcga_shared.checks import check_choice, check_triangle_mesh
 from _jaxcga_shared.mesh import bounding_diagonal
 from cutting._geometry import (
     MeshEdges,
-    check_mesh_arrays,
     mesh_edges,
     poor_pieces,
     posed_vertices,
@@ -44,7 +44,7 @@ from cutting._geometry import (
     skinned_mesh_like,
     smallest_doubled_area,
 )
-from cutting._predicates import check_predicates, edge_points, signed_distances
+from cutting._predicates import PREDICATES, edge_points, signed_distances
 from cutting._tools import Plane, check_plane
 from cutting._weights import blend_weights
 from deform._model import SkinnedMesh
@@ -193,8 +193,8 @@ def cut_topology(
     Raises:
         ValueError: bad shapes, non-finite input, or a plane that misses the mesh (all vertices on one
             side: there is nothing to cut) or only grazes it (all on one side once snapped)."""
-    check_predicates(predicates)
-    V, F = check_mesh_arrays(V, F)
+    check_choice("predicates", predicates, PREDICATES)
+    V, F = check_triangle_mesh(V, F, min_faces=0)
     if not tolerance >= 0:
         raise ValueError(f"tolerance: expected a non-negative number, got {tolerance}")
     edges = mesh_edges(F) if edges is None else edges

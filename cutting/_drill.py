@@ -39,10 +39,10 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
+from _jaxcga_shared.checks import check_triangle_mesh
 from _jaxcga_shared.mesh import bounding_diagonal
 from cutting._geometry import (
     MeshEdges,
-    check_mesh_arrays,
     fan_triangles,
     mesh_edges,
     poor_pieces,
@@ -309,7 +309,7 @@ def drill_topology(
     Raises:
         ValueError: bad input, a drill that misses the mesh, a drill wider than the part of the mesh it
             meets, or a hole that stays below three boundary points after ``max_refinements`` splits."""
-    V, F = check_mesh_arrays(V, F)
+    V, F = check_triangle_mesh(V, F, min_faces=0)
     tip, base, radius = check_drill(drill)
     if min_points < 3 or max_refinements < 0:
         raise ValueError(f"min_points, max_refinements: expected >= 3 and >= 0, got {min_points}, {max_refinements}")

@@ -56,21 +56,6 @@ def mesh_edges(F: Int[ArrayLike, "m 3"]) -> MeshEdges:
     return MeshEdges(np.stack([keys // n, keys % n], axis=1), inverse.reshape(-1, 3), edge_faces, counts)
 
 
-def check_mesh_arrays(V, F) -> tuple[np.ndarray, np.ndarray]:
-    """(V float64 (n, 3), F int (m, 3)) with clear errors for bad shapes, indices or values."""
-    V = np.asarray(V, np.float64)
-    F = np.asarray(F)
-    if V.ndim != 2 or V.shape[1] != 3:
-        raise ValueError(f"V: expected shape (n, 3), got {V.shape}")
-    if not np.all(np.isfinite(V)):
-        raise ValueError("V: vertex positions must be finite")
-    if F.ndim != 2 or F.shape[1] != 3 or not np.issubdtype(F.dtype, np.integer):
-        raise ValueError(f"F: expected integer faces of shape (m, 3), got {F.dtype} {F.shape}")
-    if F.size and (F.min() < 0 or F.max() >= len(V)):
-        raise ValueError(f"F: vertex indices must lie in [0, {len(V)})")
-    return V, F
-
-
 def posed_vertices(mesh: SkinnedMesh, joint_matrices) -> tuple[np.ndarray, np.ndarray | None]:
     """The mesh's vertices in the space it is operated in: the bind pose when ``joint_matrices`` is
     None, else their LBS image (eq. 16) under the (j, 4, 4) joint matrices of a pose."""

@@ -25,11 +25,6 @@ PREDICATES: tuple[str, ...] = ("euclidean", "ga")
 """The predicate families of Table 1 that ``predicates=`` selects."""
 
 
-def check_predicates(predicates: str) -> None:
-    if predicates not in PREDICATES:
-        raise ValueError(f"predicates: expected one of {PREDICATES}, got {predicates!r}")
-
-
 @jax.jit
 def _ga_side(V, plane_values):
     plane = cga.Multivector(plane_values, cga.plane(jnp.ones(3), jnp.zeros(())).blades)

@@ -36,12 +36,12 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
 import jaxcga as cga
+from _jaxcga_shared.checks import check_choice, check_triangle_mesh
 from _jaxcga_shared.mesh import bounding_diagonal
 from cutting._geometry import (
     PIECE_ANGLE,
     PIECE_AREA,
     MeshEdges,
-    check_mesh_arrays,
     cross3,
     cross_rows,
     fan_triangles,
@@ -53,7 +53,7 @@ from cutting._geometry import (
     smallest_doubled_area,
     triangle_quality,
 )
-from cutting._predicates import check_predicates, edge_points, signed_distances
+from cutting._predicates import PREDICATES, edge_points, signed_distances
 from cutting._tools import Scalpel, check_scalpel
 from cutting._weights import blend_weights
 from deform._model import SkinnedMesh
@@ -271,8 +271,8 @@ def tear_topology(
     Raises:
         ValueError: a scalpel sample that does not cross the surface, a tear that crosses no edge
             (it stays inside one face), reaches the boundary, crosses itself or cannot be followed."""
-    check_predicates(predicates)
-    V, F = check_mesh_arrays(V, F)
+    check_choice("predicates", predicates, PREDICATES)
+    V, F = check_triangle_mesh(V, F, min_faces=0)
     segments = check_scalpel(scalpel)
     if not tolerance >= 0:
         raise ValueError(f"tolerance: expected a non-negative number, got {tolerance}")

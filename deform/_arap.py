@@ -62,9 +62,8 @@ import numpy as np
 import scipy.sparse as sp
 from jaxtyping import Array, ArrayLike, Float, Int
 
-from _jaxcga_shared.checks import require
+from _jaxcga_shared.checks import check_choice, check_index_range, check_triangle_mesh, require
 from _jaxcga_shared.sparse import SparseSolver
-from deform._harmonic import _check_mesh
 from jaxcga import KINDS, Multivector, align_points, apply_to_points
 
 ENERGIES = ("spokes_and_rims", "spokes")
@@ -122,15 +121,13 @@ def arap_precompute(
             eq. 9; with obtuse triangles it can go negative and drift away from rigid maps, as on Arm5).
     Returns:
         ``ARAPData``, the argument of ``arap_solve``."""
-    if energy not in ENERGIES:
-        raise ValueError(f"energy: expected one of {ENERGIES}, got {energy!r}")
-    V, F = _check_mesh(V, F)
+    check_choice("energy", energy, ENERGIES)
+    V, F = check_triangle_mesh(V, F)
     n = len(V)
     b = np.asarray(b)
     if b.ndim != 1 or len(b) == 0 or not np.issubdtype(b.dtype, np.integer):
         raise ValueError(f"b: expected a non-empty (nb,) integer array of handle vertices, got {b.dtype} {b.shape}")
-    if b.min() < 0 or b.max() >= n:
-        raise ValueError(f"b: handle indices must lie in [0, {n})")
+    check_index_range("b", b, n, "handle")
     if len(np.unique(b)) != len(b):
         raise ValueError("b: repeated handle vertices")
     b = b.astype(np.int64)

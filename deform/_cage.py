@@ -44,6 +44,7 @@ import tetgen
 import trimesh
 from jaxtyping import ArrayLike, Float, Int
 
+from _jaxcga_shared.checks import check_faces, check_points
 from _jaxcga_shared.host import quiet_stdout
 from _jaxcga_shared.mesh import bounding_diagonal
 from _jaxcga_shared.sparse import SparseSolver
@@ -54,15 +55,8 @@ _SURFACE_TOLERANCE = 1e-9
 
 
 def _check_cage(cage_V, cage_F):
-    cage_V = np.asarray(cage_V, np.float64)
-    cage_F = np.asarray(cage_F)
-    if cage_V.ndim != 2 or cage_V.shape[1] != 3 or len(cage_V) < 4 or not np.all(np.isfinite(cage_V)):
-        raise ValueError(f"cage_V: expected finite positions of shape (c, 3), c >= 4, got {cage_V.shape}")
-    if cage_F.ndim != 2 or cage_F.shape[1] != 3 or not np.issubdtype(cage_F.dtype, np.integer) or len(cage_F) < 4:
-        raise ValueError(f"cage_F: expected integer faces of shape (m, 3), m >= 4, got {cage_F.dtype} {cage_F.shape}")
-    if cage_F.min() < 0 or cage_F.max() >= len(cage_V):
-        raise ValueError(f"cage_F: vertex indices must lie in [0, {len(cage_V)})")
-    cage_F = cage_F.astype(np.int64)
+    cage_V = check_points("cage_V", cage_V, min_count=4, rows="c")
+    cage_F = check_faces("cage_F", cage_F, len(cage_V), min_count=4)
     unused = np.setdiff1d(np.arange(len(cage_V)), cage_F)
     if len(unused):
         raise ValueError(f"cage_V: vertex {int(unused[0])} is on no face of cage_F; every cage vertex must be")
@@ -248,9 +242,7 @@ def cage_precompute(
     Raises:
         ValueError: see ``harmonic_coordinates``; V of the wrong shape or not finite; a vertex of V
             outside the cage (the message names it and its winding number)."""
-    V = np.asarray(V, np.float64)
-    if V.ndim != 2 or V.shape[1] != 3 or len(V) == 0 or not np.all(np.isfinite(V)):
-        raise ValueError(f"V: expected finite positions of shape (n, 3), n > 0, got {V.shape}")
+    V = check_points("V", V, min_count=1)
     cage_V, cage_F, volume = _check_cage(cage_V, cage_F)
     TV, TT, H = _harmonic_coordinates(cage_V, cage_F, volume, max_tet_volume, subdivisions)
     coords = _interpolate(cage_V, cage_F, TV, TT, H, V)
@@ -273,9 +265,7 @@ def tube_cage(
         margin: the rings' radii over the slabs' largest vertex radius (>= 1).
     Returns:
         (cage_V (c, 3), cage_F (m, 3)), outward oriented; c = (segments + 1) sides + 2."""
-    V = np.asarray(V, np.float64)
-    if V.ndim != 2 or V.shape[1] != 3 or len(V) < 2 or not np.all(np.isfinite(V)):
-        raise ValueError(f"V: expected finite positions of shape (n, 3), n >= 2, got {V.shape}")
+    V = check_points("V", V, min_count=2)
     if segments < 1 or sides < 3 or margin < 1.0:
         raise ValueError(f"segments, sides, margin: expected >= 1, >= 3, >= 1, got {segments}, {sides}, {margin}")
     axis = int(np.argmax(np.ptp(V, axis=0))) if axis is None else axis

@@ -46,7 +46,7 @@ from jaxtyping import Array, ArrayLike, Float, Int
 from scipy.special import comb
 
 import jaxcga as cga
-from _jaxcga_shared.checks import require
+from _jaxcga_shared.checks import check_faces, check_vectors, require
 from _jaxcga_shared.mesh import signed_volume
 from deform._motor_field import MotorField, motor_about, motor_field_precompute
 from jaxcga import Multivector
@@ -93,15 +93,6 @@ class Lattice(eqx.Module):
         return self.counts[0] * self.counts[1] * self.counts[2]
 
 
-def _check_points(name: str, V):
-    V = jnp.asarray(V)
-    if V.ndim != 2 or V.shape[1] != 3:
-        raise ValueError(f"{name}: expected shape (n, 3), got {V.shape}")
-    if not jnp.issubdtype(V.dtype, jnp.floating):
-        V = V.astype(jnp.result_type(float))
-    return V
-
-
 def bounding_lattice(V: Float[ArrayLike, "n 3"], counts: Sequence[int] = (4, 4, 4), padding: float = 0.0) -> Lattice:
     """The axis-aligned bounding box of ``V`` as a lattice, grown by ``padding`` times the largest box
     extent on every side (use ``padding > 0`` for a flat mesh, whose box is degenerate).
@@ -110,7 +101,7 @@ def bounding_lattice(V: Float[ArrayLike, "n 3"], counts: Sequence[int] = (4, 4, 
         V: (n, 3) points.
         counts: (l, m, n) control points per axis, each >= 2.
         padding: >= 0, the margin on every side as a fraction of the largest box extent."""
-    V = _check_points("V", V)
+    V = check_vectors("V", V, rows="n")
     if padding < 0:
         raise ValueError(f"padding: expected >= 0, got {padding}")
     low, high = jnp.min(V, axis=0), jnp.max(V, axis=0)
@@ -127,7 +118,7 @@ def lattice_coordinates(V: Float[ArrayLike, "n 3"], lattice: Lattice) -> Float[A
     Args:
         V: (n, 3) points inside the lattice.
         lattice: the Lattice."""
-    V = _check_points("V", V)
+    V = check_vectors("V", V, rows="n")
     axes, origin = lattice.axes.astype(V.dtype), lattice.origin.astype(V.dtype)
     local = jnp.linalg.solve(axes.T, (V - origin).T).T
     tolerance = float(np.sqrt(np.finfo(V.dtype).eps))
@@ -191,7 +182,7 @@ def ffd_precompute(V: Float[ArrayLike, "n 3"], lattice: Lattice) -> MotorField:
     Args:
         V: (n, 3) points inside the lattice.
         lattice: the Lattice."""
-    V = _check_points("V", V)
+    V = check_vectors("V", V, rows="n")
     return motor_field_precompute(V, ffd_weights(V, lattice))
 
 
@@ -227,15 +218,6 @@ def twist_lattice(
     return cga.apply_to_points(motors, lattice_points(lattice)), motors
 
 
-def _check_faces(F, n: int) -> np.ndarray:
-    F = np.asarray(F)
-    if F.ndim != 2 or F.shape[1] != 3 or len(F) == 0 or not np.issubdtype(F.dtype, np.integer):
-        raise ValueError(f"F: expected integer faces of shape (m, 3), m > 0, got {F.dtype} {F.shape}")
-    if F.min() < 0 or F.max() >= n:
-        raise ValueError(f"F: vertex indices must lie in [0, {n})")
-    return F
-
-
 def distortion(
     V0: Float[ArrayLike, "n 3"], F: Int[ArrayLike, "m 3"], V1: Float[ArrayLike, "... n 3"]
 ) -> dict[str, Float[Array, "*batch"]]:
@@ -249,12 +231,12 @@ def distortion(
         ``volume_ratio``: signed volume of V1 over that of V0 (1 for a volume-preserving map);
         ``edge_mean``, ``edge_max``: mean and max over the edges of ``|len_1 / len_0 - 1|``.
     """
-    V0 = _check_points("V0", V0)
+    V0 = check_vectors("V0", V0, rows="n")
     V1 = jnp.asarray(V1)
     if V1.shape[-2:] != V0.shape:
         raise ValueError(f"V1: expected shape (..., {V0.shape[0]}, 3), got {V1.shape}")
     V1 = V1.astype(V0.dtype)
-    F = _check_faces(F, V0.shape[0])
+    F = check_faces("F", F, V0.shape[0])
     E = np.unique(np.sort(np.concatenate([F[:, [0, 1]], F[:, [1, 2]], F[:, [2, 0]]]), axis=1), axis=0)
     rest = jnp.linalg.norm(V0[E[:, 1]] - V0[E[:, 0]], axis=-1)
     length = jnp.linalg.norm(V1[..., E[:, 1], :] - V1[..., E[:, 0], :], axis=-1)

@@ -20,6 +20,7 @@ import optimistix as optx
 from jaxtyping import Array, ArrayLike, Float, Int
 
 import jaxcga as cga
+from _jaxcga_shared.checks import check_choice
 from _jaxcga_shared.mesh import bounding_diagonal
 from deform._fitting import SOLVERS, check_targets, run_solver
 from deform._motor_field import MotorField, identity_motors, motor_field_solve
@@ -120,8 +121,7 @@ def fit_key_motors(
         raise ValueError(f"free: expected distinct key indices in [0, {k}), got {free}")
     if regularization < 0:
         raise ValueError(f"regularization: expected >= 0, got {regularization}")
-    if solver not in SOLVERS:
-        raise ValueError(f"solver: expected one of {SOLVERS}, got {solver!r}")
+    check_choice("solver", solver, SOLVERS)
     fixed = identity_motors(k, dtype) if fixed_motors is None else fixed_motors
     if not isinstance(fixed, Multivector) or fixed.batch_shape != (k,) or not set(fixed.blades) <= set(KINDS["motor"]):
         raise ValueError(f"fixed_motors: expected motors with batch shape ({k},)")

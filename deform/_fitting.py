@@ -23,6 +23,7 @@ from jax.typing import DTypeLike
 from jaxtyping import Array, ArrayLike, Float, Int, PRNGKeyArray
 
 import jaxcga as cga
+from _jaxcga_shared.checks import check_choice, check_index_range
 from _jaxcga_shared.mesh import bounding_diagonal
 from deform import _pose, _rig
 from deform._model import RiggedModel, SkinnedMesh
@@ -110,8 +111,7 @@ def check_targets(targets, vertices, n: int, dtype):
     index = np.arange(n) if vertices is None else np.asarray(vertices)
     if index.ndim != 1 or not np.issubdtype(index.dtype, np.integer):
         raise ValueError(f"vertices: expected a (t,) integer array, got {index.dtype} {index.shape}")
-    if index.size and (index.min() < 0 or index.max() >= n):
-        raise ValueError(f"vertices: indices must lie in [0, {n})")
+    check_index_range("vertices", index, n)
     if targets.shape != (len(index), 3):
         raise ValueError(f"targets: expected shape ({len(index)}, 3), got {targets.shape}")
     if not bool(jnp.all(jnp.isfinite(targets))):
@@ -189,7 +189,7 @@ def fit_pose(
         raise ValueError(f"regularization: expected >= 0, got {regularization}")
     if not isinstance(max_steps, int) or max_steps < 1:
         raise ValueError(f"max_steps: expected an int >= 1, got {max_steps!r}")
-    _pose._check_method(method)
+    check_choice("method", method, _pose.METHODS)
     if method == "dqs" and fit_scale:
         raise ValueError("method: dual-quaternion skinning cannot represent dilations; use fit_scale=False")
     dtype = model.mesh.V.dtype

@@ -31,21 +31,10 @@ import scipy.sparse as sp
 from jaxtyping import Array, ArrayLike, Float, Int
 from scipy.sparse.csgraph import connected_components
 
+from _jaxcga_shared.checks import check_choice, check_index_range, check_triangle_mesh
 from _jaxcga_shared.sparse import SparseSolver
 
 LAPLACIANS = ("cotangent", "mean_value")
-
-
-def _check_mesh(V, F):
-    V = np.asarray(V, np.float64)
-    F = np.asarray(F)
-    if V.ndim != 2 or V.shape[1] != 3 or not np.all(np.isfinite(V)):
-        raise ValueError(f"V: expected finite positions of shape (n, 3), got {V.shape}")
-    if F.ndim != 2 or F.shape[1] != 3 or not np.issubdtype(F.dtype, np.integer) or len(F) == 0:
-        raise ValueError(f"F: expected integer faces of shape (m, 3), m > 0, got {F.dtype} {F.shape}")
-    if F.min() < 0 or F.max() >= len(V):
-        raise ValueError(f"F: vertex indices must lie in [0, {len(V)})")
-    return V, F.astype(np.int64)
 
 
 def mean_value_laplacian(V: Float[ArrayLike, "n 3"], F: Int[ArrayLike, "m 3"]) -> sp.csr_matrix:
@@ -54,7 +43,7 @@ def mean_value_laplacian(V: Float[ArrayLike, "n 3"], F: Int[ArrayLike, "m 3"]) -
     Args:
         V: (n, 3) vertex positions.
         F: (m, 3) int faces."""
-    V, F = _check_mesh(V, F)
+    V, F = check_triangle_mesh(V, F)
     rows, cols, values = [], [], []
     for k in range(3):
         a, b, c = F[:, k], F[:, (k + 1) % 3], F[:, (k + 2) % 3]
@@ -88,11 +77,10 @@ def laplacian(
 
 def _laplacian(V, F, kind: str) -> sp.csc_matrix | sp.csr_matrix:
     # ``laplacian``'s body, also reached from ``harmonic_precompute``, whose keyword ``laplacian`` shadows it
-    if kind not in LAPLACIANS:
-        raise ValueError(f"kind: expected one of {LAPLACIANS}, got {kind!r}")
+    check_choice("kind", kind, LAPLACIANS)
     if kind == "mean_value":
         return mean_value_laplacian(V, F)
-    V, F = _check_mesh(V, F)
+    V, F = check_triangle_mesh(V, F)
     return sp.csc_matrix(igl.cotmatrix(V, F))
 
 
@@ -182,14 +170,12 @@ def harmonic_precompute(
     Raises:
         ValueError: bad mesh, indices out of range or repeated, no constrained or no free vertex, or
             a free part with no path to a constrained vertex (the system is singular)."""
-    if laplacian not in LAPLACIANS:
-        raise ValueError(f"laplacian: expected one of {LAPLACIANS}, got {laplacian!r}")
-    V, F = _check_mesh(V, F)
+    check_choice("laplacian", laplacian, LAPLACIANS)
+    V, F = check_triangle_mesh(V, F)
     constrained = np.asarray(constrained)
     if constrained.ndim != 1 or not np.issubdtype(constrained.dtype, np.integer) or len(constrained) == 0:
         raise ValueError(f"constrained: expected a non-empty 1-D array of vertex indices, got {constrained!r}")
-    if constrained.min() < 0 or constrained.max() >= len(V):
-        raise ValueError(f"constrained: vertex indices must lie in [0, {len(V)})")
+    check_index_range("constrained", constrained, len(V))
     if len(np.unique(constrained)) != len(constrained):
         raise ValueError("constrained: a vertex is listed twice")
     if len(constrained) == len(V):

@@ -25,6 +25,7 @@ from jax.typing import DTypeLike
 from jaxtyping import Array, ArrayLike, Float
 
 import jaxcga as cga
+from _jaxcga_shared.checks import check_vectors
 from jaxcga import KINDS, MOTOR_GENERATOR, Multivector
 
 
@@ -118,9 +119,7 @@ def motor_field_precompute(
     Returns:
         a ``MotorField``, the argument of ``motor_field_solve``.
     """
-    V = jnp.asarray(V)
-    if V.ndim != 2 or V.shape[1] != 3:
-        raise ValueError(f"V: expected shape (n, 3), got {V.shape}")
+    V = check_vectors("V", V, rows="n")
     weights = _check_weights(weights, V.shape[0])
     V = V.astype(weights.dtype)
     if rest_motors is None:

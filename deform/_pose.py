@@ -34,23 +34,13 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
 import jaxcga as cga
-from _jaxcga_shared.checks import plain_errors
+from _jaxcga_shared.checks import check_choice, plain_errors
 from deform import _rig, _skinning
 from deform._model import RiggedModel
 from jaxcga._multivector import Multivector
 
 METHODS = ("lbs", "dqs", "cga", "cga_motor_blend")
 INTERPOLATIONS = ("gltf", "log")
-
-
-def _check_method(method: str):
-    if method not in METHODS:
-        raise ValueError(f"method: expected one of {METHODS}, got {method!r}")
-
-
-def _check_interpolation(interpolation: str):
-    if interpolation not in INTERPOLATIONS:
-        raise ValueError(f"interpolation: expected one of {INTERPOLATIONS}, got {interpolation!r}")
 
 
 @plain_errors
@@ -65,7 +55,7 @@ def skin_pose(
         local: local transform of every bone: versors (Multivector, batch shape (..., b)) or
             matrices (..., b, 4, 4).
         method: one of ``METHODS``."""
-    _check_method(method)
+    check_choice("method", method, METHODS)
     mesh, parents = model.mesh, model.skeleton.parents
     if isinstance(local, Multivector):
         if method in ("cga", "cga_motor_blend"):
@@ -90,7 +80,7 @@ def rest_pose(model: RiggedModel, method: str = "cga") -> Float[Array, "n 3"]:
     Args:
         model: the RiggedModel.
         method: one of ``METHODS``."""
-    _check_method(method)
+    check_choice("method", method, METHODS)
     if method in ("cga", "cga_motor_blend"):
         return skin_pose(model, _rig.local_versors(model.skeleton), method)
     return skin_pose(model, _rig.local_matrices(model.skeleton), method)
@@ -114,8 +104,8 @@ def sample_pose(
         clip: clip name or index.
         interpolation: ``"gltf"`` (the specification's, default) or ``"log"`` (the paper's
             logarithmic blending of key versors); module docstring."""
-    _check_method(method)
-    _check_interpolation(interpolation)
+    check_choice("method", method, METHODS)
+    check_choice("interpolation", interpolation, INTERPOLATIONS)
     # The time goes in as an array: filter_jit would treat a Python float as static and recompile.
     return _sample_pose(model, jnp.asarray(t), method, model.clip(clip), interpolation)
 
@@ -148,8 +138,8 @@ def skin_model(
         clip: clip name or index.
         interpolation: ``"gltf"`` (the specification's, default) or ``"log"`` (the paper's); module
             docstring."""
-    _check_method(method)
-    _check_interpolation(interpolation)
+    check_choice("method", method, METHODS)
+    check_choice("interpolation", interpolation, INTERPOLATIONS)
     if not model.clips:
         return rest_pose(model, method)
     return _skin_model(model, jnp.asarray(t), method, model.clip(clip), interpolation)

@@ -34,16 +34,14 @@ from jax import custom_batching
 from jaxtyping import Array, ArrayLike, Float, Int
 
 import jaxcga as cga
-from _jaxcga_shared.checks import require
+from _jaxcga_shared.checks import check_vectors, require
 from _jaxcga_shared.platform import PerPlatform, example, per_platform
 from jaxcga._multivector import KINDS, Multivector
 from jaxcga._versors import fused_point_coordinates
 
 
 def _check_mesh(V, J, W):
-    V, J, W = jnp.asarray(V), jnp.asarray(J), jnp.asarray(W)
-    if V.ndim != 2 or V.shape[1] != 3:
-        raise ValueError(f"V: expected shape (n, 3), got {V.shape}")
+    V, J, W = check_vectors("V", V, rows="n"), jnp.asarray(J), jnp.asarray(W)
     if J.ndim != 2 or J.shape[0] != V.shape[0]:
         raise ValueError(f"J: expected shape ({V.shape[0]}, k), got {J.shape}")
     if not jnp.issubdtype(J.dtype, jnp.integer):

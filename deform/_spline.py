@@ -21,7 +21,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
-from _jaxcga_shared.checks import require
+from _jaxcga_shared.checks import check_choice, require
 from deform._ffd import MAX_DEGREE, _bernstein
 from deform._harmonic import harmonic_precompute, harmonic_solve
 from deform._motor_field import MotorField, motor_field_precompute
@@ -96,8 +96,7 @@ def spline_weights(
             ``"linear"`` and ``"lagrange"`` accept only their own k.
         degree: the B-spline degree d >= 1 (``"bspline"`` only; k >= d + 1).
     """
-    if basis not in BASES:
-        raise ValueError(f"basis: expected one of {BASES}, got {basis!r}")
+    check_choice("basis", basis, BASES)
     lam = check_parameter(lam)
     if basis in _FIXED_KEYS:
         k = _FIXED_KEYS[basis]

@@ -11,8 +11,8 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jaxtyping import ArrayLike, Float
 
+from _jaxcga_shared.checks import check_finite, check_vectors
 from jaxcga._multivector import Multivector
-from jaxcga._objects import check_finite, check_vectors
 from jaxcga._versors import apply_to_points, motor, quaternion_to_rotor
 
 

@@ -16,6 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, DTypeLike, Float
 
+from _jaxcga_shared.checks import check_choice
 from _jaxcga_shared.platform import example, per_platform
 from jaxcga import _algebra as alg
 from jaxcga import _codegen
@@ -251,14 +252,9 @@ def stack_columns(columns: Sequence[Array], batch_shape: tuple[int, ...], dtype:
     return jnp.stack(columns, axis=-1)
 
 
-def _check_kind(kind: str) -> None:
-    if kind not in alg.GRADE_RULES:
-        raise ValueError(f"kind: expected one of {sorted(alg.GRADE_RULES)}, got {kind!r}")
-
-
 def product(kind: str, a: Multivector, b: Multivector) -> Multivector:
     """The product ``kind`` (see ``_algebra.GRADE_RULES``) of a and b, generated for their blades."""
-    _check_kind(kind)
+    check_choice("kind", kind, sorted(alg.GRADE_RULES))
     batch = broadcast_batch("a", a.batch_shape, "b", b.batch_shape)
     dtype = jnp.result_type(a.dtype, b.dtype)
     terms = _codegen.bilinear_terms(kind, a.blades, b.blades)
@@ -321,7 +317,7 @@ def table_product(kind: str, a: Multivector, b: Multivector) -> Multivector:
     use ``product``: it skips the structural zeros (for two similitudes the tensor holds 256 non-zeros among 4,096
     entries). The choice is made per platform when the computation is lowered: elsewhere than on the
     CPU (GPUs, where XLA fuses the generated expressions into one kernel) this is ``product``."""
-    _check_kind(kind)
+    check_choice("kind", kind, sorted(alg.GRADE_RULES))
     broadcast_batch("a", a.batch_shape, "b", b.batch_shape)
     return _contracted_product(a, b, kind=kind)
 

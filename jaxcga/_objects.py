@@ -17,7 +17,7 @@ from __future__ import annotations
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, DTypeLike, Float
 
-from _jaxcga_shared.checks import require
+from _jaxcga_shared.checks import check_finite, check_vectors, require
 from jaxcga import _algebra as alg
 from jaxcga._multivector import Multivector, broadcast_batch
 from jaxcga._operations import (
@@ -34,21 +34,6 @@ from jaxcga._operations import (
 )
 
 POINT_BLADES = alg.parse_blades(("e1", "e2", "e3", "eo", "einf"))
-
-
-def check_vectors(name: str, x: ArrayLike, size: int = 3) -> Float[Array, "... size"]:
-    """``x`` as a float array of shape (..., size), or a ValueError naming ``name``."""
-    x = jnp.asarray(x)
-    if not jnp.issubdtype(x.dtype, jnp.floating):
-        x = x.astype(jnp.result_type(float))
-    if x.ndim == 0 or x.shape[-1] != size:
-        raise ValueError(f"{name}: expected an array of shape (..., {size}), got shape {x.shape}")
-    return x
-
-
-def check_finite(name: str, x: Float[Array, "*shape"]) -> Float[Array, "*shape"]:
-    """A ValueError when ``x`` holds NaN or infinity (inside jit a runtime error with the message)."""
-    return require(x, (~jnp.all(jnp.isfinite(x)), f"{name}: non-finite values (NaN or inf)"))
 
 
 def _euclidean_checked(name: str, x: ArrayLike) -> Float[Array, "... 3"]:

@@ -25,12 +25,12 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from _jaxcga_shared.checks import require
+from _jaxcga_shared.checks import check_finite, check_vectors, require
 from _jaxcga_shared.platform import Example, example, per_platform
 from jaxcga import _algebra as alg
 from jaxcga import _codegen
 from jaxcga._multivector import KINDS, Multivector, broadcast_batch
-from jaxcga._objects import POINT_BLADES, check_finite, check_vectors
+from jaxcga._objects import POINT_BLADES
 
 _ROTOR = KINDS["rotor"]  # 1, e12, e13, e23
 

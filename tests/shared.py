@@ -1,9 +1,11 @@
-"""Helpers shared by the test packages: a flat grid mesh, a finite-difference gradient check, the comparison of
-two runs of one computation (bitwise on the CPU), and the skip of a test that needs the host (conftest.py)."""
+"""Helpers shared by the test packages: a flat grid mesh, a closed tube mesh, a finite-difference gradient check,
+the comparison of two runs of one computation (bitwise on the CPU), and the skip of a test that needs the host
+(conftest.py)."""
 
 from __future__ import annotations
 
 import numpy as np
+import trimesh
 
 
 def grid(n: int = 10):
@@ -13,6 +15,17 @@ def grid(n: int = 10):
     index = np.arange((n + 1) ** 2).reshape(n + 1, n + 1)
     a, b, c, d = index[:-1, :-1].ravel(), index[1:, :-1].ravel(), index[1:, 1:].ravel(), index[:-1, 1:].ravel()
     return V, np.concatenate([np.stack([a, b, c], 1), np.stack([a, c, d], 1)])
+
+
+def tube(max_edge: float = 0.1):
+    """(V, F, start, end): a closed cylinder of radius 0.2 along z in [-1, 1], subdivided so it has rings along
+    z, and the indices of its vertices on the bottom (start) and top (end) caps."""
+    mesh = trimesh.creation.cylinder(radius=0.2, height=2.0, sections=16)
+    V, F = trimesh.remesh.subdivide_to_size(mesh.vertices, mesh.faces, max_edge=max_edge)
+    mesh = trimesh.Trimesh(V, F)
+    mesh.merge_vertices()
+    V, F = np.asarray(mesh.vertices), np.asarray(mesh.faces)
+    return V, F, np.flatnonzero(V[:, 2] < -1 + 1e-9), np.flatnonzero(V[:, 2] > 1 - 1e-9)
 
 
 def check_gradient(loss, params, rtol: float = 1e-5, step: float = 1e-6):

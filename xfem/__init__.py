@@ -24,13 +24,21 @@ cuts whose placement is a differentiable parameter). Sec. 5: ``_scenes`` (the pa
 parameters, a runner timing them like Table 2; ``jaxcga xfem SCENE`` runs them).
 """
 
-from xfem._assembly import AssemblyPattern, assemble_matrix, assemble_vector, assembly_pattern
+from xfem._assembly import AssemblyPattern, CapacityError, assemble_matrix, assemble_vector, assembly_pattern
 from xfem._background import BackgroundCuts
-from xfem._backward_euler import FEMSystem, State, backward_euler_step, fem_from_mesh, fem_system, mechanical_energy
+from xfem._backward_euler import (
+    FEMSystem,
+    State,
+    SystemCapacity,
+    backward_euler_step,
+    fem_from_mesh,
+    fem_system,
+    mechanical_energy,
+)
 from xfem._capacity import wait_for_compilations
 from xfem._cut_system import PlaneCuts, cut_system, plane_cuts
 from xfem._cuts import cut_solid, plane_cut_solid, sweep_between, swept_surface, thicken
-from xfem._integration import element_piece_integrals, moments_of_pieces, polyhedron_moments
+from xfem._integration import Moments, element_piece_integrals, moments_of_pieces, polyhedron_moments
 from xfem._linear_tet import body_force, consistent_mass, lumped_mass, shape_functions, shape_gradients
 from xfem._material import Material
 from xfem._neohookean import (
@@ -77,6 +85,7 @@ __all__ = [
     "sweep_between",
     "swept_surface",
     "thicken",
+    "Moments",
     "element_piece_integrals",
     "moments_of_pieces",
     "polyhedron_moments",
@@ -91,6 +100,8 @@ __all__ = [
     "wait_for_compilations",
     "xfem_model",
     "AssemblyPattern",
+    "CapacityError",
+    "SystemCapacity",
     "FEMSystem",
     "Material",
     "State",

@@ -25,6 +25,7 @@ import numpy.typing as npt
 import scipy.sparse as sp
 from jaxtyping import Array, Float, Int
 
+from _jaxcga_shared.checks import check_index_range
 from _jaxcga_shared.host import to_devices
 from _jaxcga_shared.sparse import CSRPattern, csr_matvec, csr_pattern
 
@@ -81,8 +82,7 @@ def _host_fixed(fixed, n: int) -> np.ndarray:
         return np.zeros(0, np.int64)
     if fixed.ndim != 1 or not np.issubdtype(fixed.dtype, np.integer):
         raise ValueError(f"fixed: expected a 1-D integer array of node indices, got {fixed.dtype} {fixed.shape}")
-    if fixed.min() < 0 or fixed.max() >= n:
-        raise ValueError(f"fixed: node indices must lie in [0, {n}), got [{fixed.min()}, {fixed.max()}]")
+    check_index_range("fixed", fixed, n, "node")
     if len(np.unique(fixed)) != len(fixed):
         raise ValueError("fixed: repeated node indices")
     return fixed.astype(np.int64)
@@ -92,8 +92,7 @@ def _host_elements(T, n: int) -> np.ndarray:
     T = np.asarray(T)
     if T.ndim != 2 or T.shape[1] != 4 or not np.issubdtype(T.dtype, np.integer):
         raise ValueError(f"T: expected integer elements of shape (m, 4), got {T.dtype} {T.shape}")
-    if T.size and (T.min() < 0 or T.max() >= n):
-        raise ValueError(f"T: node indices must lie in [0, {n}), got [{T.min()}, {T.max()}]")
+    check_index_range("T", T, n, "node")
     return T.astype(np.int64)
 
 

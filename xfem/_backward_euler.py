@@ -68,7 +68,7 @@ import scipy.sparse as sp
 from jax.ad_checkpoint import checkpoint_name
 from jaxtyping import Array, Float, Int
 
-from _jaxcga_shared.checks import require
+from _jaxcga_shared.checks import check_real, require
 from _jaxcga_shared.host import to_devices
 from _jaxcga_shared.sparse import factorize, host_csr, host_direct, host_pcg, spd_solve
 from xfem._assembly import (
@@ -284,9 +284,7 @@ def fem_from_mesh(
     Returns:
         The ``FEMSystem`` (n = the mesh's nodes).
     """
-    gravity = np.asarray(gravity, np.float64)
-    if gravity.shape != (3,) or not np.all(np.isfinite(gravity)):
-        raise ValueError(f"gravity: expected a finite (3,) acceleration, got {gravity.shape}")
+    gravity = check_real("gravity", gravity, (3,), "a finite acceleration")
     grads, volumes = shape_gradients(mesh.X, mesh.T)
     mass = consistent_mass(mesh.X, mesh.T, density)
     rho = np.asarray(density, np.float64)

@@ -40,9 +40,8 @@ import numpy.typing as npt
 from jax.extend.core import concrete_or_error
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
-from _jaxcga_shared.checks import require
+from _jaxcga_shared.checks import check_finite, check_vectors, require
 from _jaxcga_shared.host import to_devices
-from jaxcga._objects import check_finite, check_vectors
 from xfem._assembly import scalar_slots
 from xfem._backward_euler import FEMSystem, State
 from xfem._cuts import _positive, plane_cut_solid

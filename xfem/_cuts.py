@@ -28,8 +28,7 @@ import numpy.typing as npt
 from jaxtyping import Array, Float, Int
 
 import jaxcga as cga
-from _jaxcga_shared.checks import require
-from jaxcga._objects import check_finite, check_vectors
+from _jaxcga_shared.checks import check_faces, check_finite, check_vectors, require
 
 
 def _grid_faces(q: int, p: int) -> np.ndarray:
@@ -199,16 +198,9 @@ def thicken(
         V2: (2n, 3) positions: the top copy (V + epsilon/2 N) then the bottom copy (V - epsilon/2 N).
         F2: (2m + 2b, 3) host int64 triangles (b boundary edges), outward oriented.
     """
-    V = check_finite("V", check_vectors("V", V))
-    if V.ndim != 2:
-        raise ValueError(f"V: expected shape (n, 3), got {V.shape}")
-    F = np.asarray(F)
-    if F.ndim != 2 or F.shape[1] != 3 or F.shape[0] == 0 or not np.issubdtype(F.dtype, np.integer):
-        raise ValueError(f"F: expected integer triangles of shape (m, 3) with m >= 1, got {F.dtype} {F.shape}")
+    V = check_finite("V", check_vectors("V", V, rows="n"))
     n = V.shape[0]
-    F = F.astype(np.int64)
-    if F.min() < 0 or F.max() >= n:
-        raise ValueError(f"F: indices out of range [0, {n})")
+    F = check_faces("F", F, n)
     if np.unique(F).shape[0] != n:
         raise ValueError("V: every vertex must be in a face (unreferenced vertices found)")
     epsilon = _positive("epsilon", epsilon, "thickness")

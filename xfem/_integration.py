@@ -32,6 +32,8 @@ import numpy as np
 import numpy.typing as npt
 from jaxtyping import Float, Int
 
+from _jaxcga_shared.checks import check_positive, check_real
+
 _CLOSED_MESSAGE = (
     "F: each piece must be a closed, consistently oriented triangle mesh (every directed edge "
     "(a, b) matched by an edge (b, a) of the same piece)"
@@ -50,22 +52,6 @@ class Moments(NamedTuple):
     volume: Float[np.ndarray, "*batch"]
     first: Float[np.ndarray, "*batch 3"]
     second: Float[np.ndarray, "*batch 3 3"]
-
-
-def _host_real(x, shape: tuple, name: str, what: str) -> np.ndarray:
-    """x as finite float64 with the given shape (None: any length), or ValueError naming it."""
-    x = np.asarray(x)
-    if (
-        x.ndim != len(shape)
-        or any(s is not None and s != d for s, d in zip(shape, x.shape))
-        or not (np.issubdtype(x.dtype, np.floating) or np.issubdtype(x.dtype, np.integer))
-    ):
-        expected = ", ".join("n" if s is None else str(s) for s in shape)
-        raise ValueError(f"{name}: expected {what} of shape ({expected}), got {x.dtype} {x.shape}")
-    x = x.astype(np.float64)
-    if not np.all(np.isfinite(x)):
-        raise ValueError(f"{name}: non-finite values (NaN or inf)")
-    return x
 
 
 def _host_index(x, shape: tuple, bound: int, name: str, what: str) -> np.ndarray:
@@ -127,7 +113,7 @@ def moments_of_pieces(
     if not isinstance(n_pieces, (int, np.integer)) or isinstance(n_pieces, bool) or n_pieces < 0:
         raise ValueError(f"n_pieces: expected a non-negative int, got {n_pieces!r}")
     n_pieces = int(n_pieces)
-    V = _host_real(V, (None, 3), "V", "real positions")
+    V = check_real("V", V, (None, 3), "real positions")
     F = _host_index(F, (None, 3), len(V), "F", "triangle vertex indices")
     piece = _host_index(piece, (len(F),), n_pieces, "piece", "piece indices")
     if origin is None:
@@ -135,7 +121,7 @@ def moments_of_pieces(
     else:
         origin = np.asarray(origin)
         shape = (3,) if origin.ndim == 1 else (n_pieces, 3)
-        origin = np.broadcast_to(_host_real(origin, shape, "origin", "points"), (n_pieces, 3))
+        origin = np.broadcast_to(check_real("origin", origin, shape, "points"), (n_pieces, 3))
     _check_closed(F, piece)
 
     values, det = triangle_moment_terms(np, V[F] - origin[piece][:, None, :])
@@ -187,7 +173,7 @@ def polyhedron_moments(
     """
     F = np.asarray(F)
     if origin is not None:
-        origin = _host_real(origin, (3,), "origin", "a point")
+        origin = check_real("origin", origin, (3,), "a point")
     moments = moments_of_pieces(V, F, np.zeros(F.shape[:1], np.int64), 1, origin)
     return Moments(*(m[0] for m in moments))
 
@@ -209,11 +195,11 @@ def linear_shape_coefficients(Xe, origin=None) -> tuple[np.ndarray, np.ndarray]:
     Xe = np.asarray(Xe)
     if Xe.ndim < 2:
         raise ValueError(f"Xe: expected tet corners of shape (..., 4, 3), got {Xe.shape}")
-    Xe = _host_real(Xe, Xe.shape[:-2] + (4, 3), "Xe", "tet corners")
+    Xe = check_real("Xe", Xe, Xe.shape[:-2] + (4, 3), "tet corners")
     origin = (
         np.zeros(Xe.shape[:-2] + (3,))
         if origin is None
-        else _host_real(origin, Xe.shape[:-2] + (3,), "origin", "points")
+        else check_real("origin", origin, Xe.shape[:-2] + (3,), "points")
     )
     a, b, c = (Xe[..., k, :] - Xe[..., 0, :] for k in (1, 2, 3))
     bc, ca, ab = np.cross(b, c), np.cross(c, a), np.cross(a, b)
@@ -268,9 +254,7 @@ def element_piece_integrals(
             + ", ".join(str(x.shape[: x.ndim - len(tail)]) for _, x, tail in tails)
             + " do not broadcast"
         ) from None
-    rho = np.asarray(density, np.float64)
-    if rho.shape not in ((), batch) or not np.all(np.isfinite(rho) & (rho > 0)):
-        raise ValueError(f"density: expected finite positive values of shape () or {batch}, got {rho.shape}")
+    rho = check_positive("density", density, ((), batch))
     mass, load = shape_function_integrals(np, c, g, volume, first, second)
     return (
         np.broadcast_to(rho[..., None, None] * mass, batch + (4, 4)),

@@ -23,10 +23,9 @@ import numpy.typing as npt
 import scipy.sparse as sp
 from jaxtyping import Array, ArrayLike, Float, Int
 
-from _jaxcga_shared.checks import require
+from _jaxcga_shared.checks import check_points, check_positive, require
 from xfem._tetmesh import (
     _bad_index,
-    _host_positions,
     _host_tets,
     _host_volumes,
     _index_message,
@@ -122,18 +121,6 @@ def _shape_functions(X, T, points, elements):
     return N, jnp.any((elements < 0) | (elements >= T.shape[0])), _bad_index(tets, X.shape[0]), _bad_volume(det)
 
 
-def _host_density(density, m: int) -> np.ndarray:
-    rho = np.asarray(density)
-    if rho.shape not in ((), (m,)) or not (
-        np.issubdtype(rho.dtype, np.floating) or np.issubdtype(rho.dtype, np.integer)
-    ):
-        raise ValueError(f"density: expected a scalar or shape ({m},), got {rho.dtype} {rho.shape}")
-    rho = rho.astype(np.float64)
-    if not np.all(np.isfinite(rho)) or np.any(rho <= 0):
-        raise ValueError("density: expected finite positive values")
-    return rho
-
-
 def consistent_mass(
     X: Float[npt.ArrayLike, "n 3"], T: Int[npt.ArrayLike, "m 4"], density: float | Float[npt.ArrayLike, " m"]
 ) -> sp.csr_matrix:
@@ -150,7 +137,7 @@ def consistent_mass(
         (n, n) float64 ``scipy.sparse.csr_matrix``, exactly symmetric, positive definite when every node
         is in a tet (as in a ``TetMesh``).
     """
-    X = _host_positions(X)
+    X = check_points("X", X)
     T = _host_tets(T, len(X))
     volume = _host_volumes(X, T)
     if np.any(volume <= 0):
@@ -158,7 +145,7 @@ def consistent_mass(
         raise ValueError(
             f"T: tet {e} = {T[e].tolist()} has non-positive volume {volume[e]:.3g}; orient the tets with tet_mesh"
         )
-    weight = _host_density(density, len(T)) * volume / 20
+    weight = check_positive("density", density, ((), (len(T),))) * volume / 20
     values = weight[:, None, None] * (1 + np.eye(4))
     rows = np.broadcast_to(T[:, :, None], values.shape)
     cols = np.broadcast_to(T[:, None, :], values.shape)
@@ -169,7 +156,7 @@ def consistent_mass(
 def _jax_density(density, m: int, dtype):
     rho = jnp.asarray(density)
     if rho.shape not in ((), (m,)):
-        raise ValueError(f"density: expected a scalar or shape ({m},), got {rho.shape}")
+        raise ValueError(f"density: expected finite positive values of shape () or ({m},), got {rho.shape}")
     return jnp.asarray(rho, dtype)
 
 

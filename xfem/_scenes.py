@@ -65,6 +65,7 @@ import trimesh
 from jaxtyping import Float, Int
 
 import jaxcga as cga
+from _jaxcga_shared.checks import check_choice
 from xfem._background import BackgroundCuts
 from xfem._cuts import cut_solid, plane_cut_solid, sweep_between, swept_surface
 from xfem._integration import linear_shape_coefficients
@@ -457,8 +458,7 @@ def scene(name: str, size: str = "paper") -> Scene:
     """
     if name not in _BUILDERS:
         raise ValueError(f"name: expected one of {SCENES}, got {name!r}")
-    if size not in SIZES:
-        raise ValueError(f"size: expected one of {SIZES}, got {size!r}")
+    check_choice("size", size, SIZES)
     return _BUILDERS[name](size)
 
 

@@ -29,7 +29,7 @@ import tetgen
 import trimesh
 from jaxtyping import Array, ArrayLike, Float, Int
 
-from _jaxcga_shared.checks import require
+from _jaxcga_shared.checks import check_index_range, check_points, check_triangle_mesh, require
 from _jaxcga_shared.host import quiet_stdout
 
 # a tet is degenerate when |6 V| <= this times the cube of its longest edge (a regular tet has 0.707)
@@ -69,31 +69,13 @@ class TetMesh(eqx.Module):
         return boundary_faces(np.asarray(self.T))
 
 
-def _host_positions(X, name: str = "X") -> np.ndarray:
-    """X as a finite float64 (n, 3) numpy array, or ValueError naming it."""
-    X = np.asarray(X)
-    if (
-        X.ndim != 2
-        or X.shape[1] != 3
-        or not (np.issubdtype(X.dtype, np.floating) or np.issubdtype(X.dtype, np.integer))
-    ):
-        raise ValueError(f"{name}: expected real positions of shape (n, 3), got {X.dtype} {X.shape}")
-    X = X.astype(np.float64)
-    if not np.all(np.isfinite(X)):
-        raise ValueError(f"{name}: non-finite positions (NaN or inf)")
-    return X
-
-
 def _host_tets(T, n: int | None = None, name: str = "T") -> np.ndarray:
     """T as an int64 (m, 4) numpy array with indices in [0, n) (n None: only >= 0), or ValueError."""
     T = np.asarray(T)
     if T.ndim != 2 or T.shape[1] != 4 or not np.issubdtype(T.dtype, np.integer):
         raise ValueError(f"{name}: expected integer tets of shape (m, 4), got {T.dtype} {T.shape}")
-    T = T.astype(np.int64)
-    if T.size and (T.min() < 0 or (n is not None and T.max() >= n)):
-        bound = "" if n is None else f", {n}"
-        raise ValueError(f"{name}: node indices must lie in [0{bound}), got [{T.min()}, {T.max()}]")
-    return T
+    check_index_range(name, T, n, "node")
+    return T.astype(np.int64)
 
 
 def _jax_mesh_arrays(X, T):
@@ -156,7 +138,7 @@ def tet_mesh(X: Float[npt.ArrayLike, "n 3"], T: Int[npt.ArrayLike, "m 4"]) -> Te
             repeated-vertex) tet, or nodes in no tet (they would make the mass matrix singular; drop
             them first).
     """
-    X = _host_positions(X)
+    X = check_points("X", X)
     T = _host_tets(T, len(X))
     if len(T) == 0:
         raise ValueError("T: expected at least one tetrahedron")
@@ -291,12 +273,7 @@ def tetrahedralize(
         ValueError: bad shapes, an open or self-intersecting surface, unused or duplicate vertices, a bad
             max_volume, a surface TetGen fails on.
     """
-    V = _host_positions(V, "V")
-    F = np.asarray(F)
-    if F.ndim != 2 or F.shape[1] != 3 or not np.issubdtype(F.dtype, np.integer) or len(F) < 4:
-        raise ValueError(f"F: expected integer triangles of shape (f, 3), f >= 4, got {F.dtype} {F.shape}")
-    if F.min() < 0 or F.max() >= len(V):
-        raise ValueError(f"F: vertex indices must lie in [0, {len(V)}), got [{F.min()}, {F.max()}]")
+    V, F = check_triangle_mesh(V, F, min_faces=4)
     unused = np.setdiff1d(np.arange(len(V)), F)
     if len(unused):
         raise ValueError(f"V: vertices {unused[:10].tolist()} ({len(unused)} in all) are on no face of F")

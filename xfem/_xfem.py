@@ -47,6 +47,7 @@ import scipy.sparse as sp
 from jaxtyping import Array, Float, Int
 from scipy.sparse.csgraph import connected_components
 
+from _jaxcga_shared.checks import check_positive, check_real
 from xfem._backward_euler import FEMSystem, State, fem_system
 from xfem._capacity import Capacities, PaddedSystem, compiled, padded_state
 from xfem._integration import element_piece_integrals, linear_shape_coefficients, moments_of_pieces
@@ -628,17 +629,8 @@ def xfem_model(
     if not isinstance(mesh, TetMesh):
         raise ValueError(f"mesh: expected a TetMesh, got {type(mesh).__name__}")
     m, n = mesh.T.shape[0], mesh.X.shape[0]
-    rho = np.asarray(density)
-    if (
-        rho.shape not in ((), (m,))
-        or not np.issubdtype(rho.dtype, np.number)
-        or not np.all(np.isfinite(rho) & (rho > 0))
-    ):
-        raise ValueError(f"density: expected finite positive values of shape () or ({m},), got {rho.shape}")
-    rho = np.broadcast_to(rho.astype(np.float64), (m,)).copy()
-    gravity = np.asarray(gravity, np.float64)
-    if gravity.shape != (3,) or not np.all(np.isfinite(gravity)):
-        raise ValueError(f"gravity: expected a finite (3,) acceleration, got {gravity.shape}")
+    rho = np.broadcast_to(check_positive("density", density, ((), (m,))), (m,)).copy()
+    gravity = check_real("gravity", gravity, (3,), "a finite acceleration")
     fixed = np.asarray(fixed).reshape(-1)
     if fixed.size and (
         not np.issubdtype(fixed.dtype, np.integer)

@@ -12,7 +12,7 @@ import trimesh
 from scipy.spatial.transform import Rotation
 
 import deform
-from deform._arap import ENERGIES, arap_precompute, arap_solve, horn_rotors
+from deform import ARAP_ENERGIES, arap_precompute, arap_solve, horn_rotors
 from jaxcga import KINDS, versor_to_matrix
 from tests.deform._arap_reference import libigl_arap_in_numpy as _libigl_in_numpy
 from tests.shared import grid
@@ -87,7 +87,7 @@ def arm5():
     fixed, hand = np.flatnonzero(V[:, 1] < 2.0), np.flatnonzero(V[:, 1] > 60.0)
     moved = Rotation.from_rotvec([np.radians(40), 0, 0]).apply(V[hand] - [0, 55, 0]) + [0, 55, 5]
     b = np.concatenate([fixed, hand])
-    data = {energy: arap_precompute(V, F, b, energy=energy) for energy in ENERGIES}
+    data = {energy: arap_precompute(V, F, b, energy=energy) for energy in ARAP_ENERGIES}
     return V, F, b, np.concatenate([V[fixed], moved]), data
 
 

@@ -21,8 +21,7 @@ from deform import (
     spline_precompute,
 )
 from jaxcga import Multivector
-from tests.deform.test_spline import tube
-from tests.shared import check_gradient
+from tests.shared import check_gradient, tube
 
 solve = jax.jit(fabrik, static_argnames="max_iterations")
 moved = jax.jit(lambda motor, x: cga.apply_to_points(motor, x))

@@ -125,5 +125,5 @@ def test_bad_input():
     two = np.concatenate([V, V + 2.0])
     with pytest.raises(ValueError, match="connected part"):
         deform.harmonic_fields(two, np.concatenate([F, F + len(V)]), handles)
-    with pytest.raises(ValueError, match="V: expected"):
+    with pytest.raises(ValueError, match="V: non-finite"):
         deform.harmonic_fields(np.full_like(V, np.nan), F, handles)

@@ -217,7 +217,7 @@ def test_dilation_blend_paths_agree_under_vmap_and_grad(dense, monkeypatch):
     """Eq. (17)'s lambda row goes through a dense weight matrix for small skeletons and through the
     per-influence gather for large ones: both equal the literal weighted sum, batched and
     differentiated (weights included)."""
-    from deform import _skinning
+    from deform import _skinning  # the two internal blend paths and their switch have no public API
 
     if not dense:
         monkeypatch.setattr(_skinning, "DENSE_DILATION_BLEND_MAX_JOINTS", 0)

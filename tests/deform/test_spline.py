@@ -9,7 +9,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
-import trimesh
 from scipy.interpolate import BSpline
 from scipy.spatial.transform import Rotation
 
@@ -28,18 +27,7 @@ from deform import (
     spline_weights,
 )
 from jaxcga import KINDS, MOTOR_GENERATOR, Multivector
-from tests.shared import check_gradient
-
-
-def tube(max_edge: float = 0.1):
-    """A closed cylinder of radius 0.2 along z in [-1, 1], subdivided so it has rings along z."""
-    mesh = trimesh.creation.cylinder(radius=0.2, height=2.0, sections=16)
-    V, F = trimesh.remesh.subdivide_to_size(mesh.vertices, mesh.faces, max_edge=max_edge)
-    mesh = trimesh.Trimesh(V, F)
-    mesh.merge_vertices()
-    V, F = np.asarray(mesh.vertices), np.asarray(mesh.faces)
-    return V, F, np.flatnonzero(V[:, 2] < -1 + 1e-9), np.flatnonzero(V[:, 2] > 1 - 1e-9)
-
+from tests.shared import check_gradient, tube
 
 V, F, START, END = tube()
 

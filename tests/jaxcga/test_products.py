@@ -15,6 +15,8 @@ import pytest
 
 import jaxcga
 from jaxcga import Multivector
+
+# the generated product tables behind every public product, checked against the reference algebra
 from jaxcga._multivector import product as generated_product
 
 from . import _reference as ref

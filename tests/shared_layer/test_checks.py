@@ -97,3 +97,25 @@ def test_a_check_needs_no_cpu_device(monkeypatch):
     _raises_the_message(jax.jit(_doubled), bad)
     with pytest.raises(RuntimeError, match="failed to find a local CPU device"):
         jax.block_until_ready(jax.jit(lambda x: eqx.error_if(x, x < 0, MESSAGE))(bad))
+
+
+def test_plain_errors_keeps_an_argument_error_raised_before_any_check_failed():
+    """An argument check that raises a plain ValueError before tracing keeps its message, also when no value check
+    has failed yet in the process (a fresh interpreter: the first error of its run)."""
+    import subprocess
+    import sys
+
+    script = (
+        "import jax\n"
+        "from _jaxcga_shared.checks import plain_errors\n"
+        "def f(x, kind):\n"
+        "    if kind != 'a':\n"
+        "        raise ValueError('kind: expected one of (\\'a\\',)')\n"
+        "    return x\n"
+        "try:\n"
+        "    plain_errors(jax.jit(f, static_argnums=1))(1.0, 'b')\n"
+        "except ValueError as error:\n"
+        "    print(error)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120, check=True)
+    assert out.stdout.strip() == "kind: expected one of ('a',)"

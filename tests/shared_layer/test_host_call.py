@@ -102,8 +102,8 @@ def test_the_newton_solve_and_the_sparse_solver_use_host_call():
     import scipy.sparse as sp
 
     from _jaxcga_shared.sparse import SparseSolver
-    from xfem import box_tets
-    from xfem._backward_euler import _host_newton_direction, _solve, fem_from_mesh
+    from xfem import box_tets, fem_from_mesh
+    from xfem._backward_euler import _host_newton_direction, _solve  # internal host functions, recorded here
 
     types = []
 

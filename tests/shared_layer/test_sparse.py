@@ -17,6 +17,8 @@ import pytest
 import scipy.sparse as sp
 
 import deform
+
+# xfem's sparse solves (host adjoint, to_scipy) are internal users of the shared layer tested here
 import xfem._backward_euler as be
 from _jaxcga_shared import sparse
 from _jaxcga_shared.sparse import (
@@ -30,8 +32,8 @@ from _jaxcga_shared.sparse import (
 )
 from tests.shared import check_gradient
 from tests.xfem._models import MATERIAL, RHO, H, deformed_state, plane, tall_box
-from xfem import backward_euler_step, fem_from_mesh, xfem_model
-from xfem._assembly import assemble_matrix, to_scipy
+from xfem import assemble_matrix, backward_euler_step, fem_from_mesh, xfem_model
+from xfem._assembly import to_scipy
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 ARM5 = deform.load_model(DATA / "Arm5.glb", weld=True).mesh

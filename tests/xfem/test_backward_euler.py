@@ -17,25 +17,24 @@ import scipy.optimize
 import scipy.sparse as sp
 
 from xfem import (
+    CapacityError,
     Material,
+    State,
+    SystemCapacity,
+    backward_euler_step,
     body_force,
     box_tets,
     consistent_mass,
     element_energy,
+    fem_from_mesh,
+    fem_system,
     five_tet_cube,
     lumped_mass,
     shape_gradients,
 )
-from xfem._assembly import CapacityError
-from xfem._backward_euler import (
-    State,
-    SystemCapacity,
-    _host_newton_direction,
-    _in_chunks,
-    backward_euler_step,
-    fem_from_mesh,
-    fem_system,
-)
+
+# the Newton direction's host fallback and the chunked map have no public API: tested here directly
+from xfem._backward_euler import _host_newton_direction, _in_chunks
 
 H = 0.033
 MATERIAL = Material(1e6, 0.4)
@@ -247,7 +246,7 @@ def test_bad_input():
 def test_newton_direction_is_exact_on_small_systems_and_cg_on_large_ones(monkeypatch):
     """Up to _DIRECT_DOFS unknowns the Newton system is factorized (exact), above it CG stops at its relative
     residual; a small matrix CHOLMOD refuses (indefinite) goes to CG too."""
-    import xfem._backward_euler as be
+    import xfem._backward_euler as be  # the direct/CG switch is internal: patched and called directly
 
     rng = np.random.default_rng(3)
     n = 64  # a mass-like diagonal plus a 4 x 4 x 4 grid Laplacian, like M + h^2 K
@@ -326,7 +325,7 @@ def test_steps_in_chunks_equal_one_pass(monkeypatch):
     """The energy, its gradient and Newton matrix, M d, a step and its implicit gradient, summed over chunks of
     elements and mass entries that overlap at the end (3 of 30 elements, 7 of 174 mass entries), equal one pass
     over all of them."""
-    import xfem._backward_euler as be
+    import xfem._backward_euler as be  # the chunk sizes and per-chunk kernels are internal: patched directly
 
     mesh = box_tets((5, 1, 1), size=(5.0, 1.0, 1.0))
     X = np.asarray(mesh.X)

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+# the batched 3 x 3 eigensolver and SVD behind the neo-Hookean Hessians have no public API
 from xfem._jacobi3 import eigh3, svd3
 
 # float32: XLA:GPU's division, square root and hypot are approximate (a few ulp), the CPU's correctly rounded

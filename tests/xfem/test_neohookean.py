@@ -14,7 +14,7 @@ import pytest
 from scipy.optimize import brentq
 from scipy.spatial.transform import Rotation
 
-from xfem._neohookean import (
+from xfem import (
     element_energy,
     element_gradient_hessian,
     lame,

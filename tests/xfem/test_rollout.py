@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
+# the host Newton direction and adjoint (internal) are wrapped to count the solves a rollout runs
 import xfem._backward_euler as be
 from xfem import Material, State, backward_euler_step, box_tets, consistent_mass, element_energy, fem_from_mesh, rollout
 

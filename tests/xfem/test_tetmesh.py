@@ -16,7 +16,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from tests.shared import check_gradient
-from xfem._tetmesh import (
+from xfem import (
     TetMesh,
     boundary_faces,
     box_tets,
@@ -169,7 +169,7 @@ X4 = np.vstack([np.zeros(3), np.eye(3)])
 @pytest.mark.parametrize(
     "X, T, match",
     [
-        (X4[:, :2], [[0, 1, 2, 3]], "X: expected real positions of shape"),
+        (X4[:, :2], [[0, 1, 2, 3]], "X: expected finite positions of shape"),
         (np.where(X4 == 1, np.nan, X4), [[0, 1, 2, 3]], "X: non-finite"),
         (X4, [[0, 1, 2]], r"T: expected integer tets of shape \(m, 4\)"),
         (X4, [[0.0, 1.0, 2.0, 3.0]], "T: expected integer tets"),
@@ -276,7 +276,7 @@ def test_tetrahedralize_bad_input():
         tetrahedralize(V, F[:-1])
     with pytest.raises(ValueError, match=r"V: vertices \[8\]"):
         tetrahedralize(np.vstack([V, np.zeros(3)]), F)
-    with pytest.raises(ValueError, match="F: expected integer triangles"):
+    with pytest.raises(ValueError, match="F: expected integer faces"):
         tetrahedralize(V, F[:, :2])
     with pytest.raises(ValueError, match=r"F: vertex indices must lie in \[0, 8\)"):
         tetrahedralize(V, F + 1)
