@@ -12,7 +12,8 @@ sec. III-A binding, shared by every motor deformation); ``_spline`` (spline-alig
 ``_spline_fit`` (B-spline fitting of key motors, eq. 3-5), ``_fabrik`` (FABRIK inverse kinematics, Fig.
 5), ``_handles`` (harmonic motor handles, sec. IV), ``_ffd`` (classic and motor FFD, eq. 6-8), ``_cage``
 (harmonic-coordinate cages, sec. VI); ``_field_fitting`` (key motors from target positions); ``_arap``
-(as-rigid-as-possible modeling with rotors, sec. VII).
+(as-rigid-as-possible modeling with rotors, sec. VII); ``_batch`` (batches of different models packed to shared
+capacities, skinned under one jit and split over devices and processes).
 
 One convention for every deformer: ``X_precompute(V, F, constraints, *, options) -> data`` (an ``eqx.Module``;
 mesh first, ``laplacian=`` where a Laplacian is chosen) does the work that does not depend on the handle
@@ -23,6 +24,7 @@ and the general ``motor_field_precompute``) all return a ``MotorField``, solved 
 
 from deform._arap import ENERGIES as ARAP_ENERGIES
 from deform._arap import ARAPData, ARAPResult, arap_precompute, arap_solve, horn_rotors
+from deform._batch import Capacities, PackedModels, PackedRigs, capacity, pack_models, skin_packed
 from deform._cage import cage_precompute, harmonic_coordinates, tube_cage
 from deform._default_arm import default_arm
 from deform._fabrik import chain_motors, fabrik, rotor_between
@@ -125,12 +127,15 @@ __all__ = [
     "ARAPData",
     "ARAPResult",
     "AnimationClip",
+    "Capacities",
     "Channel",
     "HarmonicData",
     "Keyframes",
     "Lattice",
     "MotorField",
     "MotorFit",
+    "PackedModels",
+    "PackedRigs",
     "PoseFit",
     "RiggedModel",
     "Skeleton",
@@ -143,6 +148,7 @@ __all__ = [
     "bounding_lattice",
     "buffer_file",
     "cage_precompute",
+    "capacity",
     "chain_motors",
     "clamped_knots",
     "clip_from_poses",
@@ -179,6 +185,7 @@ __all__ = [
     "motor_field_precompute",
     "motor_field_solve",
     "motor_logs",
+    "pack_models",
     "pose_from_parameters",
     "quaternion_xyzw_to_matrix",
     "random_parameters",
@@ -197,6 +204,7 @@ __all__ = [
     "skin_dqs",
     "skin_lbs",
     "skin_model",
+    "skin_packed",
     "skin_parameters",
     "skin_pose",
     "spline_fit_precompute",

@@ -56,20 +56,34 @@ def skin_pose(
             matrices (..., b, 4, 4).
         method: one of ``METHODS``."""
     check_choice("method", method, METHODS)
-    mesh, parents = model.mesh, model.skeleton.parents
-    if isinstance(local, Multivector):
-        if method in ("cga", "cga_motor_blend"):
-            joints = _rig.joint_versors(mesh, _rig.forward_kinematics(parents, local))
-            skin = _skinning.skin_cga if method == "cga" else _skinning.skin_cga_motor_blend
-            return skin(mesh.V, mesh.J, mesh.W, joints)
+    mesh = model.mesh
+    if isinstance(local, Multivector) and method not in ("cga", "cga_motor_blend"):
         local = cga.versor_to_matrix(local)
-    local = jnp.asarray(local)
-    if method in ("cga", "cga_motor_blend"):
-        return skin_pose(model, cga.matrix_to_similitude(local), method)
-    joints = _rig.joint_matrices(mesh, _rig.forward_kinematics_matrices(parents, local))
+    elif not isinstance(local, Multivector) and method in ("cga", "cga_motor_blend"):
+        local = cga.matrix_to_similitude(jnp.asarray(local))
+    joints = joint_transforms(model.skeleton.parents, jnp.asarray(mesh.joints, jnp.int32), mesh.inverse_bind, local)
+    return skin_with_joints(mesh.V, mesh.J, mesh.W, joints, method)
+
+
+def joint_transforms(parents, joint_bones, inverse_bind, local):
+    """Joint versors ``M_n B_n`` of local versors (the multivector methods) or joint matrices of local matrices:
+    forward kinematics over ``parents`` (a tuple or an int array), then the joints' bones (j,) times their inverse
+    bind matrices (j, 4, 4). ``skin_pose`` and the packed batches (``deform.skin_packed``) share it."""
+    if isinstance(local, Multivector):
+        globals_ = _rig.forward_kinematics(parents, local)
+        return _rig.joint_versors_of(joint_bones, cga.matrix_to_similitude(inverse_bind), globals_)
+    return _rig.joint_matrices_of(joint_bones, inverse_bind, _rig.forward_kinematics_matrices(parents, local))
+
+
+def skin_with_joints(V, J, W, joints, method: str):
+    """Skinned positions from joint transforms (``joint_transforms``) by ``method``."""
+    if method == "cga":
+        return _skinning.skin_cga(V, J, W, joints)
+    if method == "cga_motor_blend":
+        return _skinning.skin_cga_motor_blend(V, J, W, joints)
     if method == "lbs":
-        return _skinning.skin_lbs(mesh.V, mesh.J, mesh.W, joints)
-    return _skinning.skin_dqs(mesh.V, mesh.J, mesh.W, _skinning.matrices_to_dual_quaternions(joints))
+        return _skinning.skin_lbs(V, J, W, joints)
+    return _skinning.skin_dqs(V, J, W, _skinning.matrices_to_dual_quaternions(joints))
 
 
 @plain_errors
@@ -112,12 +126,20 @@ def sample_pose(
 
 @eqx.filter_jit
 def _sample_pose(model: RiggedModel, t, method: str, animation, interpolation: str):
+    skeleton = model.skeleton
+    rest = (skeleton.translation, skeleton.rotation, skeleton.scale)
+    return sample_stacked_pose(rest, _rig.stacked_channels(animation), t, method, interpolation)
+
+
+def sample_stacked_pose(rest, groups, t, method: str, interpolation: str):
+    """``sample_pose`` from a rest TRS and stacked channel groups (``_rig.stacked_channels``): shared with the
+    packed batches (``deform.skin_packed``)."""
     if interpolation == "log":
-        local = _rig.sample_versors(model.skeleton, animation, t)
+        local = _rig.sample_stacked_versors(rest, groups, t)
         return local if method in ("cga", "cga_motor_blend") else cga.versor_to_matrix(local)
     if method in ("cga", "cga_motor_blend"):
-        return _rig.trs_to_versor(*_rig.sample_trs(model.skeleton, animation, t))
-    return _rig.sample_matrices(model.skeleton, animation, t)
+        return _rig.trs_to_versor(*_rig.sample_stacked_trs(rest, groups, t))
+    return _rig.trs_to_matrix(*_rig.sample_stacked_trs(rest, groups, t))
 
 
 @plain_errors

@@ -26,6 +26,8 @@ Times outside a clip's key range are clamped to its first / last key.
 
 from __future__ import annotations
 
+from typing import NamedTuple
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -34,7 +36,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 import jaxcga as cga
 from _jaxcga_shared.checks import require
-from deform._model import AnimationClip, Channel, Skeleton, SkinnedMesh
+from deform._model import PATHS, AnimationClip, Channel, Skeleton, SkinnedMesh
 from jaxcga._multivector import KINDS, Multivector
 
 _SIMILITUDE = KINDS["similitude"]
@@ -203,10 +205,15 @@ def joint_matrices(mesh: SkinnedMesh, global_matrices: Float[Array, "... b 4 4"]
         global_matrices: (..., b, 4, 4) global bone matrices (``forward_kinematics_matrices``).
     Returns:
         (..., j, 4, 4) joint matrices."""
-    bones = global_matrices[..., jnp.asarray(mesh.joints, jnp.int32), :, :]
+    return joint_matrices_of(jnp.asarray(mesh.joints, jnp.int32), mesh.inverse_bind, global_matrices)
+
+
+def joint_matrices_of(joint_bones: Array, inverse_bind: Array, global_matrices: Array) -> Array:
+    """``joint_matrices`` from the joints' bone indices (j,) and inverse bind matrices (j, 4, 4) as arrays."""
+    bones = global_matrices[..., joint_bones, :, :]
     # elementwise, one fused loop: XLA:CPU's batched dot of 4x4 matrices took 0.07 against 0.02 ms
     # for 23 joints
-    return (bones[..., :, :, None] * mesh.inverse_bind[..., None, :, :]).sum(-2)
+    return (bones[..., :, :, None] * inverse_bind[..., None, :, :]).sum(-2)
 
 
 def inverse_bind_versors(mesh: SkinnedMesh) -> Multivector:
@@ -236,7 +243,12 @@ def joint_versors(
             f"inverse_bind: expected versors with batch shape ({len(mesh.joints)},), "
             f"got {getattr(inverse_bind, 'batch_shape', type(inverse_bind).__name__)}"
         )
-    bones = global_versors[..., jnp.asarray(mesh.joints, jnp.int32)]
+    return joint_versors_of(jnp.asarray(mesh.joints, jnp.int32), inverse_bind, global_versors)
+
+
+def joint_versors_of(joint_bones: Array, inverse_bind: Multivector, global_versors: Multivector) -> Multivector:
+    """``joint_versors`` from the joints' bone indices (j,) as an array and their inverse-bind versors (j,)."""
+    bones = global_versors[..., joint_bones]
     return cga.table_product("geometric", bones, inverse_bind).embed(_SIMILITUDE)
 
 
@@ -248,11 +260,11 @@ def _locate(times, t, counts=None):
     each row's key range; ``counts`` (...,) are the rows' real key counts, padding repeats the last)."""
     times = jnp.asarray(times)
     K = times.shape[-1]
-    counts = np.full(times.shape[:-1], K) if counts is None else np.asarray(counts)
-    last = jnp.take_along_axis(times, jnp.asarray(counts - 1)[..., None], axis=-1)[..., 0]
+    counts = jnp.full(times.shape[:-1], K) if counts is None else jnp.asarray(counts)
+    last = jnp.take_along_axis(times, (counts - 1)[..., None], axis=-1)[..., 0]
     t = jnp.clip(jnp.asarray(t, times.dtype), times[..., 0], last)
     k = jnp.sum(times <= t[..., None], axis=-1) - 1
-    k = jnp.clip(k, 0, jnp.asarray(np.maximum(counts - 2, 0)))
+    k = jnp.clip(k, 0, jnp.maximum(counts - 2, 0))
     k1 = jnp.minimum(k + 1, K - 1)
     t0 = jnp.take_along_axis(times, k[..., None], axis=-1)[..., 0]
     t1 = jnp.take_along_axis(times, k1[..., None], axis=-1)[..., 0]
@@ -275,6 +287,19 @@ def _slerp(a, b, alpha):
     return q / jnp.linalg.norm(q, axis=-1, keepdims=True)
 
 
+class StackedChannels(NamedTuple):
+    """The channels of one (path, interpolation) group, stacked and padded with their last key: times (c, K),
+    values (c, K, ...), counts (c,) of real keys, bones (c,) (a bone index past the skeleton is a padding row,
+    dropped when written; ``deform.pack_models`` pads groups to shared capacities)."""
+
+    path: str
+    interpolation: str
+    times: Array
+    values: Array
+    counts: Array
+    bones: Array
+
+
 def _stack(channels: list[Channel]):
     """times (c, K), values (c, K, ...), counts (c,), bones (c,) of channels padded with their last key."""
     K = max(c.times.shape[0] for c in channels)
@@ -292,6 +317,14 @@ def _groups(clip: AnimationClip):
     for channel in clip.channels:
         groups.setdefault((channel.path, channel.interpolation), []).append(channel)
     return groups
+
+
+def stacked_channels(clip: AnimationClip) -> tuple[StackedChannels, ...]:
+    """The clip's channels grouped by (path, interpolation), each group stacked (``StackedChannels``)."""
+    return tuple(
+        StackedChannels(path, interpolation, *(jnp.asarray(x) for x in _stack(channels)))
+        for (path, interpolation), channels in _groups(clip).items()
+    )
 
 
 def _rows(x, k):
@@ -343,11 +376,15 @@ def sample_trs(
         skeleton: the Skeleton (its rest TRS).
         clip: the AnimationClip.
         t: () the time (clamped to the key range)."""
-    trs = {"translation": skeleton.translation, "rotation": skeleton.rotation, "scale": skeleton.scale}
-    for (path, interpolation), channels in _groups(clip).items():
-        times, values, counts, bones = _stack(channels)
-        value = _sample_rows(path, interpolation, times, values, counts, t)
-        trs[path] = trs[path].at[jnp.asarray(bones)].set(value.astype(trs[path].dtype))
+    return sample_stacked_trs((skeleton.translation, skeleton.rotation, skeleton.scale), stacked_channels(clip), t)
+
+
+def sample_stacked_trs(rest: tuple[Array, Array, Array], groups: tuple[StackedChannels, ...], t):
+    """``sample_trs`` on a rest TRS (b, 3), (b, 4), (b, 3) and stacked channel groups (``stacked_channels``)."""
+    trs: dict[str, Array] = dict(zip(PATHS, rest, strict=True))
+    for group in groups:
+        value = _sample_rows(group.path, group.interpolation, group.times, group.values, group.counts, t)
+        trs[group.path] = trs[group.path].at[group.bones].set(value.astype(trs[group.path].dtype), mode="drop")
     return trs["translation"], trs["rotation"], trs["scale"]
 
 
@@ -399,17 +436,21 @@ def sample_versors(skeleton: Skeleton, clip: AnimationClip, t: Float[ArrayLike, 
         skeleton: the Skeleton (its rest TRS).
         clip: the AnimationClip.
         t: () the time (clamped to the key range)."""
+    return sample_stacked_versors((skeleton.translation, skeleton.rotation, skeleton.scale), stacked_channels(clip), t)
+
+
+def sample_stacked_versors(rest: tuple[Array, Array, Array], groups: tuple[StackedChannels, ...], t) -> Multivector:
+    """``sample_versors`` on a rest TRS (b, 3), (b, 4), (b, 3) and stacked channel groups (``stacked_channels``)."""
+    translation, rotation, scale = rest
     parts = {
-        "translation": cga.translator(skeleton.translation).values,
-        "rotation": _rotor_xyzw(skeleton.rotation).values,
-        "scale": cga.dilator(uniform_scale(skeleton.scale)).values,
+        "translation": cga.translator(translation).values,
+        "rotation": _rotor_xyzw(rotation).values,
+        "scale": cga.dilator(uniform_scale(scale)).values,
     }
-    for (path, interpolation), channels in _groups(clip).items():
-        times, values, counts, bones = _stack(channels)
-        versors = _versor_rows(path, interpolation, times, values, counts, t)
-        parts[path] = (
-            parts[path].at[jnp.asarray(bones)].set(versors.embed(_PART_BLADES[path]).values.astype(parts[path].dtype))
-        )
+    for group in groups:
+        versors = _versor_rows(group.path, group.interpolation, group.times, group.values, group.counts, t)
+        values = versors.embed(_PART_BLADES[group.path]).values.astype(parts[group.path].dtype)
+        parts[group.path] = parts[group.path].at[group.bones].set(values, mode="drop")
     t_, r_, d_ = (Multivector(parts[p], _PART_BLADES[p]) for p in ("translation", "rotation", "scale"))
     return (t_ * r_ * d_).embed(_SIMILITUDE)
 
