@@ -27,6 +27,7 @@ results equal skinning each model alone.
 from __future__ import annotations
 
 import functools
+from collections.abc import Sequence
 from typing import NamedTuple
 
 import equinox as eqx
@@ -277,7 +278,7 @@ def _balanced_blocks(vertex_counts: list[int], blocks: int) -> list[list[int]]:
     return [sorted(ms) for ms in members]
 
 
-def _check_models(models) -> list[RiggedModel]:
+def _check_models(models: Sequence[RiggedModel] | RiggedModel) -> list[RiggedModel]:
     models = list(models) if not isinstance(models, RiggedModel) else [models]
     if not models:
         raise ValueError("models: expected at least one RiggedModel")
@@ -310,7 +311,9 @@ def _model_capacities(models: list[RiggedModel], blocks: int, members: list[list
     )
 
 
-def pack_models(models, *, blocks: int = 1, at_least: Capacities | None = None) -> PackedModels:
+def pack_models(
+    models: Sequence[RiggedModel] | RiggedModel, *, blocks: int = 1, at_least: Capacities | None = None
+) -> PackedModels:
     """Pack rigged models of different sizes into one batch (``PackedModels``) for ``skin_packed``.
 
     Args:
@@ -501,7 +504,8 @@ def skin_packed(
     mesh: Mesh | None = None,
 ) -> Float[Array, "D T N 3"]:
     """Skinned positions of every model of a packed batch at its own times, under one jit: each model equal to
-    ``skin_model`` of it alone. ``packed.unpack(result)`` gives each model's (T, n, 3) frames.
+    ``skin_model`` of it alone. ``packed.unpack(result)`` gives each model's (T, n, 3) frames. Called from Python
+    with host times (it lays them out by block on the host); the compiled call inside is one jit.
 
     Args:
         packed: the PackedModels (``pack_models``).
