@@ -264,7 +264,7 @@ def _locate(times, t, counts=None):
     last = jnp.take_along_axis(times, (counts - 1)[..., None], axis=-1)[..., 0]
     t = jnp.clip(jnp.asarray(t, times.dtype), times[..., 0], last)
     k = jnp.sum(times <= t[..., None], axis=-1) - 1
-    k = jnp.clip(k, 0, jnp.maximum(counts - 2, 0))
+    k = jnp.clip(k, 0, jnp.maximum(counts - 2, 0).astype(k.dtype))
     k1 = jnp.minimum(k + 1, K - 1)
     t0 = jnp.take_along_axis(times, k[..., None], axis=-1)[..., 0]
     t1 = jnp.take_along_axis(times, k1[..., None], axis=-1)[..., 0]
