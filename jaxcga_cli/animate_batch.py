@@ -335,7 +335,7 @@ def batch_command(
         "frames": frames,
         "method": method,
         "process": f"{me} of {processes}",
-        "devices": f"{mesh.shape['models']} x {time_shards}",
+        "mesh": f"{rows} x {time_shards}",
         "wrote": f"{len(wrote)} files",
         "padding": f"{packed.padding:.3g}",
         "out": str(out),

@@ -117,13 +117,12 @@ def _run_processes(commands: list[tuple[list[str], dict[str, str]]], timeout: fl
     return logs
 
 
-def _two_processes_against_one(tmp_path: Path, devices: int, options: list[str]) -> None:
+def _two_processes_against_one(tmp_path: Path, models: list[str], devices: int, options: list[str]) -> None:
     """One process with 2 * ``devices`` devices and two with ``devices`` each (process 0 told by options,
     process 1 by the environment variables) write the same files, bitwise."""
-    models = [str(DATA / "CesiumMan.glb"), *MODELS]
     one, two = tmp_path / "one", tmp_path / "two"
     coordinator = f"127.0.0.1:{_free_port()}"
-    argv = ["animate-batch", *models, "--frames", "4", *options, "--out"]
+    argv = ["animate-batch", *models, "--frames", "2", *options, "--out"]
     by_options = [*argv, str(two), "--coordinator", coordinator, "--num-processes", "2", "--process-id", "0"]
     by_environment = _environment(devices) | {
         "JAX_COORDINATOR_ADDRESS": coordinator,
@@ -138,7 +137,7 @@ def _two_processes_against_one(tmp_path: Path, devices: int, options: list[str])
         ]
     )
     reference, shared = _outputs(one), _outputs(two)
-    assert list(shared) == sorted(["CesiumMan.npy", *FILES])
+    assert list(shared) == sorted(file_names(models))
     assert list(reference) == list(shared)
     for name in reference:
         np.testing.assert_array_equal(reference[name].view(np.uint64), shared[name].view(np.uint64), err_msg=name)
@@ -152,14 +151,13 @@ def _two_processes_against_one(tmp_path: Path, devices: int, options: list[str])
         assert f"process {process} of 2" in logs[1 + process] and f"wrote {len(mine)} files" in logs[1 + process]
 
 
-@pytest.mark.slow  # three compiling processes at once: about a minute on 2 cores
 def test_two_processes_write_exactly_what_one_process_with_their_devices_writes(tmp_path):
-    _two_processes_against_one(tmp_path, 1, [])
+    _two_processes_against_one(tmp_path, MODELS, 1, [])
 
 
-@pytest.mark.slow  # three compiling processes at once: about a minute on 2 cores
+@pytest.mark.slow  # three processes compiling CesiumMan at once: about 30 s on 2 cores
 def test_two_processes_of_two_devices_split_models_and_frames(tmp_path):
-    _two_processes_against_one(tmp_path, 2, ["--time-shards", "2"])
+    _two_processes_against_one(tmp_path, [str(DATA / "CesiumMan.glb"), *MODELS], 2, ["--time-shards", "2"])
 
 
 # --- bad input ------------------------------------------------------------------------------------------------
@@ -208,3 +206,21 @@ def test_a_missing_model_is_refused_before_any_work(tmp_path, capsys):
         main(["animate-batch", MODELS[0], str(tmp_path / "missing.glb"), "--out", str(tmp_path / "out")])
     assert refused.value.code == 2
     assert f"error: model: no such file {tmp_path / 'missing.glb'}" in capsys.readouterr().err
+
+
+def test_missing_distributed_values_name_their_options(tmp_path):
+    env = {k: v for k, v in _environment(1).items() if not k.startswith(("SLURM_", "OMPI_", "KUBERNETES_"))}
+    for options, message in (
+        (["--distributed"], "coordinator: not given and no cluster detected by jax.distributed; give --coordinator"),
+        (["--coordinator", "127.0.0.1:1"], "num_processes: not given and no cluster detected by jax.distributed"),
+    ):
+        done = subprocess.run(
+            [sys.executable, "-m", "jaxcga_cli", "animate-batch", MODELS[0], *options, "--out", str(tmp_path / "o")],
+            env=env,
+            cwd=ROOT,
+            capture_output=True,
+            text=True,
+            timeout=120,
+            check=False,
+        )
+        assert done.returncode == 2 and f"jaxcga animate-batch: error: {message}" in done.stderr, done.stderr
