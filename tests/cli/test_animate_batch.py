@@ -117,10 +117,14 @@ def _run_processes(commands: list[tuple[list[str], dict[str, str]]], timeout: fl
     return logs
 
 
-def _two_processes_against_one(tmp_path: Path, models: list[str], devices: int, options: list[str]) -> None:
+def _two_processes_against_one(
+    tmp_path: Path, models: list[str], devices: int, options: list[str], shared_folder: bool = True
+) -> None:
     """One process with 2 * ``devices`` devices and two with ``devices`` each (process 0 told by options,
-    process 1 by the environment variables) write the same files, bitwise."""
+    process 1 by the environment variables) write the same files, bitwise; without ``shared_folder`` each
+    process writes into its own folder (machines without a shared file system)."""
     one, two = tmp_path / "one", tmp_path / "two"
+    second = two if shared_folder else tmp_path / "two_second"
     coordinator = f"127.0.0.1:{_free_port()}"
     argv = ["animate-batch", *models, "--frames", "2", *options, "--out"]
     by_options = [*argv, str(two), "--coordinator", coordinator, "--num-processes", "2", "--process-id", "0"]
@@ -133,12 +137,13 @@ def _two_processes_against_one(tmp_path: Path, models: list[str], devices: int, 
         [
             ([*argv, str(one)], _environment(2 * devices)),
             (by_options, _environment(devices)),
-            ([*argv, str(two)], by_environment),
+            ([*argv, str(second)], by_environment),
         ]
     )
-    reference, shared = _outputs(one), _outputs(two)
-    assert list(shared) == sorted(file_names(models))
-    assert list(reference) == list(shared)
+    reference, shared = _outputs(one), _outputs(two) | _outputs(second)
+    assert sorted(shared) == sorted(file_names(models))
+    assert not (second / "batch.json").exists() or shared_folder
+    assert sorted(reference) == sorted(shared)
     for name in reference:
         np.testing.assert_array_equal(reference[name].view(np.uint64), shared[name].view(np.uint64), err_msg=name)
     manifest, alone = (json.loads((d / "batch.json").read_text()) for d in (two, one))
@@ -149,6 +154,9 @@ def _two_processes_against_one(tmp_path: Path, models: list[str], devices: int, 
     for process in (0, 1):  # ... and says so
         mine = sorted(f for f, p in writers.items() if p == process)
         assert f"process {process} of 2" in logs[1 + process] and f"wrote {len(mine)} files" in logs[1 + process]
+        assert sorted(p.name for p in (two if process == 0 else second).glob("*.npy")) == (
+            mine if not shared_folder else sorted(writers)
+        )
 
 
 def test_two_processes_write_exactly_what_one_process_with_their_devices_writes(tmp_path):
@@ -156,8 +164,9 @@ def test_two_processes_write_exactly_what_one_process_with_their_devices_writes(
 
 
 @pytest.mark.slow  # three processes compiling CesiumMan at once: about 30 s on 2 cores
-def test_two_processes_of_two_devices_split_models_and_frames(tmp_path):
-    _two_processes_against_one(tmp_path, [str(DATA / "CesiumMan.glb"), *MODELS], 2, ["--time-shards", "2"])
+def test_two_processes_of_two_devices_split_models_and_frames_into_their_own_folders(tmp_path):
+    models = [str(DATA / "CesiumMan.glb"), *MODELS]
+    _two_processes_against_one(tmp_path, models, 2, ["--time-shards", "2"], shared_folder=False)
 
 
 # --- bad input ------------------------------------------------------------------------------------------------
