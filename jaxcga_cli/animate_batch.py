@@ -17,8 +17,10 @@ process has moved its files in, so a folder with ``batch.json`` holds a complete
 
 from __future__ import annotations
 
+import contextlib
 import os
 import re
+from collections.abc import Iterator
 from pathlib import Path
 
 from jaxcga_cli import arguments
@@ -249,6 +251,18 @@ def _agree(ok: bool, what: str) -> None:
         raise RuntimeError(f"process {', '.join(map(str, failed))} failed {what}; this process wrote nothing")
 
 
+@contextlib.contextmanager
+def _together(what: str) -> Iterator[None]:
+    """The block on every process, then a barrier: when it fails on one process, that one raises its error and
+    every other a RuntimeError naming it, instead of waiting for it at the next collective."""
+    try:
+        yield
+    except (ValueError, OSError, RuntimeError):
+        _agree(False, what)
+        raise
+    _agree(True, what)
+
+
 def batch_command(
     paths: list[str],
     out: Path,
@@ -279,25 +293,18 @@ def batch_command(
     times = packed.frame_times(frames, clip)
     where = f"process {me} of {processes}: " if processes > 1 else ""
     vertices = sum(packed.vertex_count)
-    with status(
-        "animate-batch", f"{where}skinning {len(models)} models, {vertices} vertices, {frames} frames (compiling)"
-    ):
+    doing = f"{where}skinning {len(models)} models, {vertices} vertices, {frames} frames (compiling)"
+    with _together("to skin its models"), status("animate-batch", doing):
         positions = deform.skin_packed(packed, times, method, clip=clip, interpolation=interpolation, mesh=mesh)
         local = packed.unpack_local(positions)
+        for m, frames_m in local.items():
+            if not np.all(np.isfinite(frames_m)):
+                raise ValueError(f"model: {paths[m] if paths else 'the built-in arm'} gave non-finite positions")
     mine = run_files([names[m] for m in local] + ([MANIFEST] if me == 0 else []))
-    with run_folder(out, mine, MANIFEST) as staging:
-        try:
-            for m, frames_m in local.items():
-                if not np.all(np.isfinite(frames_m)):
-                    raise ValueError(
-                        f"model: skinning {paths[m] if paths else 'the built-in arm'} gave non-finite positions"
-                    )
-                with open(staging / names[m], "wb") as file:
-                    np.save(file, np.asarray(frames_m, np.float64))
-        except (ValueError, OSError):
-            _agree(False, "to skin or write its models")
-            raise
-        _agree(True, "to skin or write its models")
+    with run_folder(out, mine, MANIFEST) as staging, _together("to write its files"):
+        for m, frames_m in local.items():
+            with open(staging / names[m], "wb") as file:
+                np.save(file, np.asarray(frames_m, np.float64))
     _agree(True, "to move its files in")
     owner = [int(mesh.devices[b, 0].process_index) for b in range(rows)]
     clips = packed.clip_indices(clip)

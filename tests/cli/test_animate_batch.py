@@ -89,11 +89,12 @@ def _environment(devices: int) -> dict[str, str]:
     return env
 
 
-def _run_processes(commands: list[tuple[list[str], dict[str, str]]], timeout: float = 400) -> list[str]:
-    """Run the commands concurrently (each in its own process group, killed on timeout); their outputs."""
+def _run_processes(commands: list[tuple], timeout: float = 400, check: bool = True) -> tuple[list[int], list[str]]:
+    """Run the commands ``(argv, env[, python arguments before argv])`` concurrently (each in its own process
+    group, killed on timeout); their exit codes and outputs."""
     processes = [
         subprocess.Popen(
-            [sys.executable, "-m", "jaxcga_cli", *argv],
+            [sys.executable, *(start[0] if start else ["-m", "jaxcga_cli"]), *argv],
             env=env,
             cwd=ROOT,
             stdout=subprocess.PIPE,
@@ -101,7 +102,7 @@ def _run_processes(commands: list[tuple[list[str], dict[str, str]]], timeout: fl
             text=True,
             start_new_session=True,
         )
-        for argv, env in commands
+        for argv, env, *start in commands
     ]
     logs = []
     try:
@@ -113,8 +114,8 @@ def _run_processes(commands: list[tuple[list[str], dict[str, str]]], timeout: fl
                 os.killpg(process.pid, signal.SIGKILL)
         pytest.fail("animate-batch processes timed out:\n" + "\n".join(p.communicate()[0] for p in processes))
     for process, log in zip(processes, logs, strict=True):
-        assert process.returncode == 0, log
-    return logs
+        assert process.returncode == 0 or not check, log
+    return [p.returncode for p in processes], logs
 
 
 def _two_processes_against_one(
@@ -133,7 +134,7 @@ def _two_processes_against_one(
         "JAX_NUM_PROCESSES": "2",
         "JAX_PROCESS_ID": "1",
     }
-    logs = _run_processes(
+    _, logs = _run_processes(
         [
             ([*argv, str(one)], _environment(2 * devices)),
             (by_options, _environment(devices)),
@@ -167,6 +168,28 @@ def test_two_processes_write_exactly_what_one_process_with_their_devices_writes(
 def test_two_processes_of_two_devices_split_models_and_frames_into_their_own_folders(tmp_path):
     models = [str(DATA / "CesiumMan.glb"), *MODELS]
     _two_processes_against_one(tmp_path, models, 2, ["--time-shards", "2"], shared_folder=False)
+
+
+# the command with a file-size limit of 1000 bytes (Python ignores SIGXFSZ: a larger write raises)
+FILE_SIZE_LIMITED = [
+    "-c",
+    "import resource, runpy; resource.setrlimit(resource.RLIMIT_FSIZE, (1000, 1000)); "
+    "runpy.run_module('jaxcga_cli', run_name='__main__')",
+]
+
+
+@pytest.mark.slow  # two compiling processes: about 20 s on 2 cores
+def test_a_process_that_fails_to_write_stops_every_process_and_nothing_is_written(tmp_path):
+    out = tmp_path / "out"
+    coordinator = ["--coordinator", f"127.0.0.1:{_free_port()}", "--num-processes", "2"]
+    argv = ["animate-batch", *MODELS, "--frames", "2", "--out", str(out), *coordinator, "--process-id"]
+    codes, logs = _run_processes(
+        [([*argv, "0"], _environment(1)), ([*argv, "1"], _environment(1), FILE_SIZE_LIMITED)], check=False
+    )
+    assert codes == [2, 2], logs
+    assert "error: process 1 failed to write its files; this process wrote nothing" in logs[0], logs[0]
+    assert "the run's files were not written, the folder is as before" in logs[1], logs[1]
+    assert not out.exists() or not any(out.iterdir())  # (removed by the process that made it, if last)
 
 
 # --- bad input ------------------------------------------------------------------------------------------------
