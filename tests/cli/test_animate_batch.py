@@ -201,6 +201,10 @@ def test_a_process_that_fails_to_write_stops_every_process_and_nothing_is_writte
         (["--frames", "0"], "frames: expected --frames >= 1"),
         (["--time-shards", "0"], "time_shards: expected --time-shards >= 1"),
         (["--frames", "5", "--time-shards", "2"], "time_shards: --frames 5 do not split"),
+        (
+            ["--frames", "3", "--time-shards", "3"],
+            "time_shards: --time-shards 3 does not divide every process's device",
+        ),
         (["--num-processes", "2", "--process-id", "2"], "process_id: --process-id 2 is out of range"),
         (["--num-processes", "0"], "num_processes: expected --num-processes >= 1, got --num-processes 0"),
         (["--num-processes", "2"], "coordinator: --num-processes 2 needs --coordinator"),
