@@ -19,6 +19,10 @@ def model_argument(parser) -> None:
         default=None,
         help="glTF (.gltf/.glb), or FBX/COLLADA through assimp; default: the built-in arm",
     )
+    weld_argument(parser)
+
+
+def weld_argument(parser) -> None:
     parser.add_argument("--weld", action="store_true", help="weld split vertices of the loaded model")
 
 

@@ -16,6 +16,7 @@ COMMANDS = {
     "demo": "demo",
     "skin": "skin",
     "animate": "animate",
+    "animate-batch": "animate_batch",
     "fit": "fit",
     "cut": "cut",
     "tear": "tear",

@@ -26,6 +26,7 @@ ROOT = Path(__file__).resolve().parents[2]
 COMMANDS = {
     "skin": ["skin", "--out", "OUT.npy"],
     "animate": ["animate", "--out", "OUT.glb"],
+    "animate-batch": ["animate-batch", "--frames", "2", "--out", "OUT"],
     "fit": ["fit", "--target", str(DATA / "RiggedSimple.glb"), "--out", "OUT.json"],
     "cut": ["cut", "--plane", "1", "0", "0", "0.3", "--out", "OUT.glb", "OUT_other.glb"],
     "tear": [
@@ -235,7 +236,7 @@ def test_disk_full_leaves_the_previous_fem_run_as_it_was(disk_full):
 def test_a_folder_in_the_way_is_one_line(tmp_path, capsys, no_work, command):
     (tmp_path / "out.npy").mkdir()  # a folder with the name of the output file
     argv = _argv(command, tmp_path / "out")
-    if command in ("fem", "xfem", "demo"):
+    if command in ("fem", "xfem", "demo", "animate-batch"):
         (tmp_path / "out").write_text("a file")  # these write a folder: a file is in the way
         _fails_on_one_line(capsys, argv, "is a file; expected a folder")
         return
@@ -364,7 +365,7 @@ def test_a_trimesh_gltf_holds_its_buffers(tmp_path):
 # ------------------------------------------------------------------------------ fem / xfem folders hold one run
 
 
-@pytest.mark.parametrize("command", ["fem", "xfem"])
+@pytest.mark.parametrize("command", ["fem", "xfem", "animate-batch"])
 def test_a_non_empty_run_folder_needs_force(tmp_path, capsys, no_work, command):
     (tmp_path / "out").mkdir()
     (tmp_path / "out" / "frame_0040.png").write_text("another scene's frame")
