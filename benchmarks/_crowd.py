@@ -1,9 +1,9 @@
 """Random animated characters for the batch benchmark and notebook 02: a random skeleton (a chain with branches),
 a tube around every bone, four skinning influences per vertex, and a clip of a few keys per bone.
 
-``random_rig(seed, vertices)`` builds one in float32 (the dtype of the glTF test models); ``animate(model,
-seed)`` gives any model a random clip (Arm5 has none); ``test_models()`` loads the three rigged test models,
-each animated."""
+``random_rig(seed, vertices)`` builds one in JAX's default float dtype (as ``deform.load_model`` reads the test
+models: float32, float64 with x64 enabled); ``animate(model, seed)`` gives any model a random clip (Arm5 has
+none); ``test_models()`` loads the three rigged test models, each animated."""
 
 from __future__ import annotations
 
@@ -40,7 +40,7 @@ def _random_rotations(rng: np.random.Generator, shape: tuple[int, ...], angle: f
     return np.concatenate([np.sin(half) * axis, np.cos(half)], axis=-1)
 
 
-def animate(model: deform.RiggedModel, seed: int, keys: int | None = None, angle: float = 0.6) -> deform.RiggedModel:
+def animate(model: deform.RiggedModel, seed: int, keys: int | None = None, angle: float = 0.4) -> deform.RiggedModel:
     """``model`` with one LINEAR clip (its only clip): every bone turns about random axes in its own frame, by up
     to ``angle`` radians, at ``keys`` evenly spaced keys (default 3 to 6) over 1 to 3 seconds; the roots
     translate too."""
@@ -95,7 +95,7 @@ def _segment_distances(X: np.ndarray, heads: np.ndarray, tails: np.ndarray) -> n
 
 
 def random_rig(seed: int, vertices: int, bones: tuple[int, int] = (12, 40), influences: int = 4) -> deform.RiggedModel:
-    """A random animated character of about ``vertices`` vertices (within one ring of a tube) in float32.
+    """A random animated character of about ``vertices`` vertices (within one ring of a tube).
 
     The skeleton has ``bones`` (a range) bones: mostly a chain, a quarter of them branching off an earlier bone,
     with small random rest rotations. Around each bone, from its head to its first child's head (a leaf's
@@ -105,14 +105,14 @@ def random_rig(seed: int, vertices: int, bones: tuple[int, int] = (12, 40), infl
     rng = np.random.default_rng(seed)
     b = int(rng.integers(bones[0], bones[1] + 1))
     parents = [-1] + [i - 1 if rng.random() < 0.75 else int(rng.integers(0, i)) for i in range(1, b)]
-    direction = np.array([0.0, 1.0, 0.0]) + 0.7 * rng.normal(size=(b, 3))
+    direction = np.array([0.0, 1.0, 0.0]) + 0.5 * rng.normal(size=(b, 3))
     translation = direction / np.linalg.norm(direction, axis=1, keepdims=True) * rng.uniform(0.4, 1.0, (b, 1))
     translation[0] = 0.0
-    rotation = _random_rotations(rng, (b,), 0.5)
+    rotation = _random_rotations(rng, (b,), 0.25)
     skeleton = deform.Skeleton(
-        jnp.asarray(translation, jnp.float32),
-        jnp.asarray(rotation, jnp.float32),
-        jnp.ones((b, 3), jnp.float32),
+        jnp.asarray(translation),
+        jnp.asarray(rotation),
+        jnp.ones((b, 3)),
         tuple(parents),
         tuple(f"bone{i}" for i in range(b)),
     )
@@ -147,11 +147,11 @@ def random_rig(seed: int, vertices: int, bones: tuple[int, int] = (12, 40), infl
     J = np.argsort(distance, axis=1)[:, :influences]
     W = 1.0 / (np.take_along_axis(distance, J, axis=1) + 1e-3) ** 4
     mesh = deform.SkinnedMesh(
-        jnp.asarray(V, jnp.float32),
+        jnp.asarray(V),
         jnp.asarray(F, jnp.int32),
         jnp.asarray(J, jnp.int32),
-        jnp.asarray(W / W.sum(axis=1, keepdims=True), jnp.float32),
-        jnp.asarray(np.linalg.inv(bind), jnp.float32),
+        jnp.asarray(W / W.sum(axis=1, keepdims=True)),
+        jnp.asarray(np.linalg.inv(bind)),
         tuple(range(b)),
         ((V.shape[0], F.shape[0]),),
     )

@@ -5,7 +5,7 @@ batch split over 4 host devices.
 The models: CesiumMan, RiggedSimple and Arm5 (tests/data; Arm5 given a random clip) and random rigs of 1k-50k
 vertices (``_crowd.random_rig``: a random skeleton of 12-40 bones, a tube around each bone, 4 influences per
 vertex, a clip of 3-6 keys per bone), vertex counts spread geometrically. Everything is float32, as a renderer
-would use it (the test files' dtype; 64 models x 100 frames of ~13k vertices on average are ~0.9 GB of positions).
+would use it (64 models x 100 frames of ~12k vertices on average are ~0.9 GB of positions).
 
 Two batches of 64 models: the first (A) compiles the packed function for its capacities; the second (B: other
 random rigs, each a little smaller, and the three test models) is packed with ``at_least=A.capacities`` and
@@ -41,7 +41,9 @@ import time
 from pathlib import Path
 
 import jax
-import numpy as np
+
+jax.config.update("jax_enable_x64", False)  # float32, as a renderer: the models, times and positions
+import numpy as np  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
