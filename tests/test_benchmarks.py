@@ -164,3 +164,19 @@ def test_bench_xfem_quick_writes_the_published_names(tmp_path):
     for name in ("accordion_rollout_10_s", "accordion_grad_10_s", "accordion_grad_20_peak_rss_gib"):
         assert result["figures"][name] > 0 and name in result["units"]
     assert result["ratios"]["accordion_grad_vs_forward_10"] > 0
+
+
+@pytest.mark.slow
+def test_bench_batch_quick_writes_the_published_names(tmp_path):
+    result = _quick("bench_batch.py", tmp_path)
+    for name in ("packed_vs_loop", "packed_vs_loop_first_batch", "packed_vs_loop_warm"):
+        assert result["ratios"][name] > 0 and name in result["units"]
+    for name in ("loop_new_batch_s", "packed_new_batch_s", "packed_first_batch_s", "loop_warm_s", "packed_warm_s"):
+        assert result["figures"][name] > 0 and name in result["units"]
+    # padded work is never less than the real work; the packed frames are each model's own (float32)
+    assert result["figures"]["padding_1_block"] >= 1.0 and result["figures"]["padding_new_batch"] >= 1.0
+    assert result["figures"]["max_difference_vs_loop"] < 1e-5
+    if jax.default_backend() == "cpu":  # the sharded part runs on forced host devices only
+        assert result["ratios"]["sharded_4_vs_1"] > 0 and result["figures"]["sharded_4_warm_s"] > 0
+        assert result["figures"]["padding_4_blocks"] >= 1.0
+        assert result["figures"]["max_difference_sharded_4_vs_1"] < 1e-5
