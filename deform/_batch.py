@@ -466,7 +466,9 @@ def _skin_block(rigs: PackedRigs, times, clip, method: str, interpolation: str):
 
 @eqx.filter_jit
 def _skin_blocks(rigs: PackedRigs, times, clip, method: str, interpolation: str):
-    return jax.vmap(lambda r, t, c: _skin_block(r, t, c, method, interpolation))(rigs, times, clip)
+    # one block after the other (lax.map), not vmapped: a block axis on the per-vertex pass (size one on every
+    # device of a mesh) made XLA:CPU's skinning loops slower
+    return jax.lax.map(lambda args: _skin_block(*args, method, interpolation), (rigs, times, clip))
 
 
 def _block_layout(packed: PackedModels, per_model: np.ndarray, fill) -> np.ndarray:
