@@ -21,6 +21,7 @@ import statistics
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import equinox as eqx
 import jax
@@ -86,7 +87,7 @@ def _one_solve(packed, targets, vertices, options):
     return sol.value, sol.stats["num_steps"]
 
 
-def _timed(fn, repeats: int) -> tuple[float, float, object]:
+def _timed(fn, repeats: int) -> tuple[float, float, Any]:
     """(cold seconds, warm median seconds, last result) of ``fn()``."""
     jax.clear_caches()
     eqx.clear_caches()
@@ -116,7 +117,7 @@ def fit_figures(
     models = fit_models(count)
     targets, vertices = fit_problems(models, targets_per_model)
     packed = deform.pack_models(models)
-    options = dict(method=method, regularization=regularization, max_steps=max_steps)
+    options: dict[str, Any] = dict(method=method, regularization=regularization, max_steps=max_steps)
     caps = packed.capacities
     print(
         f"fit: {count} models ({', '.join(m.name for m in models)}), {caps.bones} bones and "

@@ -18,6 +18,8 @@ all models, so each model's fit no longer equals its own.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -69,8 +71,8 @@ def posed_blocks(rigs: PackedRigs, params: Float[Array, "D M B 7"], method: str)
 
 def fit_data(
     packed: PackedModels,
-    targets: list,
-    vertices: list | None,
+    targets: Sequence,
+    vertices: Sequence | None,
     *,
     method: str,
     regularization: float,
@@ -147,8 +149,8 @@ def _solve(data: FitData, solver: str, max_steps: int, rtol: float, atol: float)
 
 def fit_packed(
     packed: PackedModels,
-    targets: list[Float[ArrayLike, "t 3"]],
-    vertices: list[Int[ArrayLike, " t"]] | None = None,
+    targets: Sequence[Float[ArrayLike, "t 3"]],
+    vertices: Sequence[Int[ArrayLike, " t"] | None] | None = None,
     *,
     method: str = "cga",
     regularization: float = 0.0,
@@ -165,7 +167,8 @@ def fit_packed(
         packed: the PackedModels (``pack_models``; one process).
         targets: one (t_m, 3) array per model, in the order packed: target positions of the vertices
             ``vertices[m]`` (all of the model's vertices when ``vertices`` is None: t_m = n_m).
-        vertices: one (t_m,) int array of vertex indices per model, or None.
+        vertices: one (t_m,) int array of vertex indices per model (None for all of a model's vertices), or
+            None (all vertices of every model).
         method, regularization, fit_scale, solver, max_steps, rtol, atol: as ``fit_pose``, for every model.
     Returns:
         one PoseFit per model, in the order packed."""

@@ -2,6 +2,7 @@
 alone (padded targets, bones and influences masked out)."""
 
 from pathlib import Path
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -47,7 +48,7 @@ def test_fit_packed_equals_fit_pose_of_each_model_with_padded_targets_bones_and_
     packed = deform.pack_models(models)
     assert packed.capacities.bones == 5 and packed.capacities.influences == 4
     # the regularization must see only the model's own bones, and only its own targets count
-    options = dict(method="lbs", regularization=1e-4)
+    options: dict[str, Any] = dict(method="lbs", regularization=1e-4)
     fits = deform.fit_packed(packed, targets, vertices, **options)
     _assert_equal_fits(models, fits, targets, vertices, **options)
     # the regularizer pulls model 0 (7 targets, 35 parameters) off its targets: the fit is not exact by itself
@@ -59,11 +60,11 @@ def test_fit_packed_refuses_bad_input_naming_the_argument():
     packed = deform.pack_models(models)
     targets = [jnp.zeros((12, 3)), jnp.zeros((9, 3))]
     with pytest.raises(ValueError, match="packed"):
-        deform.fit_packed(models, targets)
+        deform.fit_packed(models, targets)  # type: ignore[arg-type]
     with pytest.raises(ValueError, match=r"targets: expected one array per model \(2\), got 1"):
         deform.fit_packed(packed, targets[:1])
     with pytest.raises(ValueError, match="targets: expected a list"):
-        deform.fit_packed(packed, jnp.zeros((2, 12, 3)))
+        deform.fit_packed(packed, jnp.zeros((2, 12, 3)))  # type: ignore[arg-type]
     with pytest.raises(ValueError, match=r"targets\[1\]: expected shape \(9, 3\)"):
         deform.fit_packed(packed, [targets[0], jnp.zeros((9, 2))])
     with pytest.raises(ValueError, match=r"targets\[0\]: contains NaN"):
@@ -96,7 +97,7 @@ def test_fit_packed_equals_fit_pose_on_real_models():
     vertices = [None, None, jnp.arange(0, models[2].mesh.num_vertices, 97), None]
     targets[2] = targets[2][vertices[2]]
     packed = deform.pack_models(models, blocks=2)
-    options = dict(method="cga", regularization=1e-8)
+    options: dict[str, Any] = dict(method="cga", regularization=1e-8)
     fits = deform.fit_packed(packed, targets, vertices, **options)
     _assert_equal_fits(models, fits, targets, vertices, **options)
     for model, fit, index in zip(models, fits, vertices, strict=True):
