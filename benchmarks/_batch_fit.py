@@ -107,7 +107,7 @@ def fit_figures(
     targets_per_model: int = 200,
     *,
     method: str = "cga",
-    regularization: float = 1e-8,
+    regularization: float = 1e-6,
     max_steps: int = 200,
     repeats: int = 3,
     one_solve: bool = True,
@@ -129,7 +129,9 @@ def fit_figures(
         return [deform.fit_pose(m, t, v, **options) for m, t, v in zip(models, targets, vertices, strict=True)]
 
     loop_cold, loop_warm, alone = _timed(loop, repeats)
+    print(f"  loop of fit_pose: {loop_warm:.4g} s warm, {loop_cold:.4g} s cold", flush=True)
     packed_cold, packed_warm, fits = _timed(lambda: deform.fit_packed(packed, targets, vertices, **options), repeats)
+    print(f"  fit_packed: {packed_warm:.4g} s warm, {packed_cold:.4g} s cold", flush=True)
     reference = [np.asarray(f.params) for f in alone]
     figures = {
         "fit_loop_s": loop_warm,
