@@ -110,10 +110,12 @@ def fit_figures(
     regularization: float = 1e-6,
     max_steps: int = 200,
     repeats: int = 3,
-    one_solve: bool = True,
+    one_solve: bool = False,
 ) -> dict:
-    """Time ``fit_packed`` against a loop of ``fit_pose`` (and one solve over all parameters) on ``count`` models
-    (``fit_models``), print the figures and return ``{"figures", "ratios", "units"}`` (``_report``'s layout)."""
+    """Time ``fit_packed`` against a loop of ``fit_pose`` on ``count`` models (``fit_models``), and with
+    ``one_solve`` one solve over all their parameters (its dense step grows with the cube of the parameter count:
+    minutes per call at 8 models), print the figures and return ``{"figures", "ratios", "units"}`` (``_report``'s
+    layout)."""
     models = fit_models(count)
     targets, vertices = fit_problems(models, targets_per_model)
     packed = deform.pack_models(models)

@@ -7,7 +7,7 @@ stopped, a stopped model's state held. A model's data are padded to the batch's 
 
 * targets to ``capacity`` of the largest target count, the padded rows masked out of the residual;
 * bones to the packed bone capacity: a padded bone binds no joint and is not regularized, so its Jacobian
-  columns are zero and its parameters stay zero (the damped step of Levenberg-Marquardt leaves them there);
+  columns (and gradient) are zero and every solver's step leaves its parameters at zero;
 * influences to the packed influence count, with zero weights.
 
 One least-squares solve over all models' parameters (a block-diagonal Jacobian) is the alternative:
