@@ -13,7 +13,8 @@ sec. III-A binding, shared by every motor deformation); ``_spline`` (spline-alig
 5), ``_handles`` (harmonic motor handles, sec. IV), ``_ffd`` (classic and motor FFD, eq. 6-8), ``_cage``
 (harmonic-coordinate cages, sec. VI); ``_field_fitting`` (key motors from target positions); ``_arap``
 (as-rigid-as-possible modeling with rotors, sec. VII); ``_batch`` (batches of different models packed to shared
-capacities, skinned under one jit and split over devices and processes).
+capacities, skinned under one jit and split over devices and processes); ``_batch_fitting`` (``fit_pose`` on every
+model of such a batch at once).
 
 One convention for every deformer: ``X_precompute(V, F, constraints, *, options) -> data`` (an ``eqx.Module``;
 mesh first, ``laplacian=`` where a Laplacian is chosen) does the work that does not depend on the handle
@@ -25,6 +26,7 @@ and the general ``motor_field_precompute``) all return a ``MotorField``, solved 
 from deform._arap import ENERGIES as ARAP_ENERGIES
 from deform._arap import ARAPData, ARAPResult, arap_precompute, arap_solve, horn_rotors
 from deform._batch import Capacities, PackedModels, PackedRigs, capacity, pack_models, skin_packed
+from deform._batch_fitting import fit_packed
 from deform._cage import cage_precompute, harmonic_coordinates, tube_cage
 from deform._default_arm import default_arm
 from deform._fabrik import chain_motors, fabrik, rotor_between
@@ -159,6 +161,7 @@ __all__ = [
     "ffd_precompute",
     "ffd_weights",
     "fit_key_motors",
+    "fit_packed",
     "fit_pose",
     "forward_kinematics",
     "forward_kinematics_matrices",

@@ -151,6 +151,7 @@ class PackedModels(eqx.Module):
         influence_count: static, each model's joint influences per vertex.
         clip_names: static, each model's clip names.
         clip_ranges: static, each model's clips' (start, end) times.
+        bone_count: static, each model's bone count.
     """
 
     rigs: PackedRigs
@@ -163,6 +164,7 @@ class PackedModels(eqx.Module):
     influence_count: tuple[int, ...] = eqx.field(static=True)
     clip_names: tuple[tuple[str, ...], ...] = eqx.field(static=True)
     clip_ranges: tuple[tuple[tuple[float, float], ...], ...] = eqx.field(static=True)
+    bone_count: tuple[int, ...] = eqx.field(static=True)
 
     @property
     def num_models(self) -> int:
@@ -413,6 +415,7 @@ def pack_models(
         tuple(int(np.shape(m.mesh.J)[1]) for m in models),
         tuple(tuple(c.name for c in m.clips) for m in models),
         tuple(tuple((c.start, c.end) for c in m.clips) for m in models),
+        tuple(m.skeleton.num_bones for m in models),
     )
 
 
@@ -459,6 +462,12 @@ def _skin_block(rigs: PackedRigs, times, clip, method: str, interpolation: str):
     joints = jax.vmap(lambda model, t, c: _model_joints(rigs.groups, model, t, c, method, interpolation))(
         _per_model(rigs), times, clip
     )
+    return skin_joint_tables(rigs, joints, method)
+
+
+def skin_joint_tables(rigs: PackedRigs, joints, method: str):
+    """Positions (T, N, 3) of one block from its models' joint transforms (M, T, Jc, ...) (``deform.fit_packed``
+    shares it)."""
     # (M, T, Jc, ...) -> (T, M * Jc, ...): one joint table per frame, indexed by J
     joints = jax.tree.map(lambda x: jnp.moveaxis(x, 0, 1).reshape((x.shape[1], -1) + x.shape[3:]), joints)
     return _pose.skin_with_joints(rigs.V, rigs.J, rigs.W, joints, method)

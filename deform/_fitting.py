@@ -26,7 +26,7 @@ import jaxcga as cga
 from _jaxcga_shared.checks import check_choice, check_index_range
 from _jaxcga_shared.mesh import bounding_diagonal
 from deform import _pose, _rig
-from deform._model import RiggedModel, SkinnedMesh
+from deform._model import RiggedModel
 from jaxcga._multivector import KINDS, Multivector
 
 SOLVERS = ("levenberg_marquardt", "gauss_newton", "bfgs", "gradient_descent")
@@ -45,10 +45,16 @@ def pose_from_parameters(model: RiggedModel, params: Float[ArrayLike, "... b 7"]
     b = model.skeleton.num_bones
     if params.ndim < 2 or params.shape[-2:] != (b, PARAMETERS_PER_BONE):
         raise ValueError(f"params: expected shape (..., {b}, {PARAMETERS_PER_BONE}), got {params.shape}")
+    skeleton = model.skeleton
+    return similitudes_from_parameters((skeleton.translation, skeleton.rotation, skeleton.scale), params)
+
+
+def similitudes_from_parameters(rest, params) -> Multivector:
+    """``pose_from_parameters`` from the rest TRS as arrays ``(translation, rotation, scale)``, each (..., b, 3 | 4
+    | 3), and parameters (..., b, 7), unchecked (the packed fits share it)."""
     motion = cga.exp_motor(Multivector(params[..., :6], cga.MOTOR_GENERATOR))
     dilation = cga.dilator(jnp.exp(params[..., 6]))
-    rest = _rig.local_versors(model.skeleton)
-    return (rest * motion * dilation).embed(KINDS["similitude"])
+    return (_rig.trs_to_versor(*rest) * motion * dilation).embed(KINDS["similitude"])
 
 
 def skin_parameters(
@@ -105,17 +111,18 @@ def _solver(name: str, rtol: float, atol: float, max_steps: int):
     raise ValueError(f"solver: expected one of {SOLVERS}, got {name!r}")
 
 
-def check_targets(targets, vertices, n: int, dtype):
-    """Targets (t, 3) and the vertex indices (t,) they belong to (all n vertices when None), checked."""
+def check_targets(targets, vertices, n: int, dtype, item: str = ""):
+    """Targets (t, 3) and the vertex indices (t,) they belong to (all n vertices when None), checked; ``item``
+    follows the arguments' names in the messages (``"[2]"``: one model's of a list)."""
     targets = jnp.asarray(targets, dtype)
     index = np.arange(n) if vertices is None else np.asarray(vertices)
     if index.ndim != 1 or not np.issubdtype(index.dtype, np.integer):
-        raise ValueError(f"vertices: expected a (t,) integer array, got {index.dtype} {index.shape}")
-    check_index_range("vertices", index, n)
+        raise ValueError(f"vertices{item}: expected a (t,) integer array, got {index.dtype} {index.shape}")
+    check_index_range(f"vertices{item}", index, n)
     if targets.shape != (len(index), 3):
-        raise ValueError(f"targets: expected shape ({len(index)}, 3), got {targets.shape}")
+        raise ValueError(f"targets{item}: expected shape ({len(index)}, 3), got {targets.shape}")
     if not bool(jnp.all(jnp.isfinite(targets))):
-        raise ValueError("targets: contains NaN or infinity")
+        raise ValueError(f"targets{item}: contains NaN or infinity")
     return targets, index
 
 
@@ -139,17 +146,68 @@ def _squared(y, residuals_and_args):
     return jnp.sum(r * r)
 
 
-def _full_parameters(y, fit_scale: bool):
-    """(b, 7) parameters from the fitted ones: a zero log-scale column when the dilations are not fitted."""
-    return y if fit_scale else jnp.concatenate([y, jnp.zeros((y.shape[0], 1), y.dtype)], axis=-1)
+def full_parameters(y, fit_scale: bool):
+    """(..., b, 7) parameters from the fitted ones: a zero log-scale column when the dilations are not fitted."""
+    return y if fit_scale else jnp.concatenate([y, jnp.zeros(y.shape[:-1] + (1,), y.dtype)], axis=-1)
 
 
-def _pose_residuals(y, args):
+class FitData(eqx.Module):
+    """What ``fit_pose``'s residual needs, as arrays: one model's rig, the targeted vertices' bind data and the
+    targets. The packed fits (``deform.fit_packed``) stack one per model, padded, with masks.
+
+    Attributes:
+        rest: the rest TRS ``(translation (b, 3), rotation (b, 4), scale (b, 3))``.
+        parents: (b,) parent of each bone, -1 for a root.
+        joint_bones: (j,) bone of each joint.
+        inverse_bind: (j, 4, 4) inverse bind matrices.
+        V, J, W: (t, 3), (t, k), (t, k): bind positions, joint indices and weights of the targeted vertices.
+        targets: (t, 3) their targets.
+        target_mask: (t,) 1 for a target, 0 for padding (its residual is zero).
+        bone_mask: (b,) 1 for a bone, 0 for padding (not regularized: its parameters stay zero).
+        diagonal: () the rest pose's bounding diagonal, the unit of the residual.
+        root_regularization: () ``sqrt(lambda)``.
+        fit_scale: static, whether the log-scales are fitted (else the parameters are (b, 6)).
+        method: static, the skinning method.
+    """
+
+    rest: tuple[Array, Array, Array]
+    parents: Int[Array, " b"]
+    joint_bones: Int[Array, " j"]
+    inverse_bind: Float[Array, "j 4 4"]
+    V: Float[Array, "t 3"]
+    J: Int[Array, "t k"]
+    W: Float[Array, "t k"]
+    targets: Float[Array, "t 3"]
+    target_mask: Float[Array, " t"]
+    bone_mask: Float[Array, " b"]
+    diagonal: Float[Array, ""]
+    root_regularization: Float[Array, ""]
+    fit_scale: bool = eqx.field(static=True)
+    method: str = eqx.field(static=True)
+
+
+def pose_residuals(y, data: FitData):
     """``fit_pose``'s residuals: the targeted vertices' offsets over the bounding diagonal, then
-    ``sqrt(lambda) y`` (zeros without regularization, so both share a compiled solver)."""
-    reduced, targets, diagonal, root_regularization, fit_scale, method = args
-    moved = skin_parameters(reduced, _full_parameters(y, fit_scale), method)
-    return jnp.concatenate([((moved - targets) / diagonal).ravel(), root_regularization * y.ravel()])
+    ``sqrt(lambda) y`` (zeros without regularization, so both share a compiled solver); padded targets and bones
+    (masks 0) contribute zeros."""
+    local = similitudes_from_parameters(data.rest, full_parameters(y, data.fit_scale))
+    moved = _pose.skin_local(
+        data.parents, data.joint_bones, data.inverse_bind, data.V, data.J, data.W, local, data.method
+    )
+    offsets = (moved - data.targets) / data.diagonal * data.target_mask[:, None]
+    return jnp.concatenate([offsets.ravel(), (data.root_regularization * data.bone_mask[:, None] * y).ravel()])
+
+
+def check_options(method: str, regularization: float, fit_scale: bool, solver: str, max_steps: int):
+    """The fitting options shared by ``fit_pose`` and ``deform.fit_packed``, checked."""
+    if not regularization >= 0:
+        raise ValueError(f"regularization: expected >= 0, got {regularization}")
+    if not isinstance(max_steps, (int, np.integer)) or max_steps < 1:
+        raise ValueError(f"max_steps: expected an int >= 1, got {max_steps!r}")
+    check_choice("method", method, _pose.METHODS)
+    check_choice("solver", solver, SOLVERS)
+    if method == "dqs" and fit_scale:
+        raise ValueError("method: dual-quaternion skinning cannot represent dilations; use fit_scale=False")
 
 
 def fit_pose(
@@ -185,13 +243,7 @@ def fit_pose(
     n = model.mesh.num_vertices
     b = model.skeleton.num_bones
     targets, index = check_targets(targets, vertices, n, model.mesh.V.dtype)
-    if regularization < 0:
-        raise ValueError(f"regularization: expected >= 0, got {regularization}")
-    if not isinstance(max_steps, int) or max_steps < 1:
-        raise ValueError(f"max_steps: expected an int >= 1, got {max_steps!r}")
-    check_choice("method", method, _pose.METHODS)
-    if method == "dqs" and fit_scale:
-        raise ValueError("method: dual-quaternion skinning cannot represent dilations; use fit_scale=False")
+    check_options(method, regularization, fit_scale, solver, max_steps)
     dtype = model.mesh.V.dtype
     diagonal = jnp.asarray(_rest_diagonal(model), dtype)
     width = PARAMETERS_PER_BONE if fit_scale else 6
@@ -199,19 +251,38 @@ def fit_pose(
     if init is not None and y0.shape != (b, width):
         raise ValueError(f"init: expected shape ({b}, {PARAMETERS_PER_BONE}), got {jnp.shape(init)}")
 
-    # Only the targeted vertices are skinned inside the solver.
-    mesh = model.mesh
-    subset = SkinnedMesh(
-        mesh.V[index], jnp.zeros((0, 3), jnp.int32), mesh.J[index], mesh.W[index], mesh.inverse_bind, mesh.joints
+    # Only the targeted vertices are skinned inside the solver. The data travel as solver arguments, the
+    # residual is one module-level function: fits of one size and kind share optimistix's compiled solver (a
+    # closure per call compiled it anew, ~10 s each)
+    mesh, skeleton = model.mesh, model.skeleton
+    data = FitData(
+        rest=(skeleton.translation, skeleton.rotation, skeleton.scale),
+        parents=jnp.asarray(skeleton.parents, jnp.int32),
+        joint_bones=jnp.asarray(mesh.joints, jnp.int32),
+        inverse_bind=mesh.inverse_bind,
+        V=mesh.V[index],
+        J=mesh.J[index],
+        W=mesh.W[index],
+        targets=targets,
+        target_mask=jnp.ones(len(index), dtype),
+        bone_mask=jnp.ones(b, dtype),
+        diagonal=diagonal,
+        root_regularization=jnp.sqrt(jnp.asarray(regularization, dtype)),
+        fit_scale=fit_scale,
+        method=method,
     )
-    reduced = RiggedModel(subset, model.skeleton, (), model.name)
-    # the data travel as solver arguments, the residual is one module-level function: fits of one size and
-    # kind share optimistix's compiled solver (a closure per call compiled it anew, ~10 s each)
-    args = (reduced, targets, diagonal, jnp.sqrt(jnp.asarray(regularization, dtype)), fit_scale, method)
-    sol = run_solver(_pose_residuals, solver, y0, args, max_steps, rtol, atol)
-    params = _full_parameters(sol.value, fit_scale)
+    sol = run_solver(pose_residuals, solver, y0, data, max_steps, rtol, atol)
+    params = full_parameters(sol.value, fit_scale)
     local = pose_from_parameters(model, params)
     positions = _pose.skin_pose(model, local, method)
+    return pose_fit(
+        params, local, positions, targets, index, sol.stats["num_steps"], sol.result == optx.RESULTS.successful
+    )
+
+
+def pose_fit(params, local, positions, targets, index, steps, converged) -> PoseFit:
+    """The PoseFit of fitted parameters, their local similitudes and skinned positions, with the errors at the
+    targeted vertices ``index``."""
     dist = jnp.linalg.norm(positions[index] - targets, axis=-1)
     return PoseFit(
         params=params,
@@ -219,8 +290,8 @@ def fit_pose(
         positions=positions,
         max_error=jnp.max(dist),
         rms_error=jnp.sqrt(jnp.mean(dist**2)),
-        steps=sol.stats["num_steps"],
-        converged=sol.result == optx.RESULTS.successful,
+        steps=steps,
+        converged=converged,
     )
 
 

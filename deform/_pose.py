@@ -57,12 +57,26 @@ def skin_pose(
         method: one of ``METHODS``."""
     check_choice("method", method, METHODS)
     mesh = model.mesh
+    joint_bones = jnp.asarray(mesh.joints, jnp.int32)
+    return skin_local(model.skeleton.parents, joint_bones, mesh.inverse_bind, mesh.V, mesh.J, mesh.W, local, method)
+
+
+def skin_local(parents, joint_bones, inverse_bind, V, J, W, local, method: str):
+    """``skin_pose`` from the rig as arrays (``joint_transforms``' and ``skin_with_joints``' arguments): local
+    versors are turned into matrices for the matrix methods and back. Shared with the packed fits
+    (``deform.fit_packed``)."""
+    local = local_for_method(local, method)
+    return skin_with_joints(V, J, W, joint_transforms(parents, joint_bones, inverse_bind, local), method)
+
+
+def local_for_method(local, method: str):
+    """Local transforms in the form ``method`` skins with: versors for the multivector methods, matrices for the
+    matrix methods."""
     if isinstance(local, Multivector) and method not in ("cga", "cga_motor_blend"):
-        local = cga.versor_to_matrix(local)
-    elif not isinstance(local, Multivector) and method in ("cga", "cga_motor_blend"):
-        local = cga.matrix_to_similitude(jnp.asarray(local))
-    joints = joint_transforms(model.skeleton.parents, jnp.asarray(mesh.joints, jnp.int32), mesh.inverse_bind, local)
-    return skin_with_joints(mesh.V, mesh.J, mesh.W, joints, method)
+        return cga.versor_to_matrix(local)
+    if not isinstance(local, Multivector) and method in ("cga", "cga_motor_blend"):
+        return cga.matrix_to_similitude(jnp.asarray(local))
+    return local
 
 
 def joint_transforms(parents, joint_bones, inverse_bind, local):
