@@ -477,7 +477,9 @@ def skin_joint_tables(rigs: PackedRigs, joints, method: str):
 def _skin_blocks(rigs: PackedRigs, times, clip, method: str, interpolation: str):
     # one block after the other (lax.map), not vmapped: a block axis on the per-vertex pass (size one on every
     # device of a mesh) made XLA:CPU's skinning loops slower
-    return jax.lax.map(lambda args: _skin_block(*args, method, interpolation), (rigs, times, clip))
+    return jax.lax.map(
+        lambda block: _skin_block(block[0], block[1], block[2], method, interpolation), (rigs, times, clip)
+    )
 
 
 def _block_layout(packed: PackedModels, per_model: np.ndarray, fill) -> np.ndarray:
