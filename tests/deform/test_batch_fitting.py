@@ -38,6 +38,7 @@ def _assert_equal_fits(models, fits, targets, vertices, **options):
         np.testing.assert_allclose(fit.rms_error, alone.rms_error, atol=1e-8 * diagonal)
 
 
+@pytest.mark.slow  # three solver compilations (the packed solve and one fit_pose per model): ~80 s of CPU
 def test_fit_packed_equals_fit_pose_of_each_model_with_padded_targets_bones_and_influences():
     # "lbs" compiles the solver in a third of the time of "cga"; the slow test below fits real models with "cga".
     # Model 0: 5 bones, 4 influences, 7 targets (padded to the 20 of model 1, masked out of the residual);
@@ -88,18 +89,16 @@ def test_fit_packed_refuses_bad_input_naming_the_argument():
         deform.fit_packed(packed, targets, max_steps=0)
 
 
-@pytest.mark.slow  # real models with "cga": a minute or more of solver compilation per distinct model size
+@pytest.mark.slow  # real models with "cga": minutes of solver compilation (one per distinct model size)
 def test_fit_packed_equals_fit_pose_on_real_models():
-    models = [deform.load_model(DATA / f"{name}.glb") for name in ("CesiumMan", "RiggedSimple", "Arm5")]
+    # fit_pose's own slow test (tests/deform/test_models.py) recovers such poses of Arm5 from all its vertices;
+    # every model's targets are padded to the largest target count (CesiumMan's would make it four CesiumMan fits)
+    models = [deform.load_model(DATA / f"{name}.glb") for name in ("RiggedSimple", "Arm5")]
     models.append(random_model(2, parents=(-1, 0, 0, 1, 2, 3, 3), n=300, influences=3))
     targets = [_targets(model, seed) for seed, model in enumerate(models)]
-    # Arm5 from a handful of its vertices, regularized; the others from all of them
-    vertices = [None, None, jnp.arange(0, models[2].mesh.num_vertices, 97), None]
-    targets[2] = targets[2][vertices[2]]
+    vertices = [None] * len(models)
     packed = deform.pack_models(models, blocks=2)
-    options: dict[str, Any] = dict(method="cga", regularization=1e-8)
-    fits = deform.fit_packed(packed, targets, vertices, **options)
-    _assert_equal_fits(models, fits, targets, vertices, **options)
-    for model, fit, index in zip(models, fits, vertices, strict=True):
-        if index is None:  # all vertices targeted: the fit reaches them
-            assert float(fit.max_error) <= 1e-6 * bounding_diagonal(deform.rest_pose(model, "lbs"))
+    fits = deform.fit_packed(packed, targets)
+    _assert_equal_fits(models, fits, targets, vertices)
+    for model, fit in zip(models, fits, strict=True):
+        assert float(fit.max_error) <= 1e-6 * bounding_diagonal(deform.rest_pose(model, "lbs"))
