@@ -161,7 +161,8 @@ def fit_packed(
     atol: float = 1e-12,
 ) -> list[PoseFit]:
     """``fit_pose`` for every model of a packed batch at once, each to its own targets: one jit, ``jax.vmap`` over
-    the models of one optimistix solve. Each fit equals ``fit_pose`` of its model alone to the solver's tolerance.
+    the models of one optimistix solve. Each well-determined fit equals ``fit_pose`` of its model alone to the
+    solver's tolerance; with flat directions (few targets, a tiny regularization) the two may stop apart.
 
     Args:
         packed: the PackedModels (``pack_models``; one process).
