@@ -1,5 +1,6 @@
 """Helpers shared by the test packages: a flat grid mesh, a closed tube mesh, a finite-difference gradient check,
-the comparison of two runs of one computation (bitwise on the CPU), and the skip of a test that needs the host
+the comparison of two runs of one computation (bitwise on the CPU), a script run on forced host devices, and the
+skip of a test that needs the host
 (conftest.py)."""
 
 from __future__ import annotations
@@ -58,3 +59,26 @@ def host_skip_reason(marker, backend: str) -> str | None:
     if len(marker.args) != 1 or not isinstance(marker.args[0], str) or not marker.args[0].strip():
         raise ValueError(f"@pytest.mark.host: expected one reason, got {marker.args!r}")
     return None if backend == "cpu" else f"needs the host ({backend} backend): {marker.args[0]}"
+
+
+def run_on_host_devices(script: str, devices: int = 4, timeout: int = 600) -> str:
+    """Run a Python ``script`` (dedented) from the repository root in a fresh process with ``devices`` forced CPU
+    host devices (XLA_FLAGS must be set before JAX starts), and return its stdout; a failure shows its stderr."""
+    import os
+    import subprocess
+    import sys
+    import textwrap
+    from pathlib import Path
+
+    env = dict(os.environ, XLA_FLAGS=f"--xla_force_host_platform_device_count={devices}", JAX_PLATFORMS="cpu")
+    root = Path(__file__).resolve().parents[1]
+    done = subprocess.run(
+        [sys.executable, "-c", textwrap.dedent(script)],
+        env=env,
+        cwd=root,
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+    assert done.returncode == 0, done.stderr[-3000:]
+    return done.stdout

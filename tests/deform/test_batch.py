@@ -3,10 +3,6 @@ skinning it alone (deform.skin_model), padding, compile reuse, sharding over dev
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
-import textwrap
 from pathlib import Path
 
 import equinox as eqx
@@ -17,6 +13,7 @@ import pytest
 
 import deform
 from tests.deform._rigs import random_model, scaled_keys_model
+from tests.shared import run_on_host_devices
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 
@@ -202,7 +199,7 @@ def test_bad_input_names_the_argument(crowd):
 def test_sharded_over_models_and_time_equals_one_device(crowd, tmp_path):
     """The batch split over 4 forced host devices (blocks over "models", frames over "time") in a fresh process
     (XLA_FLAGS must be set first), against one device in this process."""
-    script = textwrap.dedent(f"""
+    script = f"""
         import jax, numpy as np
         jax.config.update("jax_enable_x64", True)
         import deform
@@ -219,13 +216,8 @@ def test_sharded_over_models_and_time_equals_one_device(crowd, tmp_path):
             for m, frames in enumerate(packed.unpack(out)):
                 np.save({str(tmp_path)!r} + f"/{{shape[0]}}_{{m}}.npy", frames)
         print("sharded ok")
-    """)
-    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=4", JAX_PLATFORMS="cpu")
-    root = Path(__file__).resolve().parents[2]
-    done = subprocess.run(
-        [sys.executable, "-c", script], env=env, cwd=root, capture_output=True, text=True, timeout=600
-    )
-    assert done.returncode == 0, done.stderr[-3000:]
+    """
+    assert "sharded ok" in run_on_host_devices(script)
     packed = deform.pack_models(crowd)
     times = packed.frame_times(8)
     expected = packed.unpack(deform.skin_packed(packed, times, "cga"))

@@ -5,10 +5,6 @@ file with numpy and scipy; Arm5 checks its bind positions; fits recover known ra
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
-import textwrap
 from pathlib import Path
 
 import jax
@@ -20,6 +16,7 @@ import deform
 import jaxcga as cga
 from tests.deform._gltf_reference import Reference
 from tests.deform._rigs import scaled_keys_model
+from tests.shared import run_on_host_devices
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 
@@ -186,7 +183,7 @@ def test_thousand_poses_of_cesium_man_in_one_jit_call(models, thousand_frames):
 def test_sharded_batch_equals_unsharded(thousand_frames, tmp_path):
     """1,000 CesiumMan poses split over 4 host devices (a fresh process: XLA_FLAGS must be set first),
     against the unsharded batch of this process."""
-    script = textwrap.dedent(f"""
+    script = f"""
         import jax, jax.numpy as jnp, numpy as np
         jax.config.update("jax_enable_x64", True)
         import deform
@@ -201,14 +198,9 @@ def test_sharded_batch_equals_unsharded(thousand_frames, tmp_path):
         odd = sharded_vmap(skin, times[:998])  # padded to a multiple of 4, then cut
         np.save({str(tmp_path / "odd.npy")!r}, np.asarray(odd))
         print("sharded ok")
-    """)
-    env = dict(os.environ, XLA_FLAGS="--xla_force_host_platform_device_count=4", JAX_PLATFORMS="cpu")
-    root = Path(__file__).resolve().parents[2]
-    done = subprocess.run(
-        [sys.executable, "-c", script], env=env, cwd=root, capture_output=True, text=True, timeout=600
-    )
-    assert done.returncode == 0, done.stderr[-3000:]
-    assert "sharded ok" in done.stdout
+    """
+    stdout = run_on_host_devices(script)
+    assert "sharded ok" in stdout
     _, plain = thousand_frames
     sharded, odd = (np.load(tmp_path / f"{name}.npy") for name in ("sharded", "odd"))
     for name in ("sharded", "odd"):
