@@ -1,7 +1,6 @@
 """Helpers shared by the test packages: a flat grid mesh, a closed tube mesh, a finite-difference gradient check,
 the comparison of two runs of one computation (bitwise on the CPU), a script run on forced host devices, and the
-skip of a test that needs the host
-(conftest.py)."""
+skip of a test that needs the host (conftest.py)."""
 
 from __future__ import annotations
 
