@@ -10,13 +10,17 @@ the same tolerances and steps):
   Jacobian is block diagonal, but the dense Levenberg-Marquardt step costs the cube of the total parameter count,
   and one damping and one stopping test serve all models).
 
-Warm figures are medians of calls after the first; cold ones are the first call after ``jax.clear_caches()``,
-compilation included. Ratios are the loop's time over the packed call's (> 1: the packed call is faster).
-``param_error`` figures are the largest parameter difference to the loop's fits (solver tolerance: equal fits).
+The fits run in float64 (``jax.enable_x64``, whatever the caller's setting): in float32 the tolerances are below
+the rounding noise, and ``fit_pose`` itself stops up to 1e-3 away (and twice the steps later) when its targets move
+by one ulp. Warm figures are medians of calls after the first; cold ones are the first call after
+``jax.clear_caches()``, compilation included. Ratios are the loop's time over the packed call's (> 1: the packed call
+is faster). ``param_error`` figures are the largest parameter difference to the loop's fits; their yardstick,
+``fit_pose_perturbed_param_error``, is how far ``fit_pose`` moves when the targets move by 1e-14 of themselves.
 """
 
 from __future__ import annotations
 
+import functools
 import statistics
 import sys
 import time
@@ -102,6 +106,16 @@ def _timed(fn, repeats: int) -> tuple[float, float, Any]:
     return cold, statistics.median(warm), out
 
 
+def _in_float64(fn):
+    @functools.wraps(fn)
+    def wrapped(*args, **kwargs):
+        with jax.enable_x64(True):
+            return fn(*args, **kwargs)
+
+    return wrapped
+
+
+@_in_float64
 def fit_figures(
     count: int = 8,
     targets_per_model: int = 200,
@@ -135,6 +149,9 @@ def fit_figures(
     packed_cold, packed_warm, fits = _timed(lambda: deform.fit_packed(packed, targets, vertices, **options), repeats)
     print(f"  fit_packed: {packed_warm:.4g} s warm, {packed_cold:.4g} s cold", flush=True)
     reference = [np.asarray(f.params) for f in alone]
+    perturbed = [
+        deform.fit_pose(m, t * (1 + 1e-14), v, **options) for m, t, v in zip(models, targets, vertices, strict=True)
+    ]
     figures = {
         "fit_loop_s": loop_warm,
         "fit_loop_cold_s": loop_cold,
@@ -143,11 +160,15 @@ def fit_figures(
         "fit_packed_param_error": max(
             float(np.abs(np.asarray(f.params) - r).max()) for f, r in zip(fits, reference, strict=True)
         ),
+        "fit_pose_perturbed_param_error": max(
+            float(np.abs(np.asarray(f.params) - r).max()) for f, r in zip(perturbed, reference, strict=True)
+        ),
         "fit_loop_steps_max": max(int(f.steps) for f in alone),
         "fit_packed_steps_max": max(int(f.steps) for f in fits),
     }
     units = {name: "s" for name in figures if name.endswith("_s")}
     units |= {"fit_packed_param_error": "rad / log-scale / model units", "fit_loop_steps_max": "steps"}
+    units["fit_pose_perturbed_param_error"] = units["fit_packed_param_error"]
     units["fit_packed_steps_max"] = "steps"
     ratios = {"fit_packed_vs_loop": loop_warm / packed_warm, "fit_packed_vs_loop_cold": loop_cold / packed_cold}
     if one_solve:
