@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import struct
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -51,6 +52,13 @@ class Sequence:
 def _glb_json(data: bytes, what: str) -> dict:
     import pygltflib
 
+    if len(data) < 12 or data[:4] != b"glTF":
+        raise ValueError(f"{what}: not a glTF binary (no glTF header)")
+    version, length = struct.unpack_from("<II", data, 4)
+    if version != 2:
+        raise ValueError(f"{what}: a glTF binary of version {version}; only version 2 is read")
+    if length > len(data):
+        raise ValueError(f"{what}: truncated: {len(data)} of the {length} bytes its header states")
     try:
         gltf = pygltflib.GLTF2.load_from_bytes(data)
     except Exception as error:  # noqa: BLE001 (pygltflib raises anything from struct.error to KeyError)
@@ -82,12 +90,13 @@ def _embedded_gltf(path: Path, what: str) -> tuple[dict, bytes]:
 def read_gltf(data: bytes | None, path: Path | None, name: str, what: str) -> Gltf:
     """A glTF from ``path`` (.glb or .gltf) or from glb ``data``, checked: readable, and at least one triangle mesh
     in its scene."""
+    what = f"{what}: {path}" if path is not None else what
     if data is None:
         assert path is not None
         try:
             data = path.read_bytes()
         except OSError as error:
-            raise ValueError(f"{what}: cannot read {path} ({error.strerror})") from None
+            raise ValueError(f"{what}: cannot read it ({error.strerror})") from None
         if path.suffix.lower() == ".gltf" and data[:4] != b"glTF":
             document, data = _embedded_gltf(path, what)
         else:
@@ -162,16 +171,17 @@ def _check_frames(frames: np.ndarray, F: np.ndarray, what: str, topology: str) -
         )
 
 
-def read_topology(mesh, n: int, what: str = "mesh") -> np.ndarray:
+def read_topology(mesh, n: int, frames: str, what: str = "mesh") -> np.ndarray:
     """The triangles F of ``mesh`` (a mesh file, or a (V, F) pair) for frames of ``n`` vertices: the file as it is,
-    or welded as the command line's ``deform``/``arap`` read it, whichever has ``n`` vertices."""
+    or welded as the command line's ``deform``/``arap`` read it, whichever has ``n`` vertices (those of the
+    ``frames``, named in messages)."""
     from _jaxcga_shared.meshfile import read_mesh_file
 
     if isinstance(mesh, (tuple, list)) and len(mesh) == 2:
         V = _positions(mesh[0], f"{what}[0]", frames=False)
         F = _faces(mesh[1], len(V), f"{what}[1]")
         if len(V) != n:
-            raise ValueError(f"{what}: {len(V)} vertices, but the frames have {n}")
+            raise ValueError(f"{what}: {len(V)} vertices, but the frames {frames} have {n}")
         return F
     if not isinstance(mesh, (str, os.PathLike)):
         raise ValueError(f"{what}: expected a mesh file or a (V, F) pair, got a {type(mesh).__name__}")
@@ -184,8 +194,8 @@ def read_topology(mesh, n: int, what: str = "mesh") -> np.ndarray:
             return F
         counts.append(len(V))
     raise ValueError(
-        f"{what}: {mesh} has {counts[0]} vertices ({counts[1]} welded), but the frames have {n}; give the mesh the "
-        "frames were computed on"
+        f"{what}: {mesh} has {counts[0]} vertices ({counts[1]} welded), but the frames {frames} have {n}; give the "
+        "mesh the frames were computed on"
     )
 
 
@@ -203,12 +213,15 @@ def read_npy(paths: list[Path], mesh, what: str) -> Sequence:
             frames.append(_positions(array, f"{what}: {path}", frames=False)[None])
     if len({f.shape[1] for f in frames}) > 1:
         raise ValueError(f"{what}: the frames {[str(p) for p in paths]} have different vertex counts")
+    source = ", ".join(str(p) for p in paths)
     if mesh is None:
-        raise ValueError(f"{what}: .npy frames hold positions only; give the mesh they belong to (mesh= / --mesh)")
+        raise ValueError(
+            f"{what}: {source}: .npy frames hold positions only; give the mesh they belong to (mesh= / --mesh)"
+        )
     stacked = np.concatenate(frames)
-    F = read_topology(mesh, stacked.shape[1])
+    F = read_topology(mesh, stacked.shape[1], source)
     name = paths[0].name if len(paths) == 1 else f"{paths[0].name} .. {paths[-1].name}"
-    return Sequence(name, ", ".join(str(p) for p in paths), [(F, stacked)])
+    return Sequence(name, source, [(F, stacked)])
 
 
 def vtu_files(path: Path, what: str) -> list[Path]:

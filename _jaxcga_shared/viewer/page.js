@@ -201,23 +201,42 @@
     const sequences = items.filter((it) => it instanceof Sequence);
     const gltfs = items.filter((it) => it instanceof Gltf);
 
-    // side by side along x, each by its bounding box at time 0
+    // the box an input sweeps: a sequence's over all frames; a glTF's over its rest pose and samples of its clips
+    function sweptBox(it) {
+      if (it instanceof Sequence) {
+        const c = new THREE.Vector3(...it.center);
+        const h = new THREE.Vector3(...it.desc.half);
+        return new THREE.Box3(c.clone().sub(h), c.clone().add(h));
+      }
+      const box = new THREE.Box3();
+      for (const name of [undefined, ...it.clips.map((c) => c.name)]) {
+        it.setClip(name);
+        for (let s = 0; s <= (name === undefined ? 0 : 16); s++) {
+          it.setTime((it.duration * s) / 16);
+          it.object.updateMatrixWorld(true);
+          box.union(new THREE.Box3().setFromObject(it.object, true));
+        }
+      }
+      it.setClip(undefined);
+      return box;
+    }
+
+    // side by side along x, each by the box it sweeps, so that no two overlap while they move
     const slots = [];
-    let cursor = 0;
-    const gap = 0.1 * Math.max(...items.map((it) => {
-      const size = new THREE.Box3().setFromObject(it.object, true).getSize(new THREE.Vector3());
+    const boxes = items.map(sweptBox);
+    const gap = 0.1 * Math.max(...boxes.map((b) => {
+      const size = b.getSize(new THREE.Vector3());
       return Math.max(size.x, size.y, size.z);
     }));
-    for (const it of items) {
+    let cursor = 0;
+    items.forEach((it, k) => {
       const slot = new THREE.Group();
       slot.add(it.object);
       scene.add(slot);
-      slot.updateMatrixWorld(true);
-      const box = new THREE.Box3().setFromObject(it.object, true);
-      slot.position.x = cursor - box.min.x;
-      cursor += box.max.x - box.min.x + gap;
+      slot.position.x = cursor - boxes[k].min.x;
+      cursor += boxes[k].max.x - boxes[k].min.x + gap;
       slots.push(slot);
-    }
+    });
     scene.updateMatrixWorld(true);
 
     // clips: by name across the glTFs; sequences only: one clip "frames"
@@ -350,7 +369,7 @@
     let home = null;
     state.resetView = () => {
       const box = new THREE.Box3();
-      for (const slot of slots) box.expandByObject(slot, true);
+      boxes.forEach((b, k) => box.union(b.clone().translate(slots[k].position)));
       const center = box.getCenter(new THREE.Vector3());
       const size = box.getSize(new THREE.Vector3());
       const radius = Math.max(size.length() / 2, 1e-6);
