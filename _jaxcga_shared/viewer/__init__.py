@@ -34,6 +34,12 @@ The page's state, for tests and scripts, is ``window.jaxcgaViewer``::
     playing, speed, loop, sequenceFps
     fps                              rendered frames per second over the last second
     rendered                         frames rendered since the page loaded
+    frameChanges                     times the sequence frame shown (``frame``) changed since the page loaded
+    decodeMs, loadMs                 milliseconds to read the embedded data (the config parsed, the blocks
+                                     decoded, the geometries and glTF scenes built), and from the page's start
+                                     (navigation) to ready
+    updateMs                         milliseconds the last time step took on the page's thread (the glTF
+                                     mixers, the sequences' positions decoded and interpolated), drawing excluded
     setTime(t), play(), pause(), setClip(i), setSpeed(s), setLoop(b), setWireframe(b), showSkeleton(b),
     showWeights(joint | null)        a joint name or index into the skin's joints; vertex colours blue (0) to
                                      red (1); returns the number of vertices with a weight > 0 on it

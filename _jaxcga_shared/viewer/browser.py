@@ -1,9 +1,10 @@
 """Viewer pages in headless Chromium, for the browser tests (tests/viewer) and benchmarks/bench_viewer.py: Debian's
 ``chromium`` and ``chromium-driver`` driven by selenium (a dev dependency), never anything downloaded.
 
-Headless Chromium has no GPU here: WebGL runs on SwiftShader, the software renderer, which needs
-``--use-angle=swiftshader --enable-unsafe-swiftshader`` (without them, recent Chromium gives no WebGL context and the
-page reports "three.js: Error creating WebGL context")."""
+Headless Chromium has no GPU here: WebGL runs on SwiftShader, the software renderer. ``--use-angle=swiftshader
+--enable-unsafe-swiftshader`` ask for it explicitly: Debian's Chromium 150 still falls back to it without them,
+but Chromium is phasing out that automatic fallback for WebGL, after which a page without them would get no
+WebGL context (and report it)."""
 
 from __future__ import annotations
 
@@ -27,7 +28,8 @@ FLAGS = (
 )
 # what a test or a script reads of window.jaxcgaViewer (its functions left out)
 STATE = (
-    "ready errors meshes clips clip duration time frame interpolation playing speed loop sequenceFps fps rendered joint"
+    "ready errors meshes clips clip duration time frame interpolation playing speed loop sequenceFps fps rendered "
+    "frameChanges updateMs decodeMs loadMs joint"
 ).split()
 
 

@@ -5,6 +5,7 @@
   const state = window.jaxcgaViewer;
   const fail = window.jaxcgaFail;
   try {
+    const started = performance.now();
     const THREE = window.THREE;
     if (!THREE || !THREE.WebGLRenderer) throw new Error('three.js did not load');
     const config = JSON.parse(document.getElementById('jaxcga-config').textContent);
@@ -198,6 +199,7 @@
       const desc = config.items[k];
       items.push(desc.kind === 'gltf' ? await new Gltf().load(desc) : new Sequence(desc, k));
     }
+    state.decodeMs = performance.now() - started;
     const sequences = items.filter((it) => it instanceof Sequence);
     const gltfs = items.filter((it) => it instanceof Gltf);
 
@@ -288,7 +290,7 @@
     const sequenceColours = [];
     Object.assign(state, {
       clip: -1, duration: 0, time: 0, frame: -1, playing: false, speed: 1, loop: true, sequenceFps,
-      interpolation: 'linear', fps: 0, rendered: 0, joint: null,
+      interpolation: 'linear', fps: 0, rendered: 0, frameChanges: 0, updateMs: 0, joint: null,
     });
 
     function refreshClock() {
@@ -301,14 +303,18 @@
     }
 
     function applyTime(t) {
+      const start = performance.now();
       state.time = t;
       for (const it of items) {
         // an input shorter than the span played stays at its end, or starts again when looping
         const d = it.duration || 0;
         it.setTime(t <= d ? t : (state.loop && d > 0 ? t % d : d));
       }
-      state.frame = sequences.length ? sequences[0].frame : -1;
+      const frame = sequences.length ? sequences[0].frame : -1;
+      if (frame !== state.frame) state.frameChanges++;
+      state.frame = frame;
       scene.updateMatrixWorld(true);
+      state.updateMs = performance.now() - start;
       refreshClock();
     }
 
@@ -361,7 +367,8 @@
         throw new Error(`showWeights: no skin has the joint ${JSON.stringify(joint)}`);
       }
       state.joint = joint === undefined ? null : joint;
-      document.getElementById('joint').value = typeof joint === 'string' ? joint : (typeof joint === 'number' ? jointNames[joint] || '' : '');
+      const first = skinnedMeshes.length ? skinnedMeshes[0].skeleton.bones[joint] : undefined;
+      document.getElementById('joint').value = typeof joint === 'string' ? joint : (first ? first.name : '');
       render();
       return touched;
     };
@@ -474,6 +481,7 @@
     state.resetView();
     if (config.joint !== null) state.showWeights(config.joint);
     render();
+    state.loadMs = performance.now();
     state.ready = true;
     state.playing = state.duration > 0;
     refreshClock();
