@@ -79,8 +79,10 @@ def _embedded_gltf(path: Path, what: str) -> tuple[dict, bytes]:
 
     try:
         gltf = pygltflib.GLTF2().load_json(str(path))
-        gltf.convert_buffers(pygltflib.BufferFormat.DATAURI)
-        gltf.convert_images(pygltflib.ImageFormat.DATAURI, path=str(path.parent))
+        with warnings.catch_warnings():  # "the .bin file is left orphaned": it is left as it is, unused
+            warnings.simplefilter("ignore", UserWarning)
+            gltf.convert_buffers(pygltflib.BufferFormat.DATAURI)
+            gltf.convert_images(pygltflib.ImageFormat.DATAURI, path=str(path.parent))
         text = gltf.gltf_to_json()
     except Exception as error:  # noqa: BLE001 (a malformed file fails anywhere inside pygltflib)
         raise ValueError(f"{what}: not a readable glTF file ({type(error).__name__}: {error})") from None

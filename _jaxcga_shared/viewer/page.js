@@ -480,7 +480,6 @@
     describeMeshes();
     state.resetView();
     if (config.joint !== null) state.showWeights(config.joint);
-    render();
     state.loadMs = performance.now();
     state.ready = true;
     state.playing = state.duration > 0;

@@ -71,6 +71,20 @@ def test_a_skinned_gltf_plays_as_deform_skins_it(browser, tmp_path, name):
     assert _drawn_fraction(browser) > 0.01
 
 
+def test_a_gltf_with_its_bin_is_embedded(browser, tmp_path):
+    """A .gltf with an external .bin (as ``deform.save_model`` writes it) is embedded whole: the page needs no
+    file beside it."""
+    model = deform.load_model(DATA / "RiggedSimple.glb")
+    deform.save_model(model, tmp_path / "simple.gltf")
+    page = jaxcga.view(tmp_path / "simple.gltf")
+    (tmp_path / "simple.bin").unlink()
+    state = _show(browser, page, tmp_path)
+    _compare_counts(state, page)
+    skin = jax.jit(lambda t: deform.skin_model(model, t, method="lbs"))
+    diag = bounding_diagonal(model.mesh.V)
+    np.testing.assert_allclose(browser.positions(0, 1.3), np.asarray(skin(1.3)), rtol=0, atol=1e-4 * diag)
+
+
 def test_a_rigged_model_is_shown_through_its_glb(browser, tmp_path):
     """``jaxcga.view(model)`` of a RiggedModel in memory (``to_glb``): deform's writer, three.js's reader."""
     model = deform.default_arm()
@@ -285,3 +299,27 @@ def test_a_corrupted_sequence_page_shows_its_error(browser, tmp_path):
     expected = len(frames) * len(V) * 6
     assert re.search(rf"data block 1 holds \d+ bytes, expected {expected}", " ".join(state["errors"])), state
     assert browser.driver.find_element("id", "errors").is_displayed()
+
+
+@pytest.mark.slow
+def test_the_outputs_of_skin_fem_and_xfem_are_shown(browser, tmp_path):
+    """What the command line writes, shown as written: ``skin``'s .npy with the model as its mesh, ``fem``'s tet
+    frames and ``xfem``'s piece surfaces."""
+    from jaxcga_cli.main import main
+
+    model = DATA / "CesiumMan.glb"
+    assert main(["skin", str(model), "--time", "0.5", "--out", str(tmp_path / "posed.npy")]) == 0
+    assert main(["fem", "bar", "--steps", "4", "--every", "2", "--no-figures", "--out", str(tmp_path / "fem")]) == 0
+    xfem_run = tmp_path / "xfem"
+    assert main(["xfem", "cheese", "--size", "small", "--steps", "3", "--no-figures", "--out", str(xfem_run)]) == 0
+    posed = np.load(tmp_path / "posed.npy")
+    page = jaxcga.view(tmp_path / "posed.npy", tmp_path / "fem", xfem_run, mesh=model)
+    state = _show(browser, page, tmp_path)
+    _compare_counts(state, page)
+    assert [m["kind"] for m in state["meshes"]] == ["static", "sequence", "sequence"]
+    np.testing.assert_allclose(browser.positions(0, 0.0), posed, rtol=0, atol=1e-4 * bounding_diagonal(posed))
+    fem_frames = sorted((tmp_path / "fem").glob("frame_*.vtu"))
+    last = meshio.read(fem_frames[-1]).points
+    t = (len(fem_frames) - 1) / 30.0
+    np.testing.assert_allclose(browser.positions(1, t), last, rtol=0, atol=1e-4 * bounding_diagonal(last))
+    assert _drawn_fraction(browser) > 0.01
