@@ -239,8 +239,8 @@ def _template(name: str) -> str:
 def page(
     items: list[Gltf | Sequence],
     *,
-    joint=None,
-    clip=None,
+    joint: str | int | None = None,
+    clip: str | int | None = None,
     fps: float = 30.0,
     title: str | None = None,
     encoding: str = "int16",
@@ -315,7 +315,14 @@ def page(
     return View(text, title, tuple(meshes), clips)
 
 
-def view(*inputs, mesh=None, joint=None, clip=None, fps: float = 30.0, title: str | None = None) -> View:
+def view(
+    *inputs,
+    mesh: str | os.PathLike | tuple | None = None,
+    joint: str | int | None = None,
+    clip: str | int | None = None,
+    fps: float = 30.0,
+    title: str | None = None,
+) -> View:
     """A viewer page of ``inputs``, side by side (module docstring).
 
     Args:

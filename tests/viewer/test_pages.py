@@ -323,3 +323,24 @@ def test_the_outputs_of_skin_fem_and_xfem_are_shown(browser, tmp_path):
     t = (len(fem_frames) - 1) / 30.0
     np.testing.assert_allclose(browser.positions(1, t), last, rtol=0, atol=1e-4 * bounding_diagonal(last))
     assert _drawn_fraction(browser) > 0.01
+
+
+def test_the_notebook_form_renders_in_its_sandboxed_iframe(browser, tmp_path):
+    """``_repr_html_`` (what Jupyter shows): the same page in an iframe that may run scripts and nothing else;
+    a textured glTF (its image decoded from the embedded data) loads there too."""
+    page = jaxcga.view(DATA / "CesiumMan.glb")
+    host = tmp_path / "notebook.html"
+    host.write_text(f"<!DOCTYPE html><html><body><p>a notebook cell</p>{page._repr_html_()}</body></html>")
+    browser.driver.get(host.as_uri())
+    browser.driver.switch_to.frame(browser.driver.find_element("tag name", "iframe"))
+    try:
+        deadline = time.monotonic() + 60
+        state = browser.state()
+        while not (state["ready"] or state["errors"]) and time.monotonic() < deadline:
+            time.sleep(0.05)
+            state = browser.state()
+        assert state["ready"] and state["errors"] == [], state["errors"]
+        assert state["meshes"][0]["vertexCount"] == page.meshes[0]["vertexCount"]
+        assert browser.call("return document.querySelector('canvas').height;") > 100
+    finally:
+        browser.driver.switch_to.default_content()
