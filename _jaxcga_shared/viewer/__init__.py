@@ -26,7 +26,7 @@ The page's state, for tests and scripts, is ``window.jaxcgaViewer``::
                                      "sequence" or "static"; offset: its x/y/z shift in the side-by-side layout;
                                      counts from three.js's geometry (a sequence's: at the current frame)
     clips: [{name, duration}]        the glTF clips by name (the same name plays in every input that has it), or
-                                     one clip "frames" when there are only sequences
+                                     one clip "frames" when the only motion is sequences
     clip, duration, time, frame      the clip index, the time span played (the longest of the clip and the
                                      sequences), the current time (s) and the frame of the first sequence at it
                                      (floor(time * sequenceFps), -1 without sequences)
@@ -84,8 +84,9 @@ IFRAME_HEIGHT = 540
 @dataclass(frozen=True)
 class View:
     """A viewer page: ``html`` (one self-contained HTML file), with what was embedded (``meshes``: one
-    ``{name, kind, vertexCount, triangleCount, source}`` per input; ``clips``: ``{name, duration}``, the durations
-    that the files state) for checks. Renders inline in Jupyter (``_repr_html_``) and saves with ``save``."""
+    ``{name, kind, vertexCount, triangleCount, source}`` per input; ``clips``: the glTF clips, ``{name,
+    duration}``, with the durations that the files state) for checks. Renders inline in Jupyter
+    (``_repr_html_``) and saves with ``save``."""
 
     html: str
     title: str

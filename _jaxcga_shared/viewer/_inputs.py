@@ -18,6 +18,7 @@ GLTF_SUFFIXES = (".glb", ".gltf")
 SEQUENCE_SUFFIXES = (".npy", ".vtu")
 _TRIANGLES = 4  # glTF primitive mode
 _FRAME_FILE = re.compile(r"frame_(\d+)\.vtu")
+_UNDECODED = {"KHR_draco_mesh_compression", "EXT_meshopt_compression", "KHR_texture_basisu"}
 
 
 @dataclass
@@ -105,6 +106,10 @@ def read_gltf(data: bytes | None, path: Path | None, name: str, what: str) -> Gl
             document = _glb_json(data, what)
     else:
         document = _glb_json(data, what)
+    # three.js's loader decodes these only with decoders the page does not carry
+    undecoded = sorted(set(document.get("extensionsRequired", [])) & _UNDECODED)
+    if undecoded:
+        raise ValueError(f"{what}: needs {', '.join(undecoded)}, which the viewer does not decode")
     nodes = document.get("nodes", [])
     meshes = document.get("meshes", [])
     accessors = document.get("accessors", [])

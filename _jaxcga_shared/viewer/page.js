@@ -29,6 +29,7 @@
       } catch (error) {
         throw new Error(`${what}: data block ${index} is not valid base64 (${error.message})`);
       }
+      element.remove();  // its text is as large as the data: keep only the decoded bytes
       if (expected !== null && bytes.length !== expected) {
         throw new Error(`${what}: data block ${index} holds ${bytes.length} bytes, expected ${expected}`);
       }
@@ -250,7 +251,7 @@
         name,
         duration: Math.max(...gltfs.map((g) => (g.clips.find((c) => c.name === name) || { duration: 0 }).duration)),
       }))
-      : (sequences.length ? [{ name: 'frames', duration: sequenceDuration }] : []);
+      : (sequenceDuration > 0 ? [{ name: 'frames', duration: sequenceDuration }] : []);
 
     // skeletons and joint weights
     const skeletonHelpers = gltfs.filter((g) => g.skinned).map((g) => {

@@ -126,8 +126,11 @@ def _bad_inputs(tmp_path):
     (tmp_path / "empty").mkdir()
     lines = tmp_path / "lines.gltf"
     lines.write_text(json.dumps({"asset": {"version": "2.0"}, "meshes": [{"primitives": [{"attributes": {}}]}]}))
+    draco = tmp_path / "draco.gltf"
+    draco.write_text(json.dumps({"asset": {"version": "2.0"}, "extensionsRequired": ["KHR_draco_mesh_compression"]}))
     return [
         ((_truncated(tmp_path),), {}, "truncated.glb: truncated: 5000 of the"),
+        ((draco,), {}, "draco.gltf: needs KHR_draco_mesh_compression, which the viewer does not decode"),
         ((tmp_path / "junk.glb",), {}, "junk.glb: a glTF binary of version"),
         ((tmp_path / "text.gltf",), {}, "text.gltf: not a readable glTF"),
         ((lines,), {}, "lines.gltf: holds no triangle mesh"),
