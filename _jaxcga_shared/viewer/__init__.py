@@ -28,8 +28,8 @@ The page's state, for tests and scripts, is ``window.jaxcgaViewer``::
     clips: [{name, duration}]        the glTF clips by name (the same name plays in every input that has it), or
                                      one clip "frames" when the only motion is sequences
     clip, duration, time, frame      the clip index, the time span played (the longest of the clip and the
-                                     sequences), the current time (s) and the frame of the first sequence at it
-                                     (floor(time * sequenceFps), -1 without sequences)
+                                     sequences; a shorter one holds its end), the current time (s) and the frame
+                                     of the first sequence at it (floor(time * sequenceFps), -1 without one)
     interpolation: "linear"          between the frames of a sequence
     playing, speed, loop, sequenceFps
     fps                              rendered frames per second over the last second

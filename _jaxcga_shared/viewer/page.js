@@ -306,11 +306,8 @@
     function applyTime(t) {
       const start = performance.now();
       state.time = t;
-      for (const it of items) {
-        // an input shorter than the span played stays at its end, or starts again when looping
-        const d = it.duration || 0;
-        it.setTime(t <= d ? t : (state.loop && d > 0 ? t % d : d));
-      }
+      // an input shorter than the span played holds its end until all start again together
+      for (const it of items) it.setTime(Math.min(t, it.duration || 0));
       const frame = sequences.length ? sequences[0].frame : -1;
       if (frame !== state.frame) state.frameChanges++;
       state.frame = frame;
