@@ -112,8 +112,7 @@ class View:
         )
 
 
-def _quantize(frames: np.ndarray, lo: np.ndarray, half: np.ndarray) -> bytes:
-    center = (lo + (lo + 2 * half)) / 2
+def _quantize(frames: np.ndarray, center: np.ndarray, half: np.ndarray) -> bytes:
     q = np.rint((frames - center) / half * _QUANTUM)
     return np.clip(q, -_QUANTUM, _QUANTUM).astype("<i2").tobytes()
 
@@ -122,7 +121,8 @@ def _sequence_json(sequence: Sequence, blocks: list[bytes], encoding: str) -> di
     """The page's description of a sequence; its arrays appended to ``blocks`` (referenced by index)."""
     every = np.concatenate([frames.reshape(-1, 3) for _, frames in sequence.segments])
     lo, hi = every.min(axis=0), every.max(axis=0)
-    half = np.maximum((hi - lo) / 2, 1e-30 + 1e-12 * np.abs(hi - lo).max())
+    center = (lo + hi) / 2
+    half = np.maximum((hi - lo) / 2, 1e-30 + 1e-12 * np.abs(hi - lo).max())  # a flat axis: any nonzero scale
     segments = []
     for F, frames in sequence.segments:
         blocks.append(F.astype("<u4").tobytes())
@@ -130,14 +130,14 @@ def _sequence_json(sequence: Sequence, blocks: list[bytes], encoding: str) -> di
         if encoding == "json":  # the naive format, for the benchmark's baseline only
             segment["positions"] = frames.astype(np.float32).reshape(len(frames), -1).tolist()
         else:
-            blocks.append(_quantize(frames, lo, half))
+            blocks.append(_quantize(frames, center, half))
             segment["positions"] = len(blocks) - 1
         segments.append(segment)
     return {
         "kind": "sequence",
         "name": sequence.name,
         "source": sequence.source,
-        "center": ((lo + hi) / 2).tolist(),
+        "center": center.tolist(),
         "half": half.tolist(),
         "quantum": _QUANTUM,
         "segments": segments,
@@ -250,6 +250,8 @@ def page(
     instead of int16 blocks, the naive format, for benchmarks/bench_viewer.py's baseline only."""
     if not items:
         raise ValueError("inputs: nothing to show; give at least one input")
+    if encoding not in ("int16", "json"):
+        raise ValueError(f"encoding: expected 'int16' or 'json', got {encoding!r}")
     if not (isinstance(fps, (int, float, np.integer, np.floating)) and np.isfinite(fps) and fps > 0):
         raise ValueError(f"fps: expected a positive frame rate, got {fps!r}")
     gltfs = [item for item in items if isinstance(item, Gltf)]
@@ -297,7 +299,6 @@ def page(
         "sequenceFps": float(fps),
         "joint": joint,
         "clip": clip_index,
-        "meshes": meshes,
     }
     data_blocks = "\n".join(
         f'<script type="application/octet-stream" id="jaxcga-block-{k}">{base64.b64encode(b).decode("ascii")}</script>'
@@ -305,7 +306,7 @@ def page(
     )
     parts = {
         "TITLE": html.escape(title),
-        "CONFIG": json.dumps(config).replace("</", "<\\/"),
+        "CONFIG": json.dumps(config).replace("<", "\\u003c"),  # no "</script>" or "<!--" inside the script
         "BLOCKS": data_blocks,
         "THREE": _template("vendor/three.bundle.min.js"),
         "PAGE": _template("page.js"),

@@ -171,13 +171,6 @@ def _faces(F, n: int, what: str) -> np.ndarray:
     return F.astype(np.int64)
 
 
-def _check_frames(frames: np.ndarray, F: np.ndarray, what: str, topology: str) -> None:
-    if frames.shape[1] <= F.max():
-        raise ValueError(
-            f"{what}: frames of {frames.shape[1]} vertices do not match {topology} (indices up to {F.max()})"
-        )
-
-
 def read_topology(mesh, n: int, frames: str, what: str = "mesh") -> np.ndarray:
     """The triangles F of ``mesh`` (a mesh file, or a (V, F) pair) for frames of ``n`` vertices: the file as it is,
     or welded as the command line's ``deform``/``arap`` read it, whichever has ``n`` vertices (those of the
@@ -293,7 +286,6 @@ def read_arrays(item, name: str, what: str) -> Sequence:
     V = _positions(V, f"{what}[0]", frames=V.ndim == 3)
     frames = V if V.ndim == 3 else V[None]
     F = _faces(item[1], frames.shape[1], f"{what}[1]")
-    _check_frames(frames, F, what, "F")
     return Sequence(name, "arrays", [(F, frames)])
 
 
