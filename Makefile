@@ -45,6 +45,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/bench_fem.py --json out/bench/fem.json
 	$(PY) benchmarks/bench_xfem.py --json out/bench/xfem.json
 	$(PY) benchmarks/bench_batch.py --json out/bench/batch.json
+	$(PY) benchmarks/bench_viewer.py --json out/bench/viewer.json
 
 ## Benchmarks on a CUDA GPU: the GPU set at GPU sizes (1e7 points, 100k vertices, FEM 23k, XFEM accordion), names
 ## suffixed _gpu, JSON to out/bench-gpu/ and the issue 32 targets beside the figures (benchmarks/README.md).

@@ -213,6 +213,15 @@ class RiggedModel(eqx.Module):
             if any(not 0 <= c.bone < b for c in clip.channels):
                 raise ValueError(f"clips: clip {clip.name!r} animates a bone outside [0, {b})")
 
+    def to_glb(self) -> bytes:
+        """The model as a glTF binary (.glb), as ``deform.save_model`` writes it: for ``jaxcga.view(model)``
+        and anything else that takes glTF bytes."""
+        from deform._gltf import model_files
+
+        (data,) = model_files(self, "model.glb").values()
+        assert isinstance(data, bytes)
+        return data
+
     def clip(self, name: str | int = 0) -> AnimationClip:
         """The clip called ``name`` (or at that position).
 

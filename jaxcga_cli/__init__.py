@@ -2,8 +2,8 @@
 ``cutting``, ``xfem``), which it uses through their public APIs only.
 
 One module per subcommand (``demo``, ``skin``, ``animate``, ``fit``, ``cut``, ``tear``, ``drill``, ``deform``,
-``arap``, ``fem``, ``xfem``), run by ``main``; what they share: ``arguments`` (options and enumerations),
+``arap``, ``fem``, ``xfem``, ``view``), run by ``main``; what they share: ``arguments`` (options and enumerations),
 ``models`` (loading models and meshes, the bounding box, the motion and the ``--handles`` file of ``deform`` and
-``arap``), ``meshfile`` (reading mesh files), ``output`` (suffixes and the one writer chosen by suffix),
+``arap``), ``output`` (suffixes and the one writer chosen by suffix),
 ``figures`` (matplotlib, set up once) and ``report`` (status lines, progress bars, one-line errors on stderr).
 """

@@ -118,7 +118,7 @@ def scene_mesh(scene: str, fix_fraction: float = 0.02):
     import numpy as np
 
     import xfem
-    from jaxcga_cli.meshfile import read_mesh_file
+    from _jaxcga_shared.meshfile import read_mesh_file
 
     if scene == "bar":
         mesh = xfem.box_tets((16, 4, 4), size=(2.0, 0.5, 0.5))

@@ -25,6 +25,7 @@ COMMANDS = {
     "arap": "arap",
     "fem": "fem",
     "xfem": "xfem",
+    "view": "view",
 }
 DESCRIPTION = (
     "jaxcga: differentiable geometry and simulation in JAX on a conformal geometric algebra kernel: pose, "

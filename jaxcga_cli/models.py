@@ -38,7 +38,7 @@ def load_model(path: str | Path | None, weld: bool = False) -> deform.RiggedMode
 def load_mesh(path: str | Path | None, name: str = "mesh"):
     """(V, F) float64 / int64 of a mesh file (a glTF's bind-pose skinned mesh, welded; any other format by
     ``read_mesh_file``), or of the built-in arm's rest mesh when ``path`` is None; errors start with ``name``."""
-    from jaxcga_cli.meshfile import read_mesh_file
+    from _jaxcga_shared.meshfile import read_mesh_file
 
     if path is None:
         mesh = deform.default_arm().mesh

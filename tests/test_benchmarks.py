@@ -180,3 +180,18 @@ def test_bench_batch_quick_writes_the_published_names(tmp_path):
         assert result["ratios"]["sharded_4_vs_1"] > 0 and result["figures"]["sharded_4_warm_s"] > 0
         assert result["figures"]["padding_4_blocks"] >= 1.0
         assert result["figures"]["max_difference_sharded_4_vs_1"] < 1e-5
+
+
+@pytest.mark.slow
+def test_bench_viewer_quick_writes_the_published_names(tmp_path):
+    from _jaxcga_shared.viewer.browser import chromium_missing
+
+    missing = chromium_missing()
+    if missing:
+        pytest.skip(f"browser benchmark skipped: {missing}")
+    result = _quick("bench_viewer.py", tmp_path)
+    for name in ("viewer_fps_10k_20", "viewer_fps_paused_10k_20", "page_megabytes", "load_seconds", "json_fps_10k_10"):
+        assert result["figures"][name] > 0 and name in result["units"]
+    for name in ("load_vs_json", "megabytes_vs_json"):
+        assert result["ratios"][name] > 0 and name in result["units"]
+    assert result["ratios"]["megabytes_vs_json"] > 1  # int16 in base64 against numbers in text: smaller by design

@@ -121,7 +121,7 @@ def test_a_mesh_file_is_read_as_it_is(tmp_path):
     vertex and go on with another mesh)."""
     import warnings
 
-    from jaxcga_cli.meshfile import read_mesh_file
+    from _jaxcga_shared.meshfile import read_mesh_file
 
     mesh = trimesh.Trimesh(
         [[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [1, 1, 1]], [[0, 2, 1], [0, 1, 3], [1, 2, 4]], process=False
@@ -135,7 +135,7 @@ def test_a_mesh_file_is_read_as_it_is(tmp_path):
 
 
 def test_a_weld_or_dropped_faces_are_reported(tmp_path):
-    from jaxcga_cli.meshfile import read_mesh_file
+    from _jaxcga_shared.meshfile import read_mesh_file
 
     _tetrahedron().export(tmp_path / "tet.stl")  # an STL stores every corner apart: 12 vertices
     with pytest.warns(UserWarning, match=r"tet.stl: welded 12 vertices into 4 .* dropped 0 of 4 faces"):
@@ -160,7 +160,7 @@ def test_a_bad_obj_vertex_names_its_line(tmp_path, capsys, command, line):
 
 
 def test_a_non_finite_vertex_in_other_formats_names_its_index(tmp_path):
-    from jaxcga_cli.meshfile import read_mesh_file
+    from _jaxcga_shared.meshfile import read_mesh_file
 
     V = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, np.inf]])
     trimesh.Trimesh(V, [[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]], process=False).export(tmp_path / "inf.ply")

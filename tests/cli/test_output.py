@@ -44,6 +44,7 @@ COMMANDS = {
     "fem": ["fem", "bar", "--steps", "1", "--out", "OUT"],
     "xfem": ["xfem", "cheese", "--size", "small", "--steps", "1", "--out", "OUT"],
     "demo": ["demo", "--out", "OUT"],
+    "view": ["view", str(DATA / "RiggedSimple.glb"), "--out", "OUT.html"],
 }
 
 
@@ -240,7 +241,7 @@ def test_a_folder_in_the_way_is_one_line(tmp_path, capsys, no_work, command):
         (tmp_path / "out").write_text("a file")  # these write a folder: a file is in the way
         _fails_on_one_line(capsys, argv, "is a file; expected a folder")
         return
-    for suffix in (".glb", ".png", ".json"):
+    for suffix in (".glb", ".png", ".json", ".html"):
         (tmp_path / f"out{suffix}").mkdir()
     _fails_on_one_line(capsys, argv, "is a folder")
 

@@ -579,3 +579,9 @@ def test_a_non_finite_node_transform_is_named(tmp_path):
     path.write_text(json.dumps(doc))
     with pytest.raises(ValueError, match=r"node 1 \(a\): translation, rotation, scale must be finite, got \[nan, 1.0"):
         load_model(path)
+
+
+def test_to_glb_is_the_glb_save_model_writes(tmp_path):
+    model = load_model(DATA / "RiggedSimple.glb")
+    save_model(model, tmp_path / "model.glb")
+    assert model.to_glb() == (tmp_path / "model.glb").read_bytes()

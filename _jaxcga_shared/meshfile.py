@@ -1,4 +1,5 @@
-"""Reading triangle mesh files as they are, for the commands that take a mesh file (``deform``, ``arap``, ``fem``)."""
+"""Reading triangle mesh files as they are, for the commands that take a mesh file (``deform``, ``arap``, ``fem``)
+and the viewer's topology of a mesh sequence."""
 
 from __future__ import annotations
 
@@ -8,13 +9,14 @@ from pathlib import Path
 import numpy as np
 
 
-def read_mesh_file(path: str | Path, name: str = "mesh"):
+def read_mesh_file(path: str | Path, name: str = "mesh", weld: bool = True):
     """(V, F) float64 / int64 of a triangle mesh file that trimesh reads (.obj, .ply, .stl, .off, .glb, ...).
 
     The file is read as it is (trimesh's ``process=False``); a non-finite vertex raises, naming its line
     (OBJ) or its index. Vertices at the same position are then merged (an STL stores every corner apart,
     other formats split vertices along UV seams), faces left with two equal corners are dropped, and so
-    are vertices no face uses: whatever this changes is reported by a ``UserWarning``.
+    are vertices no face uses: whatever this changes is reported by a ``UserWarning``. ``weld=False`` returns the
+    file's vertices and faces as they are.
 
     Raises:
         FileNotFoundError: no such file. ValueError: a file trimesh cannot read, one without triangles,
@@ -37,6 +39,8 @@ def read_mesh_file(path: str | Path, name: str = "mesh"):
     V, F = np.asarray(loaded.vertices, np.float64), np.asarray(loaded.faces, np.int64)
     if V.ndim != 2 or V.shape[1] != 3 or not np.isfinite(V).all():
         raise ValueError(f"{name}: {path}: {_bad_vertex(path, V)}")
+    if not weld:
+        return V, F
     welded = trimesh.Trimesh(V, F, process=False)
     welded.merge_vertices()
     W, G = np.asarray(welded.vertices, np.float64), np.asarray(welded.faces, np.int64)
