@@ -1,5 +1,5 @@
 """``jaxcga demo``: the main job on the built-in default: a tour of the kernel, then the rigged arm skinned,
-animated, cut, torn, drilled and deformed, with figures."""
+animated, cut, torn, drilled and deformed, with figures and a page to open in a browser (``out/demo.html``)."""
 
 from __future__ import annotations
 
@@ -134,6 +134,17 @@ def cut_figure(arm, upper, lower, path: Path) -> Path:
     return figures.save_figure(fig, path, dpi=100, bbox_inches="tight")
 
 
+def viewer_page(out: Path, arm, halves) -> Path:
+    """Write ``out/demo.html``: the viewer (``jaxcga.view``) of the arm, the two halves of its cut (RiggedModels), and
+    the torn and drilled arms (``out/arm_torn.glb``, ``out/arm_drilled.glb``), side by side, all playing the arm's
+    clip (by its name: ``out/arm_animated.glb`` names its re-sampled clip apart)."""
+    import jaxcga as cga
+
+    inputs = [arm, *halves, out / "arm_torn.glb", out / "arm_drilled.glb"]
+    title = "jaxcga demo: the arm animated, cut, torn and drilled"
+    return cga.view(*inputs, title=title).save(out / "demo.html", force=True)
+
+
 def demo(out: Path, steps: int, figure: bool) -> None:
     """A short tour of the kernel: prints what it computes and saves figures into ``out``."""
     import time
@@ -212,6 +223,13 @@ def demo(out: Path, steps: int, figure: bool) -> None:
         f"Drill (Algorithm 3) of radius 15 mm into the forearm: {summary['hole_points']} points around the hole, "
         f"in {1e3 * (time.perf_counter() - start):.1f} ms with the file -> {summary['out']}"
     )
+
+    halves = [
+        deform.RiggedModel(half, arm.skeleton, arm.clips, name=f"arm_cut_{side}")
+        for half, side in ((upper, "upper"), (lower, "lower"))
+    ]
+    page = viewer_page(out, arm, halves)
+    print(f"Viewer: the animated arm, both halves of the cut, the torn and the drilled arm, playing -> {page}")
 
     V, F = load_mesh(None)
     print("\nMotor deformations (the deformation paper): the same 120 degree twist of a 4x4x4 lattice")
