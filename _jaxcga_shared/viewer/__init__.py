@@ -12,9 +12,10 @@ Inputs, side by side along x in the order given (each by its bounding box):
 * a mesh sequence: a .npy of frames (t, n, 3), or consecutive .npy files of (n, 3) (one frame each), with the
   triangles from ``mesh`` (a mesh file, or a (V, F) pair); a .vtu file or a folder of ``frame_XXXX.vtu`` (the runs
   of ``jaxcga fem``/``xfem``: triangles as they are, tetrahedra by their boundary faces); a (frames, F) pair of
-  arrays. Frames are stored as int16 positions quantized in one bounding box of all frames (error at most
-  diag / 131068), base64 in the page; between two frames the page interpolates linearly, and where the
-  triangles change (XFEM pieces breaking apart) it switches mesh at the frame. Drawn with flat shading;
+  arrays, or a list of (V, F) pairs, one per frame (its triangles may change). Frames are stored as int16
+  positions quantized in one bounding box of all frames (error at most diag / 131068), base64 in the page; between
+  two frames the page interpolates linearly, and where the triangles change (XFEM pieces breaking apart) it
+  switches mesh at the frame. Drawn with flat shading;
 * a static mesh: a (V, F) pair.
 
 The page's state, for tests and scripts, is ``window.jaxcgaViewer``::
@@ -219,8 +220,8 @@ def _read_inputs(inputs: tuple, mesh) -> list[Gltf | Sequence]:
             items.append(read_arrays(item, f"mesh {k}", what))
         else:
             raise ValueError(
-                f"{what}: cannot show a {type(item).__name__}; expected a path, a (V, F) or (frames, F) pair, or "
-                "an object with to_glb()"
+                f"{what}: cannot show a {type(item).__name__}; expected a path, a (V, F) or (frames, F) pair, a "
+                "list of (V, F) pairs, or an object with to_glb()"
             )
     flush()
     return items
@@ -329,8 +330,9 @@ def view(
 
     Args:
         inputs: paths (.glb, .gltf, .npy, .vtu, a folder of frame_XXXX.vtu), (V, F) or (frames, F) pairs of
-            numpy or JAX arrays (V (n, 3), frames (t, n, 3), F (m, 3) integers), objects with ``to_glb() ->
-            bytes`` (a ``deform.RiggedModel``).
+            numpy or JAX arrays (V (n, 3), frames (t, n, 3), F (m, 3) integers), lists of (V, F) pairs (one per
+            frame; the triangles may change between frames), objects with ``to_glb() -> bytes`` (a
+            ``deform.RiggedModel``).
         mesh: the triangles of .npy frames: a mesh file (.obj, .ply, .stl, .off, .glb, ...; as it is, or welded
             as ``jaxcga deform`` reads it, whichever has the frames' vertex count) or a (V, F) pair.
         joint: show the skin weights of this joint (name, or index into a skin's joints); None: the materials.

@@ -262,26 +262,47 @@ def _vtu_triangles(path: Path, what: str) -> tuple[np.ndarray, np.ndarray]:
     return points, _faces(np.concatenate(faces), len(points), f"{what}: {path}")
 
 
-def read_vtu(paths: list[Path], what: str) -> Sequence:
-    """One sequence from .vtu frames; consecutive frames with the same triangles share a segment."""
+def _segments(meshes) -> list[tuple[np.ndarray, np.ndarray]]:
+    """(F, frames) segments of consecutive (V, F) frames: frames with the same triangles share a segment."""
     segments: list[tuple[np.ndarray, list[np.ndarray]]] = []
-    for path in paths:
-        V, F = _vtu_triangles(path, what)
+    for V, F in meshes:
         last = segments[-1] if segments else None
         if last is not None and last[0].shape == F.shape and (last[0] == F).all() and len(last[1][0]) == len(V):
             last[1].append(V)
         else:
             segments.append((F, [V]))
+    return [(F, np.stack(frames)) for F, frames in segments]
+
+
+def read_vtu(paths: list[Path], what: str) -> Sequence:
+    """One sequence from .vtu frames; consecutive frames with the same triangles share a segment."""
     folder = paths[0].parent
     name = folder.name if len(paths) > 1 else paths[0].name
     source = str(folder) if len(paths) > 1 else str(paths[0])
-    return Sequence(name, source, [(F, np.stack(frames)) for F, frames in segments])
+    return Sequence(name, source, _segments(_vtu_triangles(path, what) for path in paths))
+
+
+def read_frame_meshes(item, name: str, what: str) -> Sequence:
+    """A sequence from a list of (V, F) pairs, one per frame, whose triangles may change (pieces breaking apart)."""
+    meshes = []
+    for k, pair in enumerate(item):
+        if not isinstance(pair, (tuple, list)) or len(pair) != 2:
+            raise ValueError(f"{what}[{k}]: expected a (V, F) pair, like the frames before it")
+        V = _positions(pair[0], f"{what}[{k}][0]", frames=False)
+        meshes.append((V, _faces(pair[1], len(V), f"{what}[{k}][1]")))
+    return Sequence(name, "arrays", _segments(meshes))
 
 
 def read_arrays(item, name: str, what: str) -> Sequence:
-    """A (V, F) pair (a static mesh) or (frames, F) pair (a sequence) of numpy or JAX arrays."""
+    """A (V, F) pair (a static mesh), a (frames, F) pair (a sequence of one topology) of numpy or JAX arrays, or a
+    list of (V, F) pairs (one per frame)."""
+    if len(item) and isinstance(item[0], (tuple, list)):
+        return read_frame_meshes(item, name, what)
     if len(item) != 2:
-        raise ValueError(f"{what}: expected a (V, F) or (frames, F) pair, got a sequence of {len(item)} items")
+        raise ValueError(
+            f"{what}: expected a (V, F) or (frames, F) pair, or a list of (V, F) pairs, got a sequence of "
+            f"{len(item)} items"
+        )
     V = np.asarray(item[0])
     V = _positions(V, f"{what}[0]", frames=V.ndim == 3)
     frames = V if V.ndim == 3 else V[None]

@@ -147,6 +147,8 @@ def _bad_inputs(tmp_path):
         (((V, F + 100),), {}, r"inputs\[0\]\[1\]: a triangle index outside \[0, 16\)"),
         (((V[:, :2], F),), {}, r"inputs\[0\]\[0\]: expected positions of shape \(n, 3\)"),
         ((object(),), {}, r"inputs\[0\]: cannot show a object"),
+        (([(V, F), V],), {}, r"inputs\[0\]\[1\]: expected a \(V, F\) pair, like the frames before it"),
+        (([(V, F), (V, F + 100)],), {}, r"inputs\[0\]\[1\]\[1\]: a triangle index outside \[0, 16\)"),
         ((DATA / "RiggedSimple.glb",), {"joint": "nobody"}, "joint: no joint called 'nobody'"),
         ((DATA / "RiggedSimple.glb",), {"joint": 7}, "joint: index 7 outside"),
         (((V, F),), {"joint": 0}, "joint: no input has a skin"),

@@ -221,6 +221,20 @@ def test_vtu_frames_of_tets_and_of_breaking_triangles(browser, tmp_path):
     assert _drawn_fraction(browser) > 0.01
 
 
+def test_a_list_of_meshes_plays_as_frames_whose_triangles_change(browser, tmp_path):
+    """``jaxcga.view([(V0, F0), (V1, F1), ...])``, as notebook 07 shows an XFEM run: one frame per pair, the
+    triangles switching where the pieces change."""
+    V, F = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], float), np.array([[0, 1, 2], [1, 3, 2]])
+    lifted = V + [0.0, 0.0, 0.5]
+    apart = np.concatenate([lifted[F[0]], lifted[F[1]] + [0.2, 0.2, 0]])  # three vertices each, apart
+    page = jaxcga.view([(V, F), (lifted, F), (apart, np.arange(6).reshape(2, 3))], fps=2.0)
+    state = _show(browser, page, tmp_path)
+    _compare_counts(state, page)
+    assert state["duration"] == 1.0 and state["meshes"][0]["kind"] == "sequence"  # three frames, 2 per second
+    np.testing.assert_allclose(browser.positions(0, 0.25), (V + lifted) / 2, rtol=0, atol=1e-4 * 2)
+    np.testing.assert_allclose(browser.positions(0, 1.0), apart, rtol=0, atol=1e-4 * 2)  # six vertices now
+
+
 def test_skin_weights_of_a_joint_and_the_skeleton(browser, tmp_path):
     model = deform.load_model(DATA / "CesiumMan.glb")
     j = 3
