@@ -376,13 +376,25 @@
       const box = new THREE.Box3();
       boxes.forEach((b, k) => box.union(b.clone().translate(slots[k].position)));
       const center = box.getCenter(new THREE.Vector3());
-      const size = box.getSize(new THREE.Vector3());
-      const radius = Math.max(size.length() / 2, 1e-6);
-      const distance = radius / Math.sin(THREE.MathUtils.degToRad(camera.fov / 2)) * Math.max(1, 1 / camera.aspect);
+      const radius = Math.max(box.getSize(new THREE.Vector3()).length() / 2, 1e-6);
+      // the nearest distance along the view direction at which every corner of the box is in the picture, with
+      // a margin: a row of models side by side fills the width instead of a sphere around it the height
+      const toward = new THREE.Vector3(0.35, 0.3, 1).normalize();
+      const right = new THREE.Vector3(0, 1, 0).cross(toward).normalize();
+      const up = toward.clone().cross(right);
+      const tanV = Math.tan(THREE.MathUtils.degToRad(camera.fov / 2));
+      const tanH = tanV * camera.aspect;
+      let distance = 1e-6;
+      for (const x of [box.min.x, box.max.x]) for (const y of [box.min.y, box.max.y]) for (const z of [box.min.z, box.max.z]) {
+        const corner = new THREE.Vector3(x, y, z).sub(center);
+        const depth = corner.dot(toward);
+        distance = Math.max(distance, depth + Math.abs(corner.dot(right)) / tanH, depth + Math.abs(corner.dot(up)) / tanV);
+      }
+      distance *= 1.1;
       if (!home) home = { center, distance, radius };
-      camera.near = home.distance / 100;
-      camera.far = home.distance * 100;
-      camera.position.copy(home.center).add(new THREE.Vector3(0.35, 0.3, 1).normalize().multiplyScalar(home.distance));
+      camera.near = Math.max(home.distance - home.radius, home.distance / 100) / 10;
+      camera.far = (home.distance + home.radius) * 10;
+      camera.position.copy(home.center).add(toward.multiplyScalar(home.distance));
       camera.updateProjectionMatrix();
       controls.target.copy(home.center);
       controls.update();
