@@ -358,3 +358,24 @@ def test_the_notebook_form_renders_in_its_sandboxed_iframe(browser, tmp_path):
         assert browser.call("return document.querySelector('canvas').height;") > 100
     finally:
         browser.driver.switch_to.default_content()
+
+
+@pytest.mark.slow  # the whole demo (compilations, cut, tear, drill): about a minute
+def test_the_demo_page_plays_the_arm_cut_torn_and_drilled(browser, tmp_path):
+    from jaxcga_cli.main import main
+
+    assert main(["demo", "--out", str(tmp_path), "--no-figure"]) == 0
+    state = browser.open(tmp_path / "demo.html")
+    assert state["errors"] == [] and state["ready"], state["errors"]
+    names = ["default_arm", "arm_cut_upper", "arm_cut_lower", "arm_torn.glb", "arm_drilled.glb"]
+    assert [m["name"] for m in state["meshes"]] == names and {m["kind"] for m in state["meshes"]} == {"skinned"}
+    assert [c["name"] for c in state["clips"]] == ["wave"] and state["playing"]
+    # every piece plays the arm's clip; the whole models equal deform's skinning of the files written
+    models = [deform.default_arm(), *(deform.load_model(tmp_path / name) for name in names[3:])]
+    diag = bounding_diagonal(models[0].mesh.V)
+    for index, model in zip((0, 3, 4), models, strict=True):
+        shown = browser.positions(index, 1.0)
+        np.testing.assert_allclose(shown, np.asarray(deform.skin_model(model, 1.0, "lbs")), rtol=0, atol=1e-4 * diag)
+    for index in range(len(names)):
+        assert np.abs(browser.positions(index, 1.0) - browser.positions(index, 0.0)).max() > 0.02 * diag
+    assert _drawn_fraction(browser) > 0.01
