@@ -82,6 +82,7 @@ def measure(browser: Browser, path: Path, seconds: float) -> dict:
         "page_fps": after["fps"],
         "frame_changes": (after["frameChanges"] - before["frameChanges"]) / elapsed,
         "megabytes": path.stat().st_size / 2**20,
+        "renderer": f"{state['renderer']} ({'multisampled' if state['antialias'] else 'no multisampling'})",
     }
 
 
@@ -114,6 +115,8 @@ def main():
             write = time.perf_counter() - start
             results[encoding, name] = measure(browser, path, seconds) | {"write": write}
             r = results[encoding, name]
+            if len(results) == 1:
+                print(f"WebGL renderer: {r['renderer']}")
             print(
                 f"{encoding:5s} {name}: {r['megabytes']:8.1f} MB (written in {write:.1f} s), loaded in "
                 f"{r['load']:.2f} s (data read in {r['decode']:.2f} s), {r['fps']:.1f} frames/s rendered while "

@@ -33,6 +33,8 @@ The page's state, for tests and scripts, is ``window.jaxcgaViewer``::
                                      of the first sequence at it (floor(time * sequenceFps), -1 without one)
     interpolation: "linear"          between the frames of a sequence
     playing, speed, loop, sequenceFps
+    renderer, antialias              the WebGL renderer's name (e.g. SwiftShader's in headless Chromium) and whether
+                                     the page multisamples (not on a software renderer)
     fps                              rendered frames per second over the last second
     rendered                         frames rendered since the page loaded
     frameChanges                     times the sequence frame shown (``frame``) changed since the page loaded

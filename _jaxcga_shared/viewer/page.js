@@ -36,9 +36,23 @@
       return bytes;
     }
 
+    function rendererName() {
+      const gl = document.createElement('canvas').getContext('webgl2');
+      if (!gl) return 'none';  // three.js reports the missing context when it asks for one
+      const info = gl.getExtension('WEBGL_debug_renderer_info');
+      const name = String(gl.getParameter(info ? info.UNMASKED_RENDERER_WEBGL : gl.RENDERER));
+      const lose = gl.getExtension('WEBGL_lose_context');
+      if (lose) lose.loseContext();
+      return name;
+    }
+
     // the scene
     const container = document.getElementById('view');
-    const renderer = new THREE.WebGLRenderer({ antialias: true, preserveDrawingBuffer: true });
+    // multisampling is nearly free on a GPU but costs a software renderer (SwiftShader, llvmpipe) over half its
+    // frame rate: ask for it only from a hardware one
+    state.renderer = rendererName();
+    state.antialias = !/swiftshader|llvmpipe|softpipe|software/i.test(state.renderer);
+    const renderer = new THREE.WebGLRenderer({ antialias: state.antialias, preserveDrawingBuffer: true });
     renderer.setPixelRatio(window.devicePixelRatio || 1);
     container.appendChild(renderer.domElement);
     const scene = new THREE.Scene();

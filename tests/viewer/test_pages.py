@@ -59,6 +59,7 @@ def test_a_skinned_gltf_plays_as_deform_skins_it(browser, tmp_path, name):
     assert [c["name"] for c in state["clips"]] == [c["name"] for c in page.clips]
     assert state["clips"][0]["duration"] == pytest.approx(duration, rel=1e-6)
     assert state["duration"] == pytest.approx(duration, rel=1e-6) and state["playing"]
+    assert state["renderer"] and state["antialias"] == ("SwiftShader" not in state["renderer"])
 
     skin = jax.jit(lambda t: deform.skin_model(model, t, method="lbs"))
     diag = bounding_diagonal(model.mesh.V)
