@@ -60,7 +60,7 @@ import html
 import json
 import os
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -91,7 +91,7 @@ class View:
     duration}``, with the durations that the files state) for checks. Renders inline in Jupyter
     (``_repr_html_``) and saves with ``save``."""
 
-    html: str
+    html: str = field(repr=False)  # megabytes: the repr (a notebook's text/plain output) names the contents only
     title: str
     meshes: tuple[dict, ...]
     clips: tuple[dict, ...]

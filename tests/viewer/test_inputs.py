@@ -85,6 +85,8 @@ def test_the_notebook_form_is_an_iframe_of_the_same_page():
     frame = page._repr_html_()
     source = re.fullmatch(r'<iframe srcdoc="([^"]*)" .*sandbox="allow-scripts"></iframe>', frame, re.S)
     assert source is not None and html.unescape(source.group(1)) == page.html
+    # a notebook also stores the text form: it names the contents, not the megabytes of the page
+    assert repr(page).startswith("View(title=") and len(repr(page)) < 500
 
 
 def test_a_rigged_model_and_arrays_are_inputs():
