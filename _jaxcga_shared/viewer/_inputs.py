@@ -262,8 +262,23 @@ def _vtu_triangles(path: Path, what: str) -> tuple[np.ndarray, np.ndarray]:
     return points, _faces(np.concatenate(faces), len(points), f"{what}: {path}")
 
 
+def _welded(F: np.ndarray, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The segment with the vertices that coincide in every frame merged, in the order they first appear: XFEM
+    writes each triangle with its own three vertices, six times the data the page needs."""
+    t, n, _ = frames.shape
+    _, first, inverse = np.unique(frames.transpose(1, 0, 2).reshape(n, 3 * t), axis=0, return_index=True,
+                                  return_inverse=True)  # fmt: skip
+    if len(first) == n:
+        return F, frames
+    order = np.argsort(first)
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    return rank[inverse.ravel()][F], frames[:, first[order]]
+
+
 def _segments(meshes) -> list[tuple[np.ndarray, np.ndarray]]:
-    """(F, frames) segments of consecutive (V, F) frames: frames with the same triangles share a segment."""
+    """(F, frames) segments of consecutive (V, F) frames: frames with the same triangles share a segment, whose
+    vertices that coincide in all its frames are merged (``_welded``)."""
     segments: list[tuple[np.ndarray, list[np.ndarray]]] = []
     for V, F in meshes:
         last = segments[-1] if segments else None
@@ -271,7 +286,7 @@ def _segments(meshes) -> list[tuple[np.ndarray, np.ndarray]]:
             last[1].append(V)
         else:
             segments.append((F, [V]))
-    return [(F, np.stack(frames)) for F, frames in segments]
+    return [_welded(F, np.stack(frames)) for F, frames in segments]
 
 
 def read_vtu(paths: list[Path], what: str) -> Sequence:

@@ -224,13 +224,17 @@ def test_vtu_frames_of_tets_and_of_breaking_triangles(browser, tmp_path):
 
 def test_a_list_of_meshes_plays_as_frames_whose_triangles_change(browser, tmp_path):
     """``jaxcga.view([(V0, F0), (V1, F1), ...])``, as notebook 07 shows an XFEM run: one frame per pair, the
-    triangles switching where the pieces change."""
+    triangles switching where the pieces change; each triangle given with its own three vertices (as XFEM writes
+    them), the vertices that coincide in every frame of a topology are drawn once."""
     V, F = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], float), np.array([[0, 1, 2], [1, 3, 2]])
     lifted = V + [0.0, 0.0, 0.5]
     apart = np.concatenate([lifted[F[0]], lifted[F[1]] + [0.2, 0.2, 0]])  # three vertices each, apart
-    page = jaxcga.view([(V, F), (lifted, F), (apart, np.arange(6).reshape(2, 3))], fps=2.0)
+    own = np.arange(6).reshape(2, 3)
+    # (the last frame's triangles are listed from another corner: a new topology, whose corners do not coincide)
+    page = jaxcga.view([(V[F].reshape(6, 3), own), (lifted[F].reshape(6, 3), own), (apart, own[:, [1, 2, 0]])], fps=2.0)
     state = _show(browser, page, tmp_path)
     _compare_counts(state, page)
+    assert state["meshes"][0]["vertexCount"] == 4  # the shared edge's two corners merged
     assert state["duration"] == 1.0 and state["meshes"][0]["kind"] == "sequence"  # three frames, 2 per second
     np.testing.assert_allclose(browser.positions(0, 0.25), (V + lifted) / 2, rtol=0, atol=1e-4 * 2)
     np.testing.assert_allclose(browser.positions(0, 1.0), apart, rtol=0, atol=1e-4 * 2)  # six vertices now
