@@ -12,7 +12,8 @@ Inputs, side by side along x in the order given (each by its bounding box):
 * a mesh sequence: a .npy of frames (t, n, 3), or consecutive .npy files of (n, 3) (one frame each), with the
   triangles from ``mesh`` (a mesh file, or a (V, F) pair); a .vtu file or a folder of ``frame_XXXX.vtu`` (the runs
   of ``jaxcga fem``/``xfem``: triangles as they are, tetrahedra by their boundary faces); a (frames, F) pair of
-  arrays, or a list of (V, F) pairs, one per frame (its triangles may change). Frames are stored as int16
+  arrays, or a list of (V, F) pairs, one per frame (its triangles may change; in .vtu frames and such lists, the
+  vertices that coincide in every frame of one topology are merged). Frames are stored as int16
   positions quantized in one bounding box of all frames (error at most diag / 131068), base64 in the page; between
   two frames the page interpolates linearly, and where the triangles change (XFEM pieces breaking apart) it
   switches mesh at the frame. Drawn with flat shading;
