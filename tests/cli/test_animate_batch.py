@@ -29,6 +29,7 @@ def _outputs(folder: Path) -> dict[str, np.ndarray]:
     return {p.name: np.load(p) for p in sorted(folder.glob("*.npy"))}
 
 
+@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
 def test_one_process_writes_each_models_frames_as_skin_model_gives_them(tmp_path):
     out = tmp_path / "batch"
     argv = ["animate-batch", *MODELS, "--frames", "3", "--method", "dqs", "--out", str(out)]
@@ -160,6 +161,7 @@ def _two_processes_against_one(
         )
 
 
+@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
 def test_two_processes_write_exactly_what_one_process_with_their_devices_writes(tmp_path):
     _two_processes_against_one(tmp_path, MODELS, 1, [])
 

@@ -29,6 +29,7 @@ def tube(tmp_path_factory):
     return path, np.asarray(loaded.vertices), np.asarray(loaded.faces, np.int64)
 
 
+@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
 @pytest.mark.parametrize("energy", [None, "spokes"])
 def test_handles_file_gives_arap_solves_result(tube, tmp_path, capsys, energy):
     """The default energy is spokes and rims; --energy spokes gives the paper's."""

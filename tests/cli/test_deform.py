@@ -50,6 +50,7 @@ def test_every_method_turns_the_far_end_by_the_bend_and_keeps_the_near_end(tube,
     assert np.abs(X - V).max() > 1.0
 
 
+@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
 def test_figure_mesh_and_positional_outputs(tube, tmp_path):
     path, V, F = tube
     png = tmp_path / "ffd.png"

@@ -12,6 +12,7 @@ import pytest
 from jaxcga_cli.main import main
 
 
+@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
 def test_cheese_writes_frames_surfaces_and_a_summary(tmp_path, capsys):
     out = tmp_path / "cheese"
     assert main(["xfem", "cheese", "--size", "small", "--steps", "4", "--every", "4", "--out", str(out)]) == 0

@@ -197,6 +197,7 @@ def test_drill_in_a_pose_reproduces_the_hole_when_posed_again(method):
     assert np.all(np.isfinite(np.asarray(later)))
 
 
+@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
 def test_new_vertex_positions_are_differentiable_in_the_drill():
     mesh = MODELS["3Cylinder4bones"].mesh
     V, F = np.asarray(mesh.V), np.asarray(mesh.F)

@@ -48,6 +48,7 @@ def test_weights_are_the_harmonic_fields_and_identity_motors_give_the_rest_mesh(
     np.testing.assert_allclose(motor_field_solve(FIELD, identity_motors(3)), V, atol=1e-14)
 
 
+@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
 @pytest.mark.parametrize("laplacian", ["cotangent", "mean_value"])
 def test_handle_vertices_move_rigidly_by_their_motor(laplacian):
     field = handles_precompute(V, F, HANDLES, laplacian=laplacian)

@@ -85,6 +85,7 @@ def test_uniform_velocity_moves_a_free_body_rigidly():
     np.testing.assert_allclose(state.v, v, atol=1e-10)
 
 
+@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
 def test_gravity_accelerates_the_centre_of_mass_by_g():
     system, mass, Xs = _two_cubes(GRAVITY)
     x, v = _deformed(Xs, 1)  # deformed, random velocities: large elastic forces, all internal
@@ -148,6 +149,7 @@ def _static_deflection():
     return x[X[:, 0] == 2.0, 2].mean() - 0.5
 
 
+@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
 def test_cantilever_stays_finite_loses_energy_and_settles():
     M = np.kron(consistent_mass(X, np.asarray(BAR.T), 1e3).toarray(), np.eye(3))
     grads, volumes = shape_gradients(BAR.X, BAR.T)

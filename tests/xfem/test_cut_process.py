@@ -139,6 +139,7 @@ def test_cut_that_removes_material():
     background.close()
 
 
+@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
 def test_large_systems_are_padded_by_the_model(monkeypatch):
     """Above ``_SENT_SYSTEM_BYTES`` the worker sends the system arrays only, and the model pads them itself."""
     monkeypatch.setattr(xfem._background, "_SENT_SYSTEM_BYTES", 0)
@@ -208,6 +209,7 @@ def test_worker_errors_come_back_and_disagreement_is_caught():
     assert isinstance(error, RuntimeError) and "Local: x" in str(error)
 
 
+@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
 def test_worker_ends_with_its_background_cuts():
     remote, _ = _models()
     background = BackgroundCuts(remote)
@@ -309,6 +311,7 @@ def _thread_affinities() -> dict[int, frozenset]:
 @pytest.mark.skipif(
     not hasattr(os, "sched_getaffinity") or not os.path.isdir("/proc/self/task"), reason="needs Linux's CPU affinity"
 )
+@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
 def test_background_cuts_leave_the_process_settings_alone():
     """A background cut changes nothing process-wide in the user's process: its CPU affinity and every thread's,
     its priority, the interpreter's switch interval and the environment stay as they were; the worker process

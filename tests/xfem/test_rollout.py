@@ -36,6 +36,7 @@ def _loss(trajectory):
     return jnp.sum(WEIGHTS * trajectory.x) + 0.5 * jnp.sum(trajectory.v[-1] ** 2)
 
 
+@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
 def test_rollout_equals_a_loop_of_steps():
     forces = jnp.asarray(RNG.normal(size=(3,) + X.shape))
     targets = _moving(3)

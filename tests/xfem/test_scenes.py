@@ -74,6 +74,7 @@ def test_sticks_end_as_36_pieces(runs):
     assert run.records[0].pieces == 6  # the 5 vertical cuts of frame 1 give 6 slabs
 
 
+@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
 def test_accordion_release_adds_a_piece(runs):
     run = runs("accordion")
     release = run.scene.cuts[-1].frame
@@ -87,6 +88,7 @@ def test_accordion_release_adds_a_piece(runs):
     assert v[label != held].mean() < v[label == held].mean()
 
 
+@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
 def test_cheese_gets_several_subdomains_per_node(runs):
     run = runs("cheese")
     sub = run.model.sub
@@ -95,6 +97,7 @@ def test_cheese_gets_several_subdomains_per_node(runs):
     assert len(sub.element_subdomains(0)) == run.model.pieces()  # one element, every piece in it
 
 
+@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
 @pytest.mark.parametrize("name", ["sticks", "cheese", "thin", "accordion"])
 def test_mass_is_rho_times_material_volume(runs, name):
     """The pieces' exact masses (eq. 13, 21) sum to rho |body minus cuts|. Both sides are sums of float64

@@ -83,6 +83,7 @@ def test_gradients_across_the_cut_match_central_differences():
     np.testing.assert_allclose(grad[2], central(2, 1.0, 1e-4), rtol=1e-5)
 
 
+@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
 def test_a_second_call_reuses_the_cuts_and_bad_input():
     model = _model()
     first = simulate(model, schedule := [(1, CUT)], MATERIAL, H, 2)
@@ -117,6 +118,7 @@ def _plane(height, theta):
     )
 
 
+@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
 def test_plane_cuts_equal_the_solid_cuts():
     """A notch (a solid) at frame 1 and a tilted slab at frame 2 as ``plane_cuts``: every frame equals the schedule
     of both solids (``plane_cut_solid`` at the same plane) cut by the model; the model is left uncut."""

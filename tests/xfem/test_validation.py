@@ -150,6 +150,7 @@ def test_paper_step_settles_at_the_static_equilibrium():
     assert np.abs(np.asarray(final.x) - static).max() < 1e-3 * np.abs(static - X).max()
 
 
+@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
 def test_free_vibration_loses_energy_monotonically_and_stays_finite():
     """The clamped bar swinging freely (no gravity) from its rest shape with a bending velocity (1 m/s at the
     tip, amplitude ~0.2 m): over 1,000 of the paper's steps positions and velocities stay finite, the total

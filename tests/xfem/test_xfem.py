@@ -195,6 +195,7 @@ def test_cuts_within_a_capacity_level_reuse_the_compiled_step(caplog):
         np.testing.assert_allclose(model.state.x, expected.x, rtol=0, atol=1e-12)
 
 
+@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
 def test_background_cut_takes_effect_at_commit():
     """``BackgroundCuts.submit`` prepares a cut in the worker process while the model steps its old system;
     ``commit`` makes it take effect with the state of that moment: the same model as ``cut`` called then (to the
