@@ -54,6 +54,7 @@ def test_handles_file_gives_arap_solves_result(tube, tmp_path, capsys, energy):
     np.testing.assert_allclose(X, expected, atol=1e-10)
 
 
+@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
 def test_the_handles_file_of_deform_moves_arap_handles_by_their_motors(tube, tmp_path):
     """One --handles format for deform and arap: each group of vertices moved by its motor (a rotation about an
     axis through a centre, then a translation), here against scipy's rotation of the same vertices."""

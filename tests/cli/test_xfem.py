@@ -53,6 +53,7 @@ def test_cheese_writes_frames_surfaces_and_a_summary(tmp_path, capsys):
     assert 0 < summary["max_displacement"] < 0.1
 
 
+@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
 def test_no_figures_writes_surfaces_only(tmp_path):
     out = tmp_path / "plain"
     assert main(["xfem", "cheese", "--size", "small", "--steps", "1", "--no-figures", "--out", str(out)]) == 0

@@ -284,6 +284,7 @@ def test_projected_hessian_derivative(tets):
     assert np.all(np.abs(tangent - fd) <= 1e-6 * np.abs(fd).max((1, 2), keepdims=True))
 
 
+@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
 def test_per_element_parameters_and_float32(tets):
     grads, vol, X = tets
     rng = np.random.default_rng(11)

@@ -179,6 +179,7 @@ def _violent_start(seed=0):
     return State(jnp.asarray(x), jnp.asarray(v)), inverted
 
 
+@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
 def test_paper_step_survives_a_violent_start():
     """The paper's step (one Newton iteration) from ``_violent_start`` over 1,000 steps: the total energy must
     stay finite and never exceed its initial value (a backward Euler step dissipates). Before the fix it did
@@ -192,6 +193,7 @@ def test_paper_step_survives_a_violent_start():
     assert np.all(np.isfinite(energies)) and energies.max() <= energies[0]
 
 
+@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
 def test_converged_step_tames_a_violent_start():
     """Backward Euler itself (converged Newton, h = 0.033) from the same violent start (32 of 144 tets
     inverted): the total energy falls at every one of 10 steps (measured 5.9e6 J to 2.6e3 J, bounded by 1e-3 of
