@@ -133,6 +133,7 @@ def test_bad_output_and_iterations(tube, tmp_path, capsys):
         assert message in capsys.readouterr().err
 
 
+@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
 def test_one_rigid_motion_of_every_handle_gives_that_motion_on_arm5(tmp_path):
     """Issue 30's probe: `jaxcga arap` on Arm5 (welded on load) with both ends moved by one rigid motion returns
     that rigid map (the default energy and start) after 50 iterations."""

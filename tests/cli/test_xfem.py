@@ -60,6 +60,7 @@ def test_no_figures_writes_surfaces_only(tmp_path):
     assert sorted(p.name for p in out.iterdir()) == ["frame_0000.vtu", "frame_0001.vtu", "summary.json"]
 
 
+@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
 def test_cut_latency_defers_cuts(tmp_path):
     """--cut-latency 2: the cuts of frames 1 and 2 are computed in the background and take effect in frames 3 and
     4; every frame is written, showing the cuts that have taken effect (frames 1 and 2: the uncut body)."""
