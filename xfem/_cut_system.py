@@ -42,6 +42,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from _jaxcga_shared.checks import check_finite, check_vectors, require
 from _jaxcga_shared.host import to_devices
+from _jaxcga_shared.mesh import TET_FACES
 from xfem._assembly import scalar_slots
 from xfem._backward_euler import FEMSystem, State
 from xfem._cuts import _positive, plane_cut_solid
@@ -51,7 +52,7 @@ from xfem._integration import (
     triangle_moment_terms,
 )
 from xfem._subdomains import CutReport, check_cut, solid_mesh
-from xfem._tetmesh import TET_FACES, tet_volumes
+from xfem._tetmesh import tet_volumes
 from xfem._xfem import XFEMModel, xfem_model
 
 # a replayed piece's volume must equal the Boolean piece's to this fraction of its tet's volume

@@ -66,12 +66,12 @@ from jaxtyping import Float, Int
 
 import jaxcga as cga
 from _jaxcga_shared.checks import check_choice
+from _jaxcga_shared.mesh import TET_FACES
 from xfem._background import BackgroundCuts
 from xfem._cuts import cut_solid, plane_cut_solid, sweep_between, swept_surface
 from xfem._integration import linear_shape_coefficients
 from xfem._material import Material
 from xfem._tetmesh import (
-    TET_FACES,
     TetMesh,
     box_tets,
     element_adjacency,

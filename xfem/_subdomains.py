@@ -50,7 +50,8 @@ import numpy as np
 from jaxtyping import Float, Int
 from scipy.spatial.transform import Rotation
 
-from xfem._tetmesh import TET_FACES, TetMesh, node_rings
+from _jaxcga_shared.mesh import TET_FACES
+from xfem._tetmesh import TetMesh, node_rings
 
 # pieces and volume changes below this fraction of a subdomain's volume are rounding, not material
 _RELATIVE_VOLUME = 1e-12

@@ -31,13 +31,10 @@ from jaxtyping import Array, ArrayLike, Float, Int
 
 from _jaxcga_shared.checks import check_index_range, check_points, check_triangle_mesh, require
 from _jaxcga_shared.host import quiet_stdout
+from _jaxcga_shared.mesh import tet_boundary_faces, tet_face_matching
 
 # a tet is degenerate when |6 V| <= this times the cube of its longest edge (a regular tet has 0.707)
 _DEGENERATE = 1e-12
-
-# the face opposite local vertex a, ordered so that its normal (right-hand rule) points out of a
-# positively oriented tet
-TET_FACES = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]])
 
 
 class TetMesh(eqx.Module):
@@ -334,22 +331,8 @@ def read_tet_mesh(path: str | os.PathLike) -> TetMesh:
 
 
 def _face_matching(T):
-    """The outward faces (m, 4, 3) of the tets (face a opposite local vertex a), the index of each face's
-    vertex set among the distinct ones (4m,) and the number of tets using each distinct face."""
-    T = _host_tets(T)
-    faces = T[:, TET_FACES]
-    keys = np.sort(faces.reshape(-1, 3), axis=1)
-    n = int(T.max()) + 1 if T.size else 0
-    if n < 2**21:  # one int64 per face: a 1-D unique is ~10x faster than unique(axis=0)
-        keys = (keys[:, 0] * n + keys[:, 1]) * n + keys[:, 2]
-    _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
-    if len(counts) and counts.max() > 2:
-        f = int(np.argmax(counts[inverse] > 2))
-        raise ValueError(
-            f"T: face {faces.reshape(-1, 3)[f].tolist()} is shared by {counts[inverse[f]]} "
-            "tetrahedra, expected at most 2 (a non-manifold mesh)"
-        )
-    return faces, inverse.reshape(-1), counts
+    """``tet_face_matching`` of the checked tets T."""
+    return tet_face_matching(_host_tets(T))
 
 
 def boundary_faces(T: Int[npt.ArrayLike, "m 4"]) -> Int[np.ndarray, "k 3"]:
@@ -362,8 +345,7 @@ def boundary_faces(T: Int[npt.ArrayLike, "m 4"]) -> Int[np.ndarray, "k 3"]:
         (k, 3) int64 numpy triangles, in the order of ``np.nonzero(element_adjacency(T) < 0)`` (by tet, then
         by the local vertex the face is opposite to).
     """
-    faces, inverse, counts = _face_matching(T)
-    return faces.reshape(-1, 3)[counts[inverse] == 1]
+    return tet_boundary_faces(_host_tets(T))
 
 
 def element_adjacency(T: Int[npt.ArrayLike, "m 4"]) -> Int[np.ndarray, "m 4"]:

@@ -14,6 +14,8 @@ from pathlib import Path
 
 import numpy as np
 
+from _jaxcga_shared.mesh import tet_boundary_faces
+
 GLTF_SUFFIXES = (".glb", ".gltf")
 SEQUENCE_SUFFIXES = (".npy", ".vtu")
 _TRIANGLES = 4  # glTF primitive mode
@@ -251,12 +253,10 @@ def _vtu_triangles(path: Path, what: str) -> tuple[np.ndarray, np.ndarray]:
         if block.type == "triangle":
             faces.append(block.data)
         elif block.type == "tetra":
-            T = np.asarray(block.data)
-            # each tet's four faces, ordered so that their normals point out of a positively oriented tet
-            all_faces = np.concatenate([T[:, [0, 2, 1]], T[:, [0, 1, 3]], T[:, [1, 2, 3]], T[:, [0, 3, 2]]])
-            key = np.sort(all_faces, axis=1)
-            _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-            faces.append(all_faces[counts[inverse.ravel()] == 1])
+            try:
+                faces.append(tet_boundary_faces(np.asarray(block.data, np.int64)))
+            except ValueError as error:
+                raise ValueError(f"{what}: {path}: {error}") from None
     if not faces or not sum(len(f) for f in faces):
         raise ValueError(f"{what}: {path} holds no triangles or tetrahedra to show")
     return points, _faces(np.concatenate(faces), len(points), f"{what}: {path}")

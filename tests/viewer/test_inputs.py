@@ -126,6 +126,8 @@ def _bad_inputs(tmp_path):
     np.save(tmp_path / "other.npy", np.zeros((7, 3)))
     meshio.write(tmp_path / "points.vtu", meshio.Mesh(V, [("vertex", np.arange(len(V))[:, None])]))
     (tmp_path / "empty").mkdir()
+    fan = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [0, 0, -1], [1, 1, 1]], float)
+    meshio.write(tmp_path / "fan.vtu", meshio.Mesh(fan, [("tetra", [[0, 1, 2, 3], [0, 1, 2, 4], [0, 1, 2, 5]])]))
     lines = tmp_path / "lines.gltf"
     lines.write_text(json.dumps({"asset": {"version": "2.0"}, "meshes": [{"primitives": [{"attributes": {}}]}]}))
     draco = tmp_path / "draco.gltf"
@@ -145,6 +147,7 @@ def _bad_inputs(tmp_path):
         ((tmp_path / "frames.npy",), {"mesh": DATA / "RiggedSimple.glb"}, "RiggedSimple.glb has 160 vertices"),
         ((tmp_path / "points.vtu",), {}, "points.vtu holds no triangles or tetrahedra"),
         ((tmp_path / "empty",), {}, "holds no frame_XXXX.vtu"),
+        ((tmp_path / "fan.vtu",), {}, r"fan.vtu: T: face .* is shared by 3 tetrahedra"),
         (((V, F[:, :2]),), {}, r"inputs\[0\]\[1\]: expected integer triangles of shape \(m, 3\)"),
         (((V, F + 100),), {}, r"inputs\[0\]\[1\]: a triangle index outside \[0, 16\)"),
         (((V[:, :2], F),), {}, r"inputs\[0\]\[0\]: expected positions of shape \(n, 3\)"),
