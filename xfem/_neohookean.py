@@ -79,6 +79,9 @@ from jaxtyping import Array, ArrayLike, Float
 from _jaxcga_shared.checks import require
 from xfem._jacobi3 import eigh3, svd3
 
+# float32 products in full precision: a GPU's default (TF32, 10-bit mantissas) put the Hessians 4% off
+EXACT = jax.lax.Precision.HIGHEST
+
 _LEVI_CIVITA = np.zeros((3, 3, 3))
 for _i, _j, _k in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
     _LEVI_CIVITA[_i, _j, _k], _LEVI_CIVITA[_i, _k, _j] = 1.0, -1.0
@@ -158,7 +161,7 @@ def _dpdf(F, mu_s, lam_s):
     f = F.reshape(*F.shape[:-2], 9)
     g = cof.reshape(*F.shape[:-2], 9)
     eps = jnp.asarray(_LEVI_CIVITA, F.dtype)
-    hess_det = jnp.einsum("ikm,jln,...mn->...ijkl", eps, eps, F).reshape(*F.shape[:-2], 9, 9)
+    hess_det = jnp.einsum("ikm,jln,...mn->...ijkl", eps, eps, F, precision=EXACT).reshape(*F.shape[:-2], 9, 9)
     c = mu_s * (1 - 1 / (ic + 1))
     d = 2 * mu_s / (ic + 1) ** 2
     b = lam_s * (J - 1) - 0.75 * mu_s  # lam' (J - alpha)
@@ -194,7 +197,7 @@ def _eigensystem(F, mu_s, lam_s):
     Ut = U.swapaxes(-1, -2)
     uv = Ut[..., :, None, :, None] * Vt[..., None, :, None, :]
     r = 1 / math.sqrt(2.0)
-    modes = [jnp.einsum("...i,...iiab->...ab", q[..., :, n], uv) for n in range(3)]
+    modes = [jnp.einsum("...i,...iiab->...ab", q[..., :, n], uv, precision=EXACT) for n in range(3)]
     values = [lam_scaling[..., n] for n in range(3)]
     for i, j, k in _PAIRS:
         modes += [r * (uv[..., i, j, :, :] - uv[..., j, i, :, :]), r * (uv[..., i, j, :, :] + uv[..., j, i, :, :])]
@@ -205,17 +208,19 @@ def _eigensystem(F, mu_s, lam_s):
 def _sandwich(grads, stiffness, volumes):
     """Element Hessians ``vol B^T A B`` (m, 12, 12) of stiffnesses A = dP/dF (m, 9, 9), B = dvec(F)/dx."""
     A = stiffness.reshape(-1, 3, 3, 3, 3)
-    left = jnp.einsum("maj,mkjln->makln", grads, A)
-    return (volumes[:, None, None, None, None] * jnp.einsum("makln,mbn->makbl", left, grads)).reshape(-1, 12, 12)
+    left = jnp.einsum("maj,mkjln->makln", grads, A, precision=EXACT)
+    return (volumes[:, None, None, None, None] * jnp.einsum("makln,mbn->makbl", left, grads, precision=EXACT)).reshape(
+        -1, 12, 12
+    )
 
 
 @jax.custom_jvp
 def _projected_hessian(F, grads, volumes, mu_s, lam_s):
     """``vol B^T (dP/dF)_+ B`` (m, 12, 12), summed mode by mode: ``B^T vec(M) = vec(grads M^T)``."""
     values, modes = _eigensystem(F, mu_s, lam_s)
-    w = jnp.einsum("mnkj,maj->mnak", modes, grads).reshape(*modes.shape[:2], 12)
+    w = jnp.einsum("mnkj,maj->mnak", modes, grads, precision=EXACT).reshape(*modes.shape[:2], 12)
     weight = volumes[:, None] * jnp.maximum(values, 0)
-    return jnp.einsum("mn,mni,mnj->mij", weight, w, w)
+    return jnp.einsum("mn,mni,mnj->mij", weight, w, w, precision=EXACT)
 
 
 @_projected_hessian.defjvp
@@ -234,8 +239,14 @@ def _projected_hessian_jvp(primals, tangents):
         (plus[..., :, None] - plus[..., None, :]) / jnp.where(same, 1, gap),
     )
     dA = jax.jvp(_dpdf, (F, mu_s, lam_s), (dF, dmu_s, dlam_s))[1]
-    A_plus = jnp.einsum("...ik,...k,...jk->...ij", Q, plus, Q)
-    dA_plus = jnp.einsum("...ik,...kl,...jl->...ij", Q, divided * (Q.swapaxes(-1, -2) @ dA @ Q), Q)
+    A_plus = jnp.einsum("...ik,...k,...jk->...ij", Q, plus, Q, precision=EXACT)
+    dA_plus = jnp.einsum(
+        "...ik,...kl,...jl->...ij",
+        Q,
+        divided * jnp.matmul(jnp.matmul(Q.swapaxes(-1, -2), dA, precision=EXACT), Q, precision=EXACT),
+        Q,
+        precision=EXACT,
+    )
     return jax.jvp(_sandwich, (grads, A_plus, volumes), (dgrads, dA_plus, dvolumes))
 
 
@@ -285,7 +296,7 @@ def _check_elements(x, grads, volumes):
 
 @eqx.filter_jit
 def _element_energy(x, grads, volumes, mu_s, lam_s):
-    return volumes * _psi(jnp.einsum("mai,maj->mij", x, grads), mu_s, lam_s)
+    return volumes * _psi(jnp.einsum("mai,maj->mij", x, grads, precision=EXACT), mu_s, lam_s)
 
 
 def element_energy(
@@ -311,8 +322,8 @@ def element_energy(
 @eqx.filter_jit
 def _element_gradient_hessian(x, grads, volumes, mu_s, lam_s, project):
     m = x.shape[0]
-    F = jnp.einsum("mai,maj->mij", x, grads)
-    g = volumes[:, None, None] * jnp.einsum("mkj,maj->mak", _pk1(F, mu_s, lam_s), grads)
+    F = jnp.einsum("mai,maj->mij", x, grads, precision=EXACT)
+    g = volumes[:, None, None] * jnp.einsum("mkj,maj->mak", _pk1(F, mu_s, lam_s), grads, precision=EXACT)
     if project:
         H = _projected_hessian(F, grads, volumes, mu_s, lam_s)
     else:
