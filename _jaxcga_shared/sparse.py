@@ -10,11 +10,12 @@ matrix is reassembled every iteration). Two paths, chosen when the computation i
   symmetric positive definite matrices and SuperLU (scipy) otherwise (``factorize``, ``host_direct``); the
   Jacobi-preconditioned CG compiled by numba without the GIL (``host_pcg``, ``_jaxcga_shared.pcg``) for the
   large FEM Newton systems.
-* GPU (and every platform other than the CPU): a preconditioned conjugate gradient in JAX (``device_pcg``):
-  the matrix-vector product is one ``jax.ops.segment_sum`` over the CSR entries, the preconditioner the inverse of
-  the diagonal, or of the diagonal 3 x 3 blocks for the FEM systems (one block per node). No copy to the host.
-  A sparse Cholesky on the device (cuDSS) is the alternative to measure there; it is not here because it cannot
-  be tested without a GPU.
+* GPU (and every platform other than the CPU): a preconditioned conjugate gradient in JAX, no copy to the host.
+  Traced values (``device_pcg``): the matrix-vector product is one ``jax.ops.segment_sum`` over the CSR entries,
+  the preconditioner the inverse of the diagonal, or of the diagonal 3 x 3 blocks for the FEM systems (one block
+  per node). A fixed matrix (``SparseSolver``): a multigrid V-cycle, built once (``_jaxcga_shared.multigrid``).
+  Not cuDSS's sparse Cholesky: its library (167 MB) cannot travel to the GPU machines this project is tested on,
+  so it could not be measured (benchmarks/README.md, "Solves on a GPU").
 
 ``SparseSolver`` is a fixed matrix factored once (the harmonic fields, ARAP's global step, the cage's Dirichlet
 problem), solved for many right-hand sides, with its adjoint through ``jax.custom_vjp``; ``spd_solve`` solves a
@@ -39,7 +40,10 @@ from _jaxcga_shared.checks import require
 from _jaxcga_shared.host import host_call, to_devices
 from _jaxcga_shared.platform import Example, PerPlatform, example
 
-DEVICE_RTOL = 1e-10  # relative residual of a prefactored system's device solve (the host's is a direct solve)
+# relative residual of a prefactored system's device solve (the host's is a direct solve): 1e-10 left ARAP 8e-9 of
+# its size from libigl's direct iteration on an H100, over the tests' 1e-10
+DEVICE_RTOL = 1e-12
+DEVICE_MAX_ITERATIONS = 1000  # the multigrid CG takes about 70 at 1e-12 on the meshes of the tests and benchmarks
 
 
 class CSRPattern(eqx.Module):
@@ -209,25 +213,36 @@ def device_pcg(pattern: CSRPattern, data, b, rtol, max_iterations: int | None = 
 
     Returns:
         x of b's shape and a ``PCGInfo``. On a breakdown the loop stops with the iterate so far."""
-    n = pattern.n
-    limit = n if max_iterations is None else int(max_iterations)
     precondition, positive = _preconditioner(pattern, data)
+    limit = pattern.n if max_iterations is None else int(max_iterations)
+    return preconditioned_cg(
+        lambda x: csr_matvec(pattern, data, x), precondition, b, rtol, limit, x0=None, positive=positive
+    )
+
+
+def preconditioned_cg(matvec, precondition, b, rtol, max_iterations: int, *, x0=None, positive=True):
+    """CG for a symmetric positive definite ``matvec`` with the SPD preconditioner ``precondition`` (functions of
+    (n,) or (n, k) arrays): x with ``|A x - b| <= rtol |b|`` per column, from ``x0`` (default 0), at most
+    ``max_iterations`` iterations; ``positive`` False marks A as not positive definite before the first
+    iteration. Returns x and a ``PCGInfo``; on a breakdown the loop stops with the iterate so far."""
 
     def dot(u, v):
         return jnp.sum(u * v, axis=0)
 
     bb = dot(b, b)
     stop = jnp.asarray(rtol, b.dtype) ** 2 * bb
-    z = precondition(b)
-    start = (0, jnp.zeros_like(b), b, z, dot(b, z), bb, ~positive)
+    x = jnp.zeros_like(b) if x0 is None else x0.astype(b.dtype)
+    r = b if x0 is None else b - matvec(x)
+    z = precondition(r)
+    start = (0, x, r, z, dot(r, z), dot(r, r), ~jnp.asarray(positive))
 
     def cond(carry):
         k, _, _, _, _, rr, broken = carry
-        return (k < limit) & jnp.any(rr > stop) & ~broken
+        return (k < max_iterations) & jnp.any(rr > stop) & ~broken
 
     def body(carry):
         k, x, r, p, rz, rr, broken = carry
-        Ap = csr_matvec(pattern, data, p)
+        Ap = matvec(p)
         pAp = dot(p, Ap)
         active = rr > stop
         broken = jnp.any(active & ~(pAp > 0))
@@ -343,10 +358,12 @@ SPD_SOLVE = PerPlatform(
 class SparseSolver:
     """``A x = b`` for a fixed square sparse A (float64), prepared once: factored on the host (CHOLMOD for
     ``symmetric=True``, a promise that A is symmetric positive definite; SuperLU otherwise) and, when symmetric,
-    its CSR pattern analysed for the device CG (``device_rtol``, checked: an unconverged solve is an error).
+    on first use off the CPU, its multigrid hierarchy built for the device CG (``device_rtol``, checked: an
+    unconverged solve is an error).
 
     Call it on b of shape (n,) or (n, k) inside or outside jit: on the CPU the factor solves it on the host; on
-    other platforms a symmetric system is solved on the device by ``device_pcg`` (an unsymmetric one on the host).
+    other platforms a symmetric system is solved on the device by ``device_solve`` (an unsymmetric one on the
+    host).
     Differentiable in reverse mode with respect to b (the adjoint is the solve with A^T: the same solve for a
     symmetric A); works under vmap. Hashable by identity (a static argument, or closed over).
 
@@ -376,47 +393,65 @@ class SparseSolver:
 
     @functools.cached_property
     def _device_system(self):
-        """The CSR pattern and values of A for ``device_pcg`` (analysed on first use: host-only users skip it)."""
-        A = self._A.copy()
-        A.sort_indices()
-        with jax.ensure_compile_time_eval():  # first used while tracing: device arrays, not the trace's values
-            return csr_pattern(A.indptr, A.indices), to_devices(A.data)[0]
+        """A in ELL form and its multigrid hierarchy for the device CG (built on first use: host-only users skip
+        it)."""
+        from _jaxcga_shared.multigrid import ell_matrix, multigrid_precompute
 
-    def device_solve(self, b):
-        """The device path (``device_pcg`` to ``device_rtol``, checked), on any platform: what a GPU runs."""
+        with jax.ensure_compile_time_eval():  # first used while tracing: device arrays, not the trace's values
+            return ell_matrix(self._A), multigrid_precompute(self._A)
+
+    def device_solve(self, b, x0=None):
+        """The device path, on any platform (what a GPU runs): CG preconditioned by a multigrid V-cycle
+        (``_jaxcga_shared.multigrid``) to ``device_rtol``, from ``x0`` (default 0), checked."""
+        from _jaxcga_shared.multigrid import ell_matvec, v_cycle
+
         if not self.symmetric:
             raise ValueError("symmetric: the device solve needs a symmetric positive definite system (symmetric=True)")
-        pattern, data = self._device_system
-        return checked_device_pcg(pattern, data.astype(b.dtype), b, self.device_rtol, 2 * self.n)
+        A, hierarchy = self._device_system
+        x, info = preconditioned_cg(
+            lambda x: ell_matvec(A, x),
+            lambda r: v_cycle(hierarchy, r),
+            b,
+            self.device_rtol,
+            DEVICE_MAX_ITERATIONS,
+            x0=x0,
+        )
+        return require(x, (~info.converged, _not_converged("A", str(DEVICE_MAX_ITERATIONS))))
 
-    def __call__(self, b):
+    def __call__(self, b, x0=None):
+        """``A^-1 b``; ``x0`` (b's shape) is a first guess for the device's iterative solve (the host's direct
+        solve has no use for it); the result does not depend on it, and no gradient flows to it."""
         b = jnp.asarray(b)
         if b.ndim not in (1, 2) or b.shape[0] != self.n:
             raise ValueError(f"b: expected shape ({self.n},) or ({self.n}, k), got {b.shape}")
-        return self._solve(b)
+        if x0 is not None:
+            x0 = jax.lax.stop_gradient(jnp.asarray(x0, b.dtype))
+            if x0.shape != b.shape:
+                raise ValueError(f"x0: expected b's shape {b.shape}, got {x0.shape}")
+        return self._solve(b, x0)
 
 
 def _prefactored(solver: SparseSolver):
     def host(b, transpose):
         return solver.host_solve(b, transpose).astype(b.dtype)
 
-    def call(b, transpose):
-        def on_host(b):
+    def call(b, x0, transpose):
+        def on_host(b, x0):
             return host_call(functools.partial(host, transpose=transpose), jax.ShapeDtypeStruct(b.shape, b.dtype), b)
 
         if not solver.symmetric:
-            return on_host(b)
-        return jax.lax.platform_dependent(b, cpu=on_host, default=solver.device_solve)
+            return on_host(b, x0)
+        return jax.lax.platform_dependent(b, x0, cpu=on_host, default=solver.device_solve)
 
     @jax.custom_vjp
-    def solve(b):
-        return call(b, False)
+    def solve(b, x0):
+        return call(b, x0, False)
 
-    def forward(b):
-        return call(b, False), None
+    def forward(b, x0):
+        return call(b, x0, False), None
 
     def backward(_, g):
-        return (call(g, True),)  # (A^-1)^T g
+        return call(g, None, True), None  # (A^-1)^T g; the guess x0 does not change the solution
 
     solve.defvjp(forward, backward)
     return solve

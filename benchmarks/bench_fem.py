@@ -50,6 +50,7 @@ import xfem  # noqa: E402
 
 # times the step's internal kernels (gradient and matrix, solve, line search) one by one
 import xfem._backward_euler as be  # noqa: E402
+from _jaxcga_shared.host import host_call  # noqa: E402
 from _jaxcga_shared.sparse import device_pcg, host_direct, host_pcg  # noqa: E402
 
 YOUNG, POISSON, DENSITY, H = 1e6, 0.4, 1e3, 0.033
@@ -93,17 +94,22 @@ def newton_start(system, state, h, mu, lam):
 
 @eqx.filter_jit
 def direct_step(system, state, h, mu, lam):
-    """``backward_euler_step`` with one Newton iteration whose system is solved by CHOLMOD (``host_direct``)
-    instead of CG: the body of ``_newton`` with the same gradient, matrix and line search (keep in step)."""
+    """``backward_euler_step`` with one Newton iteration whose system is solved by CHOLMOD (``host_direct``) on
+    the host, on every platform, instead of CG: the body of ``_newton`` with the same gradient, matrix and line
+    search (keep in step)."""
     theta = _theta(system, state, h, mu, lam)
     x, gradient, data = newton_start(system, state, h, mu, lam)
-    step = -be._solve(_direct, system.pattern, data, gradient, 0.0, "error")
+    csr = system.pattern.csr
+    # the host's direct solve also on a GPU (spd_solve would run the device CG there, to a tolerance of 0)
+    step = -host_call(
+        _direct, jax.ShapeDtypeStruct(gradient.shape, gradient.dtype), data, gradient, csr.indptr, csr.indices
+    )
     alpha = be._line_search(system, x, step.reshape(-1, 3), jnp.dot(gradient, step), theta, h)
     x = x.at[system.pattern.free].add(alpha * step.reshape(-1, 3))
     return xfem.State(x, (x - state.x) / h)
 
 
-def _direct(data, rhs, rtol, indptr, indices):
+def _direct(data, rhs, indptr, indices):
     return host_direct(data, rhs, indptr, indices)
 
 

@@ -264,14 +264,15 @@ def _local(data: ARAPData, x):
     return rotors, quadratic + data.rest_energy - 2.0 * jnp.sum(lam)
 
 
-def _global(data: ARAPData, rotors: Multivector, bc):
-    """Global step (eq. 12) with the handles substituted."""
+def _global(data: ARAPData, rotors: Multivector, bc, previous):
+    """Global step (eq. 12) with the handles substituted; ``previous`` positions are the device solve's first
+    guess (an iterative solve from them stops sooner as the iterations converge)."""
     own = apply_to_points(rotors, data.wv_sum, fused=True)
     neighbours = Multivector(rotors.values[data.ring], rotors.blades)
     rhs = data.rhs_scale * (own + jnp.sum(apply_to_points(neighbours, data.z, fused=True), axis=1))
     y = jnp.zeros((data.n, 3), bc.dtype).at[data.b].set(bc)
     Ly = data.degree[:, None] * y - jnp.einsum("nd,ndk->nk", data.w, y[data.ring])  # -L y
-    x_free = data.solver((rhs - Ly)[data.free])
+    x_free = data.solver((rhs - Ly)[data.free], previous[data.free])
     return y.at[data.free].set(x_free)
 
 
@@ -289,8 +290,8 @@ def _iterate(data, bc, V0, max_iterations, tolerance):
         return (k < max_iterations) & ((k == 0) | (previous - current > tolerance * jnp.abs(previous)))
 
     def body(state):
-        _, rotors, energies, k = state
-        x = _global(data, rotors, bc)
+        x, rotors, energies, k = state
+        x = _global(data, rotors, bc, x)
         rotors, energy = _local(data, x)
         return x, rotors, energies.at[k + 1].set(energy), k + 1
 
@@ -316,7 +317,7 @@ def _solve_bwd(x, grads, perturbed, bc, data, V0, max_iterations, tolerance):
         return None
 
     def step(x, bc):
-        return _global(data, _local(data, x)[0], bc)
+        return _global(data, _local(data, x)[0], bc, x)
 
     _, vjp = jax.vjp(step, x, bc)
     # (I - dG/dx)^T u = g; the handle rows of G do not depend on x, so the system is regular

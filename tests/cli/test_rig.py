@@ -113,15 +113,17 @@ def test_parser_errors_are_one_line(tmp_path, capsys):
 
 
 def test_an_error_inside_compiled_code_prints_its_message_only(tmp_path, capsys, monkeypatch):
-    """eqx.error_if under jax.jit (a host callback error) and under eqx.filter_jit (the Equinox banner): one
-    line with the check's message, and no log of the failed callback."""
+    """A runtime check (the library's ``require``, as every in-jit check) under jax.jit and under eqx.filter_jit:
+    one line with the check's message, and no log of the failed callback. The result is waited for, as a command
+    reads its results: a GPU raises a failed check only then."""
     import equinox as eqx
 
+    from _jaxcga_shared.checks import require
     from jaxcga_cli import skin
 
-    check = lambda x: eqx.error_if(x, x > 0, "x: must not be positive")  # noqa: E731
+    check = lambda x: require(x, (x > 0, "x: must not be positive"))  # noqa: E731
     for jit in (jax.jit, eqx.filter_jit):
-        monkeypatch.setattr(skin, "run", lambda args, jit=jit: jit(check)(jnp.ones(())))
+        monkeypatch.setattr(skin, "run", lambda args, jit=jit: jax.block_until_ready(jit(check)(jnp.ones(()))))
         err = _error(["skin", "--out", str(tmp_path / "x.npy")], capsys)
         assert err == "jaxcga skin: error: x: must not be positive\n"
 
