@@ -51,11 +51,12 @@ if [ "$part" = all ] || [ "$part" = tests ]; then
   # SIGINT at the limit: pytest stops, reports what ran and writes the junit XML
   # shellcheck disable=SC2086  # TEST_PATHS: paths, split
   timeout -s INT -k 30 "${TEST_SECONDS:-250}" python3 -m pytest -n "${TEST_WORKERS:-15}" -m "not slow" \
-    -p no:cacheprovider -q -rfEs --durations=25 --junitxml="$out/junit.xml" ${TEST_PATHS:-tests} > "$out/tests.log" 2>&1
+    -p no:cacheprovider -v -rfEs --durations=25 --junitxml="$out/junit.xml" ${TEST_PATHS:-tests} > "$out/tests.log" 2>&1
   rc=$?
   say "tests: exit $rc after $((SECONDS - start)) s (124/130: stopped at the limit): $(grep -E '(passed|failed|error)' \
     "$out/tests.log" | tail -1)"
-  grep -E '^(FAILED|ERROR|SKIPPED)' "$out/tests.log" | tee -a "$summary"
+  # -v streams each result ("[gw3] FAILED tests/..."): an interrupted run whose summary is lost still names them
+  grep -E '^(FAILED|ERROR|SKIPPED)|\] (FAILED|ERROR) ' "$out/tests.log" | sort -u | tee -a "$summary"
 fi
 
 if [ "$part" = all ] || [ "$part" = bench ]; then
