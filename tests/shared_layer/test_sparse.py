@@ -269,6 +269,7 @@ def test_multigrid_names_bad_options_and_matrices():
         multigrid.multigrid_precompute(-A)
 
 
+@pytest.mark.slow  # 9 s on 2 cores: the fast suite's 10-minute budget
 def test_a_first_guess_changes_neither_the_solve_nor_its_gradient():
     """``SparseSolver(b, x0)`` on the device path: the solution of b (to the tolerance) whatever x0, the same
     gradient with respect to b, none with respect to x0; a guess of the wrong shape is named."""

@@ -162,8 +162,11 @@ def test_cut_outside_the_body_is_bitwise_a_no_op():
     for a, b in zip(model.piece_arrays(), uncut.piece_arrays()):
         np.testing.assert_array_equal(a, b)
     cut_system, system = model.system(), uncut.system()
-    for name in ("T", "grads", "volumes", "mass_rows", "mass_cols", "mass_values", "mass_data", "force", "fixed"):
+    for name in ("T", "mass_rows", "mass_cols", "fixed"):
         np.testing.assert_array_equal(np.asarray(getattr(cut_system, name)), np.asarray(getattr(system, name)))
+    for name in ("grads", "volumes", "mass_values", "mass_data", "force"):  # assembled: atomic sums on a GPU
+        expected = np.asarray(getattr(system, name))
+        assert_same_run(np.asarray(getattr(cut_system, name)), expected, atol=1e-14 * np.abs(expected).max())
     for _ in range(2):
         model.step(H, MATERIAL)
         uncut.step(H, MATERIAL)
