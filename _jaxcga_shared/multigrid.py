@@ -4,9 +4,10 @@ conjugate gradient on a GPU (``sparse.SparseSolver``). Private to the distributi
 The hierarchy (aggregates, smoothed prolongators P, Galerkin coarse operators P^T A P) is built once on the host
 by pyamg; the V-cycle runs in JAX. Every level is smoothed by the same Chebyshev polynomial in ``diag(A)^-1 A`` (or
 damped Jacobi sweeps) before and after its coarse correction, with R = P^T, so the V-cycle is a symmetric positive
-definite operator, as CG needs; the coarsest level is solved exactly by its dense inverse. Matrices are stored row-padded (ELL): a GPU sums a padded row in one
-gather-and-reduce, where a CSR segment sum needs atomic adds (1.8x slower on an H100, benchmarks/README.md).
-On ARAP's 60k-unknown system the CG takes 27 iterations to 1e-12 where Jacobi CG takes 1,100 to 1e-10.
+definite operator, as CG needs; the coarsest level is solved exactly by its dense inverse. Matrices are stored
+row-padded (ELL): a GPU sums a padded row in one gather-and-reduce, where a CSR segment sum needs atomic adds
+(benchmarks/README.md, "Solves on a GPU"). On ARAP's 60k-unknown system the CG takes 32 iterations to 1e-12
+where Jacobi CG takes 1,100 to 1e-10.
 """
 
 from __future__ import annotations
@@ -33,12 +34,14 @@ def ell_matrix(M) -> ELLMatrix:
     """The ELL form of a scipy sparse matrix (host; device arrays)."""
     M = sp.csr_matrix(M)
     M.sort_indices()
+    # scipy is not annotated: pyright infers from its code that a matrix's shape may be None
+    n_rows, n_columns = M.shape  # pyright: ignore[reportOptionalIterable, reportGeneralTypeIssues]
     counts = np.diff(M.indptr)
     width = max(int(counts.max(initial=0)), 1)
-    rows = np.repeat(np.arange(M.shape[0]), counts)
+    rows = np.repeat(np.arange(n_rows), counts)
     slots = np.arange(M.nnz) - np.repeat(M.indptr[:-1], counts)
-    columns = np.zeros((M.shape[0], width), np.int32 if M.shape[1] < 2**31 else np.int64)
-    values = np.zeros((M.shape[0], width))
+    columns = np.zeros((n_rows, width), np.int32 if n_columns < 2**31 else np.int64)
+    values = np.zeros((n_rows, width))
     columns[rows, slots] = M.indices
     values[rows, slots] = M.data
     columns, values = to_devices(columns, values)
@@ -98,7 +101,7 @@ def multigrid_precompute(
     A = sp.csr_matrix(A, dtype=np.float64)
     if np.any(A.diagonal() <= 0):
         raise ValueError("A: a diagonal entry is not positive (the matrix is not positive definite)")
-    if A.shape[0] <= max_coarse:
+    if A.shape[0] <= max_coarse:  # pyright: ignore[reportOptionalSubscript]  (scipy: see ell_matrix)
         operators, prolongations = [A], []
     else:
         hierarchy = pyamg.smoothed_aggregation_solver(A, symmetry="symmetric", strength=strength, max_coarse=max_coarse)
@@ -107,7 +110,8 @@ def multigrid_precompute(
     levels = []
     for M, P in zip(operators[:-1], prolongations):
         inverse_diagonal = 1 / M.diagonal()
-        rho = float(pyamg.util.linalg.approximate_spectral_radius(sp.diags(inverse_diagonal) @ M))
+        estimate = pyamg.util.linalg.approximate_spectral_radius(sp.diags(inverse_diagonal) @ M)
+        rho = float(estimate)  # pyright: ignore[reportArgumentType]  (pyamg's annotation includes its eigenvectors)
         (inverse_diagonal,) = to_devices(inverse_diagonal)
         levels.append(Level(ell_matrix(M), ell_matrix(P), ell_matrix(P.T), inverse_diagonal, rho))
     (coarse_inverse,) = to_devices(np.linalg.inv(operators[-1].toarray()))
@@ -152,6 +156,7 @@ def v_cycle(mg: Multigrid, r):
             return jnp.matmul(mg.coarse_inverse.astype(r.dtype), r, precision=jax.lax.Precision.HIGHEST)
         level = mg.levels[depth]
         x = _smooth(mg, level, r, None)
+        assert x is not None  # the smoother from 0 returns its first iterate
         x = x + ell_matvec(level.P, cycle(depth + 1, ell_matvec(level.R, r - ell_matvec(level.A, x))))
         return _smooth(mg, level, r, x)
 

@@ -220,7 +220,7 @@ def device_pcg(pattern: CSRPattern, data, b, rtol, max_iterations: int | None = 
     )
 
 
-def preconditioned_cg(matvec, precondition, b, rtol, max_iterations: int, *, x0=None, positive=True):
+def preconditioned_cg(matvec, precondition, b, rtol, max_iterations: int, *, x0=None, positive: Array | bool = True):
     """CG for a symmetric positive definite ``matvec`` with the SPD preconditioner ``precondition`` (functions of
     (n,) or (n, k) arrays): x with ``|A x - b| <= rtol |b|`` per column, from ``x0`` (default 0), at most
     ``max_iterations`` iterations; ``positive`` False marks A as not positive definite before the first
