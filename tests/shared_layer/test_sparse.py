@@ -156,6 +156,7 @@ def test_fem_newton_step_and_xfem_gradient_on_the_device_path_equal_the_host_pat
     np.testing.assert_allclose(grad, host_grad, rtol=1e-6)
 
 
+@pytest.mark.slow  # 10-38 s on 2 cores: the fast suite's 10-minute budget
 def test_gradient_and_vmap_through_the_device_path():
     A = sp.csr_matrix(sp.diags([-1.0, 2.2, -1.0], [-1, 0, 1], shape=(30, 30)))
     solver = SparseSolver(A, symmetric=True)
