@@ -5,8 +5,7 @@ The hierarchy (aggregates, smoothed prolongators P, Galerkin coarse operators P^
 by pyamg; the V-cycle runs in JAX. Every level is smoothed by the same Chebyshev polynomial in ``diag(A)^-1 A`` (or
 damped Jacobi sweeps) before and after its coarse correction, with R = P^T, so the V-cycle is a symmetric positive
 definite operator, as CG needs; the coarsest level is solved exactly by its dense inverse. Matrices are stored
-row-padded (ELL): a GPU sums a padded row in one gather-and-reduce, where a CSR segment sum needs atomic adds
-(benchmarks/README.md, "Solves on a GPU"). On ARAP's 60k-unknown system the CG takes 32 iterations to 1e-12
+row-padded (``_jaxcga_shared.ell``). On ARAP's 60k-unknown system the CG takes 32 iterations to 1e-12
 where Jacobi CG takes 1,100 to 1e-10.
 """
 
@@ -17,42 +16,10 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import scipy.sparse as sp
-from jaxtyping import Array, Float, Int
+from jaxtyping import Array, Float
 
+from _jaxcga_shared.ell import ELLMatrix, ell_matrix, ell_matvec
 from _jaxcga_shared.host import to_devices
-
-
-class ELLMatrix(eqx.Module):
-    """A sparse matrix with its rows padded to one width: row i is ``sum_k values[i, k] x[columns[i, k]]``
-    (padding: value 0)."""
-
-    columns: Int[Array, "n width"]
-    values: Float[Array, "n width"]
-
-
-def ell_matrix(M) -> ELLMatrix:
-    """The ELL form of a scipy sparse matrix (host; device arrays)."""
-    M = sp.csr_matrix(M)
-    M.sort_indices()
-    # scipy is not annotated: pyright infers from its code that a matrix's shape may be None
-    n_rows, n_columns = M.shape  # pyright: ignore[reportOptionalIterable, reportGeneralTypeIssues]
-    counts = np.diff(M.indptr)
-    width = max(int(counts.max(initial=0)), 1)
-    rows = np.repeat(np.arange(n_rows), counts)
-    slots = np.arange(M.nnz) - np.repeat(M.indptr[:-1], counts)
-    columns = np.zeros((n_rows, width), np.int32 if n_columns < 2**31 else np.int64)
-    values = np.zeros((n_rows, width))
-    columns[rows, slots] = M.indices
-    values[rows, slots] = M.data
-    columns, values = to_devices(columns, values)
-    return ELLMatrix(columns, values)
-
-
-def ell_matvec(M: ELLMatrix, x):
-    """``M x`` for x of shape (columns,) or (columns, k), in x's dtype (a product and a sum, not a dot: no
-    reduced-precision matrix unit)."""
-    values = M.values.astype(x.dtype)
-    return jnp.sum((values if x.ndim == 1 else values[..., None]) * x[M.columns], axis=1)
 
 
 class Level(eqx.Module):

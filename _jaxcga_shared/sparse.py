@@ -37,6 +37,7 @@ from jaxtyping import Array, Float, Int
 from sksparse_minimal import SparseCholesky
 
 from _jaxcga_shared.checks import require
+from _jaxcga_shared.ell import ell_matrix, ell_matvec
 from _jaxcga_shared.host import host_call, to_devices
 from _jaxcga_shared.platform import Example, PerPlatform, example
 
@@ -395,7 +396,7 @@ class SparseSolver:
     def _device_system(self):
         """A in ELL form and its multigrid hierarchy for the device CG (built on first use: host-only users skip
         it)."""
-        from _jaxcga_shared.multigrid import ell_matrix, multigrid_precompute
+        from _jaxcga_shared.multigrid import multigrid_precompute
 
         with jax.ensure_compile_time_eval():  # first used while tracing: device arrays, not the trace's values
             return ell_matrix(self._A), multigrid_precompute(self._A)
@@ -403,7 +404,7 @@ class SparseSolver:
     def device_solve(self, b, x0=None):
         """The device path, on any platform (what a GPU runs): CG preconditioned by a multigrid V-cycle
         (``_jaxcga_shared.multigrid``) to ``device_rtol``, from ``x0`` (default 0), checked."""
-        from _jaxcga_shared.multigrid import ell_matvec, v_cycle
+        from _jaxcga_shared.multigrid import v_cycle
 
         if not self.symmetric:
             raise ValueError("symmetric: the device solve needs a symmetric positive definite system (symmetric=True)")

@@ -63,6 +63,7 @@ import scipy.sparse as sp
 from jaxtyping import Array, ArrayLike, Float, Int
 
 from _jaxcga_shared.checks import check_choice, check_index_range, check_triangle_mesh, require
+from _jaxcga_shared.ell import padded_rows
 from _jaxcga_shared.sparse import SparseSolver
 from jaxcga import KINDS, Multivector, align_points, apply_to_points
 
@@ -88,22 +89,6 @@ class ARAPData(eqx.Module):
     energy: str = eqx.field(static=True)
     rhs_scale: float = eqx.field(static=True)  # s: 1/2 (spokes) or 1/3 (spokes and rims)
     quadratic_scale: float = eqx.field(static=True)  # sum over cells of c |v'|^2 = this x sum_ij w_ij |v'_ij|^2
-
-
-def _padded(rows, columns, values, n):
-    """Entries sorted by row then column as padded (n, k) tables: the columns padded with the row index,
-    each value array with zeros."""
-    counts = np.bincount(rows, minlength=n)
-    slot = np.arange(len(rows)) - np.repeat(np.cumsum(counts) - counts, counts)
-    k = max(int(counts.max()), 1)
-    table = np.repeat(np.arange(n)[:, None], k, axis=1)
-    table[rows, slot] = columns
-    padded = []
-    for v in values:
-        out = np.zeros((n, k) + v.shape[1:])
-        out[rows, slot] = v
-        padded.append(out)
-    return table, padded
 
 
 def arap_precompute(
@@ -161,7 +146,7 @@ def arap_precompute(
 
     w_edge = np.bincount(inverse, np.concatenate([c1, c2]), len(keys))
     z_edge, rim_edge = per_edge(np.concatenate([u, u])), per_edge(np.concatenate([-rim, rim]))
-    ring, (w, z, rim) = _padded(keys // n, keys % n, [w_edge, z_edge, rim_edge], n)
+    ring, (w, z, rim) = padded_rows(keys // n, keys % n, [w_edge, z_edge, rim_edge], n)
     wv = w[..., None] * (V[:, None, :] - V[ring])
     if energy == "spokes":
         y, z, rhs_scale, quadratic_scale = wv, wv, 0.5, 1.0

@@ -20,7 +20,7 @@ import deform
 
 # xfem's sparse solves (host adjoint, to_scipy) are internal users of the shared layer tested here
 import xfem._backward_euler as be
-from _jaxcga_shared import multigrid, sparse
+from _jaxcga_shared import ell, multigrid, sparse
 from _jaxcga_shared.sparse import (
     SparseSolver,
     checked_device_pcg,
@@ -239,9 +239,9 @@ def test_the_v_cycle_is_symmetric_positive_definite_and_cuts_cg_iterations(smoot
     Mu, Mv = (np.asarray(multigrid.v_cycle(mg, jnp.asarray(w))) for w in (u, v))
     np.testing.assert_allclose(np.sum(u * Mv, 0), np.sum(v * Mu, 0), rtol=1e-10)
     assert np.all(np.sum(u * Mu, 0) > 0)
-    ell = multigrid.ell_matrix(A)
+    A_ell = ell.ell_matrix(A)
     x, info = sparse.preconditioned_cg(
-        lambda w: multigrid.ell_matvec(ell, w), lambda r: multigrid.v_cycle(mg, r), jnp.asarray(rhs), 1e-12, 1000
+        lambda w: ell.ell_matvec(A_ell, w), lambda r: multigrid.v_cycle(mg, r), jnp.asarray(rhs), 1e-12, 1000
     )
     A = sp.csr_matrix(A)
     _, jacobi = device_pcg(csr_pattern(A.indptr, A.indices), jnp.asarray(A.data), jnp.asarray(rhs), 1e-12)
@@ -254,10 +254,10 @@ def test_ell_matrices_multiply_like_scipy():
     M = sp.random(30, 17, density=0.15, random_state=np.random.default_rng(6), format="lil")
     M[3] = 0
     M = M.tocsr()
-    ell = multigrid.ell_matrix(M)
+    M_ell = ell.ell_matrix(M)
     x = np.random.default_rng(7).normal(size=(17, 2))
-    np.testing.assert_allclose(multigrid.ell_matvec(ell, jnp.asarray(x)), M @ x, rtol=1e-13, atol=1e-15)
-    np.testing.assert_allclose(multigrid.ell_matvec(ell, jnp.asarray(x[:, 0])), M @ x[:, 0], rtol=1e-13, atol=1e-15)
+    np.testing.assert_allclose(ell.ell_matvec(M_ell, jnp.asarray(x)), M @ x, rtol=1e-13, atol=1e-15)
+    np.testing.assert_allclose(ell.ell_matvec(M_ell, jnp.asarray(x[:, 0])), M @ x[:, 0], rtol=1e-13, atol=1e-15)
 
 
 def test_multigrid_names_bad_options_and_matrices():
