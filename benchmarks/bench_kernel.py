@@ -3,14 +3,17 @@
 Candidates, all under ``jax.jit`` in this process, timed round-robin (so machine noise hits all of
 them alike), median of the repeats:
 
-* jaxcga ``apply_to_points``: one motor per point, and one motor for all points, float64 and float32;
+* jaxcga ``apply_to_points``: one motor per point, and one motor for all points, float64 and float32; per point
+  also with ``fused=True`` (the layout left to XLA: on a GPU, the formulation the Triton kernel replaced);
+* with ``--tune-rows``, the GPU's Triton kernel (``_jaxcga_shared.pallas_rows``) at other block sizes and warps,
+  to choose its defaults (on the CPU: Pallas' interpret mode, meaningless for speed);
 * baseline, the same rigid transforms as 3x4 matrices in JAX: hand-unrolled ``A[:, :, 0] x0 + ...``
   (the fastest form we know) and the idiomatic batched matmul ``A[..., :3] @ x + A[..., 3]``;
 * peer, kingdon's ``M >> X`` on JAX arrays (``_kingdon_peer``);
 * compile time of the first call (trace, code generation and XLA compile), measured first thing.
 
 Ratios are baseline time / our time: larger than 1 means jaxcga is faster.
-Usage: ``python benchmarks/bench_kernel.py [--points 100000] [--repeats 30] [--json PATH]`` (on a GPU
+Usage: ``python benchmarks/bench_kernel.py [--points 100000] [--repeats 30] [--tune-rows] [--json PATH]`` (on a GPU
 ``--points 10000000``).
 """
 
@@ -29,6 +32,8 @@ import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
 import jaxcga as cga  # noqa: E402
+from _jaxcga_shared import pallas_rows  # noqa: E402
+from jaxcga import _versors  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _kingdon_peer import make_kingdon_sandwich  # noqa: E402
@@ -37,6 +42,23 @@ from _report import RATIO_UNIT, add_json_argument, print_device, write_json  # n
 
 def _ours(motor_values, x):
     return cga.apply_to_points(cga.Multivector(motor_values, "motor"), x)
+
+
+def _ours_fused(motor_values, x):
+    return cga.apply_to_points(cga.Multivector(motor_values, "motor"), x, fused=True)
+
+
+def _triton_rows(rows_per_program: int, warps: int):
+    coordinates = _versors.row_coordinates(cga.Multivector(jnp.zeros(8), "motor").blades)
+
+    def apply(motor_values, x):
+        rows = [x, motor_values]
+        return pallas_rows.rowwise(coordinates, rows, [], 3, rows_per_program=rows_per_program, warps=warps)
+
+    return jax.jit(apply)
+
+
+TUNING = [(rows, warps) for rows in (256, 512, 1024, 2048) for warps in (4, 8)]
 
 
 def _matrix_unrolled(a, x):
@@ -65,7 +87,7 @@ def _time_round_robin(cases: dict, repeats: int) -> dict[str, float]:
     return {name: statistics.median(ts) for name, ts in samples.items()}
 
 
-def run(n: int, repeats: int) -> dict:
+def run(n: int, repeats: int, tune_rows: bool = False) -> dict:
     rng = np.random.default_rng(0)
     generators = cga.Multivector(jnp.asarray(rng.normal(size=(n, 6))), cga.MOTOR_GENERATOR)
     motors64 = cga.exp(generators).values
@@ -79,11 +101,15 @@ def run(n: int, repeats: int) -> dict:
     motors32, x32, matrices32 = (a.astype(jnp.float32) for a in (motors64, x64, matrices64))
     one64, one32 = motors64[0], motors32[0]
     ours, unrolled, matmul = jax.jit(_ours), jax.jit(_matrix_unrolled), jax.jit(_matrix_matmul)
+    fused = jax.jit(_ours_fused)
+    tuned = {f"rows_{r}_warps_{w}_f64": _triton_rows(r, w) for r, w in TUNING} if tune_rows else {}
 
     # Same transforms, same answers, before anything is timed.
     reference = np.asarray(matmul(matrices64, x64))
     for name, out in {
         "jaxcga": ours(motors64, x64),
+        "jaxcga fused": fused(motors64, x64),
+        **{f"jaxcga {name}": fn(motors64, x64) for name, fn in tuned.items()},
         "matrix unrolled": unrolled(matrices64, x64),
         "kingdon": kingdon64(motors64, x64),
     }.items():
@@ -94,6 +120,8 @@ def run(n: int, repeats: int) -> dict:
     cases = {
         "per_point_f64": (ours, (motors64, x64)),
         "per_point_f32": (ours, (motors32, x32)),
+        "per_point_fused_f64": (fused, (motors64, x64)),
+        **{name: (fn, (motors64, x64)) for name, fn in tuned.items()},
         "one_motor_f64": (ours, (one64, x64)),
         "one_motor_f32": (ours, (one32, x32)),
         "matrix_unrolled_f64": (unrolled, (matrices64, x64)),
@@ -109,6 +137,8 @@ def run(n: int, repeats: int) -> dict:
     figures = {
         "per_point_f64_points_per_s": rate["per_point_f64"],
         "per_point_f32_points_per_s": rate["per_point_f32"],
+        "per_point_fused_f64_points_per_s": rate["per_point_fused_f64"],
+        **{f"{name}_points_per_s": rate[name] for name in tuned},
         "one_motor_f64_points_per_s": rate["one_motor_f64"],
         "one_motor_f32_points_per_s": rate["one_motor_f32"],
         "compile_s": compile_s,
@@ -135,12 +165,15 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--points", "--n", type=int, default=100_000, help="number of points (default 100000)")
     parser.add_argument("--repeats", type=int, default=30, help="timed calls per candidate")
+    parser.add_argument(
+        "--tune-rows", action="store_true", help="also time the GPU's Triton kernel at other block sizes and warps"
+    )
     add_json_argument(parser)
     args = parser.parse_args(argv)
     print_device("bench_kernel")
     if args.points < 1 or args.repeats < 1:
         parser.error("--points and --repeats must be positive")
-    result = run(args.points, args.repeats)
+    result = run(args.points, args.repeats, args.tune_rows)
     print(f"bench_kernel: {args.points} points, median of {args.repeats} round-robin calls")
     for name, value in result["figures"].items():
         unit = result["units"][name]

@@ -26,6 +26,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from _jaxcga_shared.checks import check_finite, check_vectors, require
+from _jaxcga_shared.pallas_rows import RowFunction, rowwise
 from _jaxcga_shared.platform import Example, example, per_platform
 from jaxcga import _algebra as alg
 from jaxcga import _codegen
@@ -180,12 +181,18 @@ class _FactoredColumns:
 
 def _map_entries(v: Multivector, columns: _codegen.Columns | None = None) -> dict[tuple[int, int], Array]:
     cols: _codegen.Columns = _codegen.LazyColumns(v.values) if columns is None else columns
-    pairs = _factored_pairs(v.blades)
+    return _map_entries_of(v.blades, cols, v.batch_shape)
+
+
+def _map_entries_of(
+    blades: tuple[int, ...], cols: _codegen.Columns, batch_shape: tuple[int, ...]
+) -> dict[tuple[int, int], Array]:
+    pairs = _factored_pairs(blades)
     if pairs:
         cols = _FactoredColumns(cols, pairs)
     entries = {}
-    for key, terms in _point_map(v.blades).items():
-        _, (value,) = _codegen.emit(((0, terms),), (cols, cols), v.batch_shape)
+    for key, terms in _point_map(blades).items():
+        _, (value,) = _codegen.emit(((0, terms),), (cols, cols), batch_shape)
         entries[key] = value
     return entries
 
@@ -240,11 +247,48 @@ def _point_major(v: Multivector, x: Float[Array, "... 3"]) -> Float[Array, "... 
     return jnp.stack(fused_point_coordinates(v, x, batch), axis=-1)
 
 
-@per_platform("apply_to_points", gpu=_point_major, examples=_apply_examples)
+def _rows_of_points(v: Multivector, x: Float[Array, "... 3"]) -> Float[Array, "... 3"]:
+    """GPUs: one Triton kernel over blocks of points (``_jaxcga_shared.pallas_rows``) where V is one versor or one
+    per point; other broadcasts leave the layout to XLA (``_point_major``)."""
+    batch = broadcast_batch("v", v.batch_shape, "x", x.shape[:-1])
+    if v.batch_shape not in ((), batch) or x.shape[:-1] != batch or not batch:
+        return _point_major(v, x)
+    return _rows_apply(v.blades, v.values, x)
+
+
+@functools.partial(jax.custom_jvp, nondiff_argnums=(0,))
+def _rows_apply(blades: tuple[int, ...], values: Array, x: Array) -> Array:
+    per_row, shared = ([values.reshape(-1, values.shape[-1])], []) if values.ndim > 1 else ([], [values])
+    return rowwise(row_coordinates(blades), [x.reshape(-1, 3), *per_row], shared, 3).reshape(x.shape)
+
+
+def row_coordinates(blades: tuple[int, ...]) -> RowFunction:
+    """The ``rowwise`` function of ``_rows_apply``: x's columns first, then V's (per row or shared)."""
+
+    def coordinates(row_columns, shared_columns):
+        (x_cols, *v_cols) = row_columns
+        cols = v_cols[0] if v_cols else shared_columns[0]
+        a = _map_entries_of(blades, cols, jnp.shape(cols[0]))
+        inputs = _map_inputs(a, x_cols)
+        inv_w = 1.0 / _map_row(a, inputs, 3)
+        return [_map_row(a, inputs, k) * inv_w for k in range(3)]
+
+    return coordinates
+
+
+@_rows_apply.defjvp
+def _rows_apply_jvp(blades, primals, tangents):
+    # Triton kernels have no transpose; the tangent, linear in (dv, dx), is XLA's and so reverse mode works too.
+    values, x = primals
+    _, tangent = jax.jvp(lambda vv, xx: _point_major(Multivector(vv, blades), xx), primals, tangents)
+    return _rows_apply(blades, values, x), tangent
+
+
+@per_platform("apply_to_points", gpu=_rows_of_points, examples=_apply_examples)
 def _component_major(v: Multivector, x: Float[Array, "... 3"]) -> Float[Array, "... 3"]:
     """Component-major: XLA:CPU then vectorizes the generated arithmetic along the points (measured 2-3x
     faster than on the interleaved (..., k) layout); the barriers keep XLA from fusing the transposes back
-    into the arithmetic. On a GPU the layout changes and barriers cost more than they save."""
+    into the arithmetic. On a GPU barriers cost more than they save (``_rows_of_points``)."""
     batch = broadcast_batch("v", v.batch_shape, "x", x.shape[:-1])
     v_rows, x_rows = jax.lax.optimization_barrier((jnp.moveaxis(v.values, -1, 0), jnp.moveaxis(x, -1, 0)))
     a = _map_entries(v, columns=v_rows)
@@ -268,7 +312,9 @@ def apply_to_points(v: Multivector, x: Float[ArrayLike, "... 3"], fused: bool = 
     point in the same jit (e.g. motors blended per vertex), so that the whole computation fuses into
     one loop instead of materializing V. The default is chosen per platform when the computation is
     lowered: on the CPU it re-lays V and x out component-major behind optimization barriers (measured
-    2-3x faster for stored per-point versors), elsewhere (GPUs) it is the fused formulation.
+    2-3x faster for stored per-point versors); on GPUs, for one versor per point or one for all, it is one Triton
+    kernel over blocks of points (``_jaxcga_shared.pallas_rows``; XLA's fused loop computes each coordinate in its
+    own thread), and the fused formulation otherwise.
 
     Precision: with a dilation by d the map is evaluated in the dilation's factored components
     (``_point_map``); a normalized versor's 16 stored components determine it to ~max(d, 1/d) ulps.

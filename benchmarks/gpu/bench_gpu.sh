@@ -30,7 +30,7 @@ bench() {  # bench NAME ARGS...: benchmarks/bench_NAME.py ARGS --json $out/NAME.
 }
 
 # the figures of issue 32, item 5, cheapest first; repetitions kept low (medians of few calls)
-bench kernel --points 10000000 --repeats 5
+bench kernel --points 10000000 --repeats 5 --tune-rows
 bench skinning --vertices 100000 --poses 1000 --repeats 20 --batch-repeats 2
 bench deform --vertices 100000 --repeats 5 --harmonic-repeats 2
 bench arap --vertices 100000 --iterations 10 --repeats 2

@@ -1,0 +1,104 @@
+"""Row-wise GPU kernels in Pallas (Triton): each program maps a block of rows of ``(n, k)`` inputs to the same rows of
+an ``(n, m)`` output. Private to the distribution.
+
+Why: for per-point data stored interleaved (``(n, 3)`` points, ``(n, 8)`` motors), XLA:GPU's loop emitter computes
+each output coordinate in its own thread, re-reading the row and recomputing the shared products three times; a
+Triton program loads a block of rows once and writes the block's coordinates together (benchmarks/README.md, "On a
+GPU"). On the CPU the same kernel runs in Pallas' interpret mode, so that CI checks its arithmetic
+(tests/shared_layer/test_platform_kernels.py); the choice is made when the computation is lowered.
+
+Triton neither pads nor masks a block that runs past the array, so the last block's loads and stores are masked here.
+"""
+
+from __future__ import annotations
+
+import functools
+from collections.abc import Callable, Sequence
+
+import jax
+import jax.numpy as jnp
+from jax.experimental import pallas as pl
+from jax.experimental.pallas import triton as pallas_triton
+from jaxtyping import Array
+
+# A program's rows and warps (Triton wants powers of 2): 8 rows a thread, enough in flight to cover memory latency.
+ROWS_PER_PROGRAM = 1024
+WARPS = 4
+
+RowFunction = Callable[[list[list[Array]], list[list[Array]]], list[Array]]
+
+
+def rowwise(
+    fn: RowFunction,
+    per_row: Sequence[Array],
+    shared: Sequence[Array],
+    out_width: int,
+    *,
+    rows_per_program: int = ROWS_PER_PROGRAM,
+    warps: int = WARPS,
+) -> Array:
+    """``out[i] = fn(rows i of per_row, shared)`` for every row i, as one kernel.
+
+    ``per_row``: arrays of shape ``(n, k_j)``, the same n; ``shared``: arrays of shape ``(k_j,)``, the same for
+    every row. ``fn(row_columns, shared_columns)`` gets, for each ``per_row`` array, its k_j columns (each an
+    array over a block of rows) and, for each ``shared`` array, its k_j entries (scalars), and returns the
+    ``out_width`` output columns, written elementwise (no reductions across rows). The output has the inputs'
+    promoted dtype and shape ``(n, out_width)``."""
+    if not per_row:
+        raise ValueError("per_row: at least one per-row array is needed (it sets n)")
+    n = per_row[0].shape[0]
+    for j, a in enumerate(per_row):
+        if a.ndim != 2 or a.shape[0] != n:
+            raise ValueError(f"per_row[{j}]: expected shape ({n}, k), got {a.shape}")
+    for j, a in enumerate(shared):
+        if a.ndim != 1:
+            raise ValueError(f"shared[{j}]: expected shape (k,), got {a.shape}")
+    if rows_per_program & (rows_per_program - 1) or warps & (warps - 1):
+        raise ValueError(f"rows_per_program, warps: Triton needs powers of 2, got {rows_per_program}, {warps}")
+    dtype = jnp.result_type(*per_row, *shared)
+    out_shape = jax.ShapeDtypeStruct((n, out_width), dtype)
+    if n == 0:
+        return jnp.zeros(out_shape.shape, dtype)
+    widths = [a.shape[1] for a in per_row], [a.shape[0] for a in shared]
+    kernel = functools.partial(_kernel, fn, n, rows_per_program, widths, out_width)
+    in_specs = [pl.BlockSpec((rows_per_program, a.shape[1]), lambda i: (i, 0)) for a in per_row] + [
+        pl.BlockSpec((a.shape[0],), lambda i: (0,)) for a in shared
+    ]
+    call = functools.partial(
+        pl.pallas_call,
+        kernel,
+        out_shape=out_shape,
+        grid=(pl.cdiv(n, rows_per_program),),
+        in_specs=in_specs,
+        out_specs=pl.BlockSpec((rows_per_program, out_width), lambda i: (i, 0)),
+        name=getattr(fn, "__name__", "rowwise"),
+    )
+
+    def on_gpu(*args):
+        return call(compiler_params=pallas_triton.CompilerParams(num_warps=warps))(*args)
+
+    def interpreted(*args):
+        return call(interpret=True)(*args)
+
+    return jax.lax.platform_dependent(*per_row, *shared, cpu=interpreted, default=on_gpu)
+
+
+def _kernel(fn, n, rows_per_program, widths, out_width, *refs):
+    per_row_widths, shared_widths = widths
+    per_row_refs = refs[: len(per_row_widths)]
+    shared_refs = refs[len(per_row_widths) : len(per_row_widths) + len(shared_widths)]
+    out_ref = refs[-1]
+    # Columns are (rows, 1) blocks: a column indexed by a Python int does not reach Triton's masked load.
+    rows = pl.program_id(0) * rows_per_program + jax.lax.broadcasted_iota(jnp.int32, (rows_per_program, 1), 0)
+    inside = rows < n
+    row_columns = [
+        [pallas_triton.load(ref.at[:, pl.ds(c, 1)], mask=inside, other=1) for c in range(k)]
+        for ref, k in zip(per_row_refs, per_row_widths)
+    ]
+    shared_columns = [[ref[c] for c in range(k)] for ref, k in zip(shared_refs, shared_widths)]
+    outputs = fn(row_columns, shared_columns)
+    if len(outputs) != out_width:
+        raise ValueError(f"fn: returned {len(outputs)} columns, expected out_width={out_width}")
+    for c, value in enumerate(outputs):
+        value = jnp.broadcast_to(value, (rows_per_program, 1)).astype(out_ref.dtype)
+        pallas_triton.store(out_ref.at[:, pl.ds(c, 1)], value, mask=inside)

@@ -1,0 +1,110 @@
+"""Row-wise Pallas kernels (``_jaxcga_shared.pallas_rows``): on the CPU the kernel runs in Pallas' interpret mode and
+must equal the same arithmetic in jax.numpy, on partial last blocks, with per-row and shared inputs, in float64 and
+float32 and under vmap; lowered for CUDA it is one Triton call. ``apply_to_points``' GPU variant, which uses it, is
+checked against the CPU variant in test_platform_kernels.py."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import jaxcga as cga
+from _jaxcga_shared.pallas_rows import rowwise
+from jaxcga import _versors
+
+
+def _affine_then_divide(row_columns, shared_columns):
+    (a0, a1, a2), (b0, b1) = row_columns
+    (s0, s1) = shared_columns[0]
+    return [a0 * s0 + b0, a1 * b1 - s1, a2 / (1.0 + b1 * b1)]
+
+
+def _expected(a, b, s):
+    return jnp.stack([a[:, 0] * s[0] + b[:, 0], a[:, 1] * b[:, 1] - s[1], a[:, 2] / (1.0 + b[:, 1] ** 2)], axis=-1)
+
+
+@pytest.mark.parametrize("n", [1, 7, 64, 65, 200])
+@pytest.mark.parametrize("dtype", [jnp.float64, jnp.float32])
+def test_rows_equal_jax_numpy_on_partial_blocks(n, dtype):
+    rng = np.random.default_rng(n)
+    a, b = (jnp.asarray(rng.normal(size=(n, k)), dtype) for k in (3, 2))
+    s = jnp.asarray([2.0, -0.5], dtype)
+    got = jax.jit(lambda a, b, s: rowwise(_affine_then_divide, [a, b], [s], 3, rows_per_program=64))(a, b, s)
+    assert got.shape == (n, 3) and got.dtype == dtype
+    np.testing.assert_allclose(got, _expected(a, b, s), rtol=1e-14, atol=1e-6 if dtype == jnp.float32 else 1e-15)
+
+
+def test_vmap_adds_a_grid_axis():
+    rng = np.random.default_rng(0)
+    a, b = jnp.asarray(rng.normal(size=(3, 100, 3))), jnp.asarray(rng.normal(size=(3, 100, 2)))
+    s = jnp.asarray([1.5, 0.25])
+    got = jax.vmap(lambda a, b: rowwise(_affine_then_divide, [a, b], [s], 3, rows_per_program=64))(a, b)
+    np.testing.assert_allclose(got, jax.vmap(lambda a, b: _expected(a, b, s))(a, b), rtol=1e-14, atol=1e-15)
+
+
+def test_no_rows():
+    out = rowwise(_affine_then_divide, [jnp.zeros((0, 3)), jnp.zeros((0, 2))], [jnp.ones(2)], 3)
+    assert out.shape == (0, 3)
+
+
+def test_bad_arguments_are_named():
+    a = jnp.zeros((4, 3))
+    with pytest.raises(ValueError, match="per_row: at least one"):
+        rowwise(_affine_then_divide, [], [jnp.ones(2)], 3)
+    with pytest.raises(ValueError, match=r"per_row\[1\]: expected shape \(4, k\)"):
+        rowwise(_affine_then_divide, [a, jnp.zeros((5, 2))], [jnp.ones(2)], 3)
+    with pytest.raises(ValueError, match=r"shared\[0\]: expected shape \(k,\)"):
+        rowwise(_affine_then_divide, [a, jnp.zeros((4, 2))], [jnp.ones((1, 2))], 3)
+    with pytest.raises(ValueError, match="rows_per_program, warps: Triton needs powers of 2"):
+        rowwise(_affine_then_divide, [a, jnp.zeros((4, 2))], [jnp.ones(2)], 3, rows_per_program=100)
+    with pytest.raises(ValueError, match="fn: returned 3 columns, expected out_width=2"):
+        rowwise(_affine_then_divide, [a, jnp.zeros((4, 2))], [jnp.ones(2)], 2)
+
+
+def _cuda_text(fn, *args):
+    try:
+        return jax.jit(fn).trace(*args).lower(lowering_platforms=("cuda",)).as_text()
+    except Exception as error:  # noqa: BLE001 (any failure: this JAX cannot lower for CUDA without a GPU)
+        pytest.skip(f"this JAX cannot lower for CUDA here: {error}")
+
+
+def test_lowered_for_cuda_it_is_one_triton_call():
+    """Lowering for CUDA runs the Pallas-to-Triton lowering (Triton's power-of-2 rule, supported operations) on the
+    CPU; compiling and timing it need a GPU (benchmarks/gpu)."""
+    a, b, s = jnp.zeros((1000, 3)), jnp.zeros((1000, 2)), jnp.ones(2)
+    text = _cuda_text(lambda a, b, s: rowwise(_affine_then_divide, [a, b], [s], 3), a, b, s)
+    assert text.count("xla.gpu.triton") == 1
+
+
+@pytest.mark.parametrize("one_for_all", [False, True], ids=["one motor per point", "one motor for all"])
+def test_apply_to_points_on_cuda_is_the_triton_kernel(one_for_all):
+    """Stored versors, one per point or one for all, go through the Triton kernel; a broadcast between batch shapes
+    stays with XLA."""
+    rng = np.random.default_rng(3)
+    motors = cga.exp_motor(cga.Multivector(rng.normal(size=(1 if one_for_all else 50, 6)), cga.MOTOR_GENERATOR))
+    motors = motors[0] if one_for_all else motors
+    x = jnp.asarray(rng.normal(size=(50, 3)))
+    assert _cuda_text(cga.apply_to_points, motors, x).count("xla.gpu.triton") == 1
+    rotors = cga.rotor(rng.normal(size=(4, 1, 3)), rng.normal(size=(4, 1)))
+    assert "xla.gpu.triton" not in _cuda_text(cga.apply_to_points, rotors, x[:5])
+
+
+def test_apply_to_points_gpu_variant_derivatives():
+    """The Triton kernel has no transpose: its custom JVP is XLA's, so forward and reverse mode both equal the CPU
+    variant's."""
+    rng = np.random.default_rng(4)
+    values = cga.exp_motor(cga.Multivector(rng.normal(size=(20, 6)), cga.MOTOR_GENERATOR)).values
+    x = jnp.asarray(rng.normal(size=(20, 3)))
+
+    def loss(variant):
+        return lambda v, p: jnp.sum(jnp.sin(variant(cga.Multivector(v, "motor"), p)))
+
+    gpu, cpu = _versors._rows_of_points, _versors._component_major
+    for g, c in zip(jax.grad(loss(gpu), argnums=(0, 1))(values, x), jax.grad(loss(cpu), argnums=(0, 1))(values, x)):
+        np.testing.assert_allclose(g, c, rtol=1e-12, atol=1e-12)
+    tangent = (jnp.ones_like(values), jnp.ones_like(x))
+    np.testing.assert_allclose(
+        jax.jvp(loss(gpu), (values, x), tangent)[1], jax.jvp(loss(cpu), (values, x), tangent)[1], rtol=1e-12
+    )
