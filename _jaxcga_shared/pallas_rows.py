@@ -25,6 +25,9 @@ from jaxtyping import Array
 ROWS_PER_PROGRAM = 1024
 WARPS = 4
 
+# Triton's offsets here are 32-bit: larger arrays would wrap around.
+MAX_ELEMENTS = 2**31 - 1
+
 RowFunction = Callable[[list[list[Array]], list[list[Array]]], list[Array]]
 
 
@@ -53,6 +56,8 @@ def rowwise(
     for j, a in enumerate(shared):
         if a.ndim != 1:
             raise ValueError(f"shared[{j}]: expected shape (k,), got {a.shape}")
+    if any(a.size + rows_per_program * a.shape[1] > MAX_ELEMENTS for a in per_row):
+        raise ValueError(f"per_row: arrays over {MAX_ELEMENTS} elements (with a block to spare) need 64-bit offsets")
     if rows_per_program & (rows_per_program - 1) or warps & (warps - 1):
         raise ValueError(f"rows_per_program, warps: Triton needs powers of 2, got {rows_per_program}, {warps}")
     dtype = jnp.result_type(*per_row, *shared)
@@ -81,6 +86,11 @@ def rowwise(
         return call(interpret=True)(*args)
 
     return jax.lax.platform_dependent(*per_row, *shared, cpu=interpreted, default=on_gpu)
+
+
+def fits(*per_row: Array) -> bool:
+    """Whether ``rowwise`` takes these per-row arrays (32-bit offsets) at any block size up to 2**16."""
+    return all(a.size + 2**16 * (a.shape[1] if a.ndim == 2 else 1) <= MAX_ELEMENTS for a in per_row)
 
 
 def _kernel(fn, n, rows_per_program, widths, out_width, *refs):

@@ -26,6 +26,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from _jaxcga_shared.checks import check_finite, check_vectors, require
+from _jaxcga_shared import pallas_rows
 from _jaxcga_shared.pallas_rows import RowFunction, rowwise
 from _jaxcga_shared.platform import Example, example, per_platform
 from jaxcga import _algebra as alg
@@ -251,7 +252,7 @@ def _rows_of_points(v: Multivector, x: Float[Array, "... 3"]) -> Float[Array, ".
     """GPUs: one Triton kernel over blocks of points (``_jaxcga_shared.pallas_rows``) where V is one versor or one
     per point; other broadcasts leave the layout to XLA (``_point_major``)."""
     batch = broadcast_batch("v", v.batch_shape, "x", x.shape[:-1])
-    if v.batch_shape not in ((), batch) or x.shape[:-1] != batch or not batch:
+    if v.batch_shape not in ((), batch) or x.shape[:-1] != batch or not batch or not pallas_rows.fits(v.values, x):
         return _point_major(v, x)
     return _rows_apply(v.blades, v.values, x)
 

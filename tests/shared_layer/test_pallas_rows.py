@@ -59,6 +59,9 @@ def test_bad_arguments_are_named():
         rowwise(_affine_then_divide, [a, jnp.zeros((4, 2))], [jnp.ones((1, 2))], 3)
     with pytest.raises(ValueError, match="rows_per_program, warps: Triton needs powers of 2"):
         rowwise(_affine_then_divide, [a, jnp.zeros((4, 2))], [jnp.ones(2)], 3, rows_per_program=100)
+    huge = jax.ShapeDtypeStruct((2**30, 4), jnp.float64)  # traced only: nothing is allocated
+    with pytest.raises(ValueError, match="per_row: arrays over 2147483647 elements"):
+        jax.eval_shape(lambda h: rowwise(_affine_then_divide, [h[:, :3], h[:, :2]], [jnp.ones(2)], 3), huge)
     with pytest.raises(ValueError, match="fn: returned 3 columns, expected out_width=2"):
         rowwise(_affine_then_divide, [a, jnp.zeros((4, 2))], [jnp.ones(2)], 2)
 
