@@ -25,8 +25,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from _jaxcga_shared.checks import check_finite, check_vectors, require
 from _jaxcga_shared import pallas_rows
+from _jaxcga_shared.checks import check_finite, check_vectors, require
 from _jaxcga_shared.pallas_rows import RowFunction, rowwise
 from _jaxcga_shared.platform import Example, example, per_platform
 from jaxcga import _algebra as alg
