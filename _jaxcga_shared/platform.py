@@ -11,6 +11,11 @@ import jax
 
 PLATFORM_KERNELS: dict[str, PerPlatform] = {}
 
+# The precision of every matrix product in the library (``precision=EXACT``): on GPUs float32 products default to
+# TF32 (10-bit mantissas: joint motors, rigidity checks and Hessians off by ~1e-3); float64 and the CPU are exact
+# either way. tests/test_precision.py checks that no product is left to the default.
+EXACT = jax.lax.Precision.HIGHEST
+
 
 class Example(NamedTuple):
     """Inputs on which a kernel's variants must agree: positional array arguments (pytrees) and static

@@ -39,7 +39,7 @@ from sksparse_minimal import SparseCholesky
 from _jaxcga_shared.checks import require
 from _jaxcga_shared.ell import ell_matrix, ell_matvec
 from _jaxcga_shared.host import host_call, to_devices
-from _jaxcga_shared.platform import Example, PerPlatform, example
+from _jaxcga_shared.platform import EXACT, Example, PerPlatform, example
 
 # relative residual of a prefactored system's device solve (the host's is a direct solve): 1e-10 left ARAP 8e-9 of
 # its size from libigl's direct iteration on an H100, over the tests' 1e-10
@@ -186,7 +186,7 @@ def _preconditioner(pattern: CSRPattern, data):
 
     def apply(r):
         columns = r.reshape(count, size, -1)
-        return jnp.einsum("bij,bjk->bik", inverse, columns).reshape(r.shape)
+        return jnp.einsum("bij,bjk->bik", inverse, columns, precision=EXACT).reshape(r.shape)
 
     return apply, positive
 

@@ -38,6 +38,7 @@ from jaxtyping import Array, ArrayLike, Float, Int
 import jaxcga as cga
 from _jaxcga_shared.checks import check_choice, check_triangle_mesh
 from _jaxcga_shared.mesh import bounding_diagonal
+from _jaxcga_shared.platform import EXACT
 from cutting._geometry import (
     PIECE_ANGLE,
     PIECE_AREA,
@@ -620,7 +621,7 @@ def tear_positions(
     )
     barycentric = jnp.maximum(barycentric, _TIP_MARGIN)
     barycentric = barycentric / jnp.sum(barycentric, -1, keepdims=True)
-    samples = jnp.einsum("sk,skc->sc", barycentric, corners)
+    samples = jnp.einsum("sk,skc->sc", barycentric, corners, precision=EXACT)
     normals = jnp.cross(X0[1:] - samples[:-1], X1[1:] - samples[:-1])
     normals = jnp.asarray(topology.orientation)[:, None] * normals / jnp.linalg.norm(normals, axis=-1, keepdims=True)
     offsets = jnp.sum(normals * samples[:-1], -1) + jnp.asarray(topology.shift)

@@ -64,6 +64,7 @@ from jaxtyping import Array, ArrayLike, Float, Int
 
 from _jaxcga_shared.checks import check_choice, check_index_range, check_triangle_mesh, require
 from _jaxcga_shared.ell import padded_rows
+from _jaxcga_shared.platform import EXACT
 from _jaxcga_shared.sparse import SparseSolver
 from jaxcga import KINDS, Multivector, align_points, apply_to_points
 
@@ -190,7 +191,7 @@ def _adjugate_and_det4(a):
         ],
         -2,
     )
-    return jnp.swapaxes(cof, -1, -2), jnp.einsum("...j,...j->...", a[..., 0, :], cof[..., 0, :])
+    return jnp.swapaxes(cof, -1, -2), jnp.einsum("...j,...j->...", a[..., 0, :], cof[..., 0, :], precision=EXACT)
 
 
 def horn_rotors(S: Float[Array, "n 3 3"], newton_steps: int = 24) -> tuple[Multivector, Float[Array, " n"]]:
@@ -244,8 +245,8 @@ def horn_rotors(S: Float[Array, "n 3 3"], newton_steps: int = 24) -> tuple[Multi
 def _local(data: ARAPData, x):
     """Local step: rotors of all cells and the energy E(x) = min over rotors."""
     spokes = x[:, None, :] - x[data.ring]
-    rotors, lam = horn_rotors(jnp.einsum("ndk,ndl->nkl", data.y, spokes))
-    quadratic = data.quadratic_scale * jnp.einsum("nd,ndk,ndk->", data.w, spokes, spokes)
+    rotors, lam = horn_rotors(jnp.einsum("ndk,ndl->nkl", data.y, spokes, precision=EXACT))
+    quadratic = data.quadratic_scale * jnp.einsum("nd,ndk,ndk->", data.w, spokes, spokes, precision=EXACT)
     return rotors, quadratic + data.rest_energy - 2.0 * jnp.sum(lam)
 
 
@@ -256,7 +257,7 @@ def _global(data: ARAPData, rotors: Multivector, bc, previous):
     neighbours = Multivector(rotors.values[data.ring], rotors.blades)
     rhs = data.rhs_scale * (own + jnp.sum(apply_to_points(neighbours, data.z, fused=True), axis=1))
     y = jnp.zeros((data.n, 3), bc.dtype).at[data.b].set(bc)
-    Ly = data.degree[:, None] * y - jnp.einsum("nd,ndk->nk", data.w, y[data.ring])  # -L y
+    Ly = data.degree[:, None] * y - jnp.einsum("nd,ndk->nk", data.w, y[data.ring], precision=EXACT)  # -L y
     x_free = data.solver((rhs - Ly)[data.free], previous[data.free])
     return y.at[data.free].set(x_free)
 

@@ -48,6 +48,7 @@ from scipy.special import comb
 import jaxcga as cga
 from _jaxcga_shared.checks import check_faces, check_vectors, require
 from _jaxcga_shared.mesh import signed_volume
+from _jaxcga_shared.platform import EXACT
 from deform._motor_field import MotorField, motor_about, motor_field_precompute
 from jaxcga import Multivector
 
@@ -154,7 +155,7 @@ def ffd_weights(V: Float[ArrayLike, "n 3"], lattice: Lattice) -> Float[Array, "n
         lattice: the Lattice."""
     local = lattice_coordinates(V, lattice)
     b = [_bernstein(c - 1, local[:, axis]) for axis, c in enumerate(lattice.counts)]
-    return jnp.einsum("pa,pb,pc->pabc", *b).reshape(local.shape[0], lattice.size)
+    return jnp.einsum("pa,pb,pc->pabc", *b, precision=EXACT).reshape(local.shape[0], lattice.size)
 
 
 def _local_grid(lattice: Lattice) -> Float[Array, "k 3"]:
@@ -169,7 +170,7 @@ def lattice_points(lattice: Lattice) -> Float[Array, "k 3"]:
 
     Args:
         lattice: the Lattice."""
-    return lattice.origin + _local_grid(lattice) @ lattice.axes
+    return lattice.origin + jnp.matmul(_local_grid(lattice), lattice.axes, precision=EXACT)
 
 
 def ffd_precompute(V: Float[ArrayLike, "n 3"], lattice: Lattice) -> MotorField:

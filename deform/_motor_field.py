@@ -26,6 +26,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 import jaxcga as cga
 from _jaxcga_shared.checks import check_vectors
+from _jaxcga_shared.platform import EXACT
 from jaxcga import KINDS, MOTOR_GENERATOR, Multivector
 
 
@@ -68,7 +69,7 @@ def blend_motors(weights: Float[ArrayLike, "n k"], key_motors: Multivector) -> M
     weights = _check_weights(weights)
     key_motors = _check_key_motors("key_motors", key_motors, weights.shape[1])
     logs = motor_logs(key_motors).astype(weights.dtype)
-    blended = jnp.einsum("nk,...kc->...nc", weights, logs)
+    blended = jnp.einsum("nk,...kc->...nc", weights, logs, precision=EXACT)
     return cga.exp_motor(Multivector(blended, MOTOR_GENERATOR))
 
 
@@ -174,4 +175,4 @@ def blend_positions(weights: Float[ArrayLike, "n k"], P: Float[ArrayLike, "... k
     P = jnp.asarray(P)
     if P.ndim < 2 or P.shape[-2:] != (weights.shape[1], 3):
         raise ValueError(f"P: expected shape (..., {weights.shape[1]}, 3), got {P.shape}")
-    return jnp.einsum("nk,...kc->...nc", weights, P.astype(weights.dtype))
+    return jnp.einsum("nk,...kc->...nc", weights, P.astype(weights.dtype), precision=EXACT)

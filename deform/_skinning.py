@@ -35,7 +35,7 @@ from jaxtyping import Array, ArrayLike, Float, Int
 
 import jaxcga as cga
 from _jaxcga_shared.checks import check_vectors, require
-from _jaxcga_shared.platform import PerPlatform, example, per_platform
+from _jaxcga_shared.platform import EXACT, PerPlatform, example, per_platform
 from jaxcga._multivector import KINDS, Multivector
 from jaxcga._versors import fused_point_coordinates
 
@@ -61,7 +61,7 @@ def _materialize(x):
     copy (``_aligned_weights``)."""
     shape = x.shape
     flat = x.reshape(-1, shape[-1])
-    return (flat @ jnp.eye(shape[-1], dtype=x.dtype)).reshape(shape)
+    return jnp.matmul(flat, jnp.eye(shape[-1], dtype=x.dtype), precision=EXACT).reshape(shape)
 
 
 def _blend_joints(J, weights, data, joint_axis: int = -2):
@@ -99,7 +99,9 @@ def _aligned_weights(J, W, rotors: Float[Array, "... j 4"], log_scales: Float[Ar
     (n, poses) against the pose-major loops that read it (benchmarks/README.md, "Kernel and deformers").
     Elsewhere the rows are left to fuse into the blend that reads them."""
     joints = rotors.shape[-2]
-    dots = jnp.einsum("...ac,...bc->...ab", rotors, rotors).reshape(rotors.shape[:-2] + (joints * joints,))
+    dots = jnp.einsum("...ac,...bc->...ab", rotors, rotors, precision=EXACT).reshape(
+        rotors.shape[:-2] + (joints * joints,)
+    )
     rows = [jnp.broadcast_to(W[:, 0].astype(rotors.dtype), rotors.shape[:-2] + W.shape[:1])]
     for k in range(1, J.shape[1]):
         w = W[:, k].astype(rotors.dtype)
@@ -151,7 +153,7 @@ def _blend_dilations_dense(J, W, dilations):
     n, k = J.shape
     vertex = jnp.broadcast_to(jnp.arange(n), (k, n))
     dense = jnp.zeros((dilations.shape[-1], n), dilations.dtype).at[J.T, vertex].add(W.T.astype(dilations.dtype))
-    return dilations @ dense
+    return jnp.matmul(dilations, dense, precision=EXACT)
 
 
 @custom_batching.custom_vmap
@@ -345,7 +347,9 @@ def matrices_to_dual_quaternions(
     if matrices.ndim < 2 or matrices.shape[-2:] not in ((4, 4), (3, 4)):
         raise ValueError(f"matrices: expected shape (..., 4, 4), got {matrices.shape}")
     rot = matrices[..., :3, :3]
-    err = jnp.max(jnp.abs(jnp.swapaxes(rot, -1, -2) @ rot - jnp.eye(3, dtype=rot.dtype)), initial=0.0)
+    err = jnp.max(
+        jnp.abs(jnp.matmul(jnp.swapaxes(rot, -1, -2), rot, precision=EXACT) - jnp.eye(3, dtype=rot.dtype)), initial=0.0
+    )
     rot = require(
         rot,
         (

@@ -22,6 +22,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
 
 from _jaxcga_shared.checks import check_choice, require
+from _jaxcga_shared.platform import EXACT
 from deform._ffd import MAX_DEGREE, _bernstein
 from deform._harmonic import harmonic_precompute, harmonic_solve
 from deform._motor_field import MotorField, motor_field_precompute
@@ -115,7 +116,11 @@ def spline_weights(
     if basis == "linear":
         return jnp.stack([1 - lam, lam], axis=-1)
     if basis == "lagrange":
-        return _powers(lam, 2) @ jnp.asarray([[1.0, 0.0, 0.0], [-3.0, 4.0, -1.0], [2.0, -4.0, 2.0]], lam.dtype)
+        return jnp.matmul(
+            _powers(lam, 2),
+            jnp.asarray([[1.0, 0.0, 0.0], [-3.0, 4.0, -1.0], [2.0, -4.0, 2.0]], lam.dtype),
+            precision=EXACT,
+        )
     if basis == "bezier":
         return _bernstein(k - 1, lam)
     return _bspline(lam, k, degree)

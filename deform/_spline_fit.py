@@ -22,6 +22,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 import jaxcga as cga
+from _jaxcga_shared.platform import EXACT
 from deform._motor_field import _check_key_motors, motor_logs
 from deform._spline import check_parameter, spline_weights
 from jaxcga import KINDS, MOTOR_GENERATOR, Multivector
@@ -60,9 +61,9 @@ def spline_fit_solve(data: SplineFitData, Q: Multivector) -> Multivector:
     Q = _check_key_motors("Q", Q, m)
     q = motor_logs(Q)
     if data.method == "svd":
-        logs = jnp.einsum("km,...mc->...kc", data.factor.astype(q.dtype), q)
+        logs = jnp.einsum("km,...mc->...kc", data.factor.astype(q.dtype), q, precision=EXACT)
     else:
-        rhs = jnp.einsum("mk,...mc->...kc", data.A.astype(q.dtype), q)  # A^T Q
+        rhs = jnp.einsum("mk,...mc->...kc", data.A.astype(q.dtype), q, precision=EXACT)  # A^T Q
         columns = jnp.moveaxis(rhs, -2, 0).reshape(k, -1)
         solved = jsl.cho_solve((data.factor.astype(q.dtype), True), columns)
         logs = jnp.moveaxis(solved.reshape((k,) + rhs.shape[:-2] + (6,)), 0, -2)

@@ -12,6 +12,7 @@ import jax.numpy as jnp
 from jaxtyping import ArrayLike, Float
 
 from _jaxcga_shared.checks import check_finite, check_vectors
+from _jaxcga_shared.platform import EXACT
 from jaxcga._multivector import Multivector
 from jaxcga._versors import apply_to_points, motor, quaternion_to_rotor
 
@@ -39,7 +40,7 @@ def align_points(
     w = w / jnp.sum(w, axis=-1, keepdims=True)
     cp = jnp.sum(w[..., None] * p, axis=-2)
     cq = jnp.sum(w[..., None] * q, axis=-2)
-    s = jnp.einsum("...n,...ni,...nj->...ij", w, p - cp[..., None, :], q - cq[..., None, :])
+    s = jnp.einsum("...n,...ni,...nj->...ij", w, p - cp[..., None, :], q - cq[..., None, :], precision=EXACT)
     sxx, sxy, sxz = s[..., 0, 0], s[..., 0, 1], s[..., 0, 2]
     syx, syy, syz = s[..., 1, 0], s[..., 1, 1], s[..., 1, 2]
     szx, szy, szz = s[..., 2, 0], s[..., 2, 1], s[..., 2, 2]

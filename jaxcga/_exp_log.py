@@ -24,6 +24,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
 from _jaxcga_shared.checks import require
+from _jaxcga_shared.platform import EXACT
 from jaxcga import _algebra as alg
 from jaxcga._multivector import KINDS, Multivector
 from jaxcga._operations import normalize
@@ -228,7 +229,7 @@ def _v_matrix(lam: Float[Array, "*batch"], w: Float[Array, "... 3"]) -> Float[Ar
         -2,
     )
     eye = jnp.eye(3, dtype=w.dtype)
-    return a0[..., None, None] * eye + a1[..., None, None] * W + a2[..., None, None] * (W @ W)
+    return a0[..., None, None] * eye + a1[..., None, None] * W + a2[..., None, None] * jnp.matmul(W, W, precision=EXACT)
 
 
 def exp_similitude(b: Multivector) -> Multivector:

@@ -17,7 +17,7 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, DTypeLike, Float
 
 from _jaxcga_shared.checks import check_choice
-from _jaxcga_shared.platform import example, per_platform
+from _jaxcga_shared.platform import EXACT, example, per_platform
 from jaxcga import _algebra as alg
 from jaxcga import _codegen
 
@@ -301,7 +301,11 @@ def _contracted_product(a: Multivector, b: Multivector, *, kind: str) -> Multive
     dtype = jnp.result_type(a.dtype, b.dtype)
     blades, table = _codegen.bilinear_tensor(kind, a.blades, b.blades)
     values = jnp.einsum(
-        "...i,ijk,...j->...k", a.values.astype(dtype), jnp.asarray(table, dtype), b.values.astype(dtype)
+        "...i,ijk,...j->...k",
+        a.values.astype(dtype),
+        jnp.asarray(table, dtype),
+        b.values.astype(dtype),
+        precision=EXACT,
     )
     return Multivector(values, blades)
 

@@ -13,6 +13,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Bool, DTypeLike, Float
 
 from _jaxcga_shared.checks import require
+from _jaxcga_shared.platform import EXACT
 from jaxcga import _algebra as alg
 from jaxcga import _codegen
 from jaxcga._multivector import (
@@ -177,7 +178,7 @@ def inverse(m: Multivector) -> Multivector:
     matrix = jnp.stack([jnp.stack(r, axis=-1) for r in rows], axis=-2)
     rhs = jnp.zeros(m.batch_shape + (n,), m.dtype).at[..., blades.index(0)].set(1.0)
     x = jnp.linalg.solve(matrix, rhs[..., None])[..., 0]
-    residual = jnp.einsum("...kj,...j->...k", matrix, x) - rhs
+    residual = jnp.einsum("...kj,...j->...k", matrix, x, precision=EXACT) - rhs
     scale = 1.0 + jnp.max(jnp.abs(matrix)) * jnp.max(jnp.abs(x), initial=0.0)
     bad = ~jnp.all(jnp.isfinite(x)) | (jnp.max(jnp.abs(residual), initial=0.0) > 1e-6 * scale)
     x = require(x, (bad, "inverse: multivector is not invertible"))

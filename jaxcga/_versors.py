@@ -28,7 +28,7 @@ from jaxtyping import Array, ArrayLike, Float
 from _jaxcga_shared import pallas_rows
 from _jaxcga_shared.checks import check_finite, check_vectors, require
 from _jaxcga_shared.pallas_rows import RowFunction, rowwise
-from _jaxcga_shared.platform import Example, example, per_platform
+from _jaxcga_shared.platform import EXACT, Example, example, per_platform
 from jaxcga import _algebra as alg
 from jaxcga import _codegen
 from jaxcga._multivector import KINDS, Multivector, broadcast_batch
@@ -466,7 +466,9 @@ def matrix_to_motor(matrix: Float[ArrayLike, "... 4 4"]) -> Multivector:
         raise ValueError(f"matrix: expected shape (..., 4, 4) or (..., 3, 4), got {matrix.shape}")
     matrix = check_finite("matrix", matrix)
     rot = matrix[..., :3, :3]
-    err = jnp.max(jnp.abs(jnp.swapaxes(rot, -1, -2) @ rot - jnp.eye(3, dtype=rot.dtype)), initial=0.0)
+    err = jnp.max(
+        jnp.abs(jnp.matmul(jnp.swapaxes(rot, -1, -2), rot, precision=EXACT) - jnp.eye(3, dtype=rot.dtype)), initial=0.0
+    )
     rot = require(rot, ((err > 1e-5) | jnp.any(jnp.linalg.det(rot) < 0), "matrix: not a rigid motion"))
     return motor(quaternion_to_rotor(matrix_to_quaternion(rot)), matrix[..., :3, 3])
 
@@ -488,6 +490,8 @@ def matrix_to_similitude(matrix: Float[ArrayLike, "... 4 4"], tolerance: float =
     det = require(det, (jnp.any(det <= 0), "matrix: not a similitude (determinant <= 0: reflection or singular)"))
     s = jnp.cbrt(det)
     rot = a / s[..., None, None]
-    err = jnp.max(jnp.abs(jnp.swapaxes(rot, -1, -2) @ rot - jnp.eye(3, dtype=rot.dtype)), initial=0.0)
+    err = jnp.max(
+        jnp.abs(jnp.matmul(jnp.swapaxes(rot, -1, -2), rot, precision=EXACT) - jnp.eye(3, dtype=rot.dtype)), initial=0.0
+    )
     rot = require(rot, (err > tolerance, "matrix: not a similitude (shear or non-uniform scale)"))
     return similitude(quaternion_to_rotor(matrix_to_quaternion(rot)), matrix[..., :3, 3], s)

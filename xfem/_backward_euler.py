@@ -70,6 +70,7 @@ from jaxtyping import Array, Float, Int
 
 from _jaxcga_shared.checks import check_real, require
 from _jaxcga_shared.host import to_devices
+from _jaxcga_shared.platform import EXACT
 from _jaxcga_shared.sparse import factorize, host_csr, host_direct, host_pcg, spd_solve
 from xfem._assembly import (
     AssemblyPattern,
@@ -486,7 +487,11 @@ def _newton(theta: _Theta, system: FEMSystem, h, iterations: int, tolerance, lin
         if tolerance is not None:  # converging: tighten the solves as grad E falls, for superlinear convergence
             rtol = jnp.clip(norm / first_norm, _CG_RTOL_MIN, _CG_RTOL)
         step = -_solve(_host_newton_direction, system.pattern, data, gradient, rtol, "accept")
-        alpha = _line_search(system, x, step.reshape(-1, 3), jnp.dot(gradient, step), theta, h) if line_search else 1
+        alpha = (
+            _line_search(system, x, step.reshape(-1, 3), jnp.dot(gradient, step, precision=EXACT), theta, h)
+            if line_search
+            else 1
+        )
         x = x.at[free].add(alpha * step.reshape(-1, 3))
         # converged, or stalled (the line search found no decrease above rounding)
         done = False if tolerance is None else (jnp.max(jnp.abs(step), initial=0) <= tolerance) | (alpha == 0)

@@ -24,6 +24,7 @@ import scipy.sparse as sp
 from jaxtyping import Array, ArrayLike, Float, Int
 
 from _jaxcga_shared.checks import check_points, check_positive, require
+from _jaxcga_shared.platform import EXACT
 from xfem._tetmesh import (
     _bad_index,
     _host_tets,
@@ -116,7 +117,7 @@ def _shape_functions(X, T, points, elements):
     tets = T[elements]
     x = X[tets]
     grads, det = _gradients(x)
-    barycentric = jnp.einsum("kaj,kj->ka", grads[:, 1:], points - x[:, 0])
+    barycentric = jnp.einsum("kaj,kj->ka", grads[:, 1:], points - x[:, 0], precision=EXACT)
     N = jnp.concatenate([1 - jnp.sum(barycentric, axis=1, keepdims=True), barycentric], axis=1)
     return N, jnp.any((elements < 0) | (elements >= T.shape[0])), _bad_index(tets, X.shape[0]), _bad_volume(det)
 

@@ -77,10 +77,8 @@ import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from _jaxcga_shared.checks import require
+from _jaxcga_shared.platform import EXACT
 from xfem._jacobi3 import eigh3, svd3
-
-# float32 products in full precision: a GPU's default (TF32, 10-bit mantissas) put the Hessians 4% off
-EXACT = jax.lax.Precision.HIGHEST
 
 _LEVI_CIVITA = np.zeros((3, 3, 3))
 for _i, _j, _k in ((0, 1, 2), (1, 2, 0), (2, 0, 1)):
