@@ -250,9 +250,10 @@ def _point_major(v: Multivector, x: Float[Array, "... 3"]) -> Float[Array, "... 
 
 def _rows_of_points(v: Multivector, x: Float[Array, "... 3"]) -> Float[Array, "... 3"]:
     """GPUs: one Triton kernel over blocks of points (``_jaxcga_shared.pallas_rows``) where V is one versor or one
-    per point; other broadcasts leave the layout to XLA (``_point_major``)."""
+    per point, of x's dtype; other broadcasts and mixed dtypes leave the layout to XLA (``_point_major``)."""
     batch = broadcast_batch("v", v.batch_shape, "x", x.shape[:-1])
-    if v.batch_shape not in ((), batch) or x.shape[:-1] != batch or not batch or not pallas_rows.fits(v.values, x):
+    stored = v.batch_shape in ((), batch) and x.shape[:-1] == batch and v.dtype == x.dtype
+    if not batch or not stored or not pallas_rows.fits(v.values, x):
         return _point_major(v, x)
     return _rows_apply(v.blades, v.values, x)
 
