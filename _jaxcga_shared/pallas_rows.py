@@ -37,6 +37,7 @@ def rowwise(
     shared: Sequence[Array],
     out_width: int,
     *,
+    otherwise: Callable[..., Array] | None = None,
     rows_per_program: int = ROWS_PER_PROGRAM,
     warps: int = WARPS,
 ) -> Array:
@@ -46,7 +47,11 @@ def rowwise(
     every row. ``fn(row_columns, shared_columns)`` gets, for each ``per_row`` array, its k_j columns (each an
     array over a block of rows) and, for each ``shared`` array, its k_j entries (scalars), and returns the
     ``out_width`` output columns, written elementwise (no reductions across rows). The output has the inputs'
-    promoted dtype and shape ``(n, out_width)``."""
+    promoted dtype and shape ``(n, out_width)``.
+
+    The platform is chosen when the computation is lowered: Triton on CUDA and ROCm GPUs, Pallas' interpret mode
+    on the CPU (tests), and elsewhere (TPUs) ``otherwise(*per_row, *shared)``, the same computation without
+    Pallas (default: interpret mode there too)."""
     if not per_row:
         raise ValueError("per_row: at least one per-row array is needed (it sets n)")
     n = per_row[0].shape[0]
@@ -85,7 +90,9 @@ def rowwise(
     def interpreted(*args):
         return call(interpret=True)(*args)
 
-    return jax.lax.platform_dependent(*per_row, *shared, cpu=interpreted, default=on_gpu)
+    return jax.lax.platform_dependent(
+        *per_row, *shared, cpu=interpreted, cuda=on_gpu, rocm=on_gpu, default=otherwise or interpreted
+    )
 
 
 def fits(*per_row: Array) -> bool:

@@ -261,7 +261,12 @@ def _rows_of_points(v: Multivector, x: Float[Array, "... 3"]) -> Float[Array, ".
 @functools.partial(jax.custom_jvp, nondiff_argnums=(0,))
 def _rows_apply(blades: tuple[int, ...], values: Array, x: Array) -> Array:
     per_row, shared = ([values.reshape(-1, values.shape[-1])], []) if values.ndim > 1 else ([], [values])
-    return rowwise(row_coordinates(blades), [x.reshape(-1, 3), *per_row], shared, 3).reshape(x.shape)
+
+    def without_triton(x_rows, v_rows):
+        return _point_major(Multivector(v_rows, blades), x_rows)
+
+    coordinates = row_coordinates(blades)
+    return rowwise(coordinates, [x.reshape(-1, 3), *per_row], shared, 3, otherwise=without_triton).reshape(x.shape)
 
 
 def row_coordinates(blades: tuple[int, ...]) -> RowFunction:

@@ -122,6 +122,7 @@ def test_frame_times_and_clip_choice(crowd):
         packed.frame_times(0)
 
 
+@pytest.mark.slow  # 18 s on 2 cores: the fast suite's 10-minute budget
 def test_a_new_batch_packed_at_least_as_large_reuses_the_shapes(crowd):
     first = deform.pack_models(crowd)
     second = deform.pack_models(crowd[1:4], at_least=first.capacities)
@@ -149,6 +150,7 @@ def test_one_time_row_for_every_model_and_padding_rows_are_inert(crowd):
     )
 
 
+@pytest.mark.slow  # 9 s on 2 cores: the fast suite's 10-minute budget
 def test_a_model_with_a_non_uniform_scale_fails_by_name_in_a_batch(crowd):
     odd = random_model(5)
     skeleton = eqx.tree_at(lambda s: s.scale, odd.skeleton, odd.skeleton.scale.at[1].set(jnp.asarray([1.0, 2.0, 1.0])))

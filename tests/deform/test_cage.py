@@ -131,6 +131,7 @@ def test_translator_cage_motors_equal_the_positional_cage_in_both_bindings():
     )
 
 
+@pytest.mark.slow  # 7 s on 2 cores: the fast suite's 10-minute budget
 def test_local_motor_moves_points_near_its_cage_vertex_most():
     cage, V = BOUND["arm"], ARM_V
     j = 3 * 8 + 2  # a vertex of the middle ring

@@ -65,6 +65,7 @@ def test_handle_vertices_move_rigidly_by_their_motor(laplacian):
     assert all(np.abs(moved[free] - r).max() > 1e-3 for r in rigid)
 
 
+@pytest.mark.slow  # 6 s on 2 cores: the fast suite's 10-minute budget
 def test_the_same_motor_on_every_handle_is_that_rigid_map():
     G = motor_about(jnp.array([0.3, 0.1, -0.2]), cga.rotor(jnp.array([1.0, 2.0, 0.5]), 2.5), jnp.array([0.4, 0, 1]))
     motors = cga.Multivector(jnp.broadcast_to(G.values, (3, 8)), G.blades)

@@ -123,6 +123,7 @@ def test_versor_sampling_equals_specification_for_translation_and_rotation():
         np.testing.assert_allclose(ours, spec, atol=1e-11)
 
 
+@pytest.mark.slow  # 11 s on 2 cores: the fast suite's 10-minute budget
 def test_versor_sampling_blends_dilations_geometrically():
     model = random_model(5)
     clip = deform.AnimationClip((_channel("scale", [0.0, 1.0], [[1.0] * 3, [4.0] * 3], bone=1),))
@@ -142,6 +143,7 @@ def test_sampling_vmaps_over_times():
         np.testing.assert_allclose(batched[k], deform.sample_versors(model.skeleton, clip, t).values, atol=1e-12)
 
 
+@pytest.mark.slow  # 7 s on 2 cores: the fast suite's 10-minute budget
 def test_keyframes_blend_linearly_and_align_signs():
     a, b = random_pose(7, 3), random_pose(8, 3)
     keys = deform.Keyframes(jnp.array([0.0, 2.0]), cga.Multivector(jnp.stack([a.values, -b.values]), a.blades))

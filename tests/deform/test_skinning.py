@@ -127,6 +127,7 @@ def _numpy_dqs(V, J, W, dq):
     return out
 
 
+@pytest.mark.slow  # 8 s on 2 cores: the fast suite's 10-minute budget
 def test_dqs_and_motor_blend_against_numpy_dqs_with_flipped_signs():
     """Negating a joint's dual quaternion (or motor) is the same transformation: the blends align
     signs per vertex, so flipping any subset of joints changes nothing."""

@@ -168,6 +168,7 @@ def test_linear_bend_turns_each_section_by_its_share_of_the_angle():
     np.testing.assert_allclose(X[END], moved(bend, V[END]), atol=1e-12)
 
 
+@pytest.mark.slow  # 9 s on 2 cores: the fast suite's 10-minute budget
 def test_jit_and_vmap_over_batches_of_key_motors():
     rng = np.random.default_rng(3)
     field = spline_precompute(V, F, START, END, basis="bspline", num_keys=5)

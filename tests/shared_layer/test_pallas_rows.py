@@ -94,20 +94,31 @@ def test_apply_to_points_on_cuda_is_the_triton_kernel(one_for_all):
     assert "xla.gpu.triton" not in _cuda_text(cga.apply_to_points, rotors, x[:5])
 
 
-def test_apply_to_points_gpu_variant_derivatives():
-    """The Triton kernel has no transpose: its custom JVP is XLA's, so forward and reverse mode both equal the CPU
-    variant's."""
+def test_apply_to_points_gpu_variant_forward_mode():
+    """The Triton kernel has no transpose or JVP of its own: its custom JVP is XLA's formulation, so forward mode
+    (here) and reverse mode (test_platform_kernels.py, vector-Jacobian products) equal the CPU variant's."""
     rng = np.random.default_rng(4)
     values = cga.exp_motor(cga.Multivector(rng.normal(size=(20, 6)), cga.MOTOR_GENERATOR)).values
     x = jnp.asarray(rng.normal(size=(20, 3)))
+    tangents = (jnp.asarray(rng.normal(size=values.shape)), jnp.asarray(rng.normal(size=x.shape)))
 
-    def loss(variant):
-        return lambda v, p: jnp.sum(jnp.sin(variant(cga.Multivector(v, "motor"), p)))
+    def jvp(variant):
+        return jax.jit(
+            lambda v, p, dv, dp: jax.jvp(lambda a, b: variant(cga.Multivector(a, "motor"), b), (v, p), (dv, dp))
+        )
 
-    gpu, cpu = _versors._rows_of_points, _versors._component_major
-    for g, c in zip(jax.grad(loss(gpu), argnums=(0, 1))(values, x), jax.grad(loss(cpu), argnums=(0, 1))(values, x)):
+    gpu, cpu = (jvp(f)(values, x, *tangents) for f in (_versors._rows_of_points, _versors._component_major))
+    for g, c in zip(gpu, cpu):
         np.testing.assert_allclose(g, c, rtol=1e-12, atol=1e-12)
-    tangent = (jnp.ones_like(values), jnp.ones_like(x))
-    np.testing.assert_allclose(
-        jax.jvp(loss(gpu), (values, x), tangent)[1], jax.jvp(loss(cpu), (values, x), tangent)[1], rtol=1e-12
-    )
+
+
+def test_other_platforms_compute_without_pallas():
+    """On platforms without Triton (TPUs) the kernel's ``otherwise`` runs: here, lowered for TPU, no Pallas call."""
+    rng = np.random.default_rng(5)
+    motors = cga.exp_motor(cga.Multivector(rng.normal(size=(30, 6)), cga.MOTOR_GENERATOR))
+    x = jnp.asarray(rng.normal(size=(30, 3)))
+    try:
+        text = jax.jit(cga.apply_to_points).trace(motors, x).lower(lowering_platforms=("tpu",)).as_text()
+    except Exception as error:  # noqa: BLE001 (any failure: this JAX cannot lower for TPU here)
+        pytest.skip(f"this JAX cannot lower for TPU here: {error}")
+    assert "tpu_custom_call" not in text and "triton" not in text

@@ -170,6 +170,7 @@ def test_gradient_and_vmap_through_the_device_path():
     np.testing.assert_allclose(solved, np.linalg.solve(A.toarray(), np.asarray(batch).T).T, rtol=1e-8)
 
 
+@pytest.mark.slow  # 11 s on 2 cores: the fast suite's 10-minute budget
 def test_singular_indefinite_and_unconverged_systems_are_reported():
     singular = sp.csr_matrix(np.array([[1.0, 1.0], [1.0, 1.0]]))
     with pytest.raises(ValueError, match="A: the matrix is singular or not positive definite"):

@@ -310,6 +310,7 @@ def test_padded_system_steps_like_the_real_one():
         fem_system(mesh.T, grads, volumes, mass, force, fixed, capacity=capacity._replace(elements=m - 1))
 
 
+@pytest.mark.slow  # 7 s on 2 cores: the fast suite's 10-minute budget
 def test_in_chunks_visits_every_row_once():
     """The last chunk is moved back to end at the last row; the rows it shares with the chunk before are masked."""
     rows = jnp.arange(1.0, 34.0)

@@ -72,6 +72,7 @@ def _scalar(system, weights):
     return sum(jnp.sum(getattr(system, name) * w) for name, w in zip(_FIELDS, weights))
 
 
+@pytest.mark.slow  # 14 s on 2 cores: the fast suite's 10-minute budget
 @pytest.mark.parametrize("which", ["height", "tilt"])
 def test_gradient_matches_central_differences_of_the_booleans(bar, which):
     height, theta = 0.43, 0.2

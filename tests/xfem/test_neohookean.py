@@ -201,6 +201,7 @@ def test_element_gradient_and_hessian_match_autodiff(tets):
     np.testing.assert_allclose(H, np.swapaxes(H, 1, 2), atol=1e-13 * Hs.max())
 
 
+@pytest.mark.slow  # 9 s on 2 cores: the fast suite's 10-minute budget
 def test_element_gradient_and_hessian_finite_differences(tets):
     # one inverted tet, repeated M times (the batch size the element functions are compiled for)
     grads, vol, X = (np.repeat(a[:1], M, 0) for a in tets)
@@ -269,6 +270,7 @@ def test_degenerate_and_inverted_elements_stay_finite(tets):
     assert np.isfinite(d_x).all() and np.isfinite(d_young)
 
 
+@pytest.mark.slow  # 7 s on 2 cores: the fast suite's 10-minute budget
 def test_projected_hessian_derivative(tets):
     # the custom JVP (Daleckii-Krein) against central differences at generic states, inverted ones included
     grads, vol, X = tets

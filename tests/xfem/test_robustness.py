@@ -147,6 +147,7 @@ def test_cut_aligned_with_faces_edges_or_vertices(feature, perturb):
     _assert_fields(model, before, points, elements, keep)
 
 
+@pytest.mark.slow  # 12 s on 2 cores: the fast suite's 10-minute budget
 def test_cut_outside_the_body_is_bitwise_a_no_op():
     mesh = box_tets((2, 2, 2))
     model = xfem_model(mesh, RHO, fixed=[0, 1, 2], state=deformed_state(mesh))
