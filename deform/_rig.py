@@ -26,6 +26,7 @@ Times outside a clip's key range are clamped to its first / last key.
 
 from __future__ import annotations
 
+import functools
 from typing import NamedTuple
 
 import equinox as eqx
@@ -36,6 +37,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 import jaxcga as cga
 from _jaxcga_shared.checks import require
+from _jaxcga_shared.platform import EXACT
 from deform._model import PATHS, AnimationClip, Channel, Skeleton, SkinnedMesh
 from jaxcga._multivector import KINDS, Multivector
 
@@ -193,7 +195,7 @@ def forward_kinematics_matrices(
         raise ValueError(f"local: expected shape (..., b, 4, 4), got {local.shape}")
     _check_bones("local", parents, local.shape[-3])
     values = jnp.moveaxis(local, -3, 0)
-    out = _scan_chain(parents, values, jnp.eye(4, dtype=local.dtype), jnp.matmul)
+    out = _scan_chain(parents, values, jnp.eye(4, dtype=local.dtype), functools.partial(jnp.matmul, precision=EXACT))
     return jnp.moveaxis(out, 0, -3)
 
 

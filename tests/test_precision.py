@@ -24,17 +24,24 @@ JAX_MODULES = {"jnp", "jax.numpy", "jax.lax", "lax"}
 
 
 def _products_without_precision(path: Path, root: Path = ROOT) -> list[str]:
+    """``jnp.einsum(...)`` and the like without ``precision=``, and products passed as functions (``jnp.matmul``)
+    other than through ``functools.partial(..., precision=...)``."""
+    tree = ast.parse(path.read_text(), str(path))
+    stated = set()  # the product attributes whose call (or partial) passes a precision
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Call) and any(keyword.arg == "precision" for keyword in node.keywords):
+            stated.add(id(node.func))
+            stated.update(id(arg) for arg in node.args[:1])
     found = []
-    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+    for node in ast.walk(tree):
         if (
-            isinstance(node, ast.Call)
-            and isinstance(node.func, ast.Attribute)
-            and node.func.attr in PRODUCTS
-            and ast.unparse(node.func.value) in JAX_MODULES
-            and not any(keyword.arg == "precision" for keyword in node.keywords)
+            isinstance(node, ast.Attribute)
+            and node.attr in PRODUCTS
+            and ast.unparse(node.value) in JAX_MODULES
+            and id(node) not in stated
         ):
-            found.append(f"{path.relative_to(root)}:{node.lineno}: {ast.unparse(node)[:80]}")
-    return found
+            found.append((node.lineno, f"{path.relative_to(root)}:{node.lineno}: {ast.unparse(node)}"))
+    return [line for _, line in sorted(found)]
 
 
 def test_every_jax_product_call_states_its_precision():
@@ -50,8 +57,11 @@ def test_every_jax_product_call_states_its_precision():
 def test_the_source_check_finds_a_product_without_precision(tmp_path):
     """The check above can fail."""
     source = tmp_path / "module.py"
-    source.write_text("import jax.numpy as jnp\nx = jnp.einsum('ij,j->i', a, b)\ny = jnp.matmul(a, b, precision=P)\n")
-    assert _products_without_precision(source, tmp_path) == ["module.py:2: jnp.einsum('ij,j->i', a, b)"]
+    source.write_text(
+        "import jax.numpy as jnp\nx = jnp.einsum('ij,j->i', a, b)\ny = jnp.matmul(a, b, precision=P)\n"
+        "f = jnp.matmul\ng = functools.partial(jnp.matmul, precision=P)\n"
+    )
+    assert _products_without_precision(source, tmp_path) == ["module.py:2: jnp.einsum", "module.py:4: jnp.matmul"]
 
 
 def _dot_precisions(fn, *args) -> list:
@@ -114,6 +124,10 @@ def _float32_calls():
             (weights, motors.values),
         ),
         "blend_positions": (deform.blend_positions, (weights, jnp.asarray(rng.normal(size=(joints, 3)), f32))),
+        "forward_kinematics_matrices": (
+            lambda m: deform.forward_kinematics_matrices(np.array([-1, 0, 1, 1, 3]), m),
+            (matrices,),
+        ),
         "ffd_weights": (lambda v: deform.ffd_weights(v, lattice), (V.astype(jnp.float64),)),
     }
 

@@ -146,7 +146,7 @@ def test_one_rigid_motor_for_the_whole_lattice_moves_the_mesh_rigidly():
     np.testing.assert_allclose(_deform(_paper_form(V, W, P0), GT), rigid, atol=1e-12)
 
 
-@pytest.mark.parametrize("degrees", [90, 180])
+@pytest.mark.parametrize("degrees", [90, pytest.param(180, marks=pytest.mark.slow)])  # 7 s each on 2 cores
 def test_twist_motors_give_the_exact_analytic_twist(degrees):
     V, _ = _box()
     lattice = bounding_lattice(V, (4, 4, 4), 0.05)
