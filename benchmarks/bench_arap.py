@@ -106,9 +106,7 @@ def run(sizes: dict, iterations: int, repeats: int):
             for _ in range(repeats):
                 t["pre_ours"].append(timed(lambda: deform.arap_precompute(V, F, b, energy=energy), 1))
                 t["pre_igl"].append(timed(igl_precompute, 1))
-                t["it_ours"].append(
-                    timed(lambda: jax.block_until_ready(solve(bc_device, U0_device)), 1) / iterations
-                )
+                t["it_ours"].append(timed(lambda: jax.block_until_ready(solve(bc_device, U0_device)), 1) / iterations)
                 t["it_igl"].append(timed(lambda: igl.arap_solve(bc, data_igl, U0), 1) / iterations)
             m = {k: statistics.median(v) for k, v in t.items()}
             key = f"{energy}_{tag}"
