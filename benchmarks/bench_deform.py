@@ -7,7 +7,9 @@ The mesh is the welded Arm5 split conformingly (``cutting.refine``) to at least 
 A frame is everything from the key motors to the vertex positions, jitted: the logarithms of the key
 motors, the per-vertex blend ``exp(sum_j w_ij log R_j)`` and the sandwich. Each motor deformation is
 timed against its linear counterpart on the same weights in the same run: the matrix blend of the same
-key motors (spline, handles; LBS-like), classic positional FFD (eq. 6), the positional cage.
+key motors (spline, handles; LBS-like), classic positional FFD (eq. 6), the positional cage, all at the highest
+precision as the library's products are (a GPU's default would be TF32 for float32). On a GPU the XLA formulation
+that the Triton program replaced is timed too (``*_xla_ms``).
 Calls are interleaved round-robin (medians), so the machine's drift does not bias a ratio. Ratios are
 baseline time / ours (> 1: we are faster); ``*_fps`` figures without a suffix are float64.
 
@@ -37,6 +39,9 @@ from _report import RATIO_UNIT, add_json_argument, print_device, write_json  # n
 import cutting  # noqa: E402
 import deform  # noqa: E402
 import jaxcga as cga  # noqa: E402
+from deform import _motor_field  # noqa: E402
+
+HIGHEST = jax.lax.Precision.HIGHEST  # the baselines at our precision: a GPU's default is TF32 for float32
 
 TARGET_FPS = 30.0
 
@@ -77,8 +82,8 @@ def matrix_blend(weights, bound):
 
     def deform_(motors):
         matrices = cga.versor_to_matrix(motors)[..., :3, :].reshape(motors.batch_shape + (12,))
-        blended = (weights @ matrices).reshape(-1, 3, 4)
-        return jnp.einsum("nrc,nc->nr", blended, homogeneous)
+        blended = jnp.matmul(weights, matrices, precision=HIGHEST).reshape(-1, 3, 4)
+        return jnp.einsum("nrc,nc->nr", blended, homogeneous, precision=HIGHEST)
 
     return deform_
 
@@ -184,6 +189,7 @@ def run(vertices: int, repeats: int, harmonic_repeats: int):
                 ("positional cage", as_dtype(cage.weights, dtype), cage_positions),
             ),
         }
+        xla_field = jax.jit(lambda f, m: _motor_field._deform_in_xla(f.weights, f.bound, deform.motor_logs(m)))
         for name, (field, motors, positional) in cases.items():
             # the bound data are arguments, not constants folded into the compiled code
             ours = jax.jit(deform.motor_field_solve)
@@ -193,8 +199,14 @@ def run(vertices: int, repeats: int, harmonic_repeats: int):
                 base_args = (field, motors)
             else:
                 label, weights, P = positional
-                base, base_args = jax.jit(lambda w, P: w @ P), (weights, P)
-            ms = round_robin_ms({"ours": lambda: ours(field, motors), "base": lambda: base(*base_args)}, repeats)
+                base, base_args = jax.jit(lambda w, P: jnp.matmul(w, P, precision=HIGHEST)), (weights, P)
+            candidates = {"ours": lambda: ours(field, motors), "base": lambda: base(*base_args)}
+            if jax.default_backend() != "cpu":  # the formulation the GPU's Triton program replaced, for comparison
+                candidates["xla"] = lambda: xla_field(field, motors)
+            ms = round_robin_ms(candidates, repeats)
+            if "xla" in ms:
+                figures[f"{name}_100k_{tag}_xla_ms"] = ms["xla"]
+                units[f"{name}_100k_{tag}_xla_ms"] = "ms"
             fps = 1e3 / ms["ours"]
             key = f"{name}_100k_fps" + ("" if tag == "f64" else "_f32")
             figures[key] = fps

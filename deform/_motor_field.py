@@ -12,22 +12,36 @@ motors are motions of space: when every key motor is the same motor G the weight
 (``exp(log G) = G``) and the mesh moves rigidly by G, whatever the weights. The positional counterpart,
 ``blend_positions``, blends control points with the same weights (classic FFD, eq. 6; positional cages).
 
-Speed: the logarithms are taken once per key motor, the per-vertex blend is one dense product
+Speed: the logarithms are taken once per key motor. On the CPU the per-vertex blend is one dense product
 ``W (n, k) @ logs (k, 6)``, and the per-vertex exponential and sandwich are fused elementwise code
-(``jaxcga.apply_to_points(..., fused=True)``).
+(``jaxcga.apply_to_points(..., fused=True)``). On a GPU blend, exponential and sandwich are one Triton program per
+block of vertices (``_jaxcga_shared.pallas_rows``): one kernel, like the positional blend's one product, where XLA
+launched a product and a fused loop and wrote the blended logarithms in between; chosen when the computation is
+lowered (``_jaxcga_shared.platform``).
 """
 
 from __future__ import annotations
 
+import functools
+import operator
+
 import equinox as eqx
+import jax
 import jax.numpy as jnp
+import numpy as np
 from jax.typing import DTypeLike
 from jaxtyping import Array, ArrayLike, Float
 
 import jaxcga as cga
+from _jaxcga_shared import pallas_rows
 from _jaxcga_shared.checks import check_vectors
-from _jaxcga_shared.platform import EXACT
+from _jaxcga_shared.platform import EXACT, PerPlatform, example
 from jaxcga import KINDS, MOTOR_GENERATOR, Multivector
+from jaxcga._exp_log import exp_motor_columns
+from jaxcga._versors import row_coordinates
+
+# Up to this many key motors a GPU's Triton program unrolls the blend over the weights' columns; more go through XLA.
+TRITON_MAX_KEYS = 128
 
 
 def _check_weights(weights, n: int | None = None):
@@ -68,9 +82,11 @@ def blend_motors(weights: Float[ArrayLike, "n k"], key_motors: Multivector) -> M
     """
     weights = _check_weights(weights)
     key_motors = _check_key_motors("key_motors", key_motors, weights.shape[1])
-    logs = motor_logs(key_motors).astype(weights.dtype)
-    blended = jnp.einsum("nk,...kc->...nc", weights, logs, precision=EXACT)
-    return cga.exp_motor(Multivector(blended, MOTOR_GENERATOR))
+    return _blend(weights, motor_logs(key_motors).astype(weights.dtype))
+
+
+def _blend(weights: Float[Array, "n k"], logs: Float[Array, "... k 6"]) -> Multivector:
+    return cga.exp_motor(Multivector(jnp.einsum("nk,...kc->...nc", weights, logs, precision=EXACT), MOTOR_GENERATOR))
 
 
 class MotorField(eqx.Module):
@@ -102,9 +118,77 @@ def motor_field_solve(field: MotorField, key_motors: Multivector) -> Float[Array
         (..., n, 3) positions."""
     if not isinstance(field, MotorField):
         raise ValueError(f"field: expected a MotorField, got {type(field).__name__}")
-    return cga.apply_to_points(
-        blend_motors(field.weights, key_motors), field.bound.astype(field.weights.dtype), fused=True
-    )
+    weights = field.weights
+    logs = motor_logs(_check_key_motors("key_motors", key_motors, weights.shape[1])).astype(weights.dtype)
+    return _deform(weights, field.bound.astype(weights.dtype), logs)
+
+
+def _deform_in_rows(weights, bound, logs):
+    """GPUs: blend, exponential and sandwich in one Triton program per block of vertices, for up to
+    ``TRITON_MAX_KEYS`` key motors; batches of poses are a grid axis (vmap)."""
+    if weights.shape[1] > TRITON_MAX_KEYS or not pallas_rows.fits(weights, bound) or weights.shape[0] == 0:
+        return _deform_in_xla(weights, bound, logs)
+    return _rows_deform(weights, bound, logs)
+
+
+def _field_examples():
+    rng = np.random.default_rng(11)
+    weights = rng.dirichlet(np.ones(5), size=70)
+    bound = rng.normal(size=(70, 3))
+    logs = rng.normal(size=(5, 6)) * [0.8, 0.8, 0.8, 0.3, 0.3, 0.3]
+    return [example(weights, bound, logs), example(weights, bound, np.stack([logs, 0.5 * logs]))]
+
+
+def _deform_in_xla(weights, bound, logs):
+    """The CPU (and a GPU past ``TRITON_MAX_KEYS``): the blend as one dense product, then the exponential and the
+    sandwich fused by XLA."""
+    return cga.apply_to_points(_blend(weights, logs), bound, fused=True)
+
+
+_deform = PerPlatform("deform.motor_field", cpu=_deform_in_xla, gpu=_deform_in_rows, examples=_field_examples)
+
+
+@jax.custom_jvp
+def _rows_deform(weights, bound, logs):
+    keys = weights.shape[1]
+    coordinates = _field_coordinates(keys)
+
+    def one_pose(flat_logs):
+        return pallas_rows.rowwise(
+            coordinates,
+            [bound, weights],
+            [flat_logs],
+            3,
+            otherwise=lambda b, w, f: _deform_in_xla(w, b, f.reshape(keys, 6)),
+        )
+
+    deform_poses = one_pose
+    for _ in logs.shape[:-2]:
+        deform_poses = jax.vmap(deform_poses)
+    return deform_poses(logs.reshape(logs.shape[:-2] + (keys * 6,)))
+
+
+@_rows_deform.defjvp
+def _rows_deform_jvp(primals, tangents):
+    # Triton kernels have no transpose: the tangent, linear in the tangents, is XLA's (reverse mode works too).
+    _, tangent = jax.jvp(_deform_in_xla, primals, tangents)
+    return _rows_deform(*primals), tangent
+
+
+@functools.cache
+def _field_coordinates(keys: int) -> pallas_rows.RowFunction:
+    """The ``rowwise`` function: rows of (bound, weights), the key motors' logarithms shared (``keys`` x 6)."""
+    apply = row_coordinates(KINDS["motor"])
+
+    def coordinates(row_columns, shared_columns):
+        bound, weights = row_columns
+        (logs,) = shared_columns
+        blended = [
+            functools.reduce(operator.add, [weights[j] * logs[6 * j + c] for j in range(keys)]) for c in range(6)
+        ]
+        return apply([bound, exp_motor_columns(blended, jnp.shape(blended[0]))], [])
+
+    return coordinates
 
 
 def motor_field_precompute(

@@ -18,7 +18,7 @@ for pure translations (no sqrt(0) on any differentiated path).
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
@@ -26,6 +26,7 @@ from jaxtyping import Array, Bool, Float
 from _jaxcga_shared.checks import require
 from _jaxcga_shared.platform import EXACT
 from jaxcga import _algebra as alg
+from jaxcga import _codegen
 from jaxcga._multivector import KINDS, Multivector
 from jaxcga._operations import normalize
 from jaxcga._versors import dilator
@@ -34,6 +35,7 @@ MOTOR_GENERATOR = alg.parse_blades(("e12", "e13", "e23", "e1inf", "e2inf", "e3in
 SIMILITUDE_GENERATOR = MOTOR_GENERATOR + alg.parse_blades(("eoinf",))
 _ROTATION = alg.parse_blades(("e12", "e13", "e23"))
 _SCALAR_P = alg.parse_blades(("1", "e123inf"))
+_PSEUDOSCALAR_INF = alg.parse_blades(("e123inf",))[0]
 _SERIES_BELOW = 1e-2  # squared angle below which Taylor series replace the closed forms
 
 
@@ -88,12 +90,32 @@ def exp_motor(b: Multivector) -> Multivector:
     """Motor ``exp(B)`` of a bivector on {e12, e13, e23, e1inf, e2inf, e3inf}, closed form."""
     _require_generator("b", b, MOTOR_GENERATOR, "motor generator")
     b = b.embed(MOTOR_GENERATOR)
-    rot = b.values[..., :3]
-    x = jnp.sum(rot * rot, axis=-1)  # theta^2, B_E^2 = -theta^2
-    y = (b * b)["e123inf"]  # B^2 = -theta^2 + y P, y = -2 theta d
+    columns = exp_motor_columns([b.values[..., i] for i in range(len(MOTOR_GENERATOR))], b.batch_shape)
+    return Multivector(jnp.stack(columns, axis=-1), KINDS["motor"])
+
+
+def exp_motor_columns(b: Sequence[Array], batch_shape: tuple[int, ...]) -> list[Array]:
+    """``exp_motor`` on columns: the six components of B (``MOTOR_GENERATOR`` order, arrays of ``batch_shape``) to
+    the eight of the motor (``KINDS["motor"]`` order). No stacked arrays, so that a kernel over blocks of rows (a
+    Triton program, ``deform``'s motor fields on GPUs) evaluates it too."""
+    x = b[0] * b[0] + b[1] * b[1] + b[2] * b[2]  # theta^2, B_E^2 = -theta^2
+    (y,) = _blade_columns(
+        _codegen.bilinear_terms("geometric", MOTOR_GENERATOR, MOTOR_GENERATOR), (b, b), batch_shape, _PSEUDOSCALAR_INF
+    )  # B^2 = -theta^2 + y P, y = -2 theta d
     cos, sinc, g = _cos_sinc_g(x)
-    m = _scalar_p(cos, 0.5 * y * sinc) + _scalar_p(sinc, -0.5 * y * g) * b
-    return m.embed(KINDS["motor"])
+    # exp(B) = (cos + 0.5 y sinc P) + (sinc - 0.5 y g P) B in dual-number arithmetic
+    terms = _codegen.bilinear_terms("geometric", _SCALAR_P, MOTOR_GENERATOR)
+    blades, product = _codegen.emit(terms, ([sinc, -0.5 * y * g], b), batch_shape)
+    out = dict(zip(blades, product))
+    for blade, value in zip(_SCALAR_P, (cos, 0.5 * y * sinc)):
+        out[blade] = out[blade] + value if blade in out else value
+    return [jnp.broadcast_to(out[blade], batch_shape) for blade in KINDS["motor"]]
+
+
+def _blade_columns(terms, factors, batch_shape, *blades: int) -> list[Array]:
+    """The columns of ``blades`` in the generated product ``terms`` of ``factors``."""
+    _, columns = _codegen.emit(tuple(t for t in terms if t[0] in blades), factors, batch_shape)
+    return columns
 
 
 def _atan_ratio(

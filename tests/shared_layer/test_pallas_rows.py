@@ -1,7 +1,7 @@
 """Row-wise Pallas kernels (``_jaxcga_shared.pallas_rows``): on the CPU the kernel runs in Pallas' interpret mode and
 must equal the same arithmetic in jax.numpy, on partial last blocks, with per-row and shared inputs, in float64 and
 float32 and under vmap; lowered for CUDA it is one Triton call. ``apply_to_points``' GPU variant, which uses it, is
-checked against the CPU variant in test_platform_kernels.py."""
+checked against the CPU variant in test_platform_kernels.py, and so are the motor fields' (``deform.motor_field``)."""
 
 from __future__ import annotations
 
@@ -12,6 +12,8 @@ import pytest
 
 import jaxcga as cga
 from _jaxcga_shared.pallas_rows import rowwise
+from _jaxcga_shared.platform import PLATFORM_KERNELS
+from deform._motor_field import TRITON_MAX_KEYS
 from jaxcga import _versors
 
 
@@ -92,6 +94,18 @@ def test_apply_to_points_on_cuda_is_the_triton_kernel(one_for_all):
     assert _cuda_text(cga.apply_to_points, motors, x).count("xla.gpu.triton") == 1
     rotors = cga.rotor(rng.normal(size=(4, 1, 3)), rng.normal(size=(4, 1)))
     assert "xla.gpu.triton" not in _cuda_text(cga.apply_to_points, rotors, x[:5])
+
+
+@pytest.mark.parametrize("keys", [5, TRITON_MAX_KEYS + 1])
+def test_motor_fields_on_cuda_are_one_triton_kernel_up_to_a_number_of_keys(keys):
+    """The motor field's dispatch lowered for CUDA: blend, exponential and sandwich in one Triton call for a batch of
+    poses up to ``TRITON_MAX_KEYS`` key motors, XLA's formulation beyond. (``motor_field_solve`` itself takes the
+    key motors' logarithms behind a runtime check, which lowers for CUDA only where there is one.)"""
+    rng = np.random.default_rng(6)
+    weights, bound = jnp.asarray(rng.dirichlet(np.ones(keys), size=40)), jnp.asarray(rng.normal(size=(40, 3)))
+    logs = jnp.asarray(rng.normal(size=(2, keys, 6)) * 0.3)
+    text = _cuda_text(PLATFORM_KERNELS["deform.motor_field"], weights, bound, logs)
+    assert text.count("xla.gpu.triton") == (1 if keys <= TRITON_MAX_KEYS else 0)
 
 
 def test_apply_to_points_gpu_variant_forward_mode():

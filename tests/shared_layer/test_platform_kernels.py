@@ -26,6 +26,7 @@ def test_kernels_are_registered():
         "deform.skin_dqs",
         "deform.skin_cga_motor_blend",
         "deform.blend_dilations",
+        "deform.motor_field",
     } <= set(KERNELS)
 
 
