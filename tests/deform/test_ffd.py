@@ -244,6 +244,7 @@ def test_gradient_with_respect_to_control_points_and_embedded_points():
     )
 
 
+@pytest.mark.slow  # 6 s on 2 cores: the fast suite's 10-minute budget
 def test_float32():
     V, F = _arm()
     lattice = bounding_lattice(V.astype(np.float32), (4, 4, 4), 0.05)

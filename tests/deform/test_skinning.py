@@ -51,6 +51,7 @@ def test_rest_pose_reproduces_bind_positions(method):
     np.testing.assert_allclose(deform.rest_pose(MODEL, method), MESH.V, atol=1e-12)
 
 
+@pytest.mark.slow  # 6 s on 2 cores: the fast suite's 10-minute budget
 def test_cga_with_dilations_against_numpy_lbs():
     local = random_pose(1, B, scale_range=(0.5, 2.0))
     expected = _numpy_lbs(MODEL, cga.versor_to_matrix(local))
@@ -180,6 +181,7 @@ def test_dqs_rejects_scaled_joints():
         jax.block_until_ready(deform.skin_pose(MODEL, local, "dqs"))
 
 
+@pytest.mark.slow  # 6 s on 2 cores: the fast suite's 10-minute budget
 def test_motor_blend_dilation_is_blended_in_log_space():
     """One vertex, two joints with pure dilations s1, s2 and weights w: scale s1^w1 s2^w2."""
     V = jnp.array([[1.0, 2.0, 3.0]])

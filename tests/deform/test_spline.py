@@ -127,7 +127,10 @@ def test_parameter_is_linear_along_the_tube():
         spline_parameter(V, F, [], END)
 
 
-@pytest.mark.parametrize("basis, num_keys", [("linear", None), ("lagrange", None), ("bspline", 6)])
+@pytest.mark.parametrize(
+    "basis, num_keys",
+    [("linear", None), ("lagrange", None), pytest.param("bspline", 6, marks=pytest.mark.slow)],  # 10 s on 2 cores
+)
 def test_rest_motors_give_the_rest_mesh_and_handles_move_rigidly(basis, num_keys):
     rng = np.random.default_rng(1)
     k = spline_weights(np.zeros(1), basis, num_keys).shape[1]

@@ -88,6 +88,7 @@ def test_gradient_matches_central_differences_of_the_booleans(bar, which):
     assert abs(gradient - difference) <= 1e-5 * abs(difference)
 
 
+@pytest.mark.slow  # 7 s on 2 cores: the fast suite's 10-minute budget
 def test_mass_below_a_tilted_slab(bar):
     """The mass of the released piece and its derivatives in the height and the tilt: closed forms."""
     height, theta = 0.43, 0.3
