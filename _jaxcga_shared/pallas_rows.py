@@ -61,7 +61,7 @@ def rowwise(
     for j, a in enumerate(shared):
         if a.ndim != 1:
             raise ValueError(f"shared[{j}]: expected shape (k,), got {a.shape}")
-    if any(a.size + rows_per_program * a.shape[1] > MAX_ELEMENTS for a in per_row):
+    if not fits(*per_row, rows_per_program=rows_per_program):
         raise ValueError(f"per_row: arrays over {MAX_ELEMENTS} elements (with a block to spare) need 64-bit offsets")
     if rows_per_program & (rows_per_program - 1) or warps & (warps - 1):
         raise ValueError(f"rows_per_program, warps: Triton needs powers of 2, got {rows_per_program}, {warps}")
@@ -95,9 +95,10 @@ def rowwise(
     )
 
 
-def fits(*per_row: Array) -> bool:
-    """Whether ``rowwise`` takes these per-row arrays (32-bit offsets) at any block size up to 2**16."""
-    return all(a.size + 2**16 * (a.shape[1] if a.ndim == 2 else 1) <= MAX_ELEMENTS for a in per_row)
+def fits(*per_row: Array, rows_per_program: int = ROWS_PER_PROGRAM) -> bool:
+    """Whether ``rowwise`` takes these per-row arrays (rows along the leading axes, columns along the last): their
+    offsets, a last partial block included, within 32 bits."""
+    return all(a.size + rows_per_program * a.shape[-1] <= MAX_ELEMENTS for a in per_row)
 
 
 def _kernel(fn, n, rows_per_program, widths, out_width, *refs):
@@ -108,6 +109,7 @@ def _kernel(fn, n, rows_per_program, widths, out_width, *refs):
     # Columns are (rows, 1) blocks: a column indexed by a Python int does not reach Triton's masked load.
     rows = pl.program_id(0) * rows_per_program + jax.lax.broadcasted_iota(jnp.int32, (rows_per_program, 1), 0)
     inside = rows < n
+    # masked rows read 1, not garbage, so that nothing in them overflows; their results are not stored
     row_columns = [
         [pallas_triton.load(ref.at[:, pl.ds(c, 1)], mask=inside, other=1) for c in range(k)]
         for ref, k in zip(per_row_refs, per_row_widths)

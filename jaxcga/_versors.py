@@ -25,9 +25,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from _jaxcga_shared import pallas_rows
 from _jaxcga_shared.checks import check_finite, check_vectors, require
-from _jaxcga_shared.pallas_rows import RowFunction, rowwise
+from _jaxcga_shared.pallas_rows import RowFunction, fits, rowwise
 from _jaxcga_shared.platform import EXACT, Example, example, per_platform
 from jaxcga import _algebra as alg
 from jaxcga import _codegen
@@ -205,10 +204,15 @@ def fused_point_coordinates(
     elementwise so that XLA fuses them with the computation of v; the caller chooses how to stack them
     (e.g. coordinate-major, then moved last: XLA:CPU's transpose emitter runs that 1.3x faster than a
     stack along the last axis for per-vertex blended motors)."""
-    a = _map_entries(v)
-    inputs = _map_inputs(a, [x[..., 0], x[..., 1], x[..., 2]])
+    return [jnp.broadcast_to(c, batch) for c in _mapped_coordinates(_map_entries(v), [x[..., i] for i in range(3)])]
+
+
+def _mapped_coordinates(a: dict[tuple[int, int], Array], xs: list[Array]) -> list[Array]:
+    """The three coordinates of the points ``xs`` (x, y, z columns) under the affine map ``a`` (``_map_entries``),
+    divided by its eo row."""
+    inputs = _map_inputs(a, xs)
     inv_w = 1.0 / _map_row(a, inputs, 3)
-    return [jnp.broadcast_to(_map_row(a, inputs, k) * inv_w, batch) for k in range(3)]
+    return [_map_row(a, inputs, k) * inv_w for k in range(3)]
 
 
 def _map_inputs(a: dict[tuple[int, int], Array], xs: list[Array]) -> dict[int, Array]:
@@ -253,7 +257,7 @@ def _rows_of_points(v: Multivector, x: Float[Array, "... 3"]) -> Float[Array, ".
     per point, of x's dtype; other broadcasts and mixed dtypes leave the layout to XLA (``_point_major``)."""
     batch = broadcast_batch("v", v.batch_shape, "x", x.shape[:-1])
     stored = v.batch_shape in ((), batch) and x.shape[:-1] == batch and v.dtype == x.dtype
-    if not batch or not stored or not pallas_rows.fits(v.values, x):
+    if not batch or not stored or not fits(v.values, x):
         return _point_major(v, x)
     return _rows_apply(v.blades, v.values, x)
 
@@ -275,10 +279,7 @@ def row_coordinates(blades: tuple[int, ...]) -> RowFunction:
     def coordinates(row_columns, shared_columns):
         (x_cols, *v_cols) = row_columns
         cols = v_cols[0] if v_cols else shared_columns[0]
-        a = _map_entries_of(blades, cols, jnp.shape(cols[0]))
-        inputs = _map_inputs(a, x_cols)
-        inv_w = 1.0 / _map_row(a, inputs, 3)
-        return [_map_row(a, inputs, k) * inv_w for k in range(3)]
+        return _mapped_coordinates(_map_entries_of(blades, cols, jnp.shape(cols[0])), x_cols)
 
     return coordinates
 
@@ -298,14 +299,10 @@ def _component_major(v: Multivector, x: Float[Array, "... 3"]) -> Float[Array, "
     into the arithmetic. On a GPU barriers cost more than they save (``_rows_of_points``)."""
     batch = broadcast_batch("v", v.batch_shape, "x", x.shape[:-1])
     v_rows, x_rows = jax.lax.optimization_barrier((jnp.moveaxis(v.values, -1, 0), jnp.moveaxis(x, -1, 0)))
-    a = _map_entries(v, columns=v_rows)
-    inputs = _map_inputs(a, [x_rows[0], x_rows[1], x_rows[2]])
-    inv_w = 1.0 / _map_row(a, inputs, 3)
+    coordinates = _mapped_coordinates(_map_entries(v, columns=v_rows), [x_rows[0], x_rows[1], x_rows[2]])
     # Three separate outputs form one multi-output loop that shares the generated products between
     # the rows; a stacked output would recompute them for every coordinate.
-    rows = jax.lax.optimization_barrier(
-        tuple(jnp.broadcast_to(_map_row(a, inputs, k) * inv_w, batch) for k in range(3))
-    )
+    rows = jax.lax.optimization_barrier(tuple(jnp.broadcast_to(c, batch) for c in coordinates))
     out = jax.lax.optimization_barrier(jnp.stack(rows, axis=0))
     return jnp.moveaxis(out, 0, -1)
 
