@@ -51,7 +51,8 @@ def rowwise(
 
     The platform is chosen when the computation is lowered: Triton on CUDA and ROCm GPUs, Pallas' interpret mode
     on the CPU (tests), and elsewhere (TPUs) ``otherwise(*per_row, *shared)``, the same computation without
-    Pallas (default: interpret mode there too)."""
+    Pallas (default: interpret mode there too). With ``otherwise`` the result is differentiable in both modes:
+    a Triton kernel has no transpose, so its JVP is ``otherwise``'s (``jax.custom_jvp``)."""
     if not per_row:
         raise ValueError("per_row: at least one per-row array is needed (it sets n)")
     n = per_row[0].shape[0]
@@ -90,9 +91,16 @@ def rowwise(
     def interpreted(*args):
         return call(interpret=True)(*args)
 
-    return jax.lax.platform_dependent(
-        *per_row, *shared, cpu=interpreted, cuda=on_gpu, rocm=on_gpu, default=otherwise or interpreted
-    )
+    def kernel_call(*args):
+        return jax.lax.platform_dependent(
+            *args, cpu=interpreted, cuda=on_gpu, rocm=on_gpu, default=otherwise or interpreted
+        )
+
+    if otherwise is None:
+        return kernel_call(*per_row, *shared)
+    differentiable = jax.custom_jvp(kernel_call)
+    differentiable.defjvp(lambda primals, tangents: (kernel_call(*primals), jax.jvp(otherwise, primals, tangents)[1]))
+    return differentiable(*per_row, *shared)
 
 
 def fits(*per_row: Array, rows_per_program: int = ROWS_PER_PROGRAM) -> bool:

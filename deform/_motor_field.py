@@ -148,7 +148,6 @@ def _deform_in_xla(weights, bound, logs):
 _deform = PerPlatform("deform.motor_field", cpu=_deform_in_xla, gpu=_deform_in_rows, examples=_field_examples)
 
 
-@jax.custom_jvp
 def _rows_deform(weights, bound, logs):
     keys = weights.shape[1]
     coordinates = _field_coordinates(keys)
@@ -166,13 +165,6 @@ def _rows_deform(weights, bound, logs):
     for _ in logs.shape[:-2]:
         deform_poses = jax.vmap(deform_poses)
     return deform_poses(logs.reshape(logs.shape[:-2] + (keys * 6,)))
-
-
-@_rows_deform.defjvp
-def _rows_deform_jvp(primals, tangents):
-    # Triton kernels have no transpose: the tangent, linear in the tangents, is XLA's (reverse mode works too).
-    _, tangent = jax.jvp(_deform_in_xla, primals, tangents)
-    return _rows_deform(*primals), tangent
 
 
 @functools.cache

@@ -262,7 +262,6 @@ def _rows_of_points(v: Multivector, x: Float[Array, "... 3"]) -> Float[Array, ".
     return _rows_apply(v.blades, v.values, x)
 
 
-@functools.partial(jax.custom_jvp, nondiff_argnums=(0,))
 def _rows_apply(blades: tuple[int, ...], values: Array, x: Array) -> Array:
     per_row, shared = ([values.reshape(-1, values.shape[-1])], []) if values.ndim > 1 else ([], [values])
 
@@ -282,14 +281,6 @@ def row_coordinates(blades: tuple[int, ...]) -> RowFunction:
         return _mapped_coordinates(_map_entries_of(blades, cols, jnp.shape(cols[0])), x_cols)
 
     return coordinates
-
-
-@_rows_apply.defjvp
-def _rows_apply_jvp(blades, primals, tangents):
-    # Triton kernels have no transpose; the tangent, linear in (dv, dx), is XLA's and so reverse mode works too.
-    values, x = primals
-    _, tangent = jax.jvp(lambda vv, xx: _point_major(Multivector(vv, blades), xx), primals, tangents)
-    return _rows_apply(blades, values, x), tangent
 
 
 @per_platform("apply_to_points", gpu=_rows_of_points, examples=_apply_examples)
