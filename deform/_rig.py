@@ -37,7 +37,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 import jaxcga as cga
 from _jaxcga_shared.checks import require
-from _jaxcga_shared.platform import EXACT
+from _jaxcga_shared.platform import EXACT, PerPlatform, example
 from deform._model import PATHS, AnimationClip, Channel, Skeleton, SkinnedMesh
 from jaxcga._multivector import KINDS, Multivector
 
@@ -136,21 +136,84 @@ def local_versors(skeleton: Skeleton) -> Multivector:
 
 
 # ---------------------------------------------------------------- forward kinematics
-def _scan_chain(parents: tuple[int, ...], local, identity, compose):
-    """Globals ``G_i = G_parent(i) * L_i`` by a scan over the bones in topological order.
+def _doubling_rounds(parents, n: int) -> int:
+    """Rounds of ``_chains_by_doubling``: ceil(log2(depth + 1)) for the deepest bone of static ``parents``;
+    for traced ones the bound for ``n`` bones (a chain of depth n - 1)."""
+    if isinstance(parents, jax.core.Tracer):
+        return max(n - 1, 0).bit_length()
+    depth: list[int] = []
+    for i, p in enumerate(np.asarray(parents).tolist()):
+        if p >= i:
+            raise ValueError(f"parents: bone {i} has parent {p}; expected -1 or an index < {i} (topological order)")
+        depth.append(0 if p < 0 else depth[p] + 1)
+    return max(depth, default=0).bit_length()
 
-    ``local`` has the bone axis first: (b, *rest); ``identity`` has shape ``rest``."""
-    parents_arr = jnp.asarray(parents, jnp.int32)
+
+def _chains_in_a_loop(local, parents, *, compose, rounds: int):
+    """``_compose_chains`` as a scan over the bones in order, one product per bone (XLA:CPU: the fewest
+    products)."""
+    del rounds
 
     def step(globals_, inputs):
         i, parent, l_i = inputs
-        parent_global = jnp.where(parent >= 0, globals_[jnp.maximum(parent, 0)], identity)
-        g = compose(parent_global, l_i)
-        return globals_.at[i].set(g), None
+        g = compose(globals_[jnp.maximum(parent, 0)], l_i)
+        return globals_.at[i].set(jnp.where(parent >= 0, g, l_i)), None
 
-    init = jnp.zeros_like(local)
-    out, _ = jax.lax.scan(step, init, (jnp.arange(len(parents)), parents_arr, local))
+    out, _ = jax.lax.scan(step, jnp.zeros_like(local), (jnp.arange(local.shape[0]), parents, local))
     return out
+
+
+def _chains_by_doubling(local, parents, *, compose, rounds: int):
+    """``_compose_chains`` by pointer doubling (GPUs, where each step of a loop costs kernel launches).
+
+    ``acc[i]`` holds the product of the locals from bone ``up[i]``'s child down to ``i``; a round composes
+    ``acc[up[i]] * acc[i]`` for every bone at once and jumps ``up[i]`` to ``up[up[i]]``, so ``rounds`` =
+    ceil(log2(depth + 1)) batched products give every global."""
+    up, acc = parents, local
+    for _ in range(rounds):
+        has_up = up >= 0
+        above = jnp.maximum(up, 0)
+        acc = jnp.where(has_up.reshape((-1,) + (1,) * (acc.ndim - 1)), compose(acc[above], acc), acc)
+        up = jnp.where(has_up, up[above], -1)
+    return acc
+
+
+def _chain_examples():
+    """Two trees (depths 5 and 1: three rounds of doubling), two poses, bones first; as similitudes and as
+    matrices."""
+    parents = (-1, 0, 1, 2, 3, 4, 1, 6, -1, 8)
+    rounds = _doubling_rounds(parents, len(parents))
+    generators = np.random.default_rng(5).normal(size=(len(parents), 2, 7)) * 0.5
+    local = cga.exp_similitude(Multivector(generators, cga.SIMILITUDE_GENERATOR))
+    indices = jnp.asarray(parents, jnp.int32)
+    return [
+        example(local.values, indices, compose=_versor_product(local.blades), rounds=rounds),
+        example(cga.versor_to_matrix(local), indices, compose=_MATRIX_PRODUCT, rounds=rounds),
+    ]
+
+
+_CHAINS = PerPlatform(
+    "deform.forward_kinematics", cpu=_chains_in_a_loop, gpu=_chains_by_doubling, examples=_chain_examples
+)
+
+
+def _compose_chains(parents, local, compose):
+    """Globals ``G_i = G_parent(i) * L_i`` of bones in topological order. ``local`` has the bone axis first:
+    (b, *rest); ``parents`` (b,) may be traced (packed rigs)."""
+    rounds = _doubling_rounds(parents, local.shape[0])
+    return _CHAINS(local, jnp.asarray(parents, jnp.int32), compose=compose, rounds=rounds)
+
+
+@functools.cache
+def _versor_product(blades: tuple[int, ...]):
+    def compose(a, b):
+        # the structure-tensor contraction, not one kernel per blade
+        return cga.table_product("geometric", Multivector(a, blades), Multivector(b, blades)).embed(blades).values
+
+    return compose
+
+
+_MATRIX_PRODUCT = functools.partial(jnp.matmul, precision=EXACT)
 
 
 def _check_bones(name: str, parents, n: int):
@@ -169,15 +232,9 @@ def forward_kinematics(parents: tuple[int, ...], local: Multivector) -> Multivec
     if not isinstance(local, Multivector) or not local.batch_shape:
         raise ValueError("local: expected a Multivector with batch shape (..., b)")
     _check_bones("local", parents, local.batch_shape[-1])
-    blades = local.blades
     values = jnp.moveaxis(local.values, -2, 0)
-    identity = Multivector(jnp.ones((1,), values.dtype), KINDS["scalar"]).embed(blades).values
-
-    def compose(a, b):
-        # one bone per step: the structure-tensor contraction (two dots), not one kernel per blade
-        return cga.table_product("geometric", Multivector(a, blades), Multivector(b, blades)).embed(blades).values
-
-    return Multivector(jnp.moveaxis(_scan_chain(parents, values, identity, compose), 0, -2), blades)
+    globals_ = _compose_chains(parents, values, _versor_product(local.blades))
+    return Multivector(jnp.moveaxis(globals_, 0, -2), local.blades)
 
 
 def forward_kinematics_matrices(
@@ -195,7 +252,7 @@ def forward_kinematics_matrices(
         raise ValueError(f"local: expected shape (..., b, 4, 4), got {local.shape}")
     _check_bones("local", parents, local.shape[-3])
     values = jnp.moveaxis(local, -3, 0)
-    out = _scan_chain(parents, values, jnp.eye(4, dtype=local.dtype), functools.partial(jnp.matmul, precision=EXACT))
+    out = _compose_chains(parents, values, _MATRIX_PRODUCT)
     return jnp.moveaxis(out, 0, -3)
 
 

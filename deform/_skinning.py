@@ -287,10 +287,8 @@ def _motor_and_log_scale(versors: Multivector):
     """Factor similitudes as ``M D(s)`` (motor, then the dilator about the origin): (..., 8), (...)."""
     if set(versors.blades) <= set(KINDS["motor"]):
         return versors.embed(KINDS["motor"]).values, jnp.zeros(versors.batch_shape, versors.dtype)
-    matrix = cga.versor_to_matrix(versors)
-    log_scale = jnp.log(jnp.linalg.det(matrix[..., :3, :3])) / 3
-    rigid = matrix.at[..., :3, :3].multiply(jnp.exp(-log_scale)[..., None, None])
-    return cga.matrix_to_motor(rigid).values, log_scale
+    motors, log_scale = cga.similitude_motor_log_scale(versors)
+    return motors.values, log_scale
 
 
 def skin_cga_motor_blend(
@@ -309,8 +307,10 @@ def skin_cga_motor_blend(
     V, J, W = _check_mesh(V, J, W)
     _check_versors("joint_versors", joint_versors)
     motors, log_scale = _motor_and_log_scale(joint_versors)
-    motors = _materialize(motors)
-    log_scale = _materialize(log_scale[..., None])[..., 0]
+    # one table: a product with a 1x1 identity is simplified away, and the log scale's arctanh then ran per
+    # vertex and influence
+    table = _materialize(jnp.concatenate([motors, log_scale[..., None]], axis=-1))
+    motors, log_scale = table[..., :8], table[..., 8]
     return _blend_motors_and_apply(V, J, W, motors, log_scale)
 
 

@@ -85,6 +85,7 @@ from jaxcga._versors import (
     rotor_from_bivector,
     rotor_to_quaternion,
     similitude,
+    similitude_motor_log_scale,
     translator,
     versor_to_matrix,
 )
@@ -157,6 +158,7 @@ __all__ = [
     "scalar",
     "scalar_product",
     "similitude",
+    "similitude_motor_log_scale",
     "sphere",
     "sphere_center_radius",
     "sphere_power",

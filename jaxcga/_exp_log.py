@@ -29,7 +29,7 @@ from jaxcga import _algebra as alg
 from jaxcga import _codegen
 from jaxcga._multivector import KINDS, Multivector
 from jaxcga._operations import normalize
-from jaxcga._versors import dilator
+from jaxcga._versors import similitude_dilation, dilator
 
 MOTOR_GENERATOR = alg.parse_blades(("e12", "e13", "e23", "e1inf", "e2inf", "e3inf"))
 SIMILITUDE_GENERATOR = MOTOR_GENERATOR + alg.parse_blades(("eoinf",))
@@ -277,14 +277,7 @@ def log_similitude(s: Multivector) -> Multivector:
     s = s.embed(KINDS["similitude"])
     # S = T R D = R D + x' einf with R D = R (cosh + sinh eo^einf) and x' = -(1/2) e^(-lam/2) t R on
     # (e1, e2, e3, e123); the two parts sit on disjoint blades.
-    names_c = ("1", "e12", "e13", "e23")
-    names_s = ("eoinf", "e12oinf", "e13oinf", "e23oinf")
-    rc = jnp.stack([s[n] for n in names_c], axis=-1)
-    rs = jnp.stack([s[n] for n in names_s], axis=-1)
-    # rc = R cosh(lam/2), rs = R sinh(lam/2), so <rc, rs> / <rc, rc> = tanh(lam/2).
-    c2, s2, cs = jnp.sum(rc * rc, -1), jnp.sum(rs * rs, -1), jnp.sum(rc * rs, -1)
-    c2 = require(c2, (jnp.any(c2 <= s2), "s: not a similitude versor"))
-    lam = 2.0 * jnp.arctanh(cs / c2)
+    rc, c2, lam = similitude_dilation(s)
     rotor_part = Multivector(rc, KINDS["rotor"])
     # t = -2 x' ~R e^(lam/2) / |R|^2 with R = rc / cosh(lam/2): products only. (The sandwich of the
     # origin would cancel terms of size d to get ones of size 1/d and lose ~d^2 ulps.)

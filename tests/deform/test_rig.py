@@ -63,6 +63,21 @@ def test_forward_kinematics_versors_equal_matrices():
     np.testing.assert_allclose(out.values[1], g_v.values, atol=1e-12)
 
 
+def test_forward_kinematics_matrices_equal_the_product_down_each_chain():
+    # a chain of depth 11 (rounds of doubling on a GPU: 4), a branch and a second root, against numpy's products
+    parents = (-1, 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 3, 12, -1, 14)
+    local = cga.versor_to_matrix(random_pose(3, len(parents), scale_range=(0.8, 1.25)))
+    expected = []
+    for i, p in enumerate(parents):
+        expected.append(np.asarray(local[i]) if p < 0 else expected[p] @ np.asarray(local[i]))
+    np.testing.assert_allclose(deform.forward_kinematics_matrices(parents, local), np.stack(expected), atol=1e-12)
+    # parents as a traced array (packed rigs) give the same globals
+    traced = jax.jit(deform.forward_kinematics_matrices)(jnp.asarray(parents), local)
+    np.testing.assert_allclose(traced, np.stack(expected), atol=1e-12)
+    with pytest.raises(ValueError, match=r"parents: bone 1 has parent 2"):
+        deform.forward_kinematics_matrices((-1, 2, 0), local[:3])
+
+
 def test_linear_translation_and_clamping():
     c = _channel("translation", [0.0, 1.0, 3.0], [[0, 0, 0], [1, 2, 3], [3, 2, 1]])
     np.testing.assert_allclose(deform.sample_channel(c, 0.5), [0.5, 1.0, 1.5])

@@ -239,6 +239,48 @@ def test_similitude_maps_x_to_d_R_x_plus_t(seed, d):
     np.testing.assert_allclose(H[3], [0, 0, 0, 1], atol=0)
 
 
+@SETTINGS
+@given(seeds, st.floats(1e-2, 1e2), st.floats(-3.0, 3.0).filter(lambda k: abs(k) > 1e-2))
+def test_similitude_splits_into_its_motor_and_log_scale(seed, d, k):
+    rng = np.random.default_rng(seed)
+    axis, angle = _random_rotation(rng)
+    t = rng.normal(size=3) * 5
+    # any scalar factor k, negative included: the split is of the transformation
+    S = cga.similitude(cga.rotor(axis, angle), t, d) * k
+    M, lam = cga.similitude_motor_log_scale(S)
+    np.testing.assert_allclose(float(lam), np.log(d), atol=1e-12)
+    assert M.names == tuple(cga.Multivector(np.zeros(8), "motor").names)
+    rotor = _a(M.values[:4])
+    np.testing.assert_allclose(np.sum(rotor**2), 1.0, atol=1e-14)
+    # M = +-motor(R, t) (unit rotor, same translation), and S's points are M's after scaling by e^lam
+    M_ref = _a(cga.motor(cga.rotor(axis, angle), t).values)
+    np.testing.assert_allclose(_a(M.values) * np.sign(rotor @ M_ref[:4]), M_ref, atol=1e-11 * (1 + d))
+    x = rng.normal(size=(6, 3))
+    ref = d * Rotation.from_rotvec(angle * axis).apply(x) + t
+    np.testing.assert_allclose(_apply(M, np.exp(float(lam)) * x), ref, rtol=1e-11, atol=1e-11 * (1 + d))
+
+
+def test_similitude_split_refuses_non_similitudes_and_has_finite_differences():
+    with pytest.raises(ValueError, match="s: expected a similitude"):
+        cga.similitude_motor_log_scale(cga.Multivector(np.ones(2), ("1", "e1")))
+    with pytest.raises(ValueError, match="s: not a similitude versor"):
+        cga.similitude_motor_log_scale(cga.Multivector(np.array([1.0, 2.0]), "dilator"))
+    # derivatives against central differences, in the similitude's components
+    S = cga.similitude(cga.rotor(np.array([0.0, 0.6, 0.8]), 0.7), np.array([1.0, -2.0, 0.5]), 1.7)
+
+    def split(values):
+        M, lam = cga.similitude_motor_log_scale(cga.Multivector(values, S.blades))
+        return jax.numpy.concatenate([M.values, lam[None]])
+
+    jac = np.asarray(jax.jacfwd(split)(S.values))
+    eps = 1e-6
+    for i in range(S.values.shape[0]):
+        step = np.zeros(S.values.shape[0])
+        step[i] = eps
+        fd = (np.asarray(split(S.values + step)) - np.asarray(split(S.values - step))) / (2 * eps)
+        np.testing.assert_allclose(jac[:, i], fd, atol=1e-8)
+
+
 def _make_versor(rng, kind):
     axis, angle = _random_rotation(rng)
     t = rng.normal(size=3) * 3

@@ -27,6 +27,7 @@ def test_kernels_are_registered():
         "deform.skin_cga_motor_blend",
         "deform.blend_dilations",
         "deform.motor_field",
+        "deform.forward_kinematics",
     } <= set(KERNELS)
 
 
