@@ -28,7 +28,30 @@ WARPS = 4
 # Triton's offsets here are 32-bit: larger arrays would wrap around.
 MAX_ELEMENTS = 2**31 - 1
 
-RowFunction = Callable[[list[list[Array]], list[list[Array]]], list[Array]]
+
+class SharedEntries:
+    """A shared array inside a kernel: ``entries[c]`` is its c-th entry (a scalar, loaded on first use), and
+    ``entries.gather(index)`` its entries at a block of per-row indices (a gather; the caller keeps the indices
+    within the array: Triton does not check them)."""
+
+    def __init__(self, ref, size: int):
+        self._ref, self._size, self._loaded = ref, size, {}
+
+    def __len__(self) -> int:
+        return self._size
+
+    def __getitem__(self, c: int) -> Array:
+        if not 0 <= c < self._size:
+            raise IndexError(f"entry {c} of a shared array of {self._size}")
+        if c not in self._loaded:
+            self._loaded[c] = self._ref[c]
+        return self._loaded[c]
+
+    def gather(self, index: Array) -> Array:
+        return self._ref[index]
+
+
+RowFunction = Callable[[list[list[Array]], list[SharedEntries]], list[Array]]
 
 
 def rowwise(
@@ -45,9 +68,10 @@ def rowwise(
 
     ``per_row``: arrays of shape ``(n, k_j)``, the same n; ``shared``: arrays of shape ``(k_j,)``, the same for
     every row. ``fn(row_columns, shared_columns)`` gets, for each ``per_row`` array, its k_j columns (each an
-    array over a block of rows) and, for each ``shared`` array, its k_j entries (scalars), and returns the
-    ``out_width`` output columns, written elementwise (no reductions across rows). The output has the inputs'
-    promoted dtype and shape ``(n, out_width)``.
+    array over a block of rows) and, for each ``shared`` array, its entries (``SharedEntries``: scalars by
+    index, and gathers by per-row indices), and returns the ``out_width`` output columns, written elementwise
+    (no reductions across rows). The output has the floating inputs' promoted dtype and shape
+    ``(n, out_width)``.
 
     The platform is chosen when the computation is lowered: Triton on CUDA and ROCm GPUs, Pallas' interpret mode
     on the CPU (tests), and elsewhere (TPUs) ``otherwise(*per_row, *shared)``, the same computation without
@@ -66,7 +90,9 @@ def rowwise(
         raise ValueError(f"per_row: arrays over {MAX_ELEMENTS} elements (with a block to spare) need 64-bit offsets")
     if rows_per_program & (rows_per_program - 1) or warps & (warps - 1):
         raise ValueError(f"rows_per_program, warps: Triton needs powers of 2, got {rows_per_program}, {warps}")
-    dtype = jnp.result_type(*per_row, *shared)
+    # integer inputs (indices for gathers) do not decide the output's type
+    floating = [a for a in (*per_row, *shared) if jnp.issubdtype(a.dtype, jnp.inexact)]
+    dtype = jnp.result_type(*(floating or (*per_row, *shared)))
     out_shape = jax.ShapeDtypeStruct((n, out_width), dtype)
     if n == 0:
         return jnp.zeros(out_shape.shape, dtype)
@@ -122,7 +148,7 @@ def _kernel(fn, n, rows_per_program, widths, out_width, *refs):
         [pallas_triton.load(ref.at[:, pl.ds(c, 1)], mask=inside, other=1) for c in range(k)]
         for ref, k in zip(per_row_refs, per_row_widths)
     ]
-    shared_columns = [[ref[c] for c in range(k)] for ref, k in zip(shared_refs, shared_widths)]
+    shared_columns = [SharedEntries(ref, k) for ref, k in zip(shared_refs, shared_widths)]
     outputs = fn(row_columns, shared_columns)
     if len(outputs) != out_width:
         raise ValueError(f"fn: returned {len(outputs)} columns, expected out_width={out_width}")

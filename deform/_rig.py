@@ -33,6 +33,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax.core import Tracer
 from jaxtyping import Array, ArrayLike, Float
 
 import jaxcga as cga
@@ -139,7 +140,7 @@ def local_versors(skeleton: Skeleton) -> Multivector:
 def _doubling_rounds(parents, n: int) -> int:
     """Rounds of ``_chains_by_doubling``: ceil(log2(depth + 1)) for the deepest bone of static ``parents``;
     for traced ones the bound for ``n`` bones (a chain of depth n - 1)."""
-    if isinstance(parents, jax.core.Tracer):
+    if isinstance(parents, Tracer):
         return max(n - 1, 0).bit_length()
     depth: list[int] = []
     for i, p in enumerate(np.asarray(parents).tolist()):

@@ -27,6 +27,9 @@ transforms (poses).
 
 from __future__ import annotations
 
+import functools
+import operator
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -34,10 +37,11 @@ from jax import custom_batching
 from jaxtyping import Array, ArrayLike, Float, Int
 
 import jaxcga as cga
+from _jaxcga_shared import pallas_rows
 from _jaxcga_shared.checks import check_vectors, require
 from _jaxcga_shared.platform import EXACT, PerPlatform, example, per_platform
 from jaxcga._multivector import KINDS, Multivector
-from jaxcga._versors import fused_point_coordinates
+from jaxcga._versors import fused_point_coordinates, row_coordinates
 
 
 def _check_mesh(V, J, W):
@@ -314,10 +318,11 @@ def skin_cga_motor_blend(
     return _blend_motors_and_apply(V, J, W, motors, log_scale)
 
 
-@per_platform("deform.skin_cga_motor_blend", examples=lambda: _skinning_examples(dual_quaternions=False))
-def _blend_motors_and_apply(
+def _blend_motors_in_xla(
     V, J, W, motors: Float[Array, "... j 8"], log_scale: Float[Array, "... j"], *, cpu: bool
 ) -> Float[Array, "... n 3"]:
+    """The motor blend of ``skin_cga_motor_blend`` left to XLA: on the CPU (``cpu``) with barriers and
+    coordinate-major output, elsewhere without."""
     *weights, log_scale = _aligned_weights(J, W, motors[..., :4], log_scale, cpu=cpu)
     scale = jnp.exp(log_scale)
     if cpu:  # exp in a loop of its own, where it vectorizes: inside the gather loop it ran scalar
@@ -330,6 +335,67 @@ def _blend_motors_and_apply(
     # blend moves points exactly as ``jaxcga.normalize(M)`` does (tested), inside one fused loop.
     coordinates = fused_point_coordinates(blended, V * scale[..., None], blended.batch_shape)
     return _coordinates_last(coordinates, cpu=cpu)
+
+
+def _blend_motors_in_rows(V, J, W, motors, log_scale):
+    """GPUs: one Triton program per block of vertices gathers each influence's motor and log scale, blends them and
+    applies the blend, writing the vertex's three coordinates together (``_jaxcga_shared.pallas_rows``): XLA
+    computes each output coordinate in its own thread and redoes the blend and the point map for each. Batches of
+    poses are a grid axis (vmap); mixed dtypes and arrays past 32-bit offsets take the XLA formulation."""
+    same_dtype = V.dtype == W.dtype == motors.dtype == log_scale.dtype
+    if not same_dtype or V.shape[0] == 0 or not pallas_rows.fits(V, J, W):
+        return _blend_motors_in_xla(V, J, W, motors, log_scale, cpu=False)
+    joints, influences = motors.shape[-2], J.shape[1]
+    table = jnp.concatenate([motors, log_scale[..., None]], axis=-1)
+    coordinates = _motor_blend_coordinates(influences, joints)
+
+    def in_xla(V, J, W, flat):
+        rows = flat.reshape(joints, _TABLE_WIDTH)
+        return _blend_motors_in_xla(V, J, W, rows[:, :8], rows[:, 8], cpu=False)
+
+    def one_pose(flat):
+        return pallas_rows.rowwise(coordinates, [V, J.astype(jnp.int32), W], [flat], 3, otherwise=in_xla)
+
+    skin_poses = one_pose
+    for _ in table.shape[:-2]:
+        skin_poses = jax.vmap(skin_poses)
+    return skin_poses(table.reshape(table.shape[:-2] + (joints * _TABLE_WIDTH,)))
+
+
+_TABLE_WIDTH = 9  # a joint's row of the gathered table: its motor's 8 components, then its log scale
+
+
+@functools.cache
+def _motor_blend_coordinates(influences: int, joints: int) -> pallas_rows.RowFunction:
+    """The ``rowwise`` function of ``_blend_motors_in_rows``: rows of (V, J, W), the joints' table shared."""
+    apply = row_coordinates(KINDS["motor"])
+
+    def coordinates(row_columns, shared_columns):
+        V, J, W = row_columns
+        (table,) = shared_columns
+        # clamped as XLA's gathers clamp: Triton reads whatever an index points at
+        rows = [jnp.clip(J[k], 0, joints - 1) * _TABLE_WIDTH for k in range(influences)]
+        gathered = [[table.gather(row + c) for c in range(_TABLE_WIDTH)] for row in rows]
+        first = gathered[0]
+        blend, log_scale = [W[0] * first[c] for c in range(8)], W[0] * first[8]
+        for k in range(1, influences):
+            # V and -V are the same transformation: an influence whose rotor points away from the first's flips
+            facing = functools.reduce(operator.add, [first[c] * gathered[k][c] for c in range(4)])
+            signed = jnp.where(facing < 0, -W[k], W[k])
+            blend = [b + signed * m for b, m in zip(blend, gathered[k][:8])]
+            log_scale = log_scale + W[k] * gathered[k][8]
+        scale = jnp.exp(log_scale)
+        return apply([[x * scale for x in V], blend], [])
+
+    return coordinates
+
+
+_blend_motors_and_apply = PerPlatform(
+    "deform.skin_cga_motor_blend",
+    cpu=functools.partial(_blend_motors_in_xla, cpu=True),
+    gpu=_blend_motors_in_rows,
+    examples=lambda: _skinning_examples(dual_quaternions=False),
+)
 
 
 def matrices_to_dual_quaternions(

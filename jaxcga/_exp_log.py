@@ -23,13 +23,12 @@ from collections.abc import Callable, Sequence
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
-from _jaxcga_shared.checks import require
 from _jaxcga_shared.platform import EXACT
 from jaxcga import _algebra as alg
 from jaxcga import _codegen
 from jaxcga._multivector import KINDS, Multivector
 from jaxcga._operations import normalize
-from jaxcga._versors import similitude_dilation, dilator
+from jaxcga._versors import dilator, similitude_dilation
 
 MOTOR_GENERATOR = alg.parse_blades(("e12", "e13", "e23", "e1inf", "e2inf", "e3inf"))
 SIMILITUDE_GENERATOR = MOTOR_GENERATOR + alg.parse_blades(("eoinf",))

@@ -1,7 +1,8 @@
 """Row-wise Pallas kernels (``_jaxcga_shared.pallas_rows``): on the CPU the kernel runs in Pallas' interpret mode and
 must equal the same arithmetic in jax.numpy, on partial last blocks, with per-row and shared inputs, in float64 and
 float32 and under vmap; lowered for CUDA it is one Triton call. ``apply_to_points``' GPU variant, which uses it, is
-checked against the CPU variant in test_platform_kernels.py, and so are the motor fields' (``deform.motor_field``)."""
+checked against the CPU variant in test_platform_kernels.py, and so are the motor fields' (``deform.motor_field``)
+and the motor blend skinning's (``deform.skin_cga_motor_blend``)."""
 
 from __future__ import annotations
 
@@ -68,6 +69,30 @@ def test_bad_arguments_are_named():
         rowwise(_affine_then_divide, [a, jnp.zeros((4, 2))], [jnp.ones(2)], 2)
 
 
+def _gather_rows(row_columns, shared_columns):
+    """Per-row integer indices into a shared (4 x 3) table, flattened; the index column first."""
+    ((index,), (a,)) = row_columns
+    (table,) = shared_columns
+    row = jnp.clip(index, 0, 3) * 3
+    return [a * table.gather(row) + table.gather(row + 2), table[1] - table.gather(row + 1)]
+
+
+@pytest.mark.parametrize("dtype", [jnp.float64, jnp.float32])
+def test_gathers_from_a_shared_table_by_per_row_indices(dtype):
+    rng = np.random.default_rng(8)
+    index = jnp.asarray(rng.integers(-1, 5, size=(150, 1)), jnp.int32)  # out of range: clamped by the function
+    a = jnp.asarray(rng.normal(size=(150, 1)), dtype)
+    table = jnp.asarray(rng.normal(size=12), dtype)
+    got = jax.jit(lambda i, a, t: rowwise(_gather_rows, [i, a], [t], 2, rows_per_program=64))(index, a, table)
+    assert got.shape == (150, 2) and got.dtype == dtype  # the integer indices do not decide the output's type
+    rows = np.asarray(table).reshape(4, 3)[np.clip(np.asarray(index[:, 0]), 0, 3)]
+    expected = np.stack([np.asarray(a[:, 0]) * rows[:, 0] + rows[:, 2], float(table[1]) - rows[:, 1]], axis=-1)
+    tolerance = 1e-6 if dtype == jnp.float32 else 1e-15
+    np.testing.assert_allclose(got, expected, rtol=tolerance, atol=tolerance)
+    text = _cuda_text(lambda i, a, t: rowwise(_gather_rows, [i, a], [t], 2), index, a, table)
+    assert text.count("xla.gpu.triton") == 1
+
+
 def _cuda_text(fn, *args):
     try:
         return jax.jit(fn).trace(*args).lower(lowering_platforms=("cuda",)).as_text()
@@ -106,6 +131,22 @@ def test_motor_fields_on_cuda_are_one_triton_kernel_up_to_a_number_of_keys(keys)
     logs = jnp.asarray(rng.normal(size=(2, keys, 6)) * 0.3)
     text = _cuda_text(PLATFORM_KERNELS["deform.motor_field"], weights, bound, logs)
     assert text.count("xla.gpu.triton") == (1 if keys <= TRITON_MAX_KEYS else 0)
+
+
+def test_motor_blend_skinning_on_cuda_is_one_triton_kernel():
+    """``skin_cga_motor_blend``'s GPU variant lowered for CUDA: gathers, blend, scale and sandwich in one Triton call,
+    for one pose and for a batch of poses (a grid axis), and so is its gradient's forward pass."""
+    rng = np.random.default_rng(9)
+    n, joints = 60, 5
+    V, W = jnp.asarray(rng.normal(size=(n, 3))), jnp.asarray(rng.dirichlet(np.ones(3), size=n))
+    J = jnp.asarray(rng.integers(0, joints, size=(n, 3)), jnp.int32)
+    motors = cga.exp_motor(cga.Multivector(rng.normal(size=(2, joints, 6)), cga.MOTOR_GENERATOR)).values
+    kernel = PLATFORM_KERNELS["deform.skin_cga_motor_blend"]
+    for pose in (motors[0], motors):
+        log_scale = jnp.zeros(pose.shape[:-1])
+        assert _cuda_text(lambda m, s: kernel(V, J, W, m, s), pose, log_scale).count("xla.gpu.triton") == 1
+    loss = jax.grad(lambda m: jnp.sum(kernel(V, J, W, m, jnp.zeros(joints)) ** 2))
+    assert _cuda_text(loss, motors[0]).count("xla.gpu.triton") == 1
 
 
 def test_apply_to_points_gpu_variant_forward_mode():
