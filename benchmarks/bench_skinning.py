@@ -16,7 +16,8 @@ method), so that the machine's drift during the run does not bias a ratio, and e
 an untimed call of the same method (``round_robin_times``). The batch of poses runs as
 ``jax.lax.map(..., batch_size=chunk)``: vmap over chunks of 50 poses, which bounds the memory of the
 per-pose temporaries (1,000 poses x 100k vertices x 3 floats is already 1.2 GB of output in float32).
-Ratios are baseline time / our time (> 1: we are faster).
+Ratios are baseline time / our time (> 1: we are faster). On a GPU the motor blend's XLA formulation, which
+its Triton kernel replaces there, is timed beside it (``cga_motor_blend_xla_*``).
 
     python benchmarks/bench_skinning.py [--vertices 100000] [--poses 1000] [--json out/bench/skinning.json]
 """
@@ -43,6 +44,7 @@ from _report import RATIO_UNIT, add_json_argument, print_device, write_json  # n
 
 import deform  # noqa: E402
 import jaxcga as cga  # noqa: E402
+from deform import _skinning  # noqa: E402
 
 
 def subdivided_arm5(min_vertices: int = 0, influences: int = 4, min_faces: int = 0) -> deform.RiggedModel:
@@ -114,13 +116,21 @@ def pipelines(model: deform.RiggedModel):
     def cga_motor_blend(local_v, _):
         return deform.skin_cga_motor_blend(mesh.V, mesh.J, mesh.W, versors(local_v))
 
-    return {
+    methods = {
         "lbs": lbs,
         "dqs": dqs,
         "cga": cga_sandwich,
         "cga_sum_then_project": cga_sum_then_project,
         "cga_motor_blend": cga_motor_blend,
     }
+    if jax.default_backend() == "gpu":
+        # the XLA formulation that the motor blend's Triton kernel replaced on GPUs, timed beside it
+        def cga_motor_blend_xla(local_v, _):
+            motors, log_scale = _skinning.motor_blend_joints(versors(local_v))
+            return _skinning._blend_motors_in_xla(mesh.V, mesh.J, mesh.W, motors, log_scale, cpu=False)
+
+        methods["cga_motor_blend_xla"] = cga_motor_blend_xla
+    return methods
 
 
 def round_robin_times(fns: dict, args, repeats: int) -> dict:

@@ -310,12 +310,16 @@ def skin_cga_motor_blend(
         (..., n, 3) skinned positions."""
     V, J, W = _check_mesh(V, J, W)
     _check_versors("joint_versors", joint_versors)
+    return _blend_motors_and_apply(V, J, W, *motor_blend_joints(joint_versors))
+
+
+def motor_blend_joints(joint_versors: Multivector) -> tuple[Float[Array, "... j 8"], Float[Array, "... j"]]:
+    """The joints' motors and log scales that ``skin_cga_motor_blend`` blends, materialized (``_materialize``)."""
     motors, log_scale = _motor_and_log_scale(joint_versors)
     # one table: a product with a 1x1 identity is simplified away, and the log scale's arctanh then ran per
     # vertex and influence
     table = _materialize(jnp.concatenate([motors, log_scale[..., None]], axis=-1))
-    motors, log_scale = table[..., :8], table[..., 8]
-    return _blend_motors_and_apply(V, J, W, motors, log_scale)
+    return table[..., :8], table[..., 8]
 
 
 def _blend_motors_in_xla(
