@@ -358,7 +358,9 @@ def _blend_motors_in_rows(V, J, W, motors, log_scale):
         return _blend_motors_in_xla(V, J, W, rows[:, :8], rows[:, 8], cpu=False)
 
     def one_pose(flat):
-        return pallas_rows.rowwise(coordinates, [V, J.astype(jnp.int32), W], [flat], 3, otherwise=in_xla)
+        return pallas_rows.rowwise(
+            coordinates, [V, J.astype(jnp.int32), W], [flat], 3, otherwise=in_xla, rows_per_program=_ROWS_PER_PROGRAM
+        )
 
     skin_poses = one_pose
     for _ in table.shape[:-2]:
@@ -367,6 +369,9 @@ def _blend_motors_in_rows(V, J, W, motors, log_scale):
 
 
 _TABLE_WIDTH = 9  # a joint's row of the gathered table: its motor's 8 components, then its log scale
+# Two vertices a thread (pallas_rows' default is 8): a vertex keeps ~60 values live (4 influences' 9 gathered
+# entries, the blend, the point map), and 8 would exceed a thread's 255 registers.
+_ROWS_PER_PROGRAM = 256
 
 
 @functools.cache
