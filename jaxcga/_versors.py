@@ -387,20 +387,24 @@ def motor_rotor_translation(m: Multivector) -> tuple[Multivector, Float[Array, "
     return r, t
 
 
+# a motor's blades, rotor first; the einf part is the translator's, -(1/2) t einf R
+_MOTOR_ROTOR, _MOVED_ORIGIN = KINDS["motor"][:4], KINDS["motor"][4:]
 _DILATED_ROTOR = alg.parse_blades(("eoinf", "e12oinf", "e13oinf", "e23oinf"))  # R (eo^einf) on the rotor blades
-_MOVED_ORIGIN = alg.parse_blades(("e1inf", "e2inf", "e3inf", "e123inf"))  # the translator's part, t einf R
-assert _ROTOR + _MOVED_ORIGIN == KINDS["motor"]
+
+
+def _components(v: Multivector, blades: tuple[int, ...]) -> Float[Array, "... k"]:
+    return jnp.stack([v.values[..., v.blades.index(b)] for b in blades], axis=-1)
 
 
 def similitude_dilation(s: Multivector) -> tuple[Float[Array, "... 4"], Float[Array, "*batch"], Float[Array, "*batch"]]:
-    """The rotor part ``rc`` (..., 4) of a similitude ``S = k T R D(e^lam)`` (k a nonzero scalar factor), its
-    squared length ``c2`` and the log scale ``lam`` (S scales points by e^lam about the origin).
+    """The rotor part ``rc`` (..., 4) of a similitude ``S = k T R D(e^lam)`` (k a nonzero scalar factor; ``s``
+    embedded in the similitude blades), its squared length ``c2`` and the log scale ``lam`` (S scales points by
+    e^lam about the origin).
 
     S = k (R D - (1/2) e^(-lam/2) t einf R) with R D = R (cosh(lam/2) + sinh(lam/2) eo^einf): the rotor blades
     hold ``rc = k R cosh``, the ``eo^einf`` blades ``rs = k R sinh``, and ``<rc, rs> / <rc, rc> = tanh(lam/2)``.
     A runtime error when ``|rs| >= |rc|`` (not a similitude versor)."""
-    s = s.embed(KINDS["similitude"])
-    rc, rs = (jnp.stack([s.values[..., s.blades.index(b)] for b in part], axis=-1) for part in (_ROTOR, _DILATED_ROTOR))
+    rc, rs = _components(s, _MOTOR_ROTOR), _components(s, _DILATED_ROTOR)
     c2, s2, cs = jnp.sum(rc * rc, -1), jnp.sum(rs * rs, -1), jnp.sum(rc * rs, -1)
     c2 = require(c2, (jnp.any(c2 <= s2), "s: not a similitude versor"))
     return rc, c2, 2.0 * jnp.arctanh(cs / c2)
@@ -417,12 +421,11 @@ def similitude_motor_log_scale(s: Multivector) -> tuple[Multivector, Float[Array
         the motors, batch shape (...), and lam (...)."""
     if not isinstance(s, Multivector) or not set(s.blades) <= set(KINDS["similitude"]):
         raise ValueError("s: expected a similitude Multivector (even blades)")
+    s = s.embed(KINDS["similitude"])
     rc, c2, lam = similitude_dilation(s)
     # S's einf blades are k e^(-lam/2) times the unit motor's, and k cosh(lam/2) = sqrt(c2)
-    s = s.embed(KINDS["similitude"])
-    moved = jnp.stack([s.values[..., s.blades.index(b)] for b in _MOVED_ORIGIN], axis=-1)
+    moved = _components(s, _MOVED_ORIGIN) * (0.5 * (1.0 + jnp.exp(lam)))[..., None]
     inv = jax.lax.rsqrt(c2)[..., None]
-    moved = moved * (0.5 * (1.0 + jnp.exp(lam)))[..., None]
     return Multivector(jnp.concatenate([rc * inv, moved * inv], axis=-1), KINDS["motor"]), lam
 
 
