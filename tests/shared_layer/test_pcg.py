@@ -84,14 +84,22 @@ def test_pcg_runs_without_the_gil():
         while not done.is_set():
             ticks[0] += 1
 
+    def ticker_share() -> tuple[float, float, int, float]:
+        """The ticker's speed while the solves run, against its speed alone (the main thread sleeping)."""
+        before = ticks[0]
+        time.sleep(0.05)
+        rate = (ticks[0] - before) / 0.05
+        start, before = time.perf_counter(), ticks[0]
+        while time.perf_counter() - start < 0.1:  # solves for long enough to measure (one took 26-60 ms)
+            jacobi_pcg(*args)
+        seconds, during = time.perf_counter() - start, ticks[0] - before
+        return during / (rate * seconds), seconds, during, rate
+
     ticker = threading.Thread(target=tick)
     ticker.start()
-    time.sleep(0.05)
-    rate = ticks[0] / 0.05  # the ticker alone (the main thread sleeping)
-    start, before = time.perf_counter(), ticks[0]
-    while time.perf_counter() - start < 0.1:  # solves for long enough to measure (one took 26-60 ms)
-        jacobi_pcg(*args)
-    seconds, during = time.perf_counter() - start, ticks[0] - before
+    # the best of three windows: a busy machine (the other test worker) slows the ticker in some (one measured 0.28
+    # under make test), while a held GIL keeps it near 0.2 in every one (0.17-0.21 with a GIL-holding build)
+    shares = [ticker_share() for _ in range(3)]
     done.set()
     ticker.join()
-    assert during > 0.3 * rate * seconds, (seconds, during, rate)
+    assert max(share for share, *_ in shares) > 0.3, shares
