@@ -126,8 +126,8 @@ def pipelines(model: deform.RiggedModel):
     if jax.default_backend() == "gpu":
         # the XLA formulation that the motor blend's Triton kernel replaced on GPUs, timed beside it
         def cga_motor_blend_xla(local_v, _):
-            motors, log_scale = _skinning.motor_blend_joints(versors(local_v))
-            return _skinning._blend_motors_in_xla(mesh.V, mesh.J, mesh.W, motors, log_scale, cpu=False)
+            table = _skinning.motor_blend_joints(versors(local_v))
+            return _skinning._blend_motors_in_xla(mesh.V, mesh.J, mesh.W, table, cpu=False)
 
         methods["cga_motor_blend_xla"] = cga_motor_blend_xla
     return methods

@@ -310,24 +310,26 @@ def skin_cga_motor_blend(
         (..., n, 3) skinned positions."""
     V, J, W = _check_mesh(V, J, W)
     _check_versors("joint_versors", joint_versors)
-    return _blend_motors_and_apply(V, J, W, *motor_blend_joints(joint_versors))
+    return _blend_motors_and_apply(V, J, W, motor_blend_joints(joint_versors))
 
 
-def motor_blend_joints(joint_versors: Multivector) -> tuple[Float[Array, "... j 8"], Float[Array, "... j"]]:
-    """The joints' motors and log scales that ``skin_cga_motor_blend`` blends, materialized (``_materialize``)."""
+_TABLE_WIDTH = 9  # a joint's row of the motor blend's table: its motor's 8 components, then its log scale
+
+
+def motor_blend_joints(joint_versors: Multivector) -> Float[Array, "... j 9"]:
+    """The table that ``skin_cga_motor_blend`` blends: per joint its motor's 8 components, then its log scale,
+    materialized (``_materialize``)."""
     motors, log_scale = _motor_and_log_scale(joint_versors)
     # one table: a product with a 1x1 identity is simplified away, and the log scale's arctanh then ran per
     # vertex and influence
-    table = _materialize(jnp.concatenate([motors, log_scale[..., None]], axis=-1))
-    return table[..., :8], table[..., 8]
+    return _materialize(jnp.concatenate([motors, log_scale[..., None]], axis=-1))
 
 
-def _blend_motors_in_xla(
-    V, J, W, motors: Float[Array, "... j 8"], log_scale: Float[Array, "... j"], *, cpu: bool
-) -> Float[Array, "... n 3"]:
-    """The motor blend of ``skin_cga_motor_blend`` left to XLA: on the CPU (``cpu``) with barriers and
-    coordinate-major output, elsewhere without."""
-    *weights, log_scale = _aligned_weights(J, W, motors[..., :4], log_scale, cpu=cpu)
+def _blend_motors_in_xla(V, J, W, table: Float[Array, "... j 9"], *, cpu: bool) -> Float[Array, "... n 3"]:
+    """The motor blend of ``skin_cga_motor_blend`` (the joints' ``motor_blend_joints`` table) left to XLA: on the
+    CPU (``cpu``) with barriers and coordinate-major output, elsewhere without."""
+    motors = table[..., :8]
+    *weights, log_scale = _aligned_weights(J, W, motors[..., :4], table[..., 8], cpu=cpu)
     scale = jnp.exp(log_scale)
     if cpu:  # exp in a loop of its own, where it vectorizes: inside the gather loop it ran scalar
         scale = jax.lax.optimization_barrier(scale)
@@ -341,21 +343,18 @@ def _blend_motors_in_xla(
     return _coordinates_last(coordinates, cpu=cpu)
 
 
-def _blend_motors_in_rows(V, J, W, motors, log_scale):
+def _blend_motors_in_rows(V, J, W, table):
     """GPUs: one Triton program per block of vertices gathers each influence's motor and log scale, blends them and
     applies the blend, writing the vertex's three coordinates together (``_jaxcga_shared.pallas_rows``): XLA
     computes each output coordinate in its own thread and redoes the blend and the point map for each. Batches of
     poses are a grid axis (vmap); mixed dtypes and arrays past 32-bit offsets take the XLA formulation."""
-    same_dtype = V.dtype == W.dtype == motors.dtype == log_scale.dtype
-    if not same_dtype or V.shape[0] == 0 or not pallas_rows.fits(V, J, W):
-        return _blend_motors_in_xla(V, J, W, motors, log_scale, cpu=False)
-    joints, influences = motors.shape[-2], J.shape[1]
-    table = jnp.concatenate([motors, log_scale[..., None]], axis=-1)
+    if not V.dtype == W.dtype == table.dtype or V.shape[0] == 0 or not pallas_rows.fits(V, J, W):
+        return _blend_motors_in_xla(V, J, W, table, cpu=False)
+    joints, influences = table.shape[-2], J.shape[1]
     coordinates = _motor_blend_coordinates(influences, joints)
 
     def in_xla(V, J, W, flat):
-        rows = flat.reshape(joints, _TABLE_WIDTH)
-        return _blend_motors_in_xla(V, J, W, rows[:, :8], rows[:, 8], cpu=False)
+        return _blend_motors_in_xla(V, J, W, flat.reshape(joints, _TABLE_WIDTH), cpu=False)
 
     def one_pose(flat):
         return pallas_rows.rowwise(
@@ -368,7 +367,6 @@ def _blend_motors_in_rows(V, J, W, motors, log_scale):
     return skin_poses(table.reshape(table.shape[:-2] + (joints * _TABLE_WIDTH,)))
 
 
-_TABLE_WIDTH = 9  # a joint's row of the gathered table: its motor's 8 components, then its log scale
 # Two vertices a thread (pallas_rows' default is 8): a vertex keeps ~60 values live (4 influences' 9 gathered
 # entries, the blend, the point map), and 8 would exceed a thread's 255 registers.
 _ROWS_PER_PROGRAM = 256
@@ -399,11 +397,18 @@ def _motor_blend_coordinates(influences: int, joints: int) -> pallas_rows.RowFun
     return coordinates
 
 
+def _motor_blend_examples():
+    return [
+        example(V, J, W, jnp.concatenate([motors, log_scale[..., None]], axis=-1))
+        for V, J, W, motors, log_scale in (e.args for e in _skinning_examples(dual_quaternions=False))
+    ]
+
+
 _blend_motors_and_apply = PerPlatform(
     "deform.skin_cga_motor_blend",
     cpu=functools.partial(_blend_motors_in_xla, cpu=True),
     gpu=_blend_motors_in_rows,
-    examples=lambda: _skinning_examples(dual_quaternions=False),
+    examples=_motor_blend_examples,
 )
 
 

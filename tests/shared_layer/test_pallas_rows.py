@@ -142,11 +142,11 @@ def test_motor_blend_skinning_on_cuda_is_one_triton_kernel():
     J = jnp.asarray(rng.integers(0, joints, size=(n, 3)), jnp.int32)
     motors = cga.exp_motor(cga.Multivector(rng.normal(size=(2, joints, 6)), cga.MOTOR_GENERATOR)).values
     kernel = PLATFORM_KERNELS["deform.skin_cga_motor_blend"]
-    for pose in (motors[0], motors):
-        log_scale = jnp.zeros(pose.shape[:-1])
-        assert _cuda_text(lambda m, s: kernel(V, J, W, m, s), pose, log_scale).count("xla.gpu.triton") == 1
-    loss = jax.grad(lambda m: jnp.sum(kernel(V, J, W, m, jnp.zeros(joints)) ** 2))
-    assert _cuda_text(loss, motors[0]).count("xla.gpu.triton") == 1
+    tables = jnp.concatenate([motors, jnp.zeros(motors.shape[:-1] + (1,))], axis=-1)  # log scales 0
+    for table in (tables[0], tables):
+        assert _cuda_text(lambda t: kernel(V, J, W, t), table).count("xla.gpu.triton") == 1
+    loss = jax.grad(lambda t: jnp.sum(kernel(V, J, W, t) ** 2))
+    assert _cuda_text(loss, tables[0]).count("xla.gpu.triton") == 1
 
 
 def test_apply_to_points_gpu_variant_forward_mode():
