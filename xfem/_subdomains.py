@@ -39,6 +39,8 @@ h (a rotation by ``h / size`` about its box centre and a translation of length h
 from __future__ import annotations
 
 import functools
+import itertools
+import os
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
@@ -55,7 +57,9 @@ from xfem._tetmesh import TetMesh, node_rings
 
 # pieces and volume changes below this fraction of a subdomain's volume are rounding, not material
 _RELATIVE_VOLUME = 1e-12
-_BOOLEAN_THREADS = 2  # CI and the development machine have two cores
+# the cores this process may run on, at least 2 (CI's) and at most 8: a cut's ~2,000 Booleans make ~70 tasks
+_CORES = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 2
+_BOOLEAN_THREADS = min(8, max(2, _CORES))
 _BOOLEAN_CHUNK = 32  # subdomains per task
 # attempts of the gentle perturbation before giving up, and the alignment distance relative to the motion
 _PERTURB_TRIES = 16
@@ -302,6 +306,15 @@ class Subdomains:
         """The ids of node i's current nodal subdomains S(i) (eq. 18), in creation order."""
         return list(self._nodes.live[i])
 
+    def first_node_subdomains(self) -> Int[np.ndarray, " n"]:
+        """(n,) int64 the first current nodal subdomain of every node (its initial one, id i, until a cut splits
+        it), -1 for a node with none left."""
+        return np.fromiter((ids[0] if ids else -1 for ids in self._nodes.live), np.int64, len(self.X))
+
+    def node_subdomain_counts(self) -> Int[np.ndarray, " n"]:
+        """(n,) int64 the number of current nodal subdomains of every node."""
+        return np.fromiter(map(len, self._nodes.live), np.int64, len(self.X))
+
     def element_subdomains(self, e: int) -> list[int]:
         """The ids of element e's current element subdomains (eq. 20), in creation order."""
         return list(self._elements.live[e])
@@ -499,10 +512,16 @@ def _differences(sids: list[int], solid_of, cut: manifold3d.Manifold, tally: lis
     def difference(sid):
         return _difference(solid_of(sid), cut)
 
+    def differences(chunk):
+        return [difference(sid) for sid in chunk]
+
     if not parallel or len(sids) < 2 * _BOOLEAN_CHUNK:
-        results = [difference(sid) for sid in sids]
+        results = differences(sids)
     else:
-        results = list(_booleans().map(difference, sids, chunksize=_BOOLEAN_CHUNK))
+        # a task per chunk: ThreadPoolExecutor.map ignores its chunksize, and a future per Boolean cost about a
+        # quarter of the Booleans' wall time
+        chunks = [sids[k : k + _BOOLEAN_CHUNK] for k in range(0, len(sids), _BOOLEAN_CHUNK)]
+        results = list(itertools.chain.from_iterable(_booleans().map(differences, chunks)))
     tally[0] += len(sids)
     tally[1] += time.perf_counter() - start
     return results

@@ -34,6 +34,7 @@ is thinner than that offset there. A node with a single subdomain needs no query
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import time
 from collections.abc import Sequence
 from typing import NamedTuple
@@ -48,6 +49,7 @@ from jaxtyping import Array, Float, Int
 from scipy.sparse.csgraph import connected_components
 
 from _jaxcga_shared.checks import check_positive, check_real
+from xfem._assembly import sorted_unique
 from xfem._backward_euler import FEMSystem, State, fem_system
 from xfem._capacity import Capacities, PaddedSystem, compiled, padded_state
 from xfem._integration import element_piece_integrals, linear_shape_coefficients, moments_of_pieces
@@ -178,6 +180,7 @@ class XFEMModel:
         self.state = state
         self.cuts: list[tuple[MeshSolid, float, bool]] = []
         # caches of the current pieces, cleared by a cut
+        self._piece_cache: tuple | None = None  # _pieces
         self._arrays: tuple | None = None  # _system_arrays
         self._system: FEMSystem | None = None  # system
         self._padded: PaddedSystem | None = None  # the padded system the steps run
@@ -190,35 +193,33 @@ class XFEMModel:
     # ---------------------------------------------------------------------------------------------------
     # pieces
 
-    def _piece_nodal_sids(self, e: int, sid: int) -> np.ndarray:
-        """(4,) the nodal subdomains whose indicators are 1 on piece sid of element e (eq. 16)."""
-        if sid in self._enriched:
-            return self._enriched[sid]
-        return np.array([self.sub.node_subdomains(int(i))[0] for i in self.T[e]], np.int64)
-
     def _enrich(self, elements: np.ndarray) -> None:
         """Assign the nodal subdomains of every piece of the given elements at nodes with several (eq. 16); one
-        distance query per such node and subdomain, for all its pieces' points at once."""
-        queries: dict[int, list[tuple[int, int, np.ndarray]]] = {}  # node -> (piece sid, local node, point)
-        for e in elements.tolist():
-            several = [a for a in range(4) if len(self.sub.node_subdomains(int(self.T[e, a]))) > 1]
-            for sid in self.sub.element_subdomains(e):
-                self._enriched.pop(sid, None)
-                if not several:
-                    continue
-                if e in self._exact:
-                    point = self._integrals[sid][3]
-                else:  # the whole tet: its centroid is inside
-                    point = self.X[self.T[e]].mean(axis=0)
-                self._enriched[sid] = np.array([self.sub.node_subdomains(int(i))[0] for i in self.T[e]], np.int64)
-                for a in several:
-                    queries.setdefault(int(self.T[e, a]), []).append((sid, a, point))
-        for i, rows in queries.items():
-            options = self.sub.node_subdomains(i)
-            meshes = [self._node_mesh(s) for s in options]
-            chosen = _nearest_subdomain(meshes, np.stack([point for _, _, point in rows]))
-            for (sid, a, _), k in zip(rows, chosen.tolist()):
-                self._enriched[sid][a] = options[k]
+        distance query per such node, for all its pieces' points at once."""
+        lists = [self.sub.element_subdomains(e) for e in elements.tolist()]
+        sids = np.fromiter(itertools.chain.from_iterable(lists), np.int64)
+        owner = np.repeat(np.asarray(elements, np.int64), [len(ids) for ids in lists])
+        for sid in sids.tolist():
+            self._enriched.pop(sid, None)
+        several = (self.sub.node_subdomain_counts() > 1)[self.T[owner]]  # (pieces, 4)
+        enriched = several.any(axis=1)
+        sids, owner, several = sids[enriched], owner[enriched], several[enriched]
+        if not len(sids):
+            return
+        exact = np.isin(owner, np.fromiter(self._exact, np.int64, len(self._exact)))
+        points = self.X[self.T[owner]].mean(axis=1)  # a whole tet's centroid is inside it
+        if exact.any():
+            points[exact] = np.stack([self._integrals[sid][3] for sid in sids[exact].tolist()])
+        nodal = self.sub.first_node_subdomains()[self.T[owner]]
+        piece, corner = np.nonzero(several)
+        node = self.T[owner[piece], corner]
+        order = np.argsort(node, kind="stable")
+        starts = np.flatnonzero(np.concatenate([[True], node[order][1:] != node[order][:-1]]))
+        for rows in np.split(order, starts[1:]):
+            options = self.sub.node_subdomains(int(node[rows[0]]))
+            chosen = _nearest_subdomain([self._node_mesh(s) for s in options], points[piece[rows]])
+            nodal[piece[rows], corner[rows]] = np.asarray(options, np.int64)[chosen]
+        self._enriched.update(zip(sids.tolist(), nodal))
 
     def _node_mesh(self, sid: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(V, F, lower, upper): the mesh and bounding box of nodal subdomain sid's solid, kept until a cut
@@ -258,33 +259,35 @@ class XFEMModel:
         return len(sids)
 
     def _pieces(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """``piece_arrays`` with the nodal subdomain ids (P, 4) of eq. 16 in place of the DOFs."""
+        """``piece_arrays`` with the nodal subdomain ids (P, 4) of eq. 16 in place of the DOFs (cached until the
+        next cut: the renumbering and the system both read them)."""
+        if self._piece_cache is None:
+            self._piece_cache = self._gather_pieces()
+        return self._piece_cache
+
+    def _gather_pieces(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        exact = np.array(sorted(self._exact), np.int64)
         uncut = np.ones(len(self.T), bool)
-        uncut[list(self._exact)] = False
-        element = [np.flatnonzero(uncut)]
-        nodal = [self.T[element[0]]]  # the initial nodal subdomain of node i has id i
-        volume, mass, load = [self._tet_volume[uncut]], [self._tet_mass[uncut]], [self._tet_load[uncut]]
-        # an uncut tet's piece id is the element
-        enriched = [sid for sid in self._enriched if sid < len(self.T) and uncut[sid]]
+        uncut[exact] = False
+        whole = np.flatnonzero(uncut)  # an uncut tet's piece id is the element
+        lists = [self.sub.element_subdomains(e) for e in exact.tolist()]
+        sids = list(itertools.chain.from_iterable(lists))
+        parts = np.repeat(exact, [len(ids) for ids in lists])
+        integrals = [self._integrals[sid] for sid in sids]
+        element = np.concatenate([whole, parts])
+        # a piece's nodal subdomains: each node's first, where the node has one (the initial one of node i has
+        # id i), or those eq. 16 chose (``_enrich``)
+        nodal = np.concatenate([self.T[whole], self.sub.first_node_subdomains()[self.T[parts]]])
+        rows = {sid: k for k, sid in enumerate(whole.tolist())}
+        rows.update((sid, len(whole) + k) for k, sid in enumerate(sids))
+        enriched = [(rows[sid], nodes) for sid, nodes in self._enriched.items() if sid in rows]
         if enriched:
-            nodal[0][np.searchsorted(element[0], enriched)] = np.stack([self._enriched[sid] for sid in enriched])
-        for e in sorted(self._exact):
-            for sid in self.sub.element_subdomains(e):
-                vol, ms, ld, _ = self._integrals[sid]
-                element.append(np.array([e]))
-                nodal.append(self._piece_nodal_sids(e, sid)[None])
-                volume.append(np.array([vol]))
-                mass.append(ms[None])
-                load.append(ld[None])
-        element = np.concatenate(element)
+            nodal[[k for k, _ in enriched]] = np.stack([nodes for _, nodes in enriched])
+        volume = np.concatenate([self._tet_volume[whole], np.array([v[0] for v in integrals], np.float64)])
+        mass = np.concatenate([self._tet_mass[whole], np.array([v[1] for v in integrals]).reshape(-1, 4, 4)])
+        load = np.concatenate([self._tet_load[whole], np.array([v[2] for v in integrals]).reshape(-1, 4)])
         order = np.argsort(element, kind="stable")
-        return (
-            element[order],
-            np.concatenate(nodal)[order],
-            np.concatenate(volume)[order],
-            np.concatenate(mass)[order],
-            np.concatenate(load)[order],
-        )
+        return element[order], nodal[order], volume[order], mass[order], load[order]
 
     def piece_arrays(
         self,
@@ -336,6 +339,7 @@ class XFEMModel:
         built = solid.build()
         check_cut(built, perturb)
         report = apply_cut(self.sub, built, perturb, parallel=parallel)
+        self._piece_cache = None
         self.cuts.append((solid, float(perturb), bool(parallel)))
         touched = report.elements_touched
         if len(touched) == 0:
@@ -369,7 +373,7 @@ class XFEMModel:
         """The DOFs become the live nodal subdomains that a piece reaches, ordered by node, then id (creation
         order). Returns, for each, the DOF of the previous numbering whose x and v it copies: its own, or its
         parent's for a subdomain made by this cut (line 7)."""
-        sids = np.unique(self._pieces()[1])
+        sids = sorted_unique(self._pieces()[1])
         nodes = np.array([s if s < len(self.X) else self.sub.node_of(int(s)) for s in sids], np.int64)
         order = np.lexsort((sids, nodes))
         return self._number(sids[order], nodes[order])
@@ -509,6 +513,7 @@ class XFEMModel:
         if not isinstance(delta, CutDelta):
             raise ValueError(f"delta: expected a CutDelta, got {type(delta).__name__}")
         self.sub.apply_delta(delta.subdomains)
+        self._piece_cache = None
         for sid in delta.subdomains.nodes.retired.tolist():
             self._node_meshes.pop(sid, None)
         for sid in delta.subdomains.elements.retired.tolist():
