@@ -87,13 +87,19 @@ def csr_pattern(indptr, indices, *, block: int = 1) -> CSRPattern:
     used = int(indptr[-1])
     if used and (indices[:used].min() < 0 or indices[:used].max() >= n):
         raise ValueError(f"indices: column indices must lie in [0, {n})")
-    rows = np.concatenate([np.repeat(np.arange(n), np.diff(indptr)), np.full(len(indices) - used, n)])
-    columns = np.where(rows < n, indices, 0)
-    slots = np.where((rows < n) & (rows // block == columns // block), rows * block + columns % block, n * block)
     index = indices.dtype if np.issubdtype(indices.dtype, np.integer) else np.int64
     if n * block >= np.iinfo(index).max:
         index = np.int64
-    indptr, indices, rows, slots = to_devices(*(a.astype(index) for a in (indptr, indices, rows, slots)))
+    # in the index type from the start: an XFEM system's pattern has millions of entries
+    rows = np.full(len(indices), n, index)
+    rows[:used] = np.repeat(np.arange(n, dtype=index), np.diff(indptr))
+    columns = indices[:used].astype(index, copy=False)
+    row_block, column_block = rows[:used] // block, columns // block
+    in_block = rows[:used] * block + (columns - column_block * block)
+    slots = np.full(len(indices), n * block, index)
+    slots[:used] = np.where(row_block == column_block, in_block, n * block)
+    indptr, indices = (a.astype(index, copy=False) for a in (indptr, indices))
+    indptr, indices, rows, slots = to_devices(indptr, indices, rows, slots)
     return CSRPattern(indptr=indptr, indices=indices, rows=rows, block_slots=slots, n=n, block=block)
 
 

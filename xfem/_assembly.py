@@ -134,7 +134,8 @@ def assembly_pattern(
         raise ValueError(f"n: expected a positive number of nodes, got {n}")
     T = _host_elements(T, n)
     fixed = _host_fixed(fixed, n)
-    free_index = np.full(n, -1, np.int64)
+    # node-pair keys a * n_free + b in 32 bits where they fit: their sort is the pattern's largest cost
+    free_index = np.full(n, -1, np.int32 if n * n < 2**31 else np.int64)
     free = np.setdiff1d(np.arange(n), fixed)
     free_index[free] = np.arange(len(free))
     nf = len(free)

@@ -20,6 +20,9 @@ TARGETS = [
     ("fem", r"step_23k_s_gpu", "<=", 0.05),
     ("xfem", r"accordion_step_avg_s_gpu", "<=", 0.05),
 ]
+# untargeted figures printed beside them: what the accordion's average frame is made of (the GPU's steps, the
+# host's cuts)
+PARTS = [("xfem", r"accordion_(uncut_step_avg|cut_work|total)_s_gpu")]
 
 
 def lines(folder: Path) -> list[str]:
@@ -48,6 +51,15 @@ def lines(folder: Path) -> list[str]:
         for name, value in found.items():
             holds = value >= bound if op == ">=" else value <= bound
             out.append(f"  {name:44s} {value:12.4g}  target {op} {bound:g}  {'holds' if holds else 'MISSES'}")
+    for file, pattern in PARTS:
+        result = loaded.get(file)
+        if result is not None:
+            out.extend(
+                f"  {name:44s} {value:12.4g}  (no target)"
+                for key in ("figures", "ratios")
+                for name, value in result[key].items()
+                if re.fullmatch(pattern, name)
+            )
     return out
 
 
