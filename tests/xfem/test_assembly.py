@@ -21,6 +21,7 @@ from xfem._assembly import (
     matvec,
     restrict,
     scalar_slots,
+    sorted_unique,
     to_scipy,
 )
 
@@ -126,6 +127,15 @@ def test_assembly_under_jit_and_grad():
     expected = np.where(slots < pattern.nnz, np.asarray(weights)[np.minimum(slots, pattern.nnz - 1)], 0.0)
     np.testing.assert_allclose(jax.grad(loss)(H).ravel(), expected)
     np.testing.assert_allclose(loss(H), np.sum(expected * np.asarray(H).ravel()), rtol=1e-12)
+
+
+@pytest.mark.parametrize("dtype", [np.int32, np.int64])
+@pytest.mark.parametrize("shape", [(0,), (1,), (1000,), (300, 4)])
+def test_sorted_unique_is_np_unique(dtype, shape):
+    values = RNG.integers(-50, 200, size=shape).astype(dtype)
+    unique = sorted_unique(values)
+    assert unique.dtype == values.dtype
+    np.testing.assert_array_equal(unique, np.unique(values))
 
 
 def test_bad_input():

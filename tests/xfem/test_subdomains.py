@@ -38,9 +38,13 @@ def _signed(X, point, normal):
 
 
 def _check_ids(sub, report=None):
-    """Live ids belong to their owner; every child's parent is the retired id it replaced."""
+    """Live ids belong to their owner; every child's parent is the retired id it replaced; the per-node arrays
+    agree with the lists."""
+    first, counts = sub.first_node_subdomains(), sub.node_subdomain_counts()
     for i in range(sub.n_nodes):
-        for sid in sub.node_subdomains(i):
+        ids = sub.node_subdomains(i)
+        assert counts[i] == len(ids) and first[i] == (ids[0] if ids else -1)
+        for sid in ids:
             assert sub.node_of(sid) == i and sub.node_alive(sid)
     for e in range(sub.n_elements):
         for sid in sub.element_subdomains(e):
@@ -236,6 +240,7 @@ def test_subdomains_inside_a_thick_cut_disappear():
     for i in range(sub.n_nodes):
         # rings at z = 0 are gone, the others lose their lower part and keep their id (one piece each)
         assert sub.node_subdomains(i) == ([] if X[i, 2] == 0 else [i])
+    _check_ids(sub, report)
     assert report.nodes_split.tolist() == []
     assert {k for k, v in report.node_children.items() if v == ()} == set(np.flatnonzero(X[:, 2] == 0).tolist())
 
