@@ -147,6 +147,7 @@ def test_bench_xfem_quick_writes_the_published_names(tmp_path):
             "dpsi_ms",
             "cg_s",
             "cut_max_over_avg",
+            "cut_work_s",
             "async_cut_max_over_avg",
         ):
             assert result["figures"][f"{scene}_{name}"] > 0 and f"{scene}_{name}" in result["units"]
