@@ -315,6 +315,14 @@ class Subdomains:
         """(n,) int64 the number of current nodal subdomains of every node."""
         return np.fromiter(map(len, self._nodes.live), np.int64, len(self.X))
 
+    def element_subdomain_arrays(self, elements: Int[np.ndarray, " k"]) -> tuple[np.ndarray, np.ndarray]:
+        """The current element subdomains of the given elements, flattened: (p,) int64 their elements and (p,) int64
+        their ids, element by element, each element's in creation order."""
+        lists = [self._elements.live[e] for e in np.asarray(elements, np.int64).tolist()]
+        counts = np.fromiter(map(len, lists), np.int64, len(lists))
+        ids = np.fromiter(itertools.chain.from_iterable(lists), np.int64, int(counts.sum()))
+        return np.repeat(np.asarray(elements, np.int64), counts), ids
+
     def element_subdomains(self, e: int) -> list[int]:
         """The ids of element e's current element subdomains (eq. 20), in creation order."""
         return list(self._elements.live[e])

@@ -34,7 +34,6 @@ is thinner than that offset there. A node with a single subdomain needs no query
 from __future__ import annotations
 
 import dataclasses
-import itertools
 import time
 from collections.abc import Sequence
 from typing import NamedTuple
@@ -196,9 +195,7 @@ class XFEMModel:
     def _enrich(self, elements: np.ndarray) -> None:
         """Assign the nodal subdomains of every piece of the given elements at nodes with several (eq. 16); one
         distance query per such node, for all its pieces' points at once."""
-        lists = [self.sub.element_subdomains(e) for e in elements.tolist()]
-        sids = np.fromiter(itertools.chain.from_iterable(lists), np.int64)
-        owner = np.repeat(np.asarray(elements, np.int64), [len(ids) for ids in lists])
+        owner, sids = self.sub.element_subdomain_arrays(elements)
         for sid in sids.tolist():
             self._enriched.pop(sid, None)
         several = (self.sub.node_subdomain_counts() > 1)[self.T[owner]]  # (pieces, 4)
@@ -270,19 +267,20 @@ class XFEMModel:
         uncut = np.ones(len(self.T), bool)
         uncut[exact] = False
         whole = np.flatnonzero(uncut)  # an uncut tet's piece id is the element
-        lists = [self.sub.element_subdomains(e) for e in exact.tolist()]
-        sids = list(itertools.chain.from_iterable(lists))
-        parts = np.repeat(exact, [len(ids) for ids in lists])
-        integrals = [self._integrals[sid] for sid in sids]
+        parts, sids = self.sub.element_subdomain_arrays(exact)
+        integrals = [self._integrals[sid] for sid in sids.tolist()]
         element = np.concatenate([whole, parts])
         # a piece's nodal subdomains: each node's first, where the node has one (the initial one of node i has
         # id i), or those eq. 16 chose (``_enrich``)
         nodal = np.concatenate([self.T[whole], self.sub.first_node_subdomains()[self.T[parts]]])
-        rows = {sid: k for k, sid in enumerate(whole.tolist())}
-        rows.update((sid, len(whole) + k) for k, sid in enumerate(sids))
-        enriched = [(rows[sid], nodes) for sid, nodes in self._enriched.items() if sid in rows]
-        if enriched:
-            nodal[[k for k, _ in enriched]] = np.stack([nodes for _, nodes in enriched])
+        if self._enriched:
+            # the row of each piece id (element subdomain ids are unique: an uncut tet's is its element)
+            row = np.full(max(len(self.T), int(sids.max(initial=0)) + 1), -1, np.int64)
+            row[whole], row[sids] = np.arange(len(whole)), len(whole) + np.arange(len(sids))
+            keys = np.fromiter(self._enriched, np.int64, len(self._enriched))
+            values = np.concatenate(list(self._enriched.values())).reshape(-1, 4)
+            at = np.where(keys < len(row), row[np.minimum(keys, len(row) - 1)], -1)
+            nodal[at[at >= 0]] = values[at >= 0]
         volume = np.concatenate([self._tet_volume[whole], np.array([v[0] for v in integrals], np.float64)])
         mass = np.concatenate([self._tet_mass[whole], np.array([v[1] for v in integrals]).reshape(-1, 4, 4)])
         load = np.concatenate([self._tet_load[whole], np.array([v[2] for v in integrals]).reshape(-1, 4)])
