@@ -38,8 +38,8 @@ def _signed(X, point, normal):
 
 
 def _check_ids(sub, report=None):
-    """Live ids belong to their owner; every child's parent is the retired id it replaced; the per-node arrays
-    agree with the lists."""
+    """Live ids belong to their owner; every child's parent is the retired id it replaced; the arrays of ids agree
+    with the lists."""
     first, counts = sub.first_node_subdomains(), sub.node_subdomain_counts()
     for i in range(sub.n_nodes):
         ids = sub.node_subdomains(i)
@@ -49,6 +49,9 @@ def _check_ids(sub, report=None):
     for e in range(sub.n_elements):
         for sid in sub.element_subdomains(e):
             assert sub.element_of(sid) == e and sub.element_alive(sid)
+    owner, ids = sub.element_subdomain_arrays(np.arange(sub.n_elements)[::-1])
+    listed = [(e, sid) for e in range(sub.n_elements)[::-1] for sid in sub.element_subdomains(e)]
+    assert list(zip(owner.tolist(), ids.tolist())) == listed
     if report is not None:
         for old, new in report.node_children.items():
             assert not sub.node_alive(old)
