@@ -260,6 +260,8 @@ class XFEMModel:
         next cut: the renumbering and the system both read them)."""
         if self._piece_cache is None:
             self._piece_cache = self._gather_pieces()
+            for array in self._piece_cache:  # shared by every caller until the next cut
+                array.flags.writeable = False
         return self._piece_cache
 
     def _gather_pieces(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -300,7 +302,8 @@ class XFEMModel:
 
         Returns:
             element (P,) int64 parent element, dofs (P, 4) int64 DOF indices, volume (P,), mass (P, 4, 4)
-            ``rho int_p phi_a phi_b``, load (P, 4) ``int_p phi_a``.
+            ``rho int_p phi_a phi_b``, load (P, 4) ``int_p phi_a``; all but dofs read-only (the model's own, until
+            the next cut).
         """
         element, nodal, volume, mass, load = self._pieces()
         return element, self._dof_index(nodal), volume, mass, load
