@@ -374,15 +374,6 @@ def _copy(model: XFEMModel) -> XFEMModel:
     return copy
 
 
-def _row_sids(model: XFEMModel, element: np.ndarray) -> np.ndarray:
-    """The element subdomain id of each piece row (``piece_arrays``' order: by element, an element's pieces in
-    their subdomain order; an uncut tet's piece id is the element)."""
-    sids = element.copy()
-    for e in np.unique(element[np.isin(element, list(model._exact))]).tolist():
-        sids[element == e] = model.sub.element_subdomains(e)
-    return sids
-
-
 def _entry(entry, index: str):
     """A checked entry of ``plane_cuts``: (point, normal, epsilon) or (None, solid, perturb)."""
     if isinstance(entry, manifold3d.Manifold):
@@ -535,7 +526,7 @@ def _stage_replay(copy: XFEMModel, table: _Table, programs: dict, epsilons: list
     """The ``_Replay`` of the copy's current system, that system (host) and the pieces' elements."""
     element, dofs, volume, mass, load = copy.piece_arrays()
     system = copy.system()
-    sids = _row_sids(copy, element)
+    sids = copy.piece_ids()
     rows = np.flatnonzero(np.isin(sids, list(programs)))
     by_length: dict[int, tuple[list, list]] = {}  # the faces by their vertex count, fanned together
     for r, row in enumerate(rows.tolist()):

@@ -259,12 +259,19 @@ class XFEMModel:
         """``piece_arrays`` with the nodal subdomain ids (P, 4) of eq. 16 in place of the DOFs (cached until the
         next cut: the renumbering and the system both read them)."""
         if self._piece_cache is None:
-            self._piece_cache = self._gather_pieces()
-            for array in self._piece_cache:  # shared by every caller until the next cut
+            *pieces, ids = self._gather_pieces()
+            for array in (*pieces, ids):  # shared by every caller until the next cut
                 array.flags.writeable = False
-        return self._piece_cache
+            self._piece_cache = (tuple(pieces), ids)
+        return self._piece_cache[0]
 
-    def _gather_pieces(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def piece_ids(self) -> Int[np.ndarray, " P"]:
+        """(P,) int64 the element subdomain id of each piece row of ``piece_arrays`` (an uncut tet's is its
+        element); read-only."""
+        self._pieces()
+        return self._piece_cache[1]  # pyright: ignore[reportOptionalSubscript]  # set by _pieces
+
+    def _gather_pieces(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         exact = np.array(sorted(self._exact), np.int64)
         uncut = np.ones(len(self.T), bool)
         uncut[exact] = False
@@ -287,7 +294,8 @@ class XFEMModel:
         mass = np.concatenate([self._tet_mass[whole], np.array([v[1] for v in integrals]).reshape(-1, 4, 4)])
         load = np.concatenate([self._tet_load[whole], np.array([v[2] for v in integrals]).reshape(-1, 4)])
         order = np.argsort(element, kind="stable")
-        return element[order], nodal[order], volume[order], mass[order], load[order]
+        ids = np.concatenate([whole, sids])
+        return element[order], nodal[order], volume[order], mass[order], load[order], ids[order]
 
     def piece_arrays(
         self,

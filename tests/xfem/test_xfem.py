@@ -106,6 +106,12 @@ def test_mass_after_cuts_is_body_minus_cuts():
     assert abs(piece_volume.sum() - volume) <= 1e-12 * volume
     assert abs(load.sum() - volume) <= 1e-12 * volume
     np.testing.assert_allclose(np.asarray(system.force).sum(axis=0), RHO * volume * G, rtol=1e-12, atol=1e-9)
+    # each row's piece id, and the model's arrays kept from the callers' writes
+    element, ids = model.piece_arrays()[0], model.piece_ids()
+    assert ids.tolist() == [sid for e in range(len(T)) for sid in model.sub.element_subdomains(e)]
+    assert element.tolist() == [model.sub.element_of(sid) for sid in ids.tolist()]
+    with pytest.raises(ValueError, match="read-only"):
+        piece_volume[0] = 0.0
 
 
 @pytest.mark.slow  # 7 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
