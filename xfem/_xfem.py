@@ -179,7 +179,7 @@ class XFEMModel:
         self.state = state
         self.cuts: list[tuple[MeshSolid, float, bool]] = []
         # caches of the current pieces, cleared by a cut
-        self._piece_cache: tuple | None = None  # _pieces
+        self._piece_cache: tuple[tuple[np.ndarray, ...], np.ndarray] | None = None  # _piece_table
         self._arrays: tuple | None = None  # _system_arrays
         self._system: FEMSystem | None = None  # system
         self._padded: PaddedSystem | None = None  # the padded system the steps run
@@ -255,21 +255,24 @@ class XFEMModel:
             self._integrals[sid] = (float(volume[k]), mass[k], load[k], points[k])
         return len(sids)
 
-    def _pieces(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def _pieces(self) -> tuple[np.ndarray, ...]:
         """``piece_arrays`` with the nodal subdomain ids (P, 4) of eq. 16 in place of the DOFs (cached until the
         next cut: the renumbering and the system both read them)."""
+        return self._piece_table()[0]
+
+    def piece_ids(self) -> Int[np.ndarray, " P"]:
+        """(P,) int64 the element subdomain id of each piece row of ``piece_arrays`` (an uncut tet's is its
+        element); read-only."""
+        return self._piece_table()[1]
+
+    def _piece_table(self) -> tuple[tuple[np.ndarray, ...], np.ndarray]:
+        """``_pieces`` and ``piece_ids``, gathered together and cached until the next cut."""
         if self._piece_cache is None:
             *pieces, ids = self._gather_pieces()
             for array in (*pieces, ids):  # shared by every caller until the next cut
                 array.flags.writeable = False
             self._piece_cache = (tuple(pieces), ids)
-        return self._piece_cache[0]
-
-    def piece_ids(self) -> Int[np.ndarray, " P"]:
-        """(P,) int64 the element subdomain id of each piece row of ``piece_arrays`` (an uncut tet's is its
-        element); read-only."""
-        self._pieces()
-        return self._piece_cache[1]  # pyright: ignore[reportOptionalSubscript]  # set by _pieces
+        return self._piece_cache
 
     def _gather_pieces(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         exact = np.array(sorted(self._exact), np.int64)
