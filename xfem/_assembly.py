@@ -3,11 +3,11 @@
 12-vectors and 12 x 12 blocks.
 
 The sparsity is fixed by the element list (and, for XFEM's custom mass entries, by extra node couplings),
-so ``assembly_pattern`` computes it once on the host in vectorized numpy: the CSR structure of the matrix and,
-for each of the ``144 m`` element Hessian entries, the CSR data slot it adds into. Assembly in JAX is then a
-single scatter-add (``assemble_matrix``), jit- and grad-able. Dirichlet conditions are applied by
-substitution: the pattern of the free nodes only (the fixed nodes' rows and columns removed) is built
-directly, and entries touching a fixed node go to a discarded slot.
+so ``assembly_pattern`` computes it once on the host (loops compiled by numba, ``xfem._pattern``): the CSR
+structure of the matrix and, for each of the ``144 m`` element Hessian entries, the CSR data slot it adds
+into. Assembly in JAX is then a single scatter-add (``assemble_matrix``), jit- and grad-able. Dirichlet
+conditions are applied by substitution: the pattern of the free nodes only (the fixed nodes' rows and
+columns removed) is built directly, and entries touching a fixed node go to a discarded slot.
 
 Node ordering: DOF ``3 i + k`` is coordinate k of node i, the element 12-ordering is node-major (entry
 ``3 a + k`` is coordinate k of the element's local node a). The CSR of node pairs is expanded to 3 x 3
@@ -16,6 +16,8 @@ with free node a, b ascending, c = 0, 1, 2.
 """
 
 from __future__ import annotations
+
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -83,7 +85,7 @@ def _host_fixed(fixed, n: int) -> np.ndarray:
     if fixed.ndim != 1 or not np.issubdtype(fixed.dtype, np.integer):
         raise ValueError(f"fixed: expected a 1-D integer array of node indices, got {fixed.dtype} {fixed.shape}")
     check_index_range("fixed", fixed, n, "node")
-    if len(np.unique(fixed)) != len(fixed):
+    if len(sorted_unique(fixed)) != len(fixed):
         raise ValueError("fixed: repeated node indices")
     return fixed.astype(np.int64)
 
@@ -103,11 +105,14 @@ def sorted_unique(values: np.ndarray) -> np.ndarray:
     return ordered[np.concatenate([[True], ordered[1:] != ordered[:-1]])] if len(ordered) else ordered
 
 
-def _block_slots(node_indptr, degree, a, p, k, c):
-    """CSR slot of entry (3 a + k, 3 b + c), b being the column node of the p-th stored node pair, which lies in
-    node row a (see the module docstring). Row a = n_free (a fixed node's entry, discarded) gives a dummy."""
-    degree = np.append(degree, 0)
-    return 9 * node_indptr[a] + 3 * k * degree[a] + 3 * (p - node_indptr[a]) + c
+class _HostPattern(NamedTuple):
+    """What ``scalar_slots`` reads of a pattern, on the host (int64): the stored node pairs as sorted keys
+    ``a * n_free + b``, the node-level row pointers and row lengths, and the free index of each node."""
+
+    keys: np.ndarray
+    node_indptr: np.ndarray
+    degree: np.ndarray
+    free_index: np.ndarray
 
 
 def assembly_pattern(
@@ -126,87 +131,75 @@ def assembly_pattern(
         fixed: (k,) distinct int nodes removed from the system (Dirichlet by substitution); () for none.
         coupling: None, or an (n, n) scipy sparse (or dense) matrix whose nonzero pattern is added to the
             node couplings of T, e.g. a mass matrix with entries between nodes that share no element.
+        nnz_capacity: None, or the entries to store, at least the pattern's (``CapacityError`` otherwise): the
+            rest is padding, so that systems of one capacity share their shapes.
     Returns:
         The ``AssemblyPattern``.
     """
+    return _assembly_pattern(T, n, fixed, coupling, nnz_capacity)[0]
+
+
+def _assembly_pattern(T, n, fixed, coupling, nnz_capacity) -> tuple[AssemblyPattern, _HostPattern]:
+    """``assembly_pattern`` and its ``_HostPattern`` (for ``_scalar_slots``)."""
+    from xfem._pattern import block_csr, hessian_slots, node_pairs  # numba: imported on first use
+
     n = int(n)
     if n < 1:
         raise ValueError(f"n: expected a positive number of nodes, got {n}")
     T = _host_elements(T, n)
     fixed = _host_fixed(fixed, n)
-    # node-pair keys a * n_free + b in 32 bits where they fit: their sort is the pattern's largest cost
-    free_index = np.full(n, -1, np.int32 if n * n < 2**31 else np.int64)
-    free = np.setdiff1d(np.arange(n), fixed)
+    is_free = np.ones(n, bool)
+    is_free[fixed] = False
+    free = np.flatnonzero(is_free)
+    free_index = np.full(n, -1, np.int64)
     free_index[free] = np.arange(len(free))
     nf = len(free)
-
-    F = free_index[T]  # (m, 4) reduced nodes, -1 where fixed
-    ra = np.broadcast_to(F[:, :, None], (len(T), 4, 4))
-    cb = np.broadcast_to(F[:, None, :], (len(T), 4, 4))
-    valid = (ra >= 0) & (cb >= 0)
-    keys = sorted_unique((ra * nf + cb)[valid])
+    extra_rows = extra_cols = np.zeros(0, np.int64)
     if coupling is not None:
         C = sp.coo_matrix(coupling)
         if C.shape != (n, n):
             raise ValueError(f"coupling: expected shape ({n}, {n}), got {C.shape}")
         a, b = free_index[C.row[C.data != 0]], free_index[C.col[C.data != 0]]
-        extra = (a * nf + b)[(a >= 0) & (b >= 0)]
-        # most couplings (a mass matrix's) are element pairs already: only the others join the sort
-        at = np.minimum(np.searchsorted(keys, extra), max(len(keys) - 1, 0))
-        extra = extra[keys[at] != extra] if len(keys) else extra
-        if len(extra):
-            keys = sorted_unique(np.concatenate([keys, extra]))
-    node_rows, node_cols = keys // max(nf, 1), keys % max(nf, 1)
-    degree = np.bincount(node_rows, minlength=nf)
-    node_indptr = np.concatenate([[0], np.cumsum(degree)])
-    nnz = 9 * len(keys)
-
-    # the DOF-level CSR: row 3 a + k holds the blocks (b, c) of node row a in order
-    k3 = np.arange(3)
-    indptr = np.concatenate([(9 * node_indptr[:-1, None] + 3 * k3 * degree[:, None]).ravel(), [nnz]])
-    # node row a stores its pairs once per coordinate k: entry t in [0, 3 degree) of the row uses pair t % degree
-    t = np.arange(3 * len(keys)) - np.repeat(3 * node_indptr[:-1], 3 * degree)
-    pair_of_entry = np.repeat(node_indptr[:-1], 3 * degree) + t % np.repeat(np.maximum(degree, 1), 3 * degree)
-    indices = (3 * node_cols[pair_of_entry][:, None] + k3).ravel()
-
+        extra_rows, extra_cols = a[(a >= 0) & (b >= 0)], b[(a >= 0) & (b >= 0)]
+    F = free_index[T]  # (m, 4) reduced nodes, -1 where fixed
+    node_indptr, node_cols, pair = node_pairs(F, nf, extra_rows, extra_cols)
+    nnz = 9 * len(node_cols)
     if nnz_capacity is not None and (int(nnz_capacity) != nnz_capacity or nnz_capacity < nnz or nf < 1):
         raise CapacityError(
             f"nnz_capacity: expected an int >= the pattern's {nnz} entries (and a free node), got {nnz_capacity!r}"
         )
     stored = nnz if nnz_capacity is None else int(nnz_capacity)
     index = np.int32 if stored + 3 < 2**31 - 1 else np.int64
+    # the DOF-level CSR (module docstring); padded entries lie past indptr[-1]: the solves and matvec ignore them
+    indptr = np.empty(3 * nf + 1, index)
+    indices = np.full(stored, 3 * nf - 1, index)
+    block_csr(node_indptr, node_cols, indptr, indices)
+    slots = np.empty((len(T), 4, 3, 4, 3), index)  # 144 entries an element, in 32 bits where they fit
+    hessian_slots(F, node_indptr, pair, stored, slots)
 
-    # the slot of every element Hessian entry (e, a, k, b, l): _block_slots split into its node-pair part
-    # (m, 4, 4) and the coordinate offsets, broadcast once (in 32 bits: 144 m entries)
-    kept = (ra >= 0) & (cb >= 0)
-    pair = np.searchsorted(keys, np.where(kept, ra * nf + cb, 0))
-    start, row_degree = node_indptr[np.where(kept, ra, 0)], degree[np.where(kept, ra, 0)] if nf else 0
-    base = np.where(kept, 9 * start + 3 * (pair - start), stored).astype(index)  # stored + c: past the end
-    stride = np.where(kept, 3 * row_degree, 0).astype(index)
-    slots = (
-        base[:, :, None, :, None] + stride[:, :, None, :, None] * k3.astype(index)[:, None, None] + k3.astype(index)
-    ).reshape(-1)
-
-    if nnz_capacity is not None:
-        pad = stored - nnz
-        # padded entries lie past indptr[-1]: the solves and matvec ignore them
-        indices = np.concatenate([indices, np.full(pad, 3 * nf - 1, indices.dtype)])
-        nnz = stored
-
-    csr = csr_pattern(np.asarray(indptr, index), np.asarray(indices, index), block=3)
-    free, free_index, slots = to_devices(*(np.asarray(a, index) for a in (free, free_index, slots)))
-    return AssemblyPattern(
-        n=n, n_free=nf, nnz=nnz, m=len(T), free=free, free_index=free_index, csr=csr, hessian_slots=slots
+    on_device = to_devices(*(np.asarray(a, index) for a in (free, free_index, slots.reshape(-1))))
+    pattern = AssemblyPattern(
+        n=n,
+        n_free=nf,
+        nnz=stored,
+        m=len(T),
+        free=on_device[0],
+        free_index=on_device[1],
+        csr=csr_pattern(indptr, indices, block=3),
+        hessian_slots=on_device[2],
     )
+    degree = np.diff(node_indptr)
+    keys = np.repeat(np.arange(nf, dtype=np.int64), degree) * nf + node_cols
+    return pattern, _HostPattern(keys, node_indptr, degree, free_index)
 
 
-def _host_pairs(pattern: AssemblyPattern):
-    """The stored node pairs as sorted keys ``a * n_free + b`` (host), with the node-level row pointers."""
+def _host_pattern(pattern: AssemblyPattern) -> _HostPattern:
+    """The ``_HostPattern`` of a pattern, read back from its arrays."""
     indptr, indices, rows = (np.asarray(a, np.int64) for a in (pattern.indptr, pattern.indices, pattern.rows))
     first = (rows % 3 == 0) & (indices % 3 == 0)  # entry (3 a, 3 b): one per node pair, in CSR order
     keys = rows[first] // 3 * pattern.n_free + indices[first] // 3
     node_indptr = indptr[::3] // 9
-    return keys, node_indptr, np.diff(node_indptr)
+    return _HostPattern(keys, node_indptr, np.diff(node_indptr), np.asarray(pattern.free_index, np.int64))
 
 
 def scalar_slots(
@@ -223,6 +216,11 @@ def scalar_slots(
     Returns:
         (k, 3) int slots for ``assemble_scalar``; ``nnz`` (discarded) where r or c is fixed.
     """
+    return _scalar_slots(pattern, _host_pattern(pattern), rows, cols)
+
+
+def _scalar_slots(pattern: AssemblyPattern, host: _HostPattern, rows, cols) -> np.ndarray:
+    """``scalar_slots`` from the pattern's ``_HostPattern``."""
     rows, cols = np.asarray(rows), np.asarray(cols)
     if (
         rows.ndim != 1
@@ -232,10 +230,9 @@ def scalar_slots(
         raise ValueError(f"rows, cols: expected two 1-D integer arrays of one length, got {rows.shape}, {cols.shape}")
     if rows.size and (min(rows.min(), cols.min()) < 0 or max(rows.max(), cols.max()) >= pattern.n):
         raise ValueError(f"rows, cols: node indices must lie in [0, {pattern.n})")
-    free_index = np.asarray(pattern.free_index, np.int64)
+    keys, node_indptr, degree, free_index = host
     ra, cb = free_index[rows], free_index[cols]
     valid = (ra >= 0) & (cb >= 0)
-    keys, node_indptr, degree = _host_pairs(pattern)
     wanted = np.where(valid, ra * pattern.n_free + cb, 0)
     p = np.minimum(np.searchsorted(keys, wanted), max(len(keys) - 1, 0))
     missing = valid & (keys[p] != wanted) if len(keys) else valid
@@ -245,8 +242,10 @@ def scalar_slots(
             f"rows, cols: the node pair ({rows[e]}, {cols[e]}) is not in the pattern; pass the matrix "
             "as coupling to assembly_pattern"
         )
+    # row 3 a + k of node row a holds its pairs' 3-entry blocks once per k: slot of (3 a + k, 3 b + k)
+    a = np.where(valid, ra, 0)[:, None]
     k3 = np.arange(3)
-    slots = _block_slots(node_indptr, degree, np.where(valid, ra, pattern.n_free)[:, None], p[:, None], k3, k3)
+    slots = 9 * node_indptr[a] + 3 * k3 * degree[a] + 3 * (p[:, None] - node_indptr[a]) + k3
     return np.where(valid[:, None], slots, pattern.nnz)
 
 

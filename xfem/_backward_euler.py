@@ -75,11 +75,11 @@ from _jaxcga_shared.sparse import factorize, host_csr, host_direct, host_pcg, sp
 from xfem._assembly import (
     AssemblyPattern,
     CapacityError,
+    _assembly_pattern,
     _host_elements,
     _host_fixed,
-    assembly_pattern,
+    _scalar_slots,
     restrict,
-    scalar_slots,
 )
 from xfem._linear_tet import body_force, consistent_mass, shape_gradients
 from xfem._material import Material
@@ -236,7 +236,7 @@ def fem_system(
     if capacity is not None:
         T, grads, volumes, mass, force, fixed = _pad(T, grads, volumes, mass, force, fixed, capacity)
         n, nnz_capacity = capacity.nodes, capacity.nonzeros
-    pattern = assembly_pattern(T, n, fixed, coupling=mass, nnz_capacity=nnz_capacity)
+    pattern, host = _assembly_pattern(T, n, fixed, mass, nnz_capacity)
     coo = mass.tocoo()
     rows, cols, values = coo.row, coo.col, coo.data
     if capacity is not None:  # zero entries on the last node's diagonal keep the rows sorted
@@ -248,7 +248,7 @@ def fem_system(
     index = pattern.indices.dtype
     values = np.asarray(values, dtype)
     # on the host (no JAX op to dispatch: fem_system may run beside a step, in a compiling thread)
-    slots = scalar_slots(pattern, rows, cols)
+    slots = _scalar_slots(pattern, host, rows, cols)
     kept = slots < pattern.nnz
     mass_data = np.zeros(pattern.nnz, dtype)
     np.add.at(mass_data, slots[kept], np.broadcast_to(values[:, None], slots.shape)[kept])

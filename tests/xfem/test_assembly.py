@@ -12,7 +12,8 @@ import pytest
 import scipy.sparse as sp
 
 from tests.shared import assert_same_run
-from xfem import box_tets, consistent_mass
+from tests.xfem._models import RHO, plane, tall_box
+from xfem import box_tets, consistent_mass, xfem_model
 from xfem._assembly import (
     assemble_matrix,
     assemble_scalar,
@@ -101,6 +102,39 @@ def test_repeated_elements_and_unused_nodes():
     unused = _free_dofs(n, np.arange(2, n - 2))
     assert pattern.nnz == np.count_nonzero(A) + 9 * 4
     np.testing.assert_array_equal(A[unused], 0.0)
+
+
+def test_cut_system_pattern_is_scipy_assembly():
+    # an XFEM system after two crossing cuts: enriched copies in many pieces, mass couplings beyond the elements
+    model = xfem_model(tall_box(), RHO)
+    model.cut(plane())
+    model.cut(plane((0.43, 0.5, 0.75), (1.0, 0.06, -0.03)))
+    system = model.system()
+    T2, n, fixed = np.asarray(system.T), system.n, np.asarray(system.fixed)
+    M = sp.coo_matrix((np.asarray(system.mass_values), (np.asarray(system.mass_rows), np.asarray(system.mass_cols))))
+    exact = assembly_pattern(T2, n, fixed, coupling=M)
+    pattern = assembly_pattern(T2, n, fixed, coupling=M, nnz_capacity=exact.nnz + 50)
+    keep = _free_dofs(n, fixed)
+    # the structure: the element blocks and the mass blocks, each stored once, columns ascending
+    rows, cols = np.repeat(_dofs(T2), 12, axis=1).ravel(), np.tile(_dofs(T2), 12).ravel()
+    structure = sp.csr_matrix((np.ones(len(rows)), (rows, cols)), shape=(3 * n, 3 * n))
+    structure = (structure + sp.kron(abs(M), np.ones((3, 3)))).tocsr()[keep][:, keep]
+    structure.sum_duplicates()
+    used = int(pattern.indptr[-1])
+    np.testing.assert_array_equal(np.asarray(pattern.indptr), structure.indptr)
+    np.testing.assert_array_equal(np.asarray(pattern.indices)[:used], structure.indices)
+    assert used == exact.nnz and pattern.nnz == exact.nnz + 50
+    # the values: scipy's duplicate-summing assembly of the element blocks and the mass (x) I3
+    H = RNG.normal(size=(len(T2), 12, 12))
+    data = assemble_matrix(pattern, jnp.asarray(H)) + assemble_scalar(
+        pattern, jnp.asarray(scalar_slots(pattern, M.row, M.col)), jnp.asarray(M.data)
+    )
+    expected = sp.csr_matrix((H.ravel(), (rows, cols)), shape=(3 * n, 3 * n)) + sp.kron(M, np.eye(3))
+    np.testing.assert_allclose(to_scipy(pattern, data).toarray(), expected.tocsr()[keep][:, keep].toarray(), atol=1e-12)
+    np.testing.assert_array_equal(np.asarray(data)[used:], 0.0)
+    # the system's mass data (its pattern's host pairs) as the public scalar slots place it
+    mass_data = assemble_scalar(exact, jnp.asarray(scalar_slots(exact, M.row, M.col)), jnp.asarray(M.data))
+    np.testing.assert_array_equal(np.asarray(system.mass_data), mass_data)
 
 
 def test_vector_restrict_and_matvec():
