@@ -24,16 +24,18 @@ no Booleans): ``rho V (1 + delta_ab) / 20`` and ``V / 4``, the plain FEM values.
 Enrichment (eq. 16). The DOF of local node a of piece p is that of the subdomain s of node i = T[e, a] whose
 indicator psi_i^s is 1 on p: the one with the smallest distance to a point X_p strictly inside p. The distance
 to a solid (not to its boundary: eq. 16 compares ``dist(X, Omega^{i,s})``) is 0 where the winding number of its
-boundary mesh exceeds 1/2 (libigl ``winding_number``) and the unsigned distance to the boundary mesh (libigl
-``point_mesh_squared_distance``) elsewhere. X_p is the centroid of p's largest boundary triangle moved inward,
-along the triangle's normal, by 1e-6 times the square root of its area: the point lies inside p (and so inside
-exactly one of node i's subdomains, which are disjoint and at least the cut's thickness apart, eq. 17) unless p
-is thinner than that offset there. A node with a single subdomain needs no query.
+boundary mesh exceeds 1/2 (``xfem._winding``: libigl's ``winding_number`` sums, for many meshes in one call) and
+the unsigned distance to the boundary mesh (libigl ``point_mesh_squared_distance``) elsewhere. X_p is the
+centroid of p's largest boundary triangle moved inward, along the triangle's normal, by 1e-6 times the square root
+of its area: the point lies inside p (and so inside exactly one of node i's subdomains, which are disjoint and at
+least the cut's thickness apart, eq. 17) unless p is thinner than that offset there. A node with a single
+subdomain needs no query.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import time
 from collections.abc import Sequence
 from typing import NamedTuple
@@ -81,23 +83,39 @@ def _interior_points(V: np.ndarray, F: np.ndarray, piece: np.ndarray, k: int) ->
     return corners[largest].mean(axis=1) + _INWARD * np.sqrt(areas2[largest, None] / 2) * inward
 
 
-def _nearest_subdomain(meshes: list[tuple[np.ndarray, ...]], points: np.ndarray) -> np.ndarray:
-    """(k,) for each point, the index of the solid at the smallest distance (0 inside; the first such solid),
-    eq. 16. meshes: (V, F, lower, upper) of each solid, its mesh and bounding box. A point inside a solid needs
-    no distance: the winding numbers are taken first, and only for the points in the solid's bounding box (all
-    boxes tested at once); the distances only for the points inside none of the solids."""
-    chosen = np.full(len(points), -1, np.int64)
+def _nearest_subdomains(
+    meshes: list[tuple[np.ndarray, ...]], first: np.ndarray, group: np.ndarray, points: np.ndarray
+) -> np.ndarray:
+    """Eq. 16 for points in groups, each group with its own solids: (k,) for each point, the index within its
+    group of the solid at the smallest distance (0 inside; the first such solid).
+
+    meshes: (V, F, lower, upper) of every solid, its mesh and bounding box, group after group; first: (groups + 1,)
+    where each group's solids start; group: (k,) the group of each point. A point inside a solid needs no
+    distance: the winding numbers are taken first (all of them in one call, ``xfem._winding``), and only in the
+    solids' bounding boxes; the distances only for the points inside none of their solids."""
+    from xfem._winding import winding_numbers  # numba: imported on first use
+
+    count = np.diff(first)[group]
+    point = np.repeat(np.arange(len(points)), count)  # one query per point and solid of its group
+    option = np.arange(len(point)) - np.repeat(np.cumsum(count) - count, count)
+    solid = first[group][point] + option
     lower, upper = np.stack([m[2] for m in meshes]), np.stack([m[3] for m in meshes])
-    boxed = np.all((points[None] >= lower[:, None]) & (points[None] <= upper[:, None]), axis=2)  # (solids, points)
-    for s in np.flatnonzero(boxed.any(axis=1)).tolist():
-        at = np.flatnonzero(boxed[s] & (chosen < 0))
-        if len(at):
-            V, F = meshes[s][:2]
-            chosen[at[np.asarray(igl.winding_number(V, F, points[at])) > 0.5]] = s  # igl's stubs: ArrayLike
-    rest = np.flatnonzero(chosen < 0)
-    if len(rest):
-        distance = np.stack([igl.point_mesh_squared_distance(points[rest], V, F)[0] for V, F, _, _ in meshes])
-        chosen[rest] = np.argmin(distance, axis=0)
+    boxed = np.flatnonzero(np.all((points[point] >= lower[solid]) & (points[point] <= upper[solid]), axis=1))
+    sizes = np.array([(len(m[0]), len(m[1])) for m in meshes], np.int64).reshape(-1, 2)
+    vertex_start, face_start = (np.concatenate([[0], np.cumsum(sizes[:, k])]) for k in (0, 1))
+    vertices = np.concatenate([m[0] for m in meshes]).astype(np.float64, copy=False)
+    triangles = np.concatenate([m[1] for m in meshes]).astype(np.int64, copy=False)
+    winding = winding_numbers(vertices, triangles, vertex_start, face_start, solid[boxed], points[point[boxed]])
+    inside = boxed[winding > 0.5]
+    none = int(first[-1])  # more than any group's solids
+    chosen = np.full(len(points), none, np.int64)
+    np.minimum.at(chosen, point[inside], option[inside])
+    rest = np.flatnonzero(chosen == none)
+    for g in np.unique(group[rest]).tolist():  # inside none of the group's solids (rare): the nearest boundary
+        at = rest[group[rest] == g]
+        solids = meshes[first[g] : first[g + 1]]
+        distance = np.stack([igl.point_mesh_squared_distance(points[at], V, F)[0] for V, F, _, _ in solids])
+        chosen[at] = np.argmin(distance, axis=0)
     return chosen
 
 
@@ -209,14 +227,18 @@ class XFEMModel:
             points[exact] = np.stack([self._integrals[sid][3] for sid in sids[exact].tolist()])
         nodal = self.sub.first_node_subdomains()[self.T[owner]]
         piece, corner = np.nonzero(several)
-        node = self.T[owner[piece], corner]
-        order = np.argsort(node, kind="stable")
-        starts = np.flatnonzero(np.concatenate([[True], node[order][1:] != node[order][:-1]]))
-        for rows in np.split(order, starts[1:]):
-            options = self.sub.node_subdomains(int(node[rows[0]]))
-            chosen = _nearest_subdomain([self._node_mesh(s) for s in options], points[piece[rows]])
-            nodal[piece[rows], corner[rows]] = np.asarray(options, np.int64)[chosen]
+        options, first, group = self._node_options(self.T[owner[piece], corner])
+        chosen = _nearest_subdomains([self._node_mesh(s) for s in options.tolist()], first, group, points[piece])
+        nodal[piece, corner] = options[first[group] + chosen]
         self._enriched.update(zip(sids.tolist(), nodal))
+
+    def _node_options(self, nodes: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The current nodal subdomains of the distinct nodes among ``nodes``, node after node (int64), where each
+        node's start (int64, one more than the distinct nodes), and the distinct node of each of ``nodes``."""
+        distinct, group = np.unique(nodes, return_inverse=True)
+        lists = [self.sub.node_subdomains(i) for i in distinct.tolist()]
+        first = np.concatenate([[0], np.cumsum([len(ids) for ids in lists])]).astype(np.int64)
+        return np.fromiter(itertools.chain.from_iterable(lists), np.int64, int(first[-1])), first, group.ravel()
 
     def _node_mesh(self, sid: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(V, F, lower, upper): the mesh and bounding box of nodal subdomain sid's solid, kept until a cut
@@ -575,19 +597,20 @@ class XFEMModel:
             raise ValueError(f"elements: expected ({len(points)},) element indices in [0, {len(self.T)})")
         c, _ = linear_shape_coefficients(self.X[self.T[elements]], points)  # phi_a(X): barycentric coordinates
         result = np.zeros((len(points), values.shape[1]))
+        counts = self.sub.node_subdomain_counts()
         for a in range(4):
             nodes = self.T[elements, a]
-            for i in np.unique(nodes).tolist():
-                at = np.flatnonzero(nodes == i)
-                options = self.sub.node_subdomains(i)
-                if len(options) == 1:
-                    chosen = np.zeros(len(at), np.int64)
-                else:
-                    chosen = _nearest_subdomain([self._node_mesh(s) for s in options], points[at])
-                dofs = self._dof_index(np.asarray(options, np.int64))[chosen]
-                if np.any(dofs < 0):
-                    raise ValueError(f"points: a point's nodal subdomain of node {i} has no material (no DOF)")
-                result[at] += c[at, a, None] * values[dofs]
+            chosen = self.sub.first_node_subdomains()[nodes]
+            at = np.flatnonzero(counts[nodes] > 1)
+            if len(at):
+                options, first, group = self._node_options(nodes[at])
+                nearest = _nearest_subdomains([self._node_mesh(s) for s in options.tolist()], first, group, points[at])
+                chosen[at] = options[first[group] + nearest]
+            dofs = self._dof_index(chosen)
+            if np.any(dofs < 0):
+                i = int(nodes[np.argmax(dofs < 0)])
+                raise ValueError(f"points: a point's nodal subdomain of node {i} has no material (no DOF)")
+            result += c[:, a, None] * values[dofs]
         return result
 
     def displacement_at(

@@ -1,0 +1,64 @@
+"""Eq. 16's inside test and nearest subdomain: the batched winding numbers (``xfem._winding``) against libigl's
+``winding_number`` on closed meshes of several sizes, and the nearest-solid rule of ``_nearest_subdomains`` (the
+first solid that holds a point, else the nearest boundary by libigl's distance) on solids in two groups."""
+
+import igl
+import manifold3d
+import numpy as np
+
+from xfem._subdomains import solid_mesh
+from xfem._winding import winding_numbers
+from xfem._xfem import _nearest_subdomains
+
+RNG = np.random.default_rng(3)
+
+
+def _mesh(solid):
+    V, F, _ = solid_mesh(solid)
+    return V, F, V.min(axis=0), V.max(axis=0)
+
+
+SOLIDS = [
+    manifold3d.Manifold.cube((1.0, 1.0, 1.0)),
+    manifold3d.Manifold.sphere(0.6, 24).translate((2.0, 0.0, 0.0)),
+    manifold3d.Manifold.cube((1.0, 1.0, 1.0)) - manifold3d.Manifold.sphere(0.6, 16),  # a cube with a corner bitten off
+]
+
+
+def test_winding_numbers_are_libigls():
+    meshes = [_mesh(solid) for solid in SOLIDS]
+    points = RNG.uniform(-0.7, 2.7, size=(600, 3))
+    mesh = RNG.integers(0, len(meshes), len(points))
+    sizes = np.array([(len(V), len(F)) for V, F, _, _ in meshes])
+    vertex_start, face_start = (np.concatenate([[0], np.cumsum(sizes[:, k])]) for k in (0, 1))
+    V = np.concatenate([m[0] for m in meshes])
+    F = np.concatenate([m[1] for m in meshes])
+    winding = winding_numbers(V, F, vertex_start, face_start, mesh, points)
+    expected = np.empty(len(points))
+    for s, (Vs, Fs, _, _) in enumerate(meshes):
+        expected[mesh == s] = igl.winding_number(Vs, Fs, points[mesh == s])
+    np.testing.assert_allclose(winding, expected, atol=1e-12)
+    assert 0 < np.count_nonzero(winding > 0.5) < len(points)  # points inside and outside
+
+
+def test_nearest_subdomain_is_the_first_holding_else_the_nearest():
+    # group 0: two overlapping boxes; group 1: one box and a sphere far from it
+    unit = manifold3d.Manifold.cube((1.0, 1.0, 1.0))
+    group0 = [unit, unit.translate((0.5, 0.0, 0.0))]
+    group1 = [unit, manifold3d.Manifold.sphere(0.5, 24).translate((3.0, 0.5, 0.5))]
+    meshes = [_mesh(solid) for solid in group0 + group1]
+    first = np.array([0, 2, 4])
+    points = np.array(
+        [
+            [0.25, 0.5, 0.5],  # group 0: in the first box only
+            [1.25, 0.5, 0.5],  # in the second only
+            [0.75, 0.5, 0.5],  # in both: the first
+            [-0.3, 0.5, 0.5],  # in neither, nearer the first
+            [1.8, 0.5, 0.5],  # in neither, nearer the second
+            [0.5, 0.5, 0.5],  # group 1: in the box
+            [3.0, 0.5, 0.5],  # in the sphere
+            [2.2, 0.5, 0.5],  # in neither, nearer the sphere (0.3 from it, 1.2 from the box)
+        ]
+    )
+    group = np.array([0, 0, 0, 0, 0, 1, 1, 1])
+    np.testing.assert_array_equal(_nearest_subdomains(meshes, first, group, points), [0, 1, 0, 0, 1, 0, 1, 1])
