@@ -89,22 +89,23 @@ def _nearest_subdomains(
     """Eq. 16 for points in groups, each group with its own solids: (k,) for each point, the index within its
     group of the solid at the smallest distance (0 inside; the first such solid).
 
-    meshes: (V, F, lower, upper) of every solid, its mesh and bounding box, group after group; first: (groups + 1,)
-    where each group's solids start; group: (k,) the group of each point. A point inside a solid needs no
-    distance: the winding numbers are taken first (all of them in one call, ``xfem._winding``), and only in the
-    solids' bounding boxes; the distances only for the points inside none of their solids."""
+    meshes: (V, F) of every solid, its boundary mesh, group after group; first: (groups + 1,) where each group's
+    solids start; group: (k,) the group of each point. A point inside a solid needs no distance: the winding
+    numbers are taken first (all of them in one call, ``xfem._winding``), and only in the solids' bounding boxes;
+    the distances only for the points inside none of their solids."""
     from xfem._winding import winding_numbers  # numba: imported on first use
 
     count = np.diff(first)[group]
     point = np.repeat(np.arange(len(points)), count)  # one query per point and solid of its group
     option = np.arange(len(point)) - np.repeat(np.cumsum(count) - count, count)
     solid = first[group][point] + option
-    lower, upper = np.stack([m[2] for m in meshes]), np.stack([m[3] for m in meshes])
-    boxed = np.flatnonzero(np.all((points[point] >= lower[solid]) & (points[point] <= upper[solid]), axis=1))
-    sizes = np.array([(len(m[0]), len(m[1])) for m in meshes], np.int64).reshape(-1, 2)
+    sizes = np.array([(len(V), len(F)) for V, F in meshes], np.int64).reshape(-1, 2)
     vertex_start, face_start = (np.concatenate([[0], np.cumsum(sizes[:, k])]) for k in (0, 1))
-    vertices = np.concatenate([m[0] for m in meshes]).astype(np.float64, copy=False)
-    triangles = np.concatenate([m[1] for m in meshes]).astype(np.int64, copy=False)
+    vertices = np.concatenate([V for V, _ in meshes]).astype(np.float64, copy=False)
+    triangles = np.concatenate([F for _, F in meshes]).astype(np.int64, copy=False)
+    # the bounding boxes of all solids in two calls (a min and a max a solid took longer than its winding numbers)
+    lower, upper = (f.reduceat(vertices, vertex_start[:-1]) for f in (np.minimum, np.maximum))
+    boxed = np.flatnonzero(np.all((points[point] >= lower[solid]) & (points[point] <= upper[solid]), axis=1))
     winding = winding_numbers(vertices, triangles, vertex_start, face_start, solid[boxed], points[point[boxed]])
     inside = boxed[winding > 0.5]
     none = int(first[-1])  # more than any group's solids
@@ -114,7 +115,7 @@ def _nearest_subdomains(
     for g in np.unique(group[rest]).tolist():  # inside none of the group's solids (rare): the nearest boundary
         at = rest[group[rest] == g]
         solids = meshes[first[g] : first[g + 1]]
-        distance = np.stack([igl.point_mesh_squared_distance(points[at], V, F)[0] for V, F, _, _ in solids])
+        distance = np.stack([igl.point_mesh_squared_distance(points[at], V, F)[0] for V, F in solids])
         chosen[at] = np.argmin(distance, axis=0)
     return chosen
 
@@ -190,7 +191,7 @@ class XFEMModel:
         # piece sid -> volume, mass, load, a point inside it
         self._integrals: dict[int, tuple[float, np.ndarray, np.ndarray, np.ndarray]] = {}
         self._enriched: dict[int, np.ndarray] = {}  # piece sid -> (4,) nodal sids, where a node has several
-        self._node_meshes: dict[int, tuple] = {}  # nodal sid -> (its solid, V, F, lower, upper): _node_mesh
+        self._node_meshes: dict[int, tuple] = {}  # nodal sid -> (its solid, V, F): _node_mesh
         self.dof_node = np.arange(len(self.X), dtype=np.int64)
         self.dof_sid = np.arange(len(self.X), dtype=np.int64)
         self._sorted_sids: tuple = (None,)  # (dof_sid it was made for, argsort, sorted ids): _dof_index's cache
@@ -240,14 +241,14 @@ class XFEMModel:
         first = np.concatenate([[0], np.cumsum([len(ids) for ids in lists])]).astype(np.int64)
         return np.fromiter(itertools.chain.from_iterable(lists), np.int64, int(first[-1])), first, group.ravel()
 
-    def _node_mesh(self, sid: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """(V, F, lower, upper): the mesh and bounding box of nodal subdomain sid's solid, kept until a cut
-        changes the solid (a node's subdomains are queried again by every later cut near it)."""
+    def _node_mesh(self, sid: int) -> tuple[np.ndarray, np.ndarray]:
+        """(V, F): the boundary mesh of nodal subdomain sid's solid, kept until a cut changes the solid (a node's
+        subdomains are queried again by every later cut near it)."""
         solid = self.sub.node_solid(sid)
         kept = self._node_meshes.get(sid)
         if kept is None or kept[0] is not solid:
             V, F, _ = solid_mesh(solid)
-            kept = self._node_meshes[sid] = (solid, V, F, V.min(axis=0), V.max(axis=0))
+            kept = self._node_meshes[sid] = (solid, V, F)
         return kept[1:]
 
     def _integrate(self, elements: np.ndarray) -> int:
