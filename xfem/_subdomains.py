@@ -590,33 +590,13 @@ def _aligned(sub: Subdomains, candidates: np.ndarray, cut: manifold3d.Manifold, 
     return bool(np.min(distance2) < tol * tol)
 
 
-def _tet_triangle_overlap(P: np.ndarray, Q: np.ndarray, slack: float) -> np.ndarray:
-    """(k,) whether tet P[j] (4, 3) and triangle Q[j] (3, 3) may overlap: no separating axis among the tet's
-    face normals, the triangle's normal and the 18 edge-edge cross products (separating axis theorem for
-    convex polytopes). Conservative: gaps below slack times the axis length count as contact."""
-    tet_edges = P[:, [1, 2, 3, 2, 3, 3]] - P[:, [0, 0, 0, 1, 1, 2]]
-    tri_edges = Q[:, [1, 2, 0]] - Q
-    faces = P[:, TET_FACES]
-    axes = np.concatenate(
-        [
-            np.cross(faces[:, :, 1] - faces[:, :, 0], faces[:, :, 2] - faces[:, :, 0]),
-            np.cross(tri_edges[:, :1], tri_edges[:, 1:2]),
-            np.cross(tet_edges[:, :, None], tri_edges[:, None]).reshape(-1, 18, 3),
-        ],
-        axis=1,
-    )
-    p = np.einsum("kav,kjv->kaj", axes, P)
-    q = np.einsum("kav,kjv->kaj", axes, Q)
-    gap = slack * np.linalg.norm(axes, axis=2)
-    separated = (p.max(axis=2) < q.min(axis=2) - gap) | (q.max(axis=2) < p.min(axis=2) - gap)
-    return ~np.any(separated, axis=1)
-
-
 def _candidates(sub: Subdomains, cut: manifold3d.Manifold) -> tuple[np.ndarray, np.ndarray]:
     """The tets whose box meets the cut's box, and those of them that meet the cut solid (primary culling).
 
-    A tet meets the closed solid iff it meets a boundary triangle (box filter, then the separating axis test)
-    or, meeting none, lies inside the solid (winding number of one corner)."""
+    A tet meets the closed solid iff it meets a boundary triangle (box filter, then the separating axis test,
+    ``xfem._overlap``) or, meeting none, lies inside the solid (winding number of one corner)."""
+    from xfem._overlap import tet_triangle_overlap  # numba: imported on first use
+
     box = np.asarray(cut.bounding_box(), np.float64)
     boxed = np.flatnonzero(np.all((sub.tet_low <= box[3:]) & (sub.tet_high >= box[:3]), axis=1))
     if len(boxed) == 0:
@@ -635,7 +615,7 @@ def _candidates(sub: Subdomains, cut: manifold3d.Manifold) -> tuple[np.ndarray, 
         pairs = np.all((low[:, None] <= t_high[None] + slack) & (high[:, None] >= t_low[None] - slack), axis=2)
         pairs[near] = False  # already known to meet the cut
         k, j = np.nonzero(pairs)
-        hit = _tet_triangle_overlap(sub.X[sub.T[boxed[k]]], triangles[start + j], slack)
+        hit = tet_triangle_overlap(sub.X[sub.T[boxed[k]]], triangles[start + j], slack)
         near[k[hit]] = True
     far = boxed[~near]
     inside = np.asarray(igl.winding_number(V, F, sub.X[sub.T[far, 0]])) > 0.5  # igl's stubs: ArrayLike

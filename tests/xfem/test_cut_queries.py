@@ -1,11 +1,15 @@
-"""Eq. 16's inside test and nearest subdomain: the batched winding numbers (``xfem._winding``) against libigl's
-``winding_number`` on closed meshes of several sizes, and the nearest-solid rule of ``_nearest_subdomains`` (the
-first solid that holds a point, else the nearest boundary by libigl's distance) on solids in two groups."""
+"""The compiled geometric queries of the cuts: eq. 16's inside test and nearest subdomain (the batched winding
+numbers of ``xfem._winding`` against libigl's ``winding_number`` on closed meshes of several sizes; the
+nearest-solid rule of ``_nearest_subdomains``, the first solid that holds a point, else the nearest boundary by
+libigl's distance, on solids in two groups) and the culling's separating axis test of tets against triangles
+(``xfem._overlap``) against a linear program: a common point as convex combinations of both."""
 
 import igl
 import manifold3d
 import numpy as np
+from scipy.optimize import linprog
 
+from xfem._overlap import tet_triangle_overlap
 from xfem._subdomains import solid_mesh
 from xfem._winding import winding_numbers
 from xfem._xfem import _nearest_subdomains
@@ -62,3 +66,28 @@ def test_nearest_subdomain_is_the_first_holding_else_the_nearest():
     )
     group = np.array([0, 0, 0, 0, 0, 1, 1, 1])
     np.testing.assert_array_equal(_nearest_subdomains(meshes, first, group, points), [0, 1, 0, 0, 1, 0, 1, 1])
+
+
+def _common_point(P, Q) -> bool:
+    """Whether tet P and triangle Q share a point: weights l (4) and m (3), >= 0, each summing to 1, with
+    l P = m Q (a feasibility linear program)."""
+    equalities = np.zeros((5, 7))
+    equalities[:3, :4], equalities[:3, 4:] = P.T, -Q.T
+    equalities[3, :4] = equalities[4, 4:] = 1.0
+    result = linprog(np.zeros(7), A_eq=equalities, b_eq=[0, 0, 0, 1, 1], bounds=(0, None), method="highs")
+    return result.status == 0
+
+
+def test_tet_triangle_overlap_is_a_common_point():
+    P = RNG.normal(size=(400, 4, 3))
+    P[:, [1, 2]] = P[:, [2, 1]]  # either orientation
+    Q = RNG.normal(size=(400, 3, 3)) * 0.6 + RNG.normal(size=(400, 1, 3)) * 0.7
+    overlap = tet_triangle_overlap(P, Q, 0.0)
+    expected = np.array([_common_point(p, q) for p, q in zip(P, Q)])
+    np.testing.assert_array_equal(overlap, expected)
+    assert 50 < np.count_nonzero(expected) < 350  # both outcomes, many times
+    # a gap below slack times an axis's length counts as contact: a triangle just above a tet's top corner
+    tet = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]])
+    above = np.array([[-1.0, -1, 1 + 1e-9], [2, -1, 1 + 1e-9], [-1, 2, 1 + 1e-9]])
+    assert not tet_triangle_overlap(tet[None], above[None], 0.0)[0]
+    assert tet_triangle_overlap(tet[None], above[None], 1e-8)[0]
