@@ -51,9 +51,9 @@ class AssemblyPattern(eqx.Module):
             its ``indptr`` (3 n_free + 1,) CSR row pointers, ``indptr[-1]`` <= nnz (the rest is padding),
             ``indices`` (nnz,) column indices, ascending within a row, and ``rows`` (nnz,) the row of each entry
             (3 n_free for padding) are also the pattern's.
-        hessian_slots: (144 m,) the data slot of each element Hessian entry ``H[e, r, c]`` (flattened in C
-            order); ``nnz`` or more (out of bounds) for entries on a fixed node's row or column, which are
-            discarded.
+        hessian_base, hessian_stride: (m, 4, 4) the scatter map of the element Hessians, compact: entry
+            ``H[e, 3 a + k, 3 b + c]`` adds into slot ``base[e, a, b] + k stride[e, a, b] + c``
+            (``hessian_slots``; 32 integers an element where the slots are 144, expanded on the device).
     """
 
     n: int = eqx.field(static=True)
@@ -63,7 +63,14 @@ class AssemblyPattern(eqx.Module):
     free: Int[Array, " n_free"]
     free_index: Int[Array, " n"]
     csr: CSRPattern
-    hessian_slots: Int[Array, " entries"]
+    hessian_base: Int[Array, "m 4 4"]
+    hessian_stride: Int[Array, "m 4 4"]
+
+    @property
+    def hessian_slots(self) -> Int[Array, " entries"]:
+        """(144 m,) the data slot of each element Hessian entry ``H[e, r, c]`` (flattened in C order); ``nnz`` or
+        more (out of bounds) for entries on a fixed node's row or column, which are discarded."""
+        return element_slots(self.hessian_base, self.hessian_stride).reshape(-1)
 
     @property
     def indptr(self) -> Int[Array, " rows_plus_one"]:
@@ -105,6 +112,14 @@ def sorted_unique(values: np.ndarray) -> np.ndarray:
     return ordered[np.concatenate([[True], ordered[1:] != ordered[:-1]])] if len(ordered) else ordered
 
 
+def element_slots(base: Int[Array, "*m 4 4"], stride: Int[Array, "*m 4 4"]) -> Int[Array, "*m 144"]:
+    """The data slots of whole element Hessians, (..., 144) in ``H[e].ravel()`` order, from the compact map
+    (``AssemblyPattern.hessian_base``, ``hessian_stride``); jit-able, fused into the scatter that reads them."""
+    k = jnp.arange(3, dtype=base.dtype)
+    slots = base[..., :, None, :, None] + stride[..., :, None, :, None] * k[:, None, None] + k
+    return slots.reshape(*base.shape[:-2], 144)
+
+
 class _HostPattern(NamedTuple):
     """What ``scalar_slots`` reads of a pattern, on the host (int64): the stored node pairs as sorted keys
     ``a * n_free + b``, the node-level row pointers and row lengths, and the free index of each node."""
@@ -141,7 +156,7 @@ def assembly_pattern(
 
 def _assembly_pattern(T, n, fixed, coupling, nnz_capacity) -> tuple[AssemblyPattern, _HostPattern]:
     """``assembly_pattern`` and its ``_HostPattern`` (for ``_scalar_slots``)."""
-    from xfem._pattern import block_csr, hessian_slots, node_pairs  # numba: imported on first use
+    from xfem._pattern import block_csr, hessian_maps, node_pairs  # numba: imported on first use
 
     n = int(n)
     if n < 1:
@@ -174,10 +189,10 @@ def _assembly_pattern(T, n, fixed, coupling, nnz_capacity) -> tuple[AssemblyPatt
     indptr = np.empty(3 * nf + 1, index)
     indices = np.full(stored, 3 * nf - 1, index)
     block_csr(node_indptr, node_cols, indptr, indices)
-    slots = np.empty((len(T), 4, 3, 4, 3), index)  # 144 entries an element, in 32 bits where they fit
-    hessian_slots(F, node_indptr, pair, stored, slots)
+    base, stride = np.empty((len(T), 4, 4), index), np.empty((len(T), 4, 4), index)
+    hessian_maps(F, node_indptr, pair, stored, base, stride)
 
-    on_device = to_devices(*(np.asarray(a, index) for a in (free, free_index, slots.reshape(-1))))
+    on_device = to_devices(*(np.asarray(a, index) for a in (free, free_index, base, stride)))
     pattern = AssemblyPattern(
         n=n,
         n_free=nf,
@@ -186,7 +201,8 @@ def _assembly_pattern(T, n, fixed, coupling, nnz_capacity) -> tuple[AssemblyPatt
         free=on_device[0],
         free_index=on_device[1],
         csr=csr_pattern(indptr, indices, block=3),
-        hessian_slots=on_device[2],
+        hessian_base=on_device[2],
+        hessian_stride=on_device[3],
     )
     degree = np.diff(node_indptr)
     keys = np.repeat(np.arange(nf, dtype=np.int64), degree) * nf + node_cols

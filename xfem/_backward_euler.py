@@ -79,6 +79,7 @@ from xfem._assembly import (
     _host_elements,
     _host_fixed,
     _scalar_slots,
+    element_slots,
     restrict,
 )
 from xfem._linear_tet import body_force, consistent_mass, shape_gradients
@@ -425,7 +426,7 @@ def _gradient_and_matrix(system: FEMSystem, x, theta: _Theta, h, project: bool):
     element Hessians summed into the mass's data chunk by chunk (``_in_chunks``)."""
     m = system.T.shape[0]
     mu_s, lam_s = _material(theta.mu, theta.lam, x.dtype, (m,))
-    slots = system.pattern.hessian_slots.reshape(m, 144)
+    base, stride = system.pattern.hessian_base, system.pattern.hessian_stride
 
     def add_chunk(start, size, own, carry):
         forces, data = carry
@@ -433,7 +434,8 @@ def _gradient_and_matrix(system: FEMSystem, x, theta: _Theta, h, project: bool):
         T, volumes = take(system.T), jnp.where(own, take(theta.volumes), 0)
         g, H = _element_gradient_hessian(x[T], take(theta.grads), volumes, take(mu_s), take(lam_s), project)
         forces = forces.at[T.reshape(-1)].add(g.reshape(-1, 3))
-        return forces, data.at[take(slots).reshape(-1)].add(h**2 * H.reshape(-1), mode="drop")
+        slots = element_slots(take(base), take(stride))
+        return forces, data.at[slots.reshape(-1)].add(h**2 * H.reshape(-1), mode="drop")
 
     forces, data = _in_chunks(m, _ELEMENT_CHUNK, add_chunk, (jnp.zeros((system.n, 3), x.dtype), system.mass_data))
     d = x - theta.x - h * theta.v

@@ -86,9 +86,9 @@ class Capacities:
                 level += 1
 
     def padded_bytes_at_least(self, arrays: tuple, n: int, level: int) -> int:
-        """A lower bound of the padded system's size: its Hessian scatter map (144 int32 per element) at the
+        """A lower bound of the padded system's size: its Hessian scatter map (32 int32 per element) at the
         smallest level that holds its elements, nodes and mass entries."""
-        return 144 * 4 * self.capacity(self.smallest_level(arrays, n, level)).elements
+        return 32 * 4 * self.capacity(self.smallest_level(arrays, n, level)).elements
 
 
 class _Compilation:

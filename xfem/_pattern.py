@@ -86,21 +86,20 @@ def node_pairs(free_nodes, n_free, extra_rows, extra_cols):  # pragma: no cover 
 
 
 @numba.njit(nogil=True, cache=True)
-def hessian_slots(free_nodes, node_indptr, pair, discarded, slots):  # pragma: no cover (compiled)
-    """The CSR slot of every element Hessian entry (e, a, k, b, c), ``H[e, 3 a + k, 3 b + c]``, written into
-    ``slots`` (m, 4, 3, 4, 3): in row 3 r + k (r the free node of corner a) the k-th copy of row r's pairs, 3
-    entries a pair; ``discarded + c`` where either node is fixed."""
+def hessian_maps(free_nodes, node_indptr, pair, discarded, base, stride):  # pragma: no cover (compiled)
+    """The scatter map of the element Hessians in its compact form, written into ``base`` and ``stride`` (m, 4, 4):
+    entry (e, a, k, b, c), ``H[e, 3 a + k, 3 b + c]``, goes to slot ``base[e, a, b] + k stride[e, a, b] + c``. In
+    row 3 r + k (r the free node of corner a) lies the k-th copy of row r's pairs, 3 entries a pair; ``discarded
+    + c`` where either node is fixed."""
     for e in range(pair.shape[0]):
         for a in range(4):
             row = free_nodes[e, a]
             start = node_indptr[row] if row >= 0 else 0
-            stride = 3 * (node_indptr[row + 1] - start) if row >= 0 else 0
+            row_stride = 3 * (node_indptr[row + 1] - start) if row >= 0 else 0
             for b in range(4):
                 p = pair[e, a, b]
-                base = 9 * start + 3 * (p - start) if p >= 0 else discarded
-                for k in range(3):
-                    for c in range(3):
-                        slots[e, a, k, b, c] = base + (stride * k if p >= 0 else 0) + c
+                base[e, a, b] = 9 * start + 3 * (p - start) if p >= 0 else discarded
+                stride[e, a, b] = row_stride if p >= 0 else 0
 
 
 @numba.njit(nogil=True, cache=True)
