@@ -416,11 +416,12 @@ class XFEMModel:
     def _number(self, sids: np.ndarray, nodes: np.ndarray) -> np.ndarray:
         """Take the numbering (sids, nodes); returns the copy map from the previous one (``_renumber``)."""
         source = self._dof_index(sids)
-        for k in np.flatnonzero(source < 0).tolist():
-            origin = int(sids[k])
-            while source[k] < 0:
-                origin = self.sub.node_parent(origin)
-                source[k] = self._dof_index(np.array([origin]))[0]
+        missing = np.flatnonzero(source < 0)  # made by this cut: up the parents, a generation at a time
+        origin = sids[missing]
+        while len(missing):
+            origin = np.array([self.sub.node_parent(s) for s in origin.tolist()], np.int64)
+            source[missing] = found = self._dof_index(origin)
+            missing, origin = missing[found < 0], origin[found < 0]
         self.dof_sid, self.dof_node = sids, nodes
         return source
 
