@@ -4,10 +4,11 @@
 
 The sparsity is fixed by the element list (and, for XFEM's custom mass entries, by extra node couplings),
 so ``assembly_pattern`` computes it once on the host (loops compiled by numba, ``xfem._pattern``): the CSR
-structure of the matrix and, for each of the ``144 m`` element Hessian entries, the CSR data slot it adds
-into. Assembly in JAX is then a single scatter-add (``assemble_matrix``), jit- and grad-able. Dirichlet
-conditions are applied by substitution: the pattern of the free nodes only (the fixed nodes' rows and
-columns removed) is built directly, and entries touching a fixed node go to a discarded slot.
+structure of the matrix and, for the ``144 m`` element Hessian entries, the CSR data slots they add into
+(kept as a base and a stride per element node pair, ``element_slots``). Assembly in JAX is then a single
+scatter-add (``assemble_matrix``), jit- and grad-able. Dirichlet conditions are applied by substitution: the
+pattern of the free nodes only (the fixed nodes' rows and columns removed) is built directly, and entries
+touching a fixed node go to a discarded slot.
 
 Node ordering: DOF ``3 i + k`` is coordinate k of node i, the element 12-ordering is node-major (entry
 ``3 a + k`` is coordinate k of the element's local node a). The CSR of node pairs is expanded to 3 x 3
@@ -114,7 +115,7 @@ def sorted_unique(values: np.ndarray) -> np.ndarray:
 
 def element_slots(base: Int[Array, "*m 4 4"], stride: Int[Array, "*m 4 4"]) -> Int[Array, "*m 144"]:
     """The data slots of whole element Hessians, (..., 144) in ``H[e].ravel()`` order, from the compact map
-    (``AssemblyPattern.hessian_base``, ``hessian_stride``); jit-able, fused into the scatter that reads them."""
+    (``AssemblyPattern.hessian_base``, ``hessian_stride``); jit-able: the step expands them chunk by chunk."""
     k = jnp.arange(3, dtype=base.dtype)
     slots = base[..., :, None, :, None] + stride[..., :, None, :, None] * k[:, None, None] + k
     return slots.reshape(*base.shape[:-2], 144)
