@@ -599,10 +599,10 @@ class XFEMModel:
             raise ValueError(f"elements: expected ({len(points)},) element indices in [0, {len(self.T)})")
         c, _ = linear_shape_coefficients(self.X[self.T[elements]], points)  # phi_a(X): barycentric coordinates
         result = np.zeros((len(points), values.shape[1]))
-        counts = self.sub.node_subdomain_counts()
+        counts, firsts = self.sub.node_subdomain_counts(), self.sub.first_node_subdomains()
         for a in range(4):
             nodes = self.T[elements, a]
-            chosen = self.sub.first_node_subdomains()[nodes]
+            chosen = firsts[nodes]
             at = np.flatnonzero(counts[nodes] > 1)
             if len(at):
                 options, first, group = self._node_options(nodes[at])
