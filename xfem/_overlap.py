@@ -9,8 +9,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-# the tet's faces, outward for a positively oriented tet (``_jaxcga_shared.mesh.TET_FACES``)
-_FACES = ((1, 2, 3), (0, 3, 2), (0, 1, 3), (0, 2, 1))
+from _jaxcga_shared.mesh import TET_FACES  # a global array: numba compiles it in as a constant
+
 _TET_EDGES = ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))
 
 
@@ -40,7 +40,7 @@ def tet_triangle_overlap(P, Q, slack):  # pragma: no cover (compiled)
         T, R = P[k], Q[k]
         separated = False
         for f in range(4):
-            a, b, c = _FACES[f]
+            a, b, c = TET_FACES[f, 0], TET_FACES[f, 1], TET_FACES[f, 2]
             ux, uy, uz = T[b, 0] - T[a, 0], T[b, 1] - T[a, 1], T[b, 2] - T[a, 2]
             vx, vy, vz = T[c, 0] - T[a, 0], T[c, 1] - T[a, 1], T[c, 2] - T[a, 2]
             if _separates(uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx, T, R, slack):
