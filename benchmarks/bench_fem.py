@@ -17,7 +17,10 @@ Timing: after a first step (jit compilation included; reported as a figure), the
 * a breakdown from the same states: projected element gradients and Hessians
   (``element_gradient_hessian``), their assembly (``assemble_matrix``), the CG and the CHOLMOD solves of the
   Newton system (host, as the step's callback runs them), the block-Jacobi CG in JAX that a GPU runs instead
-  (``device_pcg``, jitted, here on the CPU: ``device_cg_solve``) and the line search.
+  (``device_pcg``, jitted, here on the CPU: ``device_cg_solve``) and the line search;
+* off the CPU, the step with the CPU's chunks of elements and mass entries (``xfem._backward_euler._Chunks``:
+  1,024 elements a chunk there, every element at once on a GPU), from the same states
+  (``step_cpu_chunks_<size>_s``).
 
 Ratios are baseline time / ours (> 1: we are faster).
 
@@ -44,7 +47,7 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
-from _report import RATIO_UNIT, add_json_argument, print_device, write_json  # noqa: E402
+from _report import RATIO_UNIT, add_json_argument, platform, print_device, write_json  # noqa: E402
 
 import xfem  # noqa: E402
 
@@ -162,6 +165,20 @@ def breakdown(system, states, h, mu, lam):
     return {key: statistics.median(t) for key, t in times.items()}
 
 
+def cpu_chunked_steps(system, states, h, material) -> list[float]:
+    """Seconds of the step from each of ``states`` with the CPU's chunk sizes (``_in_chunks``) on this platform:
+    the formulation a GPU would run without the per-platform choice (the first call compiles)."""
+    chunks = be._ELEMENT_CHUNK, be._MASS_CHUNK
+    be._ELEMENT_CHUNK, be._MASS_CHUNK = (be._Chunks(c.cpu, c.cpu) for c in chunks)
+    jax.clear_caches()  # the step's trace reads the chunk sizes
+    try:
+        times = [seconds(lambda: xfem.backward_euler_step(system, s, h, material))[1] for s in [states[0], *states]]
+    finally:
+        be._ELEMENT_CHUNK, be._MASS_CHUNK = chunks
+        jax.clear_caches()
+    return times[1:]
+
+
 def run(cells: dict, steps: int):
     material = xfem.Material(jnp.asarray(YOUNG, jnp.float64), jnp.asarray(POISSON, jnp.float64))
     mu, lam = material.lame()  # for the step's parts, timed one by one
@@ -189,6 +206,8 @@ def run(cells: dict, steps: int):
         sag = float(jnp.max(jnp.abs(state.x - rest)))
         parts = breakdown(system, [states[0]] + states, h, mu, lam)  # a first pass to compile
 
+        t_cpu_chunks = cpu_chunked_steps(system, states, h, material) if platform() != "cpu" else []
+
         step, direct = statistics.median(t_ours), statistics.median(t_direct)
         other = step - sum(parts[key] for key in ("hessians", "assembly", "cg_solve", "line_search"))
         f = {
@@ -197,6 +216,8 @@ def run(cells: dict, steps: int):
             f"step_first_{tag}_s": first,
             f"step_direct_{tag}_s": direct,
         }
+        if t_cpu_chunks:
+            f[f"step_cpu_chunks_{tag}_s"] = statistics.median(t_cpu_chunks)
         units.update({k: "s" for k in f})
         f |= {f"{key}_{tag}_ms": 1e3 * t for key, t in parts.items()}
         units.update({f"{key}_{tag}_ms": "ms" for key in parts})
@@ -214,6 +235,11 @@ def run(cells: dict, steps: int):
             f"  step (CG, ours): median {step:.4f} s, max {max(t_ours):.4f} s over {steps} steps; "
             f"first step (with compilation) {first:.2f} s"
         )
+        if t_cpu_chunks:
+            print(
+                f"  step with the CPU's chunks of {be._ELEMENT_CHUNK.cpu} elements: median "
+                f"{statistics.median(t_cpu_chunks):.4f} s (this platform's: {be._ELEMENT_CHUNK.device})"
+            )
         print(
             f"  step with CHOLMOD: median {direct:.4f} s -> step_{tag}_vs_direct "
             f"{ratios[f'step_{tag}_vs_direct']:.2f}x; positions differ by at most "

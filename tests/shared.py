@@ -1,10 +1,15 @@
 """Helpers shared by the test packages: a flat grid mesh, a closed tube mesh, a finite-difference gradient check,
-the comparison of two runs of one computation (bitwise on the CPU), a script run on forced host devices, and the
-skip of a test that needs the host (conftest.py)."""
+the comparison of two runs of one computation (bitwise on the CPU), a script run on forced host devices, the
+skip of a test that needs the host (conftest.py), and the operations of a program lowered for another platform."""
 
 from __future__ import annotations
 
+import collections
+import functools
+import re
+
 import numpy as np
+import pytest
 import trimesh
 
 
@@ -81,3 +86,40 @@ def run_on_host_devices(script: str, devices: int = 4, timeout: int = 600) -> st
     )
     assert done.returncode == 0, done.stderr[-3000:]
     return done.stdout
+
+
+def lowered_operations(fn, args, platform: str) -> collections.Counter:
+    """The StableHLO operations of ``jax.jit(fn)`` on ``args`` lowered for ``platform`` (which need not be
+    present), less a conditional's own (``case``, ``return``, ``constant``)."""
+    import jax
+
+    text = jax.jit(fn).trace(*args).lower(lowering_platforms=(platform,)).as_text()
+    return collections.Counter(
+        op for op in re.findall(r"stablehlo\.(\w+)", text) if op not in ("case", "return", "constant")
+    )
+
+
+@functools.cache
+def _cuda_lowering_error() -> str | None:
+    import jax
+    import jax.numpy as jnp
+
+    try:
+        jax.jit(lambda x: x + 1).trace(jnp.zeros(2)).lower(lowering_platforms=("cuda",))
+    except Exception as error:  # noqa: BLE001 (any failure means: this JAX cannot lower for CUDA here)
+        return str(error)
+    return None
+
+
+def needs_cuda_lowering(test):
+    """Decorator: skip the test where this JAX cannot lower for CUDA without a GPU (checked when it runs, not
+    when this module is imported: conftest imports it before any backend starts)."""
+
+    @functools.wraps(test)
+    def run(*args, **kwargs):
+        error = _cuda_lowering_error()
+        if error is not None:
+            pytest.skip(f"this JAX cannot lower for CUDA without a GPU: {error}")
+        return test(*args, **kwargs)
+
+    return run

@@ -196,3 +196,18 @@ def test_bench_viewer_quick_writes_the_published_names(tmp_path):
     for name in ("load_vs_json", "megabytes_vs_json"):
         assert result["ratios"][name] > 0 and name in result["units"]
     assert result["ratios"]["megabytes_vs_json"] > 1  # int16 in base64 against numbers in text: smaller by design
+
+
+def test_bench_fem_times_the_cpu_chunks_and_restores_them():
+    """The GPU run's comparison step (the CPU's chunk sizes, ``bench_fem.cpu_chunked_steps``) times one step per
+    state and leaves the step's chunk sizes as they were."""
+    import bench_fem
+
+    import xfem._backward_euler as be
+
+    system, state = bench_fem.hanging_block((2, 2, 2))
+    material = bench_fem.xfem.Material(bench_fem.YOUNG, bench_fem.POISSON)
+    chunks = be._ELEMENT_CHUNK, be._MASS_CHUNK
+    times = bench_fem.cpu_chunked_steps(system, [state, state], bench_fem.H, material)
+    assert len(times) == 2 and min(times) > 0
+    assert (be._ELEMENT_CHUNK, be._MASS_CHUNK) == chunks

@@ -94,8 +94,19 @@ _CG_RTOL_MIN = 1e-11  # the tightest one asked for when converging (CG stalls ne
 _ADJOINT_RTOL = 1e-10
 _ARMIJO = 1e-4  # sufficient-decrease constant of the line search
 _HALVINGS = 30  # the line search gives up (takes no step) after this many halvings
-_ELEMENT_CHUNK = 1024  # elements per chunk of the energy, its gradient and Hessians (``_in_chunks``)
-_MASS_CHUNK = 16384  # mass entries per chunk of M d
+
+
+class _Chunks(NamedTuple):
+    """Rows per chunk of a sum over elements or mass entries (``_in_chunks``), per platform: small on the CPU
+    (its temporaries stay in glibc's heap); on a GPU a chunk of 1,024 elements fills a few of its cores and pays a
+    loop step of launches, so one chunk holds every element up to a bound on the temporaries (~2 KB an element)."""
+
+    cpu: int
+    device: int
+
+
+_ELEMENT_CHUNK = _Chunks(cpu=1024, device=1 << 17)  # elements per chunk of the energy, its gradient and Hessians
+_MASS_CHUNK = _Chunks(cpu=16384, device=1 << 20)  # mass entries per chunk of M d
 _NEWTON_RESULT = "xfem_newton_result"  # checkpoint name of a step's minimizer, its implicit gradient's residual
 
 
@@ -372,19 +383,31 @@ def mechanical_energy(
     return kinetic, elastic, -jnp.sum(system.force * state.x)
 
 
-def _in_chunks(count: int, chunk: int, work, init):
-    """``work(start, size, own, carry) -> carry`` over rows ``0:count`` in chunks of at most ``chunk`` rows (one
-    chunk, the whole range, when count is no larger); ``own`` (size,) masks the rows an earlier chunk took (the
-    last chunk is moved back to end at count, so that every slice has the same size).
+def _in_chunks(count: int, chunks: _Chunks, work, init):
+    """``work(start, size, own, carry) -> carry`` over rows ``0:count`` in chunks of at most ``chunks.cpu`` rows
+    on the CPU and ``chunks.device`` elsewhere (``jax.lax.platform_dependent``; one chunk, the whole range, when
+    count is no larger); ``own`` (size,) masks the rows an earlier chunk took (the last chunk is moved back to end
+    at count, so that every slice has the same size).
 
-    Why chunks: a step over all elements at once keeps every element's Hessian, eigensystem and gathers alive
-    together (accordion's final system, 73k elements, 2M nonzeros: 337 MB of temporaries). XLA's CPU runtime
+    Why chunks on the CPU: a step over all elements at once keeps every element's Hessian, eigensystem and gathers
+    alive together (accordion's final system, 73k elements, 2M nonzeros: 337 MB of temporaries). XLA's CPU runtime
     allocates a program's temporaries afresh on every call, and glibc maps a block over 32 MB from the kernel
     and unmaps it on free: every step touched 86k new pages (a page fault and a page cleared each, in the
     kernel), and the faults of concurrent threads queue on the process's memory map. In chunks of 1,024
     elements (and 16,384 mass entries) the temporaries are 28 MB, mostly the Newton matrix's data, which glibc
     keeps in its heap: no page faults, and the step takes about half the time (benchmarks/README.md, "Element
-    chunks")."""
+    chunks"). A GPU's allocator keeps its memory, and its kernels want many elements at once."""
+
+    def over(chunk: int):
+        return lambda init: _over_chunks(count, chunk, work, init)
+
+    if count <= min(chunks) or chunks.cpu == chunks.device:
+        return over(chunks.cpu)(init)
+    return jax.lax.platform_dependent(init, cpu=over(chunks.cpu), default=over(chunks.device))
+
+
+def _over_chunks(count: int, chunk: int, work, init):
+    """``_in_chunks`` with one chunk size."""
     if count <= chunk:
         return work(0, count, jnp.ones(count, bool), init)
     chunks = -(-count // chunk)

@@ -2,9 +2,7 @@
 computes what the CPU variant computes (values and vector-Jacobian products, float64 and float32), the
 dispatch picks the CPU variant on the CPU, and a lowering for CUDA holds the GPU variant (no barriers)."""
 
-import collections
 import functools
-import re
 
 import jax
 import jax.numpy as jnp
@@ -14,6 +12,7 @@ import pytest
 import deform
 import jaxcga as cga
 from _jaxcga_shared.platform import PLATFORM_KERNELS, PerPlatform, example, per_platform
+from tests.shared import lowered_operations, needs_cuda_lowering
 
 KERNELS = sorted(PLATFORM_KERNELS)
 DTYPES = {jnp.float64: 1e-12, jnp.float32: 2e-5}  # tolerance relative to the largest entry
@@ -112,27 +111,6 @@ def test_dispatch_is_the_backends_variant(name):
             np.testing.assert_array_equal(g, e)
 
 
-def _operations(fn, args, platform: str) -> collections.Counter:
-    """The StableHLO operations of ``fn`` lowered for ``platform``, less the conditional's own."""
-    text = jax.jit(fn).trace(*args).lower(lowering_platforms=(platform,)).as_text()
-    return collections.Counter(
-        op for op in re.findall(r"stablehlo\.(\w+)", text) if op not in ("case", "return", "constant")
-    )
-
-
-def _lowers_for_cuda():
-    try:
-        jax.jit(lambda x: x + 1).trace(jnp.zeros(2)).lower(lowering_platforms=("cuda",))
-    except Exception as error:  # noqa: BLE001 (any failure means: this JAX cannot lower for CUDA here)
-        return str(error)
-    return None
-
-
-needs_cuda_lowering = pytest.mark.skipif(
-    _lowers_for_cuda() is not None, reason=f"this JAX cannot lower for CUDA without a GPU: {_lowers_for_cuda()}"
-)
-
-
 @needs_cuda_lowering
 @pytest.mark.parametrize("name", KERNELS)
 def test_lowering_picks_the_platform_variant(name):
@@ -142,11 +120,11 @@ def test_lowering_picks_the_platform_variant(name):
     args, static = kernel.examples()[-1]
     dispatch = functools.partial(kernel, **static)
     cpu, gpu = (functools.partial(kernel.variants[v], **static) for v in ("cpu", "gpu"))
-    assert _operations(dispatch, args, "cpu") == _operations(cpu, args, "cpu")
-    assert _operations(cpu, args, "cpu") != _operations(gpu, args, "cpu")
+    assert lowered_operations(dispatch, args, "cpu") == lowered_operations(cpu, args, "cpu")
+    assert lowered_operations(cpu, args, "cpu") != lowered_operations(gpu, args, "cpu")
     try:
-        assert _operations(dispatch, args, "cuda") == _operations(gpu, args, "cuda")
-        assert _operations(cpu, args, "cuda") != _operations(gpu, args, "cuda")
+        assert lowered_operations(dispatch, args, "cuda") == lowered_operations(gpu, args, "cuda")
+        assert lowered_operations(cpu, args, "cuda") != lowered_operations(gpu, args, "cuda")
     except ValueError as error:
         if "lowering platform" not in str(error):
             raise
@@ -181,8 +159,8 @@ def test_public_functions_lowered_for_cuda_have_no_barriers(case):
     """The public functions whose CPU formulation relies on ``optimization_barrier`` lose it when
     lowered for CUDA: CI (CPU only) covers that the GPU path is the one picked."""
     fn, args = _public_calls()[case]
-    assert _operations(fn, args, "cpu")["optimization_barrier"] > 0
-    assert _operations(fn, args, "cuda")["optimization_barrier"] == 0
+    assert lowered_operations(fn, args, "cpu")["optimization_barrier"] > 0
+    assert lowered_operations(fn, args, "cuda")["optimization_barrier"] == 0
 
 
 def test_static_options_and_transformations_pass_through():

@@ -16,6 +16,7 @@ import pytest
 import scipy.optimize
 import scipy.sparse as sp
 
+from tests.shared import lowered_operations, needs_cuda_lowering
 from xfem import (
     CapacityError,
     Material,
@@ -34,7 +35,7 @@ from xfem import (
 )
 
 # the Newton direction's host fallback and the chunked map have no public API: tested here directly
-from xfem._backward_euler import _host_newton_direction, _in_chunks
+from xfem._backward_euler import _Chunks, _host_newton_direction, _in_chunks
 
 H = 0.033
 MATERIAL = Material(1e6, 0.4)
@@ -320,7 +321,42 @@ def test_in_chunks_visits_every_row_once():
 
     for count in (1, 5, 8, 9, 16, 17, 33):
         for chunk in (1, 3, 8, 40):
-            assert float(_in_chunks(count, chunk, add_chunk, jnp.zeros(()))) == count * (count + 1) / 2
+            assert float(_in_chunks(count, _Chunks(chunk, chunk), add_chunk, jnp.zeros(()))) == count * (count + 1) / 2
+
+
+@needs_cuda_lowering
+def test_element_chunks_are_the_cpus_only(monkeypatch):
+    """The step's sums over elements and mass entries loop over chunks when lowered for the CPU and take every
+    row at once when lowered for CUDA (the sizes per platform, ``_Chunks``); that both sum alike is
+    ``test_steps_in_chunks_equal_one_pass``'s check."""
+    import xfem._backward_euler as be  # the chunk sizes are internal: patched directly
+
+    monkeypatch.setattr(be, "_ELEMENT_CHUNK", be._Chunks(cpu=3, device=1 << 17))
+    monkeypatch.setattr(be, "_MASS_CHUNK", be._Chunks(cpu=7, device=1 << 20))
+    # the material's runtime checks are host calls, which only a CUDA backend lowers for CUDA: left out here
+    monkeypatch.setattr(be, "_material", lambda mu, lam, dtype, batch: (jnp.broadcast_to(mu, batch),) * 2)
+    x, v = _deformed(X, 4)
+    theta = be._Theta(
+        jnp.asarray(X),
+        v,
+        jnp.asarray(MU),
+        jnp.asarray(LAM),
+        x[CANTILEVER.fixed],
+        CANTILEVER.force,
+        CANTILEVER.grads,
+        CANTILEVER.volumes,
+        CANTILEVER.mass_values,
+    )
+    arrays, static = eqx.partition(CANTILEVER, eqx.is_array)
+    # abstract inputs: arrays committed to the CPU cannot enter a program lowered for CUDA
+    args = jax.tree.map(lambda a: jax.ShapeDtypeStruct(a.shape, a.dtype), (x, theta, arrays))
+
+    def energy_gradient_and_matrix(x, theta, arrays):
+        system = eqx.combine(arrays, static)
+        return be._energy(system, x, theta, H)[0], be._gradient_and_matrix(system, x, theta, H, True)
+
+    loops = {p: lowered_operations(energy_gradient_and_matrix, args, p)["while"] for p in ("cpu", "cuda")}
+    assert loops["cpu"] - loops["cuda"] == 4  # an element loop and a mass loop each (the rest: the eigensolver's)
 
 
 @pytest.mark.slow  # 51 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
@@ -371,8 +407,8 @@ def test_steps_in_chunks_equal_one_pass(monkeypatch):
 
     assert (system.T.shape[0], system.mass_values.shape[0]) == (30, 174)
     one_pass = everything()
-    monkeypatch.setattr(be, "_ELEMENT_CHUNK", 3)
-    monkeypatch.setattr(be, "_MASS_CHUNK", 7)
+    monkeypatch.setattr(be, "_ELEMENT_CHUNK", be._Chunks(3, 3))
+    monkeypatch.setattr(be, "_MASS_CHUNK", be._Chunks(7, 7))
     chunked = everything()
     monkeypatch.undo()
     jax.clear_caches()
