@@ -12,8 +12,10 @@ matrix is reassembled every iteration). Two paths, chosen when the computation i
   large FEM Newton systems.
 * GPU (and every platform other than the CPU): a preconditioned conjugate gradient in JAX, no copy to the host.
   Traced values (``device_pcg``): the matrix-vector product is one ``jax.ops.segment_sum`` over the CSR entries,
-  the preconditioner the inverse of the diagonal, or of the diagonal 3 x 3 blocks for the FEM systems (one block
-  per node). A fixed matrix (``SparseSolver``): a multigrid V-cycle, built once (``_jaxcga_shared.multigrid``).
+  or, for a matrix of full 3 x 3 node blocks (the FEM systems), over its blocks: a ninth of the indices and a
+  third of the scatter's adds; the preconditioner the inverse of the diagonal, or of the diagonal 3 x 3 blocks
+  for the FEM systems (one block per node). A fixed matrix (``SparseSolver``): a multigrid V-cycle, built once
+  (``_jaxcga_shared.multigrid``).
   Not cuDSS's sparse Cholesky: its library (167 MB) cannot travel to the GPU machines this project is tested on,
   so it could not be measured (benchmarks/README.md, "Solves on a GPU").
 
@@ -58,6 +60,8 @@ class CSRPattern(eqx.Module):
             ``n * block`` (dropped) for the entries off them and the padding.
         n: the number of rows.
         block: the preconditioner's block size (1: Jacobi; 3: one block per node of a 3-D FEM system).
+        full_blocks: whether the matrix is made of full ``block`` x ``block`` blocks (``_full_blocks``), so that
+            the matrix-vector product runs over blocks (``_block_matvec``).
     """
 
     indptr: Int[Array, " n_plus_one"]
@@ -66,15 +70,19 @@ class CSRPattern(eqx.Module):
     block_slots: Int[Array, " nnz"]
     n: int = eqx.field(static=True)
     block: int = eqx.field(static=True)
+    full_blocks: bool = eqx.field(static=True, default=False)
 
 
-def csr_pattern(indptr, indices, *, block: int = 1) -> CSRPattern:
+def csr_pattern(indptr, indices, *, block: int = 1, full_blocks: bool | None = None) -> CSRPattern:
     """Analyse a CSR structure (host, numpy): each entry's row and its slot in the diagonal blocks.
 
     Args:
         indptr: (n + 1,) int row pointers.
         indices: (nnz,) int column indices, nnz >= ``indptr[-1]`` (the rest is padding).
         block: the preconditioner's block size, dividing n.
+        full_blocks: whether the structure is made of full ``block`` x ``block`` blocks (``_full_blocks``); None
+            checks it (20 ms a million entries), True is the caller's construction's guarantee (an XFEM
+            system's pattern, built after every cut).
     Returns:
         The ``CSRPattern`` (device arrays; numpy after ``keep_on_host``).
     """
@@ -98,9 +106,30 @@ def csr_pattern(indptr, indices, *, block: int = 1) -> CSRPattern:
     in_block = rows[:used] * block + (columns - column_block * block)
     slots = np.full(len(indices), n * block, index)
     slots[:used] = np.where(row_block == column_block, in_block, n * block)
+    if full_blocks is None:
+        full_blocks = block > 1 and _full_blocks(indptr, indices[:used], block)
+    full = bool(full_blocks) and block > 1
     indptr, indices = (a.astype(index, copy=False) for a in (indptr, indices))
     indptr, indices, rows, slots = to_devices(indptr, indices, rows, slots)
-    return CSRPattern(indptr=indptr, indices=indices, rows=rows, block_slots=slots, n=n, block=block)
+    return CSRPattern(indptr=indptr, indices=indices, rows=rows, block_slots=slots, n=n, block=block, full_blocks=full)
+
+
+def _full_blocks(indptr: np.ndarray, indices: np.ndarray, block: int) -> bool:
+    """Whether a CSR structure is made of full ``block`` x ``block`` blocks stored block row by block row: the
+    ``block`` rows of each block row hold the same columns, in groups of ``block`` consecutive columns from a
+    multiple of ``block`` (a DOF-level matrix expanded from a node-level one, as ``xfem.assembly_pattern``'s)."""
+    lengths = np.diff(indptr)
+    if np.any(lengths % block) or np.any(lengths.reshape(-1, block) != lengths[::block, None]):
+        return False
+    position = np.arange(len(indices)) - np.repeat(indptr[:-1], lengths)  # within its row
+    within = position % block
+    if np.any(indices % block != within):
+        return False
+    # each group's columns follow its first one, and each row of a block row repeats the block row's first
+    if np.any(indices - indices[np.arange(len(indices)) - within] != within):
+        return False
+    row_in_block = np.repeat(np.arange(len(lengths)) % block, lengths)
+    return bool(np.all(indices == indices[np.arange(len(indices)) - row_in_block * np.repeat(lengths, lengths)]))
 
 
 # ---------------------------------------------------------------------------------------------------------
@@ -170,6 +199,44 @@ def csr_matvec(pattern: CSRPattern, data, x):
     return jax.ops.segment_sum(products, pattern.rows, num_segments=pattern.n, indices_are_sorted=True)
 
 
+def _block_matvec(pattern: CSRPattern, data):
+    """``x -> A x`` for a matrix of full blocks (``pattern.full_blocks``), x of shape (n,) or (n, k): the blocks
+    are gathered from the CSR data once, then each product is a block gather of x and one segment sum over the
+    blocks, whose sorted adds a GPU's scatter makes one per block row and component instead of one per entry."""
+    size = pattern.block
+    nodes = pattern.n // size
+    count = data.shape[0] // size**2  # every stored block, the padding's too
+    node_indptr = pattern.indptr[::size] // size**2  # a block row's blocks: size^2 entries each
+    k = jnp.arange(count, dtype=node_indptr.dtype)
+    row = jnp.searchsorted(node_indptr, k, side="right").astype(k.dtype) - 1  # nodes for the padding: dropped
+    valid = row < nodes
+    clamped = jnp.minimum(row, nodes - 1)
+    degree = node_indptr[clamped + 1] - node_indptr[clamped]
+    start = jnp.where(valid, size**2 * node_indptr[clamped] + size * (k - node_indptr[clamped]), 0)
+    offsets = jnp.arange(size, dtype=k.dtype)
+    # entry (a, b) of a block: a block row's rows are ``size * degree`` entries apart
+    slots = start[:, None, None] + (size * degree)[:, None, None] * offsets[:, None] + offsets
+    blocks = jnp.where(valid[:, None, None], data[slots], 0)
+    columns = pattern.indices[start] // size
+
+    def matvec(x):
+        gathered = x.reshape(nodes, size, *x.shape[1:])[columns]  # (count, size[, k])
+        trailing = (1,) * (x.ndim - 1)
+        # a product and a sum, not a dot: XLA turns batches of tiny dots into matrix-unit calls
+        products = jnp.sum(blocks.reshape(count, size, size, *trailing) * gathered[:, None], axis=2)
+        return jax.ops.segment_sum(products, row, num_segments=nodes, indices_are_sorted=True).reshape(x.shape)
+
+    return matvec
+
+
+def matvec(pattern: CSRPattern, data):
+    """``x -> A x`` for the matrix (pattern, data): over its blocks where it is made of full blocks, over its
+    entries otherwise."""
+    if pattern.full_blocks:
+        return _block_matvec(pattern, data)
+    return functools.partial(csr_matvec, pattern, data)
+
+
 def _preconditioner(pattern: CSRPattern, data):
     """The inverse diagonal blocks of A as a function ``r -> P r``, and whether they are all positive definite
     (a necessary condition for A; a zero or negative diagonal entry is the common failure)."""
@@ -222,9 +289,7 @@ def device_pcg(pattern: CSRPattern, data, b, rtol, max_iterations: int | None = 
         x of b's shape and a ``PCGInfo``. On a breakdown the loop stops with the iterate so far."""
     precondition, positive = _preconditioner(pattern, data)
     limit = pattern.n if max_iterations is None else int(max_iterations)
-    return preconditioned_cg(
-        lambda x: csr_matvec(pattern, data, x), precondition, b, rtol, limit, x0=None, positive=positive
-    )
+    return preconditioned_cg(matvec(pattern, data), precondition, b, rtol, limit, x0=None, positive=positive)
 
 
 def preconditioned_cg(matvec, precondition, b, rtol, max_iterations: int, *, x0=None, positive: Array | bool = True):

@@ -17,7 +17,8 @@ Timing: after a first step (jit compilation included; reported as a figure), the
 * a breakdown from the same states: projected element gradients and Hessians
   (``element_gradient_hessian``), their assembly (``assemble_matrix``), the CG and the CHOLMOD solves of the
   Newton system (host, as the step's callback runs them), the block-Jacobi CG in JAX that a GPU runs instead
-  (``device_pcg``, jitted, here on the CPU: ``device_cg_solve``) and the line search;
+  (``device_pcg``, jitted, here on the CPU: ``device_cg_solve``; with its matrix-vector product over the CSR
+  entries instead of the 3 x 3 blocks: ``device_cg_entries_solve``) and the line search;
 * off the CPU, the step with the CPU's chunks of elements and mass entries (``xfem._backward_euler._Chunks``:
   1,024 elements a chunk there, every element at once on a GPU), from the same states
   (``step_cpu_chunks_<size>_s``).
@@ -32,6 +33,7 @@ Sizes: ``--sizes`` picks some of 1k, 7k and 23k (default all; on a GPU ``--sizes
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import statistics
 import sys
 import time
@@ -122,6 +124,13 @@ def device_solve(system, data, gradient):
 
 
 @eqx.filter_jit
+def device_entries_solve(system, data, gradient):
+    """``device_solve`` with the matrix-vector product over the CSR entries instead of the 3 x 3 blocks."""
+    entries = dataclasses.replace(system.pattern.csr, full_blocks=False)
+    return device_pcg(entries, data, gradient, CG_RTOL)[0]
+
+
+@eqx.filter_jit
 def element_hessians(system, x, mu, lam):
     return xfem.element_gradient_hessian(x[system.T], system.grads, system.volumes, mu, lam)
 
@@ -147,6 +156,7 @@ def breakdown(system, states, h, mu, lam):
         "cg_solve": [],
         "direct_solve": [],
         "device_cg_solve": [],
+        "device_cg_entries_solve": [],
         "line_search": [],
     }
     for i, state in enumerate(states):
@@ -157,10 +167,11 @@ def breakdown(system, states, h, mu, lam):
         step, t_cg = seconds(lambda: -host_pcg(A, rhs, CG_RTOL, indptr, indices))
         _, t_direct = seconds(lambda: host_direct(A, rhs, indptr, indices))
         _, t_device = seconds(lambda: device_solve(system, data, gradient))
+        _, t_entries = seconds(lambda: device_entries_solve(system, data, gradient))
         step = jnp.asarray(step)
         _, t_line = seconds(lambda: line_search(system, state, x, gradient, step, h, mu, lam))
         if i > 0:  # the first state compiles
-            for key, t in zip(times, (t_hessians, t_assembly, t_cg, t_direct, t_device, t_line)):
+            for key, t in zip(times, (t_hessians, t_assembly, t_cg, t_direct, t_device, t_entries, t_line)):
                 times[key].append(t)
     return {key: statistics.median(t) for key, t in times.items()}
 

@@ -30,7 +30,8 @@ from jaxtyping import Array, Float, Int
 
 from _jaxcga_shared.checks import check_index_range
 from _jaxcga_shared.host import to_devices
-from _jaxcga_shared.sparse import CSRPattern, csr_matvec, csr_pattern
+from _jaxcga_shared.sparse import CSRPattern, csr_pattern
+from _jaxcga_shared.sparse import matvec as sparse_matvec
 
 
 class CapacityError(ValueError):
@@ -201,7 +202,7 @@ def _assembly_pattern(T, n, fixed, coupling, nnz_capacity) -> tuple[AssemblyPatt
         m=len(T),
         free=on_device[0],
         free_index=on_device[1],
-        csr=csr_pattern(indptr, indices, block=3),
+        csr=csr_pattern(indptr, indices, block=3, full_blocks=True),  # block_csr expands the node pairs
         hessian_base=on_device[2],
         hessian_stride=on_device[3],
     )
@@ -341,7 +342,7 @@ def matvec(pattern: AssemblyPattern, data: Float[Array, " nnz"], x: Float[Array,
     Returns:
         (3 n_free,) the product.
     """
-    return csr_matvec(pattern.csr, data, x)
+    return sparse_matvec(pattern.csr, data)(x)
 
 
 def to_scipy(pattern: AssemblyPattern, data: Float[npt.ArrayLike, " nnz"]) -> sp.csr_matrix:

@@ -224,6 +224,56 @@ def test_singular_indefinite_and_unconverged_systems_are_reported():
         csr_pattern(A.indptr, A.indices, block=3)
 
 
+def _node_block_matrix(seed: int, nodes: int = 9, block: int = 3) -> sp.csr_matrix:
+    """A symmetric positive definite matrix of full ``block`` x ``block`` blocks on a random node graph, with
+    rows of different lengths (an FEM system's structure)."""
+    rng = np.random.default_rng(seed)
+    graph = sp.random(nodes, nodes, density=0.3, random_state=rng)
+    graph = ((graph + graph.T + sp.identity(nodes)) != 0).astype(float)
+    values = sp.kron(graph, np.ones((block, block))).tocsr()
+    values.data = rng.normal(size=values.nnz)
+    return sp.csr_matrix(values @ values.T + sp.identity(nodes * block))
+
+
+def test_block_matvec_multiplies_like_scipy_and_the_device_cg_like_the_entry_one():
+    """A matrix of full 3 x 3 blocks, with padding entries past its last row: found to be made of blocks, its
+    product over blocks (vectors and columns) equals scipy's, and the block-Jacobi CG over blocks reaches what
+    the CG over entries reaches."""
+    A = _node_block_matrix(8)
+    A.sort_indices()
+    padding = 18  # two blocks' entries past indptr[-1], as a capacity leaves
+    indices = np.concatenate([A.indices, np.zeros(padding, A.indices.dtype)])
+    data = jnp.asarray(np.concatenate([A.data, np.full(padding, 7.0)]))
+    blocks, entries = (
+        csr_pattern(A.indptr, indices, block=3),
+        csr_pattern(A.indptr, indices, block=3, full_blocks=False),
+    )
+    assert blocks.full_blocks and not entries.full_blocks
+    x = np.random.default_rng(9).normal(size=(A.shape[0], 2))
+    for v in (x, x[:, 0]):
+        np.testing.assert_allclose(jax.jit(sparse.matvec(blocks, data))(jnp.asarray(v)), A @ v, rtol=1e-13, atol=1e-13)
+    b = jnp.asarray(x[:, 0])
+    (on_blocks, info), (on_entries, _) = (device_pcg(p, data, b, 1e-12, 500) for p in (blocks, entries))
+    assert bool(info.converged)
+    np.testing.assert_allclose(on_blocks, on_entries, rtol=0, atol=1e-10 * float(jnp.max(jnp.abs(on_entries))))
+
+
+def test_full_blocks_are_found_only_where_every_block_is_full():
+    A = _node_block_matrix(10)
+    A.sort_indices()
+    assert sparse._full_blocks(A.indptr, A.indices, 3)
+    broken = A.tolil()
+    i, j = 4, int(A.indices[A.indptr[4]])  # an entry of a block, removed: the block is no longer full
+    broken[i, j] = 0
+    broken = sp.csr_matrix(broken)
+    broken.eliminate_zeros()
+    assert not sparse._full_blocks(broken.indptr, broken.indices, 3)
+    assert not csr_pattern(broken.indptr, broken.indices, block=3).full_blocks
+    shifted = sp.csr_matrix(sp.block_diag([sp.identity(1), A, sp.identity(2)]))  # blocks off the multiples of 3
+    assert not sparse._full_blocks(shifted.indptr, shifted.indices, 3)
+    assert not csr_pattern(A.indptr, A.indices).full_blocks  # Jacobi: no blocks
+
+
 # ---------------------------------------------------------------------------------------------------------
 # the multigrid preconditioner of a fixed system's device solve
 

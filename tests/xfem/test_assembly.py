@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 import scipy.sparse as sp
 
+from _jaxcga_shared.sparse import _full_blocks
 from tests.shared import assert_same_run
 from tests.xfem._models import RHO, plane, tall_box
 from xfem import box_tets, consistent_mass, xfem_model
@@ -132,6 +133,10 @@ def test_cut_system_pattern_is_scipy_assembly():
     expected = sp.csr_matrix((H.ravel(), (rows, cols)), shape=(3 * n, 3 * n)) + sp.kron(M, np.eye(3))
     np.testing.assert_allclose(to_scipy(pattern, data).toarray(), expected.tocsr()[keep][:, keep].toarray(), atol=1e-12)
     np.testing.assert_array_equal(np.asarray(data)[used:], 0.0)
+    # made of full 3 x 3 blocks, as its pattern promises the device CG, padding blocks and all
+    assert pattern.csr.full_blocks and _full_blocks(np.asarray(pattern.indptr), np.asarray(pattern.indices)[:used], 3)
+    x = RNG.normal(size=3 * pattern.n_free)
+    np.testing.assert_allclose(matvec(pattern, data, jnp.asarray(x)), to_scipy(pattern, data) @ x, atol=1e-12)
     # the system's mass data (its pattern's host pairs) as the public scalar slots place it
     mass_data = assemble_scalar(exact, jnp.asarray(scalar_slots(exact, M.row, M.col)), jnp.asarray(M.data))
     np.testing.assert_array_equal(np.asarray(system.mass_data), mass_data)
