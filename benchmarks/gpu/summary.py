@@ -21,8 +21,12 @@ TARGETS = [
     ("xfem", r"accordion_step_avg_s_gpu", "<=", 0.05),
 ]
 # untargeted figures printed beside them: what the accordion's average frame is made of (the GPU's steps, the
-# host's cuts)
-PARTS = [("xfem", r"accordion_(uncut_step_avg|cut_work|total)_s_gpu")]
+# host's cuts), and the FEM step's formulations not chosen on a GPU (the CPU's chunks of elements, the CG's
+# product over entries instead of blocks) beside the chosen ones
+PARTS = [
+    ("xfem", r"accordion_(uncut_step_avg|cut_work|total)_s_gpu"),
+    ("fem", r"step_cpu_chunks_23k_s_gpu|(hessians|device_cg(_entries)?_solve)_23k_ms_gpu"),
+]
 
 
 def lines(folder: Path) -> list[str]:
