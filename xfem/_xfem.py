@@ -443,8 +443,9 @@ class XFEMModel:
             M = sp.csr_matrix((mass.ravel(), (rows, cols)), shape=(n, n))
             M = (M + M.T) * 0.5  # summing duplicates in another order leaves M_ij != M_ji in the last bit
             weights = load * self.rho[element][:, None]
-            force = np.zeros((n, 3))
-            np.add.at(force, dofs, weights[:, :, None] * self.gravity)
+            # three bincounts: they sum in order as np.add.at does, in a fifth of its time
+            loads = (weights[:, :, None] * self.gravity).reshape(-1, 3)
+            force = np.stack([np.bincount(dofs.ravel(), loads[:, k], minlength=n) for k in range(3)], axis=1)
             fixed = np.flatnonzero(np.isin(self.dof_node, self.fixed_nodes))
             self._arrays = (dofs, self._grads[element], volume, M, force, fixed)
         return self._arrays
