@@ -34,7 +34,7 @@ bench kernel --points 10000000 --repeats 5 --tune-rows
 bench skinning --vertices 100000 --poses 1000 --repeats 20 --batch-repeats 2
 bench deform --vertices 100000 --repeats 5 --harmonic-repeats 2
 bench arap --vertices 100000 --iterations 10 --repeats 2
-bench fem --sizes 23k --steps 5
+bench fem --sizes 23k --steps 3
 bench xfem --scenes accordion --figures table --no-background --steps 155
 "$py" benchmarks/gpu/summary.py "$out"
 exit "$failed"
