@@ -311,6 +311,23 @@ def test_padded_system_steps_like_the_real_one():
         fem_system(mesh.T, grads, volumes, mass, force, fixed, capacity=capacity._replace(elements=m - 1))
 
 
+def _step_inputs(system, X, x, v):
+    """The differentiable inputs of a step (``_Theta``) at positions x, velocities v, rest positions X."""
+    import xfem._backward_euler as be  # internal: the chunk tests call the step's kernels directly
+
+    return be._Theta(
+        jnp.asarray(X),
+        v,
+        jnp.asarray(MU),
+        jnp.asarray(LAM),
+        x[system.fixed],
+        system.force,
+        system.grads,
+        system.volumes,
+        system.mass_values,
+    )
+
+
 @pytest.mark.slow  # 7 s on 2 cores: the fast suite's 10-minute budget
 def test_in_chunks_visits_every_row_once():
     """The last chunk is moved back to end at the last row; the rows it shares with the chunk before are masked."""
@@ -336,17 +353,7 @@ def test_element_chunks_are_the_cpus_only(monkeypatch):
     # the material's runtime checks are host calls, which only a CUDA backend lowers for CUDA: left out here
     monkeypatch.setattr(be, "_material", lambda mu, lam, dtype, batch: (jnp.broadcast_to(mu, batch),) * 2)
     x, v = _deformed(X, 4)
-    theta = be._Theta(
-        jnp.asarray(X),
-        v,
-        jnp.asarray(MU),
-        jnp.asarray(LAM),
-        x[CANTILEVER.fixed],
-        CANTILEVER.force,
-        CANTILEVER.grads,
-        CANTILEVER.volumes,
-        CANTILEVER.mass_values,
-    )
+    theta = _step_inputs(CANTILEVER, X, x, v)
     arrays, static = eqx.partition(CANTILEVER, eqx.is_array)
     # abstract inputs: arrays committed to the CPU cannot enter a program lowered for CUDA
     args = jax.tree.map(lambda a: jax.ShapeDtypeStruct(a.shape, a.dtype), (x, theta, arrays))
@@ -370,17 +377,7 @@ def test_steps_in_chunks_equal_one_pass(monkeypatch):
     X = np.asarray(mesh.X)
     system = fem_from_mesh(mesh, 1e3, GRAVITY, fixed=np.flatnonzero(X[:, 0] == 0))
     x, v = _deformed(X, 4)
-    theta = be._Theta(
-        jnp.asarray(X),
-        v,
-        jnp.asarray(MU),
-        jnp.asarray(LAM),
-        x[system.fixed],
-        system.force,
-        system.grads,
-        system.volumes,
-        system.mass_values,
-    )
+    theta = _step_inputs(system, X, x, v)
 
     def everything():
         jax.clear_caches()  # the step's trace reads the chunk sizes
