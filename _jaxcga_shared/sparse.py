@@ -47,6 +47,8 @@ from _jaxcga_shared.platform import Example, PerPlatform, example
 # its size from libigl's direct iteration on an H100, over the tests' 1e-10
 DEVICE_RTOL = 1e-12
 DEVICE_MAX_ITERATIONS = 1000  # the multigrid CG took 30 to 70 to 1e-12 on the meshes of the tests and benchmarks
+# CG iterations between two convergence checks (``preconditioned_cg``): the FEM Newton solves run ~150 cheap ones
+CG_CHECK_EVERY = 4
 
 
 class CSRPattern(eqx.Module):
@@ -294,11 +296,27 @@ def device_pcg(pattern: CSRPattern, data, b, rtol, max_iterations: int | None = 
     return preconditioned_cg(matvec(pattern, data), precondition, b, rtol, limit, x0=None, positive=positive)
 
 
-def preconditioned_cg(matvec, precondition, b, rtol, max_iterations: int, *, x0=None, positive: Array | bool = True):
+def preconditioned_cg(
+    matvec,
+    precondition,
+    b,
+    rtol,
+    max_iterations: int,
+    *,
+    x0=None,
+    positive: Array | bool = True,
+    check_every: int = CG_CHECK_EVERY,
+):
     """CG for a symmetric positive definite ``matvec`` with the SPD preconditioner ``precondition`` (functions of
     (n,) or (n, k) arrays): x with ``|A x - b| <= rtol |b|`` per column, from ``x0`` (default 0), at most
     ``max_iterations`` iterations; ``positive`` False marks A as not positive definite before the first
-    iteration. Returns x and a ``PCGInfo``; on a breakdown the loop stops with the iterate so far."""
+    iteration. Returns x and a ``PCGInfo``; on a breakdown the loop stops with the iterate so far.
+
+    Each loop step runs ``check_every`` iterations, those after the loop's end (convergence, breakdown, the limit)
+    masked to no-ops: a GPU copies a while loop's condition to the host and waits for it at every step, and the
+    iterates are the same whatever ``check_every``."""
+    if int(check_every) != check_every or check_every < 1:
+        raise ValueError(f"check_every: expected an int >= 1, got {check_every!r}")
 
     def dot(u, v):
         return jnp.sum(u * v, axis=0)
@@ -308,27 +326,32 @@ def preconditioned_cg(matvec, precondition, b, rtol, max_iterations: int, *, x0=
     x = jnp.zeros_like(b) if x0 is None else x0.astype(b.dtype)
     r = b if x0 is None else b - matvec(x)
     z = precondition(r)
-    start = (0, x, r, z, dot(r, z), dot(r, r), ~jnp.asarray(positive))
+    start = (jnp.zeros((), jnp.int32), x, r, z, dot(r, z), dot(r, r), ~jnp.asarray(positive))
 
-    def cond(carry):
-        k, _, _, _, _, rr, broken = carry
+    def running(k, rr, broken):
         return (k < max_iterations) & jnp.any(rr > stop) & ~broken
 
-    def body(carry):
+    def iteration(carry):
         k, x, r, p, rz, rr, broken = carry
+        live = running(k, rr, broken)
         Ap = matvec(p)
         pAp = dot(p, Ap)
-        active = rr > stop
-        broken = jnp.any(active & ~(pAp > 0))
+        active = (rr > stop) & live
+        broken = broken | jnp.any(active & ~(pAp > 0))
         alpha = jnp.where(active & (pAp > 0), rz / jnp.where(pAp > 0, pAp, 1), 0)
         x = x + alpha * p
         r = r - alpha * Ap
         z = precondition(r)
         rz_new = dot(r, z)
         beta = jnp.where(active & (rz != 0), rz_new / jnp.where(rz != 0, rz, 1), 0)
-        return k + 1, x, r, z + beta * p, rz_new, dot(r, r), broken
+        return k + live.astype(jnp.int32), x, r, z + beta * p, rz_new, dot(r, r), broken
 
-    k, x, _, _, _, rr, broken = jax.lax.while_loop(cond, body, start)
+    def body(carry):
+        for _ in range(int(check_every)):
+            carry = iteration(carry)
+        return carry
+
+    k, x, _, _, _, rr, broken = jax.lax.while_loop(lambda c: running(c[0], c[5], c[6]), body, start)
     relative = jnp.sqrt(rr / jnp.where(bb > 0, bb, 1))
     return x, PCGInfo(
         iterations=jnp.asarray(k), relative_residual=relative, converged=jnp.all(rr <= stop) & ~broken, breakdown=broken
@@ -489,6 +512,9 @@ class SparseSolver:
             self.device_rtol,
             DEVICE_MAX_ITERATIONS,
             x0=x0,
+            # a check after every iteration: ~30 iterations of ~30 kernels each, where the masked iterations after
+            # convergence would cost about what the checks do
+            check_every=1,
         )
         return require(x, (~info.converged, _not_converged("A", str(DEVICE_MAX_ITERATIONS))))
 

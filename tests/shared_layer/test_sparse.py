@@ -258,6 +258,49 @@ def test_block_matvec_multiplies_like_scipy_and_the_device_cg_like_the_entry_one
     np.testing.assert_allclose(on_blocks, on_entries, rtol=0, atol=1e-10 * float(jnp.max(jnp.abs(on_entries))))
 
 
+@pytest.mark.parametrize(
+    "case", ["converges", "stopped at the limit", "indefinite", "indefinite later", "two columns", "from a guess"]
+)
+def test_cg_checking_every_few_iterations_takes_the_same_iterates(case):
+    """The iterations a loop step runs after convergence, a breakdown or the limit are no-ops: x and the
+    ``PCGInfo`` are bitwise those of a check after every iteration."""
+    A = _node_block_matrix(11)
+    rtol, limit, x0 = 1e-12, 500, None
+    b = np.random.default_rng(12).normal(size=(A.shape[0], 2))
+    if case == "stopped at the limit":
+        limit = 6
+    if case == "indefinite":
+        A = sp.csr_matrix(np.array([[1.0, 2.0, 0.0], [2.0, 1.0, 0.0], [0.0, 0.0, 3.0]]))
+        b = np.array([[1.0, -2.0, 3.0], [0.5, 1.0, 1.0]]).T
+    if case == "indefinite later":  # positive diagonal, negative curvature found after a few iterations
+        A = sp.csr_matrix(sp.diags([1.0] * 8 + [-0.5], 0) + sp.diags([0.3, 0.3], [-1, 1], shape=(9, 9)))
+        b = np.ones((9, 2))
+    b = b if case in ("two columns", "from a guess") else b[:, 0]
+    if case == "from a guess":
+        x0 = jnp.asarray(0.1 * b)
+    A.sort_indices()
+    pattern = csr_pattern(A.indptr, A.indices)
+    precondition, _ = sparse._preconditioner(pattern, jnp.asarray(A.data))
+    solves = [
+        sparse.preconditioned_cg(
+            sparse.matvec(pattern, jnp.asarray(A.data)), precondition, jnp.asarray(b), rtol, limit, x0=x0, check_every=c
+        )
+        for c in (1, 3, 4)
+    ]
+    for x, info in solves[1:]:
+        np.testing.assert_array_equal(x, solves[0][0])
+        for got, expected in zip(jax.tree.leaves(info), jax.tree.leaves(solves[0][1])):
+            np.testing.assert_array_equal(got, expected)
+    info = solves[0][1]
+    assert bool(info.breakdown) == case.startswith("indefinite")
+    assert bool(info.converged) == (case in ("converges", "two columns", "from a guess"))
+    assert case != "stopped at the limit" or int(info.iterations) == limit
+    with pytest.raises(ValueError, match="check_every"):
+        sparse.preconditioned_cg(
+            sparse.matvec(pattern, jnp.asarray(A.data)), precondition, jnp.asarray(b), rtol, 5, check_every=0
+        )
+
+
 def test_full_blocks_are_found_only_where_every_block_is_full():
     A = _node_block_matrix(10)
     A.sort_indices()
