@@ -21,8 +21,10 @@ from jax.experimental import pallas as pl
 from jax.experimental.pallas import triton as pallas_triton
 from jaxtyping import Array
 
-# A program's rows and warps (Triton wants powers of 2): 8 rows a thread, enough in flight to cover memory latency.
-ROWS_PER_PROGRAM = 1024
+# A program's rows and warps (Triton wants powers of 2): 2 rows a thread. At 8, ptxas (float64, sm_90) gave the
+# point map and the skinning blend 255 registers and spills; at 2 every kernel here fits without spilling, and 2
+# rows' loads are still enough in flight to cover memory latency.
+ROWS_PER_PROGRAM = 256
 WARPS = 4
 
 # Triton's offsets here are 32-bit: larger arrays would wrap around.
@@ -30,9 +32,10 @@ MAX_ELEMENTS = 2**31 - 1
 
 
 class SharedEntries:
-    """A shared array inside a kernel: ``entries[c]`` is its c-th entry (a scalar, loaded on first use), and
-    ``entries.gather(index)`` its entries at a block of per-row indices (a gather; the caller keeps the indices
-    within the array: Triton does not check them)."""
+    """A shared array inside a kernel: ``entries[c]`` is its c-th entry (a scalar, loaded on first use; a traced
+    c, the index of a loop inside the kernel, loads on every use), and ``entries.gather(index)`` its entries at a
+    block of per-row indices (a gather; the caller keeps the indices within the array: Triton does not check
+    them)."""
 
     def __init__(self, ref, size: int):
         self._ref, self._size, self._loaded = ref, size, {}
@@ -40,7 +43,9 @@ class SharedEntries:
     def __len__(self) -> int:
         return self._size
 
-    def __getitem__(self, c: int) -> Array:
+    def __getitem__(self, c: int | Array) -> Array:
+        if not isinstance(c, int):
+            return self._ref[c]
         if not 0 <= c < self._size:
             raise IndexError(f"entry {c} of a shared array of {self._size}")
         if c not in self._loaded:
@@ -51,7 +56,36 @@ class SharedEntries:
         return self._ref[index]
 
 
-RowFunction = Callable[[list[list[Array]], list[SharedEntries]], list[Array]]
+class RowColumns:
+    """A per-row array inside a kernel: ``columns[c]`` is its c-th column over the program's block of rows, loaded
+    on first use (a traced c, the index of a loop inside the kernel, loads on every use). ``len`` and unpacking
+    work as on a list."""
+
+    def __init__(self, ref, width: int, inside: Array):
+        self._ref, self._width, self._inside, self._loaded = ref, width, inside, {}
+
+    def __len__(self) -> int:
+        return self._width
+
+    def __getitem__(self, c: int | Array) -> Array:
+        if not isinstance(c, int):
+            return self._load(c)
+        if not 0 <= c < self._width:
+            raise IndexError(f"column {c} of a per-row array of {self._width}")
+        if c not in self._loaded:
+            self._loaded[c] = self._load(c)
+        return self._loaded[c]
+
+    def _load(self, c) -> Array:
+        # Columns are (rows, 1) blocks: a column indexed by a Python int does not reach Triton's masked load.
+        # Masked rows read 1, not garbage, so that nothing in them overflows; their results are not stored.
+        return pallas_triton.load(self._ref.at[:, pl.ds(c, 1)], mask=self._inside, other=1)
+
+    def __iter__(self):
+        return (self[c] for c in range(self._width))
+
+
+RowFunction = Callable[[list[RowColumns], list[SharedEntries]], list[Array]]
 
 
 def rowwise(
@@ -140,14 +174,9 @@ def _kernel(fn, n, rows_per_program, widths, out_width, *refs):
     per_row_refs = refs[: len(per_row_widths)]
     shared_refs = refs[len(per_row_widths) : len(per_row_widths) + len(shared_widths)]
     out_ref = refs[-1]
-    # Columns are (rows, 1) blocks: a column indexed by a Python int does not reach Triton's masked load.
     rows = pl.program_id(0) * rows_per_program + jax.lax.broadcasted_iota(jnp.int32, (rows_per_program, 1), 0)
     inside = rows < n
-    # masked rows read 1, not garbage, so that nothing in them overflows; their results are not stored
-    row_columns = [
-        [pallas_triton.load(ref.at[:, pl.ds(c, 1)], mask=inside, other=1) for c in range(k)]
-        for ref, k in zip(per_row_refs, per_row_widths)
-    ]
+    row_columns = [RowColumns(ref, k, inside) for ref, k in zip(per_row_refs, per_row_widths)]
     shared_columns = [SharedEntries(ref, k) for ref, k in zip(shared_refs, shared_widths)]
     outputs = fn(row_columns, shared_columns)
     if len(outputs) != out_width:

@@ -23,7 +23,6 @@ lowered (``_jaxcga_shared.platform``).
 from __future__ import annotations
 
 import functools
-import operator
 
 import equinox as eqx
 import jax
@@ -136,7 +135,14 @@ def _field_examples():
     weights = rng.dirichlet(np.ones(5), size=70)
     bound = rng.normal(size=(70, 3))
     logs = rng.normal(size=(5, 6)) * [0.8, 0.8, 0.8, 0.3, 0.3, 0.3]
-    return [example(weights, bound, logs), example(weights, bound, np.stack([logs, 0.5 * logs]))]
+    # 27 keys: the Triton program's loop over groups of keys and the keys left after it
+    many = rng.dirichlet(np.ones(27), size=40)
+    many_logs = rng.normal(size=(27, 6)) * [0.8, 0.8, 0.8, 0.3, 0.3, 0.3]
+    return [
+        example(weights, bound, logs),
+        example(weights, bound, np.stack([logs, 0.5 * logs])),
+        example(many, bound[:40], many_logs),
+    ]
 
 
 def _deform_in_xla(weights, bound, logs):
@@ -167,6 +173,11 @@ def _rows_deform(weights, bound, logs):
     return deform_poses(logs.reshape(logs.shape[:-2] + (keys * 6,)))
 
 
+# Key motors summed in straight-line code in one Triton program, and past that many, per step of a loop.
+_UNROLLED_KEYS = 16
+_KEYS_PER_STEP = 8
+
+
 @functools.cache
 def _field_coordinates(keys: int) -> pallas_rows.RowFunction:
     """The ``rowwise`` function: rows of (bound, weights), the key motors' logarithms shared (``keys`` x 6)."""
@@ -175,9 +186,21 @@ def _field_coordinates(keys: int) -> pallas_rows.RowFunction:
     def coordinates(row_columns, shared_columns):
         bound, weights = row_columns
         (logs,) = shared_columns
-        blended = [
-            functools.reduce(operator.add, [weights[j] * logs[6 * j + c] for j in range(keys)]) for c in range(6)
-        ]
+
+        def add_keys(first: int | Array, count: int, blended):
+            for j in (first + t for t in range(count)):
+                blended = [b + weights[j] * logs[6 * j + c] for c, b in enumerate(blended)]
+            return blended
+
+        # the same sums in the same order as the dense product; past _UNROLLED_KEYS a loop over groups of keys
+        # bounds what is live: unrolled, the compiler loads every weight column first (ptxas, float64, 64 keys:
+        # 255 registers and 1.3-58 KB of spills a thread)
+        blended = add_keys(1, min(keys, _UNROLLED_KEYS) - 1, [weights[0] * logs[c] for c in range(6)])
+        if keys > _UNROLLED_KEYS:
+            groups, rest = divmod(keys - _UNROLLED_KEYS, _KEYS_PER_STEP)
+            step = lambda g, b: add_keys(_UNROLLED_KEYS + g * _KEYS_PER_STEP, _KEYS_PER_STEP, b)  # noqa: E731
+            blended = jax.lax.fori_loop(0, groups, step, blended)
+            blended = add_keys(keys - rest, rest, blended)
         return apply([bound, exp_motor_columns(blended, jnp.shape(blended[0]))], [])
 
     return coordinates

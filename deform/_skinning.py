@@ -358,18 +358,13 @@ def _blend_motors_in_rows(V, J, W, table):
 
     def one_pose(flat):
         return pallas_rows.rowwise(
-            coordinates, [V, J.astype(jnp.int32), W], [flat], 3, otherwise=in_xla, rows_per_program=_ROWS_PER_PROGRAM
+            coordinates, [V, J.astype(jnp.int32), W], [flat], 3, otherwise=in_xla
         )
 
     skin_poses = one_pose
     for _ in table.shape[:-2]:
         skin_poses = jax.vmap(skin_poses)
     return skin_poses(table.reshape(table.shape[:-2] + (joints * _TABLE_WIDTH,)))
-
-
-# Two vertices a thread (pallas_rows' default is 8): a vertex keeps ~60 values live (4 influences' 9 gathered
-# entries, the blend, the point map), and 8 would exceed a thread's 255 registers.
-_ROWS_PER_PROGRAM = 256
 
 
 @functools.cache
