@@ -357,9 +357,7 @@ def _blend_motors_in_rows(V, J, W, table):
         return _blend_motors_in_xla(V, J, W, flat.reshape(joints, _TABLE_WIDTH), cpu=False)
 
     def one_pose(flat):
-        return pallas_rows.rowwise(
-            coordinates, [V, J.astype(jnp.int32), W], [flat], 3, otherwise=in_xla
-        )
+        return pallas_rows.rowwise(coordinates, [V, J.astype(jnp.int32), W], [flat], 3, otherwise=in_xla)
 
     skin_poses = one_pose
     for _ in table.shape[:-2]:
