@@ -4,7 +4,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test test-slow lint bench bench-gpu install clean
+.PHONY: demo test test-slow lint bench bench-gpu gpu-programs install clean
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -52,5 +52,17 @@ bench: $(STAMP)
 bench-gpu: $(STAMP)
 	PY=$(PY) benchmarks/gpu/bench_gpu.sh out/bench-gpu
 
+## The GPU set's programs compiled for an H100 on this machine, no GPU needed: kernel launches, host round trips,
+## Triton registers and spills (benchmarks/README.md); the CUDA plugin of the installed jaxlib in .cuda-plugin/.
+CUDA_PLUGIN := .cuda-plugin
+$(CUDA_PLUGIN)/.installed: $(STAMP)
+	version=$$($(PY) -c "import jaxlib; print(jaxlib.__version__)") && \
+	$(PY) -m pip install --quiet --no-deps --target $(CUDA_PLUGIN) "jax-cuda13-plugin==$$version" "jax-cuda13-pjrt==$$version"
+	touch $@
+
+gpu-programs: $(CUDA_PLUGIN)/.installed
+	mkdir -p out
+	PYTHONPATH=$(CUDA_PLUGIN) JAX_PLATFORMS=cpu $(PY) benchmarks/gpu/compile_for_gpu.py --json out/gpu-programs.json
+
 clean:
-	rm -rf $(VENV) out .pytest_cache
+	rm -rf $(VENV) $(CUDA_PLUGIN) out .pytest_cache

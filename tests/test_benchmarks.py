@@ -7,6 +7,7 @@ leaves them out, `make test-slow` runs them (with the notebooks), and CI (`.ci/r
 from __future__ import annotations
 
 import json
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -211,3 +212,52 @@ def test_bench_fem_times_the_cpu_chunks_and_restores_them():
     times = bench_fem.cpu_chunked_steps(system, [state, state], bench_fem.H, material)
     assert len(times) == 2 and min(times) > 0
     assert (be._ELEMENT_CHUNK, be._MASS_CHUNK) == chunks
+
+
+def test_compile_for_gpu_reads_loops_and_conditionals_of_compiled_code():
+    """``benchmarks/gpu/compile_for_gpu.py`` reads the host round trips from a compiled module: a conditional, a
+    loop of known trip count and one whose every iteration asks the host (here a CPU module, the same HLO text)."""
+    sys.path.insert(0, str(ROOT / "benchmarks" / "gpu"))
+    import compile_for_gpu
+    import jax.numpy as jnp
+
+    def program(x):
+        x = jax.lax.fori_loop(0, 3, lambda i, y: jnp.sin(y) * 2, x)
+        x = jax.lax.while_loop(lambda y: y.sum() < 100, lambda y: y * 2 + jnp.cos(y), x)
+        return jax.lax.cond(x.sum() > 0, lambda y: y + 1, lambda y: y - 1, x)
+
+    launches, conditionals, loops = compile_for_gpu.structure(jax.jit(program).lower(jnp.ones(5)).compile().as_text())
+    assert conditionals == 1 and launches >= 1
+    assert [loop.trip_count for loop in loops] == [3, None]
+    assert all(loop.launches >= 1 and loop.conditionals == 0 and not loop.loops for loop in loops)
+
+
+# a kernel that keeps 40 doubles in registers: ptxas reports its registers and no spills
+_PTX = """.version 8.0
+.target sm_90a
+.address_size 64
+.visible .entry keep(.param .u64 out)
+{
+  .reg .b64 %rd<3>;
+  .reg .f64 %fd<41>;
+  ld.param.u64 %rd1, [out];
+  cvta.to.global.u64 %rd2, %rd1;
+"""
+_PTX += "".join(f"  ld.global.f64 %fd{i}, [%rd2+{8 * i}];\n" for i in range(1, 41))
+_PTX += "".join(f"  add.f64 %fd{i}, %fd{i}, %fd{i - 1};\n" for i in range(2, 41))
+_PTX += "".join(f"  st.global.f64 [%rd2+{8 * i}], %fd{i};\n" for i in range(1, 41))
+_PTX += "  ret;\n}\n"
+
+
+@pytest.mark.skipif(shutil.which("ptxas") is None, reason="ptxas (the CUDA toolkit) is not on the PATH")
+def test_compile_for_gpu_reads_registers_and_spills_from_ptxas(tmp_path):
+    sys.path.insert(0, str(ROOT / "benchmarks" / "gpu"))
+    import compile_for_gpu
+
+    path = tmp_path / "keep.ptx"
+    path.write_text(_PTX)
+    stats = compile_for_gpu.ptxas_statistics([path], {"keep"})
+    assert set(stats) == {"keep"}
+    registers, spills = stats["keep"]
+    assert registers >= 10 and spills == 0
+    assert compile_for_gpu.ptxas_statistics([path], {"other"}) == {}
