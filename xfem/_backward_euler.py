@@ -84,7 +84,7 @@ from xfem._assembly import (
 )
 from xfem._linear_tet import body_force, consistent_mass, shape_gradients
 from xfem._material import Material
-from xfem._neohookean import _element_energy, _element_gradient_hessian, _material, element_energy
+from xfem._neohookean import _element_energy, _element_gradient_hessian, _modified_lame, element_energy
 from xfem._tetmesh import TetMesh
 
 _CG_RTOL = 1e-4  # relative residual of the Newton direction (inexact Newton)
@@ -352,7 +352,7 @@ class _Theta(eqx.Module):
 
     x: Float[Array, "n 3"]  # x_t
     v: Float[Array, "n 3"]  # v_t
-    mu: Float[Array, "*#batch"]
+    mu: Float[Array, "*#batch"]  # Lamé parameters from Material.lame(), which checks young and poisson
     lam: Float[Array, "*#batch"]
     fixed_positions: Float[Array, "nb 3"]
     force: Float[Array, "n 3"]
@@ -427,7 +427,7 @@ def _energy(system: FEMSystem, x, theta: _Theta, h):
     d = x - theta.x - h * theta.v
     kinetic = 0.5 * jnp.sum(d * _mass_times(system, theta.mass_values, d))
     m = system.T.shape[0]
-    mu_s, lam_s = _material(theta.mu, theta.lam, x.dtype, (m,))
+    mu_s, lam_s = _modified_lame(theta.mu, theta.lam, x.dtype, (m,))  # theta's come from a checked Material
 
     def add_chunk(start, size, own, total):
         take = _slicer(start, size)
@@ -450,7 +450,7 @@ def _gradient_and_matrix(system: FEMSystem, x, theta: _Theta, h, project: bool):
     """grad E on the free DOFs (3 n_free,) and the CSR data of ``M + h^2 K`` (K projected or true), the
     element Hessians summed into the mass's data chunk by chunk (``_in_chunks``)."""
     m = system.T.shape[0]
-    mu_s, lam_s = _material(theta.mu, theta.lam, x.dtype, (m,))
+    mu_s, lam_s = _modified_lame(theta.mu, theta.lam, x.dtype, (m,))  # theta's come from a checked Material
     base, stride = system.pattern.hessian_base, system.pattern.hessian_stride
 
     def add_chunk(start, size, own, carry):

@@ -115,15 +115,23 @@ def _check_F(F):
 
 
 def _material(mu, lam, dtype, batch: tuple[int, ...]):
-    """``(mu', lam')`` of [SGK18] (module docstring) with shape ``batch``, from Lamé ``mu``, ``lam``."""
+    """``(mu', lam')`` of [SGK18] (module docstring) with shape ``batch``, from Lamé ``mu``, ``lam``, checked."""
+    mu, lam = jnp.asarray(mu, dtype), jnp.asarray(lam, dtype)
+    mu = require(mu, (~(mu > 0), "mu: the shear modulus must be > 0"))
+    lam = require(lam, (~(lam + 5 / 6 * mu > 0), "lam: lam + 5/6 mu must be > 0 (holds for Poisson's ratio > -1)"))
+    return _modified_lame(mu, lam, dtype, batch)
+
+
+def _modified_lame(mu, lam, dtype, batch: tuple[int, ...]):
+    """``_material`` without its value checks, for Lamé parameters that ``lame`` made from checked ``young`` and
+    ``poisson`` (then mu > 0 and lam + 5/6 mu = E / (1 + nu) (nu / (1 - 2 nu) + 5/12) > 0): a check under jit is
+    a host round trip on a GPU, and a step evaluates the energy a few times."""
     mu, lam = jnp.asarray(mu, dtype), jnp.asarray(lam, dtype)
     for name, v in (("mu", mu), ("lam", lam)):
         try:
             jnp.broadcast_shapes(v.shape, batch)
         except ValueError:
             raise ValueError(f"{name}: expected a scalar or an array broadcastable to {batch}, got {v.shape}") from None
-    mu = require(mu, (~(mu > 0), "mu: the shear modulus must be > 0"))
-    lam = require(lam, (~(lam + 5 / 6 * mu > 0), "lam: lam + 5/6 mu must be > 0 (holds for Poisson's ratio > -1)"))
     mu_s = 4 / 3 * mu
     lam_s = lam + 5 / 6 * mu
     return jnp.broadcast_to(mu_s, batch), jnp.broadcast_to(lam_s, batch)

@@ -350,8 +350,6 @@ def test_element_chunks_are_the_cpus_only(monkeypatch):
 
     monkeypatch.setattr(be, "_ELEMENT_CHUNK", be._Chunks(cpu=3, device=1 << 17))
     monkeypatch.setattr(be, "_MASS_CHUNK", be._Chunks(cpu=7, device=1 << 20))
-    # the material's runtime checks are host calls, which only a CUDA backend lowers for CUDA: left out here
-    monkeypatch.setattr(be, "_material", lambda mu, lam, dtype, batch: (jnp.broadcast_to(mu, batch),) * 2)
     x, v = _deformed(X, 4)
     theta = _step_inputs(CANTILEVER, X, x, v)
     arrays, static = eqx.partition(CANTILEVER, eqx.is_array)
@@ -364,6 +362,22 @@ def test_element_chunks_are_the_cpus_only(monkeypatch):
 
     loops = {p: lowered_operations(energy_gradient_and_matrix, args, p)["while"] for p in ("cpu", "cuda")}
     assert loops["cpu"] - loops["cuda"] == 4  # an element loop and a mass loop each (the rest: the eigensolver's)
+
+
+def test_the_energy_and_newton_system_make_no_runtime_checks():
+    """E and the Newton system, which a step evaluates several times, take Lamé parameters that ``Material.lame``
+    checked once: no conditional (a runtime check under jit is one, a host round trip on a GPU)."""
+    import xfem._backward_euler as be  # the step's kernels are internal
+
+    x, v = _deformed(X, 4)
+    theta = _step_inputs(CANTILEVER, X, x, v)
+
+    def energy_gradient_and_matrix(x, theta):
+        return be._energy(CANTILEVER, x, theta, H)[0], be._gradient_and_matrix(CANTILEVER, x, theta, H, True)
+
+    assert "stablehlo.case" not in jax.jit(energy_gradient_and_matrix).lower(x, theta).as_text()
+    with pytest.raises(ValueError, match="Poisson's ratio"):
+        backward_euler_step(CANTILEVER, State(jnp.asarray(X), v), H, Material(1e5, 0.5))
 
 
 @pytest.mark.slow  # 51 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
