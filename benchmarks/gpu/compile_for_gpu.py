@@ -314,12 +314,27 @@ def _fem_programs(quick: bool):
     yield "FEM step", xfem.backward_euler_step, system, state, jnp.asarray(bench_fem.H), material
 
 
+def _xfem_programs(quick: bool):
+    import bench_xfem
+
+    import xfem
+
+    scene, system, state = bench_xfem._after_cuts("small" if quick else "paper")
+    material = xfem.Material(jnp.asarray(scene.young), jnp.asarray(scene.poisson))
+
+    def step(system, state, h, material):
+        return xfem.backward_euler_step(system, state, h, material, newton_iterations=scene.newton_iterations)
+
+    yield "XFEM step, the accordion after its cuts", step, system, state, jnp.asarray(scene.h), material
+
+
 GROUPS = {
     "kernel": _kernel_programs,
     "skinning": _skinning_programs,
     "deform": _deform_programs,
     "arap": _arap_programs,
     "fem": _fem_programs,
+    "xfem": _xfem_programs,
 }
 
 
