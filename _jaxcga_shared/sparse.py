@@ -51,6 +51,23 @@ DEVICE_MAX_ITERATIONS = 1000  # the multigrid CG took 30 to 70 to 1e-12 on the m
 CG_CHECK_EVERY = 4
 
 
+class BlockLayout(eqx.Module):
+    """The stored blocks of a matrix of full ``block`` x ``block`` blocks (``CSRPattern.full_blocks``), one entry
+    each, the padding's too (the CSR data's length over ``block^2``), found once by ``csr_pattern``.
+
+    Attributes:
+        rows: (count,) each block's block row; the number of block rows for the padding's (dropped).
+        columns: (count,) each block's block column.
+        starts: (count,) the CSR index of each block's first entry.
+        strides: (count,) the distance in the CSR data between the entries of a block's consecutive rows.
+    """
+
+    rows: Int[Array, " count"]
+    columns: Int[Array, " count"]
+    starts: Int[Array, " count"]
+    strides: Int[Array, " count"]
+
+
 class CSRPattern(eqx.Module):
     """The structure of an (n, n) CSR matrix, analysed once (``csr_pattern``); its data is passed with each solve.
 
@@ -64,6 +81,7 @@ class CSRPattern(eqx.Module):
         block: the preconditioner's block size (1: Jacobi; 3: one block per node of a 3-D FEM system).
         full_blocks: whether the matrix is made of full ``block`` x ``block`` blocks (``_full_blocks``), so that
             the matrix-vector product runs over blocks (``_block_matvec``).
+        blocks: where those blocks are (``BlockLayout``); None unless made of full blocks.
     """
 
     indptr: Int[Array, " n_plus_one"]
@@ -73,6 +91,7 @@ class CSRPattern(eqx.Module):
     n: int = eqx.field(static=True)
     block: int = eqx.field(static=True)
     full_blocks: bool = eqx.field(static=True, default=False)
+    blocks: BlockLayout | None = None
 
 
 def csr_pattern(indptr, indices, *, block: int = 1, full_blocks: bool | None = None) -> CSRPattern:
@@ -112,8 +131,30 @@ def csr_pattern(indptr, indices, *, block: int = 1, full_blocks: bool | None = N
         full_blocks = block > 1 and _full_blocks(indptr, indices[:used], block)
     full = bool(full_blocks) and block > 1
     indptr, indices = (a.astype(index, copy=False) for a in (indptr, indices))
+    blocks = BlockLayout(*to_devices(*_block_layout(indptr, indices, block))) if full else None
     indptr, indices, rows, slots = to_devices(indptr, indices, rows, slots)
-    return CSRPattern(indptr=indptr, indices=indices, rows=rows, block_slots=slots, n=n, block=block, full_blocks=full)
+    return CSRPattern(
+        indptr=indptr, indices=indices, rows=rows, block_slots=slots, n=n, block=block, full_blocks=full, blocks=blocks
+    )
+
+
+def _block_layout(indptr: np.ndarray, indices: np.ndarray, size: int) -> tuple[np.ndarray, ...]:
+    """``BlockLayout``'s arrays for a structure of full ``size`` x ``size`` blocks (host: a search per block that a
+    GPU would run as a loop of launches in every solve)."""
+    index = indptr.dtype
+    nodes = (len(indptr) - 1) // size
+    count = len(indices) // size**2  # every stored block, the padding's too
+    node_indptr = indptr[::size] // size**2  # a block row's blocks: size^2 entries each
+    degree = np.diff(node_indptr)
+    used = int(node_indptr[-1])
+    rows = np.full(count, nodes, index)  # nodes for the padding: dropped
+    rows[:used] = np.repeat(np.arange(nodes, dtype=index), degree)
+    first = node_indptr[rows[:used]]
+    starts, strides = np.zeros(count, index), np.zeros(count, index)
+    starts[:used] = size**2 * first + size * (np.arange(used, dtype=index) - first)
+    # entry (a, b) of a block: a block row's rows are ``size * degree`` entries apart
+    strides[:used] = size * degree[rows[:used]]
+    return rows, indices[starts] // size, starts, strides
 
 
 def _full_blocks(indptr: np.ndarray, indices: np.ndarray, block: int) -> bool:
@@ -207,19 +248,13 @@ def _block_matvec(pattern: CSRPattern, data):
     blocks, whose sorted adds a GPU's scatter makes one per block row and component instead of one per entry."""
     size = pattern.block
     nodes = pattern.n // size
-    count = data.shape[0] // size**2  # every stored block, the padding's too
-    node_indptr = pattern.indptr[::size] // size**2  # a block row's blocks: size^2 entries each
-    k = jnp.arange(count, dtype=node_indptr.dtype)
-    row = jnp.searchsorted(node_indptr, k, side="right").astype(k.dtype) - 1  # nodes for the padding: dropped
-    valid = row < nodes
-    clamped = jnp.minimum(row, nodes - 1)
-    degree = node_indptr[clamped + 1] - node_indptr[clamped]
-    start = jnp.where(valid, size**2 * node_indptr[clamped] + size * (k - node_indptr[clamped]), 0)
-    offsets = jnp.arange(size, dtype=k.dtype)
-    # entry (a, b) of a block: a block row's rows are ``size * degree`` entries apart
-    slots = start[:, None, None] + (size * degree)[:, None, None] * offsets[:, None] + offsets
-    blocks = jnp.where(valid[:, None, None], data[slots], 0)
-    columns = pattern.indices[start] // size
+    layout = pattern.blocks
+    if layout is None:
+        raise ValueError("pattern: a pattern of full blocks from csr_pattern (its BlockLayout)")
+    count, row, columns = layout.rows.shape[0], layout.rows, layout.columns
+    offsets = jnp.arange(size, dtype=layout.starts.dtype)
+    slots = layout.starts[:, None, None] + layout.strides[:, None, None] * offsets[:, None] + offsets
+    blocks = jnp.where((row < nodes)[:, None, None], data[slots], 0)
 
     def matvec(x):
         gathered = x.reshape(nodes, size, *x.shape[1:])[columns]  # (count, size[, k])

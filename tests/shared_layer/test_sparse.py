@@ -248,7 +248,16 @@ def test_block_matvec_multiplies_like_scipy_and_the_device_cg_like_the_entry_one
         csr_pattern(A.indptr, indices, block=3),
         csr_pattern(A.indptr, indices, block=3, full_blocks=False),
     )
-    assert blocks.full_blocks and not entries.full_blocks
+    assert blocks.full_blocks and not entries.full_blocks and entries.blocks is None
+    # the layout found once: scipy's block rows and columns, then the padding's two blocks (dropped rows)
+    bsr = A.tobsr(blocksize=(3, 3))
+    nodes = A.shape[0] // 3
+    layout = jax.tree.map(np.asarray, blocks.blocks)
+    np.testing.assert_array_equal(layout.rows, np.r_[np.repeat(np.arange(nodes), np.diff(bsr.indptr)), nodes, nodes])
+    np.testing.assert_array_equal(layout.columns[: len(bsr.indices)], bsr.indices)
+    for k in range(len(bsr.indices)):
+        entries_of_block = layout.starts[k] + layout.strides[k] * np.arange(3)[:, None] + np.arange(3)
+        np.testing.assert_array_equal(np.asarray(data)[entries_of_block], bsr.data[k])
     x = np.random.default_rng(9).normal(size=(A.shape[0], 2))
     for v in (x, x[:, 0]):
         np.testing.assert_allclose(jax.jit(sparse.matvec(blocks, data))(jnp.asarray(v)), A @ v, rtol=1e-13, atol=1e-13)
