@@ -7,6 +7,7 @@ leaves them out, `make test-slow` runs them (with the notebooks), and CI (`.ci/r
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -261,3 +262,39 @@ def test_compile_for_gpu_reads_registers_and_spills_from_ptxas(tmp_path):
     registers, spills = stats["keep"]
     assert registers >= 10 and spills == 0
     assert compile_for_gpu.ptxas_statistics([path], {"other"}) == {}
+
+
+_CUDA_PLUGIN = ROOT / ".cuda-plugin"
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(
+    not (_CUDA_PLUGIN / "jax_plugins").is_dir(), reason="no CUDA plugin in .cuda-plugin/ (make gpu-programs)"
+)
+def test_compile_for_gpu_compiles_the_triton_programs_for_an_h100(tmp_path):
+    """With the plugin that ``make gpu-programs`` installs: the point map and the motor fields compile for an H100
+    on this machine, each a Triton kernel that does not spill."""
+    out = tmp_path / "programs.json"
+    done = subprocess.run(
+        [
+            sys.executable,
+            "benchmarks/gpu/compile_for_gpu.py",
+            "--quick",
+            "--only",
+            "kernel",
+            "deform",
+            "--json",
+            str(out),
+        ],
+        capture_output=True,
+        text=True,
+        timeout=900,
+        cwd=ROOT,
+        env={**os.environ, "PYTHONPATH": str(_CUDA_PLUGIN), "JAX_PLATFORMS": "cpu"},
+    )
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-3000:]
+    record = json.loads(out.read_text())
+    assert record["failures"] == [] and record["spills"] == []
+    programs = {p["name"]: p for p in record["programs"]}
+    for name in ("apply_to_points, a motor per point, float64", "motor field ffd, float64"):
+        assert programs[name]["launches"] >= 1 and programs[name]["triton"], name

@@ -101,16 +101,20 @@ class Program:
     loops: list[Loop]
     host_calls: int  # on the GPU path
     checks: int  # runtime checks' failure branches (a host call each, run only when the check fails)
-    triton: dict[str, tuple[int, int]]  # kernel -> (registers, spill bytes), from ptxas
+    triton: dict[str, tuple[int, int] | None]  # kernel -> (registers, spill bytes) from ptxas; None without it
 
     def summary(self) -> str:
         loops = "; ".join(_loop_text(loop) for loop in self.loops) or "none"
-        triton = ", ".join(f"{k} {r} registers, {s} B spilled" for k, (r, s) in self.triton.items()) or "none"
+        triton = ", ".join(_triton_text(k, stats) for k, stats in self.triton.items()) or "none"
         return (
             f"{self.name}: {self.launches} launches, {self.conditionals} conditionals (host round trips), "
             f"{self.host_calls} host calls, {self.checks} checks; loops: {loops}; Triton: {triton} "
             f"(compiled in {self.compile_s:.1f} s)"
         )
+
+
+def _triton_text(kernel: str, stats: tuple[int, int] | None) -> str:
+    return f"{kernel} (no ptxas)" if stats is None else f"{kernel} {stats[0]} registers, {stats[1]} B spilled"
 
 
 def _loop_text(loop: Loop) -> str:
@@ -217,7 +221,7 @@ class Compiler:
             seconds = time.perf_counter() - start
             text = compiled.as_text()
             triton = set(re.findall(r'custom_call_target="__gpu\$xla\.gpu\.triton".*?name = "(\w+)"', text))
-            stats = ptxas_statistics(sorted(Path(dump).glob("*.ptx")), triton) if "xla.gpu.triton" in text else {}
+            stats = dict.fromkeys(triton) | ptxas_statistics(sorted(Path(dump).glob("*.ptx")), triton)
         launches, conditionals, loops = structure(text)
         checks = self.host_calls.pop(_checks._Fail.__name__, 0)
         return Program(name, seconds, launches, conditionals, loops, sum(self.host_calls.values()), checks, stats)
@@ -363,7 +367,7 @@ def main(argv=None) -> int:
                 continue
             programs.append(program)
             print(program.summary(), flush=True)
-    spilled = [f"{p.name}: {k}" for p in programs for k, (_, s) in p.triton.items() if s > 0]
+    spilled = [f"{p.name}: {k}" for p in programs for k, stats in p.triton.items() if stats and stats[1] > 0]
     for line in spilled:
         print(f"SPILLS {line}")
     if args.json:
