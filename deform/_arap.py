@@ -64,7 +64,7 @@ from jaxtyping import Array, ArrayLike, Float, Int
 
 from _jaxcga_shared.checks import check_choice, check_index_range, check_triangle_mesh, require
 from _jaxcga_shared.ell import padded_rows
-from _jaxcga_shared.platform import EXACT
+from _jaxcga_shared.platform import EXACT, example, per_platform
 from _jaxcga_shared.sparse import SparseSolver
 from jaxcga import KINDS, Multivector, align_points, apply_to_points
 
@@ -194,6 +194,30 @@ def _adjugate_and_det4(a):
     return jnp.swapaxes(cof, -1, -2), jnp.einsum("...j,...j->...", a[..., 0, :], cof[..., 0, :], precision=EXACT)
 
 
+def _quartic_examples():
+    rng = np.random.default_rng(3)
+    S = rng.normal(size=(40, 3, 3))
+    norm2 = np.sum(S * S, axis=(1, 2))
+    c1, c0 = -8.0 * np.linalg.det(S), rng.normal(size=40) * norm2
+    return [example(-2.0 * norm2, c1, c0, np.sqrt(3.0 * norm2), newton_steps=24)]
+
+
+@per_platform("deform.largest_quartic_root", examples=_quartic_examples)
+def _largest_quartic_root(c2, c1, c0, start, *, newton_steps: int, cpu: bool):
+    """The largest root of ``l^4 + c2 l^2 + c1 l + c0`` by Newton from ``start`` (above it), elementwise. A rolled
+    loop on the CPU (unrolled, differentiating the steps compiled 3x slower there and ran no faster); unrolled
+    elsewhere, where each step of a loop is its own launches (3 on an H100, 72 an ARAP iteration) and the
+    unrolled steps are one kernel."""
+
+    def newton(_, lam):
+        p = ((lam * lam + c2) * lam + c1) * lam + c0
+        dp = (4.0 * lam * lam + 2.0 * c2) * lam + c1
+        # from above the largest root Newton decreases monotonically; dp > 0 there (dp = 0: at a multiple root)
+        return jnp.where(dp > 0, lam - p / jnp.where(dp > 0, dp, 1.0), lam)
+
+    return jax.lax.fori_loop(0, newton_steps, newton, start, unroll=1 if cpu else True)
+
+
 def horn_rotors(S: Float[Array, "n 3 3"], newton_steps: int = 24) -> tuple[Multivector, Float[Array, " n"]]:
     """Rotors maximizing ``sum_j w_j (M v_j ~M) . v'_j`` for ``S = sum_j w_j v_j v'_j^T`` (sec. VII):
     the top eigenvector of Horn's matrix P, in closed form (Newton on the characteristic quartic,
@@ -220,14 +244,7 @@ def horn_rotors(S: Float[Array, "n 3 3"], newton_steps: int = 24) -> tuple[Multi
     c2, c1 = -2.0 * norm2, -8.0 * _det3(S)
     _, c0 = _adjugate_and_det4(P)
 
-    def newton(_, lam):
-        p = ((lam * lam + c2) * lam + c1) * lam + c0
-        dp = (4.0 * lam * lam + 2.0 * c2) * lam + c1
-        # from above the largest root Newton decreases monotonically; dp > 0 there (dp = 0: at a multiple root)
-        return jnp.where(dp > 0, lam - p / jnp.where(dp > 0, dp, 1.0), lam)
-
-    # a rolled loop: unrolled, differentiating the 24 steps compiled 3x slower and ran no faster
-    lam = jax.lax.fori_loop(0, newton_steps, newton, jnp.sqrt(3.0 * norm2))
+    lam = _largest_quartic_root(c2, c1, c0, jnp.sqrt(3.0 * norm2), newton_steps=newton_steps)
     adj, _ = _adjugate_and_det4(P - lam[:, None, None] * jnp.eye(4, dtype=S.dtype))
     # adj = c q q^T: its column with the largest diagonal entry is the best-conditioned copy of q
     diag = jnp.abs(jnp.diagonal(adj, axis1=-2, axis2=-1))

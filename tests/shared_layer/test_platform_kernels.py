@@ -27,6 +27,7 @@ def test_kernels_are_registered():
         "deform.blend_dilations",
         "deform.motor_field",
         "deform.forward_kinematics",
+        "deform.largest_quartic_root",
     } <= set(KERNELS)
 
 
