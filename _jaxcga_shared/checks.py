@@ -33,41 +33,49 @@ _T = TypeVar("_T")
 
 @dataclasses.dataclass(frozen=True)
 class _Fail:
-    """The host side of a failed check: raise ``ValueError(message)`` (hashable, as ``host_call`` asks)."""
+    """The host side of failed checks: raise ``ValueError`` with the message of the first set flag (hashable, as
+    ``host_call`` asks)."""
 
-    message: str
+    messages: tuple[str, ...]
 
-    def __call__(self, flag):
-        _FAILED["message"] = self.message
-        raise ValueError(self.message)
+    def __call__(self, flags):
+        message = self.messages[int(np.argmax(np.asarray(flags)))]
+        _FAILED["message"] = message
+        raise ValueError(message)
 
 
 @functools.partial(jax.custom_jvp, nondiff_argnums=(2,))
-def _checked(x, flag, message):
-    """``x``, or a runtime error with ``message`` when ``flag`` (an unbatched scalar) is set; the branch, and
-    with it the host call, runs only then."""
-    fail = lambda: host_call(_Fail(message), jax.ShapeDtypeStruct(x.shape, x.dtype), flag)  # noqa: E731
-    return jax.lax.cond(flag, fail, lambda: x)
+def _checked(x, flags, messages):
+    """``x``, or a runtime error with the message of the first set flag (``flags``: unbatched, one per message);
+    the branch, and with it the host call, runs only then."""
+    fail = lambda: host_call(_Fail(messages), jax.ShapeDtypeStruct(x.shape, x.dtype), flags)  # noqa: E731
+    return jax.lax.cond(jnp.any(flags), fail, lambda: x)
 
 
 @_checked.defjvp
-def _checked_jvp(message, primals, tangents):
+def _checked_jvp(messages, primals, tangents):
     # the host call has no derivative: a check passes tangents through (as eqx.error_if does)
-    x, flag = primals
-    return _checked(x, flag, message), tangents[0]
+    x, flags = primals
+    return _checked(x, flags, messages), tangents[0]
 
 
 def require(x: _T, *checks: tuple[JaxArrayLike, str]) -> _T:
     """Value checks, pairs ``(bad, message)``: a ``ValueError`` on concrete input; inside jit, vmap or grad
-    (traced flags) a runtime error with the message, raised when ``x`` is computed (under vmap when any batch
-    element is bad). Returns ``x`` (to be used, so the traced check is kept)."""
+    (traced flags) a runtime error with the message of the first failing check, raised when ``x`` is computed
+    (under vmap when any batch element is bad). Returns ``x`` (to be used, so the traced checks are kept).
+
+    The traced checks of one call are one conditional: on a GPU each conditional is a host round trip (its flag
+    copied to the host, the GPU drained), so checks made together cost one."""
+    flags, messages = [], []
     for bad, message in checks:
         if isinstance(bad, Tracer):
             # unvmap_any: one flag for a whole vmap batch, so the failing branch stays a branch (not a select)
-            flag = eqx.internal.unvmap_any(jnp.any(bad))
-            x = _checked(jnp.asarray(x), flag, message)  # python scalars have nothing to thread on
+            flags.append(eqx.internal.unvmap_any(jnp.any(bad)))
+            messages.append(message)
         elif bool(jnp.any(bad)):
             raise ValueError(message)
+    if flags:
+        x = _checked(jnp.asarray(x), jnp.stack(flags), tuple(messages))  # python scalars have nothing to thread on
     return x
 
 
@@ -205,7 +213,12 @@ def check_finite(name: str, x: jax.typing.ArrayLike) -> Array:
     """``x`` as a JAX array, or a ValueError when it holds NaN or infinity (inside jit a runtime error with the
     message)."""
     x = jnp.asarray(x)
-    return require(x, (~jnp.all(jnp.isfinite(x)), f"{name}: non-finite values (NaN or inf)"))
+    return require(x, non_finite(name, x))
+
+
+def non_finite(name: str, x: jax.typing.ArrayLike) -> tuple[Array, str]:
+    """``check_finite``'s check as a ``require`` pair, to be made with others in one call (one conditional)."""
+    return ~jnp.all(jnp.isfinite(x)), f"{name}: non-finite values (NaN or inf)"
 
 
 def check_choice(name: str, value: object, choices: Collection[object]) -> None:

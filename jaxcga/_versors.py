@@ -25,7 +25,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from _jaxcga_shared.checks import check_finite, check_vectors, require
+from _jaxcga_shared.checks import check_finite, check_vectors, non_finite, require
 from _jaxcga_shared.pallas_rows import RowFunction, fits, rowwise
 from _jaxcga_shared.platform import EXACT, Example, example, per_platform
 from jaxcga import _algebra as alg
@@ -354,9 +354,9 @@ def rotor_to_quaternion(r: Multivector) -> Float[Array, "... 4"]:
 
 def quaternion_to_rotor(q: Float[ArrayLike, "... 4"]) -> Multivector:
     """Rotor of a quaternion (w, x, y, z) (normalized here)."""
-    q = check_finite("q", check_vectors("q", q, 4))
+    q = check_vectors("q", q, 4)
     length = jnp.linalg.norm(q, axis=-1)
-    length = require(length, (jnp.any(length == 0), "q: zero quaternion"))
+    length = require(length, non_finite("q", q), (jnp.any(length == 0), "q: zero quaternion"))
     unit = q / length[..., None]
     return _stack(unit[..., 0], -unit[..., 3], unit[..., 2], -unit[..., 1], blades=_ROTOR)
 
@@ -500,12 +500,12 @@ def matrix_to_motor(matrix: Float[ArrayLike, "... 4 4"]) -> Multivector:
     matrix = jnp.asarray(matrix)
     if matrix.ndim < 2 or matrix.shape[-2:] not in ((4, 4), (3, 4)):
         raise ValueError(f"matrix: expected shape (..., 4, 4) or (..., 3, 4), got {matrix.shape}")
-    matrix = check_finite("matrix", matrix)
     rot = matrix[..., :3, :3]
     err = jnp.max(
         jnp.abs(jnp.matmul(jnp.swapaxes(rot, -1, -2), rot, precision=EXACT) - jnp.eye(3, dtype=rot.dtype)), initial=0.0
     )
-    rot = require(rot, ((err > 1e-5) | jnp.any(jnp.linalg.det(rot) < 0), "matrix: not a rigid motion"))
+    rigid = (err > 1e-5) | jnp.any(jnp.linalg.det(rot) < 0), "matrix: not a rigid motion"
+    rot = require(rot, non_finite("matrix", matrix), rigid)
     return motor(quaternion_to_rotor(matrix_to_quaternion(rot)), matrix[..., :3, 3])
 
 

@@ -620,21 +620,25 @@ def _step_arguments(system, state, h, material, fixed_positions, newton_iteratio
     if jnp.shape(h) != ():
         raise ValueError(f"h: expected a scalar time step, got shape {jnp.shape(h)}")
     material = _checked_material(material, system, dtype)
-    # concrete values are checked in numpy: eager JAX checks cost a dispatch and a sync each, a large part of
-    # a small system's step; traced ones by require
-    h = _checked(_scalar(h, dtype), lambda h, xp: ~(h > 0) | ~xp.isfinite(h), "h: expected a finite positive time step")
+    h = _scalar(h, dtype)
     if fixed_positions is not None:
         fixed_positions = jnp.asarray(fixed_positions, dtype)
         if fixed_positions.shape != system.fixed.shape + (3,):
             raise ValueError(
                 f"fixed_positions: expected shape ({system.fixed.shape[0]}, 3), got {fixed_positions.shape}"
             )
-    state = State(
-        *(
-            _checked(a, lambda a, xp: ~xp.isfinite(a), f"state.{name}: non-finite values (NaN or inf)")
-            for name, a in (("x", state.x), ("v", state.v))
-        )
-    )
+    # concrete values are checked in numpy: eager JAX checks cost a dispatch and a sync each, a large part of
+    # a small system's step; traced ones by one require (one conditional), threaded through state.x
+    checks = [
+        (h, lambda h, xp: ~(h > 0) | ~xp.isfinite(h), "h: expected a finite positive time step"),
+        (state.x, lambda a, xp: ~xp.isfinite(a), "state.x: non-finite values (NaN or inf)"),
+        (state.v, lambda a, xp: ~xp.isfinite(a), "state.v: non-finite values (NaN or inf)"),
+    ]
+    traced = [(jnp.any(bad(a, jnp)), message) for a, bad, message in checks if isinstance(a, jax.core.Tracer)]
+    for a, bad, message in checks:
+        if not isinstance(a, jax.core.Tracer) and np.any(bad(np.asarray(a), np)):
+            raise ValueError(message)
+    state = State(require(state.x, *traced), state.v)
     return system, state, h, material, fixed_positions, int(newton_iterations), tolerance, line_search
 
 
@@ -689,13 +693,3 @@ def compiled_step(
         return compiled(*_step_arguments(system, state, h, material, None, newton_iterations, tolerance, line_search))
 
     return step
-
-
-def _checked(a, bad, message: str):
-    """``a``, checked by ``bad(a, xp)`` (elementwise; xp is numpy or jax.numpy): ValueError for concrete values,
-    a runtime error (``require``) when traced."""
-    if isinstance(a, jax.core.Tracer):
-        return require(a, (bad(a, jnp), message))
-    if np.any(bad(np.asarray(a), np)):
-        raise ValueError(message)
-    return a

@@ -99,9 +99,12 @@ def lame(
         ``(mu, lam) = (E / (2 (1 + nu)), E nu / ((1 + nu)(1 - 2 nu)))``, broadcast shape (python floats for python
         floats)."""
     bad = ~(jnp.asarray(young) > 0) | ~jnp.isfinite(young)
-    young = require(young, (bad, "young: Young's modulus must be finite and > 0"))
     outside = ~((jnp.asarray(poisson) > -1) & (jnp.asarray(poisson) < 0.5))
-    poisson = require(poisson, (outside, "poisson: Poisson's ratio must lie in (-1, 0.5)"))
+    young = require(
+        young,
+        (bad, "young: Young's modulus must be finite and > 0"),
+        (outside, "poisson: Poisson's ratio must lie in (-1, 0.5)"),
+    )
     mu = young / (2 * (1 + poisson))
     lam = young * poisson / ((1 + poisson) * (1 - 2 * poisson))
     return mu, lam

@@ -119,3 +119,22 @@ def test_plain_errors_keeps_an_argument_error_raised_before_any_check_failed():
     )
     out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120, check=True)
     assert out.stdout.strip() == "kind: expected one of ('a',)"
+
+
+def test_the_checks_of_one_call_are_one_conditional_raising_the_first_failing_message():
+    """A GPU makes a host round trip per conditional: ``require``'s traced checks together are one, and a
+    failure names the first failing check."""
+
+    def checked(x):
+        return require(x, (jnp.isnan(x), "x: NaN"), (x < 0, "x: negative"), (x > 10, "x: over 10"))
+
+    text = jax.jit(checked).lower(jnp.ones(3)).as_text()
+    assert text.count("stablehlo.case") == 1
+    np.testing.assert_array_equal(jax.jit(checked)(jnp.array([1.0, 2.0])), [1.0, 2.0])
+    for x, message in (([1.0, -1.0, 11.0], "x: negative"), ([11.0], "x: over 10"), ([np.nan, -1.0], "x: NaN")):
+        # a cached executable's callback failure comes as a ValueError, a first call's as a JaxRuntimeError
+        with pytest.raises((RuntimeError, ValueError)) as raised:
+            jax.block_until_ready(jax.jit(checked)(jnp.array(x)))
+        assert compiled_error_message(raised.value) == message
+    with pytest.raises(ValueError, match="x: over 10"):
+        checked(jnp.array([11.0]))
