@@ -56,7 +56,7 @@ class SharedEntries:
         return self._ref[index]
 
 
-class RowColumns:
+class RowColumns(Sequence):
     """A per-row array inside a kernel: ``columns[c]`` is its c-th column over the program's block of rows, loaded
     on first use (a traced c, the index of a loop inside the kernel, loads on every use). ``len`` and unpacking
     work as on a list."""
@@ -85,7 +85,8 @@ class RowColumns:
         return (self[c] for c in range(self._width))
 
 
-RowFunction = Callable[[list[RowColumns], list[SharedEntries]], list[Array]]
+# a row function takes the per-row arrays' columns (``RowColumns`` in a kernel, or lists of columns)
+RowFunction = Callable[[Sequence[Sequence[Array]], list[SharedEntries]], list[Array]]
 
 
 def rowwise(
