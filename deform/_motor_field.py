@@ -193,8 +193,7 @@ def _field_coordinates(keys: int) -> pallas_rows.RowFunction:
             return blended
 
         # the same sums in the same order as the dense product; past _UNROLLED_KEYS a loop over groups of keys
-        # bounds what is live: unrolled, the compiler loads every weight column first (ptxas, float64, 64 keys:
-        # 255 registers and 1.3-58 KB of spills a thread)
+        # bounds what is live: unrolled, the compiler loads every weight column first and spills registers
         blended = add_keys(1, min(keys, _UNROLLED_KEYS) - 1, [weights[0] * logs[c] for c in range(6)])
         if keys > _UNROLLED_KEYS:
             groups, rest = divmod(keys - _UNROLLED_KEYS, _KEYS_PER_STEP)
