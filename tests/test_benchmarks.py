@@ -17,7 +17,7 @@ import jax
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "benchmarks"))
+sys.path[:0] = [str(ROOT / "benchmarks"), str(ROOT / "benchmarks" / "gpu")]
 import _report  # noqa: E402
 
 
@@ -218,7 +218,6 @@ def test_bench_fem_times_the_cpu_chunks_and_restores_them():
 def test_compile_for_gpu_reads_loops_and_conditionals_of_compiled_code():
     """``benchmarks/gpu/compile_for_gpu.py`` reads the host round trips from a compiled module: a conditional, a
     loop of known trip count and one whose every iteration asks the host (here a CPU module, the same HLO text)."""
-    sys.path.insert(0, str(ROOT / "benchmarks" / "gpu"))
     import compile_for_gpu
     import jax.numpy as jnp
 
@@ -252,7 +251,6 @@ _PTX += "  ret;\n}\n"
 
 @pytest.mark.skipif(shutil.which("ptxas") is None, reason="ptxas (the CUDA toolkit) is not on the PATH")
 def test_compile_for_gpu_reads_registers_and_spills_from_ptxas(tmp_path):
-    sys.path.insert(0, str(ROOT / "benchmarks" / "gpu"))
     import compile_for_gpu
 
     path = tmp_path / "keep.ptx"
