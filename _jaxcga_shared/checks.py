@@ -72,7 +72,7 @@ def require(x: _T, *checks: tuple[JaxArrayLike, str]) -> _T:
             # unvmap_any: one flag for a whole vmap batch, so the failing branch stays a branch (not a select)
             flags.append(eqx.internal.unvmap_any(jnp.any(bad)))
             messages.append(message)
-        elif bool(jnp.any(bad)):
+        elif np.any(np.asarray(bad)):  # numpy: under a trace jnp would stage even a constant flag
             raise ValueError(message)
     if flags:
         x = _checked(jnp.asarray(x), jnp.stack(flags), tuple(messages))  # python scalars have nothing to thread on

@@ -25,6 +25,7 @@ its Triton kernel replaces there, is timed beside it (``cga_motor_blend_xla_*``)
 from __future__ import annotations
 
 import argparse
+import functools
 import statistics
 import sys
 import time
@@ -126,8 +127,8 @@ def pipelines(model: deform.RiggedModel):
     if jax.default_backend() == "gpu":
         # the XLA formulation that the motor blend's Triton kernel replaced on GPUs, timed beside it
         def cga_motor_blend_xla(local_v, _):
-            table = _skinning.motor_blend_joints(versors(local_v))
-            return _skinning._blend_motors_in_xla(mesh.V, mesh.J, mesh.W, table, cpu=False)
+            blend = functools.partial(_skinning._blend_motors_in_xla, cpu=False)
+            return _skinning._skin_motor_blend(mesh.V, mesh.J, mesh.W, versors(local_v), blend)
 
         methods["cga_motor_blend_xla"] = cga_motor_blend_xla
     return methods

@@ -33,10 +33,10 @@ from jaxtyping import Array, ArrayLike, Float
 
 import jaxcga as cga
 from _jaxcga_shared import pallas_rows
-from _jaxcga_shared.checks import check_vectors
+from _jaxcga_shared.checks import check_vectors, require
 from _jaxcga_shared.platform import EXACT, PerPlatform, example
 from jaxcga import KINDS, MOTOR_GENERATOR, Multivector
-from jaxcga._exp_log import exp_motor_columns
+from jaxcga._exp_log import exp_motor_columns, log_motor_unchecked
 from jaxcga._versors import row_coordinates
 
 # Up to this many key motors a GPU's Triton program unrolls the blend over the weights' columns; more go through XLA.
@@ -118,8 +118,10 @@ def motor_field_solve(field: MotorField, key_motors: Multivector) -> Float[Array
     if not isinstance(field, MotorField):
         raise ValueError(f"field: expected a MotorField, got {type(field).__name__}")
     weights = field.weights
-    logs = motor_logs(_check_key_motors("key_motors", key_motors, weights.shape[1])).astype(weights.dtype)
-    return _deform(weights, field.bound.astype(weights.dtype), logs)
+    logs, bad = log_motor_unchecked(_check_key_motors("key_motors", key_motors, weights.shape[1]))
+    positions = _deform(weights, field.bound.astype(weights.dtype), logs.values.astype(weights.dtype))
+    # checked last: on a GPU the check's round trip then waits for nothing but the result
+    return require(positions, (bad, "key_motors: a key motor has non-positive norm M~M"))
 
 
 def _deform_in_rows(weights, bound, logs):

@@ -41,7 +41,7 @@ from _jaxcga_shared import pallas_rows
 from _jaxcga_shared.checks import check_vectors, require
 from _jaxcga_shared.platform import EXACT, PerPlatform, example, per_platform
 from jaxcga._multivector import KINDS, Multivector
-from jaxcga._versors import fused_point_coordinates, row_coordinates
+from jaxcga._versors import fused_point_coordinates, row_coordinates, similitude_motor_log_scale_unchecked
 
 
 def _check_mesh(V, J, W):
@@ -288,11 +288,12 @@ def skin_cga(
 
 
 def _motor_and_log_scale(versors: Multivector):
-    """Factor similitudes as ``M D(s)`` (motor, then the dilator about the origin): (..., 8), (...)."""
+    """Factor similitudes as ``M D(s)`` (motor, then the dilator about the origin): (..., 8), (...), and where a
+    versor is not a similitude (unchecked)."""
     if set(versors.blades) <= set(KINDS["motor"]):
-        return versors.embed(KINDS["motor"]).values, jnp.zeros(versors.batch_shape, versors.dtype)
-    motors, log_scale = cga.similitude_motor_log_scale(versors)
-    return motors.values, log_scale
+        return versors.embed(KINDS["motor"]).values, jnp.zeros(versors.batch_shape, versors.dtype), False
+    motors, log_scale, bad = similitude_motor_log_scale_unchecked(versors)
+    return motors.values, log_scale, bad
 
 
 def skin_cga_motor_blend(
@@ -308,21 +309,29 @@ def skin_cga_motor_blend(
         joint_versors: motors or similitudes ``M_n,k B_n``, batch shape (..., j).
     Returns:
         (..., n, 3) skinned positions."""
+    return _skin_motor_blend(V, J, W, joint_versors, _blend_motors_and_apply)
+
+
+def _skin_motor_blend(V, J, W, joint_versors: Multivector, blend_and_apply) -> Float[Array, "... n 3"]:
+    """``skin_cga_motor_blend`` with the blend of its joints' table given (a platform's kernel)."""
     V, J, W = _check_mesh(V, J, W)
     _check_versors("joint_versors", joint_versors)
-    return _blend_motors_and_apply(V, J, W, motor_blend_joints(joint_versors))
+    table, bad = motor_blend_joints(joint_versors)
+    positions = blend_and_apply(V, J, W, table)
+    # checked last: on a GPU the check's round trip then waits for nothing but the result
+    return require(positions, (bad, "joint_versors: not similitude versors (dilated part too large)"))
 
 
 _TABLE_WIDTH = 9  # a joint's row of the motor blend's table: its motor's 8 components, then its log scale
 
 
-def motor_blend_joints(joint_versors: Multivector) -> Float[Array, "... j 9"]:
+def motor_blend_joints(joint_versors: Multivector) -> tuple[Float[Array, "... j 9"], Array | bool]:
     """The table that ``skin_cga_motor_blend`` blends: per joint its motor's 8 components, then its log scale,
-    materialized (``_materialize``)."""
-    motors, log_scale = _motor_and_log_scale(joint_versors)
+    materialized (``_materialize``); and where a joint's versor is not a similitude (unchecked)."""
+    motors, log_scale, bad = _motor_and_log_scale(joint_versors)
     # one table: a product with a 1x1 identity is simplified away, and the log scale's arctanh then ran per
     # vertex and influence
-    return _materialize(jnp.concatenate([motors, log_scale[..., None]], axis=-1))
+    return _materialize(jnp.concatenate([motors, log_scale[..., None]], axis=-1)), bad
 
 
 def _blend_motors_in_xla(V, J, W, table: Float[Array, "... j 9"], *, cpu: bool) -> Float[Array, "... n 3"]:

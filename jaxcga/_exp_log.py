@@ -23,11 +23,12 @@ from collections.abc import Callable, Sequence
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
+from _jaxcga_shared.checks import require
 from _jaxcga_shared.platform import EXACT
 from jaxcga import _algebra as alg
 from jaxcga import _codegen
 from jaxcga._multivector import KINDS, Multivector
-from jaxcga._operations import normalize
+from jaxcga._operations import normalize_motor_columns
 from jaxcga._versors import dilator, similitude_dilation
 
 MOTOR_GENERATOR = alg.parse_blades(("e12", "e13", "e23", "e1inf", "e2inf", "e3inf"))
@@ -157,38 +158,71 @@ def log_motor(m: Multivector) -> Multivector:
     no unique logarithm: it gets the screw axis along its translation (the e12 plane if there is none)."""
     if not isinstance(m, Multivector) or not set(m.blades) <= set(KINDS["motor"]):
         raise ValueError("m: expected a motor Multivector")
-    m = normalize(m.embed(KINDS["motor"]))
-    a, b4 = m["1"], m["e123inf"]
-    biv = Multivector(m.values[..., 1:7], MOTOR_GENERATOR)
-    rot = biv.values[..., :3]
-    u = jnp.sum(rot * rot, axis=-1)  # sin^2(theta)
-    z = (biv * biv)["e123inf"]  # <M>_2^2 = -sin^2(theta_d): its P part
+    out, bad = log_motor_unchecked(m)
+    return Multivector(require(out.values, (bad, "normalize: motor has non-positive norm M~M")), out.blades)
+
+
+def log_motor_unchecked(m: Multivector) -> tuple[Multivector, Bool[Array, "*batch"]]:
+    """``log_motor`` without its check, and where it fails (M ~M <= 0: NaN there), for callers that check once
+    their result is computed (``deform.motor_field_solve``: on a GPU a check is a host round trip)."""
+    m = m.embed(KINDS["motor"])
+    columns, bad = log_motor_columns([m.values[..., i] for i in range(len(m.blades))], m.batch_shape)
+    return Multivector(jnp.stack(columns, axis=-1), MOTOR_GENERATOR), bad
+
+
+def log_motor_columns(m: Sequence[Array], batch_shape: tuple[int, ...]) -> tuple[list[Array], Array]:
+    """``log_motor_unchecked`` on columns: the eight components of M (``KINDS["motor"]`` order, arrays of
+    ``batch_shape``) to the six of log M (``MOTOR_GENERATOR`` order), and where M ~M <= 0. No stacked arrays, so
+    that XLA computes it in one kernel and a kernel over blocks of rows evaluates it too."""
+    m, bad = normalize_motor_columns(m, batch_shape)
+    a, b4 = m[0], m[7]
+    biv = m[1:7]
+    rot, v = biv[:3], biv[3:]
+    u = rot[0] * rot[0] + rot[1] * rot[1] + rot[2] * rot[2]  # sin^2(theta)
+    (z,) = _blade_columns(
+        _codegen.bilinear_terms("geometric", MOTOR_GENERATOR, MOTOR_GENERATOR),
+        (biv, biv),
+        batch_shape,
+        _PSEUDOSCALAR_INF,
+    )  # <M>_2^2 = -sin^2(theta_d): its P part
     k, mm = _atan_ratio(u, a)
     # theta_d / sin(theta_d) = k + P (-b4 + z m / 2) (dual-number division, see module docstring).
-    out = _scalar_p(k, -b4 + 0.5 * z * mm) * biv
-    out = out.embed(MOTOR_GENERATOR).values
+    blades, product = _codegen.emit(
+        _codegen.bilinear_terms("geometric", _SCALAR_P, MOTOR_GENERATOR), ([k, -b4 + 0.5 * z * mm], biv), batch_shape
+    )
+    out = dict(zip(blades, product))
+    out = [out[blade] for blade in MOTOR_GENERATOR]
     # For a rotation beyond pi (a < 0) the two P terms above are ~pi / sin each and cancel. With
     # w = sin(theta) u (u the axis, in e_i einf coordinates w = P <M>_2's rotation part) and v the
     # e_i einf part of M, the same value is k v_perp + a v_par - b4 w: no cancellation.
-    w = jnp.stack([-rot[..., 2], rot[..., 1], -rot[..., 0]], axis=-1)
-    v = biv.values[..., 3:6]
-    u_safe = jnp.where(u > 0, u, 1.0)[..., None]
-    v_par = jnp.sum(v * w, axis=-1, keepdims=True) * w / u_safe
-    v_perp = k[..., None] * jnp.cross(w, jnp.cross(v, w)) / u_safe
+    w = [-rot[2], rot[1], -rot[0]]
+    u_safe = jnp.where(u > 0, u, 1.0)
+    v_par = [_dot(v, w) * wi / u_safe for wi in w]
+    v_perp = [k * c / u_safe for c in _cross(w, _cross(v, w))]
     # v_perp is ill conditioned (rounding of size eps |v| times k ~ pi / sin): project once more so
     # that none of that rounding lands along the axis, where the result is well conditioned.
-    v_perp = v_perp - jnp.sum(v_perp * w, axis=-1, keepdims=True) * w / u_safe
-    far = (a < 0)[..., None]
-    out_i = jnp.where(far, v_perp + a[..., None] * v_par - b4[..., None] * w, out[..., 3:6])
+    along = _dot(v_perp, w)
+    v_perp = [c - along * wi / u_safe for c, wi in zip(v_perp, w)]
+    far = a < 0
+    out_i = [jnp.where(far, vp + a * vq - b4 * wi, o) for vp, vq, wi, o in zip(v_perp, v_par, w, out[3:])]
     # A 2 pi turn (rotor part -1): M = -T(t) is the 2 pi screw about the axis along t (any axis if
     # t = 0; then e12).
-    at_two_pi = ((u == 0) & (a < 0))[..., None]
-    v2 = jnp.sum(v * v, axis=-1, keepdims=True)
-    axis = jnp.where(v2 > 0, v / jnp.sqrt(jnp.where(v2 > 0, v2, 1.0)), jnp.asarray([0.0, 0.0, -1.0], v.dtype))
-    full_turn = jnp.pi * jnp.stack([-axis[..., 2], axis[..., 1], -axis[..., 0]], axis=-1)
-    out_r = jnp.where(at_two_pi, full_turn, out[..., :3])
-    out_i = jnp.where(at_two_pi, a[..., None] * v, out_i)
-    return Multivector(jnp.concatenate([out_r, out_i], axis=-1), MOTOR_GENERATOR)
+    at_two_pi = (u == 0) & far
+    v2 = _dot(v, v)
+    length = jnp.sqrt(jnp.where(v2 > 0, v2, 1.0))
+    axis = [jnp.where(v2 > 0, c / length, fallback) for c, fallback in zip(v, (0.0, 0.0, -1.0))]
+    full_turn = [jnp.pi * -axis[2], jnp.pi * axis[1], jnp.pi * -axis[0]]
+    out_r = [jnp.where(at_two_pi, t, o) for t, o in zip(full_turn, out[:3])]
+    out_i = [jnp.where(at_two_pi, a * vi, o) for vi, o in zip(v, out_i)]
+    return [jnp.broadcast_to(c, batch_shape) for c in out_r + out_i], bad
+
+
+def _dot(x: Sequence[Array], y: Sequence[Array]) -> Array:
+    return x[0] * y[0] + x[1] * y[1] + x[2] * y[2]
+
+
+def _cross(x: Sequence[Array], y: Sequence[Array]) -> list[Array]:
+    return [x[1] * y[2] - x[2] * y[1], x[2] * y[0] - x[0] * y[2], x[0] * y[1] - x[1] * y[0]]
 
 
 # ---------------------------------------------------------------- similitudes

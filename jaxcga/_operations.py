@@ -131,15 +131,37 @@ def _motor_blades() -> tuple[int, ...]:
 
 
 def _normalize_motor(m: Multivector) -> Multivector:
+    normalized, bad = normalize_motor_unchecked(m)
+    return Multivector(
+        require(normalized.values, (bad, "normalize: motor has non-positive norm M~M")), normalized.blades
+    )
+
+
+def normalize_motor_unchecked(m: Multivector) -> tuple[Multivector, Bool[Array, "*batch"]]:
+    """``normalize`` of motors without its check, and where it fails (M ~M <= 0: NaN or inf there), for callers
+    that check later: on a GPU a check is a host round trip, cheapest once the result is computed."""
+    m = m.embed(_motor_blades())
+    columns, bad = normalize_motor_columns([m.values[..., i] for i in range(len(m.blades))], m.batch_shape)
+    return Multivector(jnp.stack(columns, axis=-1), _motor_blades()), bad
+
+
+def normalize_motor_columns(m: Sequence[Array], batch_shape: tuple[int, ...]) -> tuple[list[Array], Array]:
+    """``normalize_motor_unchecked`` on columns (``KINDS["motor"]`` order, arrays of ``batch_shape``): no stacked
+    arrays, so that a kernel over blocks of rows evaluates it too."""
     # M ~M = s + p P with P = e123inf central and P^2 = 0 in the motor algebra, so
     # N = M (1 - p/(2s) P) / sqrt(s) gives N ~N = 1 exactly.
-    m = m.embed(_motor_blades())
-    mm = m * ~m
-    s, p = mm["1"], mm["e123inf"]
-    s = require(s, (s <= 0, "normalize: motor has non-positive norm M~M"))
+    blades = _motor_blades()
+    scalar_p = alg.parse_blades(("1", "e123inf"))
+    reverse = [c * alg.reverse_sign(b) for c, b in zip(m, blades)]
+    terms = _codegen.bilinear_terms("geometric", blades, blades)
+    norm_blades, norm_parts = _codegen.emit(tuple(t for t in terms if t[0] in scalar_p), (m, reverse), batch_shape)
+    s, p = (dict(zip(norm_blades, norm_parts))[b] for b in scalar_p)
     alpha = 1.0 / jnp.sqrt(s)
-    correction = Multivector(jnp.stack([alpha, -alpha * p / (2 * s)], axis=-1), alg.parse_blades(("1", "e123inf")))
-    return (m * correction).embed(_motor_blades())
+    out_blades, out = _codegen.emit(
+        _codegen.bilinear_terms("geometric", blades, scalar_p), (m, [alpha, -alpha * p / (2 * s)]), batch_shape
+    )
+    by_blade = dict(zip(out_blades, out))
+    return [by_blade[b] for b in blades], s <= 0
 
 
 def versor_inverse(v: Multivector) -> Multivector:

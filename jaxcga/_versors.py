@@ -404,10 +404,15 @@ def similitude_dilation(s: Multivector) -> tuple[Float[Array, "... 4"], Float[Ar
     S = k (R D - (1/2) e^(-lam/2) t einf R) with R D = R (cosh(lam/2) + sinh(lam/2) eo^einf): the rotor blades
     hold ``rc = k R cosh``, the ``eo^einf`` blades ``rs = k R sinh``, and ``<rc, rs> / <rc, rc> = tanh(lam/2)``.
     A runtime error when ``|rs| >= |rc|`` (not a similitude versor)."""
+    rc, c2, lam, bad = _similitude_dilation_unchecked(s)
+    return rc, require(c2, (bad, "s: not a similitude versor")), lam
+
+
+def _similitude_dilation_unchecked(s: Multivector):
+    """``similitude_dilation`` without its check, and where it fails (``|rs| >= |rc|``: NaN there)."""
     rc, rs = _components(s, _MOTOR_ROTOR), _components(s, _DILATED_ROTOR)
     c2, s2, cs = jnp.sum(rc * rc, -1), jnp.sum(rs * rs, -1), jnp.sum(rc * rs, -1)
-    c2 = require(c2, (jnp.any(c2 <= s2), "s: not a similitude versor"))
-    return rc, c2, 2.0 * jnp.arctanh(cs / c2)
+    return rc, c2, 2.0 * jnp.arctanh(cs / c2), c2 <= s2
 
 
 def similitude_motor_log_scale(s: Multivector) -> tuple[Multivector, Float[Array, "*batch"]]:
@@ -419,14 +424,22 @@ def similitude_motor_log_scale(s: Multivector) -> tuple[Multivector, Float[Array
         s: similitudes (motors, dilators, any scalar factor), batch shape (...).
     Returns:
         the motors, batch shape (...), and lam (...)."""
+    motors, lam, bad = similitude_motor_log_scale_unchecked(s)
+    return Multivector(require(motors.values, (bad, "s: not a similitude versor")), motors.blades), lam
+
+
+def similitude_motor_log_scale_unchecked(s: Multivector) -> tuple[Multivector, Float[Array, "*batch"], Array]:
+    """``similitude_motor_log_scale`` without its check, and where it fails (not a similitude versor: NaN there),
+    for callers that check once their result is computed (``deform.skin_cga_motor_blend``: on a GPU a check is a
+    host round trip)."""
     if not isinstance(s, Multivector) or not set(s.blades) <= set(KINDS["similitude"]):
         raise ValueError("s: expected a similitude Multivector (even blades)")
     s = s.embed(KINDS["similitude"])
-    rc, c2, lam = similitude_dilation(s)
+    rc, c2, lam, bad = _similitude_dilation_unchecked(s)
     # S's einf blades are k e^(-lam/2) times the unit motor's, and k cosh(lam/2) = sqrt(c2)
     moved = _components(s, _MOVED_ORIGIN) * (0.5 * (1.0 + jnp.exp(lam)))[..., None]
     inv = jax.lax.rsqrt(c2)[..., None]
-    return Multivector(jnp.concatenate([rc * inv, moved * inv], axis=-1), KINDS["motor"]), lam
+    return Multivector(jnp.concatenate([rc * inv, moved * inv], axis=-1), KINDS["motor"]), lam, bad
 
 
 def motor_to_dual_quaternion(m: Multivector) -> Float[Array, "... 8"]:

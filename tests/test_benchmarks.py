@@ -216,8 +216,9 @@ def test_bench_fem_times_the_cpu_chunks_and_restores_them():
 
 
 def test_compile_for_gpu_reads_loops_and_conditionals_of_compiled_code():
-    """``benchmarks/gpu/compile_for_gpu.py`` reads the host round trips from a compiled module: a conditional, a
-    loop of known trip count and one whose every iteration asks the host (here a CPU module, the same HLO text)."""
+    """``benchmarks/gpu/compile_for_gpu.py`` reads the host round trips from a compiled module: a conditional (and
+    whether work waits for it), a loop of known trip count and one whose every iteration asks the host (here a CPU
+    module, the same HLO text)."""
     import compile_for_gpu
     import jax.numpy as jnp
 
@@ -226,10 +227,17 @@ def test_compile_for_gpu_reads_loops_and_conditionals_of_compiled_code():
         x = jax.lax.while_loop(lambda y: y.sum() < 100, lambda y: y * 2 + jnp.cos(y), x)
         return jax.lax.cond(x.sum() > 0, lambda y: y + 1, lambda y: y - 1, x)
 
-    launches, conditionals, loops = compile_for_gpu.structure(jax.jit(program).lower(jnp.ones(5)).compile().as_text())
-    assert conditionals == 1 and launches >= 1
+    def checked_first(x):
+        return jnp.sin(jax.lax.cond(x.sum() > 0, lambda y: y + 1, lambda y: y - 1, x)) * x
+
+    launches, conditionals, waiting, loops = compile_for_gpu.structure(
+        jax.jit(program).lower(jnp.ones(5)).compile().as_text()
+    )
+    assert conditionals == 1 and waiting == 0 and launches >= 1  # the conditional is last: nothing waits for it
     assert [loop.trip_count for loop in loops] == [3, None]
     assert all(loop.launches >= 1 and loop.conditionals == 0 and not loop.loops for loop in loops)
+    first = compile_for_gpu.structure(jax.jit(checked_first).lower(jnp.ones(5)).compile().as_text())
+    assert first.conditionals == 1 and first.waiting == 1
 
 
 # a kernel that keeps 40 doubles in registers: ptxas reports its registers and no spills

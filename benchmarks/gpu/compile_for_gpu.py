@@ -34,6 +34,7 @@ import tempfile
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import NamedTuple
 
 import equinox as eqx
 import jax
@@ -98,6 +99,7 @@ class Program:
     compile_s: float
     launches: int  # outside loops, the branches of conditionals left out
     conditionals: int  # outside loops
+    waiting: int  # of those, the ones with launches or loops after them: the GPU idles while the host decides
     loops: list[Loop]
     host_calls: int  # on the GPU path
     checks: int  # runtime checks' failure branches (a host call each, run only when the check fails)
@@ -107,7 +109,8 @@ class Program:
         loops = "; ".join(_loop_text(loop) for loop in self.loops) or "none"
         triton = ", ".join(_triton_text(k, stats) for k, stats in self.triton.items()) or "none"
         return (
-            f"{self.name}: {self.launches} launches, {self.conditionals} conditionals (host round trips), "
+            f"{self.name}: {self.launches} launches, {self.conditionals} conditionals (host round trips; "
+            f"{self.waiting} before more work), "
             f"{self.host_calls} host calls, {self.checks} checks; loops: {loops}; Triton: {triton} "
             f"(compiled in {self.compile_s:.1f} s)"
         )
@@ -138,8 +141,16 @@ def computations(text: str) -> dict[str, list[str]]:
     return out
 
 
-def structure(text: str) -> tuple[int, int, list[Loop]]:
-    """(launches, conditionals, loops) of the entry computation of a compiled HLO module."""
+class Structure(NamedTuple):
+    launches: int
+    conditionals: int
+    waiting: int  # conditionals of the entry computation followed by launches or loops (in schedule order)
+    loops: list[Loop]
+
+
+def structure(text: str) -> Structure:
+    """The launches, conditionals and loops of the entry computation of a compiled HLO module (its text lists the
+    instructions in their schedule), and how many of its conditionals more work waits for."""
     comps = computations(text)
 
     def visit(name: str) -> tuple[int, int, list[Loop]]:
@@ -169,7 +180,17 @@ def structure(text: str) -> tuple[int, int, list[Loop]]:
                 launches += 1
         return launches, conditionals, loops
 
-    return visit("ENTRY")
+    launches, conditionals, loops = visit("ENTRY")
+    waiting = pending = 0
+    for line in comps["ENTRY"]:
+        match = _INSTRUCTION.match(line)
+        if not match:
+            continue
+        if match.group(2) == "conditional":
+            pending += 1
+        elif match.group(2) in ("while", "call") or match.group(2) not in _NO_LAUNCH:
+            waiting, pending = waiting + pending, 0
+    return Structure(launches, conditionals, waiting, loops)
 
 
 def ptxas_statistics(ptx_files: list[Path], kernels: set[str]) -> dict[str, tuple[int, int]]:
@@ -222,9 +243,9 @@ class Compiler:
             text = compiled.as_text()
             triton = set(re.findall(r'custom_call_target="__gpu\$xla\.gpu\.triton".*?name = "(\w+)"', text))
             stats = dict.fromkeys(triton) | ptxas_statistics(sorted(Path(dump).glob("*.ptx")), triton)
-        launches, conditionals, loops = structure(text)
+        launches, conditionals, waiting, loops = structure(text)
         checks = self.host_calls.pop(_checks._Fail.__name__, 0)
-        return Program(name, seconds, launches, conditionals, loops, sum(self.host_calls.values()), checks, stats)
+        return Program(name, seconds, launches, conditionals, waiting, loops, sum(self.host_calls.values()), checks, stats)
 
 
 def _kernel_programs(quick: bool):

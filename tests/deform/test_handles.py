@@ -168,3 +168,20 @@ def test_bad_input():
         motor_field_precompute(V, np.ones((len(V) - 1, 3)))
     with pytest.raises(ValueError, match="field"):
         motor_field_solve(FIELD.weights, identity_motors(3))
+
+
+def test_a_key_motor_without_a_norm_raises_eagerly_and_under_jit():
+    zero_key = cga.Multivector(identity_motors(3).values.at[1].set(0.0), "motor")
+    with pytest.raises(ValueError, match="key_motors: a key motor has non-positive norm"):
+        motor_field_solve(FIELD, zero_key)
+    with pytest.raises(RuntimeError, match="key_motors: a key motor has non-positive norm"):
+        jax.block_until_ready(jax.jit(motor_field_solve)(FIELD, zero_key))  # on a GPU: when the result is ready
+
+
+def test_the_key_motors_are_checked_on_the_positions():
+    # on a GPU a check is a host round trip; made on the result, the GPU has nothing left to run while it waits
+    jaxpr = jax.make_jaxpr(motor_field_solve)(FIELD, identity_motors(3)).jaxpr
+    last = jaxpr.eqns[-1]
+    assert "cond" in str(last.params), last.primitive
+    assert last.outvars == jaxpr.outvars
+    assert last.invars[0].aval.shape == V.shape  # the positions go through the check

@@ -294,6 +294,23 @@ def test_bad_input_is_named():
         deform.skin_pose(MODEL, deform.local_versors(MODEL.skeleton), "nope")
 
 
+
+def test_a_joint_versor_that_is_no_similitude_raises_eagerly_and_under_jit():
+    local = random_pose(3, B, scale_range=(0.5, 2.0))
+    joints = deform.joint_versors(MESH, deform.forward_kinematics(MODEL.skeleton.parents, local))
+    # its dilated rotor part (the eo^einf blades) outweighs its rotor part: no similitude R D has that
+    eoinf = joints.blades.index(cga.KINDS["similitude"][10])
+    bad = cga.Multivector(joints.values.at[1].set(0.0).at[1, eoinf].set(1.0), joints.blades)
+    V, J, W = MESH.V, MESH.J, MESH.W
+    with pytest.raises(ValueError, match="joint_versors: not similitude versors"):
+        deform.skin_cga_motor_blend(V, J, W, bad)
+    with pytest.raises(RuntimeError, match="joint_versors: not similitude versors"):
+        jax.block_until_ready(jax.jit(deform.skin_cga_motor_blend)(V, J, W, bad))  # on a GPU: when it is ready
+    # checked on the positions: on a GPU the check's host round trip then has nothing left to wait for
+    jaxpr = jax.make_jaxpr(deform.skin_cga_motor_blend)(V, J, W, joints).jaxpr
+    assert "cond" in str(jaxpr.eqns[-1].params) and jaxpr.eqns[-1].outvars == jaxpr.outvars
+    assert jaxpr.eqns[-1].invars[0].aval.shape == V.shape
+
 _RIGID_MODEL = random_model(12)
 _SKIN = {
     method: jax.jit(lambda local, m=method: deform.skin_pose(_RIGID_MODEL, local, m))
