@@ -240,6 +240,37 @@ def test_compile_for_gpu_reads_loops_and_conditionals_of_compiled_code():
     assert first.conditionals == 1 and first.waiting == 1
 
 
+# a thunk sequence as XLA dumps it for a GPU (shortened from an ARAP solve compiled for an H100)
+_THUNKS = """001: kCopy          [source       | next=021 (6)] kCopy
+003: kCustomKernel  [source       | next=004 (1)] input_reduce_fusion_5 grid: [14, 1, 1] threads: [256, 1, 1]
+007: kConditional   [prev=004 (1) | next=000 (1)]
+  false_branch:
+    005: kCustomKernel [source | sink] loop_broadcast_fusion grid: [149, 1, 1] threads: [128, 1, 1]
+  true_branch:
+    006: kCopy [source | sink] kCopy
+000: kCommandBuffer [prev=007 (1) | next=021 (1)]
+    008: kCustomKernel [source       | next=009 (1)] input_scatter_fusion_2 grid: [149, 1, 1] threads: [128, 1, 1]
+    009: kCustomKernel [prev=008 (1) | next=010 (1)] loop_subtract_fusion_3 grid: [2133, 1, 1] threads: [128, 1, 1]
+021: kWhile         [prev=000 (1) | sink        ]
+condition:
+    022: kCustomKernel [source | sink] loop_compare_fusion grid: [1, 1, 1] threads: [1, 1, 1]
+  body:
+    000: kCommandBuffer [source       | next=042 (1)]
+        023: kCopy         [source       | sink        ] kCopy
+        025: kCustomKernel [source       | sink        ] loop_add_fusion_10 grid: [1, 1, 1] threads: [1, 1, 1]
+    063: kCustomKernel  [prev=042 (1) | next=066 (1)] loop_not_fusion grid: [1, 1, 1] threads: [1, 1, 1]
+"""
+
+
+def test_compile_for_gpu_reads_cuda_graphs_from_the_thunk_sequence():
+    """Launches inside command buffers (CUDA graphs) and those made one by one; a conditional's branches (a
+    check's failure branch) are not counted."""
+    import compile_for_gpu
+
+    found = compile_for_gpu.graphs(_THUNKS)
+    assert (found.graphs, found.in_graphs, found.alone) == (2, 4, 4)
+
+
 # a kernel that keeps 40 doubles in registers: ptxas reports its registers and no spills
 _PTX = """.version 8.0
 .target sm_90a

@@ -103,6 +103,7 @@ class Program:
     loops: list[Loop]
     host_calls: int  # on the GPU path
     checks: int  # runtime checks' failure branches (a host call each, run only when the check fails)
+    graphs: Graphs | None  # how XLA's runtime launches the kernels (its thunk sequence); None where not dumped
     triton: dict[str, tuple[int, int] | None]  # kernel -> (registers, spill bytes) from ptxas; None without it
 
     def summary(self) -> str:
@@ -111,7 +112,8 @@ class Program:
         return (
             f"{self.name}: {self.launches} launches, {self.conditionals} conditionals (host round trips; "
             f"{self.waiting} before more work), "
-            f"{self.host_calls} host calls, {self.checks} checks; loops: {loops}; Triton: {triton} "
+            f"{self.host_calls} host calls, {self.checks} checks; loops: {loops}; Triton: {triton}; "
+            f"{self.graphs.summary() if self.graphs else 'no thunk sequence'} "
             f"(compiled in {self.compile_s:.1f} s)"
         )
 
@@ -193,6 +195,59 @@ def structure(text: str) -> Structure:
     return Structure(launches, conditionals, waiting, loops)
 
 
+@dataclasses.dataclass
+class Graphs:
+    """The launches (kernels, copies) of a program's thunk sequence (what XLA's GPU runtime executes), each counted
+    once (a loop's body too, a conditional's branches not): those inside command buffers, which run as CUDA graphs
+    (one launch for all of a graph's kernels), and those launched one by one. Conditionals and data-dependent loops
+    stay outside graphs."""
+
+    graphs: int
+    in_graphs: int
+    alone: int
+
+    def summary(self) -> str:
+        return f"thunks: {self.in_graphs} launches in {self.graphs} CUDA graphs, {self.alone} alone"
+
+
+# thunks that launch nothing themselves (their nested thunks are counted)
+_STRUCTURAL_THUNKS = {"kCommandBuffer", "kConditional", "kWhile", "kSequential", "kWaitForStreams"}
+_THUNK = re.compile(r"^(\s*)\d+: (k\w+)")
+
+
+def graphs(thunks: str) -> Graphs:
+    """``Graphs`` of a thunk sequence as XLA dumps it (``*.thunk_sequence_after_thunk_passes.txt``): one thunk a
+    line, ``NNN: kKind ...``, nested thunks indented below their command buffer, loop or conditional."""
+    count = in_graphs = alone = 0
+    around: list[tuple[int, str]] = []  # the command buffers and conditionals the current line may lie in
+    for line in thunks.splitlines():
+        match = _THUNK.match(line)
+        if not match:
+            continue
+        depth, kind = len(match.group(1)), match.group(2)
+        while around and depth <= around[-1][0]:
+            around.pop()
+        if any(k == "kConditional" for _, k in around):
+            continue  # a branch: the failure branch of a check runs only when it fails
+        if kind in ("kCommandBuffer", "kConditional"):
+            count += kind == "kCommandBuffer"
+            around.append((depth, kind))
+        elif kind not in _STRUCTURAL_THUNKS:
+            if around:
+                in_graphs += 1
+            else:
+                alone += 1
+    return Graphs(count, in_graphs, alone)
+
+
+def _read_graphs(dump: Path) -> Graphs | None:
+    for pattern in ("*.thunk_sequence_after_thunk_passes.txt", "*.thunk_sequence.txt"):
+        found = sorted(dump.glob(pattern))
+        if found:
+            return graphs(found[0].read_text())
+    return None
+
+
 def ptxas_statistics(ptx_files: list[Path], kernels: set[str]) -> dict[str, tuple[int, int]]:
     """(registers, spill store bytes) of the named kernels, from ``ptxas -v`` for sm_90a; {} without ptxas."""
     ptxas = shutil.which("ptxas")
@@ -243,9 +298,11 @@ class Compiler:
             text = compiled.as_text()
             triton = set(re.findall(r'custom_call_target="__gpu\$xla\.gpu\.triton".*?name = "(\w+)"', text))
             stats = dict.fromkeys(triton) | ptxas_statistics(sorted(Path(dump).glob("*.ptx")), triton)
+            thunks = _read_graphs(Path(dump))
         launches, conditionals, waiting, loops = structure(text)
         checks = self.host_calls.pop(_checks._Fail.__name__, 0)
-        return Program(name, seconds, launches, conditionals, waiting, loops, sum(self.host_calls.values()), checks, stats)
+        host_calls = sum(self.host_calls.values())
+        return Program(name, seconds, launches, conditionals, waiting, loops, host_calls, checks, thunks, stats)
 
 
 def _kernel_programs(quick: bool):

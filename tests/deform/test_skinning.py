@@ -294,7 +294,6 @@ def test_bad_input_is_named():
         deform.skin_pose(MODEL, deform.local_versors(MODEL.skeleton), "nope")
 
 
-
 def test_a_joint_versor_that_is_no_similitude_raises_eagerly_and_under_jit():
     local = random_pose(3, B, scale_range=(0.5, 2.0))
     joints = deform.joint_versors(MESH, deform.forward_kinematics(MODEL.skeleton.parents, local))
@@ -310,6 +309,7 @@ def test_a_joint_versor_that_is_no_similitude_raises_eagerly_and_under_jit():
     jaxpr = jax.make_jaxpr(deform.skin_cga_motor_blend)(V, J, W, joints).jaxpr
     assert "cond" in str(jaxpr.eqns[-1].params) and jaxpr.eqns[-1].outvars == jaxpr.outvars
     assert jaxpr.eqns[-1].invars[0].aval.shape == V.shape
+
 
 _RIGID_MODEL = random_model(12)
 _SKIN = {
