@@ -80,12 +80,6 @@ def _require_generator(name: str, b: Multivector, blades: tuple[int, ...], what:
         )
 
 
-def _scalar_p(s: Float[Array, "*batch"], p: Float[Array, "*batch"]) -> Multivector:
-    """The dual number s + p P as a multivector."""
-    s, p = jnp.broadcast_arrays(s, p)
-    return Multivector(jnp.stack([s, p], axis=-1), _SCALAR_P)
-
-
 def exp_motor(b: Multivector) -> Multivector:
     """Motor ``exp(B)`` of a bivector on {e12, e13, e23, e1inf, e2inf, e3inf}, closed form."""
     _require_generator("b", b, MOTOR_GENERATOR, "motor generator")
