@@ -88,6 +88,18 @@ def run_on_host_devices(script: str, devices: int = 4, timeout: int = 600) -> st
     return done.stdout
 
 
+def assert_checked_on_the_result(fn, *args) -> None:
+    """``fn(*args)``'s runtime check is its last operation, made on its (single) result: on a GPU the check's host
+    round trip then has nothing left to launch while it waits."""
+    import jax
+
+    jaxpr = jax.make_jaxpr(fn)(*args).jaxpr
+    last = jaxpr.eqns[-1]
+    assert "cond" in str(last.params), last.primitive
+    assert last.outvars == jaxpr.outvars
+    assert last.invars[0].aval.shape == jaxpr.outvars[0].aval.shape  # the result goes through the check
+
+
 def lowered_operations(fn, args, platform: str) -> collections.Counter:
     """The StableHLO operations of ``jax.jit(fn)`` on ``args`` lowered for ``platform`` (which need not be
     present), less a conditional's own (``case``, ``return``, ``constant``)."""
