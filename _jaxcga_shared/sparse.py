@@ -49,6 +49,7 @@ DEVICE_RTOL = 1e-12
 DEVICE_MAX_ITERATIONS = 1000  # the multigrid CG took 30 to 70 to 1e-12 on the meshes of the tests and benchmarks
 # CG iterations between two convergence checks (``preconditioned_cg``): the FEM Newton solves run ~150 cheap ones
 CG_CHECK_EVERY = 4
+MULTIGRID_CG_CHECK_EVERY = 2  # the fixed systems' multigrid CG: ~30 dearer iterations (``SparseSolver.device_solve``)
 
 
 class BlockLayout(eqx.Module):
@@ -547,9 +548,9 @@ class SparseSolver:
             self.device_rtol,
             DEVICE_MAX_ITERATIONS,
             x0=x0,
-            # a check after every iteration: ~30 iterations of ~30 kernels each, where the masked iterations after
-            # convergence would cost about what the checks do
-            check_every=1,
+            # ~30 iterations of ~150 us: checking every 2 saves ~15 round trips (10-30 us each) for half an iteration
+            # of masked work on average; every 4 pays only if a round trip costs over ~20 us
+            check_every=MULTIGRID_CG_CHECK_EVERY,
         )
         return require(x, (~info.converged, _not_converged("A", str(DEVICE_MAX_ITERATIONS))))
 
