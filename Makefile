@@ -4,7 +4,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test test-slow lint bench bench-gpu gpu-programs install clean
+.PHONY: demo test test-gpu-variants test-slow lint bench bench-gpu gpu-programs install clean
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -21,6 +21,11 @@ demo: $(STAMP)
 ## Run every test on two workers (pytest-xdist; CI has two cores), except those marked slow and the notebooks.
 test: $(STAMP)
 	$(PY) -m pytest -n 2 -m "not slow" tests
+
+## The fast tests again with every per-platform kernel's GPU formulation taken on the CPU (tests/conftest.py,
+## --gpu-variants): the arithmetic of what a GPU runs, checked without one (CI runs it).
+test-gpu-variants: $(STAMP)
+	$(PY) -m pytest -n 2 -m "not slow" --gpu-variants tests
 
 ## The second CI job: the tests marked slow (benchmark smoke runs, compile-heavy gradient and fitting checks)
 ## and the notebooks, executed.

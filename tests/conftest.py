@@ -1,6 +1,11 @@
 """Tests run in float64 with strict dtype promotion (DESIGN.md "Style"). A test marked
 ``@pytest.mark.host("why")`` needs the host by nature and is skipped, with that reason, where JAX's default
-backend is not the CPU (README.md, "On a GPU")."""
+backend is not the CPU (README.md, "On a GPU").
+
+``pytest --gpu-variants`` takes every per-platform kernel's GPU formulation on the CPU (the non-CPU branch of each
+``jax.lax.platform_dependent``): the suite then checks the arithmetic of the code a GPU runs, without a GPU. Tests
+marked ``@pytest.mark.cpu_formulation("why")`` check the CPU formulations themselves and are skipped with that
+reason wherever the GPU formulations run; the ``running_variant`` fixture names the one that runs."""
 
 import os
 
@@ -11,15 +16,41 @@ os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
 import jax  # noqa: E402
 import pytest  # noqa: E402
 
-from tests.shared import host_skip_reason  # noqa: E402
+from tests.shared import cpu_formulation_skip_reason, gpu_branches, host_skip_reason  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_dtype_promotion", "strict")
 
 
+def pytest_addoption(parser):
+    parser.addoption(
+        "--gpu-variants",
+        action="store_true",
+        help="take the GPU formulation of every per-platform kernel on the CPU (make test-gpu-variants)",
+    )
+
+
+def pytest_configure(config):
+    if config.getoption("--gpu-variants"):
+        jax.lax.platform_dependent = gpu_branches(jax.lax.platform_dependent)
+
+
+def _gpu_formulations(config) -> bool:
+    return jax.default_backend() != "cpu" or config.getoption("--gpu-variants")
+
+
 def pytest_collection_modifyitems(config, items):
     backend = jax.default_backend()
     for item in items:
-        reason = host_skip_reason(item.get_closest_marker("host"), backend)
-        if reason is not None:
-            item.add_marker(pytest.mark.skip(reason=reason))
+        for reason in (
+            host_skip_reason(item.get_closest_marker("host"), backend),
+            cpu_formulation_skip_reason(item.get_closest_marker("cpu_formulation"), _gpu_formulations(config)),
+        ):
+            if reason is not None:
+                item.add_marker(pytest.mark.skip(reason=reason))
+
+
+@pytest.fixture
+def running_variant(request) -> str:
+    """The per-platform kernels' variant that runs here: "gpu" on a GPU or under ``--gpu-variants``, else "cpu"."""
+    return "gpu" if _gpu_formulations(request.config) else "cpu"

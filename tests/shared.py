@@ -1,6 +1,7 @@
 """Helpers shared by the test packages: a flat grid mesh, a closed tube mesh, a finite-difference gradient check,
 the comparison of two runs of one computation (bitwise on the CPU), a script run on forced host devices, the
-skip of a test that needs the host (conftest.py), and the operations of a program lowered for another platform."""
+skips of tests that need the host or the CPU formulations and the GPU formulations taken on the CPU (conftest.py),
+and the operations of a program lowered for another platform."""
 
 from __future__ import annotations
 
@@ -63,6 +64,32 @@ def host_skip_reason(marker, backend: str) -> str | None:
     if len(marker.args) != 1 or not isinstance(marker.args[0], str) or not marker.args[0].strip():
         raise ValueError(f"@pytest.mark.host: expected one reason, got {marker.args!r}")
     return None if backend == "cpu" else f"needs the host ({backend} backend): {marker.args[0]}"
+
+
+def cpu_formulation_skip_reason(marker, gpu_formulations: bool) -> str | None:
+    """Why a test marked ``@pytest.mark.cpu_formulation("why")`` (it checks what the CPU formulations do: their
+    lowering, their host calls) is skipped where the GPU formulations run (None: it runs). A mark without its
+    reason is an error."""
+    if marker is None:
+        return None
+    if len(marker.args) != 1 or not isinstance(marker.args[0], str) or not marker.args[0].strip():
+        raise ValueError(f"@pytest.mark.cpu_formulation: expected one reason, got {marker.args!r}")
+    return f"checks the CPU formulation, not run here: {marker.args[0]}" if gpu_formulations else None
+
+
+def gpu_branches(platform_dependent):
+    """``jax.lax.platform_dependent`` that takes the non-CPU branch on the CPU (``pytest --gpu-variants``): the
+    CPU branch is kept as TPU's, a platform never lowered for here, so traces still hold every branch."""
+
+    @functools.wraps(platform_dependent)
+    def taking_the_gpu_branch(*args, default=None, **per_platform):
+        if "cpu" in per_platform:
+            if "tpu" in per_platform:
+                raise ValueError("per_platform: a TPU branch leaves no platform to keep the CPU branch under")
+            per_platform["tpu"] = per_platform.pop("cpu")
+        return platform_dependent(*args, default=default, **per_platform)
+
+    return taking_the_gpu_branch
 
 
 def run_on_host_devices(script: str, devices: int = 4, timeout: int = 600) -> str:

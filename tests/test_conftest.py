@@ -1,9 +1,12 @@
-"""The ``host`` mark (tests/conftest.py): a test that needs the host is skipped with its reason on a GPU, runs on
-the CPU, and a mark without a reason is an error."""
+"""The marks and options of tests/conftest.py: a test that needs the host is skipped with its reason on a GPU and
+runs on the CPU; one that checks the CPU formulations is skipped where the GPU formulations run; a mark without a
+reason is an error; ``--gpu-variants`` takes the GPU formulations on the CPU."""
 
+import jax
+import jax.numpy as jnp
 import pytest
 
-from tests.shared import host_skip_reason
+from tests.shared import cpu_formulation_skip_reason, gpu_branches, host_skip_reason
 
 
 def test_a_host_test_is_skipped_with_its_reason_off_the_cpu():
@@ -17,3 +20,28 @@ def test_a_host_test_is_skipped_with_its_reason_off_the_cpu():
 def test_a_host_mark_needs_one_reason(args):
     with pytest.raises(ValueError, match="expected one reason"):
         host_skip_reason(pytest.mark.host(*args).mark, "gpu")
+
+
+def test_a_cpu_formulation_test_is_skipped_with_its_reason_where_the_gpu_formulations_run():
+    mark = pytest.mark.cpu_formulation("a lowering for the CPU holds barriers").mark
+    assert cpu_formulation_skip_reason(mark, False) is None
+    assert cpu_formulation_skip_reason(mark, True) == (
+        "checks the CPU formulation, not run here: a lowering for the CPU holds barriers"
+    )
+    assert cpu_formulation_skip_reason(None, True) is None
+    with pytest.raises(ValueError, match="cpu_formulation: expected one reason"):
+        cpu_formulation_skip_reason(pytest.mark.cpu_formulation().mark, True)
+
+
+def test_gpu_variants_take_the_other_branch_on_the_cpu_and_keep_both_in_the_trace(monkeypatch):
+    """``--gpu-variants`` (conftest.py): eagerly and jitted the non-CPU branch runs; the jaxpr still holds both."""
+    monkeypatch.setattr(jax.lax, "platform_dependent", gpu_branches(jax.lax.platform_dependent))
+
+    def f(x):
+        return jax.lax.platform_dependent(x, cpu=lambda x: x + 1.0, default=lambda x: x + 2.0)
+
+    x = jnp.zeros(())
+    assert float(f(x)) == float(jax.jit(f)(x)) == 2.0
+    assert str(jax.make_jaxpr(f)(x)).count("add") == 2
+    with pytest.raises(ValueError, match="per_platform: a TPU branch"):
+        jax.lax.platform_dependent(x, cpu=lambda x: x, tpu=lambda x: x, default=lambda x: x)

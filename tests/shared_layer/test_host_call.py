@@ -97,6 +97,7 @@ def test_host_call_after_a_scatter_runs_on_one_core():
     assert got == expected
 
 
+@pytest.mark.cpu_formulation("the CPU solves on the host; a GPU solves on the device")
 def test_the_newton_solve_and_the_sparse_solver_use_host_call():
     """XFEM's Newton solve and deform's sparse solver hand their host functions numpy arrays (``host_call``)."""
     import scipy.sparse as sp

@@ -1,6 +1,7 @@
 """Every kernel with per-platform formulations (``_jaxcga_shared.platform``): on the CPU, the GPU variant
 computes what the CPU variant computes (values and vector-Jacobian products, float64 and float32), the
-dispatch picks the CPU variant on the CPU, and a lowering for CUDA holds the GPU variant (no barriers)."""
+dispatch picks the running backend's variant (the GPU's under ``--gpu-variants``), and a lowering for CUDA holds
+the GPU variant (no barriers)."""
 
 import functools
 
@@ -101,17 +102,18 @@ def test_gpu_variant_equals_cpu_variant(name, dtype):
 
 
 @pytest.mark.parametrize("name", KERNELS)
-def test_dispatch_is_the_backends_variant(name):
+def test_dispatch_is_the_backends_variant(name, running_variant):
     """Bit for bit: the conditional is resolved at lowering and leaves the code of the backend's variant (the CPU
-    variant in CI, the GPU variant where the suite runs on a GPU)."""
+    variant in CI, the GPU variant where the suite runs on a GPU or with ``--gpu-variants``)."""
     kernel = PLATFORM_KERNELS[name]
-    variant = kernel.variants["cpu" if jax.default_backend() == "cpu" else "gpu"]
+    variant = kernel.variants[running_variant]
     for args, static in kernel.examples():
         got, expected = (_jitted(f, static)(*args) for f in (kernel, variant))
         for g, e in zip(jax.tree.leaves(got), jax.tree.leaves(expected)):
             np.testing.assert_array_equal(g, e)
 
 
+@pytest.mark.cpu_formulation("a lowering for the CPU holds the CPU variant")
 @needs_cuda_lowering
 @pytest.mark.parametrize("name", KERNELS)
 def test_lowering_picks_the_platform_variant(name):
@@ -154,6 +156,7 @@ def _public_calls():
     }
 
 
+@pytest.mark.cpu_formulation("the CPU formulations' barriers")
 @needs_cuda_lowering
 @pytest.mark.parametrize("case", sorted(_public_calls()))
 def test_public_functions_lowered_for_cuda_have_no_barriers(case):
@@ -164,7 +167,7 @@ def test_public_functions_lowered_for_cuda_have_no_barriers(case):
     assert lowered_operations(fn, args, "cuda")["optimization_barrier"] == 0
 
 
-def test_static_options_and_transformations_pass_through():
+def test_static_options_and_transformations_pass_through(running_variant):
     """Keyword options are bound to both formulations; vmap and grad go through the choice."""
     calls = []
 
@@ -180,7 +183,7 @@ def test_static_options_and_transformations_pass_through():
     try:
         x = jnp.arange(1.0, 4.0)
         np.testing.assert_allclose(kernel(x, 2.0, power=3), 2 * x**3)
-        assert calls == ["cpu"]  # outside jit the platform is known: one formulation runs
+        assert calls == [running_variant]  # outside jit the platform is known: one formulation runs
         np.testing.assert_allclose(jax.vmap(lambda a: kernel(a, 2.0, power=3))(x), 2 * x**3)
         np.testing.assert_allclose(jax.jit(jax.grad(lambda a: kernel(a, 2.0, power=3)))(1.5), 6 * 1.5**2)
         with pytest.raises(ValueError, match="name: a platform kernel named 'test.power'"):
@@ -189,7 +192,7 @@ def test_static_options_and_transformations_pass_through():
         del PLATFORM_KERNELS["test.power"]
 
 
-def test_flag_form_binds_cpu():
+def test_flag_form_binds_cpu(running_variant):
     @per_platform("test.flag", examples=list)
     def kernel(x, *, cpu: bool):
         """Doubles on the CPU, triples elsewhere."""
@@ -197,7 +200,8 @@ def test_flag_form_binds_cpu():
 
     try:
         assert kernel.__doc__ == "Doubles on the CPU, triples elsewhere."
-        assert float(jax.jit(kernel)(1.0)) == 2.0
+        assert float(jax.jit(kernel)(1.0)) == {"cpu": 2.0, "gpu": 3.0}[running_variant]
+        assert float(kernel.variants["cpu"](1.0)) == 2.0
         assert float(kernel.variants["gpu"](1.0)) == 3.0
     finally:
         del PLATFORM_KERNELS["test.flag"]

@@ -341,6 +341,7 @@ def test_in_chunks_visits_every_row_once():
             assert float(_in_chunks(count, _Chunks(chunk, chunk), add_chunk, jnp.zeros(()))) == count * (count + 1) / 2
 
 
+@pytest.mark.cpu_formulation("a lowering for the CPU loops over chunks")
 @needs_cuda_lowering
 def test_element_chunks_are_the_cpus_only(monkeypatch):
     """The step's sums over elements and mass entries loop over chunks when lowered for the CPU and take every
