@@ -10,7 +10,8 @@ matrix is reassembled every iteration). Two paths, chosen when the computation i
   symmetric positive definite matrices and SuperLU (scipy) otherwise (``factorize``, ``host_direct``); the
   Jacobi-preconditioned CG compiled by numba without the GIL (``host_pcg``, ``_jaxcga_shared.pcg``) for the
   large FEM Newton systems.
-* GPU (and every platform other than the CPU): a preconditioned conjugate gradient in JAX, no copy to the host.
+* GPU (and every platform other than the CPU): a preconditioned conjugate gradient in JAX, no copy to the host
+  (small traced systems, up to ``spd_solve``'s ``dense_up_to`` unknowns, by a dense Cholesky factorization).
   Traced values (``device_pcg``): the matrix-vector product is one ``jax.ops.segment_sum`` over the CSR entries,
   or, for a matrix of full 3 x 3 node blocks (the FEM systems), over its blocks: a ninth of the indices and a
   third of the scatter's adds; the preconditioner the inverse of the diagonal, or of the diagonal 3 x 3 blocks
@@ -421,13 +422,29 @@ def _on_host(host, pattern, data, b, rtol):
     return host_call(host, jax.ShapeDtypeStruct(b.shape, b.dtype), data, b, rtol, pattern.indptr, pattern.indices)
 
 
-def _on_device(host, max_iterations, on_failure, what, pattern, data, b, rtol):
-    if on_failure == "error":
-        return checked_device_pcg(pattern, data, b, rtol, max_iterations, what=what)
-    x, info = device_pcg(pattern, data, b, rtol, max_iterations)
-    if on_failure == "accept":
-        return jnp.where(info.breakdown & (info.iterations == 0), jnp.nan, x)  # not positive definite at all
-    return jax.lax.cond(info.converged, lambda: x, lambda: _on_host(host, pattern, data, b, rtol))
+def dense_cholesky_solve(pattern: CSRPattern, data, b):
+    """``A^-1 b`` by a dense Cholesky factorization of the CSR system (pattern, data), for systems small enough
+    that one factorization costs less than CG's iterations, and whether A is positive definite (its factor is
+    finite; where it is not, x is NaN)."""
+    # padding entries sit in row n, dropped with it
+    A = jnp.zeros((pattern.n + 1, pattern.n), data.dtype).at[pattern.rows, pattern.indices].add(data)[:-1]
+    L = jnp.linalg.cholesky(A, symmetrize_input=False)
+    return jax.scipy.linalg.cho_solve((L, True), b), jnp.all(jnp.isfinite(L))
+
+
+def _on_device(host, max_iterations, on_failure, what, dense_up_to, pattern, data, b, rtol):
+    def iterative():
+        if on_failure == "error":
+            return checked_device_pcg(pattern, data, b, rtol, max_iterations, what=what)
+        x, info = device_pcg(pattern, data, b, rtol, max_iterations)
+        if on_failure == "accept":
+            return jnp.where(info.breakdown & (info.iterations == 0), jnp.nan, x)  # not positive definite at all
+        return jax.lax.cond(info.converged, lambda: x, lambda: _on_host(host, pattern, data, b, rtol))
+
+    if pattern.n > dense_up_to:
+        return iterative()
+    x, positive = dense_cholesky_solve(pattern, data, b)
+    return jax.lax.cond(positive, lambda: x, iterative)  # not positive definite: CG, as the CPU after CHOLMOD
 
 
 def spd_solve(
@@ -440,23 +457,28 @@ def spd_solve(
     max_iterations=None,
     on_failure: str = "error",
     what: str = "A",
+    dense_up_to: int = 0,
 ):
     """Solve the symmetric positive definite CSR system (pattern, data) for b (n,) from traced code.
 
     CPU: ``host(data, b, rtol, indptr, indices)`` through ``host_call`` (numpy arrays; by default
-    ``host_direct``, which has no use for rtol). Elsewhere: ``device_pcg`` to ``rtol``; when it falls short,
-    ``on_failure`` decides: ``"error"`` (a runtime check naming ``what``), ``"host"`` (``host`` on the host,
-    as the CPU does) or ``"accept"`` (the iterate: an inexact Newton direction, as the host CG's after its n
-    iterations). Not differentiable (the callers differentiate implicitly)."""
+    ``host_direct``, which has no use for rtol). Elsewhere: a system of at most ``dense_up_to`` unknowns by
+    ``dense_cholesky_solve`` (exact, as a host that factorizes systems that small), a larger one, or one that is not
+    positive definite, by ``device_pcg`` to ``rtol``; when CG falls short, ``on_failure`` decides: ``"error"`` (a
+    runtime check naming ``what``), ``"host"`` (``host`` on the host, as the CPU does) or ``"accept"`` (the
+    iterate: an inexact Newton direction, as the host CG's after its n iterations). Not differentiable (the
+    callers differentiate implicitly)."""
     if on_failure not in ("error", "host", "accept"):
         raise ValueError(f"on_failure: expected 'error', 'host' or 'accept', got {on_failure!r}")
+    if int(dense_up_to) != dense_up_to or dense_up_to < 0:
+        raise ValueError(f"dense_up_to: expected an int >= 0, got {dense_up_to!r}")
     return jax.lax.platform_dependent(
         pattern,
         data,
         b,
         jnp.asarray(rtol, b.dtype),
         cpu=functools.partial(_on_host, host),
-        default=functools.partial(_on_device, host, max_iterations, on_failure, what),
+        default=functools.partial(_on_device, host, max_iterations, on_failure, what, int(dense_up_to)),
     )
 
 
@@ -477,11 +499,21 @@ def _spd_examples() -> list[Example]:
 SPD_SOLVE = PerPlatform(
     "sparse_spd_solve",
     cpu=functools.partial(_on_host, _direct),
-    gpu=functools.partial(_on_device, _direct, None, "error", "A"),
+    gpu=functools.partial(_on_device, _direct, None, "error", "A", 0),
     examples=_spd_examples,
     differentiated=False,
     float32=False,
 )  # CHOLMOD is float64; gradients: tests/shared_layer/test_sparse.py
+
+# and with its small systems factorized densely off the CPU (``dense_up_to``, the FEM Newton systems')
+SPD_SOLVE_DENSE = PerPlatform(
+    "sparse_spd_solve_dense",
+    cpu=functools.partial(_on_host, _direct),
+    gpu=functools.partial(_on_device, _direct, None, "error", "A", 1 << 30),
+    examples=_spd_examples,
+    differentiated=False,
+    float32=False,
+)
 
 
 # ---------------------------------------------------------------------------------------------------------

@@ -26,7 +26,8 @@ Jacobi-preconditioned CG on the host (``host_pcg``, compiled by numba without th
 factorization is slow on large systems, and CG in JAX pays XLA's CPU gathers and scatters in every matrix-vector
 product. Small systems are the exception: up to ``_DIRECT_DOFS`` = 1,000 unknowns one CHOLMOD factorization costs
 less than CG's iterations, and the step solves exactly (``_host_newton_direction``). On a GPU, CG in JAX on the
-device, preconditioned by the inverse 3 x 3 node blocks (``device_pcg``): no copy to the host and back.
+device, preconditioned by the inverse 3 x 3 node blocks (``device_pcg``): no copy to the host and back; up to
+``_DIRECT_DOFS`` unknowns a dense Cholesky factorization on the device, exact as on the CPU.
 CG's Newton direction is solved to a relative residual of 1e-4 (an inexact Newton step: a tighter residual costs
 more iterations and moves the positions by a small fraction of the displacement); after n iterations the iterate
 is taken as it is (it still decreases the quadratic model, so it remains a descent direction).
@@ -34,8 +35,9 @@ With ``tolerance`` the relative residual is tightened to ``|grad E| / |grad E at
 to 1e-11), so that Newton converges superlinearly where the projection of the element Hessians is inactive
 near the solution (where it is active, projected Newton converges linearly). The adjoint solve of the
 gradients (below) must be accurate: it uses CHOLMOD (scipy's SuperLU when the true Hessian is not positive
-definite), or above ``_DIRECT_DOFS`` unknowns CG to a relative residual of 1e-10, checked; on a GPU the device
-CG to 1e-10, and the host's solve where it falls short.
+definite), or above ``_DIRECT_DOFS`` unknowns CG to a relative residual of 1e-10, checked; on a GPU the dense
+Cholesky factorization up to ``_DIRECT_DOFS`` unknowns, above them the device CG to 1e-10, and the host's solve
+where either falls short.
 
 Memory. The energy, its gradient and the Newton matrix are summed over chunks of elements (and M d over
 chunks of mass entries, ``_in_chunks``), so that a step's temporaries stay small enough for glibc to reuse
@@ -337,9 +339,19 @@ def _host_newton_direction(data, rhs, rtol, indptr, indices):
 
 def _solve(host, pattern: AssemblyPattern, data, rhs, rtol, on_failure: str):
     """The reduced system's solution (``_jaxcga_shared.sparse.spd_solve``): on the CPU ``host(data, rhs, rtol,
-    indptr, indices)`` on the host, with numpy arrays (``host_call``); on a GPU block-Jacobi PCG on the device to
-    rtol, ``on_failure`` saying what an unconverged one gives."""
-    x = spd_solve(pattern.csr, data, rhs, rtol, host=host, on_failure=on_failure, what="the Newton system")
+    indptr, indices)`` on the host, with numpy arrays (``host_call``); on a GPU a dense Cholesky factorization up to
+    ``_DIRECT_DOFS`` unknowns, block-Jacobi PCG on the device to rtol above, ``on_failure`` saying what an
+    unconverged one gives."""
+    x = spd_solve(
+        pattern.csr,
+        data,
+        rhs,
+        rtol,
+        host=host,
+        on_failure=on_failure,
+        what="the Newton system",
+        dense_up_to=_DIRECT_DOFS,
+    )
     return require(x, (~jnp.all(jnp.isfinite(x)), "the Newton system is singular or the state is not finite"))
 
 

@@ -224,6 +224,42 @@ def test_singular_indefinite_and_unconverged_systems_are_reported():
         csr_pattern(A.indptr, A.indices, block=3)
 
 
+def test_small_systems_are_factorized_densely_off_the_cpu():
+    """``dense_up_to``: a system that small is solved exactly on the device (padding entries past its last row
+    included), without a host call; one that is not positive definite goes to CG as before (an error, or the host's
+    solve where asked)."""
+    A = _node_block_matrix(12)
+    padding = 9
+    indices = np.concatenate([A.indices, np.zeros(padding, A.indices.dtype)])
+    data = jnp.asarray(np.concatenate([A.data, np.full(padding, 5.0)]))
+    pattern = csr_pattern(A.indptr, indices, block=3)
+    b = np.random.default_rng(12).normal(size=A.shape[0])
+    exact = np.linalg.solve(A.toarray(), b)
+    with _device_path() as host_calls:
+        dense = np.asarray(jax.jit(lambda d, r: spd_solve(pattern, d, r, 1e-4, dense_up_to=A.shape[0]))(data, b))
+        iterative = np.asarray(
+            jax.jit(lambda d, r: spd_solve(pattern, d, r, 1e-4, dense_up_to=A.shape[0] - 1))(data, b)
+        )
+    assert host_calls == []
+    np.testing.assert_allclose(dense, exact, rtol=0, atol=1e-12 * np.abs(exact).max())
+    assert np.abs(iterative - exact).max() > 1e-8 * np.abs(exact).max()  # CG to 1e-4: the other path ran
+
+    indefinite = sp.csr_matrix(np.array([[1.0, 2.0, 0.0], [2.0, 1.0, 0.0], [0.0, 0.0, 3.0]]))
+    pattern = csr_pattern(indefinite.indptr, indefinite.indices)
+    data, rhs = jnp.asarray(indefinite.data), jnp.asarray([1.0, -2.0, 3.0])
+    with _device_path():
+        with pytest.raises(
+            (eqx.EquinoxRuntimeError, jax.errors.JaxRuntimeError),
+            match="A: the conjugate gradient did not reach its tolerance",
+        ):
+            eqx.filter_jit(lambda d, r: spd_solve(pattern, d, r, 1e-10, dense_up_to=3))(data, rhs).block_until_ready()
+        fallback = jax.jit(lambda d, r: spd_solve(pattern, d, r, 1e-10, on_failure="host", dense_up_to=3))(data, rhs)
+    np.testing.assert_allclose(np.asarray(fallback), np.linalg.solve(indefinite.toarray(), rhs), rtol=1e-12)
+    for bad in (-1, 2.5):
+        with pytest.raises(ValueError, match="dense_up_to: expected an int >= 0"):
+            spd_solve(pattern, data, rhs, 1e-10, dense_up_to=bad)
+
+
 def _node_block_matrix(seed: int, nodes: int = 9, block: int = 3) -> sp.csr_matrix:
     """A symmetric positive definite matrix of full ``block`` x ``block`` blocks on a random node graph, with
     rows of different lengths (an FEM system's structure)."""

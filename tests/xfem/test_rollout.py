@@ -163,6 +163,7 @@ def test_one_newton_iteration_gives_the_converged_formula_at_the_executed_iterat
     assert 1e-4 < difference < 1e-2, difference
 
 
+@pytest.mark.cpu_formulation("counts the host's Newton and adjoint solves; a GPU solves on the device")
 @pytest.mark.slow  # a rollout and its gradient compiled for a mesh of their own: ~25 s on the shared 2 cores
 def test_reverse_pass_reruns_no_newton_iteration(monkeypatch):
     """Checkpointing keeps each step's Newton result: the gradient of a 4-step rollout runs 4 Newton solves (the
