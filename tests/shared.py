@@ -59,22 +59,25 @@ def assert_same_run(actual, expected, atol: float):
 def host_skip_reason(marker, backend: str) -> str | None:
     """Why a test marked ``@pytest.mark.host("why")`` is skipped on ``backend`` (None: it runs; on the CPU it
     always does). A mark without its reason is an error."""
-    if marker is None:
-        return None
-    if len(marker.args) != 1 or not isinstance(marker.args[0], str) or not marker.args[0].strip():
-        raise ValueError(f"@pytest.mark.host: expected one reason, got {marker.args!r}")
-    return None if backend == "cpu" else f"needs the host ({backend} backend): {marker.args[0]}"
+    reason = _mark_reason(marker)
+    return None if reason is None or backend == "cpu" else f"needs the host ({backend} backend): {reason}"
 
 
 def cpu_formulation_skip_reason(marker, gpu_formulations: bool) -> str | None:
     """Why a test marked ``@pytest.mark.cpu_formulation("why")`` (it checks what the CPU formulations do: their
     lowering, their host calls) is skipped where the GPU formulations run (None: it runs). A mark without its
     reason is an error."""
+    reason = _mark_reason(marker)
+    return None if reason is None or not gpu_formulations else f"checks the CPU formulation, not run here: {reason}"
+
+
+def _mark_reason(marker) -> str | None:
+    """The one reason a skip mark (``host``, ``cpu_formulation``) must give; None without the mark."""
     if marker is None:
         return None
     if len(marker.args) != 1 or not isinstance(marker.args[0], str) or not marker.args[0].strip():
-        raise ValueError(f"@pytest.mark.cpu_formulation: expected one reason, got {marker.args!r}")
-    return f"checks the CPU formulation, not run here: {marker.args[0]}" if gpu_formulations else None
+        raise ValueError(f"@pytest.mark.{marker.name}: expected one reason, got {marker.args!r}")
+    return marker.args[0]
 
 
 def gpu_branches(platform_dependent):
