@@ -80,16 +80,20 @@ def _mark_reason(marker) -> str | None:
     return marker.args[0]
 
 
-def gpu_branches(platform_dependent):
+def gpu_branches(platform_dependent, *, keep_cpu: bool = True):
     """``jax.lax.platform_dependent`` that takes the non-CPU branch on the CPU (``pytest --gpu-variants``): the
-    CPU branch is kept as TPU's, a platform never lowered for here, so traces still hold every branch."""
+    CPU branch is kept as TPU's, a platform never lowered for here, so traces still hold every branch; or, with
+    ``keep_cpu=False``, dropped (nothing of it is traced)."""
 
     @functools.wraps(platform_dependent)
     def taking_the_gpu_branch(*args, default=None, **per_platform):
         if "cpu" in per_platform:
+            cpu = per_platform.pop("cpu")
+            if not keep_cpu:
+                return platform_dependent(*args, default=default, **per_platform)
             if "tpu" in per_platform:
                 raise ValueError("per_platform: a TPU branch leaves no platform to keep the CPU branch under")
-            per_platform["tpu"] = per_platform.pop("cpu")
+            per_platform["tpu"] = cpu
         return platform_dependent(*args, default=default, **per_platform)
 
     return taking_the_gpu_branch

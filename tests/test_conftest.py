@@ -43,5 +43,11 @@ def test_gpu_variants_take_the_other_branch_on_the_cpu_and_keep_both_in_the_trac
     x = jnp.zeros(())
     assert float(f(x)) == float(jax.jit(f)(x)) == 2.0
     assert str(jax.make_jaxpr(f)(x)).count("add") == 2
+    dropping = gpu_branches(jax.lax.platform_dependent, keep_cpu=False)
+    assert float(jax.jit(lambda x: dropping(x, cpu=lambda x: x + 1.0, default=lambda x: x + 2.0))(x)) == 2.0
+    assert (
+        str(jax.make_jaxpr(lambda x: dropping(x, cpu=lambda x: x + 1.0, default=lambda x: x + 2.0))(x)).count("add")
+        == 1
+    )
     with pytest.raises(ValueError, match="per_platform: a TPU branch"):
         jax.lax.platform_dependent(x, cpu=lambda x: x, tpu=lambda x: x, default=lambda x: x)
