@@ -33,7 +33,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 import jaxcga as cga
 from _jaxcga_shared import pallas_rows
-from _jaxcga_shared.checks import check_vectors, require
+from _jaxcga_shared.checks import check_vectors, require_around
 from _jaxcga_shared.platform import EXACT, PerPlatform, example
 from jaxcga import KINDS, MOTOR_GENERATOR, Multivector
 from jaxcga._exp_log import exp_motor_columns, log_motor_unchecked
@@ -119,9 +119,13 @@ def motor_field_solve(field: MotorField, key_motors: Multivector) -> Float[Array
         raise ValueError(f"field: expected a MotorField, got {type(field).__name__}")
     weights = field.weights
     logs, bad = log_motor_unchecked(_check_key_motors("key_motors", key_motors, weights.shape[1]))
-    positions = _deform(weights, field.bound.astype(weights.dtype), logs.values.astype(weights.dtype))
-    # checked last: on a GPU the check's round trip then waits for nothing but the result
-    return require(positions, (bad, "key_motors: a key motor has non-positive norm M~M"))
+    bound = field.bound.astype(weights.dtype)
+    # the check on the logarithms on the CPU, on the positions on a GPU (its host round trip waits only for them)
+    return require_around(
+        lambda logs: _deform(weights, bound, logs),
+        logs.values.astype(weights.dtype),
+        (bad, "key_motors: a key motor has non-positive norm M~M"),
+    )
 
 
 def _deform_in_rows(weights, bound, logs):

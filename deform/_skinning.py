@@ -38,7 +38,7 @@ from jaxtyping import Array, ArrayLike, Float, Int
 
 import jaxcga as cga
 from _jaxcga_shared import pallas_rows
-from _jaxcga_shared.checks import check_vectors, require
+from _jaxcga_shared.checks import check_vectors, require, require_around
 from _jaxcga_shared.platform import EXACT, PerPlatform, example, per_platform
 from jaxcga._multivector import KINDS, Multivector
 from jaxcga._versors import fused_point_coordinates, row_coordinates, similitude_motor_log_scale_unchecked
@@ -317,9 +317,12 @@ def _skin_motor_blend(V, J, W, joint_versors: Multivector, blend_and_apply) -> F
     V, J, W = _check_mesh(V, J, W)
     _check_versors("joint_versors", joint_versors)
     table, bad = motor_blend_joints(joint_versors)
-    positions = blend_and_apply(V, J, W, table)
-    # checked last: on a GPU the check's round trip then waits for nothing but the result
-    return require(positions, (bad, "joint_versors: not similitude versors (dilated part too large)"))
+    # the check on the joints' table on the CPU, on the positions on a GPU (its host round trip waits only for them)
+    return require_around(
+        lambda table: blend_and_apply(V, J, W, table),
+        table,
+        (bad, "joint_versors: not similitude versors (dilated part too large)"),
+    )
 
 
 _TABLE_WIDTH = 9  # a joint's row of the motor blend's table: its motor's 8 components, then its log scale

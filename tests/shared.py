@@ -122,16 +122,33 @@ def run_on_host_devices(script: str, devices: int = 4, timeout: int = 600) -> st
     return done.stdout
 
 
-def assert_checked_on_the_result(fn, *args) -> None:
-    """``fn(*args)``'s runtime check is its last operation, made on its (single) result: on a GPU the check's host
-    round trip then has nothing left to launch while it waits."""
+def assert_checks_placed_per_platform(fn, *args) -> None:
+    """``fn(*args)``'s runtime check (``checks.require_around``) on the CPU is made on a small operand before the
+    computation (a conditional returning the large result would copy it), and on other platforms it is the last
+    operation, made on the (single) result: on a GPU the check's host round trip then has nothing left to launch
+    while it waits. Each platform's branch is traced alone."""
+    from unittest import mock
+
     import jax
 
-    jaxpr = jax.make_jaxpr(fn)(*args).jaxpr
-    last = jaxpr.eqns[-1]
-    assert "cond" in str(last.params), last.primitive
-    assert last.outvars == jaxpr.outvars
-    assert last.invars[0].aval.shape == jaxpr.outvars[0].aval.shape  # the result goes through the check
+    def traced(platform):
+        def one_branch(*operands, default, cpu=None, **_):
+            return (cpu if platform == "cpu" and cpu is not None else default)(*operands)
+
+        jax.clear_caches()  # a trace cached by an earlier call holds both branches
+        with mock.patch.object(jax.lax, "platform_dependent", one_branch):
+            jaxpr = jax.make_jaxpr(fn)(*args).jaxpr
+        jax.clear_caches()
+        checks = [i for i, eqn in enumerate(jaxpr.eqns) if "_Fail(" in str(eqn.params)]
+        assert len(checks) == 1, [jaxpr.eqns[i].primitive for i in checks]
+        return jaxpr, jaxpr.eqns[checks[0]]
+
+    jaxpr, check = traced("gpu")
+    assert check is jaxpr.eqns[-1] and check.outvars == jaxpr.outvars
+    assert check.invars[0].aval.shape == jaxpr.outvars[0].aval.shape  # the result goes through the check
+    jaxpr, check = traced("cpu")
+    assert check is not jaxpr.eqns[-1]
+    assert check.invars[0].aval.size < jaxpr.outvars[0].aval.size  # a small operand goes through it
 
 
 def lowered_operations(fn, args, platform: str) -> collections.Counter:

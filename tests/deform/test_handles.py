@@ -25,7 +25,7 @@ from deform import (
     motor_field_solve,
     spline_precompute,
 )
-from tests.shared import assert_checked_on_the_result, check_gradient
+from tests.shared import assert_checks_placed_per_platform, check_gradient
 
 ARM = default_arm().mesh
 V, F = np.asarray(ARM.V, np.float64), np.asarray(ARM.F)
@@ -174,9 +174,10 @@ def test_a_key_motor_without_a_norm_raises_eagerly_and_under_jit():
     zero_key = cga.Multivector(identity_motors(3).values.at[1].set(0.0), "motor")
     with pytest.raises(ValueError, match="key_motors: a key motor has non-positive norm"):
         motor_field_solve(FIELD, zero_key)
-    with pytest.raises(RuntimeError, match="key_motors: a key motor has non-positive norm"):
+    # a failed callback: a JaxRuntimeError, or a ValueError from an executable compiled by an earlier test
+    with pytest.raises((RuntimeError, ValueError), match="key_motors: a key motor has non-positive norm"):
         jax.block_until_ready(jax.jit(motor_field_solve)(FIELD, zero_key))  # on a GPU: when the result is ready
 
 
 def test_the_key_motors_are_checked_on_the_positions():
-    assert_checked_on_the_result(motor_field_solve, FIELD, identity_motors(3))
+    assert_checks_placed_per_platform(motor_field_solve, FIELD, identity_motors(3))

@@ -14,7 +14,7 @@ import pytest
 import deform
 import jaxcga as cga
 from tests.deform._rigs import random_model, random_pose
-from tests.shared import assert_checked_on_the_result
+from tests.shared import assert_checks_placed_per_platform
 
 MODEL = random_model(0, rest_scale=(0.5, 2.0))
 B = MODEL.skeleton.num_bones
@@ -304,9 +304,10 @@ def test_a_joint_versor_that_is_no_similitude_raises_eagerly_and_under_jit():
     V, J, W = MESH.V, MESH.J, MESH.W
     with pytest.raises(ValueError, match="joint_versors: not similitude versors"):
         deform.skin_cga_motor_blend(V, J, W, bad)
-    with pytest.raises(RuntimeError, match="joint_versors: not similitude versors"):
+    # a failed callback: a JaxRuntimeError, or a ValueError from an executable compiled by an earlier test
+    with pytest.raises((RuntimeError, ValueError), match="joint_versors: not similitude versors"):
         jax.block_until_ready(jax.jit(deform.skin_cga_motor_blend)(V, J, W, bad))  # on a GPU: when it is ready
-    assert_checked_on_the_result(deform.skin_cga_motor_blend, V, J, W, joints)
+    assert_checks_placed_per_platform(deform.skin_cga_motor_blend, V, J, W, joints)
 
 
 _RIGID_MODEL = random_model(12)

@@ -10,7 +10,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from _jaxcga_shared.checks import compiled_error_message, plain_errors, require
+from _jaxcga_shared.checks import compiled_error_message, plain_errors, require, require_around
 
 MESSAGE = "x: expected non-negative values"
 
@@ -138,3 +138,39 @@ def test_the_checks_of_one_call_are_one_conditional_raising_the_first_failing_me
         assert compiled_error_message(raised.value) == message
     with pytest.raises(ValueError, match="x: over 10"):
         checked(jnp.array([11.0]))
+
+
+@pytest.mark.parametrize("variant", ["cpu", "gpu"])
+def test_require_around_checks_in_either_placement_and_passes_values_and_derivatives(variant, monkeypatch):
+    """``require_around`` on the CPU checks its operand first and elsewhere the result: each placement, taken on the
+    CPU, raises the message eagerly and inside jit, vmap and grad, and passing checks change nothing."""
+    platform_dependent = jax.lax.platform_dependent
+
+    def one_placement(*operands, cpu, default):
+        chosen = cpu if variant == "cpu" else default
+        return platform_dependent(*operands, cpu=chosen, default=chosen)
+
+    monkeypatch.setattr(jax.lax, "platform_dependent", one_placement)
+    weights = jnp.linspace(0.0, 1.0, 1_000)
+
+    def spread(table):  # a small operand to a large result, as a joints' table to skinned vertices
+        return require_around(lambda t: weights[:, None] * t, table, (table < 0, MESSAGE))
+
+    good, bad = np.array([0.0, 1.5]), np.array([1.0, -1.0])
+    with pytest.raises(ValueError, match=MESSAGE):
+        spread(bad)
+    for fn, x in (
+        (jax.jit(spread), bad),
+        (jax.jit(jax.vmap(spread)), np.stack([good, bad])),
+        (jax.jit(jax.grad(lambda t: jnp.sum(jnp.sin(spread(t))))), bad),
+    ):
+        with pytest.raises((RuntimeError, ValueError)) as raised:  # a cached executable's failure: a ValueError
+            jax.block_until_ready(fn(x))
+        assert compiled_error_message(raised.value) == MESSAGE
+    np.testing.assert_array_equal(jax.jit(spread)(good), weights[:, None] * good)
+    np.testing.assert_array_equal(
+        jax.jit(jax.vmap(spread))(np.stack([good, 2 * good])), [spread(good), spread(2 * good)]
+    )
+    np.testing.assert_allclose(
+        jax.jit(jax.grad(lambda t: jnp.sum(spread(t) ** 2)))(good), 2 * jnp.sum(weights**2) * good, rtol=1e-12
+    )
