@@ -10,7 +10,7 @@ Steps, vectorized over faces (host numpy; the predicates may run on the jaxcga k
    along the edge, weights blended from the edge's endpoints (sec. 4.3);
 3. every face re-triangulated by a table over its 27 sign patterns (a lone vertex gives 1 + 2
    triangles, the quadrilateral split by whichever diagonal leaves no sliver; a vertex on the plane
-   1 + 1); where a piece would still be a sliver (``_geometry.poor_pieces``), the vertex next to the
+   1 + 1); where a piece would still be a sliver (``_geometry.sliver_mask``), the vertex next to the
    face's new point nearest an end of its edge is snapped onto the plane too, and steps 2-3 repeat;
 4. faces sorted into the positive side (``n . x > d``) and the negative side;
 5. each side compacted into its own mesh; with ``cap=True`` and a closed input, the cut loops are
@@ -37,12 +37,12 @@ from _jaxcga_shared.checks import check_choice, check_triangle_mesh
 from _jaxcga_shared.mesh import bounding_diagonal
 from cutting._geometry import (
     MeshEdges,
+    SmallestFace,
     mesh_edges,
-    poor_pieces,
     posed_vertices,
     rest_positions,
     skinned_mesh_like,
-    smallest_doubled_area,
+    sliver_mask,
 )
 from cutting._predicates import PREDICATES, edge_points, signed_distances
 from cutting._tools import Plane, check_plane
@@ -123,7 +123,7 @@ def _row_range(rows):
 
 def _split(V, F, edges: MeshEdges, s, sign, n, d, predicates, smallest):
     """The new points of the current signs and the pieces of the split faces, and the vertices to snap
-    onto the plane: for each face whose pieces are slivers with either diagonal (``poor_pieces``), the
+    onto the plane: for each face whose pieces are slivers with either diagonal (``sliver_mask``), the
     endpoint nearest to the face's new point that lies closest (along its edge) to an end.
 
     Returns (crossing (p, 2), t (p,), points (p, 3), pieces: for each diagonal the (positive, negative)
@@ -145,6 +145,8 @@ def _split(V, F, edges: MeshEdges, s, sign, n, d, predicates, smallest):
     slots = np.concatenate([F[split], new_index[edges.face_edges[split]]], axis=1)
     code = face_signs[split] @ np.array([9, 3, 1]) + 13
     extended = np.concatenate([V, points])
+    corners = np.take(V, slots[:, :3], axis=0)  # (split, 3, 3)
+    smallest.near(corners)
     pieces, poor = [], []
     for positive, negative in _TABLES:
         templates = np.concatenate([positive[code], negative[code]], axis=1)  # (split, 4, 3)
@@ -152,7 +154,8 @@ def _split(V, F, edges: MeshEdges, s, sign, n, d, predicates, smallest):
         ids = np.where(templates < 0, -1, ids)
         valid = ids[:, :, 0] >= 0
         bad = np.zeros(valid.shape, bool)
-        bad[valid] = poor_pieces(extended, ids[valid], np.repeat(F[split], 4, axis=0)[valid.ravel()], smallest)
+        parent = np.nonzero(valid)[0]
+        bad[valid] = sliver_mask(np.take(extended, ids[valid], axis=0), corners[parent], smallest)
         pieces.append((ids[:, :2], ids[:, 2:]))
         poor.append(bad.any(axis=1))
     diagonal = (poor[0] & ~poor[1]).astype(np.int64)
@@ -206,7 +209,7 @@ def cut_topology(
     if not (np.any(s[F] > 0) and np.any(s[F] < 0)):
         raise ValueError("plane: misses the mesh (every vertex lies on one side of it); nothing to cut")
     sign = np.sign(s).astype(np.int64)
-    smallest = smallest_doubled_area(V, F)
+    smallest = SmallestFace(V, F)
     # Each pass snaps at least one more vertex onto the plane, so this ends (at worst with no split face).
     for _ in range(len(V) + 1):
         crossing, t, points, pieces, diagonal, snap = _split(V, F, edges, s, sign, n, d, predicates, smallest)
