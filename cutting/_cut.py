@@ -131,7 +131,8 @@ def _split(V, F, edges: MeshEdges, s, sign, n, d, predicates, smallest):
     chosen, snap (k,) vertex ids)."""
     e = edges.edges
     crossing_mask = sign[e[:, 0]] * sign[e[:, 1]] < 0
-    crossing = e[crossing_mask]
+    # np.compress and np.take select rows several times faster than a mask or an index array
+    crossing = np.compress(crossing_mask, e, axis=0)
     points, t = edge_points(
         V[crossing[:, 0]], V[crossing[:, 1]], s[crossing[:, 0]], s[crossing[:, 1]], n, d, predicates
     )
@@ -142,8 +143,9 @@ def _split(V, F, edges: MeshEdges, s, sign, n, d, predicates, smallest):
     split = (lowest < 0) & (highest > 0)
     # Only the split faces go through the tables. Slots: the corners, then the new vertex (or -1)
     # on each local edge.
-    slots = np.concatenate([F[split], new_index[edges.face_edges[split]]], axis=1)
-    code = face_signs[split] @ np.array([9, 3, 1]) + 13
+    split_edges = np.compress(split, edges.face_edges, axis=0)
+    slots = np.concatenate([np.compress(split, F, axis=0), new_index[split_edges]], axis=1)
+    code = np.compress(split, face_signs, axis=0) @ np.array([9, 3, 1]) + 13
     extended = np.concatenate([V, points])
     corners = np.take(V, slots[:, :3], axis=0)  # (split, 3, 3)
     smallest.near(corners)
@@ -163,7 +165,7 @@ def _split(V, F, edges: MeshEdges, s, sign, n, d, predicates, smallest):
     if not len(stuck):
         return crossing, t, points, pieces, diagonal, np.zeros(0, np.int64)
     # the face's new point nearest an end of its edge, and that end
-    local = new_index[edges.face_edges[split][stuck]] - len(V)  # (k, 3), negative: no point
+    local = new_index[split_edges[stuck]] - len(V)  # (k, 3), negative: no point
     along = t[np.maximum(local, 0)]
     margin = np.where(local >= 0, np.minimum(along, 1.0 - along), np.inf)
     nearest = local[np.arange(len(stuck)), np.argmin(margin, axis=1)]
@@ -235,7 +237,9 @@ def cut_topology(
         chosen = np.where(diagonal[:, None, None] == 0, pieces[0][k], pieces[1][k])
         valid = chosen[:, :, 0] >= 0
         # A face lying in the plane closes the half that its normal points away from.
-        sides.append(np.concatenate([F[whole], chosen[valid], flat[sign_of_side * (normal @ n) < 0]]))
+        sides.append(
+            np.concatenate([np.compress(whole, F, axis=0), chosen[valid], flat[sign_of_side * (normal @ n) < 0]])
+        )
 
     if cap:
         if not _is_closed(edges):
@@ -416,7 +420,8 @@ def cut(
         ext_V = np.concatenate([V, rest])
         ext_J = np.concatenate([J, J_new])
         ext_W = np.concatenate([W, W_new])
-        halves.append(skinned_mesh_like(mesh, ext_V[keep], faces, ext_J[keep], ext_W[keep]))
+        V_half, J_half, W_half = (np.take(x, keep, axis=0) for x in (ext_V, ext_J, ext_W))
+        halves.append(skinned_mesh_like(mesh, V_half, faces, J_half, W_half))
     if return_topology:
         return (halves[0], halves[1]), topology
     return halves[0], halves[1]

@@ -370,7 +370,8 @@ def drill_topology(
 def _axis_distance(X, tip, base) -> np.ndarray:
     direction = (tip - base) / np.linalg.norm(tip - base)
     offsets = X - base
-    return np.linalg.norm(offsets - (offsets @ direction)[..., None] * direction, axis=-1)
+    radial = offsets - (offsets @ direction)[..., None] * direction
+    return np.sqrt(np.einsum("...j,...j->...", radial, radial))  # np.linalg.norm takes half as long again
 
 
 def _retriangulate(V, F, edges: MeshEdges, state: _Pass, index, alpha, points, crossing, radius, smallest):
@@ -451,7 +452,7 @@ def _retriangulate(V, F, edges: MeshEdges, state: _Pass, index, alpha, points, c
         if steps:
             _, i = min(steps)
             drop += [v - n for v in (cycle[i], cycle[(i + 1) % m]) if v >= n]
-    return np.concatenate([F[~state.affected], pieces]), np.unique(np.asarray(drop, np.int64))
+    return np.concatenate([np.compress(~state.affected, F, axis=0), pieces]), np.unique(np.asarray(drop, np.int64))
 
 
 def _midpoint_levels(parents: Int[np.ndarray, "r 2"], n: int) -> list[Int[np.ndarray, "l 2"]]:
@@ -535,7 +536,9 @@ def drill(
     rest = np.concatenate([rest, rest_positions(J_new, W_new, topology.points, joint_matrices)])
     J, W = np.concatenate([J, J_new]), np.concatenate([W, W_new])
     kept = topology.kept
-    drilled = skinned_mesh_like(mesh, rest[kept], topology.faces, J[kept], W[kept])
+    # np.take selects rows several times faster than an index array
+    V_kept, J_kept, W_kept = (np.take(x, kept, axis=0) for x in (rest, J, W))
+    drilled = skinned_mesh_like(mesh, V_kept, topology.faces, J_kept, W_kept)
     return (drilled, topology) if return_topology else drilled
 
 

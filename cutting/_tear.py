@@ -610,7 +610,7 @@ def tear(
     torn = skinned_mesh_like(
         mesh,
         np.concatenate([np.asarray(mesh.V, np.float64), rest]),
-        np.concatenate([F[keep], triangles]),
+        np.concatenate([np.compress(keep, F, axis=0), triangles]),
         np.concatenate([J, J_new]),
         np.concatenate([W, W_new]),
     )
