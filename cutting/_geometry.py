@@ -1,6 +1,6 @@
 """Geometry shared by cut, tear and drill: the reusable adjacency (``mesh_edges``), input checks, the
-mesh in a pose and back to rest (before / after animation), segment-surface hits, and the
-triangulation of the convex pieces that a tool leaves of a face."""
+mesh in a pose and back to rest (before / after animation), segment-surface hits, the
+triangulation of the convex pieces that a tool leaves of a face, and the sliver rule they keep (``sliver_mask``)."""
 
 from __future__ import annotations
 
@@ -194,8 +194,9 @@ def _area_and_dots(A, B, C):
 
 
 class SmallestFace:
-    """Twice the area of the input's smallest face, the reference of ``sliver_mask``, found only when a
-    piece is small enough for it to matter; any input face near the tool (``near``) bounds it from above."""
+    """Twice the area of the input's smallest face, the reference of ``sliver_mask``. The faces near the tool
+    (``near``) bound it from above; the whole mesh is scanned only for a piece small against them (on a large
+    mesh the scan cost more than the tool's own work)."""
 
     def __init__(self, V, F):
         self._V, self._F = V, F

@@ -222,8 +222,8 @@ def _walk(
     last sample's face, holding the tip ``goal``, when ``final``).
     Returns the crossed edge ids and the faces entered (target last)."""
     crossed, entered = [], []
-    # The faces' pieces are checked together once the walk ends: a sliver in a face before the one where
-    # it stops (or in the last) moves the plane, as if it had stopped there.
+    # The faces' pieces are checked together when the walk ends or fails: a sliver in any face it went
+    # through moves the plane, as a check face by face would have.
     chords, tips = [], []
 
     def stop(error: Exception) -> NoReturn:
