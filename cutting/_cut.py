@@ -10,7 +10,7 @@ Steps, vectorized over faces (host numpy; the predicates may run on the jaxcga k
    along the edge, weights blended from the edge's endpoints (sec. 4.3);
 3. every face re-triangulated by a table over its 27 sign patterns (a lone vertex gives 1 + 2
    triangles, the quadrilateral split by whichever diagonal leaves no sliver; a vertex on the plane
-   1 + 1); where a piece would still be a sliver (``_geometry.poor_pieces``), the vertex next to the
+   1 + 1); where a piece would still be a sliver (``_geometry.sliver_mask``), the vertex next to the
    face's new point nearest an end of its edge is snapped onto the plane too, and steps 2-3 repeat;
 4. faces sorted into the positive side (``n . x > d``) and the negative side;
 5. each side compacted into its own mesh; with ``cap=True`` and a closed input, the cut loops are
@@ -37,12 +37,12 @@ from _jaxcga_shared.checks import check_choice, check_triangle_mesh
 from _jaxcga_shared.mesh import bounding_diagonal
 from cutting._geometry import (
     MeshEdges,
+    SmallestFace,
     mesh_edges,
-    poor_pieces,
     posed_vertices,
     rest_positions,
     skinned_mesh_like,
-    smallest_doubled_area,
+    sliver_mask,
 )
 from cutting._predicates import PREDICATES, edge_points, signed_distances
 from cutting._tools import Plane, check_plane
@@ -123,7 +123,7 @@ def _row_range(rows):
 
 def _split(V, F, edges: MeshEdges, s, sign, n, d, predicates, smallest):
     """The new points of the current signs and the pieces of the split faces, and the vertices to snap
-    onto the plane: for each face whose pieces are slivers with either diagonal (``poor_pieces``), the
+    onto the plane: for each face whose pieces are slivers with either diagonal (``sliver_mask``), the
     endpoint nearest to the face's new point that lies closest (along its edge) to an end.
 
     Returns (crossing (p, 2), t (p,), points (p, 3), pieces: for each diagonal the (positive, negative)
@@ -131,7 +131,8 @@ def _split(V, F, edges: MeshEdges, s, sign, n, d, predicates, smallest):
     chosen, snap (k,) vertex ids)."""
     e = edges.edges
     crossing_mask = sign[e[:, 0]] * sign[e[:, 1]] < 0
-    crossing = e[crossing_mask]
+    # np.compress and np.take select rows several times faster than a mask or an index array
+    crossing = np.compress(crossing_mask, e, axis=0)
     points, t = edge_points(
         V[crossing[:, 0]], V[crossing[:, 1]], s[crossing[:, 0]], s[crossing[:, 1]], n, d, predicates
     )
@@ -142,9 +143,12 @@ def _split(V, F, edges: MeshEdges, s, sign, n, d, predicates, smallest):
     split = (lowest < 0) & (highest > 0)
     # Only the split faces go through the tables. Slots: the corners, then the new vertex (or -1)
     # on each local edge.
-    slots = np.concatenate([F[split], new_index[edges.face_edges[split]]], axis=1)
-    code = face_signs[split] @ np.array([9, 3, 1]) + 13
+    split_edges = np.compress(split, edges.face_edges, axis=0)
+    slots = np.concatenate([np.compress(split, F, axis=0), new_index[split_edges]], axis=1)
+    code = np.compress(split, face_signs, axis=0) @ np.array([9, 3, 1]) + 13
     extended = np.concatenate([V, points])
+    corners = np.take(V, slots[:, :3], axis=0)  # (split, 3, 3)
+    smallest.near(corners)
     pieces, poor = [], []
     for positive, negative in _TABLES:
         templates = np.concatenate([positive[code], negative[code]], axis=1)  # (split, 4, 3)
@@ -152,7 +156,8 @@ def _split(V, F, edges: MeshEdges, s, sign, n, d, predicates, smallest):
         ids = np.where(templates < 0, -1, ids)
         valid = ids[:, :, 0] >= 0
         bad = np.zeros(valid.shape, bool)
-        bad[valid] = poor_pieces(extended, ids[valid], np.repeat(F[split], 4, axis=0)[valid.ravel()], smallest)
+        parent = np.nonzero(valid)[0]
+        bad[valid] = sliver_mask(np.take(extended, ids[valid], axis=0), corners[parent], smallest)
         pieces.append((ids[:, :2], ids[:, 2:]))
         poor.append(bad.any(axis=1))
     diagonal = (poor[0] & ~poor[1]).astype(np.int64)
@@ -160,7 +165,7 @@ def _split(V, F, edges: MeshEdges, s, sign, n, d, predicates, smallest):
     if not len(stuck):
         return crossing, t, points, pieces, diagonal, np.zeros(0, np.int64)
     # the face's new point nearest an end of its edge, and that end
-    local = new_index[edges.face_edges[split][stuck]] - len(V)  # (k, 3), negative: no point
+    local = new_index[split_edges[stuck]] - len(V)  # (k, 3), negative: no point
     along = t[np.maximum(local, 0)]
     margin = np.where(local >= 0, np.minimum(along, 1.0 - along), np.inf)
     nearest = local[np.arange(len(stuck)), np.argmin(margin, axis=1)]
@@ -206,7 +211,7 @@ def cut_topology(
     if not (np.any(s[F] > 0) and np.any(s[F] < 0)):
         raise ValueError("plane: misses the mesh (every vertex lies on one side of it); nothing to cut")
     sign = np.sign(s).astype(np.int64)
-    smallest = smallest_doubled_area(V, F)
+    smallest = SmallestFace(V, F)
     # Each pass snaps at least one more vertex onto the plane, so this ends (at worst with no split face).
     for _ in range(len(V) + 1):
         crossing, t, points, pieces, diagonal, snap = _split(V, F, edges, s, sign, n, d, predicates, smallest)
@@ -232,7 +237,9 @@ def cut_topology(
         chosen = np.where(diagonal[:, None, None] == 0, pieces[0][k], pieces[1][k])
         valid = chosen[:, :, 0] >= 0
         # A face lying in the plane closes the half that its normal points away from.
-        sides.append(np.concatenate([F[whole], chosen[valid], flat[sign_of_side * (normal @ n) < 0]]))
+        sides.append(
+            np.concatenate([np.compress(whole, F, axis=0), chosen[valid], flat[sign_of_side * (normal @ n) < 0]])
+        )
 
     if cap:
         if not _is_closed(edges):
@@ -413,7 +420,8 @@ def cut(
         ext_V = np.concatenate([V, rest])
         ext_J = np.concatenate([J, J_new])
         ext_W = np.concatenate([W, W_new])
-        halves.append(skinned_mesh_like(mesh, ext_V[keep], faces, ext_J[keep], ext_W[keep]))
+        V_half, J_half, W_half = (np.take(x, keep, axis=0) for x in (ext_V, ext_J, ext_W))
+        halves.append(skinned_mesh_like(mesh, V_half, faces, J_half, W_half))
     if return_topology:
         return (halves[0], halves[1]), topology
     return halves[0], halves[1]

@@ -18,7 +18,7 @@ plane through B perpendicular to the axis, P the projection onto it.
 4. weights of the new points from their edges (sec. 4.3);
 5. each affected face is replaced by the convex pieces of it that lie outside the drill (the runs of
    its boundary outside the cylinder, each closed by a straight chord), vertices inside are removed;
-   a new point that would leave a sliver piece (``_geometry.poor_pieces``) is dropped, the hole's
+   a new point that would leave a sliver piece (``_geometry.sliver_mask``) is dropped, the hole's
    boundary then passes through its neighbour on the face's boundary, and step 5 repeats.
 
 When a hole has fewer than ``min_points`` boundary points (a drill thin against the faces), the
@@ -43,14 +43,14 @@ from _jaxcga_shared.checks import check_triangle_mesh
 from _jaxcga_shared.mesh import bounding_diagonal
 from cutting._geometry import (
     MeshEdges,
+    SmallestFace,
     fan_triangles,
     mesh_edges,
-    poor_pieces,
     posed_vertices,
     rest_positions,
     segment_hits,
     skinned_mesh_like,
-    smallest_doubled_area,
+    sliver_mask,
 )
 from cutting._tools import Drill, check_drill
 from cutting._weights import blend_weights
@@ -325,10 +325,12 @@ def drill_topology(
             f"{reach:.4g} of the drill's axis; give a smaller radius"
         )
     margin = tolerance * bounding_diagonal(V)
-    smallest = smallest_doubled_area(V, F)  # the input's: refinement only adds smaller faces
+    smallest = SmallestFace(V, F)  # the input's: refinement only adds smaller faces
     all_parents, refinements = [], 0
     while True:
         state = _drill_once(V, F, edges, tip, base, radius, margin)
+        if not refinements:  # faces of the input near the drill
+            smallest.near(np.take(V, F[state.affected], axis=0))
         if state.fewest >= min_points or refinements == max_refinements:
             break
         V, F, parents = _refine(V, F, edges, state.affected)
@@ -368,12 +370,13 @@ def drill_topology(
 def _axis_distance(X, tip, base) -> np.ndarray:
     direction = (tip - base) / np.linalg.norm(tip - base)
     offsets = X - base
-    return np.linalg.norm(offsets - (offsets @ direction)[..., None] * direction, axis=-1)
+    radial = offsets - (offsets @ direction)[..., None] * direction
+    return np.sqrt(np.einsum("...j,...j->...", radial, radial))  # np.linalg.norm takes half as long again
 
 
 def _retriangulate(V, F, edges: MeshEdges, state: _Pass, index, alpha, points, crossing, radius, smallest):
     """Faces of the drilled mesh (Algorithm 3, step 5) in the extended numbering, and the new points
-    to drop: in each face whose pieces are slivers (``poor_pieces``), the new point (or the two on one
+    to drop: in each face whose pieces are slivers (``sliver_mask``), the new point (or the two on one
     edge) closest to its neighbour on the face's boundary, relative to that edge's length; without it
     the hole's boundary passes through the neighbour. Per affected face in plain Python: the faces
     near a hole are few, and small arrays cost more than they save."""
@@ -398,15 +401,14 @@ def _retriangulate(V, F, edges: MeshEdges, state: _Pass, index, alpha, points, c
     limit = radius * radius
     triangles, parents, cycles = [], [], []
     for face, local_edges in zip(corners.tolist(), edges.face_edges[affected].tolist()):
-        cycle, spans = [], []  # the boundary, and the length of the face's edge under each step of it
+        cycle, counts = [], []  # the boundary, and how many steps of it lie on each of the face's edges
         for k in range(3):
             a, b = face[k], face[(k + 1) % 3]
             cycle.append(a)
             ordered = [vid for _, vid in on_edge.get(local_edges[k], ())]
             cycle += ordered if a < b else ordered[::-1]
-            pa, pb = position[a], position[b]
-            spans += [((pa[0] - pb[0]) ** 2 + (pa[1] - pb[1]) ** 2 + (pa[2] - pb[2]) ** 2) ** 0.5] * (len(ordered) + 1)
-        cycles.append((cycle, spans))
+            counts.append(len(ordered) + 1)
+        cycles.append((face, cycle, counts))
         m = len(cycle)
         before = len(triangles)
         # a boundary piece is outside the drill when its midpoint is (the drill is convex)
@@ -431,10 +433,16 @@ def _retriangulate(V, F, edges: MeshEdges, state: _Pass, index, alpha, points, c
                 run = [cycle[(i + 1) % m]]
         parents += [len(cycles) - 1] * (len(triangles) - before)
     pieces = np.asarray(triangles, np.int64).reshape(-1, 3)
-    poor = poor_pieces(np.concatenate([V, points]), pieces, corners[np.asarray(parents, np.int64)], smallest)
+    parents = np.asarray(parents, np.int64)
+    piece_corners = np.take(np.concatenate([V, points]), pieces, axis=0)
+    poor = sliver_mask(piece_corners, np.take(V, corners[parents], axis=0), smallest)
     drop = []
-    for f in np.unique(np.asarray(parents, np.int64)[poor]).tolist():
-        cycle, spans = cycles[f]
+    for f in np.unique(parents[poor]).tolist():
+        face, cycle, counts = cycles[f]
+        spans = []  # the length of the face's edge under each step of the boundary
+        for k in range(3):
+            pa, pb = position[face[k]], position[face[(k + 1) % 3]]
+            spans += [((pa[0] - pb[0]) ** 2 + (pa[1] - pb[1]) ** 2 + (pa[2] - pb[2]) ** 2) ** 0.5] * counts[k]
         m = len(cycle)
         steps = [
             (math.dist(position[cycle[i]], position[cycle[(i + 1) % m]]) / spans[i], i)
@@ -444,7 +452,7 @@ def _retriangulate(V, F, edges: MeshEdges, state: _Pass, index, alpha, points, c
         if steps:
             _, i = min(steps)
             drop += [v - n for v in (cycle[i], cycle[(i + 1) % m]) if v >= n]
-    return np.concatenate([F[~state.affected], pieces]), np.unique(np.asarray(drop, np.int64))
+    return np.concatenate([np.compress(~state.affected, F, axis=0), pieces]), np.unique(np.asarray(drop, np.int64))
 
 
 def _midpoint_levels(parents: Int[np.ndarray, "r 2"], n: int) -> list[Int[np.ndarray, "l 2"]]:
@@ -528,7 +536,9 @@ def drill(
     rest = np.concatenate([rest, rest_positions(J_new, W_new, topology.points, joint_matrices)])
     J, W = np.concatenate([J, J_new]), np.concatenate([W, W_new])
     kept = topology.kept
-    drilled = skinned_mesh_like(mesh, rest[kept], topology.faces, J[kept], W[kept])
+    # np.take selects rows several times faster than an index array
+    V_kept, J_kept, W_kept = (np.take(x, kept, axis=0) for x in (rest, J, W))
+    drilled = skinned_mesh_like(mesh, V_kept, topology.faces, J_kept, W_kept)
     return (drilled, topology) if return_topology else drilled
 
 

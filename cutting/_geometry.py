@@ -1,6 +1,6 @@
 """Geometry shared by cut, tear and drill: the reusable adjacency (``mesh_edges``), input checks, the
-mesh in a pose and back to rest (before / after animation), segment-surface hits, and the
-triangulation of the convex pieces that a tool leaves of a face."""
+mesh in a pose and back to rest (before / after animation), segment-surface hits, the
+triangulation of the convex pieces that a tool leaves of a face, and the sliver rule they keep (``sliver_mask``)."""
 
 from __future__ import annotations
 
@@ -180,27 +180,62 @@ PIECE_ANGLE = 1e-3
 
 def triangle_quality(A, B, C):
     """(twice the area (t,), smallest angle (t,)) of the triangles with corners A, B, C (t, 3)."""
-    ab, bc, ca = B - A, C - B, A - C
-    normal = cross_rows(ab, -ca)
-    doubled = np.sqrt(np.einsum("ij,ij->i", normal, normal))
+    doubled, dots = _area_and_dots(A, B, C)
     # the angle at a corner from its two edges: atan2(|cross|, dot), |cross| = twice the area
-    dots = [-np.einsum("ij,ij->i", ca, ab), -np.einsum("ij,ij->i", ab, bc), -np.einsum("ij,ij->i", bc, ca)]
     return doubled, np.min([np.arctan2(doubled, dot) for dot in dots], axis=0)
 
 
-def smallest_doubled_area(V, F) -> float:
-    """Twice the area of the smallest face of (V, F) (the reference of ``poor_pieces``)."""
-    if not len(F):
-        return 0.0
-    A = V[F[:, 0]]
-    normal = cross_rows(V[F[:, 1]] - A, V[F[:, 2]] - A)
-    return float(np.sqrt(np.einsum("ij,ij->i", normal, normal).min()))
+def _area_and_dots(A, B, C):
+    """Twice the areas (t,) of the triangles A, B, C (t, 3) and the dot products of the two edges at each corner."""
+    ab, bc, ca = B - A, C - B, A - C
+    normal = cross_rows(ab, -ca)
+    doubled = np.sqrt(np.einsum("ij,ij->i", normal, normal))
+    return doubled, [-np.einsum("ij,ij->i", ca, ab), -np.einsum("ij,ij->i", ab, bc), -np.einsum("ij,ij->i", bc, ca)]
 
 
-def poor_pieces(P, pieces, parent_corners, smallest):
-    """Which pieces (t, 3) (vertex ids into P) of faces (t, 3) (ids into P) are slivers: under
-    PIECE_AREA of the mesh's smallest face (``smallest``: twice its area), or with an angle under
-    PIECE_ANGLE and the face's own smallest angle."""
-    area, angle = triangle_quality(P[pieces[:, 0]], P[pieces[:, 1]], P[pieces[:, 2]])
-    _, face_angle = triangle_quality(P[parent_corners[:, 0]], P[parent_corners[:, 1]], P[parent_corners[:, 2]])
-    return (area < PIECE_AREA * smallest) | (angle < np.minimum(PIECE_ANGLE, face_angle))
+class SmallestFace:
+    """Twice the area of the input's smallest face, the reference of ``sliver_mask``. The faces near the tool
+    (``near``) bound it from above; the whole mesh is scanned only for a piece small against them (on a large
+    mesh the scan cost more than the tool's own work)."""
+
+    def __init__(self, V, F):
+        self._V, self._F = V, F
+        self._value: float | None = None
+        self.bound = np.inf
+
+    def near(self, corners):
+        """Lower the bound with faces of the input given by their corners (f, 3, 3)."""
+        if len(corners):
+            # the arithmetic of the scan in value(), so that the bound is never below the value
+            normal = cross_rows(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
+            squared = normal[:, 0] * normal[:, 0] + normal[:, 1] * normal[:, 1] + normal[:, 2] * normal[:, 2]
+            self.bound = min(self.bound, float(np.sqrt(squared.min())))
+
+    def value(self) -> float:
+        if self._value is None:
+            from cutting._smallest_face import smallest_squared_doubled_area  # numba: imported on first use
+
+            V, F = np.ascontiguousarray(self._V, np.float64), np.ascontiguousarray(self._F)
+            self._value = float(np.sqrt(smallest_squared_doubled_area(V, F))) if len(F) else 0.0
+        return self._value
+
+
+def sliver_mask(pieces, faces, smallest: SmallestFace, headroom: float = 1.0):
+    """Which pieces (t, 3, 3) (corner positions) of faces (t, 3, 3) are slivers: under ``headroom``
+    x PIECE_AREA of the input's smallest face, or with an angle under ``headroom`` x PIECE_ANGLE and
+    the face's own smallest angle. Exact angles and the input's smallest face only where a cheap
+    bound leaves the answer open (few pieces are near either limit)."""
+    area, dots = _area_and_dots(pieces[:, 0], pieces[:, 1], pieces[:, 2])
+    limit = headroom * PIECE_AREA
+    small = area < limit * smallest.bound
+    if small.any():
+        small = area < limit * smallest.value()
+    angle_limit = headroom * PIECE_ANGLE
+    # An angle under angle_limit (small) has a positive dot and |cross| / dot under its tangent, below
+    # 2 angle_limit; the others cannot be thin.
+    open_ = np.flatnonzero(np.any([area <= 2.0 * angle_limit * dot for dot in dots], axis=0))
+    if len(open_):
+        angle = np.min([np.arctan2(area[open_], dot[open_]) for dot in dots], axis=0)
+        _, face_angle = triangle_quality(faces[open_, 0], faces[open_, 1], faces[open_, 2])
+        small[open_[angle < np.minimum(angle_limit, face_angle)]] = True
+    return small

@@ -19,7 +19,7 @@ of an intermediate sample S_i the path goes straight from the point where it ent
 the point where it leaves it (the paper's assumption that the tear curve is smooth between close
 samples). A plane that passes within ``tolerance`` of a vertex of the path, that would put a tear
 point within 2% of an edge's length from its end, or that would leave a piece of a face smaller or
-thinner than the sliver rule of ``_geometry.poor_pieces`` allows, is moved along its normal in steps of
+thinner than the sliver rule of ``_geometry.sliver_mask`` allows, is moved along its normal in steps of
 5% of an edge (a gentle perturbation, as the XFEM paper's sec. 6.1 does for cuts through vertices), so
 that no sliver triangle is created; ``TearTopology.shift`` records the move.
 
@@ -29,7 +29,7 @@ vertices, the ``Scalpel`` and the opening (``tear_positions``), so they can be d
 
 from __future__ import annotations
 
-from typing import Literal, NamedTuple, overload
+from typing import Literal, NamedTuple, NoReturn, overload
 
 import jax.numpy as jnp
 import numpy as np
@@ -40,9 +40,8 @@ from _jaxcga_shared.checks import check_choice, check_triangle_mesh
 from _jaxcga_shared.mesh import bounding_diagonal
 from _jaxcga_shared.platform import EXACT
 from cutting._geometry import (
-    PIECE_ANGLE,
-    PIECE_AREA,
     MeshEdges,
+    SmallestFace,
     cross3,
     cross_rows,
     fan_triangles,
@@ -51,8 +50,7 @@ from cutting._geometry import (
     rest_positions,
     segment_hits,
     skinned_mesh_like,
-    smallest_doubled_area,
-    triangle_quality,
+    sliver_mask,
 )
 from cutting._predicates import PREDICATES, edge_points, signed_distances
 from cutting._tools import Scalpel, check_scalpel
@@ -67,7 +65,7 @@ _SHIFT_STEP = 0.05
 # the scalpel meets the surface on or near an edge).
 _TIP_MARGIN = 0.02
 # The edge margins alone allow a corner piece of 0.02 x 0.02 of its face; each face's pieces are
-# checked against the rule of ``poor_pieces`` with this headroom (the final points come from the
+# checked against the rule of ``sliver_mask`` with this headroom (the final points come from the
 # predicates, which may round differently), and the plane moves on where one is a sliver.
 _PIECE_HEADROOM = 1.1
 
@@ -155,37 +153,65 @@ class _Lost(Exception):
     """The plane's curve leaves the faces being followed (after a move, it may miss the first face)."""
 
 
-def _poor_face(V, F, edges: MeshEdges, f, pieces_of, smallest):
-    """Whether the pieces that the tear leaves of face f are slivers (the rule of
-    ``_geometry.poor_pieces``, with _PIECE_HEADROOM). ``pieces_of``: ``(points, tip)``, the new points
-    as ``{edge id: position}`` and the tip inside the face (or None): the same split as
-    ``_retriangulate``, a fan from the tip or the chord's two convex pieces."""
-    points, tip = pieces_of
-    corners = V[F[f]]
-    cycle = []  # the face's boundary in winding order, with its new points on their edges
-    for k, e in enumerate(edges.face_edges[f].tolist()):
-        cycle.append(("corner", tuple(corners[k])))
-        if e in points:
-            cycle.append(("point", tuple(points[e])))
-    if tip is not None:
-        triangles = [(cycle[m][1], cycle[(m + 1) % len(cycle)][1], tuple(tip)) for m in range(len(cycle))]
-    else:
-        start = next(m for m, z in enumerate(cycle) if z[0] == "point")
-        cycle = cycle[start:] + cycle[:start]
-        stop = next(m for m, z in enumerate(cycle) if z[0] == "point" and m > 0)
-        triangles = []
-        for piece in (cycle[: stop + 1], cycle[stop:] + cycle[:1]):
-            coordinates = [z[1] for z in piece]
-            triangles += [
-                tuple(coordinates[m] for m in ids) for ids in fan_triangles(list(range(len(piece))), coordinates)
-            ]
-    triangles = np.asarray(triangles, np.float64)
-    area, angle = triangle_quality(triangles[:, 0], triangles[:, 1], triangles[:, 2])
-    _, face_angle = triangle_quality(corners[None, 0], corners[None, 1], corners[None, 2])
-    return bool(
-        np.any(area < _PIECE_HEADROOM * PIECE_AREA * smallest)
-        or np.any(angle < min(_PIECE_HEADROOM * PIECE_ANGLE, face_angle[0]))
-    )
+# The pieces that a chord leaves of a face, in ``_retriangulate``'s order: a triangle and a quadrilateral, as
+# slots of [corners 0-2, the points on local edges 0-2], for the chord's local edges (0, 1), (0, 2) and (1, 2).
+_CHORD_TRIANGLES = np.array([[3, 1, 4], [5, 0, 3], [4, 2, 5]])
+_CHORD_QUADS = np.array([[4, 2, 0, 3], [3, 1, 2, 5], [5, 0, 1, 4]])
+# The boundary of a tip face with its one point (slot 3) on local edge k, fanned from the tip (slot 4).
+_TIP_CYCLES = np.array([[0, 3, 1, 2], [0, 1, 3, 2], [0, 1, 2, 3]])
+_TIP_FANS = np.stack([_TIP_CYCLES, np.roll(_TIP_CYCLES, -1, axis=1), np.full((3, 4), 4)], axis=2)  # (3, 4, 3)
+# ``fan_triangles`` of a quadrilateral: from each apex a, the triangles (a, a+i, a+i+1), i = 1, 2 (mod 4)
+_APEX = np.repeat(np.arange(4), 2)
+_FAN_B = (_APEX + np.tile([1, 2], 4)) % 4
+_FAN_C = (_FAN_B + 1) % 4
+
+
+def _local_edges(edges: MeshEdges, faces, edge_ids):
+    """The local index (0-2) of each edge in its face."""
+    return np.argmax(edges.face_edges[faces] == np.asarray(edge_ids)[:, None], axis=1)
+
+
+def _quad_fans(quads):
+    """``fan_triangles`` of quadrilaterals (c, 4, 3), in its arithmetic: the two triangles (c, 2, 3, 3) from
+    the first apex whose smaller triangle is largest."""
+    apex = quads[:, _APEX]
+    n = cross_rows(quads[:, _FAN_B] - apex, quads[:, _FAN_C] - apex)
+    sizes = n[..., 0] * n[..., 0] + n[..., 1] * n[..., 1] + n[..., 2] * n[..., 2]
+    best = np.argmax(sizes.reshape(-1, 4, 2).min(axis=2), axis=1)
+    ring = np.take_along_axis(quads, ((best[:, None] + np.arange(4)) % 4)[:, :, None], axis=1)
+    return np.stack([ring[:, [0, 1, 2]], ring[:, [0, 2, 3]]], axis=1)
+
+
+def _slivers(V, F, edges: MeshEdges, chords, tips, smallest: SmallestFace) -> bool:
+    """Whether the tear leaves a sliver piece (``sliver_mask`` with _PIECE_HEADROOM) of a face it crosses:
+    the same split as ``_retriangulate``, all faces at once. ``chords``: (face, entry edge, entry point,
+    exit edge, exit point) of the faces it goes through; ``tips``: (face, edge, point, tip) of the faces it
+    starts or ends in, fanned from the tip."""
+    pieces, parents = [], []
+    if chords:
+        faces, entry, entry_point, exit_, exit_point = (np.asarray(x) for x in zip(*chords))
+        corners = np.take(V, F[faces], axis=0)
+        smallest.near(corners)
+        slots = np.concatenate([corners, np.zeros_like(corners)], axis=1)
+        rows = np.arange(len(faces))
+        k_in, k_out = _local_edges(edges, faces, entry), _local_edges(edges, faces, exit_)
+        slots[rows, 3 + k_in] = entry_point
+        slots[rows, 3 + k_out] = exit_point
+        case = k_in + k_out - 1  # (0, 1) -> 0, (0, 2) -> 1, (1, 2) -> 2
+        pieces += [slots[rows[:, None], _CHORD_TRIANGLES[case]], _quad_fans(slots[rows[:, None], _CHORD_QUADS[case]])]
+        parents += [corners, np.repeat(corners, 2, axis=0)]
+    if tips:
+        faces, edge, point, tip = (np.asarray(x) for x in zip(*tips))
+        corners = np.take(V, F[faces], axis=0)
+        smallest.near(corners)
+        slots = np.concatenate([corners, point[:, None], tip[:, None]], axis=1)
+        fans = _TIP_FANS[_local_edges(edges, faces, edge)]  # (c, 4, 3)
+        pieces.append(slots[np.arange(len(faces))[:, None, None], fans])
+        parents.append(np.repeat(corners, 4, axis=0))
+    if not pieces:
+        return False
+    pieces = np.concatenate([p.reshape(-1, 3, 3) for p in pieces])
+    return bool(sliver_mask(pieces, np.concatenate(parents), smallest, _PIECE_HEADROOM).any())
 
 
 def _walk(
@@ -196,6 +222,15 @@ def _walk(
     last sample's face, holding the tip ``goal``, when ``final``).
     Returns the crossed edge ids and the faces entered (target last)."""
     crossed, entered = [], []
+    # The faces' pieces are checked together when the walk ends or fails: a sliver in any face it went
+    # through moves the plane, as a check face by face would have.
+    chords, tips = [], []
+
+    def stop(error: Exception) -> NoReturn:
+        if _slivers(V, F, edges, chords, tips, smallest):
+            raise _NearVertex
+        raise error
+
     f, e_from, point_in = start, entry_edge, entry_point
     for _ in range(len(F) + 1):
         if np.abs(s[F[f]]).min() <= margin:
@@ -204,7 +239,7 @@ def _walk(
             int(e) for e in edges.face_edges[f] if e != e_from and s[edges.edges[e, 0]] * s[edges.edges[e, 1]] < 0
         ]
         if not candidates:
-            raise _Lost
+            stop(_Lost())
         if len(candidates) > 1:
             # only in the first face: leave it towards the next sample
             def progress(e):
@@ -220,34 +255,38 @@ def _walk(
             raise _NearVertex
         point_out = V[i] + t * (V[j] - V[i])
         if e_from is None:
-            pieces_of = ({e: point_out}, origin)
+            tips.append((f, e, point_out, origin))
         else:
-            pieces_of = ({e_from: point_in, e: point_out}, None)
-        if _poor_face(V, F, edges, f, pieces_of, smallest):
-            raise _NearVertex
+            chords.append((f, e_from, point_in, e, point_out))
         if edges.edge_counts[e] != 2:
-            raise ValueError(
-                "mesh: the tear reaches the boundary of the surface or a non-manifold edge "
-                f"(edge {edges.edges[e].tolist()}; if the mesh has seams of split vertices, weld "
-                "it first: deform.weld or load_model(..., weld=True))"
+            stop(
+                ValueError(
+                    "mesh: the tear reaches the boundary of the surface or a non-manifold edge "
+                    f"(edge {edges.edges[e].tolist()}; if the mesh has seams of split vertices, weld "
+                    "it first: deform.weld or load_model(..., weld=True))"
+                )
             )
         g = int(edges.edge_faces[e, 0] if edges.edge_faces[e, 0] != f else edges.edge_faces[e, 1])
         crossed.append(e)
         entered.append(g)
         if g == target:
-            if final and _poor_face(V, F, edges, g, ({e: point_out}, goal), smallest):
+            if final:
+                tips.append((g, e, point_out, goal))
+            if _slivers(V, F, edges, chords, tips, smallest):
                 raise _NearVertex
             return crossed, entered
         if g == start:
-            raise ValueError(
-                "scalpel: the tear plane's curve on the surface does not reach the next sample "
-                "(it closes on itself; the samples are too far apart)"
+            stop(
+                ValueError(
+                    "scalpel: the tear plane's curve on the surface does not reach the next sample "
+                    "(it closes on itself; the samples are too far apart)"
+                )
             )
         if g in visited:
-            raise ValueError("scalpel: the tear path crosses itself")
+            stop(ValueError("scalpel: the tear path crosses itself"))
         visited.add(g)
         f, e_from, point_in = g, e, point_out
-    raise ValueError("scalpel: the tear path does not reach the next sample")
+    stop(ValueError("scalpel: the tear path does not reach the next sample"))
 
 
 def tear_topology(
@@ -282,7 +321,7 @@ def tear_topology(
         raise ValueError(f"edges: computed for another mesh (face_edges {edges.face_edges.shape}, F {F.shape})")
     diagonal = bounding_diagonal(V)
     margin = tolerance * diagonal
-    smallest = smallest_doubled_area(V, F)
+    smallest = SmallestFace(V, F)
     samples = [_tip(V, F, segment, i) for i, segment in enumerate(segments)]
     sample_faces = np.array([f for f, _, _ in samples])
     sample_points = np.array([p for _, _, p in samples])
@@ -571,7 +610,7 @@ def tear(
     torn = skinned_mesh_like(
         mesh,
         np.concatenate([np.asarray(mesh.V, np.float64), rest]),
-        np.concatenate([F[keep], triangles]),
+        np.concatenate([np.compress(keep, F, axis=0), triangles]),
         np.concatenate([J, J_new]),
         np.concatenate([W, W_new]),
     )

@@ -8,6 +8,7 @@ vertices have non-negative weights summing to one and whose input vertices keep 
 
 from __future__ import annotations
 
+import numpy as np
 import pytest
 
 import deform
@@ -26,3 +27,49 @@ def test_random_tools_make_no_slivers(name, tool, count):
     # a scalpel whose path it cannot follow (and another one is drawn)
     allowed = TOOL_REFUSALS if tool == "tear" else ()
     assert all(any(reason in message for reason in allowed) for message in stats["refused"]), stats["refused"][:5]
+
+
+def test_sliver_mask_is_the_rule_in_full():
+    # Its bounds only skip work (the input's smallest face, exact angles): the same answer as the rule computed
+    # directly, on pieces of Arm5's faces from tiny to whole and from needle-thin to fat.
+    from cutting._geometry import PIECE_ANGLE, PIECE_AREA, SmallestFace, sliver_mask, triangle_quality  # the rule
+
+    mesh = deform.load_model(DATA / "Arm5.glb", weld=True).mesh
+    V, F = np.asarray(mesh.V, np.float64), np.asarray(mesh.F)
+    all_corners = V[F]
+    doubled = np.linalg.norm(
+        np.cross(all_corners[:, 1] - all_corners[:, 0], all_corners[:, 2] - all_corners[:, 0]), axis=1
+    )
+    rng = np.random.default_rng(5)
+    count = 4000
+    corners = all_corners[rng.integers(len(F), size=count)]
+    # barycentric corners of each piece: near the face's corners (small pieces) or near a chord's midpoint (thin)
+    near = np.eye(3)[None] + 10 ** rng.uniform(-5, 0, (count, 1, 1)) * rng.dirichlet(np.ones(3), (count, 3))
+    thin = near.copy()
+    thin[:, 2] = 0.5 * (thin[:, 0] + thin[:, 1]) + 10 ** rng.uniform(-6, -1, (count, 1)) * rng.normal(size=(count, 3))
+    weights = np.where(rng.random((count, 1, 1)) < 0.5, near, thin)
+    pieces = np.einsum("tkj,tjc->tkc", weights / weights.sum(axis=2, keepdims=True), corners)
+    area, angle = triangle_quality(pieces[:, 0], pieces[:, 1], pieces[:, 2])
+    _, face_angle = triangle_quality(corners[:, 0], corners[:, 1], corners[:, 2])
+    # corner pieces of about the smallest area allowed, A, A + s (B - A), A + s (C - A), checked one at a time
+    # (a bound below the smallest face would pass them)
+    at_limit = rng.integers(len(F), size=200)
+    scale = np.sqrt(PIECE_AREA * doubled.min() * rng.uniform(0.95, 1.15, 200) / doubled[at_limit])[:, None]
+    A, B, C = all_corners[at_limit].transpose(1, 0, 2)
+    limit_pieces = np.stack([A, A + scale * (B - A), A + scale * (C - A)], axis=1)
+    limit_area, _ = triangle_quality(A, limit_pieces[:, 1], limit_pieces[:, 2])
+    for headroom in (1.0, 1.1):
+        small = area < headroom * PIECE_AREA * doubled.min()
+        sharp = angle < np.minimum(headroom * PIECE_ANGLE, face_angle)
+        assert small.sum() > 50 and (sharp & ~small).sum() > 50 and (~small & ~sharp).sum() > 50
+        for bound in (corners[:20], all_corners):  # a loose bound, and the exact value
+            smallest = SmallestFace(V, F)
+            smallest.near(bound)
+            assert np.array_equal(sliver_mask(pieces, corners, smallest, headroom), small | sharp)
+            assert smallest.value() == doubled.min()
+        expected = limit_area < headroom * PIECE_AREA * doubled.min()
+        assert 20 < expected.sum() < 180
+        for piece, face, poor in zip(limit_pieces, all_corners[at_limit], expected):
+            smallest = SmallestFace(V, F)
+            smallest.near(all_corners)
+            assert sliver_mask(piece[None], face[None], smallest, headroom)[0] == poor
