@@ -4,7 +4,10 @@ whose unit does not say which way is better (counts, differences); the names on 
 
 Worse is read from the unit (``direction``): a time or a memory size that grew, a ratio (``_report.RATIO_UNIT``,
 or any name under "ratios": larger than 1 means we are faster) or a rate (``points/s``, ``frames/s``) that fell.
-Within each group the largest move comes first (|log(new / old)|). The exit status is 0 whatever moved.
+Within each group the largest move comes first (|log(new / old)|). Where both files merge several runs
+(``best_of``: make bench-compare's), the moves that every run of one side makes against every run of the other
+(their "spread" apart) are marked ``*`` and come first in their group: the others are within the machine's noise.
+The exit status is 0 whatever moved.
 
     python benchmarks/compare.py OLD.json NEW.json [--threshold 0.1]
 """
@@ -43,11 +46,13 @@ def entries(result: dict) -> dict[str, tuple[str, float, str | None]]:
 
 
 def best_of(results: list[dict]) -> dict:
-    """One result from several runs of the same benchmarks: per name the best value (machine noise only slows a
-    run down), the median where the unit gives no direction; names missing from some runs kept from the others. The
-    other keys (platform, device, ...) are the first run's."""
+    """One result from several runs of the same benchmarks: per name the best value of a time or a rate (machine
+    noise only slows a run down), the median of a ratio (the noise falls on both sides of its fraction) and of a
+    value without a direction; of the finite values where there are any. "spread": name -> [smallest, largest] over
+    the runs. Names missing from some runs are kept from the others; the other keys (platform, device, ...) are the
+    first run's."""
     merged = {key: value for key, value in results[0].items() if key not in (*SECTIONS, "units")}
-    merged |= {key: {} for key in (*SECTIONS, "units")}
+    merged |= {key: {} for key in (*SECTIONS, "units", "spread")}
     values: dict[str, list[float]] = {}
     for result in results:
         for name, (section, value, unit) in entries(result).items():
@@ -57,9 +62,11 @@ def best_of(results: list[dict]) -> dict:
                 merged["units"][name] = unit
     for section in SECTIONS:
         for name in merged[section]:
-            sign = direction(section, merged["units"].get(name))
-            pick = {1: max, -1: min}.get(sign, statistics.median)
-            merged[section][name] = pick(values[name])
+            unit = merged["units"].get(name)
+            sign = 0 if section == "ratios" or unit == RATIO_UNIT else direction(section, unit)
+            finite = [v for v in values[name] if math.isfinite(v)] or values[name]
+            merged[section][name] = {1: max, -1: min}.get(sign, statistics.median)(finite)
+            merged["spread"][name] = [min(finite), max(finite)]
     return merged
 
 
@@ -74,26 +81,32 @@ class Move:
         self.change = new / old - 1 if old != 0 else math.copysign(math.inf, new)
         self.size = abs(math.log(new / old)) if finite and old != 0 and new / old > 0 else math.inf
         self.worse = self.sign * self.change < 0
+        self.apart = False  # every run of one side beyond every run of the other (``compare``)
 
     def line(self, width: int) -> str:
         unit = f"  {self.unit}" if self.unit else ""
-        return f"  {self.name:{width}s} {self.old:11.4g} -> {self.new:<11.4g} {100 * self.change:+8.1f}%{unit}"
+        mark = "*" if self.apart else " "
+        return f"{mark} {self.name:{width}s} {self.old:11.4g} -> {self.new:<11.4g} {100 * self.change:+8.1f}%{unit}"
 
 
 def compare(old: dict, new: dict, threshold: float = 0.1) -> dict:
     """The names that moved by more than ``threshold`` (|new / old - 1|), as ``Move``s grouped "worse", "better" and
-    "unknown" (no direction), each group the largest move first; "only_old" and "only_new": (name, value) on one
-    side only; "common": how many names both have."""
+    "unknown" (no direction), each group those whose runs lie apart first, then the largest move first; "only_old"
+    and "only_new": (name, value) on one side only; "common": how many names both have."""
     a, b = entries(old), entries(new)
+    spread_a, spread_b = old.get("spread", {}), new.get("spread", {})
     moves = []
     for name in a.keys() & b.keys():
         (section, before, unit), (_, after, new_unit) = a[name], b[name]
         if before == after or (math.isnan(before) and math.isnan(after)):
             continue
         move = Move(name, section, before, after, new_unit or unit)
+        if name in spread_a and name in spread_b:
+            (low_a, high_a), (low_b, high_b) = spread_a[name], spread_b[name]
+            move.apart = high_a < low_b or high_b < low_a
         if not abs(move.change) <= threshold:  # NaN on one side counts as moved
             moves.append(move)
-    moves.sort(key=lambda m: (-m.size, m.name))
+    moves.sort(key=lambda m: (not m.apart, -m.size, m.name))
     return {
         "worse": [m for m in moves if m.sign and m.worse],
         "better": [m for m in moves if m.sign and not m.worse],
@@ -114,6 +127,8 @@ def report(old: dict, new: dict, old_name: str, new_name: str, threshold: float 
         f"{old_name} -> {new_name}: {found['common']} figures and ratios on both sides, {len(moved)} moved by more "
         f"than {100 * threshold:g}%"
     ]
+    if old.get("spread") and new.get("spread"):
+        lines.append("marked *: every run of one side beyond every run of the other; the rest within the runs' noise")
     for key in ("platform", "device"):
         if old.get(key) != new.get(key):
             lines.append(f"note: the {key} differs: {old.get(key)} -> {new.get(key)}")

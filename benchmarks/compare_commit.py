@@ -7,8 +7,9 @@ measured differ. BASE's packages (those ``pyproject.toml`` ships) are exported w
 ``out/bench-compare/base/`` and put first on the scripts' ``sys.path`` (``_report.LIBRARY_VARIABLE``); the tree's
 are its own, uncommitted changes included. A script that calls what BASE lacks fails on BASE's side with that
 error in its log; the other benchmarks go on, and the exit status is 1. Each side's runs are merged per name by
-``compare.best_of`` (the better value: noise only slows a run down). The export is deleted at the end, also on an
-interrupt; the runs' logs and JSON stay in ``out/bench-compare/``.
+``compare.best_of`` (the best time or rate, the median ratio, and the runs' spread, by which ``compare.py`` marks
+the moves beyond the noise). The export is deleted at the end, also on an interrupt; the runs' logs and JSON stay in
+``out/bench-compare/`` (``base.json`` and ``tree.json``: the merged sides).
 
     python benchmarks/compare_commit.py BASE [--rounds 2] [--only skinning kernel] [--threshold 0.1]
 """
@@ -86,7 +87,8 @@ def main(argv=None) -> int:
     for side, results in runs.items():
         merged[side] = compare.best_of(results) | {"commit": commit if side == "base" else tree}
         (args.out / f"{side}.json").write_text(json.dumps(merged[side], indent=1))
-    print(f"\n{args.rounds} rounds in {time.perf_counter() - start:.0f} s; per side the best of its runs", flush=True)
+    took = time.perf_counter() - start
+    print(f"\n{args.rounds} rounds in {took:.0f} s; per side the best time or rate of its runs, the median ratio")
     print(compare.report(merged["base"], merged["tree"], f"BASE {args.base}", "tree", args.threshold), flush=True)
     if failed:
         print(f"failed: {', '.join(sorted(failed))} (logs in {args.out})", flush=True)

@@ -7,6 +7,7 @@ leaves them out, `make test-slow` runs them (with the notebooks), and CI (`.ci/r
 from __future__ import annotations
 
 import json
+import math
 import os
 import shutil
 import subprocess
@@ -372,9 +373,9 @@ def _listed(printed: str) -> dict[str, list[str]]:
     """The names under each heading of compare.py's output."""
     groups, heading = {}, None
     for line in printed.splitlines()[1:]:
-        if line.startswith("  "):
-            groups[heading].append(line.split()[0])
-        else:
+        if line.startswith(("  ", "* ")):
+            groups[heading].append(line[2:].split()[0] + line[0].strip())  # a name, marked * where its runs lie apart
+        elif not line.startswith("marked *"):
             heading = line.split(" (")[0].split(":")[0]
             groups[heading] = []
     return groups
@@ -427,7 +428,8 @@ def test_compare_direction_comes_from_the_unit_and_the_section():
 
 
 def test_best_of_runs_takes_each_names_better_value():
-    """Times the smaller, ratios and rates the larger, no direction the median; a name missing from a run kept."""
+    """Times the smaller, rates the larger, ratios and no direction the median, NaN never; a name missing from a run
+    kept; the spread of each name over the runs."""
     import compare
 
     units = {"t_ms": "ms", "rate": "points/s", "n": "count", "r": _report.RATIO_UNIT}
@@ -435,10 +437,13 @@ def test_best_of_runs_takes_each_names_better_value():
         {"figures": {"t_ms": 3.0, "rate": 10.0, "n": 1.0}, "ratios": {"r": 0.9}, "units": units, "device": "first"},
         {"figures": {"t_ms": 2.0, "rate": 30.0, "n": 5.0}, "ratios": {"r": 1.2}, "units": units, "device": "second"},
         {"figures": {"t_ms": 4.0, "rate": 20.0, "n": 2.0, "late_ms": 7.0}, "ratios": {"r": 1.0}, "units": units},
+        {"figures": {"t_ms": math.nan, "rate": math.nan}, "ratios": {"r": math.nan}, "units": units},  # a failed figure
     ]
     best = compare.best_of(runs)
     assert best["figures"] == {"t_ms": 2.0, "rate": 30.0, "n": 2.0, "late_ms": 7.0}
-    assert best["ratios"] == {"r": 1.2} and best["device"] == "first" and best["units"] == units
+    assert best["ratios"] == {"r": 1.0} and best["device"] == "first" and best["units"] == units
+    assert best["spread"] == {"t_ms": [2.0, 4.0], "rate": [10.0, 30.0], "n": [1.0, 5.0], "late_ms": [7.0, 7.0],
+                              "r": [0.9, 1.2]}  # fmt: skip
 
 
 def test_benchmarks_measure_the_packages_named_by_the_environment(tmp_path):
@@ -471,3 +476,19 @@ def test_compare_commit_exports_only_the_packages_of_a_commit(tmp_path):
         ["git", "show", "HEAD:deform/__init__.py"], capture_output=True, text=True, cwd=ROOT, check=True
     ).stdout
     assert (tmp_path / "deform" / "__init__.py").read_text() == committed
+
+
+def test_compare_marks_and_lists_first_the_moves_whose_runs_lie_apart(tmp_path, capsys):
+    """With the runs' spread on both sides (make bench-compare's merged files): a move that every run makes comes
+    before a larger one that the runs' noise covers."""
+    import compare
+
+    old, new = _compare_files(tmp_path)
+    spread = {"old": {"cut_ms": [9.0, 10.0], "blend_vs_dqs": [0.4, 1.2]}, "new": {"cut_ms": [13.0, 14.0],
+              "blend_vs_dqs": [0.5, 0.6]}}  # fmt: skip
+    for path, side in ((old, "old"), (new, "new")):
+        path.write_text(json.dumps(json.loads(path.read_text()) | {"spread": spread[side]}))
+    compare.main([str(old), str(new)])
+    printed = capsys.readouterr().out
+    assert _listed(printed)["worse"] == ["cut_ms*", "blend_vs_dqs", "fps_f32", "peak_gib"]
+    assert "marked *" in printed.splitlines()[1]
