@@ -34,10 +34,14 @@ sys.path.insert(0, str(LIBRARY))
 
 
 def check_library():
-    """Raise unless every package of the project imported so far comes from ``LIBRARY``."""
+    """Raise unless every package of the project imported so far comes from ``LIBRARY`` (by the path it was found
+    on, or with symbolic links resolved: a checkout reached through a link)."""
     for name in PACKAGES:
         module = sys.modules.get(name)
-        if module is not None and not Path(module.__file__ or "").is_relative_to(LIBRARY):
+        if module is None:
+            continue
+        path = Path(module.__file__ or "")
+        if not (path.is_relative_to(LIBRARY) or path.resolve().is_relative_to(LIBRARY.resolve())):
             raise RuntimeError(
                 f"the benchmark imported {name} from {module.__file__}, not from {LIBRARY} ({LIBRARY_VARIABLE}): "
                 "it must import benchmarks/_report.py before the project's packages"

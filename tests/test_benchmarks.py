@@ -463,6 +463,14 @@ def test_benchmarks_measure_the_packages_named_by_the_environment(tmp_path):
     early = "import sys, deform; sys.path.insert(0, 'benchmarks'); import _report; _report.print_device('probe')"
     done = subprocess.run([sys.executable, "-c", early], capture_output=True, text=True, env=env, cwd=ROOT)
     assert done.returncode != 0 and "must import benchmarks/_report.py before the project's packages" in done.stderr
+    # this checkout reached through a link (as pytest may find it) is this checkout
+    (tmp_path / "link").symlink_to(ROOT)
+    linked = early.replace(
+        "import sys, deform;", f"import sys; sys.path.insert(0, {str(tmp_path / 'link')!r}); import deform;"
+    )
+    env.pop(_report.LIBRARY_VARIABLE)
+    done = subprocess.run([sys.executable, "-c", linked], capture_output=True, text=True, env=env, cwd=ROOT)
+    assert done.returncode == 0, done.stderr[-3000:]
 
 
 @pytest.mark.skipif(shutil.which("git") is None or not (ROOT / ".git").exists(), reason="not a git checkout")
