@@ -4,7 +4,7 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test test-gpu-variants test-slow lint bench bench-gpu gpu-programs install clean
+.PHONY: demo test test-gpu-variants test-slow lint bench bench-quick bench-compare bench-gpu gpu-programs install clean
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
@@ -51,6 +51,18 @@ bench: $(STAMP)
 	$(PY) benchmarks/bench_xfem.py --json out/bench/xfem.json
 	$(PY) benchmarks/bench_batch.py --json out/bench/batch.json
 	$(PY) benchmarks/bench_viewer.py --json out/bench/viewer.json
+
+## The quick set: every benchmark, the figures the issues name at their own sizes where those are cheap, the rest
+## smaller (benchmarks/quick.py); about 5 minutes on 2 cores, JSON into out/bench-quick/quick.json. ONLY="a b" for some.
+bench-quick: $(STAMP)
+	$(PY) benchmarks/quick.py --out out/bench-quick $(if $(ONLY),--only $(ONLY))
+
+## The quick set on BASE's packages and on the working tree's, alternately (BASE, tree, BASE, tree: the same load on
+## both), measured by the working tree's scripts; then every figure that moved by more than 10%, worse first
+## (benchmarks/compare_commit.py, about 4 quick sets). ONLY="skinning kernel" for some benchmarks, ROUNDS=1 for AB.
+BASE ?= main
+bench-compare: $(STAMP)
+	$(PY) benchmarks/compare_commit.py $(BASE) $(if $(ONLY),--only $(ONLY)) $(if $(ROUNDS),--rounds $(ROUNDS))
 
 ## Benchmarks on a CUDA GPU: the GPU set at GPU sizes (1e7 points, 100k vertices, FEM 23k, XFEM accordion), names
 ## suffixed _gpu, JSON to out/bench-gpu/ and the issue 32 targets beside the figures (benchmarks/README.md).

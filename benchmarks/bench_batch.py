@@ -28,7 +28,8 @@ reuses it. Every figure below is measured on B:
 * the fitting figures of ``_batch_fit.fit_figures``: ``deform.fit_packed`` on 4 models against a loop of
   ``deform.fit_pose`` (cold and warm).
 
-    python benchmarks/bench_batch.py [--models 64] [--frames 100] [--devices 4] [--json out/bench/batch.json]
+    python benchmarks/bench_batch.py [--models 64] [--frames 100] [--devices 4] [--figures skinning sharded fit]
+                                     [--json out/bench/batch.json]
 """
 
 from __future__ import annotations
@@ -51,11 +52,16 @@ import numpy as np  # noqa: E402
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
-import _crowd  # noqa: E402
-from _batch_fit import fit_figures  # noqa: E402
+# _report first: it puts the checkout to measure on sys.path, and _crowd imports deform
 from _report import RATIO_UNIT, add_json_argument, platform, print_device, write_json  # noqa: E402
 
+# isort: split
+import _crowd  # noqa: E402
+from _batch_fit import fit_figures  # noqa: E402
+
 import deform  # noqa: E402
+
+FIGURES = ("skinning", "sharded", "fit")
 
 
 def batches(models: int, vertices: tuple[int, int], which: str = "AB") -> dict[str, list[deform.RiggedModel]]:
@@ -301,6 +307,14 @@ def main(argv=None):
     parser.add_argument("--devices", type=int, default=4, help="forced host devices of the sharded part (default 4)")
     parser.add_argument("--repeats", type=int, default=3, help="timed repetitions of the warm calls (default 3)")
     parser.add_argument("--quick", action="store_true", help="small sizes for a smoke test")
+    parser.add_argument(
+        "--figures",
+        nargs="+",
+        choices=FIGURES,
+        default=list(FIGURES),
+        help="skinning: the packed call against the loop; sharded: over forced host devices; fit: fit_packed "
+        "against a loop of fit_pose (default: all)",
+    )
     parser.add_argument("--sharded-child", type=Path, default=None, help=argparse.SUPPRESS)
     add_json_argument(parser)
     args = parser.parse_args(argv)
@@ -312,8 +326,14 @@ def main(argv=None):
     print_device("bench_batch")
     start = time.perf_counter()
     # a few models: the vmapped solve costs minutes per call on 2 CPU cores at 8 models (benchmarks/README.md)
-    fits = fit_figures(count=2 if args.quick else 4, targets_per_model=20 if args.quick else 100, repeats=args.repeats)
-    result = merged([skinning_figures(args), sharded_figures(args), fits])
+    parts = {
+        "fit": lambda: fit_figures(
+            count=2 if args.quick else 4, targets_per_model=20 if args.quick else 100, repeats=args.repeats
+        ),
+        "skinning": lambda: skinning_figures(args),
+        "sharded": lambda: sharded_figures(args),
+    }
+    result = merged([part() for name, part in parts.items() if name in args.figures])
     print(f"bench_batch: {time.perf_counter() - start:.0f} s in all", flush=True)
     write_json(args.json, result)
     return 0

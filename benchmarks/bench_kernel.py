@@ -31,13 +31,13 @@ jax.config.update("jax_enable_x64", True)
 import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
 
-import jaxcga as cga  # noqa: E402
-from _jaxcga_shared import pallas_rows  # noqa: E402
-from jaxcga import _versors  # noqa: E402
-
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _kingdon_peer import make_kingdon_sandwich  # noqa: E402
 from _report import RATIO_UNIT, add_json_argument, print_device, write_json  # noqa: E402
+
+import jaxcga as cga  # noqa: E402
+from _jaxcga_shared import pallas_rows  # noqa: E402
+from jaxcga import _versors  # noqa: E402
 
 
 def _ours(motor_values, x):

@@ -7,6 +7,7 @@ leaves them out, `make test-slow` runs them (with the notebooks), and CI (`.ci/r
 from __future__ import annotations
 
 import json
+import math
 import os
 import shutil
 import subprocess
@@ -335,3 +336,167 @@ def test_compile_for_gpu_compiles_the_triton_programs_for_an_h100(tmp_path):
     programs = {p["name"]: p for p in record["programs"]}
     for name in ("apply_to_points, a motor per point, float64", "motor field ffd, float64"):
         assert programs[name]["launches"] >= 1 and programs[name]["triton"], name
+
+
+def _write(path: Path, figures: dict, ratios: dict, units: dict) -> Path:
+    path.write_text(json.dumps({"figures": figures, "ratios": ratios, "units": units}))
+    return path
+
+
+# before and after: name -> (section, old, new, unit); the comments say how each moved
+_MOVES = {
+    "cut_ms": ("figures", 10.0, 13.0, "ms"),  # 30% slower: worse
+    "blend_vs_dqs": ("ratios", 1.0, 0.5, _report.RATIO_UNIT),  # half as fast against its baseline: worse, the worst
+    "points_per_s": ("figures", 100.0, 125.0, "points/s"),  # 25% more: better
+    "step_s": ("figures", 2.0, 1.7, "s (slowest frame)"),  # 15% faster: better; the unit's first word is a time
+    "peak_gib": ("figures", 4.0, 4.6, "GiB (peak RSS)"),  # 15% more memory: worse
+    "fps_f32": ("figures", 300.0, 200.0, "frames/s"),  # a third fewer frames: worse
+    "padded_ratio": ("figures", 1.5, 3.0, _report.RATIO_UNIT),  # a ratio among the figures: doubled, better
+    "dofs": ("figures", 100.0, 150.0, "count"),  # moved, no direction
+    "noise_ms": ("figures", 10.0, 10.5, "ms"),  # 5%: below the default threshold
+}
+
+
+def _compare_files(tmp_path) -> tuple[Path, Path]:
+    sides = []
+    for index, side in ((1, "old"), (2, "new")):
+        sections = {"figures": {}, "ratios": {}}
+        for name, move in _MOVES.items():
+            sections[move[0]][name] = move[index]
+        sections["figures"][f"only_{side}_ms"] = 1.0
+        units = {name: move[3] for name, move in _MOVES.items()} | {f"only_{side}_ms": "ms"}
+        sides.append(_write(tmp_path / f"{side}.json", sections["figures"], sections["ratios"], units))
+    return sides[0], sides[1]
+
+
+def _listed(printed: str) -> dict[str, list[str]]:
+    """The names under each heading of compare.py's output."""
+    groups, heading = {}, None
+    for line in printed.splitlines()[1:]:
+        if line.startswith(("  ", "* ")):
+            groups[heading].append(line[2:].split()[0] + line[0].strip())  # a name, marked * where its runs lie apart
+        elif not line.startswith("marked *"):
+            heading = line.split(" (")[0].split(":")[0]
+            groups[heading] = []
+    return groups
+
+
+def test_compare_lists_the_worse_first_by_unit_then_the_better_then_the_rest(tmp_path, capsys):
+    import compare
+
+    old, new = _compare_files(tmp_path)
+    assert compare.main([str(old), str(new)]) == 0
+    printed = capsys.readouterr().out
+    assert "9 figures and ratios on both sides, 8 moved by more than 10%" in printed.splitlines()[0]
+    assert _listed(printed) == {
+        "worse": ["blend_vs_dqs", "fps_f32", "cut_ms", "peak_gib"],  # the largest move first
+        "better": ["padded_ratio", "points_per_s", "step_s"],
+        "moved, the unit does not say which way is better": ["dofs"],
+        f"only in {old}": ["only_old_ms"],
+        f"only in {new}": ["only_new_ms"],
+    }
+    assert "-50.0%" in next(line for line in printed.splitlines() if "blend_vs_dqs" in line)
+
+
+def test_compare_threshold(tmp_path, capsys):
+    import compare
+
+    old, new = _compare_files(tmp_path)
+    compare.main([str(old), str(new), "--threshold", "0.04"])
+    assert _listed(capsys.readouterr().out)["worse"] == ["blend_vs_dqs", "fps_f32", "cut_ms", "peak_gib", "noise_ms"]
+    compare.main([str(old), str(new), "--threshold", "0.4"])
+    listed = _listed(capsys.readouterr().out)
+    assert listed["worse"] == ["blend_vs_dqs"] and listed["better"] == ["padded_ratio"]
+    assert listed["moved, the unit does not say which way is better"] == ["dofs"]
+
+
+def test_compare_direction_comes_from_the_unit_and_the_section():
+    import compare
+
+    for section, unit, sign in (
+        ("ratios", "x (JSON page size / ours)", 1),
+        ("figures", _report.RATIO_UNIT, 1),
+        ("figures", "vertex-frames/s", 1),
+        ("figures", "ms", -1),
+        ("figures", "s (slowest frame while a background cut is under way)", -1),
+        ("figures", "GiB (peak RSS of the process)", -1),
+        ("figures", "count (after the cuts)", 0),
+        ("figures", "x (padded work / real work)", 0),
+        ("figures", None, 0),
+    ):
+        assert compare.direction(section, unit) == sign, (section, unit)
+
+
+def test_best_of_runs_takes_each_names_better_value():
+    """Times the smaller, rates the larger, ratios and no direction the median, NaN never; a name missing from a run
+    kept; the spread of each name over the runs."""
+    import compare
+
+    units = {"t_ms": "ms", "rate": "points/s", "n": "count", "r": _report.RATIO_UNIT}
+    runs = [
+        {"figures": {"t_ms": 3.0, "rate": 10.0, "n": 1.0}, "ratios": {"r": 0.9}, "units": units, "device": "first"},
+        {"figures": {"t_ms": 2.0, "rate": 30.0, "n": 5.0}, "ratios": {"r": 1.2}, "units": units, "device": "second"},
+        {"figures": {"t_ms": 4.0, "rate": 20.0, "n": 2.0, "late_ms": 7.0}, "ratios": {"r": 1.0}, "units": units},
+        {"figures": {"t_ms": math.nan, "rate": math.nan}, "ratios": {"r": math.nan}, "units": units},  # a failed figure
+    ]
+    best = compare.best_of(runs)
+    assert best["figures"] == {"t_ms": 2.0, "rate": 30.0, "n": 2.0, "late_ms": 7.0}
+    assert best["ratios"] == {"r": 1.0} and best["device"] == "first" and best["units"] == units
+    assert best["spread"] == {"t_ms": [2.0, 4.0], "rate": [10.0, 30.0], "n": [1.0, 5.0], "late_ms": [7.0, 7.0],
+                              "r": [0.9, 1.2]}  # fmt: skip
+
+
+def test_benchmarks_measure_the_packages_named_by_the_environment(tmp_path):
+    """``JAXCGA_BENCH_LIBRARY`` (make bench-compare's BASE) puts another checkout's packages first, for a script
+    that imports ``_report`` before them; one that imports a package first is stopped by ``check_library``."""
+    for name in _report.PACKAGES:
+        (tmp_path / name).symlink_to(ROOT / name)
+    probe = (
+        "import sys; sys.path.insert(0, 'benchmarks'); import _report, deform; print(deform.__file__); "
+        "_report.print_device('probe')"
+    )
+    env = {**os.environ, _report.LIBRARY_VARIABLE: str(tmp_path), "JAX_PLATFORMS": "cpu"}
+    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, env=env, cwd=ROOT)
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert done.stdout.splitlines()[0] == str(tmp_path / "deform" / "__init__.py")
+    assert f"probe: cpu, cpu; library {tmp_path}" in done.stdout
+    early = "import sys, deform; sys.path.insert(0, 'benchmarks'); import _report; _report.print_device('probe')"
+    done = subprocess.run([sys.executable, "-c", early], capture_output=True, text=True, env=env, cwd=ROOT)
+    assert done.returncode != 0 and "must import benchmarks/_report.py before the project's packages" in done.stderr
+    # this checkout reached through a link (as pytest may find it) is this checkout
+    (tmp_path / "link").symlink_to(ROOT)
+    linked = early.replace(
+        "import sys, deform;", f"import sys; sys.path.insert(0, {str(tmp_path / 'link')!r}); import deform;"
+    )
+    env.pop(_report.LIBRARY_VARIABLE)
+    done = subprocess.run([sys.executable, "-c", linked], capture_output=True, text=True, env=env, cwd=ROOT)
+    assert done.returncode == 0, done.stderr[-3000:]
+
+
+@pytest.mark.skipif(shutil.which("git") is None or not (ROOT / ".git").exists(), reason="not a git checkout")
+def test_compare_commit_exports_only_the_packages_of_a_commit(tmp_path):
+    """BASE's side of make bench-compare: its packages, nothing else (the tests and benchmarks stay this tree's)."""
+    import compare_commit
+
+    names = compare_commit.export_library("HEAD", tmp_path)
+    assert set(names) == set(_report.PACKAGES) == {path.name for path in tmp_path.iterdir()}
+    committed = subprocess.run(
+        ["git", "show", "HEAD:deform/__init__.py"], capture_output=True, text=True, cwd=ROOT, check=True
+    ).stdout
+    assert (tmp_path / "deform" / "__init__.py").read_text() == committed
+
+
+def test_compare_marks_and_lists_first_the_moves_whose_runs_lie_apart(tmp_path, capsys):
+    """With the runs' spread on both sides (make bench-compare's merged files): a move that every run makes comes
+    before a larger one that the runs' noise covers."""
+    import compare
+
+    old, new = _compare_files(tmp_path)
+    spread = {"old": {"cut_ms": [9.0, 10.0], "blend_vs_dqs": [0.4, 1.2]}, "new": {"cut_ms": [13.0, 14.0],
+              "blend_vs_dqs": [0.5, 0.6]}}  # fmt: skip
+    for path, side in ((old, "old"), (new, "new")):
+        path.write_text(json.dumps(json.loads(path.read_text()) | {"spread": spread[side]}))
+    compare.main([str(old), str(new)])
+    printed = capsys.readouterr().out
+    assert _listed(printed)["worse"] == ["cut_ms*", "blend_vs_dqs", "fps_f32", "peak_gib"]
+    assert "marked *" in printed.splitlines()[1]
