@@ -30,7 +30,7 @@ from _report import LIBRARY_VARIABLE, ROOT  # noqa: E402
 
 QUICK = {
     "kernel": ["--repeats", "20"],
-    "skinning": ["--poses", "20", "--repeats", "30", "--batch-repeats", "1"],
+    "skinning": ["--poses", "20", "--repeats", "150", "--batch-repeats", "1"],
     "cutting": ["--repeats", "15"],
     "deform": ["--repeats", "7", "--harmonic-repeats", "2"],
     "arap": ["--vertices", "10000", "--repeats", "2"],
