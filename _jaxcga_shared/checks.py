@@ -79,29 +79,23 @@ def require(x: _T, *checks: tuple[JaxArrayLike, str]) -> _T:
     return x
 
 
-def require_around(fn: Callable[[_T], Array], operand: _T, *checks: tuple[JaxArrayLike, str]) -> Array:
+def require_around(fn: Callable[[Array], Array], operand: Array, *checks: tuple[JaxArrayLike, str]) -> Array:
     """``fn(operand)`` with ``require``'s checks made where each platform pays least for them: on the CPU on
     ``operand`` before ``fn`` runs, elsewhere on ``fn``'s result. A GPU reads a check's flag on the host, so
     checked first it idles while the host launches the rest; on the CPU a conditional that returns a large result
     copies it (a per-call cost: 0.1-0.2 ms for 100k skinned vertices), and a small operand costs nothing.
 
-    ``operand`` is a pytree of arrays (small: a table of joints or key motors); the checks' flags are computed
-    from it or before it. Outside jit and on concrete flags both placements raise the same ``ValueError``."""
-
-    def checked_first(operand):
-        leaves, tree = jax.tree.flatten(operand)
-        if not leaves:
-            return fn(operand)
-        return fn(jax.tree.unflatten(tree, [require(leaves[0], *checks), *leaves[1:]]))
-
-    def checked_last(operand):
-        return require(fn(operand), *checks)
-
+    ``operand`` is a small array (a table of joints or key motors); the checks' flags are computed from it or
+    before it. On concrete flags the ``ValueError`` comes at once, on every platform."""
     if not any(isinstance(bad, Tracer) for bad, _ in checks):
-        require(None, *checks)  # concrete flags: the ValueError now, on every platform
+        require(None, *checks)
         return fn(operand)
     # looked up at call time: the tests' --gpu-variants option replaces it to take the GPU branch on the CPU
-    return jax.lax.platform_dependent(operand, cpu=checked_first, default=checked_last)
+    return jax.lax.platform_dependent(
+        operand,
+        cpu=lambda operand: fn(require(operand, *checks)),
+        default=lambda operand: require(fn(operand), *checks),
+    )
 
 
 def compiled_error_message(error: BaseException) -> str | None:
