@@ -213,7 +213,8 @@ class SmallestFace:
 
     def value(self) -> float:
         if self._value is None:
-            from cutting._smallest_face import smallest_squared_doubled_area  # numba: imported on first use
+            # imported on first use: most tools never need the scan, and numba's import and cache load take ~0.4 s
+            from cutting._smallest_face import smallest_squared_doubled_area
 
             V, F = np.ascontiguousarray(self._V, np.float64), np.ascontiguousarray(self._F)
             self._value = float(np.sqrt(smallest_squared_doubled_area(V, F))) if len(F) else 0.0

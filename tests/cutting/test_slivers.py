@@ -73,3 +73,19 @@ def test_sliver_mask_is_the_rule_in_full():
             smallest = SmallestFace(V, F)
             smallest.near(all_corners)
             assert sliver_mask(piece[None], face[None], smallest, headroom)[0] == poor
+
+
+def test_the_tears_vectorized_fans_are_fan_triangles():
+    # The tear checks its pieces in arrays (_tear._quad_fans) and builds them face by face (fan_triangles): the
+    # check holds only if both pick the same apex, also for quadrilaterals with a point on an edge (collinear).
+    from cutting._geometry import fan_triangles  # the per-face rule
+    from cutting._tear import _quad_fans  # the tear's vectorized copy of it
+
+    rng = np.random.default_rng(3)
+    quads = rng.normal(size=(500, 4, 3))
+    t = rng.uniform(0.001, 0.999, size=(250, 1))
+    quads[:250, 1] = quads[:250, 0] + t * (quads[:250, 2] - quads[:250, 0])  # a point on the chord 0-2
+    fans = _quad_fans(quads)
+    for quad, fan in zip(quads, fans):
+        expected = fan_triangles(list(range(4)), quad.tolist())
+        np.testing.assert_array_equal(fan, quad[np.asarray(expected)])
