@@ -269,6 +269,9 @@ def _walk(
         g = int(edges.edge_faces[e, 0] if edges.edge_faces[e, 0] != f else edges.edge_faces[e, 1])
         crossed.append(e)
         entered.append(g)
+        if g == target and g in visited:
+            # an earlier step went through the next sample's face: cut twice, it would lose or double area
+            stop(ValueError("scalpel: the tear path crosses itself (it passed through the next sample's face)"))
         if g == target:
             if final:
                 tips.append((g, e, point_out, goal))

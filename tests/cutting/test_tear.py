@@ -8,7 +8,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 import trimesh
-from hypothesis import assume, given, settings
+from hypothesis import assume, example, given, settings
 from hypothesis import strategies as st
 
 import cutting
@@ -49,6 +49,8 @@ def _tear_or_refusal(mesh, scalpels, **kwargs):
     steps=st.floats(1.5, 4.0),
     predicates=st.sampled_from(cutting.PREDICATES),
 )
+# its first step passes through the last sample's face, which the tear then cut twice (area off by 3e-5)
+@example(name="Arm5", seed=74, samples=3, steps=3.96875, predicates="euclidean")
 def test_tear_invariants_on_real_models(name, seed, samples, steps, predicates):
     mesh = MODELS[name].mesh
     V, F = np.asarray(mesh.V, np.float64), np.asarray(mesh.F)
