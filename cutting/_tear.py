@@ -29,8 +29,10 @@ vertices, the ``Scalpel`` and the opening (``tear_positions``), so they can be d
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Literal, NamedTuple, NoReturn, overload
 
+import igl
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
@@ -53,7 +55,7 @@ from cutting._geometry import (
     sliver_mask,
 )
 from cutting._predicates import PREDICATES, edge_points, signed_distances
-from cutting._tools import Scalpel, check_scalpel
+from cutting._tools import Scalpel, check_scalpel, joined_scalpel
 from cutting._weights import blend_weights
 from deform._model import SkinnedMesh
 
@@ -68,27 +70,47 @@ _TIP_MARGIN = 0.02
 # checked against the rule of ``sliver_mask`` with this headroom (the final points come from the
 # predicates, which may round differently), and the plane moves on where one is a sliver.
 _PIECE_HEADROOM = 1.1
+# Between two samples whose plane's curve does not join them where the blade passed, the blade is sampled
+# again halfway, until it moves less than _RESOLUTION of a mean edge of the faces it crosses (or _MAX_DEPTH
+# halvings): then the tear ends at the first sample and begins again at the second.
+_RESOLUTION = 0.25
+_MAX_DEPTH = 30
+# The swept quadrilateral (blade_a handle, blade_a tip, blade_c tip, blade_c handle) as two triangles.
+_QUAD_TRIANGLES = np.array([[0, 1, 2], [0, 2, 3]])
 
 
 class TearTopology(NamedTuple):
     """The topology of a tear (``tear_topology``), and the geometry it was computed from.
 
+    The samples here are the blade's samples that the tear went through, in time order: the scalpel's own
+    and those added between them where the path needed them (s in all). The tear is one or more stretches
+    of consecutive samples (one, unless the blade leaves the surface and comes back).
+
     Attributes:
-        sample_faces: (k+1,) int the face crossed by the scalpel at each sample t_i.
-        sample_corners: (k+1, 3) int that face's vertices (``F[sample_faces]``).
-        sample_points: (k+1, 3) the crossings S_i.
-        sample_barycentric: (k+1, 3) barycentric coordinates of S_i in its face.
-        faces: (p,) int the faces on the tear path, in order from S_0's face to S_k's face.
-        edge_ids: (p-1,) int the edge (``MeshEdges`` id) between path faces j and j+1 that carries Q_j.
-        crossing: (p-1, 2) int its vertices (i, j).
-        t: (p-1,) parameter of Q_j along its edge, ``Q = (1 - t) V_i + t V_j``.
-        points: (p-1, 3) the Q_j before the opening.
-        step: (p-1,) int the scalpel step i (plane Pi_i) that gave Q_j.
-        planes: (k, 4) the planes Pi_i as (unit normal, d): the normal points to the tear's left
-            (face normal x path direction), d includes the perturbation.
-        orientation: (k,) +1 or -1: Pi_i's normal is ``orientation * (A - S_i) x (B - S_i)``
-            normalized, with A, B the scalpel's endpoints at t_{i+1}.
-        shift: (k,) how far each plane was moved along its oriented normal (the perturbation; mostly 0):
+        sample_faces: (s,) int the face crossed by the blade at each sample.
+        sample_corners: (s, 3) int that face's vertices (``F[sample_faces]``).
+        sample_points: (s, 3) the crossings S_i.
+        sample_barycentric: (s, 3) barycentric coordinates of S_i in its face.
+        sample_times: (s,) each sample's time in units of the scalpel's steps: at time i + a (0 <= a <= 1)
+            the blade's ends are ``(1 - a) X[i] + a X[i + 1]`` of the scalpel's handle and tip X.
+        stretches: (r, 2) int the first and the last sample of each stretch; their crossings are the tear's
+            tips, which stay single vertices.
+        stretch_faces: (r,) int how many of ``faces`` each stretch holds (p = their sum).
+        scalpel_samples: k+1, the scalpel's own samples.
+        faces: (p,) int the faces on the tear path, stretch after stretch, each in order from its first
+            sample's face to its last one's.
+        edge_ids: (q,) int the edge (``MeshEdges`` id) carrying Q_j, between consecutive faces of a stretch
+            (q = p - r).
+        crossing: (q, 2) int its vertices (i, j).
+        t: (q,) parameter of Q_j along its edge, ``Q = (1 - t) V_i + t V_j``.
+        points: (q, 3) the Q_j before the opening.
+        step: (q,) int the step i (between samples i and i + 1, plane Pi_i) that gave Q_j.
+        planes: (s-1, 4) the planes Pi_i as (unit normal, d): the normal points to the tear's left
+            (face normal x path direction), d includes the perturbation. Zero rows for the steps that gave
+            no Q_j (both samples in one face, or a gap between stretches).
+        orientation: (s-1,) +1 or -1: Pi_i's normal is ``orientation * (A - S_i) x (B - S_i)``
+            normalized, with A, B the blade's ends at sample i + 1 (0 where the row is zero).
+        shift: (s-1,) how far each plane was moved along its oriented normal (the perturbation; mostly 0):
             ``planes[i, 3] = planes[i, :3] . S_i + shift[i]``.
     """
 
@@ -96,6 +118,10 @@ class TearTopology(NamedTuple):
     sample_corners: Int[np.ndarray, "s 3"]
     sample_points: Float[np.ndarray, "s 3"]
     sample_barycentric: Float[np.ndarray, "s 3"]
+    sample_times: Float[np.ndarray, " s"]
+    stretches: Int[np.ndarray, "r 2"]
+    stretch_faces: Int[np.ndarray, " r"]
+    scalpel_samples: int
     faces: Int[np.ndarray, " f"]
     edge_ids: Int[np.ndarray, " q"]
     crossing: Int[np.ndarray, "q 2"]
@@ -128,16 +154,64 @@ def scalpel_path(blade: Float[ArrayLike, "2 3"], motors: cga.Multivector) -> Sca
     return Scalpel(samples[:, 0], samples[:, 1])
 
 
-def _tip(V, F, segment, index):
-    faces, barycentric, _ = segment_hits(V, F, segment[0], segment[1])
+def _blade(segments, time):
+    """The blade (2, 3) at ``time`` in [0, k]: its two ends interpolated linearly between the samples."""
+    i = min(int(np.floor(time)), len(segments) - 2)
+    a = time - i
+    return (1.0 - a) * segments[i] + a * segments[i + 1]
+
+
+class _Crossing(NamedTuple):
+    """Where the blade at ``time`` crosses the surface (the crossing nearest the handle), kept _TIP_MARGIN off
+    its face's edges."""
+
+    time: float
+    face: int
+    barycentric: np.ndarray
+    point: np.ndarray
+
+
+def _crossing(V, F, segments, time) -> _Crossing | None:
+    blade = _blade(segments, time)
+    faces, barycentric, _ = segment_hits(V, F, blade[0], blade[1])
     if len(faces) == 0:
-        raise ValueError(
-            f"scalpel (sample {index}): the scalpel does not cross the surface (no face between "
-            f"{segment[0].tolist()} and {segment[1].tolist()})"
-        )
+        return None
     b = np.maximum(barycentric[0], _TIP_MARGIN)
     b /= b.sum()
-    return int(faces[0]), b, b @ V[F[faces[0]]]
+    return _Crossing(float(time), int(faces[0]), b, b @ V[F[faces[0]]])
+
+
+def _swept_crossings(V, edges: MeshEdges, segments, step: int) -> np.ndarray:
+    """The times in [step, step + 1] at which edges of the mesh pierce the surface that the blade sweeps
+    between samples ``step`` and ``step + 1``: the quadrilateral handle_i, tip_i, tip_{i+1}, handle_{i+1}, as
+    the two triangles on its diagonal handle_i - tip_{i+1} (sorted; empty where the swept surface misses the
+    mesh)."""
+    (H0, T0), (H1, T1) = segments[step], segments[step + 1]
+    times = []
+    # each triangle with the time (as a fraction of the step) at its corners
+    for corners, at in (((H0, T0, T1), (0.0, 0.0, 1.0)), ((H0, T1, H1), (0.0, 1.0, 1.0))):
+        corners = np.asarray(corners)
+        # an edge with both ends beyond one side of the triangle's bounding box cannot pierce it
+        below, above = V < corners.min(axis=0), V > corners.max(axis=0)
+        i, j = edges.edges[:, 0], edges.edges[:, 1]
+        outside = ((below[i] & below[j]) | (above[i] & above[j])).any(axis=1)
+        pairs = edges.edges[~outside]
+        e1, e2 = corners[1] - corners[0], corners[2] - corners[0]
+        normal = np.cross(e1, e2)
+        squared = float(normal @ normal)
+        if not len(pairs) or squared == 0:
+            continue
+        A, B = V[pairs[:, 0]], V[pairs[:, 1]]
+        sA, sB = (A - corners[0]) @ normal, (B - corners[0]) @ normal
+        pierce = sA * sB < 0
+        A, B, sA, sB = A[pierce], B[pierce], sA[pierce], sB[pierce]
+        r = A + (sA / (sA - sB))[:, None] * (B - A) - corners[0]
+        # r = u e1 + v e2: barycentric coordinates in the triangle
+        u = cross_rows(r, np.broadcast_to(e2, r.shape)) @ normal / squared
+        v = cross_rows(np.broadcast_to(e1, r.shape), r) @ normal / squared
+        inside = (u >= 0) & (v >= 0) & (u + v <= 1)
+        times.append(step + np.stack([1.0 - u - v, u, v], axis=1)[inside] @ np.asarray(at))
+    return np.sort(np.concatenate(times)) if times else np.zeros(0)
 
 
 def _face_normal(V, corners):
@@ -151,6 +225,12 @@ class _NearVertex(Exception):
 
 class _Lost(Exception):
     """The plane's curve leaves the faces being followed (after a move, it may miss the first face)."""
+
+
+class _Blocked(Exception):
+    """The plane's curve does not join the two samples where the blade passed: it reaches the surface's
+    boundary or a face the tear already went through, closes on itself, or strays from the swept surface.
+    The step is sampled more finely, or the tear ends there."""
 
 
 # The pieces that a chord leaves of a face, in ``_retriangulate``'s order: a triangle and a quadrilateral, as
@@ -215,15 +295,30 @@ def _slivers(V, F, edges: MeshEdges, chords, tips, smallest: SmallestFace) -> bo
 
 
 def _walk(
-    V, F, edges: MeshEdges, s, margin, start, entry_edge, entry_point, origin, goal, target, visited, smallest, final
+    V,
+    F,
+    edges: MeshEdges,
+    s,
+    margin,
+    start,
+    entry_edge,
+    entry_point,
+    first_tip,
+    origin,
+    goal,
+    target,
+    visited,
+    reach,
+    smallest,
 ):
-    """Follow the zero set of the signed distances s from face ``start`` (entered over
-    ``entry_edge`` at ``entry_point``, or from the tip ``origin`` inside it) to face ``target`` (the
-    last sample's face, holding the tip ``goal``, when ``final``).
+    """Follow the zero set of the signed distances s from face ``start`` (entered over ``entry_edge`` at
+    ``entry_point``, or where the tear begins, at ``first_tip`` inside it) to face ``target``, holding the
+    sample ``goal``; ``origin`` is the sample the step leaves from. Every point stays within ``reach`` of it.
     Returns the crossed edge ids and the faces entered (target last)."""
     crossed, entered = [], []
     # The faces' pieces are checked together when the walk ends or fails: a sliver in any face it went
-    # through moves the plane, as a check face by face would have.
+    # through moves the plane, as a check face by face would have. The target's pieces are checked as the
+    # tip of the tear, which the tear may end at.
     chords, tips = [], []
 
     def stop(error: Exception) -> NoReturn:
@@ -255,47 +350,217 @@ def _walk(
             raise _NearVertex
         point_out = V[i] + t * (V[j] - V[i])
         if e_from is None:
-            tips.append((f, e, point_out, origin))
+            tips.append((f, e, point_out, first_tip))
         else:
             chords.append((f, e_from, point_in, e, point_out))
-        if edges.edge_counts[e] != 2:
-            stop(
-                ValueError(
-                    "mesh: the tear reaches the boundary of the surface or a non-manifold edge "
-                    f"(edge {edges.edges[e].tolist()}; if the mesh has seams of split vertices, weld "
-                    "it first: deform.weld or load_model(..., weld=True))"
-                )
-            )
+        if edges.edge_counts[e] != 2 or np.linalg.norm(point_out - origin) > reach:
+            stop(_Blocked())  # the surface's boundary (or a non-manifold edge); a curve that strays
         g = int(edges.edge_faces[e, 0] if edges.edge_faces[e, 0] != f else edges.edge_faces[e, 1])
         crossed.append(e)
         entered.append(g)
-        if g == target and g in visited:
-            # an earlier step went through the next sample's face: cut twice, it would lose or double area
-            stop(ValueError("scalpel: the tear path crosses itself (it passed through the next sample's face)"))
+        if g in visited or g == start:
+            stop(_Blocked())  # a face the tear went through (cut twice, it would lose or double area)
+        visited.add(g)
         if g == target:
-            if final:
-                tips.append((g, e, point_out, goal))
+            tips.append((g, e, point_out, goal))
             if _slivers(V, F, edges, chords, tips, smallest):
                 raise _NearVertex
             return crossed, entered
-        if g == start:
-            stop(
-                ValueError(
-                    "scalpel: the tear plane's curve on the surface does not reach the next sample "
-                    "(it closes on itself; the samples are too far apart)"
-                )
-            )
-        if g in visited:
-            stop(ValueError("scalpel: the tear path crosses itself"))
-        visited.add(g)
         f, e_from, point_in = g, e, point_out
-    stop(ValueError("scalpel: the tear path does not reach the next sample"))
+    stop(_Blocked())
+
+
+class _Path:
+    """The tear being built in time order (Algorithm 2, steps 1-3): stretches of samples of the blade, each
+    step of a stretch followed over the surface from one sample's crossing to the next."""
+
+    def __init__(self, V, F, edges: MeshEdges, segments, predicates, margin, smallest):
+        self.V, self.F, self.edges, self.segments = V, F, edges, segments
+        self.predicates, self.margin, self.smallest = predicates, margin, smallest
+        self.diagonal = bounding_diagonal(V)
+        # how far the blade's ends move over each step of the scalpel
+        self.motion = np.linalg.norm(segments[1:] - segments[:-1], axis=2).max(axis=1)
+        self.swept: dict[int, np.ndarray] = {}
+        self.touched = False  # whether any sample of the blade crossed the surface
+        self.samples: list[_Crossing] = []
+        self.stretches: list[list[int]] = []
+        self.stretch_faces: list[int] = []
+        self.faces: list[int] = []
+        self.crossed: list[int] = []
+        self.steps: list[int] = []
+        # per step between consecutive samples (zero rows for steps that cross no edge and between stretches)
+        self.planes: list[np.ndarray] = []
+        self.orientation: list[float] = []
+        self.shifts: list[float] = []
+        self.point_chunks: list[np.ndarray] = []
+        self.t_chunks: list[np.ndarray] = []
+        self.visited: set[int] = set()
+        self.open = False
+        self.entry_edge: int | None = None
+        self.entry_point = np.zeros(3)
+        self._saved = (0, 0, 0, 0)
+
+    def crossing(self, time) -> _Crossing | None:
+        c = _crossing(self.V, self.F, self.segments, time)
+        self.touched |= c is not None
+        return c
+
+    def edge_length(self, face) -> float:
+        corners = self.V[self.F[face]]
+        return float(np.linalg.norm(corners - np.roll(corners, 1, axis=0), axis=1).mean())
+
+    def _row(self, plane=None, sign=0.0, shift=0.0, points=None, t=None):
+        self.planes.append(np.zeros(4) if plane is None else plane)
+        self.orientation.append(sign)
+        self.shifts.append(shift)
+        self.point_chunks.append(np.zeros((0, 3)) if points is None else points)
+        self.t_chunks.append(np.zeros(0) if t is None else t)
+
+    def start(self, c: _Crossing):
+        """Begin a stretch at c, unless its face is already torn."""
+        if c.face in self.visited:
+            return
+        self._saved = (len(self.samples), len(self.faces), len(self.crossed), len(self.planes))
+        if self.samples:
+            self._row()  # the gap between two stretches
+        self.samples.append(c)
+        self.stretches.append([len(self.samples) - 1] * 2)
+        self.stretch_faces.append(1)
+        self.faces.append(c.face)
+        self.visited.add(c.face)
+        self.open, self.entry_edge, self.entry_point = True, None, c.point
+
+    def close(self):
+        """End the open stretch at its last sample; one that crossed no edge is dropped."""
+        if not self.open:
+            return
+        self.open = False
+        samples, faces, crossed, rows = self._saved
+        if len(self.crossed) == crossed:
+            self.visited.discard(self.faces[-1])
+            del self.samples[samples:], self.faces[faces:], self.stretches[-1], self.stretch_faces[-1]
+            for chunk in (self.planes, self.orientation, self.shifts, self.point_chunks, self.t_chunks):
+                del chunk[rows:]
+
+    def step(self, c: _Crossing) -> bool:
+        """Extend the open stretch to the sample c: whether the plane's curve joins them where the blade passed."""
+        V, F, edges = self.V, self.F, self.edges
+        a = self.samples[-1]
+        if c.face == self.faces[-1]:
+            self.samples.append(c)
+            self.stretches[-1][1] = len(self.samples) - 1
+            self._row()
+            return True
+        if c.face in self.visited:
+            return False
+        # Pi through S_a and the blade at c's time
+        blade_a, blade_c = _blade(self.segments, a.time), _blade(self.segments, c.time)
+        normal = cross_rows(blade_c[0] - a.point, blade_c[1] - a.point)
+        length = np.linalg.norm(normal)
+        if length <= 1e-12 * self.diagonal**2:
+            return False  # the blade passes through S_a: no plane
+        n = normal / length
+        d = float(n @ a.point)
+        # how far the plane strays from the quadrilateral swept over the step (0 for a blade that translates)
+        deviation = float(np.abs((blade_a - a.point) @ n).max())
+        chord = float(np.linalg.norm(c.point - a.point))
+        local = self.edge_length(self.faces[-1])
+        reach = 2.0 * chord + 4.0 * local + deviation
+        unit = _SHIFT_STEP * local
+        first_tip = self.samples[self.stretches[-1][0]].point
+        base = signed_distances(V, n, d, self.predicates) if self.predicates == "euclidean" else None
+        for shift in unit * np.array([0.0, 1.0, -1.0, 2.0, -2.0, 3.0, -3.0, 4.0, -4.0]):
+            s = base - shift if base is not None else signed_distances(V, n, d + shift, self.predicates)
+            try:
+                step_edges, step_faces = _walk(
+                    V,
+                    F,
+                    edges,
+                    s,
+                    self.margin,
+                    self.faces[-1],
+                    self.entry_edge,
+                    self.entry_point,
+                    first_tip,
+                    a.point,
+                    c.point,
+                    c.face,
+                    set(self.visited),
+                    reach,
+                    self.smallest,
+                )
+                break
+            except (_NearVertex, _Lost):
+                continue
+            except _Blocked:
+                return False
+        else:
+            return False
+        pairs = edges.edges[step_edges]
+        points, t = edge_points(
+            V[pairs[:, 0]], V[pairs[:, 1]], s[pairs[:, 0]], s[pairs[:, 1]], n, d + shift, self.predicates
+        )
+        # where the blade passed: every point near the swept quadrilateral (its two triangles)
+        quad = np.stack([blade_a[0], blade_a[1], blade_c[1], blade_c[0]])
+        squared, _, _ = igl.point_mesh_squared_distance(points, quad, _QUAD_TRIANGLES)
+        if np.sqrt(squared.max()) > deviation + abs(shift) + 0.25 * max(chord, local):
+            return False
+        # Orient the normal to the left of the path: face normal x direction of travel.
+        left = cross_rows(_face_normal(V, F[self.faces[-1]]), points[0] - self.entry_point)
+        sign = 1.0 if n @ left >= 0 else -1.0
+        self.visited.update(step_faces)
+        self.samples.append(c)
+        self.stretches[-1][1] = len(self.samples) - 1
+        self.stretch_faces[-1] += len(step_faces)
+        self.faces += step_faces
+        self.crossed += step_edges
+        self.steps += [len(self.samples) - 2] * len(step_edges)
+        self._row(np.append(sign * n, sign * (d + shift)), sign, sign * shift, points, t)
+        self.entry_edge, self.entry_point = step_edges[-1], points[-1]
+        return True
+
+    def _finer(self, ta, ca, tb, cb, depth) -> bool:
+        """Whether the interval [ta, tb] is sampled more finely: until the blade moves under a quarter of an
+        edge of the faces it crosses at its ends."""
+        present = [c.face for c in (ca, cb) if c is not None]
+        local = min(self.edge_length(f) for f in present)
+        return depth < _MAX_DEPTH and (tb - ta) * self.motion[min(int(ta), len(self.motion) - 1)] > _RESOLUTION * local
+
+    def follow(self, ta, ca, tb, cb, depth=0):
+        """Tear along the blade's path from time ta to tb (within one step of the scalpel), given its crossings
+        there (None: the blade misses the surface). On entry an open stretch ends at ca; on exit at cb."""
+        if ca is not None and cb is not None and self.open and self.step(cb):
+            return
+        if ca is None and cb is None:
+            # the blade may still cross the surface in between: where edges pierce the surface it sweeps
+            i = min(int(ta), len(self.motion) - 1)
+            if i not in self.swept:
+                self.swept[i] = _swept_crossings(self.V, self.edges, self.segments, i)
+            inside = self.swept[i][(self.swept[i] > ta) & (self.swept[i] < tb)]
+            if len(inside) and depth < _MAX_DEPTH:
+                self.touched = True
+                tm = float(inside[len(inside) // 2])
+                cm = self.crossing(tm)
+                self.follow(ta, ca, tm, cm, depth + 1)
+                self.follow(tm, cm, tb, cb, depth + 1)
+            return
+        if self._finer(ta, ca, tb, cb, depth):
+            tm = 0.5 * (ta + tb)
+            cm = self.crossing(tm)
+            self.follow(ta, ca, tm, cm, depth + 1)
+            self.follow(tm, cm, tb, cb, depth + 1)
+            return
+        # at the finest sampling: the tear ends at ca (the blade leaves the surface, or its curve cannot join
+        # the next sample) and begins again at cb
+        self.close()
+        if cb is not None:
+            self.start(cb)
 
 
 def tear_topology(
     V: Float[ArrayLike, "n 3"],
     F: Int[ArrayLike, "m 3"],
-    scalpel: Scalpel,
+    scalpel: Scalpel | Sequence[Scalpel],
     *,
     predicates: str = "euclidean",
     tolerance: float = 1e-6,
@@ -306,14 +571,15 @@ def tear_topology(
     Args:
         V: (n, 3) vertex positions (rest pose or posed).
         F: (m, 3) int faces.
-        scalpel: the ``Scalpel``: handle and tip ends (k+1, 3) at k+1 >= 2 time steps.
+        scalpel: the ``Scalpel``: handle and tip ends (k+1, 3) at k+1 >= 2 time steps, or a sequence of
+            ``Scalpel``s (each of one sample, (3,) ends, or several) joined in order.
         predicates: ``"euclidean"`` or ``"ga"`` (Table 1) for the side of a vertex and the edge points.
         tolerance: planes passing closer than ``tolerance`` times the bounding-box diagonal to a path
             vertex are moved away from it (see the module docstring).
         edges: ``mesh_edges(F)``, precomputed once per topology.
     Raises:
-        ValueError: a scalpel sample that does not cross the surface, a tear that crosses no edge
-            (it stays inside one face), reaches the boundary, crosses itself or cannot be followed."""
+        ValueError: a blade that never crosses the surface (neither its samples' segments nor the surface it
+            sweeps meets the mesh), or whose path crosses no edge of the mesh (it stays inside one face)."""
     check_choice("predicates", predicates, PREDICATES)
     V, F = check_triangle_mesh(V, F, min_faces=0)
     segments = check_scalpel(scalpel)
@@ -322,126 +588,59 @@ def tear_topology(
     edges = mesh_edges(F) if edges is None else edges
     if edges.face_edges.shape != F.shape:
         raise ValueError(f"edges: computed for another mesh (face_edges {edges.face_edges.shape}, F {F.shape})")
-    diagonal = bounding_diagonal(V)
-    margin = tolerance * diagonal
-    smallest = SmallestFace(V, F)
-    samples = [_tip(V, F, segment, i) for i, segment in enumerate(segments)]
-    sample_faces = np.array([f for f, _, _ in samples])
-    sample_points = np.array([p for _, _, p in samples])
-    sample_barycentric = np.array([b for _, b, _ in samples])
-
-    faces, crossed, steps = [int(sample_faces[0])], [], []
-    planes, orientation, shifts, point_chunks, t_chunks = [], [], [], [], []
-    visited = {faces[0]}
-    entry_edge, entry_point = None, sample_points[0]
+    path = _Path(V, F, edges, segments, predicates, tolerance * bounding_diagonal(V), SmallestFace(V, F))
+    crossings = [path.crossing(float(i)) for i in range(len(segments))]
+    if crossings[0] is not None:
+        path.start(crossings[0])
     for i in range(len(segments) - 1):
-        origin, goal = sample_points[i], sample_points[i + 1]
-        A, B = segments[i + 1]
-        normal = cross_rows(A - origin, B - origin)
-        length = np.linalg.norm(normal)
-        if length <= 1e-12 * diagonal**2:
+        path.follow(float(i), crossings[i], float(i + 1), crossings[i + 1])
+    path.close()
+    if not path.stretches:
+        if not path.touched:
             raise ValueError(
-                f"scalpel (sample {i + 1}): the scalpel passes through the previous tear point, so the "
-                "tear plane is not defined (move the scalpel between samples)"
+                f"scalpel: the scalpel never crosses the surface: none of its {len(segments)} samples' segments, "
+                "nor the surface it sweeps, meets the mesh"
             )
-        n = normal / length
-        d = float(n @ origin)
-        target = int(sample_faces[i + 1])
-        sign, shift = 1.0, 0.0
-        step_edges, step_faces = [], []
-        if target != faces[-1]:
-            # the plane as given, then moved along its normal both ways (gentle perturbation)
-            corners = V[F[faces[-1]]]
-            unit = _SHIFT_STEP * np.linalg.norm(corners - np.roll(corners, 1, axis=0), axis=1).mean()
-            for shift in unit * np.array([0.0, 1.0, -1.0, 2.0, -2.0, 3.0, -3.0, 4.0, -4.0]):
-                s = signed_distances(V, n, d + shift, predicates)
-                try:
-                    step_edges, step_faces = _walk(
-                        V,
-                        F,
-                        edges,
-                        s,
-                        margin,
-                        faces[-1],
-                        entry_edge,
-                        entry_point,
-                        origin,
-                        goal,
-                        target,
-                        set(visited),
-                        smallest,
-                        final=i == len(segments) - 2,
-                    )
-                    break
-                except _NearVertex:
-                    failure = (
-                        f"scalpel (sample {i + 1}): the tear plane keeps passing through or next to "
-                        "vertices of the mesh (within the tolerance, or leaving sliver triangles); move "
-                        "the scalpel slightly"
-                    )
-                except _Lost:
-                    failure = (
-                        "scalpel: the tear plane leaves the surface's path between two samples (the "
-                        "samples are too far apart or the tear turns back)"
-                    )
-            else:
-                raise ValueError(failure)
-            # Orient the normal to the left of the path: face normal x direction of travel.
-            i0, j0 = edges.edges[step_edges[0]]
-            first_point = V[i0] + s[i0] / (s[i0] - s[j0]) * (V[j0] - V[i0])
-            left = cross_rows(_face_normal(V, F[faces[-1]]), first_point - entry_point)
-            sign = 1.0 if n @ left >= 0 else -1.0
-            visited.update(step_faces)
-            pairs = edges.edges[step_edges]
-            points, t = edge_points(
-                V[pairs[:, 0]], V[pairs[:, 1]], s[pairs[:, 0]], s[pairs[:, 1]], n, d + shift, predicates
-            )
-        else:
-            points, t = np.zeros((0, 3)), np.zeros(0)
-        planes.append(np.append(sign * n, sign * (d + shift)))
-        orientation.append(sign)
-        shifts.append(sign * shift)  # along the oriented normal
-        point_chunks.append(points)
-        t_chunks.append(t)
-        crossed += step_edges
-        steps += [i] * len(step_edges)
-        faces += step_faces
-        if step_edges:
-            entry_edge, entry_point = step_edges[-1], points[-1]
-    if not crossed:
         raise ValueError(
-            "scalpel: the tear crosses no edge of the mesh (it stays inside one face); move the "
-            "scalpel farther between samples"
+            "scalpel: the tear crosses no edge of the mesh (the blade's path on the surface stays inside one "
+            "face); move the scalpel farther between samples"
         )
-    crossed = np.asarray(crossed)
+    crossed = np.asarray(path.crossed)
+    sample_faces = np.array([c.face for c in path.samples])
     return TearTopology(
         sample_faces,
         F[sample_faces],
-        sample_points,
-        sample_barycentric,
-        np.asarray(faces),
+        np.array([c.point for c in path.samples]),
+        np.array([c.barycentric for c in path.samples]),
+        np.array([c.time for c in path.samples]),
+        np.asarray(path.stretches, np.int64),
+        np.asarray(path.stretch_faces, np.int64),
+        len(segments),
+        np.asarray(path.faces),
         crossed,
         edges.edges[crossed],
-        np.concatenate(t_chunks),
-        np.concatenate(point_chunks),
-        np.asarray(steps),
-        np.asarray(planes),
-        np.asarray(orientation),
-        np.asarray(shifts),
+        np.concatenate(path.t_chunks),
+        np.concatenate(path.point_chunks),
+        np.asarray(path.steps, np.int64),
+        np.asarray(path.planes).reshape(-1, 4),
+        np.asarray(path.orientation),
+        np.asarray(path.shifts),
     )
 
 
 def _retriangulate(V, F, edges: MeshEdges, topology: TearTopology, n_vertices: int):
-    """Triangles replacing the path faces (Algorithm 2, step 5). Vertex ids: the input's, then S_0
-    (n), S_k (n+1), the left copies of Q_j (n+2+j), the right copies (n+2+q+j). Per path face in
-    plain Python: a path crosses few faces, and small arrays cost more than they save."""
+    """Triangles replacing the path faces (Algorithm 2, step 5). Vertex ids: the input's, then the first and
+    last sample of each stretch (n + 2r, n + 2r + 1), the left copies of Q_j (n + 2s + j, s stretches), the right
+    copies (n + 2s + q + j). Per path face in plain Python: a path crosses few faces, and small arrays cost more
+    than they save."""
     q = len(topology.t)
-    tips = (n_vertices, n_vertices + 1)
+    first_copy = n_vertices + 2 * len(topology.stretches)
     point_of_edge = {e: j for j, e in enumerate(topology.edge_ids.tolist())}
     corners_of = F[topology.faces].tolist()
     position = dict(zip(np.ravel(corners_of).tolist(), V[np.ravel(corners_of)].tolist()))
     points = topology.points.tolist()
-    sample_points = topology.sample_points[[0, -1]].tolist()
+    tip_points = topology.sample_points[topology.stretches.ravel()].tolist()
+    local_edges = edges.face_edges[topology.faces].tolist()
 
     def sub(a, b):
         return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
@@ -453,57 +652,62 @@ def _retriangulate(V, F, edges: MeshEdges, topology: TearTopology, n_vertices: i
         # the corner lies left of the directed path (face normal x direction)
         return dot(cross3(normal, direction), sub(position[corner], origin)) > 0
 
+    def copy(j, left):
+        return first_copy + j if left else first_copy + q + j
+
     triangles = []
-    last = len(topology.faces) - 1
-    for at, (corners, local) in enumerate(zip(corners_of, edges.face_edges[topology.faces].tolist())):
-        a, b, c = (position[v] for v in corners)
-        normal = cross3(sub(b, a), sub(c, a))
-        entry = at - 1 if at > 0 else None
-        exit_ = at if at < last else None
-        # the face's boundary in winding order, with its path points on their edges
-        cycle = []
-        for k in range(3):
-            cycle.append(("corner", corners[k]))
-            j = point_of_edge.get(local[k])
-            if j is not None and j in (entry, exit_):
-                cycle.append(("point", j))
-        if entry is None or exit_ is None:  # a tip face: fan from the tip S inside it
-            tip = tips[0] if entry is None else tips[1]
-            j = exit_ if entry is None else entry
-            tip_point = sample_points[0] if entry is None else sample_points[1]
-            direction = sub(points[j], tip_point) if entry is None else sub(tip_point, points[j])
-            for m in range(len(cycle)):
-                x, y = cycle[m], cycle[(m + 1) % len(cycle)]
-                if "point" in (x[0], y[0]):
-                    corner = y[1] if x[0] == "point" else x[1]
-                    copy = _copy(j, q, n_vertices, is_left(normal, points[j], direction, corner))
-                    ids = [copy if z[0] == "point" else z[1] for z in (x, y)]
-                else:
-                    ids = [x[1], y[1]]
-                triangles.append((ids[0], ids[1], tip))
-            continue
-        # a chord face: the segment entry -> exit splits it into two convex pieces
-        start = cycle.index(("point", entry))
-        cycle = cycle[start:] + cycle[:start]
-        stop = cycle.index(("point", exit_))
-        direction = sub(points[exit_], points[entry])
-        for piece in (cycle[: stop + 1], cycle[stop:] + cycle[:1]):
-            corner = next(z[1] for z in piece if z[0] == "corner")
-            left = is_left(normal, points[entry], direction, corner)
-            ids = [_copy(z[1], q, n_vertices, left) if z[0] == "point" else z[1] for z in piece]
-            coordinates = [points[z[1]] if z[0] == "point" else position[z[1]] for z in piece]
-            triangles += fan_triangles(ids, coordinates)
+    at, j0 = 0, 0  # the stretch's first face on the path and its first point
+    for r, count in enumerate(topology.stretch_faces.tolist()):
+        last = at + count - 1
+        for face in range(at, last + 1):
+            corners, local = corners_of[face], local_edges[face]
+            a, b, c = (position[v] for v in corners)
+            normal = cross3(sub(b, a), sub(c, a))
+            # the points on the edges where the path enters and leaves the face (the stretch's j-th face
+            # lies between its points j - 1 and j)
+            entry = j0 + face - at - 1 if face > at else None
+            exit_ = j0 + face - at if face < last else None
+            # the face's boundary in winding order, with its path points on their edges
+            cycle = []
+            for k in range(3):
+                cycle.append(("corner", corners[k]))
+                j = point_of_edge.get(local[k])
+                if j is not None and j in (entry, exit_):
+                    cycle.append(("point", j))
+            if entry is None or exit_ is None:  # a tip face: fan from the tip S inside it
+                tip = n_vertices + 2 * r + (0 if entry is None else 1)
+                j = exit_ if entry is None else entry
+                tip_point = tip_points[tip - n_vertices]
+                direction = sub(points[j], tip_point) if entry is None else sub(tip_point, points[j])
+                for m in range(len(cycle)):
+                    x, y = cycle[m], cycle[(m + 1) % len(cycle)]
+                    if "point" in (x[0], y[0]):
+                        corner = y[1] if x[0] == "point" else x[1]
+                        copied = copy(j, is_left(normal, points[j], direction, corner))
+                        ids = [copied if z[0] == "point" else z[1] for z in (x, y)]
+                    else:
+                        ids = [x[1], y[1]]
+                    triangles.append((ids[0], ids[1], tip))
+                continue
+            # a chord face: the segment entry -> exit splits it into two convex pieces
+            start = cycle.index(("point", entry))
+            cycle = cycle[start:] + cycle[:start]
+            stop = cycle.index(("point", exit_))
+            direction = sub(points[exit_], points[entry])
+            for piece in (cycle[: stop + 1], cycle[stop:] + cycle[:1]):
+                corner = next(z[1] for z in piece if z[0] == "corner")
+                left = is_left(normal, points[entry], direction, corner)
+                ids = [copy(z[1], left) if z[0] == "point" else z[1] for z in piece]
+                coordinates = [points[z[1]] if z[0] == "point" else position[z[1]] for z in piece]
+                triangles += fan_triangles(ids, coordinates)
+        at, j0 = last + 1, j0 + count - 1
     return np.asarray(triangles, np.int64).reshape(-1, 3)
-
-
-def _copy(j, q, n_vertices, is_left):
-    return n_vertices + 2 + j if is_left else n_vertices + 2 + q + j
 
 
 @overload
 def tear(
     mesh: SkinnedMesh,
-    scalpel: Scalpel,
+    scalpel: Scalpel | Sequence[Scalpel],
     *,
     opening: float = ...,
     predicates: str = ...,
@@ -518,7 +722,7 @@ def tear(
 @overload
 def tear(
     mesh: SkinnedMesh,
-    scalpel: Scalpel,
+    scalpel: Scalpel | Sequence[Scalpel],
     *,
     opening: float = ...,
     predicates: str = ...,
@@ -532,7 +736,7 @@ def tear(
 
 def tear(
     mesh: SkinnedMesh,
-    scalpel: Scalpel,
+    scalpel: Scalpel | Sequence[Scalpel],
     *,
     opening: float = 0.0,
     predicates: str = "euclidean",
@@ -547,8 +751,9 @@ def tear(
     Args:
         mesh: the SkinnedMesh (``deform``).
         scalpel: the ``Scalpel``: its handle and tip ends (k+1, 3) at time steps t_0 .. t_k, in the
-            space of the mesh as torn: the bind pose, or the pose of ``joint_matrices``. Two samples
-            are the paper's ``scalpel_0, scalpel_1``; more make one tear along the whole path.
+            space of the mesh as torn: the bind pose, or the pose of ``joint_matrices``; or a sequence of
+            ``Scalpel``s (one sample each, (3,) ends, or more) joined in order. Two samples are the paper's
+            ``scalpel_0, scalpel_1``; more make one tear along the whole path.
         opening: the distance between the two copies of every interior tear point (each is pushed
             ``opening / 2`` along the tear plane's normal, away from it); 0 leaves a closed slit.
         predicates: ``"euclidean"`` or ``"ga"`` (Table 1).
@@ -561,8 +766,11 @@ def tear(
         edges: ``mesh_edges(mesh.F)``, precomputed.
         return_topology: also return the ``TearTopology`` (for ``tear_positions``).
     Returns:
-        The torn SkinnedMesh (the input's vertices first, in order; then S_0, S_k, the left copies of
-        the Q_j, the right copies), and the TearTopology when ``return_topology``."""
+        The torn SkinnedMesh (the input's vertices first, in order; then the tips, the first and last
+        crossing of each stretch (S_0 and S_k when the blade stays on the surface), the left copies of the
+        Q_j, the right copies), and the TearTopology when ``return_topology``.
+    Raises:
+        ValueError: bad arguments, or a blade that never crosses the surface (see ``tear_topology``)."""
     if not 0.0 <= side_weight <= 1.0:
         raise ValueError(f"side_weight: expected a number in [0, 1], got {side_weight}")
     if not (np.isfinite(opening) and opening >= 0):
@@ -574,8 +782,8 @@ def tear(
     topology = tear_topology(space, F, scalpel, predicates=predicates, tolerance=tolerance, edges=edges)
     n_vertices, q = len(space), len(topology.t)
 
-    tip_faces = topology.sample_faces[[0, -1]]
-    J_tips, W_tips = blend_weights(J, W, F[tip_faces], topology.sample_barycentric[[0, -1]])
+    tips = topology.stretches.ravel()
+    J_tips, W_tips = blend_weights(J, W, topology.sample_corners[tips], topology.sample_barycentric[tips])
     J_q, W_q = blend_weights(J, W, topology.crossing, np.stack([1.0 - topology.t, topology.t], axis=1))
     normals = topology.planes[topology.step, :3]
     copies_J, copies_W = [], []
@@ -600,7 +808,7 @@ def tear(
     W_new = np.concatenate([W_tips] + copies_W)
     world = np.concatenate(
         [
-            topology.sample_points[[0, -1]],
+            topology.sample_points[tips],
             topology.points + 0.5 * opening * normals,
             topology.points - 0.5 * opening * normals,
         ]
@@ -621,28 +829,41 @@ def tear(
 
 
 def tear_positions(
-    V: Float[ArrayLike, "n 3"], topology: TearTopology, scalpel: Scalpel, *, opening: Float[ArrayLike, ""] = 0.0
-) -> tuple[Float[Array, "2 3"], Float[Array, "q 3"], Float[Array, "q 3"]]:
+    V: Float[ArrayLike, "n 3"],
+    topology: TearTopology,
+    scalpel: Scalpel | Sequence[Scalpel],
+    *,
+    opening: Float[ArrayLike, ""] = 0.0,
+) -> tuple[Float[Array, "t 3"], Float[Array, "q 3"], Float[Array, "q 3"]]:
     """Positions of a tear's new vertices as a JAX function of the vertices, the scalpel and the
     opening, for a fixed topology: differentiable with respect to all three (``jax.grad`` over a
-    ``Scalpel`` gives a ``Scalpel``). Each S_i is the scalpel's crossing with its face's plane, kept the
-    same 2% (barycentric) off the face's edges as in ``tear_topology``.
+    ``Scalpel`` gives a ``Scalpel``). Each sample S_i is the blade's crossing with its face's plane at the
+    sample's time (the blade interpolated linearly between the scalpel's samples), kept the same 2%
+    (barycentric) off the face's edges as in ``tear_topology``.
 
     Args:
         V: (n, 3) vertex positions, as torn (posed, when torn with ``joint_matrices``).
         topology: the tear's ``TearTopology``.
-        scalpel: the ``Scalpel``, with as many samples (k+1) as the topology was computed from.
+        scalpel: the ``Scalpel`` (or sequence of them), with as many samples (k+1) as the topology was
+            computed from.
         opening: () the distance between the two copies of every Q_j (see ``tear``).
     Returns:
-        (tips (2, 3): S_0 and S_k, left (q, 3), right (q, 3): the two copies of every Q_j)."""
+        (tips (2r, 3): the first and last crossing of each of the r stretches (S_0 and S_k for one), left
+        (q, 3), right (q, 3): the two copies of every Q_j)."""
     V = jnp.asarray(V)
-    X0, X1 = jnp.asarray(scalpel.handle), jnp.asarray(scalpel.tip)
-    if X0.shape != (len(topology.sample_faces), 3) or X1.shape != X0.shape:
+    scalpel = joined_scalpel(scalpel)
+    handle, tip = jnp.asarray(scalpel.handle), jnp.asarray(scalpel.tip)
+    if handle.shape != (topology.scalpel_samples, 3) or tip.shape != handle.shape:
         raise ValueError(
-            f"scalpel: expected handle and tip ends of shape ({len(topology.sample_faces)}, 3) (the "
-            f"topology's samples), got {X0.shape}, {X1.shape}"
+            f"scalpel: expected handle and tip ends of shape ({topology.scalpel_samples}, 3) (the "
+            f"topology's samples), got {handle.shape}, {tip.shape}"
         )
-    corners = V[jnp.asarray(topology.sample_corners)]  # (k+1, 3, 3)
+    # the blade at each sample's time
+    times = np.asarray(topology.sample_times)
+    i = np.minimum(np.floor(times).astype(np.int64), topology.scalpel_samples - 2)
+    a = jnp.asarray(times - i)[:, None]
+    X0, X1 = (1.0 - a) * handle[i] + a * handle[i + 1], (1.0 - a) * tip[i] + a * tip[i + 1]
+    corners = V[jnp.asarray(topology.sample_corners)]  # (s, 3, 3)
     face_normals = jnp.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
     s = jnp.sum(face_normals * (corners[:, 0] - X0), -1) / jnp.sum(face_normals * (X1 - X0), -1)
     crossings = X0 + s[:, None] * (X1 - X0)
@@ -664,13 +885,17 @@ def tear_positions(
     barycentric = jnp.maximum(barycentric, _TIP_MARGIN)
     barycentric = barycentric / jnp.sum(barycentric, -1, keepdims=True)
     samples = jnp.einsum("sk,skc->sc", barycentric, corners, precision=EXACT)
-    normals = jnp.cross(X0[1:] - samples[:-1], X1[1:] - samples[:-1])
-    normals = jnp.asarray(topology.orientation)[:, None] * normals / jnp.linalg.norm(normals, axis=-1, keepdims=True)
-    offsets = jnp.sum(normals * samples[:-1], -1) + jnp.asarray(topology.shift)
-    step = jnp.asarray(topology.step)
+    # the planes of the steps that gave tear points only (the others may have none)
+    used, step = np.unique(topology.step, return_inverse=True)
+    origin = samples[used]
+    normals = jnp.cross(X0[used + 1] - origin, X1[used + 1] - origin)
+    normals = (
+        jnp.asarray(topology.orientation[used])[:, None] * normals / jnp.linalg.norm(normals, axis=-1, keepdims=True)
+    )
+    offsets = jnp.sum(normals * origin, -1) + jnp.asarray(topology.shift[used])
     n, d = normals[step], offsets[step]
     A, B = V[topology.crossing[:, 0]], V[topology.crossing[:, 1]]
     sA, sB = jnp.sum(A * n, -1) - d, jnp.sum(B * n, -1) - d
     Q = A + (sA / (sA - sB))[:, None] * (B - A)
     half = 0.5 * opening * n
-    return samples[jnp.array([0, -1])], Q + half, Q - half
+    return samples[jnp.asarray(topology.stretches.ravel())], Q + half, Q - half
