@@ -75,8 +75,14 @@ _PIECE_HEADROOM = 1.1
 # halvings): then the tear ends at the first sample and begins again at the second.
 _RESOLUTION = 0.25
 _MAX_DEPTH = 30
+# A step's tear points lie within this fraction of the longer of its chord and its first face's mean edge (plus
+# the plane's own distance from the swept quadrilateral) of that quadrilateral: where the blade passed.
+_NEAR_SWEPT = 0.25
 # The swept quadrilateral (blade_a handle, blade_a tip, blade_c tip, blade_c handle) as two triangles.
 _QUAD_TRIANGLES = np.array([[0, 1, 2], [0, 2, 3]])
+# Where the blade crosses several sheets (clothing, an inner mesh), a stretch goes on over the nearest of
+# them that its curve reaches: up to this many are tried.
+_ALTERNATIVES = 3
 
 
 class TearTopology(NamedTuple):
@@ -162,8 +168,7 @@ def _blade(segments, time):
 
 
 class _Crossing(NamedTuple):
-    """Where the blade at ``time`` crosses the surface (the crossing nearest the handle), kept _TIP_MARGIN off
-    its face's edges."""
+    """Where the blade at ``time`` crosses the surface, kept _TIP_MARGIN off its face's edges."""
 
     time: float
     face: int
@@ -171,14 +176,14 @@ class _Crossing(NamedTuple):
     point: np.ndarray
 
 
-def _crossing(V, F, segments, time) -> _Crossing | None:
+def _crossings(V, F, segments, time, faces) -> list[_Crossing]:
+    """Every crossing of the blade at ``time`` with the surface (among ``faces``), from the handle end on."""
     blade = _blade(segments, time)
-    faces, barycentric, _ = segment_hits(V, F, blade[0], blade[1])
-    if len(faces) == 0:
-        return None
-    b = np.maximum(barycentric[0], _TIP_MARGIN)
-    b /= b.sum()
-    return _Crossing(float(time), int(faces[0]), b, b @ V[F[faces[0]]])
+    faces, barycentric, _ = segment_hits(V, F, blade[0], blade[1], faces)
+    b = np.maximum(barycentric, _TIP_MARGIN)
+    b /= b.sum(axis=1, keepdims=True)
+    points = np.einsum("hk,hkc->hc", b, V[F[faces]])
+    return [_Crossing(float(time), int(f), b[h], points[h]) for h, f in enumerate(faces.tolist())]
 
 
 def _swept_crossings(V, edges: MeshEdges, segments, step: int) -> np.ndarray:
@@ -328,7 +333,8 @@ def _walk(
 
     f, e_from, point_in = start, entry_edge, entry_point
     for _ in range(len(F) + 1):
-        if np.abs(s[F[f]]).min() <= margin:
+        a, b, c = s[F[f]].tolist()
+        if min(abs(a), abs(b), abs(c)) <= margin:
             raise _NearVertex
         candidates = [
             int(e) for e in edges.face_edges[f] if e != e_from and s[edges.edges[e, 0]] * s[edges.edges[e, 1]] < 0
@@ -353,7 +359,8 @@ def _walk(
             tips.append((f, e, point_out, first_tip))
         else:
             chords.append((f, e_from, point_in, e, point_out))
-        if edges.edge_counts[e] != 2 or np.linalg.norm(point_out - origin) > reach:
+        away = point_out - origin
+        if edges.edge_counts[e] != 2 or away @ away > reach * reach:
             stop(_Blocked())  # the surface's boundary (or a non-manifold edge); a curve that strays
         g = int(edges.edge_faces[e, 0] if edges.edge_faces[e, 0] != f else edges.edge_faces[e, 1])
         crossed.append(e)
@@ -381,6 +388,7 @@ class _Path:
         # how far the blade's ends move over each step of the scalpel
         self.motion = np.linalg.norm(segments[1:] - segments[:-1], axis=2).max(axis=1)
         self.swept: dict[int, np.ndarray] = {}
+        self.near: dict[int, np.ndarray] = {}
         self.touched = False  # whether any sample of the blade crossed the surface
         self.samples: list[_Crossing] = []
         self.stretches: list[list[int]] = []
@@ -400,10 +408,19 @@ class _Path:
         self.entry_point = np.zeros(3)
         self._saved = (0, 0, 0, 0)
 
-    def crossing(self, time) -> _Crossing | None:
-        c = _crossing(self.V, self.F, self.segments, time)
-        self.touched |= c is not None
-        return c
+    def crossing(self, time) -> list[_Crossing] | None:
+        """The blade's crossings at ``time`` (None where it misses the surface)."""
+        i = min(int(time), len(self.motion) - 1)
+        if i not in self.near:
+            # the faces whose bounding boxes meet that of the blade over the step (it stays in the hull of its
+            # samples): not all three corners beyond one side of it (one bit per side, as _straddling_faces)
+            ends = self.segments[i : i + 2].reshape(-1, 3)
+            beyond = np.concatenate([self.V < ends.min(axis=0), self.V > ends.max(axis=0)], axis=1)
+            codes = (beyond.astype(np.uint8) << np.arange(6, dtype=np.uint8)).sum(axis=1, dtype=np.uint8)[self.F]
+            self.near[i] = np.flatnonzero((codes[:, 0] & codes[:, 1] & codes[:, 2]) == 0)
+        found = _crossings(self.V, self.F, self.segments, time, self.near[i])
+        self.touched |= bool(found)
+        return found or None
 
     def edge_length(self, face) -> float:
         corners = self.V[self.F[face]]
@@ -416,9 +433,10 @@ class _Path:
         self.point_chunks.append(np.zeros((0, 3)) if points is None else points)
         self.t_chunks.append(np.zeros(0) if t is None else t)
 
-    def start(self, c: _Crossing):
-        """Begin a stretch at c, unless its face is already torn."""
-        if c.face in self.visited:
+    def start(self, found: list[_Crossing]):
+        """Begin a stretch at the crossing nearest the handle whose face is not torn yet."""
+        c = next((c for c in found if c.face not in self.visited), None)
+        if c is None:
             return
         self._saved = (len(self.samples), len(self.faces), len(self.crossed), len(self.planes))
         if self.samples:
@@ -442,8 +460,14 @@ class _Path:
             for chunk in (self.planes, self.orientation, self.shifts, self.point_chunks, self.t_chunks):
                 del chunk[rows:]
 
-    def step(self, c: _Crossing) -> bool:
-        """Extend the open stretch to the sample c: whether the plane's curve joins them where the blade passed."""
+    def step(self, found: list[_Crossing]) -> bool:
+        """Extend the open stretch to one of the blade's crossings ``found``: the one nearest the stretch's last
+        sample that the plane's curve joins where the blade passed (the same sheet, where several overlap)."""
+        a = self.samples[-1]
+        nearest = sorted(found, key=lambda c: float(np.sum((c.point - a.point) ** 2)))
+        return any(self._step(c) for c in nearest[:_ALTERNATIVES])
+
+    def _step(self, c: _Crossing) -> bool:
         V, F, edges = self.V, self.F, self.edges
         a = self.samples[-1]
         if c.face == self.faces[-1]:
@@ -461,11 +485,21 @@ class _Path:
             return False  # the blade passes through S_a: no plane
         n = normal / length
         d = float(n @ a.point)
-        # how far the plane strays from the quadrilateral swept over the step (0 for a blade that translates)
-        deviation = float(np.abs((blade_a - a.point) @ n).max())
         chord = float(np.linalg.norm(c.point - a.point))
         local = self.edge_length(self.faces[-1])
-        reach = 2.0 * chord + 4.0 * local + deviation
+        # how far the plane strays from the quadrilateral swept over the step near the surface, where the tear
+        # points can lie (0 for a blade that translates): at the ends of the stretch of blade_a around S_a that
+        # reaches as far as the walk may go
+        reach = 2.0 * chord + 4.0 * local
+        direction = blade_a[1] - blade_a[0]
+        along = (a.point - blade_a[0]) @ direction / (direction @ direction)
+        spread = reach / np.sqrt(direction @ direction)
+        ends = blade_a[0] + np.clip([along - spread, along + spread], 0.0, 1.0)[:, None] * direction
+        deviation = float(np.abs((ends - a.point) @ n).max())
+        near = _NEAR_SWEPT * max(chord, local)
+        if deviation > near:
+            return False  # a turning blade: sampled more finely until the plane follows its swept surface
+        reach += deviation
         unit = _SHIFT_STEP * local
         first_tip = self.samples[self.stretches[-1][0]].point
         base = signed_distances(V, n, d, self.predicates) if self.predicates == "euclidean" else None
@@ -503,7 +537,7 @@ class _Path:
         # where the blade passed: every point near the swept quadrilateral (its two triangles)
         quad = np.stack([blade_a[0], blade_a[1], blade_c[1], blade_c[0]])
         squared, _, _ = igl.point_mesh_squared_distance(points, quad, _QUAD_TRIANGLES)
-        if np.sqrt(squared.max()) > deviation + abs(shift) + 0.25 * max(chord, local):
+        if np.sqrt(squared.max()) > deviation + abs(shift) + near:
             return False
         # Orient the normal to the left of the path: face normal x direction of travel.
         left = cross_rows(_face_normal(V, F[self.faces[-1]]), points[0] - self.entry_point)
@@ -522,7 +556,7 @@ class _Path:
     def _finer(self, ta, ca, tb, cb, depth) -> bool:
         """Whether the interval [ta, tb] is sampled more finely: until the blade moves under a quarter of an
         edge of the faces it crosses at its ends."""
-        present = [c.face for c in (ca, cb) if c is not None]
+        present = [c[0].face for c in (ca, cb) if c is not None]
         local = min(self.edge_length(f) for f in present)
         return depth < _MAX_DEPTH and (tb - ta) * self.motion[min(int(ta), len(self.motion) - 1)] > _RESOLUTION * local
 
