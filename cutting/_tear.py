@@ -102,6 +102,9 @@ class TearTopology(NamedTuple):
         stretches: (r, 2) int the first and the last sample of each stretch; their crossings are the tear's
             tips, which stay single vertices.
         stretch_faces: (r,) int how many of ``faces`` each stretch holds (p = their sum).
+        inner: (u,) int the stretches that stay inside one face (``stretch_faces`` 1): each has one interior
+            point, M halfway between its tips, duplicated like the Q_j (the slit's two sides need a vertex
+            each); its side's normal is the face's normal x (last tip - first tip), normalized.
         scalpel_samples: k+1, the scalpel's own samples.
         faces: (p,) int the faces on the tear path, stretch after stretch, each in order from its first
             sample's face to its last one's.
@@ -127,6 +130,7 @@ class TearTopology(NamedTuple):
     sample_times: Float[np.ndarray, " s"]
     stretches: Int[np.ndarray, "r 2"]
     stretch_faces: Int[np.ndarray, " r"]
+    inner: Int[np.ndarray, " u"]
     scalpel_samples: int
     faces: Int[np.ndarray, " f"]
     edge_ids: Int[np.ndarray, " q"]
@@ -299,6 +303,57 @@ def _slivers(V, F, edges: MeshEdges, chords, tips, smallest: SmallestFace) -> bo
     return bool(sliver_mask(pieces, np.concatenate(parents), smallest, _PIECE_HEADROOM).any())
 
 
+def _slit_triangles(corners, first, last):
+    """The triangles (7, 3) of a face (``corners`` (3, 3)) with a slit inside it, from the tip ``first`` to the
+    tip ``last`` with its middle point M duplicated, as slots: 0-2 the face's corners, 3 the first tip,
+    4 the last, 5 M's left copy, 6 its right copy; None where a corner lies on the slit's line. Left of the
+    slit is the face normal x (last - first) side. The line through the tips leaves the face over an edge
+    ahead of ``last`` and one behind ``first``: a triangle from each tip to its edge, and a fan from each
+    copy of M over the corners of its side."""
+    normal = np.cross(corners[1] - corners[0], corners[2] - corners[0])
+    direction = last - first
+    side = (corners - first) @ np.cross(normal, direction)
+    if np.any(side == 0):
+        return None
+    left = side > 0
+    # the two edges (k, k+1) that the line crosses, and how far along the line each crossing lies
+    crossed = [k for k in range(3) if left[k] != left[(k + 1) % 3]]
+    ahead = []
+    for k in crossed:
+        a, b = corners[k], corners[(k + 1) % 3]
+        x = a + side[k] / (side[k] - side[(k + 1) % 3]) * (b - a)
+        ahead.append((x - first) @ direction)
+    out, in_ = (crossed[0], crossed[1]) if ahead[0] > ahead[1] else (crossed[1], crossed[0])
+
+    def ends(k):  # (left corner, right corner) of local edge k
+        a, b = k, (k + 1) % 3
+        return (a, b) if left[a] else (b, a)
+
+    left_out, right_out = ends(out)
+    left_in, right_in = ends(in_)
+    # corners in counter-clockwise order from the edge ahead round to the edge behind (left side), and from
+    # the edge behind round to the edge ahead (right side)
+    lefts = [left_out] if left_out == left_in else [left_out, left_in]
+    rights = [right_in] if right_in == right_out else [right_in, right_out]
+    triangles = [(4, right_out, left_out), (3, left_in, right_in)]
+    ring = [4, *lefts, 3]
+    triangles += [(5, ring[m], ring[m + 1]) for m in range(len(ring) - 1)]
+    ring = [3, *rights, 4]
+    triangles += [(6, ring[m], ring[m + 1]) for m in range(len(ring) - 1)]
+    return np.asarray(triangles)
+
+
+def _slit_pieces(corners, first, last):
+    """The pieces (7, 3, 3) of a face (corners (3, 3)) with a slit from ``first`` to ``last`` (a closed slit:
+    both copies of M at M), or None where ``_slit_triangles`` has none."""
+    triangles = _slit_triangles(corners, first, last)
+    if triangles is None:
+        return None
+    middle = 0.5 * (first + last)
+    slots = np.concatenate([corners, [first, last, middle, middle]])
+    return slots[triangles]
+
+
 def _walk(
     V,
     F,
@@ -403,6 +458,7 @@ class _Path:
         self.point_chunks: list[np.ndarray] = []
         self.t_chunks: list[np.ndarray] = []
         self.visited: set[int] = set()
+        self.inner: list[int] = []
         self.open = False
         self.entry_edge: int | None = None
         self.entry_point = np.zeros(3)
@@ -449,16 +505,28 @@ class _Path:
         self.open, self.entry_edge, self.entry_point = True, None, c.point
 
     def close(self):
-        """End the open stretch at its last sample; one that crossed no edge is dropped."""
+        """End the open stretch at its last sample. One that crossed no edge stays inside its face: a slit there,
+        unless it would leave a sliver piece (a blade that hardly moved), and then it is dropped."""
         if not self.open:
             return
         self.open = False
         samples, faces, crossed, rows = self._saved
-        if len(self.crossed) == crossed:
+        if len(self.crossed) == crossed and self._slit_fits():
+            self.inner.append(len(self.stretches) - 1)
+        elif len(self.crossed) == crossed:
             self.visited.discard(self.faces[-1])
             del self.samples[samples:], self.faces[faces:], self.stretches[-1], self.stretch_faces[-1]
             for chunk in (self.planes, self.orientation, self.shifts, self.point_chunks, self.t_chunks):
                 del chunk[rows:]
+
+    def _slit_fits(self) -> bool:
+        first, last = self.samples[self.stretches[-1][0]], self.samples[-1]
+        corners = self.V[self.F[first.face]]
+        pieces = _slit_pieces(corners, first.point, last.point)
+        if pieces is None:
+            return False
+        self.smallest.near(corners[None])
+        return not sliver_mask(pieces, np.broadcast_to(corners, pieces.shape), self.smallest, _PIECE_HEADROOM).any()
 
     def step(self, found: list[_Crossing]) -> bool:
         """Extend the open stretch to one of the blade's crossings ``found``: the one nearest the stretch's last
@@ -613,7 +681,8 @@ def tear_topology(
         edges: ``mesh_edges(F)``, precomputed once per topology.
     Raises:
         ValueError: a blade that never crosses the surface (neither its samples' segments nor the surface it
-            sweeps meets the mesh), or whose path crosses no edge of the mesh (it stays inside one face)."""
+            sweeps meets the mesh), or whose path on it is too short to tear (inside one face, a slit there
+            would leave a sliver triangle)."""
     check_choice("predicates", predicates, PREDICATES)
     V, F = check_triangle_mesh(V, F, min_faces=0)
     segments = check_scalpel(scalpel)
@@ -636,10 +705,10 @@ def tear_topology(
                 "nor the surface it sweeps, meets the mesh"
             )
         raise ValueError(
-            "scalpel: the tear crosses no edge of the mesh (the blade's path on the surface stays inside one "
-            "face); move the scalpel farther between samples"
+            "scalpel: the blade's path on the surface stays inside one face and is too short to tear it without "
+            "a sliver triangle (or the blade does not move); move the scalpel farther between samples"
         )
-    crossed = np.asarray(path.crossed)
+    crossed = np.asarray(path.crossed, np.int64)
     sample_faces = np.array([c.face for c in path.samples])
     return TearTopology(
         sample_faces,
@@ -649,8 +718,9 @@ def tear_topology(
         np.array([c.time for c in path.samples]),
         np.asarray(path.stretches, np.int64),
         np.asarray(path.stretch_faces, np.int64),
+        np.asarray(path.inner, np.int64),
         len(segments),
-        np.asarray(path.faces),
+        np.asarray(path.faces, np.int64),
         crossed,
         edges.edges[crossed],
         np.concatenate(path.t_chunks),
@@ -664,11 +734,12 @@ def tear_topology(
 
 def _retriangulate(V, F, edges: MeshEdges, topology: TearTopology, n_vertices: int):
     """Triangles replacing the path faces (Algorithm 2, step 5). Vertex ids: the input's, then the first and
-    last sample of each stretch (n + 2r, n + 2r + 1), the left copies of Q_j (n + 2s + j, s stretches), the right
-    copies (n + 2s + q + j). Per path face in plain Python: a path crosses few faces, and small arrays cost more
-    than they save."""
-    q = len(topology.t)
+    last sample of each stretch (n + 2r, n + 2r + 1), the left copies of the Q_j and then of the inner stretches'
+    middle points (n + 2s + j, s stretches), the right copies (n + 2s + q + u + j). Per path face in plain
+    Python: a path crosses few faces, and small arrays cost more than they save."""
+    q = len(topology.t) + len(topology.inner)
     first_copy = n_vertices + 2 * len(topology.stretches)
+    inner = {r: len(topology.t) + m for m, r in enumerate(topology.inner.tolist())}
     point_of_edge = {e: j for j, e in enumerate(topology.edge_ids.tolist())}
     corners_of = F[topology.faces].tolist()
     position = dict(zip(np.ravel(corners_of).tolist(), V[np.ravel(corners_of)].tolist()))
@@ -693,6 +764,14 @@ def _retriangulate(V, F, edges: MeshEdges, topology: TearTopology, n_vertices: i
     at, j0 = 0, 0  # the stretch's first face on the path and its first point
     for r, count in enumerate(topology.stretch_faces.tolist()):
         last = at + count - 1
+        if r in inner:  # a slit inside one face
+            first_tip, last_tip = topology.sample_points[topology.stretches[r]]
+            slots = [*F[topology.faces[at]].tolist(), n_vertices + 2 * r, n_vertices + 2 * r + 1]
+            slots += [copy(inner[r], True), copy(inner[r], False)]
+            slit = _slit_triangles(V[F[topology.faces[at]]], first_tip, last_tip)
+            triangles += np.asarray(slots)[slit].tolist()
+            at += 1
+            continue
         for face in range(at, last + 1):
             corners, local = corners_of[face], local_edges[face]
             a, b, c = (position[v] for v in corners)
@@ -736,6 +815,13 @@ def _retriangulate(V, F, edges: MeshEdges, topology: TearTopology, n_vertices: i
                 triangles += fan_triangles(ids, coordinates)
         at, j0 = last + 1, j0 + count - 1
     return np.asarray(triangles, np.int64).reshape(-1, 3)
+
+
+def _blend(J, W, corners, coefficients):
+    """``blend_weights``, also of no points."""
+    if not len(corners):
+        return np.zeros((0, J.shape[1]), J.dtype), np.zeros((0, W.shape[1]), W.dtype)
+    return blend_weights(J, W, corners, coefficients)
 
 
 @overload
@@ -814,20 +900,35 @@ def tear(
     space, joint_matrices = posed_vertices(mesh, joint_matrices)
     edges = mesh_edges(F) if edges is None else edges
     topology = tear_topology(space, F, scalpel, predicates=predicates, tolerance=tolerance, edges=edges)
-    n_vertices, q = len(space), len(topology.t)
+    n_vertices = len(space)
 
     tips = topology.stretches.ravel()
     J_tips, W_tips = blend_weights(J, W, topology.sample_corners[tips], topology.sample_barycentric[tips])
-    J_q, W_q = blend_weights(J, W, topology.crossing, np.stack([1.0 - topology.t, topology.t], axis=1))
-    normals = topology.planes[topology.step, :3]
+    # the duplicated points: the Q_j on their edges, then the middle points of the slits inside one face
+    ends = topology.stretches[topology.inner]
+    middle_corners = topology.sample_corners[ends[:, 0]]
+    middle_barycentric = 0.5 * topology.sample_barycentric[ends].sum(axis=1)
+    J_q, W_q = (
+        np.concatenate(parts)
+        for parts in zip(
+            _blend(J, W, topology.crossing, np.stack([1.0 - topology.t, topology.t], axis=1)),
+            _blend(J, W, middle_corners, middle_barycentric),
+        )
+    )
+    middle = 0.5 * topology.sample_points[ends].sum(axis=1)
+    slit = cross_rows(
+        _face_normal(space, middle_corners.T), topology.sample_points[ends[:, 1]] - topology.sample_points[ends[:, 0]]
+    )
+    points = np.concatenate([topology.points, middle])
+    normals = np.concatenate([topology.planes[topology.step, :3], slit / np.linalg.norm(slit, axis=1, keepdims=True)])
+    q = len(points)
     copies_J, copies_W = [], []
     for side in (1.0, -1.0):
         if side_weight > 0 and q:
-            own = np.where(
-                side * np.einsum("ij,ij->i", space[topology.crossing[:, 0]] - topology.points, normals) > 0,
-                topology.crossing[:, 0],
-                topology.crossing[:, 1],
-            )
+            # each copy leans to the corner farthest on its side: an edge's end, or a face's corner
+            ids = np.concatenate([np.pad(topology.crossing, ((0, 0), (0, 1)), mode="edge"), middle_corners])
+            lean = side * np.einsum("ijk,ik->ij", space[ids] - points[:, None], normals)
+            own = np.take_along_axis(ids, np.argmax(lean, axis=1)[:, None], axis=1)[:, 0]
             Jc, Wc = blend_weights(
                 np.concatenate([J, J_q]),
                 np.concatenate([W, W_q]),
@@ -841,11 +942,7 @@ def tear(
     J_new = np.concatenate([J_tips] + copies_J)
     W_new = np.concatenate([W_tips] + copies_W)
     world = np.concatenate(
-        [
-            topology.sample_points[tips],
-            topology.points + 0.5 * opening * normals,
-            topology.points - 0.5 * opening * normals,
-        ]
+        [topology.sample_points[tips], points + 0.5 * opening * normals, points - 0.5 * opening * normals]
     )
     rest = rest_positions(J_new, W_new, world, joint_matrices)
 
@@ -883,7 +980,8 @@ def tear_positions(
         opening: () the distance between the two copies of every Q_j (see ``tear``).
     Returns:
         (tips (2r, 3): the first and last crossing of each of the r stretches (S_0 and S_k for one), left
-        (q, 3), right (q, 3): the two copies of every Q_j)."""
+        (q + u, 3), right (q + u, 3): the two copies of every Q_j, then of the middle point of each of the u
+        slits inside one face)."""
     V = jnp.asarray(V)
     scalpel = joined_scalpel(scalpel)
     handle, tip = jnp.asarray(scalpel.handle), jnp.asarray(scalpel.tip)
@@ -931,5 +1029,10 @@ def tear_positions(
     A, B = V[topology.crossing[:, 0]], V[topology.crossing[:, 1]]
     sA, sB = jnp.sum(A * n, -1) - d, jnp.sum(B * n, -1) - d
     Q = A + (sA / (sA - sB))[:, None] * (B - A)
-    half = 0.5 * opening * n
-    return samples[jnp.asarray(topology.stretches.ravel())], Q + half, Q - half
+    # the middle points of the slits inside one face, on the left of face normal x (last tip - first tip)
+    first, last = samples[topology.stretches[topology.inner, 0]], samples[topology.stretches[topology.inner, 1]]
+    slit = jnp.cross(face_normals[topology.stretches[topology.inner, 0]], last - first)
+    points = jnp.concatenate([Q, 0.5 * (first + last)])
+    normals = jnp.concatenate([n, slit / jnp.linalg.norm(slit, axis=-1, keepdims=True)])
+    half = 0.5 * opening * normals
+    return samples[jnp.asarray(topology.stretches.ravel())], points + half, points - half
