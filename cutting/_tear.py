@@ -95,7 +95,9 @@ class TearTopology(NamedTuple):
     Attributes:
         sample_faces: (s,) int the face crossed by the blade at each sample.
         sample_corners: (s, 3) int that face's vertices (``F[sample_faces]``).
-        sample_points: (s, 3) the crossings S_i.
+        sample_points: (s, 3) the crossings S_i, kept 2% (barycentric) off their faces' edges (a tip is a vertex).
+        sample_crossings: (s, 3) where the blade crosses each sample's face, before that margin: the planes
+            pass through them.
         sample_barycentric: (s, 3) barycentric coordinates of S_i in its face.
         sample_times: (s,) each sample's time in units of the scalpel's steps: at time i + a (0 <= a <= 1)
             the blade's ends are ``(1 - a) X[i] + a X[i + 1]`` of the scalpel's handle and tip X.
@@ -117,15 +119,17 @@ class TearTopology(NamedTuple):
         planes: (s-1, 4) the planes Pi_i as (unit normal, d): the normal points to the tear's left
             (face normal x path direction), d includes the perturbation. Zero rows for the steps that gave
             no Q_j (both samples in one face, or a gap between stretches).
-        orientation: (s-1,) +1 or -1: Pi_i's normal is ``orientation * (A - S_i) x (B - S_i)``
-            normalized, with A, B the blade's ends at sample i + 1 (0 where the row is zero).
+        orientation: (s-1,) +1 or -1: Pi_i's normal is ``orientation * (A - X_i) x (B - X_i)``
+            normalized, with X_i = ``sample_crossings[i]`` and A, B the blade's ends at sample i + 1 (0 where
+            the row is zero).
         shift: (s-1,) how far each plane was moved along its oriented normal (the perturbation; mostly 0):
-            ``planes[i, 3] = planes[i, :3] . S_i + shift[i]``.
+            ``planes[i, 3] = planes[i, :3] . X_i + shift[i]``.
     """
 
     sample_faces: Int[np.ndarray, " s"]
     sample_corners: Int[np.ndarray, "s 3"]
     sample_points: Float[np.ndarray, "s 3"]
+    sample_crossings: Float[np.ndarray, "s 3"]
     sample_barycentric: Float[np.ndarray, "s 3"]
     sample_times: Float[np.ndarray, " s"]
     stretches: Int[np.ndarray, "r 2"]
@@ -178,16 +182,18 @@ class _Crossing(NamedTuple):
     face: int
     barycentric: np.ndarray
     point: np.ndarray
+    exact: np.ndarray  # on the blade, before the margin: the planes pass through it
 
 
 def _crossings(V, F, segments, time, faces) -> list[_Crossing]:
     """Every crossing of the blade at ``time`` with the surface (among ``faces``), from the handle end on."""
     blade = _blade(segments, time)
-    faces, barycentric, _ = segment_hits(V, F, blade[0], blade[1], faces)
+    faces, barycentric, along = segment_hits(V, F, blade[0], blade[1], faces)
     b = np.maximum(barycentric, _TIP_MARGIN)
     b /= b.sum(axis=1, keepdims=True)
     points = np.einsum("hk,hkc->hc", b, V[F[faces]])
-    return [_Crossing(float(time), int(f), b[h], points[h]) for h, f in enumerate(faces.tolist())]
+    exact = blade[0] + along[:, None] * (blade[1] - blade[0])
+    return [_Crossing(float(time), int(f), b[h], points[h], exact[h]) for h, f in enumerate(faces.tolist())]
 
 
 def _swept_crossings(V, edges: MeshEdges, segments, step: int) -> np.ndarray:
@@ -459,6 +465,7 @@ class _Path:
         self.t_chunks: list[np.ndarray] = []
         self.visited: set[int] = set()
         self.inner: list[int] = []
+        self.blocked = False  # whether the last step met the surface's boundary or the tear itself
         self.open = False
         self.entry_edge: int | None = None
         self.entry_point = np.zeros(3)
@@ -532,7 +539,8 @@ class _Path:
         """Extend the open stretch to one of the blade's crossings ``found``: the one nearest the stretch's last
         sample that the plane's curve joins where the blade passed (the same sheet, where several overlap)."""
         a = self.samples[-1]
-        nearest = sorted(found, key=lambda c: float(np.sum((c.point - a.point) ** 2)))
+        nearest = sorted(found, key=lambda c: float(np.sum((c.exact - a.exact) ** 2)))
+        self.blocked = False
         return any(self._step(c) for c in nearest[:_ALTERNATIVES])
 
     def _step(self, c: _Crossing) -> bool:
@@ -544,26 +552,27 @@ class _Path:
             self._row()
             return True
         if c.face in self.visited:
+            self.blocked = True
             return False
-        # Pi through S_a and the blade at c's time
+        # Pi through the blade's crossing at a (S_a before the margin: on the swept surface) and the blade at c
         blade_a, blade_c = _blade(self.segments, a.time), _blade(self.segments, c.time)
-        normal = cross_rows(blade_c[0] - a.point, blade_c[1] - a.point)
+        normal = cross_rows(blade_c[0] - a.exact, blade_c[1] - a.exact)
         length = np.linalg.norm(normal)
         if length <= 1e-12 * self.diagonal**2:
             return False  # the blade passes through S_a: no plane
         n = normal / length
-        d = float(n @ a.point)
-        chord = float(np.linalg.norm(c.point - a.point))
+        d = float(n @ a.exact)
+        chord = float(np.linalg.norm(c.exact - a.exact))
         local = self.edge_length(self.faces[-1])
         # how far the plane strays from the quadrilateral swept over the step near the surface, where the tear
         # points can lie (0 for a blade that translates): at the ends of the stretch of blade_a around S_a that
         # reaches as far as the walk may go
         reach = 2.0 * chord + 4.0 * local
         direction = blade_a[1] - blade_a[0]
-        along = (a.point - blade_a[0]) @ direction / (direction @ direction)
+        along = (a.exact - blade_a[0]) @ direction / (direction @ direction)
         spread = reach / np.sqrt(direction @ direction)
         ends = blade_a[0] + np.clip([along - spread, along + spread], 0.0, 1.0)[:, None] * direction
-        deviation = float(np.abs((ends - a.point) @ n).max())
+        deviation = float(np.abs((ends - a.exact) @ n).max())
         near = _NEAR_SWEPT * max(chord, local)
         if deviation > near:
             return False  # a turning blade: sampled more finely until the plane follows its swept surface
@@ -571,6 +580,7 @@ class _Path:
         unit = _SHIFT_STEP * local
         first_tip = self.samples[self.stretches[-1][0]].point
         base = signed_distances(V, n, d, self.predicates) if self.predicates == "euclidean" else None
+        blocked = False
         for shift in unit * np.array([0.0, 1.0, -1.0, 2.0, -2.0, 3.0, -3.0, 4.0, -4.0]):
             s = base - shift if base is not None else signed_distances(V, n, d + shift, self.predicates)
             try:
@@ -584,8 +594,8 @@ class _Path:
                     self.entry_edge,
                     self.entry_point,
                     first_tip,
-                    a.point,
-                    c.point,
+                    a.exact,
+                    c.exact,
                     c.face,
                     set(self.visited),
                     reach,
@@ -595,8 +605,11 @@ class _Path:
             except (_NearVertex, _Lost):
                 continue
             except _Blocked:
-                return False
+                # another move of the plane may pass on the other side of a vertex next to the path
+                blocked = True
+                continue
         else:
+            self.blocked |= blocked
             return False
         pairs = edges.edges[step_edges]
         points, t = edge_points(
@@ -652,8 +665,13 @@ class _Path:
             self.follow(ta, ca, tm, cm, depth + 1)
             self.follow(tm, cm, tb, cb, depth + 1)
             return
-        # at the finest sampling: the tear ends at ca (the blade leaves the surface, or its curve cannot join
-        # the next sample) and begins again at cb
+        # at the finest sampling: a sample next to the stretch's end that its curve cannot reach only because it
+        # passes by a vertex or would leave a sliver is left out, and the next one tried; else the tear ends at ca
+        # (the blade leaves the surface, or its curve cannot join the next sample) and begins again at cb
+        if self.open and cb is not None and not self.blocked:
+            end = self.samples[-1]
+            if min(float(np.linalg.norm(c.point - end.point)) for c in cb) <= self.edge_length(end.face):
+                return
         self.close()
         if cb is not None:
             self.start(cb)
@@ -714,6 +732,7 @@ def tear_topology(
         sample_faces,
         F[sample_faces],
         np.array([c.point for c in path.samples]),
+        np.array([c.exact for c in path.samples]),
         np.array([c.barycentric for c in path.samples]),
         np.array([c.time for c in path.samples]),
         np.asarray(path.stretches, np.int64),
@@ -1019,7 +1038,7 @@ def tear_positions(
     samples = jnp.einsum("sk,skc->sc", barycentric, corners, precision=EXACT)
     # the planes of the steps that gave tear points only (the others may have none)
     used, step = np.unique(topology.step, return_inverse=True)
-    origin = samples[used]
+    origin = crossings[used]
     normals = jnp.cross(X0[used + 1] - origin, X1[used + 1] - origin)
     normals = (
         jnp.asarray(topology.orientation[used])[:, None] * normals / jnp.linalg.norm(normals, axis=-1, keepdims=True)
