@@ -2,26 +2,43 @@
 (sec. 4.2.2), with the weights of new vertices of sec. 4.3.
 
 The scalpel is a segment known at time steps t_0 .. t_k (``Scalpel(handle, tip)``: at t_i it runs
-from ``handle[i]`` to ``tip[i]``; where it crosses the surface more than once, the crossing nearest the
-handle counts), given by its endpoints or as a blade moved by motors (``scalpel_path``).
+from ``handle[i]`` to ``tip[i]``), given by its endpoints, as a sequence of ``Scalpel``s, or as a blade
+moved by motors (``scalpel_path``). Between two samples the blade's ends move linearly: it sweeps the ruled
+quadrilateral handle_i, tip_i, tip_{i+1}, handle_{i+1}, and the tear is where that swept surface meets the
+mesh, where the blade passed.
 
-1. S_i, the crossing of the scalpel with the surface at t_i (the tear points);
-2. for each step i, the plane Pi_i through S_i and the scalpel's endpoints at t_{i+1};
+1. S_i, the crossing of the blade with the surface at t_i (the crossing nearest the handle to begin with;
+   then the one nearest the tear's last sample, so that a tear stays on its sheet where several overlap);
+2. for each step i, the plane Pi_i through S_i and the blade's endpoints at t_{i+1};
 3. from S_i's face, the intersection of Pi_i with the surface is followed face by face (across
    shared edges, towards S_{i+1}) until S_{i+1}'s face: the edge points Q_j, in order on the skin;
-4. weights of S_0, S_k (barycentric in their faces) and of every Q_j (on its edge), sec. 4.3;
-5. the faces on the path are re-triangulated: the tips S_0 and S_k become vertices inside their
-   faces, every Q_j is duplicated, one copy for each side of the tear;
+4. weights of the tips (barycentric in their faces) and of every Q_j (on its edge), sec. 4.3;
+5. the faces on the path are re-triangulated: the tips become vertices inside their faces, every Q_j is
+   duplicated, one copy for each side of the tear;
 6. the two copies of every Q_j are pushed apart along Pi's normal, ``opening / 2`` each.
 
-Successive samples make one tear along the whole path (the paper's successive tears): in the face
-of an intermediate sample S_i the path goes straight from the point where it enters the face to
-the point where it leaves it (the paper's assumption that the tear curve is smooth between close
-samples). A plane that passes within ``tolerance`` of a vertex of the path, that would put a tear
-point within 2% of an edge's length from its end, or that would leave a piece of a face smaller or
-thinner than the sliver rule of ``_geometry.sliver_mask`` allows, is moved along its normal in steps of
-5% of an edge (a gentle perturbation, as the XFEM paper's sec. 6.1 does for cuts through vertices), so
-that no sliver triangle is created; ``TearTopology.shift`` records the move.
+What changed from the paper, and why. The paper takes the plane's curve from S_i to S_{i+1} whole; on a
+curved character the curve of a plane through two far samples closes on itself, leaves the skin or runs far
+from where the blade passed. Here the blade is sampled again halfway (its ends interpolated linearly, the
+samples' times kept in ``TearTopology.sample_times``) wherever a step's curve does not join its two samples
+within a quarter of an edge of the swept quadrilateral, or the plane strays from that quadrilateral near the
+surface (a turning blade): the planes then follow the swept surface. At the finest sampling (the blade moving
+under a quarter of an edge), a step that still cannot be followed ends the tear, which begins again at the next
+crossing: a tear is one or more stretches. So a blade that leaves the skin and comes back tears the stretches
+where it was on it; the tear ends at the surface's boundary (or a non-manifold edge), and before a face it
+already went through (a face cut twice would lose or double area), each within a quarter of an edge; where the
+blade crosses no sheet at both ends of a step, the times at which mesh edges pierce the swept quadrilateral
+tell whether and where it crosses one in between. A stretch inside one face is a slit there, its middle point
+duplicated (``TearTopology.inner``). Only a blade that never crosses the surface, or whose path on it is too
+short to tear without a sliver, is refused.
+
+In the face of an intermediate sample the path goes straight from the point where it enters the face to the
+point where it leaves it (the paper's assumption that the tear curve is smooth between close samples). A plane
+that passes within ``tolerance`` of a vertex of the path, that would put a tear point within 2% of an edge's
+length from its end, or that would leave a piece of a face smaller or thinner than the sliver rule of
+``_geometry.sliver_mask`` allows, is moved along its normal in steps of 5% of an edge (a gentle perturbation, as
+the XFEM paper's sec. 6.1 does for cuts through vertices), so that no sliver triangle is created;
+``TearTopology.shift`` records the move. Tips keep a 2% barycentric margin from their faces' edges.
 
 For a fixed topology (``TearTopology``), the positions of the new vertices are a JAX function of the
 vertices, the ``Scalpel`` and the opening (``tear_positions``), so they can be differentiated.
