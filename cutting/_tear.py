@@ -47,7 +47,7 @@ vertices, the ``Scalpel`` and the opening (``tear_positions``), so they can be d
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Literal, NamedTuple, NoReturn, overload
+from typing import Literal, NamedTuple, overload
 
 import igl
 import jax.numpy as jnp
@@ -92,8 +92,9 @@ _PIECE_HEADROOM = 1.1
 # halvings): then the tear ends at the first sample and begins again at the second.
 _RESOLUTION = 0.25
 _MAX_DEPTH = 30
-# A step's tear points lie within this fraction of the longer of its chord and its first face's mean edge (plus
-# the plane's own distance from the swept quadrilateral) of that quadrilateral: where the blade passed.
+# Where the blade passed: a step's plane strays less than this fraction of a mean edge of its first face from the
+# swept quadrilateral near the surface, and each tear point lies within this fraction of its edge's length (plus
+# that distance and the plane's move) of the quadrilateral.
 _NEAR_SWEPT = 0.25
 # The swept quadrilateral (blade_a handle, blade_a tip, blade_c tip, blade_c handle) as two triangles.
 _QUAD_TRIANGLES = np.array([[0, 1, 2], [0, 2, 3]])
@@ -399,15 +400,10 @@ def _walk(
     sample ``goal``; ``origin`` is the sample the step leaves from. Every point stays within ``reach`` of it.
     Returns the crossed edge ids and the faces entered (target last)."""
     crossed, entered = [], []
-    # The faces' pieces are checked together when the walk ends or fails: a sliver in any face it went
+    # The faces' pieces are checked together when the walk reaches the target: a sliver in any face it went
     # through moves the plane, as a check face by face would have. The target's pieces are checked as the
     # tip of the tear, which the tear may end at.
     chords, tips = [], []
-
-    def stop(error: Exception) -> NoReturn:
-        if _slivers(V, F, edges, chords, tips, smallest):
-            raise _NearVertex
-        raise error
 
     f, e_from, point_in = start, entry_edge, entry_point
     for _ in range(len(F) + 1):
@@ -418,7 +414,7 @@ def _walk(
             int(e) for e in edges.face_edges[f] if e != e_from and s[edges.edges[e, 0]] * s[edges.edges[e, 1]] < 0
         ]
         if not candidates:
-            stop(_Lost())
+            raise _Lost
         if len(candidates) > 1:
             # only in the first face: leave it towards the next sample
             def progress(e):
@@ -439,12 +435,12 @@ def _walk(
             chords.append((f, e_from, point_in, e, point_out))
         away = point_out - origin
         if edges.edge_counts[e] != 2 or away @ away > reach * reach:
-            stop(_Blocked())  # the surface's boundary (or a non-manifold edge); a curve that strays
+            raise _Blocked  # the surface's boundary (or a non-manifold edge); a curve that strays
         g = int(edges.edge_faces[e, 0] if edges.edge_faces[e, 0] != f else edges.edge_faces[e, 1])
         crossed.append(e)
         entered.append(g)
         if g in visited or g == start:
-            stop(_Blocked())  # a face the tear went through (cut twice, it would lose or double area)
+            raise _Blocked  # a face the tear went through (cut twice, it would lose or double area)
         visited.add(g)
         if g == target:
             tips.append((g, e, point_out, goal))
@@ -452,7 +448,7 @@ def _walk(
                 raise _NearVertex
             return crossed, entered
         f, e_from, point_in = g, e, point_out
-    stop(_Blocked())
+    raise _Blocked
 
 
 class _Path:
@@ -467,6 +463,7 @@ class _Path:
         self.motion = np.linalg.norm(segments[1:] - segments[:-1], axis=2).max(axis=1)
         self.swept: dict[int, np.ndarray] = {}
         self.near: dict[int, np.ndarray] = {}
+        self.lengths: dict[int, float] = {}
         self.touched = False  # whether any sample of the blade crossed the surface
         self.samples: list[_Crossing] = []
         self.stretches: list[list[int]] = []
@@ -503,8 +500,10 @@ class _Path:
         return found or None
 
     def edge_length(self, face) -> float:
-        corners = self.V[self.F[face]]
-        return float(np.linalg.norm(corners - np.roll(corners, 1, axis=0), axis=1).mean())
+        if face not in self.lengths:
+            corners = self.V[self.F[face]]
+            self.lengths[face] = float(np.linalg.norm(corners - np.roll(corners, 1, axis=0), axis=1).mean())
+        return self.lengths[face]
 
     def _row(self, plane=None, sign=0.0, shift=0.0, points=None, t=None):
         self.planes.append(np.zeros(4) if plane is None else plane)
@@ -582,26 +581,27 @@ class _Path:
         chord = float(np.linalg.norm(c.exact - a.exact))
         local = self.edge_length(self.faces[-1])
         # how far the plane strays from the quadrilateral swept over the step near the surface, where the tear
-        # points can lie (0 for a blade that translates): at the ends of the stretch of blade_a around S_a that
-        # reaches as far as the walk may go
-        reach = 2.0 * chord + 4.0 * local
+        # points lie (0 for a blade that translates): at the ends of the stretch of blade_a within a chord and an
+        # edge of S_a
         direction = blade_a[1] - blade_a[0]
         along = (a.exact - blade_a[0]) @ direction / (direction @ direction)
-        spread = reach / np.sqrt(direction @ direction)
+        spread = (chord + local) / np.sqrt(direction @ direction)
         ends = blade_a[0] + np.clip([along - spread, along + spread], 0.0, 1.0)[:, None] * direction
         deviation = float(np.abs((ends - a.exact) @ n).max())
-        near = _NEAR_SWEPT * max(chord, local)
-        if deviation > near:
+        if deviation > _NEAR_SWEPT * local:
             return False  # a turning blade: sampled more finely until the plane follows its swept surface
-        reach += deviation
+        reach = chord + 2.0 * local + deviation  # how far the walk may go before it has strayed
         unit = _SHIFT_STEP * local
         first_tip = self.samples[self.stretches[-1][0]].point
         base = signed_distances(V, n, d, self.predicates) if self.predicates == "euclidean" else None
         blocked = False
+        tried_sides, walked = set(), None
         for shift in unit * np.array([0.0, 1.0, -1.0, 2.0, -2.0, 3.0, -3.0, 4.0, -4.0]):
+            if np.sign(shift) in tried_sides:
+                continue
             s = base - shift if base is not None else signed_distances(V, n, d + shift, self.predicates)
             try:
-                step_edges, step_faces = _walk(
+                walked = _walk(
                     V,
                     F,
                     edges,
@@ -622,12 +622,16 @@ class _Path:
             except (_NearVertex, _Lost):
                 continue
             except _Blocked:
-                # another move of the plane may pass on the other side of a vertex next to the path
+                # a move the other way may pass on the other side of a vertex next to the path; moving on the same
+                # way, or at all when the plane as given is blocked (a boundary, another sheet), would not help
                 blocked = True
-                continue
-        else:
+                if shift == 0:
+                    break
+                tried_sides.add(np.sign(shift))
+        if walked is None:
             self.blocked |= blocked
             return False
+        step_edges, step_faces = walked
         pairs = edges.edges[step_edges]
         points, t = edge_points(
             V[pairs[:, 0]], V[pairs[:, 1]], s[pairs[:, 0]], s[pairs[:, 1]], n, d + shift, self.predicates
@@ -635,7 +639,8 @@ class _Path:
         # where the blade passed: every point near the swept quadrilateral (its two triangles)
         quad = np.stack([blade_a[0], blade_a[1], blade_c[1], blade_c[0]])
         squared, _, _ = igl.point_mesh_squared_distance(points, quad, _QUAD_TRIANGLES)
-        if np.sqrt(squared.max()) > deviation + abs(shift) + near:
+        lengths = np.linalg.norm(V[pairs[:, 1]] - V[pairs[:, 0]], axis=1)
+        if np.any(np.sqrt(squared) > deviation + abs(shift) + _NEAR_SWEPT * lengths):
             return False
         # Orient the normal to the left of the path: face normal x direction of travel.
         left = cross_rows(_face_normal(V, F[self.faces[-1]]), points[0] - self.entry_point)
