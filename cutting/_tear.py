@@ -52,7 +52,7 @@ from typing import Literal, NamedTuple, overload
 import igl
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float, Int
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 import jaxcga as cga
 from _jaxcga_shared.checks import check_choice, check_triangle_mesh
@@ -138,10 +138,11 @@ class TearTopology(NamedTuple):
             (face normal x path direction), d includes the perturbation. Zero rows for the steps that gave
             no Q_j (both samples in one face, or a gap between stretches).
         orientation: (s-1,) +1 or -1: Pi_i's normal is ``orientation * (A - X_i) x (B - X_i)``
-            normalized, with X_i = ``sample_crossings[i]`` and A, B the blade's ends at sample i + 1 (0 where
-            the row is zero).
+            normalized, with A, B the blade's ends at sample i + 1 and X_i the plane's anchor: the tip
+            ``sample_points[i]`` where ``from_tip[i]``, else ``sample_crossings[i]`` (0 where the row is zero).
         shift: (s-1,) how far each plane was moved along its oriented normal (the perturbation; mostly 0):
             ``planes[i, 3] = planes[i, :3] . X_i + shift[i]``.
+        from_tip: (s-1,) bool the steps that leave a stretch's first face, from its tip.
     """
 
     sample_faces: Int[np.ndarray, " s"]
@@ -163,6 +164,7 @@ class TearTopology(NamedTuple):
     planes: Float[np.ndarray, "k 4"]
     orientation: Float[np.ndarray, " k"]
     shift: Float[np.ndarray, " k"]
+    from_tip: Bool[np.ndarray, " k"]
 
 
 def scalpel_path(blade: Float[ArrayLike, "2 3"], motors: cga.Multivector) -> Scalpel:
@@ -475,6 +477,7 @@ class _Path:
         self.planes: list[np.ndarray] = []
         self.orientation: list[float] = []
         self.shifts: list[float] = []
+        self.from_tip: list[bool] = []
         self.point_chunks: list[np.ndarray] = []
         self.t_chunks: list[np.ndarray] = []
         self.visited: set[int] = set()
@@ -505,7 +508,8 @@ class _Path:
             self.lengths[face] = float(np.linalg.norm(corners - np.roll(corners, 1, axis=0), axis=1).mean())
         return self.lengths[face]
 
-    def _row(self, plane=None, sign=0.0, shift=0.0, points=None, t=None):
+    def _row(self, plane=None, sign=0.0, shift=0.0, points=None, t=None, from_tip=False):
+        self.from_tip.append(from_tip)
         self.planes.append(np.zeros(4) if plane is None else plane)
         self.orientation.append(sign)
         self.shifts.append(shift)
@@ -539,7 +543,7 @@ class _Path:
         elif len(self.crossed) == crossed:
             self.visited.discard(self.faces[-1])
             del self.samples[samples:], self.faces[faces:], self.stretches[-1], self.stretch_faces[-1]
-            for chunk in (self.planes, self.orientation, self.shifts, self.point_chunks, self.t_chunks):
+            for chunk in (self.planes, self.orientation, self.shifts, self.from_tip, self.point_chunks, self.t_chunks):
                 del chunk[rows:]
 
     def _slit_fits(self) -> bool:
@@ -570,24 +574,28 @@ class _Path:
         if c.face in self.visited:
             self.blocked = True
             return False
-        # Pi through the blade's crossing at a (S_a before the margin: on the swept surface) and the blade at c
+        # Pi through the blade's crossing at a and the blade at c: through the tip S_a where the step leaves the tip's
+        # face (its pieces are fanned from it), else through the crossing before the margin (on the swept surface;
+        # the margin would tilt the planes of short steps)
+        from_tip = self.entry_edge is None
+        anchor = a.point if from_tip else a.exact
         blade_a, blade_c = _blade(self.segments, a.time), _blade(self.segments, c.time)
-        normal = cross_rows(blade_c[0] - a.exact, blade_c[1] - a.exact)
+        normal = cross_rows(blade_c[0] - anchor, blade_c[1] - anchor)
         length = np.linalg.norm(normal)
         if length <= 1e-12 * self.diagonal**2:
             return False  # the blade passes through S_a: no plane
         n = normal / length
-        d = float(n @ a.exact)
-        chord = float(np.linalg.norm(c.exact - a.exact))
+        d = float(n @ anchor)
+        chord = float(np.linalg.norm(c.exact - anchor))
         local = self.edge_length(self.faces[-1])
         # how far the plane strays from the quadrilateral swept over the step near the surface, where the tear
         # points lie (0 for a blade that translates): at the ends of the stretch of blade_a within a chord and an
         # edge of S_a
         direction = blade_a[1] - blade_a[0]
-        along = (a.exact - blade_a[0]) @ direction / (direction @ direction)
+        along = (anchor - blade_a[0]) @ direction / (direction @ direction)
         spread = (chord + local) / np.sqrt(direction @ direction)
         ends = blade_a[0] + np.clip([along - spread, along + spread], 0.0, 1.0)[:, None] * direction
-        deviation = float(np.abs((ends - a.exact) @ n).max())
+        deviation = float(np.abs((ends - anchor) @ n).max())
         if deviation > _NEAR_SWEPT * local:
             return False  # a turning blade: sampled more finely until the plane follows its swept surface
         reach = chord + 2.0 * local + deviation  # how far the walk may go before it has strayed
@@ -611,8 +619,8 @@ class _Path:
                     self.entry_edge,
                     self.entry_point,
                     first_tip,
-                    a.exact,
-                    c.exact,
+                    anchor,
+                    c.point,
                     c.face,
                     set(self.visited),
                     reach,
@@ -652,7 +660,7 @@ class _Path:
         self.faces += step_faces
         self.crossed += step_edges
         self.steps += [len(self.samples) - 2] * len(step_edges)
-        self._row(np.append(sign * n, sign * (d + shift)), sign, sign * shift, points, t)
+        self._row(np.append(sign * n, sign * (d + shift)), sign, sign * shift, points, t, from_tip)
         self.entry_edge, self.entry_point = step_edges[-1], points[-1]
         return True
 
@@ -770,6 +778,7 @@ def tear_topology(
         np.asarray(path.planes).reshape(-1, 4),
         np.asarray(path.orientation),
         np.asarray(path.shifts),
+        np.asarray(path.from_tip, bool),
     )
 
 
@@ -1060,7 +1069,7 @@ def tear_positions(
     samples = jnp.einsum("sk,skc->sc", barycentric, corners, precision=EXACT)
     # the planes of the steps that gave tear points only (the others may have none)
     used, step = np.unique(topology.step, return_inverse=True)
-    origin = crossings[used]
+    origin = jnp.where(jnp.asarray(topology.from_tip[used])[:, None], samples[used], crossings[used])
     normals = jnp.cross(X0[used + 1] - origin, X1[used + 1] - origin)
     normals = (
         jnp.asarray(topology.orientation[used])[:, None] * normals / jnp.linalg.norm(normals, axis=-1, keepdims=True)
