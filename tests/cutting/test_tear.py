@@ -10,18 +10,21 @@ import pytest
 import trimesh
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
+from scipy.spatial.transform import Rotation
 
 import cutting
 import deform
 import jaxcga as cga
-from tests.cutting.tools import area as _area
 from tests.cutting.tools import (
+    DATA,
     check_torn,
     load_models,
     mean_edge,
+    random_surface_point,
     scalpel_of,
     scalpels_over,
 )
+from tests.cutting.tools import area as _area
 from tests.cutting.tools import diagonal as _diagonal
 from tests.cutting.tools import posed as posed_arm
 from tests.shared import check_gradient, grid
@@ -327,3 +330,29 @@ def test_a_sequence_of_scalpels_is_one_scalpel_of_their_samples():
         cutting.tear_topology(V, F, [parts[0], cutting.Scalpel(np.zeros((2, 2)), np.ones((2, 2)))])
     with pytest.raises(ValueError, match="k\\+1 >= 2"):
         cutting.tear_topology(V, F, parts[:1])
+
+
+@pytest.mark.parametrize("name", ["CesiumMan", "Arm5"])
+def test_tears_placed_on_the_skin_of_characters_all_succeed(name):
+    """Issue 51's placement: a blade across the skin at a random surface point, moving 5% of the diagonal along it
+    over 2 samples (and 1% or 20% over 2 to 5): every tear succeeds, follows the swept surface, leaves no sliver,
+    and the torn character animates its original vertices where they were."""
+    model = deform.load_model(DATA / f"{name}.glb", weld=True)
+    mesh = model.mesh
+    V, F = np.asarray(mesh.V, np.float64), np.asarray(mesh.F)
+    edges = cutting.mesh_edges(F)
+    rng = np.random.default_rng(51)
+    # any joint matrices: each joint turned and moved at random
+    joints = np.tile(np.eye(4), (mesh.num_joints, 1, 1))
+    joints[:, :3, :3] = Rotation.random(mesh.num_joints, random_state=51).as_matrix()
+    joints[:, :3, 3] = rng.normal(scale=0.1 * _diagonal(V), size=(mesh.num_joints, 3))
+    posed = np.asarray(deform.skin_lbs(mesh.V, mesh.J, mesh.W, joints))
+    for trial in range(30):
+        face, _, _ = random_surface_point(V, F, rng)
+        samples, span = (2, 0.05) if trial < 20 else (int(rng.integers(2, 6)), [0.01, 0.2][trial % 2])
+        scalpel = scalpels_over(V, F, face, rng.normal(size=3), samples, span * _diagonal(V) / (samples - 1))
+        torn, path = cutting.tear(mesh, scalpel, edges=edges, return_topology=True)
+        check_torn(mesh, scalpel, torn, path)
+        again = np.asarray(deform.skin_lbs(torn.V, torn.J, torn.W, joints))
+        np.testing.assert_allclose(again[: len(V)], posed, rtol=0, atol=1e-12 * _diagonal(V))
+        assert np.all(np.isfinite(again))
