@@ -21,8 +21,9 @@ What changed from the paper, and why. The paper takes the plane's curve from S_i
 curved character the curve of a plane through two far samples closes on itself, leaves the skin or runs far
 from where the blade passed. Here the blade is sampled again halfway (its ends interpolated linearly, the
 samples' times kept in ``TearTopology.sample_times``) wherever a step's curve does not join its two samples
-within a quarter of an edge of the swept quadrilateral, or the plane strays from that quadrilateral near the
-surface (a turning blade): the planes then follow the swept surface. At the finest sampling (the blade moving
+with every tear point within 0.4 of its edge's length of the swept quadrilateral, or the plane strays from that
+quadrilateral near the surface by more than a quarter of an edge (a turning blade): the planes then follow the
+swept surface. At the finest sampling (the blade moving
 under a quarter of an edge), a step that still cannot be followed ends the tear, which begins again at the next
 crossing: a tear is one or more stretches. So a blade that leaves the skin and comes back tears the stretches
 where it was on it; the tear ends at the surface's boundary (or a non-manifold edge), and before a face it
@@ -92,10 +93,11 @@ _PIECE_HEADROOM = 1.1
 # halvings): then the tear ends at the first sample and begins again at the second.
 _RESOLUTION = 0.25
 _MAX_DEPTH = 30
-# Where the blade passed: a step's plane strays less than this fraction of a mean edge of its first face from the
-# swept quadrilateral near the surface, and each tear point lies within this fraction of its edge's length (plus
-# that distance and the plane's move) of the quadrilateral.
+# Where the blade passed: a step's plane strays less than _NEAR_SWEPT of a mean edge of its first face from the
+# swept quadrilateral near the surface, and each tear point lies within _NEAR_POINT of its edge's length (plus the
+# plane's move) of the quadrilateral.
 _NEAR_SWEPT = 0.25
+_NEAR_POINT = 0.4
 # The swept quadrilateral (blade_a handle, blade_a tip, blade_c tip, blade_c handle) as two triangles.
 _QUAD_TRIANGLES = np.array([[0, 1, 2], [0, 2, 3]])
 # Where the blade crosses several sheets (clothing, an inner mesh), a stretch goes on over the nearest of
@@ -648,7 +650,7 @@ class _Path:
         quad = np.stack([blade_a[0], blade_a[1], blade_c[1], blade_c[0]])
         squared, _, _ = igl.point_mesh_squared_distance(points, quad, _QUAD_TRIANGLES)
         lengths = np.linalg.norm(V[pairs[:, 1]] - V[pairs[:, 0]], axis=1)
-        if np.any(np.sqrt(squared) > deviation + abs(shift) + _NEAR_SWEPT * lengths):
+        if np.any(np.sqrt(squared) > abs(shift) + _NEAR_POINT * lengths):
             return False
         # Orient the normal to the left of the path: face normal x direction of travel.
         left = cross_rows(_face_normal(V, F[self.faces[-1]]), points[0] - self.entry_point)
