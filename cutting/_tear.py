@@ -103,6 +103,8 @@ _QUAD_TRIANGLES = np.array([[0, 1, 2], [0, 2, 3]])
 # Where the blade crosses several sheets (clothing, an inner mesh), a stretch goes on over the nearest of
 # them that its curve reaches: up to this many are tried.
 _ALTERNATIVES = 3
+# A slit inside one face that would leave a sliver piece ends earlier: at these fractions of its blade's time.
+_SHORTER = (0.75, 0.5, 0.25)
 
 
 class TearTopology(NamedTuple):
@@ -333,41 +335,48 @@ def _slivers(V, F, edges: MeshEdges, chords, tips, smallest: SmallestFace) -> bo
 
 def _slit_triangles(corners, first, last):
     """The triangles (7, 3) of a face (``corners`` (3, 3)) with a slit inside it, from the tip ``first`` to the
-    tip ``last`` with its middle point M duplicated, as slots: 0-2 the face's corners, 3 the first tip,
-    4 the last, 5 M's left copy, 6 its right copy; None where a corner lies on the slit's line. Left of the
-    slit is the face normal x (last - first) side. The line through the tips leaves the face over an edge
-    ahead of ``last`` and one behind ``first``: a triangle from each tip to its edge, and a fan from each
-    copy of M over the corners of its side."""
+    tip ``last`` with its middle point M duplicated, as slots: 0-2 the face's corners, 3 the first tip, 4 the last,
+    5 M's left copy, 6 its right copy (left of the slit is the face normal x (last - first) side). The slit's line
+    leaves the face ahead of ``last`` and behind ``first``, over an edge (a triangle from the tip to that edge) or
+    through a corner (which then belongs to both sides); a fan covers each side. None where the tips coincide."""
     normal = np.cross(corners[1] - corners[0], corners[2] - corners[0])
     direction = last - first
-    side = (corners - first) @ np.cross(normal, direction)
-    if np.any(side == 0):
+    across = np.cross(normal, direction)
+    scale = np.linalg.norm(across) * np.linalg.norm(corners - np.roll(corners, 1, axis=0), axis=1).max()
+    if scale == 0:
         return None
-    left = side > 0
-    # the two edges (k, k+1) that the line crosses, and how far along the line each crossing lies
-    crossed = [k for k in range(3) if left[k] != left[(k + 1) % 3]]
-    ahead = []
-    for k in crossed:
-        a, b = corners[k], corners[(k + 1) % 3]
-        x = a + side[k] / (side[k] - side[(k + 1) % 3]) * (b - a)
-        ahead.append((x - first) @ direction)
-    out, in_ = (crossed[0], crossed[1]) if ahead[0] > ahead[1] else (crossed[1], crossed[0])
+    side = (corners - first) @ across
+    side[np.abs(side) <= 1e-9 * scale] = 0.0  # a corner on the slit's line
+    along = (corners - first) @ direction
+    on = [k for k in range(3) if side[k] == 0]
+    ahead = [k for k in on if along[k] > 0]
+    behind = [k for k in on if along[k] <= 0]
 
-    def ends(k):  # (left corner, right corner) of local edge k
-        a, b = k, (k + 1) % 3
-        return (a, b) if left[a] else (b, a)
+    def side_corners(sign):
+        # the corners strictly on one side, counter-clockwise: from the one after the line's exit ahead
+        ks = [k for k in range(3) if np.sign(side[k]) == sign]
+        if len(ks) == 2 and (ks[0] + 1) % 3 != ks[1]:
+            ks.reverse()
+        return ks
 
-    left_out, right_out = ends(out)
-    left_in, right_in = ends(in_)
-    # corners in counter-clockwise order from the edge ahead round to the edge behind (left side), and from
-    # the edge behind round to the edge ahead (right side)
-    lefts = [left_out] if left_out == left_in else [left_out, left_in]
-    rights = [right_in] if right_in == right_out else [right_in, right_out]
-    triangles = [(4, right_out, left_out), (3, left_in, right_in)]
-    ring = [4, *lefts, 3]
-    triangles += [(5, ring[m], ring[m + 1]) for m in range(len(ring) - 1)]
-    ring = [3, *rights, 4]
-    triangles += [(6, ring[m], ring[m + 1]) for m in range(len(ring) - 1)]
+    lefts, rights = side_corners(1.0), side_corners(-1.0)
+    if not lefts or not rights:
+        return None
+    triangles = []
+    if ahead:  # the line leaves through a corner ahead: it closes both sides' rings
+        lefts, rights = ahead + lefts, rights + ahead
+    else:  # over the edge from the last right corner to the first left one
+        triangles.append((4, rights[-1], lefts[0]))
+    if behind:
+        lefts, rights = lefts + behind, behind + rights
+    else:
+        triangles.append((3, lefts[-1], rights[0]))
+    # each side a convex polygon (the face's part on that side, less the tips' triangles), counter-clockwise; its
+    # fan from the apex whose smallest triangle is largest (the tips and M lie on one line, and so may a corner)
+    middle = 0.5 * (first + last)
+    slots = np.concatenate([corners, [first, last, middle, middle]]).tolist()
+    for ring in ([3, 5, 4, *lefts], [4, 6, 3, *rights]):
+        triangles += fan_triangles(ring, [slots[k] for k in ring])
     return np.asarray(triangles)
 
 
@@ -535,21 +544,39 @@ class _Path:
 
     def close(self):
         """End the open stretch at its last sample. One that crossed no edge stays inside its face: a slit there,
-        unless it would leave a sliver piece (a blade that hardly moved), and then it is dropped."""
+        shortened (ending at an earlier time of the blade) where it would leave a sliver piece, and dropped where
+        even that does (a blade that hardly moved)."""
         if not self.open:
             return
         self.open = False
         samples, faces, crossed, rows = self._saved
-        if len(self.crossed) == crossed and self._slit_fits():
+        if len(self.crossed) > crossed:
+            return
+        first_index = self.stretches[-1][0]
+        first, last = self.samples[first_index], self.samples[-1]
+        if self._slit_fits(first, last):
             self.inner.append(len(self.stretches) - 1)
-        elif len(self.crossed) == crossed:
-            self.visited.discard(self.faces[-1])
-            del self.samples[samples:], self.faces[faces:], self.stretches[-1], self.stretch_faces[-1]
-            for chunk in (self.planes, self.orientation, self.shifts, self.from_tip, self.point_chunks, self.t_chunks):
-                del chunk[rows:]
+            return
+        for fraction in _SHORTER:
+            time = first.time + fraction * (last.time - first.time)
+            end = next((c for c in self.crossing(time) or [] if c.face == first.face), None)
+            if end is not None and self._slit_fits(first, end):
+                del self.samples[first_index + 1 :]
+                self._truncate(first_index)
+                self.samples.append(end)
+                self.stretches[-1][1] = first_index + 1
+                self._row()
+                self.inner.append(len(self.stretches) - 1)
+                return
+        self.visited.discard(self.faces[-1])
+        del self.samples[samples:], self.faces[faces:], self.stretches[-1], self.stretch_faces[-1]
+        self._truncate(rows)
 
-    def _slit_fits(self) -> bool:
-        first, last = self.samples[self.stretches[-1][0]], self.samples[-1]
+    def _truncate(self, rows: int):
+        for chunk in (self.planes, self.orientation, self.shifts, self.from_tip, self.point_chunks, self.t_chunks):
+            del chunk[rows:]
+
+    def _slit_fits(self, first: _Crossing, last: _Crossing) -> bool:
         corners = self.V[self.F[first.face]]
         pieces = _slit_pieces(corners, first.point, last.point)
         if pieces is None:
@@ -569,6 +596,10 @@ class _Path:
         V, F, edges = self.V, self.F, self.edges
         a = self.samples[-1]
         if c.face == self.faces[-1]:
+            if self.entry_edge is not None and _slivers(
+                V, F, edges, [], [(c.face, self.entry_edge, self.entry_point, c.point)], self.smallest
+            ):
+                return True  # as the tear's tip, c would leave a sliver: the stretch goes on from its last sample
             self.samples.append(c)
             self.stretches[-1][1] = len(self.samples) - 1
             self._row()
