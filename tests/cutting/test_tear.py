@@ -363,3 +363,24 @@ def test_tears_placed_on_the_skin_of_characters_all_succeed(name):
         again = skin(torn)
         np.testing.assert_array_equal(again[: len(V)], posed)
         assert np.all(np.isfinite(again))
+
+
+def test_positions_of_a_finely_sampled_tear_follow_the_scalpel():
+    """On CesiumMan the blade turns with the body: the tear samples it between the scalpel's samples. The positions
+    reproduce the topology's points, and their gradient with respect to the scalpel's handle ends (through the
+    samples interpolated between them) matches central differences."""
+    mesh = deform.load_model(DATA / "CesiumMan.glb", weld=True).mesh
+    V, F = np.asarray(mesh.V, np.float64), np.asarray(mesh.F)
+    scalpel = scalpels_over(V, F, 1000, [0.0, 1.0, 0.3], 3, 0.05 * _diagonal(V))
+    path = cutting.tear_topology(V, F, scalpel)
+    assert len(path.sample_times) > 3 and np.any(path.sample_times % 1 != 0)
+    tips, left, right = cutting.tear_positions(V, path, scalpel)
+    np.testing.assert_allclose(left, path.points, atol=1e-12)
+    np.testing.assert_allclose(tips, path.sample_points[path.stretches.ravel()], atol=1e-12)
+    tip = jnp.asarray(scalpel.tip)
+
+    def loss(handle):
+        tips, left, _ = cutting.tear_positions(V, path, cutting.Scalpel(handle.reshape(-1, 3), tip), opening=0.01)
+        return jnp.sum(left**2) + jnp.sum(jnp.sin(tips))
+
+    check_gradient(loss, jnp.asarray(scalpel.handle).ravel())
