@@ -60,7 +60,7 @@ def load_character(name: str, weld: bool = True):
     return deform.load_model(CHARACTERS[name], weld=weld)
 
 
-def mesh_parts(F, n: int) -> list[np.ndarray]:
+def connected_parts(F, n: int) -> list[np.ndarray]:
     """The connected parts of the faces ``F`` (m, 3) over ``n`` vertices: one sorted array of vertex indices per
     part, largest first; vertices on no face belong to none."""
     import scipy.sparse

@@ -350,14 +350,14 @@ class CharacterTools:
     just outside through to where the ray leaves the part it entered (through the limb, and any layer inside it)."""
 
     def __init__(self, model):
-        from tests.shared import mesh_parts
+        from tests.shared import connected_parts
 
         self.model = model
         self.V, self.F = np.asarray(model.mesh.V, np.float64), np.asarray(model.mesh.F)
         self.diagonal = diagonal(self.V)
         self.areas = area(self.V, self.F)
         labels = np.full(len(self.V), -1)
-        for k, part in enumerate(mesh_parts(self.F, len(self.V))):
+        for k, part in enumerate(connected_parts(self.F, len(self.V))):
             labels[part] = k
         self.vertex_part, self.face_part = labels, labels[self.F[:, 0]]
         mesh = model.mesh
@@ -383,7 +383,7 @@ class CharacterTools:
         return t[faces], faces
 
     def crossed_parts(self, start, end) -> np.ndarray:
-        """The parts (indices into ``mesh_parts``) that the segment from ``start`` to ``end`` crosses."""
+        """The parts (indices into ``connected_parts``) that the segment from ``start`` to ``end`` crosses."""
         length = np.linalg.norm(end - start)
         t, faces = self.hits(start, (end - start) / length)
         return np.unique(self.face_part[faces[t < length]])

@@ -14,7 +14,7 @@ import pytest
 
 import deform
 from tests.deform._gltf_reference import Reference
-from tests.shared import CHARACTERS, DATA, load_character, mesh_parts
+from tests.shared import CHARACTERS, DATA, connected_parts, load_character
 
 MAX_BYTES = 5_000_000  # the new files under tests/data/characters (CesiumMan was there before)
 LARGE = 25_000  # welded vertices of the largest model (the benchmarks' real_* figures run on it)
@@ -93,7 +93,7 @@ def test_the_corpus_covers_real_characters():
     inner, layered = {}, {}
     for name, model in models.items():
         V, F = np.asarray(model.mesh.V, np.float64), np.asarray(model.mesh.F)
-        parts = mesh_parts(F, len(V))
+        parts = connected_parts(F, len(V))
         inner[name] = len(_inner_parts(V, parts))
         layered[name] = max((fraction for _, fraction in _layers(V, F, parts)), default=0.0)
     assert max(inner.values()) >= 1, inner
@@ -113,7 +113,7 @@ def test_the_part_measures_on_a_synthetic_scene():
     sheet = trimesh.Trimesh(*trimesh.remesh.subdivide_to_size(sheet.vertices, sheet.faces, max_edge=0.3))
     scene = trimesh.util.concatenate([big, small, far, sheet])
     V, F = np.asarray(scene.vertices), np.asarray(scene.faces)
-    parts = mesh_parts(F, len(V))
+    parts = connected_parts(F, len(V))
     assert sorted(map(len, parts)) == [8, 8, 8, len(sheet.vertices)]
     which = {}
     for i, part in enumerate(parts):
