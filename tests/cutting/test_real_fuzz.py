@@ -2,10 +2,10 @@
 random skin point (seeded; ``tools.CharacterTools``): a plane across the limb, a blade that moves 5% of the diagonal
 along the skin, a drill through the limb along the inward normal. Every one must succeed and give a mesh that
 re-animates exactly (the input's vertices it keeps skin where they did, in a pose of the character's clip), makes no
-sliver (``tools.piece_quality``), and keeps its weights valid (``tools.consistency_problems``); a drill leaves its new
-points on its cylinder and no input vertex inside it (deeper than that tolerance: a rim may pass through an input
-vertex) of a part its axis crosses. The tools run round the characters, 100 of each kind; the failures are listed with
-their messages."""
+sliver (``tools.piece_quality``), and keeps its weights valid (``tools.consistency_problems``). A drill's rims (the
+boundary it made, vertices and chords) lie on its cylinder to 1e-3 of the diagonal, and no input vertex of a part its
+axis crosses stays inside it (deeper than that: a rim may pass through an input vertex). The tools run round the
+characters, 100 of each kind; the failures are listed with their messages."""
 
 from __future__ import annotations
 
@@ -41,9 +41,9 @@ def _apply(tool: str, mesh, placed, edges):
 
 
 def _drill_problems(placer, drilled, ids, drill) -> list[str]:
-    """A drill's rims off its cylinder (the vertices of the boundary edges it made: new points, and input vertices a
-    rim passes through), and kept input vertices inside it, between its base and its tip, of the parts that its axis
-    crosses there (each is drilled through; ``placer``: the ``CharacterTools``)."""
+    """A drill's rims off its cylinder (the boundary edges it made, at their ends and midpoints: new points, and input
+    vertices a rim passes through), and kept input vertices inside it, between its base and its tip, of the parts that
+    its axis crosses there (each is drilled through; ``placer``: the ``CharacterTools``)."""
     scale = placer.diagonal
     problems = []
     base, tip, radius = (np.asarray(x, np.float64) for x in (drill.base, drill.tip, drill.radius))
@@ -54,19 +54,32 @@ def _drill_problems(placer, drilled, ids, drill) -> list[str]:
         return np.linalg.norm(relative - np.outer(relative @ axis, axis), axis=1), relative @ axis
 
     ids = np.asarray(ids)
+    out_V = np.asarray(drilled.V, np.float64)
     edges, counts = edge_counts(drilled.F)
     before_edges, before_counts = edge_counts(placer.F)
-    before = {tuple(e) for e in before_edges[before_counts == 1]}
-    labels = np.where(ids < len(placer.V), ids, -1)  # new vertices: no input boundary edge
-    rim_edges = [e for e in edges[counts == 1] if tuple(sorted(labels[e])) not in before or min(labels[e]) < 0]
-    rim_vertices = np.unique(np.asarray(rim_edges, int).reshape(-1))
-    off, _ = from_axis(np.asarray(drilled.V, np.float64)[rim_vertices])
+    before_boundary = before_edges[before_counts == 1]
+    # a boundary edge of the output is one of the input's, a piece of one that a refinement split, or a rim: the
+    # input's by their vertices, the pieces by their midpoints' distance from the input's boundary segments
+    labels = np.where(ids < len(placer.V), ids, -1)[edges[counts == 1]]
+    known = {tuple(e) for e in before_boundary}
+    old = (labels.min(axis=1) >= 0) & np.array([tuple(sorted(e)) in known for e in labels], bool)
+    boundary = edges[counts == 1][~old]
+    a, b = (placer.V[before_boundary[:, k]] for k in range(2))
+    m = 0.5 * (out_V[boundary[:, 0]] + out_V[boundary[:, 1]])
+    if len(a):
+        s = np.clip(np.einsum("mbk,bk->mb", m[:, None] - a[None], b - a) / np.einsum("bk,bk->b", b - a, b - a), 0, 1)
+        gap = np.linalg.norm(m[:, None] - (a[None] + s[..., None] * (b - a)[None]), axis=2).min(axis=1)
+    else:
+        gap = np.full(len(m), np.inf)
+    rims = boundary[gap > 1e-9 * scale]
+    # the rim polyline: its vertices and the midpoints of its chords
+    off, _ = from_axis(np.concatenate([out_V[rims.ravel()], 0.5 * (out_V[rims[:, 0]] + out_V[rims[:, 1]])]))
     rim = float(np.abs(off - radius).max(initial=0.0)) / scale
     placer.worst_rim = max(placer.worst_rim, rim)
     if rim > RIM:
-        problems.append(f"a rim vertex {rim:.3g} x diagonal off the cylinder")
+        problems.append(f"a rim {rim:.3g} x diagonal off the cylinder")
     kept = ids < len(placer.V)
-    distance, along = from_axis(np.asarray(drilled.V, np.float64)[kept])
+    distance, along = from_axis(out_V[kept])
     crossed = np.isin(placer.vertex_part[ids[kept]], placer.crossed_parts(base, tip))
     inside = crossed & (distance < radius - RIM * scale) & (along > 0) & (along < np.linalg.norm(tip - base))
     if inside.any():
