@@ -706,7 +706,8 @@ class _Path:
 
     def follow(self, ta, ca, tb, cb, depth=0):
         """Tear along the blade's path from time ta to tb (within one step of the scalpel), given its crossings
-        there (None: the blade misses the surface). On entry an open stretch ends at ca; on exit at cb."""
+        there (None: the blade misses the surface). An open stretch ends at ca on entry (or at a sample before it,
+        where ca was left out), and at cb on exit (or before it)."""
         if ca is not None and cb is not None and self.open and self.step(cb):
             return
         if ca is None and cb is None:
