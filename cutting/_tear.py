@@ -953,7 +953,8 @@ def tear(
     """Tear a skinned mesh with a scalpel moving through its samples (Algorithm 2).
 
     Args:
-        mesh: the SkinnedMesh (``deform``).
+        mesh: the SkinnedMesh (``deform``). A tear ends at the surface's boundary: weld a mesh whose vertices are
+            split along UV seams (``deform.weld``, ``load_model(..., weld=True)``), or it ends at every seam.
         scalpel: the ``Scalpel``: its handle and tip ends (k+1, 3) at time steps t_0 .. t_k, in the
             space of the mesh as torn: the bind pose, or the pose of ``joint_matrices``; or a sequence of
             ``Scalpel``s (one sample each, (3,) ends, or more) joined in order. Two samples are the paper's
