@@ -131,9 +131,9 @@ def check_torn(mesh, scalpel, torn, path, opening: float = 0.0):
     V, F = np.asarray(mesh.V, np.float64), np.asarray(mesh.F)
     Vt, Ft = np.asarray(torn.V, np.float64), np.asarray(torn.F)
     scale = diagonal(V)
-    if opening == 0:
+    if opening == 0:  # the new vertices are stored in the mesh's dtype: float32 rounds them (coarse meshes show it)
         total = area(V, F).sum()
-        assert abs(area(Vt, Ft).sum() - total) <= 1e-9 * total
+        assert abs(area(Vt, Ft).sum() - total) <= (1e-9 if np.asarray(mesh.V).dtype == np.float64 else 1e-6) * total
     ids = np.arange(len(Vt))
     problems, _, _ = piece_quality(V, F, Vt, Ft, ids)
     assert not problems + consistency_problems(torn, mesh, ids)
