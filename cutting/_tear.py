@@ -2,26 +2,44 @@
 (sec. 4.2.2), with the weights of new vertices of sec. 4.3.
 
 The scalpel is a segment known at time steps t_0 .. t_k (``Scalpel(handle, tip)``: at t_i it runs
-from ``handle[i]`` to ``tip[i]``; where it crosses the surface more than once, the crossing nearest the
-handle counts), given by its endpoints or as a blade moved by motors (``scalpel_path``).
+from ``handle[i]`` to ``tip[i]``), given by its endpoints, as a sequence of ``Scalpel``s, or as a blade
+moved by motors (``scalpel_path``). Between two samples the blade's ends move linearly: it sweeps the ruled
+quadrilateral handle_i, tip_i, tip_{i+1}, handle_{i+1}, and the tear is where that swept surface meets the
+mesh, where the blade passed.
 
-1. S_i, the crossing of the scalpel with the surface at t_i (the tear points);
-2. for each step i, the plane Pi_i through S_i and the scalpel's endpoints at t_{i+1};
+1. S_i, the crossing of the blade with the surface at t_i (the crossing nearest the handle to begin with;
+   then the one nearest the tear's last sample, so that a tear stays on its sheet where several overlap);
+2. for each step i, the plane Pi_i through S_i and the blade's endpoints at t_{i+1};
 3. from S_i's face, the intersection of Pi_i with the surface is followed face by face (across
    shared edges, towards S_{i+1}) until S_{i+1}'s face: the edge points Q_j, in order on the skin;
-4. weights of S_0, S_k (barycentric in their faces) and of every Q_j (on its edge), sec. 4.3;
-5. the faces on the path are re-triangulated: the tips S_0 and S_k become vertices inside their
-   faces, every Q_j is duplicated, one copy for each side of the tear;
+4. weights of the tips (barycentric in their faces) and of every Q_j (on its edge), sec. 4.3;
+5. the faces on the path are re-triangulated: the tips become vertices inside their faces, every Q_j is
+   duplicated, one copy for each side of the tear;
 6. the two copies of every Q_j are pushed apart along Pi's normal, ``opening / 2`` each.
 
-Successive samples make one tear along the whole path (the paper's successive tears): in the face
-of an intermediate sample S_i the path goes straight from the point where it enters the face to
-the point where it leaves it (the paper's assumption that the tear curve is smooth between close
-samples). A plane that passes within ``tolerance`` of a vertex of the path, that would put a tear
-point within 2% of an edge's length from its end, or that would leave a piece of a face smaller or
-thinner than the sliver rule of ``_geometry.sliver_mask`` allows, is moved along its normal in steps of
-5% of an edge (a gentle perturbation, as the XFEM paper's sec. 6.1 does for cuts through vertices), so
-that no sliver triangle is created; ``TearTopology.shift`` records the move.
+What changed from the paper, and why. The paper takes the plane's curve from S_i to S_{i+1} whole; on a
+curved character the curve of a plane through two far samples closes on itself, leaves the skin or runs far
+from where the blade passed. Here the blade is sampled again halfway (its ends interpolated linearly, the
+samples' times kept in ``TearTopology.sample_times``) wherever a step's curve does not join its two samples
+with every tear point within 0.4 of its edge's length of the swept quadrilateral, or the plane strays from that
+quadrilateral near the surface by more than a quarter of an edge (a turning blade): the planes then follow the
+swept surface. At the finest sampling (the blade moving
+under a quarter of an edge), a step that still cannot be followed ends the tear, which begins again at the next
+crossing: a tear is one or more stretches. So a blade that leaves the skin and comes back tears the stretches
+where it was on it; the tear ends at the surface's boundary (or a non-manifold edge), and before a face it
+already went through (a face cut twice would lose or double area), each within a quarter of an edge; where the
+blade crosses no sheet at both ends of a step, the times at which mesh edges pierce the swept quadrilateral
+tell whether and where it crosses one in between. A stretch inside one face is a slit there, its middle point
+duplicated (``TearTopology.inner``). Only a blade that never crosses the surface, or whose path on it is too
+short to tear without a sliver, is refused.
+
+In the face of an intermediate sample the path goes straight from the point where it enters the face to the
+point where it leaves it (the paper's assumption that the tear curve is smooth between close samples). A plane
+that passes within ``tolerance`` of a vertex of the path, that would put a tear point within 2% of an edge's
+length from its end, or that would leave a piece of a face smaller or thinner than the sliver rule of
+``_geometry.sliver_mask`` allows, is moved along its normal in steps of 5% of an edge (a gentle perturbation, as
+the XFEM paper's sec. 6.1 does for cuts through vertices), so that no sliver triangle is created;
+``TearTopology.shift`` records the move. Tips keep a 2% barycentric margin from their faces' edges.
 
 For a fixed topology (``TearTopology``), the positions of the new vertices are a JAX function of the
 vertices, the ``Scalpel`` and the opening (``tear_positions``), so they can be differentiated.
@@ -29,11 +47,13 @@ vertices, the ``Scalpel`` and the opening (``tear_positions``), so they can be d
 
 from __future__ import annotations
 
-from typing import Literal, NamedTuple, NoReturn, overload
+from collections.abc import Sequence
+from typing import Literal, NamedTuple, overload
 
+import igl
 import jax.numpy as jnp
 import numpy as np
-from jaxtyping import Array, ArrayLike, Float, Int
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 import jaxcga as cga
 from _jaxcga_shared.checks import check_choice, check_triangle_mesh
@@ -53,7 +73,7 @@ from cutting._geometry import (
     sliver_mask,
 )
 from cutting._predicates import PREDICATES, edge_points, signed_distances
-from cutting._tools import Scalpel, check_scalpel
+from cutting._tools import Scalpel, check_scalpel, joined_scalpel
 from cutting._weights import blend_weights
 from deform._model import SkinnedMesh
 
@@ -68,34 +88,77 @@ _TIP_MARGIN = 0.02
 # checked against the rule of ``sliver_mask`` with this headroom (the final points come from the
 # predicates, which may round differently), and the plane moves on where one is a sliver.
 _PIECE_HEADROOM = 1.1
+# Between two samples whose plane's curve does not join them where the blade passed, the blade is sampled
+# again halfway, until it moves less than _RESOLUTION of a mean edge of the faces it crosses (or _MAX_DEPTH
+# halvings): then the tear ends at the first sample and begins again at the second.
+_RESOLUTION = 0.25
+_MAX_DEPTH = 30
+# Where the blade passed: a step's plane strays less than _NEAR_SWEPT of a mean edge of its first face from the
+# swept quadrilateral near the surface, and each tear point lies within _NEAR_POINT of its edge's length (plus the
+# plane's move) of the quadrilateral.
+_NEAR_SWEPT = 0.25
+_NEAR_POINT = 0.4
+# The swept quadrilateral (blade_a handle, blade_a tip, blade_c tip, blade_c handle) as two triangles.
+_QUAD_TRIANGLES = np.array([[0, 1, 2], [0, 2, 3]])
+# Where the blade crosses several sheets (clothing, an inner mesh), a stretch goes on over the nearest of
+# them that its curve reaches: up to this many are tried.
+_ALTERNATIVES = 3
+# A slit inside one face that would leave a sliver piece ends earlier: at these fractions of its blade's time.
+_SHORTER = (0.75, 0.5, 0.25)
 
 
 class TearTopology(NamedTuple):
     """The topology of a tear (``tear_topology``), and the geometry it was computed from.
 
+    The samples here are the blade's samples that the tear went through, in time order: the scalpel's own
+    and those added between them where the path needed them (s in all). The tear is one or more stretches
+    of consecutive samples (one, unless the blade leaves the surface and comes back).
+
     Attributes:
-        sample_faces: (k+1,) int the face crossed by the scalpel at each sample t_i.
-        sample_corners: (k+1, 3) int that face's vertices (``F[sample_faces]``).
-        sample_points: (k+1, 3) the crossings S_i.
-        sample_barycentric: (k+1, 3) barycentric coordinates of S_i in its face.
-        faces: (p,) int the faces on the tear path, in order from S_0's face to S_k's face.
-        edge_ids: (p-1,) int the edge (``MeshEdges`` id) between path faces j and j+1 that carries Q_j.
-        crossing: (p-1, 2) int its vertices (i, j).
-        t: (p-1,) parameter of Q_j along its edge, ``Q = (1 - t) V_i + t V_j``.
-        points: (p-1, 3) the Q_j before the opening.
-        step: (p-1,) int the scalpel step i (plane Pi_i) that gave Q_j.
-        planes: (k, 4) the planes Pi_i as (unit normal, d): the normal points to the tear's left
-            (face normal x path direction), d includes the perturbation.
-        orientation: (k,) +1 or -1: Pi_i's normal is ``orientation * (A - S_i) x (B - S_i)``
-            normalized, with A, B the scalpel's endpoints at t_{i+1}.
-        shift: (k,) how far each plane was moved along its oriented normal (the perturbation; mostly 0):
-            ``planes[i, 3] = planes[i, :3] . S_i + shift[i]``.
+        sample_faces: (s,) int the face crossed by the blade at each sample.
+        sample_corners: (s, 3) int that face's vertices (``F[sample_faces]``).
+        sample_points: (s, 3) the crossings S_i, kept 2% (barycentric) off their faces' edges (a tip is a vertex).
+        sample_crossings: (s, 3) where the blade crosses each sample's face, before that margin: the planes
+            pass through them.
+        sample_barycentric: (s, 3) barycentric coordinates of S_i in its face.
+        sample_times: (s,) each sample's time in units of the scalpel's steps: at time i + a (0 <= a <= 1)
+            the blade's ends are ``(1 - a) X[i] + a X[i + 1]`` of the scalpel's handle and tip X.
+        stretches: (r, 2) int the first and the last sample of each stretch; their crossings are the tear's
+            tips, which stay single vertices.
+        stretch_faces: (r,) int how many of ``faces`` each stretch holds (p = their sum).
+        inner: (u,) int the stretches that stay inside one face (``stretch_faces`` 1): each has one interior
+            point, M halfway between its tips, duplicated like the Q_j (the slit's two sides need a vertex
+            each); its side's normal is the face's normal x (last tip - first tip), normalized.
+        scalpel_samples: k+1, the scalpel's own samples.
+        faces: (p,) int the faces on the tear path, stretch after stretch, each in order from its first
+            sample's face to its last one's.
+        edge_ids: (q,) int the edge (``MeshEdges`` id) carrying Q_j, between consecutive faces of a stretch
+            (q = p - r).
+        crossing: (q, 2) int its vertices (i, j).
+        t: (q,) parameter of Q_j along its edge, ``Q = (1 - t) V_i + t V_j``.
+        points: (q, 3) the Q_j before the opening.
+        step: (q,) int the step i (between samples i and i + 1, plane Pi_i) that gave Q_j.
+        planes: (s-1, 4) the planes Pi_i as (unit normal, d): the normal points to the tear's left
+            (face normal x path direction), d includes the perturbation. Zero rows for the steps that gave
+            no Q_j (both samples in one face, or a gap between stretches).
+        orientation: (s-1,) +1 or -1: Pi_i's normal is ``orientation * (A - X_i) x (B - X_i)``
+            normalized, with A, B the blade's ends at sample i + 1 and X_i the plane's anchor: the tip
+            ``sample_points[i]`` where ``from_tip[i]``, else ``sample_crossings[i]`` (0 where the row is zero).
+        shift: (s-1,) how far each plane was moved along its oriented normal (the perturbation; mostly 0):
+            ``planes[i, 3] = planes[i, :3] . X_i + shift[i]``.
+        from_tip: (s-1,) bool the steps that leave a stretch's first face, from its tip.
     """
 
     sample_faces: Int[np.ndarray, " s"]
     sample_corners: Int[np.ndarray, "s 3"]
     sample_points: Float[np.ndarray, "s 3"]
+    sample_crossings: Float[np.ndarray, "s 3"]
     sample_barycentric: Float[np.ndarray, "s 3"]
+    sample_times: Float[np.ndarray, " s"]
+    stretches: Int[np.ndarray, "r 2"]
+    stretch_faces: Int[np.ndarray, " r"]
+    inner: Int[np.ndarray, " u"]
+    scalpel_samples: int
     faces: Int[np.ndarray, " f"]
     edge_ids: Int[np.ndarray, " q"]
     crossing: Int[np.ndarray, "q 2"]
@@ -105,6 +168,7 @@ class TearTopology(NamedTuple):
     planes: Float[np.ndarray, "k 4"]
     orientation: Float[np.ndarray, " k"]
     shift: Float[np.ndarray, " k"]
+    from_tip: Bool[np.ndarray, " k"]
 
 
 def scalpel_path(blade: Float[ArrayLike, "2 3"], motors: cga.Multivector) -> Scalpel:
@@ -128,16 +192,65 @@ def scalpel_path(blade: Float[ArrayLike, "2 3"], motors: cga.Multivector) -> Sca
     return Scalpel(samples[:, 0], samples[:, 1])
 
 
-def _tip(V, F, segment, index):
-    faces, barycentric, _ = segment_hits(V, F, segment[0], segment[1])
-    if len(faces) == 0:
-        raise ValueError(
-            f"scalpel (sample {index}): the scalpel does not cross the surface (no face between "
-            f"{segment[0].tolist()} and {segment[1].tolist()})"
-        )
-    b = np.maximum(barycentric[0], _TIP_MARGIN)
-    b /= b.sum()
-    return int(faces[0]), b, b @ V[F[faces[0]]]
+def _blade(segments, time):
+    """The blade (2, 3) at ``time`` in [0, k]: its two ends interpolated linearly between the samples."""
+    i = min(int(np.floor(time)), len(segments) - 2)
+    a = time - i
+    return (1.0 - a) * segments[i] + a * segments[i + 1]
+
+
+class _Crossing(NamedTuple):
+    """Where the blade at ``time`` crosses the surface, kept _TIP_MARGIN off its face's edges."""
+
+    time: float
+    face: int
+    barycentric: np.ndarray
+    point: np.ndarray
+    exact: np.ndarray  # on the blade, before the margin: the planes pass through it
+
+
+def _crossings(V, F, segments, time, faces) -> list[_Crossing]:
+    """Every crossing of the blade at ``time`` with the surface (among ``faces``), from the handle end on."""
+    blade = _blade(segments, time)
+    faces, barycentric, along = segment_hits(V, F, blade[0], blade[1], faces)
+    b = np.maximum(barycentric, _TIP_MARGIN)
+    b /= b.sum(axis=1, keepdims=True)
+    points = np.einsum("hk,hkc->hc", b, V[F[faces]])
+    exact = blade[0] + along[:, None] * (blade[1] - blade[0])
+    return [_Crossing(float(time), int(f), b[h], points[h], exact[h]) for h, f in enumerate(faces.tolist())]
+
+
+def _swept_crossings(V, edges: MeshEdges, segments, step: int) -> np.ndarray:
+    """The times in [step, step + 1] at which edges of the mesh pierce the surface that the blade sweeps
+    between samples ``step`` and ``step + 1``: the quadrilateral handle_i, tip_i, tip_{i+1}, handle_{i+1}, as
+    the two triangles on its diagonal handle_i - tip_{i+1} (sorted; empty where the swept surface misses the
+    mesh)."""
+    (H0, T0), (H1, T1) = segments[step], segments[step + 1]
+    times = []
+    # each triangle with the time (as a fraction of the step) at its corners
+    for corners, at in (((H0, T0, T1), (0.0, 0.0, 1.0)), ((H0, T1, H1), (0.0, 1.0, 1.0))):
+        corners = np.asarray(corners)
+        # an edge with both ends beyond one side of the triangle's bounding box cannot pierce it
+        below, above = V < corners.min(axis=0), V > corners.max(axis=0)
+        i, j = edges.edges[:, 0], edges.edges[:, 1]
+        outside = ((below[i] & below[j]) | (above[i] & above[j])).any(axis=1)
+        pairs = edges.edges[~outside]
+        e1, e2 = corners[1] - corners[0], corners[2] - corners[0]
+        normal = np.cross(e1, e2)
+        squared = float(normal @ normal)
+        if not len(pairs) or squared == 0:
+            continue
+        A, B = V[pairs[:, 0]], V[pairs[:, 1]]
+        sA, sB = (A - corners[0]) @ normal, (B - corners[0]) @ normal
+        pierce = sA * sB < 0
+        A, B, sA, sB = A[pierce], B[pierce], sA[pierce], sB[pierce]
+        r = A + (sA / (sA - sB))[:, None] * (B - A) - corners[0]
+        # r = u e1 + v e2: barycentric coordinates in the triangle
+        u = cross_rows(r, np.broadcast_to(e2, r.shape)) @ normal / squared
+        v = cross_rows(np.broadcast_to(e1, r.shape), r) @ normal / squared
+        inside = (u >= 0) & (v >= 0) & (u + v <= 1)
+        times.append(step + np.stack([1.0 - u - v, u, v], axis=1)[inside] @ np.asarray(at))
+    return np.sort(np.concatenate(times)) if times else np.zeros(0)
 
 
 def _face_normal(V, corners):
@@ -151,6 +264,12 @@ class _NearVertex(Exception):
 
 class _Lost(Exception):
     """The plane's curve leaves the faces being followed (after a move, it may miss the first face)."""
+
+
+class _Blocked(Exception):
+    """The plane's curve does not join the two samples where the blade passed: it reaches the surface's
+    boundary or a face the tear already went through, closes on itself, or strays from the swept surface.
+    The step is sampled more finely, or the tear ends there."""
 
 
 # The pieces that a chord leaves of a face, in ``_retriangulate``'s order: a triangle and a quadrilateral, as
@@ -214,32 +333,101 @@ def _slivers(V, F, edges: MeshEdges, chords, tips, smallest: SmallestFace) -> bo
     return bool(sliver_mask(pieces, np.concatenate(parents), smallest, _PIECE_HEADROOM).any())
 
 
+def _slit_triangles(corners, first, last):
+    """The triangles (7, 3) of a face (``corners`` (3, 3)) with a slit inside it, from the tip ``first`` to the
+    tip ``last`` with its middle point M duplicated, as slots: 0-2 the face's corners, 3 the first tip, 4 the last,
+    5 M's left copy, 6 its right copy (left of the slit is the face normal x (last - first) side). The slit's line
+    leaves the face ahead of ``last`` and behind ``first``, over an edge (a triangle from the tip to that edge) or
+    through a corner (which then belongs to both sides); a fan covers each side. None where the tips coincide."""
+    normal = np.cross(corners[1] - corners[0], corners[2] - corners[0])
+    direction = last - first
+    across = np.cross(normal, direction)
+    scale = np.linalg.norm(across) * np.linalg.norm(corners - np.roll(corners, 1, axis=0), axis=1).max()
+    if scale == 0:
+        return None
+    side = (corners - first) @ across
+    side[np.abs(side) <= 1e-9 * scale] = 0.0  # a corner on the slit's line
+    along = (corners - first) @ direction
+    on = [k for k in range(3) if side[k] == 0]
+    ahead = [k for k in on if along[k] > 0]
+    behind = [k for k in on if along[k] <= 0]
+
+    def side_corners(sign):
+        # the corners strictly on one side, counter-clockwise: from the one after the line's exit ahead
+        ks = [k for k in range(3) if np.sign(side[k]) == sign]
+        if len(ks) == 2 and (ks[0] + 1) % 3 != ks[1]:
+            ks.reverse()
+        return ks
+
+    lefts, rights = side_corners(1.0), side_corners(-1.0)
+    if not lefts or not rights:
+        return None
+    triangles = []
+    if ahead:  # the line leaves through a corner ahead: it closes both sides' rings
+        lefts, rights = ahead + lefts, rights + ahead
+    else:  # over the edge from the last right corner to the first left one
+        triangles.append((4, rights[-1], lefts[0]))
+    if behind:
+        lefts, rights = lefts + behind, behind + rights
+    else:
+        triangles.append((3, lefts[-1], rights[0]))
+    # each side a convex polygon (the face's part on that side, less the tips' triangles), counter-clockwise; its
+    # fan from the apex whose smallest triangle is largest (the tips and M lie on one line, and so may a corner)
+    middle = 0.5 * (first + last)
+    slots = np.concatenate([corners, [first, last, middle, middle]]).tolist()
+    for ring in ([3, 5, 4, *lefts], [4, 6, 3, *rights]):
+        triangles += fan_triangles(ring, [slots[k] for k in ring])
+    return np.asarray(triangles)
+
+
+def _slit_pieces(corners, first, last):
+    """The pieces (7, 3, 3) of a face (corners (3, 3)) with a slit from ``first`` to ``last`` (a closed slit:
+    both copies of M at M), or None where ``_slit_triangles`` has none."""
+    triangles = _slit_triangles(corners, first, last)
+    if triangles is None:
+        return None
+    middle = 0.5 * (first + last)
+    slots = np.concatenate([corners, [first, last, middle, middle]])
+    return slots[triangles]
+
+
 def _walk(
-    V, F, edges: MeshEdges, s, margin, start, entry_edge, entry_point, origin, goal, target, visited, smallest, final
+    V,
+    F,
+    edges: MeshEdges,
+    s,
+    margin,
+    start,
+    entry_edge,
+    entry_point,
+    first_tip,
+    origin,
+    goal,
+    target,
+    visited,
+    reach,
+    smallest,
 ):
-    """Follow the zero set of the signed distances s from face ``start`` (entered over
-    ``entry_edge`` at ``entry_point``, or from the tip ``origin`` inside it) to face ``target`` (the
-    last sample's face, holding the tip ``goal``, when ``final``).
+    """Follow the zero set of the signed distances s from face ``start`` (entered over ``entry_edge`` at
+    ``entry_point``, or where the tear begins, at ``first_tip`` inside it) to face ``target``, holding the
+    sample ``goal``; ``origin`` is the sample the step leaves from. Every point stays within ``reach`` of it.
     Returns the crossed edge ids and the faces entered (target last)."""
     crossed, entered = [], []
-    # The faces' pieces are checked together when the walk ends or fails: a sliver in any face it went
-    # through moves the plane, as a check face by face would have.
+    # The faces' pieces are checked together when the walk reaches the target: a sliver in any face it went
+    # through moves the plane, as a check face by face would have. The target's pieces are checked as the
+    # tip of the tear, which the tear may end at.
     chords, tips = [], []
-
-    def stop(error: Exception) -> NoReturn:
-        if _slivers(V, F, edges, chords, tips, smallest):
-            raise _NearVertex
-        raise error
 
     f, e_from, point_in = start, entry_edge, entry_point
     for _ in range(len(F) + 1):
-        if np.abs(s[F[f]]).min() <= margin:
+        a, b, c = s[F[f]].tolist()
+        if min(abs(a), abs(b), abs(c)) <= margin:
             raise _NearVertex
         candidates = [
             int(e) for e in edges.face_edges[f] if e != e_from and s[edges.edges[e, 0]] * s[edges.edges[e, 1]] < 0
         ]
         if not candidates:
-            stop(_Lost())
+            raise _Lost
         if len(candidates) > 1:
             # only in the first face: leave it towards the next sample
             def progress(e):
@@ -255,47 +443,308 @@ def _walk(
             raise _NearVertex
         point_out = V[i] + t * (V[j] - V[i])
         if e_from is None:
-            tips.append((f, e, point_out, origin))
+            tips.append((f, e, point_out, first_tip))
         else:
             chords.append((f, e_from, point_in, e, point_out))
-        if edges.edge_counts[e] != 2:
-            stop(
-                ValueError(
-                    "mesh: the tear reaches the boundary of the surface or a non-manifold edge "
-                    f"(edge {edges.edges[e].tolist()}; if the mesh has seams of split vertices, weld "
-                    "it first: deform.weld or load_model(..., weld=True))"
-                )
-            )
+        away = point_out - origin
+        if edges.edge_counts[e] != 2 or away @ away > reach * reach:
+            raise _Blocked  # the surface's boundary (or a non-manifold edge); a curve that strays
         g = int(edges.edge_faces[e, 0] if edges.edge_faces[e, 0] != f else edges.edge_faces[e, 1])
         crossed.append(e)
         entered.append(g)
-        if g == target and g in visited:
-            # an earlier step went through the next sample's face: cut twice, it would lose or double area
-            stop(ValueError("scalpel: the tear path crosses itself (it passed through the next sample's face)"))
+        if g in visited or g == start:
+            raise _Blocked  # a face the tear went through (cut twice, it would lose or double area)
+        visited.add(g)
         if g == target:
-            if final:
-                tips.append((g, e, point_out, goal))
+            tips.append((g, e, point_out, goal))
             if _slivers(V, F, edges, chords, tips, smallest):
                 raise _NearVertex
             return crossed, entered
-        if g == start:
-            stop(
-                ValueError(
-                    "scalpel: the tear plane's curve on the surface does not reach the next sample "
-                    "(it closes on itself; the samples are too far apart)"
-                )
-            )
-        if g in visited:
-            stop(ValueError("scalpel: the tear path crosses itself"))
-        visited.add(g)
         f, e_from, point_in = g, e, point_out
-    stop(ValueError("scalpel: the tear path does not reach the next sample"))
+    raise _Blocked
+
+
+class _Path:
+    """The tear being built in time order (Algorithm 2, steps 1-3): stretches of samples of the blade, each
+    step of a stretch followed over the surface from one sample's crossing to the next."""
+
+    def __init__(self, V, F, edges: MeshEdges, segments, predicates, margin, smallest):
+        self.V, self.F, self.edges, self.segments = V, F, edges, segments
+        self.predicates, self.margin, self.smallest = predicates, margin, smallest
+        self.diagonal = bounding_diagonal(V)
+        # how far the blade's ends move over each step of the scalpel
+        self.motion = np.linalg.norm(segments[1:] - segments[:-1], axis=2).max(axis=1)
+        self.swept: dict[int, np.ndarray] = {}
+        self.near: dict[int, np.ndarray] = {}
+        self.lengths: dict[int, float] = {}
+        self.touched = False  # whether any sample of the blade crossed the surface
+        self.samples: list[_Crossing] = []
+        self.stretches: list[list[int]] = []
+        self.stretch_faces: list[int] = []
+        self.faces: list[int] = []
+        self.crossed: list[int] = []
+        self.steps: list[int] = []
+        # per step between consecutive samples (zero rows for steps that cross no edge and between stretches)
+        self.planes: list[np.ndarray] = []
+        self.orientation: list[float] = []
+        self.shifts: list[float] = []
+        self.from_tip: list[bool] = []
+        self.point_chunks: list[np.ndarray] = []
+        self.t_chunks: list[np.ndarray] = []
+        self.visited: set[int] = set()
+        self.inner: list[int] = []
+        self.blocked = False  # whether the last step met the surface's boundary or the tear itself
+        self.open = False
+        self.entry_edge: int | None = None
+        self.entry_point = np.zeros(3)
+        self._saved = (0, 0, 0, 0)
+
+    def crossing(self, time) -> list[_Crossing] | None:
+        """The blade's crossings at ``time`` (None where it misses the surface)."""
+        i = min(int(time), len(self.motion) - 1)
+        if i not in self.near:
+            # the faces whose bounding boxes meet that of the blade over the step (it stays in the hull of its
+            # samples): not all three corners beyond one side of it (one bit per side, as _straddling_faces)
+            ends = self.segments[i : i + 2].reshape(-1, 3)
+            beyond = np.concatenate([self.V < ends.min(axis=0), self.V > ends.max(axis=0)], axis=1)
+            codes = (beyond.astype(np.uint8) << np.arange(6, dtype=np.uint8)).sum(axis=1, dtype=np.uint8)[self.F]
+            self.near[i] = np.flatnonzero((codes[:, 0] & codes[:, 1] & codes[:, 2]) == 0)
+        found = _crossings(self.V, self.F, self.segments, time, self.near[i])
+        self.touched |= bool(found)
+        return found or None
+
+    def edge_length(self, face) -> float:
+        if face not in self.lengths:
+            corners = self.V[self.F[face]]
+            self.lengths[face] = float(np.linalg.norm(corners - np.roll(corners, 1, axis=0), axis=1).mean())
+        return self.lengths[face]
+
+    def _row(self, plane=None, sign=0.0, shift=0.0, points=None, t=None, from_tip=False):
+        self.from_tip.append(from_tip)
+        self.planes.append(np.zeros(4) if plane is None else plane)
+        self.orientation.append(sign)
+        self.shifts.append(shift)
+        self.point_chunks.append(np.zeros((0, 3)) if points is None else points)
+        self.t_chunks.append(np.zeros(0) if t is None else t)
+
+    def start(self, found: list[_Crossing]):
+        """Begin a stretch at the crossing nearest the handle whose face is not torn yet."""
+        c = next((c for c in found if c.face not in self.visited), None)
+        if c is None:
+            return
+        self._saved = (len(self.samples), len(self.faces), len(self.crossed), len(self.planes))
+        if self.samples:
+            self._row()  # the gap between two stretches
+        self.samples.append(c)
+        self.stretches.append([len(self.samples) - 1] * 2)
+        self.stretch_faces.append(1)
+        self.faces.append(c.face)
+        self.visited.add(c.face)
+        self.open, self.entry_edge, self.entry_point = True, None, c.point
+
+    def close(self):
+        """End the open stretch at its last sample. One that crossed no edge stays inside its face: a slit there,
+        shortened (ending at an earlier time of the blade) where it would leave a sliver piece, and dropped where
+        even that does (a blade that hardly moved)."""
+        if not self.open:
+            return
+        self.open = False
+        samples, faces, crossed, rows = self._saved
+        if len(self.crossed) > crossed:
+            return
+        first_index = self.stretches[-1][0]
+        first, last = self.samples[first_index], self.samples[-1]
+        if self._slit_fits(first, last):
+            self.inner.append(len(self.stretches) - 1)
+            return
+        for fraction in _SHORTER:
+            time = first.time + fraction * (last.time - first.time)
+            end = next((c for c in self.crossing(time) or [] if c.face == first.face), None)
+            if end is not None and self._slit_fits(first, end):
+                del self.samples[first_index + 1 :]
+                self._truncate(first_index)
+                self.samples.append(end)
+                self.stretches[-1][1] = first_index + 1
+                self._row()
+                self.inner.append(len(self.stretches) - 1)
+                return
+        self.visited.discard(self.faces[-1])
+        del self.samples[samples:], self.faces[faces:], self.stretches[-1], self.stretch_faces[-1]
+        self._truncate(rows)
+
+    def _truncate(self, rows: int):
+        for chunk in (self.planes, self.orientation, self.shifts, self.from_tip, self.point_chunks, self.t_chunks):
+            del chunk[rows:]
+
+    def _slit_fits(self, first: _Crossing, last: _Crossing) -> bool:
+        corners = self.V[self.F[first.face]]
+        pieces = _slit_pieces(corners, first.point, last.point)
+        if pieces is None:
+            return False
+        self.smallest.near(corners[None])
+        return not sliver_mask(pieces, np.broadcast_to(corners, pieces.shape), self.smallest, _PIECE_HEADROOM).any()
+
+    def step(self, found: list[_Crossing]) -> bool:
+        """Extend the open stretch to one of the blade's crossings ``found``: the one nearest the stretch's last
+        sample that the plane's curve joins where the blade passed (the same sheet, where several overlap)."""
+        a = self.samples[-1]
+        nearest = sorted(found, key=lambda c: float(np.sum((c.exact - a.exact) ** 2)))
+        self.blocked = False
+        return any(self._step(c) for c in nearest[:_ALTERNATIVES])
+
+    def _step(self, c: _Crossing) -> bool:
+        V, F, edges = self.V, self.F, self.edges
+        a = self.samples[-1]
+        if c.face == self.faces[-1]:
+            if self.entry_edge is not None and _slivers(
+                V, F, edges, [], [(c.face, self.entry_edge, self.entry_point, c.point)], self.smallest
+            ):
+                return True  # as the tear's tip, c would leave a sliver: the stretch goes on from its last sample
+            self.samples.append(c)
+            self.stretches[-1][1] = len(self.samples) - 1
+            self._row()
+            return True
+        if c.face in self.visited:
+            self.blocked = True
+            return False
+        # Pi through the blade's crossing at a and the blade at c: through the tip S_a where the step leaves the tip's
+        # face (its pieces are fanned from it), else through the crossing before the margin (on the swept surface;
+        # the margin would tilt the planes of short steps)
+        from_tip = self.entry_edge is None
+        anchor = a.point if from_tip else a.exact
+        blade_a, blade_c = _blade(self.segments, a.time), _blade(self.segments, c.time)
+        normal = cross_rows(blade_c[0] - anchor, blade_c[1] - anchor)
+        length = np.linalg.norm(normal)
+        if length <= 1e-12 * self.diagonal**2:
+            return False  # the blade passes through S_a: no plane
+        n = normal / length
+        d = float(n @ anchor)
+        chord = float(np.linalg.norm(c.exact - anchor))
+        local = self.edge_length(self.faces[-1])
+        # how far the plane strays from the quadrilateral swept over the step near the surface, where the tear
+        # points lie (0 for a blade that translates): at the ends of the stretch of blade_a within a chord and an
+        # edge of S_a
+        direction = blade_a[1] - blade_a[0]
+        along = (anchor - blade_a[0]) @ direction / (direction @ direction)
+        spread = (chord + local) / np.sqrt(direction @ direction)
+        ends = blade_a[0] + np.clip([along - spread, along + spread], 0.0, 1.0)[:, None] * direction
+        deviation = float(np.abs((ends - anchor) @ n).max())
+        if deviation > _NEAR_SWEPT * local:
+            return False  # a turning blade: sampled more finely until the plane follows its swept surface
+        reach = chord + 2.0 * local + deviation  # how far the walk may go before it has strayed
+        unit = _SHIFT_STEP * local
+        first_tip = self.samples[self.stretches[-1][0]].point
+        base = signed_distances(V, n, d, self.predicates) if self.predicates == "euclidean" else None
+        blocked = False
+        tried_sides, walked = set(), None
+        for shift in unit * np.array([0.0, 1.0, -1.0, 2.0, -2.0, 3.0, -3.0, 4.0, -4.0]):
+            if np.sign(shift) in tried_sides:
+                continue
+            s = base - shift if base is not None else signed_distances(V, n, d + shift, self.predicates)
+            try:
+                walked = _walk(
+                    V,
+                    F,
+                    edges,
+                    s,
+                    self.margin,
+                    self.faces[-1],
+                    self.entry_edge,
+                    self.entry_point,
+                    first_tip,
+                    anchor,
+                    c.point,
+                    c.face,
+                    set(self.visited),
+                    reach,
+                    self.smallest,
+                )
+                break
+            except (_NearVertex, _Lost):
+                continue
+            except _Blocked:
+                # a move the other way may pass on the other side of a vertex next to the path; moving on the same
+                # way, or at all when the plane as given is blocked (a boundary, another sheet), would not help
+                blocked = True
+                if shift == 0:
+                    break
+                tried_sides.add(np.sign(shift))
+        if walked is None:
+            self.blocked |= blocked
+            return False
+        step_edges, step_faces = walked
+        pairs = edges.edges[step_edges]
+        points, t = edge_points(
+            V[pairs[:, 0]], V[pairs[:, 1]], s[pairs[:, 0]], s[pairs[:, 1]], n, d + shift, self.predicates
+        )
+        # where the blade passed: every point near the swept quadrilateral (its two triangles)
+        quad = np.stack([blade_a[0], blade_a[1], blade_c[1], blade_c[0]])
+        squared, _, _ = igl.point_mesh_squared_distance(points, quad, _QUAD_TRIANGLES)
+        lengths = np.linalg.norm(V[pairs[:, 1]] - V[pairs[:, 0]], axis=1)
+        if np.any(np.sqrt(squared) > abs(shift) + _NEAR_POINT * lengths):
+            return False
+        # Orient the normal to the left of the path: face normal x direction of travel.
+        left = cross_rows(_face_normal(V, F[self.faces[-1]]), points[0] - self.entry_point)
+        sign = 1.0 if n @ left >= 0 else -1.0
+        self.visited.update(step_faces)
+        self.samples.append(c)
+        self.stretches[-1][1] = len(self.samples) - 1
+        self.stretch_faces[-1] += len(step_faces)
+        self.faces += step_faces
+        self.crossed += step_edges
+        self.steps += [len(self.samples) - 2] * len(step_edges)
+        self._row(np.append(sign * n, sign * (d + shift)), sign, sign * shift, points, t, from_tip)
+        self.entry_edge, self.entry_point = step_edges[-1], points[-1]
+        return True
+
+    def _finer(self, ta, ca, tb, cb, depth) -> bool:
+        """Whether the interval [ta, tb] is sampled more finely: until the blade moves under a quarter of an
+        edge of the faces it crosses at its ends."""
+        present = [c[0].face for c in (ca, cb) if c is not None]
+        local = min(self.edge_length(f) for f in present)
+        return depth < _MAX_DEPTH and (tb - ta) * self.motion[min(int(ta), len(self.motion) - 1)] > _RESOLUTION * local
+
+    def follow(self, ta, ca, tb, cb, depth=0):
+        """Tear along the blade's path from time ta to tb (within one step of the scalpel), given its crossings
+        there (None: the blade misses the surface). An open stretch ends at ca on entry (or at a sample before it,
+        where ca was left out), and at cb on exit (or before it)."""
+        if ca is not None and cb is not None and self.open and self.step(cb):
+            return
+        if ca is None and cb is None:
+            # the blade may still cross the surface in between: where edges pierce the surface it sweeps
+            i = min(int(ta), len(self.motion) - 1)
+            if i not in self.swept:
+                self.swept[i] = _swept_crossings(self.V, self.edges, self.segments, i)
+            inside = self.swept[i][(self.swept[i] > ta) & (self.swept[i] < tb)]
+            if len(inside) and depth < _MAX_DEPTH:
+                self.touched = True
+                tm = float(inside[len(inside) // 2])
+                cm = self.crossing(tm)
+                self.follow(ta, ca, tm, cm, depth + 1)
+                self.follow(tm, cm, tb, cb, depth + 1)
+            return
+        if self._finer(ta, ca, tb, cb, depth):
+            tm = 0.5 * (ta + tb)
+            cm = self.crossing(tm)
+            self.follow(ta, ca, tm, cm, depth + 1)
+            self.follow(tm, cm, tb, cb, depth + 1)
+            return
+        # at the finest sampling: a sample next to the stretch's end that its curve cannot reach only because it
+        # passes by a vertex or would leave a sliver is left out, and the next one tried; else the tear ends at ca
+        # (the blade leaves the surface, or its curve cannot join the next sample) and begins again at cb
+        if self.open and cb is not None and not self.blocked:
+            end = self.samples[-1]
+            if min(float(np.linalg.norm(c.point - end.point)) for c in cb) <= self.edge_length(end.face):
+                return
+        self.close()
+        if cb is not None:
+            self.start(cb)
 
 
 def tear_topology(
     V: Float[ArrayLike, "n 3"],
     F: Int[ArrayLike, "m 3"],
-    scalpel: Scalpel,
+    scalpel: Scalpel | Sequence[Scalpel],
     *,
     predicates: str = "euclidean",
     tolerance: float = 1e-6,
@@ -306,14 +755,16 @@ def tear_topology(
     Args:
         V: (n, 3) vertex positions (rest pose or posed).
         F: (m, 3) int faces.
-        scalpel: the ``Scalpel``: handle and tip ends (k+1, 3) at k+1 >= 2 time steps.
+        scalpel: the ``Scalpel``: handle and tip ends (k+1, 3) at k+1 >= 2 time steps, or a sequence of
+            ``Scalpel``s (each of one sample, (3,) ends, or several) joined in order.
         predicates: ``"euclidean"`` or ``"ga"`` (Table 1) for the side of a vertex and the edge points.
         tolerance: planes passing closer than ``tolerance`` times the bounding-box diagonal to a path
             vertex are moved away from it (see the module docstring).
         edges: ``mesh_edges(F)``, precomputed once per topology.
     Raises:
-        ValueError: a scalpel sample that does not cross the surface, a tear that crosses no edge
-            (it stays inside one face), reaches the boundary, crosses itself or cannot be followed."""
+        ValueError: a blade that never crosses the surface (neither its samples' segments nor the surface it
+            sweeps meets the mesh), or whose path on it is too short to tear (inside one face, a slit there
+            would leave a sliver triangle)."""
     check_choice("predicates", predicates, PREDICATES)
     V, F = check_triangle_mesh(V, F, min_faces=0)
     segments = check_scalpel(scalpel)
@@ -322,126 +773,63 @@ def tear_topology(
     edges = mesh_edges(F) if edges is None else edges
     if edges.face_edges.shape != F.shape:
         raise ValueError(f"edges: computed for another mesh (face_edges {edges.face_edges.shape}, F {F.shape})")
-    diagonal = bounding_diagonal(V)
-    margin = tolerance * diagonal
-    smallest = SmallestFace(V, F)
-    samples = [_tip(V, F, segment, i) for i, segment in enumerate(segments)]
-    sample_faces = np.array([f for f, _, _ in samples])
-    sample_points = np.array([p for _, _, p in samples])
-    sample_barycentric = np.array([b for _, b, _ in samples])
-
-    faces, crossed, steps = [int(sample_faces[0])], [], []
-    planes, orientation, shifts, point_chunks, t_chunks = [], [], [], [], []
-    visited = {faces[0]}
-    entry_edge, entry_point = None, sample_points[0]
+    path = _Path(V, F, edges, segments, predicates, tolerance * bounding_diagonal(V), SmallestFace(V, F))
+    crossings = [path.crossing(float(i)) for i in range(len(segments))]
+    if crossings[0] is not None:
+        path.start(crossings[0])
     for i in range(len(segments) - 1):
-        origin, goal = sample_points[i], sample_points[i + 1]
-        A, B = segments[i + 1]
-        normal = cross_rows(A - origin, B - origin)
-        length = np.linalg.norm(normal)
-        if length <= 1e-12 * diagonal**2:
+        path.follow(float(i), crossings[i], float(i + 1), crossings[i + 1])
+    path.close()
+    if not path.stretches:
+        if not path.touched:
             raise ValueError(
-                f"scalpel (sample {i + 1}): the scalpel passes through the previous tear point, so the "
-                "tear plane is not defined (move the scalpel between samples)"
+                f"scalpel: the scalpel never crosses the surface: none of its {len(segments)} samples' segments, "
+                "nor the surface it sweeps, meets the mesh"
             )
-        n = normal / length
-        d = float(n @ origin)
-        target = int(sample_faces[i + 1])
-        sign, shift = 1.0, 0.0
-        step_edges, step_faces = [], []
-        if target != faces[-1]:
-            # the plane as given, then moved along its normal both ways (gentle perturbation)
-            corners = V[F[faces[-1]]]
-            unit = _SHIFT_STEP * np.linalg.norm(corners - np.roll(corners, 1, axis=0), axis=1).mean()
-            for shift in unit * np.array([0.0, 1.0, -1.0, 2.0, -2.0, 3.0, -3.0, 4.0, -4.0]):
-                s = signed_distances(V, n, d + shift, predicates)
-                try:
-                    step_edges, step_faces = _walk(
-                        V,
-                        F,
-                        edges,
-                        s,
-                        margin,
-                        faces[-1],
-                        entry_edge,
-                        entry_point,
-                        origin,
-                        goal,
-                        target,
-                        set(visited),
-                        smallest,
-                        final=i == len(segments) - 2,
-                    )
-                    break
-                except _NearVertex:
-                    failure = (
-                        f"scalpel (sample {i + 1}): the tear plane keeps passing through or next to "
-                        "vertices of the mesh (within the tolerance, or leaving sliver triangles); move "
-                        "the scalpel slightly"
-                    )
-                except _Lost:
-                    failure = (
-                        "scalpel: the tear plane leaves the surface's path between two samples (the "
-                        "samples are too far apart or the tear turns back)"
-                    )
-            else:
-                raise ValueError(failure)
-            # Orient the normal to the left of the path: face normal x direction of travel.
-            i0, j0 = edges.edges[step_edges[0]]
-            first_point = V[i0] + s[i0] / (s[i0] - s[j0]) * (V[j0] - V[i0])
-            left = cross_rows(_face_normal(V, F[faces[-1]]), first_point - entry_point)
-            sign = 1.0 if n @ left >= 0 else -1.0
-            visited.update(step_faces)
-            pairs = edges.edges[step_edges]
-            points, t = edge_points(
-                V[pairs[:, 0]], V[pairs[:, 1]], s[pairs[:, 0]], s[pairs[:, 1]], n, d + shift, predicates
-            )
-        else:
-            points, t = np.zeros((0, 3)), np.zeros(0)
-        planes.append(np.append(sign * n, sign * (d + shift)))
-        orientation.append(sign)
-        shifts.append(sign * shift)  # along the oriented normal
-        point_chunks.append(points)
-        t_chunks.append(t)
-        crossed += step_edges
-        steps += [i] * len(step_edges)
-        faces += step_faces
-        if step_edges:
-            entry_edge, entry_point = step_edges[-1], points[-1]
-    if not crossed:
         raise ValueError(
-            "scalpel: the tear crosses no edge of the mesh (it stays inside one face); move the "
-            "scalpel farther between samples"
+            "scalpel: the blade's path on the surface stays inside one face and is too short to tear it without "
+            "a sliver triangle (or the blade does not move); move the scalpel farther between samples"
         )
-    crossed = np.asarray(crossed)
+    crossed = np.asarray(path.crossed, np.int64)
+    sample_faces = np.array([c.face for c in path.samples])
     return TearTopology(
         sample_faces,
         F[sample_faces],
-        sample_points,
-        sample_barycentric,
-        np.asarray(faces),
+        np.array([c.point for c in path.samples]),
+        np.array([c.exact for c in path.samples]),
+        np.array([c.barycentric for c in path.samples]),
+        np.array([c.time for c in path.samples]),
+        np.asarray(path.stretches, np.int64),
+        np.asarray(path.stretch_faces, np.int64),
+        np.asarray(path.inner, np.int64),
+        len(segments),
+        np.asarray(path.faces, np.int64),
         crossed,
         edges.edges[crossed],
-        np.concatenate(t_chunks),
-        np.concatenate(point_chunks),
-        np.asarray(steps),
-        np.asarray(planes),
-        np.asarray(orientation),
-        np.asarray(shifts),
+        np.concatenate(path.t_chunks),
+        np.concatenate(path.point_chunks),
+        np.asarray(path.steps, np.int64),
+        np.asarray(path.planes).reshape(-1, 4),
+        np.asarray(path.orientation),
+        np.asarray(path.shifts),
+        np.asarray(path.from_tip, bool),
     )
 
 
 def _retriangulate(V, F, edges: MeshEdges, topology: TearTopology, n_vertices: int):
-    """Triangles replacing the path faces (Algorithm 2, step 5). Vertex ids: the input's, then S_0
-    (n), S_k (n+1), the left copies of Q_j (n+2+j), the right copies (n+2+q+j). Per path face in
-    plain Python: a path crosses few faces, and small arrays cost more than they save."""
-    q = len(topology.t)
-    tips = (n_vertices, n_vertices + 1)
+    """Triangles replacing the path faces (Algorithm 2, step 5). Vertex ids: the input's, then the first and
+    last sample of each stretch (n + 2r, n + 2r + 1), the left copies of the Q_j and then of the inner stretches'
+    middle points (n + 2s + j, s stretches), the right copies (n + 2s + q + u + j). Per path face in plain
+    Python: a path crosses few faces, and small arrays cost more than they save."""
+    q = len(topology.t) + len(topology.inner)
+    first_copy = n_vertices + 2 * len(topology.stretches)
+    inner = {r: len(topology.t) + m for m, r in enumerate(topology.inner.tolist())}
     point_of_edge = {e: j for j, e in enumerate(topology.edge_ids.tolist())}
     corners_of = F[topology.faces].tolist()
     position = dict(zip(np.ravel(corners_of).tolist(), V[np.ravel(corners_of)].tolist()))
     points = topology.points.tolist()
-    sample_points = topology.sample_points[[0, -1]].tolist()
+    tip_points = topology.sample_points[topology.stretches.ravel()].tolist()
+    local_edges = edges.face_edges[topology.faces].tolist()
 
     def sub(a, b):
         return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
@@ -453,57 +841,77 @@ def _retriangulate(V, F, edges: MeshEdges, topology: TearTopology, n_vertices: i
         # the corner lies left of the directed path (face normal x direction)
         return dot(cross3(normal, direction), sub(position[corner], origin)) > 0
 
+    def copy(j, left):
+        return first_copy + j if left else first_copy + q + j
+
     triangles = []
-    last = len(topology.faces) - 1
-    for at, (corners, local) in enumerate(zip(corners_of, edges.face_edges[topology.faces].tolist())):
-        a, b, c = (position[v] for v in corners)
-        normal = cross3(sub(b, a), sub(c, a))
-        entry = at - 1 if at > 0 else None
-        exit_ = at if at < last else None
-        # the face's boundary in winding order, with its path points on their edges
-        cycle = []
-        for k in range(3):
-            cycle.append(("corner", corners[k]))
-            j = point_of_edge.get(local[k])
-            if j is not None and j in (entry, exit_):
-                cycle.append(("point", j))
-        if entry is None or exit_ is None:  # a tip face: fan from the tip S inside it
-            tip = tips[0] if entry is None else tips[1]
-            j = exit_ if entry is None else entry
-            tip_point = sample_points[0] if entry is None else sample_points[1]
-            direction = sub(points[j], tip_point) if entry is None else sub(tip_point, points[j])
-            for m in range(len(cycle)):
-                x, y = cycle[m], cycle[(m + 1) % len(cycle)]
-                if "point" in (x[0], y[0]):
-                    corner = y[1] if x[0] == "point" else x[1]
-                    copy = _copy(j, q, n_vertices, is_left(normal, points[j], direction, corner))
-                    ids = [copy if z[0] == "point" else z[1] for z in (x, y)]
-                else:
-                    ids = [x[1], y[1]]
-                triangles.append((ids[0], ids[1], tip))
+    at, j0 = 0, 0  # the stretch's first face on the path and its first point
+    for r, count in enumerate(topology.stretch_faces.tolist()):
+        last = at + count - 1
+        if r in inner:  # a slit inside one face
+            first_tip, last_tip = topology.sample_points[topology.stretches[r]]
+            slots = [*F[topology.faces[at]].tolist(), n_vertices + 2 * r, n_vertices + 2 * r + 1]
+            slots += [copy(inner[r], True), copy(inner[r], False)]
+            slit = _slit_triangles(V[F[topology.faces[at]]], first_tip, last_tip)
+            triangles += np.asarray(slots)[slit].tolist()
+            at += 1
             continue
-        # a chord face: the segment entry -> exit splits it into two convex pieces
-        start = cycle.index(("point", entry))
-        cycle = cycle[start:] + cycle[:start]
-        stop = cycle.index(("point", exit_))
-        direction = sub(points[exit_], points[entry])
-        for piece in (cycle[: stop + 1], cycle[stop:] + cycle[:1]):
-            corner = next(z[1] for z in piece if z[0] == "corner")
-            left = is_left(normal, points[entry], direction, corner)
-            ids = [_copy(z[1], q, n_vertices, left) if z[0] == "point" else z[1] for z in piece]
-            coordinates = [points[z[1]] if z[0] == "point" else position[z[1]] for z in piece]
-            triangles += fan_triangles(ids, coordinates)
+        for face in range(at, last + 1):
+            corners, local = corners_of[face], local_edges[face]
+            a, b, c = (position[v] for v in corners)
+            normal = cross3(sub(b, a), sub(c, a))
+            # the points on the edges where the path enters and leaves the face (the stretch's j-th face
+            # lies between its points j - 1 and j)
+            entry = j0 + face - at - 1 if face > at else None
+            exit_ = j0 + face - at if face < last else None
+            # the face's boundary in winding order, with its path points on their edges
+            cycle = []
+            for k in range(3):
+                cycle.append(("corner", corners[k]))
+                j = point_of_edge.get(local[k])
+                if j is not None and j in (entry, exit_):
+                    cycle.append(("point", j))
+            if entry is None or exit_ is None:  # a tip face: fan from the tip S inside it
+                tip = n_vertices + 2 * r + (0 if entry is None else 1)
+                j = exit_ if entry is None else entry
+                tip_point = tip_points[tip - n_vertices]
+                direction = sub(points[j], tip_point) if entry is None else sub(tip_point, points[j])
+                for m in range(len(cycle)):
+                    x, y = cycle[m], cycle[(m + 1) % len(cycle)]
+                    if "point" in (x[0], y[0]):
+                        corner = y[1] if x[0] == "point" else x[1]
+                        copied = copy(j, is_left(normal, points[j], direction, corner))
+                        ids = [copied if z[0] == "point" else z[1] for z in (x, y)]
+                    else:
+                        ids = [x[1], y[1]]
+                    triangles.append((ids[0], ids[1], tip))
+                continue
+            # a chord face: the segment entry -> exit splits it into two convex pieces
+            start = cycle.index(("point", entry))
+            cycle = cycle[start:] + cycle[:start]
+            stop = cycle.index(("point", exit_))
+            direction = sub(points[exit_], points[entry])
+            for piece in (cycle[: stop + 1], cycle[stop:] + cycle[:1]):
+                corner = next(z[1] for z in piece if z[0] == "corner")
+                left = is_left(normal, points[entry], direction, corner)
+                ids = [copy(z[1], left) if z[0] == "point" else z[1] for z in piece]
+                coordinates = [points[z[1]] if z[0] == "point" else position[z[1]] for z in piece]
+                triangles += fan_triangles(ids, coordinates)
+        at, j0 = last + 1, j0 + count - 1
     return np.asarray(triangles, np.int64).reshape(-1, 3)
 
 
-def _copy(j, q, n_vertices, is_left):
-    return n_vertices + 2 + j if is_left else n_vertices + 2 + q + j
+def _blend(J, W, corners, coefficients):
+    """``blend_weights``, also of no points."""
+    if not len(corners):
+        return np.zeros((0, J.shape[1]), J.dtype), np.zeros((0, W.shape[1]), W.dtype)
+    return blend_weights(J, W, corners, coefficients)
 
 
 @overload
 def tear(
     mesh: SkinnedMesh,
-    scalpel: Scalpel,
+    scalpel: Scalpel | Sequence[Scalpel],
     *,
     opening: float = ...,
     predicates: str = ...,
@@ -518,7 +926,7 @@ def tear(
 @overload
 def tear(
     mesh: SkinnedMesh,
-    scalpel: Scalpel,
+    scalpel: Scalpel | Sequence[Scalpel],
     *,
     opening: float = ...,
     predicates: str = ...,
@@ -532,7 +940,7 @@ def tear(
 
 def tear(
     mesh: SkinnedMesh,
-    scalpel: Scalpel,
+    scalpel: Scalpel | Sequence[Scalpel],
     *,
     opening: float = 0.0,
     predicates: str = "euclidean",
@@ -545,10 +953,12 @@ def tear(
     """Tear a skinned mesh with a scalpel moving through its samples (Algorithm 2).
 
     Args:
-        mesh: the SkinnedMesh (``deform``).
+        mesh: the SkinnedMesh (``deform``). A tear ends at the surface's boundary: weld a mesh whose vertices are
+            split along UV seams (``deform.weld``, ``load_model(..., weld=True)``), or it ends at every seam.
         scalpel: the ``Scalpel``: its handle and tip ends (k+1, 3) at time steps t_0 .. t_k, in the
-            space of the mesh as torn: the bind pose, or the pose of ``joint_matrices``. Two samples
-            are the paper's ``scalpel_0, scalpel_1``; more make one tear along the whole path.
+            space of the mesh as torn: the bind pose, or the pose of ``joint_matrices``; or a sequence of
+            ``Scalpel``s (one sample each, (3,) ends, or more) joined in order. Two samples are the paper's
+            ``scalpel_0, scalpel_1``; more make one tear along the whole path.
         opening: the distance between the two copies of every interior tear point (each is pushed
             ``opening / 2`` along the tear plane's normal, away from it); 0 leaves a closed slit.
         predicates: ``"euclidean"`` or ``"ga"`` (Table 1).
@@ -561,8 +971,11 @@ def tear(
         edges: ``mesh_edges(mesh.F)``, precomputed.
         return_topology: also return the ``TearTopology`` (for ``tear_positions``).
     Returns:
-        The torn SkinnedMesh (the input's vertices first, in order; then S_0, S_k, the left copies of
-        the Q_j, the right copies), and the TearTopology when ``return_topology``."""
+        The torn SkinnedMesh (the input's vertices first, in order; then the tips, the first and last
+        crossing of each stretch (S_0 and S_k when the blade stays on the surface), the left copies of the
+        Q_j, the right copies), and the TearTopology when ``return_topology``.
+    Raises:
+        ValueError: bad arguments, or a blade that never crosses the surface (see ``tear_topology``)."""
     if not 0.0 <= side_weight <= 1.0:
         raise ValueError(f"side_weight: expected a number in [0, 1], got {side_weight}")
     if not (np.isfinite(opening) and opening >= 0):
@@ -572,20 +985,35 @@ def tear(
     space, joint_matrices = posed_vertices(mesh, joint_matrices)
     edges = mesh_edges(F) if edges is None else edges
     topology = tear_topology(space, F, scalpel, predicates=predicates, tolerance=tolerance, edges=edges)
-    n_vertices, q = len(space), len(topology.t)
+    n_vertices = len(space)
 
-    tip_faces = topology.sample_faces[[0, -1]]
-    J_tips, W_tips = blend_weights(J, W, F[tip_faces], topology.sample_barycentric[[0, -1]])
-    J_q, W_q = blend_weights(J, W, topology.crossing, np.stack([1.0 - topology.t, topology.t], axis=1))
-    normals = topology.planes[topology.step, :3]
+    tips = topology.stretches.ravel()
+    J_tips, W_tips = blend_weights(J, W, topology.sample_corners[tips], topology.sample_barycentric[tips])
+    # the duplicated points: the Q_j on their edges, then the middle points of the slits inside one face
+    ends = topology.stretches[topology.inner]
+    middle_corners = topology.sample_corners[ends[:, 0]]
+    middle_barycentric = 0.5 * topology.sample_barycentric[ends].sum(axis=1)
+    J_q, W_q = (
+        np.concatenate(parts)
+        for parts in zip(
+            _blend(J, W, topology.crossing, np.stack([1.0 - topology.t, topology.t], axis=1)),
+            _blend(J, W, middle_corners, middle_barycentric),
+        )
+    )
+    middle = 0.5 * topology.sample_points[ends].sum(axis=1)
+    slit = cross_rows(
+        _face_normal(space, middle_corners.T), topology.sample_points[ends[:, 1]] - topology.sample_points[ends[:, 0]]
+    )
+    points = np.concatenate([topology.points, middle])
+    normals = np.concatenate([topology.planes[topology.step, :3], slit / np.linalg.norm(slit, axis=1, keepdims=True)])
+    q = len(points)
     copies_J, copies_W = [], []
     for side in (1.0, -1.0):
         if side_weight > 0 and q:
-            own = np.where(
-                side * np.einsum("ij,ij->i", space[topology.crossing[:, 0]] - topology.points, normals) > 0,
-                topology.crossing[:, 0],
-                topology.crossing[:, 1],
-            )
+            # each copy leans to the corner farthest on its side: an edge's end, or a face's corner
+            ids = np.concatenate([np.pad(topology.crossing, ((0, 0), (0, 1)), mode="edge"), middle_corners])
+            lean = side * np.einsum("ijk,ik->ij", space[ids] - points[:, None], normals)
+            own = np.take_along_axis(ids, np.argmax(lean, axis=1)[:, None], axis=1)[:, 0]
             Jc, Wc = blend_weights(
                 np.concatenate([J, J_q]),
                 np.concatenate([W, W_q]),
@@ -599,11 +1027,7 @@ def tear(
     J_new = np.concatenate([J_tips] + copies_J)
     W_new = np.concatenate([W_tips] + copies_W)
     world = np.concatenate(
-        [
-            topology.sample_points[[0, -1]],
-            topology.points + 0.5 * opening * normals,
-            topology.points - 0.5 * opening * normals,
-        ]
+        [topology.sample_points[tips], points + 0.5 * opening * normals, points - 0.5 * opening * normals]
     )
     rest = rest_positions(J_new, W_new, world, joint_matrices)
 
@@ -621,28 +1045,42 @@ def tear(
 
 
 def tear_positions(
-    V: Float[ArrayLike, "n 3"], topology: TearTopology, scalpel: Scalpel, *, opening: Float[ArrayLike, ""] = 0.0
-) -> tuple[Float[Array, "2 3"], Float[Array, "q 3"], Float[Array, "q 3"]]:
+    V: Float[ArrayLike, "n 3"],
+    topology: TearTopology,
+    scalpel: Scalpel | Sequence[Scalpel],
+    *,
+    opening: Float[ArrayLike, ""] = 0.0,
+) -> tuple[Float[Array, "t 3"], Float[Array, "q 3"], Float[Array, "q 3"]]:
     """Positions of a tear's new vertices as a JAX function of the vertices, the scalpel and the
     opening, for a fixed topology: differentiable with respect to all three (``jax.grad`` over a
-    ``Scalpel`` gives a ``Scalpel``). Each S_i is the scalpel's crossing with its face's plane, kept the
-    same 2% (barycentric) off the face's edges as in ``tear_topology``.
+    ``Scalpel`` gives a ``Scalpel``). Each sample S_i is the blade's crossing with its face's plane at the
+    sample's time (the blade interpolated linearly between the scalpel's samples), kept the same 2%
+    (barycentric) off the face's edges as in ``tear_topology``.
 
     Args:
         V: (n, 3) vertex positions, as torn (posed, when torn with ``joint_matrices``).
         topology: the tear's ``TearTopology``.
-        scalpel: the ``Scalpel``, with as many samples (k+1) as the topology was computed from.
+        scalpel: the ``Scalpel`` (or sequence of them), with as many samples (k+1) as the topology was
+            computed from.
         opening: () the distance between the two copies of every Q_j (see ``tear``).
     Returns:
-        (tips (2, 3): S_0 and S_k, left (q, 3), right (q, 3): the two copies of every Q_j)."""
+        (tips (2r, 3): the first and last crossing of each of the r stretches (S_0 and S_k for one), left
+        (q + u, 3), right (q + u, 3): the two copies of every Q_j, then of the middle point of each of the u
+        slits inside one face)."""
     V = jnp.asarray(V)
-    X0, X1 = jnp.asarray(scalpel.handle), jnp.asarray(scalpel.tip)
-    if X0.shape != (len(topology.sample_faces), 3) or X1.shape != X0.shape:
+    scalpel = joined_scalpel(scalpel)
+    handle, tip = jnp.asarray(scalpel.handle), jnp.asarray(scalpel.tip)
+    if handle.shape != (topology.scalpel_samples, 3) or tip.shape != handle.shape:
         raise ValueError(
-            f"scalpel: expected handle and tip ends of shape ({len(topology.sample_faces)}, 3) (the "
-            f"topology's samples), got {X0.shape}, {X1.shape}"
+            f"scalpel: expected handle and tip ends of shape ({topology.scalpel_samples}, 3) (the "
+            f"topology's samples), got {handle.shape}, {tip.shape}"
         )
-    corners = V[jnp.asarray(topology.sample_corners)]  # (k+1, 3, 3)
+    # the blade at each sample's time
+    times = np.asarray(topology.sample_times)
+    i = np.minimum(np.floor(times).astype(np.int64), topology.scalpel_samples - 2)
+    a = jnp.asarray(times - i)[:, None]
+    X0, X1 = (1.0 - a) * handle[i] + a * handle[i + 1], (1.0 - a) * tip[i] + a * tip[i + 1]
+    corners = V[jnp.asarray(topology.sample_corners)]  # (s, 3, 3)
     face_normals = jnp.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0])
     s = jnp.sum(face_normals * (corners[:, 0] - X0), -1) / jnp.sum(face_normals * (X1 - X0), -1)
     crossings = X0 + s[:, None] * (X1 - X0)
@@ -664,13 +1102,22 @@ def tear_positions(
     barycentric = jnp.maximum(barycentric, _TIP_MARGIN)
     barycentric = barycentric / jnp.sum(barycentric, -1, keepdims=True)
     samples = jnp.einsum("sk,skc->sc", barycentric, corners, precision=EXACT)
-    normals = jnp.cross(X0[1:] - samples[:-1], X1[1:] - samples[:-1])
-    normals = jnp.asarray(topology.orientation)[:, None] * normals / jnp.linalg.norm(normals, axis=-1, keepdims=True)
-    offsets = jnp.sum(normals * samples[:-1], -1) + jnp.asarray(topology.shift)
-    step = jnp.asarray(topology.step)
+    # the planes of the steps that gave tear points only (the others may have none)
+    used, step = np.unique(topology.step, return_inverse=True)
+    origin = jnp.where(jnp.asarray(topology.from_tip[used])[:, None], samples[used], crossings[used])
+    normals = jnp.cross(X0[used + 1] - origin, X1[used + 1] - origin)
+    normals = (
+        jnp.asarray(topology.orientation[used])[:, None] * normals / jnp.linalg.norm(normals, axis=-1, keepdims=True)
+    )
+    offsets = jnp.sum(normals * origin, -1) + jnp.asarray(topology.shift[used])
     n, d = normals[step], offsets[step]
     A, B = V[topology.crossing[:, 0]], V[topology.crossing[:, 1]]
     sA, sB = jnp.sum(A * n, -1) - d, jnp.sum(B * n, -1) - d
     Q = A + (sA / (sA - sB))[:, None] * (B - A)
-    half = 0.5 * opening * n
-    return samples[jnp.array([0, -1])], Q + half, Q - half
+    # the middle points of the slits inside one face, on the left of face normal x (last tip - first tip)
+    first, last = samples[topology.stretches[topology.inner, 0]], samples[topology.stretches[topology.inner, 1]]
+    slit = jnp.cross(face_normals[topology.stretches[topology.inner, 0]], last - first)
+    points = jnp.concatenate([Q, 0.5 * (first + last)])
+    normals = jnp.concatenate([n, slit / jnp.linalg.norm(slit, axis=-1, keepdims=True)])
+    half = 0.5 * opening * normals
+    return samples[jnp.asarray(topology.stretches.ravel())], points + half, points - half

@@ -13,6 +13,7 @@ from collections.abc import Sequence
 
 import equinox as eqx
 import jax
+import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
@@ -101,10 +102,36 @@ def check_plane(plane: Plane) -> tuple[np.ndarray, float]:
     return n / length, float(d) / length
 
 
-def check_scalpel(scalpel: Scalpel) -> np.ndarray:
-    """The scalpel's samples as one float64 (k+1, 2, 3) array (handle end first), with clear errors."""
-    if not isinstance(scalpel, Scalpel):
-        raise ValueError(f"scalpel: expected a cutting.Scalpel(handle, tip), got {type(scalpel).__name__}")
+def joined_scalpel(scalpel: Scalpel | Sequence[Scalpel]) -> Scalpel:
+    """One ``Scalpel`` of a sequence of them in order (each of one sample, (3,) ends, or of several, (m, 3));
+    a ``Scalpel`` as it is. JAX arrays stay JAX arrays (differentiable)."""
+    if isinstance(scalpel, Scalpel):
+        return scalpel
+    if isinstance(scalpel, np.ndarray | jax.Array | str) or not isinstance(scalpel, Sequence):
+        raise ValueError(
+            f"scalpel: expected a cutting.Scalpel(handle, tip) or a sequence of them, got {type(scalpel).__name__}"
+        )
+    if not all(isinstance(part, Scalpel) for part in scalpel):
+        kinds = sorted({type(part).__name__ for part in scalpel if not isinstance(part, Scalpel)})
+        raise ValueError(f"scalpel: expected a sequence of cutting.Scalpel, got items of type {', '.join(kinds)}")
+    ends = []
+    for k, part in enumerate(scalpel):
+        handle, tip = part.handle, part.tip
+        if handle.shape not in ((3,), (len(handle), 3)) or tip.shape != handle.shape:
+            raise ValueError(
+                f"scalpel[{k}]: expected handle and tip ends of shape (3,) or (m, 3), got {handle.shape}, {tip.shape}"
+            )
+        ends.append((handle.reshape(-1, 3), tip.reshape(-1, 3)))
+    if not ends:
+        raise ValueError("scalpel: expected at least two samples, got an empty sequence")
+    stack = jnp.concatenate if any(isinstance(x, jax.Array) for pair in ends for x in pair) else np.concatenate
+    return Scalpel(stack([h for h, _ in ends]), stack([t for _, t in ends]))
+
+
+def check_scalpel(scalpel: Scalpel | Sequence[Scalpel]) -> np.ndarray:
+    """The scalpel's samples (a ``Scalpel`` or a sequence of them, ``joined_scalpel``) as one float64
+    (k+1, 2, 3) array (handle end first), with clear errors."""
+    scalpel = joined_scalpel(scalpel)
     handle, tip = np.asarray(scalpel.handle, np.float64), np.asarray(scalpel.tip, np.float64)
     if handle.ndim != 2 or handle.shape[1:] != (3,) or handle.shape != tip.shape or len(handle) < 2:
         raise ValueError(

@@ -3,6 +3,8 @@ animate again."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 import trimesh
@@ -42,39 +44,9 @@ def test_cut_errors_exit_with_code_2(tmp_path, capsys):
 
 def test_tear_writes_a_skinned_model_with_an_open_slit(tmp_path):
     out = tmp_path / "torn.glb"
-    assert (
-        main(
-            [
-                "tear",
-                "--scalpel0",
-                "0.2",
-                "0",
-                "0.1",
-                "0.2",
-                "0",
-                "0",
-                "--scalpel1",
-                "0.3",
-                "0",
-                "0.1",
-                "0.3",
-                "0",
-                "0",
-                "--scalpel-next",
-                "0.35",
-                "0.01",
-                "0.1",
-                "0.35",
-                "0.01",
-                "0",
-                "--opening",
-                "0.005",
-                "--out",
-                str(out),
-            ]
-        )
-        == 0
-    )
+    samples = ["0.2 0 0.1 0.2 0 0", "0.3 0 0.1 0.3 0 0", "0.35 0.01 0.1 0.35 0.01 0"]
+    argv = ["tear", *[a for s in samples for a in ("--scalpel", *s.split())], "--opening", "0.005"]
+    assert main([*argv, "--out", str(out)]) == 0
     arm = deform.default_arm()
     torn = deform.load_model(out)
     assert torn.skeleton.names == arm.skeleton.names and len(torn.clips) == len(arm.clips)
@@ -84,6 +56,38 @@ def test_tear_writes_a_skinned_model_with_an_open_slit(tmp_path):
     assert not mesh.is_watertight and mesh.is_winding_consistent  # the closed arm now has a slit
     assert len(V) > arm.mesh.num_vertices
     assert np.all(np.isfinite(np.asarray(deform.skin_model(torn, 1.2, "cga"))))
+    # the same samples from a path file, in both of its forms, give the same model
+    for form in ("objects", "pairs"):
+        ends = [[float(x) for x in s.split()] for s in samples]
+        entries = [{"handle": e[:3], "tip": e[3:]} if form == "objects" else [e[:3], e[3:]] for e in ends]
+        path = tmp_path / f"{form}.json"
+        path.write_text(json.dumps(entries))
+        again = tmp_path / f"{form}.glb"
+        assert main(["tear", "--scalpel-path", str(path), "--opening", "0.005", "--out", str(again)]) == 0
+        np.testing.assert_array_equal(np.asarray(deform.load_model(again).mesh.F), F)
+    # a file's samples come first, then any --scalpel
+    path.write_text(json.dumps(entries[:2]))
+    assert main(["tear", "--scalpel-path", str(path), "--scalpel", *samples[2].split(), "--out", str(again)]) == 0
+
+
+def test_tear_path_errors_exit_with_code_2(tmp_path, capsys):
+    bad = tmp_path / "bad.json"
+    for text, needle in [
+        ('{"handle": [0, 0, 0]}', "expected a list of samples"),
+        ('[{"handle": [0.2, 0, 0.1], "tip": [0.2, 0]}]', "entry 0 of"),
+        ("[[[0.2, 0, 0.1], [0.2, 0, 0]], [[1, 2, 3], [4, 5, null]]]", "entry 1 of"),
+        ("[[", "cannot read"),
+    ]:
+        bad.write_text(text)
+        with pytest.raises(SystemExit) as stop:
+            main(["tear", "--scalpel-path", str(bad), "--out", str(tmp_path / "t.glb")])
+        assert stop.value.code == 2 and needle in capsys.readouterr().err
+    with pytest.raises(SystemExit) as stop:
+        main(["tear", "--scalpel", *"0.2 0 0.1 0.2 0 0".split(), "--out", str(tmp_path / "t.glb")])
+    assert stop.value.code == 2 and "expected two or more samples" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as stop:
+        main(["tear", "--scalpel-path", str(tmp_path / "missing.json"), "--out", str(tmp_path / "t.glb")])
+    assert stop.value.code == 2 and "missing.json" in capsys.readouterr().err
 
 
 def test_drill_writes_a_skinned_model_with_a_hole(tmp_path):
@@ -104,25 +108,25 @@ def test_tear_and_drill_errors_exit_with_code_2(tmp_path, capsys):
         main(
             [
                 "tear",
-                "--scalpel0",
+                "--scalpel",
                 "5",
                 "5",
                 "5",
                 "5",
                 "5",
                 "6",
-                "--scalpel1",
-                "0.3",
-                "0",
-                "0.1",
-                "0.3",
-                "0",
-                "0",
+                "--scalpel",
+                "6",
+                "5",
+                "5",
+                "6",
+                "5",
+                "6",
                 "--out",
                 str(tmp_path / "t.glb"),
             ]
         )
-    assert stop.value.code == 2 and "does not cross" in capsys.readouterr().err
+    assert stop.value.code == 2 and "never crosses the surface" in capsys.readouterr().err
     with pytest.raises(SystemExit) as stop:
         main(
             [

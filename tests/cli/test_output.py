@@ -31,9 +31,9 @@ COMMANDS = {
     "cut": ["cut", "--plane", "1", "0", "0", "0.3", "--out", "OUT.glb", "OUT_other.glb"],
     "tear": [
         "tear",
-        "--scalpel0",
+        "--scalpel",
         *"0.2 0 0.1 0.2 0 0".split(),
-        "--scalpel1",
+        "--scalpel",
         *"0.3 0 0.1 0.3 0 0".split(),
         "--out",
         "OUT.glb",

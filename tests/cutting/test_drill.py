@@ -254,12 +254,14 @@ def test_non_manifold_input():
     assert away.holes == 1 and len(away.points) >= 6
     with pytest.raises(ValueError, match="non-manifold"):
         cutting.drill_topology(V, F, cutting.Drill(np.array([0.5, 0.52, -1.0]), np.array([0.5, 0.52, 1.0]), 0.12))
-    # a tear that reaches the fin's edges is refused too
+    # a tear ends at the fin's edges and begins again past them: one stretch on each side, no fin edge torn
     scalpel = cutting.Scalpel(
         np.array([[0.52, 0.3, 1.0], [0.52, 0.7, 1.0]]), np.array([[0.52, 0.3, -1.0], [0.52, 0.7, -1.0]])
     )
-    with pytest.raises(ValueError, match="non-manifold"):
-        cutting.tear_topology(V, F, scalpel)
+    path = cutting.tear_topology(V, F, scalpel)
+    assert len(path.stretches) == 2
+    assert np.all(cutting.mesh_edges(F).edge_counts[path.edge_ids] == 2)
+    assert path.sample_points[path.stretches[0, 1], 1] < 0.5 < path.sample_points[path.stretches[1, 0], 1]
     # a cut goes through (it works face by face)
     topology = cutting.cut_topology(V, F, cutting.Plane([1.0, 0.0, 0.0], 0.55))
     assert len(topology.points) > 0
