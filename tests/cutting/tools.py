@@ -307,3 +307,79 @@ def fuzz(mesh, tool: str, count: int, seed: int):
         if problems:
             stats["failures"].append(f"{tool} {trial}: " + "; ".join(problems))
     return stats
+
+
+# --- Drills through layered characters (issue 51, item 2) ---------------------------------------------
+
+
+def drill_through_limb(V, F, rng, *, radius=(0.05, 0.3), tries: int = 100):
+    """A ``cutting.Drill`` placed as a user places one: at a random point of the outer skin (just outside it,
+    the generalized winding number of the whole mesh is below 1/2), along the inward normal, through the limb
+    (its tip just past the first point where the inward ray leaves every layer, winding number below 1/2
+    again), its radius a random fraction ``radius`` of the limb's thickness there. It crosses every layer
+    in between (clothing, the skin, inner meshes). Returns (drill, thickness)."""
+    import cutting
+    from cutting._geometry import segment_hits  # the ray's crossings, as the drill finds its seeds
+
+    V, F = np.asarray(V, np.float64), np.asarray(F)
+    scale = diagonal(V)
+    for _ in range(tries):
+        face, point, normal = random_surface_point(V, F, rng)
+        outer = point + 1e-4 * scale * normal
+        _, _, s = segment_hits(V, F, point - 1e-6 * scale * normal, point - scale * normal)
+        if not len(s):
+            continue
+        s = np.concatenate([s, [1.0]]) * scale
+        between = point - 0.5 * (np.concatenate([[0.0], s[:-1]]) + s)[:, None] * normal
+        winding = igl.fast_winding_number(V, F, np.vstack([outer, between]))
+        if winding[0] > 0.5:  # not on the outer skin
+            continue
+        out = np.flatnonzero(winding[2:] < 0.5)  # the first gap outside every layer after a crossing
+        if not len(out) or out[0] + 1 >= len(s):
+            continue
+        thickness = float(s[out[0]])
+        r = rng.uniform(*radius) * thickness
+        tip = point - (thickness + 0.5 * r) * normal
+        base = point + 0.5 * r * normal
+        return cutting.Drill(tip, base, r), thickness
+    raise ValueError("no skin point with a limb behind it found")
+
+
+def drill_outcome(V, F, drill, topology, tolerance: float = 1e-6):
+    """What a drill left, in the space it was drilled in (``topology.vertices``), relative to the bounding-box
+    diagonal of V: (input vertices left strictly inside the drilled volume (count; distance to the axis
+    under radius - tolerance x diagonal, height along the axis strictly between base and tip), the largest
+    distance of a rim vertex from the cylinder, the largest distance of a rim edge's midpoint). The rim: the
+    boundary edges of the drilled mesh that do not lie along the input's own boundary."""
+    V, F = np.asarray(V, np.float64), np.asarray(F)
+    tip, base, r = (np.asarray(x, np.float64) for x in (drill.tip, drill.base, drill.radius))
+    scale = diagonal(V)
+    length = float(np.linalg.norm(tip - base))
+    axis = (tip - base) / length
+
+    def radial_height(X):
+        relative = X - base
+        h = relative @ axis
+        return np.linalg.norm(relative - np.outer(h, axis), axis=1), h
+
+    original = topology.kept[topology.kept < len(V)]
+    rho, h = radial_height(topology.vertices[original])
+    inside = int(np.sum((rho < r - tolerance * scale) & (h > 0) & (h < length)))
+    X = np.concatenate([topology.vertices, topology.points])[topology.kept]
+    edges, counts = edge_counts(topology.faces)
+    rim = edges[counts == 1]
+    input_edges, input_counts = edge_counts(F)
+    border = input_edges[input_counts == 1]
+    if len(rim) and len(border):
+        # a boundary edge along an input boundary edge: its midpoint lies on that edge
+        a, b = V[border[:, 0]], V[border[:, 1]]
+        mid = 0.5 * (X[rim[:, 0]] + X[rim[:, 1]])
+        d = b - a
+        t = np.clip(np.einsum("mbj,bj->mb", mid[:, None] - a[None], d) / np.einsum("bj,bj->b", d, d), 0.0, 1.0)
+        gap = np.linalg.norm(mid[:, None] - (a[None] + t[..., None] * d[None]), axis=2).min(axis=1)
+        rim = rim[gap > 1e-9 * scale]
+    if not len(rim):
+        return inside, 0.0, 0.0
+    vertex_rho, _ = radial_height(X[np.unique(rim)])
+    mid_rho, _ = radial_height(0.5 * (X[rim[:, 0]] + X[rim[:, 1]]))
+    return inside, float(np.abs(vertex_rho - r).max()) / scale, float(np.abs(mid_rho - r).max()) / scale
