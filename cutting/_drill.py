@@ -28,8 +28,10 @@ a point's height along the axis. The drilled volume is the finite cylinder |P(x)
 The paper's "split and drill again": the faces of a hole with fewer than ``min_points`` boundary points
 (a drill thin against the faces), and the faces whose rim chord or rim vertex lies farther than
 ``rim_tolerance`` from the cylinder (a chord of the circle seen under the angle phi from the axis
-strays r (1 - cos(phi / 2)) inside it; a dropped point's neighbour lies off it), are split (midpoints of
-their edges; neighbours get conforming 2- or 3-way splits) and the mesh is drilled again. Each split
+strays r (1 - cos(phi / 2)) inside it; a dropped point's neighbour lies off it), are split (their edges
+at the midpoints, or a little aside where a midpoint would lie next to the cylinder and snap the rim to
+it; neighbours get conforming 2- or 3-way splits) and the mesh is drilled again, never into faces that
+the sliver rule would call too small. Each split
 halves the edges the rim crosses, so the rim converges onto the cylinder at any mesh resolution.
 
 The drill works on the faces that may meet its cylinder and the faces that share an edge with them (the
@@ -73,12 +75,15 @@ from deform._model import SkinnedMesh
 
 class DrillTopology(NamedTuple):
     """The topology of a drilled hole (``drill_topology``), in an extended vertex numbering: the vertices
-    of the mesh as drilled (the input's, then ``parents``' midpoints from refinement), then the new points.
+    of the mesh as drilled (the input's, then the split points of refinement), then the new points.
 
     Attributes:
-        parents: (r, 2) int refinement: vertex n + k is the midpoint of vertices ``parents[k]``.
+        parents: (r, 2) int refinement: vertex n + k splits the edge ``parents[k]`` = (i, j) at
+            ``split[k] V_i + (1 - split[k]) V_j``.
+        split: (r,) where: 1/2 (the midpoint), or 3/8, 5/8, 1/4, 3/4 where the midpoint would lie next
+            to the cylinder.
         refinements: how many times the affected faces were split.
-        vertices: (n + r, 3) the vertex positions that were drilled (the input's, then midpoints).
+        vertices: (n + r, 3) the vertex positions that were drilled (the input's, then split points).
         crossing: (p, 2) int the edge (i, j) of each new point.
         alpha: (p,) its root of eq. (18-20): the point is ``alpha V_i + (1 - alpha) V_j``.
         root: (p,) +1 or -1: the sign of the square root that gives alpha.
@@ -92,6 +97,7 @@ class DrillTopology(NamedTuple):
     """
 
     parents: Int[np.ndarray, "r 2"]
+    split: Float[np.ndarray, " r"]
     refinements: int
     vertices: Float[np.ndarray, "nr 3"]
     crossing: Int[np.ndarray, "p 2"]
@@ -128,9 +134,10 @@ def _refine_tables():
 _REFINE = _refine_tables()
 
 
-def _refine(V, F, edges: MeshEdges, face_mask):
-    """Split every edge of the masked faces at its midpoint; every face on a split edge is
-    re-triangulated conformingly. Returns (V, F, parents)."""
+def _refine(V, F, edges: MeshEdges, face_mask, at=None):
+    """Split every edge of the masked faces; every face on a split edge is re-triangulated conformingly.
+    ``at``: a function of the split edges (s, 2) giving the parameter t of each split point
+    ``t V_i + (1 - t) V_j`` (None: midpoints). Returns (V, F, parents, t)."""
     split = np.zeros(len(edges.edges), bool)
     split[edges.face_edges[face_mask].ravel()] = True
     parents = edges.edges[split]
@@ -141,7 +148,9 @@ def _refine(V, F, edges: MeshEdges, face_mask):
     templates = _REFINE[code]
     valid = templates[:, :, 0] >= 0
     faces = np.take_along_axis(slots[:, None, :], np.where(templates < 0, 0, templates), axis=2)[valid]
-    return np.concatenate([V, 0.5 * (V[parents[:, 0]] + V[parents[:, 1]])]), faces, parents
+    t = np.full(len(parents), 0.5) if at is None else at(parents)
+    points = t[:, None] * V[parents[:, 0]] + (1.0 - t[:, None]) * V[parents[:, 1]]
+    return np.concatenate([V, points]), faces, parents, t
 
 
 def refine(
@@ -167,7 +176,7 @@ def refine(
         mask = np.zeros(len(F), bool)
         mask[np.asarray(faces)] = True
     space, joint_matrices = posed_vertices(mesh, joint_matrices)
-    refined, F_new, parents = _refine(space, F, mesh_edges(F), mask)
+    refined, F_new, parents, _ = _refine(space, F, mesh_edges(F), mask)
     J, W = np.asarray(mesh.J), np.asarray(mesh.W)
     J_mid, W_mid = blend_weights(J, W, parents, np.full(parents.shape, 0.5))
     rest = rest_positions(J_mid, W_mid, refined[len(space) :], joint_matrices)
@@ -389,7 +398,7 @@ def drill_topology(
     local = np.flatnonzero(touched[F].sum(axis=1) >= 2)
     F_local = F[local]
     smallest = SmallestFace(V, F)  # the input's: refinement only adds smaller faces
-    all_parents, refinements, budget = [], 0, max_refinements
+    all_parents, all_split, refinements, budget = [], [], 0, max_refinements
     while True:
         state = _drill_once(V, C, F_local, tip, base, frame, margin)
         if not refinements:  # faces of the input near the drill
@@ -418,9 +427,13 @@ def drill_topology(
         split &= _splittable(V, F_local, state.edges, smallest)
         if not split.any() or refinements == budget:
             break
-        V, F_local, parents = _refine(V, F_local, state.edges, split)
-        C = np.concatenate([C, 0.5 * (C[parents[:, 0]] + C[parents[:, 1]])])
+        away = 2.0 * math.sqrt(PIECE_AREA * smallest.bound)
+        V, F_local, parents, t = _refine(
+            V, F_local, state.edges, split, lambda pairs: _split_parameters(C, pairs, radius, away)
+        )
+        C = np.concatenate([C, t[:, None] * C[parents[:, 0]] + (1.0 - t[:, None]) * C[parents[:, 1]]])
         all_parents.append(parents)
+        all_split.append(t)
         refinements += 1
     if state.whole.all():
         # every face the drill meets lies inside it: no rim anywhere
@@ -448,6 +461,7 @@ def drill_topology(
     parents = np.concatenate(all_parents) if all_parents else np.zeros((0, 2), np.int64)
     return DrillTopology(
         parents,
+        np.concatenate(all_split) if all_split else np.zeros(0),
         refinements,
         V,
         pairs,
@@ -478,15 +492,29 @@ def _budget(V, corners, radius, rim_limit) -> int:
     return max(0, math.ceil(math.log2(max(longest / target, 1.0)))) + 3
 
 
+def _split_parameters(C, pairs, radius, away):
+    """Where to split the edges ``pairs`` (s, 2): at the midpoint, unless it lies within ``away`` of the
+    cylinder (a vertex there would become a sliver's corner, and the rim would snap to it), then at 3/8,
+    5/8, 1/4 or 3/4 of the edge, the first of them as far, or the farthest."""
+    candidates = np.array([0.5, 0.375, 0.625, 0.25, 0.75])
+    a, b = C[pairs[:, 0], None, :2], C[pairs[:, 1], None, :2]
+    X = candidates[None, :, None] * a + (1.0 - candidates[None, :, None]) * b
+    gap = np.abs(np.sqrt(np.einsum("sck,sck->sc", X, X)) - radius)
+    far = gap >= away
+    choice = np.where(far.any(axis=1), np.argmax(far, axis=1), np.argmax(gap, axis=1))
+    return candidates[choice]
+
+
 def _splittable(V, F, edges: MeshEdges, smallest: SmallestFace):
     """Which faces may be split: neither they nor a face sharing an edge with them (split to conform) would
-    leave a quarter of their area under the sliver rule's smallest piece (``sliver_mask``)."""
+    leave a sixteenth of their area (split points at 1/4 to 3/4 of the edges) under the sliver rule's
+    smallest piece (``sliver_mask``)."""
     X = V[F]
     normal = cross_rows(X[:, 1] - X[:, 0], X[:, 2] - X[:, 0])
     doubled = np.sqrt(np.einsum("ij,ij->i", normal, normal))
-    small = doubled < 4.0 * PIECE_AREA * smallest.bound
+    small = doubled < 16.0 * PIECE_AREA * smallest.bound
     if small.any():
-        small = doubled < 4.0 * PIECE_AREA * smallest.value()
+        small = doubled < 16.0 * PIECE_AREA * smallest.value()
     near_small = np.zeros(len(edges.edges), bool)
     near_small[edges.face_edges[small].ravel()] = True
     return ~small & ~near_small[edges.face_edges].any(axis=1)
@@ -591,15 +619,16 @@ def _retriangulate(V, C, F, state: _Pass, index, alpha, pairs, points, radius, m
     return faces, np.unique(np.asarray(drop, np.int64)), np.asarray(chords, np.int64).reshape(-1, 3)
 
 
-def _midpoint_levels(parents: Int[np.ndarray, "r 2"], n: int) -> list[Int[np.ndarray, "l 2"]]:
-    """The refinement midpoints (vertex n + k is the midpoint of ``parents[k]``) in levels whose parents
-    all precede the level (they may be midpoints of an earlier one): each level is one vectorized step."""
+def _split_levels(parents: Int[np.ndarray, "r 2"], n: int) -> list[slice]:
+    """The refinement's split points (vertex n + k splits the edge ``parents[k]``) in levels (slices of
+    ``parents``) whose parents all precede the level (they may be split points of an earlier one): each
+    level is one vectorized step."""
     levels, done = [], 0
     while done < len(parents):
-        pending = parents[done:]
-        later = np.flatnonzero(pending.max(axis=1) >= n + done)
-        levels.append(pending[: later[0] if len(later) else len(pending)])
-        done += len(levels[-1])
+        later = np.flatnonzero(parents[done:].max(axis=1) >= n + done)
+        stop = done + (later[0] if len(later) else len(parents) - done)
+        levels.append(slice(done, stop))
+        done = stop
     return levels
 
 
@@ -659,7 +688,7 @@ def drill(
         return_topology: also return the ``DrillTopology`` (for ``drill_positions``).
     Returns:
         The drilled SkinnedMesh (its vertices: the input's outside the hole, in order, then refinement
-        midpoints and new points), and the DrillTopology when ``return_topology``."""
+        split points and new points), and the DrillTopology when ``return_topology``."""
     J, W = np.asarray(mesh.J), np.asarray(mesh.W)
     space, joint_matrices = posed_vertices(mesh, joint_matrices)
     topology = drill_topology(
@@ -673,9 +702,10 @@ def drill(
         edges=edges,
     )
     rest = np.asarray(mesh.V, np.float64)
-    for level in _midpoint_levels(topology.parents, len(rest)):
-        J_mid, W_mid = blend_weights(J, W, level, np.full(level.shape, 0.5))
-        target = 0.5 * (topology.vertices[level[:, 0]] + topology.vertices[level[:, 1]])
+    for level in _split_levels(topology.parents, len(rest)):
+        pairs, t = topology.parents[level], topology.split[level, None]
+        J_mid, W_mid = blend_weights(J, W, pairs, np.concatenate([t, 1.0 - t], axis=1))
+        target = t * topology.vertices[pairs[:, 0]] + (1.0 - t) * topology.vertices[pairs[:, 1]]
         rest = np.concatenate([rest, rest_positions(J_mid, W_mid, target, joint_matrices)])
         J, W = np.concatenate([J, J_mid]), np.concatenate([W, W_mid])
     J_new, W_new = blend_weights(J, W, topology.crossing, np.stack([topology.alpha, 1.0 - topology.alpha], axis=1))
@@ -691,8 +721,8 @@ def drill(
 def drill_positions(V: Float[ArrayLike, "n 3"], topology: DrillTopology, drill: Drill) -> Float[Array, "p 3"]:
     """Positions of a drill's new points as a JAX function of the vertices and the drill, for a fixed
     topology: differentiable with respect to both (``jax.grad`` over a ``Drill`` gives a ``Drill``). The
-    refinement midpoints are formed from V (``topology.parents``), then eq. (18-20) is solved for
-    each point's alpha (the root of ``topology.root``): the point ``alpha V_i + (1 - alpha) V_j``.
+    refinement's split points are formed from V (``topology.parents``, ``topology.split``), then eq. (18-20)
+    is solved for each point's alpha (the root of ``topology.root``): the point ``alpha V_i + (1 - alpha) V_j``.
 
     Args:
         V: (n, 3) the input's vertex positions, as drilled (posed, when drilled with ``joint_matrices``).
@@ -704,8 +734,9 @@ def drill_positions(V: Float[ArrayLike, "n 3"], topology: DrillTopology, drill: 
     n = len(topology.vertices) - len(topology.parents)
     if V.shape != (n, 3):
         raise ValueError(f"V: expected the {n} vertices that were drilled, shape ({n}, 3), got {V.shape}")
-    for level in _midpoint_levels(topology.parents, n):
-        V = jnp.concatenate([V, 0.5 * (V[level[:, 0]] + V[level[:, 1]])])
+    for level in _split_levels(topology.parents, n):
+        pairs, t = topology.parents[level], topology.split[level, None]
+        V = jnp.concatenate([V, t * V[pairs[:, 0]] + (1.0 - t) * V[pairs[:, 1]]])
     tip, base, radius = jnp.asarray(drill.tip), jnp.asarray(drill.base), jnp.asarray(drill.radius)
     crossing = topology.crossing
     axis = (tip - base) / jnp.linalg.norm(tip - base)

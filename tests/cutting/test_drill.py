@@ -152,10 +152,14 @@ def test_a_drill_thinner_than_the_faces_splits_them_and_drills_again():
     with pytest.raises(ValueError, match="V: expected the"):
         cutting.drill_positions(topology.vertices, topology, cutting.Drill(tip, base, radius))
     np.testing.assert_allclose(_radial_distance(topology.points, tip, base), radius, atol=1e-9 * _diagonal(V))
-    # refinement midpoints (of midpoints, level after level) sit halfway along their parents
-    vertices = topology.vertices
+    # refinement split points (of split points, level after level) sit on their parents' edges, at the
+    # midpoint or at most a quarter aside
+    vertices, split = topology.vertices, topology.split[:, None]
+    assert np.all((split >= 0.25) & (split <= 0.75)) and np.mean(split == 0.5) > 0.5
     np.testing.assert_allclose(
-        vertices[len(V) :], 0.5 * (vertices[topology.parents[:, 0]] + vertices[topology.parents[:, 1]]), atol=1e-12
+        vertices[len(V) :],
+        split * vertices[topology.parents[:, 0]] + (1.0 - split) * vertices[topology.parents[:, 1]],
+        atol=1e-12,
     )
     kept = topology.kept
     midpoints = (kept >= len(V)) & (kept < len(vertices))
@@ -266,18 +270,35 @@ def test_non_manifold_input():
 
 
 def test_a_drill_through_grid_vertices_makes_no_slivers():
-    """A cylinder whose radius is exactly the distance to grid vertices: they are snapped onto it."""
+    """A cylinder whose radius is exactly the distance to grid vertices: they are snapped onto it. Without a
+    rim tolerance the rim is the inscribed polygon. With the default one, chords of the 0.1 grid stray too far
+    and the faces along the rim are split until its chords keep within 5e-4 of the diagonal of the circle;
+    where the circle runs along an edge (it touches the grid lines at these radii) a split point next to it
+    makes the sliver rule snap the rim to it, within sqrt(1e-3 x the smallest doubled area) = 0.0032."""
     V, F = grid()
     centre = np.array([0.5, 0.5, 0.0])
+    limit, snap = 5e-4 * np.sqrt(2.0), np.sqrt(1e-3 * 0.01)
     for radius in (0.2, 0.1 * np.sqrt(5.0), 0.3 + 1e-12):
-        hole = cutting.drill_topology(V, F, cutting.Drill(centre - [0, 0, 1], centre + [0, 0, 1], radius))
-        extended = np.concatenate([hole.vertices, hole.points])[hole.kept]
-        assert _area(extended, hole.faces).min() > 1e-9
-        removed = 1.0 - _area(extended, hole.faces).sum()
-        assert 0.8 * np.pi * radius**2 < removed < np.pi * radius**2
-        rim = extended[np.unique(_edge_counts(hole.faces)[0][_edge_counts(hole.faces)[1] == 1])]
-        on_hole = np.linalg.norm(rim[:, :2] - 0.5, axis=1) < 0.45
-        np.testing.assert_allclose(np.linalg.norm(rim[on_hole, :2] - 0.5, axis=1), radius, atol=1e-6)
+        drill = cutting.Drill(centre - [0, 0, 1], centre + [0, 0, 1], radius)
+        for rim_tolerance, bounds, atol in (
+            (np.inf, (0.8 * np.pi * radius**2, np.pi * radius**2), 1e-6),
+            (5e-4, (np.pi * (radius - limit) ** 2, np.pi * (radius + snap) ** 2), snap),
+        ):
+            hole = cutting.drill_topology(V, F, drill, rim_tolerance=rim_tolerance)
+            assert (hole.refinements > 0) == (rim_tolerance < np.inf)
+            extended = np.concatenate([hole.vertices, hole.points])[hole.kept]
+            problems, _, _ = piece_quality(V, F, extended, hole.faces, hole.kept)
+            assert not problems
+            removed = 1.0 - _area(extended, hole.faces).sum()
+            assert bounds[0] < removed < bounds[1]
+            rim_edges, rim_counts = _edge_counts(hole.faces)
+            rim_edges = rim_edges[rim_counts == 1]
+            on_hole = np.linalg.norm(extended[rim_edges].mean(axis=1)[:, :2] - 0.5, axis=1) < 0.45
+            rim = extended[np.unique(rim_edges[on_hole])]
+            np.testing.assert_allclose(np.linalg.norm(rim[:, :2] - 0.5, axis=1), radius, atol=atol)
+            chords = rim_edges[on_hole & np.all(hole.kept[rim_edges] >= len(hole.vertices), axis=1)]
+            middle = extended[chords].mean(axis=1)[:, :2] - 0.5
+            assert np.all(radius - np.linalg.norm(middle, axis=1) <= (limit if rim_tolerance < np.inf else 0.02))
 
 
 def test_a_drill_wider_than_what_it_meets_says_so_not_too_thin():
