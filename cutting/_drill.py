@@ -405,23 +405,54 @@ def drill_topology(
             smallest.near(np.take(V, F_local[state.affected], axis=0))
         if budget is None:
             budget = _budget(V, F_local[state.affected], radius, rim_limit)
-        index, alpha, sign = state.index, state.alpha, state.sign
-        # Each pass drops at least one new point (it snaps to the vertex or point next to it), so this ends.
-        for _ in range(len(index) + 1):
-            pairs = state.edges.edges[index]
-            points = alpha[:, None] * V[pairs[:, 0]] + (1.0 - alpha[:, None]) * V[pairs[:, 1]]
-            faces, drop, chords = _retriangulate(
-                V, C, F_local, state, index, alpha, pairs, points, radius, margin, smallest
+        pairs = state.edges.edges[state.index]
+        alpha = state.alpha[:, None]
+        points = alpha * V[pairs[:, 0]] + (1.0 - alpha) * V[pairs[:, 1]]
+        point_C = alpha * C[pairs[:, 0]] + (1.0 - alpha) * C[pairs[:, 1]]
+        # faces with every corner inside the drill are removed whole (the drill is convex); the others
+        # are cut along the rim
+        interior = (C[F_local, 0] ** 2 + C[F_local, 1] ** 2 < (radius - margin) ** 2).all(axis=1)
+        rim_faces = np.flatnonzero(state.affected & ~interior)
+        alive = np.ones(len(pairs), bool)
+        pieces, todo = {}, rim_faces
+        # Each pass drops at least one new point (it snaps to the vertex or point next to it), so this ends;
+        # a pass redoes the faces on the edges of the points dropped.
+        while True:
+            done, drop = _retriangulate(
+                V,
+                C,
+                F_local,
+                state.edges,
+                state.index,
+                state.alpha,
+                alive,
+                points,
+                point_C,
+                todo,
+                radius,
+                margin,
+                smallest,
             )
+            pieces.update(done)
             if not len(drop):
                 break
-            keep = np.ones(len(index), bool)
-            keep[drop] = False
-            index, alpha, sign = index[keep], alpha[keep], sign[keep]
+            alive[drop] = False
+            touched = state.edges.edge_faces[state.index[drop]].ravel()
+            todo = np.intersect1d(touched, rim_faces)
+        # the new points left, numbered n, n + 1, ... in the order of the crossings
+        renumber = np.concatenate([np.arange(len(V)), len(V) + np.cumsum(alive) - 1])
+        triangles = [t for f in rim_faces.tolist() for t in pieces[f][0]]
+        chords = [(a, b, f) for f in rim_faces.tolist() for a, b in pieces[f][1]]
+        faces = np.concatenate(
+            [np.compress(~state.affected, F_local, axis=0), renumber[np.asarray(triangles, np.int64).reshape(-1, 3)]]
+        )
+        chords = np.asarray(chords, np.int64).reshape(-1, 3)
+        chords[:, :2] = renumber[chords[:, :2]]
+        alpha, sign = state.alpha[alive], state.sign[alive]
+        pairs, points, point_C = pairs[alive], points[alive], point_C[alive]
         # faces to split: those of a hole with too few points, those whose rim strays from the cylinder
         few = state.outside & (state.count < min_points)
         split = state.affected & few[state.hole]
-        point_C = alpha[:, None] * C[pairs[:, 0]] + (1.0 - alpha[:, None]) * C[pairs[:, 1]]
         off = _rim_distance(np.concatenate([C, point_C]), chords, radius)
         split[chords[off > rim_limit, 2]] = True
         split &= _splittable(V, F_local, state.edges, smallest)
@@ -531,26 +562,26 @@ def _rim_distance(C, chords, radius):
     return np.max([np.abs(np.sqrt(np.einsum("ij,ij->i", x, x)) - radius) for x in (a, b, m)], axis=0)
 
 
-def _retriangulate(V, C, F, state: _Pass, index, alpha, pairs, points, radius, margin, smallest):
-    """Faces of the drilled local mesh (Algorithm 3, step 5) in the extended numbering, the new points to
-    drop, and the rim's chords (c, 3: two extended vertex ids and the local face). A new point is dropped
-    in each face whose pieces are slivers (``sliver_mask``): the one (or the two on one edge) closest to
-    its neighbour on the face's boundary, relative to that edge's length; without it the hole's boundary
-    passes through the neighbour. Per affected face in plain Python: the faces near a hole are few, and
-    small arrays cost more than they save."""
-    affected = np.flatnonzero(state.affected)
+def _retriangulate(V, C, F, edges: MeshEdges, index, alpha, alive, points, point_C, faces, radius, margin, smallest):
+    """Step 5 of Algorithm 3 on the local faces ``faces`` along the rim: for each, its pieces outside the
+    drill and its rim chords, in the extended numbering (the new points of the crossings ``index``, alpha,
+    where ``alive``, are vertices n + p). Returns ({face: (triangles, chords)}, the crossings to drop). A
+    new point is dropped in each face whose pieces are slivers (``sliver_mask``): the one (or the two on
+    one edge) closest to its neighbour on the face's boundary, relative to that edge's length; without it
+    the hole's boundary passes through the neighbour. Per face in plain Python: the faces along a rim are
+    few, and small arrays cost more than they save."""
     n = len(V)
-    corners = F[affected]
-    # radial vectors P(x) - B of the corners and the new points (the projection is affine)
+    corners = F[faces]
     flat = corners.ravel()
+    live = np.flatnonzero(alive)
+    # radial vectors P(x) - B of the corners and the new points (the projection is affine)
     radial = dict(zip(flat.tolist(), C[flat, :2].tolist()))
-    point_radial = alpha[:, None] * C[pairs[:, 0], :2] + (1.0 - alpha[:, None]) * C[pairs[:, 1], :2]
-    radial.update(zip(range(n, n + len(points)), point_radial.tolist()))
+    radial.update(zip((n + live).tolist(), point_C[live, :2].tolist()))
     position = dict(zip(flat.tolist(), V[flat].tolist()))
-    position.update(zip(range(n, n + len(points)), points.tolist()))
+    position.update(zip((n + live).tolist(), points[live].tolist()))
     # the new points of each edge, ordered from its first vertex (edges.edges[e, 0]) to its second
     on_edge: dict[int, list[tuple[float, int]]] = {}
-    for p, (e, a) in enumerate(zip(index.tolist(), alpha.tolist())):
+    for p, e, a in zip(live.tolist(), index[live].tolist(), alpha[live].tolist()):
         on_edge.setdefault(e, []).append((1.0 - a, n + p))
     for entries in on_edge.values():
         entries.sort()
@@ -559,8 +590,8 @@ def _retriangulate(V, C, F, state: _Pass, index, alpha, pairs, points, radius, m
     # boundary never passes through one (no vertex stays inside the drill)
     squared = C[flat, 0] ** 2 + C[flat, 1] ** 2
     inside = set(flat[squared < (radius - margin) ** 2].tolist())
-    triangles, parents, cycles, chords = [], [], [], []
-    for f, face, local_edges in zip(affected.tolist(), corners.tolist(), state.edges.face_edges[affected].tolist()):
+    results, triangles, parents, cycles = {}, [], [], []
+    for f, face, local_edges in zip(faces.tolist(), corners.tolist(), edges.face_edges[faces].tolist()):
         cycle, counts = [], []  # the boundary, and how many steps of it lie on each of the face's edges
         for k in range(3):
             a, b = face[k], face[(k + 1) % 3]
@@ -570,7 +601,7 @@ def _retriangulate(V, C, F, state: _Pass, index, alpha, pairs, points, radius, m
             counts.append(len(ordered) + 1)
         cycles.append((face, cycle, counts))
         m = len(cycle)
-        before = len(triangles)
+        pieces, chords = [], []
         # a boundary piece is outside the drill when its midpoint is (the drill is convex)
         outside = []
         for i in range(m):
@@ -579,7 +610,7 @@ def _retriangulate(V, C, F, state: _Pass, index, alpha, pairs, points, radius, m
             mx, my = x[0] + y[0], x[1] + y[1]
             outside.append(0.25 * (mx * mx + my * my) > limit and a not in inside and b not in inside)
         if all(outside):
-            triangles.append(tuple(face))
+            pieces.append(tuple(face))
         elif any(outside):
             # each run of the boundary outside the drill, closed by a chord (the rim), is a convex piece
             start = next(i for i in range(m) if outside[i] and not outside[i - 1])
@@ -590,14 +621,17 @@ def _retriangulate(V, C, F, state: _Pass, index, alpha, pairs, points, radius, m
                     run.append(cycle[(i + 1) % m])
                     continue
                 if len(run) >= 3:
-                    triangles += fan_triangles(run, [position[v] for v in run])
+                    pieces += fan_triangles(run, [position[v] for v in run])
                 if len(run) >= 2:  # a run of one step leaves no piece, but the step joins the rim
-                    chords.append((run[-1], run[0], f))
+                    chords.append((run[-1], run[0]))
                 run = [cycle[(i + 1) % m]]
-        parents += [len(cycles) - 1] * (len(triangles) - before)
-    pieces = np.asarray(triangles, np.int64).reshape(-1, 3)
+        results[f] = (pieces, chords)
+        triangles += pieces
+        parents += [len(cycles) - 1] * len(pieces)
+    if not triangles:
+        return results, np.zeros(0, np.int64)
+    piece_corners = np.asarray([[position[v] for v in t] for t in triangles])
     parents = np.asarray(parents, np.int64)
-    piece_corners = np.take(np.concatenate([V, points]), pieces, axis=0)
     poor = sliver_mask(piece_corners, np.take(V, corners[parents], axis=0), smallest)
     drop = []
     for f in np.unique(parents[poor]).tolist():
@@ -608,15 +642,14 @@ def _retriangulate(V, C, F, state: _Pass, index, alpha, pairs, points, radius, m
             spans += [((pa[0] - pb[0]) ** 2 + (pa[1] - pb[1]) ** 2 + (pa[2] - pb[2]) ** 2) ** 0.5] * counts[k]
         m = len(cycle)
         steps = [
-            (math.dist(position[cycle[i]], position[cycle[(i + 1) % m]]) / spans[i], i)
-            for i in range(m)
-            if max(cycle[i], cycle[(i + 1) % m]) >= n and cycle[i] not in inside and cycle[(i + 1) % m] not in inside
+            (math.dist(position[a], position[b]) / spans[i], i)
+            for i, (a, b) in enumerate(zip(cycle, cycle[1:] + cycle[:1]))
+            if max(a, b) >= n and a not in inside and b not in inside
         ]
         if steps:
             _, i = min(steps)
             drop += [v - n for v in (cycle[i], cycle[(i + 1) % m]) if v >= n]
-    faces = np.concatenate([np.compress(~state.affected, F, axis=0), pieces])
-    return faces, np.unique(np.asarray(drop, np.int64)), np.asarray(chords, np.int64).reshape(-1, 3)
+    return results, np.unique(np.asarray(drop, np.int64))
 
 
 def _split_levels(parents: Int[np.ndarray, "r 2"], n: int) -> list[slice]:
