@@ -80,8 +80,8 @@ class DrillTopology(NamedTuple):
     Attributes:
         parents: (r, 2) int refinement: vertex n + k splits the edge ``parents[k]`` = (i, j) at
             ``split[k] V_i + (1 - split[k]) V_j``.
-        split: (r,) where: 1/2 (the midpoint), or 3/8, 5/8, 1/4, 3/4 where the midpoint would lie next
-            to the cylinder.
+        split: (r,) where: 1/2 (the midpoint), or 3/8 or 5/8 where the midpoint would lie next to the
+            cylinder.
         refinements: how many times the affected faces were split.
         vertices: (n + r, 3) the vertex positions that were drilled (the input's, then split points).
         crossing: (p, 2) int the edge (i, j) of each new point.
@@ -94,6 +94,10 @@ class DrillTopology(NamedTuple):
         holes: number of holes (connected drilled regions with a rim; a limb drilled through has two
             in its skin, and one more in every layer or part inside it that the drill crosses).
         removed: number of connected regions removed whole (they lay inside the drill: a small part).
+        rim_distance: the largest distance from the cylinder of a rim vertex or of the midpoint of a rim
+            edge. Within ``rim_tolerance`` x the diagonal unless the sliver rule stopped the splits (a
+            mesh whose smallest face is large against the drill, such as an octahedron: the rim then
+            passes through vertices within about sqrt(1e-3 x the smallest face's doubled area) of it).
     """
 
     parents: Int[np.ndarray, "r 2"]
@@ -108,6 +112,7 @@ class DrillTopology(NamedTuple):
     kept: Int[np.ndarray, " k"]
     holes: int
     removed: int
+    rim_distance: float
 
 
 def _refine_tables():
@@ -360,7 +365,8 @@ def drill_topology(
             needs to come down to the scale of the drill and of ``rim_tolerance``, plus 3).
         rim_tolerance: the largest distance of the hole's rim (its vertices and the midpoints of its
             edges) from the cylinder, times the bounding-box diagonal; faces whose rim is farther are
-            split and drilled again (``inf``: no limit).
+            split and drilled again (``inf``: no limit), as far as the sliver rule lets them (see
+            ``DrillTopology.rim_distance``, the distance reached).
         tolerance: vertices within ``tolerance`` times the bounding-box diagonal of the cylinder count
             as on it (no sliver triangles).
         edges: ``mesh_edges(F)``: accepted for the signature that cut, tear and drill share and checked
@@ -503,6 +509,7 @@ def drill_topology(
         kept,
         int((~state.whole).sum()),
         int(state.whole.sum()),
+        float(off.max(initial=0.0)),
     )
 
 
@@ -525,9 +532,9 @@ def _budget(V, corners, radius, rim_limit) -> int:
 
 def _split_parameters(C, pairs, radius, away):
     """Where to split the edges ``pairs`` (s, 2): at the midpoint, unless it lies within ``away`` of the
-    cylinder (a vertex there would become a sliver's corner, and the rim would snap to it), then at 3/8,
-    5/8, 1/4 or 3/4 of the edge, the first of them as far, or the farthest."""
-    candidates = np.array([0.5, 0.375, 0.625, 0.25, 0.75])
+    cylinder (a vertex there would become a sliver's corner, and the rim would snap to it), then at 3/8
+    or 5/8 of the edge, the first as far, or the farthest."""
+    candidates = np.array([0.5, 0.375, 0.625])
     a, b = C[pairs[:, 0], None, :2], C[pairs[:, 1], None, :2]
     X = candidates[None, :, None] * a + (1.0 - candidates[None, :, None]) * b
     gap = np.abs(np.sqrt(np.einsum("sck,sck->sc", X, X)) - radius)
@@ -538,14 +545,14 @@ def _split_parameters(C, pairs, radius, away):
 
 def _splittable(V, F, edges: MeshEdges, smallest: SmallestFace):
     """Which faces may be split: neither they nor a face sharing an edge with them (split to conform) would
-    leave a sixteenth of their area (split points at 1/4 to 3/4 of the edges) under the sliver rule's
-    smallest piece (``sliver_mask``)."""
+    leave an eighth of their area under the sliver rule's smallest piece (``sliver_mask``): with split
+    points at 3/8 to 5/8 of the edges, no child keeps less than (3/8)^2 of its face."""
     X = V[F]
     normal = cross_rows(X[:, 1] - X[:, 0], X[:, 2] - X[:, 0])
     doubled = np.sqrt(np.einsum("ij,ij->i", normal, normal))
-    small = doubled < 16.0 * PIECE_AREA * smallest.bound
+    small = doubled < 8.0 * PIECE_AREA * smallest.bound
     if small.any():
-        small = doubled < 16.0 * PIECE_AREA * smallest.value()
+        small = doubled < 8.0 * PIECE_AREA * smallest.value()
     near_small = np.zeros(len(edges.edges), bool)
     near_small[edges.face_edges[small].ravel()] = True
     return ~small & ~near_small[edges.face_edges].any(axis=1)
