@@ -345,26 +345,35 @@ def drill_through_limb(V, F, rng, *, radius=(0.05, 0.3), tries: int = 100):
     raise ValueError("no skin point with a limb behind it found")
 
 
+def inside_drill(X, drill, margin: float):
+    """Which points X (n, 3) lie strictly inside the drilled volume: distance to the axis under
+    drill.radius - margin, height along the axis strictly between base and tip."""
+    tip, base, r = (np.asarray(x, np.float64) for x in (drill.tip, drill.base, drill.radius))
+    length = float(np.linalg.norm(tip - base))
+    axis = (tip - base) / length
+    relative = np.asarray(X, np.float64) - base
+    h = relative @ axis
+    rho = np.linalg.norm(relative - np.outer(h, axis), axis=1)
+    return (rho < r - margin) & (h > 0) & (h < length)
+
+
 def drill_outcome(V, F, drill, topology, tolerance: float = 1e-6):
     """What a drill left, in the space it was drilled in (``topology.vertices``), relative to the bounding-box
-    diagonal of V: (input vertices left strictly inside the drilled volume (count; distance to the axis
-    under radius - tolerance x diagonal, height along the axis strictly between base and tip), the largest
-    distance of a rim vertex from the cylinder, the largest distance of a rim edge's midpoint). The rim: the
-    boundary edges of the drilled mesh that do not lie along the input's own boundary."""
+    diagonal of V: (input vertices left strictly inside the drilled volume (count; ``inside_drill`` with
+    margin tolerance x diagonal), the largest distance of a rim vertex from the cylinder, the largest distance
+    of a rim edge's midpoint). The rim: the boundary edges of the drilled mesh that do not lie along the
+    input's own boundary."""
     V, F = np.asarray(V, np.float64), np.asarray(F)
     tip, base, r = (np.asarray(x, np.float64) for x in (drill.tip, drill.base, drill.radius))
     scale = diagonal(V)
-    length = float(np.linalg.norm(tip - base))
-    axis = (tip - base) / length
+    axis = (tip - base) / np.linalg.norm(tip - base)
 
-    def radial_height(X):
+    def radial(X):
         relative = X - base
-        h = relative @ axis
-        return np.linalg.norm(relative - np.outer(h, axis), axis=1), h
+        return np.linalg.norm(relative - np.outer(relative @ axis, axis), axis=1)
 
     original = topology.kept[topology.kept < len(V)]
-    rho, h = radial_height(topology.vertices[original])
-    inside = int(np.sum((rho < r - tolerance * scale) & (h > 0) & (h < length)))
+    inside = int(inside_drill(topology.vertices[original], drill, tolerance * scale).sum())
     X = np.concatenate([topology.vertices, topology.points])[topology.kept]
     edges, counts = edge_counts(topology.faces)
     rim = edges[counts == 1]
@@ -380,6 +389,6 @@ def drill_outcome(V, F, drill, topology, tolerance: float = 1e-6):
         rim = rim[gap > 1e-9 * scale]
     if not len(rim):
         return inside, 0.0, 0.0
-    vertex_rho, _ = radial_height(X[np.unique(rim)])
-    mid_rho, _ = radial_height(0.5 * (X[rim[:, 0]] + X[rim[:, 1]]))
-    return inside, float(np.abs(vertex_rho - r).max()) / scale, float(np.abs(mid_rho - r).max()) / scale
+    vertex = np.abs(radial(X[np.unique(rim)]) - r).max()
+    middle = np.abs(radial(0.5 * (X[rim[:, 0]] + X[rim[:, 1]])) - r).max()
+    return inside, float(vertex) / scale, float(middle) / scale
