@@ -64,7 +64,6 @@ from cutting._geometry import (
     mesh_edges,
     posed_vertices,
     rest_positions,
-    segment_hits,
     skinned_mesh_like,
     sliver_mask,
 )
@@ -267,6 +266,22 @@ def _edges_meeting(C, pairs, radius, length, margin):
     return (low <= high) & (u * u + w * w < (radius - margin) ** 2)
 
 
+def _pierced(C, F, length):
+    """Which faces F the axis segment from the base (h = 0) to the tip (h = length) crosses: the axis, the origin
+    of the drill frame's (u, w) plane, lies in the face projected onto it (barycentric coordinates, boundary
+    included), at a height between 0 and length."""
+    a, b, c = (C[F[:, k]] for k in range(3))
+    ab, ac = b - a, c - a
+    det = ab[:, 0] * ac[:, 1] - ab[:, 1] * ac[:, 0]
+    ok = det != 0
+    safe = np.where(ok, det, 1.0)
+    beta = (-a[:, 0] * ac[:, 1] + a[:, 1] * ac[:, 0]) / safe
+    gamma = (-ab[:, 0] * a[:, 1] + ab[:, 1] * a[:, 0]) / safe
+    alpha = 1.0 - beta - gamma
+    height = alpha * a[:, 2] + beta * b[:, 2] + gamma * c[:, 2]
+    return ok & (alpha >= 0) & (beta >= 0) & (gamma >= 0) & (height >= 0) & (height <= length)
+
+
 class _Pass(NamedTuple):
     """One drilling pass over the faces near the drill: their adjacency, the affected faces (bool), the
     hole (connected drilled region) of each affected face (0 elsewhere), the crossings on the affected
@@ -285,7 +300,7 @@ class _Pass(NamedTuple):
     count: np.ndarray
 
 
-def _drill_once(V, C, F, tip, base, frame: _Frame, margin) -> _Pass:
+def _drill_once(V, C, F, frame: _Frame, margin) -> _Pass:
     """One drilling pass (Algorithm 3, steps 1-3) over the faces F near the drill (global vertex ids into V
     and their drill-frame coordinates C): the seeds (faces that meet the drilled part of the cylinder), the
     search over the faces that meet the cylinder around them, and the crossings on the affected edges."""
@@ -305,17 +320,22 @@ def _drill_once(V, C, F, tip, base, frame: _Frame, margin) -> _Pass:
     # seeds: faces that meet the cylinder between base and tip (an edge inside it there, which includes a
     # corner inside it), or that its axis pierces (the drill inside a face larger than it)
     seed = _edges_meeting(C, pairs, radius, length, margin)[edges.face_edges].any(axis=1)
-    pierced, _, _ = segment_hits(V, F, base, tip)
-    seed[pierced] = True
+    seed |= _pierced(C, F, length)
     if not seed.any():
         raise ValueError("drill: misses the mesh (no face meets the cylinder between its base and tip)")
     # the affected faces: connected components of the faces that meet the cylinder (or are seeds) that
     # hold a seed (the paper's breadth-first search from the seeds)
     region = hit | seed
+    members = np.flatnonzero(region)
+    number = np.full(len(F), -1, np.int64)
+    number[members] = np.arange(len(members))
     a, b = edges.edge_faces[:, 0], edges.edge_faces[:, 1]
     link = (b >= 0) & region[a] & region[np.maximum(b, 0)]
-    graph = sp.coo_matrix((np.ones(int(link.sum())), (a[link], b[link])), shape=(len(F), len(F)))
-    _, labels = connected_components(graph, directed=False)
+    a, b = number[a[link]], number[b[link]]
+    graph = sp.coo_matrix((np.ones(len(a)), (a, b)), shape=(len(members), len(members)))
+    _, components = connected_components(graph, directed=False)
+    labels = np.full(len(F), -1, np.int64)
+    labels[members] = components
     holes_of = np.unique(labels[seed])
     affected = region & np.isin(labels, holes_of)
     on_affected = np.unique(edges.face_edges[affected])
@@ -406,7 +426,7 @@ def drill_topology(
     smallest = SmallestFace(V, F)  # the input's: refinement only adds smaller faces
     all_parents, all_split, refinements, budget = [], [], 0, max_refinements
     while True:
-        state = _drill_once(V, C, F_local, tip, base, frame, margin)
+        state = _drill_once(V, C, F_local, frame, margin)
         if not refinements:  # faces of the input near the drill
             smallest.near(np.take(V, F_local[state.affected], axis=0))
         if budget is None:
@@ -578,6 +598,7 @@ def _retriangulate(V, C, F, edges: MeshEdges, index, alpha, alive, points, point
     the hole's boundary passes through the neighbour. Per face in plain Python: the faces along a rim are
     few, and small arrays cost more than they save."""
     n = len(V)
+    results, faces = _simple_pieces(V, C, F, edges, index, alive, points, faces, radius, margin, smallest)
     corners = F[faces]
     flat = corners.ravel()
     live = np.flatnonzero(alive)
@@ -597,7 +618,7 @@ def _retriangulate(V, C, F, edges: MeshEdges, index, alpha, alive, points, point
     # boundary never passes through one (no vertex stays inside the drill)
     squared = C[flat, 0] ** 2 + C[flat, 1] ** 2
     inside = set(flat[squared < (radius - margin) ** 2].tolist())
-    results, triangles, parents, cycles = {}, [], [], []
+    triangles, parents, cycles = [], [], []
     for f, face, local_edges in zip(faces.tolist(), corners.tolist(), edges.face_edges[faces].tolist()):
         cycle, counts = [], []  # the boundary, and how many steps of it lie on each of the face's edges
         for k in range(3):
@@ -657,6 +678,74 @@ def _retriangulate(V, C, F, edges: MeshEdges, index, alpha, alive, points, point
             _, i = min(steps)
             drop += [v - n for v in (cycle[i], cycle[(i + 1) % m]) if v >= n]
     return results, np.unique(np.asarray(drop, np.int64))
+
+
+def _simple_pieces(V, C, F, edges: MeshEdges, index, alive, points, faces, radius, margin, smallest):
+    """Step 5 in arrays for the commonest faces along a rim: one crossing on each of two edges, none on the third
+    (dropped ones included), every corner clearly inside or outside the drill, and no sliver among the pieces.
+    The lone corner between the crossed edges keeps a triangle (it is outside) or leaves a quadrilateral (it is
+    inside), split as ``fan_triangles`` would; the chord joins the two points. The same pieces, chords and ids as
+    the per-face loop of ``_retriangulate``. Returns ({face: (triangles, chords)}, the other faces)."""
+    n = len(V)
+    all_count = np.bincount(index, minlength=len(edges.edges))
+    alive_count = np.bincount(index[alive], minlength=len(edges.edges))
+    point_of = np.full(len(edges.edges), -1, np.int64)
+    point_of[index[alive]] = n + np.flatnonzero(alive)
+    local = edges.face_edges[faces]
+    counts = alive_count[local]
+    corners = F[faces]
+    squared = C[corners, 0] ** 2 + C[corners, 1] ** 2
+    inside = squared < (radius - margin) ** 2
+    clear = inside | (squared > (radius + margin) ** 2)
+    simple = (
+        (np.sort(counts, axis=1) == [0, 1, 1]).all(axis=1)
+        & (all_count[local] == counts).all(axis=1)
+        & clear.all(axis=1)
+    )
+    if not simple.any():
+        return {}, faces
+    rows = np.flatnonzero(simple)
+    # the lone corner l: opposite the uncrossed edge k0 (edges run corner k -> corner k + 1)
+    lone = (np.argmin(counts[rows], axis=1) + 2) % 3
+    r = np.arange(len(rows))
+    face = corners[rows]
+    L, A, B = face[r, lone], face[r, (lone + 1) % 3], face[r, (lone + 2) % 3]
+    after, before = point_of[local[rows, lone]], point_of[local[rows, (lone + 2) % 3]]
+    out = ~inside[rows, lone]
+    X = np.concatenate([V, points])
+    # quadrilaterals (after, A, B, before): the diagonal whose smaller triangle is larger (fan_triangles' rule)
+    quad = np.stack([after, A, B, before], axis=1)[~out]
+    P = X[quad]
+
+    def squared_cross(a, b, c):
+        normal = cross_rows(P[:, b] - P[:, a], P[:, c] - P[:, a])
+        return normal[:, 0] * normal[:, 0] + normal[:, 1] * normal[:, 1] + normal[:, 2] * normal[:, 2]
+
+    even = np.minimum(squared_cross(0, 1, 2), squared_cross(0, 2, 3))
+    odd = np.minimum(squared_cross(1, 2, 3), squared_cross(1, 3, 0))
+    shift = np.where(odd > even, 1, 0)
+    ring = np.take_along_axis(quad, (shift[:, None] + np.arange(4)) % 4, axis=1)
+    quads = np.stack([ring[:, [0, 1, 2]], ring[:, [0, 2, 3]]], axis=1)
+    pieces = [np.stack([before, L, after], axis=1)[out], quads[:, 0], quads[:, 1]]
+    owner = [np.flatnonzero(out), np.flatnonzero(~out), np.flatnonzero(~out)]
+    piece_faces = np.concatenate(pieces)
+    owner = np.concatenate(owner)
+    poor = sliver_mask(np.take(X, piece_faces, axis=0), np.take(V, face[owner], axis=0), smallest)
+    keep = np.ones(len(rows), bool)
+    keep[owner[poor]] = False
+    chords = np.where(out[:, None], np.stack([after, before], axis=1), np.stack([before, after], axis=1))
+    results: dict[int, tuple[list, list]] = {}
+    face_ids = faces[rows].tolist()
+    for f, tri, chord, ok in zip(face_ids, np.stack([before, L, after], axis=1).tolist(), chords.tolist(), keep & out):
+        if ok:
+            results[f] = ([tuple(tri)], [tuple(chord)])
+    for f, (first, second), chord, ok in zip(
+        np.asarray(face_ids)[~out].tolist(), quads.tolist(), chords[~out].tolist(), keep[~out]
+    ):
+        if ok:
+            results[f] = ([tuple(first), tuple(second)], [tuple(chord)])
+    simple[rows[~keep]] = False
+    return results, faces[~simple]
 
 
 def _split_levels(parents: Int[np.ndarray, "r 2"], n: int) -> list[slice]:
