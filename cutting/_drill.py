@@ -30,9 +30,11 @@ The paper's "split and drill again": the faces of a hole with fewer than ``min_p
 ``rim_tolerance`` from the cylinder (a chord of the circle seen under the angle phi from the axis
 strays r (1 - cos(phi / 2)) inside it; a dropped point's neighbour lies off it), are split (their edges
 at the midpoints, or a little aside where a midpoint would lie next to the cylinder and snap the rim to
-it; neighbours get conforming 2- or 3-way splits) and the mesh is drilled again, never into faces that
-the sliver rule would call too small. Each split
-halves the edges the rim crosses, so the rim converges onto the cylinder at any mesh resolution.
+it; neighbours get conforming 2- or 3-way splits) and the mesh is drilled again. Each split halves the
+edges the rim crosses, so the rim converges onto the cylinder at any mesh resolution, down to the scale
+of the sliver rule: no split makes a face that the rule would call too small, so on a mesh whose smallest
+face is large against the drill (an octahedron) the rim comes within about sqrt(1e-3 x that face's
+doubled area) of the cylinder (``DrillTopology.rim_distance``).
 
 The drill works on the faces that may meet its cylinder and the faces that share an edge with them (the
 only ones a split reaches): its cost is that of the hole, not of the mesh, beyond a few passes over the
