@@ -527,3 +527,23 @@ def test_drills_through_the_limbs_of_real_characters(name):
         posed = np.asarray(deform.skin_pose(deform.RiggedModel(drilled, model.skeleton), pose, "lbs"))
         kept = topology.kept[topology.kept < len(V)]
         np.testing.assert_allclose(posed[: len(kept)], original[kept], rtol=0, atol=1e-12 * _diagonal(V))
+
+
+def test_the_new_points_after_splits_aside_are_differentiable_in_the_drill():
+    """On a coarse sphere the faces along the rim are split (some edges aside of their midpoints): for that
+    fixed topology the new points are the drill's, and their gradient with respect to the drill (tip, base,
+    radius) matches central differences."""
+    sphere = trimesh.creation.uv_sphere(radius=1.0, count=[13, 12])
+    V, F = np.asarray(sphere.vertices), np.asarray(sphere.faces)
+    tip, base, radius = np.array([0.13, -0.07, -1.5]), np.array([0.1, 0.05, 1.5]), 0.15
+    topology = cutting.drill_topology(V, F, cutting.Drill(tip, base, radius))
+    assert topology.refinements > 0 and np.any(topology.split != 0.5)
+    np.testing.assert_allclose(
+        cutting.drill_positions(V, topology, cutting.Drill(tip, base, radius)), topology.points, atol=1e-12
+    )
+
+    def loss(params):
+        drill = cutting.Drill(params[:3], params[3:6], params[6])
+        return jnp.sum(jnp.sin(3.0 * cutting.drill_positions(V, topology, drill)))
+
+    check_gradient(loss, jnp.concatenate([jnp.asarray(tip), jnp.asarray(base), jnp.array([radius])]))
