@@ -423,7 +423,9 @@ def drill_topology(
     near = (code[F[:, 0]] & code[F[:, 1]] & code[F[:, 2]]) == 0
     touched = np.zeros(len(V), bool)
     touched[F[near]] = True
-    local = np.flatnonzero(touched[F].sum(axis=1) >= 2)
+    corner = touched[F]
+    near_local = (corner[:, 0] & (corner[:, 1] | corner[:, 2])) | (corner[:, 1] & corner[:, 2])
+    local = np.flatnonzero(near_local)
     F_local = F[local]
     smallest = SmallestFace(V, F)  # the input's: refinement only adds smaller faces
     all_parents, all_split, refinements, budget = [], [], 0, max_refinements
@@ -512,7 +514,7 @@ def drill_topology(
             f"cylinder after {refinements} refinements (rim_tolerance {rim_tolerance:.3g}); raise "
             "max_refinements or rim_tolerance"
         )
-    faces = np.concatenate([np.delete(F, local, axis=0), faces])
+    faces = np.concatenate([np.compress(~near_local, F, axis=0), faces])
     used = np.zeros(len(V) + len(points), bool)
     used[faces] = True
     kept = np.flatnonzero(used)
