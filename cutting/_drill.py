@@ -467,8 +467,7 @@ def drill_topology(
             if not len(drop):
                 break
             alive[drop] = False
-            touched = state.edges.edge_faces[state.index[drop]].ravel()
-            todo = np.intersect1d(touched, rim_faces)
+            todo = np.intersect1d(state.edges.edge_faces[state.index[drop]].ravel(), rim_faces)
         # the new points left, numbered n, n + 1, ... in the order of the crossings
         renumber = np.concatenate([np.arange(len(V)), len(V) + np.cumsum(alive) - 1])
         triangles = [t for f in rim_faces.tolist() for t in pieces[f][0]]
