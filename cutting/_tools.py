@@ -69,8 +69,9 @@ class Scalpel(eqx.Module):
 
 
 class Drill(eqx.Module):
-    """A cylindrical drill: its axis from ``base`` to ``tip`` and its radius. The cylinder is
-    unbounded along the axis; the segment base -> tip picks the sheets of the surface drilled.
+    """A cylindrical drill: its axis from ``base`` to ``tip`` and its radius. It drills every sheet of the
+    surface that meets the cylinder between base and tip; the hole in a sheet follows it as far as it
+    stays inside the (unbounded) cylinder.
 
     Attributes:
         tip: (3,) the tip A.

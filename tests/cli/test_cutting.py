@@ -204,3 +204,31 @@ def test_a_drill_wider_than_the_model_says_so(tmp_path, capsys):
     err = capsys.readouterr().err
     assert stop.value.code == 2 and len(err.splitlines()) == 2  # the bounding box, the error
     assert "radius: 10 exceeds the model's size: every vertex lies within 0.45 of the drill's axis" in err
+
+
+def test_drill_through_a_character_reports_the_holes_and_shells(tmp_path, capsys):
+    """A drill through a limb of CesiumMan (welded by the command): the summary counts the holes, the shells
+    they are in and the parts removed, and gives the rim's distance from the cylinder; the written model
+    skins, and its vertices outside the drill are the input's."""
+    from tests.cutting.tools import DATA, drill_outcome, drill_through_limb
+
+    model = deform.load_model(DATA / "CesiumMan.glb", weld=True)
+    V, F = np.asarray(model.mesh.V, np.float64), np.asarray(model.mesh.F)
+    drill, _ = drill_through_limb(V, F, np.random.default_rng(3))
+    out = tmp_path / "drilled.glb"
+    numbers = lambda x: [repr(float(v)) for v in np.atleast_1d(x)]  # noqa: E731
+    arguments = ["--tip", *numbers(drill.tip), "--base", *numbers(drill.base), "--radius", *numbers(drill.radius)]
+    assert main(["drill", str(DATA / "CesiumMan.glb"), *arguments, "--out", str(out)]) == 0
+    captured = capsys.readouterr()
+    import cutting
+
+    _, topology = cutting.drill(model.mesh, drill, return_topology=True)
+    inside, rim, middle = drill_outcome(V, F, drill, topology)
+    assert inside == 0 and max(rim, middle) <= 1e-3
+    summary = captured.out
+    assert f"holes {topology.holes}, shells 1, parts_removed 0" in summary  # CesiumMan is one closed shell
+    assert "hole(s) in 1 shell(s)" in captured.err and "the rim lies within" in captured.err
+    assert float(summary.split("rim_distance ")[1].split(",")[0]) == pytest.approx(max(rim, middle), rel=1e-6)
+    drilled = deform.load_model(out)
+    assert np.all(np.isfinite(np.asarray(deform.skin_model(drilled, 0.5, "lbs"))))
+    assert drilled.mesh.num_vertices == len(topology.kept)

@@ -15,8 +15,18 @@ from hypothesis import strategies as st
 import cutting
 import deform
 import jaxcga as cga
+from tests.cutting.tools import (
+    DATA,
+    consistency_problems,
+    drill_into,
+    drill_outcome,
+    drill_through_limb,
+    inside_drill,
+    load_models,
+    mean_edge,
+    piece_quality,
+)
 from tests.cutting.tools import area as _area
-from tests.cutting.tools import consistency_problems, drill_into, load_models, mean_edge, piece_quality
 from tests.cutting.tools import diagonal as _diagonal
 from tests.cutting.tools import edge_counts as _edge_counts
 from tests.cutting.tools import posed as posed_arm
@@ -152,10 +162,14 @@ def test_a_drill_thinner_than_the_faces_splits_them_and_drills_again():
     with pytest.raises(ValueError, match="V: expected the"):
         cutting.drill_positions(topology.vertices, topology, cutting.Drill(tip, base, radius))
     np.testing.assert_allclose(_radial_distance(topology.points, tip, base), radius, atol=1e-9 * _diagonal(V))
-    # refinement midpoints (of midpoints, level after level) sit halfway along their parents
-    vertices = topology.vertices
+    # refinement split points (of split points, level after level) sit on their parents' edges, at the
+    # midpoint or at most an eighth aside
+    vertices, split = topology.vertices, topology.split[:, None]
+    assert np.all((split >= 0.375) & (split <= 0.625)) and np.mean(split == 0.5) > 0.5
     np.testing.assert_allclose(
-        vertices[len(V) :], 0.5 * (vertices[topology.parents[:, 0]] + vertices[topology.parents[:, 1]]), atol=1e-12
+        vertices[len(V) :],
+        split * vertices[topology.parents[:, 0]] + (1.0 - split) * vertices[topology.parents[:, 1]],
+        atol=1e-12,
     )
     kept = topology.kept
     midpoints = (kept >= len(V)) & (kept < len(vertices))
@@ -268,18 +282,36 @@ def test_non_manifold_input():
 
 
 def test_a_drill_through_grid_vertices_makes_no_slivers():
-    """A cylinder whose radius is exactly the distance to grid vertices: they are snapped onto it."""
+    """A cylinder whose radius is exactly the distance to grid vertices: they are snapped onto it. Without a
+    rim tolerance the rim is the inscribed polygon. With the default one, chords of the 0.1 grid stray too far
+    and the faces along the rim are split until its chords keep within 5e-4 of the diagonal of the circle;
+    where the circle runs along an edge (it touches the grid lines at these radii) a split point next to it
+    makes the sliver rule snap the rim to it, within 1.5 sqrt(1e-3 x the smallest doubled area) = 0.0047
+    (``_rim_bound``)."""
     V, F = grid()
     centre = np.array([0.5, 0.5, 0.0])
+    limit, snap = 5e-4 * np.sqrt(2.0), 1.5 * np.sqrt(1e-3 * 0.01)
     for radius in (0.2, 0.1 * np.sqrt(5.0), 0.3 + 1e-12):
-        hole = cutting.drill_topology(V, F, cutting.Drill(centre - [0, 0, 1], centre + [0, 0, 1], radius))
-        extended = np.concatenate([hole.vertices, hole.points])[hole.kept]
-        assert _area(extended, hole.faces).min() > 1e-9
-        removed = 1.0 - _area(extended, hole.faces).sum()
-        assert 0.8 * np.pi * radius**2 < removed < np.pi * radius**2
-        rim = extended[np.unique(_edge_counts(hole.faces)[0][_edge_counts(hole.faces)[1] == 1])]
-        on_hole = np.linalg.norm(rim[:, :2] - 0.5, axis=1) < 0.45
-        np.testing.assert_allclose(np.linalg.norm(rim[on_hole, :2] - 0.5, axis=1), radius, atol=1e-6)
+        drill = cutting.Drill(centre - [0, 0, 1], centre + [0, 0, 1], radius)
+        for rim_tolerance, bounds, atol in (
+            (np.inf, (0.8 * np.pi * radius**2, np.pi * radius**2), 1e-6),
+            (5e-4, (np.pi * (radius - limit) ** 2, np.pi * (radius + snap) ** 2), snap),
+        ):
+            hole = cutting.drill_topology(V, F, drill, rim_tolerance=rim_tolerance)
+            assert (hole.refinements > 0) == (rim_tolerance < np.inf)
+            extended = np.concatenate([hole.vertices, hole.points])[hole.kept]
+            problems, _, _ = piece_quality(V, F, extended, hole.faces, hole.kept)
+            assert not problems
+            removed = 1.0 - _area(extended, hole.faces).sum()
+            assert bounds[0] < removed < bounds[1]
+            rim_edges, rim_counts = _edge_counts(hole.faces)
+            rim_edges = rim_edges[rim_counts == 1]
+            on_hole = np.linalg.norm(extended[rim_edges].mean(axis=1)[:, :2] - 0.5, axis=1) < 0.45
+            rim = extended[np.unique(rim_edges[on_hole])]
+            np.testing.assert_allclose(np.linalg.norm(rim[:, :2] - 0.5, axis=1), radius, atol=atol)
+            chords = rim_edges[on_hole & np.all(hole.kept[rim_edges] >= len(hole.vertices), axis=1)]
+            middle = extended[chords].mean(axis=1)[:, :2] - 0.5
+            assert np.all(radius - np.linalg.norm(middle, axis=1) <= (limit if rim_tolerance < np.inf else 0.02))
 
 
 def test_a_drill_wider_than_what_it_meets_says_so_not_too_thin():
@@ -305,3 +337,215 @@ def test_a_drill_wider_than_what_it_meets_says_so_not_too_thin():
         cutting.drill_topology(V, F, cutting.Drill(tip, base, 20.0))
     fitting = cutting.drill_topology(V, F, cutting.Drill(tip, base, 0.01), max_refinements=8)
     assert len(fitting.points) >= 6  # a fitting radius drills
+
+
+# --- Drills through layers (issue 51, item 2) --------------------------------------------------------------
+
+
+def _layered_scene():
+    """A closed tube (radius 1, along x) around a closed tube (radius 0.5), a separate ball above them, a speck
+    smaller than the drill above the ball and an open sheet above everything: (V, F, part of each vertex)."""
+    rotate = trimesh.transformations.rotation_matrix(np.pi / 2, [0, 1, 0])
+    outer = trimesh.creation.cylinder(radius=1.0, height=4.0, sections=48).apply_transform(rotate)
+    inner = trimesh.creation.cylinder(radius=0.5, height=3.0, sections=32).apply_transform(rotate)
+    ball = trimesh.creation.icosphere(subdivisions=3, radius=0.35).apply_translation([0.3, 0.1, 1.6])
+    speck = trimesh.creation.icosphere(subdivisions=0, radius=0.05).apply_translation([0.3, 0.1, 2.3])
+    V, F = grid(12)
+    sheet = trimesh.Trimesh(V * 3.0 + [-1.5, -1.5, 2.6], F, process=False)
+    parts = [outer, inner, ball, speck, sheet]
+    scene = trimesh.util.concatenate(parts)
+    labels = np.concatenate([np.full(len(p.vertices), k) for k, p in enumerate(parts)])
+    return np.asarray(scene.vertices, np.float64), np.asarray(scene.faces), labels
+
+
+def _extended_labels(topology, labels):
+    """The part of every vertex of the drilled mesh (split points and new points take their edge's)."""
+    extended = np.concatenate([labels, np.zeros(len(topology.parents) + len(topology.points), labels.dtype)])
+    n = len(labels)
+    for k, (i, _) in enumerate(topology.parents):  # in order: a split point's parents precede it
+        extended[n + k] = extended[i]
+    extended[len(topology.vertices) :] = extended[topology.crossing[:, 0]]
+    return extended[topology.kept]
+
+
+def _tube_hole_area(R, centre, a):
+    """Area of the tube y^2 + z^2 = R^2 inside the vertical cylinder of radius a about (x0, y0) = centre,
+    both sides: over the angle t (y = R sin t) the width along x is 2 sqrt(a^2 - (R sin t - y0)^2)."""
+    from scipy.integrate import quad
+
+    y0 = centre[1]
+    limits = np.arcsin(np.clip([(y0 - a) / R, (y0 + a) / R], -1.0, 1.0))
+    width, _ = quad(lambda t: 2.0 * np.sqrt(max(a * a - (R * np.sin(t) - y0) ** 2, 0.0)) * R, *limits, limit=200)
+    return 2.0 * width
+
+
+def test_a_drill_through_layers_holes_every_sheet_in_its_way():
+    """Every sheet in the drill's way gets its own hole (both sides of each tube, both sides of the ball, the
+    sheet), the speck inside the drill is removed whole, no input vertex stays strictly inside the drilled
+    volume, the rims keep within the rim tolerance of the cylinder, and each part loses the analytic area
+    (tubes: the integral over the angle; ball: two spherical caps; sheet: the disc)."""
+    V, F, labels = _layered_scene()
+    centre, a = np.array([0.3, 0.1]), 0.2
+    drill = cutting.Drill([*centre, -1.6], [*centre, 3.0], a)  # from above the sheet to below the outer tube
+    # vertices of the ball, the speck and the sheet lie in the drill's way; the tubes' long faces cross it with
+    # no vertex inside (the drill meets them through their edges only)
+    in_the_way = np.bincount(labels[inside_drill(V, drill, 1e-6 * _diagonal(V))], minlength=5)
+    assert np.all(in_the_way[[2, 3, 4]] > 0) and np.all(in_the_way[[0, 1]] == 0)
+    topology = cutting.drill_topology(V, F, drill)
+    assert (topology.holes, topology.removed) == (7, 1)
+    inside, rim, middle = drill_outcome(V, F, drill, topology)
+    diagonal = _diagonal(V)
+    assert inside == 0 and rim <= 5e-4 + 1e-12 and middle <= 5e-4 + 1e-12
+    assert topology.rim_distance <= 5e-4 * diagonal * (1 + 1e-9)
+    extended = np.concatenate([topology.vertices, topology.points])[topology.kept]
+    problems, _, _ = piece_quality(V, F, extended, topology.faces, topology.kept)
+    assert not problems
+    edges, counts = _edge_counts(topology.faces)
+    assert counts.max() <= 2 and trimesh.Trimesh(extended, topology.faces, process=False).is_winding_consistent
+    part = _extended_labels(topology, labels)
+    assert not np.any(part == 3)  # the speck is gone
+    before = np.bincount(labels[F[:, 0]], weights=_area(V, F), minlength=5)
+    after = np.bincount(part[topology.faces[:, 0]], weights=_area(extended, topology.faces), minlength=5)
+    # new boundary loops per part (the sheet keeps its own border besides)
+    rim_edges = edges[counts == 1]
+    loops = [_loops(rim_edges[part[rim_edges[:, 0]] == k]) for k in (0, 1, 2, 4)]
+    assert loops == [2, 2, 2, 2]
+    # areas against closed forms, on faceted surfaces: the ratio removed / total of the part
+    sections = {0: 48, 1: 32}
+    for k, R in ((0, 1.0), (1, 0.5)):
+        facet = np.sin(2 * np.pi / sections[k]) / (2 * np.pi / sections[k])  # polygon area / circle's
+        expected = _tube_hole_area(R, centre, a) * facet
+        np.testing.assert_allclose(before[k] - after[k], expected, rtol=0.02)
+    ball_radius = 0.35
+    caps = 2 * 2 * np.pi * ball_radius * (ball_radius - np.sqrt(ball_radius**2 - a**2))
+    np.testing.assert_allclose((before[2] - after[2]) / before[2], caps / (4 * np.pi * ball_radius**2), rtol=0.03)
+    limit = 5e-4 * diagonal
+    assert np.pi * (a - limit) ** 2 < before[4] - after[4] < np.pi * (a + limit) ** 2
+
+
+def _rim_bound(V, F) -> float:
+    """How far from the cylinder a rim may lie, relative to the diagonal: 1e-3 (issue 51), or where the sliver
+    rule keeps the splits from getting there (a mesh whose smallest face is large against the diagonal), 1.5 x
+    sqrt(1e-3 x its doubled area): the distance of a vertex that the rule snaps the rim to (a piece between it
+    and the cylinder would be smaller than the rule allows). 1e-3 on every real character here."""
+    corners = np.asarray(V)[np.asarray(F)]
+    doubled = np.linalg.norm(np.cross(corners[:, 1] - corners[:, 0], corners[:, 2] - corners[:, 0]), axis=1)
+    return max(1e-3, 1.5 * np.sqrt(1e-3 * doubled.min()) / _diagonal(V))
+
+
+def _octasphere(subdivisions: int):
+    """The octahedron, its faces split ``subdivisions`` times, vertices pushed onto the unit sphere."""
+    octahedron = trimesh.Trimesh(
+        np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], np.float64),
+        np.array([[0, 2, 4], [2, 1, 4], [1, 3, 4], [3, 0, 4], [2, 0, 5], [1, 2, 5], [3, 1, 5], [0, 3, 5]]),
+        process=False,
+    )
+    for _ in range(subdivisions):
+        octahedron = octahedron.subdivide()
+    V = np.asarray(octahedron.vertices)
+    return V / np.linalg.norm(V, axis=1, keepdims=True), np.asarray(octahedron.faces)
+
+
+@pytest.mark.parametrize(
+    "surface, radii",
+    [
+        ("octasphere 512 faces", (0.15, 0.4)),
+        ("uv sphere 576 faces", (0.05, 0.15, 0.4)),  # the coarseness of a 576-face low-poly animal
+        ("icosphere 5120 faces", (0.05, 0.15, 0.4)),
+    ],
+)
+def test_the_rim_keeps_on_the_cylinder_at_any_resolution(surface, radii):
+    """Drills through a unit sphere at three resolutions, from faces larger than the drill to small ones: two
+    holes, no input vertex inside, rim vertices and rim edge midpoints within ``_rim_bound`` of the cylinder
+    (the faces the rim crosses are split as often as that needs), no sliver."""
+    if surface.startswith("octasphere"):
+        V, F = _octasphere(3)
+    elif surface.startswith("uv"):
+        sphere = trimesh.creation.uv_sphere(radius=1.0, count=[13, 12])
+        V, F = np.asarray(sphere.vertices), np.asarray(sphere.faces)
+    else:
+        sphere = trimesh.creation.icosphere(4)
+        V, F = np.asarray(sphere.vertices), np.asarray(sphere.faces)
+    rng = np.random.default_rng(7)
+    for radius in radii:
+        for _ in range(2):
+            axis = rng.normal(size=3)
+            axis /= np.linalg.norm(axis)
+            offset = 0.2 * rng.normal(size=3)
+            offset -= (offset @ axis) * axis
+            drill = cutting.Drill(offset - 1.5 * axis, offset + 1.5 * axis, radius)
+            topology = cutting.drill_topology(V, F, drill)
+            inside, rim, middle = drill_outcome(V, F, drill, topology)
+            assert topology.holes == 2 and inside == 0
+            assert max(rim, middle) <= _rim_bound(V, F), (radius, rim, middle, topology.refinements)
+            np.testing.assert_allclose(topology.rim_distance / _diagonal(V), max(rim, middle), rtol=1e-9, atol=1e-15)
+            extended = np.concatenate([topology.vertices, topology.points])[topology.kept]
+            problems, _, _ = piece_quality(V, F, extended, topology.faces, topology.kept)
+            assert not problems
+
+
+def test_on_an_octahedron_the_sliver_rule_bounds_the_rim():
+    """On the octahedron itself (8 faces of doubled area sqrt(3)) a piece must keep 1e-3 sqrt(3): the faces along
+    the rim are split only that far, and the rim passes through vertices within about sqrt(1e-3 sqrt(3)) of the
+    cylinder (``_rim_bound``: 0.018 of the diagonal); ``rim_distance`` says how far it is, and no sliver is
+    made."""
+    V, F = _octasphere(0)
+    drill = cutting.Drill([0.1, -0.05, -1.5], [0.1, -0.05, 1.5], 0.3)
+    topology = cutting.drill_topology(V, F, drill)
+    inside, rim, middle = drill_outcome(V, F, drill, topology)
+    assert topology.holes == 2 and inside == 0 and topology.refinements > 0
+    np.testing.assert_allclose(topology.rim_distance / _diagonal(V), max(rim, middle), rtol=1e-9)
+    assert max(rim, middle) <= _rim_bound(V, F)
+    extended = np.concatenate([topology.vertices, topology.points])[topology.kept]
+    problems, _, _ = piece_quality(V, F, extended, topology.faces, topology.kept)
+    assert not problems
+
+
+@pytest.mark.parametrize("name", ["CesiumMan", "Arm5"])
+def test_drills_through_the_limbs_of_real_characters(name):
+    """Drills placed as a user places them (a random skin point, along the inward normal, through the limb,
+    radius 5-30% of the limb's thickness) on committed characters, welded: every one drills, leaves no input
+    vertex inside, keeps its rims within 1e-3 of the diagonal of the cylinder, makes no sliver and a consistent
+    mesh whose input vertices skin where they did."""
+    model = deform.load_model(DATA / f"{name}.glb", weld=True)
+    mesh = model.mesh
+    V, F = np.asarray(mesh.V, np.float64), np.asarray(mesh.F)
+    edges = cutting.mesh_edges(F)
+    rng = np.random.default_rng(51)
+    # a pose: the clip's (CesiumMan), or every bone turned a little about a random axis (Arm5 has no clip)
+    if model.clips:
+        pose = deform.sample_pose(model, 0.5, "lbs")
+    else:
+        turns = [trimesh.transformations.rotation_matrix(0.3, rng.normal(size=3)) for _ in model.skeleton.names]
+        pose = np.asarray(deform.local_matrices(model.skeleton)) @ np.stack(turns)
+    original = np.asarray(deform.skin_pose(model, pose, "lbs"))
+    for _ in range(8):
+        drill, _ = drill_through_limb(V, F, rng)
+        drilled, topology = cutting.drill(mesh, drill, edges=edges, return_topology=True)
+        inside, rim, middle = drill_outcome(V, F, drill, topology)
+        assert topology.holes >= 1 and inside == 0 and max(rim, middle) <= 1e-3
+        problems, _, _ = piece_quality(V, F, drilled.V, drilled.F, topology.kept)
+        assert not problems + consistency_problems(drilled, mesh, topology.kept)
+        posed = np.asarray(deform.skin_pose(deform.RiggedModel(drilled, model.skeleton), pose, "lbs"))
+        kept = topology.kept[topology.kept < len(V)]
+        np.testing.assert_allclose(posed[: len(kept)], original[kept], rtol=0, atol=1e-12 * _diagonal(V))
+
+
+def test_the_new_points_after_splits_aside_are_differentiable_in_the_drill():
+    """On a coarse sphere the faces along the rim are split (some edges aside of their midpoints): for that
+    fixed topology the new points are the drill's, and their gradient with respect to the drill (tip, base,
+    radius) matches central differences."""
+    sphere = trimesh.creation.uv_sphere(radius=1.0, count=[13, 12])
+    V, F = np.asarray(sphere.vertices), np.asarray(sphere.faces)
+    tip, base, radius = np.array([0.13, -0.07, -1.5]), np.array([0.1, 0.05, 1.5]), 0.15
+    topology = cutting.drill_topology(V, F, cutting.Drill(tip, base, radius))
+    assert topology.refinements > 0 and np.any(topology.split != 0.5)
+    np.testing.assert_allclose(
+        cutting.drill_positions(V, topology, cutting.Drill(tip, base, radius)), topology.points, atol=1e-12
+    )
+
+    def loss(params):
+        drill = cutting.Drill(params[:3], params[3:6], params[6])
+        return jnp.sum(jnp.sin(3.0 * cutting.drill_positions(V, topology, drill)))
+
+    check_gradient(loss, jnp.concatenate([jnp.asarray(tip), jnp.asarray(base), jnp.array([radius])]))

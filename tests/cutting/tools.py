@@ -367,6 +367,91 @@ def fuzz(mesh, tool: str, count: int, seed: int):
     return stats
 
 
+# --- Drills through layered characters (issue 51, item 2) ---------------------------------------------
+
+
+def drill_through_limb(V, F, rng, *, radius=(0.05, 0.3), tries: int = 100):
+    """A ``cutting.Drill`` placed as a user places one: at a random point of the outer skin (just outside it,
+    the generalized winding number of the whole mesh is below 1/2), along the inward normal, through the limb
+    (its tip just past the first point where the inward ray leaves every layer, winding number below 1/2
+    again), its radius a random fraction ``radius`` of the limb's thickness there. It crosses every layer
+    in between (clothing, the skin, inner meshes). Returns (drill, thickness)."""
+    import cutting
+    from cutting._geometry import segment_hits  # the ray's crossings, as the drill finds its seeds
+
+    V, F = np.asarray(V, np.float64), np.asarray(F)
+    scale = diagonal(V)
+    for _ in range(tries):
+        face, point, normal = random_surface_point(V, F, rng)
+        outer = point + 1e-4 * scale * normal
+        _, _, s = segment_hits(V, F, point - 1e-6 * scale * normal, point - scale * normal)
+        if not len(s):
+            continue
+        s = np.concatenate([s, [1.0]]) * scale
+        between = point - 0.5 * (np.concatenate([[0.0], s[:-1]]) + s)[:, None] * normal
+        winding = igl.fast_winding_number(V, F, np.vstack([outer, between]))
+        if winding[0] > 0.5:  # not on the outer skin
+            continue
+        out = np.flatnonzero(winding[2:] < 0.5)  # the first gap outside every layer after a crossing
+        if not len(out) or out[0] + 1 >= len(s):
+            continue
+        thickness = float(s[out[0]])
+        r = rng.uniform(*radius) * thickness
+        tip = point - (thickness + 0.5 * r) * normal
+        base = point + 0.5 * r * normal
+        return cutting.Drill(tip, base, r), thickness
+    raise ValueError("no skin point with a limb behind it found")
+
+
+def inside_drill(X, drill, margin: float):
+    """Which points X (n, 3) lie strictly inside the drilled volume: distance to the axis under
+    drill.radius - margin, height along the axis strictly between base and tip."""
+    tip, base, r = (np.asarray(x, np.float64) for x in (drill.tip, drill.base, drill.radius))
+    length = float(np.linalg.norm(tip - base))
+    axis = (tip - base) / length
+    relative = np.asarray(X, np.float64) - base
+    h = relative @ axis
+    rho = np.linalg.norm(relative - np.outer(h, axis), axis=1)
+    return (rho < r - margin) & (h > 0) & (h < length)
+
+
+def drill_outcome(V, F, drill, topology, tolerance: float = 1e-6):
+    """What a drill left, in the space it was drilled in (``topology.vertices``), relative to the bounding-box
+    diagonal of V: (input vertices left strictly inside the drilled volume (count; ``inside_drill`` with
+    margin tolerance x diagonal), the largest distance of a rim vertex from the cylinder, the largest distance
+    of a rim edge's midpoint). The rim: the boundary edges of the drilled mesh that do not lie along the
+    input's own boundary."""
+    V, F = np.asarray(V, np.float64), np.asarray(F)
+    tip, base, r = (np.asarray(x, np.float64) for x in (drill.tip, drill.base, drill.radius))
+    scale = diagonal(V)
+    axis = (tip - base) / np.linalg.norm(tip - base)
+
+    def radial(X):
+        relative = X - base
+        return np.linalg.norm(relative - np.outer(relative @ axis, axis), axis=1)
+
+    original = topology.kept[topology.kept < len(V)]
+    inside = int(inside_drill(topology.vertices[original], drill, tolerance * scale).sum())
+    X = np.concatenate([topology.vertices, topology.points])[topology.kept]
+    edges, counts = edge_counts(topology.faces)
+    rim = edges[counts == 1]
+    input_edges, input_counts = edge_counts(F)
+    border = input_edges[input_counts == 1]
+    if len(rim) and len(border):
+        # a boundary edge along an input boundary edge: its midpoint lies on that edge
+        a, b = V[border[:, 0]], V[border[:, 1]]
+        mid = 0.5 * (X[rim[:, 0]] + X[rim[:, 1]])
+        d = b - a
+        t = np.clip(np.einsum("mbj,bj->mb", mid[:, None] - a[None], d) / np.einsum("bj,bj->b", d, d), 0.0, 1.0)
+        gap = np.linalg.norm(mid[:, None] - (a[None] + t[..., None] * d[None]), axis=2).min(axis=1)
+        rim = rim[gap > 1e-9 * scale]
+    if not len(rim):
+        return inside, 0.0, 0.0
+    vertex = np.abs(radial(X[np.unique(rim)]) - r).max()
+    middle = np.abs(radial(0.5 * (X[rim[:, 0]] + X[rim[:, 1]])) - r).max()
+    return inside, float(vertex) / scale, float(middle) / scale
+
+
 # --- Tools placed on real characters (issue 51, item 5) ---------------------------------------------------------------
 # A user picks a point of the skin and places the tool there: a plane across the limb (its normal along the bone the
 # point is most weighted to), a blade through the skin that moves along it, a drill along the inward normal that goes
