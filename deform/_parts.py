@@ -76,6 +76,8 @@ def _components(n: int, edges: np.ndarray) -> tuple[int, np.ndarray]:
 
 def _shortest_per_anchor(follower, anchor, distance, labels):
     """The bridges (follower, anchor) with, of those from one part to one anchor, only the shortest."""
+    if len(follower) == 0:
+        return follower, anchor, distance
     order = np.lexsort((distance, anchor, labels[follower]))
     follower, anchor, distance = follower[order], anchor[order], distance[order]
     key = labels[follower].astype(np.int64) * len(labels) + anchor
@@ -91,14 +93,12 @@ def _seams(V, labels, length):
     d = np.linalg.norm(V[i] - V[j], axis=1)
     order = np.lexsort((d, i))
     i, j, d = i[order], j[order], d[order]
-    first = np.r_[True, i[1:] != i[:-1]] if len(i) else np.zeros(0, bool)
+    first = np.r_[True, i[1:] != i[:-1]][: len(i)]
     i, j, d = i[first], j[first], d[first]
     # a pair chosen from both ends is one bridge
-    mutual = np.zeros(len(i), bool)
-    if len(i):
-        nearest = np.full(len(V), -1)
-        nearest[i] = j
-        mutual = (nearest[j] == i) & (i > j)
+    nearest = np.full(len(V), -1)
+    nearest[i] = j
+    mutual = (nearest[j] == i) & (i > j)
     return _shortest_per_anchor(i[~mutual], j[~mutual], d[~mutual], labels)
 
 
