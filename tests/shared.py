@@ -83,6 +83,21 @@ def multipart_character() -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]
     return np.concatenate(V), np.concatenate(F).astype(np.int64), parts
 
 
+def write_multipart_character(path) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+    """``multipart_character`` without its isolated vertices (a mesh file keeps only the vertices of faces),
+    written to ``path`` (any trimesh format, e.g. .ply): (V, F, parts) as the command line reads them back."""
+    from jaxcga_cli.models import load_mesh
+
+    V, F, parts = multipart_character()
+    used = np.zeros(len(V), bool)
+    used[F] = True
+    renumber = np.cumsum(used) - 1
+    mesh = trimesh.Trimesh(V[used], renumber[F], process=False)
+    mesh.export(path)
+    V, F = load_mesh(path)
+    return V, F, {name: renumber[index[used[index]]] for name, index in parts.items() if name != "isolated"}
+
+
 def check_gradient(loss, params, rtol: float = 1e-5, step: float = 1e-6):
     """jax.grad of ``loss`` at ``params`` against central finite differences, component by component."""
     import jax
