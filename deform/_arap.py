@@ -34,6 +34,10 @@ exactly at rigid maps. Each iteration alternates
   over the one-ring, with u_i = sum_j w_ij v_ij, so one padded gather serves both. The handle
   constraints ``p'_b = bc`` are substituted (rows and columns of b removed, their columns moved to the
   right-hand side); ``-L_ff`` is positive definite and factored once (CHOLMOD) in ``arap_precompute``.
+  On a mesh of several connected parts the bridges of ``deform._parts`` join L as extra spokes (weight w_b in
+  both cells for spokes; for spokes and rims 3/2 w_b in both cells, so that the cells' quadratic term is still
+  3/2 of ``sum_ij w_ij |v'_ij|^2``: y_ij and z_ij get 3/2 w_b v_ij, and ``own_i``, the vector turned by M_i,
+  gets the extra 1/2 w_b v_ij over u_i).
   (Eq. 13's normal equations are not needed: after substitution the system is square.)
 
 libigl's conventions, matched here (checked against ``igl.arap_solve`` in the tests, both energies): an
