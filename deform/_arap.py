@@ -141,7 +141,9 @@ def arap_precompute(
         raise ValueError("b: repeated handle vertices")
     b = b.astype(np.int64)
     parts = mesh_parts(V, F, b, unhandled=unhandled, name="b")
-    L = sp.csr_matrix(igl.cotmatrix(V, F)) + parts.laplacian()
+    L = sp.csr_matrix(igl.cotmatrix(V, F))
+    if len(parts.bridges):
+        L = L + parts.laplacian()
     free = np.setdiff1d(np.arange(n), b)
     if len(free) == 0:
         raise ValueError("b: every vertex is a handle; nothing to solve")
