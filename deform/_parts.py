@@ -33,7 +33,7 @@ import numpy as np
 import scipy.sparse as sp
 from jaxtyping import ArrayLike, Bool, Float, Int
 from scipy.sparse.csgraph import connected_components
-from scipy.spatial import cKDTree
+from scipy.spatial import KDTree
 
 from _jaxcga_shared.checks import check_choice, check_index_range, check_triangle_mesh
 
@@ -65,7 +65,7 @@ class MeshParts(eqx.Module):
         """The bridges' Laplacian (n, n): ``w`` off the diagonal at each bridge, rows summing to zero."""
         n = len(self.labels)
         i, j = self.bridges[:, 0], self.bridges[:, 1]
-        W = sp.coo_matrix((np.concatenate([self.weights] * 2), (np.r_[i, j], np.r_[j, i])), shape=(n, n)).tocsr()
+        W = sp.csr_matrix((np.concatenate([self.weights] * 2), (np.r_[i, j], np.r_[j, i])), shape=(n, n))
         return (W - sp.diags(np.asarray(W.sum(axis=1)).ravel())).tocsr()
 
 
@@ -87,7 +87,7 @@ def _shortest_per_anchor(follower, anchor, distance, labels):
 
 def _seams(V, labels, length):
     """Every vertex within ``length`` of another part, bridged to its nearest vertex there: (i, j, distance)."""
-    pairs = cKDTree(V).query_pairs(length, output_type="ndarray")
+    pairs = KDTree(V).query_pairs(length, output_type="ndarray")
     pairs = pairs[labels[pairs[:, 0]] != labels[pairs[:, 1]]]
     i, j = np.r_[pairs[:, 0], pairs[:, 1]], np.r_[pairs[:, 1], pairs[:, 0]]
     d = np.linalg.norm(V[i] - V[j], axis=1)
@@ -161,8 +161,8 @@ def mesh_parts(
     waiting = np.flatnonzero(~reached)
     if len(waiting):
         targets = np.flatnonzero(reached)
-        distance[waiting], k = cKDTree(V[targets]).query(V[waiting])
-        nearest[waiting] = targets[k]
+        d, k = KDTree(V[targets]).query(V[waiting])
+        distance[waiting], nearest[waiting] = d, targets[np.asarray(k)]
     order = np.argsort(group_of_vertex, kind="stable")
     starts = np.searchsorted(group_of_vertex[order], np.arange(group_count))
     ends = np.r_[starts[1:], n]
@@ -181,7 +181,8 @@ def mesh_parts(
         gap = np.linalg.norm(np.maximum(0.0, np.maximum(lo - V[waiting], V[waiting] - hi)), axis=1)
         waiting = waiting[gap < distance[waiting]]
         if len(waiting):
-            d, k = cKDTree(V[members]).query(V[waiting])
+            d, k = KDTree(V[members]).query(V[waiting])
+            d, k = np.asarray(d), np.asarray(k)
             better = d < distance[waiting]
             distance[waiting[better]], nearest[waiting[better]] = d[better], members[k[better]]
     d = np.concatenate(distances)
