@@ -4,6 +4,7 @@ errors."""
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import jax.numpy as jnp
@@ -15,7 +16,7 @@ from scipy.spatial.transform import Rotation
 import deform
 from deform import arap_precompute, arap_solve
 from jaxcga_cli.main import main
-from tests.shared import write_multipart_character
+from tests.shared import CHARACTERS, write_multipart_character
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 
@@ -195,3 +196,13 @@ def test_a_character_of_many_parts_moves_as_one(character, tmp_path, capsys):
         main(["arap", str(path), "--unhandled", "error", "--out", str(out)])
     assert exit_info.value.code == 2
     assert "of the mesh's 6 connected part(s) hold no constrained vertex (part" in capsys.readouterr().err
+
+
+@pytest.mark.slow  # one ARAP compilation, ~15 s on 2 cores
+def test_a_corpus_character_of_many_parts(tmp_path, capsys):
+    """jaxcga arap on a real character of 15 connected parts (tests/data/characters): every position finite, the
+    parts and the followers counted."""
+    out = tmp_path / "worker.npy"
+    assert main(["arap", str(CHARACTERS["QuaterniusWorker"]), "--bend", "45", "--iters", "5", "--out", str(out)]) == 0
+    assert np.all(np.isfinite(np.load(out)))
+    assert re.search(r"parts 15, following_parts [1-9]", capsys.readouterr().out)

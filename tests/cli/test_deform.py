@@ -12,7 +12,7 @@ import trimesh
 from scipy.spatial.transform import Rotation
 
 from jaxcga_cli.main import main
-from tests.shared import write_multipart_character
+from tests.shared import CHARACTERS, write_multipart_character
 
 
 @pytest.fixture(scope="module")
@@ -240,3 +240,13 @@ def test_a_character_of_many_parts_moves_as_one(tmp_path, capsys, method):
         main(["deform", method, str(path), "--unhandled", "error", "--out", str(out)])
     assert exit_info.value.code == 2
     assert "of the mesh's 6 connected part(s) hold no constrained vertex (part" in capsys.readouterr().err
+
+
+def test_a_corpus_character_of_many_parts(tmp_path, capsys):
+    """jaxcga deform handles on a real character of 15 connected parts (tests/data/characters): every position
+    finite, the parts and the followers counted."""
+    out = tmp_path / "worker.npy"
+    path = CHARACTERS["QuaterniusWorker"]
+    assert main(["deform", "handles", str(path), "--bend", "45", "--out", str(out)]) == 0
+    assert np.all(np.isfinite(np.load(out)))
+    assert re.search(r"parts 15, following_parts [1-9]", capsys.readouterr().out)

@@ -30,7 +30,7 @@ from deform import (
     spline_precompute,
     tube_cage,
 )
-from tests.shared import multipart_character
+from tests.shared import load_character, multipart_character
 
 V, F, PARTS = multipart_character()
 HANDLES = [PARTS["feet"], PARTS["crown"]]
@@ -260,3 +260,27 @@ def test_unhandled_error_names_the_parts_and_bad_values_name_unhandled():
     body = PARTS["body"]
     single = mesh_parts(V[body], F[np.isin(F, body).all(1)], B, unhandled="error")
     assert single.count == 1 and len(single.bridges) == 0
+
+
+@pytest.mark.slow  # two ARAP compilations per character, ~30 s on 2 cores
+@pytest.mark.parametrize("name", ["QuaterniusWorker", "QuaterniusCyberpunkCharacter"])
+def test_corpus_characters_of_many_parts(name):
+    """Real characters (15 and 66 connected parts, most without a handle), the feet and the crown as handles:
+    one rigid motion of both moves every vertex by it in ARAP and in harmonic handles; a bend of the crown is
+    finite everywhere."""
+    mesh = load_character(name).mesh
+    V, F = np.asarray(mesh.V, np.float64), np.asarray(mesh.F, np.int64)
+    up = V[:, 1]
+    height = np.ptp(up)
+    handles = [np.flatnonzero(up < up.min() + 0.03 * height), np.flatnonzero(up > up.max() - 0.05 * height)]
+    b = np.concatenate(handles)
+    parts = mesh_parts(V, F, b)
+    assert parts.count > 10 and (~parts.handled).sum() > 5
+    diag = np.linalg.norm(np.ptp(V, axis=0))
+    data = arap_precompute(V, F, b)
+    np.testing.assert_allclose(np.asarray(arap_solve(data, jnp.asarray(_moved(V[b]))).U), _moved(V), atol=1e-9 * diag)
+    field = handles_precompute(V, F, handles)
+    np.testing.assert_allclose(np.asarray(motor_field_solve(field, _same_motor(2))), _moved(V), atol=1e-9 * diag)
+    bent = motor_about(jnp.asarray(V.mean(0)), cga.rotor(jnp.asarray([0.0, 0.0, 1.0]), 1.0), jnp.zeros(3))
+    bc = jnp.asarray(np.concatenate([V[handles[0]], _moved(V[handles[1]], bent)]))
+    assert np.all(np.isfinite(np.asarray(arap_solve(data, bc).U)))
