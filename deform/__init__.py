@@ -10,8 +10,9 @@ mesh-deformation paper: ``_harmonic`` (harmonic fields, sec. VIII) on ``_jaxcga_
 solves from JAX, on the host or the device); ``_motor_field`` (per-vertex ``exp(sum w log R)`` and the
 sec. III-A binding, shared by every motor deformation); ``_spline`` (spline-aligned deformation, eq. 1-2),
 ``_spline_fit`` (B-spline fitting of key motors, eq. 3-5), ``_fabrik`` (FABRIK inverse kinematics, Fig.
-5), ``_handles`` (harmonic motor handles, sec. IV), ``_ffd`` (classic and motor FFD, eq. 6-8), ``_cage``
-(harmonic-coordinate cages, sec. VI); ``_field_fitting`` (key motors from target positions); ``_arap``
+5), ``_handles`` (harmonic motor handles, sec. IV), ``_parts`` (a mesh's connected parts: how the parts
+without a handle follow the others, for every deformer with handles), ``_ffd`` (classic and motor FFD, eq. 6-8),
+``_cage`` (harmonic-coordinate cages, sec. VI); ``_field_fitting`` (key motors from target positions); ``_arap``
 (as-rigid-as-possible modeling with rotors, sec. VII); ``_batch`` (batches of different models packed to shared
 capacities, skinned under one jit and split over devices and processes); ``_batch_fitting`` (``fit_pose`` on every
 model of such a batch at once).
@@ -72,6 +73,7 @@ from deform._motor_field import (
     motor_field_solve,
     motor_logs,
 )
+from deform._parts import UNHANDLED, MeshParts, mesh_parts
 from deform._pose import (
     INTERPOLATIONS,
     METHODS,
@@ -126,6 +128,7 @@ __all__ = [
     "METHODS",
     "PARAMETERS_PER_BONE",
     "SOLVERS",
+    "UNHANDLED",
     "ARAPData",
     "ARAPResult",
     "AnimationClip",
@@ -134,6 +137,7 @@ __all__ = [
     "HarmonicData",
     "Keyframes",
     "Lattice",
+    "MeshParts",
     "MotorField",
     "MotorFit",
     "PackedModels",
@@ -187,6 +191,7 @@ __all__ = [
     "motor_about",
     "motor_field_precompute",
     "motor_field_solve",
+    "mesh_parts",
     "motor_logs",
     "pack_models",
     "pose_from_parameters",

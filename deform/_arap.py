@@ -34,6 +34,10 @@ exactly at rigid maps. Each iteration alternates
   over the one-ring, with u_i = sum_j w_ij v_ij, so one padded gather serves both. The handle
   constraints ``p'_b = bc`` are substituted (rows and columns of b removed, their columns moved to the
   right-hand side); ``-L_ff`` is positive definite and factored once (CHOLMOD) in ``arap_precompute``.
+  On a mesh of several connected parts the bridges of ``deform._parts`` join L as extra spokes (weight w_b in
+  both cells for spokes; for spokes and rims 3/2 w_b in both cells, so that the cells' quadratic term is still
+  3/2 of ``sum_ij w_ij |v'_ij|^2``: y_ij and z_ij get 3/2 w_b v_ij, and ``own_i``, the vector turned by M_i,
+  gets the extra 1/2 w_b v_ij over u_i).
   (Eq. 13's normal equations are not needed: after substitution the system is square.)
 
 libigl's conventions, matched here (checked against ``igl.arap_solve`` in the tests, both energies): an
@@ -66,6 +70,7 @@ from _jaxcga_shared.checks import check_choice, check_index_range, check_triangl
 from _jaxcga_shared.ell import padded_rows
 from _jaxcga_shared.platform import EXACT, example, per_platform
 from _jaxcga_shared.sparse import SparseSolver
+from deform._parts import UNHANDLED, mesh_parts
 from jaxcga import KINDS, Multivector, align_points, apply_to_points
 
 ENERGIES = ("spokes_and_rims", "spokes")
@@ -80,9 +85,10 @@ class ARAPData(eqx.Module):
     free: Int[Array, " nf"]  # the other vertices, in order
     ring: Int[Array, "n d"]  # one-ring neighbours, padded with the vertex itself (weight 0)
     w: Float[Array, "n d"]  # cotangent weights w_ij
-    wv_sum: Float[Array, "n 3"]  # sum_j w_ij v_ij, v_ij = p_i - p_j
+    own: Float[Array, "n 3"]  # turned by the cell's own rotor in the global step: sum_j w_ij v_ij, v_ij = p_i - p_j
+    # (plus the bridges' extra 1/2 w_b v_ij in the spokes-and-rims energy)
     y: Float[Array, "n d 3"]  # the local step's vectors y_ij: S_i = sum_j y_ij v'_ij^T
-    z: Float[Array, "n d 3"]  # the global step's vectors z_ij: rhs_i = s (M_i wv_sum_i + sum_j M_j z_ij)
+    z: Float[Array, "n d 3"]  # the global step's vectors z_ij: rhs_i = s (M_i own_i + sum_j M_j z_ij)
     degree: Float[Array, " n"]  # sum_j w_ij, the diagonal of -L
     rest_energy: Float[Array, ""]  # sum over every cell's edges of c |v|^2
     solver: SparseSolver = eqx.field(static=True)  # -L_ff, factored
@@ -90,24 +96,41 @@ class ARAPData(eqx.Module):
     energy: str = eqx.field(static=True)
     rhs_scale: float = eqx.field(static=True)  # s: 1/2 (spokes) or 1/3 (spokes and rims)
     quadratic_scale: float = eqx.field(static=True)  # sum over cells of c |v'|^2 = this x sum_ij w_ij |v'_ij|^2
+    parts: int = eqx.field(static=True)  # connected parts of the mesh (deform.mesh_parts)
+    handled_parts: int = eqx.field(static=True)  # those holding a handle; the others follow them
 
 
 def arap_precompute(
-    V: Float[ArrayLike, "n 3"], F: Int[ArrayLike, "m 3"], b: Int[ArrayLike, " nb"], *, energy: str = "spokes_and_rims"
+    V: Float[ArrayLike, "n 3"],
+    F: Int[ArrayLike, "m 3"],
+    b: Int[ArrayLike, " nb"],
+    *,
+    energy: str = "spokes_and_rims",
+    unhandled: str = "follow",
 ) -> ARAPData:
     """Precompute ARAP (cotangent weights) for a mesh with handle vertices ``b``.
+
+    A connected part of the mesh without a handle (eyes, teeth, clothing, an inner mesh) follows the part it is
+    attached or nearest to (``deform.mesh_parts``): its vertices facing that part are tied to their nearest
+    vertices there by bridges, spokes of the energy like the mesh's edges (weight ``min(1, (l / length)^2)``,
+    l the mean edge length; in the spokes-and-rims energy each bridge is a spoke of both its vertices' cells
+    with 3/2 of that weight, so that its share of the quadratic term matches the Laplacian's). A rigid motion of
+    every handle still gives that rigid map on every part, and the system is never singular.
 
     Args:
         V: (n, 3) rest positions.
         F: (m, 3) int triangles.
         b: (nb,) distinct int handle vertex indices, nb >= 1 (with no handle the energy has no unique
-            minimizer). Every connected component needs a handle, or the system is singular.
+            minimizer).
         energy: ``"spokes_and_rims"`` (default; libigl's default for triangle meshes in 3D: never negative,
             so moving every handle by one rigid motion gives that rigid map) or ``"spokes"`` (the paper's
             eq. 9; with obtuse triangles it can go negative and drift away from rigid maps, as on Arm5).
+        unhandled: ``"follow"`` (default: parts without a handle follow, as above) or ``"error"`` (a
+            ValueError naming those parts).
     Returns:
         ``ARAPData``, the argument of ``arap_solve``."""
     check_choice("energy", energy, ENERGIES)
+    check_choice("unhandled", unhandled, UNHANDLED)
     V, F = check_triangle_mesh(V, F)
     n = len(V)
     b = np.asarray(b)
@@ -117,16 +140,17 @@ def arap_precompute(
     if len(np.unique(b)) != len(b):
         raise ValueError("b: repeated handle vertices")
     b = b.astype(np.int64)
+    parts = mesh_parts(V, F, b, unhandled=unhandled, name="b")
     L = sp.csr_matrix(igl.cotmatrix(V, F))
+    if len(parts.bridges):
+        L = L + parts.laplacian()
     free = np.setdiff1d(np.arange(n), b)
     if len(free) == 0:
         raise ValueError("b: every vertex is a handle; nothing to solve")
     try:
         solver = SparseSolver(-L[free][:, free], symmetric=True)
     except ValueError as error:
-        raise ValueError(
-            f"F, b: the constrained Laplacian is singular (a component without a handle?): {error}"
-        ) from None
+        raise ValueError(f"F, b: the constrained Laplacian is singular: {error}") from None
     # corner k of every face: its vertex i, the other two (j1, j2) and the weights of the edges i-j1
     # (opposite j2) and i-j2 (opposite j1); the rim j1-j2 is opposite i
     C = np.asarray(igl.cotmatrix_entries(V, F))  # (m, 3): column k is the edge opposite corner k
@@ -139,14 +163,21 @@ def arap_precompute(
     # local step: a rim is a difference of spokes, p'_j1 - p'_j2 = v'_ij2 - v'_ij1, so the cell's covariance
     # stays a sum over its spokes: the rim's c (p_j1 - p_j2) joins y_ij2 and leaves y_ij1
     rim = c_rim[:, None] * (V[j1] - V[j2])
+    # the bridges, both ways: spokes of weight w_b (spokes), of 3/2 w_b in both cells (spokes and rims)
+    bi, bj = parts.bridges[:, 0], parts.bridges[:, 1]
+    bridge_share = 0.0 if energy == "spokes" else 0.5
+    bv = parts.weights[:, None] * (V[bi] - V[bj])
+    # the bridges' extra share of the own rotor's term, sum_j 1/2 w_b v_ij at both ends (spokes and rims)
+    bridge_sum = np.stack([np.bincount(bi, bv[:, k], n) - np.bincount(bj, bv[:, k], n) for k in range(3)], 1)
     # one-rings from the faces' edges (not from L's nonzeros: an edge of weight 0 still has rims)
-    keys, inverse = np.unique(np.concatenate([i * n + j1, i * n + j2]), return_inverse=True)
+    keys, inverse = np.unique(np.concatenate([i * n + j1, i * n + j2, bi * n + bj, bj * n + bi]), return_inverse=True)
 
     def per_edge(values):
         return np.stack([np.bincount(inverse, values[:, k], len(keys)) for k in range(values.shape[1])], 1)
 
-    w_edge = np.bincount(inverse, np.concatenate([c1, c2]), len(keys))
-    z_edge, rim_edge = per_edge(np.concatenate([u, u])), per_edge(np.concatenate([-rim, rim]))
+    w_edge = np.bincount(inverse, np.concatenate([c1, c2, parts.weights, parts.weights]), len(keys))
+    z_edge = per_edge(np.concatenate([u, u, 1.5 * bv, -1.5 * bv]))
+    rim_edge = per_edge(np.concatenate([-rim, rim, bridge_share * bv, -bridge_share * bv]))
     ring, (w, z, rim) = padded_rows(keys // n, keys % n, [w_edge, z_edge, rim_edge], n)
     wv = w[..., None] * (V[:, None, :] - V[ring])
     if energy == "spokes":
@@ -160,7 +191,7 @@ def arap_precompute(
         free=jnp.asarray(free),
         ring=jnp.asarray(ring),
         w=jnp.asarray(w),
-        wv_sum=jnp.asarray(wv.sum(1)),
+        own=jnp.asarray(wv.sum(1) + bridge_share * bridge_sum),
         y=jnp.asarray(y),
         z=jnp.asarray(z),
         degree=jnp.asarray(w.sum(1)),
@@ -170,6 +201,8 @@ def arap_precompute(
         energy=energy,
         rhs_scale=rhs_scale,
         quadratic_scale=quadratic_scale,
+        parts=parts.count,
+        handled_parts=int(parts.handled.sum()),
     )
 
 
@@ -270,7 +303,7 @@ def _local(data: ARAPData, x):
 def _global(data: ARAPData, rotors: Multivector, bc, previous):
     """Global step (eq. 12) with the handles substituted; ``previous`` positions are the device solve's first
     guess (an iterative solve from them stops sooner as the iterations converge)."""
-    own = apply_to_points(rotors, data.wv_sum, fused=True)
+    own = apply_to_points(rotors, data.own, fused=True)
     neighbours = Multivector(rotors.values[data.ring], rotors.blades)
     rhs = data.rhs_scale * (own + jnp.sum(apply_to_points(neighbours, data.z, fused=True), axis=1))
     y = jnp.zeros((data.n, 3), bc.dtype).at[data.b].set(bc)

@@ -25,6 +25,7 @@ def handles_precompute(
     handles: Sequence[Int[ArrayLike, "*k"]],
     *,
     laplacian: str = "cotangent",
+    unhandled: str = "follow",
 ) -> MotorField:
     """Bind a mesh to motor handles through one harmonic field per handle (sec. IV).
 
@@ -34,8 +35,11 @@ def handles_precompute(
         handles: h >= 1 disjoint, non-empty vertex index arrays; include the fixed region as a handle
             (its motor the identity), or every vertex follows the moving handles.
         laplacian: ``"cotangent"`` or ``"mean_value"`` (the paper's choice).
+        unhandled: ``"follow"`` (default) or ``"error"``: what a connected part of the mesh without a handle
+            does; following, it takes the fields of the part it is attached or nearest to (``deform.mesh_parts``),
+            so a rigid motion of every handle moves it by that motion.
     Returns:
         A ``MotorField``: ``motor_field_solve`` on it and h handle motors (batch shape (..., h); identity
         motors give the rest mesh) gives the deformed positions (..., n, 3)."""
-    fields = harmonic_fields(V, F, handles, laplacian=laplacian)
+    fields = harmonic_fields(V, F, handles, laplacian=laplacian, unhandled=unhandled)
     return motor_field_precompute(V, fields)

@@ -29,10 +29,10 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.sparse as sp
 from jaxtyping import Array, ArrayLike, Float, Int
-from scipy.sparse.csgraph import connected_components
 
 from _jaxcga_shared.checks import check_choice, check_index_range, check_triangle_mesh
 from _jaxcga_shared.sparse import SparseSolver
+from deform._parts import UNHANDLED, mesh_parts
 
 LAPLACIANS = ("cotangent", "mean_value")
 
@@ -157,20 +157,29 @@ def harmonic_precompute(
     constrained: Int[ArrayLike, " c"],
     *,
     laplacian: str = "cotangent",
+    unhandled: str = "follow",
 ) -> HarmonicData:
     """Factor the Dirichlet problem of the Laplacian ``laplacian`` with the vertices ``constrained`` fixed.
+
+    A connected part of the mesh with no constrained vertex follows the part it is attached or nearest to
+    (``deform.mesh_parts``): bridges, extra edges of the Laplacian from its vertices facing that part to their
+    nearest vertices there, carry the field over, so that the system is never singular and the fields stay a
+    partition of unity.
 
     Args:
         V: (n, 3) vertex positions.
         F: (m, 3) int faces.
         constrained: (c,) int distinct vertex indices with prescribed values.
         laplacian: ``"cotangent"`` or ``"mean_value"`` (``LAPLACIANS``).
+        unhandled: ``"follow"`` (default: parts without a constrained vertex follow, as above) or ``"error"``
+            (a ValueError naming those parts).
     Returns:
         ``HarmonicData``, the argument of ``harmonic_solve``.
     Raises:
-        ValueError: bad mesh, indices out of range or repeated, no constrained or no free vertex, or
-            a free part with no path to a constrained vertex (the system is singular)."""
+        ValueError: bad mesh, indices out of range or repeated, no constrained or no free vertex, or (with
+            ``unhandled="error"``) a part with no constrained vertex."""
     check_choice("laplacian", laplacian, LAPLACIANS)
+    check_choice("unhandled", unhandled, UNHANDLED)
     V, F = check_triangle_mesh(V, F)
     constrained = np.asarray(constrained)
     if constrained.ndim != 1 or not np.issubdtype(constrained.dtype, np.integer) or len(constrained) == 0:
@@ -180,17 +189,10 @@ def harmonic_precompute(
         raise ValueError("constrained: a vertex is listed twice")
     if len(constrained) == len(V):
         raise ValueError("constrained: every vertex is constrained; nothing to solve")
+    parts = mesh_parts(V, F, constrained, unhandled=unhandled)
     L = _laplacian(V, F, laplacian)
-    # every connected part of the mesh needs a constrained vertex, or L_ff is singular there
-    parts, labels = connected_components(L, directed=False)
-    reached = np.zeros(parts, bool)
-    reached[labels[constrained]] = True
-    unreached = np.flatnonzero(~reached)
-    if len(unreached):
-        raise ValueError(
-            f"constrained: {len(unreached)} connected part(s) of the mesh hold no constrained vertex "
-            f"(e.g. vertex {int(np.flatnonzero(labels == unreached[0])[0])}); their fields are undefined"
-        )
+    if len(parts.bridges):
+        L = L + parts.laplacian()
     n = len(V)
     is_free = np.ones(n, bool)
     is_free[constrained] = False
@@ -215,6 +217,7 @@ def harmonic_fields(
     handles: Sequence[Int[ArrayLike, "*k"]],
     *,
     laplacian: str = "cotangent",
+    unhandled: str = "follow",
 ) -> Float[Array, "n h"]:
     """One harmonic field per handle (sec. VIII): 1 on the handle's vertices, 0 on the other handles',
     harmonic elsewhere; the fields sum to one at every vertex.
@@ -224,6 +227,8 @@ def harmonic_fields(
         F: (m, 3) int faces.
         handles: h >= 1 disjoint, non-empty index arrays (the fixed region counts as a handle).
         laplacian: ``"cotangent"`` or ``"mean_value"``.
+        unhandled: ``"follow"`` (default: a connected part without a handle takes the fields of the part it is
+            attached or nearest to, ``harmonic_precompute``) or ``"error"``.
     Returns:
         (n, h) fields, a JAX array."""
     if isinstance(handles, np.ndarray) or len(handles) == 0:
@@ -236,5 +241,5 @@ def harmonic_fields(
         raise ValueError("handles: the handles must be disjoint (a vertex is in two handles or twice in one)")
     bc = np.zeros((len(constrained), len(parts)))
     bc[np.arange(len(constrained)), np.repeat(np.arange(len(parts)), [len(p) for p in parts])] = 1.0
-    data = harmonic_precompute(V, F, constrained, laplacian=laplacian)
+    data = harmonic_precompute(V, F, constrained, laplacian=laplacian, unhandled=unhandled)
     return jnp.asarray(_host_solve(data, bc))  # constant bc: no autodiff needed

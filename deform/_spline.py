@@ -133,6 +133,7 @@ def spline_parameter(
     end: Int[ArrayLike, " e"],
     *,
     laplacian: str = "cotangent",
+    unhandled: str = "follow",
 ) -> Float[Array, " n"]:
     """The harmonic field ``lambda`` (sec. III-A, VIII): 0 on the ``start`` vertices (H_1), 1 on the
     ``end`` vertices (H_n), harmonic elsewhere, clipped to [0, 1] (the cotangent Laplacian has no
@@ -144,13 +145,15 @@ def spline_parameter(
         start: (s,) int vertex indices of the first handle (lambda = 0).
         end: (e,) int vertex indices of the second handle (lambda = 1), disjoint from ``start``, both non-empty.
         laplacian: ``"cotangent"`` or ``"mean_value"``.
+        unhandled: ``"follow"`` (default: a connected part of the mesh with neither handle takes the parameter
+            of the part it is attached or nearest to, ``deform.mesh_parts``) or ``"error"``.
     """
     start, end = np.asarray(start).reshape(-1), np.asarray(end).reshape(-1)
     if len(start) == 0 or len(end) == 0:
         raise ValueError("start, end: both handles need at least one vertex")
     if np.intersect1d(start, end).size:
         raise ValueError("start, end: the handles must be disjoint")
-    data = harmonic_precompute(V, F, np.concatenate([start, end]), laplacian=laplacian)
+    data = harmonic_precompute(V, F, np.concatenate([start, end]), laplacian=laplacian, unhandled=unhandled)
     bc = np.concatenate([np.zeros(len(start)), np.ones(len(end))])
     return jnp.clip(harmonic_solve(data, jnp.asarray(bc)), 0.0, 1.0)
 
@@ -166,6 +169,7 @@ def spline_precompute(
     num_keys: int | None = None,
     degree: int = 3,
     laplacian: str = "cotangent",
+    unhandled: str = "follow",
 ) -> MotorField:
     """Bind a mesh to k key motors along a spline path (eq. 1-2, sec. III-A).
 
@@ -178,9 +182,10 @@ def spline_precompute(
             shape (k,) that give back the rest mesh.
         basis, num_keys, degree: the spline basis, see ``spline_weights``.
         laplacian: ``"cotangent"`` or ``"mean_value"`` for the harmonic field.
+        unhandled: ``"follow"`` (default) or ``"error"``, see ``spline_parameter``.
     Returns:
         A ``MotorField``: ``motor_field_solve`` on it and key motors with batch shape (..., k) gives the
         deformed positions (..., n, 3).
     """
-    lam = spline_parameter(V, F, start, end, laplacian=laplacian)
+    lam = spline_parameter(V, F, start, end, laplacian=laplacian, unhandled=unhandled)
     return motor_field_precompute(V, spline_weights(lam, basis, num_keys, degree), rest_motors=rest_motors)

@@ -48,6 +48,7 @@ def add_arguments(parser) -> None:
         "rigid maps)",
     )
     arguments.motion_arguments(parser, "default handles", "default handles")
+    arguments.unhandled_argument(parser, "parts without a handle")
     parser.add_argument(
         "--out",
         type=Path,
@@ -78,6 +79,7 @@ def run(args) -> dict:
         translate=args.translate,
         handle_fraction=args.handle_fraction,
         energy=args.energy,
+        unhandled=args.unhandled,
     )
     return args.mesh or "built-in arm", summary
 
@@ -127,10 +129,11 @@ def arap_command(
     translate=(0.0, 0.0, 0.0),
     handle_fraction: float = 0.05,
     energy: str = "spokes_and_rims",
+    unhandled: str = "follow",
 ) -> dict:
     """Deform (V, F) as rigidly as possible with the handles of ``handles`` (or the default two ends),
-    write ``out`` (.npy float64 (n, 3), a mesh, or a .png figure); returns a summary. ``energy``:
-    ``arap_precompute``'s ("spokes_and_rims" or "spokes")."""
+    write ``out`` (.npy float64 (n, 3), a mesh, or a .png figure); returns a summary. ``energy`` and
+    ``unhandled``: ``arap_precompute``'s ("spokes_and_rims" or "spokes"; "follow" or "error")."""
     import time
 
     import jax
@@ -149,7 +152,7 @@ def arap_command(
         b, bc = handle_targets(handles, V)
     start = time.perf_counter()
     with status("arap", f"precomputing {len(V)} vertices, {len(b)} handles (factoring the system)"):
-        data = deform.arap_precompute(V, F, b, energy=energy)
+        data = deform.arap_precompute(V, F, b, energy=energy, unhandled=unhandled)
     precompute_ms = 1e3 * (time.perf_counter() - start)
     start = time.perf_counter()
     with status("arap", f"solving (compiling, then at most {iterations} local/global iterations)"):
@@ -158,11 +161,15 @@ def arap_command(
         )
     solve_ms = 1e3 * (time.perf_counter() - start)
     U = np.asarray(result.U, np.float64)
+    if not np.all(np.isfinite(U)):
+        raise ValueError("the ARAP solve produced non-finite positions")
     write_result(out, U, F, V, f"ARAP, {int(result.iterations)} iterations")
     energies = np.asarray(result.energies)[: int(result.iterations) + 1]
     return {
         "vertices": len(V),
         "handles": len(b),
+        "parts": data.parts,
+        "following_parts": data.parts - data.handled_parts,
         "energy_type": energy,
         "iterations": int(result.iterations),
         "energy": f"{energies[0]:.4g} -> {energies[-1]:.4g}",

@@ -26,6 +26,17 @@ def weld_argument(parser) -> None:
     parser.add_argument("--weld", action="store_true", help="weld split vertices of the loaded model")
 
 
+def unhandled_argument(parser, scope: str) -> None:
+    """--unhandled: what a connected part of the mesh without a handle does (``deform.mesh_parts``)."""
+    parser.add_argument(
+        "--unhandled",
+        choices=UNHANDLED,
+        default="follow",
+        help=f"{scope}: a connected part of the mesh that holds no handle (eyes, teeth, clothing, an inner mesh) "
+        "follows the part it touches or is nearest to (follow, default), or is refused (error)",
+    )
+
+
 def mesh_argument(parser, default: str) -> None:
     parser.add_argument(
         "mesh",
@@ -84,6 +95,7 @@ def clip_argument(parser) -> None:
 BASES = ("linear", "lagrange", "bezier", "bspline")  # deform.BASES
 LAPLACIANS = ("cotangent", "mean_value")  # deform.LAPLACIANS
 ARAP_ENERGIES = ("spokes_and_rims", "spokes")  # deform.ARAP_ENERGIES
+UNHANDLED = ("follow", "error")  # deform.UNHANDLED
 PREDICATES = ("euclidean", "ga")  # cutting.PREDICATES
 XFEM_SCENES = ("sticks", "thin", "cheese", "accordion", "mouth")  # xfem.SCENES
 XFEM_SIZES = ("paper", "small")  # xfem.SIZES

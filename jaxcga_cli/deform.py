@@ -60,6 +60,7 @@ def add_arguments(parser) -> None:
     )
     arguments.motion_arguments(parser, "the built-in motion", "spline, handles")
     parser.add_argument("--handles", type=Path, default=None, help=f"handles: {HANDLES_HELP}, instead of the two ends")
+    arguments.unhandled_argument(parser, "spline, handles: parts without a handle")
     parser.add_argument(
         "--lattice",
         type=int,
@@ -114,6 +115,7 @@ def run(args) -> dict:
         lattice=args.lattice,
         cage=args.cage,
         positional=args.positional,
+        unhandled=args.unhandled,
     )
 
 
@@ -134,9 +136,12 @@ def deform_command(
     lattice=(4, 4, 4),
     cage: Path | None = None,
     positional: bool = False,
+    unhandled: str = "follow",
 ) -> dict:
     """Bind (V, F) by ``method`` (one of ``DEFORMATIONS``), move the keys, write ``out``; returns a
-    summary (vertices, keys, precompute and per-frame milliseconds, volume and edge-length change)."""
+    summary (vertices, keys, precompute and per-frame milliseconds, volume and edge-length change; for spline
+    and handles the mesh's connected parts and how many follow others, ``unhandled`` being
+    ``deform.mesh_parts``'s "follow" or "error")."""
     import time
 
     import jax
@@ -151,6 +156,8 @@ def deform_command(
 
     if method not in DEFORMATIONS:
         raise ValueError(f"method: expected one of {DEFORMATIONS}, got {method!r}")
+    if unhandled not in deform.UNHANDLED:
+        raise ValueError(f"unhandled: expected one of {deform.UNHANDLED}, got {unhandled!r}")
     if positional and method not in ("ffd", "cage"):
         raise ValueError("positional: only the ffd and cage deformations have a positional form")
     if keys is not None and keys > len(V):
@@ -167,10 +174,12 @@ def deform_command(
         if method == "spline":
             if keys is None and basis == "bspline":
                 keys = 5
-            field = deform.spline_precompute(V, F, *parts, basis=basis, num_keys=keys, laplacian=laplacian)
+            field = deform.spline_precompute(
+                V, F, *parts, basis=basis, num_keys=keys, laplacian=laplacian, unhandled=unhandled
+            )
             key_motors = motion.motors(np.linspace(0.0, 1.0, field.num_keys))
         elif method == "handles":
-            field = deform.handles_precompute(V, F, parts, laplacian=laplacian)
+            field = deform.handles_precompute(V, F, parts, laplacian=laplacian, unhandled=unhandled)
         elif method == "ffd":
             grid = deform.bounding_lattice(V, tuple(lattice), padding=0.02)
             field = deform.ffd_precompute(V, grid)
@@ -203,7 +212,7 @@ def deform_command(
         raise ValueError("the deformation produced non-finite positions")
     write_result(out, positions, F, V, f"{method}{' (positional)' if positional else ''}")
     measured = deform.distortion(V, F, positions)
-    return {
+    summary = {
         "method": method + (" (positional)" if positional else ""),
         "vertices": len(V),
         "keys": field.num_keys,
@@ -213,3 +222,8 @@ def deform_command(
         "mean_edge_change": round(float(measured["edge_mean"]), 4),
         "out": str(out),
     }
+    if method in ("spline", "handles"):
+        mesh_parts = deform.mesh_parts(V, F, np.concatenate(parts))
+        summary["parts"] = mesh_parts.count
+        summary["following_parts"] = int(mesh_parts.count - mesh_parts.handled.sum())
+    return summary

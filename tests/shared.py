@@ -1,7 +1,8 @@
-"""Helpers shared by the test packages: a flat grid mesh, a closed tube mesh, the corpus of public rigged characters,
-a finite-difference gradient check, the comparison of two runs of one computation (bitwise on the CPU), a script run
-on forced host devices, the skips of tests that need the host or the CPU formulations and the GPU formulations taken
-on the CPU (conftest.py), and the operations of a program lowered for another platform."""
+"""Helpers shared by the test packages: a flat grid mesh, a closed tube mesh, a character of many connected parts, the
+corpus of public rigged characters, a finite-difference gradient check, the comparison of two runs of one computation
+(bitwise on the CPU), a script run on forced host devices, the skips of tests that need the host or the CPU
+formulations and the GPU formulations taken on the CPU (conftest.py), and the operations of a program lowered for
+another platform."""
 
 from __future__ import annotations
 
@@ -33,6 +34,67 @@ def tube(max_edge: float = 0.1):
     mesh.merge_vertices()
     V, F = np.asarray(mesh.vertices), np.asarray(mesh.faces)
     return V, F, np.flatnonzero(V[:, 2] < -1 + 1e-9), np.flatnonzero(V[:, 2] > 1 - 1e-9)
+
+
+@functools.cache
+def multipart_character() -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+    """(V, F, parts): CesiumMan's welded bind-pose mesh (one part, standing along +y, facing +z) with the parts a
+    real character brings, and ``parts`` naming their vertex indices: ``body`` (CesiumMan), ``eyes`` (two
+    spheres sunk into the face: attached), ``inner`` (a closed tube inside the torso: detached), ``nested`` (a
+    sphere inside ``inner``: nearest only to it, a chain), ``isolated`` (two vertices on no face beside the right
+    hand, the second nearest only to the first) and ``tiny`` (a triangle of edge 1e-4 above the head); ``feet``
+    (y < 0.05) and ``crown`` (y > 1.45) are handle candidates on the body. Cached: do not modify the arrays."""
+    import deform
+
+    mesh = deform.load_model(DATA / "CesiumMan.glb", weld=True).mesh
+    body_V, body_F = np.asarray(mesh.V, np.float64), np.asarray(mesh.F, np.int64)
+    pieces, names = [(body_V, body_F)], ["body"]
+    y = body_V[:, 1]
+    head = body_V[(y > 1.35) & (np.abs(body_V[:, 0]) < 0.1)]
+    face = head[np.argmax(head[:, 2])]  # the front of the head
+    eye = trimesh.creation.icosphere(subdivisions=2, radius=0.015)
+    pieces.append(
+        trimesh.util.concatenate([eye.copy().apply_translation(face + [dx, 0.0, -0.01]) for dx in (-0.03, 0.03)])
+    )
+    names.append("eyes")
+    torso = body_V[(y > 0.95) & (y < 1.1)]
+    centre = 0.5 * (torso.min(0) + torso.max(0))
+    inner = trimesh.creation.cylinder(radius=0.03, height=0.15, sections=12).apply_transform(
+        trimesh.transformations.rotation_matrix(np.pi / 2, [1.0, 0.0, 0.0])
+    )
+    pieces += [inner.apply_translation(centre), trimesh.creation.icosphere(1, radius=0.01).apply_translation(centre)]
+    names += ["inner", "nested"]
+    hand = body_V[np.argmax(body_V[:, 0])]
+    pieces.append((np.stack([hand + [0.05, 0.0, 0.0], hand + [0.08, 0.0, 0.0]]), np.zeros((0, 3), np.int64)))
+    names.append("isolated")
+    top = body_V[np.argmax(y)]
+    pieces.append((top + [[0.0, 0.05, 0.0], [1e-4, 0.05, 0.0], [0.0, 0.05 + 1e-4, 0.0]], np.array([[0, 1, 2]])))
+    names.append("tiny")
+    V, F, parts, offset = [], [], {}, 0
+    for name, piece in zip(names, pieces):
+        pV, pF = (np.asarray(piece.vertices), np.asarray(piece.faces)) if isinstance(piece, trimesh.Trimesh) else piece
+        V.append(pV)
+        F.append(pF + offset)
+        parts[name] = np.arange(offset, offset + len(pV))
+        offset += len(pV)
+    parts["feet"] = np.flatnonzero(y < 0.05)
+    parts["crown"] = np.flatnonzero(y > 1.45)
+    return np.concatenate(V), np.concatenate(F).astype(np.int64), parts
+
+
+def write_multipart_character(path) -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]]:
+    """``multipart_character`` without its isolated vertices (a mesh file keeps only the vertices of faces),
+    written to ``path`` (any trimesh format, e.g. .ply): (V, F, parts) as the command line reads them back."""
+    from jaxcga_cli.models import load_mesh
+
+    V, F, parts = multipart_character()
+    used = np.zeros(len(V), bool)
+    used[F] = True
+    renumber = np.cumsum(used) - 1
+    mesh = trimesh.Trimesh(V[used], renumber[F], process=False)
+    mesh.export(path)
+    V, F = load_mesh(path)
+    return V, F, {name: renumber[index[used[index]]] for name, index in parts.items() if name != "isolated"}
 
 
 DATA = Path(__file__).resolve().parent / "data"

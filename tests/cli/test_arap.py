@@ -4,6 +4,7 @@ errors."""
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import jax.numpy as jnp
@@ -15,6 +16,7 @@ from scipy.spatial.transform import Rotation
 import deform
 from deform import arap_precompute, arap_solve
 from jaxcga_cli.main import main
+from tests.shared import CHARACTERS, write_multipart_character
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 
@@ -164,3 +166,43 @@ def test_one_rigid_motion_of_every_handle_gives_that_motion_on_arm5(tmp_path):
         == 0
     )
     assert np.abs(np.load(out) - rigid).max() < 1e-6 * diag
+
+
+@pytest.fixture(scope="module")
+def character(tmp_path_factory):
+    """The multi-part CesiumMan of tests.shared written as .ply: (path, V, F, parts)."""
+    path = tmp_path_factory.mktemp("character") / "character.ply"
+    return (path, *write_multipart_character(path))
+
+
+@pytest.mark.slow  # two ARAP compilations, ~25 s on 2 cores
+def test_a_character_of_many_parts_moves_as_one(character, tmp_path, capsys):
+    """The feet and the crown turned by one rigid motion: every part, the five without a handle included, is
+    moved by it (scipy's rotation of every vertex); the default end handles run too, every position finite; and
+    --unhandled error refuses the mesh, naming the parts."""
+    path, V, _, parts = character
+    axis, angle, center, shift = np.array([0.3, 1.0, -0.4]), 50.0, np.array([0.1, 1.0, 0.0]), [0.2, -0.1, 0.3]
+    spec = {"center": center.tolist(), "axis": axis.tolist(), "angle_deg": angle, "translation": shift}
+    handles = tmp_path / "handles.json"
+    handles.write_text(json.dumps({"handles": [parts["feet"].tolist(), parts["crown"].tolist()], "motors": [spec] * 2}))
+    out = tmp_path / "arap.npy"
+    assert main(["arap", str(path), "--handles", str(handles), "--iters", "3", "--out", str(out)]) == 0
+    assert "parts 6, following_parts 5" in capsys.readouterr().out
+    expected = Rotation.from_rotvec(np.radians(angle) * axis / np.linalg.norm(axis)).apply(V - center) + center + shift
+    np.testing.assert_allclose(np.load(out), expected, atol=1e-9)
+    assert main(["arap", str(path), "--iters", "3", "--out", str(out)]) == 0
+    assert np.all(np.isfinite(np.load(out)))
+    with pytest.raises(SystemExit) as exit_info:
+        main(["arap", str(path), "--unhandled", "error", "--out", str(out)])
+    assert exit_info.value.code == 2
+    assert "of the mesh's 6 connected part(s) hold no constrained vertex (part" in capsys.readouterr().err
+
+
+@pytest.mark.slow  # one ARAP compilation, ~15 s on 2 cores
+def test_a_corpus_character_of_many_parts(tmp_path, capsys):
+    """jaxcga arap on a real character of 15 connected parts (tests/data/characters): every position finite, the
+    parts and the followers counted."""
+    out = tmp_path / "worker.npy"
+    assert main(["arap", str(CHARACTERS["QuaterniusWorker"]), "--bend", "45", "--iters", "5", "--out", str(out)]) == 0
+    assert np.all(np.isfinite(np.load(out)))
+    assert re.search(r"parts 15, following_parts [1-9]", capsys.readouterr().out)

@@ -12,6 +12,7 @@ import trimesh
 from scipy.spatial.transform import Rotation
 
 from jaxcga_cli.main import main
+from tests.shared import CHARACTERS, write_multipart_character
 
 
 @pytest.fixture(scope="module")
@@ -211,3 +212,41 @@ def test_bad_handle_files_are_named(tmp_path, capsys, content, message):
     err = capsys.readouterr().err
     assert exit_info.value.code == 2 and err.count("\n") == 1
     assert re.search(f"jaxcga deform: error: handles: .*{message}", err), err
+
+
+@pytest.mark.parametrize("method", ["handles", "spline"])
+def test_a_character_of_many_parts_moves_as_one(tmp_path, capsys, method):
+    """On the multi-part CesiumMan of tests.shared: the default end handles bend it with every part finite and
+    the parts counted; for handles, one rigid motion on both handle groups moves every part, the five without a
+    handle included, by it (scipy); --unhandled error refuses the mesh, naming the parts."""
+    path = tmp_path / "character.ply"
+    V, _, parts = write_multipart_character(path)
+    out = tmp_path / "bent.npy"
+    assert main(["deform", method, str(path), "--bend", "45", "--out", str(out)]) == 0
+    assert np.all(np.isfinite(np.load(out)))
+    assert re.search(r"parts 6, following_parts \d", capsys.readouterr().out)
+    if method == "handles":
+        axis, angle, center, shift = np.array([0.3, 1.0, -0.4]), 50.0, np.array([0.1, 1.0, 0.0]), [0.2, -0.1, 0.3]
+        spec = {"center": center.tolist(), "axis": axis.tolist(), "angle_deg": angle, "translation": shift}
+        handles = tmp_path / "handles.json"
+        handles.write_text(
+            json.dumps({"handles": [parts["feet"].tolist(), parts["crown"].tolist()], "motors": [spec] * 2})
+        )
+        assert main(["deform", "handles", str(path), "--handles", str(handles), "--out", str(out)]) == 0
+        assert "parts 6, following_parts 5" in capsys.readouterr().out
+        turned = Rotation.from_rotvec(np.radians(angle) * axis / np.linalg.norm(axis)).apply(V - center)
+        np.testing.assert_allclose(np.load(out), turned + center + shift, atol=1e-9)
+    with pytest.raises(SystemExit) as exit_info:
+        main(["deform", method, str(path), "--unhandled", "error", "--out", str(out)])
+    assert exit_info.value.code == 2
+    assert "of the mesh's 6 connected part(s) hold no constrained vertex (part" in capsys.readouterr().err
+
+
+def test_a_corpus_character_of_many_parts(tmp_path, capsys):
+    """jaxcga deform handles on a real character of 15 connected parts (tests/data/characters): every position
+    finite, the parts and the followers counted."""
+    out = tmp_path / "worker.npy"
+    path = CHARACTERS["QuaterniusWorker"]
+    assert main(["deform", "handles", str(path), "--bend", "45", "--out", str(out)]) == 0
+    assert np.all(np.isfinite(np.load(out)))
+    assert re.search(r"parts 15, following_parts [1-9]", capsys.readouterr().out)

@@ -66,6 +66,7 @@ def test_the_command_lines_enumerations_are_the_packages():
     assert arguments.BASES == deform.BASES
     assert arguments.LAPLACIANS == deform.LAPLACIANS
     assert arguments.ARAP_ENERGIES == deform.ARAP_ENERGIES
+    assert arguments.UNHANDLED == deform.UNHANDLED
     assert arguments.PREDICATES == cutting.PREDICATES
     assert arguments.XFEM_SCENES == xfem.SCENES
     assert arguments.XFEM_SIZES == xfem.SIZES

@@ -122,9 +122,10 @@ def test_bad_input():
         deform.harmonic_precompute(V, F, np.array([0, len(V)]))
     with pytest.raises(ValueError, match="bc: expected shape"):
         deform.harmonic_solve(deform.harmonic_precompute(V, F, handles[0]), jnp.ones(3))
-    # two disjoint copies of the arm, constrained on one only: the other's fields are undefined
+    # two disjoint copies of the arm, constrained on one only: refused when asked (they follow by default,
+    # tests/deform/test_multipart.py)
     two = np.concatenate([V, V + 2.0])
-    with pytest.raises(ValueError, match="connected part"):
-        deform.harmonic_fields(two, np.concatenate([F, F + len(V)]), handles)
+    with pytest.raises(ValueError, match="1 of the mesh's 2 connected part"):
+        deform.harmonic_fields(two, np.concatenate([F, F + len(V)]), handles, unhandled="error")
     with pytest.raises(ValueError, match="V: non-finite"):
         deform.harmonic_fields(np.full_like(V, np.nan), F, handles)
