@@ -1,0 +1,65 @@
+"""The two tetrahedral mesh generators the packages use, behind one place that knows which is installed.
+
+fTetWild (Hu et al. 2020, "Fast Tetrahedral Meshing in the Wild"; MPL-2.0, through the ``wildmeshing`` wheel) is
+the required one: it meshes any triangle soup (open, self-intersecting, several parts) inside an envelope of
+width ``epsilon`` around it and keeps the tets whose generalized winding number with respect to the input is
+above 1/2. TetGen (AGPL-3.0, wrapper ``tetgen``) is an optional extra (``pip install jaxcga[tetgen]``): it keeps a
+closed, clean surface exactly, which the callers prefer when it is there. Private to the distribution.
+"""
+
+from __future__ import annotations
+
+import importlib
+from types import ModuleType
+
+import numpy as np
+
+from _jaxcga_shared.host import quiet_stdout
+
+TETGEN_EXTRA = "TetGen is an optional extra (AGPL-3.0): pip install 'jaxcga[tetgen]'"
+
+
+def optional_tetgen() -> ModuleType | None:
+    """The ``tetgen`` module, or None where it is not installed (or an import of it is blocked)."""
+    try:
+        return importlib.import_module("tetgen")
+    except ImportError:
+        return None
+
+
+def ftetwild(
+    V: np.ndarray,
+    F: np.ndarray,
+    edge_length: float,
+    epsilon: float,
+    stop_quality: float = 10.0,
+    max_iterations: int = 80,
+    threads: int | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """fTetWild's tets of the inside of a triangle soup (host, numpy; its log, printed on fd 1, is silenced).
+
+    Args:
+        V: (n, 3) float64 vertices; F: (f, 3) int triangles.
+        edge_length: the target edge length relative to the bounding box diagonal (fTetWild's ``-l``).
+        epsilon: the envelope's width relative to the bounding box diagonal (fTetWild's ``-e``).
+        stop_quality: the AMIPS energy below which the optimization stops (fTetWild's ``--stop-energy``).
+        max_iterations: the optimization's passes at most (``--max-its``).
+        threads: the worker threads; None: fTetWild's default (every core).
+    Returns:
+        TV (N, 3) float64 nodes, TT (t, 4) int64 tets (the inside, by the winding number).
+    """
+    import wildmeshing
+
+    with quiet_stdout():  # it prints its threads on construction, its log on every step
+        mesher = wildmeshing.Tetrahedralizer(
+            stop_quality=float(stop_quality),
+            max_its=int(max_iterations),
+            epsilon=float(epsilon),
+            edge_length_r=float(edge_length),
+            max_threads=0 if threads is None else int(threads),
+        )
+        mesher.set_log_level(6)
+        mesher.set_mesh(np.ascontiguousarray(V, np.float64), np.ascontiguousarray(F, np.int32))
+        mesher.tetrahedralize()
+        TV, TT = mesher.get_tet_mesh()[:2]
+    return np.asarray(TV, np.float64), np.asarray(TT, np.int64)
