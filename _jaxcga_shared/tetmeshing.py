@@ -15,6 +15,7 @@ from types import ModuleType
 import numpy as np
 
 from _jaxcga_shared.host import quiet_stdout
+from _jaxcga_shared.mesh import tet_face_matching
 
 TETGEN_EXTRA = "TetGen is an optional extra (AGPL-3.0): pip install 'jaxcga[tetgen]'"
 
@@ -63,3 +64,28 @@ def ftetwild(
         mesher.tetrahedralize()
         TV, TT = mesher.get_tet_mesh()[:2]
     return np.asarray(TV, np.float64), np.asarray(TT, np.int64)
+
+
+def embed(X: np.ndarray, T: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Points P (s, 3) in the tets T (m, 4) of nodes X (n, 3) (checked by the caller): the tet containing each
+    point (libigl ``in_element`` on an AABB tree), else the tet of the nearest boundary face (libigl
+    ``point_mesh_squared_distance``); returns element (s,) int64, barycentric coordinates (s, 4) float64
+    (extrapolated outside the tet, so they still sum to 1 and reproduce affine maps) and the distance to the
+    tets (s,) (0 inside)."""
+    import igl
+
+    tree = igl.AABB()
+    tree.init(X, T)
+    element = np.asarray(igl.in_element(X, T, P, tree), np.int64)
+    distance = np.zeros(len(P))
+    outside = np.flatnonzero(element < 0)
+    if len(outside):
+        faces, inverse, counts = tet_face_matching(T)
+        boundary = counts[inverse] == 1
+        d2, face, _ = igl.point_mesh_squared_distance(P[outside], X, faces.reshape(-1, 3)[boundary])
+        element[outside] = np.flatnonzero(boundary)[np.asarray(face)] // 4
+        distance[outside] = np.sqrt(np.asarray(d2))
+    x = X[T[element]]
+    edges = np.stack([x[:, 1] - x[:, 0], x[:, 2] - x[:, 0], x[:, 3] - x[:, 0]], axis=2)  # as columns
+    lam = np.linalg.solve(edges, (P - x[:, 0])[..., None])[..., 0]
+    return element, np.concatenate([1 - lam.sum(axis=1, keepdims=True), lam], axis=1), distance

@@ -20,7 +20,6 @@ import warnings
 from typing import NamedTuple
 
 import equinox as eqx
-import igl
 import jax.numpy as jnp
 import numpy as np
 import numpy.typing as npt
@@ -29,8 +28,8 @@ from jaxtyping import Array, ArrayLike, Float, Int
 
 from _jaxcga_shared.checks import check_faces, check_points, check_triangle_mesh
 from _jaxcga_shared.mesh import bounding_diagonal
-from _jaxcga_shared.tetmeshing import ftetwild
-from xfem._tetmesh import TetMesh, element_adjacency, tet_mesh
+from _jaxcga_shared.tetmeshing import embed, ftetwild
+from xfem._tetmesh import TetMesh, tet_mesh
 
 # fTetWild's defaults, measured on this project's characters: ~25k tets and under a minute for a 25k-vertex one
 EDGE_LENGTH = 0.05
@@ -141,14 +140,6 @@ class SurfaceEmbedding(eqx.Module):
         return sp.csr_matrix((self.weights.ravel(), (rows, self.nodes.ravel())), shape=(self.n_points, int(n_nodes)))
 
 
-def _barycentric(X: np.ndarray, T: np.ndarray, element: np.ndarray, P: np.ndarray) -> np.ndarray:
-    """(k, 4) the barycentric coordinates of points P (k, 3) in tets ``T[element]`` (extrapolated outside)."""
-    x = X[T[element]]
-    edges = np.stack([x[:, 1] - x[:, 0], x[:, 2] - x[:, 0], x[:, 3] - x[:, 0]], axis=2)  # columns
-    lam = np.linalg.solve(edges, (P - x[:, 0])[..., None])[..., 0]
-    return np.concatenate([1 - lam.sum(axis=1, keepdims=True), lam], axis=1)
-
-
 def embed_points(mesh: TetMesh, P: Float[npt.ArrayLike, "s 3"]) -> SurfaceEmbedding:
     """Embed points in a tet mesh: the tet containing each point (libigl ``in_element`` on an AABB tree) and its
     barycentric coordinates; a point in no tet takes the tet of the nearest boundary face (libigl
@@ -164,18 +155,7 @@ def embed_points(mesh: TetMesh, P: Float[npt.ArrayLike, "s 3"]) -> SurfaceEmbedd
         raise ValueError(f"mesh: expected a TetMesh, got {type(mesh).__name__}")
     P = check_points("P", P)
     X, T = np.asarray(mesh.X, np.float64), np.asarray(mesh.T, np.int64)
-    tree = igl.AABB()
-    tree.init(X, T)
-    element = np.asarray(igl.in_element(X, T, P, tree), np.int64)
-    distance = np.zeros(len(P))
-    outside = np.flatnonzero(element < 0)
-    if len(outside):
-        tet, _ = np.nonzero(element_adjacency(T) < 0)  # boundary faces, in the order of boundary_faces
-        faces = mesh.boundary_faces()
-        d2, face, _ = igl.point_mesh_squared_distance(P[outside], X, faces)
-        element[outside] = tet[np.asarray(face)]
-        distance[outside] = np.sqrt(np.asarray(d2))
-    weights = _barycentric(X, T, element, P)
+    element, weights, distance = embed(X, T, P)
     return SurfaceEmbedding(element, T[element], weights, distance)
 
 
