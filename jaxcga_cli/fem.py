@@ -244,18 +244,26 @@ def surface_frame(V, F, limits, path: Path, title: str, colours=None) -> None:
     figures.save_figure(fig, path, dpi=80, bbox_inches="tight")
 
 
-def write_obj(path: Path, V, F) -> None:
-    """A triangle mesh as Wavefront OBJ (vertices, then 1-based faces), written whole or not at all."""
+def write_obj(path: Path, V, F, groups=None) -> None:
+    """A triangle mesh as Wavefront OBJ (vertices, then 1-based faces), written whole or not at all; ``groups``:
+    None, or (f,) int a group per face, written as OBJ groups ``piece_K`` (faces in their order within each)."""
     import io
 
     import numpy as np
 
     from _jaxcga_shared.output import write_bytes
 
+    F = np.asarray(F)
     text = io.StringIO()
     text.write(f"# {len(V)} vertices, {len(F)} faces\n")
     np.savetxt(text, V, fmt="v %.9g %.9g %.9g")
-    np.savetxt(text, np.asarray(F) + 1, fmt="f %d %d %d")
+    if groups is None:
+        np.savetxt(text, F + 1, fmt="f %d %d %d")
+    else:
+        groups = np.asarray(groups)
+        for g in np.unique(groups).tolist():
+            text.write(f"g piece_{g}\n")
+            np.savetxt(text, F[groups == g] + 1, fmt="f %d %d %d")
     write_bytes(path, text.getvalue())
 
 
