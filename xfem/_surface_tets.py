@@ -246,12 +246,13 @@ def cut_surface(
 ) -> tuple[Float[np.ndarray, "k 3"], Int[np.ndarray, "f 3"], Int[np.ndarray, " f"], Int[np.ndarray, " k"]]:
     """An embedded surface, deformed and in pieces, of a cut XFEM body (eq. 18 at the surface's points).
 
-    Each triangle follows the side of the cut its centroid lies on: its three corners take the DOFs that eq. 16
-    picks at the centroid (the nodal subdomains nearest to it), so a triangle that straddles the cut moves
-    whole with one side rather than being stretched across the gap. The surface is not split along the cut:
-    splitting an open, self-intersecting surface by the cut solid is no Boolean manifold3d can do, and the
-    triangle-sized jag along the cut is what the surface's own resolution allows. A vertex whose triangles
-    follow different sides is duplicated, once per side.
+    A vertex moves with its tet's piece on its own side of the cuts (eq. 16 at the vertex). A triangle follows the
+    side its centroid lies on: where a corner lies on another side than the centroid (the triangle straddles a
+    cut), that corner moves by the linear map of the centroid's piece (its tet's shape functions, extrapolated to
+    the corner, with the DOFs eq. 16 picks at the centroid), so the triangle moves whole with one side rather than
+    being stretched across the gap. Such a corner gets its own copy of the vertex (one per triangle). The surface
+    is not split along the cut: splitting an open, self-intersecting surface by the cut solid is no Boolean that
+    manifold3d can do, and the triangle-sized jag along the cut is what the surface's resolution allows.
 
     Args:
         model: the ``XFEMModel`` whose mesh the surface is embedded in.
@@ -263,6 +264,7 @@ def cut_surface(
         connected piece of the body (``XFEMModel.components``) of each triangle, and vertex (k,) int64 the
         vertex of V each row of V' copies.
     """
+    from xfem._integration import linear_shape_coefficients
     from xfem._xfem import XFEMModel
 
     if not isinstance(model, XFEMModel):
@@ -273,15 +275,31 @@ def cut_surface(
     if len(V) != embedding.n_points:
         raise ValueError(f"V: expected the {embedding.n_points} embedded points, got {len(V)}")
     F = check_faces("F", F, len(V))
-    if embedding.nodes.size and int(embedding.nodes.max()) >= len(model.X):
-        raise ValueError("embedding: its nodes are not those of model.mesh")
+    if embedding.nodes.size and (
+        int(embedding.nodes.max()) >= len(model.X) or not np.array_equal(model.T[embedding.element], embedding.nodes)
+    ):
+        raise ValueError("embedding: its tets are not those of model.mesh")
+    X, T = model.X, model.T
+    weights, dofs = model.field_dofs(V, embedding.element)  # each vertex on its own side
     corners = F.ravel()
-    centroids = np.repeat(V[F].mean(axis=1), 3, axis=0)
-    weights, dofs = model.field_dofs(V[corners], embedding.element[corners], centroids)
-    # one output vertex per (surface vertex, DOFs) pair
-    keys = np.concatenate([corners[:, None], dofs], axis=1)
-    unique, first, inverse = np.unique(keys, axis=0, return_index=True, return_inverse=True)
+    centroid = V[F].mean(axis=1)
+    c_element = embed(X, T, centroid)[0]
+    c_dofs = model.field_dofs(centroid, c_element)[1]  # the DOFs of the centroid's side
+    # a corner is on the centroid's side where eq. 16 at the centroid picks the DOFs it picks at the corner
+    at_centroid = model.field_dofs(V[corners], embedding.element[corners], np.repeat(centroid, 3, axis=0))[1]
+    other = np.flatnonzero(np.any(at_centroid != dofs[corners], axis=1))
+    triangle = other // 3
+    other_weights, _ = linear_shape_coefficients(X[T[c_element[triangle]]], V[corners[other]])
+    # rows of V': the s vertices, then one copy per corner on the other side
+    all_weights = np.concatenate([weights, other_weights])
+    all_dofs = np.concatenate([dofs, c_dofs[triangle]])
+    index = corners.copy()
+    index[other] = len(V) + np.arange(len(other))
+    used = np.unique(index)  # vertices on no triangle are dropped
+    rank = np.full(len(all_weights), -1, np.int64)
+    rank[used] = np.arange(len(used))
     x = np.asarray(model.state.x)
-    deformed = np.einsum("ka,kad->kd", weights[first], x[dofs[first]])
+    deformed = np.einsum("ka,kad->kd", all_weights[used], x[all_dofs[used]])
+    vertex = np.concatenate([np.arange(len(V)), corners[other]])[used]
     _, label = model.components()
-    return deformed, inverse.reshape(-1, 3).astype(np.int64), label[dofs[::3, 0]].astype(np.int64), unique[:, 0]
+    return deformed, rank[index].reshape(-1, 3), label[c_dofs[:, 0]].astype(np.int64), vertex
