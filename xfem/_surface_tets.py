@@ -188,10 +188,11 @@ def tetrahedralize_surface(
     """Tetrahedralize the inside of any triangle surface (open, self-intersecting, several parts) with fTetWild
     and embed the surface's vertices in the tets.
 
-    The inside is where the generalized winding number of the surface exceeds 1/2 (so the faces' orientation
-    matters: outward normals); the tets' boundary lies within the envelope ``epsilon`` of the surface where the
-    surface is closed, and parts that enclose no volume (a single open sheet) get no tets: their vertices take
-    the nearest tet, and a ``UserWarning`` says how far they lie.
+    The inside is where the generalized winding number of the surface is above 1/2 (fTetWild's filter; measured:
+    a sphere with inward faces gives the same tets as with outward ones); the tets' boundary lies within the
+    envelope ``epsilon`` of the surface where the surface is closed, and parts that enclose no volume (a single
+    open sheet) get no tets: their vertices take the nearest tet, and a ``UserWarning`` says how far they lie.
+    fTetWild with several threads is not deterministic: the tet counts of two runs differ by a few percent.
 
     Args:
         V: (v, 3) finite surface vertices.
@@ -223,8 +224,8 @@ def tetrahedralize_surface(
     TV, TT = ftetwild(V, F, edge_length, epsilon, stop_quality, int(max_iterations), threads)
     if len(TT) == 0:
         raise ValueError(
-            "F: the surface encloses no volume (fTetWild kept no tet: the winding number is below 1/2 everywhere; "
-            "are the faces oriented inward?)"
+            "F: the surface encloses no volume (fTetWild kept no tet: the winding number is below 1/2 everywhere, "
+            "as for an open sheet)"
         )
     used, TT = np.unique(TT, return_inverse=True)  # drop nodes in no tet
     mesh = tet_mesh(TV[used], TT.reshape(-1, 4))
