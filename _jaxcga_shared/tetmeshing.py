@@ -14,7 +14,6 @@ from types import ModuleType
 
 import numpy as np
 
-from _jaxcga_shared.host import quiet_stdout
 from _jaxcga_shared.mesh import tet_face_matching
 
 TETGEN_EXTRA = "TetGen is an optional extra (AGPL-3.0): pip install 'jaxcga[tetgen]'"
@@ -37,7 +36,11 @@ def ftetwild(
     max_iterations: int = 80,
     threads: int | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """fTetWild's tets of the inside of a triangle soup (host, numpy; its log, printed on fd 1, is silenced).
+    """fTetWild's tets of the inside of a triangle soup (host, numpy).
+
+    fTetWild runs in a child process in a private temporary folder: it writes a debugging file
+    (``__tracked_surface.stl``) into its working folder and prints its log on fd 1, neither of which a library
+    may do to its user's process, and a crash of it (an abort on odd input) becomes an error here.
 
     Args:
         V: (n, 3) float64 vertices; F: (f, 3) int triangles.
@@ -48,22 +51,31 @@ def ftetwild(
         threads: the worker threads; None: fTetWild's default (every core).
     Returns:
         TV (N, 3) float64 nodes, TT (t, 4) int64 tets (the inside, by the winding number).
+    Raises:
+        RuntimeError: fTetWild failed (its last output lines in the message).
     """
-    import wildmeshing
+    import subprocess
+    import sys
+    import tempfile
+    from pathlib import Path
 
-    with quiet_stdout():  # it prints its threads on construction, its log on every step
-        mesher = wildmeshing.Tetrahedralizer(
-            stop_quality=float(stop_quality),
-            max_its=int(max_iterations),
-            epsilon=float(epsilon),
-            edge_length_r=float(edge_length),
-            max_threads=0 if threads is None else int(threads),
+    options = [float(edge_length), float(epsilon), float(stop_quality), int(max_iterations), int(threads or 0)]
+    with tempfile.TemporaryDirectory(prefix="jaxcga-ftetwild-") as folder:
+        np.savez(Path(folder) / "input.npz", V=np.asarray(V, np.float64), F=np.asarray(F, np.int32), options=options)
+        done = subprocess.run(
+            # -P: not this folder on sys.path, where platform.py would shadow the standard library's
+            [sys.executable, "-P", str(Path(__file__).with_name("_ftetwild_worker.py"))],
+            cwd=folder,
+            capture_output=True,
+            text=True,
+            check=False,
         )
-        mesher.set_log_level(6)
-        mesher.set_mesh(np.ascontiguousarray(V, np.float64), np.ascontiguousarray(F, np.int32))
-        mesher.tetrahedralize()
-        TV, TT = mesher.get_tet_mesh()[:2]
-    return np.asarray(TV, np.float64), np.asarray(TT, np.int64)
+        result = Path(folder) / "output.npz"
+        if done.returncode != 0 or not result.exists():
+            tail = "\n".join((done.stdout + done.stderr).strip().splitlines()[-5:])
+            raise RuntimeError(f"fTetWild failed (exit status {done.returncode}): {tail}")
+        with np.load(result) as arrays:
+            return np.asarray(arrays["TV"], np.float64), np.asarray(arrays["TT"], np.int64)
 
 
 def embed(X: np.ndarray, T: np.ndarray, P: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
