@@ -174,11 +174,12 @@ def harmonic_coordinates(
         cage_F: (m, 3) int faces of a closed, consistently oriented 2-manifold (either orientation).
         max_tet_volume: the largest tet volume as a fraction of the cage's volume (the resolution).
         subdivisions: midpoint subdivisions of the cage surface before meshing (TetGen keeps the surface,
-            so large cage faces would leave the interior coarse); None: enough to bring the median cage
+            so large cage faces would leave the interior coarse; fTetWild, without TetGen, needs none and
+            ignores it); None: enough to bring the median cage
             edge down to the edge of a regular tet of the largest volume.
     Returns:
-        TV (N, 3) tet nodes, the first c being cage_V (nodes of no tet without TetGen); TT (t, 4) int tets; H (N, c) the coordinates at
-        the nodes (numpy, float64), the identity on the first c rows.
+        TV (N, 3) tet nodes, the first c being cage_V (nodes of no tet without TetGen); TT (t, 4) int tets;
+        H (N, c) the coordinates at the nodes (numpy, float64), the identity on the first c rows.
     Raises:
         ValueError: bad shapes, an open, non-manifold or inconsistently oriented cage, no volume, a
             cage TetGen cannot mesh without changing its surface."""
@@ -224,32 +225,33 @@ def _harmonic_coordinates(cage_V, cage_F, volume, max_tet_volume, subdivisions):
 
 
 def _interpolate(cage_V, cage_F, TV, TT, H, V):
-    """Coordinates of the points V: linear in their tet, or on the cage face they lie on."""
-    tree = igl.AABB()
-    tree.init(TV, TT)
-    tet = np.asarray(igl.in_element(TV, TT, V, tree))
-    coords = np.empty((len(V), H.shape[1]))
-    inside = tet >= 0
-    corners = TT[tet[inside]]
-    bary = np.asarray(igl.barycentric_coordinates(V[inside], *(TV[corners[:, k]] for k in range(4))))
-    coords[inside] = np.einsum("nk,nkc->nc", bary, H[corners])
-    # in_element has no tolerance: points on the cage up to round-off take the face's hat functions
-    off = np.flatnonzero(~inside)
+    """Coordinates of the points V: on the cage (up to round-off), the hat functions of the face they lie on;
+    elsewhere linear in their tet, or, inside the cage but in no tet (fTetWild's boundary inscribed in the
+    cage), in the nearest tet, extrapolated."""
+    values, distance = _hat_values(cage_V, cage_F, V)
+    # in_element has no tolerance, and without TetGen a tet may reach past a concave cage vertex: points on the
+    # cage take its hat functions first
+    coords = values
+    off = np.flatnonzero(distance > _SURFACE_TOLERANCE * bounding_diagonal(cage_V))
     if len(off):
-        values, distance = _hat_values(cage_V, cage_F, V[off])
-        far = distance > _SURFACE_TOLERANCE * bounding_diagonal(cage_V)
-        coords[off] = values
-        if far.any():
-            winding = np.asarray(igl.winding_number(cage_V, cage_F, V[off[far]])).reshape(-1)
+        tree = igl.AABB()
+        tree.init(TV, TT)
+        tet = np.asarray(igl.in_element(TV, TT, V[off], tree))
+        inside = tet >= 0
+        corners = TT[tet[inside]]
+        bary = np.asarray(igl.barycentric_coordinates(V[off[inside]], *(TV[corners[:, k]] for k in range(4))))
+        coords[off[inside]] = np.einsum("nk,nkc->nc", bary, H[corners])
+        far = off[~inside]
+        if len(far):
+            winding = np.asarray(igl.winding_number(cage_V, cage_F, V[far])).reshape(-1)
             if np.any(winding <= 0.5):
-                i = int(off[far][np.argmax(winding <= 0.5)])
+                i = int(far[np.argmax(winding <= 0.5)])
                 raise ValueError(
                     f"V: {int((winding <= 0.5).sum())} vertices lie outside the cage, the first is vertex {i} at "
                     f"{V[i].tolist()} (winding number {float(winding[np.argmax(winding <= 0.5)]):.3g}, expected 1)"
                 )
-            # inside the cage but in no tet (fTetWild's boundary inscribed in the cage): the nearest tet
-            element, weights, _ = embed(TV, TT, V[off[far]])
-            coords[off[far]] = np.einsum("nk,nkc->nc", weights, H[TT[element]])
+            element, weights, _ = embed(TV, TT, V[far])
+            coords[far] = np.einsum("nk,nkc->nc", weights, H[TT[element]])
     return coords
 
 
