@@ -195,7 +195,10 @@ def scene_mesh(
             import time
 
             start = time.perf_counter()
-            mesh = xfem.tetrahedralize(V, F)
+            try:
+                mesh = xfem.tetrahedralize(V, F)
+            except ModuleNotFoundError as error:  # TetGen is an optional extra
+                raise ValueError(f"mesher: {error}") from None
             embedding = xfem.embed_points(mesh, V)
             seconds = time.perf_counter() - start
             quality = xfem.tet_quality(mesh)
