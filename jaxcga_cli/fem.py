@@ -248,8 +248,9 @@ def surface_frame(V, F, limits, path: Path, title: str, colours=None) -> None:
 
 
 def write_obj(path: Path, V, F, groups=None) -> None:
-    """A triangle mesh as Wavefront OBJ (vertices, then 1-based faces), written whole or not at all; ``groups``:
-    None, or (f,) int a group per face, written as OBJ groups ``piece_K`` (faces in their order within each)."""
+    """A triangle mesh as Wavefront OBJ (vertices, then 1-based faces in F's order), written whole or not at all;
+    ``groups``: None, or (f,) int a group per face, written as OBJ groups ``piece_K`` (a ``g`` line where the group
+    changes from one face to the next, so the faces keep their order)."""
     import io
 
     import numpy as np
@@ -264,9 +265,10 @@ def write_obj(path: Path, V, F, groups=None) -> None:
         np.savetxt(text, F + 1, fmt="f %d %d %d")
     else:
         groups = np.asarray(groups)
-        for g in np.unique(groups).tolist():
-            text.write(f"g piece_{g}\n")
-            np.savetxt(text, F[groups == g] + 1, fmt="f %d %d %d")
+        starts = np.flatnonzero(np.r_[True, groups[1:] != groups[:-1]])
+        for start, end in zip(starts.tolist(), np.r_[starts[1:], len(F)].tolist()):
+            text.write(f"g piece_{int(groups[start])}\n")
+            np.savetxt(text, F[start:end] + 1, fmt="f %d %d %d")
     write_bytes(path, text.getvalue())
 
 

@@ -14,8 +14,8 @@ a frame shows the cuts that have taken effect):
   ParaView or meshio;
 
 * ``frame_XXXX_surface.obj`` (surface files): the user's own surface, deformed and in pieces
-  (``xfem.cut_surface``: each triangle follows the side of the cut its centroid is on), one OBJ group
-  ``piece_K`` per connected piece;
+  (``xfem.cut_surface``: each triangle follows the side of the cut its centroid is on), its faces in the
+  file's order, each under the OBJ group ``piece_K`` of its connected piece;
 
 and ``summary.json``: ``SceneRun.summary()`` (pieces, DOFs, Booleans, timings) plus the run's settings, the
 cut frames and the per-frame pieces, DOFs and times (surface files: also ``tetrahedralization``, as ``jaxcga
