@@ -32,7 +32,8 @@ from jaxcga_cli.fem import RUN_DESCRIBED, RUN_FILES, SURFACE_FORMATS, rounded
 
 HELP = (
     "run one of the XFEM paper's cutting scenes (soft bodies cut while they move; the extended finite element "
-    "method keeps the cuts exact without remeshing) and write its frames and timings"
+    "method keeps the cuts exact without remeshing), or cut any surface (a character) by a plane, and write its "
+    "frames and timings"
 )
 EXAMPLE = "jaxcga xfem cheese --size small --steps 20 --out out/cheese"
 
@@ -45,7 +46,9 @@ def add_arguments(parser) -> None:
         "file (.obj, .ply, .stl, .off, glTF; open, self-intersecting, several parts are fine) to tetrahedralize "
         "and cut by --plane",
     )
-    parser.add_argument("--steps", type=int, default=None, help="frames (default: the scene's, past its last cut)")
+    parser.add_argument(
+        "--steps", type=int, default=None, help="frames (default: the scene's, past its last cut; 30 for a surface)"
+    )
     parser.add_argument(
         "--size",
         choices=arguments.XFEM_SIZES,
