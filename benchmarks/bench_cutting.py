@@ -12,6 +12,16 @@ moved 6 units (about 7 Arm5 edges) over the skin, opening 0.2; a drill of radius
 The baseline is the paper's published timing on Arm5 (sec. 4.3: 4,666 ms to cut, 2,437 ms to tear,
 274 ms to drill, Python on a 2.6 GHz Core i7); ratios are baseline time / our time (> 1: we are faster).
 
+The ``real_*`` figures run on the largest character of the corpus of real characters (tests/data/characters, welded),
+with tools placed as a user places them on an arm (the skin point nearest 60% of the way from the bounding box's
+centre to the vertex farthest along the wider horizontal axis: a hand in a T-pose): a cut across the limb there (its
+normal along the bone the point is most weighted to), a tear whose blade crosses the skin there and moves 5% of the
+diagonal along the limb, a drill of radius 0.5% of the diagonal along the inward normal through the limb. Then the
+per-frame deformations of ``jaxcga deform handles`` (harmonic motor handles, ``motor_field_solve``) and of ``jaxcga
+arap`` (``arap_solve`` from the previous frame), the feet (lowest 3% along the long axis) fixed and the head (top
+5%) turning. Baselines in the same process: trimesh's plane slice of the same mesh for the cut, LBS of one pose of
+the same mesh (jit) for the others.
+
     python benchmarks/bench_cutting.py [--repeats 50] [--json out/bench/cutting.json]
 """
 
@@ -27,7 +37,9 @@ import jax
 
 jax.config.update("jax_enable_x64", True)
 import igl  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
 import numpy as np  # noqa: E402
+import trimesh  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
@@ -36,6 +48,7 @@ from _report import RATIO_UNIT, add_json_argument, print_device, write_json  # n
 
 import cutting  # noqa: E402
 import deform  # noqa: E402
+import jaxcga as cga  # noqa: E402
 
 PAPER_MS = {"cut": 4666.0, "tear": 2437.0, "drill": 274.0}
 
@@ -143,11 +156,186 @@ def run(repeats: int, faces_100k: int):
     for op, paper in PAPER_MS.items():
         ratios[f"arm5_{op}_vs_paper"] = paper / figures[f"arm5_{op}_ms"]
         print(f"ratio arm5_{op}_vs_paper: {ratios[f'arm5_{op}_vs_paper']:.0f}x (paper {paper:.0f} ms)")
+    real = real_figures(repeats, frames=min(20, max(3, repeats)))
+    figures.update(real["figures"])
+    ratios.update(real["ratios"])
     for name in figures:
         units[name] = "ms"
     for name in ratios:
         units[name] = RATIO_UNIT
     return {"figures": figures, "ratios": ratios, "units": units}
+
+
+def largest_character() -> deform.RiggedModel:
+    """The character of tests/data/characters with the most vertices, welded."""
+    paths = sorted((ROOT / "tests" / "data" / "characters").glob("*.glb"))
+    return max((deform.load_model(p, weld=True) for p in paths), key=lambda m: m.mesh.num_vertices)
+
+
+def limb_direction(model, face: int, barycentric) -> np.ndarray:
+    """Unit direction of the bone the point is most weighted to, in the bind pose: from its joint to its child joints'
+    mean (or from its parent joint)."""
+    mesh = model.mesh
+    F, J, W = np.asarray(mesh.F), np.asarray(mesh.J), np.asarray(mesh.W)
+    weight = np.zeros(mesh.num_joints)
+    np.add.at(weight, J[F[face]].ravel(), (np.asarray(barycentric)[:, None] * W[F[face]]).ravel())
+    joint = int(np.argmax(weight))
+    heads = np.linalg.inv(np.asarray(mesh.inverse_bind, np.float64))[:, :3, 3]
+    bones, parents = np.asarray(mesh.joints), np.asarray(model.skeleton.parents)
+    children = np.flatnonzero(parents[bones] == bones[joint])
+    if len(children):
+        axis = heads[children].mean(axis=0) - heads[joint]
+    else:
+        axis = heads[joint] - heads[np.flatnonzero(bones == parents[bones[joint]])[0]]
+    return axis / np.linalg.norm(axis)
+
+
+def arm_tools(model) -> tuple[cutting.Plane, cutting.Scalpel, cutting.Drill]:
+    """The module docstring's cut, tear and drill on ``model``'s arm (bind pose)."""
+    V, F = np.asarray(model.mesh.V, np.float64), np.asarray(model.mesh.F)
+    extent = V.max(axis=0) - V.min(axis=0)
+    diagonal = float(np.linalg.norm(extent))
+    long = int(np.argmax(extent))
+    side = max((a for a in range(3) if a != long), key=lambda a: extent[a])
+    centre = 0.5 * (V.min(axis=0) + V.max(axis=0))
+    target = centre + 0.6 * (V[np.argmax(V[:, side])] - centre)
+    _, faces, closest = igl.point_mesh_squared_distance(target[None], V, F)
+    face, point = int(faces[0]), closest[0]
+    a, b, c = V[F[face]]
+    barycentric = np.linalg.lstsq(np.stack([a, b, c], axis=1), point, rcond=None)[0]
+    normal = np.cross(b - a, c - a)
+    normal /= np.linalg.norm(normal)
+    along = limb_direction(model, face, barycentric)
+    plane = cutting.Plane(along, float(along @ point))
+    end, _ = surface_point(V, F, point + 0.05 * diagonal * along)
+    _, end_face, _ = igl.point_mesh_squared_distance(end[None], V, F)
+    a2, b2, c2 = V[F[end_face[0]]]
+    normal_end = np.cross(b2 - a2, c2 - a2)
+    normal_end /= np.linalg.norm(normal_end)
+    blade = 0.02 * diagonal
+    scalpel = cutting.Scalpel(
+        np.array([point + blade * normal, end + blade * normal_end]),
+        np.array([point - blade * normal, end - blade * normal_end]),
+    )
+    radius = 0.005 * diagonal
+    depth = through(V, F, point, -normal) + 2 * radius
+    return plane, scalpel, cutting.Drill(point - depth * normal, point + 2 * radius * normal, radius)
+
+
+def through(V, F, origin, direction) -> float:
+    """Distance along the unit ``direction`` from ``origin`` (on the surface) to the farthest crossing of the surface
+    within a tenth of the diagonal: where the ray leaves the limb (Moller and Trumbore's test on every face)."""
+    a, b, c = (V[F[:, k]] for k in range(3))
+    e1, e2 = b - a, c - a
+    p = np.cross(direction, e2)
+    det = np.einsum("ij,ij->i", e1, p)
+    inv = np.divide(1.0, det, out=np.zeros_like(det), where=np.abs(det) > 1e-300)
+    s = origin - a
+    u, q = np.einsum("ij,ij->i", s, p) * inv, np.cross(s, e1)
+    v, t = (q @ direction) * inv, np.einsum("ij,ij->i", e2, q) * inv
+    diagonal = float(np.linalg.norm(V.max(axis=0) - V.min(axis=0)))
+    hit = (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 1e-6 * diagonal) & (t < 0.1 * diagonal)
+    return float(t[hit].max()) if hit.any() else 0.03 * diagonal
+
+
+def feet_and_head(V) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """(feet, head, neck point, the axis the head turns about): the lowest 3% and the top 5% of the vertices along the
+    long axis, the head's lowest point at its centre, the wider horizontal axis."""
+    extent = V.max(axis=0) - V.min(axis=0)
+    long = int(np.argmax(extent))
+    side = max((a for a in range(3) if a != long), key=lambda a: extent[a])
+    height = V[:, long]
+    feet = np.flatnonzero(height <= np.quantile(height, 0.03))
+    head = np.flatnonzero(height >= np.quantile(height, 0.95))
+    neck = V[head].mean(axis=0)
+    neck[long] = height[head].min()
+    return feet, head, neck, side
+
+
+def real_figures(repeats: int, frames: int = 20) -> dict:
+    """The ``real_*`` figures (module docstring)."""
+    model = largest_character()
+    mesh = model.mesh
+    mesh = deform.SkinnedMesh(
+        np.asarray(mesh.V), np.asarray(mesh.F), np.asarray(mesh.J), np.asarray(mesh.W), mesh.inverse_bind, mesh.joints
+    )
+    V, F = np.asarray(mesh.V, np.float64), np.asarray(mesh.F)
+    plane, scalpel, drill = arm_tools(model)
+    edges = cutting.mesh_edges(mesh.F)
+    print(f"real: {model.name}, {len(V)} vertices, {len(F)} faces, {mesh.num_joints} joints (welded)")
+    local = deform.local_matrices(model.skeleton)
+    skin = jax.jit(lambda local: deform.skin_pose(deform.RiggedModel(mesh, model.skeleton), local, "lbs"))
+    skin_ms = median_ms(lambda: jax.block_until_ready(skin(local)), repeats)
+    slice_ms = median_ms(
+        lambda: trimesh.intersections.slice_faces_plane(V, F, plane.normal, plane.normal * plane.distance), repeats
+    )
+    figures = {"real_skin_ms": skin_ms, "real_trimesh_slice_ms": slice_ms}
+    ratios = {}
+    timed = {
+        "cut": lambda: cutting.cut(mesh, plane, edges=edges),
+        "tear": lambda: cutting.tear(mesh, scalpel, edges=edges),
+        "drill": lambda: cutting.drill(mesh, drill, edges=edges),
+    }
+    for name, fn in timed.items():
+        try:
+            figures[f"real_{name}_ms"] = median_ms(fn, repeats)
+        except ValueError as error:  # reported, the other figures still measured
+            print(f"  {name:6s} refused: {error}")
+            continue
+        baseline, label = (slice_ms, "trimesh_slice") if name == "cut" else (skin_ms, "skinning")
+        ratios[f"real_{name}_vs_{label}"] = baseline / figures[f"real_{name}_ms"]
+        print(
+            f"  {name:6s} {figures[f'real_{name}_ms']:8.2f} ms  ({label.replace('_', ' ')} {baseline:.2f} ms: "
+            f"{ratios[f'real_{name}_vs_{label}']:.2f}x)"
+        )
+    feet, head, neck, side = feet_and_head(V)
+    axis = np.zeros(3)
+    axis[side] = 1.0
+    angles = np.linspace(0.0, 0.6, frames)
+
+    def turned(angle):
+        """Motors (2,): the feet's (the identity) and the head's, turned by ``angle`` about the neck."""
+        rotor = cga.rotor(jnp.asarray([axis, axis]), jnp.asarray([0.0, angle]))
+        return deform.motor_about(jnp.asarray([neck, neck]), rotor)
+
+    deformers = {}
+    try:
+        field = deform.handles_precompute(V, F, [feet, head])
+        solve = jax.jit(deform.motor_field_solve)
+        motors = [turned(a) for a in angles]
+        deformers["handles"] = lambda k: solve(field, motors[k])
+    except ValueError as error:
+        print(f"  deform handles refused: {error}")
+    try:
+        data = deform.arap_precompute(V, F, np.concatenate([feet, head]))
+        arap = jax.jit(lambda bc, V0: deform.arap_solve(data, bc, V0=V0).U)
+        targets = [
+            np.concatenate([V[feet], np.asarray(cga.apply_to_points(turned(a)[1], jnp.asarray(V[head])))])
+            for a in angles
+        ]
+        previous = {"U": jnp.asarray(V)}
+
+        def arap_frame(k):
+            previous["U"] = arap(jnp.asarray(targets[k]), previous["U"])
+            return previous["U"]
+
+        deformers["arap"] = arap_frame
+    except ValueError as error:
+        print(f"  arap refused: {error}")
+    for name, frame in deformers.items():
+        jax.block_until_ready(frame(0))  # compile
+        times = []
+        for k in range(frames):
+            start = time.perf_counter()
+            jax.block_until_ready(frame(k))
+            times.append(time.perf_counter() - start)
+        figures[f"real_{name}_ms"] = 1e3 * statistics.median(times)
+        ratios[f"real_{name}_vs_skinning"] = skin_ms / figures[f"real_{name}_ms"]
+        print(
+            f"  {name:6s} {figures[f'real_{name}_ms']:8.2f} ms per frame  (skinning {skin_ms:.2f} ms: "
+            f"{ratios[f'real_{name}_vs_skinning']:.2f}x)"
+        )
+    return {"figures": figures, "ratios": ratios}
 
 
 def main(argv=None):

@@ -1,13 +1,14 @@
-"""Helpers shared by the test packages: a flat grid mesh, a closed tube mesh, a finite-difference gradient check,
-the comparison of two runs of one computation (bitwise on the CPU), a script run on forced host devices, the
-skips of tests that need the host or the CPU formulations and the GPU formulations taken on the CPU (conftest.py),
-and the operations of a program lowered for another platform."""
+"""Helpers shared by the test packages: a flat grid mesh, a closed tube mesh, the corpus of public rigged characters,
+a finite-difference gradient check, the comparison of two runs of one computation (bitwise on the CPU), a script run
+on forced host devices, the skips of tests that need the host or the CPU formulations and the GPU formulations taken
+on the CPU (conftest.py), and the operations of a program lowered for another platform."""
 
 from __future__ import annotations
 
 import collections
 import functools
 import re
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -32,6 +33,46 @@ def tube(max_edge: float = 0.1):
     mesh.merge_vertices()
     V, F = np.asarray(mesh.vertices), np.asarray(mesh.faces)
     return V, F, np.flatnonzero(V[:, 2] < -1 + 1e-9), np.flatnonzero(V[:, 2] > 1 - 1e-9)
+
+
+DATA = Path(__file__).resolve().parent / "data"
+
+# The corpus of public rigged characters nobody here made (sources and licences: tests/data/README.md), by name;
+# tests/deform/test_corpus.py checks what they cover together (many joints, several skins, morph targets, an inner
+# part, clothing layers, a coarse mesh, a large mesh).
+CHARACTERS = {
+    "RobotExpressive": DATA / "characters" / "RobotExpressive.glb",
+    "Fox": DATA / "characters" / "Fox.glb",
+    "MaleBaseMesh": DATA / "characters" / "MaleBaseMesh.glb",
+    "QuaterniusCyberpunkCharacter": DATA / "characters" / "QuaterniusCyberpunkCharacter.glb",
+    "QuaterniusWorker": DATA / "characters" / "QuaterniusWorker.glb",
+    "QuaterniusWorkerDense": DATA / "characters" / "QuaterniusWorkerDense.glb",  # derived: see the README
+    "CesiumMan": DATA / "CesiumMan.glb",
+}
+
+
+@functools.cache
+def load_character(name: str, weld: bool = True):
+    """The corpus character ``name`` (a key of ``CHARACTERS``) as a ``deform.RiggedModel``, welded by default (a
+    tear or a drill walks across faces, and glTF splits vertices along UV seams). Cached: models are immutable."""
+    import deform
+
+    return deform.load_model(CHARACTERS[name], weld=weld)
+
+
+def connected_parts(F, n: int) -> list[np.ndarray]:
+    """The connected parts of the faces ``F`` (m, 3) over ``n`` vertices: one sorted array of vertex indices per
+    part, largest first; vertices on no face belong to none."""
+    import scipy.sparse
+    from scipy.sparse.csgraph import connected_components
+
+    F = np.asarray(F)
+    edges = np.concatenate([F[:, [0, 1]], F[:, [1, 2]]])
+    graph = scipy.sparse.coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n))
+    _, labels = connected_components(graph, directed=False)
+    used = np.unique(F)
+    parts = [used[labels[used] == label] for label in np.unique(labels[used])]
+    return sorted(parts, key=len, reverse=True)
 
 
 def check_gradient(loss, params, rtol: float = 1e-5, step: float = 1e-6):

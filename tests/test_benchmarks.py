@@ -109,9 +109,21 @@ def test_bench_cutting_quick_writes_the_published_names(tmp_path):
         "100k_tear_ms",
         "100k_drill_ms",
         "100k_preprocess_ms",
+        "real_cut_ms",
+        "real_tear_ms",
+        "real_drill_ms",
+        "real_skin_ms",
+        "real_trimesh_slice_ms",
     ):
         assert result["figures"][name] > 0 and name in result["units"]
-    for name in ("arm5_cut_vs_paper", "arm5_tear_vs_paper", "arm5_drill_vs_paper"):
+    for name in (
+        "arm5_cut_vs_paper",
+        "arm5_tear_vs_paper",
+        "arm5_drill_vs_paper",
+        "real_cut_vs_trimesh_slice",
+        "real_tear_vs_skinning",
+        "real_drill_vs_skinning",
+    ):
         assert result["ratios"][name] > 0
 
 

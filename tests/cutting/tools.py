@@ -1,6 +1,7 @@
 """Shared by the cutting tests: the real models, measures of meshes (areas, edge counts), a posed
-arm, and tools placed on real models (scalpels that sweep over the surface, drills along a face's
-inward normal)."""
+arm, tools placed on real models (scalpels that sweep over the surface, drills along a face's
+inward normal), and tools placed on the corpus characters as a user places them (a cut across the limb
+under a skin point, a tear along the skin, a drill through the limb), with their poses and checks."""
 
 from __future__ import annotations
 
@@ -307,3 +308,133 @@ def fuzz(mesh, tool: str, count: int, seed: int):
         if problems:
             stats["failures"].append(f"{tool} {trial}: " + "; ".join(problems))
     return stats
+
+
+# --- Tools placed on real characters (issue 51, item 5) ---------------------------------------------------------------
+# A user picks a point of the skin and places the tool there: a plane across the limb (its normal along the bone the
+# point is most weighted to), a blade through the skin that moves along it, a drill along the inward normal that goes
+# through the limb.
+TEAR_TRAVEL = 0.05  # a tear's blade moves this fraction of the diagonal along the surface
+
+
+def character_pose(model, seed: int = 0) -> np.ndarray:
+    """(j, 4, 4) joint matrices of a pose of ``model``: 40% into its first clip, or, without a clip, the rest pose
+    with every bone turned by a random rotation of up to 25 degrees (seeded)."""
+    from scipy.spatial.transform import Rotation
+
+    if model.clips:
+        times = np.concatenate([np.asarray(c.times) for c in model.clips[0].channels])
+        local = np.asarray(deform.sample_pose(model, times.min() + 0.4 * np.ptp(times), "lbs"))
+    else:
+        local = np.array(deform.local_matrices(model.skeleton))
+        turn = Rotation.random(len(local), random_state=seed).as_rotvec()
+        turn *= np.radians(25.0) / np.pi  # rotation vectors of length <= pi scaled to <= 25 degrees
+        local[:, :3, :3] = local[:, :3, :3] @ Rotation.from_rotvec(turn).as_matrix()
+    return np.asarray(
+        deform.joint_matrices(model.mesh, deform.forward_kinematics_matrices(model.skeleton.parents, local))
+    )
+
+
+def skin_lbs_numpy(V, J, W, joints) -> np.ndarray:
+    """LBS (eq. 16) in plain numpy: ``sum_k W_k joints[J_k] [V; 1]`` (no compilation per mesh size)."""
+    V, J, W, joints = np.asarray(V, np.float64), np.asarray(J), np.asarray(W, np.float64), np.asarray(joints)
+    homogeneous = np.concatenate([V, np.ones((len(V), 1))], axis=1)
+    return np.einsum("nk,nkij,nj->ni", W, joints[J], homogeneous)[:, :3]
+
+
+class CharacterTools:
+    """Tools placed on ``model`` (bind pose) as a user places them, each at a random skin point (a point of an
+    area-weighted random face; ``rng``): ``cut`` a plane through it across the limb, its normal along the bone the
+    point is most weighted to; ``tear`` a blade along the normal there that moves TEAR_TRAVEL x the diagonal along the
+    surface in a random direction, in 2 to 5 samples (``scalpels_over``); ``drill`` along the inward normal there, from
+    just outside through to where the ray leaves the part it entered (through the limb, and any layer inside it)."""
+
+    def __init__(self, model):
+        from tests.shared import connected_parts
+
+        self.model = model
+        self.V, self.F = np.asarray(model.mesh.V, np.float64), np.asarray(model.mesh.F)
+        self.diagonal = diagonal(self.V)
+        self.areas = area(self.V, self.F)
+        labels = np.full(len(self.V), -1)
+        for k, part in enumerate(connected_parts(self.F, len(self.V))):
+            labels[part] = k
+        self.vertex_part, self.face_part = labels, labels[self.F[:, 0]]
+        mesh = model.mesh
+        self.heads = np.linalg.inv(np.asarray(mesh.inverse_bind, np.float64))[:, :3, 3]  # joints' bind positions
+        self.bones = np.asarray(mesh.joints)
+        self.parents = np.asarray(model.skeleton.parents)
+
+    def hits(self, origin, direction):
+        """(distances, faces) of every crossing of the ray from ``origin`` along the unit ``direction`` (Moller and
+        Trumbore's ray-triangle test on every face at once)."""
+        a, b, c = (self.V[self.F[:, k]] for k in range(3))
+        e1, e2 = b - a, c - a
+        p = np.cross(direction, e2)
+        det = np.einsum("ij,ij->i", e1, p)
+        ok = np.abs(det) > 1e-300
+        inv = np.where(ok, 1.0 / np.where(ok, det, 1.0), 0.0)
+        s = origin - a
+        u = np.einsum("ij,ij->i", s, p) * inv
+        q = np.cross(s, e1)
+        v = (q @ direction) * inv
+        t = np.einsum("ij,ij->i", e2, q) * inv
+        faces = np.flatnonzero(ok & (u >= 0) & (v >= 0) & (u + v <= 1) & (t > 0))
+        return t[faces], faces
+
+    def crossed_parts(self, start, end) -> np.ndarray:
+        """The parts (indices into ``connected_parts``) that the segment from ``start`` to ``end`` crosses."""
+        length = np.linalg.norm(end - start)
+        t, faces = self.hits(start, (end - start) / length)
+        return np.unique(self.face_part[faces[t < length]])
+
+    def skin_point(self, rng):
+        """(face, barycentric (3,), point, outward unit normal) of a uniformly random point of the surface."""
+        face = int(rng.choice(len(self.F), p=self.areas / self.areas.sum()))
+        b = rng.dirichlet(np.ones(3))
+        return face, b, b @ self.V[self.F[face]], _frame(self.V, self.F, face)[1]
+
+    def limb_direction(self, face: int, barycentric) -> np.ndarray:
+        """Unit direction of the bone the point is most weighted to: from its joint to the mean of its child joints,
+        or from the nearest ancestor joint to it when it has none."""
+        J, W = np.asarray(self.model.mesh.J), np.asarray(self.model.mesh.W)
+        corners = self.F[face]
+        weight = np.zeros(len(self.bones))
+        np.add.at(weight, J[corners].ravel(), (np.asarray(barycentric)[:, None] * W[corners]).ravel())
+        joint = int(np.argmax(weight))
+        children = np.flatnonzero(self.parents[self.bones] == self.bones[joint])
+        axis = np.zeros(3)
+        if len(children):
+            axis = self.heads[children].mean(axis=0) - self.heads[joint]
+        else:
+            bone = self.parents[self.bones[joint]]
+            while bone >= 0 and bone not in self.bones:
+                bone = self.parents[bone]
+            if bone >= 0:
+                axis = self.heads[joint] - self.heads[np.flatnonzero(self.bones == bone)[0]]
+        if np.linalg.norm(axis) < 1e-9 * self.diagonal:
+            axis = np.array([0.0, 1.0, 0.0])  # a joint on top of its neighbours: up
+        return axis / np.linalg.norm(axis)
+
+    def cut(self, rng):
+        import cutting
+
+        face, b, point, _ = self.skin_point(rng)
+        normal = self.limb_direction(face, b)
+        return cutting.Plane(normal, float(normal @ point))
+
+    def tear(self, rng):
+        face, _, _, _ = self.skin_point(rng)
+        samples = int(rng.integers(2, 6))
+        step = TEAR_TRAVEL * self.diagonal / (samples - 1)
+        return scalpels_over(self.V, self.F, face, rng.normal(size=3), samples, step)
+
+    def drill(self, rng):
+        import cutting
+
+        face, _, point, normal = self.skin_point(rng)
+        radius = rng.uniform(0.004, 0.012) * self.diagonal
+        hits, faces = self.hits(point, -normal)
+        mine = (self.face_part[faces] == self.face_part[face]) & (hits > 1e-6 * self.diagonal)
+        depth = hits[mine].min() + 2 * radius if mine.any() else 0.05 * self.diagonal  # an open sheet: 5% deep
+        return cutting.Drill(point - depth * normal, point + 2 * radius * normal, radius)
