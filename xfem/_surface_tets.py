@@ -206,6 +206,7 @@ def tetrahedralize_surface(
         The ``SurfaceTets``: mesh, embedding (one point per vertex of V), quality and seconds.
     Raises:
         ValueError: bad shapes or values, a surface without volume (every tet left out).
+        RuntimeError: fTetWild failed (its child process ended with an error, named in the message).
     """
     V, F = check_triangle_mesh(V, F, min_faces=1)
     for name, value, high in (("edge_length", edge_length, 1.0), ("epsilon", epsilon, 0.1)):

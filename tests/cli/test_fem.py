@@ -1,6 +1,7 @@
 """The ``jaxcga fem SCENE`` command end to end in-process: the bar scene's frames, meshes and summary, a
 closed surface tetrahedralized, a written frame read back as a tet mesh scene, an open, self-intersecting,
-multi-part surface written back as itself and carried by the tets, TetGen named as an extra, errors."""
+multi-part surface written back as itself and carried by the tets, a corpus character, TetGen named as an extra,
+errors."""
 
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ import trimesh
 
 import xfem
 from jaxcga_cli.main import main
-from tests.shared import wild_surface
+from tests.shared import CHARACTERS, load_character, wild_surface
 
 
 @pytest.fixture(scope="module")
@@ -151,6 +152,22 @@ def test_a_wild_surface_is_simulated_and_written_as_itself(tmp_path, capsys):
     expected = xfem.embed_points(rest_tets, V).positions(frame.points)
     np.testing.assert_allclose(moved.vertices, expected, atol=1e-6)
     assert np.abs(moved.vertices - V).max() > 1e-4  # it fell
+
+
+@pytest.mark.slow  # fTetWild and a compile: 20-40 s on 2 busy cores
+def test_a_character_runs_and_writes_its_own_skin(tmp_path):
+    # jaxcga fem CHARACTER.glb: the bind-pose skin of every part, hanging along -y (glTF's up)
+    out = tmp_path / "fox"
+    assert main(["fem", str(CHARACTERS["Fox"]), "--steps", "2", "--every", "2", "--no-figures", "--out", str(out)]) == 0
+    mesh = load_character("Fox").mesh
+    V, F = np.asarray(mesh.V), np.asarray(mesh.F)
+    rest = trimesh.load(out / "frame_0000_surface.obj", process=False)
+    np.testing.assert_allclose(rest.vertices, V, atol=1e-6 * np.linalg.norm(np.ptp(V, axis=0)))
+    assert np.array_equal(rest.faces, F)
+    moved = trimesh.load(out / "frame_0002_surface.obj", process=False).vertices - V
+    assert moved[:, 1].mean() < 0 and np.abs(moved[:, [0, 2]]).mean() < np.abs(moved[:, 1]).mean()  # down y
+    report = json.loads((out / "summary.json").read_text())["tetrahedralization"]
+    assert report["surface_faces"] == len(F) and report["tets"] > 200
 
 
 def test_tetgen_is_an_extra_the_command_names(tmp_path, capsys, monkeypatch):
