@@ -110,8 +110,9 @@ def quiet_stdout():
             os.dup2(devnull.fileno(), 1)
             yield
     finally:
-        # C's stdio buffers what it writes to a pipe (fTetWild's log): flush it while fd 1 is still /dev/null
-        ctypes.CDLL(None).fflush(None)
+        # C's stdio buffers what it writes to a pipe (TetGen's printf): flush it while fd 1 is still /dev/null
+        with contextlib.suppress(OSError, AttributeError):  # no C library to load by that name (Windows)
+            ctypes.CDLL(None).fflush(None)
         sys.stdout.flush()
         os.dup2(saved, 1)
         os.close(saved)
