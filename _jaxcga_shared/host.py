@@ -5,6 +5,7 @@ and silencing C libraries' output. Private to the distribution."""
 from __future__ import annotations
 
 import contextlib
+import ctypes
 import functools
 import os
 import sys
@@ -109,6 +110,9 @@ def quiet_stdout():
             os.dup2(devnull.fileno(), 1)
             yield
     finally:
+        # C's stdio buffers what it writes to a pipe (TetGen's printf): flush it while fd 1 is still /dev/null
+        with contextlib.suppress(OSError, AttributeError):  # no C library to load by that name (Windows)
+            ctypes.CDLL(None).fflush(None)
         sys.stdout.flush()
         os.dup2(saved, 1)
         os.close(saved)

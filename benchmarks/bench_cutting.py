@@ -20,7 +20,8 @@ diagonal along the limb, a drill of radius 0.5% of the diagonal along the inward
 per-frame deformations of ``jaxcga deform handles`` (harmonic motor handles, ``motor_field_solve``) and of ``jaxcga
 arap`` (``arap_solve`` from the previous frame), the feet (lowest 3% along the long axis) fixed and the head (top
 5%) turning. Baselines in the same process: trimesh's plane slice of the same mesh for the cut, LBS of one pose of
-the same mesh (jit) for the others.
+the same mesh (jit) for the others. Last, the character's tets (``xfem.tetrahedralize_surface``, fTetWild, its
+defaults): time, count and quality, one run, without a baseline (TetGen refuses such a surface).
 
     python benchmarks/bench_cutting.py [--repeats 50] [--json out/bench/cutting.json]
 """
@@ -49,6 +50,7 @@ from _report import RATIO_UNIT, add_json_argument, print_device, write_json  # n
 import cutting  # noqa: E402
 import deform  # noqa: E402
 import jaxcga as cga  # noqa: E402
+import xfem  # noqa: E402
 
 PAPER_MS = {"cut": 4666.0, "tear": 2437.0, "drill": 274.0}
 
@@ -160,10 +162,13 @@ def run(repeats: int, faces_100k: int):
     figures.update(real["figures"])
     ratios.update(real["ratios"])
     for name in figures:
-        units[name] = "ms"
+        units[name] = REAL_UNITS.get(name, "ms")
     for name in ratios:
         units[name] = RATIO_UNIT
     return {"figures": figures, "ratios": ratios, "units": units}
+
+
+REAL_UNITS = {"real_tets": "tets", "real_tets_min_dihedral_deg": "deg", "real_tets_min_volume_ratio": "1"}
 
 
 def largest_character() -> deform.RiggedModel:
@@ -335,6 +340,18 @@ def real_figures(repeats: int, frames: int = 20) -> dict:
             f"  {name:6s} {figures[f'real_{name}_ms']:8.2f} ms per frame  (skinning {skin_ms:.2f} ms: "
             f"{ratios[f'real_{name}_vs_skinning']:.2f}x)"
         )
+    # one run (fTetWild takes tens of seconds); no baseline in the same process: TetGen refuses such a surface
+    start = time.perf_counter()
+    tets = xfem.tetrahedralize_surface(V, F)
+    figures["real_tetrahedralize_ms"] = 1e3 * (time.perf_counter() - start)
+    figures["real_tets"] = tets.quality.tets
+    figures["real_tets_min_dihedral_deg"] = tets.quality.min_dihedral_deg
+    figures["real_tets_min_volume_ratio"] = tets.quality.min_volume_ratio
+    q = tets.quality
+    print(
+        f"  tetrahedralize_surface {figures['real_tetrahedralize_ms'] / 1e3:.1f} s: {q.tets} tets, smallest "
+        f"dihedral angle {q.min_dihedral_deg:.1f} deg, worst volume ratio {q.min_volume_ratio:.3f}"
+    )
     return {"figures": figures, "ratios": ratios}
 
 

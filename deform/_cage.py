@@ -31,7 +31,13 @@ values (``_jaxcga_shared.sparse.SparseSolver``, factored and solved on the host 
 and every mesh vertex gets the coordinates of the tet that contains it (``igl.in_element`` on an AABB
 tree), interpolated linearly; vertices on the cage up to round-off take the hat functions of its face.
 
-TetGen is AGPL-3.0 (its Python wrapper ``tetgen`` is MIT); it is used here as a separate library.
+TetGen is AGPL-3.0 (its Python wrapper ``tetgen`` is MIT): an optional extra (``pip install jaxcga[tetgen]``).
+Without it the interior is meshed by fTetWild (MPL-2.0), which keeps the surface only within a narrow envelope:
+every boundary node moves to its closest point of the cage, so the Dirichlet values are again the hat functions
+exactly and linear precision holds on the tets (their boundary is then a polyhedron inscribed in the cage, which
+may cut its sharp corners); a mesh vertex left between that polyhedron and the cage takes the hat functions of
+the cage face it lies on, or, off the cage, the nearest tet's coordinates extrapolated. The cage vertices are
+then nodes of no tet, kept first with the identity as coordinates.
 """
 
 from __future__ import annotations
@@ -40,7 +46,6 @@ import igl
 import jax.numpy as jnp
 import numpy as np
 import scipy.sparse as sp
-import tetgen
 import trimesh
 from jaxtyping import ArrayLike, Float, Int
 
@@ -48,6 +53,7 @@ from _jaxcga_shared.checks import check_faces, check_points
 from _jaxcga_shared.host import quiet_stdout
 from _jaxcga_shared.mesh import bounding_diagonal
 from _jaxcga_shared.sparse import SparseSolver
+from _jaxcga_shared.tetmeshing import embed, ftetwild, optional_tetgen
 from deform._motor_field import MotorField, motor_field_precompute
 
 # points off the cage by less than this fraction of its bounding diagonal count as on it
@@ -109,7 +115,7 @@ class _TetGenFailure(ValueError):
     """TetGen's own error (e.g. "Internal TetGen error within `recoversubfaces`")."""
 
 
-def _tetrahedralize(cage_V, cage_F, sV, sF, max_tet_volume):
+def _tetrahedralize(tetgen, cage_V, cage_F, sV, sF, max_tet_volume):
     """TetGen on the subdivided surface; checks that the tets' boundary lies on the cage, face by face.
     Returns the nodes, the tets and the boundary nodes."""
     try:
@@ -136,6 +142,24 @@ def _tetrahedralize(cage_V, cage_F, sV, sF, max_tet_volume):
     return TV, TT, np.unique(facets)
 
 
+def _tetrahedralize_ftetwild(cage_V, cage_F, max_tet_volume):
+    """fTetWild's tets of the cage with their boundary nodes moved onto it (module docstring): the nodes, the
+    first c being cage_V in no tet, the tets and the boundary nodes."""
+    diagonal = bounding_diagonal(cage_V)
+    edge = (6 * np.sqrt(2) * max_tet_volume) ** (1 / 3) / diagonal  # a regular tet of the largest volume
+    # the envelope narrower than the tets: the boundary nodes move by at most its width onto the cage
+    TV, TT = ftetwild(cage_V, cage_F, min(edge, 1.0), min(1e-3, edge / 20))
+    used, TT = np.unique(TT, return_inverse=True)
+    TV, TT = TV[used], TT.reshape(-1, 4) + len(cage_V)
+    TV = np.concatenate([cage_V, TV])
+    boundary = np.unique(np.asarray(igl.boundary_facets(TT)[0]))
+    TV[boundary] = igl.point_mesh_squared_distance(TV[boundary], cage_V, cage_F)[2]
+    x = TV[TT]
+    if np.einsum("ij,ij->i", x[:, 1] - x[:, 0], np.cross(x[:, 2] - x[:, 0], x[:, 3] - x[:, 0])).min() <= 0:
+        raise ValueError("cage_F: moving fTetWild's boundary nodes onto the cage inverted a tet; lower max_tet_volume")
+    return TV, TT, np.union1d(np.arange(len(cage_V)), boundary)  # the cage vertices' values are given too
+
+
 def harmonic_coordinates(
     cage_V: Float[ArrayLike, "c 3"],
     cage_F: Int[ArrayLike, "m 3"],
@@ -150,11 +174,12 @@ def harmonic_coordinates(
         cage_F: (m, 3) int faces of a closed, consistently oriented 2-manifold (either orientation).
         max_tet_volume: the largest tet volume as a fraction of the cage's volume (the resolution).
         subdivisions: midpoint subdivisions of the cage surface before meshing (TetGen keeps the surface,
-            so large cage faces would leave the interior coarse); None: enough to bring the median cage
+            so large cage faces would leave the interior coarse; fTetWild, without TetGen, needs none and
+            ignores it); None: enough to bring the median cage
             edge down to the edge of a regular tet of the largest volume.
     Returns:
-        TV (N, 3) tet nodes, the first c being cage_V; TT (t, 4) int tets; H (N, c) the coordinates at
-        the nodes (numpy, float64), the identity on the first c rows.
+        TV (N, 3) tet nodes, the first c being cage_V (nodes of no tet without TetGen); TT (t, 4) int tets;
+        H (N, c) the coordinates at the nodes (numpy, float64), the identity on the first c rows.
     Raises:
         ValueError: bad shapes, an open, non-manifold or inconsistently oriented cage, no volume, a
             cage TetGen cannot mesh without changing its surface."""
@@ -171,19 +196,26 @@ def _harmonic_coordinates(cage_V, cage_F, volume, max_tet_volume, subdivisions):
         subdivisions = max(0, int(np.ceil(np.log2(edge / tet_edge))))
     elif not isinstance(subdivisions, int) or subdivisions < 0:
         raise ValueError(f"subdivisions: expected None or an int >= 0, got {subdivisions!r}")
-    # TetGen's boundary recovery sometimes fails on the many coplanar points of a subdivided face
-    # (measured on a tube cage: 3 subdivisions failed, 0-2 worked): retry with fewer subdivisions.
-    for level in range(subdivisions, -1, -1):
-        sV, sF, S = _subdivide(cage_V, cage_F, level)
-        try:
-            TV, TT, boundary = _tetrahedralize(cage_V, cage_F, sV, sF, max_tet_volume * volume)
-            break
-        except _TetGenFailure:
-            if level == 0:
-                raise
-    H = np.empty((len(TV), len(cage_V)))
-    H[boundary] = _hat_values(cage_V, cage_F, TV[boundary])[0]
-    H[: len(sV)] = S.toarray()  # exact: the subdivision's averages, not a closest-point projection
+    tetgen = optional_tetgen()
+    if tetgen is None:  # fTetWild needs no subdivision: it places its own boundary nodes
+        TV, TT, boundary = _tetrahedralize_ftetwild(cage_V, cage_F, max_tet_volume * volume)
+        H = np.empty((len(TV), len(cage_V)))
+        H[boundary] = _hat_values(cage_V, cage_F, TV[boundary])[0]
+        H[: len(cage_V)] = np.eye(len(cage_V))
+    else:
+        # TetGen's boundary recovery sometimes fails on the many coplanar points of a subdivided face
+        # (measured on a tube cage: 3 subdivisions failed, 0-2 worked): retry with fewer subdivisions.
+        for level in range(subdivisions, -1, -1):
+            sV, sF, S = _subdivide(cage_V, cage_F, level)
+            try:
+                TV, TT, boundary = _tetrahedralize(tetgen, cage_V, cage_F, sV, sF, max_tet_volume * volume)
+                break
+            except _TetGenFailure:
+                if level == 0:
+                    raise
+        H = np.empty((len(TV), len(cage_V)))
+        H[boundary] = _hat_values(cage_V, cage_F, TV[boundary])[0]
+        H[: len(sV)] = S.toarray()  # exact: the subdivision's averages, not a closest-point projection
     free = np.setdiff1d(np.arange(len(TV)), boundary)
     if len(free):
         # host-side Dirichlet solve -L_ff H_f = L_fb H_b (the precompute needs no JAX trace)
@@ -193,28 +225,33 @@ def _harmonic_coordinates(cage_V, cage_F, volume, max_tet_volume, subdivisions):
 
 
 def _interpolate(cage_V, cage_F, TV, TT, H, V):
-    """Coordinates of the points V: linear in their tet, or on the cage face they lie on."""
-    tree = igl.AABB()
-    tree.init(TV, TT)
-    tet = np.asarray(igl.in_element(TV, TT, V, tree))
-    coords = np.empty((len(V), H.shape[1]))
-    inside = tet >= 0
-    corners = TT[tet[inside]]
-    bary = np.asarray(igl.barycentric_coordinates(V[inside], *(TV[corners[:, k]] for k in range(4))))
-    coords[inside] = np.einsum("nk,nkc->nc", bary, H[corners])
-    # in_element has no tolerance: points on the cage up to round-off take the face's hat functions
-    off = np.flatnonzero(~inside)
+    """Coordinates of the points V: on the cage (up to round-off), the hat functions of the face they lie on;
+    elsewhere linear in their tet, or, inside the cage but in no tet (fTetWild's boundary inscribed in the
+    cage), in the nearest tet, extrapolated."""
+    values, distance = _hat_values(cage_V, cage_F, V)
+    # in_element has no tolerance, and without TetGen a tet may reach past a concave cage vertex: points on the
+    # cage take its hat functions first
+    coords = values
+    off = np.flatnonzero(distance > _SURFACE_TOLERANCE * bounding_diagonal(cage_V))
     if len(off):
-        values, distance = _hat_values(cage_V, cage_F, V[off])
-        far = distance > _SURFACE_TOLERANCE * bounding_diagonal(cage_V)
-        if far.any():
-            i = int(off[np.argmax(far)])
-            winding = float(np.asarray(igl.winding_number(cage_V, cage_F, V[i])))
-            raise ValueError(
-                f"V: {int(far.sum())} vertices lie outside the cage, the first is vertex {i} at "
-                f"{V[i].tolist()} (winding number {winding:.3g}, expected 1)"
-            )
-        coords[off] = values
+        tree = igl.AABB()
+        tree.init(TV, TT)
+        tet = np.asarray(igl.in_element(TV, TT, V[off], tree))
+        inside = tet >= 0
+        corners = TT[tet[inside]]
+        bary = np.asarray(igl.barycentric_coordinates(V[off[inside]], *(TV[corners[:, k]] for k in range(4))))
+        coords[off[inside]] = np.einsum("nk,nkc->nc", bary, H[corners])
+        far = off[~inside]
+        if len(far):
+            winding = np.asarray(igl.winding_number(cage_V, cage_F, V[far])).reshape(-1)
+            if np.any(winding <= 0.5):
+                i = int(far[np.argmax(winding <= 0.5)])
+                raise ValueError(
+                    f"V: {int((winding <= 0.5).sum())} vertices lie outside the cage, the first is vertex {i} at "
+                    f"{V[i].tolist()} (winding number {float(winding[np.argmax(winding <= 0.5)]):.3g}, expected 1)"
+                )
+            element, weights, _ = embed(TV, TT, V[far])
+            coords[far] = np.einsum("nk,nkc->nc", weights, H[TT[element]])
     return coords
 
 

@@ -5,13 +5,19 @@ Scenes:
 
 * ``bar``: a 2 x 0.5 x 0.5 bar (16 x 4 x 4 cells, 6 tets each), clamped at x = 0: a cantilever.
 * ``cube``: a unit cube (8^3 cells) hanging from its top face.
-* a file: a tet mesh read by meshio (``.msh``, ``.vtu``, ``.vtk``, ...), or a closed triangle mesh (``.obj``,
-  ``.ply``, ``.stl``, ``.off``, glTF) tetrahedralized by TetGen; the nodes within ``fix_fraction`` of the top
-  (largest z) are clamped.
+* a file: a tet mesh read by meshio (``.msh``, ``.vtu``, ``.vtk``, ...), or a triangle surface (``.obj``,
+  ``.ply``, ``.stl``, ``.off``, glTF: a rigged model's bind-pose skin, every part) tetrahedralized by fTetWild
+  (``xfem.tetrahedralize_surface``: open, self-intersecting, several parts are fine) or, with ``mesher="tetgen"``,
+  by TetGen (closed, clean surfaces; an optional extra). The surface is embedded in the tets and carried along.
+  The nodes within ``fix_fraction`` of the top (along -gravity) are clamped; gravity points down z, or down y
+  for glTF (its up axis).
 
-Writes into OUT: ``frame_XXXX.png`` (the boundary surface, fixed axes) and ``frame_XXXX.vtu`` (the tet mesh
-with its displacement and velocity, for ParaView or meshio) every ``every`` steps and for the last one,
-and ``summary.json`` (nodes, DOFs, elements, steps, step times, energies). OUT holds one run: it must be empty
+Writes into OUT: ``frame_XXXX.png`` (the boundary surface, or the user's surface for a surface scene, fixed
+axes), ``frame_XXXX.vtu`` (the tet mesh with its displacement and velocity, for ParaView or meshio) and, for a
+surface scene, ``frame_XXXX_surface.obj`` (the user's own surface, its vertices and faces as read, deformed)
+every ``every`` steps and for the last one, and ``summary.json`` (nodes, DOFs, elements, steps, step times,
+energies; for a surface scene ``tetrahedralization``: the mesher, tets, nodes, quality (``xfem.tet_quality``),
+seconds, the surface's size and its largest distance to the tets). OUT holds one run: it must be empty
 unless ``force``, and the files appear when the run ends (written beside, in a private folder), replacing the
 previous run's files (only those), ``summary.json`` last; a failed run leaves OUT as it was.
 """
@@ -29,8 +35,10 @@ HELP = (
 )
 EXAMPLE = "jaxcga fem bar --steps 50 --out out/bar"
 SCENES = ("bar", "cube")
-RUN_FILES = re.compile(r"frame_\d{4,}\.(png|vtu)|summary\.json")  # one run's files in its OUT folder
-RUN_DESCRIBED = "frame_XXXX.png, frame_XXXX.vtu and summary.json"
+RUN_FILES = re.compile(r"frame_\d{4,}(\.png|\.vtu|_surface\.obj)|summary\.json")  # one run's files in its OUT folder
+RUN_DESCRIBED = "frame_XXXX.png, frame_XXXX.vtu, frame_XXXX_surface.obj and summary.json"
+MESHERS = ("ftetwild", "tetgen")
+GRAVITY = 9.81
 SURFACE_FORMATS = (".obj", ".ply", ".stl", ".off", ".glb", ".gltf")
 
 
@@ -38,8 +46,8 @@ def add_arguments(parser) -> None:
     parser.add_argument(
         "scene",
         help="bar (a cantilever), cube (hanging from its top face), a tet mesh file "
-        "(meshio: .msh, .vtu, ...) or a closed surface (.obj, .ply, .stl, .off, glTF) "
-        "to tetrahedralize",
+        "(meshio: .msh, .vtu, ...) or a surface (.obj, .ply, .stl, .off, glTF; open, self-intersecting, "
+        "several parts are fine) to tetrahedralize",
     )
     parser.add_argument("--steps", type=int, default=100, help="time steps (default 100)")
     parser.add_argument("--dt", type=float, default=0.033, help="time step h in seconds (default 0.033, the paper's)")
@@ -55,9 +63,9 @@ def add_arguments(parser) -> None:
         "--gravity",
         type=float,
         nargs=3,
-        default=(0.0, 0.0, -9.81),
+        default=None,
         metavar=("GX", "GY", "GZ"),
-        help="gravitational acceleration (default 0 0 -9.81)",
+        help="gravitational acceleration (default 0 0 -9.81; glTF, whose up is +y: 0 -9.81 0)",
     )
     parser.add_argument("--newton", type=int, default=1, help="Newton iterations per step (default 1, the paper's)")
     parser.add_argument("--every", type=int, default=10, help="write a frame every this many steps (default 10)")
@@ -67,10 +75,33 @@ def add_arguments(parser) -> None:
         default=0.02,
         help="mesh files: clamp the nodes within this fraction of the height below the top (default 0.02)",
     )
+    parser.add_argument(
+        "--mesher",
+        choices=MESHERS,
+        default="ftetwild",
+        help="surfaces: ftetwild (any surface, the default) or tetgen (closed, self-intersection-free surfaces; "
+        "the optional extra jaxcga[tetgen])",
+    )
+    parser.add_argument(
+        "--edge-length",
+        type=float,
+        default=0.05,
+        help="surfaces, ftetwild: the target tet edge length over the bounding box diagonal (default 0.05)",
+    )
+    parser.add_argument(
+        "--epsilon",
+        type=float,
+        default=1e-3,
+        help="surfaces, ftetwild: how far the tets' boundary may stray from the surface, over the bounding box "
+        "diagonal (default 1e-3)",
+    )
     parser.add_argument("--no-figures", action="store_true", help="write the .vtu meshes and summary.json only")
     parser.add_argument("--force", action="store_true", help=arguments.FORCE_HELP)
     parser.add_argument(
-        "--out", type=Path, required=True, help="folder for frame_XXXX.png, frame_XXXX.vtu and summary.json"
+        "--out",
+        type=Path,
+        required=True,
+        help="folder for frame_XXXX.png, frame_XXXX.vtu, frame_XXXX_surface.obj (surfaces) and summary.json",
     )
 
 
@@ -92,16 +123,27 @@ def run(args) -> dict:
         young=args.young,
         poisson=args.poisson,
         density=args.density,
-        gravity=tuple(args.gravity),
+        gravity=None if args.gravity is None else tuple(args.gravity),
         newton_iterations=args.newton,
         every=args.every,
         fix_fraction=args.fix_fraction,
+        mesher=args.mesher,
+        edge_length=args.edge_length,
+        epsilon=args.epsilon,
         figures=not args.no_figures,
         force=args.force,
     )
     shown = {
         k: summary[k] for k in ("nodes", "dofs", "elements", "steps", "step_avg_s", "step_max_s", "max_displacement")
     }
+    if "tetrahedralization" in summary:
+        report = summary["tetrahedralization"]
+        shown |= {
+            "mesher": report["mesher"],
+            "tet_s": report["seconds"],
+            "min_dihedral_deg": report["min_dihedral_deg"],
+            "min_volume_ratio": report["min_volume_ratio"],
+        }
     return args.scene, rounded(shown) | {"out": args.out}
 
 
@@ -110,27 +152,70 @@ def rounded(summary: dict) -> dict:
     return {k: f"{v:.4g}" if isinstance(v, float) else v for k, v in summary.items()}
 
 
-def scene_mesh(scene: str, fix_fraction: float = 0.02):
-    """(TetMesh, fixed node indices) of a named scene or a mesh file (module docstring)."""
+def is_gltf(scene: str) -> bool:
+    return Path(scene).suffix.lower() in (".glb", ".gltf")
+
+
+def scene_mesh(
+    scene: str,
+    fix_fraction: float = 0.02,
+    up=(0.0, 0.0, 1.0),
+    mesher: str = "ftetwild",
+    edge_length: float = 0.05,
+    epsilon: float = 1e-3,
+):
+    """(TetMesh, fixed node indices, surface) of a named scene or a mesh file (module docstring): the nodes within
+    ``fix_fraction`` of the extent along ``up`` from the top are fixed; surface: None, or (V, F, the
+    ``SurfaceEmbedding`` of V, the tetrahedralization's report) for a surface file."""
     import contextlib
     import io
 
     import numpy as np
 
     import xfem
-    from _jaxcga_shared.meshfile import read_mesh_file
+    from jaxcga_cli.models import load_mesh
 
     if scene == "bar":
         mesh = xfem.box_tets((16, 4, 4), size=(2.0, 0.5, 0.5))
-        return mesh, np.flatnonzero(np.asarray(mesh.X)[:, 0] <= 1e-12)
+        return mesh, np.flatnonzero(np.asarray(mesh.X)[:, 0] <= 1e-12), None
     if scene == "cube":
         mesh = xfem.box_tets((8, 8, 8))
-        return mesh, np.flatnonzero(np.asarray(mesh.X)[:, 2] >= 1.0 - 1e-12)
+        return mesh, np.flatnonzero(np.asarray(mesh.X)[:, 2] >= 1.0 - 1e-12), None
     path = Path(scene)
     if not path.exists():
         raise FileNotFoundError(f"SCENE: expected one of {SCENES} or a mesh file, got {scene!r} (no such file)")
+    if mesher not in MESHERS:
+        raise ValueError(f"mesher: expected one of {MESHERS}, got {mesher!r}")
+    if not 0 < fix_fraction < 1:
+        raise ValueError(f"fix_fraction: expected a fraction in (0, 1), got {fix_fraction}")
+    surface = None
     if path.suffix.lower() in SURFACE_FORMATS:
-        mesh = xfem.tetrahedralize(*read_mesh_file(path, "SCENE"))
+        V, F = load_mesh(path, "SCENE")  # glTF: the bind-pose skin of every part
+        if mesher == "tetgen":
+            import time
+
+            start = time.perf_counter()
+            try:
+                mesh = xfem.tetrahedralize(V, F)
+            except ModuleNotFoundError as error:  # TetGen is an optional extra
+                raise ValueError(f"mesher: {error}") from None
+            embedding = xfem.embed_points(mesh, V)
+            seconds = time.perf_counter() - start
+            quality = xfem.tet_quality(mesh)
+        else:
+            mesh, embedding, quality, seconds = xfem.tetrahedralize_surface(
+                V, F, edge_length=edge_length, epsilon=epsilon
+            )
+        diagonal = float(np.linalg.norm(V.max(0) - V.min(0)))
+        report = {"mesher": mesher, **quality._asdict(), "seconds": seconds}
+        if mesher == "ftetwild":
+            report |= {"edge_length": edge_length, "epsilon": epsilon}
+        report |= {
+            "surface_vertices": len(V),
+            "surface_faces": len(F),
+            "max_surface_distance": float(embedding.distance.max()) / diagonal,  # over the diagonal
+        }
+        surface = (V, F, embedding, report)
     else:
         try:
             # meshio prints its readers' complaints before giving up: the error below says it on one line
@@ -138,10 +223,9 @@ def scene_mesh(scene: str, fix_fraction: float = 0.02):
                 mesh = xfem.read_tet_mesh(path)
         except ValueError as error:  # it names its argument "path"
             raise ValueError(f"SCENE: {str(error).removeprefix('path: ')}") from None
-    if not 0 < fix_fraction < 1:
-        raise ValueError(f"fix_fraction: expected a fraction in (0, 1), got {fix_fraction}")
-    z = np.asarray(mesh.X)[:, 2]
-    return mesh, np.flatnonzero(z >= z.max() - fix_fraction * (z.max() - z.min()))
+    height = np.asarray(mesh.X) @ np.asarray(up, np.float64)
+    fixed = np.flatnonzero(height >= height.max() - fix_fraction * (height.max() - height.min()))
+    return mesh, fixed, surface
 
 
 def surface_frame(V, F, limits, path: Path, title: str, colours=None) -> None:
@@ -163,6 +247,31 @@ def surface_frame(V, F, limits, path: Path, title: str, colours=None) -> None:
     figures.save_figure(fig, path, dpi=80, bbox_inches="tight")
 
 
+def write_obj(path: Path, V, F, groups=None) -> None:
+    """A triangle mesh as Wavefront OBJ (vertices, then 1-based faces in F's order), written whole or not at all;
+    ``groups``: None, or (f,) int a group per face, written as OBJ groups ``piece_K`` (a ``g`` line where the group
+    changes from one face to the next, so the faces keep their order)."""
+    import io
+
+    import numpy as np
+
+    from _jaxcga_shared.output import write_bytes
+
+    F = np.asarray(F)
+    text = io.StringIO()
+    text.write(f"# {len(V)} vertices, {len(F)} faces\n")
+    np.savetxt(text, V, fmt="v %.9g %.9g %.9g")
+    if groups is None:
+        np.savetxt(text, F + 1, fmt="f %d %d %d")
+    else:
+        groups = np.asarray(groups)
+        starts = np.flatnonzero(np.r_[True, groups[1:] != groups[:-1]])
+        for start, end in zip(starts.tolist(), np.r_[starts[1:], len(F)].tolist()):
+            text.write(f"g piece_{int(groups[start])}\n")
+            np.savetxt(text, F[start:end] + 1, fmt="f %d %d %d")
+    write_bytes(path, text.getvalue())
+
+
 def fem_command(
     scene: str,
     steps: int,
@@ -172,16 +281,20 @@ def fem_command(
     young: float = 1e6,
     poisson: float = 0.4,
     density: float = 1e3,
-    gravity=(0.0, 0.0, -9.81),
+    gravity=None,
     newton_iterations: int = 1,
     every: int = 10,
     fix_fraction: float = 0.02,
+    mesher: str = "ftetwild",
+    edge_length: float = 0.05,
+    epsilon: float = 1e-3,
     figures: bool = True,
     force: bool = False,
 ) -> dict:
     """Simulate ``scene`` for ``steps`` backward Euler steps and write frames into ``out``; returns the summary.
-    ``out`` must be empty unless ``force``; the run's files replace the previous run's when it ends
-    (``_jaxcga_shared.output.run_folder``)."""
+    ``gravity``: None for the scene's down (module docstring). ``mesher``, ``edge_length``, ``epsilon``: how a
+    surface is tetrahedralized (``xfem.tetrahedralize_surface``'s arguments). ``out`` must be empty unless
+    ``force``; the run's files replace the previous run's when it ends (``_jaxcga_shared.output.run_folder``)."""
     import time
 
     import jax
@@ -201,16 +314,21 @@ def fem_command(
         raise ValueError(f"dt: expected a positive time step, got {h}")
     if not density > 0:
         raise ValueError(f"density: expected a positive density, got {density}")
+    if gravity is None:
+        gravity = (0.0, -GRAVITY, 0.0) if is_gltf(scene) else (0.0, 0.0, -GRAVITY)
     if len(gravity) != 3 or not np.isfinite(max(abs(float(g)) for g in gravity) * float(density)):
         raise ValueError(f"gravity: expected three numbers whose product with the density is finite, got {gravity}")
     out = check_run_folder(
         out, RUN_FILES, force, RUN_DESCRIBED, inputs=None if scene in SCENES else {"SCENE": Path(scene)}
     )
     material = xfem.Material(young, poisson)
-    mesh, fixed = scene_mesh(scene, fix_fraction)
+    g = np.asarray(gravity, np.float64)
+    up = -g / np.linalg.norm(g) if np.linalg.norm(g) > 0 else np.array([0.0, 0.0, 1.0])
+    mesh, fixed, surface = scene_mesh(scene, fix_fraction, up, mesher, edge_length, epsilon)
     system = xfem.fem_from_mesh(mesh, density, gravity, fixed)
-    faces = mesh.boundary_faces()
+    faces = mesh.boundary_faces() if surface is None else surface[1]
     X = np.asarray(mesh.X)
+    carry = None if surface is None else jax.jit(lambda x: surface[2].positions(x))
     extent = X.max(0) - X.min(0)
     limits = (X.min(0) - 0.6 * extent.max(), X.max(0) + 0.6 * extent.max())
     energies = jax.jit(lambda state: xfem.mechanical_energy(system, state, material))
@@ -227,8 +345,14 @@ def fem_command(
                     point_data={"displacement": x - X, "velocity": np.asarray(state.v)},
                 ),
             )
+            shown = x
+            if surface is not None:  # the user's own surface, carried by the tets
+                shown = np.asarray(carry(state.x))
+                write_obj(staging / f"frame_{k:04d}_surface.obj", shown, surface[1])
             if figures:
-                surface_frame(x, faces, limits, staging / f"frame_{k:04d}.png", f"{scene}: step {k}, t = {k * h:.3f} s")
+                surface_frame(
+                    shown, faces, limits, staging / f"frame_{k:04d}.png", f"{scene}: step {k}, t = {k * h:.3f} s"
+                )
 
         state = xfem.State(mesh.X, jnp.zeros_like(mesh.X))
         write(0, state)
@@ -267,5 +391,7 @@ def fem_command(
             "potential_energy": potential,
             "max_displacement": float(np.abs(np.asarray(state.x) - X).max()),
         }
+        if surface is not None:
+            summary["tetrahedralization"] = surface[3]
         write_json(staging / "summary.json", summary)
     return summary

@@ -289,3 +289,37 @@ def needs_cuda_lowering(test):
         return test(*args, **kwargs)
 
     return run
+
+
+def wild_surface():
+    """An open, self-intersecting, multi-part triangle surface and the volume it bounds: two unit icospheres
+    (subdivision 3) whose centres lie about 1 apart, so they cross each other (off any symmetry, so that no two
+    vertices coincide), each with a hole of the 6 faces around the vertex farthest from the other, and a
+    disjoint cube of side 1 (its own part); no vertex is on no face.
+
+    Returns:
+        V (v, 3), F (f, 3) int64, the volume of the closed parts' union (manifold3d, before the holes), the
+        total area of the triangles.
+    """
+    import manifold3d
+
+    sphere = trimesh.creation.icosphere(subdivisions=3)
+    parts, solids = [], []
+    for centre in ((-0.5, 0.0, 0.0), (0.51, 0.013, -0.007)):
+        V = np.asarray(sphere.vertices) + centre
+        F = np.asarray(sphere.faces)
+        tip = int(np.argmax(V[:, 0] * np.sign(centre[0])))  # the pole away from the other sphere
+        parts.append((V, F[~np.any(F == tip, axis=1)]))
+        solids.append(manifold3d.Manifold(manifold3d.Mesh(V.astype(np.float32), F.astype(np.uint32))))
+    box = trimesh.creation.box(extents=(1.0, 1.0, 1.0))
+    V = np.asarray(box.vertices) + [3.0, 0.0, 0.0]
+    parts.append((V, np.asarray(box.faces)))
+    solids.append(manifold3d.Manifold.cube((1.0, 1.0, 1.0), center=True).translate((3.0, 0.0, 0.0)))
+    offsets = np.cumsum([0] + [len(V) for V, _ in parts])
+    V = np.concatenate([V for V, _ in parts])
+    F = np.concatenate([F + o for (_, F), o in zip(parts, offsets)]).astype(np.int64)
+    used = np.unique(F)  # the holes' tips are on no face: drop them
+    V, F = V[used], np.searchsorted(used, F)
+    volume = (solids[0] + solids[1] + solids[2]).volume()
+    area = float(trimesh.Trimesh(V, F, process=False).area)
+    return V, F, volume, area

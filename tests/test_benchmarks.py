@@ -114,6 +114,10 @@ def test_bench_cutting_quick_writes_the_published_names(tmp_path):
         "real_drill_ms",
         "real_skin_ms",
         "real_trimesh_slice_ms",
+        "real_tetrahedralize_ms",
+        "real_tets",
+        "real_tets_min_dihedral_deg",
+        "real_tets_min_volume_ratio",
     ):
         assert result["figures"][name] > 0 and name in result["units"]
     for name in (

@@ -2,7 +2,8 @@
 jaxcga kernel.
 
 Sec. 3 of the paper, the simulation core: ``_tetmesh`` (tet meshes: generators, TetGen, meshio files,
-boundary faces, one-rings, adjacency), ``_linear_tet`` (linear shape functions eq. 5, consistent and
+boundary faces, one-rings, adjacency), ``_surface_tets`` (fTetWild's tets of any surface, the surface embedded in
+them, the tets' quality), ``_linear_tet`` (linear shape functions eq. 5, consistent and
 lumped mass eq. 7, body forces eq. 8), ``_neohookean`` (stable neo-Hookean energy, stress and
 PSD-projected Hessians; ``_jacobi3``, the batched 3 x 3 SVD and eigendecomposition of their eigensystem),
 ``_assembly`` (sparse patterns precomputed on the host, assembly in JAX),
@@ -52,6 +53,15 @@ from xfem._rollout import rollout
 from xfem._scenes import SCENES, SIZES, FrameRecord, Scene, SceneRun, ScheduledCut, piece_surfaces, run_scene, scene
 from xfem._simulate import simulate
 from xfem._subdomains import CutReport, CutStats, Subdomains, apply_cut, subdomains
+from xfem._surface_tets import (
+    SurfaceEmbedding,
+    SurfaceTets,
+    TetQuality,
+    cut_surface,
+    embed_points,
+    tet_quality,
+    tetrahedralize_surface,
+)
 from xfem._tetmesh import (
     TetMesh,
     boundary_faces,
@@ -134,4 +144,11 @@ __all__ = [
     "tet_mesh",
     "tet_volumes",
     "tetrahedralize",
+    "SurfaceEmbedding",
+    "SurfaceTets",
+    "TetQuality",
+    "cut_surface",
+    "embed_points",
+    "tet_quality",
+    "tetrahedralize_surface",
 ]

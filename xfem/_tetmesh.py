@@ -6,11 +6,13 @@ eqs. 7-9 live.
 ``TetMesh`` bundles the rest positions X (n, 3) and the tets T (m, 4), positively oriented: the signed
 volume ``(X1 - X0) . ((X2 - X0) x (X3 - X0)) / 6`` of every tet is > 0. ``tet_mesh`` validates and orients
 raw arrays; ``box_tets``, ``five_tet_cube`` and ``one_tet`` generate meshes; ``tetrahedralize`` meshes
-the inside of a closed triangle surface with TetGen; ``read_tet_mesh`` reads any format meshio reads.
+the inside of a closed triangle surface with TetGen (any surface: ``xfem.tetrahedralize_surface``, fTetWild);
+``read_tet_mesh`` reads any format meshio reads.
 The topology helpers (``boundary_faces``, ``node_rings``, ``element_adjacency``) run on the host in
 vectorized numpy; ``tet_volumes`` is JAX and differentiable in X.
 
-TetGen is AGPL-3.0 (its Python wrapper ``tetgen`` is MIT); it is used here as a separate library.
+TetGen is AGPL-3.0 (its Python wrapper ``tetgen`` is MIT): an optional extra (``pip install jaxcga[tetgen]``),
+used as a separate library where it is installed.
 """
 
 from __future__ import annotations
@@ -25,13 +27,13 @@ import jax.numpy as jnp
 import meshio
 import numpy as np
 import numpy.typing as npt
-import tetgen
 import trimesh
 from jaxtyping import Array, ArrayLike, Float, Int
 
 from _jaxcga_shared.checks import check_index_range, check_points, check_triangle_mesh, require
 from _jaxcga_shared.host import quiet_stdout
 from _jaxcga_shared.mesh import tet_boundary_faces, tet_face_matching
+from _jaxcga_shared.tetmeshing import TETGEN_EXTRA, optional_tetgen
 
 # a tet is degenerate when |6 V| <= this times the cube of its longest edge (a regular tet has 0.707)
 _DEGENERATE = 1e-12
@@ -251,7 +253,8 @@ def one_tet() -> TetMesh:
 def tetrahedralize(
     V: Float[npt.ArrayLike, "v 3"], F: Int[npt.ArrayLike, "f 3"], max_volume: float | None = None, quality: bool = True
 ) -> TetMesh:
-    """Tetrahedralize the inside of a closed triangle surface with TetGen.
+    """Tetrahedralize the inside of a closed triangle surface with TetGen (an optional extra: ``pip install
+    jaxcga[tetgen]``; ``tetrahedralize_surface`` is the fTetWild alternative for any surface).
 
     TetGen keeps the surface: the input vertices are the first ``len(V)`` nodes, unchanged, and the
     boundary faces cover the input triangles exactly (it may split a triangle with Steiner points on it,
@@ -269,7 +272,11 @@ def tetrahedralize(
     Raises:
         ValueError: bad shapes, an open or self-intersecting surface, unused or duplicate vertices, a bad
             max_volume, a surface TetGen fails on.
+        ModuleNotFoundError: TetGen is not installed.
     """
+    tetgen = optional_tetgen()
+    if tetgen is None:
+        raise ModuleNotFoundError(f"tetrahedralize needs TetGen: {TETGEN_EXTRA}; or use xfem.tetrahedralize_surface")
     V, F = check_triangle_mesh(V, F, min_faces=4)
     unused = np.setdiff1d(np.arange(len(V)), F)
     if len(unused):

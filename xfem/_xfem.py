@@ -588,6 +588,28 @@ class XFEMModel:
 
     def _field(self, values: np.ndarray, points, elements) -> np.ndarray:
         """sum_i sum_s values_i^s phi_i(X) psi_i^s(X) (eq. 18) at points X in the given elements."""
+        weights, dofs = self.field_dofs(points, elements)
+        return np.einsum("ka,kad->kd", weights, values[dofs])
+
+    def field_dofs(
+        self,
+        points: Float[npt.ArrayLike, "k 3"],
+        elements: Int[npt.ArrayLike, " k"],
+        indicators: Float[npt.ArrayLike, "k 3"] | None = None,
+    ) -> tuple[Float[np.ndarray, "k 4"], Int[np.ndarray, "k 4"]]:
+        """The linear map of eq. 18 at material points: ``x(X) = sum_a weights[:, a] x[dofs[:, a]]`` for any
+        DOF values x (positions, displacements, velocities).
+
+        Args:
+            points: (k, 3) material points (rest positions; outside their element the weights extrapolate it).
+            elements: (k,) int the element of each point.
+            indicators: None, or (k, 3) points at which eq. 16 picks each point's nodal subdomains instead of at
+                the point itself (e.g. the centroid of the triangle a surface point belongs to).
+        Returns:
+            weights (k, 4) float64, the shape functions phi_a(X) of the element's nodes, and dofs (k, 4) int64.
+        Raises:
+            ValueError: bad shapes, indices out of range, a point whose nodal subdomain has no DOF.
+        """
         points = np.asarray(points, np.float64)
         elements = np.asarray(elements)
         if points.ndim != 2 or points.shape[1] != 3 or not np.all(np.isfinite(points)):
@@ -598,8 +620,14 @@ class XFEMModel:
             or (elements.size and (elements.min() < 0 or elements.max() >= len(self.T)))
         ):
             raise ValueError(f"elements: expected ({len(points)},) element indices in [0, {len(self.T)})")
+        if indicators is None:
+            indicators = points
+        else:
+            indicators = np.asarray(indicators, np.float64)
+            if indicators.shape != points.shape or not np.all(np.isfinite(indicators)):
+                raise ValueError(f"indicators: expected finite points of shape {points.shape}, got {indicators.shape}")
         c, _ = linear_shape_coefficients(self.X[self.T[elements]], points)  # phi_a(X): barycentric coordinates
-        result = np.zeros((len(points), values.shape[1]))
+        dofs = np.empty((len(points), 4), np.int64)
         counts, firsts = self.sub.node_subdomain_counts(), self.sub.first_node_subdomains()
         for a in range(4):
             nodes = self.T[elements, a]
@@ -607,14 +635,15 @@ class XFEMModel:
             at = np.flatnonzero(counts[nodes] > 1)
             if len(at):
                 options, first, group = self._node_options(nodes[at])
-                nearest = _nearest_subdomains([self._node_mesh(s) for s in options.tolist()], first, group, points[at])
+                nearest = _nearest_subdomains(
+                    [self._node_mesh(s) for s in options.tolist()], first, group, indicators[at]
+                )
                 chosen[at] = options[first[group] + nearest]
-            dofs = self._dof_index(chosen)
-            if np.any(dofs < 0):
-                i = int(nodes[np.argmax(dofs < 0)])
+            dofs[:, a] = self._dof_index(chosen)
+            if np.any(dofs[:, a] < 0):
+                i = int(nodes[np.argmax(dofs[:, a] < 0)])
                 raise ValueError(f"points: a point's nodal subdomain of node {i} has no material (no DOF)")
-            result += c[:, a, None] * values[dofs]
-        return result
+        return c, dofs
 
     def displacement_at(
         self, points: Float[npt.ArrayLike, "k 3"], elements: Int[npt.ArrayLike, " k"]

@@ -1,16 +1,21 @@
 """The ``jaxcga fem SCENE`` command end to end in-process: the bar scene's frames, meshes and summary, a
-closed surface tetrahedralized, a written frame read back as a tet mesh scene, errors."""
+closed surface tetrahedralized, a written frame read back as a tet mesh scene, an open, self-intersecting,
+multi-part surface written back as itself and carried by the tets, a corpus character, TetGen named as an extra,
+errors."""
 
 from __future__ import annotations
 
 import json
+import sys
 
 import meshio
 import numpy as np
 import pytest
 import trimesh
 
+import xfem
 from jaxcga_cli.main import main
+from tests.shared import CHARACTERS, load_character, wild_surface
 
 
 @pytest.fixture(scope="module")
@@ -119,3 +124,57 @@ def test_corrupt_scenes_and_overflowing_gravity_are_named(tmp_path, capsys):
             main(["fem", *args, "--out", str(tmp_path / "x")])
         err = capsys.readouterr().err
         assert exit_info.value.code == 2 and err.count("\n") == 1 and message in err
+
+
+@pytest.mark.slow  # fTetWild and a compile: 20-60 s on 2 busy cores
+def test_a_wild_surface_is_simulated_and_written_as_itself(tmp_path, capsys):
+    # open, self-intersecting, three parts: fTetWild meshes it, and the user's own surface is what is written
+    V, F, _, _ = wild_surface()
+    path = tmp_path / "wild.obj"
+    trimesh.Trimesh(V, F, process=False).export(path)
+    out = tmp_path / "wild"
+    args = ["fem", str(path), "--steps", "2", "--every", "1", "--no-figures", "--edge-length", "0.1", "--out", str(out)]
+    assert main(args) == 0
+    assert "min_dihedral_deg" in capsys.readouterr().out
+    summary = json.loads((out / "summary.json").read_text())
+    report = summary["tetrahedralization"]
+    assert report["mesher"] == "ftetwild" and report["tets"] == summary["elements"] and report["seconds"] > 0
+    assert report["surface_vertices"] == len(V) and report["surface_faces"] == len(F)
+    assert 0 < report["min_dihedral_deg"] <= report["max_dihedral_deg"] < 180 and 0 < report["min_volume_ratio"] <= 1
+    assert report["max_surface_distance"] < 3 * report["epsilon"]
+    rest = trimesh.load(out / "frame_0000_surface.obj", process=False)
+    np.testing.assert_allclose(rest.vertices, V, atol=1e-7)
+    assert np.array_equal(rest.faces, F)
+    # the written surface is the tets' motion at the embedded vertices
+    frame = meshio.read(out / "frame_0002.vtu")
+    rest_tets = xfem.tet_mesh(frame.points - frame.point_data["displacement"], frame.cells_dict["tetra"])
+    moved = trimesh.load(out / "frame_0002_surface.obj", process=False)
+    expected = xfem.embed_points(rest_tets, V).positions(frame.points)
+    np.testing.assert_allclose(moved.vertices, expected, atol=1e-6)
+    assert np.abs(moved.vertices - V).max() > 1e-4  # it fell
+
+
+@pytest.mark.slow  # fTetWild and a compile: 20-40 s on 2 busy cores
+def test_a_character_runs_and_writes_its_own_skin(tmp_path):
+    # jaxcga fem CHARACTER.glb: the bind-pose skin of every part, hanging along -y (glTF's up)
+    out = tmp_path / "fox"
+    assert main(["fem", str(CHARACTERS["Fox"]), "--steps", "2", "--every", "2", "--no-figures", "--out", str(out)]) == 0
+    mesh = load_character("Fox").mesh
+    V, F = np.asarray(mesh.V), np.asarray(mesh.F)
+    rest = trimesh.load(out / "frame_0000_surface.obj", process=False)
+    np.testing.assert_allclose(rest.vertices, V, atol=1e-6 * np.linalg.norm(np.ptp(V, axis=0)))
+    assert np.array_equal(rest.faces, F)
+    moved = trimesh.load(out / "frame_0002_surface.obj", process=False).vertices - V
+    assert moved[:, 1].mean() < 0 and np.abs(moved[:, [0, 2]]).mean() < np.abs(moved[:, 1]).mean()  # down y
+    report = json.loads((out / "summary.json").read_text())["tetrahedralization"]
+    assert report["surface_faces"] == len(F) and report["tets"] > 200
+
+
+def test_tetgen_is_an_extra_the_command_names(tmp_path, capsys, monkeypatch):
+    monkeypatch.setitem(sys.modules, "tetgen", None)
+    path = tmp_path / "ball.obj"
+    trimesh.creation.icosphere(subdivisions=1).export(path)
+    with pytest.raises(SystemExit) as exit_info:
+        main(["fem", str(path), "--mesher", "tetgen", "--out", str(tmp_path / "x")])
+    err = capsys.readouterr().err
+    assert exit_info.value.code == 2 and "mesher: tetrahedralize needs TetGen" in err and "jaxcga[tetgen]" in err

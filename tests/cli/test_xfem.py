@@ -1,5 +1,6 @@
 """The ``jaxcga xfem SCENE`` command end to end in-process on the small cheese tetrahedron (XFEM paper sec. 5,
-Fig. 6): frames, surfaces and summary written, the summary's figures consistent with the files, errors."""
+Fig. 6): frames, surfaces and summary written, the summary's figures consistent with the files; a wild surface
+(open, self-intersecting, three parts) tetrahedralized, cut and written back in pieces; errors."""
 
 from __future__ import annotations
 
@@ -8,8 +9,10 @@ import json
 import meshio
 import numpy as np
 import pytest
+import trimesh
 
 from jaxcga_cli.main import main
+from tests.shared import wild_surface
 
 
 @pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
@@ -109,3 +112,54 @@ def test_bad_arguments_exit_with_a_message(tmp_path, capsys, args, message):
     assert exit_info.value.code == 2
     assert message in capsys.readouterr().err
     assert not (tmp_path / "x").exists()
+
+
+def _obj_groups(path):
+    """(V, F, group of each face) of an OBJ file written with ``g piece_K`` groups."""
+    V, F, group, current = [], [], [], -1
+    for line in path.read_text().splitlines():
+        words = line.split()
+        if words[:1] == ["v"]:
+            V.append([float(w) for w in words[1:4]])
+        elif words[:1] == ["g"]:
+            current = int(words[1].removeprefix("piece_"))
+        elif words[:1] == ["f"]:
+            F.append([int(w) - 1 for w in words[1:4]])
+            group.append(current)
+    return np.array(V), np.array(F), np.array(group)
+
+
+@pytest.mark.slow  # fTetWild, the cut and a compile: 30-90 s on 2 busy cores
+def test_a_wild_surface_is_cut_and_written_in_pieces(tmp_path, capsys):
+    # open, self-intersecting, three parts; the default plane z = 0 cuts the spheres and the cube in halves: the
+    # spheres' top (the fixed nodes) stays, their lower half and both halves of the cube fall
+    V, F, _, _ = wild_surface()
+    path = tmp_path / "wild.obj"
+    trimesh.Trimesh(V, F, process=False).export(path)
+    out = tmp_path / "wild"
+    args = ["xfem", str(path), "--steps", "3", "--every", "3", "--cut-frame", "1", "--edge-length", "0.1"]
+    assert main([*args, "--no-figures", "--out", str(out)]) == 0
+    assert "min_dihedral_deg" in capsys.readouterr().out
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["pieces"] == 4 and summary["cut_frames"] == [1] and summary["frame_pieces"] == [4, 4, 4]
+    assert summary["tetrahedralization"]["tets"] > 1000
+    Vr, Fr, group = _obj_groups(out / "frame_0000_surface.obj")
+    np.testing.assert_allclose(Vr, V, atol=1e-7)  # uncut: the user's surface as it is
+    spheres = V[F].mean(axis=1)[:, 0] < 2
+    assert np.array_equal(Fr, F) and len(np.unique(group)) == 2  # the cube and the spheres, apart from the start
+    assert len(np.unique(group[spheres])) == 1 and len(np.unique(group[~spheres])) == 1
+    Vd, Fd, group = _obj_groups(out / "frame_0003_surface.obj")
+    assert len(Fd) == len(F) and len(np.unique(group)) == 4
+    # every triangle is there once, its corners copies of its own vertices, in pieces by the side of the cut
+    centroid = V[F].mean(axis=1)
+    below = centroid[:, 2] < 0
+    clear = np.abs(centroid[:, 2]) > 0.02  # off the plane by more than its perturbation and the tets' envelope
+    for g in np.unique(group).tolist():
+        assert len(np.unique(below[clear & (group == g)])) == 1  # a piece lies on one side
+    drop = (V[F] - Vd[Fd])[..., 2].mean(axis=1)  # how far each triangle fell
+    # cut before the first step, the cube and the spheres' lower half fall freely from rest, unstrained: backward
+    # Euler gives x_3 = h^2 g (1 + 2 + 3); the spheres' top hangs from its fixed nodes and sags less
+    free_fall = 6 * 0.033**2 * 9.81
+    np.testing.assert_allclose(drop[~spheres], free_fall, rtol=1e-4)  # one Newton iteration, iterative solves
+    np.testing.assert_allclose(drop[below & clear], free_fall, rtol=1e-3)
+    assert drop[spheres & ~below & clear].max() < 0.6 * free_fall

@@ -5,6 +5,8 @@ the paper's origin binding, jit / vmap / gradients by finite differences, float3
 
 from __future__ import annotations
 
+import sys
+
 import igl
 import jax
 import jax.numpy as jnp
@@ -246,3 +248,21 @@ def test_tetgen_failure_on_a_subdivided_cylinder_cage_falls_back_to_fewer_subdiv
     cage_V, cage_F = tube_cage(V)
     cage = cage_precompute(V, cage_V, cage_F, subdivisions=3)
     np.testing.assert_allclose(np.asarray(cage.weights) @ cage_V, V, atol=1e-10)
+
+
+def test_without_tetgen_cages_use_ftetwild(monkeypatch):
+    # TetGen is an optional extra: with its import blocked, the interior is fTetWild's tets with their boundary
+    # nodes moved onto the cage, and the coordinates keep their defining properties
+    monkeypatch.setitem(sys.modules, "tetgen", None)
+    TV, TT, H = harmonic_coordinates(TET_V, TET_F, max_tet_volume=1e-3)
+    assert len(TT) > 50
+    np.testing.assert_allclose(H, _barycentric(TET_V, TV), atol=1e-10)  # linear data: exact on any tets
+    for name, mean_difference in (("cube", 0.01), ("arm", 0.02)):
+        cage_V, cage_F, V = CAGES[name]
+        coords = np.asarray(cage_precompute(V, cage_V, cage_F).weights)
+        np.testing.assert_allclose(coords.sum(axis=1), 1.0, atol=1e-12)
+        np.testing.assert_allclose(coords @ cage_V, V, atol=1e-10)
+        c = len(cage_V)
+        np.testing.assert_allclose(coords[-c:], np.eye(c), atol=1e-12)
+        # another discretization of the same harmonic functions: close to TetGen's on average
+        assert np.abs(coords - np.asarray(BOUND[name].weights)).mean() < mean_difference

@@ -2,18 +2,20 @@
 with finite states; the sticks end as exactly 36 pieces (Fig. 5); the accordion's release makes two pieces of one
 (Fig. 7); the cheese tetrahedron gets several subdomains per node (Fig. 6); the mass after the cuts is rho times
 the body's volume minus the cuts' volume inside it (manifold3d Booleans of the applied cut solids); the pieces'
-surfaces enclose that volume."""
+surfaces enclose that volume; without TetGen the mouth's head is fTetWild's."""
 
 import dataclasses
+import sys
 
 import manifold3d
 import numpy as np
 import pytest
+import trimesh
 
 from xfem import SCENES, boundary_faces, piece_surfaces, run_scene, scene
 
 # the scenes' mean edge length (Table 1's parameter) has no public API
-from xfem._scenes import average_edge
+from xfem._scenes import average_edge, head_surface
 
 # Table 1's average edge lengths, and the tolerance we ask of the meshes built to match them (TetGen's meshes of
 # the character are only near the target)
@@ -175,3 +177,21 @@ def test_cut_latency_equals_the_cuts_done_later():
     assert sum(r.cuts for r in short.records) == first and short.model.pieces() == short.records[-1].pieces == 6
     with pytest.raises(ValueError, match="cut_latency"):
         run_scene(sc, steps=1, cut_latency=-1)
+
+
+@pytest.mark.slow  # fTetWild and the mouth's Booleans: ~30 s on 2 busy cores
+def test_the_mouth_without_tetgen_is_meshed_by_ftetwild(monkeypatch):
+    # TetGen is an optional extra: without it the head is fTetWild's, at about TetGen's average edge, and the
+    # scene still cuts its mouth and jaw
+    monkeypatch.setitem(sys.modules, "tetgen", None)
+    sc = scene("mouth", "small")
+    V, F = head_surface(22.0, 2)
+    head = trimesh.Trimesh(V, F, process=False)
+    # the tets' boundary within the envelope (1e-3 of the diagonal) of the surface: at most area x width between
+    envelope = 1e-3 * np.linalg.norm(np.ptp(V, axis=0))
+    assert float(sc.mesh.volumes().sum()) == pytest.approx(head.volume, abs=head.area * envelope)
+    assert average_edge(sc.mesh) == pytest.approx(5.28, rel=0.15)
+    run = run_scene(sc)
+    assert run.model.pieces() >= 1 and len(run.applied) == 2
+    assert np.all(np.isfinite(np.asarray(run.model.state.x)))
+    assert run.records[-1].dofs > 3 * sc.mesh.n_nodes  # the cuts split nodal subdomains
