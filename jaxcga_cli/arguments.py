@@ -37,6 +37,23 @@ def unhandled_argument(parser, scope: str) -> None:
     )
 
 
+def ftetwild_arguments(parser, scope: str) -> None:
+    """--edge-length and --epsilon of fTetWild (``xfem.tetrahedralize_surface``'s defaults) for fem and xfem."""
+    parser.add_argument(
+        "--edge-length",
+        type=float,
+        default=0.05,
+        help=f"{scope}: the target tet edge length over the bounding box diagonal (default 0.05)",
+    )
+    parser.add_argument(
+        "--epsilon",
+        type=float,
+        default=1e-3,
+        help=f"{scope}: how far the tets' boundary may stray from the surface, over the bounding box "
+        "diagonal (default 1e-3)",
+    )
+
+
 def mesh_argument(parser, default: str) -> None:
     parser.add_argument(
         "mesh",

@@ -82,19 +82,7 @@ def add_arguments(parser) -> None:
         help="surfaces: ftetwild (any surface, the default) or tetgen (closed, self-intersection-free surfaces; "
         "the optional extra jaxcga[tetgen])",
     )
-    parser.add_argument(
-        "--edge-length",
-        type=float,
-        default=0.05,
-        help="surfaces, ftetwild: the target tet edge length over the bounding box diagonal (default 0.05)",
-    )
-    parser.add_argument(
-        "--epsilon",
-        type=float,
-        default=1e-3,
-        help="surfaces, ftetwild: how far the tets' boundary may stray from the surface, over the bounding box "
-        "diagonal (default 1e-3)",
-    )
+    arguments.ftetwild_arguments(parser, "surfaces, ftetwild")
     parser.add_argument("--no-figures", action="store_true", help="write the .vtu meshes and summary.json only")
     parser.add_argument("--force", action="store_true", help=arguments.FORCE_HELP)
     parser.add_argument(

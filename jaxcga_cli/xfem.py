@@ -79,19 +79,7 @@ def add_arguments(parser) -> None:
     parser.add_argument(
         "--cut-frame", type=int, default=5, help="surface files: the frame the plane cuts before (default 5)"
     )
-    parser.add_argument(
-        "--edge-length",
-        type=float,
-        default=0.05,
-        help="surface files: the target tet edge length over the bounding box diagonal (default 0.05)",
-    )
-    parser.add_argument(
-        "--epsilon",
-        type=float,
-        default=1e-3,
-        help="surface files: how far the tets' boundary may stray from the surface, over the bounding box "
-        "diagonal (default 1e-3)",
-    )
+    arguments.ftetwild_arguments(parser, "surface files")
     parser.add_argument("--no-figures", action="store_true", help="write the .vtu surfaces and summary.json only")
     parser.add_argument("--force", action="store_true", help=arguments.FORCE_HELP)
     parser.add_argument(
