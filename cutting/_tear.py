@@ -105,6 +105,13 @@ _QUAD_TRIANGLES = np.array([[0, 1, 2], [0, 2, 3]])
 _ALTERNATIVES = 3
 # A slit inside one face that would leave a sliver piece ends earlier: at these fractions of its blade's time.
 _SHORTER = (0.75, 0.5, 0.25)
+# A blade that barely crosses the skin (one sample on it, or a slit too short for the sliver rule) makes the
+# shortest slit of these lengths (fractions of its face's longest edge) that leaves no sliver: through its crossing
+# along the blade's motion first, then turned by _MINIMAL_TURNS, then moved towards the face's centroid
+# (_MINIMAL_CENTRES) where the crossing is too near an edge or corner for any of them.
+_MINIMAL_LENGTHS = (0.05, 0.1, 0.2, 0.35, 0.5)
+_MINIMAL_TURNS = np.pi * np.array([0.0, 1.0, -1.0, 2.0, -2.0, 3.0]) / 6.0
+_MINIMAL_CENTRES = (0.0, 0.5, 1.0)
 
 
 class TearTopology(NamedTuple):
@@ -147,6 +154,9 @@ class TearTopology(NamedTuple):
         shift: (s-1,) how far each plane was moved along its oriented normal (the perturbation; mostly 0):
             ``planes[i, 3] = planes[i, :3] . X_i + shift[i]``.
         from_tip: (s-1,) bool the steps that leave a stretch's first face, from its tip.
+        sample_offsets: (s, 3) added to the barycentric coordinates of the blade's crossing before the margin:
+            zero but at the two ends of a minimal slit (a blade that barely crosses the skin, see ``tear``),
+            which lie on either side of the crossing in its face (their sum is zero).
     """
 
     sample_faces: Int[np.ndarray, " s"]
@@ -169,6 +179,7 @@ class TearTopology(NamedTuple):
     orientation: Float[np.ndarray, " k"]
     shift: Float[np.ndarray, " k"]
     from_tip: Bool[np.ndarray, " k"]
+    sample_offsets: Float[np.ndarray, "s 3"]
 
 
 def scalpel_path(blade: Float[ArrayLike, "2 3"], motors: cga.Multivector) -> Scalpel:
@@ -207,6 +218,8 @@ class _Crossing(NamedTuple):
     barycentric: np.ndarray
     point: np.ndarray
     exact: np.ndarray  # on the blade, before the margin: the planes pass through it
+    # added to the crossing's barycentric coordinates before the margin: the ends of a minimal slit (None: zero)
+    offset: np.ndarray | None = None
 
 
 def _crossings(V, F, segments, time, faces) -> list[_Crossing]:
@@ -554,13 +567,13 @@ class _Path:
             return
         first_index = self.stretches[-1][0]
         first, last = self.samples[first_index], self.samples[-1]
-        if self._slit_fits(first, last):
+        if self._slit_fits(first.face, first.point, last.point):
             self.inner.append(len(self.stretches) - 1)
             return
         for fraction in _SHORTER:
             time = first.time + fraction * (last.time - first.time)
             end = next((c for c in self.crossing(time) or [] if c.face == first.face), None)
-            if end is not None and self._slit_fits(first, end):
+            if end is not None and self._slit_fits(first.face, first.point, end.point):
                 del self.samples[first_index + 1 :]
                 self._truncate(first_index)
                 self.samples.append(end)
@@ -568,17 +581,78 @@ class _Path:
                 self._row()
                 self.inner.append(len(self.stretches) - 1)
                 return
+        ends = self._minimal_slit(first)
+        if ends is not None:
+            del self.samples[first_index:]
+            self._truncate(first_index)
+            self.samples += ends
+            self.stretches[-1][1] = first_index + 1
+            self._row()
+            self.inner.append(len(self.stretches) - 1)
+            return
         self.visited.discard(self.faces[-1])
         del self.samples[samples:], self.faces[faces:], self.stretches[-1], self.stretch_faces[-1]
         self._truncate(rows)
+
+    def _minimal_slit(self, c: _Crossing) -> list[_Crossing] | None:
+        """The two ends of the shortest slit in c's face that leaves no sliver (_MINIMAL_LENGTHS), through the
+        blade's crossing along the blade's motion there (or, where none fits, turned, then nearer the face's
+        centroid), both at c's time; None where no candidate fits."""
+        corners = self.V[self.F[c.face]]
+        normal = np.cross(corners[1] - corners[0], corners[2] - corners[0])
+        squared = float(normal @ normal)
+        if squared == 0:
+            return None
+        unit_normal = normal / np.sqrt(squared)
+        longest = float(np.linalg.norm(corners - np.roll(corners, 1, axis=0), axis=1).max())
+
+        def barycentric(points):
+            return np.stack(
+                [
+                    cross_rows(corners[(k + 1) % 3] - points, corners[(k + 2) % 3] - points) @ normal / squared
+                    for k in range(3)
+                ],
+                axis=-1,
+            )
+
+        # the blade's motion at c's time (its ends' mean), in the face's plane; a blade that does not move: the
+        # face's longest edge
+        i = min(int(c.time), len(self.motion) - 1)
+        motion = (self.segments[i + 1] - self.segments[i]).mean(axis=0)
+        motion -= (motion @ unit_normal) * unit_normal
+        if np.linalg.norm(motion) <= 1e-9 * longest:
+            k = int(np.argmax(np.linalg.norm(corners - np.roll(corners, 1, axis=0), axis=1)))
+            motion = corners[k] - corners[k - 1]
+        motion /= np.linalg.norm(motion)
+        side = np.cross(unit_normal, motion)
+        crossing = barycentric(c.exact[None])[0]
+        for towards in _MINIMAL_CENTRES:
+            centre = (1.0 - towards) * c.exact + towards * corners.mean(axis=0)
+            for turn in _MINIMAL_TURNS:
+                direction = np.cos(turn) * motion + np.sin(turn) * side
+                for length in _MINIMAL_LENGTHS:
+                    half = 0.5 * length * longest * direction
+                    ends = barycentric(np.stack([centre - half, centre + half]))
+                    # inside the tip margin, where tear_positions' margin leaves them as they are
+                    if ends.min() < 1.5 * _TIP_MARGIN:
+                        continue
+                    first, last = ends @ corners
+                    if not self._slit_fits(c.face, first, last):
+                        continue
+                    return [
+                        _Crossing(c.time, c.face, b, point, c.exact, b - crossing)
+                        for b, point in zip(ends, (first, last))
+                    ]
+        return None
 
     def _truncate(self, rows: int):
         for chunk in (self.planes, self.orientation, self.shifts, self.from_tip, self.point_chunks, self.t_chunks):
             del chunk[rows:]
 
-    def _slit_fits(self, first: _Crossing, last: _Crossing) -> bool:
-        corners = self.V[self.F[first.face]]
-        pieces = _slit_pieces(corners, first.point, last.point)
+    def _slit_fits(self, face: int, first, last) -> bool:
+        """Whether a slit in ``face`` from the point ``first`` to ``last`` (3,) leaves no sliver piece."""
+        corners = self.V[self.F[face]]
+        pieces = _slit_pieces(corners, first, last)
         if pieces is None:
             return False
         self.smallest.near(corners[None])
@@ -813,6 +887,7 @@ def tear_topology(
         np.asarray(path.orientation),
         np.asarray(path.shifts),
         np.asarray(path.from_tip, bool),
+        np.array([np.zeros(3) if c.offset is None else c.offset for c in path.samples]),
     )
 
 
@@ -1099,7 +1174,7 @@ def tear_positions(
         )
         / squared[:, None]
     )
-    barycentric = jnp.maximum(barycentric, _TIP_MARGIN)
+    barycentric = jnp.maximum(barycentric + jnp.asarray(topology.sample_offsets), _TIP_MARGIN)
     barycentric = barycentric / jnp.sum(barycentric, -1, keepdims=True)
     samples = jnp.einsum("sk,skc->sc", barycentric, corners, precision=EXACT)
     # the planes of the steps that gave tear points only (the others may have none)
