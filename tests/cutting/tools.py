@@ -158,7 +158,8 @@ def check_torn(mesh, scalpel, torn, path, opening: float = 0.0):
     minimal = np.abs(offsets).reshape(-1, 2, 3).sum(axis=(1, 2)) > 0
     for first, last in path.stretches[minimal]:
         corners = V[F[path.sample_faces[first]]]
-        assert path.sample_faces[first] == path.sample_faces[last] and path.sample_times[first] == path.sample_times[last]
+        assert path.sample_faces[first] == path.sample_faces[last]
+        assert path.sample_times[first] == path.sample_times[last]
         length = np.linalg.norm(path.sample_points[last] - path.sample_points[first])
         assert length <= 0.5 * np.linalg.norm(corners - np.roll(corners, 1, axis=0), axis=1).max() * (1 + 1e-9)
     np.testing.assert_array_equal(Vt[: len(V)], V)
