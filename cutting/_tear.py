@@ -161,7 +161,8 @@ class TearTopology(NamedTuple):
         from_tip: (s-1,) bool the steps that leave a stretch's first face, from its tip.
         sample_offsets: (s, 3) added to the barycentric coordinates of the blade's crossing before the margin:
             zero but at the two ends of a minimal slit (a blade that barely crosses the skin, see ``tear``),
-            which lie on either side of the crossing in its face (their sum is zero).
+            which lie on either side of the crossing in its face, or in a neighbour of a face too thin to hold
+            one (each row sums to zero).
     """
 
     sample_faces: Int[np.ndarray, " s"]
@@ -496,7 +497,7 @@ class _Path:
         self.near: dict[int, np.ndarray] = {}
         self.lengths: dict[int, float] = {}
         self.touched = False  # whether the surface the blade sweeps meets the mesh
-        self.hit = False  # whether the blade crossed a face at any of its samples
+        self.hit = False  # whether the blade crossed a face at any time it was sampled at
         self.samples: list[_Crossing] = []
         self.stretches: list[list[int]] = []
         self.stretch_faces: list[int] = []
