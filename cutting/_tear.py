@@ -30,8 +30,13 @@ where it was on it; the tear ends at the surface's boundary (or a non-manifold e
 already went through (a face cut twice would lose or double area), each within a quarter of an edge; where the
 blade crosses no sheet at both ends of a step, the times at which mesh edges pierce the swept quadrilateral
 tell whether and where it crosses one in between. A stretch inside one face is a slit there, its middle point
-duplicated (``TearTopology.inner``). Only a blade that never crosses the surface, or whose path on it is too
-short to tear without a sliver, is refused.
+duplicated (``TearTopology.inner``). A blade that barely crosses the skin (at one instant, or moving too little
+inside one face for a slit without a sliver, even one ending earlier) makes a slit of at least 5% of its face's
+longest edge: the shortest of _MINIMAL_LENGTHS of that edge that leaves no sliver, through the blade's crossing
+along its motion (the face's longest edge for a blade that does not move across the skin), else turned, else
+moved towards the face's centroid, and in a neighbouring face (not torn yet) where the face is too thin to hold
+one; both its ends are at the crossing's time, offset from it in the face (``TearTopology.sample_offsets``). Only
+a blade that never crosses the surface is refused.
 
 In the face of an intermediate sample the path goes straight from the point where it enters the face to the
 point where it leaves it (the paper's assumption that the tear curve is smooth between close samples). A plane
@@ -105,6 +110,13 @@ _QUAD_TRIANGLES = np.array([[0, 1, 2], [0, 2, 3]])
 _ALTERNATIVES = 3
 # A slit inside one face that would leave a sliver piece ends earlier: at these fractions of its blade's time.
 _SHORTER = (0.75, 0.5, 0.25)
+# A blade that barely crosses the skin (one sample on it, or a slit too short for the sliver rule) makes the
+# shortest slit of these lengths (fractions of its face's longest edge) that leaves no sliver: through its crossing
+# along the blade's motion first, then turned by _MINIMAL_TURNS, then moved towards the face's centroid
+# (_MINIMAL_CENTRES) where the crossing is too near an edge or corner for any of them.
+_MINIMAL_LENGTHS = (0.05, 0.1, 0.2, 0.35, 0.5)
+_MINIMAL_TURNS = np.pi * np.array([0.0, 1.0, -1.0, 2.0, -2.0, 3.0]) / 6.0
+_MINIMAL_CENTRES = (0.0, 0.1, 0.25, 0.5, 1.0)
 
 
 class TearTopology(NamedTuple):
@@ -147,6 +159,10 @@ class TearTopology(NamedTuple):
         shift: (s-1,) how far each plane was moved along its oriented normal (the perturbation; mostly 0):
             ``planes[i, 3] = planes[i, :3] . X_i + shift[i]``.
         from_tip: (s-1,) bool the steps that leave a stretch's first face, from its tip.
+        sample_offsets: (s, 3) added to the barycentric coordinates of the blade's crossing before the margin:
+            zero but at the two ends of a minimal slit (a blade that barely crosses the skin, see ``tear``),
+            which lie on either side of the crossing in its face, or in a neighbour of a face too thin to hold
+            one (each row sums to zero).
     """
 
     sample_faces: Int[np.ndarray, " s"]
@@ -169,6 +185,7 @@ class TearTopology(NamedTuple):
     orientation: Float[np.ndarray, " k"]
     shift: Float[np.ndarray, " k"]
     from_tip: Bool[np.ndarray, " k"]
+    sample_offsets: Float[np.ndarray, "s 3"]
 
 
 def scalpel_path(blade: Float[ArrayLike, "2 3"], motors: cga.Multivector) -> Scalpel:
@@ -207,6 +224,8 @@ class _Crossing(NamedTuple):
     barycentric: np.ndarray
     point: np.ndarray
     exact: np.ndarray  # on the blade, before the margin: the planes pass through it
+    # added to the crossing's barycentric coordinates before the margin: the ends of a minimal slit (None: zero)
+    offset: np.ndarray | None = None
 
 
 def _crossings(V, F, segments, time, faces) -> list[_Crossing]:
@@ -477,7 +496,8 @@ class _Path:
         self.swept: dict[int, np.ndarray] = {}
         self.near: dict[int, np.ndarray] = {}
         self.lengths: dict[int, float] = {}
-        self.touched = False  # whether any sample of the blade crossed the surface
+        self.touched = False  # whether the surface the blade sweeps meets the mesh
+        self.hit = False  # whether the blade crossed a face at any time it was sampled at
         self.samples: list[_Crossing] = []
         self.stretches: list[list[int]] = []
         self.stretch_faces: list[int] = []
@@ -511,6 +531,7 @@ class _Path:
             self.near[i] = np.flatnonzero((codes[:, 0] & codes[:, 1] & codes[:, 2]) == 0)
         found = _crossings(self.V, self.F, self.segments, time, self.near[i])
         self.touched |= bool(found)
+        self.hit |= bool(found)
         return found or None
 
     def edge_length(self, face) -> float:
@@ -554,16 +575,33 @@ class _Path:
             return
         first_index = self.stretches[-1][0]
         first, last = self.samples[first_index], self.samples[-1]
-        if self._slit_fits(first, last):
+        if self._slit_fits(first.face, first.point, last.point):
             self.inner.append(len(self.stretches) - 1)
             return
         for fraction in _SHORTER:
             time = first.time + fraction * (last.time - first.time)
             end = next((c for c in self.crossing(time) or [] if c.face == first.face), None)
-            if end is not None and self._slit_fits(first, end):
+            if end is not None and self._slit_fits(first.face, first.point, end.point):
                 del self.samples[first_index + 1 :]
                 self._truncate(first_index)
                 self.samples.append(end)
+                self.stretches[-1][1] = first_index + 1
+                self._row()
+                self.inner.append(len(self.stretches) - 1)
+                return
+        # a blade that barely crossed: the shortest slit without a sliver in its face, or in a neighbour of a face too
+        # thin to hold one
+        neighbours = self.edges.edge_faces[self.edges.face_edges[first.face]].ravel()
+        neighbours = [int(g) for g in neighbours if g >= 0 and g != first.face and g not in self.visited]
+        for face in [first.face, *neighbours]:
+            ends = self._minimal_slit(first, face)
+            if ends is not None:
+                self.visited.discard(self.faces[-1])
+                self.faces[-1] = face
+                self.visited.add(face)
+                del self.samples[first_index:]
+                self._truncate(first_index)
+                self.samples += ends
                 self.stretches[-1][1] = first_index + 1
                 self._row()
                 self.inner.append(len(self.stretches) - 1)
@@ -572,13 +610,70 @@ class _Path:
         del self.samples[samples:], self.faces[faces:], self.stretches[-1], self.stretch_faces[-1]
         self._truncate(rows)
 
+    def _minimal_slit(self, c: _Crossing, face: int) -> list[_Crossing] | None:
+        """The two ends of the shortest slit in ``face`` that leaves no sliver (_MINIMAL_LENGTHS of its longest edge),
+        both at c's time: through the blade's crossing with the face's plane, along the blade's motion there (or,
+        where none fits, turned, then nearer the face's centroid: _MINIMAL_TURNS, _MINIMAL_CENTRES); None where no
+        candidate fits."""
+        corners = self.V[self.F[face]]
+        normal = np.cross(corners[1] - corners[0], corners[2] - corners[0])
+        squared = float(normal @ normal)
+        blade = _blade(self.segments, c.time)
+        along = float(normal @ (blade[1] - blade[0]))
+        if squared == 0 or along == 0:
+            return None
+        unit_normal = normal / np.sqrt(squared)
+        sides = np.linalg.norm(corners - np.roll(corners, 1, axis=0), axis=1)
+        longest = float(sides.max())
+        # where tear_positions puts the crossing: the blade's line meets the face's plane (outside a neighbour)
+        crossing = blade[0] + float(normal @ (corners[0] - blade[0])) / along * (blade[1] - blade[0])
+
+        def barycentric(points):
+            return np.stack(
+                [
+                    cross_rows(corners[(k + 1) % 3] - points, corners[(k + 2) % 3] - points) @ normal / squared
+                    for k in range(3)
+                ],
+                axis=-1,
+            )
+
+        # the blade's motion at c's time (its ends' mean), in the face's plane; a blade that does not move across
+        # it: the face's longest edge
+        i = min(int(c.time), len(self.motion) - 1)
+        motion = (self.segments[i + 1] - self.segments[i]).mean(axis=0)
+        motion -= (motion @ unit_normal) * unit_normal
+        if np.linalg.norm(motion) <= 1e-9 * longest:
+            k = int(np.argmax(sides))
+            motion = corners[k] - corners[k - 1]
+        motion /= np.linalg.norm(motion)
+        side = np.cross(unit_normal, motion)
+        reference = barycentric(crossing[None])[0]
+        for towards in _MINIMAL_CENTRES:
+            centre = (1.0 - towards) * crossing + towards * corners.mean(axis=0)
+            for turn in _MINIMAL_TURNS:
+                direction = np.cos(turn) * motion + np.sin(turn) * side
+                for length in _MINIMAL_LENGTHS:
+                    half = 0.5 * length * longest * direction
+                    ends = barycentric(np.stack([centre - half, centre + half]))
+                    # inside the tip margin, where tear_positions' margin leaves them as they are
+                    if ends.min() < 1.5 * _TIP_MARGIN:
+                        continue
+                    first, last = ends @ corners
+                    if self._slit_fits(face, first, last):
+                        return [
+                            _Crossing(c.time, face, b, point, crossing, b - reference)
+                            for b, point in zip(ends, (first, last))
+                        ]
+        return None
+
     def _truncate(self, rows: int):
         for chunk in (self.planes, self.orientation, self.shifts, self.from_tip, self.point_chunks, self.t_chunks):
             del chunk[rows:]
 
-    def _slit_fits(self, first: _Crossing, last: _Crossing) -> bool:
-        corners = self.V[self.F[first.face]]
-        pieces = _slit_pieces(corners, first.point, last.point)
+    def _slit_fits(self, face: int, first, last) -> bool:
+        """Whether a slit in ``face`` from the point ``first`` to ``last`` (3,) leaves no sliver piece."""
+        corners = self.V[self.F[face]]
+        pieces = _slit_pieces(corners, first, last)
         if pieces is None:
             return False
         self.smallest.near(corners[None])
@@ -763,8 +858,9 @@ def tear_topology(
         edges: ``mesh_edges(F)``, precomputed once per topology.
     Raises:
         ValueError: a blade that never crosses the surface (neither its samples' segments nor the surface it
-            sweeps meets the mesh), or whose path on it is too short to tear (inside one face, a slit there
-            would leave a sliver triangle)."""
+            sweeps meets the mesh). A blade that barely crosses it makes a minimal slit (module docstring); one
+            that crosses it only in faces where no slit fits without a sliver, nor in their neighbours (a
+            degenerate patch of the surface), is refused too, with a message that says so."""
     check_choice("predicates", predicates, PREDICATES)
     V, F = check_triangle_mesh(V, F, min_faces=0)
     segments = check_scalpel(scalpel)
@@ -786,9 +882,14 @@ def tear_topology(
                 f"scalpel: the scalpel never crosses the surface: none of its {len(segments)} samples' segments, "
                 "nor the surface it sweeps, meets the mesh"
             )
+        if not path.hit:  # found at the times where edges pierce the swept surface, the blade met no face
+            raise ValueError(
+                "scalpel: the scalpel never crosses the surface: the surface it sweeps only grazes the mesh's edges, "
+                "its blade meets no face"
+            )
         raise ValueError(
-            "scalpel: the blade's path on the surface stays inside one face and is too short to tear it without "
-            "a sliver triangle (or the blade does not move); move the scalpel farther between samples"
+            "scalpel: the blade crosses the surface only in faces where no slit fits without a sliver triangle, "
+            "nor in their neighbours (degenerate faces); move the scalpel or clean up the mesh there"
         )
     crossed = np.asarray(path.crossed, np.int64)
     sample_faces = np.array([c.face for c in path.samples])
@@ -813,6 +914,7 @@ def tear_topology(
         np.asarray(path.orientation),
         np.asarray(path.shifts),
         np.asarray(path.from_tip, bool),
+        np.array([np.zeros(3) if c.offset is None else c.offset for c in path.samples]),
     )
 
 
@@ -1054,8 +1156,9 @@ def tear_positions(
     """Positions of a tear's new vertices as a JAX function of the vertices, the scalpel and the
     opening, for a fixed topology: differentiable with respect to all three (``jax.grad`` over a
     ``Scalpel`` gives a ``Scalpel``). Each sample S_i is the blade's crossing with its face's plane at the
-    sample's time (the blade interpolated linearly between the scalpel's samples), kept the same 2%
-    (barycentric) off the face's edges as in ``tear_topology``.
+    sample's time (the blade interpolated linearly between the scalpel's samples), its barycentric
+    coordinates moved by ``topology.sample_offsets`` (the ends of a minimal slit) and kept the same 2% off the
+    face's edges as in ``tear_topology``.
 
     Args:
         V: (n, 3) vertex positions, as torn (posed, when torn with ``joint_matrices``).
@@ -1099,7 +1202,7 @@ def tear_positions(
         )
         / squared[:, None]
     )
-    barycentric = jnp.maximum(barycentric, _TIP_MARGIN)
+    barycentric = jnp.maximum(barycentric + jnp.asarray(topology.sample_offsets), _TIP_MARGIN)
     barycentric = barycentric / jnp.sum(barycentric, -1, keepdims=True)
     samples = jnp.einsum("sk,skc->sc", barycentric, corners, precision=EXACT)
     # the planes of the steps that gave tear points only (the others may have none)
