@@ -28,8 +28,10 @@ from jaxtyping import Array, ArrayLike, Float, Int
 
 from _jaxcga_shared.checks import check_faces, check_points, check_triangle_mesh
 from _jaxcga_shared.mesh import bounding_diagonal
+from _jaxcga_shared.platform import EXACT
 from _jaxcga_shared.tetmeshing import embed, ftetwild
 from xfem._tetmesh import TetMesh, tet_mesh
+from xfem._xfem import XFEMModel
 
 # fTetWild's defaults, measured on this project's characters: ~25k tets and under a minute for a 25k-vertex one
 EDGE_LENGTH = 0.05
@@ -130,7 +132,7 @@ class SurfaceEmbedding(eqx.Module):
             raise ValueError(f"x: expected float node positions of shape (n, 3), got {x.dtype} {x.shape}")
         if self.nodes.size and int(self.nodes.max()) >= x.shape[0]:
             raise ValueError(f"x: expected at least {int(self.nodes.max()) + 1} nodes, got {x.shape[0]}")
-        return jnp.einsum("sk,skd->sd", jnp.asarray(self.weights, x.dtype), x[jnp.asarray(self.nodes)])
+        return jnp.einsum("sk,skd->sd", jnp.asarray(self.weights, x.dtype), x[jnp.asarray(self.nodes)], precision=EXACT)
 
     def matrix(self, n_nodes: int) -> sp.csr_matrix:
         """The (s, n_nodes) sparse matrix of the map: ``positions(x) == matrix(n) @ x``."""
@@ -244,7 +246,7 @@ def tetrahedralize_surface(
 
 
 def cut_surface(
-    model, embedding: SurfaceEmbedding, V: Float[npt.ArrayLike, "s 3"], F: Int[npt.ArrayLike, "f 3"]
+    model: XFEMModel, embedding: SurfaceEmbedding, V: Float[npt.ArrayLike, "s 3"], F: Int[npt.ArrayLike, "f 3"]
 ) -> tuple[Float[np.ndarray, "k 3"], Int[np.ndarray, "f 3"], Int[np.ndarray, " f"], Int[np.ndarray, " k"]]:
     """An embedded surface, deformed and in pieces, of a cut XFEM body (eq. 18 at the surface's points).
 
