@@ -16,7 +16,7 @@ import cutting
 import deform
 import jaxcga as cga
 from tests.cutting.tools import area as _area
-from tests.cutting.tools import consistency_problems, load_models, piece_quality
+from tests.cutting.tools import consistency_problems, load_models, piece_quality, rigid_mesh
 from tests.cutting.tools import diagonal as _diagonal
 from tests.cutting.tools import posed as posed_arm
 from tests.shared import check_gradient
@@ -105,14 +105,7 @@ def test_skinning_the_halves_gives_the_original_at_original_vertices(method):
 def test_halves_are_manifold_and_caps_close_them_with_the_right_volume():
     cylinder = trimesh.creation.cylinder(radius=1.0, height=4.0, sections=64)
     V, F = np.asarray(cylinder.vertices), np.asarray(cylinder.faces)
-    mesh = deform.SkinnedMesh(
-        jnp.asarray(V),
-        jnp.asarray(F, jnp.int32),
-        jnp.zeros((len(V), 1), jnp.int32),
-        jnp.ones((len(V), 1)),
-        jnp.eye(4)[None],
-        (0,),
-    )
+    mesh = rigid_mesh(V, F)
     for plane, lower in ((cutting.Plane([0.0, 0.0, 1.0], 0.5), 2.5), (cutting.Plane([0.0, 0.3, 1.0], 0.2), None)):
         positive, negative = cutting.cut(mesh, plane, cap=True)
         halves = [trimesh.Trimesh(np.asarray(h.V), np.asarray(h.F), process=False) for h in (positive, negative)]

@@ -21,6 +21,7 @@ from tests.cutting.tools import (
     load_models,
     mean_edge,
     random_surface_point,
+    rigid_mesh,
     scalpel_of,
     scalpels_over,
 )
@@ -179,14 +180,7 @@ def test_bad_input():
 def test_a_tear_along_a_row_of_vertices_makes_no_slivers():
     """The tear plane x = 0.5 holds a row of grid vertices: it is moved off them (gentle perturbation)."""
     V, F = grid()
-    mesh = deform.SkinnedMesh(
-        jnp.asarray(V),
-        jnp.asarray(F, jnp.int32),
-        jnp.zeros((len(V), 1), jnp.int32),
-        jnp.ones((len(V), 1)),
-        jnp.eye(4)[None],
-        (0,),
-    )
+    mesh = rigid_mesh(V, F)
     scalpels = scalpel_of([[[0.5, 0.23, 1.0], [0.5, 0.23, -1.0]], [[0.5, 0.77, 1.0], [0.5, 0.77, -1.0]]])
     torn, path = cutting.tear(mesh, scalpels, return_topology=True)
     assert abs(path.shift[0]) > 0
@@ -248,18 +242,7 @@ def _open_plate():
     V, F = np.asarray(plate.vertices), np.asarray(plate.faces)
     top = F[V[F].mean(axis=1)[:, 2] > 0.04]
     used, F = np.unique(top, return_inverse=True)
-    return _rigid_mesh(V[used], F.reshape(-1, 3))
-
-
-def _rigid_mesh(V, F):
-    return deform.SkinnedMesh(
-        jnp.asarray(V),
-        jnp.asarray(F, jnp.int32),
-        jnp.zeros((len(V), 1), jnp.int32),
-        jnp.ones((len(V), 1)),
-        jnp.eye(4)[None],
-        (0,),
-    )
+    return rigid_mesh(V[used], F.reshape(-1, 3))
 
 
 def test_a_blade_that_leaves_the_surface_tears_where_it_was_on_it():
@@ -279,7 +262,7 @@ def test_a_blade_that_leaves_the_surface_tears_where_it_was_on_it():
     assert len(path.stretches) == 1
     np.testing.assert_allclose(np.abs(path.sample_points[path.stretches[0], 0]), 1.0, atol=0.25 * edge)
     # two plates side by side with a gap: x in [-1, 1] and [1.5, 3.5]
-    twin = _rigid_mesh(np.concatenate([V, V + [2.5, 0.0, 0.0]]), np.concatenate([F, F + len(V)]))
+    twin = rigid_mesh(np.concatenate([V, V + [2.5, 0.0, 0.0]]), np.concatenate([F, F + len(V)]))
     wide = scalpel_of([[[0.1, 0.13, 1.0], [0.1, 0.13, 0.0]], [[3.0, 0.13, 1.0], [3.0, 0.13, 0.0]]])
     torn, path = cutting.tear(twin, wide, return_topology=True)
     check_torn(twin, wide, torn, path)
@@ -292,7 +275,7 @@ def test_a_short_blade_motion_inside_one_face_makes_a_slit_there():
     """Both samples in one face of the grid: a slit with its middle point duplicated, 7 triangles in place of the
     face; the slit's two sides part by the opening along the face normal x the slit's direction."""
     V, F = grid()
-    mesh = _rigid_mesh(V, F)
+    mesh = rigid_mesh(V, F)
     scalpel = scalpel_of([[[0.52, 0.51, 1.0], [0.52, 0.51, -1.0]], [[0.57, 0.53, 1.0], [0.57, 0.53, -1.0]]])
     torn, path = cutting.tear(mesh, scalpel, return_topology=True)
     check_torn(mesh, scalpel, torn, path)
@@ -413,7 +396,7 @@ def test_a_blade_that_barely_crosses_the_skin_makes_a_minimal_slit(case):
     skin), of the shortest length in 5%, 10%, ... of that edge that leaves no sliver (in a neighbour of a face too
     thin to hold one); its tips as tear_positions gives them, differentiable in the scalpel."""
     V, F, scalpel = _barely_crossing(case)
-    mesh = _rigid_mesh(V, F)
+    mesh = rigid_mesh(V, F)
     torn, path = cutting.tear(mesh, scalpel, return_topology=True)
     check_torn(mesh, scalpel, torn, path)
     assert len(path.stretches) == 1 and list(path.inner) == [0] and len(path.t) == 0

@@ -21,6 +21,20 @@ def load_models(weld: bool):
     return {name: deform.load_model(DATA / f"{name}.glb", weld=weld) for name in ("Arm5", "3Cylinder4bones")}
 
 
+def rigid_mesh(V, F):
+    """A ``deform.SkinnedMesh`` of V, F on one joint at the identity (every vertex weight 1): a plain surface."""
+    import jax.numpy as jnp
+
+    return deform.SkinnedMesh(
+        jnp.asarray(V),
+        jnp.asarray(F, jnp.int32),
+        jnp.zeros((len(V), 1), jnp.int32),
+        jnp.ones((len(V), 1)),
+        jnp.eye(4)[None],
+        (0,),
+    )
+
+
 def area(V, F):
     """Per-face areas."""
     V, F = np.asarray(V, np.float64), np.asarray(F)
