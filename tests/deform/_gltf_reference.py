@@ -89,7 +89,10 @@ class Reference:
         overrides = self.sample(animation, t) if animation is not None else None
         g = self.globals(overrides)
         skin = self.gltf.skins[skin]
-        ibm = self.accessor(skin.inverseBindMatrices).reshape(-1, 4, 4).transpose(0, 2, 1)
+        if skin.inverseBindMatrices is None:  # the specification: identity matrices
+            ibm = np.broadcast_to(np.eye(4), (len(skin.joints), 4, 4))
+        else:
+            ibm = self.accessor(skin.inverseBindMatrices).reshape(-1, 4, 4).transpose(0, 2, 1)
         return np.stack([g[j] @ ibm[k] for k, j in enumerate(skin.joints)])
 
     def rigid_nodes(self):
