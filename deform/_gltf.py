@@ -10,13 +10,20 @@ Semantics are those of the glTF 2.0 specification (sections "Concepts", "Binary 
   infinity in any float accessor is an error naming the accessor and what reads it;
 * matrices are column-major in the file and row-major (``M @ [x, 1]``) in memory; a node's local
   transform is ``T * R * S`` or its ``matrix``, which is decomposed into T, R, S (a shear is an error);
-* the skeleton is every joint of every skin that a skinned mesh node uses, plus all their ancestors,
+* the skeleton is every joint of every skin that a skinned mesh node uses, every animated node between a rigid
+  attachment (below) and them, plus all their ancestors,
   in depth-first order from the scene roots (children in the order the file lists them);
 * a skinned vertex is ``sum_k W[:, k] * global(bone) @ inverse_bind @ [V, 1]``: the transform of the
   node that holds the mesh is ignored, so meshes are read in their own space;
+* a mesh node without a skin that is a joint of a used skin or lies below one (a rigid attachment: a robot's
+  torso, a prop in a hand) is drawn by the spec at ``global(node) @ p``; it is read as a part with weight 1 on its
+  nearest bone b (the node itself or an ancestor; animated nodes between become bones), with b's inverse bind
+  matrix (b's inverse global rest transform when no used skin has one) and V placed so that this is exact under
+  any pose; mesh nodes outside the skeleton (static scenery) are not read;
 * animation channels on nodes outside the skeleton and morph-target ``weights`` channels are dropped.
 
-Images, materials, normals, texture coordinates, morph targets and cameras are not read. FBX,
+Images, materials, normals, texture coordinates, morph targets (the base positions are read, the weights
+ignored) and cameras are not read. FBX,
 COLLADA and every other format assimp imports are converted to GLB by the ``assimp`` command-line
 tool (Debian package ``assimp-utils``) first. Everything here runs on the host with numpy.
 """
@@ -607,14 +614,19 @@ def convert_with_assimp(path: str | Path, out: str | Path | None = None) -> Path
 def load_model(path: str | Path, *, weld: bool = False) -> RiggedModel:
     """Read a rigged model: a glTF 2.0 file (``.gltf`` or ``.glb``), or FBX / COLLADA / ... through assimp.
 
-    Every node with both ``mesh`` and ``skin`` contributes its primitives, in node order, to one
-    SkinnedMesh (see ``SkinnedMesh``); k = 4 influences per vertex, 8 with JOINTS_1/WEIGHTS_1 (4 per
+    Every node with both ``mesh`` and ``skin``, and every rigid attachment (a node with a ``mesh`` and no
+    ``skin`` that is a joint of a used skin or a descendant of one: it moves with the skeleton), contributes its
+    primitives, in node order, to one SkinnedMesh (see ``SkinnedMesh``). A rigid attachment's vertices get weight 1
+    on the nearest bone at or above its node (animated nodes in between become bones), placed in that bone's bind
+    pose so that they follow the node exactly, as three.js draws them. Mesh nodes outside the skeleton (static
+    scenery) are left out; a file with no skinned mesh at all is refused. Morph targets: the base positions are
+    read, the weights ignored. k = 4 influences per vertex, 8 with JOINTS_1/WEIGHTS_1 (4 per
     set in general; primitives with fewer sets get zero weights). Joints are the union of (bone,
     inverse bind matrix) pairs of the skins used (identity when a skin has no inverseBindMatrices).
-    Weights are kept exactly as stored (no renormalization). The skeleton holds the joints and all
-    their ancestors; animations become AnimationClips (named from the file, else ``clip{i}``), with
-    CUBICSPLINE values of shape (k, 3, d). Float arrays are float64 under x64 (else float32), integer
-    arrays int32. Normalized integer data is dequantized. ``name`` is the file's stem.
+    Weights are kept exactly as stored (no renormalization). The skeleton holds the joints, the animated
+    nodes at or above rigid attachments, and all their ancestors; animations become AnimationClips (named
+    from the file, else ``clip{i}``), with CUBICSPLINE values of shape (k, 3, d). Float arrays are float64
+    under x64 (else float32), integer arrays int32. Normalized integer data is dequantized. ``name`` is the file's stem.
 
     Args:
         path: str or Path of the model file.
