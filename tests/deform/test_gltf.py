@@ -17,6 +17,7 @@ import trimesh
 
 from deform import SkinnedMesh, load_model, rest_pose, save_model, skin_model, weld
 from tests.deform._gltf_reference import Reference
+from tests.shared import load_character
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 MODELS = ["Arm5", "3Cylinder4bones", "PlaneWith3Bones", "RiggedSimple", "CesiumMan"]
@@ -522,6 +523,24 @@ def test_rigid_attachments_follow_their_node(tmp_path):
     assert again.mesh.primitive_sizes == mesh.primitive_sizes
     for t in (0.0, 0.3, 1.0):
         np.testing.assert_allclose(skin_model(again, t, "lbs"), reference.skin(0, t), atol=1e-6)
+
+
+def test_rigid_attachments_survive_a_round_trip_on_the_robot(tmp_path):
+    """RobotExpressive (15 rigid meshes, skinned hands) -> save -> load: the same primitives, joints and bones, the
+    positions rounded once to float32 (they were placed in float64), skinning unchanged, and exact from then on."""
+    first = load_character("RobotExpressive", weld=False)
+    save_model(first, tmp_path / "robot.glb")
+    second = load_model(tmp_path / "robot.glb")
+    assert second.mesh.primitive_sizes == first.mesh.primitive_sizes and len(first.mesh.primitive_sizes) == 19
+    assert second.mesh.joints == first.mesh.joints and second.skeleton.names == first.skeleton.names
+    np.testing.assert_array_equal(second.mesh.F, first.mesh.F)
+    diagonal = float(np.linalg.norm(np.ptp(np.asarray(first.mesh.V), axis=0)))
+    np.testing.assert_allclose(second.mesh.V, first.mesh.V, rtol=0, atol=1e-7 * diagonal)
+    for t in (0.0, 1.2):
+        np.testing.assert_allclose(skin_model(second, t, "lbs"), skin_model(first, t, "lbs"), atol=1e-6 * diagonal)
+    (tmp_path / "again").mkdir()
+    save_model(second, tmp_path / "again" / "robot.gltf")  # same stem, same model name
+    _assert_same(load_model(tmp_path / "again" / "robot.gltf"), second)
 
 
 def test_rigid_meshes_without_a_skin_are_not_a_rigged_model(tmp_path):
