@@ -10,13 +10,20 @@ Semantics are those of the glTF 2.0 specification (sections "Concepts", "Binary 
   infinity in any float accessor is an error naming the accessor and what reads it;
 * matrices are column-major in the file and row-major (``M @ [x, 1]``) in memory; a node's local
   transform is ``T * R * S`` or its ``matrix``, which is decomposed into T, R, S (a shear is an error);
-* the skeleton is every joint of every skin that a skinned mesh node uses, plus all their ancestors,
+* the skeleton is every joint of every skin that a skinned mesh node uses, every animated node between a rigid
+  attachment (below) and them, plus all their ancestors,
   in depth-first order from the scene roots (children in the order the file lists them);
 * a skinned vertex is ``sum_k W[:, k] * global(bone) @ inverse_bind @ [V, 1]``: the transform of the
   node that holds the mesh is ignored, so meshes are read in their own space;
+* a mesh node without a skin that is a joint of a used skin or lies below one (a rigid attachment: a robot's
+  torso, a prop in a hand) is drawn by the spec at ``global(node) @ p``; it is read as a part with weight 1 on its
+  nearest bone b (the node itself or an ancestor; animated nodes between become bones), with b's inverse bind
+  matrix (b's inverse global rest transform when no used skin has one) and V placed so that this is exact under
+  any pose; mesh nodes outside the skeleton (static scenery) are not read;
 * animation channels on nodes outside the skeleton and morph-target ``weights`` channels are dropped.
 
-Images, materials, normals, texture coordinates, morph targets and cameras are not read. FBX,
+Images, materials, normals, texture coordinates, morph targets (the base positions are read, the weights
+ignored) and cameras are not read. FBX,
 COLLADA and every other format assimp imports are converted to GLB by the ``assimp`` command-line
 tool (Debian package ``assimp-utils``) first. Everything here runs on the host with numpy.
 """
@@ -279,25 +286,74 @@ def _unique_names(names: list[str]) -> list[str]:
     return out
 
 
-def _skeleton(doc: _Document, skinned: list[int]) -> tuple[Skeleton, dict[int, int]]:
-    """The skeleton of the used skins and the map node index -> bone index."""
-    src, nodes = doc.source, doc.json.get("nodes", [])
+def _parents(doc: _Document) -> list[int]:
+    """Each node's parent (-1 for a root); a node listed as the child of two nodes, or of itself, is an error."""
+    nodes = doc.json.get("nodes", [])
     parent = [-1] * len(nodes)
     for i, node in enumerate(nodes):
         for c in node.get("children", []):
             if not isinstance(c, int) or not 0 <= c < len(nodes) or c == i or parent[c] != -1:
-                raise ValueError(f"{src}: node {i} lists child {c}, which is not a valid node with a single parent")
+                raise ValueError(
+                    f"{doc.source}: node {i} lists child {c}, which is not a valid node with a single parent"
+                )
             parent[c] = i
+    return parent
+
+
+def _rigid_nodes(doc: _Document, skinned: list[int], parent: list[int]) -> list[int]:
+    """The nodes with a mesh and no skin that move with the skeleton: a joint of a used skin or a descendant of one."""
+    nodes = doc.json.get("nodes", [])
+    joints = set()
+    for i in skinned:
+        skin = doc.item("skins", nodes[i]["skin"], f"node {i}")
+        joints.update(j for j in skin.get("joints", []) if isinstance(j, int))
+    rigid = []
+    for i, node in enumerate(nodes):
+        if "mesh" not in node or "skin" in node:
+            continue
+        j, steps = i, 0
+        while j != -1 and j not in joints and steps <= len(nodes):  # steps: a cycle is reported by _skeleton
+            j, steps = parent[j], steps + 1
+        if j in joints:
+            rigid.append(i)
+    return rigid
+
+
+def _skeleton(
+    doc: _Document, skinned: list[int], rigid: list[int], parent: list[int]
+) -> tuple[Skeleton, dict[int, int]]:
+    """The skeleton of the used skins and of the rigid mesh nodes, and the map node index -> bone index."""
+    src, nodes = doc.source, doc.json.get("nodes", [])
     needed = set()
+
+    def add(j):
+        while j != -1 and j not in needed:
+            needed.add(j)
+            j = parent[j]
+
     for i in skinned:
         skin = doc.item("skins", nodes[i]["skin"], f"node {i}")
         if not skin.get("joints"):
             raise ValueError(f"{src}: skin {nodes[i]['skin']} has no joints")
         for j in skin["joints"]:
             doc.item("nodes", j, f"skin {nodes[i]['skin']}")
-            while j != -1 and j not in needed:
-                needed.add(j)
-                j = parent[j]
+            add(j)
+    # a rigid mesh's node, and every node between it and the skeleton, that an animation moves becomes a bone (with
+    # its ancestors), so that the mesh moves exactly as its node does under any pose; nodes no channel moves are
+    # baked into the mesh instead (a bone there would only add the files' float noise in scale to the skeleton)
+    animated = {
+        c.get("target", {}).get("node")
+        for a in doc.json.get("animations", [])
+        for c in a.get("channels", [])
+        if c.get("target", {}).get("path") in PATHS
+    }
+    for i in rigid:
+        j = i
+        while j != -1 and j not in needed:
+            if j in animated:
+                add(j)
+                break
+            j = parent[j]
     scenes = doc.json.get("scenes", [])
     scene_roots = scenes[doc.json.get("scene", 0)].get("nodes", []) if scenes else []
     roots = [r for r in dict.fromkeys([*scene_roots, *range(len(nodes))]) if parent[r] == -1]
@@ -346,8 +402,9 @@ def _joint_table(doc: _Document, skins: list[int], bone_of: dict[int, int]):
     return tuple(bones), np.asarray(matrices, dtype=np.float64).reshape(-1, 4, 4), maps
 
 
-def _primitive(doc: _Document, prim: dict, skin_joints: int, where: str):
-    """V (n, 3), F (m, 3), J (n, 4s) local joint indices, W (n, 4s) of one skinned primitive."""
+def _primitive(doc: _Document, prim: dict, skin_joints: int | None, where: str):
+    """V (n, 3), F (m, 3), J (n, 4s) local joint indices, W (n, 4s) of one skinned primitive; for a rigid one
+    (``skin_joints`` None) J and W are None."""
     mode = prim.get("mode", 4)
     if mode != 4:
         raise ValueError(
@@ -364,6 +421,8 @@ def _primitive(doc: _Document, prim: dict, skin_joints: int, where: str):
         F = np.arange(n)
     if len(F) % 3 or (len(F) and F.max() >= n):
         raise ValueError(f"{where}: indices must be a multiple of 3 and below the vertex count {n}")
+    if skin_joints is None:
+        return V, F.reshape(-1, 3), None, None
     sets = 0
     while f"JOINTS_{sets}" in attrs:
         sets += 1
@@ -391,18 +450,60 @@ def _primitive(doc: _Document, prim: dict, skin_joints: int, where: str):
     return V, F.reshape(-1, 3), J, W
 
 
-def _mesh(doc: _Document, skinned: list[int], bone_of: dict[int, int]) -> SkinnedMesh:
-    skins = list(dict.fromkeys(doc.json["nodes"][i]["skin"] for i in skinned))
+def _global_rest(doc: _Document, i: int, parent: list[int]) -> np.ndarray:
+    """The node's global rest transform (4, 4): the product of its ancestors' local T * R * S, float64."""
+    out = np.eye(4)
+    while i != -1:
+        t, r, s = _node_trs(doc.json["nodes"][i], f"{doc.source}: node {i}")
+        local = np.eye(4)
+        local[:3, :3] = Rotation.from_quat(r).as_matrix() * s
+        local[:3, 3] = t
+        out = local @ out
+        i = parent[i]
+    return out
+
+
+def _mesh(doc: _Document, skinned: list[int], rigid: list[int], bone_of: dict[int, int], parent: list[int]):
+    nodes = doc.json["nodes"]
+    skins = list(dict.fromkeys(nodes[i]["skin"] for i in skinned))
     joints, inverse_bind, maps = _joint_table(doc, skins, bone_of)
+    joints, inverse_bind = list(joints), list(inverse_bind)
+    first_joint = {}  # bone -> its first joint
+    for k, bone in enumerate(joints):
+        first_joint.setdefault(bone, k)
     parts = []
-    for i in skinned:
-        node = doc.json["nodes"][i]
+    for i in sorted([*skinned, *rigid]):
+        node = nodes[i]
         mesh = doc.item("meshes", node["mesh"], f"node {i}")
-        n_joints = len(doc.json["skins"][node["skin"]]["joints"])
+        if "skin" in node:
+            n_joints = len(doc.json["skins"][node["skin"]]["joints"])
+        else:
+            # rigid: weight 1 on the nearest bone b at or above the node, with b's bind matrix when a used skin has
+            # one (V then lies in the bind pose, as the skinned meshes' V does), else b's rest pose; V = bind(b) @
+            # inv(global(b, rest)) @ global(node, rest) @ p, so that joint @ V = global(node, pose) @ p exactly, the
+            # nodes between b and the node being unanimated
+            b = i
+            while b not in bone_of:
+                b = parent[b]
+            n_joints, rest_b = None, _global_rest(doc, b, parent)
+            if bone_of[b] in first_joint:
+                joint = first_joint[bone_of[b]]
+            else:
+                joint = first_joint[bone_of[b]] = len(joints)
+                joints.append(bone_of[b])
+                inverse_bind.append(np.linalg.inv(rest_b))
+            place = np.linalg.inv(inverse_bind[joint]) @ np.linalg.inv(rest_b) @ _global_rest(doc, i, parent)
         for p, prim in enumerate(mesh.get("primitives", [])):
             where = f"{doc.source}: node {i} mesh {node['mesh']} ({mesh.get('name', '')}) primitive {p}"
             V, F, J, W = _primitive(doc, prim, n_joints, where)
-            parts.append((V, F, maps[node["skin"]][J], W))
+            if n_joints is None:
+                V = V.astype(np.float64) @ place[:3, :3].T + place[:3, 3]
+                J = np.full((len(V), 4), joint, dtype=np.int64)
+                W = np.zeros((len(V), 4))
+                W[:, 0] = 1.0
+            else:
+                J = maps[node["skin"]][J]
+            parts.append((V, F, J, W))
     if not parts:
         raise ValueError(f"{doc.source}: the skinned meshes have no primitives")
     k = max(J.shape[1] for _, _, J, _ in parts)
@@ -412,8 +513,8 @@ def _mesh(doc: _Document, skinned: list[int], bone_of: dict[int, int]) -> Skinne
         F=_int_array(np.vstack([F + o for (_, F, _, _), o in zip(parts, offsets)])),
         J=_int_array(np.vstack([np.pad(J, ((0, 0), (0, k - J.shape[1]))) for _, _, J, _ in parts])),
         W=_float_array(np.vstack([np.pad(W, ((0, 0), (0, k - W.shape[1]))) for _, _, _, W in parts])),
-        inverse_bind=_float_array(inverse_bind),
-        joints=joints,
+        inverse_bind=_float_array(np.asarray(inverse_bind, dtype=np.float64).reshape(-1, 4, 4)),
+        joints=tuple(joints),
         primitive_sizes=tuple((len(V), len(F)) for V, F, _, _ in parts),
     )
 
@@ -461,8 +562,11 @@ def _read_model(doc: _Document, name: str) -> RiggedModel:
         raise ValueError(
             f"{doc.source}: no skinned mesh (no node has both 'mesh' and 'skin'); a rigged model is expected"
         )
-    skeleton, bone_of = _skeleton(doc, skinned)
-    return RiggedModel(mesh=_mesh(doc, skinned, bone_of), skeleton=skeleton, clips=_clips(doc, bone_of), name=name)
+    parent = _parents(doc)
+    rigid = _rigid_nodes(doc, skinned, parent)
+    skeleton, bone_of = _skeleton(doc, skinned, rigid, parent)
+    mesh = _mesh(doc, skinned, rigid, bone_of, parent)
+    return RiggedModel(mesh=mesh, skeleton=skeleton, clips=_clips(doc, bone_of), name=name)
 
 
 def convert_with_assimp(path: str | Path, out: str | Path | None = None) -> Path:
@@ -510,14 +614,19 @@ def convert_with_assimp(path: str | Path, out: str | Path | None = None) -> Path
 def load_model(path: str | Path, *, weld: bool = False) -> RiggedModel:
     """Read a rigged model: a glTF 2.0 file (``.gltf`` or ``.glb``), or FBX / COLLADA / ... through assimp.
 
-    Every node with both ``mesh`` and ``skin`` contributes its primitives, in node order, to one
-    SkinnedMesh (see ``SkinnedMesh``); k = 4 influences per vertex, 8 with JOINTS_1/WEIGHTS_1 (4 per
+    Every node with both ``mesh`` and ``skin``, and every rigid attachment (a node with a ``mesh`` and no
+    ``skin`` that is a joint of a used skin or a descendant of one: it moves with the skeleton), contributes its
+    primitives, in node order, to one SkinnedMesh (see ``SkinnedMesh``). A rigid attachment's vertices get weight 1
+    on the nearest bone at or above its node (animated nodes in between become bones), placed in that bone's bind
+    pose so that they follow the node exactly, as three.js draws them. Mesh nodes outside the skeleton (static
+    scenery) are left out; a file with no skinned mesh at all is refused. Morph targets: the base positions are
+    read, the weights ignored. k = 4 influences per vertex, 8 with JOINTS_1/WEIGHTS_1 (4 per
     set in general; primitives with fewer sets get zero weights). Joints are the union of (bone,
     inverse bind matrix) pairs of the skins used (identity when a skin has no inverseBindMatrices).
-    Weights are kept exactly as stored (no renormalization). The skeleton holds the joints and all
-    their ancestors; animations become AnimationClips (named from the file, else ``clip{i}``), with
-    CUBICSPLINE values of shape (k, 3, d). Float arrays are float64 under x64 (else float32), integer
-    arrays int32. Normalized integer data is dequantized. ``name`` is the file's stem.
+    Weights are kept exactly as stored (no renormalization). The skeleton holds the joints, the animated
+    nodes at or above rigid attachments, and all their ancestors; animations become AnimationClips (named
+    from the file, else ``clip{i}``), with CUBICSPLINE values of shape (k, 3, d). Float arrays are float64
+    under x64 (else float32), integer arrays int32. Normalized integer data is dequantized. ``name`` is the file's stem.
 
     Args:
         path: str or Path of the model file.

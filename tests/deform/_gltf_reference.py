@@ -1,6 +1,7 @@
 """An independent reference for glTF 2.0 skinning, written from the specification in plain numpy and
 scipy (no code shared with ``deform``): accessors, node transforms, sampler interpolation, joint
-matrices ``global(joint) @ inverseBindMatrix`` and linear blend skinning in world space."""
+matrices ``global(joint) @ inverseBindMatrix`` and linear blend skinning in world space; a mesh without a skin on a
+node that is a joint of a used skin, or below one, is drawn rigidly with its node's world transform."""
 
 from __future__ import annotations
 
@@ -88,18 +89,45 @@ class Reference:
         overrides = self.sample(animation, t) if animation is not None else None
         g = self.globals(overrides)
         skin = self.gltf.skins[skin]
-        ibm = self.accessor(skin.inverseBindMatrices).reshape(-1, 4, 4).transpose(0, 2, 1)
+        if skin.inverseBindMatrices is None:  # the specification: identity matrices
+            ibm = np.broadcast_to(np.eye(4), (len(skin.joints), 4, 4))
+        else:
+            ibm = self.accessor(skin.inverseBindMatrices).reshape(-1, 4, 4).transpose(0, 2, 1)
         return np.stack([g[j] @ ibm[k] for k, j in enumerate(skin.joints)])
 
-    def skin(self, animation=None, t=0.0):
-        """World-space skinned positions of every skinned primitive, concatenated in node order."""
-        out = []
-        for node in self.gltf.nodes:
-            if node.mesh is None or node.skin is None:
+    def rigid_nodes(self):
+        """Nodes with a mesh and no skin that are, or descend from, a joint of a skin some mesh node uses."""
+        nodes = self.gltf.nodes
+        joints = {j for n in nodes if n.mesh is not None and n.skin is not None for j in self.gltf.skins[n.skin].joints}
+        parent = {c: p for p, n in enumerate(nodes) for c in (n.children or [])}
+        out = set()
+        for i, n in enumerate(nodes):
+            if n.mesh is None or n.skin is not None:
                 continue
-            joint = self.joint_matrices(animation, t, node.skin)
+            j = i
+            while j not in joints and j in parent:
+                j = parent[j]
+            if j in joints:
+                out.add(i)
+        return out
+
+    def skin(self, animation=None, t=0.0):
+        """World-space positions of every skinned primitive (linear blend skinning) and every rigid primitive
+        (``global(node) @ position``), concatenated in node order."""
+        overrides = self.sample(animation, t) if animation is not None else None
+        g = self.globals(overrides)
+        rigid = self.rigid_nodes()
+        out = []
+        for i, node in enumerate(self.gltf.nodes):
+            if node.mesh is None or (node.skin is None and i not in rigid):
+                continue
+            if node.skin is not None:
+                joint = self.joint_matrices(animation, t, node.skin)
             for prim in self.gltf.meshes[node.mesh].primitives:
                 v = self.accessor(prim.attributes.POSITION)
+                if node.skin is None:
+                    out.append(v @ g[i][:3, :3].T + g[i][:3, 3])
+                    continue
                 j = self.accessor(prim.attributes.JOINTS_0).astype(int)
                 w = self.accessor(prim.attributes.WEIGHTS_0)
                 blended = np.einsum("nk,nkij->nij", w, joint[j])

@@ -159,6 +159,47 @@ def test_every_character_skins_as_the_specification(name):
     assert distance.max() <= 1e-9 * scale
 
 
+def test_the_robot_s_rigid_parts_follow_their_bones():
+    """RobotExpressive skins only its hands; its torso, head, arms, legs and feet are meshes without a skin under its
+    joints (rigid attachments). All of them are read, counted from the file (every primitive of a mesh node at or
+    below a used skin's joint), and every clip of a few, at two times, skins as the reference draws them (the
+    rigid parts with their node's world transform), for LBS and eq. (17)."""
+    import jax
+
+    path = CHARACTERS["RobotExpressive"]
+    document = _document(path)
+    nodes = document["nodes"]
+    joints = {j for n in nodes if "mesh" in n and "skin" in n for j in document["skins"][n["skin"]]["joints"]}
+    parent = {c: p for p, n in enumerate(nodes) for c in n.get("children", [])}
+
+    def moves(i):
+        while i not in joints and i in parent:
+            i = parent[i]
+        return i in joints
+
+    rigid = [i for i, n in enumerate(nodes) if "mesh" in n and "skin" not in n and moves(i)]
+    assert rigid == [0, 3, 4, 6, 7, 8, 13, 14, 33, 34, 56, 57, 61, 62, 69]
+    read = [i for i, n in enumerate(nodes) if "mesh" in n and ("skin" in n or i in rigid)]
+    counts = [
+        document["accessors"][prim["attributes"]["POSITION"]]["count"]
+        for i in read
+        for prim in document["meshes"][nodes[i]["mesh"]]["primitives"]
+    ]
+    model = load_character("RobotExpressive", weld=False)
+    assert [v for v, _ in model.mesh.primitive_sizes] == counts
+    reference = Reference(path)
+    for clip in ("Dance", "Jump", "Punch", "WalkJump"):
+        a = [c.name for c in model.clips].index(clip)
+        end = float(model.clip(a).end)
+        for method in ("lbs", "cga"):
+            skin = jax.jit(lambda t, a=a, method=method: deform.skin_model(model, t, method, clip=a))
+            for t in (0.3 * end, 0.7 * end):
+                expected = reference.skin(a, t)
+                # as in test_every_character_skins_as_the_specification: 2.1e-7 (lbs), 2.5e-6 (cga) on all 14 clips
+                atol = (3e-7 if method == "lbs" else 5e-6) * _diagonal(expected)
+                np.testing.assert_allclose(skin(t), expected, atol=atol, err_msg=f"{clip} at {t:.3g} s, {method}")
+
+
 @pytest.mark.parametrize("extension", ["KHR_draco_mesh_compression", "EXT_meshopt_compression"])
 def test_a_compressed_character_is_refused_by_name(tmp_path, extension):
     """Real characters often come Draco- or meshopt-compressed (the Khronos samples' copies on GitHub are): the loader

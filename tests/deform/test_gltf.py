@@ -16,6 +16,8 @@ import pytest
 import trimesh
 
 from deform import SkinnedMesh, load_model, rest_pose, save_model, skin_model, weld
+from tests.deform._gltf_reference import Reference
+from tests.shared import load_character
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 MODELS = ["Arm5", "3Cylinder4bones", "PlaneWith3Bones", "RiggedSimple", "CesiumMan"]
@@ -440,6 +442,116 @@ def test_synthetic_round_trip(tmp_path):
     # ... and then exact
     save_model(second, tmp_path / "a.gltf")  # same stem, same model name
     _assert_same(load_model(tmp_path / "a.gltf"), second)
+
+
+def _rigid_scene(tmp_path):
+    """A skin of two joints (hips, arm; no inverse bind matrices: the bind pose is not the rest pose), a prop mesh
+    without a skin under an animated node ('holder') under the arm, with a non-uniform scale of its own, and a static
+    mesh outside the skeleton; written as a GLB so that the reference reads it too."""
+    g = _Builder()
+    half = (0.0, 0.0, np.sqrt(0.5), np.sqrt(0.5))  # 90 degrees about z
+    g.doc["scene"], g.doc["scenes"] = 0, [{"nodes": [0, 5]}]
+    g.doc["nodes"] = [
+        {"name": "hips", "translation": [0.0, 1.0, 0.0], "children": [1, 4]},
+        {"name": "arm", "translation": [1.0, 0.0, 0.0], "rotation": list(half), "scale": [2, 2, 2], "children": [2]},
+        {"name": "holder", "translation": [0.0, 0.5, 0.0], "scale": [0.5, 0.5, 0.5], "children": [3]},
+        {"name": "prop", "mesh": 1, "translation": [0.25, 0.0, 0.0], "scale": [1.0, 2.0, 3.0]},
+        {"name": "body", "mesh": 0, "skin": 0},
+        {"name": "scenery", "mesh": 1, "translation": [5.0, 0.0, 0.0]},
+    ]
+    g.doc["skins"] = [{"joints": [0, 1]}]
+    triangle = [[0, 0, 0], [1, 0, 0], [0, 1, 0]]
+    skinned = {
+        "POSITION": g.accessor(triangle, 5126, "VEC3", min=[0, 0, 0], max=[1, 1, 0]),
+        "JOINTS_0": g.accessor([[0, 1, 0, 0]] * 3, 5121, "VEC4"),
+        "WEIGHTS_0": g.accessor([[1, 0, 0, 0], [0.5, 0.5, 0, 0], [0, 1, 0, 0]], 5126, "VEC4"),
+    }
+    prop = {
+        "POSITION": g.accessor([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], 5126, "VEC3", min=[0] * 3, max=[1] * 3)
+    }
+    g.doc["meshes"] = [
+        {"primitives": [{"attributes": skinned}]},
+        {"primitives": [{"attributes": prop, "indices": g.accessor([0, 1, 2, 0, 2, 3], 5123, "SCALAR")}]},
+    ]
+    times = g.accessor([0.0, 1.0], 5126, "SCALAR", min=[0.0], max=[1.0])
+    g.doc["animations"] = [
+        {
+            "samplers": [
+                {"input": times, "output": g.accessor([half, [0.0, 0.0, 0.0, 1.0]], 5126, "VEC4")},
+                {"input": times, "output": g.accessor([[0.0, 0.5, 0.0], [0.0, 1.5, 0.25]], 5126, "VEC3")},
+            ],
+            "channels": [
+                {"sampler": 0, "target": {"node": 1, "path": "rotation"}},
+                {"sampler": 1, "target": {"node": 2, "path": "translation"}},
+            ],
+        }
+    ]
+    blob = bytes(g.bins[0]) + b"\0" * (-len(g.bins[0]) % 4)
+    g.doc["buffers"] = [{"byteLength": len(blob)}]
+    chunk = json.dumps(g.doc).encode()
+    chunk += b" " * (-len(chunk) % 4)
+    body = struct.pack("<I4s", len(chunk), b"JSON") + chunk + struct.pack("<I4s", len(blob), b"BIN\0") + blob
+    path = tmp_path / "rigid.glb"
+    path.write_bytes(struct.pack("<4sII", b"glTF", 2, 12 + len(body)) + body)
+    return path
+
+
+def test_rigid_attachments_follow_their_node(tmp_path):
+    """The prop (a mesh node without a skin, below a joint) is a part with weight 1 on the nearest bone, its
+    animated parent 'holder'; the scenery outside the skeleton is left out. At rest and under the clip, LBS and
+    eq. (17) put the prop where the specification's world transform does (the independent reference: global(node)
+    @ p) and the skinned triangle where LBS does; a save -> load round trip keeps all of it."""
+    path = _rigid_scene(tmp_path)
+    model = load_model(path)
+    mesh, skeleton = model.mesh, model.skeleton
+    assert skeleton.names == ("hips", "arm", "holder")  # the prop's own node is baked, not a bone
+    assert mesh.primitive_sizes == ((4, 2), (3, 1))  # node order: the prop, then the body; no scenery
+    np.testing.assert_array_equal(mesh.J[:4, 0], [mesh.J[0, 0]] * 4)
+    assert mesh.joints[int(mesh.J[0, 0])] == 2
+    np.testing.assert_array_equal(mesh.W[:4], [[1, 0, 0, 0]] * 4)
+    reference = Reference(path)
+    # the bind pose is the identity (no inverse bind matrices), so V is the prop's place relative to its bone
+    np.testing.assert_allclose(rest_pose(model, "lbs"), reference.skin(), atol=1e-12)
+    np.testing.assert_allclose(rest_pose(model, "cga"), reference.skin(), atol=1e-12)
+    for t in (0.0, 0.3, 1.0):
+        expected = reference.skin(0, t)
+        assert t == 0 or np.abs(expected[:4] - reference.skin()[:4]).max() > 0.1  # the prop does move
+        np.testing.assert_allclose(skin_model(model, t, "lbs"), expected, atol=1e-12)
+        np.testing.assert_allclose(skin_model(model, t, "cga"), expected, atol=1e-12)
+    save_model(model, tmp_path / "again.glb")
+    again = load_model(tmp_path / "again.glb")
+    assert again.mesh.primitive_sizes == mesh.primitive_sizes
+    for t in (0.0, 0.3, 1.0):
+        np.testing.assert_allclose(skin_model(again, t, "lbs"), reference.skin(0, t), atol=1e-6)
+
+
+def test_rigid_attachments_survive_a_round_trip_on_the_robot(tmp_path):
+    """RobotExpressive (15 rigid meshes, skinned hands) -> save -> load: the same primitives, joints and bones, the
+    positions rounded once to float32 (they were placed in float64), skinning unchanged, and exact from then on."""
+    first = load_character("RobotExpressive", weld=False)
+    save_model(first, tmp_path / "robot.glb")
+    second = load_model(tmp_path / "robot.glb")
+    assert second.mesh.primitive_sizes == first.mesh.primitive_sizes and len(first.mesh.primitive_sizes) == 19
+    assert second.mesh.joints == first.mesh.joints and second.skeleton.names == first.skeleton.names
+    np.testing.assert_array_equal(second.mesh.F, first.mesh.F)
+    diagonal = float(np.linalg.norm(np.ptp(np.asarray(first.mesh.V), axis=0)))
+    np.testing.assert_allclose(second.mesh.V, first.mesh.V, rtol=0, atol=1e-7 * diagonal)
+    for t in (0.0, 1.2):
+        np.testing.assert_allclose(skin_model(second, t, "lbs"), skin_model(first, t, "lbs"), atol=1e-6 * diagonal)
+    (tmp_path / "again").mkdir()
+    save_model(second, tmp_path / "again" / "robot.gltf")  # same stem, same model name
+    _assert_same(load_model(tmp_path / "again" / "robot.gltf"), second)
+
+
+def test_rigid_meshes_without_a_skin_are_not_a_rigged_model(tmp_path):
+    """Meshes under a node hierarchy with no skin anywhere are static scenery: still "no skinned mesh"."""
+    path = _rigid_scene(tmp_path)
+    gltf = pygltflib.GLTF2().load(str(path))
+    gltf.nodes[4].skin = None
+    gltf.skins = []
+    gltf.save_binary(str(tmp_path / "noskin.glb"))
+    with pytest.raises(ValueError, match="no skinned mesh"):
+        load_model(tmp_path / "noskin.glb")
 
 
 def test_weld_keyword_matches_weld(tmp_path):

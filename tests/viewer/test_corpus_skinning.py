@@ -26,11 +26,27 @@ def _document(path) -> dict:
     return json.loads(data[20 : 20 + length])
 
 
+def _moving_mesh_nodes(document: dict) -> list[int]:
+    """The mesh nodes deform reads, in node order: those with a skin, and those without one that are a joint of a
+    used skin or lie below one (rigid attachments, which three.js draws with the node's matrixWorld)."""
+    nodes = document["nodes"]
+    joints = {j for n in nodes if "mesh" in n and "skin" in n for j in document["skins"][n["skin"]]["joints"]}
+    parent = {c: p for p, n in enumerate(nodes) for c in n.get("children", [])}
+
+    def moves(i):
+        while i not in joints and i in parent:
+            i = parent[i]
+        return i in joints
+
+    return [i for i, n in enumerate(nodes) if "mesh" in n and ("skin" in n or moves(i))]
+
+
 def skinned_order(document: dict) -> np.ndarray:
-    """Indices into three.js's drawn vertices (``vertexPositions``) of the skinned vertices in deform's order.
+    """Indices into three.js's drawn vertices (``vertexPositions``) of the model's vertices in deform's order.
 
     three.js draws one mesh per primitive of every mesh node found by a depth-first walk of the scene, sorted by (mesh,
-    primitive, walk order) (page.js); deform takes the primitives of the nodes with a mesh and a skin in node order."""
+    primitive, walk order) (page.js), skinned or not, each at its matrixWorld; deform takes the primitives of the
+    skinned and rigidly attached mesh nodes in node order."""
     nodes, meshes, accessors = document["nodes"], document["meshes"], document["accessors"]
     drawn = []  # (mesh, primitive, walk order, node, vertex count)
 
@@ -47,8 +63,8 @@ def skinned_order(document: dict) -> np.ndarray:
     drawn.sort(key=lambda d: d[:3])
     starts = np.cumsum([0] + [d[4] for d in drawn])
     slices = {(d[3], d[1]): np.arange(starts[k], starts[k + 1]) for k, d in enumerate(drawn)}
-    skinned = sorted(key for key in slices if "skin" in nodes[key[0]])
-    return np.concatenate([slices[key] for key in skinned])
+    moving = set(_moving_mesh_nodes(document))
+    return np.concatenate([slices[key] for key in sorted(slices) if key[0] in moving])
 
 
 @pytest.mark.parametrize("name", list(CHARACTERS))
