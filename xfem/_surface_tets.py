@@ -194,7 +194,8 @@ def tetrahedralize_surface(
     a sphere with inward faces gives the same tets as with outward ones); the tets' boundary lies within the
     envelope ``epsilon`` of the surface where the surface is closed, and parts that enclose no volume (a single
     open sheet) get no tets: their vertices take the nearest tet, and a ``UserWarning`` says how far they lie.
-    fTetWild with several threads is not deterministic: the tet counts of two runs differ by a few percent.
+    fTetWild is not deterministic, not even with ``threads=1``: two runs give other tets, their counts a few percent
+    apart (fTetWild issue #72).
 
     Args:
         V: (v, 3) finite surface vertices.
