@@ -113,6 +113,13 @@ CHARACTERS = {
 }
 
 
+def character_params(fast: tuple[str, ...] = ("RobotExpressive", "Fox")) -> list:
+    """``CHARACTERS``' names for ``pytest.mark.parametrize``: those in ``fast`` run in the fast suite, the others in
+    the slow job (a check per character costs 5-10 s; the fast suite keeps the robot's several skins and rigid
+    parts and the coarse fox)."""
+    return [pytest.param(name, marks=() if name in fast else pytest.mark.slow) for name in CHARACTERS]
+
+
 @functools.cache
 def load_character(name: str, weld: bool = True):
     """The corpus character ``name`` (a key of ``CHARACTERS``) as a ``deform.RiggedModel``, welded by default (a

@@ -14,7 +14,7 @@ import pytest
 
 import deform
 from tests.deform._gltf_reference import Reference
-from tests.shared import CHARACTERS, DATA, connected_parts, load_character
+from tests.shared import CHARACTERS, DATA, character_params, connected_parts, load_character
 
 MAX_BYTES = 5_000_000  # the new files under tests/data/characters (CesiumMan was there before)
 LARGE = 25_000  # welded vertices of the largest model (the benchmarks' real_* figures run on it)
@@ -132,7 +132,7 @@ def _clip_time(model) -> float | None:
     return float(times.min() + 0.4 * (times.max() - times.min()))
 
 
-@pytest.mark.parametrize("name", list(CHARACTERS))
+@pytest.mark.parametrize("name", character_params())
 def test_every_character_skins_as_the_specification(name):
     """LBS and eq. (17) of the unwelded model equal the independent reference's skinning (the specification's
     sampling, kinematics and blend) at a time inside the first clip, or in the rest pose without one; the welded
@@ -159,6 +159,7 @@ def test_every_character_skins_as_the_specification(name):
     assert distance.max() <= 1e-9 * scale
 
 
+@pytest.mark.slow
 def test_the_robot_s_rigid_parts_follow_their_bones():
     """RobotExpressive skins only its hands; its torso, head, arms, legs and feet are meshes without a skin under its
     joints (rigid attachments). All of them are read, counted from the file (every primitive of a mesh node at or

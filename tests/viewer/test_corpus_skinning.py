@@ -15,7 +15,7 @@ import pytest
 import deform
 import jaxcga
 from _jaxcga_shared.mesh import bounding_diagonal
-from tests.shared import CHARACTERS, load_character
+from tests.shared import CHARACTERS, character_params, load_character
 
 TOLERANCE = 5e-6  # of the posed diagonal: three.js skins in float32; eq. (17) takes nearest similitudes (1.8e-6)
 
@@ -67,7 +67,7 @@ def skinned_order(document: dict) -> np.ndarray:
     return np.concatenate([slices[key] for key in sorted(slices) if key[0] in moving])
 
 
-@pytest.mark.parametrize("name", list(CHARACTERS))
+@pytest.mark.parametrize("name", character_params())
 def test_every_character_skins_as_three_js_does(browser, tmp_path, name):
     path = CHARACTERS[name]
     model = load_character(name, weld=False)
