@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import collections
 import functools
+import json
 import re
+import struct
 from pathlib import Path
 
 import numpy as np
@@ -127,6 +129,28 @@ def load_character(name: str, weld: bool = True):
     import deform
 
     return deform.load_model(CHARACTERS[name], weld=weld)
+
+
+def gltf_json(path) -> dict:
+    """The JSON chunk of a .glb."""
+    data = path.read_bytes()
+    (length,) = struct.unpack("<I", data[12:16])
+    return json.loads(data[20 : 20 + length])
+
+
+def moving_mesh_nodes(document: dict) -> list[int]:
+    """The mesh nodes deform reads, in node order: those with a skin, and those without one that are a joint of a
+    used skin or lie below one (rigid attachments, which three.js draws with the node's matrixWorld)."""
+    nodes = document["nodes"]
+    joints = {j for n in nodes if "mesh" in n and "skin" in n for j in document["skins"][n["skin"]]["joints"]}
+    parent = {c: p for p, n in enumerate(nodes) for c in n.get("children", [])}
+
+    def moves(i):
+        while i not in joints and i in parent:
+            i = parent[i]
+        return i in joints
+
+    return [i for i, n in enumerate(nodes) if "mesh" in n and ("skin" in n or moves(i))]
 
 
 def connected_parts(F, n: int) -> list[np.ndarray]:

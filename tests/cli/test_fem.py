@@ -149,8 +149,14 @@ def test_a_wild_surface_is_simulated_and_written_as_itself(tmp_path, capsys):
     frame = meshio.read(out / "frame_0002.vtu")
     rest_tets = xfem.tet_mesh(frame.points - frame.point_data["displacement"], frame.cells_dict["tetra"])
     moved = trimesh.load(out / "frame_0002_surface.obj", process=False)
-    expected = xfem.embed_points(rest_tets, V).positions(frame.points)
-    np.testing.assert_allclose(moved.vertices, expected, atol=1e-6)
+    embedding = xfem.embed_points(rest_tets, V)
+    expected = np.asarray(embedding.positions(frame.points))
+    inside = embedding.distance == 0
+    np.testing.assert_allclose(moved.vertices[inside], expected[inside], atol=1e-6)
+    # a vertex just outside the tets (fTetWild's envelope) extrapolates its nearest tet; the .vtu's rounded rest
+    # positions may pick a neighbouring one, whose extrapolation differs by the distance x the jump in the gradient
+    off = np.linalg.norm(moved.vertices - expected, axis=1)[~inside]
+    assert np.all(off <= 1e-6 + embedding.distance[~inside])
     assert np.abs(moved.vertices - V).max() > 1e-4  # it fell
 
 

@@ -14,20 +14,21 @@ import pytest
 
 import deform
 from tests.deform._gltf_reference import Reference
-from tests.shared import CHARACTERS, DATA, character_params, connected_parts, load_character
+from tests.shared import (
+    CHARACTERS,
+    DATA,
+    character_params,
+    connected_parts,
+    gltf_json,
+    load_character,
+    moving_mesh_nodes,
+)
 
 MAX_BYTES = 5_000_000  # the new files under tests/data/characters (CesiumMan was there before)
 LARGE = 25_000  # welded vertices of the largest model (the benchmarks' real_* figures run on it)
 COARSE = 1_000  # faces of the coarse model
 MANY_JOINTS = 50
 LAYER_GAP = 0.01  # a part lies over another when its vertices are this fraction of the diagonal from it
-
-
-def _document(path) -> dict:
-    """The JSON chunk of a .glb."""
-    data = path.read_bytes()
-    (length,) = struct.unpack("<I", data[12:16])
-    return json.loads(data[20 : 20 + length])
 
 
 def _diagonal(V) -> float:
@@ -76,7 +77,7 @@ def test_the_corpus_is_listed_and_small():
 def test_the_corpus_covers_real_characters():
     """Each property holds on at least one model, counted independently of the loader where the file says it (skins,
     morph targets) and on the welded mesh otherwise."""
-    documents = {name: _document(path) for name, path in CHARACTERS.items()}
+    documents = {name: gltf_json(path) for name, path in CHARACTERS.items()}
     skins = {name: len(doc.get("skins", [])) for name, doc in documents.items()}
     morphs = {
         name: sum(len(p.get("targets", [])) for m in doc.get("meshes", []) for p in m["primitives"])
@@ -168,18 +169,10 @@ def test_the_robot_s_rigid_parts_follow_their_bones():
     import jax
 
     path = CHARACTERS["RobotExpressive"]
-    document = _document(path)
-    nodes = document["nodes"]
-    joints = {j for n in nodes if "mesh" in n and "skin" in n for j in document["skins"][n["skin"]]["joints"]}
-    parent = {c: p for p, n in enumerate(nodes) for c in n.get("children", [])}
-
-    def moves(i):
-        while i not in joints and i in parent:
-            i = parent[i]
-        return i in joints
-
-    rigid = [i for i, n in enumerate(nodes) if "mesh" in n and "skin" not in n and moves(i)]
+    document = gltf_json(path)
+    rigid = [i for i in moving_mesh_nodes(document) if "skin" not in document["nodes"][i]]
     assert rigid == [0, 3, 4, 6, 7, 8, 13, 14, 33, 34, 56, 57, 61, 62, 69]
+    nodes = document["nodes"]
     read = [i for i, n in enumerate(nodes) if "mesh" in n and ("skin" in n or i in rigid)]
     counts = [
         document["accessors"][prim["attributes"]["POSITION"]]["count"]

@@ -5,9 +5,6 @@ eq. (17) must match them to ``TOLERANCE`` of the bounding-box diagonal; the erro
 
 from __future__ import annotations
 
-import json
-import struct
-
 import jax
 import numpy as np
 import pytest
@@ -15,30 +12,9 @@ import pytest
 import deform
 import jaxcga
 from _jaxcga_shared.mesh import bounding_diagonal
-from tests.shared import CHARACTERS, character_params, load_character
+from tests.shared import CHARACTERS, character_params, gltf_json, load_character, moving_mesh_nodes
 
 TOLERANCE = 5e-6  # of the posed diagonal: three.js skins in float32; eq. (17) takes nearest similitudes (1.8e-6)
-
-
-def _document(path) -> dict:
-    data = path.read_bytes()
-    (length,) = struct.unpack("<I", data[12:16])
-    return json.loads(data[20 : 20 + length])
-
-
-def _moving_mesh_nodes(document: dict) -> list[int]:
-    """The mesh nodes deform reads, in node order: those with a skin, and those without one that are a joint of a
-    used skin or lie below one (rigid attachments, which three.js draws with the node's matrixWorld)."""
-    nodes = document["nodes"]
-    joints = {j for n in nodes if "mesh" in n and "skin" in n for j in document["skins"][n["skin"]]["joints"]}
-    parent = {c: p for p, n in enumerate(nodes) for c in n.get("children", [])}
-
-    def moves(i):
-        while i not in joints and i in parent:
-            i = parent[i]
-        return i in joints
-
-    return [i for i, n in enumerate(nodes) if "mesh" in n and ("skin" in n or moves(i))]
 
 
 def skinned_order(document: dict) -> np.ndarray:
@@ -63,7 +39,7 @@ def skinned_order(document: dict) -> np.ndarray:
     drawn.sort(key=lambda d: d[:3])
     starts = np.cumsum([0] + [d[4] for d in drawn])
     slices = {(d[3], d[1]): np.arange(starts[k], starts[k + 1]) for k, d in enumerate(drawn)}
-    moving = set(_moving_mesh_nodes(document))
+    moving = set(moving_mesh_nodes(document))
     return np.concatenate([slices[key] for key in sorted(slices) if key[0] in moving])
 
 
@@ -73,7 +49,7 @@ def test_every_character_skins_as_three_js_does(browser, tmp_path, name):
     model = load_character(name, weld=False)
     state = browser.open(jaxcga.view(path).save(tmp_path / "view.html"))
     assert state["errors"] == [] and state["ready"], state["errors"]
-    order = skinned_order(_document(path))
+    order = skinned_order(gltf_json(path))
     assert len(order) == model.mesh.num_vertices
     duration = float(model.clip(0).end) if model.clips else 0.0
     times = (0.0, 0.31 * duration, 0.77 * duration) if duration else (0.0,)
