@@ -213,7 +213,7 @@ class SmallestFace:
 
     def value(self) -> float:
         if self._value is None:
-            # imported on first use: most tools never need the scan, and numba's import and cache load take ~0.4 s
+            # imported on first use: most tools never need the scan, and importing numba is slow
             from cutting._smallest_face import smallest_squared_doubled_area
 
             V, F = np.ascontiguousarray(self._V, np.float64), np.ascontiguousarray(self._F)

@@ -203,8 +203,8 @@ def _harmonic_coordinates(cage_V, cage_F, volume, max_tet_volume, subdivisions):
         H[boundary] = _hat_values(cage_V, cage_F, TV[boundary])[0]
         H[: len(cage_V)] = np.eye(len(cage_V))
     else:
-        # TetGen's boundary recovery sometimes fails on the many coplanar points of a subdivided face
-        # (measured on a tube cage: 3 subdivisions failed, 0-2 worked): retry with fewer subdivisions.
+        # TetGen's boundary recovery sometimes fails on the many coplanar points of a subdivided face:
+        # retry with fewer subdivisions.
         for level in range(subdivisions, -1, -1):
             sV, sF, S = _subdivide(cage_V, cage_F, level)
             try:

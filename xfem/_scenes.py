@@ -417,14 +417,14 @@ def head_surface(radius: float, subdivisions: int) -> tuple[np.ndarray, np.ndarr
 def _mouth(size: str) -> Scene:
     R = 22.0
     # TetGen's quality tets are smaller than the regular tet of its volume bound: the bound of a regular tet of
-    # edge 2.7 gives (measured) 6698 nodes of average edge 2.39, Table 1's octopus
+    # edge 2.7 gives Table 1's octopus: average edge 2.39
     edge = 2.7 if size == "paper" else 6.0
     V, F = head_surface(R, 3 if size == "paper" else 2)
     if optional_tetgen() is not None:
         mesh = tetrahedralize(V, F, max_volume=edge**3 / (6 * np.sqrt(2)))
     else:
-        # fTetWild without TetGen: TetGen's average edge (2.39, small 5.28); fTetWild's came out 1/0.87 of the
-        # target (measured 2.78 and 5.88 at 2.39 and 5.28)
+        # fTetWild without TetGen: aim at TetGen's average edge (2.39, small 5.28); fTetWild's edges come out
+        # longer than its target, by 1/0.87
         target = 0.87 * (2.39 if size == "paper" else 5.28) / float(np.linalg.norm(np.ptp(V, axis=0)))
         mesh = tetrahedralize_surface(V, F, edge_length=target).mesh
     epsilon = 1e-4

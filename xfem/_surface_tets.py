@@ -33,7 +33,7 @@ from _jaxcga_shared.tetmeshing import embed, ftetwild
 from xfem._tetmesh import TetMesh, tet_mesh
 from xfem._xfem import XFEMModel
 
-# fTetWild's defaults, measured on this project's characters: ~25k tets and under a minute for a 25k-vertex one
+# the defaults, as fractions of the bounding-box diagonal: coarse enough that a character meshes in about a minute
 EDGE_LENGTH = 0.05
 EPSILON = 1e-3
 
@@ -190,8 +190,8 @@ def tetrahedralize_surface(
     """Tetrahedralize the inside of any triangle surface (open, self-intersecting, several parts) with fTetWild
     and embed the surface's vertices in the tets.
 
-    The inside is where the generalized winding number of the surface is above 1/2 (fTetWild's filter; measured:
-    a sphere with inward faces gives the same tets as with outward ones); the tets' boundary lies within the
+    The inside is where the generalized winding number of the surface is above 1/2 (fTetWild's filter, so
+    the faces' orientation does not matter); the tets' boundary lies within the
     envelope ``epsilon`` of the surface where the surface is closed, and parts that enclose no volume (a single
     open sheet) get no tets: their vertices take the nearest tet, and a ``UserWarning`` says how far they lie.
     fTetWild is not deterministic, not even with ``threads=1``: two runs give other tets, their counts a few percent
