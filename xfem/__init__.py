@@ -22,7 +22,9 @@ worker process, ``_cut_process`` and ``_framing``, while the model steps), ``_ma
 ``_rollout`` (``rollout``: a differentiable ``lax.scan`` of steps), ``_simulate`` (trajectories across a schedule
 of cuts, differentiable through the cuts' DOF copy maps and in the planes of plane cuts), ``_cut_system`` (slab
 cuts whose placement is a differentiable parameter). Sec. 5: ``_scenes`` (the paper's five scenes with Table 1's
-parameters, a runner timing them like Table 2; ``jaxcga xfem SCENE`` runs them).
+parameters, a runner timing them like Table 2; ``jaxcga xfem SCENE`` runs them), ``_rxfem`` (the RXFEM baseline of
+Koschier et al. 2017 that Table 2 compares against, on the same core: Heaviside enrichment without intersecting cuts,
+moment-fitted 24-point rules on the cut elements' pieces).
 """
 
 from xfem._assembly import AssemblyPattern, CapacityError, assemble_matrix, assemble_vector, assembly_pattern
@@ -50,6 +52,15 @@ from xfem._neohookean import (
     stable_neohookean_pk1,
 )
 from xfem._rollout import rollout
+from xfem._rxfem import (
+    KEAST24,
+    KEAST24_WEIGHTS,
+    RXFEMModel,
+    RXFEMScene,
+    moment_fitted_weights,
+    rxfem_model,
+    rxfem_schedule,
+)
 from xfem._scenes import SCENES, SIZES, FrameRecord, Scene, SceneRun, ScheduledCut, piece_surfaces, run_scene, scene
 from xfem._simulate import simulate
 from xfem._subdomains import CutReport, CutStats, Subdomains, apply_cut, subdomains
@@ -106,6 +117,13 @@ __all__ = [
     "apply_cut",
     "subdomains",
     "XFEMModel",
+    "KEAST24",
+    "KEAST24_WEIGHTS",
+    "RXFEMModel",
+    "RXFEMScene",
+    "moment_fitted_weights",
+    "rxfem_model",
+    "rxfem_schedule",
     "simulate",
     "wait_for_compilations",
     "xfem_model",

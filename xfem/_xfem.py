@@ -254,6 +254,20 @@ class XFEMModel:
     def _integrate(self, elements: np.ndarray) -> int:
         """Exact mass, loads and volume of every piece of the given elements (eq. 13, 14, 21), one batch;
         returns the number of pieces."""
+        measured = self._piece_moments(elements)
+        if measured is None:
+            return 0
+        sids, owner, Xe, origin, moments, points = measured
+        c, g = linear_shape_coefficients(Xe, origin)
+        mass, load, volume = element_piece_integrals(c, g, moments, self.rho[owner])
+        for k, sid in enumerate(sids):
+            self._integrals[sid] = (float(volume[k]), mass[k], load[k], points[k])
+        return len(sids)
+
+    def _piece_moments(self, elements: np.ndarray) -> tuple | None:
+        """The pieces of the given elements and their exact moments (eq. 21), one batch: (sids, owner elements,
+        their tets' corners (P, 4, 3), the moments' origins (P, 3), ``Moments``, a point inside each (P, 3)), or
+        None when the elements have no pieces."""
         V, F, piece, sids, owner, offset = [], [], [], [], [], 0
         for e in elements.tolist():
             for sid in self.sub.element_subdomains(e):
@@ -265,18 +279,13 @@ class XFEMModel:
                 sids.append(sid)
                 owner.append(e)
         if not sids:
-            return 0
+            return None
         owner = np.asarray(owner)
         Xe = self.X[self.T[owner]]
         origin = Xe.mean(axis=1)  # the tets' centroids: the moments stay relative to the piece's size
         V, F, piece = np.concatenate(V), np.concatenate(F), np.concatenate(piece)
         moments = moments_of_pieces(V, F, piece, len(sids), origin)
-        c, g = linear_shape_coefficients(Xe, origin)
-        mass, load, volume = element_piece_integrals(c, g, moments, self.rho[owner])
-        points = _interior_points(V, F, piece, len(sids))
-        for k, sid in enumerate(sids):
-            self._integrals[sid] = (float(volume[k]), mass[k], load[k], points[k])
-        return len(sids)
+        return sids, owner, Xe, origin, moments, _interior_points(V, F, piece, len(sids))
 
     def _pieces(self) -> tuple[np.ndarray, ...]:
         """``piece_arrays`` with the nodal subdomain ids (P, 4) of eq. 16 in place of the DOFs (cached until the
@@ -698,6 +707,12 @@ def xfem_model(
     Returns:
         The ``XFEMModel``.
     """
+    return XFEMModel(*model_arguments(mesh, density, gravity, fixed, state))
+
+
+def model_arguments(mesh, density, gravity, fixed, state) -> tuple:
+    """``xfem_model``'s arguments checked (ValueError naming the bad one) and converted: (mesh, rho (m,), gravity
+    (3,), fixed (nb,) int64, state), the arguments of ``XFEMModel`` and of the models built like it."""
     if not isinstance(mesh, TetMesh):
         raise ValueError(f"mesh: expected a TetMesh, got {type(mesh).__name__}")
     m, n = mesh.T.shape[0], mesh.X.shape[0]
@@ -723,4 +738,4 @@ def xfem_model(
         or jnp.result_type(state.v) != jnp.float64
     ):
         raise ValueError(f"state: expected a float64 State with x, v of shape ({n}, 3)")
-    return XFEMModel(mesh, rho, gravity, fixed, state)
+    return mesh, rho, gravity, fixed, state
