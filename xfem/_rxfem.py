@@ -62,7 +62,8 @@ import numpy as np
 import numpy.typing as npt
 from jaxtyping import Float, Int
 
-from xfem._backward_euler import State
+from xfem._backward_euler import State, SystemCapacity
+from xfem._capacity import _FLOOR, _GROWTH, _HEADROOM, Capacities
 from xfem._cuts import cut_solid
 from xfem._scenes import Scene, ScheduledCut
 from xfem._subdomains import CutReport, MeshSolid, check_cut, solid_mesh
@@ -98,6 +99,7 @@ KEAST24, KEAST24_WEIGHTS = _keast24()
 """(24, 4) barycentric points and (24,) weights (summing to 1) of Keast's degree-6 tetrahedron rule."""
 
 _POINTS = len(KEAST24)
+_ROW_LEVELS = 64  # row levels per level of the other sizes (_RowCapacities): 1.5^64 rows, more than any model's
 _OVERLAP = 1e-9  # a new cut overlapping an earlier one inside the body by more than this fraction: intersecting
 
 
@@ -138,6 +140,18 @@ def moment_fitted_weights(
     return (np.swapaxes(A, 1, 2) @ z)[..., 0]
 
 
+class _RowCapacities(Capacities):
+    """``XFEMModel``'s capacity levels with the element rows on a scale of their own: level ``k * _ROW_LEVELS + r``
+    is level k of the nodes, mass entries and nonzeros, and level r of the rows. The 24 rows of each cut piece
+    multiply the rows, not the DOFs: scaled together, the DOFs would be padded far beyond ours (and past the core's
+    direct-solve size), a cost that is not RXFEM's."""
+
+    def capacity(self, level: int) -> SystemCapacity:
+        nodes_level, rows_level = divmod(level, _ROW_LEVELS)
+        rows = max(_FLOOR[1], int(np.ceil(self.base[1] * _HEADROOM * _GROWTH**rows_level)))
+        return super().capacity(nodes_level)._replace(elements=rows)
+
+
 class RXFEMModel(XFEMModel):
     """A body cut by the RXFEM baseline ([KBT17], module docstring): ``XFEMModel``'s API (build with
     ``rxfem_model``, then ``cut`` and ``step``), with moment-fitted 24-point rules on the cut elements' pieces and
@@ -153,6 +167,7 @@ class RXFEMModel(XFEMModel):
         self.solids: list[manifold3d.Manifold] = []
         self._body: manifold3d.Manifold | None = None
         super().__init__(mesh, rho, gravity, fixed, state)
+        self._capacities = _RowCapacities(self._capacities.base)
 
     def body(self) -> manifold3d.Manifold:
         """The body's rest shape as a solid (its tets' boundary faces), for the intersection test."""
