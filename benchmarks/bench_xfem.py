@@ -64,6 +64,7 @@ process (``_cut_system_figures``).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import gc
 import json
 import resource
@@ -88,12 +89,16 @@ from _report import RATIO_UNIT, add_json_argument, print_device, write_json  # n
 # times the step's internal kernels (energy, Newton direction) one by one
 import xfem._backward_euler as be  # noqa: E402
 from xfem import (  # noqa: E402  # noqa: E402
+    SCENES as XFEM_SCENES,
+)
+from xfem import (
     Material,  # noqa: E402
     cut_system,
     plane_cut_solid,  # noqa: E402
     plane_cuts,
     rollout,  # noqa: E402
     run_scene,
+    rxfem_schedule,
     scene,
     wait_for_compilations,  # noqa: E402
     xfem_model,  # noqa: E402
@@ -101,7 +106,7 @@ from xfem import (  # noqa: E402  # noqa: E402
 from xfem._capacity import padded_state  # noqa: E402
 
 SCENES = ("sticks", "thin", "accordion")
-FIGURES = ("table", "rollout", "memory")
+FIGURES = ("table", "rxfem", "rollout", "memory")
 # frames from a background cut's start to its effect: enough steps for the worker's cut to be ready at the commit
 # (``SCENE_async_cut_max_s`` shows a commit that waited; benchmarks/README.md, "XFEM: cuts in the background")
 LATENCY = {"sticks": 100, "thin": 15, "accordion": 10}
@@ -313,6 +318,126 @@ def run(size: str, steps: int | None, scenes=SCENES, cuts_in_background: bool = 
     return {"figures": figures, "ratios": ratios, "units": units | {k: RATIO_UNIT for k in ratios}}
 
 
+# Table 2 of the XFEM paper, both columns, as (ours, RXFEM): DOFs, EI ms, MB ms (none for RXFEM), dPsi ms, CG s,
+# step max s, step avg s, total C s, total C+U s
+TABLE2 = {
+    "sticks": ((144, 0.36, 26.9, 0.0, 0.001, 0.278, 0.009, 0.898, 1.307),
+               (144, 2.48, None, 5.6, 0.001, 0.032, 0.011, 0.097, 1.664)),
+    "thin": ((7200, 0.289, 9.59, 3.875, 0.293, 3.355, 0.627, 123.3, 282.4),
+             (7200, 1.98, None, 84.8, 0.306, 1.789, 0.6, 61.5, 270.0)),
+    "accordion": ((22800, 0.061, 6.437, 8.796, 4.811, 9.203, 5.785, 1088, 3124),
+                  (22800, 0.755, None, 153.2, 4.909, 9.14, 5.764, 1036, 3112)),
+    "octopus": ((20800, 0.048, 9.332, 7.18, 2.382, 17.3, 2.05, 137.7, 1230),
+                (20800, 0.683, None, 120.96, 2.26, 12.241, 2.092, 122.2, 1255)),
+}  # fmt: skip
+RXFEM_SCENES = ("sticks", "thin", "accordion", "octopus")
+# the octopus scene, while it is still named after its mouth cut
+OCTOPUS = "octopus" if "octopus" in XFEM_SCENES else "mouth"
+RXFEM_COLUMNS = (
+    ("dofs", "count"),
+    ("integral_ms", "ms"),
+    ("boolean_ms", "ms"),
+    ("dpsi_ms", "ms"),
+    ("cg_s", "s"),
+    ("step_max", "s"),
+    ("step_avg", "s"),
+    ("total_cut_frames", "s"),
+    ("total", "s"),
+)
+
+
+def _cell(value, width: int) -> str:
+    return f"{'-':>{width}}" if value is None else f"{value:>{width}.4g}"
+
+
+def _table2_run(sc, frames: int) -> dict:
+    """One method's Table 2 figures on scene ``sc``: a warm-up run through its last cut (compiling the step at
+    every capacity level), then the timed run of ``frames`` frames and the dPsi / CG breakdown on its final system."""
+    warm_frames = (sc.last_cut_frame if sc.cuts else 0) + 2
+    run_scene(sc, steps=warm_frames)
+    wait_for_compilations()
+    gc.collect()
+    timed = run_scene(sc, steps=frames)
+    summary = timed.summary()
+    mu, lam = sc.material.lame()
+    dpsi, cg = _breakdown(timed.model, sc.h, mu, lam)
+    return {
+        "dofs": summary["dofs"],
+        "integral_ms": summary["integral_ms"],
+        "boolean_ms": summary["boolean_ms"],
+        "dpsi_ms": 1e3 * dpsi,
+        "cg_s": cg,
+        "step_max": summary["step_max_s"],
+        "step_avg": summary["step_avg_s"],
+        "total_cut_frames": summary["total_cut_frames_s"],
+        "total": summary["total_s"],
+        "cuts": summary["cuts"],
+        "element_rows": len(timed.model.system().T),
+    }
+
+
+def rxfem_run(size: str, steps: int | None, scenes=RXFEM_SCENES):
+    """Table 2 with both columns, measured in this process: our XFEM and the RXFEM baseline (Koschier et al. 2017,
+    ``xfem.rxfem_model``) on the same scene, both with the paper's one Newton iteration. RXFEM does not support
+    intersecting cuts, so both methods make only the scene's cuts that intersect no earlier one
+    (``xfem.rxfem_schedule``; as the paper, which times RXFEM only where no intersecting cut occurs): the same
+    cuts, pieces and DOFs. Figures ``SCENE_ours_COLUMN`` and ``SCENE_rxfem_COLUMN``; ratios
+    ``SCENE_ours_vs_rxfem`` (RXFEM's average frame / ours), ``SCENE_ours_vs_rxfem_total`` and ``_dpsi``, beside
+    the paper's ``SCENE_paper_ours_vs_rxfem``; ``SCENE_rxfem_step_avg_vs_paper`` (the paper's RXFEM average frame /
+    ours)."""
+    figures, ratios, units = {}, {}, {}
+    for name in scenes:
+        built = scene(OCTOPUS if name == "octopus" else name, size)
+        # the paper's single Newton iteration, explicitly (the step's default converges)
+        built = dataclasses.replace(built, newton_iterations=1)
+        same_cuts, rx_scene, left = rxfem_schedule(built)
+        frames = steps if steps is not None else built.steps
+        measured = {"ours": _table2_run(same_cuts, frames), "rxfem": _table2_run(rx_scene, frames)}
+        for method, values in measured.items():
+            for column, unit in RXFEM_COLUMNS:
+                figures[f"{name}_{method}_{column}"] = float(values[column])
+                units[f"{name}_{method}_{column}"] = unit
+        figures[f"{name}_rxfem_cuts"] = float(len(same_cuts.cuts))
+        figures[f"{name}_rxfem_cuts_left_out"] = float(len(left))
+        figures[f"{name}_rxfem_element_rows"] = float(measured["rxfem"]["element_rows"])
+        figures[f"{name}_ours_element_rows"] = float(measured["ours"]["element_rows"])
+        units |= {
+            f"{name}_rxfem_cuts": "count (cuts made by both methods)",
+            f"{name}_rxfem_cuts_left_out": "count (the scene's cuts that intersect an earlier one)",
+            f"{name}_rxfem_element_rows": "count (element rows of the final system: 24 per cut piece)",
+            f"{name}_ours_element_rows": "count (element rows of the final system: 1 per piece)",
+        }
+        ours, rx = measured["ours"], measured["rxfem"]
+        paper_ours, paper_rx = (dict(zip((c for c, _ in RXFEM_COLUMNS), row)) for row in TABLE2[name])
+        ratios[f"{name}_ours_vs_rxfem"] = rx["step_avg"] / ours["step_avg"]
+        ratios[f"{name}_ours_vs_rxfem_total"] = rx["total"] / ours["total"]
+        ratios[f"{name}_ours_vs_rxfem_dpsi"] = rx["dpsi_ms"] / ours["dpsi_ms"]
+        ratios[f"{name}_paper_ours_vs_rxfem"] = paper_rx["step_avg"] / paper_ours["step_avg"]
+        ratios[f"{name}_rxfem_step_avg_vs_paper"] = paper_rx["step_avg"] / rx["step_avg"]
+        print(
+            f"{name} ({built.name}, {size}) Table 2, ours and RXFEM: {frames} frames, {len(same_cuts.cuts)} cuts made "
+            f"by both, {len(left)} left out (they intersect an earlier cut); element rows {ours['element_rows']} "
+            f"and {rx['element_rows']}"
+        )
+        print(f"  {'':>18} {'ours':>10} {'RXFEM':>10} {'paper ours':>11} {'paper RXFEM':>12}")
+        for column, _ in RXFEM_COLUMNS:
+            print(
+                f"  {column:>18} {ours[column]:>10.4g} {rx[column]:>10.4g} {_cell(paper_ours[column], 11)} "
+                f"{_cell(paper_rx[column], 12)}"
+            )
+        print(
+            f"  ours vs RXFEM (RXFEM's average frame / ours): {ratios[f'{name}_ours_vs_rxfem']:.2f}x "
+            f"(the paper: {ratios[f'{name}_paper_ours_vs_rxfem']:.2f}x); "
+            f"dPsi {ratios[f'{name}_ours_vs_rxfem_dpsi']:.1f}x"
+        )
+    ratio_units = {k: RATIO_UNIT for k in ratios}
+    ratio_units |= {
+        k: "x (RXFEM time / ours, measured here)" for k in ratios if "_ours_vs_rxfem" in k and "paper" not in k
+    }
+    ratio_units |= {k: "x (the paper's RXFEM / its ours, Table 2)" for k in ratios if "paper_ours_vs_rxfem" in k}
+    return {"figures": figures, "ratios": ratios, "units": units | ratio_units}
+
+
 def _background(sc, frames: int, paper_step_avg_s: float) -> tuple[dict, dict]:
     """A third run of scene ``sc`` after the timed one, its cuts computed in the cut worker process while the body
     steps: the ``SCENE_async_*`` figures and their units."""
@@ -468,8 +593,17 @@ def main(argv=None):
         nargs="+",
         choices=FIGURES,
         default=list(FIGURES),
-        help="table: Table 2 per scene; rollout: accordion's 100-step rollout and gradient; memory: "
+        help="table: Table 2 per scene; rxfem: Table 2's two columns, ours and the RXFEM baseline on the same "
+        "cuts (sticks, thin, accordion, octopus); rollout: accordion's 100-step rollout and gradient; memory: "
         "the peak RSS of a 1,000-step gradient, in a child process (default: all)",
+    )
+    parser.add_argument(
+        "--rxfem-scenes",
+        nargs="+",
+        choices=RXFEM_SCENES,
+        default=list(RXFEM_SCENES),
+        metavar="SCENE",
+        help=f"the scenes of --figures rxfem, of {', '.join(RXFEM_SCENES)} (default: all)",
     )
     parser.add_argument(
         "--background",
@@ -495,6 +629,11 @@ def main(argv=None):
         if args.quick and steps is None:
             steps = max(scene(n, "small").last_cut_frame for n in args.scenes) + 3
         results.append(run(size, steps, args.scenes, args.background))
+    if "rxfem" in args.figures:
+        steps = args.steps
+        if args.quick and steps is None:
+            steps = max(scene(OCTOPUS if n == "octopus" else n, "small").last_cut_frame for n in args.rxfem_scenes) + 3
+        results.append(rxfem_run(size, steps, args.rxfem_scenes))
     if "rollout" in args.figures:
         results.append(rollout_run(size, 10 if args.quick else 100))
     if "memory" in args.figures:

@@ -80,6 +80,13 @@ def add_arguments(parser) -> None:
         "--cut-frame", type=int, default=5, help="surface files: the frame the plane cuts before (default 5)"
     )
     arguments.ftetwild_arguments(parser, "surface files")
+    parser.add_argument(
+        "--method",
+        choices=("xfem", "rxfem"),
+        default="xfem",
+        help="xfem (the paper's generalized XFEM, the default) or rxfem (the baseline of Koschier et al. 2017 that "
+        "Table 2 compares against: the scene's cuts that intersect an earlier one are left out)",
+    )
     parser.add_argument("--no-figures", action="store_true", help="write the .vtu surfaces and summary.json only")
     parser.add_argument("--force", action="store_true", help=arguments.FORCE_HELP)
     parser.add_argument(
@@ -107,6 +114,7 @@ def run(args) -> dict:
         every=args.every,
         figures=not args.no_figures,
         cut_latency=args.cut_latency,
+        method=args.method,
         plane=args.plane,
         cut_frame=args.cut_frame,
         edge_length=args.edge_length,
@@ -178,6 +186,7 @@ def xfem_command(
     every: int = 10,
     figures: bool = True,
     cut_latency: int = 0,
+    method: str = "xfem",
     plane=None,
     cut_frame: int = 5,
     edge_length: float = 0.05,
@@ -186,7 +195,8 @@ def xfem_command(
 ) -> dict:
     """Run scene ``name`` (a paper scene or a surface file) for ``steps`` frames (None: the scene's default, 30 for
     a surface file) and write frames into ``out``; returns the summary (module docstring). ``cut_latency``: as
-    ``xfem.run_scene``; ``plane`` (6 numbers: point, normal), ``cut_frame``, ``edge_length``, ``epsilon``: the
+    ``xfem.run_scene``; ``method``: "xfem" or "rxfem" (``xfem.rxfem_schedule``: the RXFEM baseline on the cuts that
+    intersect no earlier one; no cut latency); ``plane`` (6 numbers: point, normal), ``cut_frame``, ``edge_length``, ``epsilon``: the
     surface file's cut and tetrahedralization; ``force``: as ``fem_command``'s."""
     import meshio
     import numpy as np
@@ -212,6 +222,10 @@ def xfem_command(
         raise ValueError(f"every: expected an int >= 1, got {every!r}")
     if not isinstance(cut_latency, int) or cut_latency < 0:
         raise ValueError(f"cut_latency: expected an int >= 0, got {cut_latency!r}")
+    if method not in ("xfem", "rxfem"):
+        raise ValueError(f"method: expected 'xfem' or 'rxfem', got {method!r}")
+    if method == "rxfem" and cut_latency:
+        raise ValueError("cut_latency: cuts in the background are for method 'xfem' only")
     out = check_run_folder(out, RUN_FILES, force, RUN_DESCRIBED, inputs={"SCENE": Path(name)} if is_file else None)
 
     surface = None
@@ -220,6 +234,9 @@ def xfem_command(
         sc, surface = surface_scene(name, steps, plane, cut_frame, edge_length, epsilon)
     else:
         sc = xfem.scene(name, size)
+    left_out = ()
+    if method == "rxfem":
+        _, sc, left_out = xfem.rxfem_schedule(sc)
     steps = sc.steps if steps is None else steps
     X = np.asarray(sc.mesh.X)
     extent = X.max(0) - X.min(0)
@@ -269,6 +286,8 @@ def xfem_command(
                 "newton_iterations": sc.newton_iterations,
                 "fixed_nodes": int(len(sc.fixed)),
                 "cut_latency": cut_latency,
+                "method": method,
+                "cuts_left_out": [c.frame for c in left_out],
                 "cut_frames": sorted({c.frame for c in sc.cuts if c.frame <= steps}),
                 "frames_written": written,
                 "frame_pieces": [r.pieces for r in run.records],

@@ -163,3 +163,15 @@ def test_a_wild_surface_is_cut_and_written_in_pieces(tmp_path, capsys):
     np.testing.assert_allclose(drop[~spheres], free_fall, rtol=1e-4)  # one Newton iteration, iterative solves
     np.testing.assert_allclose(drop[below & clear], free_fall, rtol=1e-3)
     assert drop[spheres & ~below & clear].max() < 0.6 * free_fall
+
+
+def test_rxfem_method_leaves_out_intersecting_cuts(tmp_path):
+    out = tmp_path / "sticks"
+    argv = ["xfem", "sticks", "--size", "small", "--steps", "3", "--method", "rxfem", "--no-figures", "--out", str(out)]
+    assert main(argv) == 0
+    summary = json.loads((out / "summary.json").read_text())
+    # the small sticks: 5 vertical cuts in frame 1, 5 horizontal ones crossing them in frame 2 (left out)
+    assert summary["method"] == "rxfem" and summary["cuts"] == 5 and summary["cuts_left_out"] == [2] * 5
+    assert summary["pieces"] == 6
+    with pytest.raises(SystemExit):
+        main(["xfem", "sticks", "--method", "rxfem", "--cut-latency", "2", "--out", str(tmp_path / "late")])
