@@ -196,8 +196,8 @@ def xfem_command(
     """Run scene ``name`` (a paper scene or a surface file) for ``steps`` frames (None: the scene's default, 30 for
     a surface file) and write frames into ``out``; returns the summary (module docstring). ``cut_latency``: as
     ``xfem.run_scene``; ``method``: "xfem" or "rxfem" (``xfem.rxfem_schedule``: the RXFEM baseline on the cuts that
-    intersect no earlier one; no cut latency); ``plane`` (6 numbers: point, normal), ``cut_frame``, ``edge_length``, ``epsilon``: the
-    surface file's cut and tetrahedralization; ``force``: as ``fem_command``'s."""
+    intersect no earlier one; no cut latency); ``plane`` (6 numbers: point, normal), ``cut_frame``, ``edge_length``,
+    ``epsilon``: the surface file's cut and tetrahedralization; ``force``: as ``fem_command``'s."""
     import meshio
     import numpy as np
 
