@@ -176,6 +176,14 @@ def test_bench_xfem_quick_writes_the_published_names(tmp_path):
         assert dofs[f"{scene}_dofs_final"] > dofs[f"{scene}_dofs_initial"] > 0
         assert dofs[f"{scene}_dofs_final"] == dofs[f"{scene}_dofs"]
     assert result["figures"]["sticks_pieces"] == 36  # the small sticks end as 36 pieces too
+    # Table 2's RXFEM column beside ours, on the 5 cuts that cross no earlier one (RXFEM makes no intersecting cut)
+    figures = result["figures"]
+    for name in ("dofs", "dpsi_ms", "step_avg", "step_max", "total"):
+        assert figures[f"sticks_rxfem_{name}"] > 0 and figures[f"sticks_ours_{name}"] > 0
+    assert figures["sticks_rxfem_dofs"] == figures["sticks_ours_dofs"]
+    assert (figures["sticks_rxfem_cuts"], figures["sticks_rxfem_cuts_left_out"]) == (5, 5)
+    assert figures["sticks_rxfem_element_rows"] > figures["sticks_ours_element_rows"]
+    assert result["ratios"]["sticks_ours_vs_rxfem"] > 0 and "sticks_ours_vs_rxfem" in result["units"]
     table_only = _quick("bench_xfem.py", tmp_path, "--scenes", "sticks", "--figures", "table", "--no-background")
     assert table_only["figures"]["sticks_step_avg_s"] > 0 and "sticks_async_step_avg_s" not in table_only["figures"]
     for name in ("thin_cut_system_grad_ms", "thin_host_cut_system_ms", "thin_cut_replay_grad_ms"):
