@@ -44,6 +44,14 @@ the run's average frame (``SCENE_async_cut_max_over_avg``); sticks' 2 ms frames 
 scheduling noise, its figure is reported, not targeted. The paper ran on an i9-13900K; this machine's figures
 come from a shared 2-core machine (benchmarks/README.md).
 
+Table 2's RXFEM column (``--figures rxfem``, ``rxfem_run``): for sticks, thin, accordion and octopus (the
+``mouth`` scene until the octopus scene replaces it), ours and the RXFEM baseline (Koschier et al. 2017,
+``xfem.rxfem_model``) side by side, both with one Newton iteration, on the scene's cuts that intersect no earlier
+one (RXFEM supports no intersecting cut; the paper too times RXFEM only where none occurs), each method with its
+own warm-up run: ``SCENE_ours_COLUMN``, ``SCENE_rxfem_COLUMN`` and ``SCENE_ours_vs_rxfem`` (RXFEM's average frame
+/ ours; > 1: ours faster), beside both of the paper's columns. ``--quick`` runs sticks only unless
+``--rxfem-scenes`` names others.
+
 Differentiable rollouts (``--figures rollout memory``), on the accordion scene after all its cuts (the model cut
 by the scene's solids at rest, 38k DOFs at paper size), the paper's step (one Newton iteration):
 ``accordion_rollout_100_s``, a forward ``xfem.rollout`` of 100 steps, and ``accordion_grad_100_s``, its value and
@@ -57,8 +65,8 @@ Cut placement as a parameter (issue 31): ``thin_cut_system_grad_ms``, one ``cut_
 first cut plus its gradient with respect to the plane, and its ratio to the host cut and ``system()`` in the same
 process (``_cut_system_figures``).
 
-    python benchmarks/bench_xfem.py [--steps N] [--quick] [--scenes SCENE ...] [--figures table rollout memory]
-                                    [--json out/bench/xfem.json]
+    python benchmarks/bench_xfem.py [--steps N] [--quick] [--scenes SCENE ...] [--rxfem-scenes SCENE ...]
+                                    [--figures table rxfem rollout memory] [--json out/bench/xfem.json]
 """
 
 from __future__ import annotations
