@@ -63,12 +63,12 @@ import numpy.typing as npt
 from jaxtyping import Float, Int
 
 from xfem._backward_euler import State, SystemCapacity
-from xfem._capacity import _FLOOR, _GROWTH, _HEADROOM, Capacities
+from xfem._capacity import _FLOOR, _GROWTH, _HEADROOM, Capacities, PaddedSystem
 from xfem._cuts import cut_solid
 from xfem._scenes import Scene, ScheduledCut
 from xfem._subdomains import CutReport, MeshSolid, check_cut, solid_mesh
 from xfem._tetmesh import TetMesh, boundary_faces
-from xfem._xfem import XFEMModel, model_arguments
+from xfem._xfem import CutDelta, XFEMModel, model_arguments
 
 # Keast's 24-point rule of degree 6 on a tetrahedron: barycentric orbits and weights (fractions of the volume)
 _ORBITS_4 = ((0.214602871259151684, 0.0399227502581679), (0.0406739585346113397, 0.0100772110553207),
@@ -162,7 +162,14 @@ class RXFEMModel(XFEMModel):
         solids: the cut solids made so far, as applied (moved by their perturbations).
     """
 
-    def __init__(self, mesh: TetMesh, rho, gravity, fixed, state: State):
+    def __init__(
+        self,
+        mesh: TetMesh,
+        rho: Float[np.ndarray, " m"],
+        gravity: Float[np.ndarray, " 3"],
+        fixed: Int[np.ndarray, " nb"],
+        state: State,
+    ):
         self.rules: dict[int, np.ndarray] = {}
         self.solids: list[manifold3d.Manifold] = []
         self._body: manifold3d.Manifold | None = None
@@ -271,8 +278,14 @@ class RXFEMModel(XFEMModel):
         exact = np.fromiter(self._exact, np.int64, len(self._exact))
         return np.where(np.isin(self.piece_arrays()[0], exact), _POINTS, 1).astype(np.int64)
 
-    def apply_delta(self, delta, padded=None):
-        raise NotImplementedError("RXFEMModel: cuts in a worker process (BackgroundCuts) are for XFEMModel only")
+    def apply_delta(self, delta: CutDelta, padded: PaddedSystem | None = None) -> Int[np.ndarray, " n_dofs"]:
+        """Not for RXFEM: a worker process's replica is an ``XFEMModel`` (exact integrals, no 24-point rows), so
+        ``BackgroundCuts`` serves ``XFEMModel`` only.
+
+        Raises:
+            ValueError: always.
+        """
+        raise ValueError("model: cuts in a worker process (BackgroundCuts) are for XFEMModel only, not RXFEMModel")
 
 
 def rxfem_model(
