@@ -174,7 +174,8 @@ class RXFEMModel(XFEMModel):
         self.solids: list[manifold3d.Manifold] = []
         self._body: manifold3d.Manifold | None = None
         super().__init__(mesh, rho, gravity, fixed, state)
-        self._capacities = _RowCapacities(self._capacities.base)
+        nodes, rows, entries, nonzeros = self._capacities.base
+        self._capacities = _RowCapacities((nodes, rows, entries, nonzeros))
 
     def body(self) -> manifold3d.Manifold:
         """The body's rest shape as a solid (its tets' boundary faces), for the intersection test."""
