@@ -46,8 +46,10 @@ What this module reproduces, and what it assumes:
   rows with the piece's DOFs and shape gradients. F is constant on a piece (linear tets), so every row has the
   same energy density and the rule's value is ``psi(F) sum_q w_q = psi(F) |p|`` whatever the weights' split; the
   core takes non-negative weights (moment fitting gives weights of either sign), so the rows carry ``|p| / 24``
-  each. The values are those of a single evaluation; the cost (24 energies, gradients and projected Hessians, and
-  their assembly) is the rule's. Uncut elements keep the one-point rule of linear tets, as in [KBT17].
+  each. The values are those of a single evaluation; the cost (24 energies, gradients and projected Hessians) is
+  the rule's. The core also assembles each row on its own (24 scatters of a 12 x 12 block per piece, where an
+  implementation that sums its points first scatters once), so RXFEM's dPsi here is an upper bound of the rule's
+  cost by that assembly. Uncut elements keep the one-point rule of linear tets, as in [KBT17].
 * Linear solver: the core's (CHOLMOD up to 1,000 unknowns, Jacobi-preconditioned CG above; ``xfem._backward_euler``).
   [KBT17]'s preconditioner, built from its quadrature weights, is not reproduced: Jacobi scaling is a diagonal
   scaling of the same system, and the CG column of Table 2 then times the core's solve of each method's system.
