@@ -64,6 +64,7 @@ import numpy as np
 import numpy.typing as npt
 from jaxtyping import Float, Int
 
+from _jaxcga_shared.checks import check_real
 from xfem._backward_euler import State, SystemCapacity
 from xfem._capacity import _FLOOR, _GROWTH, _HEADROOM, Capacities, PaddedSystem
 from xfem._cuts import cut_solid
@@ -127,9 +128,19 @@ def moment_fitted_weights(
         volume: (P,) ``int_p 1``; first: (P, 3) ``int_p (X - o)``; second: (P, 3, 3) ``int_p (X - o)(X - o)^T``.
     Returns:
         (P, 24) weights w with ``sum_q w_q f(X_q) = int_p f`` for every polynomial f of degree <= 2 (to rounding).
+    Raises:
+        ValueError: shapes that differ from these, non-finite values, or a degenerate (flat) tet.
     """
-    Xe, origin = np.asarray(Xe, np.float64), np.asarray(origin, np.float64)
-    volume, first, second = (np.asarray(a, np.float64) for a in (volume, first, second))
+    Xe = check_real("Xe", Xe, (None, 4, 3), "tet corners", rows="P")
+    P = len(Xe)
+    origin = check_real("origin", origin, (P, 3), "points")
+    volume = check_real("volume", volume, (P,), "volumes")
+    first = check_real("first", first, (P, 3), "first moments")
+    second = check_real("second", second, (P, 3, 3), "second moments")
+    edges = Xe[:, 1:] - Xe[:, :1]
+    size = np.linalg.norm(edges, axis=2).max(axis=1, initial=0.0)
+    if np.any(np.abs(np.linalg.det(edges)) <= 1e-12 * size**3):
+        raise ValueError("Xe: a degenerate (flat) tet: its 24 points do not fit the 10 moments")
     # coordinates scaled by the tet's size: the 10 x 10 normal equations stay well conditioned
     scale = np.linalg.norm(Xe - origin[:, None], axis=2).max(axis=1)
     y = (np.einsum("qa,pad->pqd", KEAST24, Xe) - origin[:, None]) / scale[:, None, None]

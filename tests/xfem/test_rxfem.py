@@ -58,6 +58,12 @@ def test_moment_fitting_integrates_a_corner_piece():
     assert abs(w.sum() - volume[0]) < 1e-15
     np.testing.assert_allclose(w[0] @ X, first[0], rtol=1e-12)
     np.testing.assert_allclose(np.einsum("q,qi,qj->ij", w[0], X, X), second[0], rtol=1e-12)
+    with pytest.raises(ValueError, match="origin"):
+        moment_fitted_weights(Xe, np.zeros((2, 3)), volume, first, second)
+    with pytest.raises(ValueError, match="second"):
+        moment_fitted_weights(Xe, origin, volume, first, np.full((1, 3, 3), np.nan))
+    with pytest.raises(ValueError, match="degenerate"):
+        moment_fitted_weights(np.zeros((1, 4, 3)), origin, volume, first, second)
 
 
 def test_uncut_model_is_plain_fem():
