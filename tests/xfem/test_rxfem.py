@@ -22,6 +22,7 @@ from xfem import (
     rxfem_model,
     rxfem_schedule,
     scene,
+    tet_mesh,
     xfem_model,
 )
 
@@ -167,3 +168,16 @@ def test_schedule_leaves_out_the_intersecting_cuts(name, kept, left):
     ours, rx, rest = rxfem_schedule(sc)
     assert (len(ours.cuts), len(rest)) == (kept, left) == (len(rx.cuts), left)
     assert isinstance(rx.model(), type(rxfem_model(sc.mesh, sc.density)))
+
+
+def test_crossings_count_inside_the_body_only():
+    # two tets sharing one vertex (manifold3d keeps the pinched boundary a solid): two cuts that cross in the empty
+    # corner between them, outside the body, do not intersect for RXFEM; crossing inside a tet they do
+    X = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [-1, 0, 0], [0, -1, 0], [0, 0, -1]], np.float64)
+    mesh = tet_mesh(X, np.array([[0, 1, 2, 3], [0, 4, 6, 5]]))
+    model = rxfem_model(mesh, RHO)
+    assert model.body().volume() == pytest.approx(1 / 3)
+    model.cut(plane((0.0, 0.0, 0.3), (0.02, 0.01, 1.0)))
+    assert model.intersecting(plane((-0.3, 0.0, 0.0), (1.0, 0.01, 0.03), extent=0.5).translate((0, 0.0, 0.3))) is None
+    with pytest.raises(ValueError, match="intersect"):
+        model.cut(plane((0.2, 0.2, 0.2), (1.0, 0.01, 0.03)))
