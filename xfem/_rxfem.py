@@ -328,7 +328,8 @@ def rxfem_model(
 class RXFEMScene(Scene):
     """A ``Scene`` whose ``model`` is an ``RXFEMModel`` (``run_scene`` then runs the RXFEM baseline)."""
 
-    def model(self) -> RXFEMModel:  # pyright: ignore[reportIncompatibleMethodOverride]
+    def model(self) -> RXFEMModel:
+        """A fresh uncut ``RXFEMModel`` of the scene, at rest."""
         return rxfem_model(self.mesh, self.density, self.gravity, self.fixed)
 
 
