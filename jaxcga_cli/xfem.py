@@ -1,5 +1,5 @@
 """``jaxcga xfem SCENE``: one of the XFEM paper's cutting scenes of sec. 5 (``xfem.scene``: sticks, thin, cheese,
-accordion, mouth; parameters of sec. 5 and Table 1), simulated with the timings of Table 2; or a surface file
+accordion, octopus; parameters of sec. 5 and Table 1), simulated with the timings of Table 2; or a surface file
 (.obj, .ply, .stl, .off, glTF: a rigged model's bind-pose skin), tetrahedralized by fTetWild
 (``xfem.tetrahedralize_surface``), hanging from its top (the nodes within 2% of its height; up is +z, +y for glTF)
 and cut by a plane (``--plane``, default: through the middle of its bounding box, across the up axis) before frame
@@ -42,7 +42,7 @@ def add_arguments(parser) -> None:
     parser.add_argument(
         "scene",
         metavar="SCENE",
-        help="sticks (Fig. 5), thin (Fig. 1), cheese (Fig. 6), accordion (Fig. 7), mouth (Fig. 8), or a surface "
+        help="sticks (Fig. 5), thin (Fig. 1), cheese (Fig. 6), accordion (Fig. 7), octopus (Fig. 8), or a surface "
         "file (.obj, .ply, .stl, .off, glTF; open, self-intersecting, several parts are fine) to tetrahedralize "
         "and cut by --plane",
     )

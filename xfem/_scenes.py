@@ -2,7 +2,7 @@
 Finite Element Method for Deformable Cutting via Boolean Operations"), with the parameters of sec. 5 and Table 1,
 and a runner that times them like Table 2.
 
-Parameters (sec. 5): stable neo-Hookean material, Young 1e6 (1e7 for the character, as the paper's octopus),
+Parameters (sec. 5): stable neo-Hookean material, Young 1e6 (1e7 for the octopus),
 Poisson 0.4, density 1e3, h = 0.033 s, one Newton iteration, gravity -9.81 along z. Table 1 gives the cut
 thickness epsilon (1e-3 for the tetrahedron, 1e-4 otherwise) and the average edge length of each mesh, used here
 as its scale (``average_edge`` is over the mesh's distinct edges). Every cut gets the gentle perturbation of
@@ -17,9 +17,11 @@ with the cuts grouped into few frames, for tests and notebooks):
   (z = c), alternating, one every 5 frames (small: the vertical ones in frame 1, the horizontal in frame 2).
 * ``thin`` (Fig. 1): a 19 x 19 x 5 cell slab (2400 nodes, 7.2k DOFs; small 9 x 9 x 3), average edge 0.14,
   clamped at x = 0. Partial cuts parallel to its large faces from the free end to 35% of its length: the
-  first halves its thickness, three more slice the top half into four thinner sheets; the last cut, the plane
-  y = W/2 over the outer half of the length and the top 60% of the thickness, is perpendicular to all sheets and
-  crosses them.
+  first halves its thickness, three more slice the bottom half into four thinner sheets, which sag more than the
+  slab above and separate from it (sec. 5.1; below it, as there is no contact). The last cut, the plane x = 0.7 L
+  across all the sheets (perpendicular to them and to their length, up to just inside the slab above), cuts off
+  their outer parts: they lose mass and length and rise closer to rest (a cantilever's sag under its own weight
+  grows as its length^4; a cut along them, halving their width, would leave it unchanged).
 * ``cheese`` (Fig. 6, "Tetrahedron"): one tetrahedron (average edge 1.77, epsilon 1e-3) standing on its base
   (the three base nodes clamped), carved by two full wavy cuts (sinusoidal tool edges swept by translations),
   a partial wavy cut swept by a rotation, and two partial flat cuts, in different directions: many pieces and
@@ -29,13 +31,15 @@ with the cuts grouped into few frames, for tests and notebooks):
   x = 0 side to 80% of the width and from the other side to 20%, alternating: the body stays one piece, a
   zig-zag that stretches down. The last cut, the vertical plane x = 0.6 W between the two top levels, crosses
   both and releases everything below the top level's hinge: one piece becomes two.
-* ``mouth`` (Fig. 8, "Octopus"): a head-like blob (an icosphere ellipsoid with radial bumps on its lower half,
-  watertight, TetGen; 6698 nodes, 20.1k DOFs at paper size (the paper's: 20.8k), average edge 2.39; small 727
-  nodes; without TetGen, fTetWild at about the same average edge), Young 1e7,
-  clamped at its back (the nodes within 15% of its depth from the back). A smiling wavy tool edge swept
-  straight into its front carves the mouth; a vertical cut behind the mouth's front part, from just above the
-  mouth down through the chin and narrower than the mouth, crosses it: the jaw stays hinged at its two sides
-  (one piece) and drops.
+* ``octopus`` (Fig. 8, "Octopus"): a real octopus, libigl's tutorial model octopus-low.mesh (Mark Pauly's;
+  ``xfem/data``, licence in tests/data/README.md), head up, face along +x, scaled so that TetGen's mesh of its
+  surface has Table 1's average edge (2.39: 6753 nodes, 20.3k DOFs, the paper's 20.8k; small about 3.0 and 7.8k
+  DOFs; without TetGen, fTetWild at about the same average edge), Young 1e7, held at the back of its head and at
+  its tentacles beyond the head's radius. A smiling wavy tool edge swept straight into its face carves the mouth;
+  the second cut, a U-shaped edge whose sides cross the mouth, swept into the face less deep, frees the block under
+  the mouth at its sides and floor: the jaw hangs from its back and drops.
+
+``scene(name, size, last_cut=False)`` drops a scene's last cut, to compare the runs with and without it.
 
 The runner (``run_scene``) applies each frame's cuts (``XFEMModel.cut``, Algorithm 1 lines 1-25), then one step
 (line 26), and records per frame what Table 2 reports: Booleans and their time (MB), pieces integrated and their
@@ -422,8 +426,9 @@ def octopus_mesh(size: str = "paper") -> TetMesh:
     head's top), +x out of its face, scaled to Table 1's average edge (2.39) at paper size.
 
     Args:
-        size: "paper": the model's surface tetrahedralized by TetGen (about 20.6k DOFs, the paper's 20.8k) or, without
-            TetGen, by fTetWild at about the same average edge; "small": the model's own coarse tet mesh (452 nodes).
+        size: "paper": the model's surface (its tet mesh's boundary) tetrahedralized by TetGen (6753 nodes, average
+            edge 2.39) or, without TetGen, by fTetWild at about the same average edge; "small": coarser (TetGen: 2592
+            nodes, average edge 3.04).
     Returns:
         The ``TetMesh``.
     """
@@ -439,11 +444,12 @@ def octopus_mesh(size: str = "paper") -> TetMesh:
     X, F = X[used], F.reshape(-1, 3)
     if optional_tetgen() is not None:
         # TetGen's quality tets come out smaller than the regular tet of its volume bound: the bound of a regular
-        # tet of edge 3 gives Table 1's octopus (average edge 2.39)
+        # tet of edge 3 gives Table 1's octopus (average edge 2.39); the thin tentacles keep the small mesh's
+        # edges near 3 even with a coarse bound (quality)
         edge = 3.0 if size == "paper" else 12.0
         return tetrahedralize(X, F, max_volume=edge**3 / (6 * np.sqrt(2)))
     # fTetWild's edges come out longer than its target, by 1/0.87
-    target = 0.87 * (2.39 if size == "paper" else _OCTOPUS_SMALL_EDGE) / float(np.linalg.norm(np.ptp(X, axis=0)))
+    target = 0.87 * (2.39 if size == "paper" else 3.04) / float(np.linalg.norm(np.ptp(X, axis=0)))
     return tetrahedralize_surface(X, F, edge_length=target).mesh
 
 
