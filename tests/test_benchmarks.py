@@ -157,7 +157,7 @@ def test_bench_fem_quick_writes_the_published_names(tmp_path):
 @pytest.mark.slow
 def test_bench_xfem_quick_writes_the_published_names(tmp_path):
     result = _quick("bench_xfem.py", tmp_path)
-    for scene in ("sticks", "thin", "accordion"):
+    for scene in ("sticks", "thin", "accordion", "octopus"):
         for name in (
             "boolean_ms",
             "step_avg_s",
