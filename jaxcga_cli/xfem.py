@@ -80,6 +80,12 @@ def add_arguments(parser) -> None:
         "--cut-frame", type=int, default=5, help="surface files: the frame the plane cuts before (default 5)"
     )
     arguments.ftetwild_arguments(parser, "surface files")
+    parser.add_argument(
+        "--without-last-cut",
+        action="store_true",
+        help="paper scenes: drop the scene's last cut (the thin sheets' cross cut, the accordion's release, the "
+        "octopus's jaw), to compare with the full run",
+    )
     parser.add_argument("--no-figures", action="store_true", help="write the .vtu surfaces and summary.json only")
     parser.add_argument("--force", action="store_true", help=arguments.FORCE_HELP)
     parser.add_argument(
@@ -107,6 +113,7 @@ def run(args) -> dict:
         every=args.every,
         figures=not args.no_figures,
         cut_latency=args.cut_latency,
+        last_cut=not args.without_last_cut,
         plane=args.plane,
         cut_frame=args.cut_frame,
         edge_length=args.edge_length,
@@ -178,6 +185,7 @@ def xfem_command(
     every: int = 10,
     figures: bool = True,
     cut_latency: int = 0,
+    last_cut: bool = True,
     plane=None,
     cut_frame: int = 5,
     edge_length: float = 0.05,
@@ -186,8 +194,9 @@ def xfem_command(
 ) -> dict:
     """Run scene ``name`` (a paper scene or a surface file) for ``steps`` frames (None: the scene's default, 30 for
     a surface file) and write frames into ``out``; returns the summary (module docstring). ``cut_latency``: as
-    ``xfem.run_scene``; ``plane`` (6 numbers: point, normal), ``cut_frame``, ``edge_length``, ``epsilon``: the
-    surface file's cut and tetrahedralization; ``force``: as ``fem_command``'s."""
+    ``xfem.run_scene``; ``last_cut``: as ``xfem.scene`` (paper scenes); ``plane`` (6 numbers: point, normal),
+    ``cut_frame``, ``edge_length``, ``epsilon``: the surface file's cut and tetrahedralization; ``force``: as
+    ``fem_command``'s."""
     import meshio
     import numpy as np
 
@@ -219,7 +228,7 @@ def xfem_command(
         steps = 30 if steps is None else steps
         sc, surface = surface_scene(name, steps, plane, cut_frame, edge_length, epsilon)
     else:
-        sc = xfem.scene(name, size)
+        sc = xfem.scene(name, size, last_cut=last_cut)
     steps = sc.steps if steps is None else steps
     X = np.asarray(sc.mesh.X)
     extent = X.max(0) - X.min(0)
@@ -269,6 +278,7 @@ def xfem_command(
                 "newton_iterations": sc.newton_iterations,
                 "fixed_nodes": int(len(sc.fixed)),
                 "cut_latency": cut_latency,
+                "last_cut": last_cut,
                 "cut_frames": sorted({c.frame for c in sc.cuts if c.frame <= steps}),
                 "frames_written": written,
                 "frame_pieces": [r.pieces for r in run.records],
