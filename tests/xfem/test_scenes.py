@@ -109,7 +109,7 @@ def test_cheese_gets_several_subdomains_per_node(runs):
 
 
 @pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
-@pytest.mark.parametrize("name", ["sticks", "cheese", "thin", "accordion"])
+@pytest.mark.parametrize("name", ["sticks", "cheese", "thin", "accordion", "octopus"])
 def test_mass_is_rho_times_material_volume(runs, name):
     """The pieces' exact masses (eq. 13, 21) sum to rho |body minus cuts|. Both sides are sums of float64
     divergence-theorem volumes of the same Boolean results (manifold3d on both sides, differently grouped), so
