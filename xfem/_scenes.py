@@ -472,13 +472,13 @@ def _octopus(size: str) -> Scene:
     # the head: a ball of radius about 15 about (0, 0, 4), its face at x ~ 15; the tentacles leave its lower half
     z_mouth, outside = 9.0, 22.0
     # the mouth: a smiling edge (up at the corners, with a ripple: the paper's sinusoidal cut) swept straight into
-    # the face to 17 below its surface
+    # the face, 17 deep (to x = -2)
     y = np.linspace(-10.0, 10.0, 33)
     smile = z_mouth + 2.5 * (y / 10.0) ** 2 + 0.6 * np.sin(3 * np.pi * y / 10.0)
     tool = np.stack([np.full_like(y, outside), y, smile], axis=1)
     mouth = _swept(tool, (0, 0, 0), (0, 0, 1), np.zeros(2), [(0, 0, 0), (-outside - 2.0, 0, 0)], epsilon)
-    # the jaw: a U-shaped edge (two sides crossing the mouth, a floor 9 below it) swept into the face less deep than
-    # the mouth: the block under the mouth keeps only its back, a hinge, and drops
+    # the jaw: a U-shaped edge (two sides 14 apart crossing the mouth, a floor 7.5 below it) swept into the face to
+    # x = 0, 2 less deep than the mouth: the block under the mouth keeps only its back, a hinge, and drops
     u = _u_edge(outside, 7.0, z_mouth + 3.5, z_mouth - 7.5)
     jaw = _swept(u, (0, 0, 0), (0, 0, 1), np.zeros(2), [(0, 0, 0), (-outside, 0, 0)], epsilon)
     frames = _frames(size, [20, 40], [1, 2])
