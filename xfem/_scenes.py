@@ -61,7 +61,7 @@ import dataclasses
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from importlib.resources import files
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
@@ -433,7 +433,7 @@ def octopus_mesh(size: str = "paper") -> TetMesh:
         The ``TetMesh``.
     """
     check_choice("size", size, SIZES)
-    coarse = read_tet_mesh(files("xfem") / "data" / _OCTOPUS_FILE)
+    coarse = read_tet_mesh(Path(__file__).parent / "data" / _OCTOPUS_FILE)
     up, front = np.asarray(_OCTOPUS_UP), np.asarray(_OCTOPUS_FRONT)
     up = up / np.linalg.norm(up)
     front = front - (front @ up) * up
