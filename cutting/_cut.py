@@ -183,7 +183,7 @@ def cut_topology(
     F: Int[ArrayLike, "m 3"],
     plane: Plane,
     *,
-    predicates: str = "euclidean",
+    predicates: str = "ga",
     tolerance: float = 1e-6,
     cap: bool = False,
     edges: MeshEdges | None = None,
@@ -195,7 +195,8 @@ def cut_topology(
         F: (m, 3) int faces.
         plane: the ``Plane`` (``Plane(normal, distance)``, ``Plane.through(point, normal)`` or
             ``Plane.from_multivector`` of a jaxcga plane vector, eq. 5).
-        predicates: ``"euclidean"`` or ``"ga"`` (Table 1).
+        predicates: ``"ga"`` (the conformal point's inner product with the plane vector, the meet of an edge's
+            line with the plane) or ``"euclidean"`` (``n . x - d``, ``a + t (b - a)``): Table 1; the same cut.
         tolerance: vertices closer to the plane than ``tolerance`` times the bounding-box diagonal
             count as on it; so does a vertex next to which a crossing would leave a sliver piece.
         cap: close both halves with the triangulated cut loops (the input must be closed).
@@ -397,7 +398,7 @@ def cut(
     plane: Plane,
     *,
     cap: bool = False,
-    predicates: str = "euclidean",
+    predicates: str = "ga",
     side_weight: float = 0.0,
     tolerance: float = 1e-6,
     joint_matrices: Float[ArrayLike, "j 4 4"] | None = None,
@@ -414,7 +415,8 @@ def cut(
         plane: the ``Plane``, in the space of the mesh as cut: the bind pose, or the pose given by
             ``joint_matrices``.
         cap: close both halves (the input must be closed).
-        predicates: ``"euclidean"`` or ``"ga"`` (Table 1).
+        predicates: ``"ga"`` (the conformal point's inner product with the plane vector, the meet of an edge's
+            line with the plane) or ``"euclidean"`` (``n . x - d``, ``a + t (b - a)``): Table 1; the same cut.
         side_weight: in [0, 1]; 0 gives every new vertex the barycentric weights of its edge
             (sec. 4.3, the same in both halves); towards 1 each half's copy leans to the weights of its
             own side's endpoint (the variant that favours one side), 1 uses that endpoint's alone.
@@ -449,9 +451,9 @@ def new_vertex_data(V, J, W, topology: CutTopology, side_weight: float, joint_ma
     crossing, t = topology.crossing, topology.t
     coefficients = np.stack([1.0 - t, t], axis=1)
     J_bary, W_bary = blend_weights(J, W, crossing, coefficients)
-    if joint_matrices is None:
-        rest = V[crossing[:, 0]] + t[:, None] * (V[crossing[:, 1]] - V[crossing[:, 0]])
-    else:
+    # cut in the bind pose: the new vertices are the intersection points (of the predicates chosen)
+    rest = topology.points
+    if joint_matrices is not None:
         rest = rest_positions(J_bary, W_bary, topology.points, joint_matrices)
     weights = []
     for sign in (1, -1):
