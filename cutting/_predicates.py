@@ -112,7 +112,8 @@ def edge_points(
     ``predicates="ga"`` the points are the meets of the lines ``A ^ B ^ einf`` with the plane."""
     t = sA / (sA - sB)
     if predicates == "ga":
-        # flat_k = sum_ij A_i B_j M_ijk with M = C P: one product of B's components with M, then A's
+        # flat_k = sum_ij A_i B_j M_ijk with M = C P: one matrix product with B's components, then a row-wise one
+        # with A's (a few numpy calls for all points; M's structural zeros cost less than a call per term would)
         M = _meet_table() @ _plane_vector(n, d)  # (i, j, k)
         p = len(A)
         A4, B4 = np.ones((p, 4)), np.ones((p, 4))
