@@ -88,14 +88,16 @@ def median_ms(fn, repeats: int) -> float:
 
 def interleaved_seconds(fns: dict, repeats: int) -> dict:
     """Times (s) of ``repeats`` calls of each of ``fns`` (name: function), the functions called in turn at every
-    repetition (so that a change of the machine's load falls on all of them) after one warm-up call each."""
+    repetition (so that a change of the machine's load falls on all of them), in the reverse order every other
+    time (so that none is always first or last), after one warm-up call each."""
     for fn in fns.values():
         fn()
     times = {name: [] for name in fns}
-    for _ in range(repeats):
-        for name, fn in fns.items():
+    names = list(fns)
+    for repeat in range(repeats):
+        for name in names if repeat % 2 == 0 else names[::-1]:
             start = time.perf_counter()
-            fn()
+            fns[name]()
             times[name].append(time.perf_counter() - start)
     return times
 
@@ -286,7 +288,7 @@ def run(repeats: int, faces_100k: int):
         ours = f"arm5_{op}_ga_ms" if f"arm5_{op}_ga_ms" in figures else f"arm5_{op}_ms"
         ratios[f"arm5_{op}_vs_paper"] = paper / figures[ours]
         print(f"ratio arm5_{op}_vs_paper: {ratios[f'arm5_{op}_vs_paper']:.0f}x (paper {paper:.0f} ms, ours {ours})")
-    table = table1(repeats)
+    table = table1(4 * repeats)  # sub-routines of tens of microseconds, compared with each other: more repetitions
     figures.update(table["figures"])
     ratios.update(table["ratios"])
     real = real_figures(repeats, frames=min(20, max(3, repeats)))
