@@ -54,7 +54,7 @@ def _side_table() -> np.ndarray:
 
 @functools.cache
 def _meet_table() -> np.ndarray:
-    """(4, 4, 4, 4) ``C[i, j, k, l]``: the coefficient of ``A_i B_j P_l`` in blade ``_FLAT[k]`` of
+    """(4, 4, 4, 4) ``C[j, i, k, l]``: the coefficient of ``A_i B_j P_l`` in blade ``_FLAT[k]`` of
     ``(A ^ B ^ einf) v (P I)``, A and B on ``_USED``, P on ``_PLANE``: the products of ``cga.line``,
     ``cga.undual`` and ``cga.meet`` composed."""
     einf = alg.parse_blades(("einf",))
@@ -65,7 +65,7 @@ def _meet_table() -> np.ndarray:
     direct_blades, direct = _codegen.bilinear_tensor("geometric", _PLANE, (pseudoscalar,))
     flat_blades, flat = _codegen.bilinear_tensor("regressive", line_blades, direct_blades)
     composed = np.einsum(
-        "ija,ab,lc,bck->ijkl",
+        "ija,ab,lc,bck->jikl",
         wedge,
         line[:, 0, :],
         float(coefficient) * direct[:, 0, :],
@@ -112,13 +112,11 @@ def edge_points(
     ``predicates="ga"`` the points are the meets of the lines ``A ^ B ^ einf`` with the plane."""
     t = sA / (sA - sB)
     if predicates == "ga":
-        # flat_k = sum_ij A_i B_j M_ijk with M = C P: one matrix product with B's components, then a row-wise one
-        # with A's (a few numpy calls for all points; M's structural zeros cost less than a call per term would)
-        M = _meet_table() @ _plane_vector(n, d)  # (i, j, k)
-        p = len(A)
-        A4, B4 = np.ones((p, 4)), np.ones((p, 4))
-        A4[:, :3], B4[:, :3] = A, B
-        BM = (B4 @ M.transpose(1, 0, 2).reshape(4, 16)).reshape(p, 4, 4)
-        flat = np.einsum("pi,pik->pk", A4, BM)
+        # flat_k = sum_ij A_i B_j M_jik with M = C P and A_eo = B_eo = 1: one matrix product with B's components,
+        # then a row-wise one with A's (a few numpy calls for all points; M's structural zeros cost less than a call
+        # per term would)
+        M = (_meet_table() @ _plane_vector(n, d)).reshape(4, 16)  # rows j, columns (i, k)
+        BM = (B @ M[:3] + M[3]).reshape(len(B), 4, 4)  # sum_j B_j M_jik, (p, i, k)
+        flat = np.einsum("pi,pik->pk", A, BM[:, :3]) + BM[:, 3]
         return flat[:, :3] / flat[:, 3:], t
     return A + t[:, None] * (B - A), t
