@@ -102,6 +102,13 @@ def interleaved_seconds(fns: dict, repeats: int) -> dict:
     return times
 
 
+def both_predicates(name: str, operation, repeats: int) -> dict:
+    """``{name}_ms`` and ``{name}_ga_ms``: the median ms of ``operation(predicates)`` with the Euclidean and the GA
+    predicates, timed in turn (``interleaved_seconds``)."""
+    seconds = interleaved_seconds({p: lambda p=p: operation(p) for p in cutting.PREDICATES}, repeats)
+    return {f"{name}{'' if p == 'euclidean' else '_ga'}_ms": 1e3 * statistics.median(seconds[p]) for p in seconds}
+
+
 def table1(repeats: int) -> dict:
     """Table 1 of the paper on Arm5 and on the cylinder (module docstring): figures, ratios and units."""
     import inspect
@@ -242,11 +249,9 @@ def run(repeats: int, faces_100k: int):
         plane = plane_through_middle(mesh.V)
         edges = cutting.mesh_edges(mesh.F)
         figures[f"{tag}_preprocess_ms"] = median_ms(lambda: cutting.mesh_edges(mesh.F), repeats)
-        for predicates in cutting.PREDICATES:
-            suffix = "" if predicates == "euclidean" else "_ga"
-            figures[f"{tag}_cut{suffix}_ms"] = median_ms(
-                lambda: cutting.cut(mesh, plane, edges=edges, predicates=predicates), repeats
-            )
+        figures |= both_predicates(
+            f"{tag}_cut", lambda predicates: cutting.cut(mesh, plane, edges=edges, predicates=predicates), repeats
+        )
         positive, negative = cutting.cut(mesh, plane, edges=edges)
         print(
             f"{tag}: {mesh.F.shape[0]} faces, {mesh.num_vertices} vertices; halves of {positive.F.shape[0]} "
@@ -266,11 +271,11 @@ def run(repeats: int, faces_100k: int):
         )
         welded_edges = cutting.mesh_edges(welded.F)
         scalpel, drill = tools(np.asarray(welded.V, np.float64), np.asarray(welded.F))
-        for predicates in cutting.PREDICATES:
-            suffix = "" if predicates == "euclidean" else "_ga"
-            figures[f"{tag}_tear{suffix}_ms"] = median_ms(
-                lambda: cutting.tear(welded, scalpel, opening=0.2, edges=welded_edges, predicates=predicates), repeats
-            )
+        figures |= both_predicates(
+            f"{tag}_tear",
+            lambda predicates: cutting.tear(welded, scalpel, opening=0.2, edges=welded_edges, predicates=predicates),
+            repeats,
+        )
         figures[f"{tag}_drill_ms"] = median_ms(lambda: cutting.drill(welded, drill, edges=welded_edges), repeats)
         _, path = cutting.tear(welded, scalpel, opening=0.2, edges=welded_edges, return_topology=True)
         _, hole = cutting.drill(welded, drill, edges=welded_edges, return_topology=True)
