@@ -221,8 +221,15 @@ def cut_topology(
 
 
 def vertex_sides(V, F, n, d, predicates: str, tolerance: float) -> Float[np.ndarray, " n"]:
-    """Sub-routine 1: the signed distances (n,) of the vertices (n, 3) from the plane (unit normal n, offset d),
-    those within ``tolerance`` x the bounding-box diagonal snapped to 0. Raises where the plane misses the mesh."""
+    """Sub-routine 1: the vertices' signed distances from the plane, those within ``tolerance`` x the bounding-box
+    diagonal snapped to 0.
+
+    Args:
+        V: (n, 3) vertex positions; F: (m, 3) int faces.
+        n, d: the plane's unit normal (3,) and offset (``check_plane``).
+        predicates, tolerance: as in ``cut_topology``.
+    Returns:
+        (n,) the signed distances. Raises a ValueError where the plane misses the mesh."""
     s = signed_distances(V, n, d, predicates)
     s = np.where(np.abs(s) <= tolerance * bounding_diagonal(V), 0.0, s)
     if not (np.any(s[F] > 0) and np.any(s[F] < 0)):
@@ -245,7 +252,14 @@ class _Crossings(NamedTuple):
 
 def intersections(V, F, edges: MeshEdges, s, n, d, predicates: str) -> _Crossings:
     """Sub-routine 2: the faces that the plane splits, their intersection points and their pieces, vertices
-    snapped onto the plane where a piece would be a sliver. Raises where the plane only grazes the mesh."""
+    snapped onto the plane where a piece would be a sliver.
+
+    Args:
+        V: (n, 3) vertex positions; F: (m, 3) int faces; edges: ``mesh_edges(F)``.
+        s: (n,) ``vertex_sides``' signed distances.
+        n, d, predicates: as in ``vertex_sides``.
+    Returns:
+        The ``_Crossings``. Raises a ValueError where the plane only grazes the mesh."""
     sign = np.sign(s).astype(np.int64)
     smallest = SmallestFace(V, F)
     # Each pass snaps at least one more vertex onto the plane, so this ends (at worst with no split face).
@@ -264,7 +278,15 @@ def intersections(V, F, edges: MeshEdges, s, n, d, predicates: str) -> _Crossing
 
 def separate(V, F, edges: MeshEdges, n, crossings: _Crossings, cap: bool) -> CutTopology:
     """Sub-routine 4, faces: every face (or piece) to the side it lies on, the halves' vertices and faces in
-    their own numbering, the cut loops capped with ``cap``."""
+    their own numbering, the cut loops capped with ``cap``.
+
+    Args:
+        V: (n, 3) vertex positions; F: (m, 3) int faces; edges: ``mesh_edges(F)``.
+        n: (3,) the plane's unit normal.
+        crossings: ``intersections``' result.
+        cap: as in ``cut_topology``.
+    Returns:
+        The ``CutTopology``."""
     crossing, t, points, pieces, diagonal, sign, s = crossings
     face_signs = sign[F]
     lowest, highest = _row_range(face_signs)
@@ -444,10 +466,15 @@ def cut(
 
 
 def new_vertex_data(V, J, W, topology: CutTopology, side_weight: float, joint_matrices):
-    """Sub-routine 3: the new vertices' skinning data (sec. 4.3). Returns their rest positions (p, 3) and, for the
-    positive half and then the negative, their joints and weights ((p, k) int, (p, k)) (the same in both halves
-    when ``side_weight`` is 0). ``V``, ``J``, ``W``: the input's rest positions (n, 3), joints and weights (n, k);
-    ``joint_matrices``: None or the (j, 4, 4) pose the mesh was cut in (see ``cut``)."""
+    """Sub-routine 3: the new vertices' skinning data (sec. 4.3).
+
+    Args:
+        V: (n, 3) the input's rest positions; J: (n, k) int its joints; W: (n, k) its weights.
+        topology: the cut's ``CutTopology``.
+        side_weight, joint_matrices: as in ``cut`` (None or the (j, 4, 4) pose the mesh was cut in).
+    Returns:
+        (rest positions (p, 3) of the new vertices, [(J_new (p, k) int, W_new (p, k)) for the positive half, then
+        for the negative]: the same in both halves when ``side_weight`` is 0)."""
     crossing, t = topology.crossing, topology.t
     coefficients = np.stack([1.0 - t, t], axis=1)
     J_bary, W_bary = blend_weights(J, W, crossing, coefficients)
@@ -472,8 +499,15 @@ def new_vertex_data(V, J, W, topology: CutTopology, side_weight: float, joint_ma
 
 
 def split_mesh(mesh: SkinnedMesh, V, J, W, topology: CutTopology, rest, weights) -> list[SkinnedMesh]:
-    """Sub-routine 4, meshes: the positive and the negative half as SkinnedMeshes, from the input's rest positions
-    (n, 3), joints and weights (n, k), the topology's halves and ``new_vertex_data``'s ``rest`` and ``weights``."""
+    """Sub-routine 4, meshes: the positive and the negative half as SkinnedMeshes.
+
+    Args:
+        mesh: the input SkinnedMesh (its joints, inverse binds and dtypes).
+        V: (n, 3) its rest positions; J: (n, k) int its joints; W: (n, k) its weights.
+        topology: the cut's ``CutTopology``.
+        rest, weights: ``new_vertex_data``'s results.
+    Returns:
+        [positive, negative] SkinnedMeshes."""
     halves = []
     for keep, faces, (J_new, W_new) in zip(
         (topology.positive, topology.negative), (topology.positive_faces, topology.negative_faces), weights
