@@ -39,6 +39,7 @@ defaults): time, count and quality, one run, without a baseline (TetGen refuses 
 from __future__ import annotations
 
 import argparse
+import inspect
 import statistics
 import sys
 import time
@@ -111,8 +112,6 @@ def both_predicates(name: str, operation, repeats: int) -> dict:
 
 def table1(repeats: int) -> dict:
     """Table 1 of the paper on Arm5 and on the cylinder (module docstring): figures, ratios and units."""
-    import inspect
-
     try:  # the sub-routines as cutting.cut calls them (a commit measured by bench-compare may lack them)
         from cutting._cut import intersections, new_vertex_data, separate, split_mesh, vertex_sides
         from cutting._tools import check_plane
