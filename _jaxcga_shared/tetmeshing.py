@@ -4,7 +4,7 @@ fTetWild (Hu et al. 2020, "Fast Tetrahedral Meshing in the Wild"; MPL-2.0, throu
 the required one: it meshes any triangle soup (open, self-intersecting, several parts) inside an envelope of
 width ``epsilon`` around it and keeps the tets whose generalized winding number with respect to the input is
 above 1/2. TetGen (AGPL-3.0, wrapper ``tetgen``) is an optional extra (``pip install jaxcga[tetgen]``): it keeps a
-closed, clean surface exactly: cages and the ``mouth`` scene use it where it is installed, ``jaxcga fem`` on
+closed, clean surface exactly: cages and the ``octopus`` scene use it where it is installed, ``jaxcga fem`` on
 request (``--mesher tetgen``). Private to the distribution.
 """
 

@@ -10,7 +10,17 @@ run on the welded mesh, the cut on the file as loaded. The same tools act on bot
 moved 6 units (about 7 Arm5 edges) over the skin, opening 0.2; a drill of radius 1.5 entering the skin
 3 units deep.
 The baseline is the paper's published timing on Arm5 (sec. 4.3: 4,666 ms to cut, 2,437 ms to tear,
-274 ms to drill, Python on a 2.6 GHz Core i7); ratios are baseline time / our time (> 1: we are faster).
+274 ms to drill, Python on a 2.6 GHz Core i7; the cut and the tear with GA predicates, against ours with GA
+predicates, the default); ratios are baseline time / our time (> 1: we are faster).
+
+Table 1 of the paper: the cut's four sub-routines timed one by one, with the Euclidean predicates (the baseline,
+in the same run) and with the GA predicates, on Arm5 (as loaded) and on the paper's cylinder (3Cylinder4bones),
+each cut by the plane across its longest extent: (1) the vertices' sides, (2) the intersection points and the
+triangulation of the split faces, (3) the new vertices' weights, (4) the split into two meshes (the functions that
+``cutting.cut`` calls in turn, ``cutting/_cut.py``), then the whole ``cutting.cut``; the times alternate between
+the two predicate families, repetition by repetition. Printed in ms and in us per intersection point, with the
+paper's figures beside them; ``{arm5,cylinder}_ga_vs_euclidean`` is the Euclidean time of the whole cut over its GA
+time (the paper's: 4,476 / 4,667 ms = 0.96).
 
 The ``real_*`` figures run on the largest character of the corpus of real characters (tests/data/characters, welded),
 with tools placed as a user places them on an arm (the skin point nearest 60% of the way from the bounding box's
@@ -29,6 +39,7 @@ defaults): time, count and quality, one run, without a baseline (TetGen refuses 
 from __future__ import annotations
 
 import argparse
+import inspect
 import statistics
 import sys
 import time
@@ -53,6 +64,17 @@ import jaxcga as cga  # noqa: E402
 import xfem  # noqa: E402
 
 PAPER_MS = {"cut": 4666.0, "tear": 2437.0, "drill": 274.0}
+# Table 1's rows: name, label, the paper's Arm5 ms with Euclidean and with GA predicates (sub-routines 3 and 4 do
+# not use them), and its cylinder's ms (sec. 4.3: 898 ms in all, 92 intersection points; predicates not stated)
+TABLE1 = (
+    ("sides", "1 vertices' sides", 36.4, 72.4, 42.0),
+    ("intersections", "2 intersections, triangulation", 2051.0, 2205.7, 757.0),
+    ("weights", "3 weights of new vertices", 61.5, 61.5, 12.0),
+    ("split", "4 split into two meshes", 2326.9, 2326.9, 87.0),
+    ("cut", "whole cut (cutting.cut)", 4475.9, 4666.6, 898.0),
+)
+PAPER_CYLINDER_POINTS = 92
+TABLE1_MODELS = {"arm5": "Arm5.glb", "cylinder": "3Cylinder4bones.glb"}
 
 
 def median_ms(fn, repeats: int) -> float:
@@ -63,6 +85,115 @@ def median_ms(fn, repeats: int) -> float:
         fn()
         times.append(time.perf_counter() - start)
     return 1e3 * statistics.median(times)
+
+
+def interleaved_seconds(fns: dict, repeats: int) -> dict:
+    """Times (s) of ``repeats`` calls of each of ``fns`` (name: function), the functions called in turn at every
+    repetition (so that a change of the machine's load falls on all of them), in the reverse order every other
+    time (so that none is always first or last), after one warm-up call each."""
+    for fn in fns.values():
+        fn()
+    times = {name: [] for name in fns}
+    names = list(fns)
+    for repeat in range(repeats):
+        for name in names if repeat % 2 == 0 else names[::-1]:
+            start = time.perf_counter()
+            fns[name]()
+            times[name].append(time.perf_counter() - start)
+    return times
+
+
+def both_predicates(name: str, operation, repeats: int) -> dict:
+    """``{name}_ms`` and ``{name}_ga_ms``: the median ms of ``operation(predicates)`` with the Euclidean and the GA
+    predicates, timed in turn (``interleaved_seconds``)."""
+    seconds = interleaved_seconds({p: lambda p=p: operation(p) for p in cutting.PREDICATES}, repeats)
+    return {f"{name}{'' if p == 'euclidean' else '_ga'}_ms": 1e3 * statistics.median(seconds[p]) for p in seconds}
+
+
+def table1(repeats: int) -> dict:
+    """Table 1 of the paper on Arm5 and on the cylinder (module docstring): figures, ratios and units."""
+    try:  # the sub-routines as cutting.cut calls them (a commit measured by bench-compare may lack them)
+        from cutting._cut import intersections, new_vertex_data, separate, split_mesh, vertex_sides
+        from cutting._tools import check_plane
+    except ImportError as error:
+        print(f"Table 1 skipped: the measured cutting has no sub-routine functions ({error})")
+        return {"figures": {}, "ratios": {}, "units": {}}
+    tolerance = inspect.signature(cutting.cut).parameters["tolerance"].default
+    figures, ratios, units = {}, {}, {}
+    for tag, file in TABLE1_MODELS.items():
+        mesh = deform.load_model(ROOT / "tests" / "data" / file).mesh
+        mesh = deform.SkinnedMesh(
+            np.asarray(mesh.V),
+            np.asarray(mesh.F),
+            np.asarray(mesh.J),
+            np.asarray(mesh.W),
+            mesh.inverse_bind,
+            mesh.joints,
+        )
+        V, F = np.asarray(mesh.V, np.float64), np.asarray(mesh.F)
+        J, W = np.asarray(mesh.J), np.asarray(mesh.W)
+        plane = plane_through_middle(V)
+        edges = cutting.mesh_edges(F)
+        n, d = check_plane(plane)
+        fns, topologies = {}, {}
+        for predicates in cutting.PREDICATES:
+            # each sub-routine's input, computed once outside the timing
+            s = vertex_sides(V, F, n, d, predicates, tolerance)
+            crossings = intersections(V, F, edges, s, n, d, predicates)
+            topology = separate(V, F, edges, n, crossings, False)
+            rest, weights = new_vertex_data(V, J, W, topology, 0.0, None)
+            halves = split_mesh(mesh, V, J, W, topology, rest, weights)
+            # the steps compose to cutting.cut: the same halves
+            for ours, theirs in zip(halves, cutting.cut(mesh, plane, edges=edges, predicates=predicates)):
+                for a, b in ((ours.V, theirs.V), (ours.F, theirs.F), (ours.J, theirs.J), (ours.W, theirs.W)):
+                    np.testing.assert_array_equal(a, b)
+            topologies[predicates] = topology
+
+            def split(topology=topology, rest=rest, weights=weights, crossings=crossings):
+                separate(V, F, edges, n, crossings, False)
+                split_mesh(mesh, V, J, W, topology, rest, weights)
+
+            fns |= {
+                (predicates, "sides"): lambda p=predicates: vertex_sides(V, F, n, d, p, tolerance),
+                (predicates, "intersections"): lambda p=predicates, s=s: intersections(V, F, edges, s, n, d, p),
+                (predicates, "weights"): lambda t=topology: new_vertex_data(V, J, W, t, 0.0, None),
+                (predicates, "split"): split,
+                (predicates, "cut"): lambda p=predicates: cutting.cut(mesh, plane, edges=edges, predicates=p),
+            }
+        euclidean, ga = topologies["euclidean"], topologies["ga"]
+        same = all(
+            np.array_equal(getattr(euclidean, field), getattr(ga, field))
+            for field in ("crossing", "positive", "positive_faces", "negative", "negative_faces")
+        )
+        if not same:
+            raise RuntimeError(f"{tag}: the Euclidean and the GA predicates give different cuts")
+        points = len(euclidean.t)
+        seconds = interleaved_seconds(fns, repeats)
+        ms = {key: 1e3 * statistics.median(times) for key, times in seconds.items()}
+        print(
+            f"Table 1, {tag}: {len(F)} faces, {len(V)} vertices, {points} intersection points (the same cut with "
+            f"both predicates); ms (us per intersection point)"
+        )
+        paper = "paper Euclidean / GA ms" if tag == "arm5" else f"paper ms ({PAPER_CYLINDER_POINTS} points)"
+        print(f"  {'sub-routine':32s} {'Euclidean':>15s} {'GA':>15s} {'GA/Eucl.':>9s}   {paper}")
+        for name, label, paper_euclidean, paper_ga, paper_cylinder in TABLE1:
+            e, g = ms[("euclidean", name)], ms[("ga", name)]
+            figures[f"{tag}_table1_{name}_ms"], figures[f"{tag}_table1_{name}_ga_ms"] = e, g
+            quoted = f"{paper_euclidean:.1f} / {paper_ga:.1f}" if tag == "arm5" else f"{paper_cylinder:.0f}"
+            print(
+                f"  {label:32s} {e:7.3f} ({1e3 * e / points:5.2f}) {g:7.3f} ({1e3 * g / points:5.2f}) "
+                f"{g / e:8.2f}x   {quoted}"
+            )
+        parts = [ms[(p, name)] for p in cutting.PREDICATES for name, *_ in TABLE1[:4]]
+        print(f"  {'sum of 1-4':32s} {sum(parts[:4]):7.3f} {'':7s} {sum(parts[4:]):7.3f}")
+        figures[f"{tag}_intersection_points"] = points
+        units[f"{tag}_intersection_points"] = "points"
+        ratios[f"{tag}_ga_vs_euclidean"] = ms[("euclidean", "cut")] / ms[("ga", "cut")]
+        print(
+            f"ratio {tag}_ga_vs_euclidean: {ratios[f'{tag}_ga_vs_euclidean']:.2f} (Euclidean / GA time of the whole "
+            f"cut; target >= 0.91, the paper's {TABLE1[-1][2] / TABLE1[-1][3]:.2f})"
+        )
+    return {"figures": figures, "ratios": ratios, "units": units}
 
 
 def plane_through_middle(V) -> cutting.Plane:
@@ -117,11 +248,9 @@ def run(repeats: int, faces_100k: int):
         plane = plane_through_middle(mesh.V)
         edges = cutting.mesh_edges(mesh.F)
         figures[f"{tag}_preprocess_ms"] = median_ms(lambda: cutting.mesh_edges(mesh.F), repeats)
-        for predicates in cutting.PREDICATES:
-            suffix = "" if predicates == "euclidean" else "_ga"
-            figures[f"{tag}_cut{suffix}_ms"] = median_ms(
-                lambda: cutting.cut(mesh, plane, edges=edges, predicates=predicates), repeats
-            )
+        figures |= both_predicates(
+            f"{tag}_cut", lambda predicates: cutting.cut(mesh, plane, edges=edges, predicates=predicates), repeats
+        )
         positive, negative = cutting.cut(mesh, plane, edges=edges)
         print(
             f"{tag}: {mesh.F.shape[0]} faces, {mesh.num_vertices} vertices; halves of {positive.F.shape[0]} "
@@ -141,11 +270,11 @@ def run(repeats: int, faces_100k: int):
         )
         welded_edges = cutting.mesh_edges(welded.F)
         scalpel, drill = tools(np.asarray(welded.V, np.float64), np.asarray(welded.F))
-        for predicates in cutting.PREDICATES:
-            suffix = "" if predicates == "euclidean" else "_ga"
-            figures[f"{tag}_tear{suffix}_ms"] = median_ms(
-                lambda: cutting.tear(welded, scalpel, opening=0.2, edges=welded_edges, predicates=predicates), repeats
-            )
+        figures |= both_predicates(
+            f"{tag}_tear",
+            lambda predicates: cutting.tear(welded, scalpel, opening=0.2, edges=welded_edges, predicates=predicates),
+            repeats,
+        )
         figures[f"{tag}_drill_ms"] = median_ms(lambda: cutting.drill(welded, drill, edges=welded_edges), repeats)
         _, path = cutting.tear(welded, scalpel, opening=0.2, edges=welded_edges, return_topology=True)
         _, hole = cutting.drill(welded, drill, edges=welded_edges, return_topology=True)
@@ -156,13 +285,19 @@ def run(repeats: int, faces_100k: int):
             f"{hole.refinements} refinements)"
         )
     for op, paper in PAPER_MS.items():
-        ratios[f"arm5_{op}_vs_paper"] = paper / figures[f"arm5_{op}_ms"]
-        print(f"ratio arm5_{op}_vs_paper: {ratios[f'arm5_{op}_vs_paper']:.0f}x (paper {paper:.0f} ms)")
+        # the paper's cut and tear use GA predicates (Table 1), as ours do by default; the drill has none
+        ours = f"arm5_{op}_ga_ms" if f"arm5_{op}_ga_ms" in figures else f"arm5_{op}_ms"
+        ratios[f"arm5_{op}_vs_paper"] = paper / figures[ours]
+        print(f"ratio arm5_{op}_vs_paper: {ratios[f'arm5_{op}_vs_paper']:.0f}x (paper {paper:.0f} ms, ours {ours})")
+    table = table1(4 * repeats)  # sub-routines of tens of microseconds, compared with each other: more repetitions
+    figures.update(table["figures"])
+    ratios.update(table["ratios"])
     real = real_figures(repeats, frames=min(20, max(3, repeats)))
     figures.update(real["figures"])
     ratios.update(real["ratios"])
     for name in figures:
         units[name] = REAL_UNITS.get(name, "ms")
+    units.update(table["units"])
     for name in ratios:
         units[name] = RATIO_UNIT
     return {"figures": figures, "ratios": ratios, "units": units}

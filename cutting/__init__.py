@@ -7,7 +7,8 @@ apply it to a SkinnedMesh; ``X_positions(V, topology, tool)`` are the new vertic
 the vertices and the tool, differentiable for a fixed topology.
 
 Topology changes run on the host in vectorized numpy and return new arrays; the geometric
-predicates can run on the jaxcga kernel (``predicates="ga"``). Where things live: ``_tools`` (the tool
+predicates are the paper's GA ones by default (``predicates="ga"``, from the jaxcga kernel's product
+tables) or Euclidean (``predicates="euclidean"``), Table 1. Where things live: ``_tools`` (the tool
 values), ``_cut`` (Algorithm 1, capping), ``_tear`` (Algorithm 2), ``_drill`` (Algorithm 3, eq. 18-20),
 ``_weights`` (weights of new vertices, sec. 4.3), ``_predicates`` (Table 1's Euclidean and GA predicates),
 ``_geometry`` (what the three share: adjacency, poses, segment hits, triangulating the pieces of a face).

@@ -16,6 +16,11 @@ Steps, vectorized over faces (host numpy; the predicates may run on the jaxcga k
 5. each side compacted into its own mesh; with ``cap=True`` and a closed input, the cut loops are
    triangulated (manifold3d) and close both halves.
 
+These are the four sub-routines of the paper's Table 1, one function each, which ``cut_topology`` and ``cut``
+call in turn: (1) the vertices' sides, step 1 (``vertex_sides``); (2) the intersection points and the split
+faces' pieces, steps 2-3 (``intersections``); (3) the new vertices' weights (``new_vertex_data``); (4) the split
+into two meshes, steps 4-5 (``separate``, ``split_mesh``). Only (1) and (2) use the predicates.
+
 Vertices on the plane and new vertices belong to both halves (each half has its own copy). The
 original vertices keep their rest positions, joints and weights, so skinning a half at any pose gives,
 at every original vertex, exactly what skinning the input gives.
@@ -178,7 +183,7 @@ def cut_topology(
     F: Int[ArrayLike, "m 3"],
     plane: Plane,
     *,
-    predicates: str = "euclidean",
+    predicates: str = "ga",
     tolerance: float = 1e-6,
     cap: bool = False,
     edges: MeshEdges | None = None,
@@ -190,7 +195,8 @@ def cut_topology(
         F: (m, 3) int faces.
         plane: the ``Plane`` (``Plane(normal, distance)``, ``Plane.through(point, normal)`` or
             ``Plane.from_multivector`` of a jaxcga plane vector, eq. 5).
-        predicates: ``"euclidean"`` or ``"ga"`` (Table 1).
+        predicates: ``"ga"`` (the conformal point's inner product with the plane vector, the meet of an edge's
+            line with the plane) or ``"euclidean"`` (``n . x - d``, ``a + t (b - a)``): Table 1; the same cut.
         tolerance: vertices closer to the plane than ``tolerance`` times the bounding-box diagonal
             count as on it; so does a vertex next to which a crossing would leave a sliver piece.
         cap: close both halves with the triangulated cut loops (the input must be closed).
@@ -206,10 +212,54 @@ def cut_topology(
     if edges.face_edges.shape != F.shape:
         raise ValueError(f"edges: computed for another mesh (face_edges {edges.face_edges.shape}, F {F.shape})")
     n, d = check_plane(plane)
+    s = vertex_sides(V, F, n, d, predicates, tolerance)
+    crossings = intersections(V, F, edges, s, n, d, predicates)
+    return separate(V, F, edges, n, crossings, cap)
+
+
+# Table 1's sub-routines (module docstring), timed one by one by bench_cutting.
+
+
+def vertex_sides(V, F, n, d, predicates: str, tolerance: float) -> Float[np.ndarray, " n"]:
+    """Sub-routine 1: the vertices' signed distances from the plane, those within ``tolerance`` x the bounding-box
+    diagonal snapped to 0.
+
+    Args:
+        V: (n, 3) vertex positions; F: (m, 3) int faces.
+        n, d: the plane's unit normal (3,) and offset (``check_plane``).
+        predicates, tolerance: as in ``cut_topology``.
+    Returns:
+        (n,) the signed distances. Raises a ValueError where the plane misses the mesh."""
     s = signed_distances(V, n, d, predicates)
     s = np.where(np.abs(s) <= tolerance * bounding_diagonal(V), 0.0, s)
     if not (np.any(s[F] > 0) and np.any(s[F] < 0)):
         raise ValueError("plane: misses the mesh (every vertex lies on one side of it); nothing to cut")
+    return s
+
+
+class _Crossings(NamedTuple):
+    """What sub-routine 2 leaves: the new points and the pieces of the split faces (``_split``), the vertices'
+    signs (0: on the plane, snapped included) and their signed distances with the snapped ones set to 0."""
+
+    crossing: Int[np.ndarray, "p 2"]
+    t: Float[np.ndarray, " p"]
+    points: Float[np.ndarray, "p 3"]
+    pieces: list
+    diagonal: Int[np.ndarray, " split"]
+    sign: Int[np.ndarray, " n"]
+    distances: Float[np.ndarray, " n"]
+
+
+def intersections(V, F, edges: MeshEdges, s, n, d, predicates: str) -> _Crossings:
+    """Sub-routine 2: the faces that the plane splits, their intersection points and their pieces, vertices
+    snapped onto the plane where a piece would be a sliver.
+
+    Args:
+        V: (n, 3) vertex positions; F: (m, 3) int faces; edges: ``mesh_edges(F)``.
+        s: (n,) ``vertex_sides``' signed distances.
+        n, d, predicates: as in ``vertex_sides``.
+    Returns:
+        The ``_Crossings``. Raises a ValueError where the plane only grazes the mesh."""
     sign = np.sign(s).astype(np.int64)
     smallest = SmallestFace(V, F)
     # Each pass snaps at least one more vertex onto the plane, so this ends (at worst with no split face).
@@ -223,8 +273,21 @@ def cut_topology(
             "plane: only grazes the mesh (every vertex on one side of it lies so close to it that "
             "cutting there would leave sliver faces); nothing to cut"
         )
-    s = np.where(sign == 0, 0.0, s)
+    return _Crossings(crossing, t, points, pieces, diagonal, sign, np.where(sign == 0, 0.0, s))
 
+
+def separate(V, F, edges: MeshEdges, n, crossings: _Crossings, cap: bool) -> CutTopology:
+    """Sub-routine 4, faces: every face (or piece) to the side it lies on, the halves' vertices and faces in
+    their own numbering, the cut loops capped with ``cap``.
+
+    Args:
+        V: (n, 3) vertex positions; F: (m, 3) int faces; edges: ``mesh_edges(F)``.
+        n: (3,) the plane's unit normal.
+        crossings: ``intersections``' result.
+        cap: as in ``cut_topology``.
+    Returns:
+        The ``CutTopology``."""
+    crossing, t, points, pieces, diagonal, sign, s = crossings
     face_signs = sign[F]
     lowest, highest = _row_range(face_signs)
     in_plane = (lowest == 0) & (highest == 0)
@@ -357,7 +420,7 @@ def cut(
     plane: Plane,
     *,
     cap: bool = False,
-    predicates: str = "euclidean",
+    predicates: str = "ga",
     side_weight: float = 0.0,
     tolerance: float = 1e-6,
     joint_matrices: Float[ArrayLike, "j 4 4"] | None = None,
@@ -374,7 +437,8 @@ def cut(
         plane: the ``Plane``, in the space of the mesh as cut: the bind pose, or the pose given by
             ``joint_matrices``.
         cap: close both halves (the input must be closed).
-        predicates: ``"euclidean"`` or ``"ga"`` (Table 1).
+        predicates: ``"ga"`` (the conformal point's inner product with the plane vector, the meet of an edge's
+            line with the plane) or ``"euclidean"`` (``n . x - d``, ``a + t (b - a)``): Table 1; the same cut.
         side_weight: in [0, 1]; 0 gives every new vertex the barycentric weights of its edge
             (sec. 4.3, the same in both halves); towards 1 each half's copy leans to the weights of its
             own side's endpoint (the variant that favours one side), 1 uses that endpoint's alone.
@@ -394,19 +458,32 @@ def cut(
     J, W = np.asarray(mesh.J), np.asarray(mesh.W)
     cut_space, joint_matrices = posed_vertices(mesh, joint_matrices)
     topology = cut_topology(cut_space, F, plane, predicates=predicates, tolerance=tolerance, cap=cap, edges=edges)
+    rest, weights = new_vertex_data(V, J, W, topology, side_weight, joint_matrices)
+    halves = split_mesh(mesh, V, J, W, topology, rest, weights)
+    if return_topology:
+        return (halves[0], halves[1]), topology
+    return halves[0], halves[1]
+
+
+def new_vertex_data(V, J, W, topology: CutTopology, side_weight: float, joint_matrices):
+    """Sub-routine 3: the new vertices' skinning data (sec. 4.3).
+
+    Args:
+        V: (n, 3) the input's rest positions; J: (n, k) int its joints; W: (n, k) its weights.
+        topology: the cut's ``CutTopology``.
+        side_weight, joint_matrices: as in ``cut`` (None or the (j, 4, 4) pose the mesh was cut in).
+    Returns:
+        (rest positions (p, 3) of the new vertices, [(J_new (p, k) int, W_new (p, k)) for the positive half, then
+        for the negative]: the same in both halves when ``side_weight`` is 0)."""
     crossing, t = topology.crossing, topology.t
     coefficients = np.stack([1.0 - t, t], axis=1)
     J_bary, W_bary = blend_weights(J, W, crossing, coefficients)
-    if joint_matrices is None:
-        rest = V[crossing[:, 0]] + t[:, None] * (V[crossing[:, 1]] - V[crossing[:, 0]])
-    else:
+    # cut in the bind pose: the new vertices are the intersection points (of the predicates chosen)
+    rest = topology.points
+    if joint_matrices is not None:
         rest = rest_positions(J_bary, W_bary, topology.points, joint_matrices)
-
-    halves = []
-    for keep, faces, sign in (
-        (topology.positive, topology.positive_faces, 1),
-        (topology.negative, topology.negative_faces, -1),
-    ):
+    weights = []
+    for sign in (1, -1):
         J_new, W_new = J_bary, W_bary
         if side_weight > 0:
             # the endpoint on this half's side of each crossing edge
@@ -417,11 +494,27 @@ def cut(
                 np.stack([len(V) + np.arange(len(t)), own], axis=1),
                 np.broadcast_to([1.0 - side_weight, side_weight], (len(t), 2)),
             )
+        weights.append((J_new, W_new))
+    return rest, weights
+
+
+def split_mesh(mesh: SkinnedMesh, V, J, W, topology: CutTopology, rest, weights) -> list[SkinnedMesh]:
+    """Sub-routine 4, meshes: the positive and the negative half as SkinnedMeshes.
+
+    Args:
+        mesh: the input SkinnedMesh (its joints, inverse binds and dtypes).
+        V: (n, 3) its rest positions; J: (n, k) int its joints; W: (n, k) its weights.
+        topology: the cut's ``CutTopology``.
+        rest, weights: ``new_vertex_data``'s results.
+    Returns:
+        [positive, negative] SkinnedMeshes."""
+    halves = []
+    for keep, faces, (J_new, W_new) in zip(
+        (topology.positive, topology.negative), (topology.positive_faces, topology.negative_faces), weights
+    ):
         ext_V = np.concatenate([V, rest])
         ext_J = np.concatenate([J, J_new])
         ext_W = np.concatenate([W, W_new])
         V_half, J_half, W_half = (np.take(x, keep, axis=0) for x in (ext_V, ext_J, ext_W))
         halves.append(skinned_mesh_like(mesh, V_half, faces, J_half, W_half))
-    if return_topology:
-        return (halves[0], halves[1]), topology
-    return halves[0], halves[1]
+    return halves

@@ -729,13 +729,15 @@ class _Path:
         reach = chord + 2.0 * local + deviation  # how far the walk may go before it has strayed
         unit = _SHIFT_STEP * local
         first_tip = self.samples[self.stretches[-1][0]].point
-        base = signed_distances(V, n, d, self.predicates) if self.predicates == "euclidean" else None
+        # a shifted plane's sides from the plane's: n . x - (d + shift), or with GA X . (P + shift einf) = X . P - shift
+        # (X . einf = -1 for a conformal point)
+        base = signed_distances(V, n, d, self.predicates)
         blocked = False
         tried_sides, walked = set(), None
         for shift in unit * np.array([0.0, 1.0, -1.0, 2.0, -2.0, 3.0, -3.0, 4.0, -4.0]):
             if np.sign(shift) in tried_sides:
                 continue
-            s = base - shift if base is not None else signed_distances(V, n, d + shift, self.predicates)
+            s = base - shift
             try:
                 walked = _walk(
                     V,
@@ -841,7 +843,7 @@ def tear_topology(
     F: Int[ArrayLike, "m 3"],
     scalpel: Scalpel | Sequence[Scalpel],
     *,
-    predicates: str = "euclidean",
+    predicates: str = "ga",
     tolerance: float = 1e-6,
     edges: MeshEdges | None = None,
 ) -> TearTopology:
@@ -852,7 +854,7 @@ def tear_topology(
         F: (m, 3) int faces.
         scalpel: the ``Scalpel``: handle and tip ends (k+1, 3) at k+1 >= 2 time steps, or a sequence of
             ``Scalpel``s (each of one sample, (3,) ends, or several) joined in order.
-        predicates: ``"euclidean"`` or ``"ga"`` (Table 1) for the side of a vertex and the edge points.
+        predicates: ``"ga"`` or ``"euclidean"`` (Table 1) for the side of a vertex and the edge points.
         tolerance: planes passing closer than ``tolerance`` times the bounding-box diagonal to a path
             vertex are moved away from it (see the module docstring).
         edges: ``mesh_edges(F)``, precomputed once per topology.
@@ -1045,7 +1047,7 @@ def tear(
     scalpel: Scalpel | Sequence[Scalpel],
     *,
     opening: float = 0.0,
-    predicates: str = "euclidean",
+    predicates: str = "ga",
     side_weight: float = 0.0,
     tolerance: float = 1e-6,
     joint_matrices: Float[ArrayLike, "j 4 4"] | None = None,
@@ -1063,7 +1065,7 @@ def tear(
             ``scalpel_0, scalpel_1``; more make one tear along the whole path.
         opening: the distance between the two copies of every interior tear point (each is pushed
             ``opening / 2`` along the tear plane's normal, away from it); 0 leaves a closed slit.
-        predicates: ``"euclidean"`` or ``"ga"`` (Table 1).
+        predicates: ``"ga"`` or ``"euclidean"`` (Table 1).
         side_weight: in [0, 1]; 0 gives both copies of a tear point the barycentric weights of its
             edge (sec. 4.3); towards 1 each copy leans to the weights of its own side's endpoint.
         tolerance: see ``tear_topology``.

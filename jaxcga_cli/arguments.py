@@ -114,6 +114,6 @@ LAPLACIANS = ("cotangent", "mean_value")  # deform.LAPLACIANS
 ARAP_ENERGIES = ("spokes_and_rims", "spokes")  # deform.ARAP_ENERGIES
 UNHANDLED = ("follow", "error")  # deform.UNHANDLED
 PREDICATES = ("euclidean", "ga")  # cutting.PREDICATES
-XFEM_SCENES = ("sticks", "thin", "cheese", "accordion", "mouth")  # xfem.SCENES
+XFEM_SCENES = ("sticks", "thin", "cheese", "accordion", "octopus")  # xfem.SCENES
 XFEM_SIZES = ("paper", "small")  # xfem.SIZES
 METHODS = ("lbs", "dqs", "cga", "cga_motor_blend")  # deform.METHODS

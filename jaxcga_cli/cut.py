@@ -14,8 +14,8 @@ HELP = (
 )
 EXAMPLE = "jaxcga cut --plane 1 0 0 0.3 --cap --out upper.glb lower.glb"
 PREDICATES_HELP = (
-    "the geometric tests that decide which side a point is on: euclidean (plain vector algebra; "
-    "default) or ga (the paper's geometric-algebra form, Table 1)"
+    "the geometric tests that decide which side a point is on: ga (the paper's geometric-algebra form, Table 1; "
+    "default) or euclidean (plain vector algebra)"
 )
 SIDE_WEIGHT_HELP = (
     "bone weights of the new vertices: 0 (default) interpolates the edge's end points (sec. 4.3); up "
@@ -34,7 +34,7 @@ def add_arguments(parser) -> None:
         help="the plane n . x = d in the bind pose (n is normalized); the command prints the model's bounding box",
     )
     parser.add_argument("--cap", action="store_true", help="close both halves (the model must be closed)")
-    parser.add_argument("--predicates", choices=arguments.PREDICATES, default="euclidean", help=PREDICATES_HELP)
+    parser.add_argument("--predicates", choices=arguments.PREDICATES, default="ga", help=PREDICATES_HELP)
     parser.add_argument("--side-weight", type=float, default=0.0, help=SIDE_WEIGHT_HELP)
     parser.add_argument(
         "--out",
@@ -91,7 +91,7 @@ def cut_command(
     out_positive: Path,
     out_negative: Path,
     cap: bool = False,
-    predicates: str = "euclidean",
+    predicates: str = "ga",
     side_weight: float = 0.0,
 ) -> dict:
     """Cut ``model`` by ``plane`` (nx, ny, nz, d) in its bind pose; write the positive half to

@@ -41,7 +41,7 @@ def add_arguments(parser) -> None:
         default=0.0,
         help="distance between the two sides of the tear (default 0: a closed slit)",
     )
-    parser.add_argument("--predicates", choices=arguments.PREDICATES, default="euclidean", help=PREDICATES_HELP)
+    parser.add_argument("--predicates", choices=arguments.PREDICATES, default="ga", help=PREDICATES_HELP)
     parser.add_argument("--side-weight", type=float, default=0.0, help=SIDE_WEIGHT_HELP)
     parser.add_argument("--out", type=Path, required=True, help="OUT.glb or OUT.gltf")
 
@@ -103,7 +103,7 @@ def run(args) -> dict:
 
 
 def tear_command(
-    model, scalpels, out: Path, opening: float = 0.0, predicates: str = "euclidean", side_weight: float = 0.0
+    model, scalpels, out: Path, opening: float = 0.0, predicates: str = "ga", side_weight: float = 0.0
 ) -> dict:
     """Tear ``model`` in its bind pose with a scalpel at the samples ``scalpels`` ((k+1, 2, 3)); write
     the torn model to ``out`` (.glb or .gltf)."""

@@ -1,5 +1,5 @@
 """``jaxcga xfem SCENE``: one of the XFEM paper's cutting scenes of sec. 5 (``xfem.scene``: sticks, thin, cheese,
-accordion, mouth; parameters of sec. 5 and Table 1), simulated with the timings of Table 2; or a surface file
+accordion, octopus; parameters of sec. 5 and Table 1), simulated with the timings of Table 2; or a surface file
 (.obj, .ply, .stl, .off, glTF: a rigged model's bind-pose skin), tetrahedralized by fTetWild
 (``xfem.tetrahedralize_surface``), hanging from its top (the nodes within 2% of its height; up is +z, +y for glTF)
 and cut by a plane (``--plane``, default: through the middle of its bounding box, across the up axis) before frame
@@ -42,7 +42,7 @@ def add_arguments(parser) -> None:
     parser.add_argument(
         "scene",
         metavar="SCENE",
-        help="sticks (Fig. 5), thin (Fig. 1), cheese (Fig. 6), accordion (Fig. 7), mouth (Fig. 8), or a surface "
+        help="sticks (Fig. 5), thin (Fig. 1), cheese (Fig. 6), accordion (Fig. 7), octopus (Fig. 8), or a surface "
         "file (.obj, .ply, .stl, .off, glTF; open, self-intersecting, several parts are fine) to tetrahedralize "
         "and cut by --plane",
     )
@@ -87,6 +87,12 @@ def add_arguments(parser) -> None:
         help="xfem (the paper's generalized XFEM, the default) or rxfem (the baseline of Koschier et al. 2017 that "
         "Table 2 compares against: the scene's cuts that intersect an earlier one are left out)",
     )
+    parser.add_argument(
+        "--without-last-cut",
+        action="store_true",
+        help="paper scenes: drop the scene's last cut (the thin sheets' cross cut, the accordion's release, the "
+        "octopus's jaw), to compare with the full run",
+    )
     parser.add_argument("--no-figures", action="store_true", help="write the .vtu surfaces and summary.json only")
     parser.add_argument("--force", action="store_true", help=arguments.FORCE_HELP)
     parser.add_argument(
@@ -115,6 +121,7 @@ def run(args) -> dict:
         figures=not args.no_figures,
         cut_latency=args.cut_latency,
         method=args.method,
+        last_cut=not args.without_last_cut,
         plane=args.plane,
         cut_frame=args.cut_frame,
         edge_length=args.edge_length,
@@ -187,6 +194,7 @@ def xfem_command(
     figures: bool = True,
     cut_latency: int = 0,
     method: str = "xfem",
+    last_cut: bool = True,
     plane=None,
     cut_frame: int = 5,
     edge_length: float = 0.05,
@@ -196,8 +204,9 @@ def xfem_command(
     """Run scene ``name`` (a paper scene or a surface file) for ``steps`` frames (None: the scene's default, 30 for
     a surface file) and write frames into ``out``; returns the summary (module docstring). ``cut_latency``: as
     ``xfem.run_scene``; ``method``: "xfem" or "rxfem" (``xfem.rxfem_schedule``: the RXFEM baseline on the cuts that
-    intersect no earlier one; no cut latency); ``plane`` (6 numbers: point, normal), ``cut_frame``, ``edge_length``,
-    ``epsilon``: the surface file's cut and tetrahedralization; ``force``: as ``fem_command``'s."""
+    intersect no earlier one; no cut latency); ``last_cut``: as ``xfem.scene`` (paper scenes); ``plane`` (6 numbers:
+    point, normal), ``cut_frame``, ``edge_length``, ``epsilon``: the surface file's cut and tetrahedralization;
+    ``force``: as ``fem_command``'s."""
     import meshio
     import numpy as np
 
@@ -233,7 +242,7 @@ def xfem_command(
         steps = 30 if steps is None else steps
         sc, surface = surface_scene(name, steps, plane, cut_frame, edge_length, epsilon)
     else:
-        sc = xfem.scene(name, size)
+        sc = xfem.scene(name, size, last_cut=last_cut)
     left_out = ()
     if method == "rxfem":
         _, sc, left_out = xfem.rxfem_schedule(sc)
@@ -286,6 +295,7 @@ def xfem_command(
                 "newton_iterations": sc.newton_iterations,
                 "fixed_nodes": int(len(sc.fixed)),
                 "cut_latency": cut_latency,
+                "last_cut": last_cut,
                 "method": method,
                 "cuts_left_out": [c.frame for c in left_out],
                 "cut_frames": sorted({c.frame for c in sc.cuts if c.frame <= steps}),

@@ -127,8 +127,28 @@ def test_bench_cutting_quick_writes_the_published_names(tmp_path):
         "real_cut_vs_trimesh_slice",
         "real_tear_vs_skinning",
         "real_drill_vs_skinning",
+        "arm5_ga_vs_euclidean",
+        "cylinder_ga_vs_euclidean",
     ):
         assert result["ratios"][name] > 0
+    assert result["figures"]["cylinder_table1_intersections_ga_ms"] > 0
+
+
+def test_bench_cutting_table1_times_each_subroutine_with_both_predicates(capsys):
+    """Table 1 in this process, one repetition: the cut's sub-routines compose to ``cutting.cut`` with either
+    predicate family and make the same cut (``table1`` checks both), each timed on both models."""
+    import bench_cutting
+
+    result = bench_cutting.table1(repeats=1)
+    printed = capsys.readouterr().out
+    for tag in ("arm5", "cylinder"):
+        assert f"Table 1, {tag}" in printed and f"ratio {tag}_ga_vs_euclidean" in printed
+        for name in ("sides", "intersections", "weights", "split", "cut"):
+            for family in ("", "_ga"):
+                assert result["figures"][f"{tag}_table1_{name}{family}_ms"] > 0
+        assert result["figures"][f"{tag}_intersection_points"] > 10
+        assert result["units"][f"{tag}_intersection_points"] == "points"
+        assert result["ratios"][f"{tag}_ga_vs_euclidean"] > 0
 
 
 @pytest.mark.slow
@@ -157,7 +177,7 @@ def test_bench_fem_quick_writes_the_published_names(tmp_path):
 @pytest.mark.slow
 def test_bench_xfem_quick_writes_the_published_names(tmp_path):
     result = _quick("bench_xfem.py", tmp_path)
-    for scene in ("sticks", "thin", "accordion"):
+    for scene in ("sticks", "thin", "accordion", "octopus"):
         for name in (
             "boolean_ms",
             "step_avg_s",

@@ -2,7 +2,7 @@
 Finite Element Method for Deformable Cutting via Boolean Operations"), with the parameters of sec. 5 and Table 1,
 and a runner that times them like Table 2.
 
-Parameters (sec. 5): stable neo-Hookean material, Young 1e6 (1e7 for the character, as the paper's octopus),
+Parameters (sec. 5): stable neo-Hookean material, Young 1e6 (1e7 for the octopus),
 Poisson 0.4, density 1e3, h = 0.033 s, one Newton iteration, gravity -9.81 along z. Table 1 gives the cut
 thickness epsilon (1e-3 for the tetrahedron, 1e-4 otherwise) and the average edge length of each mesh, used here
 as its scale (``average_edge`` is over the mesh's distinct edges). Every cut gets the gentle perturbation of
@@ -17,9 +17,11 @@ with the cuts grouped into few frames, for tests and notebooks):
   (z = c), alternating, one every 5 frames (small: the vertical ones in frame 1, the horizontal in frame 2).
 * ``thin`` (Fig. 1): a 19 x 19 x 5 cell slab (2400 nodes, 7.2k DOFs; small 9 x 9 x 3), average edge 0.14,
   clamped at x = 0. Partial cuts parallel to its large faces from the free end to 35% of its length: the
-  first halves its thickness, three more slice the top half into four thinner sheets; the last cut, the plane
-  y = W/2 over the outer half of the length and the top 60% of the thickness, is perpendicular to all sheets and
-  crosses them.
+  first halves its thickness, three more slice the bottom half into four thinner sheets, which sag more than the
+  slab above and separate from it (sec. 5.1; below it, as there is no contact). The last cut, the plane x = 0.7 L
+  across all the sheets (perpendicular to them and to their length, up to just inside the slab above), cuts off
+  their outer parts: they lose mass and length and rise closer to rest (a cantilever's sag under its own weight
+  grows as its length^4; a cut along them, halving their width, would leave it unchanged).
 * ``cheese`` (Fig. 6, "Tetrahedron"): one tetrahedron (average edge 1.77, epsilon 1e-3) standing on its base
   (the three base nodes clamped), carved by two full wavy cuts (sinusoidal tool edges swept by translations),
   a partial wavy cut swept by a rotation, and two partial flat cuts, in different directions: many pieces and
@@ -29,13 +31,15 @@ with the cuts grouped into few frames, for tests and notebooks):
   x = 0 side to 80% of the width and from the other side to 20%, alternating: the body stays one piece, a
   zig-zag that stretches down. The last cut, the vertical plane x = 0.6 W between the two top levels, crosses
   both and releases everything below the top level's hinge: one piece becomes two.
-* ``mouth`` (Fig. 8, "Octopus"): a head-like blob (an icosphere ellipsoid with radial bumps on its lower half,
-  watertight, TetGen; 6698 nodes, 20.1k DOFs at paper size (the paper's: 20.8k), average edge 2.39; small 727
-  nodes; without TetGen, fTetWild at about the same average edge), Young 1e7,
-  clamped at its back (the nodes within 15% of its depth from the back). A smiling wavy tool edge swept
-  straight into its front carves the mouth; a vertical cut behind the mouth's front part, from just above the
-  mouth down through the chin and narrower than the mouth, crosses it: the jaw stays hinged at its two sides
-  (one piece) and drops.
+* ``octopus`` (Fig. 8, "Octopus"): a real octopus, libigl's tutorial model octopus-low.mesh (Mark Pauly's;
+  ``xfem/data``, licence in tests/data/README.md), head up, face along +x, scaled so that TetGen's mesh of its
+  surface has Table 1's average edge (2.39: 6753 nodes, 20.3k DOFs, the paper's 20.8k; small about 3.0 and 7.8k
+  DOFs; without TetGen, fTetWild at about the same average edge), Young 1e7, held at the back of its head and at
+  its tentacles beyond the head's radius. A smiling wavy tool edge swept straight into its face carves the mouth;
+  the second cut, a U-shaped edge whose sides cross the mouth, swept into the face less deep, frees the block under
+  the mouth at its sides and floor: the jaw hangs from its back and drops.
+
+``scene(name, size, last_cut=False)`` drops a scene's last cut, to compare the runs with and without it.
 
 The runner (``run_scene``) applies each frame's cuts (``XFEMModel.cut``, Algorithm 1 lines 1-25), then one step
 (line 26), and records per frame what Table 2 reports: Booleans and their time (MB), pieces integrated and their
@@ -53,15 +57,16 @@ triangles mapped by its own DOFs, eq. 18) for pictures and files.
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import manifold3d
 import numpy as np
-import trimesh
 from jaxtyping import Float, Int
 
 import jaxcga as cga
@@ -75,16 +80,18 @@ from xfem._material import Material
 from xfem._surface_tets import tetrahedralize_surface
 from xfem._tetmesh import (
     TetMesh,
+    boundary_faces,
     box_tets,
     element_adjacency,
     five_tet_cube,
     one_tet,
+    read_tet_mesh,
     tet_mesh,
     tetrahedralize,
 )
 from xfem._xfem import XFEMModel, xfem_model
 
-SCENES = ("sticks", "thin", "cheese", "accordion", "mouth")
+SCENES = ("sticks", "thin", "cheese", "accordion", "octopus")
 SIZES = ("paper", "small")
 
 _PERTURB = 1e-2  # size of the gentle perturbation (sec. 6.1), in average edges
@@ -227,7 +234,9 @@ def _thin(size: str) -> Scene:
     start = 0.35 * L  # partial: the sheets stay attached to the slab's clamped part
     frames = _frames(size, [20, 40, 60, 80, 110], [1, 1, 1, 1, 2])
     cuts = []
-    for frame, level in zip(frames[:4], (0.5, 0.625, 0.75, 0.875)):
+    # the sheets hang below the slab (sec. 5.1: the thinner sheets sag more and separate from the thicker material
+    # above; cut in the top half they would sag through it, there is no contact)
+    for frame, level in zip(frames[:4], (0.5, 0.375, 0.25, 0.125)):
         x0, x1 = start, L + margin
         cuts.append(
             ScheduledCut(
@@ -239,20 +248,23 @@ def _thin(size: str) -> Scene:
                 f"sheet z = {level} T",
             )
         )
-    x0, x1, z0, z1 = 0.5 * L, L + margin, 0.4 * T, T + margin
+    # across all the sheets (the plane x = 0.7 L, perpendicular to them and to their length), up to just inside the
+    # slab above them: their outer parts fall off, the sheets lose mass and length and rise (a cantilever's sag under
+    # its own weight grows as its length^4; halving the width, as a cut along the sheets would, leaves it unchanged)
+    z0, z1 = -margin, 0.55 * T
     cuts.append(
         ScheduledCut(
             frames[4],
             _rectangle(
-                ((x0 + x1) / 2, 0.5 * W + 0.013 * T, (z0 + z1) / 2),
-                (1, 0, 0),
+                (0.7 * L + 0.013 * T, W / 2, (z0 + z1) / 2),
+                (0, 1, 0),
                 (0, 0, 1),
-                (x1 - x0) / 2,
+                W / 2 + margin,
                 (z1 - z0) / 2,
                 epsilon,
             ),
             perturb,
-            "across the sheets y = W / 2",
+            "across the sheets x = 0.7 L",
         )
     )
     fixed = np.flatnonzero(np.asarray(mesh.X)[:, 0] < 1e-9 * L)
@@ -398,76 +410,111 @@ def _accordion(size: str) -> Scene:
     )
 
 
-def head_surface(radius: float, subdivisions: int) -> tuple[np.ndarray, np.ndarray]:
-    """The ``mouth`` scene's closed surface: an icosphere (trimesh) made an ellipsoid of radii
-    (0.9, 1, 1.15) radius, with radial bumps (4 around the vertical axis) on its lower half.
+# the octopus (libigl's tutorial data, octopus-low.mesh: a tet mesh of Mark Pauly's model; licence in
+# tests/data/README.md) in its own coordinates: its head's centre and axes, measured once (the head's tets'
+# volume-weighted centroid and principal axis; the front is the azimuth with the least tentacle material near the
+# head's lower half). Scaled by _OCTOPUS_SCALE its TetGen mesh at paper size has Table 1's average edge and DOFs.
+_OCTOPUS_FILE = "octopus-low.mesh"
+_OCTOPUS_CENTRE = (0.01398863, -0.0522888, -0.02998661)
+_OCTOPUS_UP = (-0.0189, -0.3694, -0.9291)
+_OCTOPUS_FRONT = (-0.9395, 0.3244, -0.1099)
+_OCTOPUS_SCALE = 161.0
+
+
+def octopus_mesh(size: str = "paper") -> TetMesh:
+    """The ``octopus`` scene's tet mesh, in the scene's frame: the head's centre near the origin, +z up (out of the
+    head's top), +x out of its face, scaled to Table 1's average edge (2.39) at paper size.
 
     Args:
-        radius: the scale.
-        subdivisions: the icosphere's subdivisions.
+        size: "paper": the model's surface (its tet mesh's boundary) tetrahedralized by TetGen (6753 nodes, average
+            edge 2.39) or, without TetGen, by fTetWild at about the same average edge; "small": coarser (TetGen: 2592
+            nodes, average edge 3.04).
     Returns:
-        V (v, 3) float64 and F (f, 3) int64, watertight, outward oriented, star-shaped about the origin.
+        The ``TetMesh``.
     """
-    sphere = trimesh.creation.icosphere(subdivisions=subdivisions)
-    P = np.asarray(sphere.vertices, np.float64)
-    bumps = 1 + 0.08 * np.sin(4 * np.arctan2(P[:, 1], P[:, 0])) * np.clip(-P[:, 2], 0, None) ** 2
-    return P * bumps[:, None] * radius * np.array([0.9, 1.0, 1.15]), np.asarray(sphere.faces, np.int64)
-
-
-def _mouth(size: str) -> Scene:
-    R = 22.0
-    # TetGen's quality tets are smaller than the regular tet of its volume bound: the bound of a regular tet of
-    # edge 2.7 gives Table 1's octopus: average edge 2.39
-    edge = 2.7 if size == "paper" else 6.0
-    V, F = head_surface(R, 3 if size == "paper" else 2)
+    check_choice("size", size, SIZES)
+    coarse = read_tet_mesh(Path(__file__).parent / "data" / _OCTOPUS_FILE)
+    up, front = np.asarray(_OCTOPUS_UP), np.asarray(_OCTOPUS_FRONT)
+    up = up / np.linalg.norm(up)
+    front = front - (front @ up) * up
+    front = front / np.linalg.norm(front)
+    R = np.stack([front, np.cross(up, front), up])
+    X = (np.asarray(coarse.X) - np.asarray(_OCTOPUS_CENTRE)) @ R.T * _OCTOPUS_SCALE
+    used, F = np.unique(boundary_faces(np.asarray(coarse.T)), return_inverse=True)  # the surface's vertices only
+    X, F = X[used], F.reshape(-1, 3)
     if optional_tetgen() is not None:
-        mesh = tetrahedralize(V, F, max_volume=edge**3 / (6 * np.sqrt(2)))
-    else:
-        # fTetWild without TetGen: aim at TetGen's average edge (2.39, small 5.28); fTetWild's edges come out
-        # longer than its target, by 1/0.87
-        target = 0.87 * (2.39 if size == "paper" else 5.28) / float(np.linalg.norm(np.ptp(V, axis=0)))
-        mesh = tetrahedralize_surface(V, F, edge_length=target).mesh
+        # TetGen's quality tets come out smaller than the regular tet of its volume bound: the bound of a regular
+        # tet of edge 3 gives Table 1's octopus (average edge 2.39); the thin tentacles keep the small mesh's
+        # edges near 3 even with a coarse bound (quality)
+        edge = 3.0 if size == "paper" else 12.0
+        return tetrahedralize(X, F, max_volume=edge**3 / (6 * np.sqrt(2)))
+    # fTetWild's edges come out longer than its target, by 1/0.87
+    target = 0.87 * (2.39 if size == "paper" else 3.04) / float(np.linalg.norm(np.ptp(X, axis=0)))
+    return tetrahedralize_surface(X, F, edge_length=target).mesh
+
+
+def _u_edge(x: float, half_width: float, z_top: float, z_bottom: float, arc_points: int = 7) -> np.ndarray:
+    """(k, 3) a U-shaped tool edge in the plane at x: down the side y = -half_width from z_top, across at z_bottom,
+    up the side y = +half_width, with rounded corners (radius a third of the half width)."""
+    r = half_width / 3
+    t = np.linspace(0.0, 0.5 * np.pi, arc_points)
+    left = np.stack([-half_width + r - r * np.cos(t), z_bottom + r - r * np.sin(t)], axis=1)
+    right = np.stack([half_width - r + r * np.sin(t), z_bottom + r - r * np.cos(t)], axis=1)
+    yz = np.concatenate([[[-half_width, z_top]], left, right, [[half_width, z_top]]])
+    return np.concatenate([np.full((len(yz), 1), x), yz], axis=1)
+
+
+def _octopus(size: str) -> Scene:
+    mesh = octopus_mesh(size)
     epsilon = 1e-4
     perturb = _PERTURB * average_edge(mesh)
-    Rx, Ry, Rz = 0.9 * R, R, 1.15 * R
-    z_mouth = -0.25 * Rz
-    # the smiling tool edge: up at the corners (a parabola) with a ripple, swept from outside the front to 65%
-    # of the depth
-    y = np.linspace(-0.55 * Ry, 0.55 * Ry, 33)
-    smile = z_mouth + 0.12 * Rz * (y / (0.55 * Ry)) ** 2 + 0.025 * Rz * np.sin(6 * np.pi * y / (1.1 * Ry))
-    tool = np.stack([np.full_like(y, 1.1 * Rx), y, smile], axis=1)
-    mouth = _swept(tool, (0, 0, 0), (0, 0, 1), np.zeros(2), [(0, 0, 0), (-0.75 * Rx, 0, 0)], epsilon)
-    # the jaw: a vertical cut in front of the mouth's back end, from above the mouth's lowest points through the
-    # chin, narrower than the mouth (the jaw's sides stay attached)
-    z0, z1 = -1.3 * Rz, z_mouth + 0.06 * Rz
-    jaw = _rectangle((0.45 * Rx, 0.0, (z0 + z1) / 2), (0, 1, 0), (0, 0, 1), 0.45 * Ry, (z1 - z0) / 2, epsilon)
+    X = np.asarray(mesh.X)
+    # the head: a ball of radius about 15 about (0, 0, 4), its face at x ~ 15; the tentacles leave its lower half
+    z_mouth, outside = 9.0, 22.0
+    # the mouth: a smiling edge (up at the corners, with a ripple: the paper's sinusoidal cut) swept straight into
+    # the face, 17 deep (to x = -2)
+    y = np.linspace(-10.0, 10.0, 33)
+    smile = z_mouth + 2.5 * (y / 10.0) ** 2 + 0.6 * np.sin(3 * np.pi * y / 10.0)
+    tool = np.stack([np.full_like(y, outside), y, smile], axis=1)
+    mouth = _swept(tool, (0, 0, 0), (0, 0, 1), np.zeros(2), [(0, 0, 0), (-outside - 2.0, 0, 0)], epsilon)
+    # the jaw: a U-shaped edge (two sides 14 apart crossing the mouth, a floor 7.5 below it) swept into the face to
+    # x = 0, 2 less deep than the mouth: the block under the mouth keeps only its back, a hinge, and drops
+    u = _u_edge(outside, 7.0, z_mouth + 3.5, z_mouth - 7.5)
+    jaw = _swept(u, (0, 0, 0), (0, 0, 1), np.zeros(2), [(0, 0, 0), (-outside, 0, 0)], epsilon)
     frames = _frames(size, [20, 40], [1, 2])
     cuts = (
-        ScheduledCut(frames[0], mouth, perturb, "the mouth: a smiling wavy edge swept into the front"),
-        ScheduledCut(frames[1], jaw, perturb, "the jaw: vertical, crossing the mouth"),
+        ScheduledCut(frames[0], mouth, perturb, "the mouth: a smiling wavy edge swept into the face"),
+        ScheduledCut(frames[1], jaw, perturb, "the jaw: a U-shaped edge crossing the mouth, swept less deep"),
     )
-    X = np.asarray(mesh.X)
-    fixed = np.flatnonzero(X[:, 0] < X[:, 0].min() + 0.15 * (X[:, 0].max() - X[:, 0].min()))
-    return Scene("mouth", size, mesh, fixed, 1e7, 0.4, 1e3, 0.033, epsilon, 120 if size == "paper" else 3, cuts)
+    # held at the back of its head and at its tentacles beyond the head's radius (free, the thin tentacles would
+    # swing about and the whole body sag by metres under Young 1e7; the face and the jaw stay free)
+    fixed = np.flatnonzero((np.linalg.norm(X[:, :2], axis=1) > 20.0) | (X[:, 0] < -10.0))
+    return Scene("octopus", size, mesh, fixed, 1e7, 0.4, 1e3, 0.033, epsilon, 120 if size == "paper" else 3, cuts)
 
 
-_BUILDERS = {"sticks": _sticks, "thin": _thin, "cheese": _cheese, "accordion": _accordion, "mouth": _mouth}
+_BUILDERS = {"sticks": _sticks, "thin": _thin, "cheese": _cheese, "accordion": _accordion, "octopus": _octopus}
 
 
-def scene(name: str, size: str = "paper") -> Scene:
+def scene(name: str, size: str = "paper", last_cut: bool = True) -> Scene:
     """Build one of the paper's scenes (module docstring).
 
     Args:
         name: one of ``SCENES``.
         size: "paper" (Table 1's meshes, a cut every few frames) or "small" (coarse meshes, the cuts grouped into
             the first few frames).
+        last_cut: False drops the scene's last scheduled cut (the one each figure's claim is about: the thin
+            sheets' cross cut, the accordion's release, the octopus's jaw), for comparing the runs with and without
+            it; the frames to run stay the same.
     Returns:
         The ``Scene``.
     """
     if name not in _BUILDERS:
         raise ValueError(f"name: expected one of {SCENES}, got {name!r}")
     check_choice("size", size, SIZES)
-    return _BUILDERS[name](size)
+    if not isinstance(last_cut, bool):
+        raise ValueError(f"last_cut: expected a bool, got {last_cut!r}")
+    built = _BUILDERS[name](size)
+    return built if last_cut else dataclasses.replace(built, cuts=built.cuts[:-1])
 
 
 @dataclass

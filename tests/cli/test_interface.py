@@ -84,7 +84,7 @@ def test_the_ftetwild_options_default_to_the_librarys_defaults(command):
 def test_a_scene_that_is_neither_built_in_nor_a_file_is_named_with_the_choices(capsys):
     assert _exit(["xfem", "cake", "--out", "out"]) == 2
     err = capsys.readouterr().err
-    assert "SCENE (one of sticks, thin, cheese, accordion, mouth or a surface file): no such file cake" in err, err
+    assert "SCENE (one of sticks, thin, cheese, accordion, octopus or a surface file): no such file cake" in err, err
 
 
 @pytest.mark.parametrize(

@@ -64,6 +64,20 @@ def test_no_figures_writes_surfaces_only(tmp_path):
 
 
 @pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
+def test_without_last_cut_drops_the_scenes_last_cut(tmp_path):
+    """--without-last-cut: the cheese's last cut (frame 2) is not made; the summary says so."""
+    runs = {}
+    for flag in ([], ["--without-last-cut"]):
+        out = tmp_path / ("without" if flag else "with")
+        args = ["xfem", "cheese", "--size", "small", "--steps", "2", "--no-figures", "--out", str(out)]
+        assert main(args + flag) == 0
+        runs[bool(flag)] = json.loads((out / "summary.json").read_text())
+    assert runs[True]["last_cut"] is False and runs[False]["last_cut"] is True
+    assert runs[True]["cuts"] == runs[False]["cuts"] - 1 == 4
+    assert runs[True]["booleans"] < runs[False]["booleans"]
+
+
+@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
 def test_cut_latency_defers_cuts(tmp_path):
     """--cut-latency 2: the cuts of frames 1 and 2 are computed in the background and take effect in frames 3 and
     4; every frame is written, showing the cuts that have taken effect (frames 1 and 2: the uncut body)."""
@@ -99,7 +113,7 @@ def test_cut_latency_defers_cuts(tmp_path):
 @pytest.mark.parametrize(
     "args, message",
     [
-        (["octopus"], "SCENE"),
+        (["mouth"], "SCENE"),
         (["cheese", "--cut-latency", "-1"], "cut_latency"),
         (["cheese", "--steps", "0"], "steps"),
         (["cheese", "--size", "huge"], "size"),
