@@ -29,6 +29,7 @@ from xfem._assembly import AssemblyPattern, CapacityError, assemble_matrix, asse
 from xfem._background import BackgroundCuts
 from xfem._backward_euler import (
     FEMSystem,
+    SolveStats,
     State,
     SystemCapacity,
     backward_euler_step,
@@ -114,6 +115,7 @@ __all__ = [
     "SystemCapacity",
     "FEMSystem",
     "Material",
+    "SolveStats",
     "State",
     "TetMesh",
     "assemble_matrix",

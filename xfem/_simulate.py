@@ -23,14 +23,14 @@ from __future__ import annotations
 
 import weakref
 from collections.abc import Callable, Sequence
-from typing import NamedTuple
+from typing import Literal, NamedTuple
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
-from xfem._backward_euler import FEMSystem, State
+from xfem._backward_euler import _NEWTON_ITERATIONS, FEMSystem, State
 from xfem._cut_system import PlaneCuts, _concrete, _plane, plane_cuts
 from xfem._material import Material
 from xfem._rollout import rollout
@@ -157,8 +157,8 @@ def simulate(
     steps: int,
     *,
     plane_cuts: Sequence[tuple[int, Float[ArrayLike, " 3"], Float[ArrayLike, " 3"], float]] = (),
-    newton_iterations: int = 1,
-    tolerance: float | None = None,
+    newton_iterations: int = _NEWTON_ITERATIONS,
+    tolerance: float | Literal["auto"] | None = "auto",
     line_search: bool = True,
     forces: Callable[[int, FEMSystem], Float[Array, "n 3"] | Float[Array, "frames n 3"]] | None = None,
     state: State | None = None,
