@@ -52,7 +52,7 @@ from xfem._neohookean import (
 )
 from xfem._rollout import rollout
 from xfem._scenes import SCENES, SIZES, FrameRecord, Scene, SceneRun, ScheduledCut, piece_surfaces, run_scene, scene
-from xfem._simulate import simulate
+from xfem._simulate import PlaneCutSimulation, plane_cut_simulation, simulate
 from xfem._subdomains import CutReport, CutStats, Subdomains, apply_cut, subdomains
 from xfem._surface_tets import (
     SurfaceEmbedding,
@@ -107,6 +107,8 @@ __all__ = [
     "apply_cut",
     "subdomains",
     "XFEMModel",
+    "PlaneCutSimulation",
+    "plane_cut_simulation",
     "simulate",
     "wait_for_compilations",
     "xfem_model",
