@@ -172,13 +172,22 @@ class State(eqx.Module):
     Attributes:
         x: (n, 3) positions.
         v: (n, 3) velocities.
-        stats: None (an initial state), or the ``SolveStats`` of the step (of every frame, for a rollout) that
-            made this state; steps ignore it in their input.
+        stats: the ``SolveStats`` of the step (of every frame, for a rollout) that made this state; for a state
+            made otherwise (``State(x, v)``), no step's: converged, 0 iterations, residual 0. Steps ignore it in
+            their input; it is always there, so that a step's result and its input have one pytree structure (a
+            ``jax.lax.scan`` carry).
     """
 
     x: Float[Array | np.ndarray, "n 3"]
     v: Float[Array | np.ndarray, "n 3"]
-    stats: SolveStats | None = None
+    stats: SolveStats
+
+    def __init__(self, x, v, stats: SolveStats | None = None):
+        self.x, self.v = x, v
+        if stats is None:
+            dtype = jnp.result_type(x) if jnp.issubdtype(jnp.result_type(x), jnp.floating) else np.float64
+            stats = SolveStats(np.asarray(True), np.asarray(0, np.int32), np.zeros((), dtype))
+        self.stats = stats
 
 
 class SystemCapacity(NamedTuple):

@@ -113,6 +113,6 @@ def _rollout(system, state, h, material, forces, targets, steps, iterations, tol
             tolerance,
             line_search,
         )
-        return State(s.x, s.v), s  # the carry's structure stays the initial state's (no stats)
+        return s, s
 
     return jax.lax.scan(body, state, (forces if per_frame else None, targets), length=steps)[1]
