@@ -16,7 +16,14 @@ respect to each point and normal is exact for the combinatorics found (``xfem._c
 
 The host phase (``_segments``, ``_plane_segments``) yields one ``_Segment`` per cut frame: the system after the
 frame's cuts (for plane cuts, the index of the frame's last cut in ``PlaneCuts.systems``) and the map from the
-previous segment's DOFs; ``_run`` rolls them out.
+previous segment's DOFs; ``_run`` rolls them out. With plane cuts the two phases are split in the open:
+``plane_cut_simulation`` runs the host phase at concrete planes and returns a ``PlaneCutSimulation``, whose call
+is the JAX phase alone (planes in, trajectory out), so it can be jitted and vmapped over the planes; its pieces
+are checked to hold at the planes (``PlaneCuts.holds``): concrete planes where they do not are cut anew, traced
+ones raise a runtime error (``require``). ``simulate`` with plane cuts keeps one per model and schedule.
+
+Every segment's steps converge by default (``rollout``), so the implicit gradients are the derivatives of the
+trajectory computed; ``newton_iterations=1, tolerance=None`` is the paper's step.
 """
 
 from __future__ import annotations
@@ -327,8 +334,8 @@ def simulate(
     """``steps`` frames of a cutting simulation (Algorithm 1 with the cuts given in advance), every frame's state
     returned; differentiable (reverse mode) with respect to ``material``, ``state``, ``forces`` and the points and
     normals of ``plane_cuts``, across the cuts (module docstring; each segment's gradient as ``rollout``'s: exact
-    for converged steps, with one Newton iteration the converged step's formula at the executed iterate; a plane's
-    exact for the pieces found at it).
+    for converged steps, the default; with the paper's one Newton iteration the converged step's formula at the
+    executed iterate; a plane's exact for the pieces found at it).
 
     Frame f (1..steps) makes the cuts scheduled at f (the solids of ``schedule``, then the slabs of
     ``plane_cuts``, each in the order given), then one backward Euler step, as ``run_scene`` and
@@ -338,9 +345,9 @@ def simulate(
     optimizer's iterations), it reuses those cuts while the model has not been cut since. With plane cuts, every
     cut of the schedule is made on a copy (``xfem.plane_cuts``) and ``model`` is left uncut: each call finds the
     pieces at its concrete planes (a point and normal traced by eager ``jax.grad`` have concrete values; under
-    ``jax.jit`` they must be closed over), or reuses the previous call's while they still hold there
-    (``PlaneCuts.holds``: the planes moved without crossing a node or a piece's vertex); which pieces exist is a
-    constant of the gradient.
+    ``jax.jit`` or ``jax.vmap`` use ``plane_cut_simulation``), or reuses the previous call's while they still hold
+    there (``PlaneCuts.holds``: the planes moved without crossing a node or a piece's vertex); which pieces exist is
+    a constant of the gradient.
 
     Args:
         model: the ``XFEMModel``, with the cuts made before the schedule's.
@@ -353,15 +360,17 @@ def simulate(
             about the plane through point (3,) with the unit normal (3,) (``plane_cut_solid`` with an extent
             covering the body), made at that frame after the frame's solids; point and normal may be JAX values
             to differentiate (the gradient with respect to a normal is tangent to the unit sphere).
-        newton_iterations, tolerance, line_search: as ``backward_euler_step``.
+        newton_iterations, tolerance, line_search: as ``backward_euler_step`` (by default every step converges;
+            ``newton_iterations=1, tolerance=None`` is the paper's single iteration, approximate for gradients).
         forces: None (each segment's system force, e.g. gravity on its pieces), or a function ``(k, system)`` of a
             segment's index and ``FEMSystem`` returning its forces, (n_k, 3) or (frames_k, n_k, 3) per frame, as
             ``rollout`` takes them; it may close over traced parameters.
         state: the ``State`` at frame 0 on the DOFs before the schedule's cuts; None: the model's state then.
     Returns:
         One ``State`` per segment (the frames before the first cut frame, then from each cut frame to the next),
-        x and v of shape (frames_k, n_k, 3), n_k the DOFs after that segment's cuts; the segments' frames concatenated
-        are frames 1..steps. A segment starting at frame 1 (a cut at frame 1) leaves the first one with 0 frames.
+        x and v of shape (frames_k, n_k, 3), n_k the DOFs after that segment's cuts, and its steps' ``SolveStats``
+        (frames_k,); the segments' frames concatenated are frames 1..steps. A segment starting at frame 1 (a cut at
+        frame 1) leaves the first one with 0 frames.
     """
     if not isinstance(model, XFEMModel):
         raise ValueError(f"model: expected an XFEMModel (xfem_model), got {type(model).__name__}")
