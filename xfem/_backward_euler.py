@@ -182,7 +182,12 @@ class State(eqx.Module):
     v: Float[Array | np.ndarray, "n 3"]
     stats: SolveStats
 
-    def __init__(self, x, v, stats: SolveStats | None = None):
+    def __init__(
+        self,
+        x: Float[Array | np.ndarray, "n 3"],
+        v: Float[Array | np.ndarray, "n 3"],
+        stats: SolveStats | None = None,
+    ):
         self.x, self.v = x, v
         if stats is None:
             dtype = jnp.result_type(x) if jnp.issubdtype(jnp.result_type(x), jnp.floating) else np.float64
