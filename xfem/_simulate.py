@@ -138,6 +138,8 @@ class PlaneCutSimulation:
         frames: (k,) the frame of each plane cut, in the order given.
         epsilons: (k,) their slab thicknesses.
         points, normals: (k, 3) the planes the pieces were found at (numpy), in the order given.
+        cuts: the ``PlaneCuts`` found there (its ``model``: the copy cut by every cut; ``systems``), the cuts in time
+            order (the plane cuts by frame).
         steps: the number of frames.
     """
 
@@ -156,7 +158,7 @@ class PlaneCutSimulation:
             raise ValueError("model: cut since the plane cut simulation was prepared; prepare a new one")
         o = self._order
         planes = [(int(self.frames[k]), points[k], normals[k], float(self.epsilons[k])) for k in o]
-        self._segments, self._cuts = _plane_segments(self._model, self._schedule, planes)
+        self._segments, self.cuts = _plane_segments(self._model, self._schedule, planes)
         self.points, self.normals = points, normals
 
     def _planes(self, points, normals):
@@ -187,7 +189,7 @@ class PlaneCutSimulation:
         """
         points, normals, _ = self._planes(points, normals)
         o = jnp.asarray(self._order)
-        return self._cuts.holds(jnp.asarray(points)[o], jnp.asarray(normals)[o])
+        return self.cuts.holds(jnp.asarray(points)[o], jnp.asarray(normals)[o])
 
     def __call__(
         self,
@@ -217,13 +219,13 @@ class PlaneCutSimulation:
         o = jnp.asarray(self._order)
         if concrete is not None:
             with jax.ensure_compile_time_eval():  # host work, also under eager jax.grad
-                if not bool(self._cuts.holds(concrete[0][self._order], concrete[1][self._order])):
+                if not bool(self.cuts.holds(concrete[0][self._order], concrete[1][self._order])):
                     self._cut(*concrete)
             points, normals = jnp.asarray(points)[o], jnp.asarray(normals)[o]
         else:
             points, normals = jnp.asarray(points)[o], jnp.asarray(normals)[o]
-            points = require(points, (~self._cuts.holds(points, normals), _CHANGED))
-        systems = self._cuts.systems(points, normals)
+            points = require(points, (~self.cuts.holds(points, normals), _CHANGED))
+        systems = self.cuts.systems(points, normals)
         segments = [  # a plane segment's system is the index of its cut (_plane_segments)
             s._replace(system=self._system if s.system is None else systems[s.system])  # pyright: ignore[reportCallIssue, reportArgumentType]
             for s in self._segments

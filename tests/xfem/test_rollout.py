@@ -188,9 +188,9 @@ def test_reverse_pass_reruns_no_newton_iteration(monkeypatch):
     system = fem_from_mesh(mesh, 1e3, fixed=np.flatnonzero(np.asarray(mesh.X)[:, 0] == 0))
     start = State(jnp.asarray(mesh.X), jnp.zeros_like(jnp.asarray(mesh.X)))
     jax.grad(lambda young: jnp.sum(rollout(system, start, Material(young, 0.4), H, 4).x ** 2))(jnp.asarray(1e6))
-    newton = calls["newton"]
+    solves = dict(calls)
     iterations = int(jnp.sum(rollout(system, start, Material(1e6, 0.4), H, 4).stats.iterations))
-    assert newton == iterations > 4 and calls["adjoint"] == 4
+    assert solves == {"newton": iterations, "adjoint": 4} and iterations > 4
 
 
 def test_bad_input():

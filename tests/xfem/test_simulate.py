@@ -189,7 +189,7 @@ def test_plane_cuts_bad_input():
     with pytest.raises(ValueError, match=r"epsilon \(plane_cuts\[0\]\)"):
         simulate(model, [], MATERIAL, H, 2, plane_cuts=[(1, point, normal, 0.0)])
     with pytest.raises(
-        ValueError, match=r"point \(plane_cuts\[0\]\): simulate finds the pieces .* plane_cut_simulation"
+        ValueError, match=r"point \(plane_cuts\[0\]\): simulate finds the pieces .*plane_cut_simulation"
     ):
         jax.jit(lambda p: simulate(model, [], MATERIAL, H, 2, plane_cuts=[(1, p, normal, EPS)])[-1].x)(point)
 
