@@ -167,9 +167,9 @@ class SolveStats(eqx.Module):
             bounding box of its elements' nodes at time t): the distance from the minimizer, relative.
     """
 
-    converged: Bool[Array, "*frames"]
-    iterations: Int[Array, "*frames"]
-    residual: Float[Array, "*frames"]
+    converged: Bool[Array | np.ndarray, "*frames"]
+    iterations: Int[Array | np.ndarray, "*frames"]
+    residual: Float[Array | np.ndarray, "*frames"]
 
 
 class State(eqx.Module):

@@ -422,7 +422,7 @@ def _run(
     newton_iterations: int,
     tolerance,
     line_search: bool,
-    forces,
+    forces: Callable[[int, FEMSystem], Array] | None,
 ) -> list[State]:
     """The JAX phase: each segment's rollout from the previous one's last state, mapped by its copy map."""
     if forces is not None and not callable(forces):
@@ -434,8 +434,10 @@ def _run(
             source = jnp.asarray(segment.source)
             state = State(state.x[source], state.v[source])
         end = segments[k + 1].frame if k + 1 < len(segments) else steps + 1
+        system = segment.system
+        assert isinstance(system, FEMSystem)  # simulate and PlaneCutSimulation resolved every segment's system
         frames = rollout(
-            segment.system,  # pyright: ignore[reportArgumentType]  # simulate resolved every segment's system
+            system,
             state,
             material,
             h,
@@ -443,7 +445,7 @@ def _run(
             newton_iterations=newton_iterations,
             tolerance=tolerance,
             line_search=line_search,
-            forces=None if forces is None else forces(k, segment.system),
+            forces=None if forces is None else forces(k, system),
         )
         trajectory.append(frames)
         if end > segment.frame:
