@@ -497,6 +497,7 @@ def _rollout_functions(sc, system, state, steps: int):
             sc.h,
             steps,
             newton_iterations=sc.newton_iterations,
+            tolerance=None,  # the scene's fixed iterations, as its Table 2 steps
         )
 
     def loss(young, v0):

@@ -7,8 +7,9 @@ them, the tets' quality), ``_linear_tet`` (linear shape functions eq. 5, consist
 lumped mass eq. 7, body forces eq. 8), ``_neohookean`` (stable neo-Hookean energy, stress and
 PSD-projected Hessians; ``_jacobi3``, the batched 3 x 3 SVD and eigendecomposition of their eigensystem),
 ``_assembly`` (sparse patterns precomputed on the host, assembly in JAX),
-``_backward_euler`` (eq. 10 as a minimization: projected Newton with line search, Dirichlet nodes,
-implicit gradients), ``_material`` (``Material``: Young's modulus and Poisson's ratio), ``_rollout`` (steps in
+``_backward_euler`` (eq. 10 as a minimization: projected Newton with line search, to convergence or the paper's
+one iteration, ``SolveStats``, Dirichlet nodes, implicit gradients), ``_material`` (``Material``: Young's
+modulus and Poisson's ratio), ``_rollout`` (steps in
 a checkpointed ``lax.scan``, differentiable in the initial state, material, forces and moving targets). The
 step is generic over an element list (DOF-node indices, shape gradients, integration weights) and any mass
 matrix, so the enriched XFEM elements go through the same code.
@@ -20,7 +21,8 @@ indicator enrichments eq. 16-18, DOF duplication, pieces on the FEM core), ``_ca
 capacity levels so that cuts reuse the compiled step), ``_background`` (``BackgroundCuts``: cuts computed in a
 worker process, ``_cut_process`` and ``_framing``, while the model steps), ``_material`` (``Material``),
 ``_rollout`` (``rollout``: a differentiable ``lax.scan`` of steps), ``_simulate`` (trajectories across a schedule
-of cuts, differentiable through the cuts' DOF copy maps and in the planes of plane cuts), ``_cut_system`` (slab
+of cuts, differentiable through the cuts' DOF copy maps and in the planes of plane cuts, ``plane_cut_simulation``
+for jit and vmap over them), ``_cut_system`` (slab
 cuts whose placement is a differentiable parameter). Sec. 5: ``_scenes`` (the paper's five scenes with Table 1's
 parameters, a runner timing them like Table 2; ``jaxcga xfem SCENE`` runs them), ``_rxfem`` (the RXFEM baseline of
 Koschier et al. 2017 that Table 2 compares against, on the same core: Heaviside enrichment without intersecting cuts,
@@ -31,6 +33,7 @@ from xfem._assembly import AssemblyPattern, CapacityError, assemble_matrix, asse
 from xfem._background import BackgroundCuts
 from xfem._backward_euler import (
     FEMSystem,
+    SolveStats,
     State,
     SystemCapacity,
     backward_euler_step,
@@ -62,7 +65,7 @@ from xfem._rxfem import (
     rxfem_schedule,
 )
 from xfem._scenes import SCENES, SIZES, FrameRecord, Scene, SceneRun, ScheduledCut, piece_surfaces, run_scene, scene
-from xfem._simulate import simulate
+from xfem._simulate import PlaneCutSimulation, plane_cut_simulation, simulate
 from xfem._subdomains import CutReport, CutStats, Subdomains, apply_cut, subdomains
 from xfem._surface_tets import (
     SurfaceEmbedding,
@@ -124,6 +127,8 @@ __all__ = [
     "moment_fitted_weights",
     "rxfem_model",
     "rxfem_schedule",
+    "PlaneCutSimulation",
+    "plane_cut_simulation",
     "simulate",
     "wait_for_compilations",
     "xfem_model",
@@ -132,6 +137,7 @@ __all__ = [
     "SystemCapacity",
     "FEMSystem",
     "Material",
+    "SolveStats",
     "State",
     "TetMesh",
     "assemble_matrix",

@@ -10,9 +10,15 @@ constant) without inverting M; then ``v_{t+1} = (x_{t+1} - x_t) / h``. Dirichlet
 their positions are set (to ``fixed_positions``, default where they are) and only the free nodes are
 unknowns. Newton's method starts at x~ (fixed nodes placed) and solves ``(M + h^2 K_+) dx = -grad E`` on the
 free DOFs, K_+ being the stiffness assembled from the PSD-projected element Hessians (so the direction is
-one of descent), followed by a backtracking (Armijo) line search on E. The paper takes one Newton
-iteration per step (the default here); with ``tolerance`` the iterations go on, up to
-``newton_iterations``, until the largest entry of a Newton update is below it.
+one of descent), followed by a backtracking (Armijo) line search on E. By default the iterations go on, up to
+``newton_iterations`` (50), until the largest entry of a Newton update is at most ``tolerance`` times the body's
+size (the diagonal of the bounding box of its elements' nodes at time t; a relative stop, so a mesh in millimetres
+converges as one in metres): 1e-10 in float64, 1e-5 in float32, what rounding lets a step reach. Newton converges
+quadratically where the projection is inactive, so the last update is about the square of the one before: the
+minimizer is then reached to rounding, and the implicit gradient below is the derivative of the step computed.
+The paper takes one Newton iteration per step (``newton_iterations=1, tolerance=None``: no stop test), as the
+scenes, the benchmarks and ``jaxcga fem`` do. Each result carries ``SolveStats``: whether the last update met the
+tolerance (the default one when the paper's step has none), the iterations and that update relative to the size.
 
 The system is generic over an element list: elements ``T`` index a DOF-node array, each with its shape
 gradients and integration weight (``volumes``), plus any symmetric scalar (n, n) mass matrix and (n, 3)
@@ -32,8 +38,9 @@ CG's Newton direction is solved to a relative residual of 1e-4 (an inexact Newto
 more iterations and moves the positions by a small fraction of the displacement); after n iterations the iterate
 is taken as it is (it still decreases the quadratic model, so it remains a descent direction).
 With ``tolerance`` the relative residual is tightened to ``|grad E| / |grad E at the first iteration|`` (down
-to 1e-11), so that Newton converges superlinearly where the projection of the element Hessians is inactive
-near the solution (where it is active, projected Newton converges linearly). The adjoint solve of the
+to 1e-11, or 100 times the unit roundoff in float32), so that Newton converges superlinearly where the
+projection of the element Hessians is inactive near the solution (where it is active, projected Newton converges
+linearly). The adjoint solve of the
 gradients (below) must be accurate: it uses CHOLMOD (scipy's SuperLU when the true Hessian is not positive
 definite), or above ``_DIRECT_DOFS`` unknowns CG to a relative residual of 1e-10, checked; on a GPU the dense
 Cholesky factorization up to ``_DIRECT_DOFS`` unknowns, above them the device CG to 1e-10, and the host's solve
@@ -50,15 +57,15 @@ At the minimizer x* the free-DOF gradient ``G(x*, theta) = grad_free E`` vanishe
 ``dx*/dtheta = -H^-1 dG/dtheta`` with H the TRUE (unprojected) Hessian ``M + h^2 K``: the backward pass
 solves ``H u = x_bar`` once and returns ``-(dG/dtheta)^T u`` (a vjp of autodiff's gradient of E); the fixed
 rows pass their cotangent to ``fixed_positions``. The Newton loop is never unrolled. This is the derivative
-of the exact minimizer: it matches the computed step only when the step is converged (``newton_iterations``
-~ 20 and a small ``tolerance``); after a single Newton iteration it is the converged step's formula evaluated
+of the exact minimizer: it matches the computed step when the step is converged (the default,
+``stats.converged``); after the paper's single Newton iteration it is the converged step's formula evaluated
 at the executed iterate, an approximation (``xfem._rollout`` measures how close).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import NamedTuple
+from typing import Literal, NamedTuple
 
 import equinox as eqx
 import jax
@@ -68,7 +75,7 @@ import numpy as np
 import numpy.typing as npt
 import scipy.sparse as sp
 from jax.ad_checkpoint import checkpoint_name
-from jaxtyping import Array, Float, Int
+from jaxtyping import Array, Bool, Float, Int
 
 from _jaxcga_shared.checks import check_real, require
 from _jaxcga_shared.host import to_devices
@@ -92,6 +99,10 @@ from xfem._tetmesh import TetMesh
 _CG_RTOL = 1e-4  # relative residual of the Newton direction (inexact Newton)
 _DIRECT_DOFS = 1000  # Newton systems up to this many unknowns are factorized (CHOLMOD), larger ones go to CG
 _CG_RTOL_MIN = 1e-11  # the tightest one asked for when converging (CG stalls near rounding)
+# the default relative tolerance per dtype ("auto"): far enough above rounding to be reached (a float32 position
+# holds ~7 digits), tight enough in float64 that the implicit gradient matches the executed step to ~1e-9
+_TOLERANCE = {np.dtype(np.float64): 1e-10, np.dtype(np.float32): 1e-5}
+_NEWTON_ITERATIONS = 50  # the default cap: a converging step takes 2-6 (quadratic near the minimizer)
 # the adjoint solve's CG residual: 5e-11 of CHOLMOD's solution on accordion's 37k unknowns, in a third of its time
 _ADJOINT_RTOL = 1e-10
 _ARMIJO = 1e-4  # sufficient-decrease constant of the line search
@@ -143,16 +154,52 @@ class FEMSystem(eqx.Module):
     n: int = eqx.field(static=True)
 
 
+class SolveStats(eqx.Module):
+    """How far a step's Newton minimization of E (eq. 10) went: one value per step (shape (), or (frames,) in a
+    rollout's trajectory). A pytree of arrays, so it passes through jit, vmap and scan.
+
+    Attributes:
+        converged: bool, the last Newton update's ``residual`` is at most the tolerance (the one given, or with
+            ``tolerance=None`` the dtype's default, ``"auto"``): the step's implicit gradient is then the
+            derivative of the executed step. False after the paper's single iteration of a moving body.
+        iterations: int, the Newton iterations run.
+        residual: the largest entry of the last Newton update divided by the body's size (the diagonal of the
+            bounding box of its elements' nodes at time t): the distance from the minimizer, relative.
+    """
+
+    converged: Bool[Array | np.ndarray, "*frames"]
+    iterations: Int[Array | np.ndarray, "*frames"]
+    residual: Float[Array | np.ndarray, "*frames"]
+
+
 class State(eqx.Module):
-    """Positions and velocities of the n DOF nodes (device or host arrays).
+    """Positions and velocities of the n DOF nodes (device or host arrays), and, on a step's result, how its
+    minimization converged.
 
     Attributes:
         x: (n, 3) positions.
         v: (n, 3) velocities.
+        stats: the ``SolveStats`` of the step (of every frame, for a rollout) that made this state; for a state
+            made otherwise (``State(x, v)``), no step's: converged, 0 iterations, residual 0. Steps ignore it in
+            their input; it is always there, so that a step's result and its input have one pytree structure (a
+            ``jax.lax.scan`` carry).
     """
 
     x: Float[Array | np.ndarray, "n 3"]
     v: Float[Array | np.ndarray, "n 3"]
+    stats: SolveStats
+
+    def __init__(
+        self,
+        x: Float[Array | np.ndarray, "n 3"],
+        v: Float[Array | np.ndarray, "n 3"],
+        stats: SolveStats | None = None,
+    ):
+        self.x, self.v = x, v
+        if stats is None:
+            dtype = jnp.result_type(x) if jnp.issubdtype(jnp.result_type(x), jnp.floating) else np.float64
+            stats = SolveStats(np.asarray(True), np.asarray(0, np.int32), np.zeros((), dtype))
+        self.stats = stats
 
 
 class SystemCapacity(NamedTuple):
@@ -505,26 +552,45 @@ def _line_search(system: FEMSystem, x, step, slope, theta: _Theta, h):
     return jnp.where(accepted(alpha, energy), alpha, 0)
 
 
+def _size(system: FEMSystem, x):
+    """The diagonal of the bounding box of the elements' nodes (the scale of the stopping test; padded nodes, in
+    no element, are left out: padding elements copy element 0)."""
+    corners = x[system.T]
+    extent = jnp.max(corners, axis=(0, 1)) - jnp.min(corners, axis=(0, 1))
+    return jnp.maximum(jnp.sqrt(jnp.sum(extent**2)), jnp.finfo(x.dtype).tiny)
+
+
 def _newton(theta: _Theta, system: FEMSystem, h, iterations: int, tolerance, line_search: bool):
+    """The minimizer of E by at most ``iterations`` projected Newton iterations, stopped (tolerance not None) once
+    an update's largest entry is at most ``tolerance`` times the body's size (``_size``); and its ``SolveStats``."""
     free = system.pattern.free
     # start at x~ = x_t + h v_t or at x_t, whichever has the lower E: from x~ alone, one Newton iteration on a
     # violent state (large velocities) only lowers E below E(x~), far above the minimum, and the energy grows
     inertial = (theta.x + h * theta.v).at[system.fixed].set(theta.fixed_positions)
     previous = theta.x.at[system.fixed].set(theta.fixed_positions)
     x0 = jnp.where(_energy(system, previous, theta, h)[0] < _energy(system, inertial, theta, h)[0], previous, inertial)
+    size = _size(system, theta.x)
+    dtype = np.dtype(x0.dtype)
+    # without a stopping test (the paper's fixed iterations) convergence is still reported, at the dtype's default
+    reported = _TOLERANCE.get(dtype, _TOLERANCE[np.dtype(np.float32)]) if tolerance is None else tolerance
+    rtol_min = max(_CG_RTOL_MIN, 100 * float(jnp.finfo(dtype).eps))
 
     def cond(carry):
-        k, _, _, done = carry
-        return (k < iterations) & ~done
+        k, _, _, residual, stalled = carry
+        go = k < iterations
+        if tolerance is not None:
+            # converged, or stalled (the line search found no decrease above rounding)
+            go &= (residual > tolerance) & ~stalled
+        return go
 
     def body(carry):
-        k, x, first_norm, _ = carry
+        k, x, first_norm, _, _ = carry
         gradient, data = _gradient_and_matrix(system, x, theta, h, project=True)
         norm = jnp.sqrt(jnp.sum(gradient**2))
         first_norm = jnp.where(k == 0, norm, first_norm)
         rtol = _CG_RTOL
         if tolerance is not None:  # converging: tighten the solves as grad E falls, for superlinear convergence
-            rtol = jnp.clip(norm / first_norm, _CG_RTOL_MIN, _CG_RTOL)
+            rtol = jnp.clip(norm / first_norm, rtol_min, _CG_RTOL)
         step = -_solve(_host_newton_direction, system.pattern, data, gradient, rtol, "accept")
         alpha = (
             _line_search(system, x, step.reshape(-1, 3), jnp.dot(gradient, step, precision=EXACT), theta, h)
@@ -532,12 +598,13 @@ def _newton(theta: _Theta, system: FEMSystem, h, iterations: int, tolerance, lin
             else 1
         )
         x = x.at[free].add(alpha * step.reshape(-1, 3))
-        # converged, or stalled (the line search found no decrease above rounding)
-        done = False if tolerance is None else (jnp.max(jnp.abs(step), initial=0) <= tolerance) | (alpha == 0)
-        return k + 1, x, first_norm, jnp.asarray(done)
+        residual = jnp.max(jnp.abs(step), initial=0) / size
+        return k + 1, x, first_norm, residual, jnp.asarray(alpha == 0)
 
     zero = jnp.zeros((), x0.dtype)
-    return jax.lax.while_loop(cond, body, (0, x0, zero, jnp.asarray(False)))[1]
+    start = (jnp.zeros((), jnp.int32), x0, zero, jnp.asarray(jnp.inf, x0.dtype), jnp.asarray(False))
+    k, x, _, residual, _ = jax.lax.while_loop(cond, body, start)
+    return x, SolveStats(residual <= reported, k, residual)
 
 
 @eqx.filter_custom_vjp
@@ -547,13 +614,16 @@ def _minimize(theta, system, h, iterations, tolerance, line_search):
 
 @_minimize.def_fwd
 def _minimize_fwd(perturbed, theta, system, h, iterations, tolerance, line_search):
-    x = _newton(theta, system, h, iterations, tolerance, line_search)
-    return x, checkpoint_name(x, _NEWTON_RESULT)
+    x, stats = _newton(theta, system, h, iterations, tolerance, line_search)
+    return (x, stats), checkpoint_name(x, _NEWTON_RESULT)
 
 
 @_minimize.def_bwd
-def _minimize_bwd(x, x_bar, perturbed, theta, system, h, iterations, tolerance, line_search):
+def _minimize_bwd(x, cotangents, perturbed, theta, system, h, iterations, tolerance, line_search):
     pattern = system.pattern
+    x_bar = cotangents[0]  # the stats have no derivative
+    if x_bar is None:
+        x_bar = jnp.zeros_like(x)
 
     def free_gradient(t: _Theta):  # G(x*, theta): the fixed rows of x follow theta's fixed positions
         y = x.at[system.fixed].set(t.fixed_positions)
@@ -570,8 +640,8 @@ def _advance(system, state, h, mu, lam, fixed_positions, force, iterations, tole
     """The step from ``state`` with Lamé parameters, the fixed nodes' new positions and the forces (n, 3)."""
     theta = _Theta(state.x, state.v, mu, lam, fixed_positions, force, system.grads, system.volumes, system.mass_values)
     # theta carries every differentiable input; the rest of the system is structure
-    x = _minimize(theta, jax.lax.stop_gradient(system), h, iterations, tolerance, line_search)
-    return State(x, (x - state.x) / h)
+    x, stats = _minimize(theta, jax.lax.stop_gradient(system), h, iterations, tolerance, line_search)
+    return State(x, (x - state.x) / h, jax.lax.stop_gradient(stats))
 
 
 @eqx.filter_jit
@@ -588,13 +658,17 @@ def backward_euler_step(
     h: float | Float[Array, ""],
     material: Material,
     fixed_positions: Float[Array | np.ndarray, "nb 3"] | None = None,
-    newton_iterations: int = 1,
-    tolerance: float | None = None,
+    newton_iterations: int = _NEWTON_ITERATIONS,
+    tolerance: float | Literal["auto"] | None = "auto",
     line_search: bool = True,
 ) -> State:
     """One backward Euler step (eq. 10) of the stable neo-Hookean system (module docstring); jit-compiled,
     differentiable (reverse mode, implicitly) in state, the material, fixed_positions and the system's force,
     grads, volumes and mass_values.
+
+    By default Newton runs to convergence, so that the implicit gradient is the derivative of the step computed.
+    The paper's single iteration is ``newton_iterations=1, tolerance=None``: faster, but its gradient is the
+    converged formula at an unconverged iterate, an approximation (``stats.converged`` is False).
 
     Args:
         system: the ``FEMSystem``.
@@ -603,12 +677,14 @@ def backward_euler_step(
         material: the ``Material`` (Young's modulus and Poisson's ratio, scalars or (m,) per element).
         fixed_positions: (nb, 3) positions of the fixed nodes at t + h (a moving boundary); None keeps them
             where they are, ``state.x[system.fixed]``.
-        newton_iterations: the most Newton iterations (>= 1); 1 as in the paper.
-        tolerance: None (run all ``newton_iterations``) or stop once the largest entry of a Newton update
-            (a length) is at most this.
+        newton_iterations: the most Newton iterations (>= 1); 1 is the paper's.
+        tolerance: stop once the largest entry of a Newton update is at most this fraction of the body's size
+            (the diagonal of the bounding box of its elements' nodes at time t); ``"auto"``: 1e-10 in float64,
+            1e-5 in float32 (what rounding lets a step reach); None: run all ``newton_iterations``.
         line_search: backtrack (Armijo) on E; False takes full Newton steps.
     Returns:
-        The ``State`` at t + h: the fixed nodes at ``fixed_positions``, ``v = (x_{t+1} - x_t) / h``.
+        The ``State`` at t + h: the fixed nodes at ``fixed_positions``, ``v = (x_{t+1} - x_t) / h``, and its
+        ``stats`` (``SolveStats``: converged, iterations, residual).
     """
     return _step(
         *_step_arguments(system, state, h, material, fixed_positions, newton_iterations, tolerance, line_search)
@@ -627,8 +703,12 @@ def _step_arguments(system, state, h, material, fixed_positions, newton_iteratio
             )
     if int(newton_iterations) != newton_iterations or newton_iterations < 1:
         raise ValueError(f"newton_iterations: expected an int >= 1, got {newton_iterations!r}")
-    if tolerance is not None and not tolerance > 0:
-        raise ValueError(f"tolerance: expected None or a positive length, got {tolerance!r}")
+    if isinstance(tolerance, str) and tolerance == "auto":
+        tolerance = _TOLERANCE.get(np.dtype(dtype), _TOLERANCE[np.dtype(np.float32)])
+    elif tolerance is not None and (isinstance(tolerance, (str, bool)) or not tolerance > 0):
+        raise ValueError(f"tolerance: expected 'auto', None or a positive fraction of the size, got {tolerance!r}")
+    elif tolerance is not None:
+        tolerance = float(tolerance)
     if jnp.shape(h) != ():
         raise ValueError(f"h: expected a scalar time step, got shape {jnp.shape(h)}")
     material = _checked_material(material, system, dtype)

@@ -4,11 +4,12 @@ body forces and the fixed nodes' targets of every frame.
 
 Gradient. Each step's reverse pass is the step's implicit gradient (``_minimize``'s custom VJP): the step's
 result x is treated as the converged minimizer of E (eq. 10), so ``dx/dtheta = -H(x)^-1 d(grad E)/dtheta`` with
-H the true Hessian at x. With enough Newton iterations (a small ``tolerance``) this is the exact derivative of
-the rollout. With the paper's single Newton iteration the step stops short of the minimizer, and the gradient
-is the converged step's formula evaluated at the executed iterate: an approximation of the derivative of the
-executed iteration (which would differentiate the Newton update, the line search and the start's choice, and
-is not computed). tests/xfem/test_rollout.py checks both statements and measures the difference.
+H the true Hessian at x. At the defaults every step converges (``stats.converged`` per frame says so), and this
+is the derivative of the rollout computed. With the paper's single Newton iteration (``newton_iterations=1,
+tolerance=None``) the step stops short of the minimizer, and the gradient is the converged step's formula
+evaluated at the executed iterate: an approximation of the derivative of the executed iteration (which would
+differentiate the Newton update, the line search and the start's choice, and is not computed).
+tests/xfem/test_rollout.py checks both statements and measures the difference.
 
 Memory. The scan body is checkpointed (``jax.checkpoint``) with a policy that keeps only each step's Newton
 result (``checkpoint_name``): the reverse pass stores the states and re-runs none of the Newton iterations, and
@@ -18,13 +19,14 @@ no per-step temporaries (element Hessians, line-search trials) live across steps
 from __future__ import annotations
 
 import functools
+from typing import Literal
 
 import equinox as eqx
 import jax
 import jax.numpy as jnp
 from jaxtyping import Array, Float
 
-from xfem._backward_euler import _NEWTON_RESULT, FEMSystem, State, _advance, _step_arguments
+from xfem._backward_euler import _NEWTON_ITERATIONS, _NEWTON_RESULT, FEMSystem, State, _advance, _step_arguments
 from xfem._material import Material
 
 
@@ -35,8 +37,8 @@ def rollout(
     h: float | Float[Array, ""],
     steps: int,
     *,
-    newton_iterations: int = 1,
-    tolerance: float | None = None,
+    newton_iterations: int = _NEWTON_ITERATIONS,
+    tolerance: float | Literal["auto"] | None = "auto",
     line_search: bool = True,
     forces: Float[Array, "n 3"] | Float[Array, "steps n 3"] | None = None,
     targets: Float[Array, "steps nb 3"] | None = None,
@@ -50,13 +52,15 @@ def rollout(
         material: the ``Material``.
         h: the positive time step.
         steps: python int >= 0, the number of steps.
-        newton_iterations, tolerance, line_search: as ``backward_euler_step`` (1 Newton iteration, the paper's).
+        newton_iterations, tolerance, line_search: as ``backward_euler_step`` (by default each step converges;
+            ``newton_iterations=1, tolerance=None`` is the paper's single iteration, approximate for gradients).
         forces: None (the system's ``force`` every frame), (n, 3) forces for every frame, or (steps, n, 3) the
             forces of each frame, replacing ``system.force``.
         targets: None (the fixed nodes stay where they are in ``state``), or (steps, nb, 3) the fixed nodes'
             positions at each frame (``fixed_positions`` of the steps: a moving boundary).
     Returns:
-        The ``State`` of every frame: x and v of shape (steps, n, 3), frame k after k + 1 steps.
+        The ``State`` of every frame: x and v of shape (steps, n, 3), frame k after k + 1 steps, and each step's
+        ``SolveStats`` (``stats.converged``, ``iterations``, ``residual`` of shape (steps,)).
     """
     system, state, h, material, _, iterations, tolerance, line_search = _step_arguments(
         system, state, h, material, None, newton_iterations, tolerance, line_search

@@ -41,6 +41,7 @@ from collections.abc import Sequence
 from typing import NamedTuple
 
 import igl
+import jax
 import jax.numpy as jnp
 import manifold3d
 import numpy as np
@@ -491,9 +492,9 @@ class XFEMModel:
         Args:
             h: the positive time step.
             material: the ``Material`` (scalar parameters).
-            newton_iterations: the most Newton iterations (>= 1).
+            newton_iterations: the Newton iterations (>= 1; 1 is the paper's), all of them run (no tolerance).
         Returns:
-            The new ``State``: x and v of shape (n_dofs, 3), host arrays.
+            The new ``State``: x and v of shape (n_dofs, 3), host arrays, and the step's ``SolveStats``.
         """
         if int(newton_iterations) != newton_iterations or newton_iterations < 1:
             raise ValueError(f"newton_iterations: expected an int >= 1, got {newton_iterations!r}")
@@ -503,7 +504,11 @@ class XFEMModel:
         # compiled(background=False) returns the step (built here if its background build failed)
         stepped = step(padded.system, padded_state(self.state, padded.n, padded.system.n), h, material)  # pyright: ignore[reportOptionalCall]
         # host views of the result, sliced (a JAX slice would compile anew for every DOF count)
-        self.state = State(np.asarray(stepped.x)[: padded.n], np.asarray(stepped.v)[: padded.n])
+        self.state = State(
+            np.asarray(stepped.x)[: padded.n],
+            np.asarray(stepped.v)[: padded.n],
+            jax.tree.map(np.asarray, stepped.stats),
+        )
         self._step_options = options
         compiled(self._capacities, padded, padded.level + 1, *options, background=True)
         return self.state

@@ -40,6 +40,8 @@ def test_bar_writes_frames_meshes_and_a_summary(bar_run, capsys):
     assert summary["steps"] == 3 and summary["nodes"] == 17 * 5 * 5 and summary["elements"] == 6 * 16 * 4 * 4
     assert summary["dofs"] == 3 * (summary["nodes"] - summary["fixed_nodes"]) and summary["fixed_nodes"] == 25
     assert len(summary["kinetic_energy"]) == 3 and all(np.isfinite(summary["potential_energy"]))
+    # the paper's single Newton iteration by default: the falling bar's steps stop short of convergence, and say so
+    assert summary["newton_iterations_mean"] == 1 and summary["converged_steps"] == 0 and summary["tolerance"] is None
     last = meshio.read(bar_run / "frame_0003.vtu")
     u = last.point_data["displacement"]
     clamped = last.points[:, 0] - u[:, 0] <= 1e-12
@@ -97,6 +99,7 @@ def test_force_replaces_the_previous_run_and_nothing_else(tmp_path):
         (["bar", "--steps", "0"], "steps"),
         (["bar", "--poisson", "0.5"], "poisson"),
         (["bar", "--dt", "-1"], "dt"),
+        (["bar", "--tolerance", "0"], "tolerance"),
     ],
 )
 def test_bad_arguments_exit_with_a_message(tmp_path, capsys, args, message):

@@ -42,6 +42,7 @@ MATERIAL = Material(1e6, 0.4)
 MU, LAM = MATERIAL.lame()
 GRAVITY = np.array([0.0, 0.0, -9.81])
 CONVERGED = dict(newton_iterations=20, tolerance=1e-12)
+PAPER = dict(newton_iterations=1, tolerance=None)  # the paper's single Newton iteration per step
 
 BAR = box_tets((2, 1, 1), size=(2.0, 1.0, 1.0))
 X = np.asarray(BAR.X)
@@ -164,7 +165,7 @@ def test_cantilever_stays_finite_loses_energy_and_settles():
     state = State(BAR.X, jnp.zeros_like(BAR.X))
     energies, tips = [total_energy(state)], []
     for _ in range(50):
-        state = backward_euler_step(CANTILEVER, state, H, MATERIAL)
+        state = backward_euler_step(CANTILEVER, state, H, MATERIAL, **PAPER)
         energies.append(total_energy(state))
         tips.append(float(state.x[X[:, 0] == 2.0, 2].mean() - 0.5))
     assert np.all(np.isfinite(np.asarray(state.x))) and np.all(np.isfinite(energies))
@@ -177,7 +178,9 @@ def test_cantilever_stays_finite_loses_energy_and_settles():
 
 
 @pytest.mark.slow  # 17 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
-def test_implicit_gradients_match_central_differences():
+def test_implicit_gradients_match_central_differences_at_the_defaults():
+    """Three steps at the default settings (Newton to convergence): the implicit gradient is the derivative of the
+    steps computed, to 1e-6 of central differences, for every differentiable input."""
     rng = np.random.default_rng(3)
     weights = jnp.asarray(rng.normal(size=X.shape))
     v0 = jnp.asarray(rng.normal(size=X.shape))
@@ -192,26 +195,49 @@ def test_implicit_gradients_match_central_differences():
         )
 
         def step(state, _):
-            return backward_euler_step(system, state, H, material, fixed_positions=X[FIXED] + offset, **CONVERGED), None
+            state = backward_euler_step(system, state, H, material, fixed_positions=X[FIXED] + offset)
+            return state, state.stats.converged
 
-        state = jax.lax.scan(step, State(BAR.X, v0), length=3)[0]
-        return jnp.sum(weights * state.x) + 0.5 * jnp.sum(state.v**2)
+        state, converged = jax.lax.scan(step, State(BAR.X, v0), length=3)
+        return jnp.sum(weights * state.x) + 0.5 * jnp.sum(state.v**2), converged
 
     one = jnp.asarray(1.0)
     args = (jnp.asarray(2e5), v0, jnp.zeros((len(FIXED), 3)), one, one)
-    value_and_grad = jax.jit(jax.value_and_grad(loss, argnums=(0, 1, 2, 3, 4)))  # one compilation for all
-    grad = value_and_grad(*args)[1]
+    value_and_grad = jax.jit(jax.value_and_grad(loss, argnums=(0, 1, 2, 3, 4), has_aux=True))  # one compilation
+    (_, converged), grad = value_and_grad(*args)
+    assert np.all(converged)
 
     def central(i, d, eps):
         plus, minus = list(args), list(args)
         plus[i], minus[i] = args[i] + eps * d, args[i] - eps * d
-        return float(value_and_grad(*plus)[0] - value_and_grad(*minus)[0]) / (2 * eps)
+        return float(value_and_grad(*plus)[0][0] - value_and_grad(*minus)[0][0]) / (2 * eps)
 
-    np.testing.assert_allclose(grad[0], central(0, 1.0, 1e-4 * float(args[0])), rtol=1e-5)
-    np.testing.assert_allclose(jnp.sum(grad[1] * direction["v0"]), central(1, direction["v0"], 1e-5), rtol=1e-5)
-    np.testing.assert_allclose(jnp.sum(grad[2] * direction["offset"]), central(2, direction["offset"], 1e-6), rtol=1e-5)
-    np.testing.assert_allclose(grad[3], central(3, 1.0, 1e-4), rtol=1e-5)  # through system.force
-    np.testing.assert_allclose(grad[4], central(4, 1.0, 1e-4), rtol=1e-5)  # through the integration weights
+    np.testing.assert_allclose(grad[0], central(0, 1.0, 1e-4 * float(args[0])), rtol=1e-6)
+    np.testing.assert_allclose(jnp.sum(grad[1] * direction["v0"]), central(1, direction["v0"], 1e-5), rtol=1e-6)
+    np.testing.assert_allclose(jnp.sum(grad[2] * direction["offset"]), central(2, direction["offset"], 1e-6), rtol=1e-6)
+    np.testing.assert_allclose(grad[3], central(3, 1.0, 1e-4), rtol=1e-6)  # through system.force
+    np.testing.assert_allclose(grad[4], central(4, 1.0, 1e-4), rtol=1e-6)  # through the integration weights
+
+
+@pytest.mark.slow  # a step compiled at three settings: ~15 s on 2 cores
+def test_stats_say_whether_the_step_converged():
+    """The default step converges (several Newton iterations, the last update below 1e-10 of the bar's size); the
+    paper's single iteration does not on a moving cantilever, and says so; a state made by hand reports no step."""
+    x, v = _deformed(X, 5)
+    start = State(x.at[FIXED].set(X[FIXED]), v)
+    assert bool(start.stats.converged) and int(start.stats.iterations) == 0
+    default = backward_euler_step(CANTILEVER, start, H, MATERIAL)
+    assert bool(default.stats.converged) and 1 < int(default.stats.iterations) < 20
+    assert float(default.stats.residual) <= 1e-10
+    paper = backward_euler_step(CANTILEVER, start, H, MATERIAL, **PAPER)
+    assert not bool(paper.stats.converged) and int(paper.stats.iterations) == 1
+    assert float(paper.stats.residual) > 1e-4
+    # the single iteration stopped short: its distance to the converged step is about its residual's scale
+    size = np.linalg.norm(X.max(axis=0) - X.min(axis=0))
+    assert float(jnp.abs(paper.x - default.x).max()) > 1e-8 * size
+    # a capped run that does not reach its tolerance says so too
+    capped = backward_euler_step(CANTILEVER, start, H, MATERIAL, newton_iterations=2, tolerance=1e-12)
+    assert not bool(capped.stats.converged) and int(capped.stats.iterations) == 2
 
 
 def test_bad_input():
@@ -226,6 +252,8 @@ def test_bad_input():
         backward_euler_step(CANTILEVER, state, H, MATERIAL, newton_iterations=0)
     with pytest.raises(ValueError, match="tolerance"):
         backward_euler_step(CANTILEVER, state, H, MATERIAL, tolerance=-1.0)
+    with pytest.raises(ValueError, match="tolerance: expected 'auto'"):
+        backward_euler_step(CANTILEVER, state, H, MATERIAL, tolerance="tight")
     with pytest.raises(ValueError, match="state.v: non-finite"):
         backward_euler_step(CANTILEVER, State(BAR.X, jnp.full_like(BAR.X, jnp.nan)), H, MATERIAL)
     with pytest.raises(ValueError, match="material: expected an xfem.Material"):
@@ -301,8 +329,8 @@ def test_padded_system_steps_like_the_real_one():
     state = State(jnp.asarray(X), jnp.asarray(np.random.default_rng(0).normal(size=X.shape)))
     wide = State(jnp.asarray(np.vstack([X, np.zeros((20, 3))])), jnp.asarray(np.vstack([state.v, np.zeros((20, 3))])))
     for _ in range(2):
-        state = backward_euler_step(real, state, 0.033, MATERIAL)
-        wide = backward_euler_step(padded, wide, 0.033, MATERIAL)
+        state = backward_euler_step(real, state, 0.033, MATERIAL, **PAPER)
+        wide = backward_euler_step(padded, wide, 0.033, MATERIAL, **PAPER)
     np.testing.assert_allclose(np.asarray(wide.x)[:n], state.x, rtol=0, atol=1e-12)
     np.testing.assert_array_equal(np.asarray(wide.x)[n:], 0.0)
     with pytest.raises(CapacityError, match="capacity"):

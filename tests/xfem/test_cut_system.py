@@ -75,6 +75,8 @@ def _scalar(system, weights):
 @pytest.mark.slow  # 14 s on 2 cores: the fast suite's 10-minute budget
 @pytest.mark.parametrize("which", ["height", "tilt"])
 def test_gradient_matches_central_differences_of_the_booleans(bar, which):
+    """``cut_system`` (no options: its default) differentiated in the plane: within 1e-6 of central differences
+    of the Boolean path (each side cut anew)."""
     height, theta = 0.43, 0.2
     weights = _weights(xfem.cut_system(bar, _point(height), _normal(theta), EPS))
 
@@ -85,7 +87,7 @@ def test_gradient_matches_central_differences_of_the_booleans(bar, which):
     gradient = jax.grad(f)(0.0)
     step = 1e-5
     difference = (f(step) - f(-step)) / (2 * step)
-    assert abs(gradient - difference) <= 1e-5 * abs(difference)
+    assert abs(gradient - difference) <= 1e-6 * abs(difference)
 
 
 @pytest.mark.slow  # 7 s on 2 cores: the fast suite's 10-minute budget
@@ -145,8 +147,9 @@ def test_holds_while_the_combinatorics_do(bar):
 
 @pytest.mark.slow
 def test_jit_and_two_planes(bar):
-    """Two cuts: the second system depends on both planes; it equals the Booleans', and its jitted gradient
-    matches central differences of the Boolean path."""
+    """Two cuts: the second system depends on both planes; it equals the Booleans', and the jitted gradient of
+    ``plane_cuts(...).systems`` is within 1e-6 of central differences of the Boolean path (``plane_cuts`` at the
+    shifted planes)."""
     planes = [(_point(0.43), _normal(0.2), EPS), (_point(0.71), _normal(-0.1), EPS)]
     cuts = xfem.plane_cuts(bar, planes)
     assert [r.dof_source is not None for r in cuts.reports] == [True, True]
@@ -175,7 +178,7 @@ def test_jit_and_two_planes(bar):
             )
             values.append(_scalar(system, weights))
         difference = (values[0] - values[1]) / (2 * step)
-        assert abs(gradient[k] - difference) <= 1e-5 * abs(difference)
+        assert abs(gradient[k] - difference) <= 1e-6 * abs(difference)
 
 
 def test_earlier_non_planar_cut_is_a_constant():
@@ -219,8 +222,9 @@ def test_bad_input(bar):
 
 @pytest.mark.slow
 def test_gradient_of_a_step_outcome(bar):
-    """The hanging part's sag after one converged backward Euler step, differentiated with respect to the cut's
-    height through the step's implicit gradient: central differences of the Boolean path."""
+    """The hanging part's sag after one backward Euler step at the defaults (converged), differentiated with respect
+    to the cut's height through the step's implicit gradient: within 1e-6 of central differences of the Boolean
+    path."""
     height, theta = 0.43, 0.2
     cuts = xfem.plane_cuts(bar, [(_point(height), _normal(theta), EPS)])
     X = jnp.asarray(cuts.model.X[cuts.model.dof_node])
@@ -230,10 +234,10 @@ def test_gradient_of_a_step_outcome(bar):
 
     def f(t):
         system = xfem.cut_system(bar, _point(height + t), _normal(theta), EPS)
-        x = xfem.backward_euler_step(system, state, 0.01, material, newton_iterations=30, tolerance=1e-13).x
+        x = xfem.backward_euler_step(system, state, 0.01, material).x
         return jnp.sum(weights * x[:, 2])
 
     gradient = jax.grad(f)(0.0)
     step = 1e-5
     difference = (f(step) - f(-step)) / (2 * step)
-    assert abs(gradient - difference) <= 1e-5 * abs(difference)
+    assert abs(gradient - difference) <= 1e-6 * abs(difference)
