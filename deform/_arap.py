@@ -40,14 +40,20 @@ exactly at rigid maps. Each iteration alternates
   gets the extra 1/2 w_b v_ij over u_i).
   (Eq. 13's normal equations are not needed: after substitution the system is square.)
 
-libigl's conventions, matched here (checked against ``igl.arap_solve`` in the tests, both energies): an
-iteration is "place the handles, local step on the current positions, global step"; ``max_iter`` counts
-these iterations; the initial guess is the caller's U0 (libigl's default for an empty U0 is zero; ours is
-the rest positions with the handles placed). ``igl.arap_solve`` fits rotations with a single-precision
-3x3 SVD: on well-shaped meshes it agrees with us to ~1e-7 of the diagonal, but cells whose covariance
-is nearly singular with a reflection (det S < 0, as on Arm5) amplify its float32 error to ~1e-4. libigl's
-own algorithm with its double-precision rotation fit (``igl.fit_rotations(S, False)``) gives our result
-to ~1e-14 (tested). The spokes energy can be negative; the stopping test uses its magnitude.
+libigl's conventions, matched with ``tolerance=None, acceleration="none"`` (checked against ``igl.arap_solve`` in
+the tests, both energies): an iteration is "place the handles, local step on the current positions, global step";
+``max_iter`` counts these iterations; the initial guess is the caller's U0 (libigl's default for an empty U0 is
+zero; ours is the rest positions with the handles placed). ``igl.arap_solve`` fits rotations with a
+single-precision 3x3 SVD: on well-shaped meshes it agrees with us to ~1e-7 of the diagonal, but cells whose
+covariance is nearly singular with a reflection (det S < 0, as on Arm5) amplify its float32 error to ~1e-4.
+libigl's own algorithm with its double-precision rotation fit (``igl.fit_rotations(S, False)``) gives our result
+to ~1e-14 (tested).
+
+By default the iterations stop on the fixed-point residual ``max |G(x) - x|`` over the rest diagonal (G: one
+local and one global step), not on the energy (whose decrease stalls at rounding long before the positions
+converge, and which the spokes energy lets go negative). Local/global converges linearly, slowly where a
+rotation must spread along a long body, so its map is Anderson-accelerated (Walker & Ni 2011) with the energy as
+safeguard (Peng et al. 2018): an extrapolated point is kept only if its energy is below the current one.
 
 Gradients of the converged positions with respect to ``bc`` are implicit at the fixed point
 ``x* = G(x*, bc)`` (G = one local + global iteration): the adjoint ``(I - dG/dx)^T u = g`` is solved with
