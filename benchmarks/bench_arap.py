@@ -3,8 +3,9 @@ precompute and the time per iteration on ~10k- and ~40k-vertex meshes (welded Ar
 subdivided), for both energies (spokes and rims, the default, and the paper's spokes), each against
 libigl's same energy, the shoulder fixed and the hand moved and turned.
 
-Per iteration: ours is ``arap_solve`` jitted with a fixed iteration count (tolerance < 0 runs them
-all), K iterations timed and divided by K; libigl's ``arap_solve`` with ``max_iter = K`` likewise.
+Per iteration: ours is ``arap_solve`` jitted with a fixed iteration count (``tolerance=None``, plain
+iterations as libigl's: ``acceleration="none"``), K iterations timed and divided by K; libigl's ``arap_solve``
+with ``max_iter = K`` likewise.
 Medians over interleaved repeats. Ratios are baseline time / ours (> 1: we are faster). Names carry the
 energy (``iteration_vs_igl_spokes_and_rims_10k``, ``iteration_vs_igl_spokes_10k``, ...); the names
 without one (``iteration_vs_igl_10k``, ...) are the spokes energy's, as before both energies existed.
@@ -92,7 +93,9 @@ def run(sizes: dict, iterations: int, repeats: int):
             data_igl = igl_precompute()
             ours = deform.arap_precompute(V, F, b, energy=energy)
             solve = jax.jit(
-                lambda c, x0, ours=ours: deform.arap_solve(ours, c, V0=x0, max_iterations=iterations, tolerance=-1.0).U
+                lambda c, x0, ours=ours: (
+                    deform.arap_solve(ours, c, V0=x0, max_iterations=iterations, tolerance=None, acceleration="none").U
+                )
             )
             # the handles and first guess on the device before timing: an iteration's time, not the copies (on a
             # GPU 2.4 MB each way at 100k vertices)

@@ -11,9 +11,11 @@ key motors (spline, handles; LBS-like), classic positional FFD (eq. 6), the posi
 precision as the library's products are (a GPU's default would be TF32 for float32). On a GPU the XLA formulation
 that the Triton program replaced is timed too (``*_xla_ms``).
 Calls are interleaved round-robin (medians), so the machine's drift does not bias a ratio. Ratios are
-baseline time / ours (> 1: we are faster); ``*_fps`` figures without a suffix are float64.
+baseline time / ours (> 1: we are faster); ``*_fps`` figures without a suffix are float64. Last, ``fit_pose`` on
+notebook 02's problem on CesiumMan: Levenberg-Marquardt against gradient descent (``fit_gd_vs_lm``: LM's time over
+gradient descent's).
 
-    python benchmarks/bench_deform.py [--vertices 100000] [--repeats 15] [--json out/bench/deform.json]
+    python benchmarks/bench_deform.py [--vertices 100000] [--repeats 15] [--skip-fit] [--json out/bench/deform.json]
 """
 
 from __future__ import annotations
@@ -222,15 +224,53 @@ def run(vertices: int, repeats: int, harmonic_repeats: int):
     return {"figures": figures, "ratios": ratios, "units": units | {k: RATIO_UNIT for k in ratios}}
 
 
+def fit_figures() -> dict:
+    """Notebook 02's fitting problem on CesiumMan (a random pose, every vertex a target): ``fit_pose`` by
+    Levenberg-Marquardt (the default) and by gradient descent (gradients only, L-BFGS), steps, warm wall time (the
+    second of two calls; the first compiles) and the error over the rest diagonal."""
+    model = deform.load_model(ROOT / "tests" / "data" / "CesiumMan.glb")
+    truth = deform.random_parameters(jax.random.PRNGKey(0), model, rotation=0.5, translation=0.02, log_scale=0.1)
+    targets = deform.skin_parameters(model, truth)
+    diagonal = float(np.linalg.norm(np.ptp(np.asarray(deform.rest_pose(model, "lbs")), axis=0)))
+    figures, units = {}, {}
+    runs = {}
+    for key, options in (("lm", {}), ("gd", {"solver": "gradient_descent", "max_steps": 5_000})):
+        for _ in range(2):
+            start = time.perf_counter()
+            fit = jax.block_until_ready(deform.fit_pose(model, targets, **options))
+            seconds = time.perf_counter() - start
+        runs[key] = seconds
+        figures |= {
+            f"fit_{key}_steps": float(fit.steps),
+            f"fit_{key}_s": seconds,
+            f"fit_{key}_error": float(fit.max_error) / diagonal,
+        }
+        units |= {f"fit_{key}_steps": "steps", f"fit_{key}_s": "s", f"fit_{key}_error": "diagonal"}
+        print(
+            f"fit_pose on CesiumMan, {key}: {int(fit.steps)} steps, converged {bool(fit.converged)}, {seconds:.2f} s, "
+            f"max error {float(fit.max_error) / diagonal:.1e} of the diagonal"
+        )
+    ratios = {"fit_gd_vs_lm": runs["lm"] / runs["gd"]}
+    print(f"gradient descent takes {runs['gd'] / runs['lm']:.1f}x Levenberg-Marquardt's time")
+    return {"figures": figures, "ratios": ratios, "units": units | {k: RATIO_UNIT for k in ratios}}
+
+
 def main(argv=None):
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--vertices", type=int, default=100_000, help="at least this many mesh vertices")
     parser.add_argument("--repeats", type=int, default=15, help="timed frames per method")
     parser.add_argument("--harmonic-repeats", type=int, default=9, help="timed field solves")
+    parser.add_argument(
+        "--skip-fit", action="store_true", help="leave out fit_pose on CesiumMan (LM and gradient descent)"
+    )
     add_json_argument(parser)
     args = parser.parse_args(argv)
     print_device("bench_deform")
     result = run(args.vertices, args.repeats, args.harmonic_repeats)
+    if not args.skip_fit:
+        fit = fit_figures()
+        for key in ("figures", "ratios", "units"):
+            result[key] |= fit[key]
     write_json(args.json, result)
 
 

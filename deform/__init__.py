@@ -24,8 +24,10 @@ values, and ``X_solve(data, values)`` is a JAX function of them (jit, vmap, grad
 and the general ``motor_field_precompute``) all return a ``MotorField``, solved by ``motor_field_solve``.
 """
 
+from deform._arap import ACCELERATIONS as ARAP_ACCELERATIONS
 from deform._arap import ENERGIES as ARAP_ENERGIES
 from deform._arap import ARAPData, ARAPResult, arap_precompute, arap_solve, horn_rotors
+from deform._arap import default_tolerance as default_arap_tolerance
 from deform._batch import Capacities, PackedModels, PackedRigs, capacity, pack_models, skin_packed
 from deform._batch_fitting import fit_packed
 from deform._cage import cage_precompute, harmonic_coordinates, tube_cage
@@ -120,6 +122,7 @@ from deform._spline import (
 from deform._spline_fit import SplineFitData, spline_fit_precompute, spline_fit_solve
 
 __all__ = [
+    "ARAP_ACCELERATIONS",
     "ARAP_ENERGIES",
     "BASES",
     "GLTF_OUTPUTS",
@@ -149,6 +152,7 @@ __all__ = [
     "SplineFitData",
     "arap_precompute",
     "arap_solve",
+    "default_arap_tolerance",
     "blend_motors",
     "blend_positions",
     "bounding_lattice",

@@ -40,14 +40,20 @@ exactly at rigid maps. Each iteration alternates
   gets the extra 1/2 w_b v_ij over u_i).
   (Eq. 13's normal equations are not needed: after substitution the system is square.)
 
-libigl's conventions, matched here (checked against ``igl.arap_solve`` in the tests, both energies): an
-iteration is "place the handles, local step on the current positions, global step"; ``max_iter`` counts
-these iterations; the initial guess is the caller's U0 (libigl's default for an empty U0 is zero; ours is
-the rest positions with the handles placed). ``igl.arap_solve`` fits rotations with a single-precision
-3x3 SVD: on well-shaped meshes it agrees with us to ~1e-7 of the diagonal, but cells whose covariance
-is nearly singular with a reflection (det S < 0, as on Arm5) amplify its float32 error to ~1e-4. libigl's
-own algorithm with its double-precision rotation fit (``igl.fit_rotations(S, False)``) gives our result
-to ~1e-14 (tested). The spokes energy can be negative; the stopping test uses its magnitude.
+libigl's conventions, matched with ``tolerance=None, acceleration="none"`` (checked against ``igl.arap_solve`` in
+the tests, both energies): an iteration is "place the handles, local step on the current positions, global step";
+``max_iter`` counts these iterations; the initial guess is the caller's U0 (libigl's default for an empty U0 is
+zero; ours is the rest positions with the handles placed). ``igl.arap_solve`` fits rotations with a
+single-precision 3x3 SVD: on well-shaped meshes it agrees with us to ~1e-7 of the diagonal, but cells whose
+covariance is nearly singular with a reflection (det S < 0, as on Arm5) amplify its float32 error to ~1e-4.
+libigl's own algorithm with its double-precision rotation fit (``igl.fit_rotations(S, False)``) gives our result
+to ~1e-14 (tested).
+
+By default the iterations stop on the fixed-point residual ``max |G(x) - x|`` over the rest diagonal (G: one
+local and one global step), not on the energy (whose decrease stalls at rounding long before the positions
+converge, and which the spokes energy lets go negative). Local/global converges linearly, slowly where a
+rotation must spread along a long body, so its map is Anderson-accelerated (Walker & Ni 2011) with the energy as
+safeguard (Peng et al. 2018): an extrapolated point is kept only if its energy is below the current one.
 
 Gradients of the converged positions with respect to ``bc`` are implicit at the fixed point
 ``x* = G(x*, bc)`` (G = one local + global iteration): the adjoint ``(I - dG/dx)^T u = g`` is solved with
@@ -64,7 +70,7 @@ import jax.numpy as jnp
 import lineax as lx
 import numpy as np
 import scipy.sparse as sp
-from jaxtyping import Array, ArrayLike, Float, Int
+from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from _jaxcga_shared.checks import check_choice, check_index_range, check_triangle_mesh, require
 from _jaxcga_shared.ell import padded_rows
@@ -74,6 +80,8 @@ from deform._parts import UNHANDLED, mesh_parts
 from jaxcga import KINDS, Multivector, align_points, apply_to_points
 
 ENERGIES = ("spokes_and_rims", "spokes")
+ACCELERATIONS = ("anderson", "none")
+_ANDERSON_MEMORY = 5  # Anderson's history: more costs a wider least squares per iteration and rarely helps
 
 
 class ARAPData(eqx.Module):
@@ -91,6 +99,7 @@ class ARAPData(eqx.Module):
     z: Float[Array, "n d 3"]  # the global step's vectors z_ij: rhs_i = s (M_i own_i + sum_j M_j z_ij)
     degree: Float[Array, " n"]  # sum_j w_ij, the diagonal of -L
     rest_energy: Float[Array, ""]  # sum over every cell's edges of c |v|^2
+    diagonal: Float[Array, ""]  # the rest bounding-box diagonal, the unit of the fixed-point residual
     solver: SparseSolver = eqx.field(static=True)  # -L_ff, factored
     n: int = eqx.field(static=True)
     energy: str = eqx.field(static=True)
@@ -196,6 +205,7 @@ def arap_precompute(
         z=jnp.asarray(z),
         degree=jnp.asarray(w.sum(1)),
         rest_energy=jnp.asarray(quadratic_scale * np.einsum("ndk,ndk->", wv, V[:, None, :] - V[ring])),
+        diagonal=jnp.asarray(np.linalg.norm(np.ptp(V, axis=0))),
         solver=solver,
         n=n,
         energy=energy,
@@ -312,42 +322,83 @@ def _global(data: ARAPData, rotors: Multivector, bc, previous):
     return y.at[data.free].set(x_free)
 
 
-def _iterate(data, bc, V0, max_iterations, tolerance):
+def default_tolerance(dtype) -> float:
+    """``arap_solve``'s default tolerance for positions of ``dtype``: 50 ulps of the diagonal (1.1e-14 in float64,
+    6.0e-6 in float32), above the rounding floor of the fixed-point residual and tight enough for central
+    differences of the converged positions to match the implicit gradient to 1e-6."""
+    return 50.0 * float(jnp.finfo(dtype).eps)
+
+
+def _residual(data: ARAPData, f):
+    return jnp.max(jnp.abs(f)) / data.diagonal.astype(f.dtype)
+
+
+def _anderson(g, f, dG, dF):
+    """Anderson's extrapolation ``g - sum_k gamma_k dG_k`` with gamma minimizing ``|f - sum_k gamma_k dF_k|``
+    (unused history slots are zero and get zero weight; near-dependent ones are cut by the pseudo-inverse)."""
+    A = dF.reshape(dF.shape[0], -1).T
+    rcond = float(jnp.finfo(f.dtype).eps) ** 0.5
+    gamma = jnp.linalg.lstsq(A, f.ravel(), rcond=rcond)[0]
+    return g - jnp.tensordot(gamma, dG, axes=1, precision=EXACT)
+
+
+def _iterate(data, bc, V0, max_iterations, tolerance, memory):
+    """Local/global iterations from V0, Anderson-accelerated when ``memory`` > 0, until the fixed-point residual
+    ``max |G(x) - x| / diagonal`` is at most ``tolerance`` (None: exactly ``max_iterations``). Each iteration ends
+    with a global step; an Anderson point is kept only if its energy is below the current one (else the plain
+    step's), so the energy never increases (Peng et al. 2018, "Anderson acceleration for geometry optimization
+    and physics simulation", Alg. 2)."""
     x0 = V0.at[data.b].set(bc)
     rotors, energy = _local(data, x0)
-    energies = jnp.full((max_iterations + 1,), jnp.nan, bc.dtype).at[0].set(energy)
+    g = _global(data, rotors, bc, x0)
+    energies = jnp.full((max_iterations + 1,), jnp.nan, energy.dtype).at[0].set(energy)
+    history = jnp.zeros((2, max(memory, 1)) + x0.shape, bc.dtype)  # the last differences of G(x) and G(x) - x
 
     def cond(state):
-        _, _, energies, k = state
-        previous, current = energies[jnp.maximum(k - 1, 0)], energies[k]
-        if tolerance < 0:  # static: run every iteration
-            return k < max_iterations
-        # |previous|: with negative cotangent weights (obtuse triangles) the energy itself can be negative
-        return (k < max_iterations) & ((k == 0) | (previous - current > tolerance * jnp.abs(previous)))
+        _, _, g, f, _, _, _, k = state
+        if tolerance is None:  # static: run every iteration
+            return k + 1 < max_iterations
+        return (k + 1 < max_iterations) & (_residual(data, f) > tolerance)
 
     def body(state):
-        x, rotors, energies, k = state
-        x = _global(data, rotors, bc, x)
-        rotors, energy = _local(data, x)
-        return x, rotors, energies.at[k + 1].set(energy), k + 1
+        x, energy, g, f, previous, history, energies, k = state
+        if memory == 0:
+            x, (rotors, energy) = g, _local(data, g)
+        else:
+            # a new pair of differences once there is a previous iterate, into the oldest slot
+            delta = jnp.stack([g - previous[0], f - previous[1]])
+            history = history.at[:, k % memory].set(jnp.where(k > 0, delta, history[:, k % memory]))
+            candidate = _anderson(g, f, history[0], history[1])
+            rotors_a, energy_a = _local(data, candidate)
+            x, rotors, energy = jax.lax.cond(
+                energy_a <= energy,
+                lambda: (candidate, rotors_a, energy_a),
+                lambda: (g, *_local(data, g)),
+            )
+        previous = jnp.stack([g, f])
+        g = _global(data, rotors, bc, x)
+        return x, energy, g, g - x, previous, history, energies.at[k + 1].set(energy), k + 1
 
-    x, _, energies, k = jax.lax.while_loop(cond, body, (x0, rotors, energies, jnp.asarray(0)))
-    return x, energies, k
+    state = (x0, energy, g, g - x0, jnp.stack([g, g - x0]), history, energies, jnp.asarray(0))
+    _, _, U, f, _, _, energies, k = jax.lax.while_loop(cond, body, state)
+    # the energy after the last iteration, at the returned positions
+    energies = energies.at[k + 1].set(_local(data, U)[1])
+    return U, energies, k + 1, _residual(data, f)
 
 
 @eqx.filter_custom_vjp
-def _solve(bc, data, V0, max_iterations, tolerance):
-    return _iterate(data, bc, V0, max_iterations, tolerance)
+def _solve(bc, data, V0, max_iterations, tolerance, memory):
+    return _iterate(data, bc, V0, max_iterations, tolerance, memory)
 
 
 @_solve.def_fwd
-def _solve_fwd(perturbed, bc, data, V0, max_iterations, tolerance):
-    out = _iterate(data, bc, V0, max_iterations, tolerance)
+def _solve_fwd(perturbed, bc, data, V0, max_iterations, tolerance, memory):
+    out = _iterate(data, bc, V0, max_iterations, tolerance, memory)
     return out, out[0]
 
 
 @_solve.def_bwd
-def _solve_bwd(x, grads, perturbed, bc, data, V0, max_iterations, tolerance):
+def _solve_bwd(x, grads, perturbed, bc, data, V0, max_iterations, tolerance, memory):
     g = grads[0]
     if g is None:
         return None
@@ -363,12 +414,24 @@ def _solve_bwd(x, grads, perturbed, bc, data, V0, max_iterations, tolerance):
 
 
 class ARAPResult(eqx.Module):
-    """``arap_solve``'s output: positions U (n, 3), the energy before each iteration and after the last
-    (``energies[k]`` for k <= iterations; NaN past them) and the number of iterations done."""
+    """``arap_solve``'s output.
+
+    Attributes:
+        U: (n, 3) deformed positions.
+        energies: (max_iterations + 1,) the energy at the positions each iteration starts from and, at index
+            ``iterations``, at U; NaN past it (not differentiated).
+        iterations: () local/global iterations done (each ends with a global step).
+        residual: () the last iteration's fixed-point residual ``max |G(x) - x|`` over the rest bounding-box
+            diagonal (G: one local and one global step; U = G(x)).
+        converged: () bool, whether ``residual`` met the tolerance (the dtype's default tolerance when the
+            iterations were fixed, ``tolerance=None``).
+    """
 
     U: Float[Array, "n 3"]
     energies: Float[Array, " k1"]
     iterations: Int[Array, ""]
+    residual: Float[Array, ""]
+    converged: Bool[Array, ""]
 
 
 def _aligned_rest(data: ARAPData, bc) -> Float[Array, "n 3"]:
@@ -378,15 +441,23 @@ def _aligned_rest(data: ARAPData, bc) -> Float[Array, "n 3"]:
     return apply_to_points(align_points(rest[data.b], bc), rest)
 
 
+_DEFAULT = "default"
+
+
 def arap_solve(
     data: ARAPData,
     bc: Float[ArrayLike, "nb 3"],
     *,
     V0: Float[ArrayLike, "n 3"] | None = None,
-    max_iterations: int = 10,
-    tolerance: float = 1e-8,
+    max_iterations: int = 1000,
+    tolerance: float | str | None = _DEFAULT,
+    acceleration: str = "anderson",
 ) -> ARAPResult:
     """Deform the mesh so that the handles ``data.b`` sit at ``bc``, as rigidly as possible.
+
+    By default the iterations run until the positions are a fixed point of the local/global map to
+    ``tolerance``, Anderson-accelerated (local/global alone converges linearly, slowly where a rotation must
+    spread along a long body), so that U and its implicit gradient are those of the energy's minimizer.
 
     Args:
         data: ``arap_precompute``'s output.
@@ -395,13 +466,21 @@ def arap_solve(
             motor that best aligns the handles' rest positions with ``bc`` (Horn's method, ``align_points``;
             the rest positions with fewer than 3 handles), so that a rigid motion of every handle gives that
             rigid map at once and the iterations only have to find the non-rigid part.
-        max_iterations: at most this many local/global iterations (libigl's ``max_iter``).
-        tolerance: stop when the energy decreases by less than ``tolerance`` times itself in one iteration
-            (0: when it stops decreasing; negative: always run ``max_iterations``, e.g. for tight convergence).
+        max_iterations: at most this many local/global iterations (libigl's ``max_iter``); when they run out
+            before the tolerance is met, ``converged`` is False.
+        tolerance: stop when the fixed-point residual ``max |G(x) - x|`` is at most ``tolerance`` times the rest
+            bounding-box diagonal. ``"default"``: ``default_arap_tolerance(dtype)`` (1.1e-14 in float64, 6.0e-6
+            in float32). None: no tolerance, exactly ``max_iterations`` iterations, libigl-like (with
+            ``acceleration="none"``, libigl's algorithm); its U is then approximate, and so is its gradient
+            (implicit, at a fixed point U is not).
+        acceleration: ``"anderson"`` (default: Anderson acceleration of the local/global map with the last 5
+            iterates, safeguarded by the energy, which never increases) or ``"none"`` (plain local/global
+            iterations, as libigl).
     Returns:
-        ``ARAPResult(U, energies, iterations)``. U is differentiable (reverse mode) with respect to bc,
-        implicitly at the fixed point, so it is exact when the solve has converged; the energies are
-        not differentiated. jit and vmap work (the sparse solve runs one batch element at a time)."""
+        ``ARAPResult(U, energies, iterations, residual, converged)``. U is differentiable (reverse mode) with
+        respect to bc, implicitly at the fixed point, so its gradient is exact when the solve has converged;
+        the other fields are not differentiated. jit and vmap work (the sparse solve runs one batch element at
+        a time)."""
     if not isinstance(data, ARAPData):
         raise ValueError("data: expected the ARAPData returned by arap_precompute")
     bc = jnp.asarray(bc)
@@ -412,9 +491,24 @@ def arap_solve(
     V0 = jnp.asarray(V0, bc.dtype)
     if V0.shape != (data.n, 3):
         raise ValueError(f"V0: expected shape ({data.n}, 3), got {V0.shape}")
-    if not isinstance(max_iterations, int) or max_iterations < 1:
+    if not isinstance(max_iterations, (int, np.integer)) or max_iterations < 1:
         raise ValueError(f"max_iterations: expected an int >= 1, got {max_iterations!r}")
+    check_choice("acceleration", acceleration, ACCELERATIONS)
+    if isinstance(tolerance, str):
+        check_choice("tolerance", tolerance, (_DEFAULT,))
+        tolerance = default_tolerance(bc.dtype)
+    elif tolerance is not None:
+        if isinstance(tolerance, bool) or not isinstance(tolerance, (float, int, np.floating, np.integer)):
+            raise ValueError(f"tolerance: expected a float > 0, None or 'default', got {tolerance!r}")
+        if not tolerance > 0:
+            raise ValueError(f"tolerance: expected > 0 (None for a fixed number of iterations), got {tolerance!r}")
+        tolerance = float(tolerance)
     bc = require(bc, (~jnp.all(jnp.isfinite(bc)), "bc: non-finite handle positions"))
+    memory = _ANDERSON_MEMORY if acceleration == "anderson" else 0
     # the fixed point does not depend on the initial guess: no gradient flows to V0
-    U, energies, iterations = _solve(bc, data, jax.lax.stop_gradient(V0), max_iterations, float(tolerance))
-    return ARAPResult(U, jax.lax.stop_gradient(energies), iterations)
+    U, energies, iterations, residual = _solve(
+        bc, data, jax.lax.stop_gradient(V0), int(max_iterations), tolerance, memory
+    )
+    residual = jax.lax.stop_gradient(residual)
+    converged = residual <= (default_tolerance(bc.dtype) if tolerance is None else tolerance)
+    return ARAPResult(U, jax.lax.stop_gradient(energies), iterations, residual, converged)

@@ -31,7 +31,6 @@ from jaxcga._multivector import KINDS, Multivector
 
 SOLVERS = ("levenberg_marquardt", "gauss_newton", "bfgs", "gradient_descent")
 PARAMETERS_PER_BONE = 7  # six motor-generator components and one log-scale
-_ADAM_RATE = 1e-2  # gradient_descent's initial step per parameter (radians, log-scale, model units)
 
 
 def pose_from_parameters(model: RiggedModel, params: Float[ArrayLike, "... b 7"]) -> Multivector:
@@ -96,7 +95,7 @@ class PoseFit(eqx.Module):
     converged: Array
 
 
-def _solver(name: str, rtol: float, atol: float, max_steps: int):
+def _solver(name: str, rtol: float, atol: float, parameters: int):
     if name == "levenberg_marquardt":
         return optx.LevenbergMarquardt(rtol=rtol, atol=atol)
     if name == "gauss_newton":
@@ -104,10 +103,11 @@ def _solver(name: str, rtol: float, atol: float, max_steps: int):
     if name == "bfgs":
         return optx.BFGS(rtol=rtol, atol=atol)
     if name == "gradient_descent":
-        # Adam (first order, per-parameter step sizes) with a learning rate decaying to zero over max_steps:
-        # a fixed rate keeps oscillating at its own size near the minimum and never meets the tolerances
-        adam = optax.adam(optax.cosine_decay_schedule(_ADAM_RATE, max_steps))
-        return optx.OptaxMinimiser(adam, rtol=rtol, atol=atol)
+        # gradients only, L-BFGS's directions with a line search, a curvature pair per parameter (the problem is badly
+        # conditioned: a shoulder's rotation moves the whole arm, a hand's scale only the hand; optax's default of
+        # 10 pairs crawls on CesiumMan, and a fixed step size, decaying or not, stalls or stops only because the
+        # step decayed)
+        return optx.OptaxMinimiser(optax.lbfgs(memory_size=parameters), rtol=rtol, atol=atol)
     raise ValueError(f"solver: expected one of {SOLVERS}, got {name!r}")
 
 
@@ -129,15 +129,33 @@ def check_targets(targets, vertices, n: int, dtype, item: str = ""):
 def run_solver(residuals, name: str, y0, args, max_steps: int, rtol: float, atol: float):
     """optimistix on ``residuals(y, args)``: least squares for Levenberg-Marquardt / Gauss-Newton, else
     minimisation of the squared residual (BFGS, gradient descent). Returns the solution object."""
-    opt = _solver(name, rtol, atol, max_steps)
+    opt = _solver(name, rtol, atol, y0.size)
     if not isinstance(opt, optx.AbstractMinimiser):  # Levenberg-Marquardt, Gauss-Newton
         return optx.least_squares(residuals, opt, y0, args=args, max_steps=max_steps, throw=False)
     if name == "gradient_descent":
-        # optax mixes its int32 step count with floats (schedule, bias correction): standard promotion for this
-        # call only, so a caller's strict promotion (the tests') still holds everywhere else
-        with jax.numpy_dtype_promotion("standard"):
-            return optx.minimise(_squared, opt, y0, args=(residuals, args), max_steps=max_steps, throw=False)
+        return _stationary_descent(residuals, opt, y0, args, max_steps, rtol, atol)
     return optx.minimise(_squared, opt, y0, args=(residuals, args), max_steps=max_steps, throw=False)
+
+
+def _stationary_descent(residuals, opt, y0, args, max_steps: int, rtol: float, atol: float):
+    """optax's L-BFGS through optimistix, its ``converged`` (result successful) also requiring the gradient to be
+    at the step tolerance: a stalled line search (a zero step) meets the step test, but never passes for
+    convergence."""
+    # optax mixes its int32 step count with floats: standard promotion for this call only, so a caller's strict
+    # promotion (the tests') still holds everywhere else
+    with jax.numpy_dtype_promotion("standard"):
+        sol = optx.minimise(_squared, opt, y0, args=(residuals, args), max_steps=max_steps, throw=False)
+    y = jax.lax.stop_gradient(sol.value)
+    # at a converged point Newton's step H^-1 g is within the step tolerance, so |g| is within it times the
+    # largest curvature, at most the Gauss-Newton matrix's largest diagonal entry (2 |dr/dy_k|^2) over the
+    # problems here (a necessary test: it never fails a converged fit, and fails a stall far from the minimum)
+    gradient = jax.grad(_squared)(y, (residuals, args))
+    curvature = 2.0 * jnp.max(jnp.sum(jax.jacfwd(residuals)(y, args).reshape(-1, y.size) ** 2, axis=0))
+    stationary = jnp.max(jnp.abs(gradient)) <= curvature * (atol + rtol * jnp.max(jnp.abs(y)))
+    result = optx.RESULTS.where(
+        (sol.result == optx.RESULTS.successful) & ~stationary, optx.RESULTS.nonlinear_divergence, sol.result
+    )
+    return eqx.tree_at(lambda s: s.result, sol, result)
 
 
 def _squared(y, residuals_and_args):

@@ -31,13 +31,20 @@ def add_arguments(parser) -> None:
         '"positions": [[[x, y, z], ...], ...]; default: the low end of the long axis fixed, the '
         "high end moved by --bend/--twist/--translate",
     )
-    parser.add_argument("--iters", type=int, default=10, help="at most this many local/global iterations (default 10)")
+    parser.add_argument(
+        "--iters", type=int, default=1000, help="at most this many local/global iterations (default 1000)"
+    )
     parser.add_argument(
         "--tolerance",
         type=float,
-        default=1e-8,
-        help="stop when the energy decreases by less than this fraction in one iteration "
-        "(default 1e-8; negative: run every iteration)",
+        default=None,
+        help="stop when no vertex moves by more than this fraction of the diagonal in an iteration (the "
+        "fixed-point residual; default: 50 ulps, 1.1e-14)",
+    )
+    parser.add_argument(
+        "--fixed",
+        action="store_true",
+        help="run exactly --iters plain local/global iterations, libigl's algorithm (approximate positions)",
     )
     parser.add_argument(
         "--energy",
@@ -74,6 +81,7 @@ def run(args) -> dict:
         handles=args.handles,
         iterations=args.iters,
         tolerance=args.tolerance,
+        fixed=args.fixed,
         bend=args.bend,
         twist=args.twist,
         translate=args.translate,
@@ -122,8 +130,9 @@ def arap_command(
     out: Path,
     *,
     handles: Path | None = None,
-    iterations: int = 10,
-    tolerance: float = 1e-8,
+    iterations: int = 1000,
+    tolerance: float | None = None,
+    fixed: bool = False,
     bend: float = 60.0,
     twist: float = 0.0,
     translate=(0.0, 0.0, 0.0),
@@ -133,7 +142,9 @@ def arap_command(
 ) -> dict:
     """Deform (V, F) as rigidly as possible with the handles of ``handles`` (or the default two ends),
     write ``out`` (.npy float64 (n, 3), a mesh, or a .png figure); returns a summary. ``energy`` and
-    ``unhandled``: ``arap_precompute``'s ("spokes_and_rims" or "spokes"; "follow" or "error")."""
+    ``unhandled``: ``arap_precompute``'s ("spokes_and_rims" or "spokes"; "follow" or "error"); ``iterations``,
+    ``tolerance`` (None: ``arap_solve``'s default) and ``fixed`` (exactly ``iterations`` plain local/global
+    iterations): ``arap_solve``'s ``max_iterations``, ``tolerance`` and fixed mode."""
     import time
 
     import jax
@@ -155,10 +166,12 @@ def arap_command(
         data = deform.arap_precompute(V, F, b, energy=energy, unhandled=unhandled)
     precompute_ms = 1e3 * (time.perf_counter() - start)
     start = time.perf_counter()
+    if fixed:
+        options = {"tolerance": None, "acceleration": "none"}
+    else:
+        options = {} if tolerance is None else {"tolerance": tolerance}
     with status("arap", f"solving (compiling, then at most {iterations} local/global iterations)"):
-        result = jax.block_until_ready(
-            deform.arap_solve(data, jnp.asarray(bc), max_iterations=iterations, tolerance=tolerance)
-        )
+        result = jax.block_until_ready(deform.arap_solve(data, jnp.asarray(bc), max_iterations=iterations, **options))
     solve_ms = 1e3 * (time.perf_counter() - start)
     U = np.asarray(result.U, np.float64)
     if not np.all(np.isfinite(U)):
@@ -172,6 +185,8 @@ def arap_command(
         "following_parts": data.parts - data.handled_parts,
         "energy_type": energy,
         "iterations": int(result.iterations),
+        "converged": bool(result.converged),
+        "residual": f"{float(result.residual):.2g}",
         "energy": f"{energies[0]:.4g} -> {energies[-1]:.4g}",
         "precompute_ms": round(precompute_ms, 1),
         "solve_ms": round(solve_ms, 1),  # includes compilation
