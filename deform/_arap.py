@@ -409,8 +409,48 @@ def _solve_bwd(x, grads, perturbed, bc, data, V0, max_iterations, tolerance, mem
     _, vjp = jax.vjp(step, x, bc)
     # (I - dG/dx)^T u = g; the handle rows of G do not depend on x, so the system is regular
     operator = lx.FunctionLinearOperator(lambda u: u - vjp(u)[0], jax.ShapeDtypeStruct(x.shape, x.dtype))
-    u = lx.linear_solve(operator, g, lx.GMRES(rtol=1e-10, atol=1e-14, restart=40, max_steps=2000)).value
+    # a long restart: on multi-part characters (weak bridges, contraction near 1) GMRES(40) stagnates
+    solver = lx.GMRES(rtol=_ADJOINT_RTOL, atol=0.0, restart=200, max_steps=2000)
+    u = lx.linear_solve(operator, g, solver, throw=False).value
+    # where GMRES still fell short, the adjoint fixed point u = (dG/dx)^T u + g, Anderson-accelerated as the
+    # forward (it contracts at the forward's rate), continues from its value; it stops at once where GMRES met rtol
+    u, relative = _adjoint_fixed_point(lambda u: vjp(u)[0] + g, u, g, memory or _ANDERSON_MEMORY)
+    u = eqx.error_if(
+        u,
+        ~(relative <= _ADJOINT_RTOL),
+        "arap_solve's gradient: the adjoint system (I - dG/dx)^T u = g did not converge (GMRES, then "
+        f"{_ADJOINT_ITERATIONS} Anderson iterations); the forward solve is likely not at a fixed point",
+    )
     return vjp(u)[1]
+
+
+_ADJOINT_RTOL = 1e-10  # relative 2-norm residual of the adjoint system
+_ADJOINT_ITERATIONS = 5000
+
+
+def _adjoint_fixed_point(H, u, g, memory):
+    """Anderson-accelerated iterations of the linear fixed point u = H(u) from ``u`` until
+    ``|H(u) - u| <= _ADJOINT_RTOL |g|`` (2-norms) or ``_ADJOINT_ITERATIONS``: (u, the relative residual)."""
+    scale = jnp.linalg.norm(g)
+    scale = jnp.where(scale > 0, scale, 1.0)
+    h = H(u)
+    history = jnp.zeros((2, memory) + u.shape, u.dtype)
+
+    def cond(state):
+        _, _, f, _, _, k = state
+        return (k < _ADJOINT_ITERATIONS) & ~(jnp.linalg.norm(f) <= _ADJOINT_RTOL * scale)
+
+    def body(state):
+        u, h, f, previous, history, k = state
+        delta = jnp.stack([h - previous[0], f - previous[1]])
+        history = history.at[:, k % memory].set(jnp.where(k > 0, delta, history[:, k % memory]))
+        u = _anderson(h, f, history[0], history[1])
+        h = H(u)
+        return u, h, h - u, jnp.stack([h, h - u]), history, k + 1
+
+    state = (u, h, h - u, jnp.stack([h, h - u]), history, jnp.asarray(0))
+    u, _, f, _, _, _ = jax.lax.while_loop(cond, body, state)
+    return u, jnp.linalg.norm(f) / scale
 
 
 class ARAPResult(eqx.Module):

@@ -15,7 +15,7 @@ import deform
 from deform import ARAP_ENERGIES, arap_precompute, arap_solve, horn_rotors
 from jaxcga import KINDS, versor_to_matrix
 from tests.deform._arap_reference import libigl_arap_in_numpy as _libigl_in_numpy
-from tests.shared import grid
+from tests.shared import grid, load_character
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 
@@ -312,3 +312,28 @@ def test_vmap_and_jit_equal_one_by_one(cylinder):
         # least squares cut near-dependent differences) can take another path there: the iteration counts differ
         np.testing.assert_allclose(U, arap_solve(data, c).U, atol=1e-12)
     assert np.all(np.asarray(together.converged))
+
+
+@pytest.mark.slow  # ~60 s on 2 cores: one adjoint compile and 5,000-iteration references
+def test_gradient_on_a_multi_part_character_matches_central_differences():
+    """RobotExpressive (63 connected parts joined by weak bridges: the local/global map contracts slowly, and
+    GMRES(40) on the adjoint stagnated): the implicit gradient at the defaults matches central differences of
+    tightly converged forward solves to 1e-6 relative."""
+    mesh = load_character("RobotExpressive").mesh
+    V, F = np.asarray(mesh.V, np.float64), np.asarray(mesh.F, np.int64)
+    axis = np.argmax(np.ptp(V, axis=0))
+    s = (V[:, axis] - V[:, axis].min()) / np.ptp(V[:, axis])
+    b = np.flatnonzero((s < 0.05) | (s > 0.95))
+    diag = np.linalg.norm(np.ptp(V, axis=0))
+    bc = _moved(V, b, V[:, axis].min() + 0.5 * np.ptp(V[:, axis]), axis, [0.3, 0.2, 0.1], [0.05 * diag, 0, 0])
+    data = arap_precompute(V, F, b)
+    rng = np.random.default_rng(1)
+    weights, direction = jnp.asarray(rng.normal(size=V.shape)), jnp.asarray(rng.normal(size=bc.shape))
+    gradient = jax.jit(jax.grad(lambda c: jnp.sum(weights * arap_solve(data, c).U)))(jnp.asarray(bc))
+    # the references far tighter than the default (the slow contraction amplifies the forward's residual)
+    loss = jax.jit(lambda c: jnp.sum(weights * arap_solve(data, c, tolerance=1e-13, max_iterations=5000).U))
+    step = 1e-5 * diag
+    numeric = (loss(bc + step * direction) - loss(bc - step * direction)) / (2 * step)
+    print("implicit", float(jnp.sum(gradient * direction)), "central", float(numeric))
+    assert np.all(np.isfinite(np.asarray(gradient)))
+    assert float(jnp.sum(gradient * direction)) == pytest.approx(float(numeric), rel=1e-6)
