@@ -57,8 +57,10 @@ safeguard (Peng et al. 2018): an extrapolated point is kept only if its energy i
 
 Gradients of the converged positions with respect to ``bc`` are implicit at the fixed point
 ``x* = G(x*, bc)`` (G = one local + global iteration): the adjoint ``(I - dG/dx)^T u = g`` is solved with
-GMRES (lineax) whose matrix-vector products are vjp's of G (each one back-substitution with the same
-factorization), and the gradient is ``(dG/dbc)^T u``. The loop is never unrolled.
+GMRES (lineax, restarted every 200 steps) whose matrix-vector products are vjp's of G (each one
+back-substitution with the same factorization), continued where it falls short by Anderson-accelerated
+iterations of ``u = (dG/dx)^T u + g``, and the gradient is ``(dG/dbc)^T u``; an adjoint that neither solves
+raises an error. The loop is never unrolled.
 """
 
 from __future__ import annotations
