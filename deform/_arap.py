@@ -72,6 +72,7 @@ import jax.numpy as jnp
 import lineax as lx
 import numpy as np
 import scipy.sparse as sp
+from jax.typing import DTypeLike
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from _jaxcga_shared.checks import check_choice, check_index_range, check_triangle_mesh, require
@@ -324,7 +325,7 @@ def _global(data: ARAPData, rotors: Multivector, bc, previous):
     return y.at[data.free].set(x_free)
 
 
-def default_tolerance(dtype) -> float:
+def default_tolerance(dtype: DTypeLike) -> float:
     """``arap_solve``'s default tolerance for positions of ``dtype``: 50 ulps of the diagonal (1.1e-14 in float64,
     6.0e-6 in float32), above the rounding floor of the fixed-point residual and tight enough for central
     differences of the converged positions to match the implicit gradient to 1e-6."""
