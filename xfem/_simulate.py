@@ -266,18 +266,23 @@ def plane_cut_simulation(
     return PlaneCutSimulation(model, schedule, [(f, *c) for f, _, _, c in planes], steps)
 
 
+def _scheduled(entry, size: int, steps: int) -> bool:
+    """Whether ``entry`` is a tuple of ``size`` items whose first is an int frame in [1, steps]."""
+    return (
+        isinstance(entry, tuple)
+        and len(entry) == size
+        and isinstance(entry[0], int)
+        and not isinstance(entry[0], bool)
+        and 1 <= entry[0] <= steps
+    )
+
+
 def _check_planes(planes, steps: int, advice: str) -> list:
     """The checked ``plane_cuts``: (frame, point, normal, epsilon) in the order given, the point and normal as given
     (possibly traced) and their concrete values (a ValueError with ``advice`` where they have none)."""
     checked = []
     for k, entry in enumerate(planes):
-        if (
-            not isinstance(entry, tuple)
-            or len(entry) != 4
-            or not isinstance(entry[0], int)
-            or isinstance(entry[0], bool)
-            or not 1 <= entry[0] <= steps
-        ):
+        if not _scheduled(entry, 4, steps):
             raise ValueError(
                 f"plane_cuts: expected (frame, point, normal, epsilon) with an int frame in [1, {steps}], got {entry!r}"
             )
@@ -298,13 +303,7 @@ def _check_steps(steps) -> None:
 def _check_schedule(schedule, steps: int) -> list:
     schedule = list(schedule)
     for entry in schedule:
-        if (
-            not isinstance(entry, tuple)
-            or len(entry) != 2
-            or not isinstance(entry[0], int)
-            or isinstance(entry[0], bool)
-            or not 1 <= entry[0] <= steps
-        ):
+        if not _scheduled(entry, 2, steps):
             raise ValueError(
                 f"schedule: expected (frame, solid) pairs with an int frame in [1, {steps}], got {entry!r}"
             )
