@@ -412,7 +412,7 @@ def _solve_bwd(x, grads, perturbed, bc, data, V0, max_iterations, tolerance, mem
     _, vjp = jax.vjp(step, x, bc)
     # (I - dG/dx)^T u = g; the handle rows of G do not depend on x, so the system is regular
     operator = lx.FunctionLinearOperator(lambda u: u - vjp(u)[0], jax.ShapeDtypeStruct(x.shape, x.dtype))
-    # a long restart: on multi-part characters (weak bridges, contraction near 1) GMRES(40) stagnates
+    # a long restart: on multi-part characters (weak bridges, contraction near 1) short restarts stagnate
     solver = lx.GMRES(rtol=_ADJOINT_RTOL, atol=0.0, restart=200, max_steps=2000)
     u = lx.linear_solve(operator, g, solver, throw=False).value
     # where GMRES still fell short, the adjoint fixed point u = (dG/dx)^T u + g, Anderson-accelerated as the

@@ -104,9 +104,8 @@ def _solver(name: str, rtol: float, atol: float, parameters: int):
         return optx.BFGS(rtol=rtol, atol=atol)
     if name == "gradient_descent":
         # gradients only, L-BFGS's directions with a line search, a curvature pair per parameter (the problem is badly
-        # conditioned: a shoulder's rotation moves the whole arm, a hand's scale only the hand; optax's default of
-        # 10 pairs crawls on CesiumMan, and a fixed step size, decaying or not, stalls or stops only because the
-        # step decayed)
+        # conditioned: a shoulder's rotation moves the whole arm, a hand's scale only the hand, so a short curvature
+        # history or a fixed step size cannot resolve both scales)
         return optx.OptaxMinimiser(optax.lbfgs(memory_size=parameters), rtol=rtol, atol=atol)
     raise ValueError(f"solver: expected one of {SOLVERS}, got {name!r}")
 

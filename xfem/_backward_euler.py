@@ -100,9 +100,9 @@ _CG_RTOL = 1e-4  # relative residual of the Newton direction (inexact Newton)
 _DIRECT_DOFS = 1000  # Newton systems up to this many unknowns are factorized (CHOLMOD), larger ones go to CG
 _CG_RTOL_MIN = 1e-11  # the tightest one asked for when converging (CG stalls near rounding)
 # the default relative tolerance per dtype ("auto"): far enough above rounding to be reached (a float32 position
-# holds ~7 digits), tight enough in float64 that the implicit gradient matches the executed step to ~1e-9
+# holds ~7 digits), tight enough in float64 that the implicit gradient matches the executed step well within 1e-6
 _TOLERANCE = {np.dtype(np.float64): 1e-10, np.dtype(np.float32): 1e-5}
-_NEWTON_ITERATIONS = 50  # the default cap: a converging step takes 2-6 (quadratic near the minimizer)
+_NEWTON_ITERATIONS = 50  # the default cap, far above what Newton's quadratic convergence needs
 # the adjoint solve's CG residual: 5e-11 of CHOLMOD's solution on accordion's 37k unknowns, in a third of its time
 _ADJOINT_RTOL = 1e-10
 _ARMIJO = 1e-4  # sufficient-decrease constant of the line search
