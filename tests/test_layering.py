@@ -1,5 +1,6 @@
 """The layering of DESIGN.md, read from the source: ``_jaxcga_shared`` <- ``jaxcga`` <- ``deform`` <- ``cutting``,
-``_jaxcga_shared`` <- ``jaxcga`` <- ``xfem``, and the command line (``jaxcga_cli``) above all; no package imports one
+``_jaxcga_shared`` <- ``jaxcga`` <- ``deform`` <- ``xfem`` (characters' bodies are skinned by ``deform``; ``xfem`` and
+``cutting`` never import each other), and the command line (``jaxcga_cli``) above all; no package imports one
 above it (at any depth, lazy imports included) and no package's modules import each other in a cycle."""
 
 from __future__ import annotations
@@ -15,7 +16,7 @@ BELOW = {
     "jaxcga": {"_jaxcga_shared"},
     "deform": {"_jaxcga_shared", "jaxcga"},
     "cutting": {"_jaxcga_shared", "jaxcga", "deform"},
-    "xfem": {"_jaxcga_shared", "jaxcga"},
+    "xfem": {"_jaxcga_shared", "jaxcga", "deform"},
     "jaxcga_cli": {"_jaxcga_shared", "jaxcga", "deform", "cutting", "xfem"},
 }
 
