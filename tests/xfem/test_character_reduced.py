@@ -1,0 +1,154 @@
+"""The reduced (real-time) mode of character physics (``xfem.character_subspace``, the play in its subspace):
+the modes against an independent linear-elastic stiffness, the stiff limit against the skinned body, the damped
+decay of free modes against the closed-form modal recurrence, gradients against central differences."""
+
+from __future__ import annotations
+
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import scipy.linalg
+
+import deform
+import xfem
+from tests.xfem._linear_elasticity import stiffness
+from xfem._character_reduced import _play_reduced
+
+FPS = 30.0
+
+
+@functools.cache
+def _arm_body(still: bool = False):
+    """The built-in arm as a coarse body (its clip, or none: the rest pose held)."""
+    model = deform.default_arm(rings_per_unit=60.0)
+    if still:
+        model = deform.RiggedModel(model.mesh, model.skeleton, (), model.name)
+    return xfem.character_body(model, edge_length=0.1, threads=1)
+
+
+@functools.cache
+def _subspace(modes: int = 12):
+    return xfem.character_subspace(_arm_body(), modes)
+
+
+def _free_matrices(body, subspace):
+    X, T = np.asarray(body.tets.X), np.asarray(body.tets.T)
+    dofs = (3 * subspace.free[:, None] + np.arange(3)).ravel()
+    K = stiffness(X, T, 1.0, subspace.poisson)[dofs][:, dofs].toarray()
+    M1 = xfem.consistent_mass(X, T, body.density)
+    M = np.kron(M1[subspace.free][:, subspace.free].toarray(), np.eye(3))
+    return K, M
+
+
+def test_modes_are_the_lowest_mass_orthonormal_eigenvectors_of_linear_elasticity():
+    body, sub = _arm_body(), _subspace()
+    Phi, lam = sub.modes, sub.eigenvalues
+    assert Phi.shape == (3 * len(sub.free), 12) and np.all(np.diff(lam) >= 0) and lam[0] > 0
+    np.testing.assert_array_equal(sub.free, np.setdiff1d(np.arange(body.tets.n_nodes), body.driven))
+    K, M = _free_matrices(body, sub)  # K: textbook P1 linear elasticity, E = 1
+    np.testing.assert_allclose(Phi.T @ M @ Phi, np.eye(12), atol=1e-12)
+    residual = np.linalg.norm(K @ Phi - M @ Phi * lam, axis=0) / np.linalg.norm(K @ Phi, axis=0)
+    assert residual.max() < 1e-8
+    # the lowest ones: a dense generalized eigensolve of the same pair
+    np.testing.assert_allclose(lam, scipy.linalg.eigh(K, M, eigvals_only=True, subset_by_index=(0, 11)), rtol=1e-8)
+    assert np.all(sub.basis[body.driven] == 0)
+    np.testing.assert_array_equal(sub.basis[sub.free].reshape(-1, 12), Phi)
+
+
+def _skinned_surface(body, frames: int) -> np.ndarray:
+    times = np.arange(frames + 1) / FPS
+    nodes = [deform.skin_model(body.node_model, t, "cga", 0) for t in times]
+    return np.stack([np.asarray(body.embedding.positions(x)) for x in nodes])
+
+
+def test_the_stiff_limit_is_the_skinned_body_and_the_difference_falls_with_stiffness():
+    body, sub = _arm_body(), _subspace()
+    frames = 30
+    skinned = _skinned_surface(body, frames)
+    errors = []
+    for young in (1e5, 1e6, 1e7, 1e8):
+        surface, q = _play_reduced(body, sub, 0, frames / FPS, FPS, xfem.Material(young, 0.4))
+        assert surface.shape == (frames + 1, len(body.surface), 3) and q.shape == (frames + 1, 12)
+        errors.append(float(np.abs(np.asarray(surface) - skinned).max()) / body.diagonal)
+    np.testing.assert_allclose(np.asarray(surface)[0], skinned[0], atol=1e-12)  # frame 0 is the rig
+    assert errors[0] > 1e-3 and errors[-1] < 1e-5  # the flesh moves, and the stiff body is the skinned one
+    # quasi-static: the lag and the sag go as 1/E
+    assert all(0.05 < b / a < 0.2 for a, b in zip(errors, errors[1:])), errors
+
+
+def _modal_recurrence(sub, young: float, damping: float, frames: int, gravity) -> np.ndarray:
+    """Each mode alone, as the step reads with the rig at rest (B = Phi, B^T M B = I, v = Phi dq / h):
+    (1 + (h^2 + beta h) E lam) q_k = 2 q_{k-1} - q_{k-2} + beta h E lam q_{k-1} + h^2 Phi^T M g."""
+    h = 1 / FPS
+    stiff = young * sub.eigenvalues
+    force = np.einsum("nak,n,a->k", sub.basis[sub.free], sub.lumped, gravity)
+    q = [np.zeros(len(stiff)), np.zeros(len(stiff))]
+    for _ in range(frames):
+        q.append((2 * q[-1] - q[-2] + damping * h * stiff * q[-1] + h**2 * force) / (1 + (h**2 + damping * h) * stiff))
+    return np.stack(q[1:])
+
+
+def test_free_modes_decay_with_damping_as_the_modal_recurrence():
+    body = _arm_body(still=True)
+    sub = xfem.character_subspace(body, 8)
+    frames, young = 60, 2e5
+    amplitudes = {}
+    for damping in (0.0, 0.01):
+        material = xfem.Material(young, 0.4, damping) if damping else xfem.Material(young, 0.4)
+        _, q = _play_reduced(body, sub, 0, frames / FPS, FPS, material)
+        expected = _modal_recurrence(sub, young, damping, frames, body.gravity)
+        np.testing.assert_allclose(np.asarray(q), expected, rtol=1e-9, atol=1e-12 * np.abs(expected).max())
+        rest = _static(sub, body) / (young * sub.eigenvalues)  # the static sag the modes swing about
+        swing = np.abs(np.asarray(q) - rest).max(axis=1)
+        amplitudes[damping] = (swing[:10].max(), swing[-10:].max())
+    (undamped_early, undamped_late), (damped_early, damped_late) = amplitudes[0.0], amplitudes[0.01]
+    assert damped_late < 0.1 * damped_early and damped_late < 0.5 * undamped_late
+
+
+def _static(sub, body) -> np.ndarray:
+    """Phi^T M g: the modal gravity force (the static sag is its quotient by E Lambda)."""
+    return np.einsum("nak,n,a->k", sub.basis[sub.free], sub.lumped, body.gravity)
+
+
+def test_reduced_play_gradients_match_central_differences():
+    body, sub = _arm_body(), _subspace()
+    frames = 10
+
+    def loss(params):
+        material = xfem.Material(params[0], 0.4, params[1])
+        surface, _ = _play_reduced(body, sub, 0, frames / FPS, FPS, material)
+        return jnp.mean(surface[-1, :, 1]) + jnp.mean(surface[frames // 2] ** 2)
+
+    params = jnp.array([3e5, 0.02])
+    grad = jax.grad(loss)(params)
+    for i, step in enumerate((1e2, 1e-5)):
+        plus, minus = (loss(params.at[i].add(s)) for s in (step, -step))
+        np.testing.assert_allclose(grad[i], (plus - minus) / (2 * step), rtol=1e-5)
+
+
+def test_bad_input_is_a_value_error_naming_the_argument():
+    body, sub = _arm_body(), _subspace()
+    free = 3 * len(sub.free)
+    for modes in (0, free, 2.5, True):
+        with pytest.raises(ValueError, match="modes"):
+            xfem.character_subspace(body, modes)
+    for poisson in (0.5, -1.0, "0.3"):
+        with pytest.raises(ValueError, match="poisson"):
+            xfem.character_subspace(body, 4, poisson=poisson)
+    with pytest.raises(ValueError, match="body"):
+        xfem.character_subspace(body.tets, 4)
+    material = xfem.Material(1e5, 0.4)
+    with pytest.raises(ValueError, match="material: Poisson's ratio 0.3"):
+        _play_reduced(body, sub, 0, 1.0, FPS, xfem.Material(1e5, 0.3))
+    with pytest.raises(ValueError, match="subspace: it was computed for another body"):
+        _play_reduced(_arm_body(still=True), sub, 0, 1.0, FPS, material)
+    for name, seconds, fps in (("seconds", 0.0, FPS), ("fps", 1.0, -1.0), ("seconds", 0.001, FPS)):
+        with pytest.raises(ValueError, match=name):
+            _play_reduced(body, sub, 0, seconds, fps, material)
+    with pytest.raises(ValueError, match="method"):
+        _play_reduced(body, sub, 0, 1.0, FPS, material, method="linear")
+    with pytest.raises(ValueError, match="name"):
+        _play_reduced(body, sub, "no such clip", 1.0, FPS, material)
