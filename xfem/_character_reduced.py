@@ -126,7 +126,9 @@ def character_subspace(body: CharacterBody, modes: int = MODES, *, poisson: floa
     n = len(X)
     free = np.setdiff1d(np.arange(n), body.driven)
     if isinstance(modes, bool) or int(modes) != modes or not 1 <= modes < 3 * len(free):
-        raise ValueError(f"modes: expected an int in [1, {3 * len(free)}) (3 x the {len(free)} free nodes), got {modes!r}")
+        raise ValueError(
+            f"modes: expected an int in [1, {3 * len(free)}) (3 x the {len(free)} free nodes), got {modes!r}"
+        )
     modes = int(modes)
     start = time.perf_counter()
     dofs = (3 * free[:, None] + np.arange(3)).ravel()
@@ -196,8 +198,12 @@ def _rig_frames(rig: _Rig, times, method: str, clip, interpolation: str):
     if model.clips:
         local = jax.vmap(lambda t: deform.sample_pose(model, t, "lbs", clip, interpolation))(times)
     else:
-        local = jnp.broadcast_to(deform.local_matrices(model.skeleton), (times.shape[0], model.skeleton.num_bones, 4, 4))
-    A = jnp.einsum("fjab,jbc->fjac", jax.vmap(lambda m: _joint_linear(model, m))(local), rig.rest_linear, precision=EXACT)
+        local = jnp.broadcast_to(
+            deform.local_matrices(model.skeleton), (times.shape[0], model.skeleton.num_bones, 4, 4)
+        )
+    A = jnp.einsum(
+        "fjab,jbc->fjac", jax.vmap(lambda m: _joint_linear(model, m))(local), rig.rest_linear, precision=EXACT
+    )
     J, W = model.mesh.J[rig.free], model.mesh.W[rig.free]
     R = jnp.einsum("ni,fniab->fnab", W, A[:, J], precision=EXACT)
     return S, R
@@ -258,7 +264,7 @@ def _play_reduced(
         seconds: the length played (> 0), from the clip's start; N = round(seconds fps) steps.
         fps: frames per second (> 0), h = 1 / fps.
         material: the ``Material`` (scalar Young's modulus, differentiable; its Poisson's ratio the subspace's;
-            its damping, if it has one, the Rayleigh ``beta`` in seconds).
+            its ``damping`` the Rayleigh ``beta`` in seconds, None for none).
         method: the skinning method, one of ``deform.METHODS``.
         interpolation: the clip's interpolation, ``"gltf"`` or ``"log"``.
     Returns:
@@ -268,7 +274,9 @@ def _play_reduced(
     if not isinstance(body, CharacterBody):
         raise ValueError(f"body: expected a CharacterBody (xfem.character_body), got {type(body).__name__}")
     if not isinstance(subspace, CharacterSubspace):
-        raise ValueError(f"subspace: expected a CharacterSubspace (xfem.character_subspace), got {type(subspace).__name__}")
+        raise ValueError(
+            f"subspace: expected a CharacterSubspace (xfem.character_subspace), got {type(subspace).__name__}"
+        )
     n = body.tets.n_nodes
     if subspace.basis.shape[0] != n or not np.array_equal(subspace.free, np.setdiff1d(np.arange(n), body.driven)):
         raise ValueError("subspace: it was computed for another body (its free nodes differ from body's)")
@@ -312,5 +320,14 @@ def _play_reduced(
     )
     h = 1.0 / float(fps)
     times = start + h * jnp.arange(frames + 1, dtype=jnp.float64)
-    damping = getattr(material, "damping", 0.0)
-    return _play(rig, times, jnp.asarray(h), jnp.asarray(material.young), jnp.asarray(damping), method, clip if model.clips else 0, interpolation)
+    damping = 0.0 if material.damping is None else material.damping
+    return _play(
+        rig,
+        times,
+        jnp.asarray(h),
+        jnp.asarray(material.young),
+        jnp.asarray(damping),
+        method,
+        clip if model.clips else 0,
+        interpolation,
+    )

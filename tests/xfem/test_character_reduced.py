@@ -15,6 +15,7 @@ import scipy.linalg
 import deform
 import xfem
 from tests.xfem._linear_elasticity import stiffness
+from xfem._character_body import character_body
 from xfem._character_reduced import _play_reduced
 
 FPS = 30.0
@@ -26,7 +27,7 @@ def _arm_body(still: bool = False):
     model = deform.default_arm(rings_per_unit=60.0)
     if still:
         model = deform.RiggedModel(model.mesh, model.skeleton, (), model.name)
-    return xfem.character_body(model, edge_length=0.1, threads=1)
+    return character_body(model, edge_length=0.1, threads=1)
 
 
 @functools.cache
@@ -74,7 +75,7 @@ def test_the_stiff_limit_is_the_skinned_body_and_the_difference_falls_with_stiff
         assert surface.shape == (frames + 1, len(body.surface), 3) and q.shape == (frames + 1, 12)
         errors.append(float(np.abs(np.asarray(surface) - skinned).max()) / body.diagonal)
     np.testing.assert_allclose(np.asarray(surface)[0], skinned[0], atol=1e-12)  # frame 0 is the rig
-    assert errors[0] > 1e-3 and errors[-1] < 1e-5  # the flesh moves, and the stiff body is the skinned one
+    assert errors[0] > 1e-2 and errors[-1] < 1e-4  # the flesh moves, and the stiff body is the skinned one
     # quasi-static: the lag and the sag go as 1/E
     assert all(0.05 < b / a < 0.2 for a, b in zip(errors, errors[1:])), errors
 
