@@ -77,7 +77,8 @@ class CharacterSubspace(NamedTuple):
         density: the body's density (the mass of the modes).
         basis: (n, 3, k) float64 ``Phi`` on every node (zero rows at the driven nodes): what the play carries.
         mass_rows, mass_cols, mass_values: (nnz,) the consistent mass's entries ``M[rows, cols]`` on the free rows
-            (rows index ``free``, cols every node).
+            (rows index ``free``, cols every node); mass_free_cols: (nnz,) their columns among the free nodes (n_free
+            for a driven node's column).
         lumped: (n_free,) float64 the free nodes' masses (rows of M summed): the weight of gravity.
         seconds: the wall time of the eigensolve.
     """
@@ -91,6 +92,7 @@ class CharacterSubspace(NamedTuple):
     mass_rows: Int[np.ndarray, " nnz"]
     mass_cols: Int[np.ndarray, " nnz"]
     mass_values: Float[np.ndarray, " nnz"]
+    mass_free_cols: Int[np.ndarray, " nnz"]
     lumped: Float[np.ndarray, " nf"]
     seconds: float
 
@@ -148,6 +150,8 @@ def character_subspace(body: CharacterBody, modes: int = MODES, *, poisson: floa
     basis = np.zeros((n, 3, modes))
     basis[free] = vectors.reshape(len(free), 3, modes)
     rows = M1[free].tocoo()
+    local = np.full(n, len(free))
+    local[free] = np.arange(len(free))
     return CharacterSubspace(
         modes=vectors,
         eigenvalues=values,
@@ -158,6 +162,7 @@ def character_subspace(body: CharacterBody, modes: int = MODES, *, poisson: floa
         mass_rows=rows.row.astype(np.int64),
         mass_cols=rows.col.astype(np.int64),
         mass_values=rows.data,
+        mass_free_cols=local[rows.col].astype(np.int64),
         lumped=np.asarray(M1[free].sum(axis=1)).ravel(),
         seconds=seconds,
     )
@@ -175,6 +180,7 @@ class _Rig(eqx.Module):
     mass_rows: Int[Array, " nnz"]
     mass_cols: Int[Array, " nnz"]
     mass_values: Float[Array, " nnz"]
+    mass_free_cols: Int[Array, " nnz"]
     lumped: Float[Array, " nf"]
     gravity: Float[Array, " 3"]
     embed_nodes: Int[Array, "s 4"]
@@ -209,9 +215,9 @@ def _rig_frames(rig: _Rig, times, method: str, clip, interpolation: str):
     return S, R
 
 
-def _mass_times(rig: _Rig, r):
-    """(nf, ...) the free rows of M r for r (n, ...)."""
-    products = rig.mass_values.reshape((-1,) + (1,) * (r.ndim - 1)) * r[rig.mass_cols]
+def _mass_times(rig: _Rig, r, cols):
+    """(nf, ...) the free rows of M r for r (n, ...) with ``cols`` the columns ``r``'s rows are."""
+    products = rig.mass_values.reshape((-1,) + (1,) * (r.ndim - 1)) * r[cols]
     return jax.ops.segment_sum(products, rig.mass_rows, num_segments=rig.free.shape[0], indices_are_sorted=True)
 
 
@@ -219,7 +225,6 @@ def _mass_times(rig: _Rig, r):
 def _play(rig: _Rig, times, h, young, damping, method: str, clip, interpolation: str):
     S, R = _rig_frames(rig, times, method, clip, interpolation)
     v0 = (S[1] - S[0]) / h  # the rig's velocity (a derivative in t would halve at the clip's clamped start)
-    n = S.shape[1]
     k = rig.eigenvalues.shape[0]
     stiffness = young * rig.eigenvalues
     gravity_force = rig.lumped[:, None] * rig.gravity  # (M g) on the free rows: M's rows sum to the lumped masses
@@ -228,10 +233,10 @@ def _play(rig: _Rig, times, h, young, damping, method: str, clip, interpolation:
         x_prev, v_prev, q_prev = carry
         S_k, R_k = frame
         Y = jnp.einsum("nab,nbk->nak", R_k, rig.basis, precision=EXACT)  # the free rows of B_k
-        Y_all = jnp.zeros((n, 3, k), Y.dtype).at[rig.free].set(Y)
-        MY = _mass_times(rig, Y_all)
+        # B_k is zero on the driven nodes: M B_k from the free columns (the row after the last is that zero)
+        MY = _mass_times(rig, jnp.concatenate([Y, jnp.zeros((1, 3, k), Y.dtype)]), rig.mass_free_cols)
         A = jnp.einsum("nak,nal->kl", Y, MY, precision=EXACT) + jnp.diag((h**2 + damping * h) * stiffness)
-        r = _mass_times(rig, x_prev + h * v_prev - S_k) + h**2 * gravity_force
+        r = _mass_times(rig, x_prev + h * v_prev - S_k, rig.mass_cols) + h**2 * gravity_force
         b = jnp.einsum("nak,na->k", Y, r, precision=EXACT) + damping * h * stiffness * q_prev
         q = jnp.linalg.solve(0.5 * (A + A.T), b)
         x = S_k.at[rig.free].add(jnp.einsum("nak,k->na", Y, q, precision=EXACT))
@@ -313,6 +318,7 @@ def _play_reduced(
         mass_rows=jnp.asarray(subspace.mass_rows),
         mass_cols=jnp.asarray(subspace.mass_cols),
         mass_values=jnp.asarray(subspace.mass_values),
+        mass_free_cols=jnp.asarray(subspace.mass_free_cols),
         lumped=jnp.asarray(subspace.lumped),
         gravity=jnp.asarray(body.gravity),
         embed_nodes=jnp.asarray(body.embedding.nodes),
