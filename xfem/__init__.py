@@ -42,9 +42,11 @@ from xfem._backward_euler import (
     mechanical_energy,
 )
 from xfem._capacity import wait_for_compilations
+from xfem._character import CharacterMotion, CharacterSegment, simulate_character
+from xfem._character_body import CharacterBody, character_body, transfer_weights
 from xfem._character_reduced import CharacterSubspace, character_subspace
 from xfem._cut_system import PlaneCuts, cut_system, plane_cuts
-from xfem._cuts import cut_solid, plane_cut_solid, sweep_between, swept_surface, thicken
+from xfem._cuts import blade_solid, cut_solid, plane_cut_solid, sweep_between, swept_surface, thicken
 from xfem._integration import Moments, element_piece_integrals, moments_of_pieces, polyhedron_moments
 from xfem._linear_tet import body_force, consistent_mass, lumped_mass, shape_functions, shape_gradients
 from xfem._material import Material
@@ -74,6 +76,7 @@ from xfem._surface_tets import (
     TetQuality,
     cut_surface,
     embed_points,
+    surface_map,
     tet_quality,
     tetrahedralize_surface,
 )
@@ -93,6 +96,13 @@ from xfem._tetmesh import (
 from xfem._xfem import XFEMModel, xfem_model
 
 __all__ = [
+    "CharacterBody",
+    "CharacterMotion",
+    "CharacterSegment",
+    "character_body",
+    "simulate_character",
+    "transfer_weights",
+    "surface_map",
     "CharacterSubspace",
     "character_subspace",
     "SCENES",
@@ -107,6 +117,7 @@ __all__ = [
     "PlaneCuts",
     "cut_system",
     "plane_cuts",
+    "blade_solid",
     "cut_solid",
     "plane_cut_solid",
     "sweep_between",
