@@ -9,8 +9,9 @@ parameters), ``M`` the consistent mass (density ``body.density``); its ``k`` low
 (scipy ``eigsh``, a small negative shift so that a part with no driven node, whose rigid motions cost no energy,
 factors too). ``Phi`` (3 n_free, k) is mass-orthonormal, ``Phi^T M Phi = I``, ``Phi^T K Phi = Lambda``.
 
-Play (``_play_reduced``), the reduced form of ``simulate_character``'s formulation: frames k = 0..N, h = 1/fps, clip
-time ``t_k = start + k h``, ``S_k`` the tet nodes skinned at t_k. The nodes are
+Play (``play_reduced``; ``simulate_character(..., subspace=...)`` calls it), the reduced form of
+``simulate_character``'s formulation: frames k = 0..N, h = 1/fps, clip time ``t_k = start + k h``, ``S_k`` the tet
+nodes skinned at t_k. The nodes are
 
     x_k = S_k + B_k q_k,    (B_k q)_i = R_i(t_k) (Phi q)_i,    R_i(t) = sum_j w_ij A_j(t),
 
@@ -224,7 +225,7 @@ def _mass_times(rig: _Rig, r, cols):
 @eqx.filter_jit
 def _play(rig: _Rig, times, h, young, damping, method: str, clip, interpolation: str):
     S, R = _rig_frames(rig, times, method, clip, interpolation)
-    v0 = (S[1] - S[0]) / h  # the rig's velocity (a derivative in t would halve at the clip's clamped start)
+    v0 = (S[1] - S[0]) / h  # the rig's velocity, as the full mode's (a derivative in t halves at a clamped start)
     k = rig.eigenvalues.shape[0]
     stiffness = young * rig.eigenvalues
     gravity_force = rig.lumped[:, None] * rig.gravity  # (M g) on the free rows: M's rows sum to the lumped masses
@@ -240,57 +241,66 @@ def _play(rig: _Rig, times, h, young, damping, method: str, clip, interpolation:
         b = jnp.einsum("nak,na->k", Y, r, precision=EXACT) + damping * h * stiffness * q_prev
         q = jnp.linalg.solve(0.5 * (A + A.T), b)
         x = S_k.at[rig.free].add(jnp.einsum("nak,k->na", Y, q, precision=EXACT))
-        return (x, (x - x_prev) / h, q), (x, q)
+        v = (x - x_prev) / h
+        return (x, v, q), (x, v, q)
 
     q0 = jnp.zeros(k, S.dtype)
-    _, (x, q) = jax.lax.scan(step, (S[0], v0, q0), (S[1:], R[1:]))
-    x = jnp.concatenate([S[:1], x])
-    q = jnp.concatenate([q0[None], q])
+    _, (x, v, q) = jax.lax.scan(step, (S[0], v0, q0), (S[1:], R[1:]))
+    x, v, q = (jnp.concatenate([a[None], b]) for a, b in ((S[0], x), (v0, v), (q0, q)))
     surface = jnp.einsum("sa,fsad->fsd", rig.embed_weights, x[:, rig.embed_nodes], precision=EXACT)
-    return surface, q
+    return x, v, surface, q
 
 
-def _play_reduced(
+class ReducedPlay(NamedTuple):
+    """The frames of a reduced play (``play_reduced``).
+
+    Attributes:
+        x, v: (N + 1, n, 3) the tet nodes' positions and velocities per frame.
+        surface: (N + 1, s, 3) the embedded surface per frame.
+        q: (N + 1, k) the modal coordinates per frame.
+    """
+
+    x: Float[Array, "f n 3"]
+    v: Float[Array, "f n 3"]
+    surface: Float[Array, "f s 3"]
+    q: Float[Array, "f k"]
+
+
+def play_reduced(
     body: CharacterBody,
     subspace: CharacterSubspace,
-    clip: int | str,
-    seconds: float,
-    fps: float,
+    times: Float[np.ndarray, " f"],
+    clip: int | str | None,
     material: Material,
     method: str = "cga",
     interpolation: str = "gltf",
-) -> tuple[Float[Array, "f s 3"], Float[Array, "f k"]]:
-    """Play a clip on a body in a subspace (module docstring): ``simulate_character``'s reduced mode.
+) -> ReducedPlay:
+    """Play a clip on a body in a subspace (module docstring): ``simulate_character(..., subspace=...)``, which
+    checks the clip and makes the times, calls it.
 
     Args:
         body: the ``CharacterBody``.
         subspace: its ``CharacterSubspace`` (``character_subspace(body, ...)``).
-        clip: the clip's name or index (ignored for a model without clips: its rest pose).
-        seconds: the length played (> 0), from the clip's start; N = round(seconds fps) steps.
-        fps: frames per second (> 0), h = 1 / fps.
-        material: the ``Material`` (scalar Young's modulus, differentiable; its Poisson's ratio the subspace's;
-            its ``damping`` the Rayleigh ``beta`` in seconds, None for none).
+        times: (N + 1,) the clip times of the frames, evenly spaced (N >= 1): h = times[1] - times[0].
+        clip: the clip's name or index; None for a model without clips (its rest pose).
+        material: the ``Material``: a scalar Young's modulus (differentiable), the subspace's Poisson's ratio and
+            the Rayleigh ``damping`` beta in seconds (None: none).
         method: the skinning method, one of ``deform.METHODS``.
-        interpolation: the clip's interpolation, ``"gltf"`` or ``"log"``.
+        interpolation: the clip's interpolation, one of ``deform.INTERPOLATIONS``.
     Returns:
-        surface: (N + 1, s, 3) the embedded surface per frame (JAX, differentiable in the material).
-        q: (N + 1, k) the modal coordinates per frame.
+        The ``ReducedPlay`` (JAX arrays, differentiable in the material).
     """
-    if not isinstance(body, CharacterBody):
-        raise ValueError(f"body: expected a CharacterBody (xfem.character_body), got {type(body).__name__}")
     if not isinstance(subspace, CharacterSubspace):
         raise ValueError(
             f"subspace: expected a CharacterSubspace (xfem.character_subspace), got {type(subspace).__name__}"
         )
     n = body.tets.n_nodes
     if subspace.basis.shape[0] != n or not np.array_equal(subspace.free, np.setdiff1d(np.arange(n), body.driven)):
-        raise ValueError("subspace: it was computed for another body (its free nodes differ from body's)")
+        raise ValueError("subspace: it was computed for another body (its free nodes differ from the body's)")
     if subspace.density != body.density:
         raise ValueError(f"subspace: computed for density {subspace.density}, the body's is {body.density}")
     check_choice("method", method, deform.METHODS)
-    check_choice("interpolation", interpolation, ("gltf", "log"))
-    if not isinstance(material, Material):
-        raise ValueError(f"material: expected an xfem.Material, got {type(material).__name__}")
+    check_choice("interpolation", interpolation, deform.INTERPOLATIONS)
     if np.shape(material.young) != () or np.shape(material.poisson) != ():
         raise ValueError("material: the reduced mode takes a scalar Young's modulus and Poisson's ratio")
     if not isinstance(material.poisson, jax.core.Tracer) and float(material.poisson) != subspace.poisson:
@@ -298,20 +308,12 @@ def _play_reduced(
             f"material: Poisson's ratio {float(material.poisson)} differs from the subspace's {subspace.poisson}; "
             "compute the subspace with character_subspace(body, poisson=...)"
         )
-    for name, value in (("seconds", seconds), ("fps", fps)):
-        if not isinstance(value, (int, float, np.integer, np.floating)) or not np.isfinite(value) or value <= 0:
-            raise ValueError(f"{name}: expected a finite positive number, got {value!r}")
+    times = np.asarray(times, np.float64)
     model = body.node_model
-    animation = model.clip(clip) if model.clips else None
-    start = animation.start if animation is not None else 0.0
-    frames = int(round(seconds * fps))
-    if frames < 1:
-        raise ValueError(f"seconds: {seconds} s at {fps} frames/s is no step")
     rest = deform.local_matrices(model.skeleton)
-    rest_linear = jnp.linalg.inv(_joint_linear(model, rest))
     rig = _Rig(
         node_model=model,
-        rest_linear=rest_linear,
+        rest_linear=jnp.linalg.inv(_joint_linear(model, rest)),
         basis=jnp.asarray(subspace.basis[subspace.free]),
         free=jnp.asarray(subspace.free),
         eigenvalues=jnp.asarray(subspace.eigenvalues),
@@ -324,16 +326,7 @@ def _play_reduced(
         embed_nodes=jnp.asarray(body.embedding.nodes),
         embed_weights=jnp.asarray(body.embedding.weights),
     )
-    h = 1.0 / float(fps)
-    times = start + h * jnp.arange(frames + 1, dtype=jnp.float64)
+    h = float(times[1] - times[0])
     damping = 0.0 if material.damping is None else material.damping
-    return _play(
-        rig,
-        times,
-        jnp.asarray(h),
-        jnp.asarray(material.young),
-        jnp.asarray(damping),
-        method,
-        clip if model.clips else 0,
-        interpolation,
-    )
+    young, damping = (jnp.asarray(a, jnp.float64) for a in (material.young, damping))
+    return ReducedPlay(*_play(rig, jnp.asarray(times), jnp.asarray(h), young, damping, method, clip, interpolation))

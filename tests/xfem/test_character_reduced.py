@@ -1,6 +1,7 @@
-"""The reduced (real-time) mode of character physics (``xfem.character_subspace``, the play in its subspace):
-the modes against an independent linear-elastic stiffness, the stiff limit against the skinned body, the damped
-decay of free modes against the closed-form modal recurrence, gradients against central differences."""
+"""The reduced (real-time) mode of character physics (``xfem.character_subspace``,
+``xfem.simulate_character(..., subspace=...)``): the modes against an independent linear-elastic stiffness, the stiff
+limit against the skinned body, the damped decay of free modes against the closed-form modal recurrence, gradients
+against central differences, and the full-space mode."""
 
 from __future__ import annotations
 
@@ -15,8 +16,6 @@ import scipy.linalg
 import deform
 import xfem
 from tests.xfem._linear_elasticity import stiffness
-from xfem._character_body import character_body
-from xfem._character_reduced import _play_reduced
 
 FPS = 30.0
 
@@ -27,12 +26,19 @@ def _arm_body(still: bool = False):
     model = deform.default_arm(rings_per_unit=60.0)
     if still:
         model = deform.RiggedModel(model.mesh, model.skeleton, (), model.name)
-    return character_body(model, edge_length=0.1, threads=1)
+    return xfem.character_body(model, edge_length=0.1, threads=1)
 
 
 @functools.cache
 def _subspace(modes: int = 12):
     return xfem.character_subspace(_arm_body(), modes)
+
+
+def _play(body, sub, frames: int, material, **options):
+    """The reduced play's one segment (every frame)."""
+    motion = xfem.simulate_character(body, 0, frames / FPS, FPS, material=material, subspace=sub, **options)
+    assert len(motion.segments) == 1 and motion.frames == frames + 1
+    return motion.segments[0]
 
 
 def _free_matrices(body, subspace):
@@ -71,8 +77,8 @@ def test_the_stiff_limit_is_the_skinned_body_and_the_difference_falls_with_stiff
     skinned = _skinned_surface(body, frames)
     errors = []
     for young in (1e5, 1e6, 1e7, 1e8):
-        surface, q = _play_reduced(body, sub, 0, frames / FPS, FPS, xfem.Material(young, 0.4))
-        assert surface.shape == (frames + 1, len(body.surface), 3) and q.shape == (frames + 1, 12)
+        surface = _play(body, sub, frames, xfem.Material(young, 0.4)).surface
+        assert surface.shape == (frames + 1, len(body.surface), 3)
         errors.append(float(np.abs(np.asarray(surface) - skinned).max()) / body.diagonal)
     np.testing.assert_allclose(np.asarray(surface)[0], skinned[0], atol=1e-12)  # frame 0 is the rig
     assert errors[0] > 1e-2 and errors[-1] < 1e-4  # the flesh moves, and the stiff body is the skinned one
@@ -96,14 +102,17 @@ def test_free_modes_decay_with_damping_as_the_modal_recurrence():
     body = _arm_body(still=True)
     sub = xfem.character_subspace(body, 8)
     frames, young = 60, 2e5
+    mass = xfem.consistent_mass(body.tets.X, body.tets.T, body.density)
     amplitudes = {}
     for damping in (0.0, 0.01):
         material = xfem.Material(young, 0.4, damping) if damping else xfem.Material(young, 0.4)
-        _, q = _play_reduced(body, sub, 0, frames / FPS, FPS, material)
+        x = np.asarray(_play(body, sub, frames, material).states.x)
+        # the modal coordinates of the displacement from the rest pose (B = Phi there: Phi^T M Phi = I)
+        q = np.einsum("fnd,ndk->fk", np.stack([mass @ d for d in x - np.asarray(body.tets.X)]), sub.basis)
         expected = _modal_recurrence(sub, young, damping, frames, body.gravity)
-        np.testing.assert_allclose(np.asarray(q), expected, rtol=1e-9, atol=1e-12 * np.abs(expected).max())
+        np.testing.assert_allclose(q, expected, rtol=1e-9, atol=1e-12 * np.abs(expected).max())
         rest = _static(sub, body) / (young * sub.eigenvalues)  # the static sag the modes swing about
-        swing = np.abs(np.asarray(q) - rest).max(axis=1)
+        swing = np.abs(q - rest).max(axis=1)
         amplitudes[damping] = (swing[:10].max(), swing[-10:].max())
     (_, undamped_late), (damped_early, damped_late) = amplitudes[0.0], amplitudes[0.01]
     assert damped_late < 0.1 * damped_early and damped_late < 0.5 * undamped_late
@@ -120,7 +129,7 @@ def test_reduced_play_gradients_match_central_differences():
 
     def loss(params):
         material = xfem.Material(params[0], 0.4, params[1])
-        surface, _ = _play_reduced(body, sub, 0, frames / FPS, FPS, material)
+        surface = _play(body, sub, frames, material).surface
         return jnp.mean(surface[-1, :, 1]) + jnp.mean(surface[frames // 2] ** 2)
 
     params = jnp.array([3e5, 0.02])
@@ -143,13 +152,34 @@ def test_bad_input_is_a_value_error_naming_the_argument():
         xfem.character_subspace(body.tets, 4)
     material = xfem.Material(1e5, 0.4)
     with pytest.raises(ValueError, match="material: Poisson's ratio 0.3"):
-        _play_reduced(body, sub, 0, 1.0, FPS, xfem.Material(1e5, 0.3))
+        _play(body, sub, 3, xfem.Material(1e5, 0.3))
     with pytest.raises(ValueError, match="subspace: it was computed for another body"):
-        _play_reduced(_arm_body(still=True), sub, 0, 1.0, FPS, material)
-    for name, seconds, fps in (("seconds", 0.0, FPS), ("fps", 1.0, -1.0), ("seconds", 0.001, FPS)):
-        with pytest.raises(ValueError, match=name):
-            _play_reduced(body, sub, 0, seconds, fps, material)
+        _play(_arm_body(still=True), sub, 3, material)
+    with pytest.raises(ValueError, match="subspace: expected a CharacterSubspace"):
+        _play(body, sub.modes, 3, material)
+    with pytest.raises(ValueError, match="subspace: the reduced mode does not cut"):
+        _play(body, sub, 3, material, plane_cuts=[(2, np.zeros(3), np.array([1.0, 0, 0]), 1e-3)])
+    with pytest.raises(ValueError, match="fps"):
+        xfem.simulate_character(body, 0, 1.0, -1.0, material=material, subspace=sub)
     with pytest.raises(ValueError, match="method"):
-        _play_reduced(body, sub, 0, 1.0, FPS, material, method="linear")
+        _play(body, sub, 3, material, method="linear")
     with pytest.raises(ValueError, match="name"):
-        _play_reduced(body, sub, "no such clip", 1.0, FPS, material)
+        xfem.simulate_character(body, "no such clip", 1.0, FPS, material=material, subspace=sub)
+
+
+@pytest.mark.slow
+def test_the_reduced_play_follows_the_full_space_one():
+    """The arm waving, soft and damped: the reduced surface lies close to the full mode's (converged steps), much
+    closer than either lies to the skinned surface, and it moves as much as the full one does."""
+    body = _arm_body()
+    frames, material = 15, xfem.Material(1e5, 0.4, 0.01)
+    full = np.asarray(xfem.simulate_character(body, 0, frames / FPS, FPS, material=material).segments[0].surface)
+    reduced = np.asarray(_play(body, xfem.character_subspace(body, 24), frames, material).surface)
+    skinned = _skinned_surface(body, frames)
+
+    def rms(a, b):
+        return float(np.sqrt(np.mean(np.sum((a - b) ** 2, axis=-1)))) / body.diagonal
+
+    lag_full, lag_reduced, error = rms(full, skinned), rms(reduced, skinned), rms(reduced, full)
+    assert lag_full > 1e-3  # the flesh does lag
+    assert error < 0.25 * lag_full and abs(lag_reduced - lag_full) < 0.2 * lag_full, (error, lag_full, lag_reduced)
