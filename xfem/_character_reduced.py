@@ -81,6 +81,7 @@ class CharacterSubspace(NamedTuple):
             (rows index ``free``, cols every node); mass_free_cols: (nnz,) their columns among the free nodes (n_free
             for a driven node's column).
         lumped: (n_free,) float64 the free nodes' masses (rows of M summed): the weight of gravity.
+        rest_linear: (j, 3, 3) float64 the inverses of the joints' linear parts at the rest pose, ``L_j(rest)^-1``.
         seconds: the wall time of the eigensolve.
     """
 
@@ -95,6 +96,7 @@ class CharacterSubspace(NamedTuple):
     mass_values: Float[np.ndarray, " nnz"]
     mass_free_cols: Int[np.ndarray, " nnz"]
     lumped: Float[np.ndarray, " nf"]
+    rest_linear: Float[np.ndarray, "j 3 3"]
     seconds: float
 
 
@@ -151,6 +153,7 @@ def character_subspace(body: CharacterBody, modes: int = MODES, *, poisson: floa
     basis = np.zeros((n, 3, modes))
     basis[free] = vectors.reshape(len(free), 3, modes)
     rows = M1[free].tocoo()
+    model = body.node_model
     local = np.full(n, len(free))
     local[free] = np.arange(len(free))
     return CharacterSubspace(
@@ -165,6 +168,7 @@ def character_subspace(body: CharacterBody, modes: int = MODES, *, poisson: floa
         mass_values=rows.data,
         mass_free_cols=local[rows.col].astype(np.int64),
         lumped=np.asarray(M1[free].sum(axis=1)).ravel(),
+        rest_linear=np.linalg.inv(np.asarray(_joint_linear(model, deform.local_matrices(model.skeleton)))),
         seconds=seconds,
     )
 
@@ -309,11 +313,9 @@ def play_reduced(
             "compute the subspace with character_subspace(body, poisson=...)"
         )
     times = np.asarray(times, np.float64)
-    model = body.node_model
-    rest = deform.local_matrices(model.skeleton)
     rig = _Rig(
-        node_model=model,
-        rest_linear=jnp.linalg.inv(_joint_linear(model, rest)),
+        node_model=body.node_model,
+        rest_linear=jnp.asarray(subspace.rest_linear),
         basis=jnp.asarray(subspace.basis[subspace.free]),
         free=jnp.asarray(subspace.free),
         eigenvalues=jnp.asarray(subspace.eigenvalues),

@@ -101,10 +101,11 @@ def _modal_recurrence(sub, young: float, damping: float, frames: int, gravity) -
 def test_free_modes_decay_with_damping_as_the_modal_recurrence():
     body = _arm_body(still=True)
     sub = xfem.character_subspace(body, 8)
-    frames, young = 60, 2e5
+    # soft enough that backward Euler's own damping (h omega << 1 on the lowest modes) leaves them swinging
+    frames, young = 60, 2e3
     mass = xfem.consistent_mass(body.tets.X, body.tets.T, body.density)
     amplitudes = {}
-    for damping in (0.0, 0.01):
+    for damping in (0.0, 0.1):
         material = xfem.Material(young, 0.4, damping) if damping else xfem.Material(young, 0.4)
         x = np.asarray(_play(body, sub, frames, material).states.x)
         # the modal coordinates of the displacement from the rest pose (B = Phi there: Phi^T M Phi = I)
@@ -114,7 +115,7 @@ def test_free_modes_decay_with_damping_as_the_modal_recurrence():
         rest = _static(sub, body) / (young * sub.eigenvalues)  # the static sag the modes swing about
         swing = np.abs(q - rest).max(axis=1)
         amplitudes[damping] = (swing[:10].max(), swing[-10:].max())
-    (_, undamped_late), (damped_early, damped_late) = amplitudes[0.0], amplitudes[0.01]
+    (_, undamped_late), (damped_early, damped_late) = amplitudes[0.0], amplitudes[0.1]
     assert damped_late < 0.1 * damped_early and damped_late < 0.5 * undamped_late
 
 
