@@ -2,11 +2,11 @@
 corpus character meshed to at least 20k tets, in the full space and in the reduced (real-time) mode.
 
 Models. ``arm``: ``deform.default_arm()`` (its ``wave`` clip), tets at the default edge length. ``character``: the
-corpus's largest character (``QuaterniusWorkerDense``, 42k vertices, 51 joints) meshed by fTetWild at
-``CHARACTER_EDGE`` of its diagonal (at least 20k tets); it has no clip of its own, so it plays ``SWAY`` (2 s: the
-arms raised and lowered, elbows and knees bent, the torso twisted, sines keyed 10 times a second). fTetWild takes
-minutes and is not deterministic: its tets are cached in the output folder (``--cache``, default beside ``--json``
-or ``out/bench``) and reused. Material: Young 1e5 Pa, Poisson 0.4, density 1e3, Rayleigh damping 0.01 s; 30 frames/s.
+corpus's largest animated character (``QuaterniusCyberpunkCharacter``, 3.9k vertices, 27 joints, 22 clips; the
+larger ``QuaterniusWorkerDense`` has no clip and meshes to fewer tets) playing its ``Run`` clip, meshed by fTetWild
+with half the default envelope (``CHARACTER_EPSILON``: ~25k tets). fTetWild takes minutes and is not
+deterministic: the tets are cached in the output folder (``--cache``, default beside ``--json`` or ``out/bench``)
+and reused. Material: Young 1e5 Pa, Poisson 0.4, density 1e3, Rayleigh damping 0.01 s; 30 frames/s.
 
 Figures, for ``PREFIX`` ``arm`` and ``character`` (the issue's names are the character's):
 
@@ -66,8 +66,11 @@ import xfem  # noqa: E402
 import xfem._backward_euler as be  # noqa: E402
 from xfem._character import _rig_rest_system  # noqa: E402
 
-CHARACTER = ROOT / "tests" / "data" / "characters" / "QuaterniusWorkerDense.glb"
-CHARACTER_EDGE = 0.033  # of the diagonal: ~25k tets
+CHARACTER = ROOT / "tests" / "data" / "characters" / "QuaterniusCyberpunkCharacter.glb"
+CHARACTER_CLIP = "CharacterArmature|Run"
+# fTetWild's tets of this character hardly change with the edge length (15k from 0.05 to 0.02): the envelope
+# decides, and half the default envelope gives ~25k tets
+CHARACTER_EDGE, CHARACTER_EPSILON = 0.05, 5e-4
 QUICK_CHARACTER = ROOT / "tests" / "data" / "characters" / "Fox.glb"  # --quick: the coarse fox and its own clip
 QUICK_EDGE = 0.1
 MIN_TETS = 20_000
@@ -78,49 +81,15 @@ MODES = 24
 STEP_TARGET_MS = 100.0
 FPS_TARGET = 60.0
 REPEATS = 3  # timed calls after the warm-up; the fastest counts
-# SWAY: (bone name, local axis, amplitude in radians, frequency in Hz)
-SWAY = (
-    ("UpperArm.L", (0, 0, 1), 0.6, 0.5),
-    ("UpperArm.R", (0, 0, 1), -0.6, 0.5),
-    ("LowerArm.L", (1, 0, 0), 0.8, 1.0),
-    ("LowerArm.R", (1, 0, 0), 0.8, 1.0),
-    ("Torso", (0, 1, 0), 0.3, 0.5),
-    ("UpperLeg.L", (1, 0, 0), 0.4, 0.5),
-    ("UpperLeg.R", (1, 0, 0), -0.4, 0.5),
-    ("LowerLeg.L", (1, 0, 0), -0.5, 1.0),
-    ("LowerLeg.R", (1, 0, 0), -0.5, 1.0),
-)
-SWAY_SECONDS = 2.0
 
 
-def _quaternion_product(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton products of (..., 4) quaternions in glTF order (x, y, z, w)."""
-    av, aw, bv, bw = a[..., :3], a[..., 3:], b[..., :3], b[..., 3:]
-    return np.concatenate([aw * bv + bw * av + np.cross(av, bv), aw * bw - np.sum(av * bv, -1, keepdims=True)], -1)
-
-
-def sway(model: deform.RiggedModel) -> deform.RiggedModel:
-    """The model with the ``SWAY`` clip (rotation keys about each bone's rest rotation, LINEAR, 10 per second)."""
-    names = model.skeleton.names
-    times = np.arange(int(SWAY_SECONDS * 10) + 1) / 10.0
-    channels = []
-    for name, axis, amplitude, frequency in SWAY:
-        bone = names.index(name)
-        angle = amplitude * np.sin(2 * np.pi * frequency * times)
-        turn = np.concatenate([np.sin(angle / 2)[:, None] * np.asarray(axis, float), np.cos(angle / 2)[:, None]], 1)
-        rest = np.asarray(model.skeleton.rotation[bone], np.float64)
-        keys = _quaternion_product(np.broadcast_to(rest, turn.shape), turn)
-        channels.append(deform.Channel(jnp.asarray(times), jnp.asarray(keys), bone, "rotation", "LINEAR"))
-    return deform.RiggedModel(model.mesh, model.skeleton, (deform.AnimationClip(tuple(channels), "sway"),), model.name)
-
-
-def _body(model: deform.RiggedModel, edge: float, cache: Path, tag: str) -> xfem.CharacterBody:
+def _body(model: deform.RiggedModel, edge: float, cache: Path, tag: str, epsilon: float = 1e-3) -> xfem.CharacterBody:
     """The model's body, its tets read from the cache when there (fTetWild takes minutes and varies run to run)."""
-    path = cache / f"physics_tets_{tag}_{edge:g}.npz"
+    path = cache / f"physics_tets_{tag}_{edge:g}_{epsilon:g}.npz"
     if path.exists():
         with np.load(path) as saved:
             return xfem.character_body(model, tets=xfem.tet_mesh(saved["X"], saved["T"]))
-    body = xfem.character_body(model, edge_length=edge)
+    body = xfem.character_body(model, edge_length=edge, epsilon=epsilon)
     path.parent.mkdir(parents=True, exist_ok=True)
     np.savez(path, X=body.nodes, T=np.asarray(body.tets.T))
     print(f"  {tag}: fTetWild {body.seconds:.0f} s, tets cached in {path}", flush=True)
@@ -347,7 +316,9 @@ def main(argv=None):
         elif args.quick:
             body, clip = _body(deform.load_model(QUICK_CHARACTER, weld=True), QUICK_EDGE, cache, "fox"), 0
         else:
-            body, clip = _body(sway(deform.load_model(CHARACTER, weld=True)), CHARACTER_EDGE, cache, "worker"), "sway"
+            model = deform.load_model(CHARACTER, weld=True)
+            body = _body(model, CHARACTER_EDGE, cache, "cyberpunk", CHARACTER_EPSILON)
+            clip = CHARACTER_CLIP
             if body.tets.n_elements < MIN_TETS:
                 print(f"  warning: {body.tets.n_elements} tets, fewer than {MIN_TETS}", flush=True)
         for key, values in zip(("figures", "ratios", "units"), run_model(prefix, body, clip, frames, reduced_frames)):

@@ -226,8 +226,8 @@ def test_bench_physics_quick_writes_the_published_names(tmp_path):
         # the reduced mode follows the full one more closely than the rig does
         assert result["figures"][f"{prefix}_reduced_error"] < result["figures"][f"{prefix}_full_lag"]
     assert sorted(path.name for path in tmp_path.glob("physics_tets_*.npz")) == [
-        "physics_tets_arm_0.1.npz",
-        "physics_tets_fox_0.1.npz",
+        "physics_tets_arm_0.1_0.001.npz",
+        "physics_tets_fox_0.1_0.001.npz",
     ]
 
 
