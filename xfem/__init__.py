@@ -42,6 +42,7 @@ from xfem._backward_euler import (
     mechanical_energy,
 )
 from xfem._capacity import wait_for_compilations
+from xfem._character_body import CharacterBody, character_body
 from xfem._cut_system import PlaneCuts, cut_system, plane_cuts
 from xfem._cuts import cut_solid, plane_cut_solid, sweep_between, swept_surface, thicken
 from xfem._integration import Moments, element_piece_integrals, moments_of_pieces, polyhedron_moments
@@ -92,6 +93,8 @@ from xfem._tetmesh import (
 from xfem._xfem import XFEMModel, xfem_model
 
 __all__ = [
+    "CharacterBody",
+    "character_body",
     "SCENES",
     "SIZES",
     "FrameRecord",
