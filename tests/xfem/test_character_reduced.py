@@ -15,6 +15,7 @@ import scipy.linalg
 
 import deform
 import xfem
+from tests.shared import character_body_of
 from tests.xfem._linear_elasticity import stiffness
 
 FPS = 30.0
@@ -50,8 +51,10 @@ def _free_matrices(body, subspace):
     return K, M
 
 
-def test_modes_are_the_lowest_mass_orthonormal_eigenvectors_of_linear_elasticity():
-    body, sub = _arm_body(), _subspace()
+@pytest.mark.parametrize("name", ["arm", pytest.param("Fox", marks=pytest.mark.slow)])
+def test_modes_are_the_lowest_mass_orthonormal_eigenvectors_of_linear_elasticity(name):
+    body = _arm_body() if name == "arm" else character_body_of(name)
+    sub = _subspace() if name == "arm" else xfem.character_subspace(body, 12)
     Phi, lam = sub.modes, sub.eigenvalues
     assert Phi.shape == (3 * len(sub.free), 12) and np.all(np.diff(lam) >= 0) and lam[0] > 0
     np.testing.assert_array_equal(sub.free, np.setdiff1d(np.arange(body.tets.n_nodes), body.driven))
