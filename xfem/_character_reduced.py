@@ -72,7 +72,8 @@ class CharacterSubspace(NamedTuple):
 
     Attributes:
         modes: (3 n_free, k) float64 ``Phi``, rows node-major ``[x, y, z]`` of each free node, mass-orthonormal.
-        eigenvalues: (k,) float64 ``Lambda``, ascending, for Young's modulus 1 (units 1/(density s^2)... per unit E).
+        eigenvalues: (k,) float64 ``Lambda``, ascending, for Young's modulus 1: a material of modulus E swings mode j
+            at the angular frequency ``sqrt(E Lambda_j)``.
         free: (n_free,) int64 the free (not driven) nodes, sorted.
         poisson: the Poisson's ratio the modes were computed for.
         density: the body's density (the mass of the modes).
