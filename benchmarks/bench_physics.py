@@ -4,7 +4,8 @@ corpus character meshed to at least 20k tets, in the full space and in the reduc
 Models. ``arm``: ``deform.default_arm()`` (its ``wave`` clip), tets at the default edge length. ``character``: the
 corpus's largest animated character (``QuaterniusCyberpunkCharacter``, 3.9k vertices, 27 joints, 22 clips; the
 larger ``QuaterniusWorkerDense`` has no clip and meshes to fewer tets) playing its ``Run`` clip, meshed by fTetWild
-with half the default envelope (``CHARACTER_EPSILON``: ~25k tets). fTetWild takes minutes and is not
+with half the default envelope (``CHARACTER_EPSILON``: ~25k tets), as fTetWild makes them (``tolerance=None``: the
+body's bisection near the joints would make them ~480k). fTetWild takes minutes and is not
 deterministic: the tets are cached in the output folder (``--cache``, default beside ``--json`` or ``out/bench``)
 and reused. Material: Young 1e5 Pa, Poisson 0.4, density 1e3, Rayleigh damping 0.01 s; 30 frames/s.
 
@@ -83,13 +84,15 @@ FPS_TARGET = 60.0
 REPEATS = 3  # timed calls after the warm-up; the fastest counts
 
 
-def _body(model: deform.RiggedModel, edge: float, cache: Path, tag: str, epsilon: float = 1e-3) -> xfem.CharacterBody:
+def _body(
+    model: deform.RiggedModel, edge: float, cache: Path, tag: str, epsilon: float = 1e-3, **options
+) -> xfem.CharacterBody:
     """The model's body, its tets read from the cache when there (fTetWild takes minutes and varies run to run)."""
     path = cache / f"physics_tets_{tag}_{edge:g}_{epsilon:g}.npz"
     if path.exists():
         with np.load(path) as saved:
-            return xfem.character_body(model, tets=xfem.tet_mesh(saved["X"], saved["T"]))
-    body = xfem.character_body(model, edge_length=edge, epsilon=epsilon)
+            return xfem.character_body(model, tets=xfem.tet_mesh(saved["X"], saved["T"]), **options)
+    body = xfem.character_body(model, edge_length=edge, epsilon=epsilon, **options)
     path.parent.mkdir(parents=True, exist_ok=True)
     np.savez(path, X=np.asarray(body.tets.X), T=np.asarray(body.tets.T))  # the rest configuration's tets
     print(f"  {tag}: fTetWild {body.seconds:.0f} s, tets cached in {path}", flush=True)
@@ -317,7 +320,7 @@ def main(argv=None):
             body, clip = _body(deform.load_model(QUICK_CHARACTER, weld=True), QUICK_EDGE, cache, "fox"), 0
         else:
             model = deform.load_model(CHARACTER, weld=True)
-            body = _body(model, CHARACTER_EDGE, cache, "cyberpunk", CHARACTER_EPSILON)
+            body = _body(model, CHARACTER_EDGE, cache, "cyberpunk", CHARACTER_EPSILON, tolerance=None)
             clip = CHARACTER_CLIP
             if body.tets.n_elements < MIN_TETS:
                 print(f"  warning: {body.tets.n_elements} tets, fewer than {MIN_TETS}", flush=True)
