@@ -34,8 +34,8 @@ then ``x_k = S_k + B_k q_k`` and ``v_k = (x_k - x_{k-1}) / h``. Frame 0 is the r
 velocity ``v_0 = (S_1 - S_0) / h``. The rig's inertia (its
 acceleration through ``x_{k-1} + h v_{k-1} - S_k``) is what makes the flesh lag and jiggle; with every node driven
 or a very stiff material ``q -> 0`` and the body is the skinned one. The surface is carried by the body's
-embedding. The whole play is one compiled ``lax.scan`` (the rig's nodes and joint matrices for all frames first,
-vmapped over the frame times).
+embedding. The whole play is one compiled ``lax.scan``, the rig skinned and its joints' linear parts
+blended inside it, frame by frame.
 
 Left out of Fast Complementary Dynamics: its rotation-strain clustered modes and cubature (the energy here is
 quadratic in q, so large local rotations of the flesh relative to the rig are not corrected), its complementarity
@@ -199,26 +199,21 @@ def _joint_linear(model: deform.RiggedModel, local: Array) -> Array:
     return deform.joint_matrices(model.mesh, globals_)[:, :3, :3]
 
 
-def _rig_frames(rig: _Rig, times, method: str, clip, interpolation: str):
-    """The skinned nodes S (f, n, 3) and the free nodes' blended linear maps R (f, nf, 3, 3) at each time."""
+def _skin(rig: _Rig, t, method: str, clip, interpolation: str):
+    """(n, 3) the nodes skinned at time t."""
+    return deform.skin_model(rig.node_model, t, method, clip, interpolation)
+
+
+def _blend(rig: _Rig, t, clip, interpolation: str):
+    """(nf, 3, 3) the free nodes' blended linear maps R_i(t) (module docstring)."""
     model = rig.node_model
-
-    def skin(t):
-        return deform.skin_model(model, t, method, clip, interpolation)
-
-    S = jax.vmap(skin)(times)
     if model.clips:
-        local = jax.vmap(lambda t: deform.sample_pose(model, t, "lbs", clip, interpolation))(times)
+        local = deform.sample_pose(model, t, "lbs", clip, interpolation)
     else:
-        local = jnp.broadcast_to(
-            deform.local_matrices(model.skeleton), (times.shape[0], model.skeleton.num_bones, 4, 4)
-        )
-    A = jnp.einsum(
-        "fjab,jbc->fjac", jax.vmap(lambda m: _joint_linear(model, m))(local), rig.rest_linear, precision=EXACT
-    )
+        local = deform.local_matrices(model.skeleton)
+    A = jnp.einsum("jab,jbc->jac", _joint_linear(model, local), rig.rest_linear, precision=EXACT)
     J, W = model.mesh.J[rig.free], model.mesh.W[rig.free]
-    R = jnp.einsum("ni,fniab->fnab", W, A[:, J], precision=EXACT)
-    return S, R
+    return jnp.einsum("ni,niab->nab", W, A[J], precision=EXACT)
 
 
 def _mass_times(rig: _Rig, r, cols):
@@ -229,15 +224,17 @@ def _mass_times(rig: _Rig, r, cols):
 
 @eqx.filter_jit
 def _play(rig: _Rig, times, h, young, damping, method: str, clip, interpolation: str):
-    S, R = _rig_frames(rig, times, method, clip, interpolation)
-    v0 = (S[1] - S[0]) / h  # the rig's velocity, as the full mode's (a derivative in t halves at a clamped start)
+    # the rig is skinned inside the scan, frame by frame: all frames at once would hold every node's influences
+    # (n x 8 transforms) for every frame
+    S0 = _skin(rig, times[0], method, clip, interpolation)
+    v0 = (_skin(rig, times[1], method, clip, interpolation) - S0) / h  # the rig's velocity, as the full mode's
     k = rig.eigenvalues.shape[0]
     stiffness = young * rig.eigenvalues
     gravity_force = rig.lumped[:, None] * rig.gravity  # (M g) on the free rows: M's rows sum to the lumped masses
 
-    def step(carry, frame):
+    def step(carry, t):
         x_prev, v_prev, q_prev = carry
-        S_k, R_k = frame
+        S_k, R_k = _skin(rig, t, method, clip, interpolation), _blend(rig, t, clip, interpolation)
         Y = jnp.einsum("nab,nbk->nak", R_k, rig.basis, precision=EXACT)  # the free rows of B_k
         # B_k is zero on the driven nodes: M B_k from the free columns (the row after the last is that zero)
         MY = _mass_times(rig, jnp.concatenate([Y, jnp.zeros((1, 3, k), Y.dtype)]), rig.mass_free_cols)
@@ -249,9 +246,9 @@ def _play(rig: _Rig, times, h, young, damping, method: str, clip, interpolation:
         v = (x - x_prev) / h
         return (x, v, q), (x, v, q)
 
-    q0 = jnp.zeros(k, S.dtype)
-    _, (x, v, q) = jax.lax.scan(step, (S[0], v0, q0), (S[1:], R[1:]))
-    x, v, q = (jnp.concatenate([a[None], b]) for a, b in ((S[0], x), (v0, v), (q0, q)))
+    q0 = jnp.zeros(k, S0.dtype)
+    _, (x, v, q) = jax.lax.scan(step, (S0, v0, q0), times[1:])
+    x, v, q = (jnp.concatenate([a[None], b]) for a, b in ((S0, x), (v0, v), (q0, q)))
     surface = jnp.einsum("sa,fsad->fsd", rig.embed_weights, x[:, rig.embed_nodes], precision=EXACT)
     return x, v, surface, q
 
