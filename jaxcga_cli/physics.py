@@ -1,0 +1,458 @@
+"""``jaxcga physics CHARACTER``: a rigged character plays a clip with simulated flesh (``xfem.character_body``,
+``xfem.simulate_character``): the nodes in the bones' cores follow the skinned rig, the rest lag and jiggle about it
+(stable neo-Hookean, backward Euler, optional Rayleigh damping), and planes cut the body at given frames; a piece
+left without the skeleton's root falls.
+
+The cuts (``--cut FRAME PX PY PZ NX NY NZ``) are planes in the body's rest configuration: the model at its
+skeleton's rest pose, in world coordinates, as ``jaxcga view CHARACTER`` shows it standing before a clip plays (the
+error of a plane that misses the body gives that bounding box). Each cut is a slab ``--thickness`` thick (a
+fraction of the body's bounding-box diagonal), made before the step to frame FRAME.
+
+Writes into OUT (one run, as ``jaxcga fem``: empty unless ``force``, filled when the run ends, ``summary.json``
+last):
+
+* without ``--cut``: ``frames.npy``, (N+1, s, 3) float64, the model's surface (its welded vertices, in the order
+  ``deform.load_model(CHARACTER, weld=True)`` gives them) at every frame k = 0..N (time ``times[k]`` of
+  summary.json), and ``faces.npy``, (f, 3) int64, its triangles;
+* with ``--cut``: ``frames.npz`` (``np.load``, no pickle), one group of arrays per segment K (segment 0 from frame
+  0, then one from each cut frame on; the cuts of one frame start one segment): ``frames_K`` (n_K, s_K, 3) float64
+  the surface at frames ``first[K]`` .. ``first[K] + n_K - 1``, ``faces_K`` (f_K, 3) int64 its triangles,
+  ``piece_K`` (f_K,) int64 the connected piece of each triangle and ``vertex_K`` (s_K,) int64 the model's vertex
+  that each row copies (a triangle across a cut gets its own copies of the corners on the other side); and
+  ``first`` (segments,) int64, ``times`` (N+1,) float64;
+* ``view.html``: the viewer page (``jaxcga.view``) playing the frames at the run's frame rate, the pieces shown
+  apart after a cut;
+* ``summary.json``: the run's settings, the body (tets, nodes, DOFs, driven and anchor nodes, the
+  tetrahedralization's time and quality), steps, the time per step (``first_step_s``, which includes
+  compilation, apart from ``step_avg_s`` and ``step_max_s``), the pieces and DOFs per frame, the Newton
+  iterations and converged steps.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from pathlib import Path
+
+from jaxcga_cli import arguments
+
+HELP = (
+    "play a rigged character's clip with simulated flesh that lags and jiggles about the skinned rig, cut it by "
+    "planes mid-clip (a severed limb falls), and write its surface per frame, a viewer page and timings"
+)
+EXAMPLE = (
+    "jaxcga physics tests/data/characters/Fox.glb --seconds 1 --edge-length 0.08 --cut 10 0 0.6 0.5 0 0 1 --out out/fox"
+)
+RUN_FILES = re.compile(r"frames\.npy|frames\.npz|faces\.npy|view\.html|summary\.json")
+RUN_DESCRIBED = "frames.npy, frames.npz, faces.npy, view.html and summary.json"
+YOUNG, POISSON, DENSITY, THICKNESS, FPS = 1e5, 0.4, 1000.0, 1e-3, 30.0
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("character", metavar="CHARACTER", help="a rigged glTF (.glb, .gltf) with a clip")
+    arguments.clip_argument(parser)
+    parser.add_argument("--seconds", type=float, default=None, help="seconds to simulate (default: the clip's length)")
+    parser.add_argument(
+        "--fps", type=float, default=FPS, help=f"frames per second: the time step 1/fps (default {FPS:g})"
+    )
+    parser.add_argument(
+        "--young", type=float, default=YOUNG, help=f"Young's modulus of the flesh, Pa (default {YOUNG:g})"
+    )
+    parser.add_argument("--poisson", type=float, default=POISSON, help=f"Poisson's ratio (default {POISSON:g})")
+    parser.add_argument(
+        "--damping",
+        type=float,
+        default=None,
+        help="Rayleigh stiffness damping beta, seconds (default none: backward Euler's own damping only)",
+    )
+    parser.add_argument(
+        "--density", type=float, default=DENSITY, help=f"mass density, kg/m^3 (default {DENSITY:g}: water)"
+    )
+    arguments.ftetwild_arguments(parser, "the body's tets")
+    parser.add_argument(
+        "--core",
+        type=float,
+        default=0.5,
+        help="the skeleton drives the nodes within this fraction of the limb's radius about each bone (default 0.5)",
+    )
+    parser.add_argument("--method", choices=arguments.METHODS, default="cga", help=arguments.METHODS_HELP)
+    arguments.interpolation_argument(parser)
+    parser.add_argument(
+        "--cut",
+        type=float,
+        nargs=7,
+        action="append",
+        default=[],
+        metavar=("FRAME", "PX", "PY", "PZ", "NX", "NY", "NZ"),
+        help="cut the body by the plane through point P with normal N (rest pose, world coordinates) before the "
+        "step to frame FRAME (1..N); repeat for several cuts",
+    )
+    parser.add_argument(
+        "--thickness",
+        type=float,
+        default=THICKNESS,
+        help=f"each cut's slab thickness, a fraction of the body's bounding-box diagonal (default {THICKNESS:g})",
+    )
+    steps = parser.add_mutually_exclusive_group()
+    steps.add_argument(
+        "--tolerance",
+        type=float,
+        default=None,
+        help="stop a step's Newton iterations once an update is below this fraction of the body's size (default: "
+        "the library's, converged steps)",
+    )
+    steps.add_argument(
+        "--paper-step",
+        action="store_true",
+        help="one Newton iteration per step, as the XFEM paper (faster; its gradient is approximate)",
+    )
+    parser.add_argument("--force", action="store_true", help=RUN_DESCRIBED.join(("replace the run in OUT (its ", ")")))
+    parser.add_argument(
+        "--out", type=Path, required=True, help="folder for frames.npy or frames.npz, view.html and summary.json"
+    )
+
+
+def check_settings(
+    *,
+    seconds: float | None,
+    fps: float,
+    young: float,
+    poisson: float,
+    damping: float | None,
+    density: float,
+    edge_length: float,
+    epsilon: float,
+    core: float,
+    cuts,
+    thickness: float,
+    tolerance: float | None,
+) -> list[tuple[int, tuple[float, ...], tuple[float, ...]]]:
+    """Every setting checked before anything is loaded (``ValueError`` naming the option); returns the cuts as
+    (frame, point, unit normal). Cut frames are checked against the run's frames when ``seconds`` is given
+    (otherwise once the clip's length is known, ``check_cut_frames``)."""
+
+    def positive(name: str, value: float, what: str) -> None:
+        if not (math.isfinite(value) and value > 0):
+            raise ValueError(f"{name}: expected {what}, got {value!r}")
+
+    positive("fps", fps, "a positive frame rate")
+    if seconds is not None:
+        positive("seconds", seconds, "a positive duration in seconds")
+        if round(seconds * fps) < 1:
+            raise ValueError(f"seconds: {seconds} s at {fps} frames per second is no step; give more seconds")
+    positive("young", young, "a positive Young's modulus (Pa)")
+    if not -1 < poisson < 0.5:
+        raise ValueError(f"poisson: expected a Poisson's ratio in (-1, 0.5), got {poisson!r}")
+    if damping is not None and not (math.isfinite(damping) and damping >= 0):
+        raise ValueError(f"damping: expected a damping >= 0 (seconds), got {damping!r}")
+    positive("density", density, "a positive density")
+    if not 0 < edge_length < 1:
+        raise ValueError(f"edge_length: expected a fraction of the diagonal in (0, 1), got {edge_length!r}")
+    if not 0 < epsilon < 1:
+        raise ValueError(f"epsilon: expected a fraction of the diagonal in (0, 1), got {epsilon!r}")
+    if not 0 < core <= 1:
+        raise ValueError(f"core: expected a fraction in (0, 1], got {core!r}")
+    if not 0 < thickness < 1:
+        raise ValueError(f"thickness: expected a fraction of the diagonal in (0, 1), got {thickness!r}")
+    if tolerance is not None:
+        positive("tolerance", tolerance, "a positive fraction of the body's size")
+    planes = []
+    for k, cut in enumerate(cuts):
+        values = [float(v) for v in cut]
+        if len(values) != 7 or not all(math.isfinite(v) for v in values):
+            raise ValueError(f"cut {k + 1}: expected FRAME PX PY PZ NX NY NZ, seven finite numbers, got {cut!r}")
+        frame, point, normal = values[0], tuple(values[1:4]), tuple(values[4:])
+        if frame != int(frame) or frame < 1:
+            raise ValueError(f"cut {k + 1}: FRAME must be a whole frame number >= 1, got {cut[0]!r}")
+        length = math.sqrt(sum(n * n for n in normal))
+        if not length > 0:
+            raise ValueError(f"cut {k + 1}: the normal NX NY NZ is zero; give the plane's normal direction")
+        planes.append((int(frame), point, tuple(n / length for n in normal)))
+    if seconds is not None:
+        check_cut_frames(planes, round(seconds * fps))
+    return planes
+
+
+def check_cut_frames(planes, steps: int) -> None:
+    """Each cut's frame lies in the run's 1..``steps``."""
+    for k, (frame, _, _) in enumerate(planes):
+        if frame > steps:
+            raise ValueError(f"cut {k + 1}: frame {frame} is past the run's last frame {steps}; give 1..{steps}")
+
+
+def check_paths(args) -> None:
+    from _jaxcga_shared.output import check_input, check_run_folder
+
+    character = check_input(args.character, "CHARACTER")
+    if character.suffix.lower() not in (".glb", ".gltf"):
+        raise ValueError(f"CHARACTER: expected a rigged glTF (.glb, .gltf), got {character}")
+    check_settings(**_settings(args))
+    check_run_folder(args.out, RUN_FILES, args.force, RUN_DESCRIBED, inputs={"CHARACTER": character})
+
+
+def _settings(args) -> dict:
+    return {
+        "seconds": args.seconds,
+        "fps": args.fps,
+        "young": args.young,
+        "poisson": args.poisson,
+        "damping": args.damping,
+        "density": args.density,
+        "edge_length": args.edge_length,
+        "epsilon": args.epsilon,
+        "core": args.core,
+        "cuts": args.cut,
+        "thickness": args.thickness,
+        "tolerance": args.tolerance,
+    }
+
+
+def run(args) -> tuple[str, dict]:
+    from jaxcga_cli.fem import rounded
+
+    summary = physics_command(
+        args.character,
+        args.out,
+        clip=args.clip,
+        method=args.method,
+        interpolation=args.interpolation,
+        paper_step=args.paper_step,
+        force=args.force,
+        **_settings(args),
+    )
+    shown = {k: summary[k] for k in ("clip", "tets", "nodes", "driven_nodes", "steps", "step_avg_s", "pieces")}
+    shown |= {
+        "converged": f"{summary['converged_steps']}/{summary['steps']}",
+        "tet_s": summary["tetrahedralization"]["seconds"],
+        "min_dihedral_deg": summary["tetrahedralization"]["min_dihedral_deg"],
+    }
+    return Path(args.character).name, rounded(shown) | {"out": args.out}
+
+
+def _rest_box(body) -> str:
+    import numpy as np
+
+    lo, hi = np.asarray(body.surface).min(0), np.asarray(body.surface).max(0)
+    return ", ".join(f"{a} [{lo[i]:.4g}, {hi[i]:.4g}]" for i, a in enumerate("xyz"))
+
+
+def physics_command(
+    character: str | Path,
+    out: Path,
+    *,
+    clip: int | str = 0,
+    seconds: float | None = None,
+    fps: float = FPS,
+    young: float = YOUNG,
+    poisson: float = POISSON,
+    damping: float | None = None,
+    density: float = DENSITY,
+    edge_length: float = 0.05,
+    epsilon: float = 1e-3,
+    core: float = 0.5,
+    method: str = "cga",
+    interpolation: str = "gltf",
+    cuts=(),
+    thickness: float = THICKNESS,
+    tolerance: float | None = None,
+    paper_step: bool = False,
+    force: bool = False,
+) -> dict:
+    """Simulate ``character`` playing ``clip`` and write the run into ``out`` (module docstring); returns the
+    summary. ``cuts``: (FRAME, PX, PY, PZ, NX, NY, NZ) rows; ``thickness``, ``edge_length``, ``epsilon``: fractions
+    of the bounding-box diagonal; ``tolerance``: None (the library's converged steps) or a fraction of the body's
+    size; ``paper_step``: one Newton iteration per step instead; the rest as ``xfem.character_body`` and
+    ``xfem.simulate_character``."""
+    import time
+
+    import numpy as np
+
+    import deform
+    import xfem
+    from _jaxcga_shared.output import check_input, check_run_folder, run_folder, write_json
+    from jaxcga_cli.models import load_model
+    from jaxcga_cli.report import StepProgress, status
+
+    planes = check_settings(
+        seconds=seconds,
+        fps=fps,
+        young=young,
+        poisson=poisson,
+        damping=damping,
+        density=density,
+        edge_length=edge_length,
+        epsilon=epsilon,
+        core=core,
+        cuts=cuts,
+        thickness=thickness,
+        tolerance=tolerance,
+    )
+    if method not in deform.METHODS:
+        raise ValueError(f"method: expected one of {deform.METHODS}, got {method!r}")
+    if paper_step and tolerance is not None:
+        raise ValueError("tolerance: the paper's step makes one Newton iteration; give --tolerance or --paper-step")
+    character = check_input(character, "CHARACTER")
+    out = check_run_folder(out, RUN_FILES, force, RUN_DESCRIBED, inputs={"CHARACTER": character})
+
+    with status("physics", f"loading {character.name}"):
+        model = load_model(character, weld=True)
+    if not model.clips:
+        raise ValueError(f"CHARACTER: {character.name} has no animation clip to play")
+    names = [c.name for c in model.clips]
+    if clip not in names and not (isinstance(clip, int) and 0 <= clip < len(names)):
+        raise ValueError(f"clip: {character.name} has no clip {clip!r}; its {len(names)} clips are {names}")
+    played = model.clip(clip)
+    length = played.end - played.start
+    if seconds is None:
+        if not length > 0:
+            raise ValueError(f"seconds: the clip {played.name!r} lasts no time; give --seconds")
+        seconds = length
+    steps = round(seconds * fps)
+    if steps < 1:
+        raise ValueError(f"seconds: {seconds} s at {fps} frames per second is no step; give more seconds")
+    check_cut_frames(planes, steps)
+
+    with status("physics", f"tetrahedralizing (fTetWild) and rigging the body of {len(model.mesh.V)} vertices"):
+        body = xfem.character_body(model, density=density, edge_length=edge_length, epsilon=epsilon, core=core)
+    X = np.asarray(body.tets.X)
+    plane_cuts = []
+    for k, (frame, point, normal) in enumerate(planes):
+        side = (X - np.asarray(point)) @ np.asarray(normal)
+        if side.min() >= 0 or side.max() <= 0:
+            raise ValueError(
+                f"cut {k + 1}: the plane through {list(point)} with normal {list(normal)} misses the body, whose "
+                f"rest-pose bounding box is {_rest_box(body)} (world coordinates, up +y)"
+            )
+        plane_cuts.append((frame, np.asarray(point), np.asarray(normal), thickness * body.diagonal))
+    material = xfem.Material(young, poisson, damping=damping)
+    stepping = {"newton_iterations": 1, "tolerance": None} if paper_step else {}
+    if tolerance is not None:
+        stepping = {"tolerance": tolerance}
+
+    stamps = []
+    with StepProgress("physics", steps, "step", f"physics {character.name}") as progress:
+
+        def on_step(frame, frames):
+            stamps.append(time.perf_counter())
+            progress.step()
+
+        start = time.perf_counter()
+        motion = xfem.simulate_character(
+            body,
+            clip,
+            seconds,
+            fps,
+            material=material,
+            method=method,
+            interpolation=interpolation,
+            plane_cuts=plane_cuts,
+            progress=on_step,
+            **stepping,
+        )
+        total = time.perf_counter() - start
+    segments = motion.segments
+    surfaces = [np.asarray(s.surface, np.float64) for s in segments]
+    if any(not np.all(np.isfinite(s)) for s in surfaces):
+        raise RuntimeError("physics: non-finite positions; try a stiffer --young, a higher --fps or --damping")
+    # the step times: from one progress call to the next (the first step's from the start: compilation included)
+    seconds_per_step = np.diff([start, *stamps]) if len(stamps) == steps else np.full(steps, total / steps)
+    pieces = np.asarray(motion.pieces_per_frame, np.int64)
+    stats = [s.states.stats for s in segments]
+    converged = int(sum(np.asarray(st.converged).sum() for st in stats))
+    iterations = np.concatenate([np.asarray(st.iterations).ravel() for st in stats])
+    title = f"{character.name}: {played.name}, {seconds:.3g} s at {fps:g} fps" + (
+        f", {len(planes)} cut{'s' if len(planes) > 1 else ''}" if planes else ""
+    )
+    with status("physics", "writing the frames and the viewer page"):
+        if planes:
+            frames = [(V, np.asarray(seg.faces)) for seg, S in zip(segments, surfaces) for V in S]
+            page = _view(frames, fps, title)
+        else:
+            page = _view((surfaces[0], np.asarray(segments[0].faces)), fps, title)
+
+    tetrahedralization = {
+        **body.quality._asdict(),
+        "seconds": body.seconds,
+        "edge_length": edge_length,
+        "epsilon": epsilon,
+        "surface_vertices": int(len(body.surface)),
+        "surface_faces": int(len(body.faces)),
+        "max_surface_distance": float(np.asarray(body.embedding.distance).max()) / body.diagonal,
+    }
+    summary = {
+        "character": str(character),
+        "clip": played.name,
+        "seconds": seconds,
+        "fps": fps,
+        "frames": steps + 1,
+        "steps": steps,
+        "times": np.asarray(motion.times, np.float64).tolist(),
+        "method": method,
+        "interpolation": interpolation,
+        "young": young,
+        "poisson": poisson,
+        "damping": damping,
+        "density": density,
+        "core": core,
+        "paper_step": paper_step,
+        "tolerance": tolerance,
+        "cuts": [
+            {"frame": f, "point": list(p), "normal": list(n), "thickness": thickness * body.diagonal}
+            for f, p, n in planes
+        ],
+        "diagonal": body.diagonal,
+        "tets": int(body.tets.n_elements),
+        "nodes": int(body.tets.n_nodes),
+        "dofs": 3 * int(body.tets.n_nodes),
+        "driven_nodes": int(len(body.driven)),
+        "anchor_nodes": int(len(body.anchors)),
+        "free_dofs": 3 * (int(body.tets.n_nodes) - int(len(body.driven))),
+        "segments": [
+            {
+                "first": int(seg.first),
+                "frames": int(len(S)),
+                "dofs": 3 * int(np.asarray(seg.driven).shape[0]),
+                "driven_dofs": 3 * int(np.asarray(seg.driven).sum()),
+                "pieces": int(seg.pieces),
+                "surface_vertices": int(S.shape[1]),
+                "surface_faces": int(len(seg.faces)),
+            }
+            for seg, S in zip(segments, surfaces)
+        ],
+        "pieces": int(pieces[-1]),
+        "pieces_per_frame": pieces.tolist(),
+        "first_step_s": float(seconds_per_step[0]),  # compilation included
+        "step_avg_s": float(np.mean(seconds_per_step[1:])) if steps > 1 else float(seconds_per_step[0]),
+        "step_max_s": float(np.max(seconds_per_step[1:])) if steps > 1 else float(seconds_per_step[0]),
+        "step_seconds": seconds_per_step.tolist(),
+        "total_s": total,
+        "converged_steps": converged,
+        "newton_iterations_mean": float(iterations.mean()) if iterations.size else 0.0,
+        "newton_iterations_max": int(iterations.max()) if iterations.size else 0,
+        "frames_file": "frames.npz" if planes else "frames.npy",
+        "tetrahedralization": tetrahedralization,
+    }
+    with run_folder(out, RUN_FILES, "summary.json") as staging:
+        if planes:
+            arrays = {"first": np.asarray([s.first for s in segments], np.int64), "times": np.asarray(motion.times)}
+            for k, (seg, S) in enumerate(zip(segments, surfaces)):
+                arrays |= {
+                    f"frames_{k}": S,
+                    f"faces_{k}": np.asarray(seg.faces, np.int64),
+                    f"piece_{k}": np.asarray(seg.piece, np.int64),
+                    f"vertex_{k}": np.asarray(seg.vertex, np.int64),
+                }
+            with open(staging / "frames.npz", "wb") as file:
+                np.savez(file, **arrays)
+        else:
+            np.save(staging / "frames.npy", surfaces[0])
+            np.save(staging / "faces.npy", np.asarray(segments[0].faces, np.int64))
+        page.save(staging / "view.html")
+        write_json(staging / "summary.json", summary)
+    return summary
+
+
+def _view(item, fps: float, title: str):
+    import jaxcga
+
+    return jaxcga.view(item, fps=fps, title=title)
