@@ -20,8 +20,8 @@ last):
   ``piece_K`` (f_K,) int64 the connected piece of each triangle and ``vertex_K`` (s_K,) int64 the model's vertex
   that each row copies (a triangle across a cut gets its own copies of the corners on the other side); and
   ``first`` (segments,) int64, ``times`` (N+1,) float64;
-* ``view.html``: the viewer page (``jaxcga.view``) playing the frames at the run's frame rate, the pieces shown
-  apart after a cut;
+* ``view.html``: the viewer page (``jaxcga.view``) playing the frames at the run's frame rate; with ``--cut``, each
+  connected piece in its own colour;
 * ``summary.json``: the run's settings, the body (tets, nodes, DOFs, driven and anchor nodes, the
   tetrahedralization's time and quality), steps, the time per step (``first_step_s``, which includes
   compilation, apart from ``step_avg_s`` and ``step_max_s``), the pieces and DOFs per frame, the Newton
@@ -365,7 +365,9 @@ def physics_command(
     )
     with status("physics", "writing the frames and the viewer page"):
         if planes:
-            frames = [(V, np.asarray(seg.faces)) for seg, S in zip(segments, surfaces) for V in S]
+            frames = [
+                (V, np.asarray(seg.faces), np.asarray(seg.piece)) for seg, S in zip(segments, surfaces) for V in S
+            ]
             page = _view(frames, fps, title)
         else:
             page = _view((surfaces[0], np.asarray(segments[0].faces)), fps, title)
