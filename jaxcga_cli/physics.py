@@ -46,6 +46,7 @@ EXAMPLE = (
 RUN_FILES = re.compile(r"frames\.npy|frames\.npz|faces\.npy|view\.html|summary\.json")
 RUN_DESCRIBED = "frames.npy, frames.npz, faces.npy, view.html and summary.json"
 YOUNG, POISSON, DENSITY, THICKNESS, FPS = 1e5, 0.4, 1000.0, 1e-3, 30.0
+GRAVITY = (0.0, -9.81, 0.0)
 
 
 def add_arguments(parser) -> None:
@@ -67,6 +68,14 @@ def add_arguments(parser) -> None:
     )
     parser.add_argument(
         "--density", type=float, default=DENSITY, help=f"mass density, kg/m^3 (default {DENSITY:g}: water)"
+    )
+    parser.add_argument(
+        "--gravity",
+        type=float,
+        nargs=3,
+        default=GRAVITY,
+        metavar=("GX", "GY", "GZ"),
+        help="gravitational acceleration in the model's units (default 0 -9.81 0: metres, glTF's up +y)",
     )
     arguments.ftetwild_arguments(parser, "the body's tets")
     parser.add_argument(
@@ -120,6 +129,7 @@ def check_settings(
     poisson: float,
     damping: float | None,
     density: float,
+    gravity,
     edge_length: float,
     epsilon: float,
     core: float,
@@ -146,6 +156,8 @@ def check_settings(
     if damping is not None and not (math.isfinite(damping) and damping >= 0):
         raise ValueError(f"damping: expected a damping >= 0 (seconds), got {damping!r}")
     positive("density", density, "a positive density")
+    if len(gravity) != 3 or not all(math.isfinite(g) for g in gravity):
+        raise ValueError(f"gravity: expected three finite numbers GX GY GZ, got {gravity!r}")
     if not 0 < edge_length < 1:
         raise ValueError(f"edge_length: expected a fraction of the diagonal in (0, 1), got {edge_length!r}")
     if not 0 < epsilon < 1:
@@ -198,6 +210,7 @@ def _settings(args) -> dict:
         "poisson": args.poisson,
         "damping": args.damping,
         "density": args.density,
+        "gravity": tuple(args.gravity),
         "edge_length": args.edge_length,
         "epsilon": args.epsilon,
         "core": args.core,
@@ -247,6 +260,7 @@ def physics_command(
     poisson: float = POISSON,
     damping: float | None = None,
     density: float = DENSITY,
+    gravity=GRAVITY,
     edge_length: float = 0.05,
     epsilon: float = 1e-3,
     core: float = 0.5,
@@ -280,6 +294,7 @@ def physics_command(
         poisson=poisson,
         damping=damping,
         density=density,
+        gravity=gravity,
         edge_length=edge_length,
         epsilon=epsilon,
         core=core,
@@ -313,7 +328,9 @@ def physics_command(
     check_cut_frames(planes, steps)
 
     with status("physics", f"tetrahedralizing (fTetWild) and rigging the body of {len(model.mesh.V)} vertices"):
-        body = xfem.character_body(model, density=density, edge_length=edge_length, epsilon=epsilon, core=core)
+        body = xfem.character_body(
+            model, density=density, gravity=gravity, edge_length=edge_length, epsilon=epsilon, core=core
+        )
     X = np.asarray(body.tets.X)
     plane_cuts = []
     for k, (frame, point, normal) in enumerate(planes):
@@ -395,6 +412,7 @@ def physics_command(
         "poisson": poisson,
         "damping": damping,
         "density": density,
+        "gravity": list(gravity),
         "core": core,
         "paper_step": paper_step,
         "tolerance": tolerance,
