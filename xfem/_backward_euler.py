@@ -294,6 +294,8 @@ def fem_system(
     if force.shape != (n, 3) or not np.all(np.isfinite(force)):
         raise ValueError(f"force: expected finite forces of shape ({n}, 3), got {force.shape}")
     fixed = _host_fixed(fixed, n)
+    if len(fixed) == n:
+        raise ValueError(f"fixed: all {n} DOF nodes are fixed, so there is nothing to solve for")
     nnz_capacity = None
     if capacity is not None:
         T, grads, volumes, mass, force, fixed = _pad(T, grads, volumes, mass, force, fixed, capacity)
