@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import math
 import re
+import sys
 from pathlib import Path
 
 from jaxcga_cli import arguments
@@ -277,15 +278,14 @@ def physics_command(
     of the bounding-box diagonal; ``tolerance``: None (the library's converged steps) or a fraction of the body's
     size; ``paper_step``: one Newton iteration per step instead; the rest as ``xfem.character_body`` and
     ``xfem.simulate_character``."""
-    import time
-
+    import jax
     import numpy as np
 
     import deform
     import xfem
     from _jaxcga_shared.output import check_input, check_run_folder, run_folder, write_json
     from jaxcga_cli.models import load_model
-    from jaxcga_cli.report import StepProgress, status
+    from jaxcga_cli.report import status
 
     planes = check_settings(
         seconds=seconds,
@@ -346,14 +346,7 @@ def physics_command(
     if tolerance is not None:
         stepping = {"tolerance": tolerance}
 
-    stamps = []
-    with StepProgress("physics", steps, "step", f"physics {character.name}") as progress:
-
-        def on_step(frame, frames):
-            stamps.append(time.perf_counter())
-            progress.step()
-
-        start = time.perf_counter()
+    with Timeline(steps, character.name) as timeline:
         motion = xfem.simulate_character(
             body,
             clip,
@@ -363,20 +356,20 @@ def physics_command(
             method=method,
             interpolation=interpolation,
             plane_cuts=plane_cuts,
-            progress=on_step,
+            progress=timeline.progress,
             **stepping,
         )
-        total = time.perf_counter() - start
     segments = motion.segments
     surfaces = [np.asarray(s.surface, np.float64) for s in segments]
     if any(not np.all(np.isfinite(s)) for s in surfaces):
         raise RuntimeError("physics: non-finite positions; try a stiffer --young, a higher --fps or --damping")
-    # the step times: from one progress call to the next (the first step's from the start: compilation included)
-    seconds_per_step = np.diff([start, *stamps]) if len(stamps) == steps else np.full(steps, total / steps)
     pieces = np.asarray(motion.pieces_per_frame, np.int64)
-    stats = [s.states.stats for s in segments]
-    converged = int(sum(np.asarray(st.converged).sum() for st in stats))
-    iterations = np.concatenate([np.asarray(st.iterations).ravel() for st in stats])
+    # the steps' statistics (segment 0's frame 0 is the start, no step)
+    stats = [
+        jax.tree.map(lambda a, k=k: np.asarray(a)[1 if k == 0 else 0 :], s.states.stats) for k, s in enumerate(segments)
+    ]
+    converged = int(sum(st.converged.sum() for st in stats))
+    iterations = np.concatenate([st.iterations.ravel() for st in stats])
     title = f"{character.name}: {played.name}, {seconds:.3g} s at {fps:g} fps" + (
         f", {len(planes)} cut{'s' if len(planes) > 1 else ''}" if planes else ""
     )
@@ -441,11 +434,7 @@ def physics_command(
         ],
         "pieces": int(pieces[-1]),
         "pieces_per_frame": pieces.tolist(),
-        "first_step_s": float(seconds_per_step[0]),  # compilation included
-        "step_avg_s": float(np.mean(seconds_per_step[1:])) if steps > 1 else float(seconds_per_step[0]),
-        "step_max_s": float(np.max(seconds_per_step[1:])) if steps > 1 else float(seconds_per_step[0]),
-        "step_seconds": seconds_per_step.tolist(),
-        "total_s": total,
+        **timeline.summary(),
         "converged_steps": converged,
         "newton_iterations_mean": float(iterations.mean()) if iterations.size else 0.0,
         "newton_iterations_max": int(iterations.max()) if iterations.size else 0,
@@ -470,6 +459,81 @@ def physics_command(
         page.save(staging / "view.html")
         write_json(staging / "summary.json", summary)
     return summary
+
+
+class Timeline:
+    """What ``simulate_character`` reports as it works (its ``progress`` stages: the rig skinned, the cuts' pieces
+    found, each segment's frames), as status lines and a bar over the frames, with the seconds of each stage and
+    the compilation within them: JAX's compile events, listened to during the run only
+    (``jax.monitoring``)."""
+
+    _COMPILE = "/jax/core/compile/"
+
+    def __init__(self, steps: int, name: str):
+        self.steps, self.name = steps, name
+        self.compile_s, self.marks, self.bar = 0.0, {}, None
+
+    def _listen(self, event: str, duration: float, **_) -> None:
+        if event.startswith(self._COMPILE):
+            self.compile_s += duration
+
+    def __enter__(self) -> "Timeline":
+        import time
+
+        import jax.monitoring
+
+        from jaxcga_cli.report import say
+
+        jax.monitoring.register_event_duration_secs_listener(self._listen)
+        say("physics", "skinning the rig at every frame ...")
+        self.start = self.last = time.perf_counter()
+        self.compiled = 0.0
+        self.segments: list[tuple[float, float]] = []  # (seconds, compilation) of each segment's frames
+        return self
+
+    def __exit__(self, *exc) -> None:
+        import jax.monitoring
+
+        jax.monitoring.unregister_event_duration_listener(self._listen)
+        if self.bar is not None:
+            self.bar.close()
+
+    def progress(self, stage: str, done: int, total: int) -> None:
+        import time
+
+        from tqdm import tqdm
+
+        from jaxcga_cli.report import say
+
+        now = time.perf_counter()
+        seconds, compiled = now - self.last, self.compile_s - self.compiled
+        self.last, self.compiled = now, self.compile_s
+        if stage == "frames":
+            self.segments.append((seconds, compiled))
+            self.bar.update(done - self.bar.n)
+            return
+        self.marks[stage] = seconds
+        if stage == "rig":
+            say("physics", f"skinning the rig at every frame: done in {seconds:.1f} s")
+            say("physics", "finding the pieces of the cuts ..." if total else "building the body's system ...")
+        elif stage == "cuts":
+            say("physics", f"{'the pieces of the cuts' if total else 'the system'}: done in {seconds:.1f} s")
+            say("physics", "stepping (each segment's first call compiles its step) ...")
+            self.bar = tqdm(total=self.steps, desc=f"physics {self.name}", unit="frame", file=sys.stderr)
+
+    def summary(self) -> dict:
+        """The seconds of the stages; the steps' average with the compilation in the segments left out."""
+        frames_s = sum(s for s, _ in self.segments)
+        compile_s = sum(c for _, c in self.segments)
+        return {
+            "rig_s": self.marks.get("rig", 0.0),
+            "cuts_s": self.marks.get("cuts", 0.0),
+            "frames_s": frames_s,  # compilation included
+            "compile_s": compile_s,  # of the frames' steps (JAX's compile events)
+            "step_avg_s": max(frames_s - compile_s, 0.0) / self.steps,
+            "segment_seconds": [s for s, _ in self.segments],
+            "total_s": self.last - self.start,
+        }
 
 
 def _view(item, fps: float, title: str):
