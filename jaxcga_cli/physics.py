@@ -23,8 +23,9 @@ last):
 * ``view.html``: the viewer page (``jaxcga.view``) playing the frames at the run's frame rate; with ``--cut``, each
   connected piece in its own colour;
 * ``summary.json``: the run's settings, the body (tets, nodes, DOFs, driven and anchor nodes, the
-  tetrahedralization's time and quality), steps, the time per step (``first_step_s``, which includes
-  compilation, apart from ``step_avg_s`` and ``step_max_s``), the pieces and DOFs per frame, the Newton
+  tetrahedralization's time and quality), steps, the seconds of each stage (the rig, the cuts' pieces, each
+  segment's frames, compilation included), the compilation within the frames (``compile_s``, JAX's compile events)
+  and ``step_avg_s``, the time per step without it; the pieces per frame, the segments' DOFs and pieces, the Newton
   iterations and converged steps.
 """
 
