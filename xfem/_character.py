@@ -90,7 +90,10 @@ class CharacterSegment(NamedTuple):
             ``SolveStats`` (the first segment's frame 0 is the start, with no step: converged, 0 iterations).
         driven: (n_k,) bool the DOFs placed on the rig in this segment.
         dof_node: (n_k,) int64 the tet node of each DOF.
+        dof_piece: (n_k,) int64 the connected piece of each DOF (``XFEMModel.components``).
         pieces: the number of connected pieces of the body.
+        system: the segment's ``FEMSystem`` in the rest configuration (its mass and gravity loads; the steps move
+            its elements' rest shapes to the rig's), None where every DOF is driven.
     """
 
     first: int
@@ -101,7 +104,9 @@ class CharacterSegment(NamedTuple):
     states: State
     driven: np.ndarray
     dof_node: Int[np.ndarray, " n"]
+    dof_piece: Int[np.ndarray, " n"]
     pieces: int
+    system: FEMSystem | None
 
 
 class CharacterMotion(NamedTuple):
@@ -162,6 +167,7 @@ class _Stage(NamedTuple):
     dof_node: np.ndarray
     follows: np.ndarray
     surface: tuple
+    dof_piece: np.ndarray
     pieces: int
 
 
@@ -179,7 +185,7 @@ def _stage(model: XFEMModel, body: CharacterBody, first: int, system, source) ->
     driven = np.zeros(len(model.dof_node), bool)
     driven[fixed] = True
     mapping = surface_map(model, body.embedding, body.surface, body.faces)
-    return _Stage(first, system, source, model.dof_node.copy(), follows & True, (*mapping, driven), int(count))
+    return _Stage(first, system, source, model.dof_node.copy(), follows, (*mapping, driven), label, int(count))
 
 
 def _clip_times(body: CharacterBody, clip, seconds, fps, start) -> tuple[np.ndarray, int | str | None]:
@@ -439,7 +445,19 @@ def simulate_character(
         weights, dofs, faces, piece, vertex, driven = stage.surface
         surface = jnp.einsum("ka,fkad->fkd", jnp.asarray(weights), played.x[:, jnp.asarray(dofs)], precision=EXACT)
         segments.append(
-            CharacterSegment(stage.first, surface, faces, piece, vertex, played, driven, stage.dof_node, stage.pieces)
+            CharacterSegment(
+                stage.first,
+                surface,
+                faces,
+                piece,
+                vertex,
+                played,
+                driven,
+                stage.dof_node,
+                stage.dof_piece,
+                stage.pieces,
+                system,
+            )
         )
         report("frames", int(end - 1), steps)
     return CharacterMotion(body, times, h, segments)
