@@ -117,6 +117,13 @@ def add_arguments(parser) -> None:
         action="store_true",
         help="one Newton iteration per step, as the XFEM paper (faster; its gradient is approximate)",
     )
+    parser.add_argument(
+        "--newton",
+        type=int,
+        default=None,
+        help="the most Newton iterations of a step (default: the library's, 50); a step that stops there is counted "
+        "as not converged in summary.json",
+    )
     parser.add_argument("--force", action="store_true", help=RUN_DESCRIBED.join(("replace the run in OUT (its ", ")")))
     parser.add_argument(
         "--out", type=Path, required=True, help="folder for frames.npy or frames.npz, view.html and summary.json"
@@ -232,6 +239,7 @@ def run(args) -> tuple[str, dict]:
         method=args.method,
         interpolation=args.interpolation,
         paper_step=args.paper_step,
+        newton=args.newton,
         force=args.force,
         **_settings(args),
     )
@@ -272,12 +280,14 @@ def physics_command(
     thickness: float = THICKNESS,
     tolerance: float | None = None,
     paper_step: bool = False,
+    newton: int | None = None,
     force: bool = False,
 ) -> dict:
     """Simulate ``character`` playing ``clip`` and write the run into ``out`` (module docstring); returns the
     summary. ``cuts``: (FRAME, PX, PY, PZ, NX, NY, NZ) rows; ``thickness``, ``edge_length``, ``epsilon``: fractions
     of the bounding-box diagonal; ``tolerance``: None (the library's converged steps) or a fraction of the body's
-    size; ``paper_step``: one Newton iteration per step instead; the rest as ``xfem.character_body`` and
+    size; ``paper_step``: one Newton iteration per step instead; ``newton``: None (the library's cap) or the most
+    Newton iterations of a step; the rest as ``xfem.character_body`` and
     ``xfem.simulate_character``."""
     import jax
     import numpy as np
@@ -307,6 +317,10 @@ def physics_command(
         raise ValueError(f"method: expected one of {deform.METHODS}, got {method!r}")
     if paper_step and tolerance is not None:
         raise ValueError("tolerance: the paper's step makes one Newton iteration; give --tolerance or --paper-step")
+    if newton is not None and (isinstance(newton, bool) or not isinstance(newton, int) or newton < 1):
+        raise ValueError(f"newton: expected an int >= 1, got {newton!r}")
+    if paper_step and newton is not None:
+        raise ValueError("newton: the paper's step makes one Newton iteration; give --newton or --paper-step")
     character = check_input(character, "CHARACTER")
     out = check_run_folder(out, RUN_FILES, force, RUN_DESCRIBED, inputs={"CHARACTER": character})
 
@@ -345,7 +359,9 @@ def physics_command(
     material = xfem.Material(young, poisson, damping=damping)
     stepping = {"newton_iterations": 1, "tolerance": None} if paper_step else {}
     if tolerance is not None:
-        stepping = {"tolerance": tolerance}
+        stepping["tolerance"] = tolerance
+    if newton is not None:
+        stepping["newton_iterations"] = newton
 
     with Timeline(steps, character.name) as timeline:
         motion = xfem.simulate_character(
@@ -409,6 +425,7 @@ def physics_command(
         "gravity": list(gravity),
         "core": core,
         "paper_step": paper_step,
+        "newton": newton,
         "tolerance": tolerance,
         "cuts": [
             {"frame": f, "point": list(p), "normal": list(n), "thickness": thickness * body.diagonal}

@@ -115,6 +115,8 @@ def _tail_piece(arrays) -> int:
         (["--seconds", "1", "--cut", "31", *TAIL], "cut 1: frame 31 is past the run's last frame 30"),
         (["--cut", "3", "0", "0", "0", "0", "0", "0"], "cut 1: the normal NX NY NZ is zero"),
         (["--thickness", "0"], "thickness"),
+        (["--newton", "0"], "newton: expected an int >= 1"),
+        (["--paper-step", "--newton", "5"], "newton: the paper's step makes one Newton iteration"),
     ],
 )
 def test_bad_options_are_refused_before_loading(tmp_path, capsys, args, message):
