@@ -528,6 +528,8 @@ class Timeline:
         self.last, self.compiled = now, self.compile_s
         if stage == "frames":
             self.segments.append((seconds, compiled))
+            if self.bar is None:  # a play without a cuts stage (the reduced mode)
+                self.bar = tqdm(total=self.steps, desc=f"physics {self.name}", unit="frame", file=sys.stderr)
             self.bar.update(done - self.bar.n)
             return
         self.marks[stage] = seconds
