@@ -341,6 +341,16 @@ def physics_command(
     if steps < 1:
         raise ValueError(f"seconds: {seconds} s at {fps} frames per second is no step; give more seconds")
     check_cut_frames(planes, steps)
+    try:  # a rig the method cannot pose (a non-uniform bone scale has no versor) is refused before the meshing
+        deform.sample_pose(model, played.start, method, clip, interpolation)
+    except ValueError:
+        if method in ("lbs", "dqs"):
+            raise
+        deform.sample_pose(model, played.start, "lbs", clip, interpolation)  # the matrix path: the rig is fine
+        raise ValueError(
+            f"method: {method} cannot pose the rig of {character.name}: it has no versor form (a non-uniform or "
+            "non-positive bone scale); give --method lbs or dqs"
+        ) from None
 
     with status("physics", f"tetrahedralizing (fTetWild) and rigging the body of {len(model.mesh.V)} vertices"):
         body = xfem.character_body(

@@ -73,6 +73,10 @@ def test_a_cut_makes_two_pieces_written_per_segment(tmp_path):
     assert summary["frames_file"] == "frames.npz" and summary["steps"] == 9
     assert summary["pieces_per_frame"] == [1] * 3 + [2] * 7 and summary["pieces"] == 2
     assert summary["cuts"][0]["frame"] == 3 and summary["cuts"][0]["normal"] == [0.0, 0.0, -1.0]
+    before, after = summary["segments"]
+    assert (before["first"], before["frames"], after["first"], after["frames"]) == (0, 3, 3, 7)
+    assert (before["pieces"], after["pieces"]) == (1, 2) and after["dofs"] > before["dofs"] == summary["dofs"]
+    assert after["driven_dofs"] <= before["driven_dofs"]  # driven nodes of the tail, if any, released
     with np.load(out / "frames.npz") as data:  # no pickle
         arrays = dict(data)
     assert sorted(arrays) == sorted(
