@@ -68,7 +68,8 @@ from xfem._simulate import _check_planes, _check_steps
 from xfem._surface_tets import surface_map
 from xfem._xfem import XFEMModel, xfem_model
 
-_FLATTEST = 0.2  # the smallest singular value of an element's rig deformation taken as its rest shape
+_FLATTEST = 0.2  # below this smallest singular value of its rig deformation, an element's weight is lowered
+_TINY = 1e-9  # singular values are kept off zero by this much before they are inverted
 
 _PLANES_UNDER_JIT = (
     "simulate_character finds the pieces of plane cuts on the host at concrete planes: call it outside jax.jit and "
@@ -240,15 +241,20 @@ def _rig(body: CharacterBody, times: np.ndarray, method: str, clip, interpolatio
 
 def _rig_rest_system(system: FEMSystem, rest: Float[Array, "n 3"]) -> FEMSystem:
     """The system with each element's rest shape moved to ``rest`` (module docstring): shape gradients
-    ``grads F_rig^-1`` and weights ``volumes det F_rig``, F_rig's singular values raised to ``_FLATTEST``."""
+    ``grads F_rig^-1`` and weights ``volumes |det F_rig|``, the weight of a flattened element lowered (below)."""
     F_rig = jnp.einsum("mai,maj->mij", rest[system.T], system.grads, precision=EXACT)
-    # skinning can flatten or invert an element where weights change fast across it (near joints): its rest shape
-    # is then the nearest one squashed by _FLATTEST at most, so that the energy keeps a minimum of positive volume
+    # skinning flattens or inverts an element where weights change fast across it (near joints). Its rest shape
+    # stays the rig's (the energy is zero at the rig's shape, so the stiff limit is the rig), but its stiffness
+    # across the flat direction grows as 1 / s_min: the weight is multiplied by (|s_min| / _FLATTEST)^2 below
+    # _FLATTEST, which keeps it bounded (and Newton's matrix well conditioned); an inverted element (the
+    # rotation-variant SVD's last singular value negative) is a mirror image, weighted by its volume's magnitude
     U, singular, Vt = svd3(F_rig)
-    F_rig = jnp.einsum("mij,mj,mjk->mik", U, jnp.maximum(singular, _FLATTEST), Vt, precision=EXACT)
-    grads = jnp.einsum("maj,mjk->mak", system.grads, jnp.linalg.inv(F_rig), precision=EXACT)
-    volumes = system.volumes * jnp.linalg.det(F_rig)
-    return eqx.tree_at(lambda s: (s.grads, s.volumes), system, (grads, volumes))
+    smallest = jnp.abs(singular[:, 2])
+    safe = jnp.where(singular < 0, -1.0, 1.0) * jnp.maximum(jnp.abs(singular), _TINY)
+    inverse = jnp.einsum("mji,mj,mkj->mik", Vt, 1 / safe, U, precision=EXACT)
+    grads = jnp.einsum("maj,mjk->mak", system.grads, inverse, precision=EXACT)
+    weight = jnp.abs(jnp.prod(singular, axis=1)) * jnp.minimum(1.0, (smallest / _FLATTEST) ** 2)
+    return eqx.tree_at(lambda s: (s.grads, s.volumes), system, (grads, system.volumes * weight))
 
 
 @eqx.filter_jit
