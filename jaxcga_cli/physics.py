@@ -124,6 +124,15 @@ def add_arguments(parser) -> None:
         help="the most Newton iterations of a step (default: the library's, 50); a step that stops there is counted "
         "as not converged in summary.json",
     )
+    parser.add_argument(
+        "--reduced",
+        type=int,
+        default=None,
+        metavar="K",
+        help="play in the reduced mode: the body's K lowest skinning eigenmodes (xfem.character_subspace, the "
+        "reduction of Fast Complementary Dynamics), one K x K solve per frame; no --cut, --tolerance, --newton or "
+        "--paper-step",
+    )
     parser.add_argument("--force", action="store_true", help=RUN_DESCRIBED.join(("replace the run in OUT (its ", ")")))
     parser.add_argument(
         "--out", type=Path, required=True, help="folder for frames.npy or frames.npz, view.html and summary.json"
@@ -240,6 +249,7 @@ def run(args) -> tuple[str, dict]:
         interpolation=args.interpolation,
         paper_step=args.paper_step,
         newton=args.newton,
+        reduced=args.reduced,
         force=args.force,
         **_settings(args),
     )
@@ -281,14 +291,15 @@ def physics_command(
     tolerance: float | None = None,
     paper_step: bool = False,
     newton: int | None = None,
+    reduced: int | None = None,
     force: bool = False,
 ) -> dict:
     """Simulate ``character`` playing ``clip`` and write the run into ``out`` (module docstring); returns the
     summary. ``cuts``: (FRAME, PX, PY, PZ, NX, NY, NZ) rows; ``thickness``, ``edge_length``, ``epsilon``: fractions
     of the bounding-box diagonal; ``tolerance``: None (the library's converged steps) or a fraction of the body's
     size; ``paper_step``: one Newton iteration per step instead; ``newton``: None (the library's cap) or the most
-    Newton iterations of a step; the rest as ``xfem.character_body`` and
-    ``xfem.simulate_character``."""
+    Newton iterations of a step; ``reduced``: None (the full space) or the modes K of the reduced mode; the rest as
+    ``xfem.character_body`` and ``xfem.simulate_character``."""
     import jax
     import numpy as np
 
@@ -321,6 +332,14 @@ def physics_command(
         raise ValueError(f"newton: expected an int >= 1, got {newton!r}")
     if paper_step and newton is not None:
         raise ValueError("newton: the paper's step makes one Newton iteration; give --newton or --paper-step")
+    if reduced is not None:
+        if isinstance(reduced, bool) or not isinstance(reduced, int) or reduced < 1:
+            raise ValueError(f"reduced: expected a number of modes K >= 1, got {reduced!r}")
+        if planes:
+            raise ValueError("reduced: the reduced mode does not cut; give --reduced or --cut")
+        if paper_step or tolerance is not None or newton is not None:
+            raise ValueError("reduced: the reduced mode makes one linear solve per frame, no Newton iterations; "
+                             "give --reduced or --tolerance, --newton, --paper-step")  # fmt: skip
     character = check_input(character, "CHARACTER")
     out = check_run_folder(out, RUN_FILES, force, RUN_DESCRIBED, inputs={"CHARACTER": character})
 
@@ -373,7 +392,14 @@ def physics_command(
     if newton is not None:
         stepping["newton_iterations"] = newton
 
-    with Timeline(steps, character.name) as timeline:
+    if reduced is not None:
+        with status("physics", f"the body's {reduced} lowest skinning eigenmodes"):
+            try:
+                stepping = {"subspace": xfem.character_subspace(body, reduced, poisson=poisson)}
+            except ValueError as error:  # it names its argument "modes"
+                raise ValueError(f"reduced: {str(error).removeprefix('modes: ')}") from None
+
+    with Timeline(steps, character.name, len(planes), reduced is not None) as timeline:
         motion = xfem.simulate_character(
             body,
             clip,
@@ -436,6 +462,8 @@ def physics_command(
         "core": core,
         "paper_step": paper_step,
         "newton": newton,
+        "reduced": reduced,
+        "subspace_s": stepping["subspace"].seconds if reduced is not None else None,
         "tolerance": tolerance,
         "cuts": [
             {"frame": f, "point": list(p), "normal": list(n), "thickness": thickness * body.diagonal}
@@ -491,15 +519,16 @@ def physics_command(
 
 class Timeline:
     """What ``simulate_character`` reports as it works (its ``progress`` stages: the rig skinned, the cuts' pieces
-    found, each segment's frames), as status lines and a bar over the frames, with the seconds of each stage and
-    the compilation within them: JAX's compile events, listened to during the run only
-    (``jax.monitoring``)."""
+    found, each segment's frames; in the reduced mode the rig and the frames are one compiled play, reported as the
+    rig), as status lines and a bar over the frames, with the seconds of each stage and the compilation within
+    them: JAX's compile events, listened to during the run only (``jax.monitoring``)."""
 
     _COMPILE = "/jax/core/compile/"
 
-    def __init__(self, steps: int, name: str):
-        self.steps, self.name = steps, name
+    def __init__(self, steps: int, name: str, cuts: int, reduced: bool):
+        self.steps, self.name, self.cuts, self.reduced = steps, name, cuts, reduced
         self.compile_s, self.marks, self.bar = 0.0, {}, None
+        self.segments: list[tuple[float, float]] = []  # (seconds, compilation) of each segment's frames
 
     def _listen(self, event: str, duration: float, **_) -> None:
         if event.startswith(self._COMPILE):
@@ -513,11 +542,15 @@ class Timeline:
         from jaxcga_cli.report import say
 
         jax.monitoring.register_event_duration_secs_listener(self._listen)
-        say("physics", "skinning the rig at every frame ...")
+        say("physics", self._first())
         self.start = self.last = time.perf_counter()
         self.compiled = 0.0
-        self.segments: list[tuple[float, float]] = []  # (seconds, compilation) of each segment's frames
         return self
+
+    def _first(self) -> str:
+        if self.reduced:
+            return "playing the frames in the reduced mode (the rig, then one compiled scan) ..."
+        return "skinning the rig at every frame ..."
 
     def __exit__(self, *exc) -> None:
         import jax.monitoring
@@ -526,38 +559,45 @@ class Timeline:
         if self.bar is not None:
             self.bar.close()
 
+    def _bar(self):
+        from tqdm import tqdm
+
+        if self.bar is None:
+            self.bar = tqdm(total=self.steps, desc=f"physics {self.name}", unit="frame", file=sys.stderr)
+        return self.bar
+
     def progress(self, stage: str, done: int, total: int) -> None:
         import time
-
-        from tqdm import tqdm
 
         from jaxcga_cli.report import say
 
         now = time.perf_counter()
         seconds, compiled = now - self.last, self.compile_s - self.compiled
         self.last, self.compiled = now, self.compile_s
-        if stage == "frames":
+        if self.reduced and stage == "rig":  # the whole play
             self.segments.append((seconds, compiled))
-            if self.bar is None:  # a play without a cuts stage (the reduced mode)
-                self.bar = tqdm(total=self.steps, desc=f"physics {self.name}", unit="frame", file=sys.stderr)
-            self.bar.update(done - self.bar.n)
-            return
-        self.marks[stage] = seconds
-        if stage == "rig":
-            say("physics", f"skinning the rig at every frame: done in {seconds:.1f} s")
-            say("physics", "finding the pieces of the cuts ..." if total else "building the body's system ...")
+            say("physics", f"{self._first().removesuffix(' ...')}: done in {seconds:.1f} s")
+        elif stage == "frames":
+            if not self.reduced:
+                self.segments.append((seconds, compiled))
+            self._bar().update(done - self._bar().n)
+        elif stage == "rig":
+            self.marks[stage] = seconds
+            say("physics", f"{self._first().removesuffix(' ...')}: done in {seconds:.1f} s")
+            say("physics", "finding the pieces of the cuts ..." if self.cuts else "building the body's system ...")
         elif stage == "cuts":
-            say("physics", f"{'the pieces of the cuts' if total else 'the system'}: done in {seconds:.1f} s")
+            self.marks[stage] = seconds
+            say("physics", f"{'the pieces of the cuts' if self.cuts else 'the system'}: done in {seconds:.1f} s")
             say("physics", "stepping (each segment's first call compiles its step) ...")
-            self.bar = tqdm(total=self.steps, desc=f"physics {self.name}", unit="frame", file=sys.stderr)
+            self._bar()
 
     def summary(self) -> dict:
         """The seconds of the stages; the steps' average with the compilation in the segments left out."""
         frames_s = sum(s for s, _ in self.segments)
         compile_s = sum(c for _, c in self.segments)
         return {
-            "rig_s": self.marks.get("rig", 0.0),
-            "cuts_s": self.marks.get("cuts", 0.0),
+            "rig_s": None if self.reduced else self.marks.get("rig", 0.0),  # reduced: in the frames' seconds
+            "cuts_s": None if self.reduced else self.marks.get("cuts", 0.0),
             "frames_s": frames_s,  # compilation included
             "compile_s": compile_s,  # of the frames' steps (JAX's compile events)
             "step_avg_s": max(frames_s - compile_s, 0.0) / self.steps,

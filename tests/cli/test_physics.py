@@ -96,6 +96,23 @@ def test_a_cut_makes_two_pieces_written_per_segment(tmp_path):
     assert all("groups" in s for s in config["items"][0]["segments"])  # pieces coloured
 
 
+@pytest.mark.slow  # fTetWild, the eigenmodes and a compile: 20-40 s on 2 busy cores
+def test_the_reduced_mode_plays_in_skinning_eigenmodes(tmp_path):
+    """--reduced K: the body's K lowest skinning eigenmodes carry the flesh (xfem.character_subspace); the same
+    files, one segment, no Newton iterations; frame 0 is the rig, as in the full space."""
+    out = tmp_path / "reduced"
+    assert main(["physics", FOX, *FOX_RUN, "--seconds", "0.2", "--reduced", "12", "--out", str(out)]) == 0
+    summary = _summary(out)
+    assert summary["reduced"] == 12 and summary["subspace_s"] > 0 and summary["newton_iterations_max"] == 0
+    assert summary["rig_s"] is None and len(summary["segment_seconds"]) == 1 and summary["steps"] == 6
+    frames = np.load(out / "frames.npy")
+    model = load_character("Fox")
+    assert frames.shape == (7, model.mesh.num_vertices, 3) and np.all(np.isfinite(frames))
+    skinned = np.asarray(deform.skin_model(model, summary["times"][0], "cga", "Walk"))
+    assert np.abs(frames[0] - skinned).max() < 0.05 * summary["diagonal"]
+    assert np.abs(frames[-1] - frames[0]).max() > 1e-3 * summary["diagonal"]  # it walks
+
+
 def _tail_piece(arrays) -> int:
     """The piece of the cut segment whose rest vertices lie beyond z = -50."""
     vertex, piece = arrays["vertex_1"], arrays["piece_1"]
@@ -120,6 +137,9 @@ def _tail_piece(arrays) -> int:
         (["--cut", "3", "0", "0", "0", "0", "0", "0"], "cut 1: the normal NX NY NZ is zero"),
         (["--thickness", "0"], "thickness"),
         (["--newton", "0"], "newton: expected an int >= 1"),
+        (["--reduced", "0"], "reduced: expected a number of modes K >= 1"),
+        (["--reduced", "8", "--cut", "3", *TAIL], "reduced: the reduced mode does not cut"),
+        (["--reduced", "8", "--newton", "5"], "reduced: the reduced mode makes one linear solve per frame"),
         (["--paper-step", "--newton", "5"], "newton: the paper's step makes one Newton iteration"),
     ],
 )
