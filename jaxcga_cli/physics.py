@@ -49,6 +49,7 @@ RUN_FILES = re.compile(r"frames\.npy|frames\.npz|faces\.npy|view\.html|summary\.
 RUN_DESCRIBED = "frames.npy, frames.npz, faces.npy, view.html and summary.json"
 YOUNG, POISSON, DENSITY, THICKNESS, FPS = 1e5, 0.4, 1000.0, 1e-3, 30.0
 GRAVITY = (0.0, -9.81, 0.0)
+REFINE = 1e-3  # xfem.character_body's default tolerance
 
 
 def add_arguments(parser) -> None:
@@ -80,6 +81,14 @@ def add_arguments(parser) -> None:
         help="gravitational acceleration in the model's units (default 0 -9.81 0: metres, glTF's up +y)",
     )
     arguments.ftetwild_arguments(parser, "the body's tets")
+    parser.add_argument(
+        "--refine",
+        type=float,
+        default=REFINE,
+        metavar="T",
+        help="refine the tets until the embedded surface is within T diagonals of the directly skinned one at probe "
+        f"poses (xfem.character_body's tolerance; default {REFINE:g}; 0: the tets as fTetWild makes them)",
+    )
     parser.add_argument(
         "--core",
         type=float,
@@ -150,6 +159,7 @@ def check_settings(
     gravity,
     edge_length: float,
     epsilon: float,
+    refine: float,
     core: float,
     cuts,
     thickness: float,
@@ -180,6 +190,8 @@ def check_settings(
         raise ValueError(f"edge_length: expected a fraction of the diagonal in (0, 1), got {edge_length!r}")
     if not 0 < epsilon < 1:
         raise ValueError(f"epsilon: expected a fraction of the diagonal in (0, 1), got {epsilon!r}")
+    if not 0 <= refine < 1:
+        raise ValueError(f"refine: expected a fraction of the diagonal in [0, 1) (0: no refinement), got {refine!r}")
     if not 0 < core <= 1:
         raise ValueError(f"core: expected a fraction in (0, 1], got {core!r}")
     if not 0 < thickness < 1:
@@ -231,6 +243,7 @@ def _settings(args) -> dict:
         "gravity": tuple(args.gravity),
         "edge_length": args.edge_length,
         "epsilon": args.epsilon,
+        "refine": args.refine,
         "core": args.core,
         "cuts": args.cut,
         "thickness": args.thickness,
@@ -283,6 +296,7 @@ def physics_command(
     gravity=GRAVITY,
     edge_length: float = 0.05,
     epsilon: float = 1e-3,
+    refine: float = REFINE,
     core: float = 0.5,
     method: str = "cga",
     interpolation: str = "gltf",
@@ -296,10 +310,11 @@ def physics_command(
 ) -> dict:
     """Simulate ``character`` playing ``clip`` and write the run into ``out`` (module docstring); returns the
     summary. ``cuts``: (FRAME, PX, PY, PZ, NX, NY, NZ) rows; ``thickness``, ``edge_length``, ``epsilon``: fractions
-    of the bounding-box diagonal; ``tolerance``: None (the library's converged steps) or a fraction of the body's
-    size; ``paper_step``: one Newton iteration per step instead; ``newton``: None (the library's cap) or the most
-    Newton iterations of a step; ``reduced``: None (the full space) or the modes K of the reduced mode; the rest as
-    ``xfem.character_body`` and ``xfem.simulate_character``."""
+    of the bounding-box diagonal, and ``refine`` (``xfem.character_body``'s tolerance; 0: no refinement);
+    ``tolerance``: None (the library's converged steps) or a fraction of the body's size; ``paper_step``: one Newton
+    iteration per step instead; ``newton``: None (the library's cap) or the most Newton iterations of a step;
+    ``reduced``: None (the full space) or the modes K of the reduced mode; the rest as ``xfem.character_body`` and
+    ``xfem.simulate_character``."""
     import jax
     import numpy as np
 
@@ -319,6 +334,7 @@ def physics_command(
         gravity=gravity,
         edge_length=edge_length,
         epsilon=epsilon,
+        refine=refine,
         core=core,
         cuts=cuts,
         thickness=thickness,
@@ -371,9 +387,19 @@ def physics_command(
             "non-positive bone scale); give --method lbs or dqs"
         ) from None
 
-    with status("physics", f"tetrahedralizing (fTetWild) and rigging the body of {len(model.mesh.V)} vertices"):
+    with status(
+        "physics",
+        f"tetrahedralizing (fTetWild), rigging{' and refining' if refine else ''} the body of "
+        f"{len(model.mesh.V)} vertices",
+    ):
         body = xfem.character_body(
-            model, density=density, gravity=gravity, edge_length=edge_length, epsilon=epsilon, core=core
+            model,
+            density=density,
+            gravity=gravity,
+            edge_length=edge_length,
+            epsilon=epsilon,
+            core=core,
+            tolerance=refine or None,
         )
     X = np.asarray(body.tets.X)
     plane_cuts = []
@@ -439,6 +465,7 @@ def physics_command(
         **body.quality._asdict(),
         "seconds": body.seconds,
         "edge_length": edge_length,
+        "refine": refine,
         "epsilon": epsilon,
         "surface_vertices": int(len(body.surface)),
         "surface_faces": int(len(body.faces)),

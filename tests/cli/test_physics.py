@@ -46,7 +46,11 @@ def test_a_clip_plays_and_writes_frames_a_page_and_a_summary(tmp_path, capsys):
     assert frames.shape == (7, model.mesh.num_vertices, 3) and frames.dtype == np.float64
     np.testing.assert_array_equal(faces, np.asarray(model.mesh.F))
     assert summary["dofs"] == 3 * summary["nodes"] and 0 < summary["driven_nodes"] < summary["nodes"]
-    assert summary["tets"] > 0 and summary["tetrahedralization"]["seconds"] > 0
+    assert (
+        summary["tets"] > 0
+        and summary["tetrahedralization"]["seconds"] > 0
+        and summary["tetrahedralization"]["refine"] == 1e-3
+    )
     assert summary["pieces_per_frame"] == [summary["pieces"]] * 7 and len(summary["segment_seconds"]) == 1
     assert summary["frames_s"] == pytest.approx(summary["segment_seconds"][0])
     assert 0 < summary["compile_s"] < summary["frames_s"] and summary["step_avg_s"] > 0
@@ -67,10 +71,15 @@ def test_a_clip_plays_and_writes_frames_a_page_and_a_summary(tmp_path, capsys):
 @pytest.mark.slow  # fTetWild, a cut and two compiles: 40-90 s on 2 busy cores
 def test_a_cut_makes_two_pieces_written_per_segment(tmp_path):
     out = tmp_path / "tail"
-    assert main(["physics", FOX, *FOX_RUN, "--seconds", "0.3", "--cut", "3", *TAIL, "--out", str(out)]) == 0
+    args = [*FOX_RUN, "--seconds", "0.3", "--refine", "0", "--cut", "3", *TAIL]  # the tets as fTetWild makes them
+    assert main(["physics", FOX, *args, "--out", str(out)]) == 0
     assert sorted(p.name for p in out.iterdir()) == ["frames.npz", "summary.json", "view.html"]
     summary = _summary(out)
-    assert summary["frames_file"] == "frames.npz" and summary["steps"] == 9
+    assert (
+        summary["frames_file"] == "frames.npz"
+        and summary["steps"] == 9
+        and summary["tetrahedralization"]["refine"] == 0
+    )
     assert summary["pieces_per_frame"] == [1] * 3 + [2] * 7 and summary["pieces"] == 2
     assert summary["cuts"][0]["frame"] == 3 and summary["cuts"][0]["normal"] == [0.0, 0.0, -1.0]
     before, after = summary["segments"]
@@ -137,6 +146,7 @@ def _tail_piece(arrays) -> int:
         (["--cut", "3", "0", "0", "0", "0", "0", "0"], "cut 1: the normal NX NY NZ is zero"),
         (["--thickness", "0"], "thickness"),
         (["--newton", "0"], "newton: expected an int >= 1"),
+        (["--refine", "1"], "refine: expected a fraction of the diagonal in [0, 1)"),
         (["--reduced", "0"], "reduced: expected a number of modes K >= 1"),
         (["--reduced", "8", "--cut", "3", *TAIL], "reduced: the reduced mode does not cut"),
         (["--reduced", "8", "--newton", "5"], "reduced: the reduced mode makes one linear solve per frame"),
