@@ -42,9 +42,7 @@ HELP = (
     "play a rigged character's clip with simulated flesh that lags and jiggles about the skinned rig, cut it by "
     "planes mid-clip (a severed limb falls), and write its surface per frame, a viewer page and timings"
 )
-EXAMPLE = (
-    "jaxcga physics tests/data/characters/Fox.glb --seconds 1 --edge-length 0.08 --cut 10 0 0.6 0.5 0 0 1 --out out/fox"
-)
+EXAMPLE = "jaxcga physics tests/data/CesiumMan.glb --seconds 0.6 --cut 8 0.2 1 0 1 0 0 --out out/physics_cut"
 RUN_FILES = re.compile(r"frames\.npy|frames\.npz|faces\.npy|view\.html|summary\.json")
 RUN_DESCRIBED = "frames.npy, frames.npz, faces.npy, view.html and summary.json"
 YOUNG, POISSON, DENSITY, THICKNESS, FPS = 1e5, 0.4, 1000.0, 1e-3, 30.0
