@@ -128,8 +128,8 @@ def add_arguments(parser) -> None:
         "--newton",
         type=int,
         default=None,
-        help="the most Newton iterations of a step (default: the library's, 50); a step that stops there is counted "
-        "as not converged in summary.json",
+        help="the most Newton iterations of a step (default: simulate_character's, 100); a step that stops there is "
+        "counted as not converged in summary.json",
     )
     parser.add_argument(
         "--reduced",
