@@ -508,6 +508,8 @@ def physics_command(
                 "dofs": 3 * int(np.asarray(seg.driven).shape[0]),
                 "driven_dofs": 3 * int(np.asarray(seg.driven).sum()),
                 "pieces": int(seg.pieces),
+                # the pieces with no DOF on the rig: released, they fall
+                "released": [int(k) for k in range(seg.pieces) if not np.asarray(seg.driven)[seg.dof_piece == k].any()],
                 "surface_vertices": int(S.shape[1]),
                 "surface_faces": int(len(seg.faces)),
             }
