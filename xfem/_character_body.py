@@ -40,6 +40,7 @@ among the bones with a core; ``simulate_character`` releases the driven nodes of
 from __future__ import annotations
 
 import time
+import warnings
 from typing import NamedTuple
 
 import igl
@@ -68,11 +69,13 @@ _MIN_VERTICES = 4  # a bone with fewer surface vertices (by largest weight) has 
 _LENGTH = 0.1
 _SMOOTHNESS = 1e-2
 _PROBES = 32
+_PER_CLIP = 8
 _PROBE_ANGLE = np.pi / 4
 _SEED = 0
 _ROUNDS = 8
-_FINEST = 0.125
+_FINEST = 1 / 64
 _MARGIN = 0.8
+_GROWTH = 8  # the refinement stops at this many times fTetWild's tets
 _SHRINK = 0.7
 LIMIT = 1e-3  # the surface limit the tets are refined to, a fraction of the diagonal
 
@@ -173,17 +176,14 @@ def _rest_joint_matrices(model: deform.RiggedModel) -> tuple[np.ndarray, np.ndar
     return bones, bones @ np.asarray(model.mesh.inverse_bind, np.float64)
 
 
-def _similitude_inverse(matrices: np.ndarray) -> np.ndarray:
-    """(k, 4, 4) the inverses of the nearest similitudes of affine matrices (k, 4, 4): files store rotations and
+def _nearest_similitudes(matrices: np.ndarray) -> np.ndarray:
+    """(k, 4, 4) the nearest similitudes of affine matrices (k, 4, 4), translations kept: files store rotations and
     scales to float32, and the multivector methods take only exact similitudes."""
     U, S, Vt = np.linalg.svd(matrices[:, :3, :3])
-    R = U @ Vt
-    scale = np.cbrt(np.prod(S, axis=1))
-    inverse = np.zeros_like(matrices)
-    inverse[:, :3, :3] = np.swapaxes(R, 1, 2) / scale[:, None, None]
-    inverse[:, :3, 3] = -np.einsum("kab,kb->ka", inverse[:, :3, :3], matrices[:, :3, 3])
-    inverse[:, 3, 3] = 1.0
-    return inverse
+    nearest = np.array(matrices)
+    nearest[:, :3, :3] = np.cbrt(np.prod(S, axis=1))[:, None, None] * (U @ Vt)
+    nearest[:, 3] = [0.0, 0.0, 0.0, 1.0]
+    return nearest
 
 
 def fit_weights(
@@ -229,13 +229,13 @@ def fit_weights(
     return sparse_linalg.splu(system).solve(np.asarray(M.T @ Y))
 
 
-def _probe_motions(model: deform.RiggedModel, bones: np.ndarray) -> np.ndarray:
-    """(k, j, 4, 4) rest-to-pose joint motions ``E_j = P_j R_j^-1`` (posed over rest global matrices) of the poses
-    the refinement checks: ``_PROBES`` times spread over the model's clips, or, for a model without clips, as many
-    random poses, each bone turned about a random axis by ``_PROBE_ANGLE`` from its rest."""
+def _probe_poses(model: deform.RiggedModel) -> np.ndarray:
+    """(k, j, 4, 4) the posed global matrices of the skin joints' bones in the poses the refinement checks: at
+    least ``_PER_CLIP`` times spread over each of the model's clips (``_PROBES`` in all), or, for a model without
+    clips, ``_PROBES`` random poses, each bone turned about a random axis by ``_PROBE_ANGLE`` from its rest."""
     skeleton = model.skeleton
     if model.clips:
-        each = max(2, -(-_PROBES // len(model.clips)))
+        each = max(_PER_CLIP, -(-_PROBES // len(model.clips)))
         posed = np.stack(
             [
                 np.asarray(deform.sample_pose(model, t, "lbs", clip=c), np.float64)
@@ -255,25 +255,26 @@ def _probe_motions(model: deform.RiggedModel, bones: np.ndarray) -> np.ndarray:
         posed = np.repeat(local[None], _PROBES, axis=0)
         posed[..., :3, :3] = local[..., :3, :3] @ turn
     world = np.asarray(deform.forward_kinematics_matrices(skeleton.parents, posed), np.float64)
-    return world[:, np.asarray(model.mesh.joints)] @ np.linalg.inv(bones)[None]
+    return world[:, np.asarray(model.mesh.joints)]
 
 
 def _probe_errors(
-    motions: np.ndarray, X: np.ndarray, J: np.ndarray, W: np.ndarray, embedding: SurfaceEmbedding, targets: np.ndarray
+    node_motions: np.ndarray, Y: np.ndarray, J: np.ndarray, W: np.ndarray, embedding: SurfaceEmbedding, targets: list
 ) -> np.ndarray:
-    """(s,) the largest distance over the probe poses between the embedded surface (its nodes skinned by linear
-    blending of (J, W)) and the surface skinned by its own weights (``targets``: (k, s, 3))."""
+    """(s,) the largest distance over the probe poses between the embedded surface (its nodes ``Y`` skinned by
+    linear blending of (J, W) with the joint matrices ``node_motions`` (k, j, 4, 4)) and ``targets`` (k of (s, 3):
+    the surface skinned by its own weights)."""
     worst = np.zeros(len(embedding.element))
-    for motion, target in zip(motions, targets):
-        blend = np.einsum("nk,nkab->nab", W, motion[J])  # (n, 4, 4)
-        nodes = np.einsum("nab,nb->na", blend[:, :3, :3], X) + blend[:, :3, 3]
+    for motion, target in zip(node_motions, targets):
+        blend = np.einsum("nk,nkab->nab", W, motion[J][..., :3, :])  # (n, 3, 4)
+        nodes = np.einsum("nab,nb->na", blend[..., :3], Y) + blend[..., 3]
         embedded = np.einsum("sk,skd->sd", embedding.weights, nodes[embedding.nodes])
         worst = np.maximum(worst, np.linalg.norm(embedded - target, axis=1))
     return worst
 
 
 def bisect_tets(
-    X: np.ndarray, T: np.ndarray, marked: np.ndarray, shrink: float, shortest: float
+    X: np.ndarray, T: np.ndarray, marked: np.ndarray, shrink: float, shortest: float, most: int | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
     """Refine tets by longest-edge bisection (Rivara's LEPP): each marked tet is split until its pieces' longest
     edges are at most ``shrink`` times its own (and no shorter than ``shortest``). Bisecting an edge splits every tet
@@ -285,6 +286,7 @@ def bisect_tets(
         marked: (m,) int the tets to refine.
         shrink: the factor in (0, 1) of the longest edge each marked tet is refined to.
         shortest: the edge length below which a tet is not refined.
+        most: stop once there are this many tets (None: no limit).
     Returns:
         (X', T'): the nodes (X first, then the edges' midpoints) and the tets.
     """
@@ -309,7 +311,8 @@ def bisect_tets(
         if length > shortest:
             target[t] = max(shrink * length, shortest) ** 2
     queue = list(target)
-    while queue:
+    count = len(tets)
+    while queue and (most is None or count < most):
         t = queue.pop()
         if not alive[t] or t not in target:
             continue
@@ -340,6 +343,7 @@ def bisect_tets(
                     target[child] = target[u]
                     queue.append(child)
             target.pop(u, None)
+            count += 1
         del edges[(a, b)]
         if alive[t]:
             queue.append(t)
@@ -389,6 +393,68 @@ def _depths(parents: tuple[int, ...]) -> np.ndarray:
     for bone, parent in enumerate(parents):
         depth[bone] = 0 if parent < 0 else depth[parent] + 1
     return depth
+
+
+def _build(model, dense, V, F, G, diagonal, edge_length, epsilon, threads, tets, influences, tolerance):
+    """The tets of the rest configuration (fTetWild's or ``tets``), refined, with their weights (module docstring):
+    (Y (n, 3) nodes, T (t, 4) tets, J and W (n, influences) weights, the surface's embedding).
+
+    Args:
+        model: the model (weights normalized); dense: (s, j) its weights; V: (s, 3) its mesh-space vertices; F: its
+            triangles; G: (j, 4, 4) its joints' rest matrices; diagonal: the rest surface's; the others as
+            ``character_body``'s.
+    """
+    Vh = np.concatenate([V, np.ones((len(V), 1))], axis=1)
+    images = np.einsum("jab,sb->sja", G[:, :3], Vh)  # (s, j, 3) each joint's rest image of each vertex
+    placed = np.einsum("sj,sja->sa", dense, images)
+    moments = dense[..., None] * (images - placed[:, None])
+    if tets is None:
+        made = tetrahedralize_surface(placed, F, edge_length=edge_length, epsilon=epsilon, threads=threads)
+        mesh = made.mesh
+    else:
+        mesh = tets
+    Y, T = np.asarray(mesh.X, np.float64), np.asarray(mesh.T, np.int64)
+    inverse_bind = np.asarray(model.mesh.inverse_bind, np.float64)
+    node_bind = inverse_bind @ np.linalg.inv(G)
+    poses = _probe_poses(model)
+    node_motions = poses @ node_bind[None]
+    k = len(G)
+    targets = [
+        np.einsum("sab,sb->sa", (dense @ (pose @ inverse_bind)[:, :3].reshape(k, 12)).reshape(-1, 3, 4), Vh)
+        for pose in poses
+    ]
+    lengths = np.linalg.norm(Y[T[:, [0, 0, 0, 1, 1, 2]]] - Y[T[:, [1, 2, 3, 2, 3, 3]]], axis=2).max(axis=1)
+    shortest = _FINEST * float(np.median(lengths))
+    budget = _GROWTH * len(T)
+    for round_ in range(_ROUNDS + 1):
+        embedding = embed_points(mesh, placed)
+        if round_ == 0 and tets is not None:
+            far = embedding.distance > 3 * float(np.median(lengths))
+            if far.mean() > 0.1:
+                raise ValueError(
+                    f"tets: {far.mean():.0%} of the surface's vertices lie more than 3 edge lengths from the tets; "
+                    "expected tets of the surface in the rest configuration (the skeleton's rest pose, world "
+                    "coordinates, as CharacterBody.tets)"
+                )
+        fitted = fit_weights(Y, T, embedding, placed, dense, moments, _LENGTH * diagonal, _SMOOTHNESS)
+        J, W = _trim(np.clip(fitted, 0.0, 1.0), influences)
+        if tolerance is None:
+            break
+        error = _probe_errors(node_motions, Y, J, W, embedding, targets)
+        bad = error > _MARGIN * tolerance * diagonal
+        if not bad.any() or round_ == _ROUNDS or len(T) >= budget:
+            break
+        Y, T = bisect_tets(Y, T, embedding.element[bad], _SHRINK, shortest, budget)
+        mesh = tet_mesh(Y, T)
+    if tolerance is not None and error.max() > tolerance * diagonal:
+        warnings.warn(
+            f"tolerance: the embedded surface misses the directly skinned one by up to {error.max() / diagonal:.2g} "
+            f"of the diagonal at the probe poses ({int((error > tolerance * diagonal).sum())} of {len(error)} "
+            f"vertices above {tolerance:g}; {len(T)} tets, at most {_GROWTH} times fTetWild's): surfaces of "
+            "different bones meet or overlap there (rigid parts, seams), and the tets that hold both blend them",
+            stacklevel=3,
+        )
+    return Y, T, J, W, embedding
 
 
 def character_body(
@@ -451,53 +517,24 @@ def character_body(
     model = deform.RiggedModel(mesh, model.skeleton, model.clips, model.name)
     F = np.asarray(mesh.F, np.int64)
     surface = np.asarray(deform.rest_pose(model, "lbs"), np.float64)
-    start = time.perf_counter()
-    if tets is None:
-        made = tetrahedralize_surface(surface, F, edge_length=edge_length, epsilon=epsilon, threads=threads)
-        rest = made.mesh
-    else:
-        rest = tets
-    X, T = np.asarray(rest.X, np.float64), np.asarray(rest.T, np.int64)
     diagonal = bounding_diagonal(surface)
-    bones, G = _rest_joint_matrices(model)
+    start = time.perf_counter()
+    _, G = _rest_joint_matrices(model)
     dense = _dense_weights(mesh)
-    Vh = np.concatenate([np.asarray(mesh.V, np.float64), np.ones((len(surface), 1))], axis=1)
-    images = np.einsum("jab,sb->sja", G[:, :3], Vh)  # (s, j, 3) each joint's rest image of each vertex
-    moments = dense[..., None] * (images - surface[:, None])
-    motions = _probe_motions(model, bones)
-    targets = np.einsum("sj,kjab,sjb->ksa", dense, motions[..., :3, :3], images) + np.einsum(
-        "sj,kja->ksa", dense, motions[..., :3, 3]
+    V = np.asarray(mesh.V, np.float64)
+    Y, T, J, W, embedding = _build(
+        model, dense, V, F, G, diagonal, edge_length, epsilon, threads, tets, int(influences), tolerance
     )
-    lengths = np.linalg.norm(X[T[:, [0, 0, 0, 1, 1, 2]]] - X[T[:, [1, 2, 3, 2, 3, 3]]], axis=2).max(axis=1)
-    shortest = _FINEST * float(np.median(lengths))
-    for round_ in range(_ROUNDS + 1):
-        embedding = embed_points(rest, surface)
-        if round_ == 0 and tets is not None:
-            far = embedding.distance > 3 * float(np.median(lengths))
-            if far.mean() > 0.1:
-                raise ValueError(
-                    f"tets: {far.mean():.0%} of the surface's vertices lie more than 3 edge lengths from the tets; "
-                    "expected tets of the surface in the rest configuration (the skeleton's rest pose, world "
-                    "coordinates, as CharacterBody.tets)"
-                )
-        fitted = fit_weights(X, T, embedding, surface, dense, moments, _LENGTH * diagonal, _SMOOTHNESS)
-        J, W = _trim(np.clip(fitted, 0.0, 1.0), int(influences))
-        if tolerance is None or round_ == _ROUNDS:
-            break
-        error = _probe_errors(motions, X, J, W, embedding, targets)
-        bad = error > _MARGIN * tolerance * diagonal
-        if not bad.any():
-            break
-        X, T = bisect_tets(X, T, embedding.element[bad], _SHRINK, shortest)
-        rest = tet_mesh(X, T)
+    X = Y
+    rest = tet_mesh(X, T)
     seconds = time.perf_counter() - start
-    # the nodes' mesh space is the rest configuration: each joint's inverse bind is its bone's inverse rest matrix
+    # the nodes' mesh space is the rest configuration: joint j's inverse bind is its bone's inverse rest matrix
     node_mesh = deform.SkinnedMesh(
-        jnp.asarray(X),
+        jnp.asarray(Y),
         jnp.zeros((0, 3), jnp.int32),
         jnp.asarray(J),
         jnp.asarray(W),
-        jnp.asarray(_similitude_inverse(bones)),
+        jnp.asarray(_nearest_similitudes(np.asarray(mesh.inverse_bind, np.float64) @ np.linalg.inv(G))),
         mesh.joints,
     )
     node_model = deform.RiggedModel(node_mesh, model.skeleton, model.clips, model.name)
@@ -540,7 +577,7 @@ def character_body(
         model=model,
         node_model=node_model,
         tets=rest,
-        nodes=X,
+        nodes=Y,
         driven=driven_nodes.astype(np.int64),
         anchors=np.sort(anchors).astype(np.int64),
         surface=surface,
