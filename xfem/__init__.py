@@ -42,9 +42,10 @@ from xfem._backward_euler import (
     mechanical_energy,
 )
 from xfem._capacity import wait_for_compilations
-from xfem._character_body import CharacterBody, character_body
+from xfem._character import CharacterMotion, CharacterSegment, simulate_character
+from xfem._character_body import CharacterBody, character_body, transfer_weights
 from xfem._cut_system import PlaneCuts, cut_system, plane_cuts
-from xfem._cuts import cut_solid, plane_cut_solid, sweep_between, swept_surface, thicken
+from xfem._cuts import blade_solid, cut_solid, plane_cut_solid, sweep_between, swept_surface, thicken
 from xfem._integration import Moments, element_piece_integrals, moments_of_pieces, polyhedron_moments
 from xfem._linear_tet import body_force, consistent_mass, lumped_mass, shape_functions, shape_gradients
 from xfem._material import Material
@@ -74,6 +75,7 @@ from xfem._surface_tets import (
     TetQuality,
     cut_surface,
     embed_points,
+    surface_map,
     tet_quality,
     tetrahedralize_surface,
 )
@@ -94,7 +96,12 @@ from xfem._xfem import XFEMModel, xfem_model
 
 __all__ = [
     "CharacterBody",
+    "CharacterMotion",
+    "CharacterSegment",
     "character_body",
+    "simulate_character",
+    "transfer_weights",
+    "surface_map",
     "SCENES",
     "SIZES",
     "FrameRecord",
@@ -107,6 +114,7 @@ __all__ = [
     "PlaneCuts",
     "cut_system",
     "plane_cuts",
+    "blade_solid",
     "cut_solid",
     "plane_cut_solid",
     "sweep_between",

@@ -294,6 +294,8 @@ def fem_system(
     if force.shape != (n, 3) or not np.all(np.isfinite(force)):
         raise ValueError(f"force: expected finite forces of shape ({n}, 3), got {force.shape}")
     fixed = _host_fixed(fixed, n)
+    if len(fixed) == n:
+        raise ValueError(f"fixed: all {n} DOF nodes are fixed, so there is nothing to solve for")
     nnz_capacity = None
     if capacity is not None:
         T, grads, volumes, mass, force, fixed = _pad(T, grads, volumes, mass, force, fixed, capacity)
@@ -418,6 +420,14 @@ class _Theta(eqx.Module):
     grads: Float[Array, "m 4 3"]
     volumes: Float[Array, " m"]
     mass_values: Float[Array, " k"]
+    # Rayleigh damping (``Material.damping``): beta, and the elastic forces grad U(x_t) of its energy; None: undamped
+    beta: Float[Array, ""] | None = None
+    elastic_t: Float[Array, "n 3"] | None = None
+
+
+def _elastic_weight(theta: _Theta, h):
+    """The factor of U(x) in E: h^2, and beta h with damping."""
+    return h**2 if theta.beta is None else h**2 + theta.beta * h
 
 
 def _mass_times(system: FEMSystem, mass_values, d):
@@ -497,7 +507,13 @@ def _energy(system: FEMSystem, x, theta: _Theta, h):
     work = jnp.sum(theta.force * x)
     # the elastic energy's rounding error is ~eps (mu + lam) volume whatever the strain: part of the scale
     stiffness = jnp.sum(theta.volumes * (theta.mu + theta.lam))
-    return kinetic + h**2 * (elastic - work), kinetic + h**2 * (jnp.abs(elastic) + jnp.abs(work) + stiffness)
+    weight = _elastic_weight(theta, h)
+    energy = kinetic + weight * elastic - h**2 * work
+    scale = kinetic + weight * (jnp.abs(elastic) + stiffness) + h**2 * jnp.abs(work)
+    if theta.beta is not None:  # the damping energy's linear part, - beta h grad U(x_t) . x
+        damping_work = theta.beta * h * jnp.sum(theta.elastic_t * x)
+        energy, scale = energy - damping_work, scale + jnp.abs(damping_work)
+    return energy, scale
 
 
 def _slicer(start, size: int):
@@ -519,12 +535,29 @@ def _gradient_and_matrix(system: FEMSystem, x, theta: _Theta, h, project: bool):
         g, H = _element_gradient_hessian(x[T], take(theta.grads), volumes, take(mu_s), take(lam_s), project)
         forces = forces.at[T.reshape(-1)].add(g.reshape(-1, 3))
         slots = element_slots(take(base), take(stride))
-        return forces, data.at[slots.reshape(-1)].add(h**2 * H.reshape(-1), mode="drop")
+        return forces, data.at[slots.reshape(-1)].add(weight * H.reshape(-1), mode="drop")
 
+    weight = _elastic_weight(theta, h)
     forces, data = _in_chunks(m, _ELEMENT_CHUNK, add_chunk, (jnp.zeros((system.n, 3), x.dtype), system.mass_data))
     d = x - theta.x - h * theta.v
-    gradient = _mass_times(system, theta.mass_values, d) + h**2 * (forces - theta.force)
+    gradient = _mass_times(system, theta.mass_values, d) + weight * forces - h**2 * theta.force
+    if theta.beta is not None:
+        gradient = gradient - theta.beta * h * theta.elastic_t
     return restrict(system.pattern, gradient), data
+
+
+def _elastic_forces(system: FEMSystem, x, grads, volumes, mu, lam):
+    """grad U(x) (n, 3), the elastic forces' negative, in chunks of elements (``_in_chunks``)."""
+    m = system.T.shape[0]
+    mu_s, lam_s = _modified_lame(mu, lam, x.dtype, (m,))
+
+    def add_chunk(start, size, own, forces):
+        take = _slicer(start, size)
+        T, weights = take(system.T), jnp.where(own, take(volumes), 0)
+        g = jax.grad(lambda y: jnp.sum(_element_energy(y, take(grads), weights, take(mu_s), take(lam_s))))(x[T])
+        return forces.at[T.reshape(-1)].add(g.reshape(-1, 3))
+
+    return _in_chunks(m, _ELEMENT_CHUNK, add_chunk, jnp.zeros((system.n, 3), x.dtype))
 
 
 def _line_search(system: FEMSystem, x, step, slope, theta: _Theta, h):
@@ -636,9 +669,26 @@ def _minimize_bwd(x, cotangents, perturbed, theta, system, h, iterations, tolera
     return jax.tree.map(lambda g, p: g if p else None, grad, perturbed)
 
 
-def _advance(system, state, h, mu, lam, fixed_positions, force, iterations, tolerance, line_search):
-    """The step from ``state`` with Lamé parameters, the fixed nodes' new positions and the forces (n, 3)."""
-    theta = _Theta(state.x, state.v, mu, lam, fixed_positions, force, system.grads, system.volumes, system.mass_values)
+def _advance(system, state, h, mu, lam, fixed_positions, force, iterations, tolerance, line_search, beta=None):
+    """The step from ``state`` with Lamé parameters, the fixed nodes' new positions, the forces (n, 3) and the
+    Rayleigh damping beta (None: undamped)."""
+    elastic_t = None
+    if beta is not None:  # grad U(x_t), of the step's own rest shape: a JAX function of theta's inputs
+        beta = jnp.asarray(beta, state.x.dtype)
+        elastic_t = _elastic_forces(system, state.x, system.grads, system.volumes, mu, lam)
+    theta = _Theta(
+        state.x,
+        state.v,
+        mu,
+        lam,
+        fixed_positions,
+        force,
+        system.grads,
+        system.volumes,
+        system.mass_values,
+        beta,
+        elastic_t,
+    )
     # theta carries every differentiable input; the rest of the system is structure
     x, stats = _minimize(theta, jax.lax.stop_gradient(system), h, iterations, tolerance, line_search)
     return State(x, (x - state.x) / h, jax.lax.stop_gradient(stats))
@@ -649,7 +699,9 @@ def _step(system, state, h, material, fixed_positions, iterations, tolerance, li
     if fixed_positions is None:  # they stay where they are
         fixed_positions = state.x[system.fixed]
     mu, lam = material.lame()
-    return _advance(system, state, h, mu, lam, fixed_positions, system.force, iterations, tolerance, line_search)
+    return _advance(
+        system, state, h, mu, lam, fixed_positions, system.force, iterations, tolerance, line_search, material.damping
+    )
 
 
 def backward_euler_step(

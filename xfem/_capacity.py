@@ -150,7 +150,7 @@ def compiled(
     (``background=True``; returns None). ``padded``: the system it is for (a level above ``padded.level`` pads
     ``padded.arrays`` anew; nothing is compiled in the background for a level the system does not fit)."""
     capacity = capacities.capacity(level)
-    key = (capacity, newton_iterations, np.shape(material.young), np.shape(material.poisson))
+    key = (capacity, newton_iterations, np.shape(material.young), np.shape(material.poisson), material.damping is None)
     system = padded.system if level == padded.level else None
     with _COMPILED_LOCK:  # held briefly: a compilation in one thread must not stall another's lookups
         entry = _COMPILED.get(key)

@@ -29,7 +29,7 @@ anew at every call).
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 import equinox as eqx
 import jax
@@ -368,7 +368,7 @@ def _plane(point, normal, epsilon, index: str = ""):
 def _copy(model: XFEMModel) -> XFEMModel:
     """A model built from the same mesh, density, gravity and fixed nodes, cut by the model's cuts again
     (``XFEMModel.replay``), in the model's state."""
-    copy = xfem_model(model.mesh, model.rho, model.gravity, model.fixed_nodes)
+    copy = xfem_model(model.mesh, model.rho, model.gravity, model.fixed_nodes, anchors=model.anchors)
     copy.replay(model.cuts)
     copy.state = State(np.asarray(model.state.x), np.asarray(model.state.v))
     return copy
@@ -412,6 +412,11 @@ def plane_cuts(
         that misses the body, or pieces the replay cannot follow (``model``: a non-convex piece split into
         several).
     """
+    return _plane_cuts(model, cuts)
+
+
+def _plane_cuts(model: XFEMModel, cuts, after_cut: Callable[[int, XFEMModel], None] | None = None) -> PlaneCuts:
+    """``plane_cuts``, calling ``after_cut(k, copy)`` once cut k is made (host queries of each stage's pieces)."""
     if not isinstance(model, XFEMModel):
         raise ValueError(f"model: expected an XFEMModel, got {type(model).__name__}")
     cuts = list(cuts)
@@ -456,6 +461,8 @@ def plane_cuts(
                 )
         replays.append(replay)
         systems.append(system)
+        if after_cut is not None:
+            after_cut(k, copy)
     return PlaneCuts(
         copy,
         reports,

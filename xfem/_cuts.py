@@ -275,3 +275,37 @@ def plane_cut_solid(
     edge_a = np.stack([point - half * u - half * w, point + half * u - half * w])
     V, F = sweep_between(jnp.asarray(edge_a), jnp.asarray(edge_a + extent * w))
     return cut_solid(V, F, epsilon)
+
+
+def blade_solid(
+    handle: Float[npt.ArrayLike, "k 3"],
+    tip: Float[npt.ArrayLike, "k 3"],
+    epsilon: float,
+    blade_points: int = 8,
+) -> manifold3d.Manifold:
+    """The cut solid of a blade moved along a path (a scalpel's samples, as ``cutting.Scalpel`` holds them): the
+    ruled surface swept by the segment from ``handle[i]`` to ``tip[i]`` between consecutive samples (each blade a
+    polyline of ``blade_points`` points, the samples' rows joined into a grid), thickened by epsilon
+    (``cut_solid``). It cuts the body only where the blade passed, so a short path makes a slit, not a severed part.
+
+    Args:
+        handle: (k, 3) the handle end of the blade at each of k >= 2 samples.
+        tip: (k, 3) its other end.
+        epsilon: the cut's thickness > 0.
+        blade_points: points along the blade (>= 2).
+    Returns:
+        The ``manifold3d.Manifold``.
+    """
+    handle = np.asarray(check_finite("handle", check_vectors("handle", np.asarray(handle, np.float64))))
+    tip = np.asarray(check_finite("tip", check_vectors("tip", np.asarray(tip, np.float64))))
+    if handle.ndim != 2 or len(handle) < 2:
+        raise ValueError(f"handle: expected (k, 3) samples with k >= 2, got shape {handle.shape}")
+    if tip.shape != handle.shape:
+        raise ValueError(f"tip: expected the shape of handle {handle.shape}, got {tip.shape}")
+    if isinstance(blade_points, bool) or not isinstance(blade_points, int) or blade_points < 2:
+        raise ValueError(f"blade_points: expected an int >= 2, got {blade_points!r}")
+    if np.any(np.linalg.norm(tip - handle, axis=1) <= 0):
+        raise ValueError("handle, tip: a sample's blade has zero length")
+    s = np.linspace(0.0, 1.0, blade_points)[None, :, None]
+    rows = (1 - s) * handle[:, None] + s * tip[:, None]  # (k, p, 3): sample by sample, handle to tip
+    return cut_solid(jnp.asarray(rows.reshape(-1, 3)), _grid_faces(len(handle), blade_points), epsilon)

@@ -112,6 +112,7 @@ def _rollout(system, state, h, material, forces, targets, steps, iterations, tol
             iterations,
             tolerance,
             line_search,
+            material.damping,
         )
         return s, s
 

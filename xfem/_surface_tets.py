@@ -269,6 +269,30 @@ def cut_surface(
         connected piece of the body (``XFEMModel.components``) of each triangle, and vertex (k,) int64 the
         vertex of V each row of V' copies.
     """
+    weights, dofs, faces, piece, vertex = surface_map(model, embedding, V, F)
+    deformed = np.einsum("ka,kad->kd", weights, np.asarray(model.state.x)[dofs])
+    return deformed, faces, piece, vertex
+
+
+def surface_map(
+    model: XFEMModel, embedding: SurfaceEmbedding, V: Float[npt.ArrayLike, "s 3"], F: Int[npt.ArrayLike, "f 3"]
+) -> tuple[
+    Float[np.ndarray, "k 4"],
+    Int[np.ndarray, "k 4"],
+    Int[np.ndarray, "f 3"],
+    Int[np.ndarray, " f"],
+    Int[np.ndarray, " k"],
+]:
+    """The linear map from a cut XFEM body's DOFs to its embedded surface in pieces (``cut_surface``'s rule): the
+    surface's vertices are ``sum_a weights[:, a] x[dofs[:, a]]`` for any DOF positions x of the model's current
+    cuts (e.g. every frame of a trajectory).
+
+    Args:
+        model, embedding, V, F: as ``cut_surface``.
+    Returns:
+        weights (k, 4) float64 and dofs (k, 4) int64 of the k vertices of V', F' (f, 3) int64 triangles into them,
+        piece (f,) int64 the connected piece of each triangle, and vertex (k,) int64 the vertex of V each copies.
+    """
     from xfem._integration import linear_shape_coefficients
     from xfem._xfem import XFEMModel
 
@@ -303,8 +327,12 @@ def cut_surface(
     used = np.unique(index)  # vertices on no triangle are dropped
     rank = np.full(len(all_weights), -1, np.int64)
     rank[used] = np.arange(len(used))
-    x = np.asarray(model.state.x)
-    deformed = np.einsum("ka,kad->kd", all_weights[used], x[all_dofs[used]])
     vertex = np.concatenate([np.arange(len(V)), corners[other]])[used]
     _, label = model.components()
-    return deformed, rank[index].reshape(-1, 3), label[c_dofs[:, 0]].astype(np.int64), vertex
+    return (
+        all_weights[used],
+        all_dofs[used],
+        rank[index].reshape(-1, 3),
+        label[c_dofs[:, 0]].astype(np.int64),
+        vertex,
+    )

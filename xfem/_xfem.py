@@ -161,7 +161,11 @@ class XFEMModel:
         T: (m, 4) int64 tets.
         rho: (m,) float64 density per tet.
         gravity: (3,) float64 gravitational acceleration.
-        fixed_nodes: (nb,) int64 mesh nodes whose every DOF is fixed.
+        fixed_nodes: (nb,) int64 mesh nodes whose every DOF is fixed (see ``anchors``).
+        anchors: None, or (na,) int64 fixed nodes that hold the others: after cuts, a fixed node's DOF stays fixed
+            only while its connected piece (``components``) holds a DOF of an anchor; the pieces cut away from
+            every anchor move freely (a character's limb severed from the skeleton's root falls). Set by
+            ``xfem_model``.
         dof_node: (n_dofs,) int64 the mesh node of each DOF.
         dof_sid: (n_dofs,) int64 the nodal subdomain of each DOF.
         state: the ``State`` over the DOFs; ``step`` and the cuts keep it in host (numpy) arrays, which the
@@ -181,6 +185,7 @@ class XFEMModel:
         self.sub: Subdomains = subdomains(mesh)
         self.X, self.T = self.sub.X, self.sub.T
         self.rho, self.gravity, self.fixed_nodes = rho, gravity, fixed
+        self.anchors: np.ndarray | None = None
         grads, volumes = shape_gradients(mesh.X, mesh.T)
         self._grads = np.asarray(grads)
         # plain FEM closed forms of the whole tets (eq. 7, 8)
@@ -456,8 +461,13 @@ class XFEMModel:
             # three bincounts: they sum in order as np.add.at does, in a fifth of its time
             loads = (weights[:, :, None] * self.gravity).reshape(-1, 3)
             force = np.stack([np.bincount(dofs.ravel(), loads[:, k], minlength=n) for k in range(3)], axis=1)
-            fixed = np.flatnonzero(np.isin(self.dof_node, self.fixed_nodes))
-            self._arrays = (dofs, self._grads[element], volume, M, force, fixed)
+            fixed = np.isin(self.dof_node, self.fixed_nodes)
+            if self.anchors is not None:  # the fixed DOFs of pieces that hold an anchor
+                _, label = _dof_components(dofs, n)
+                anchored = np.zeros(label.max(initial=-1) + 1, bool)
+                anchored[label[np.isin(self.dof_node, self.anchors)]] = True
+                fixed &= anchored[label]
+            self._arrays = (dofs, self._grads[element], volume, M, force, np.flatnonzero(fixed))
         return self._arrays
 
     def system(self) -> FEMSystem:
@@ -684,14 +694,18 @@ class XFEMModel:
         Returns:
             count, and (n_dofs,) int the component of each DOF.
         """
-        dofs, n = self._system_arrays()[0], len(self.dof_sid)
-        rows = np.repeat(dofs[:, :1], 3, axis=1).ravel()
-        graph = sp.csr_matrix((np.ones(len(rows)), (rows, dofs[:, 1:].ravel())), shape=(n, n))
-        return connected_components(graph, directed=False)
+        return _dof_components(self._system_arrays()[0], len(self.dof_sid))
 
     def pieces(self) -> int:
         """The number of connected pieces of the body (``components``)."""
         return self.components()[0]
+
+
+def _dof_components(dofs: np.ndarray, n: int) -> tuple[int, np.ndarray]:
+    """The connected components of n DOFs joined by the element pieces ``dofs`` (P, 4)."""
+    rows = np.repeat(dofs[:, :1], 3, axis=1).ravel()
+    graph = sp.csr_matrix((np.ones(len(rows)), (rows, dofs[:, 1:].ravel())), shape=(n, n))
+    return connected_components(graph, directed=False)
 
 
 def xfem_model(
@@ -700,6 +714,7 @@ def xfem_model(
     gravity: Float[npt.ArrayLike, " 3"] = (0.0, 0.0, -9.81),
     fixed: Int[npt.ArrayLike, " nb"] = (),
     state: State | None = None,
+    anchors: Int[npt.ArrayLike, " na"] | None = None,
 ) -> XFEMModel:
     """An uncut XFEM model: one DOF per node (its 1-ring), one piece per tet.
 
@@ -707,12 +722,24 @@ def xfem_model(
         mesh: the ``TetMesh``.
         density: scalar or (m,) positive mass density per tet.
         gravity: (3,) gravitational acceleration (body force density ``density * gravity``).
-        fixed: (nb,) int mesh nodes held in place (all their DOFs, also after cuts); () for none.
+        fixed: (nb,) int mesh nodes held in place (all their DOFs, also after cuts, unless ``anchors``); () for none.
         state: the initial ``State`` over the n nodes (float64); None: at rest in the rest positions.
+        anchors: None (every fixed DOF stays fixed), or (na,) int nodes among ``fixed``: after cuts, only the pieces
+            holding a DOF of an anchor keep their fixed DOFs fixed (``XFEMModel.anchors``).
     Returns:
         The ``XFEMModel``.
     """
-    return XFEMModel(*model_arguments(mesh, density, gravity, fixed, state))
+    model = XFEMModel(*model_arguments(mesh, density, gravity, fixed, state))
+    if anchors is not None:
+        anchors = np.asarray(anchors).reshape(-1)
+        if (
+            anchors.size == 0
+            or not np.issubdtype(anchors.dtype, np.integer)
+            or not np.all(np.isin(anchors, model.fixed_nodes))
+        ):
+            raise ValueError("anchors: expected None or a non-empty set of int node indices among fixed")
+        model.anchors = np.unique(anchors).astype(np.int64)
+    return model
 
 
 def model_arguments(mesh, density, gravity, fixed, state) -> tuple:
