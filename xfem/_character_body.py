@@ -19,12 +19,15 @@ with ``l`` = 0.1 diagonal (the lever arm that weighs a weight's error against a 
 cotangent stiffness (their Dirichlet energy: nodes far from the surface get harmonic weights) and ``mu`` 1e-2 of
 the data's trace over K's; one sparse factorization serves every joint, and the rows sum to 1 (the constant
 solves the summed problem). The weights are then clamped to [0, 1], cut to the ``influences`` largest and
-normalized. Refinement: linear tets cannot follow weights that change inside a tet, so the embedded surface is
-checked against the directly skinned one (linear blending) at probe poses (up to 32 times spread over the model's
-clips; without clips, 32 random poses turning every bone by 45 degrees): the tets of the vertices off by more than
-0.8 ``tolerance`` diagonals are bisected at their longest edges (Rivara's longest-edge propagation path: the mesh
-stays conforming and the shapes do not degrade) to 0.7 of their longest edge, not below 1/8 of the initial median
-tet's longest edge, and the weights are fitted again, for at most 8 rounds.
+normalized. Refinement (``refine``, fTetWild's tets by default): linear tets cannot follow weights that change
+inside a tet, so the embedded surface is checked against the directly skinned one (linear blending) at probe poses
+(at least 8 times spread over each of the model's clips, 32 in all; without clips, 32 random poses turning every
+bone by 45 degrees); the tets of the vertices off by more than 0.8 ``tolerance`` diagonals are bisected at their
+longest edges (Rivara's longest-edge propagation path: the mesh stays conforming and the shapes do not degrade) to
+0.7 of their longest edge, not below 1/64 of the initial median, and the weights are fitted again, for at most 8
+rounds and 8 times fTetWild's tets. Where surfaces of different bones touch or overlap (rigid parts, seams), tets
+holding both blend them and no refinement within that budget separates them: a ``UserWarning`` gives the error
+reached.
 
 Driven nodes (the core rule). Bone j's core is the set of points within ``core * r_j`` of its segments (from the
 joint to each child joint; a leaf joint is a point) and at least ``(1 - core) * r_j`` inside the tets' boundary,
@@ -469,7 +472,8 @@ def character_body(
     influences: int = INFLUENCES,
     tets: TetMesh | None = None,
     threads: int | None = None,
-    tolerance: float | None = LIMIT,
+    tolerance: float = LIMIT,
+    refine: bool | None = None,
 ) -> CharacterBody:
     """A tet body of a rigged model: fTetWild's tets of its surface, the surface's skinning weights carried to the
     tet nodes, the nodes the skeleton drives and the surface embedded in the tets (module docstring: the rules).
@@ -486,10 +490,12 @@ def character_body(
             (nd,) int indices of the driven nodes.
         influences: the joints each node keeps (>= 1).
         tets: None (tetrahedralize), or a ``TetMesh`` of the surface in the rest configuration (e.g. a saved
-            ``CharacterBody.tets``, as fTetWild is not deterministic); it is refined as ``tolerance`` asks.
+            ``CharacterBody.tets``, as fTetWild is not deterministic).
         threads: fTetWild's threads; None: every core.
         tolerance: the surface limit the tets are refined to, a fraction in (0, 1) of the diagonal (module
-            docstring); None: the tets as they are.
+            docstring).
+        refine: whether to refine the tets to ``tolerance``; None: fTetWild's yes, ``tets`` given no (a saved
+            body's are refined already).
     Returns:
         The ``CharacterBody``.
     """
@@ -505,10 +511,12 @@ def character_body(
         raise ValueError(f"core: expected a fraction in (0, 1], got {core!r}")
     if isinstance(influences, bool) or not isinstance(influences, (int, np.integer)) or influences < 1:
         raise ValueError(f"influences: expected an int >= 1, got {influences!r}")
-    if tolerance is not None and (
-        isinstance(tolerance, bool) or not isinstance(tolerance, (int, float, np.floating)) or not 0 < tolerance < 1
-    ):
-        raise ValueError(f"tolerance: expected None or a fraction of the diagonal in (0, 1), got {tolerance!r}")
+    if isinstance(tolerance, bool) or not isinstance(tolerance, (int, float, np.floating)) or not 0 < tolerance < 1:
+        raise ValueError(f"tolerance: expected a fraction of the diagonal in (0, 1), got {tolerance!r}")
+    if refine is not None and not isinstance(refine, bool):
+        raise ValueError(f"refine: expected None, True or False, got {refine!r}")
+    if refine is None:
+        refine = tets is None
     if tets is not None and not isinstance(tets, TetMesh):
         raise ValueError(f"tets: expected None or a TetMesh, got {type(tets).__name__}")
     if isinstance(driven, str) and driven != "all":
@@ -522,8 +530,9 @@ def character_body(
     _, G = _rest_joint_matrices(model)
     dense = _dense_weights(mesh)
     V = np.asarray(mesh.V, np.float64)
+    target = tolerance if refine else None
     Y, T, J, W, embedding = _build(
-        model, dense, V, F, G, diagonal, edge_length, epsilon, threads, tets, int(influences), tolerance
+        model, dense, V, F, G, diagonal, edge_length, epsilon, threads, tets, int(influences), target
     )
     X = Y
     rest = tet_mesh(X, T)
@@ -565,6 +574,8 @@ def character_body(
             or len(np.unique(driven_nodes)) != len(driven_nodes)
         ):
             raise ValueError(f"driven: expected distinct int node indices in [0, {len(X)})")
+        if driven_nodes.size == 0:
+            raise ValueError("driven: expected at least one node (a body with none has nothing to hold it)")
         driven_nodes = np.sort(driven_nodes)
     if len(driven_nodes) == 0:
         raise ValueError(f"core: no node lies in a bone's core at core={core}; raise it or pass driven")
