@@ -21,8 +21,8 @@ the data's trace over K's; one sparse factorization serves every joint, and the 
 solves the summed problem). The weights are then clamped to [0, 1], cut to the ``influences`` largest and
 normalized. Refinement (``refine``, fTetWild's tets by default): linear tets cannot follow weights that change
 inside a tet, so the embedded surface is checked against the directly skinned one (linear blending) at probe poses
-(at least 8 times spread over each of the model's clips, 32 in all; without clips, 32 random poses turning every
-bone by 45 degrees); the tets of the vertices off by more than 0.8 ``tolerance`` diagonals are bisected at their
+(at least 8 times spread over each of the model's first 4 clips, 32 in all; without clips, 32 random poses turning
+every bone by 45 degrees); the tets of the vertices off by more than 0.8 ``tolerance`` diagonals are bisected at their
 longest edges (Rivara's longest-edge propagation path: the mesh stays conforming and the shapes do not degrade) to
 0.7 of their longest edge, not below 1/64 of the initial median, and the weights are fitted again, for at most 8
 rounds and 8 times fTetWild's tets. Where surfaces of different bones touch or overlap (rigid parts, seams), tets
@@ -73,6 +73,7 @@ _LENGTH = 0.1
 _SMOOTHNESS = 1e-2
 _PROBES = 32
 _PER_CLIP = 8
+_CLIPS = 4
 _PROBE_ANGLE = np.pi / 4
 _SEED = 0
 _ROUNDS = 8
@@ -234,15 +235,17 @@ def fit_weights(
 
 def _probe_poses(model: deform.RiggedModel) -> np.ndarray:
     """(k, j, 4, 4) the posed global matrices of the skin joints' bones in the poses the refinement checks: at
-    least ``_PER_CLIP`` times spread over each of the model's clips (``_PROBES`` in all), or, for a model without
+    least ``_PER_CLIP`` times spread over each of the model's first ``_CLIPS`` clips (``_PROBES`` in all), or, for a
+    model without
     clips, ``_PROBES`` random poses, each bone turned about a random axis by ``_PROBE_ANGLE`` from its rest."""
     skeleton = model.skeleton
-    if model.clips:
-        each = max(_PER_CLIP, -(-_PROBES // len(model.clips)))
+    clips = model.clips[:_CLIPS]  # each clip compiles its own sampler: the first few (clip 0 is the default)
+    if clips:
+        each = max(_PER_CLIP, -(-_PROBES // len(clips)))
         posed = np.stack(
             [
                 np.asarray(deform.sample_pose(model, t, "lbs", clip=c), np.float64)
-                for c, clip in enumerate(model.clips)
+                for c, clip in enumerate(clips)
                 for t in np.linspace(clip.start, clip.end, each)
             ]
         )
@@ -302,8 +305,12 @@ def bisect_tets(
         c = tets[t]
         return [(min(c[i], c[j]), max(c[i], c[j])) for i, j in ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))]
 
+    tops: dict[int, tuple[float, int, int]] = {}  # each tet's longest edge (tets never change, they are replaced)
+
     def longest(t):
-        return max(_edge_key_list(points, a, b) for a, b in tet_edges(t))
+        if t not in tops:
+            tops[t] = max(_edge_key_list(points, a, b) for a, b in tet_edges(t))
+        return tops[t]
 
     for t in range(len(tets)):
         for e in tet_edges(t):
