@@ -21,7 +21,7 @@ the data's trace over K's; one sparse factorization serves every joint, and the 
 solves the summed problem). The weights are then clamped to [0, 1], cut to the ``influences`` largest and
 normalized. Refinement (``refine``, fTetWild's tets by default): linear tets cannot follow weights that change
 inside a tet, so the embedded surface is checked against the directly skinned one (linear blending) at probe poses
-(at least 8 times spread over each of the model's first 4 clips, 32 in all; without clips, 32 random poses turning
+(at least 16 times spread over each of the model's first 4 clips, 64 in all; without clips, 64 random poses turning
 every bone by 45 degrees); the tets of the vertices off by more than 0.8 ``tolerance`` diagonals are bisected at their
 longest edges (Rivara's longest-edge propagation path: the mesh stays conforming and the shapes do not degrade) to
 0.7 of their longest edge, not below 1/64 of the initial median, and the weights are fitted again, for at most 8
@@ -71,8 +71,8 @@ INFLUENCES = 8  # joints per node: refined tets near joints blend more bones tha
 _MIN_VERTICES = 4  # a bone with fewer surface vertices (by largest weight) has no core
 _LENGTH = 0.1
 _SMOOTHNESS = 1e-2
-_PROBES = 32
-_PER_CLIP = 8
+_PROBES = 64
+_PER_CLIP = 16
 _CLIPS = 4
 _PROBE_ANGLE = np.pi / 4
 _SEED = 0
