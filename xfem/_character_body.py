@@ -21,13 +21,13 @@ the data's trace over K's; one sparse factorization serves every joint, and the 
 solves the summed problem). The weights are then clamped to [0, 1], cut to the ``influences`` largest and
 normalized. Refinement (``refine``, fTetWild's tets by default): linear tets cannot follow weights that change
 inside a tet, so the embedded surface is checked against the directly skinned one (linear blending) at probe poses
-(at least 16 times spread over each of the model's first 4 clips, 64 in all; without clips, 64 random poses turning
-every bone by 45 degrees); the tets of the vertices off by more than 0.8 ``tolerance`` diagonals are bisected at their
-longest edges (Rivara's longest-edge propagation path: the mesh stays conforming and the shapes do not degrade) to
-0.7 of their longest edge, not below 1/64 of the initial median, and the weights are fitted again, for at most 8
-rounds and 8 times fTetWild's tets. Where surfaces of different bones touch or overlap (rigid parts, seams), tets
-holding both blend them and no refinement within that budget separates them: a ``UserWarning`` gives the error
-reached.
+(at least 16 times spread over each of the model's first 4 clips, 64 in all; without clips, 64 random poses
+turning every bone by 45 degrees). The tets of the vertices off by more than 0.8 ``tolerance`` diagonals are
+bisected at their longest edges (Rivara's longest-edge propagation path: the mesh stays conforming and the shapes
+do not degrade) to 0.7 of their longest edge, not below 1/64 of the initial median, and the weights are fitted
+again, for at most 12 rounds and 8 times fTetWild's tets; a vertex whose error fell by less than a tenth since its
+tet was last refined is not refined again. Where surfaces of different bones touch or overlap (rigid parts, seams),
+tets holding both blend them and no refinement separates them: a ``UserWarning`` gives the error reached.
 
 Driven nodes (the core rule). Bone j's core is the set of points within ``core * r_j`` of its segments (from the
 joint to each child joint; a leaf joint is a point) and at least ``(1 - core) * r_j`` inside the tets' boundary,
@@ -76,11 +76,12 @@ _PER_CLIP = 16
 _CLIPS = 4
 _PROBE_ANGLE = np.pi / 4
 _SEED = 0
-_ROUNDS = 8
+_ROUNDS = 12
 _FINEST = 1 / 64
 _MARGIN = 0.8
 _GROWTH = 8  # the refinement stops at this many times fTetWild's tets
 _SHRINK = 0.7
+_STUCK = 0.9  # a vertex whose error fell by less after a refinement of its tet is not refined again
 LIMIT = 1e-3  # the surface limit the tets are refined to, a fraction of the diagonal
 
 
@@ -280,7 +281,12 @@ def _probe_errors(
 
 
 def bisect_tets(
-    X: np.ndarray, T: np.ndarray, marked: np.ndarray, shrink: float, shortest: float, most: int | None = None
+    X: np.ndarray,
+    T: np.ndarray,
+    marked: np.ndarray,
+    shrink: float | np.ndarray,
+    shortest: float,
+    most: int | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Refine tets by longest-edge bisection (Rivara's LEPP): each marked tet is split until its pieces' longest
     edges are at most ``shrink`` times its own (and no shorter than ``shortest``). Bisecting an edge splits every tet
@@ -289,8 +295,8 @@ def bisect_tets(
 
     Args:
         X: (n, 3) nodes; T: (t, 4) positively oriented tets.
-        marked: (m,) int the tets to refine.
-        shrink: the factor in (0, 1) of the longest edge each marked tet is refined to.
+        marked: (m,) int distinct tets to refine.
+        shrink: (m,) or one factor in (0, 1): the fraction of its longest edge each marked tet is refined to.
         shortest: the edge length below which a tet is not refined.
         most: stop once there are this many tets (None: no limit).
     Returns:
@@ -316,10 +322,12 @@ def bisect_tets(
         for e in tet_edges(t):
             edges.setdefault(e, set()).add(t)
     target: dict[int, float] = {}
-    for t in np.unique(np.asarray(marked, np.int64)).tolist():
+    marked = np.asarray(marked, np.int64)
+    factors = np.broadcast_to(np.asarray(shrink, np.float64), marked.shape)
+    for t, factor in zip(marked.tolist(), factors.tolist()):
         length = np.sqrt(longest(t)[0])
         if length > shortest:
-            target[t] = max(shrink * length, shortest) ** 2
+            target[t] = max(factor * length, shortest) ** 2
     queue = list(target)
     count = len(tets)
     while queue and (most is None or count < most):
@@ -436,6 +444,7 @@ def _build(model, dense, V, F, G, diagonal, edge_length, epsilon, threads, tets,
     lengths = np.linalg.norm(Y[T[:, [0, 0, 0, 1, 1, 2]]] - Y[T[:, [1, 2, 3, 2, 3, 3]]], axis=2).max(axis=1)
     shortest = _FINEST * float(np.median(lengths))
     budget = _GROWTH * len(T)
+    previous = np.full(len(V), np.inf)  # each vertex's error when its tet was last refined
     for round_ in range(_ROUNDS + 1):
         embedding = embed_points(mesh, placed)
         if round_ == 0 and tets is not None:
@@ -452,9 +461,14 @@ def _build(model, dense, V, F, G, diagonal, edge_length, epsilon, threads, tets,
             break
         error = _probe_errors(node_motions, Y, J, W, embedding, targets)
         bad = error > _MARGIN * tolerance * diagonal
+        # a vertex whose error hardly fell when its tet was refined sits where surfaces of different bones meet:
+        # refining on would spend the budget there for nothing
+        stuck = bad & (error > _STUCK * previous)
+        previous = np.where(bad & ~stuck, error, np.inf)
+        bad &= ~stuck
         if not bad.any() or round_ == _ROUNDS or len(T) >= budget:
             break
-        Y, T = bisect_tets(Y, T, embedding.element[bad], _SHRINK, shortest, budget)
+        Y, T = bisect_tets(Y, T, np.unique(embedding.element[bad]), _SHRINK, shortest, budget)
         mesh = tet_mesh(Y, T)
     if tolerance is not None and error.max() > tolerance * diagonal:
         warnings.warn(
