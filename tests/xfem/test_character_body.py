@@ -77,7 +77,7 @@ def test_body_weights_nodes_driven_anchors(name):
     assert body.density == 1000.0 and np.array_equal(body.gravity, [0.0, -9.81, 0.0]) and body.seconds > 0
 
 
-@pytest.mark.parametrize("name", ["Fox", "CesiumMan"])
+@pytest.mark.parametrize("name", ["Fox", pytest.param("CesiumMan", marks=pytest.mark.slow)])  # CesiumMan: ~40 s
 @pytest.mark.parametrize("method", ["lbs", "cga"])
 def test_surface_limit_within_bound(name, method):
     """Every node driven, the embedded surface follows the surface skinned by its own weights to 1e-3 of the
@@ -155,7 +155,7 @@ def test_tets_given_are_kept_without_refinement():
 
 
 @pytest.mark.filterwarnings("ignore:tolerance")
-@pytest.mark.parametrize("name", character_params())
+@pytest.mark.parametrize("name", character_params(fast=("Fox",)))  # the robot's refined body takes minutes
 def test_core_rule_drives_the_bones_not_the_skin(name):
     """Driven nodes lie inside, away from the skin, along the skeleton: a few percent to about a fifth of the
     nodes; the anchors are a part of them at the root's end of the skeleton."""
