@@ -30,10 +30,11 @@ tet was last refined is not refined again. Where surfaces of different bones tou
 tets holding both blend them and no refinement separates them: a ``UserWarning`` gives the error reached.
 
 Driven nodes (the core rule). Bone j's core is the set of points within ``core * r_j`` of its segments (from the
-joint to each child joint; a leaf joint is a point) and at least ``(1 - core) * r_j`` inside the tets' boundary,
-where ``r_j`` is the median distance from those segments of the surface vertices whose largest weight is j's: the
-limb's radius there. A node is driven when it lies in some bone's core. Bones whose vertices are fewer than 4 have
-no core.
+joint to each child joint; a leaf joint is a point), where ``r_j`` is the median distance from those segments of
+the surface vertices whose largest weight is j's: the limb's radius there. A node is driven when it lies in some
+bone's core and not on the tets' boundary (the skin: a bone may run there, as a tail's or an ear's does); a bone
+whose core holds no such node (a thin limb on coarse tets) drives its nearest interior nodes instead, those within
+twice the nearest one's distance and within ``r_j``. Bones whose vertices are fewer than 4 have no core.
 
 Anchors. A cut that severs a limb severs its bones too: the pieces that keep the skeleton's root are driven on, the
 others fall. The anchors are the driven nodes of the bones closest to the skeleton's root (the fewest parents up)
@@ -432,15 +433,15 @@ def _build(model, dense, V, F, G, diagonal, edge_length, epsilon, threads, tets,
     else:
         mesh = tets
     Y, T = np.asarray(mesh.X, np.float64), np.asarray(mesh.T, np.int64)
-    inverse_bind = np.asarray(model.mesh.inverse_bind, np.float64)
-    node_bind = inverse_bind @ np.linalg.inv(G)
-    poses = _probe_poses(model)
-    node_motions = poses @ node_bind[None]
-    k = len(G)
-    targets = [
-        np.einsum("sab,sb->sa", (dense @ (pose @ inverse_bind)[:, :3].reshape(k, 12)).reshape(-1, 3, 4), Vh)
-        for pose in poses
-    ]
+    if tolerance is not None:  # the probe poses: the nodes' joint matrices, and the surface skinned directly
+        inverse_bind = np.asarray(model.mesh.inverse_bind, np.float64)
+        poses = _probe_poses(model)
+        node_motions = poses @ (inverse_bind @ np.linalg.inv(G))[None]
+        k = len(G)
+        targets = [
+            np.einsum("sab,sb->sa", (dense @ (pose @ inverse_bind)[:, :3].reshape(k, 12)).reshape(-1, 3, 4), Vh)
+            for pose in poses
+        ]
     lengths = np.linalg.norm(Y[T[:, [0, 0, 0, 1, 1, 2]]] - Y[T[:, [1, 2, 3, 2, 3, 3]]], axis=2).max(axis=1)
     shortest = _FINEST * float(np.median(lengths))
     budget = _GROWTH * len(T)
@@ -577,11 +578,16 @@ def character_body(
         if mine.sum() >= _MIN_VERTICES:
             radius[j] = np.median(surface_distance[mine, j])
     has_core = np.isfinite(radius) & (radius > 0)
-    # a node at a bone that runs near the skin (a tail, an ear, an off-centre bone) is not driven: it must lie as far
-    # inside the tets' boundary as the core's edge lies from a round limb's skin
+    # a node on the tets' boundary (the skin) is never driven, even where a bone runs there (a tail, an ear)
     reach = np.where(has_core, radius, 0.0)[None]
-    skin = np.sqrt(igl.point_mesh_squared_distance(X, X, _boundary_faces(T))[0])
-    inside = has_core[None] & (distance <= core * reach) & (skin[:, None] >= (1 - core) * reach)
+    interior = np.ones(len(X), bool)
+    interior[_boundary_faces(T).ravel()] = False
+    inside = has_core[None] & (distance <= core * reach) & interior[:, None]
+    # a bone whose core holds no node (a thin limb on coarse tets) drives its nearest interior nodes within its radius
+    for j in np.flatnonzero(has_core & ~inside.any(axis=0)):
+        near = np.where(interior, distance[:, j], np.inf)
+        if near.min() <= radius[j]:
+            inside[:, j] = near <= min(radius[j], 2 * near.min())
     if isinstance(driven, str):
         driven_nodes = np.arange(len(X))
     elif driven is None:
