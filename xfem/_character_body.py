@@ -296,7 +296,7 @@ def bisect_tets(
 
     Args:
         X: (n, 3) nodes; T: (t, 4) positively oriented tets.
-        marked: (m,) int distinct tets to refine.
+        marked: (m,) int distinct tets to refine, the most urgent last (they are refined first).
         shrink: (m,) or one factor in (0, 1): the fraction of its longest edge each marked tet is refined to.
         shortest: the edge length below which a tet is not refined.
         most: stop once there are this many tets (None: no limit).
@@ -469,7 +469,12 @@ def _build(model, dense, V, F, G, diagonal, edge_length, epsilon, threads, tets,
         bad &= ~stuck
         if not bad.any() or round_ == _ROUNDS or len(T) >= budget:
             break
-        Y, T = bisect_tets(Y, T, np.unique(embedding.element[bad]), _SHRINK, shortest, budget)
+        # the worst vertices' tets last: the bisection takes them first, so a spent budget went where it did most
+        order: dict[int, None] = {}
+        for t in embedding.element[bad][np.argsort(error[bad], kind="stable")].tolist():
+            order.pop(t, None)
+            order[t] = None
+        Y, T = bisect_tets(Y, T, np.fromiter(order, np.int64, len(order)), _SHRINK, shortest, budget)
         mesh = tet_mesh(Y, T)
     if tolerance is not None and error.max() > tolerance * diagonal:
         warnings.warn(
