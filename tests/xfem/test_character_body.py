@@ -107,7 +107,7 @@ def test_surface_limit_on_the_corpus(name):
     body = character_body_of(name)
     if not model.clips:  # a random pose: each bone turned by 0.5 rad about a random axis
         rng = np.random.default_rng(1)
-        local = np.asarray(deform.local_matrices(model.skeleton))
+        local = np.array(deform.local_matrices(model.skeleton))
         axes = rng.normal(size=(len(local), 3))
         axes /= np.linalg.norm(axes, axis=1, keepdims=True)
         turns = np.stack([_rotation(a, 0.5) for a in axes])
