@@ -25,9 +25,10 @@ inside a tet, so the embedded surface is checked against the directly skinned on
 turning every bone by 45 degrees). The tets of the vertices off by more than 0.8 ``tolerance`` diagonals are
 bisected at their longest edges (Rivara's longest-edge propagation path: the mesh stays conforming and the shapes
 do not degrade) to 0.7 of their longest edge, not below 1/64 of the initial median, and the weights are fitted
-again, for at most 12 rounds and 8 times fTetWild's tets; a vertex whose error fell by less than a tenth since its
-tet was last refined is not refined again. Where surfaces of different bones touch or overlap (rigid parts, seams),
-tets holding both blend them and no refinement separates them: a ``UserWarning`` gives the error reached.
+again, for at most 12 rounds and 8 times fTetWild's tets, the worst vertices' tets first; a vertex whose error fell
+by less than a tenth since its tet was last refined sits out the next round. Where surfaces of different bones
+touch or overlap (rigid parts, seams), tets holding both blend them and no refinement separates them: a
+``UserWarning`` gives the error reached.
 
 Driven nodes (the core rule). Bone j's core is the set of points within ``core * r_j`` of its segments (from the
 joint to each child joint; a leaf joint is a point), where ``r_j`` is the median distance from those segments of
@@ -82,7 +83,7 @@ _FINEST = 1 / 64
 _MARGIN = 0.8
 _GROWTH = 8  # the refinement stops at this many times fTetWild's tets
 _SHRINK = 0.7
-_STUCK = 0.9  # a vertex whose error fell by less after a refinement of its tet is not refined again
+_STUCK = 0.9  # a vertex whose error fell by less after a refinement of its tet sits out a round
 LIMIT = 1e-3  # the surface limit the tets are refined to, a fraction of the diagonal
 
 
