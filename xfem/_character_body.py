@@ -19,18 +19,23 @@ with ``l`` = 0.1 diagonal (the lever arm that weighs a weight's error against a 
 cotangent stiffness (their Dirichlet energy: nodes far from the surface get harmonic weights) and ``mu`` 1e-2 of
 the data's trace over K's; one sparse factorization serves every joint, and the rows sum to 1 (the constant
 solves the summed problem). The weights are then clamped to [0, 1], cut to the ``influences`` largest and
-normalized. Refinement: linear tets cannot follow weights that change inside a tet, so the embedded surface is
-checked against the directly skinned one (linear blending) at probe poses (up to 32 times spread over the model's
-clips; without clips, 32 random poses turning every bone by 45 degrees): the tets of the vertices off by more than
-0.8 ``tolerance`` diagonals are bisected at their longest edges (Rivara's longest-edge propagation path: the mesh
-stays conforming and the shapes do not degrade) to 0.7 of their longest edge, not below 1/8 of the initial median
-tet's longest edge, and the weights are fitted again, for at most 8 rounds.
+normalized. Refinement (``refine``, fTetWild's tets by default): linear tets cannot follow weights that change
+inside a tet, so the embedded surface is checked against the directly skinned one (linear blending) at probe poses
+(at least 16 times spread over each of the model's first 4 clips, 64 in all; without clips, 64 random poses
+turning every bone by 45 degrees). The tets of the vertices off by more than 0.8 ``tolerance`` diagonals are
+bisected at their longest edges (Rivara's longest-edge propagation path: the mesh stays conforming and the shapes
+do not degrade) to 0.7 of their longest edge, not below 1/64 of the initial median, and the weights are fitted
+again, for at most 12 rounds and 8 times fTetWild's tets, the worst vertices' tets first; a vertex whose error fell
+by less than a tenth since its tet was last refined sits out the next round. Where surfaces of different bones
+touch or overlap (rigid parts, seams), tets holding both blend them and no refinement separates them: a
+``UserWarning`` gives the error reached.
 
 Driven nodes (the core rule). Bone j's core is the set of points within ``core * r_j`` of its segments (from the
-joint to each child joint; a leaf joint is a point) and at least ``(1 - core) * r_j`` inside the tets' boundary,
-where ``r_j`` is the median distance from those segments of the surface vertices whose largest weight is j's: the
-limb's radius there. A node is driven when it lies in some bone's core. Bones whose vertices are fewer than 4 have
-no core.
+joint to each child joint; a leaf joint is a point), where ``r_j`` is the median distance from those segments of
+the surface vertices whose largest weight is j's: the limb's radius there. A node is driven when it lies in some
+bone's core and not on the tets' boundary (the skin: a bone may run there, as a tail's or an ear's does); a bone
+whose core holds no such node (a thin limb on coarse tets) drives its nearest interior nodes instead, those within
+twice the nearest one's distance and within ``r_j``. Bones whose vertices are fewer than 4 have no core.
 
 Anchors. A cut that severs a limb severs its bones too: the pieces that keep the skeleton's root are driven on, the
 others fall. The anchors are the driven nodes of the bones closest to the skeleton's root (the fewest parents up)
@@ -40,6 +45,7 @@ among the bones with a core; ``simulate_character`` releases the driven nodes of
 from __future__ import annotations
 
 import time
+import warnings
 from typing import NamedTuple
 
 import igl
@@ -67,13 +73,17 @@ INFLUENCES = 8  # joints per node: refined tets near joints blend more bones tha
 _MIN_VERTICES = 4  # a bone with fewer surface vertices (by largest weight) has no core
 _LENGTH = 0.1
 _SMOOTHNESS = 1e-2
-_PROBES = 32
+_PROBES = 64
+_PER_CLIP = 16
+_CLIPS = 4
 _PROBE_ANGLE = np.pi / 4
 _SEED = 0
-_ROUNDS = 8
-_FINEST = 0.125
+_ROUNDS = 12
+_FINEST = 1 / 64
 _MARGIN = 0.8
+_GROWTH = 8  # the refinement stops at this many times fTetWild's tets
 _SHRINK = 0.7
+_STUCK = 0.9  # a vertex whose error fell by less after a refinement of its tet sits out a round
 LIMIT = 1e-3  # the surface limit the tets are refined to, a fraction of the diagonal
 
 
@@ -173,17 +183,14 @@ def _rest_joint_matrices(model: deform.RiggedModel) -> tuple[np.ndarray, np.ndar
     return bones, bones @ np.asarray(model.mesh.inverse_bind, np.float64)
 
 
-def _similitude_inverse(matrices: np.ndarray) -> np.ndarray:
-    """(k, 4, 4) the inverses of the nearest similitudes of affine matrices (k, 4, 4): files store rotations and
+def _nearest_similitudes(matrices: np.ndarray) -> np.ndarray:
+    """(k, 4, 4) the nearest similitudes of affine matrices (k, 4, 4), translations kept: files store rotations and
     scales to float32, and the multivector methods take only exact similitudes."""
     U, S, Vt = np.linalg.svd(matrices[:, :3, :3])
-    R = U @ Vt
-    scale = np.cbrt(np.prod(S, axis=1))
-    inverse = np.zeros_like(matrices)
-    inverse[:, :3, :3] = np.swapaxes(R, 1, 2) / scale[:, None, None]
-    inverse[:, :3, 3] = -np.einsum("kab,kb->ka", inverse[:, :3, :3], matrices[:, :3, 3])
-    inverse[:, 3, 3] = 1.0
-    return inverse
+    nearest = np.array(matrices)
+    nearest[:, :3, :3] = np.cbrt(np.prod(S, axis=1))[:, None, None] * (U @ Vt)
+    nearest[:, 3] = [0.0, 0.0, 0.0, 1.0]
+    return nearest
 
 
 def fit_weights(
@@ -229,17 +236,19 @@ def fit_weights(
     return sparse_linalg.splu(system).solve(np.asarray(M.T @ Y))
 
 
-def _probe_motions(model: deform.RiggedModel, bones: np.ndarray) -> np.ndarray:
-    """(k, j, 4, 4) rest-to-pose joint motions ``E_j = P_j R_j^-1`` (posed over rest global matrices) of the poses
-    the refinement checks: ``_PROBES`` times spread over the model's clips, or, for a model without clips, as many
-    random poses, each bone turned about a random axis by ``_PROBE_ANGLE`` from its rest."""
+def _probe_poses(model: deform.RiggedModel) -> np.ndarray:
+    """(k, j, 4, 4) the posed global matrices of the skin joints' bones in the poses the refinement checks: at
+    least ``_PER_CLIP`` times spread over each of the model's first ``_CLIPS`` clips (``_PROBES`` in all), or, for a
+    model without
+    clips, ``_PROBES`` random poses, each bone turned about a random axis by ``_PROBE_ANGLE`` from its rest."""
     skeleton = model.skeleton
-    if model.clips:
-        each = max(2, -(-_PROBES // len(model.clips)))
+    clips = model.clips[:_CLIPS]  # each clip compiles its own sampler: the first few (clip 0 is the default)
+    if clips:
+        each = max(_PER_CLIP, -(-_PROBES // len(clips)))
         posed = np.stack(
             [
                 np.asarray(deform.sample_pose(model, t, "lbs", clip=c), np.float64)
-                for c, clip in enumerate(model.clips)
+                for c, clip in enumerate(clips)
                 for t in np.linspace(clip.start, clip.end, each)
             ]
         )
@@ -255,25 +264,31 @@ def _probe_motions(model: deform.RiggedModel, bones: np.ndarray) -> np.ndarray:
         posed = np.repeat(local[None], _PROBES, axis=0)
         posed[..., :3, :3] = local[..., :3, :3] @ turn
     world = np.asarray(deform.forward_kinematics_matrices(skeleton.parents, posed), np.float64)
-    return world[:, np.asarray(model.mesh.joints)] @ np.linalg.inv(bones)[None]
+    return world[:, np.asarray(model.mesh.joints)]
 
 
 def _probe_errors(
-    motions: np.ndarray, X: np.ndarray, J: np.ndarray, W: np.ndarray, embedding: SurfaceEmbedding, targets: np.ndarray
+    node_motions: np.ndarray, Y: np.ndarray, J: np.ndarray, W: np.ndarray, embedding: SurfaceEmbedding, targets: list
 ) -> np.ndarray:
-    """(s,) the largest distance over the probe poses between the embedded surface (its nodes skinned by linear
-    blending of (J, W)) and the surface skinned by its own weights (``targets``: (k, s, 3))."""
+    """(s,) the largest distance over the probe poses between the embedded surface (its nodes ``Y`` skinned by
+    linear blending of (J, W) with the joint matrices ``node_motions`` (k, j, 4, 4)) and ``targets`` (k of (s, 3):
+    the surface skinned by its own weights)."""
     worst = np.zeros(len(embedding.element))
-    for motion, target in zip(motions, targets):
-        blend = np.einsum("nk,nkab->nab", W, motion[J])  # (n, 4, 4)
-        nodes = np.einsum("nab,nb->na", blend[:, :3, :3], X) + blend[:, :3, 3]
+    for motion, target in zip(node_motions, targets):
+        blend = np.einsum("nk,nkab->nab", W, motion[J][..., :3, :])  # (n, 3, 4)
+        nodes = np.einsum("nab,nb->na", blend[..., :3], Y) + blend[..., 3]
         embedded = np.einsum("sk,skd->sd", embedding.weights, nodes[embedding.nodes])
         worst = np.maximum(worst, np.linalg.norm(embedded - target, axis=1))
     return worst
 
 
 def bisect_tets(
-    X: np.ndarray, T: np.ndarray, marked: np.ndarray, shrink: float, shortest: float
+    X: np.ndarray,
+    T: np.ndarray,
+    marked: np.ndarray,
+    shrink: float | np.ndarray,
+    shortest: float,
+    most: int | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Refine tets by longest-edge bisection (Rivara's LEPP): each marked tet is split until its pieces' longest
     edges are at most ``shrink`` times its own (and no shorter than ``shortest``). Bisecting an edge splits every tet
@@ -282,9 +297,10 @@ def bisect_tets(
 
     Args:
         X: (n, 3) nodes; T: (t, 4) positively oriented tets.
-        marked: (m,) int the tets to refine.
-        shrink: the factor in (0, 1) of the longest edge each marked tet is refined to.
+        marked: (m,) int distinct tets to refine, the most urgent last (they are refined first).
+        shrink: (m,) or one factor in (0, 1): the fraction of its longest edge each marked tet is refined to.
         shortest: the edge length below which a tet is not refined.
+        most: stop once there are this many tets (None: no limit).
     Returns:
         (X', T'): the nodes (X first, then the edges' midpoints) and the tets.
     """
@@ -297,19 +313,26 @@ def bisect_tets(
         c = tets[t]
         return [(min(c[i], c[j]), max(c[i], c[j])) for i, j in ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))]
 
+    tops: dict[int, tuple[float, int, int]] = {}  # each tet's longest edge (tets never change, they are replaced)
+
     def longest(t):
-        return max(_edge_key_list(points, a, b) for a, b in tet_edges(t))
+        if t not in tops:
+            tops[t] = max(_edge_key_list(points, a, b) for a, b in tet_edges(t))
+        return tops[t]
 
     for t in range(len(tets)):
         for e in tet_edges(t):
             edges.setdefault(e, set()).add(t)
     target: dict[int, float] = {}
-    for t in np.unique(np.asarray(marked, np.int64)).tolist():
+    marked = np.asarray(marked, np.int64)
+    factors = np.broadcast_to(np.asarray(shrink, np.float64), marked.shape)
+    for t, factor in zip(marked.tolist(), factors.tolist()):
         length = np.sqrt(longest(t)[0])
         if length > shortest:
-            target[t] = max(shrink * length, shortest) ** 2
+            target[t] = max(factor * length, shortest) ** 2
     queue = list(target)
-    while queue:
+    count = len(tets)
+    while queue and (most is None or count < most):
         t = queue.pop()
         if not alive[t] or t not in target:
             continue
@@ -340,6 +363,7 @@ def bisect_tets(
                     target[child] = target[u]
                     queue.append(child)
             target.pop(u, None)
+            count += 1
         del edges[(a, b)]
         if alive[t]:
             queue.append(t)
@@ -391,6 +415,79 @@ def _depths(parents: tuple[int, ...]) -> np.ndarray:
     return depth
 
 
+def _build(model, dense, V, F, G, diagonal, edge_length, epsilon, threads, tets, influences, tolerance):
+    """The tets of the rest configuration (fTetWild's or ``tets``), refined, with their weights (module docstring):
+    (Y (n, 3) nodes, T (t, 4) tets, J and W (n, influences) weights, the surface's embedding).
+
+    Args:
+        model: the model (weights normalized); dense: (s, j) its weights; V: (s, 3) its mesh-space vertices; F: its
+            triangles; G: (j, 4, 4) its joints' rest matrices; diagonal: the rest surface's; the others as
+            ``character_body``'s.
+    """
+    Vh = np.concatenate([V, np.ones((len(V), 1))], axis=1)
+    images = np.einsum("jab,sb->sja", G[:, :3], Vh)  # (s, j, 3) each joint's rest image of each vertex
+    placed = np.einsum("sj,sja->sa", dense, images)
+    moments = dense[..., None] * (images - placed[:, None])
+    if tets is None:
+        made = tetrahedralize_surface(placed, F, edge_length=edge_length, epsilon=epsilon, threads=threads)
+        mesh = made.mesh
+    else:
+        mesh = tets
+    Y, T = np.asarray(mesh.X, np.float64), np.asarray(mesh.T, np.int64)
+    if tolerance is not None:  # the probe poses: the nodes' joint matrices, and the surface skinned directly
+        inverse_bind = np.asarray(model.mesh.inverse_bind, np.float64)
+        poses = _probe_poses(model)
+        node_motions = poses @ (inverse_bind @ np.linalg.inv(G))[None]
+        k = len(G)
+        targets = [
+            np.einsum("sab,sb->sa", (dense @ (pose @ inverse_bind)[:, :3].reshape(k, 12)).reshape(-1, 3, 4), Vh)
+            for pose in poses
+        ]
+    lengths = np.linalg.norm(Y[T[:, [0, 0, 0, 1, 1, 2]]] - Y[T[:, [1, 2, 3, 2, 3, 3]]], axis=2).max(axis=1)
+    shortest = _FINEST * float(np.median(lengths))
+    budget = _GROWTH * len(T)
+    previous = np.full(len(V), np.inf)  # each vertex's error when its tet was last refined
+    for round_ in range(_ROUNDS + 1):
+        embedding = embed_points(mesh, placed)
+        if round_ == 0 and tets is not None:
+            far = embedding.distance > 3 * float(np.median(lengths))
+            if far.mean() > 0.1:
+                raise ValueError(
+                    f"tets: {far.mean():.0%} of the surface's vertices lie more than 3 edge lengths from the tets; "
+                    "expected tets of the surface in the rest configuration (the skeleton's rest pose, world "
+                    "coordinates, as CharacterBody.tets)"
+                )
+        fitted = fit_weights(Y, T, embedding, placed, dense, moments, _LENGTH * diagonal, _SMOOTHNESS)
+        J, W = _trim(np.clip(fitted, 0.0, 1.0), influences)
+        if tolerance is None:
+            break
+        error = _probe_errors(node_motions, Y, J, W, embedding, targets)
+        bad = error > _MARGIN * tolerance * diagonal
+        # a vertex whose error hardly fell when its tet was refined sits where surfaces of different bones meet:
+        # refining on would spend the budget there for nothing
+        stuck = bad & (error > _STUCK * previous)
+        previous = np.where(bad & ~stuck, error, np.inf)
+        bad &= ~stuck
+        if not bad.any() or round_ == _ROUNDS or len(T) >= budget:
+            break
+        # the worst vertices' tets last: the bisection takes them first, so a spent budget went where it did most
+        order: dict[int, None] = {}
+        for t in embedding.element[bad][np.argsort(error[bad], kind="stable")].tolist():
+            order.pop(t, None)
+            order[t] = None
+        Y, T = bisect_tets(Y, T, np.fromiter(order, np.int64, len(order)), _SHRINK, shortest, budget)
+        mesh = tet_mesh(Y, T)
+    if tolerance is not None and error.max() > tolerance * diagonal:
+        warnings.warn(
+            f"tolerance: the embedded surface misses the directly skinned one by up to {error.max() / diagonal:.2g} "
+            f"of the diagonal at the probe poses ({int((error > tolerance * diagonal).sum())} of {len(error)} "
+            f"vertices above {tolerance:g}; {len(T)} tets, at most {_GROWTH} times fTetWild's): surfaces of "
+            "different bones meet or overlap there (rigid parts, seams), and the tets that hold both blend them",
+            stacklevel=3,
+        )
+    return Y, T, J, W, embedding
+
+
 def character_body(
     model: deform.RiggedModel,
     *,
@@ -403,7 +500,8 @@ def character_body(
     influences: int = INFLUENCES,
     tets: TetMesh | None = None,
     threads: int | None = None,
-    tolerance: float | None = LIMIT,
+    tolerance: float = LIMIT,
+    refine: bool | None = None,
 ) -> CharacterBody:
     """A tet body of a rigged model: fTetWild's tets of its surface, the surface's skinning weights carried to the
     tet nodes, the nodes the skeleton drives and the surface embedded in the tets (module docstring: the rules).
@@ -420,10 +518,12 @@ def character_body(
             (nd,) int indices of the driven nodes.
         influences: the joints each node keeps (>= 1).
         tets: None (tetrahedralize), or a ``TetMesh`` of the surface in the rest configuration (e.g. a saved
-            ``CharacterBody.tets``, as fTetWild is not deterministic); it is refined as ``tolerance`` asks.
+            ``CharacterBody.tets``, as fTetWild is not deterministic).
         threads: fTetWild's threads; None: every core.
         tolerance: the surface limit the tets are refined to, a fraction in (0, 1) of the diagonal (module
-            docstring); None: the tets as they are.
+            docstring).
+        refine: whether to refine the tets to ``tolerance``; None: fTetWild's yes, ``tets`` given no (a saved
+            body's are refined already).
     Returns:
         The ``CharacterBody``.
     """
@@ -439,10 +539,12 @@ def character_body(
         raise ValueError(f"core: expected a fraction in (0, 1], got {core!r}")
     if isinstance(influences, bool) or not isinstance(influences, (int, np.integer)) or influences < 1:
         raise ValueError(f"influences: expected an int >= 1, got {influences!r}")
-    if tolerance is not None and (
-        isinstance(tolerance, bool) or not isinstance(tolerance, (int, float, np.floating)) or not 0 < tolerance < 1
-    ):
-        raise ValueError(f"tolerance: expected None or a fraction of the diagonal in (0, 1), got {tolerance!r}")
+    if isinstance(tolerance, bool) or not isinstance(tolerance, (int, float, np.floating)) or not 0 < tolerance < 1:
+        raise ValueError(f"tolerance: expected a fraction of the diagonal in (0, 1), got {tolerance!r}")
+    if refine is not None and not isinstance(refine, bool):
+        raise ValueError(f"refine: expected None, True or False, got {refine!r}")
+    if refine is None:
+        refine = tets is None
     if tets is not None and not isinstance(tets, TetMesh):
         raise ValueError(f"tets: expected None or a TetMesh, got {type(tets).__name__}")
     if isinstance(driven, str) and driven != "all":
@@ -451,53 +553,25 @@ def character_body(
     model = deform.RiggedModel(mesh, model.skeleton, model.clips, model.name)
     F = np.asarray(mesh.F, np.int64)
     surface = np.asarray(deform.rest_pose(model, "lbs"), np.float64)
-    start = time.perf_counter()
-    if tets is None:
-        made = tetrahedralize_surface(surface, F, edge_length=edge_length, epsilon=epsilon, threads=threads)
-        rest = made.mesh
-    else:
-        rest = tets
-    X, T = np.asarray(rest.X, np.float64), np.asarray(rest.T, np.int64)
     diagonal = bounding_diagonal(surface)
-    bones, G = _rest_joint_matrices(model)
+    start = time.perf_counter()
+    _, G = _rest_joint_matrices(model)
     dense = _dense_weights(mesh)
-    Vh = np.concatenate([np.asarray(mesh.V, np.float64), np.ones((len(surface), 1))], axis=1)
-    images = np.einsum("jab,sb->sja", G[:, :3], Vh)  # (s, j, 3) each joint's rest image of each vertex
-    moments = dense[..., None] * (images - surface[:, None])
-    motions = _probe_motions(model, bones)
-    targets = np.einsum("sj,kjab,sjb->ksa", dense, motions[..., :3, :3], images) + np.einsum(
-        "sj,kja->ksa", dense, motions[..., :3, 3]
+    V = np.asarray(mesh.V, np.float64)
+    target = tolerance if refine else None
+    Y, T, J, W, embedding = _build(
+        model, dense, V, F, G, diagonal, edge_length, epsilon, threads, tets, int(influences), target
     )
-    lengths = np.linalg.norm(X[T[:, [0, 0, 0, 1, 1, 2]]] - X[T[:, [1, 2, 3, 2, 3, 3]]], axis=2).max(axis=1)
-    shortest = _FINEST * float(np.median(lengths))
-    for round_ in range(_ROUNDS + 1):
-        embedding = embed_points(rest, surface)
-        if round_ == 0 and tets is not None:
-            far = embedding.distance > 3 * float(np.median(lengths))
-            if far.mean() > 0.1:
-                raise ValueError(
-                    f"tets: {far.mean():.0%} of the surface's vertices lie more than 3 edge lengths from the tets; "
-                    "expected tets of the surface in the rest configuration (the skeleton's rest pose, world "
-                    "coordinates, as CharacterBody.tets)"
-                )
-        fitted = fit_weights(X, T, embedding, surface, dense, moments, _LENGTH * diagonal, _SMOOTHNESS)
-        J, W = _trim(np.clip(fitted, 0.0, 1.0), int(influences))
-        if tolerance is None or round_ == _ROUNDS:
-            break
-        error = _probe_errors(motions, X, J, W, embedding, targets)
-        bad = error > _MARGIN * tolerance * diagonal
-        if not bad.any():
-            break
-        X, T = bisect_tets(X, T, embedding.element[bad], _SHRINK, shortest)
-        rest = tet_mesh(X, T)
+    X = Y
+    rest = tet_mesh(X, T)
     seconds = time.perf_counter() - start
-    # the nodes' mesh space is the rest configuration: each joint's inverse bind is its bone's inverse rest matrix
+    # the nodes' mesh space is the rest configuration: joint j's inverse bind is its bone's inverse rest matrix
     node_mesh = deform.SkinnedMesh(
-        jnp.asarray(X),
+        jnp.asarray(Y),
         jnp.zeros((0, 3), jnp.int32),
         jnp.asarray(J),
         jnp.asarray(W),
-        jnp.asarray(_similitude_inverse(bones)),
+        jnp.asarray(_nearest_similitudes(np.asarray(mesh.inverse_bind, np.float64) @ np.linalg.inv(G))),
         mesh.joints,
     )
     node_model = deform.RiggedModel(node_mesh, model.skeleton, model.clips, model.name)
@@ -510,11 +584,16 @@ def character_body(
         if mine.sum() >= _MIN_VERTICES:
             radius[j] = np.median(surface_distance[mine, j])
     has_core = np.isfinite(radius) & (radius > 0)
-    # a node at a bone that runs near the skin (a tail, an ear, an off-centre bone) is not driven: it must lie as far
-    # inside the tets' boundary as the core's edge lies from a round limb's skin
+    # a node on the tets' boundary (the skin) is never driven, even where a bone runs there (a tail, an ear)
     reach = np.where(has_core, radius, 0.0)[None]
-    skin = np.sqrt(igl.point_mesh_squared_distance(X, X, _boundary_faces(T))[0])
-    inside = has_core[None] & (distance <= core * reach) & (skin[:, None] >= (1 - core) * reach)
+    interior = np.ones(len(X), bool)
+    interior[_boundary_faces(T).ravel()] = False
+    inside = has_core[None] & (distance <= core * reach) & interior[:, None]
+    # a bone whose core holds no node (a thin limb on coarse tets) drives its nearest interior nodes within its radius
+    for j in np.flatnonzero(has_core & ~inside.any(axis=0)):
+        near = np.where(interior, distance[:, j], np.inf)
+        if near.min() <= radius[j]:
+            inside[:, j] = near <= min(radius[j], 2 * near.min())
     if isinstance(driven, str):
         driven_nodes = np.arange(len(X))
     elif driven is None:
@@ -528,6 +607,8 @@ def character_body(
             or len(np.unique(driven_nodes)) != len(driven_nodes)
         ):
             raise ValueError(f"driven: expected distinct int node indices in [0, {len(X)})")
+        if driven_nodes.size == 0:
+            raise ValueError("driven: expected at least one node (a body with none has nothing to hold it)")
         driven_nodes = np.sort(driven_nodes)
     if len(driven_nodes) == 0:
         raise ValueError(f"core: no node lies in a bone's core at core={core}; raise it or pass driven")
@@ -540,7 +621,7 @@ def character_body(
         model=model,
         node_model=node_model,
         tets=rest,
-        nodes=X,
+        nodes=Y,
         driven=driven_nodes.astype(np.int64),
         anchors=np.sort(anchors).astype(np.int64),
         surface=surface,
