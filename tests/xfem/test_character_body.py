@@ -13,7 +13,7 @@ import pytest
 
 import deform
 import xfem
-from tests.shared import CHARACTERS, character_body_of, character_params, load_character
+from tests.shared import CHARACTERS, SAVED_TETS, character_body_of, character_params, load_character
 
 LIMIT = 1e-3  # the issue's bound on the surface limit, a fraction of the bounding-box diagonal
 FRAMES = 30  # clip times the limit is checked at
@@ -81,8 +81,9 @@ def test_body_weights_nodes_driven_anchors(name):
 @pytest.mark.parametrize("method", ["lbs", "cga"])
 def test_surface_limit_within_bound(name, method):
     """Every node driven, the embedded surface follows the surface skinned by its own weights to 1e-3 of the
-    diagonal (item 2's limit figure) over the clip's frames."""
-    worst, mean = surface_limit(character_body_of(name), method)
+    diagonal over the clip's frames (the Fox on saved tets: fTetWild's differ from run to run, and so does the
+    limit reached, within about 2e-4)."""
+    worst, mean = surface_limit(character_body_of(name, **({"saved": True} if name in SAVED_TETS else {})), method)
     assert worst <= LIMIT, (worst, mean)
     assert mean <= LIMIT / 10
 
@@ -146,7 +147,7 @@ def test_refined_tets_conform_and_keep_the_volume():
 
 
 def test_tets_given_are_kept_without_refinement():
-    body = character_body_of("Fox")
+    body = character_body_of("Fox", saved=True)
     again = xfem.character_body(body.model, tets=body.tets)
     np.testing.assert_array_equal(np.asarray(again.tets.X), np.asarray(body.tets.X))
     np.testing.assert_array_equal(np.asarray(again.tets.T), np.asarray(body.tets.T))
