@@ -226,8 +226,10 @@ def vertex_sides(V, F, n, d, predicates: str, tolerance: float) -> Float[np.ndar
 
     Args:
         V: (n, 3) vertex positions; F: (m, 3) int faces.
-        n, d: the plane's unit normal (3,) and offset (``check_plane``).
-        predicates, tolerance: as in ``cut_topology``.
+        n: (3,) the plane's unit normal (``check_plane``).
+        d: the plane's offset (``check_plane``).
+        predicates: as in ``cut_topology``.
+        tolerance: see ``predicates``.
     Returns:
         (n,) the signed distances. Raises a ValueError where the plane misses the mesh."""
     s = signed_distances(V, n, d, predicates)
@@ -257,7 +259,9 @@ def intersections(V, F, edges: MeshEdges, s, n, d, predicates: str) -> _Crossing
     Args:
         V: (n, 3) vertex positions; F: (m, 3) int faces; edges: ``mesh_edges(F)``.
         s: (n,) ``vertex_sides``' signed distances.
-        n, d, predicates: as in ``vertex_sides``.
+        n: as in ``vertex_sides``.
+        d: see ``n``.
+        predicates: see ``n``.
     Returns:
         The ``_Crossings``. Raises a ValueError where the plane only grazes the mesh."""
     sign = np.sign(s).astype(np.int64)
@@ -471,7 +475,8 @@ def new_vertex_data(V, J, W, topology: CutTopology, side_weight: float, joint_ma
     Args:
         V: (n, 3) the input's rest positions; J: (n, k) int its joints; W: (n, k) its weights.
         topology: the cut's ``CutTopology``.
-        side_weight, joint_matrices: as in ``cut`` (None or the (j, 4, 4) pose the mesh was cut in).
+        side_weight: as in ``cut`` (None or the (j, 4, 4) pose the mesh was cut in).
+        joint_matrices: see ``side_weight``.
     Returns:
         (rest positions (p, 3) of the new vertices, [(J_new (p, k) int, W_new (p, k)) for the positive half, then
         for the negative]: the same in both halves when ``side_weight`` is 0)."""
@@ -505,7 +510,8 @@ def split_mesh(mesh: SkinnedMesh, V, J, W, topology: CutTopology, rest, weights)
         mesh: the input SkinnedMesh (its joints, inverse binds and dtypes).
         V: (n, 3) its rest positions; J: (n, k) int its joints; W: (n, k) its weights.
         topology: the cut's ``CutTopology``.
-        rest, weights: ``new_vertex_data``'s results.
+        rest: ``new_vertex_data``'s results.
+        weights: see ``rest``.
     Returns:
         [positive, negative] SkinnedMeshes."""
     halves = []

@@ -812,7 +812,10 @@ def drill(
         mesh: the SkinnedMesh (``deform``).
         drill: the ``Drill`` (see ``drill_topology``), in the space of the mesh as drilled: the bind
             pose, or the pose of ``joint_matrices``.
-        min_points, max_refinements, rim_tolerance, tolerance: see ``drill_topology``.
+        min_points: see ``drill_topology``.
+        max_refinements: see ``min_points``.
+        rim_tolerance: see ``min_points``.
+        tolerance: see ``min_points``.
         joint_matrices: (j, 4, 4) joint matrices of a pose (``deform.joint_matrices``): drill the mesh
             *in that pose*, the drill in world space. New vertices get the rest positions whose LBS
             image in that pose is their drilled position (exact for LBS).

@@ -101,7 +101,9 @@ def fit_key_motors(
         fixed_motors: motors (batch shape (k,)) for the keys not fitted; default identities.
         regularization: weight of ``lambda |B|^2`` toward the rest (use it with few targets).
         solver: one of ``deform.SOLVERS``.
-        max_steps, rtol, atol: solver limits and tolerances.
+        max_steps: solver limits and tolerances.
+        rtol: see ``max_steps``.
+        atol: see ``max_steps``.
         init: (k, 6) starting generators (zeros: the rest).
     Returns:
         a ``MotorFit``."""

@@ -253,7 +253,9 @@ def fit_pose(
         fit_scale: also fit each bone's dilation (log-scale); otherwise motors only.
         solver: one of ``SOLVERS``. "gradient_descent" (Adam, its learning rate decaying to zero over
             ``max_steps``) is first order: give it thousands of steps (e.g. ``max_steps=10_000``).
-        max_steps, rtol, atol: solver limits and tolerances.
+        max_steps: solver limits and tolerances.
+        rtol: see ``max_steps``.
+        atol: see ``max_steps``.
         init: (b, 7) starting parameters (zeros: the rest pose).
     Returns:
         a PoseFit."""
@@ -326,7 +328,9 @@ def random_parameters(
     Args:
         key: a JAX random key.
         model: the RiggedModel (its bone count b and rest diagonal).
-        rotation, translation, log_scale: the half-widths of the uniform ranges.
+        rotation: the half-widths of the uniform ranges.
+        translation: see ``rotation``.
+        log_scale: see ``rotation``.
         dtype: the parameters' dtype; None: the mesh's."""
     b = model.skeleton.num_bones
     dtype = dtype or model.mesh.V.dtype

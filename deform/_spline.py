@@ -180,7 +180,9 @@ def spline_precompute(
         end: (e,) int vertex indices of the handle H_n (lambda = 1).
         rest_motors: None (identity rest motors: key motors are motions of space) or motors with batch
             shape (k,) that give back the rest mesh.
-        basis, num_keys, degree: the spline basis, see ``spline_weights``.
+        basis: the spline basis, see ``spline_weights``.
+        num_keys: see ``basis``.
+        degree: see ``basis``.
         laplacian: ``"cotangent"`` or ``"mean_value"`` for the harmonic field.
         unhandled: ``"follow"`` (default) or ``"error"``, see ``spline_parameter``.
     Returns:

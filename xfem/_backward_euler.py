@@ -823,8 +823,14 @@ def compiled_step(
     prepares the step of the next capacity level before a cut needs it.
 
     Args:
-        system, state, h, material, newton_iterations, tolerance, line_search: as ``backward_euler_step`` (only
+        system: as ``backward_euler_step`` (only
             their shapes and dtypes matter, and the options' values).
+        state: see ``system``.
+        h: see ``system``.
+        material: see ``system``.
+        newton_iterations: see ``system``.
+        tolerance: see ``system``.
+        line_search: see ``system``.
     Returns:
         A function ``(system, state, h, material) -> State`` equal to ``backward_euler_step`` with these options
         (fixed nodes kept in place), for systems and states of the compiled shapes.

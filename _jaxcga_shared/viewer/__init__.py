@@ -332,10 +332,10 @@ def view(
     """A viewer page of ``inputs``, side by side (module docstring).
 
     Args:
-        inputs: paths (.glb, .gltf, .npy, .vtu, a folder of frame_XXXX.vtu), (V, F) or (frames, F) pairs of
-            numpy or JAX arrays (V (n, 3), frames (t, n, 3), F (m, 3) integers), lists of (V, F) pairs (one per
-            frame; the triangles may change between frames), objects with ``to_glb() -> bytes`` (a
-            ``deform.RiggedModel``).
+        *inputs (str | os.PathLike | tuple | list | object): paths (.glb, .gltf, .npy, .vtu, a folder of
+            frame_XXXX.vtu), (V, F) or (frames, F) pairs of numpy or JAX arrays (V (n, 3), frames (t, n, 3), F
+            (m, 3) integers), lists of (V, F) pairs (one per frame; the triangles may change between frames),
+            objects with ``to_glb() -> bytes`` (a ``deform.RiggedModel``).
         mesh: the triangles of .npy frames: a mesh file (.obj, .ply, .stl, .off, .glb, ...; as it is, or welded
             as ``jaxcga deform`` reads it, whichever has the frames' vertex count) or a (V, F) pair.
         joint: show the skin weights of this joint (name, or index into a skin's joints); None: the materials.
