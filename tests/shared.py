@@ -131,6 +131,21 @@ def load_character(name: str, weld: bool = True):
     return deform.load_model(CHARACTERS[name], weld=weld)
 
 
+@functools.cache
+def _character_body(name: str, options: tuple):
+    import xfem
+
+    return xfem.character_body(load_character(name), **dict(options))
+
+
+def character_body_of(name: str, **options):
+    """``xfem.character_body`` of the corpus character ``name`` (a key of ``CHARACTERS``) with keyword ``options``
+    (hashable values: numbers, strings, tuples), cached per (name, options): fTetWild takes seconds and is not
+    deterministic, so tests that share a body share one tetrahedralization. Bodies are immutable; do not mutate
+    their arrays."""
+    return _character_body(name, tuple(sorted(options.items())))
+
+
 def gltf_json(path) -> dict:
     """The JSON chunk of a .glb."""
     data = path.read_bytes()

@@ -1,20 +1,36 @@
 """A simulated body from a rigged model: its tets, skinning weights on the tet nodes, the nodes the skeleton drives,
 and the model's own surface embedded in the tets (``character_body``; ``xfem._character`` plays clips on it).
 
-Spaces. The tets are made (fTetWild, ``tetrahedralize_surface``) from the model's surface in its mesh space, where
-skinning starts (``SkinnedMesh.V``); ``CharacterBody.nodes`` keeps them there, and ``node_model`` is the model with
-the tet nodes as its mesh, so ``deform.skin_model(body.node_model, t, method)`` skins the nodes by any method. The
-body's rest configuration (``tets.X``: masses, volumes and the planes of cuts) is the nodes at the skeleton's rest
-pose in world coordinates (``deform.rest_pose``, linear blend), where the model stands as a viewer shows it.
+Spaces. The tets are made (fTetWild, ``tetrahedralize_surface``) from the surface in the REST CONFIGURATION: the
+skeleton's rest pose by linear blending, ``r_p = sum_j w_pj G_j p`` (``deform.rest_pose(model, "lbs")``; ``p`` in
+mesh space, ``G_j`` joint j's rest matrix, its bone's global rest matrix ``B_j`` times its inverse bind), world
+coordinates, where every skin of a model stands together (the mesh spaces of several skins need not agree, nor a
+bind pose equal the rest pose). The nodes' own mesh space is that rest configuration: ``node_model``'s inverse
+binds are ``B_j^-1`` (each projected to the nearest similitude), so ``CharacterBody.nodes == tets.X`` and
+``deform.skin_model(node_model, t, method)`` moves node ``x_a`` by ``sum_j W_aj E_j(t) x_a``, ``E_j(t) = P_j(t)
+B_j^-1`` bone j's motion from its rest (``P_j(t)``: its posed global matrix).
 
-Weights (the transfer rule). A node takes the skinning weights of the closest point of the surface: the barycentric
-blend of the weights of that point's triangle corners, trimmed to the ``influences`` largest and normalized. Inside
-a limb the closest surface point is on that limb, so the node follows the limb's bones.
+Weights (the transfer rule). Skinned directly, a surface vertex goes to ``sum_j w_pj E_j (G_j p)``; embedded (its
+barycentric coordinates ``b_pa`` in the rest tets), to ``sum_a b_pa sum_j W_aj E_j x_a``. The two agree in every
+pose when, for each joint j, ``sum_a b_pa W_aj = w_pj`` (the weight) and ``sum_a b_pa W_aj (x_a - r_p) = w_pj (G_j p
+- r_p)`` (its first moment about the vertex). The node weights of joint j minimize, over the surface's vertices,
+``sum_p l^2 (sum_a b_pa W_aj - w_pj)^2 + |sum_a b_pa W_aj (x_a - r_p) - w_pj (G_j p - r_p)|^2 + mu W_j^T K W_j``,
+with ``l`` = 0.1 diagonal (the lever arm that weighs a weight's error against a moment's), ``K`` the tets'
+cotangent stiffness (their Dirichlet energy: nodes far from the surface get harmonic weights) and ``mu`` 1e-2 of
+the data's trace over K's; one sparse factorization serves every joint, and the rows sum to 1 (the constant
+solves the summed problem). The weights are then clamped to [0, 1], cut to the ``influences`` largest and
+normalized. Refinement: linear tets cannot follow weights that change inside a tet, so the embedded surface is
+checked against the directly skinned one (linear blending) at probe poses (up to 32 times spread over the model's
+clips; without clips, 32 random poses turning every bone by 45 degrees): the tets of the vertices off by more than
+0.8 ``tolerance`` diagonals are bisected at their longest edges (Rivara's longest-edge propagation path: the mesh
+stays conforming and the shapes do not degrade) to 0.7 of their longest edge, not below 1/8 of the initial median
+tet's longest edge, and the weights are fitted again, for at most 8 rounds.
 
 Driven nodes (the core rule). Bone j's core is the set of points within ``core * r_j`` of its segments (from the
-joint to each child joint; a leaf joint is a point), where ``r_j`` is the median distance from those segments of
-the surface vertices whose largest weight is j's: the limb's radius there. A node is driven when it lies in some
-bone's core. Bones whose vertices are fewer than 4 have no core.
+joint to each child joint; a leaf joint is a point) and at least ``(1 - core) * r_j`` inside the tets' boundary,
+where ``r_j`` is the median distance from those segments of the surface vertices whose largest weight is j's: the
+limb's radius there. A node is driven when it lies in some bone's core. Bones whose vertices are fewer than 4 have
+no core.
 
 Anchors. A cut that severs a limb severs its bones too: the pieces that keep the skeleton's root are driven on, the
 others fall. The anchors are the driven nodes of the bones closest to the skeleton's root (the fewest parents up)
@@ -23,6 +39,7 @@ among the bones with a core; ``simulate_character`` releases the driven nodes of
 
 from __future__ import annotations
 
+import time
 from typing import NamedTuple
 
 import igl
@@ -34,13 +51,30 @@ from jaxtyping import Float, Int
 import deform
 from _jaxcga_shared.checks import check_real
 from _jaxcga_shared.mesh import bounding_diagonal
-from xfem._surface_tets import EDGE_LENGTH, EPSILON, SurfaceEmbedding, TetQuality, embed_points, tet_quality
-from xfem._surface_tets import tetrahedralize_surface
+from xfem._surface_tets import (
+    EDGE_LENGTH,
+    EPSILON,
+    SurfaceEmbedding,
+    TetQuality,
+    embed_points,
+    tet_quality,
+    tetrahedralize_surface,
+)
 from xfem._tetmesh import TetMesh, tet_mesh
 
 CORE = 0.5  # the default core radius, as a fraction of the limb's radius about the bone
-INFLUENCES = 4  # joints per node, as glTF's JOINTS_0/WEIGHTS_0
+INFLUENCES = 8  # joints per node: refined tets near joints blend more bones than a surface vertex
 _MIN_VERTICES = 4  # a bone with fewer surface vertices (by largest weight) has no core
+_LENGTH = 0.1
+_SMOOTHNESS = 1e-2
+_PROBES = 32
+_PROBE_ANGLE = np.pi / 4
+_SEED = 0
+_ROUNDS = 8
+_FINEST = 0.125
+_MARGIN = 0.8
+_SHRINK = 0.7
+LIMIT = 1e-3  # the surface limit the tets are refined to, a fraction of the diagonal
 
 
 class CharacterBody(NamedTuple):
@@ -48,10 +82,10 @@ class CharacterBody(NamedTuple):
 
     Attributes:
         model: the ``deform.RiggedModel`` it was made from (weights normalized).
-        node_model: the same skeleton and clips with the tet nodes as its mesh (mesh space, transferred weights):
-            ``deform.skin_model(node_model, t, method)`` skins the nodes.
+        node_model: the same skeleton and clips with the tet nodes as its mesh (its mesh space is the rest
+            configuration; the transferred weights): ``deform.skin_model(node_model, t, method)`` skins the nodes.
         tets: the ``TetMesh`` in the rest configuration (world coordinates, the skeleton's rest pose).
-        nodes: (n, 3) float64 the tet nodes in the model's mesh space (``node_model.mesh.V``).
+        nodes: (n, 3) float64 the tet nodes (``node_model.mesh.V``, equal to ``tets.X``).
         driven: (nd,) int64 sorted indices of the nodes the skeleton drives.
         anchors: (na,) int64 the driven nodes whose pieces stay driven after a cut (module docstring).
         surface: (s, 3) float64 the model's surface in the rest configuration.
@@ -61,7 +95,7 @@ class CharacterBody(NamedTuple):
         gravity: (3,) float64 the gravitational acceleration, world coordinates.
         diagonal: the bounding-box diagonal of ``surface``.
         quality: the ``TetQuality`` of ``tets``.
-        seconds: the wall time of the tetrahedralization (0 for tets given).
+        seconds: the wall time of making the tets and their weights (fTetWild, the fits and the refinement).
     """
 
     model: deform.RiggedModel
@@ -129,6 +163,195 @@ def transfer_weights(
     return np.einsum("nk,nkj->nj", bary, weights[F[face]])
 
 
+def _rest_joint_matrices(model: deform.RiggedModel) -> tuple[np.ndarray, np.ndarray]:
+    """The skin joints' bones' global rest matrices (j, 4, 4) and their joint matrices at rest ``G_j`` (global times
+    inverse bind: mesh space to the rest configuration), float64."""
+    skeleton = model.skeleton
+    local = deform.local_matrices(skeleton)
+    world = np.asarray(deform.forward_kinematics_matrices(skeleton.parents, local), np.float64)
+    bones = world[np.asarray(model.mesh.joints)]
+    return bones, bones @ np.asarray(model.mesh.inverse_bind, np.float64)
+
+
+def _similitude_inverse(matrices: np.ndarray) -> np.ndarray:
+    """(k, 4, 4) the inverses of the nearest similitudes of affine matrices (k, 4, 4): files store rotations and
+    scales to float32, and the multivector methods take only exact similitudes."""
+    U, S, Vt = np.linalg.svd(matrices[:, :3, :3])
+    R = U @ Vt
+    scale = np.cbrt(np.prod(S, axis=1))
+    inverse = np.zeros_like(matrices)
+    inverse[:, :3, :3] = np.swapaxes(R, 1, 2) / scale[:, None, None]
+    inverse[:, :3, 3] = -np.einsum("kab,kb->ka", inverse[:, :3, :3], matrices[:, :3, 3])
+    inverse[:, 3, 3] = 1.0
+    return inverse
+
+
+def fit_weights(
+    X: np.ndarray,
+    T: np.ndarray,
+    embedding: SurfaceEmbedding,
+    surface: np.ndarray,
+    targets: np.ndarray,
+    moments: np.ndarray,
+    length: float,
+    smoothness: float,
+) -> np.ndarray:
+    """Node weights whose barycentric blend reproduces the surface's linear blend skinning (module docstring).
+
+    Args:
+        X: (n, 3) the nodes (rest configuration); T: (t, 4) the tets.
+        embedding: the surface's points in the tets.
+        surface: (s, 3) the points (rest configuration).
+        targets: (s, j) the points' weights ``w_pj``.
+        moments: (s, j, 3) ``w_pj (G_j p - r_p)``: the weighted offsets of each joint's rest image of the point.
+        length: the length that weighs a weight's error against a moment's.
+        smoothness: the weight of the tets' Dirichlet energy, relative to the data's (scale free).
+    Returns:
+        (n, j) the least-squares weights, unclamped (rows sum to 1 up to the solve's rounding).
+    """
+    import scipy.sparse as sparse
+    import scipy.sparse.linalg as sparse_linalg
+
+    n, s = len(X), len(surface)
+    rows = np.repeat(np.arange(s), 4)
+    cols = embedding.nodes.ravel()
+    b = embedding.weights.ravel()
+    blocks = [sparse.csr_matrix((length * b, (rows, cols)), shape=(s, n))]
+    offsets = X[embedding.nodes] - surface[:, None]  # (s, 4, 3)
+    for d in range(3):
+        blocks.append(sparse.csr_matrix((b * offsets[..., d].ravel(), (rows, cols)), shape=(s, n)))
+    M = sparse.vstack(blocks).tocsr()
+    Y = np.concatenate([length * targets, moments[..., 0], moments[..., 1], moments[..., 2]], axis=0)
+    normal = (M.T @ M).tocsc()
+    K = -igl.cotmatrix(X, T)
+    scale = smoothness * normal.diagonal().sum() / max(K.diagonal().sum(), 1e-300)
+    system = (normal + scale * K).tocsc()
+    return sparse_linalg.splu(system).solve(np.asarray(M.T @ Y))
+
+
+def _probe_motions(model: deform.RiggedModel, bones: np.ndarray) -> np.ndarray:
+    """(k, j, 4, 4) rest-to-pose joint motions ``E_j = P_j R_j^-1`` (posed over rest global matrices) of the poses
+    the refinement checks: ``_PROBES`` times spread over the model's clips, or, for a model without clips, as many
+    random poses, each bone turned about a random axis by ``_PROBE_ANGLE`` from its rest."""
+    skeleton = model.skeleton
+    if model.clips:
+        each = max(2, -(-_PROBES // len(model.clips)))
+        posed = np.stack(
+            [
+                np.asarray(deform.sample_pose(model, t, "lbs", clip=c), np.float64)
+                for c, clip in enumerate(model.clips)
+                for t in np.linspace(clip.start, clip.end, each)
+            ]
+        )
+    else:
+        local = np.asarray(deform.local_matrices(skeleton), np.float64)
+        rng = np.random.default_rng(_SEED)
+        axes = rng.normal(size=(_PROBES, len(local), 3))
+        axes /= np.linalg.norm(axes, axis=2, keepdims=True)
+        K = np.zeros((_PROBES, len(local), 3, 3))
+        K[..., 0, 1], K[..., 0, 2], K[..., 1, 2] = -axes[..., 2], axes[..., 1], -axes[..., 0]
+        K -= np.swapaxes(K, -1, -2)
+        turn = np.eye(3) + np.sin(_PROBE_ANGLE) * K + (1 - np.cos(_PROBE_ANGLE)) * K @ K  # Rodrigues
+        posed = np.repeat(local[None], _PROBES, axis=0)
+        posed[..., :3, :3] = local[..., :3, :3] @ turn
+    world = np.asarray(deform.forward_kinematics_matrices(skeleton.parents, posed), np.float64)
+    return world[:, np.asarray(model.mesh.joints)] @ np.linalg.inv(bones)[None]
+
+
+def _probe_errors(
+    motions: np.ndarray, X: np.ndarray, J: np.ndarray, W: np.ndarray, embedding: SurfaceEmbedding, targets: np.ndarray
+) -> np.ndarray:
+    """(s,) the largest distance over the probe poses between the embedded surface (its nodes skinned by linear
+    blending of (J, W)) and the surface skinned by its own weights (``targets``: (k, s, 3))."""
+    worst = np.zeros(len(embedding.element))
+    for motion, target in zip(motions, targets):
+        blend = np.einsum("nk,nkab->nab", W, motion[J])  # (n, 4, 4)
+        nodes = np.einsum("nab,nb->na", blend[:, :3, :3], X) + blend[:, :3, 3]
+        embedded = np.einsum("sk,skd->sd", embedding.weights, nodes[embedding.nodes])
+        worst = np.maximum(worst, np.linalg.norm(embedded - target, axis=1))
+    return worst
+
+
+def bisect_tets(
+    X: np.ndarray, T: np.ndarray, marked: np.ndarray, shrink: float, shortest: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Refine tets by longest-edge bisection (Rivara's LEPP): each marked tet is split until its pieces' longest
+    edges are at most ``shrink`` times its own (and no shorter than ``shortest``). Bisecting an edge splits every tet
+    around it, so the mesh stays conforming, and only an edge that is the longest of all its tets is bisected
+    (following the longest-edge propagation path), which keeps the tets' shapes from degrading.
+
+    Args:
+        X: (n, 3) nodes; T: (t, 4) positively oriented tets.
+        marked: (m,) int the tets to refine.
+        shrink: the factor in (0, 1) of the longest edge each marked tet is refined to.
+        shortest: the edge length below which a tet is not refined.
+    Returns:
+        (X', T'): the nodes (X first, then the edges' midpoints) and the tets.
+    """
+    points = [np.asarray(p, np.float64) for p in X]
+    tets = [list(t) for t in np.asarray(T, np.int64)]
+    alive = [True] * len(tets)
+    edges: dict[tuple[int, int], set[int]] = {}
+
+    def tet_edges(t):
+        c = tets[t]
+        return [(min(c[i], c[j]), max(c[i], c[j])) for i, j in ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))]
+
+    def longest(t):
+        return max(_edge_key_list(points, a, b) for a, b in tet_edges(t))
+
+    for t in range(len(tets)):
+        for e in tet_edges(t):
+            edges.setdefault(e, set()).add(t)
+    target: dict[int, float] = {}
+    for t in np.unique(np.asarray(marked, np.int64)).tolist():
+        length = np.sqrt(longest(t)[0])
+        if length > shortest:
+            target[t] = max(shrink * length, shortest) ** 2
+    queue = list(target)
+    while queue:
+        t = queue.pop()
+        if not alive[t] or t not in target:
+            continue
+        key = longest(t)
+        if key[0] <= target[t]:
+            del target[t]
+            continue
+        while True:  # the longest-edge propagation path: to an edge that is the longest of all its tets
+            longer = [longest(u) for u in edges[key[1:]]]
+            top = max(longer)
+            if top == key:
+                break
+            key = top
+        a, b = key[1:]
+        points.append(0.5 * (points[a] + points[b]))
+        m = len(points) - 1
+        for u in list(edges[(a, b)]):
+            alive[u] = False
+            for e in tet_edges(u):
+                edges[e].discard(u)
+            for old in (b, a):
+                tets.append([m if c == old else c for c in tets[u]])
+                alive.append(True)
+                child = len(tets) - 1
+                for e in tet_edges(child):
+                    edges.setdefault(e, set()).add(child)
+                if u in target:
+                    target[child] = target[u]
+                    queue.append(child)
+            target.pop(u, None)
+        del edges[(a, b)]
+        if alive[t]:
+            queue.append(t)
+    keep = [c for c, live in zip(tets, alive) if live]
+    return np.asarray(points), np.asarray(keep, np.int64)
+
+
+def _edge_key_list(points: list, a: int, b: int) -> tuple[float, int, int]:
+    d = points[a] - points[b]
+    return float(d @ d), a, b
+
+
 def _segments_distance(points: np.ndarray, a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """(n, s) the distance of each point to each segment [a_s, b_s] (a point where a == b)."""
     ab = b - a
@@ -154,6 +377,13 @@ def _bone_distances(model: deform.RiggedModel, points: np.ndarray) -> np.ndarray
     return distance
 
 
+def _boundary_faces(T: np.ndarray) -> np.ndarray:
+    """(f, 3) the faces of the tets T (t, 4) that lie in one tet only."""
+    faces = T[:, [[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]]].reshape(-1, 3)
+    _, first, counts = np.unique(np.sort(faces, axis=1), axis=0, return_index=True, return_counts=True)
+    return faces[first[counts == 1]]
+
+
 def _depths(parents: tuple[int, ...]) -> np.ndarray:
     depth = np.zeros(len(parents), np.int64)
     for bone, parent in enumerate(parents):
@@ -173,6 +403,7 @@ def character_body(
     influences: int = INFLUENCES,
     tets: TetMesh | None = None,
     threads: int | None = None,
+    tolerance: float | None = LIMIT,
 ) -> CharacterBody:
     """A tet body of a rigged model: fTetWild's tets of its surface, the surface's skinning weights carried to the
     tet nodes, the nodes the skeleton drives and the surface embedded in the tets (module docstring: the rules).
@@ -189,45 +420,88 @@ def character_body(
         driven: None (the core rule), ``"all"`` (every node: the body is skinned, nothing is simulated), or the
             (nd,) int indices of the driven nodes.
         influences: the joints each node keeps (>= 1).
-        tets: None (tetrahedralize), or a ``TetMesh`` of the surface in the model's mesh space (e.g. a saved one,
-            as fTetWild is not deterministic).
+        tets: None (tetrahedralize), or a ``TetMesh`` of the surface in the rest configuration (e.g. a saved
+            ``CharacterBody.tets``, as fTetWild is not deterministic); it is refined as ``tolerance`` asks.
         threads: fTetWild's threads; None: every core.
+        tolerance: the surface limit the tets are refined to, a fraction in (0, 1) of the diagonal (module
+            docstring); None: the tets as they are.
     Returns:
         The ``CharacterBody``.
     """
     if not isinstance(model, deform.RiggedModel):
         raise ValueError(f"model: expected a deform.RiggedModel (deform.load_model), got {type(model).__name__}")
+    if model.mesh.num_joints == 0 or model.mesh.num_vertices == 0:
+        raise ValueError("model: its mesh has no skin joints or no vertices; a body needs a skinned mesh")
     density = float(check_real("density", density, (), "a positive density"))
     if not density > 0:
         raise ValueError(f"density: expected a positive density, got {density}")
     gravity = np.asarray(check_real("gravity", gravity, (3,), "a finite acceleration"), np.float64)
-    if not (isinstance(core, (int, float)) and 0 < core <= 1):
+    if isinstance(core, bool) or not (isinstance(core, (int, float, np.integer, np.floating)) and 0 < core <= 1):
         raise ValueError(f"core: expected a fraction in (0, 1], got {core!r}")
-    if int(influences) != influences or influences < 1:
+    if isinstance(influences, bool) or not isinstance(influences, (int, np.integer)) or influences < 1:
         raise ValueError(f"influences: expected an int >= 1, got {influences!r}")
+    if tolerance is not None and (
+        isinstance(tolerance, bool) or not isinstance(tolerance, (int, float, np.floating)) or not 0 < tolerance < 1
+    ):
+        raise ValueError(f"tolerance: expected None or a fraction of the diagonal in (0, 1), got {tolerance!r}")
+    if tets is not None and not isinstance(tets, TetMesh):
+        raise ValueError(f"tets: expected None or a TetMesh, got {type(tets).__name__}")
+    if isinstance(driven, str) and driven != "all":
+        raise ValueError(f"driven: expected None, 'all' or node indices, got {driven!r}")
     mesh = model.mesh.with_normalized_weights()
     model = deform.RiggedModel(mesh, model.skeleton, model.clips, model.name)
-    V, F = np.asarray(mesh.V, np.float64), np.asarray(mesh.F, np.int64)
-    seconds = 0.0
+    F = np.asarray(mesh.F, np.int64)
+    surface = np.asarray(deform.rest_pose(model, "lbs"), np.float64)
+    start = time.perf_counter()
     if tets is None:
-        made = tetrahedralize_surface(V, F, edge_length=edge_length, epsilon=epsilon, threads=threads)
-        tets, seconds = made.mesh, made.seconds
-    elif not isinstance(tets, TetMesh):
-        raise ValueError(f"tets: expected None or a TetMesh, got {type(tets).__name__}")
-    nodes, T = np.asarray(tets.X, np.float64), np.asarray(tets.T, np.int64)
-    dense = transfer_weights(V, F, _dense_weights(mesh), nodes)
-    J, W = _trim(dense, int(influences))
+        made = tetrahedralize_surface(surface, F, edge_length=edge_length, epsilon=epsilon, threads=threads)
+        rest = made.mesh
+    else:
+        rest = tets
+    X, T = np.asarray(rest.X, np.float64), np.asarray(rest.T, np.int64)
+    diagonal = bounding_diagonal(surface)
+    bones, G = _rest_joint_matrices(model)
+    dense = _dense_weights(mesh)
+    Vh = np.concatenate([np.asarray(mesh.V, np.float64), np.ones((len(surface), 1))], axis=1)
+    images = np.einsum("jab,sb->sja", G[:, :3], Vh)  # (s, j, 3) each joint's rest image of each vertex
+    moments = dense[..., None] * (images - surface[:, None])
+    motions = _probe_motions(model, bones)
+    targets = np.einsum("sj,kjab,sjb->ksa", dense, motions[..., :3, :3], images) + np.einsum(
+        "sj,kja->ksa", dense, motions[..., :3, 3]
+    )
+    lengths = np.linalg.norm(X[T[:, [0, 0, 0, 1, 1, 2]]] - X[T[:, [1, 2, 3, 2, 3, 3]]], axis=2).max(axis=1)
+    shortest = _FINEST * float(np.median(lengths))
+    for round_ in range(_ROUNDS + 1):
+        embedding = embed_points(rest, surface)
+        if round_ == 0 and tets is not None:
+            far = embedding.distance > 3 * float(np.median(lengths))
+            if far.mean() > 0.1:
+                raise ValueError(
+                    f"tets: {far.mean():.0%} of the surface's vertices lie more than 3 edge lengths from the tets; "
+                    "expected tets of the surface in the rest configuration (the skeleton's rest pose, world "
+                    "coordinates, as CharacterBody.tets)"
+                )
+        fitted = fit_weights(X, T, embedding, surface, dense, moments, _LENGTH * diagonal, _SMOOTHNESS)
+        J, W = _trim(np.clip(fitted, 0.0, 1.0), int(influences))
+        if tolerance is None or round_ == _ROUNDS:
+            break
+        error = _probe_errors(motions, X, J, W, embedding, targets)
+        bad = error > _MARGIN * tolerance * diagonal
+        if not bad.any():
+            break
+        X, T = bisect_tets(X, T, embedding.element[bad], _SHRINK, shortest)
+        rest = tet_mesh(X, T)
+    seconds = time.perf_counter() - start
+    # the nodes' mesh space is the rest configuration: each joint's inverse bind is its bone's inverse rest matrix
     node_mesh = deform.SkinnedMesh(
-        jnp.asarray(nodes), jnp.zeros((0, 3), jnp.int32), jnp.asarray(J), jnp.asarray(W), mesh.inverse_bind, mesh.joints
+        jnp.asarray(X),
+        jnp.zeros((0, 3), jnp.int32),
+        jnp.asarray(J),
+        jnp.asarray(W),
+        jnp.asarray(_similitude_inverse(bones)),
+        mesh.joints,
     )
     node_model = deform.RiggedModel(node_mesh, model.skeleton, model.clips, model.name)
-    try:
-        rest = tet_mesh(np.asarray(deform.rest_pose(node_model, "lbs"), np.float64), T)
-    except ValueError as error:
-        raise ValueError(f"model: its rest pose flattens tets ({error}); pass tets made in that pose") from None
-    surface = np.asarray(deform.rest_pose(model, "lbs"), np.float64)
-    embedding = embed_points(rest, surface)
-    X = np.asarray(rest.X, np.float64)
     distance = _bone_distances(model, X)
     owner = np.argmax(_dense_weights(mesh), axis=1)
     surface_distance = _bone_distances(model, surface)
@@ -237,10 +511,12 @@ def character_body(
         if mine.sum() >= _MIN_VERTICES:
             radius[j] = np.median(surface_distance[mine, j])
     has_core = np.isfinite(radius) & (radius > 0)
-    inside = np.where(has_core[None], distance <= core * np.where(has_core, radius, 0)[None], False)
+    # a node at a bone that runs near the skin (a tail, an ear, an off-centre bone) is not driven: it must lie as far
+    # inside the tets' boundary as the core's edge lies from a round limb's skin
+    reach = np.where(has_core, radius, 0.0)[None]
+    skin = np.sqrt(igl.point_mesh_squared_distance(X, X, _boundary_faces(T))[0])
+    inside = has_core[None] & (distance <= core * reach) & (skin[:, None] >= (1 - core) * reach)
     if isinstance(driven, str):
-        if driven != "all":
-            raise ValueError(f"driven: expected None, 'all' or node indices, got {driven!r}")
         driven_nodes = np.arange(len(X))
     elif driven is None:
         driven_nodes = np.flatnonzero(inside.any(axis=1))
@@ -265,7 +541,7 @@ def character_body(
         model=model,
         node_model=node_model,
         tets=rest,
-        nodes=nodes,
+        nodes=X,
         driven=driven_nodes.astype(np.int64),
         anchors=np.sort(anchors).astype(np.int64),
         surface=surface,
@@ -273,7 +549,7 @@ def character_body(
         embedding=embedding,
         density=density,
         gravity=gravity,
-        diagonal=bounding_diagonal(surface),
+        diagonal=diagonal,
         quality=tet_quality(rest),
         seconds=seconds,
     )

@@ -155,7 +155,9 @@ def test_gradients_in_the_cut_plane(body):
         )
         return sum(jnp.sum(s.surface[..., 1]) for s in motion.segments)
 
-    check_gradient(lambda p: loss(p[:3] * 1e-3, p[3:] * 1e-3), jnp.zeros(5), rtol=1e-5, step=1e-4)
+    # steps of 1e-5 m and 1e-5 rad: central differences of converged steps (Newton stops at 1e-10 of the size) are
+    # below 1e-5 of the derivative there, and the slab crosses no node
+    check_gradient(lambda p: loss(p[:3] * 1e-3, p[3:] * 1e-3), jnp.zeros(5), rtol=1e-5, step=1e-2)
 
 
 def test_errors(body):
