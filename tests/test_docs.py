@@ -4,6 +4,7 @@ notebook carries an internal tracker number."""
 
 from __future__ import annotations
 
+import doctest
 import importlib
 import importlib.util
 import inspect
@@ -87,6 +88,43 @@ def test_no_internal_tracker_numbers():
 def test_tracker_pattern():
     assert TRACKER.search("as issue 51 places them") and TRACKER.search("Issues 31-32")
     assert not TRACKER.search("fTetWild issue #72") and not TRACKER.search("the issue of scale")
+
+
+def public_functions(package: str):
+    """(qualified name, function) of the package's public functions (its ``__all__``), in order."""
+    module = importlib.import_module(package)
+    for name in module.__all__:
+        obj = getattr(module, name)
+        if inspect.isfunction(obj):
+            yield f"{package}.{name}", obj
+
+
+@pytest.mark.parametrize("package", PACKAGES)
+def test_docstring_examples_run(package):
+    # the examples the API reference shows, run as doctests in the suite's configuration (float64, strict promotion)
+    finder = doctest.DocTestFinder(recurse=False)
+    runner = doctest.DocTestRunner(optionflags=doctest.NORMALIZE_WHITESPACE)
+    report: list[str] = []
+    examples = 0
+    for name, function in public_functions(package):
+        for test in finder.find(function, name, globs={}):
+            examples += len(test.examples)
+            runner.run(test, out=report.append)
+    assert runner.failures == 0, "".join(report)
+    if package == "jaxcga":
+        assert examples > 0
+
+
+def test_kernel_functions_document_arguments_and_an_example():
+    # every public function of the kernel has the Google-style sections mkdocstrings renders, and an example
+    incomplete = []
+    for name, function in public_functions("jaxcga"):
+        doc = inspect.getdoc(function) or ""
+        needs_args = any(p.name != "self" for p in inspect.signature(function).parameters.values())
+        missing = [s for s, needed in (("Args:", needs_args), ("Returns:", True), (">>>", True)) if needed and s not in doc]
+        if missing:
+            incomplete.append(f"{name}: {missing}")
+    assert not incomplete, "\n".join(incomplete)
 
 
 def test_cli_reference_covers_every_subcommand():
