@@ -157,7 +157,8 @@ def involution(m: Multivector) -> Multivector:
         The grade involution of ``m``, on the same blades.
     Example:
         >>> import jaxcga as cga
-        >>> cga.involution(cga.basis_vector("e1")).values.tolist(), cga.involution(cga.basis_vector("e12")).values.tolist()
+        >>> e1, e12 = cga.basis_vector("e1"), cga.basis_vector("e12")
+        >>> cga.involution(e1).values.tolist(), cga.involution(e12).values.tolist()
         ([-1.0], [1.0])
     """
     return Multivector(m.values * _signs(alg.involution_sign, m.blades, m.dtype), m.blades)
@@ -172,7 +173,8 @@ def conjugate(m: Multivector) -> Multivector:
         The Clifford conjugate of ``m``, on the same blades.
     Example:
         >>> import jaxcga as cga
-        >>> cga.conjugate(cga.basis_vector("e1")).values.tolist(), cga.conjugate(cga.basis_vector("e12")).values.tolist()
+        >>> e1, e12 = cga.basis_vector("e1"), cga.basis_vector("e12")
+        >>> cga.conjugate(e1).values.tolist(), cga.conjugate(e12).values.tolist()
         ([-1.0], [-1.0])
     """
     return Multivector(m.values * _signs(alg.conjugate_sign, m.blades, m.dtype), m.blades)

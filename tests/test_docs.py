@@ -81,7 +81,8 @@ def doc_sources():
 
 def test_no_internal_tracker_numbers():
     found = [f"{where}: {m.group(0)!r}" for where, text in doc_sources() for m in TRACKER.finditer(text)]
-    found += [f"docstring of {name}: {m.group(0)!r}" for name, doc in public_docstrings() for m in TRACKER.finditer(doc)]
+    for name, doc in public_docstrings():
+        found += [f"docstring of {name}: {m.group(0)!r}" for m in TRACKER.finditer(doc)]
     assert not found, "internal tracker numbers in the documentation:\n" + "\n".join(found)
 
 
@@ -121,7 +122,8 @@ def test_kernel_functions_document_arguments_and_an_example():
     for name, function in public_functions("jaxcga"):
         doc = inspect.getdoc(function) or ""
         needs_args = any(p.name != "self" for p in inspect.signature(function).parameters.values())
-        missing = [s for s, needed in (("Args:", needs_args), ("Returns:", True), (">>>", True)) if needed and s not in doc]
+        sections = (("Args:", needs_args), ("Returns:", True), (">>>", True))
+        missing = [section for section, needed in sections if needed and section not in doc]
         if missing:
             incomplete.append(f"{name}: {missing}")
     assert not incomplete, "\n".join(incomplete)
