@@ -55,7 +55,7 @@ def up(x: Float[ArrayLike, "... 3"]) -> Multivector:
         x: (..., 3) Euclidean points.
     Returns:
         The conformal points, vectors on (e1, e2, e3, eo, einf) of batch shape (...).
-    Example:
+    Examples:
         >>> import jax.numpy as jnp
         >>> import jaxcga as cga
         >>> cga.up(jnp.array([1.0, 2.0, 3.0])).values.tolist()
@@ -72,7 +72,7 @@ def down(X: Multivector) -> Float[Array, "... 3"]:
         X: conformal points (vectors; any non-zero scale).
     Returns:
         (..., 3) the Euclidean points.
-    Example:
+    Examples:
         >>> import jax.numpy as jnp
         >>> import jaxcga as cga
         >>> cga.down(2.0 * cga.up(jnp.array([1.0, 2.0, 3.0]))).tolist()
@@ -93,7 +93,7 @@ def sphere(center: Float[ArrayLike, "... 3"], radius: Float[ArrayLike, "*batch"]
         radius: (...) the radii, >= 0.
     Returns:
         The spheres as vectors, batch shape broadcast from both.
-    Example:
+    Examples:
         >>> import jax.numpy as jnp
         >>> import jaxcga as cga
         >>> S = cga.sphere(jnp.zeros(3), 2.0)
@@ -114,7 +114,7 @@ def plane(normal: Float[ArrayLike, "... 3"], distance: Float[ArrayLike, "*batch"
         distance: (...) the signed distances from the origin along the normal.
     Returns:
         The planes as vectors (e1, e2, e3, einf).
-    Example:
+    Examples:
         >>> import jax.numpy as jnp
         >>> import jaxcga as cga
         >>> P = cga.plane(jnp.array([0, 0, 2.0]), 1.0)  # z = 1
@@ -151,7 +151,7 @@ def point_pair(a: Multivector, b: Multivector) -> Multivector:
         b: conformal points.
     Returns:
         The point pairs, bivectors.
-    Example:
+    Examples:
         >>> import jax.numpy as jnp
         >>> import jaxcga as cga
         >>> T = cga.point_pair(cga.up(jnp.array([1.0, 0, 0])), cga.up(jnp.array([-1.0, 0, 0])))
@@ -169,7 +169,7 @@ def line(a: Multivector, b: Multivector) -> Multivector:
         b: conformal points, distinct from ``a``.
     Returns:
         The lines, trivectors.
-    Example:
+    Examples:
         >>> import jax.numpy as jnp
         >>> import jaxcga as cga
         >>> L = cga.line(cga.up(jnp.array([0, 1.0, 0])), cga.up(jnp.array([2.0, 1.0, 0])))
@@ -188,7 +188,7 @@ def circle(a: Multivector, b: Multivector, c: Multivector) -> Multivector:
         c: conformal points, not on the line through ``a`` and ``b``.
     Returns:
         The circles, trivectors.
-    Example:
+    Examples:
         >>> import jax.numpy as jnp
         >>> import jaxcga as cga
         >>> up = lambda x: cga.up(jnp.array(x))
@@ -209,7 +209,7 @@ def plane_through(a: Multivector, b: Multivector, c: Multivector) -> Multivector
         c: conformal points, not on the line through ``a`` and ``b``.
     Returns:
         The planes in direct form, quadvectors.
-    Example:
+    Examples:
         >>> import jax.numpy as jnp
         >>> import jaxcga as cga
         >>> up = lambda x: cga.up(jnp.array(x))
@@ -231,7 +231,7 @@ def sphere_through(a: Multivector, b: Multivector, c: Multivector, d: Multivecto
         d: conformal points, not on one circle or plane with the other three.
     Returns:
         The spheres in direct form, quadvectors.
-    Example:
+    Examples:
         >>> import jax.numpy as jnp
         >>> import jaxcga as cga
         >>> up = lambda x: cga.up(jnp.array(x))
@@ -252,7 +252,7 @@ def squared_distance(a: Multivector, b: Multivector) -> Float[Array, "*batch"]:
         b: conformal points.
     Returns:
         (*batch) the squared Euclidean distances.
-    Example:
+    Examples:
         >>> import jax.numpy as jnp
         >>> import jaxcga as cga
         >>> float(cga.squared_distance(cga.up(jnp.array([1.0, 0, 0])), 3.0 * cga.up(jnp.array([0, 2.0, 0]))))
@@ -271,7 +271,7 @@ def distance(a: Multivector, b: Multivector) -> Float[Array, "*batch"]:
         b: conformal points.
     Returns:
         (*batch) the Euclidean distances (a finite gradient where they are zero).
-    Example:
+    Examples:
         >>> import jax.numpy as jnp
         >>> import jaxcga as cga
         >>> float(cga.distance(cga.up(jnp.array([3.0, 0, 0])), cga.up(jnp.array([0, 4.0, 0]))))
@@ -288,7 +288,7 @@ def plane_signed_distance(plane_vector: Multivector, X: Multivector) -> Float[Ar
         X: conformal points of scale 1 (``up``).
     Returns:
         (*batch) ``x . n - d``: the signed distances for unit normals.
-    Example:
+    Examples:
         >>> import jax.numpy as jnp
         >>> import jaxcga as cga
         >>> P = cga.plane(jnp.array([0, 0, 1.0]), 1.0)
@@ -307,7 +307,7 @@ def sphere_power(sphere_vector: Multivector, X: Multivector) -> Float[Array, "*b
         X: conformal points (any non-zero scale).
     Returns:
         (*batch) the power ``(r^2 - |x - c|^2) / 2``.
-    Example:
+    Examples:
         >>> import jax.numpy as jnp
         >>> import jaxcga as cga
         >>> S = cga.sphere(jnp.zeros(3), 1.0)
@@ -335,7 +335,7 @@ def sphere_center_radius(S: Multivector) -> tuple[Float[Array, "... 3"], Float[A
         S: spheres in vector form (``sphere``) or direct form (``sphere_through``).
     Returns:
         (center (..., 3), radius (...)); an imaginary sphere's radius is negative.
-    Example:
+    Examples:
         >>> import jax.numpy as jnp
         >>> import jaxcga as cga
         >>> center, radius = cga.sphere_center_radius(cga.sphere(jnp.array([1.0, 2.0, 3.0]), 0.5))
@@ -357,7 +357,7 @@ def plane_normal_distance(P: Multivector) -> tuple[Float[Array, "... 3"], Float[
         P: planes in vector form (``plane``) or direct form (``plane_through``).
     Returns:
         (unit normal (..., 3), distance (...)) with ``x . n = d`` on the plane.
-    Example:
+    Examples:
         >>> import jax.numpy as jnp
         >>> import jaxcga as cga
         >>> normal, distance = cga.plane_normal_distance(cga.plane(jnp.array([0, 3.0, 0]), 2.0))
@@ -379,7 +379,7 @@ def line_point_direction(L: Multivector) -> tuple[Float[Array, "... 3"], Float[A
         L: lines in direct form (``line``).
     Returns:
         (the point closest to the origin (..., 3), the unit direction (..., 3)).
-    Example:
+    Examples:
         >>> import jax.numpy as jnp
         >>> import jaxcga as cga
         >>> L = cga.line(cga.up(jnp.array([1.0, 0, 5.0])), cga.up(jnp.array([1.0, 0, 1.0])))
@@ -408,7 +408,7 @@ def round_radius2(X: Multivector) -> Float[Array, "*batch"]:
         X: rounds in direct form: point pairs (``point_pair``), circles (``circle``) or spheres (``sphere_through``).
     Returns:
         (*batch) the squared radii.
-    Example:
+    Examples:
         >>> import jax.numpy as jnp
         >>> import jaxcga as cga
         >>> T = cga.point_pair(cga.up(jnp.array([0, 0, 0.0])), cga.up(jnp.array([4.0, 0, 0])))
@@ -426,7 +426,7 @@ def round_center(X: Multivector) -> Float[Array, "... 3"]:
         X: rounds in direct form: point pairs, circles or spheres.
     Returns:
         (..., 3) the centers.
-    Example:
+    Examples:
         >>> import jax.numpy as jnp
         >>> import jaxcga as cga
         >>> T = cga.point_pair(cga.up(jnp.array([0, 0, 0.0])), cga.up(jnp.array([4.0, 2.0, 0])))
@@ -448,7 +448,7 @@ def circle_center_radius_normal(
     Returns:
         (center (..., 3), radius (...), unit normal (..., 3)); the normal follows the right-hand rule through the
         three points of ``circle(a, b, c)``.
-    Example:
+    Examples:
         >>> import jax.numpy as jnp
         >>> import jaxcga as cga
         >>> up = lambda x: cga.up(jnp.array(x))
@@ -472,7 +472,7 @@ def point_pair_points(T: Multivector) -> Float[Array, "... 2 3"]:
         T: real point pairs in direct form (``point_pair``).
     Returns:
         (..., 2, 3) the two Euclidean points.
-    Example:
+    Examples:
         >>> import jax.numpy as jnp
         >>> import jaxcga as cga
         >>> T = cga.point_pair(cga.up(jnp.array([0, 3.0, 0])), cga.up(jnp.array([0, 1.0, 0])))
@@ -500,7 +500,7 @@ def intersect(a: Multivector, b: Multivector) -> Multivector:
         b: objects in direct form.
     Returns:
         Their intersection in direct form: ``meet(a, b)``.
-    Example:
+    Examples:
         >>> import jax.numpy as jnp
         >>> import jaxcga as cga
         >>> up = lambda x: cga.up(jnp.array(x))

@@ -35,7 +35,7 @@ def geometric(a: Multivector, b: Multivector) -> Multivector:
         b: a multivector of any blades.
     Returns:
         The multivector ``a b``, on the blades that can be non-zero.
-    Example:
+    Examples:
         >>> import jaxcga as cga
         >>> e1, e2 = cga.basis_vector("e1"), cga.basis_vector("e2")
         >>> m = cga.geometric(e1, e2)
@@ -53,7 +53,7 @@ def outer(a: Multivector, b: Multivector) -> Multivector:
         b: a multivector.
     Returns:
         The multivector ``a ^ b`` (grade r + s of each pair of grade-r and grade-s parts).
-    Example:
+    Examples:
         >>> import jaxcga as cga
         >>> e1 = cga.basis_vector("e1")
         >>> cga.outer(e1, cga.basis_vector("e2")).names, cga.outer(e1, e1).names  # e1 ^ e1 has no blade
@@ -70,7 +70,7 @@ def left_contraction(a: Multivector, b: Multivector) -> Multivector:
         b: a multivector.
     Returns:
         The multivector ``a _| b``.
-    Example:
+    Examples:
         >>> import jaxcga as cga
         >>> m = cga.left_contraction(cga.basis_vector("e1"), cga.basis_vector("e12"))
         >>> m.names, m.values.tolist()
@@ -89,7 +89,7 @@ def inner(a: Multivector, b: Multivector) -> Multivector:
         b: a multivector.
     Returns:
         The multivector ``a | b``.
-    Example:
+    Examples:
         >>> import jax.numpy as jnp
         >>> import jaxcga as cga
         >>> a, b = cga.up(jnp.array([1.0, 0, 0])), cga.up(jnp.array([0, 2.0, 0]))
@@ -107,7 +107,7 @@ def scalar_product(a: Multivector, b: Multivector) -> Float[Array, "*batch"]:
         b: a multivector.
     Returns:
         (*batch) the scalar part of ``a b``.
-    Example:
+    Examples:
         >>> import jaxcga as cga
         >>> float(cga.scalar_product(cga.basis_vector("e12"), cga.basis_vector("e12")))
         -1.0
@@ -124,7 +124,7 @@ def commutator(a: Multivector, b: Multivector) -> Multivector:
         b: a multivector.
     Returns:
         The multivector ``(a b - b a) / 2``.
-    Example:
+    Examples:
         >>> import jaxcga as cga
         >>> m = cga.commutator(cga.basis_vector("e12"), cga.basis_vector("e1"))
         >>> m.names, m.values.tolist()
@@ -140,7 +140,7 @@ def reverse(m: Multivector) -> Multivector:
         m: a multivector.
     Returns:
         The multivector ``~m`` on the same blades.
-    Example:
+    Examples:
         >>> import jaxcga as cga
         >>> cga.reverse(cga.basis_vector("e12")).values.tolist()
         [-1.0]
@@ -155,7 +155,7 @@ def involution(m: Multivector) -> Multivector:
         m: a multivector.
     Returns:
         The grade involution of ``m``, on the same blades.
-    Example:
+    Examples:
         >>> import jaxcga as cga
         >>> e1, e12 = cga.basis_vector("e1"), cga.basis_vector("e12")
         >>> cga.involution(e1).values.tolist(), cga.involution(e12).values.tolist()
@@ -171,7 +171,7 @@ def conjugate(m: Multivector) -> Multivector:
         m: a multivector.
     Returns:
         The Clifford conjugate of ``m``, on the same blades.
-    Example:
+    Examples:
         >>> import jaxcga as cga
         >>> e1, e12 = cga.basis_vector("e1"), cga.basis_vector("e12")
         >>> cga.conjugate(e1).values.tolist(), cga.conjugate(e12).values.tolist()
@@ -188,7 +188,7 @@ def dual(m: Multivector) -> Multivector:
         m: a multivector.
     Returns:
         The multivector ``-m I``.
-    Example:
+    Examples:
         >>> import jaxcga as cga
         >>> m = cga.basis_vector("e1")
         >>> (cga.dual(cga.dual(m)) + m).values.tolist()
@@ -204,7 +204,7 @@ def undual(m: Multivector) -> Multivector:
         m: a multivector.
     Returns:
         The multivector ``m I``.
-    Example:
+    Examples:
         >>> import jaxcga as cga
         >>> m = cga.basis_vector("e2")
         >>> n = cga.undual(cga.dual(m))
@@ -224,7 +224,7 @@ def meet(a: Multivector, b: Multivector) -> Multivector:
         b: an object in direct form.
     Returns:
         The multivector ``a v b``: their intersection, in direct form.
-    Example:
+    Examples:
         >>> import jax.numpy as jnp
         >>> import jaxcga as cga
         >>> up = lambda x: cga.up(jnp.array(x))
@@ -245,7 +245,7 @@ def grade(m: Multivector, *grades: int) -> Multivector:
         *grades: the grades to keep (0 to 5).
     Returns:
         The multivector of ``m``'s blades of those grades.
-    Example:
+    Examples:
         >>> import jax.numpy as jnp
         >>> import jaxcga as cga
         >>> M = cga.motor(cga.rotor(jnp.array([0, 0, 1.0]), 0.5), jnp.array([1.0, 0, 0]))
@@ -262,7 +262,7 @@ def norm2(m: Multivector) -> Float[Array, "*batch"]:
         m: a multivector.
     Returns:
         (*batch) ``<~m m>_0``.
-    Example:
+    Examples:
         >>> import jaxcga as cga
         >>> float(cga.norm2(cga.basis_vector("e1"))), float(cga.norm2(cga.basis_vector("einf")))
         (1.0, 0.0)
@@ -284,7 +284,7 @@ def norm(m: Multivector) -> Float[Array, "*batch"]:
         m: a multivector.
     Returns:
         (*batch) ``sqrt(|<~m m>_0|)``, with a finite gradient at zero.
-    Example:
+    Examples:
         >>> import jaxcga as cga
         >>> float(cga.norm(2.0 * cga.basis_vector("e12")))
         2.0
@@ -300,7 +300,7 @@ def normalize(m: Multivector) -> Multivector:
         m: a multivector of non-zero norm (checked, also inside ``jit``).
     Returns:
         ``m`` scaled to norm 1 (a motor: made exactly unit).
-    Example:
+    Examples:
         >>> import jaxcga as cga
         >>> cga.normalize(3.0 * cga.basis_vector("e1")).values.tolist()
         [1.0]
@@ -358,7 +358,7 @@ def versor_inverse(v: Multivector) -> Multivector:
         v: a versor (``<v ~v>_0`` non-zero, checked).
     Returns:
         The versor ``v^-1`` on ``v``'s blades.
-    Example:
+    Examples:
         >>> import jax.numpy as jnp
         >>> import jaxcga as cga
         >>> T = cga.translator(jnp.array([1.0, 2.0, 3.0]))
@@ -389,7 +389,7 @@ def inverse(m: Multivector) -> Multivector:
         m: an invertible multivector (checked, also inside ``jit``).
     Returns:
         ``m^-1``, on the blades of the subalgebra that ``m``'s blades generate.
-    Example:
+    Examples:
         >>> import jaxcga as cga
         >>> m = 1.0 + 2.0 * cga.basis_vector("e1")
         >>> [round(v, 6) for v in cga.inverse(m).values.tolist()]
@@ -426,7 +426,7 @@ def zeros(blades: Blades, batch_shape: Sequence[int] = (), dtype: DTypeLike | No
         dtype: the values' dtype; None: JAX's default float.
     Returns:
         The multivector, values of shape (*batch_shape, len(blades)).
-    Example:
+    Examples:
         >>> import jaxcga as cga
         >>> m = cga.zeros("rotor", (2,))
         >>> m.names, m.values.shape
@@ -444,7 +444,7 @@ def scalar(value: Float[ArrayLike, "*batch"], dtype: DTypeLike | None = None) ->
         dtype: the values' dtype; None: JAX's default float.
     Returns:
         The multivector on the blade ``1``, values of shape (*batch, 1).
-    Example:
+    Examples:
         >>> import jaxcga as cga
         >>> cga.scalar([1.0, 2.0]).values.tolist()
         [[1.0], [2.0]]
@@ -461,7 +461,7 @@ def basis_vector(name: str, dtype: DTypeLike | None = None) -> Multivector:
         dtype: the value's dtype; None: JAX's default float.
     Returns:
         The multivector on that blade, value 1.
-    Example:
+    Examples:
         >>> import jaxcga as cga
         >>> cga.basis_vector("e12").names
         ('e12',)

@@ -48,7 +48,7 @@ def translator(t: Float[ArrayLike, "... 3"]) -> Multivector:
         t: (..., 3) translation vectors.
     Returns:
         The translators (1, e1inf, e2inf, e3inf), batch shape (...).
-    Example:
+    Examples:
         >>> import jax.numpy as jnp
         >>> import jaxcga as cga
         >>> T = cga.translator(jnp.array([1.0, 2.0, 3.0]))
@@ -81,7 +81,7 @@ def rotor(axis: Float[ArrayLike, "... 3"], angle: Float[ArrayLike, "*batch"]) ->
         angle: (...) angles in radians, counter-clockwise looking down the axis.
     Returns:
         The rotors (1, e12, e13, e23), batch shape broadcast from both.
-    Example:
+    Examples:
         >>> import jax.numpy as jnp
         >>> import jaxcga as cga
         >>> R = cga.rotor(jnp.array([0, 0, 1.0]), jnp.pi / 2)
@@ -102,7 +102,7 @@ def rotor_from_bivector(plane: Float[ArrayLike, "... 3"], angle: Float[ArrayLike
         angle: (...) angles in radians.
     Returns:
         The rotors (1, e12, e13, e23).
-    Example:
+    Examples:
         >>> import jax.numpy as jnp
         >>> import jaxcga as cga
         >>> R = cga.rotor_from_bivector(jnp.array([1.0, 0, 0]), jnp.pi / 2)  # in the e12 plane: about +z
@@ -126,7 +126,7 @@ def dilator(scale: Float[ArrayLike, "*batch"]) -> Multivector:
         scale: (...) scale factors > 0.
     Returns:
         The unit dilators (1, eoinf).
-    Example:
+    Examples:
         >>> import jax.numpy as jnp
         >>> import jaxcga as cga
         >>> cga.apply_to_points(cga.dilator(2.0), jnp.array([1.0, 2.0, 3.0])).round(6).tolist()
@@ -145,7 +145,7 @@ def dilator_paper(scale: Float[ArrayLike, "*batch"]) -> Multivector:
         scale: (...) scale factors > 0.
     Returns:
         The un-normalized dilators (1, eoinf) of eq. 12.
-    Example:
+    Examples:
         >>> import jax.numpy as jnp
         >>> import jaxcga as cga
         >>> D = cga.dilator_paper(2.0)
@@ -173,7 +173,7 @@ def motor(rotation: Multivector, translation: Float[ArrayLike, "... 3"]) -> Mult
         translation: (..., 3) translation vectors.
     Returns:
         The motors (8 components: 1, e12, e13, e23, e1inf, e2inf, e3inf, e123inf).
-    Example:
+    Examples:
         >>> import jax.numpy as jnp
         >>> import jaxcga as cga
         >>> M = cga.motor(cga.rotor(jnp.array([0, 0, 1.0]), jnp.pi / 2), jnp.array([1.0, 0, 0]))
@@ -195,7 +195,7 @@ def similitude(
         scale: (...) scale factors > 0.
     Returns:
         The similitudes (the 16 even blades).
-    Example:
+    Examples:
         >>> import jax.numpy as jnp
         >>> import jaxcga as cga
         >>> S = cga.similitude(cga.rotor(jnp.array([0, 0, 1.0]), jnp.pi / 2), jnp.array([0, 0, 1.0]), 2.0)
@@ -411,7 +411,7 @@ def apply_to_points(v: Multivector, x: Float[ArrayLike, "... 3"], fused: bool = 
         fused: leave the memory layout to XLA (above).
     Returns:
         (..., 3) the moved points.
-    Example:
+    Examples:
         >>> import jax.numpy as jnp
         >>> import jaxcga as cga
         >>> T = cga.translator(jnp.array([0, 0, 1.0]))
@@ -440,7 +440,7 @@ def versor_to_matrix(v: Multivector, normalized: bool = True) -> Float[Array, ".
         normalized: return the homogeneous matrix with last row (0, 0, 0, 1); False: the sandwich's own map (above).
     Returns:
         (..., 4, 4) the matrices.
-    Example:
+    Examples:
         >>> import jax.numpy as jnp
         >>> import jaxcga as cga
         >>> M = cga.motor(cga.rotor(jnp.array([0, 0, 1.0]), jnp.pi / 2), jnp.array([1.0, 2.0, 3.0]))
@@ -468,7 +468,7 @@ def rotor_to_quaternion(r: Multivector) -> Float[Array, "... 4"]:
         r: rotors.
     Returns:
         (..., 4) unit quaternions (w, x, y, z).
-    Example:
+    Examples:
         >>> import jax.numpy as jnp
         >>> import jaxcga as cga
         >>> q = cga.rotor_to_quaternion(cga.rotor(jnp.array([0, 0, 1.0]), jnp.pi / 2))
@@ -486,7 +486,7 @@ def quaternion_to_rotor(q: Float[ArrayLike, "... 4"]) -> Multivector:
         q: (..., 4) quaternions (w, x, y, z), non-zero.
     Returns:
         The rotors (1, e12, e13, e23).
-    Example:
+    Examples:
         >>> import jax.numpy as jnp
         >>> import jaxcga as cga
         >>> R = cga.quaternion_to_rotor(jnp.array([1.0, 0, 0, 1.0]))  # a quarter turn about z
@@ -521,7 +521,7 @@ def motor_rotor_translation(m: Multivector) -> tuple[Multivector, Float[Array, "
         m: motors.
     Returns:
         (the rotors R, (..., 3) the translations t) with ``m = translator(t) R``.
-    Example:
+    Examples:
         >>> import jax.numpy as jnp
         >>> import jaxcga as cga
         >>> M = cga.motor(cga.rotor(jnp.array([0, 1.0, 0]), 0.3), jnp.array([1.0, 2.0, 3.0]))
@@ -577,7 +577,7 @@ def similitude_motor_log_scale(s: Multivector) -> tuple[Multivector, Float[Array
     Returns:
         the motors, batch shape (...), and lam (...).
 
-    Example:
+    Examples:
         >>> import jax.numpy as jnp
         >>> import jaxcga as cga
         >>> S = cga.similitude(cga.rotor(jnp.array([0, 0, 1.0]), 0.5), jnp.zeros(3), 2.0)
@@ -610,7 +610,7 @@ def motor_to_dual_quaternion(m: Multivector) -> Float[Array, "... 8"]:
         m: motors.
     Returns:
         (..., 8) unit dual quaternions: real part (w, x, y, z), then dual part (w, x, y, z).
-    Example:
+    Examples:
         >>> import jax.numpy as jnp
         >>> import jaxcga as cga
         >>> M = cga.motor(cga.rotor(jnp.array([0, 0, 1.0]), 0.0), jnp.array([2.0, 0, 0]))
@@ -631,7 +631,7 @@ def dual_quaternion_to_motor(dq: Float[ArrayLike, "... 8"]) -> Multivector:
         dq: (..., 8) unit dual quaternions: real part (w, x, y, z), then dual part (w, x, y, z).
     Returns:
         The motors.
-    Example:
+    Examples:
         >>> import jax.numpy as jnp
         >>> import jaxcga as cga
         >>> M = cga.dual_quaternion_to_motor(jnp.array([1.0, 0, 0, 0, 0, 1.0, 0, 0]))  # a translation by (2, 0, 0)
@@ -655,7 +655,7 @@ def matrix_to_quaternion(rotation: Float[ArrayLike, "... 3 3"]) -> Float[Array, 
         rotation: (..., 3, 3) rotation matrices.
     Returns:
         (..., 4) unit quaternions (w, x, y, z) with w >= 0.
-    Example:
+    Examples:
         >>> import jax.numpy as jnp
         >>> import jaxcga as cga
         >>> cga.matrix_to_quaternion(jnp.eye(3)).tolist()
@@ -712,7 +712,7 @@ def matrix_to_motor(matrix: Float[ArrayLike, "... 4 4"]) -> Multivector:
         matrix: (..., 4, 4) rigid homogeneous matrices.
     Returns:
         The motors.
-    Example:
+    Examples:
         >>> import jax.numpy as jnp
         >>> import jaxcga as cga
         >>> A = jnp.array([[0, -1.0, 0, 1], [1, 0, 0, 2], [0, 0, 1, 3], [0, 0, 0, 1]])  # a quarter turn about z, moved
@@ -742,7 +742,7 @@ def matrix_to_similitude(matrix: Float[ArrayLike, "... 4 4"], tolerance: float =
 
     Returns:
         The similitudes.
-    Example:
+    Examples:
         >>> import jax.numpy as jnp
         >>> import jaxcga as cga
         >>> S = cga.matrix_to_similitude(jnp.diag(jnp.array([2.0, 2.0, 2.0, 1.0])))

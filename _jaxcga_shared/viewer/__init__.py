@@ -351,5 +351,13 @@ def view(
             a glTF without triangles, frames of the wrong shape or not matching the mesh's vertex count,
             non-finite positions, .npy frames without ``mesh``), an unknown joint or clip, a bad ``fps``; each
             naming the argument and the file.
+
+    Examples:
+        >>> import numpy as np
+        >>> import jaxcga as cga
+        >>> V = np.array([[0.0, 0, 0], [1.0, 0, 0], [0, 1.0, 0]])
+        >>> page = cga.view((V, np.array([[0, 1, 2]])), title="a triangle")
+        >>> page.html.startswith("<!DOCTYPE html>"), page.title
+        (True, 'a triangle')
     """
     return page(_read_inputs(inputs, mesh), joint=joint, clip=clip, fps=fps, title=title)
