@@ -42,7 +42,7 @@ def grade_of(blade: int) -> int:
 
 
 def blade_name(blade: int) -> str:
-    """The name of a basis blade: ``"1"``, ``"e1"``, ``"e12"``, ``"eoinf"``, ... (the vectors e1, e2, e3, eo, einf in order).
+    """The name of a basis blade: ``"1"``, ``"e1"``, ``"e12"``, ``"eoinf"``, ... (over e1, e2, e3, eo, einf).
 
     Args:
         blade: the blade's index, a bit mask over (e1, e2, e3, eo, einf).
