@@ -201,9 +201,13 @@ def cut_topology(
             count as on it; so does a vertex next to which a crossing would leave a sliver piece.
         cap: close both halves with the triangulated cut loops (the input must be closed).
         edges: ``mesh_edges(F)``, precomputed once per topology.
+    Returns:
+        The ``CutTopology`` (its attributes say what it holds), which ``cut`` applies to a ``SkinnedMesh`` and
+        ``cut_positions`` to the vertices.
     Raises:
         ValueError: bad shapes, non-finite input, or a plane that misses the mesh (all vertices on one
-            side: there is nothing to cut) or only grazes it (all on one side once snapped)."""
+            side: there is nothing to cut) or only grazes it (all on one side once snapped).
+    """
     check_choice("predicates", predicates, PREDICATES)
     V, F = check_triangle_mesh(V, F, min_faces=0)
     if not tolerance >= 0:

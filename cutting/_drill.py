@@ -393,10 +393,14 @@ def drill_topology(
             as on it (no sliver triangles).
         edges: ``mesh_edges(F)``: accepted for the signature that cut, tear and drill share and checked
             against F; the drill builds the adjacency of the few faces near it itself.
+    Returns:
+        The ``DrillTopology`` (its attributes say what it holds), which ``drill`` applies to a ``SkinnedMesh`` and
+        ``drill_positions`` to the vertices.
     Raises:
         ValueError: bad input, a drill that misses the mesh, a drill wider than the part of the mesh it
             meets, a hole that stays below three boundary points, or a rim that stays farther than
-            ``rim_tolerance`` from the cylinder, after ``max_refinements`` splits."""
+            ``rim_tolerance`` from the cylinder, after ``max_refinements`` splits.
+    """
     V, F = check_triangle_mesh(V, F, min_faces=0)
     tip, base, radius = check_drill(drill)
     if min_points < 3 or (max_refinements is not None and max_refinements < 0):

@@ -858,11 +858,15 @@ def tear_topology(
         tolerance: planes passing closer than ``tolerance`` times the bounding-box diagonal to a path
             vertex are moved away from it (see the module docstring).
         edges: ``mesh_edges(F)``, precomputed once per topology.
+    Returns:
+        The ``TearTopology`` (its attributes say what it holds), which ``tear`` applies to a ``SkinnedMesh`` and
+        ``tear_positions`` to the vertices.
     Raises:
         ValueError: a blade that never crosses the surface (neither its samples' segments nor the surface it
             sweeps meets the mesh). A blade that barely crosses it makes a minimal slit (module docstring); one
             that crosses it only in faces where no slit fits without a sliver, nor in their neighbours (a
-            degenerate patch of the surface), is refused too, with a message that says so."""
+            degenerate patch of the surface), is refused too, with a message that says so.
+    """
     check_choice("predicates", predicates, PREDICATES)
     V, F = check_triangle_mesh(V, F, min_faces=0)
     segments = check_scalpel(scalpel)

@@ -246,7 +246,16 @@ def five_tet_cube(
 
 
 def one_tet() -> TetMesh:
-    """The unit corner tetrahedron: nodes (0, 0, 0), (1, 0, 0), (0, 1, 0), (0, 0, 1), volume 1/6."""
+    """The unit corner tetrahedron: nodes (0, 0, 0), (1, 0, 0), (0, 1, 0), (0, 0, 1), volume 1/6.
+
+    Returns:
+        The ``TetMesh`` of one element.
+    Examples:
+        >>> import xfem
+        >>> mesh = xfem.one_tet()
+        >>> mesh.X.shape, mesh.T.shape
+        ((4, 3), (1, 4))
+    """
     return tet_mesh(np.vstack([np.zeros(3), np.eye(3)]), np.array([[0, 1, 2, 3]]))
 
 
