@@ -51,7 +51,11 @@ def capacity(n: int) -> int:
     two), so that padding adds at most a quarter.
 
     Args:
-        n: a count >= 0."""
+        n: a count >= 0.
+
+    Returns:
+        The level, >= n.
+    """
     if n <= 8:
         return max(int(n), 1)
     step = 1 << ((int(n) - 1).bit_length() - 3)

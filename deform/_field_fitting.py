@@ -51,7 +51,11 @@ def generators_to_motors(generators: Float[Array, "... k 6"]) -> Multivector:
     """Key motors ``exp(B_j)``, batch shape (..., k), from motor generators.
 
     Args:
-        generators: (..., k, 6) motor generators (e12, e13, e23, e1inf, e2inf, e3inf)."""
+        generators: (..., k, 6) motor generators (e12, e13, e23, e1inf, e2inf, e3inf).
+
+    Returns:
+        The motors, batch shape (..., k).
+    """
     generators = jnp.asarray(generators)
     if generators.ndim < 1 or generators.shape[-1] != 6:
         raise ValueError(f"generators: expected shape (..., k, 6), got {generators.shape}")

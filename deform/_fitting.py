@@ -39,7 +39,11 @@ def pose_from_parameters(model: RiggedModel, params: Float[ArrayLike, "... b 7"]
     Args:
         model: the RiggedModel (its skeleton's rest pose is the reference).
         params: (..., b, 7): motor-generator components (e12, e13, e23, e1inf, e2inf, e3inf) and the
-            log-scale of each bone."""
+            log-scale of each bone.
+
+    Returns:
+        The local similitudes, batch shape (..., b).
+    """
     params = jnp.asarray(params)
     b = model.skeleton.num_bones
     if params.ndim < 2 or params.shape[-2:] != (b, PARAMETERS_PER_BONE):
@@ -64,7 +68,11 @@ def skin_parameters(
     Args:
         model: the RiggedModel.
         params: (..., b, 7) parameters, see ``pose_from_parameters``.
-        method: skinning method (``deform.METHODS``)."""
+        method: skinning method (``deform.METHODS``).
+
+    Returns:
+        (..., n, 3) the skinned positions.
+    """
     return _pose.skin_pose(model, pose_from_parameters(model, params), method)
 
 
@@ -331,7 +339,11 @@ def random_parameters(
         rotation: the half-widths of the uniform ranges.
         translation: see ``rotation``.
         log_scale: see ``rotation``.
-        dtype: the parameters' dtype; None: the mesh's."""
+        dtype: the parameters' dtype; None: the mesh's.
+
+    Returns:
+        (b, 7) the parameters (``pose_from_parameters``).
+    """
     b = model.skeleton.num_bones
     dtype = dtype or model.mesh.V.dtype
     k1, k2, k3 = jax.random.split(key, 3)

@@ -66,7 +66,11 @@ def motor_logs(key_motors: Multivector) -> Float[Array, "... k 6"]:
     """The six bivector components of ``log R_j`` (e12, e13, e23, e1inf, e2inf, e3inf) per key motor.
 
     Args:
-        key_motors: motors with batch shape (..., k)."""
+        key_motors: motors with batch shape (..., k).
+
+    Returns:
+        (..., k, 6) the logarithms' components.
+    """
     if not isinstance(key_motors, Multivector) or not set(key_motors.blades) <= set(KINDS["motor"]):
         raise ValueError("key_motors: expected a motor Multivector")
     return cga.log_motor(key_motors.embed(KINDS["motor"])).embed(MOTOR_GENERATOR).values
@@ -78,6 +82,9 @@ def blend_motors(weights: Float[ArrayLike, "n k"], key_motors: Multivector) -> M
     Args:
         weights: (n, k) weights (rows usually sum to one).
         key_motors: motors with batch shape (..., k); leading axes are batches (poses).
+
+    Returns:
+        The per-vertex motors, batch shape (..., n).
     """
     weights = _check_weights(weights)
     key_motors = _check_key_motors("key_motors", key_motors, weights.shape[1])
@@ -241,7 +248,11 @@ def identity_motors(k: int, dtype: DTypeLike = jnp.float64) -> Multivector:
 
     Args:
         k: the number of motors.
-        dtype: their float dtype."""
+        dtype: their float dtype.
+
+    Returns:
+        The motors, batch shape (k,).
+    """
     values = jnp.zeros((k, 8), dtype).at[:, 0].set(1.0)
     return Multivector(values, KINDS["motor"])
 
@@ -272,7 +283,11 @@ def blend_positions(weights: Float[ArrayLike, "n k"], P: Float[ArrayLike, "... k
 
     Args:
         weights: (n, k) weights.
-        P: (..., k, 3) control points."""
+        P: (..., k, 3) control points.
+
+    Returns:
+        (..., n, 3) the blended positions.
+    """
     weights = jnp.asarray(weights)
     if weights.ndim != 2:
         raise ValueError(f"weights: expected shape (n, k), got {weights.shape}")

@@ -54,7 +54,11 @@ def skin_pose(
         model: the RiggedModel.
         local: local transform of every bone: versors (Multivector, batch shape (..., b)) or
             matrices (..., b, 4, 4).
-        method: one of ``METHODS``."""
+        method: one of ``METHODS``.
+
+    Returns:
+        (..., n, 3) the skinned positions.
+    """
     check_choice("method", method, METHODS)
     mesh = model.mesh
     joint_bones = jnp.asarray(mesh.joints, jnp.int32)
@@ -107,7 +111,11 @@ def rest_pose(model: RiggedModel, method: str = "cga") -> Float[Array, "n 3"]:
 
     Args:
         model: the RiggedModel.
-        method: one of ``METHODS``."""
+        method: one of ``METHODS``.
+
+    Returns:
+        (n, 3) the skinned positions.
+    """
     check_choice("method", method, METHODS)
     if method in ("cga", "cga_motor_blend"):
         return skin_pose(model, _rig.local_versors(model.skeleton), method)
@@ -131,7 +139,11 @@ def sample_pose(
         method: one of ``METHODS``: picks the form of the result.
         clip: clip name or index.
         interpolation: ``"gltf"`` (the specification's, default) or ``"log"`` (the paper's
-            logarithmic blending of key versors); module docstring."""
+            logarithmic blending of key versors); module docstring.
+
+    Returns:
+        Versors, batch shape (b,), or (b, 4, 4) matrices, by ``method``.
+    """
     check_choice("method", method, METHODS)
     check_choice("interpolation", interpolation, INTERPOLATIONS)
     # The time goes in as an array: filter_jit would treat a Python float as static and recompile.
@@ -173,7 +185,11 @@ def skin_model(
         method: one of ``METHODS``.
         clip: clip name or index.
         interpolation: ``"gltf"`` (the specification's, default) or ``"log"`` (the paper's); module
-            docstring."""
+            docstring.
+
+    Returns:
+        (n, 3) the skinned positions.
+    """
     check_choice("method", method, METHODS)
     check_choice("interpolation", interpolation, INTERPOLATIONS)
     if not model.clips:
