@@ -153,3 +153,16 @@ def test_every_page_is_in_the_navigation():
     pages |= {f"notebooks/{p.name}" for p in (ROOT / "notebooks").glob("*.ipynb")}
     missing = sorted(p for p in pages if f": {p}" not in nav)
     assert not missing, f"pages outside mkdocs.yml's nav: {missing}"
+
+
+@pytest.mark.slow
+def test_getting_started_examples_run(monkeypatch):
+    # the page's Python blocks, in order, in one namespace, from the repository's root (their paths are relative)
+    page = (DOCS / "getting-started.md").read_text()
+    blocks = re.findall(r"```python\n(.*?)```", page, re.DOTALL)
+    assert len(blocks) >= 4
+    monkeypatch.chdir(ROOT)
+    namespace: dict = {}
+    for block in blocks:
+        exec(compile(block, "docs/getting-started.md", "exec"), namespace)
+    assert namespace["frames"].x.shape[0] == 10
