@@ -207,6 +207,15 @@ def cut_topology(
     Raises:
         ValueError: bad shapes, non-finite input, or a plane that misses the mesh (all vertices on one
             side: there is nothing to cut) or only grazes it (all on one side once snapped).
+
+    Examples:
+        >>> import numpy as np
+        >>> import cutting
+        >>> V = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]])  # a unit square in two triangles
+        >>> F = np.array([[0, 1, 2], [0, 2, 3]])
+        >>> topology = cutting.cut_topology(V, F, cutting.Plane([1.0, 0.0, 0.0], 0.5))
+        >>> topology.crossing.tolist()  # the edges that carry the new vertices
+        [[0, 1], [0, 2], [2, 3]]
     """
     check_choice("predicates", predicates, PREDICATES)
     V, F = check_triangle_mesh(V, F, min_faces=0)
@@ -378,7 +387,17 @@ def cut_positions(V: Float[ArrayLike, "n 3"], topology: CutTopology, plane: Plan
         topology: the cut's ``CutTopology`` (its ``crossing`` edges are used).
         plane: the ``Plane``; its normal need not be unit length (the intersection does not depend on it).
     Returns:
-        (p, 3) the new vertices, in the order of ``topology.crossing``."""
+        (p, 3) the new vertices, in the order of ``topology.crossing``.
+
+    Examples:
+        >>> import numpy as np
+        >>> import cutting
+        >>> V = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]])
+        >>> F = np.array([[0, 1, 2], [0, 2, 3]])
+        >>> plane = cutting.Plane([1.0, 0.0, 0.0], 0.5)
+        >>> (cutting.cut_positions(V, cutting.cut_topology(V, F, plane), plane) + 0.0).tolist()
+        [[0.5, 0.0, 0.0], [0.5, 0.5, 0.0], [0.5, 1.0, 0.0]]
+    """
     V = jnp.asarray(V)
     if V.shape != (len(topology.distances), 3):
         raise ValueError(
@@ -459,7 +478,15 @@ def cut(
         return_topology: also return the ``CutTopology`` (for ``cut_positions``).
     Returns:
         (positive, negative) SkinnedMeshes, and ``((positive, negative), topology)`` when
-        ``return_topology``."""
+        ``return_topology``.
+
+    Examples:
+        >>> import deform, cutting
+        >>> arm = deform.default_arm()
+        >>> upper, lower = cutting.cut(arm.mesh, cutting.Plane([1.0, 0.0, 0.0], 0.3))  # across the upper arm
+        >>> upper.V.shape[0] + lower.V.shape[0] > arm.mesh.V.shape[0]  # the new vertices are in both halves
+        True
+    """
     if not 0.0 <= side_weight <= 1.0:
         raise ValueError(f"side_weight: expected a number in [0, 1], got {side_weight}")
     V, F = np.asarray(mesh.V, np.float64), np.asarray(mesh.F)

@@ -175,7 +175,15 @@ def refine(
         joint_matrices: (j, 4, 4) joint matrices of a pose: split in that pose (midpoints of the posed
             edges, rest positions by inverse LBS).
     Returns:
-        The refined SkinnedMesh (the input's vertices first, in order, then the midpoints)."""
+        The refined SkinnedMesh (the input's vertices first, in order, then the midpoints).
+
+    Examples:
+        >>> import deform, cutting
+        >>> mesh = deform.default_arm().mesh
+        >>> finer = cutting.refine(mesh, [0, 1])  # split two faces (and the neighbours that keep it conforming)
+        >>> finer.F.shape[0] > mesh.F.shape[0]
+        True
+    """
     F = np.asarray(mesh.F)
     mask = np.ones(len(F), bool)
     if faces is not None:
