@@ -55,6 +55,11 @@ def capacity(n: int) -> int:
 
     Returns:
         The level, >= n.
+
+    Examples:
+        >>> import deform
+        >>> deform.capacity(9), deform.capacity(100)
+        (10, 112)
     """
     if n <= 8:
         return max(int(n), 1)

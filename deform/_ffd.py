@@ -164,6 +164,15 @@ def ffd_weights(V: Float[ArrayLike, "n 3"], lattice: Lattice) -> Float[Array, "n
 
     Returns:
         (n, l m n) the weights, rows summing to one.
+
+    Examples:
+        >>> import numpy as np
+        >>> import deform
+        >>> V = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]])
+        >>> lattice = deform.bounding_lattice(V, (2, 2, 2), padding=0.1)
+        >>> W = deform.ffd_weights(V, lattice)
+        >>> W.shape, bool(np.allclose(W.sum(axis=1), 1.0, atol=1e-6))
+        ((4, 8), True)
     """
     local = lattice_coordinates(V, lattice)
     b = [_bernstein(c - 1, local[:, axis]) for axis, c in enumerate(lattice.counts)]

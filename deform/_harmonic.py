@@ -79,6 +79,14 @@ def laplacian(
 
     Returns:
         (n, n) the scipy sparse Laplacian.
+
+    Examples:
+        >>> import numpy as np
+        >>> import deform
+        >>> V = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]])
+        >>> L = deform.laplacian(V, np.array([[0, 1, 2], [0, 2, 3]]))
+        >>> L.shape, bool(np.allclose(L.sum(axis=1), 0.0))
+        ((4, 4), True)
     """
     return _laplacian(V, F, kind)
 

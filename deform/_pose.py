@@ -115,6 +115,11 @@ def rest_pose(model: RiggedModel, method: str = "cga") -> Float[Array, "n 3"]:
 
     Returns:
         (n, 3) the skinned positions.
+
+    Examples:
+        >>> import deform
+        >>> deform.rest_pose(deform.default_arm()).shape
+        (3266, 3)
     """
     check_choice("method", method, METHODS)
     if method in ("cga", "cga_motor_blend"):
@@ -143,6 +148,12 @@ def sample_pose(
 
     Returns:
         Versors, batch shape (b,), or (b, 4, 4) matrices, by ``method``.
+
+    Examples:
+        >>> import deform
+        >>> arm = deform.default_arm()
+        >>> deform.sample_pose(arm, 0.5).batch_shape, deform.sample_pose(arm, 0.5, "lbs").shape  # versors, matrices
+        ((4,), (4, 4, 4))
     """
     check_choice("method", method, METHODS)
     check_choice("interpolation", interpolation, INTERPOLATIONS)
@@ -189,6 +200,15 @@ def skin_model(
 
     Returns:
         (n, 3) the skinned positions.
+
+    Examples:
+        >>> import jax, jax.numpy as jnp
+        >>> import deform
+        >>> arm = deform.default_arm()  # the built-in rigged arm: 4 bones, one clip
+        >>> deform.skin_model(arm, 0.5, "cga").shape  # (n, 3) at t = 0.5 s
+        (3266, 3)
+        >>> jax.vmap(lambda t: deform.skin_model(arm, t, "lbs"))(jnp.linspace(0.0, 1.0, 5)).shape  # many frames
+        (5, 3266, 3)
     """
     check_choice("method", method, METHODS)
     check_choice("interpolation", interpolation, INTERPOLATIONS)

@@ -80,6 +80,13 @@ def trs_to_matrix(
 
     Returns:
         (..., 4, 4) the matrices.
+
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import deform
+        >>> A = deform.trs_to_matrix(jnp.array([1.0, 2.0, 3.0]), jnp.array([0, 0, 0, 1.0]), jnp.ones(3))
+        >>> A.tolist()
+        [[1.0, 0.0, 0.0, 1.0], [0.0, 1.0, 0.0, 2.0], [0.0, 0.0, 1.0, 3.0], [0.0, 0.0, 0.0, 1.0]]
     """
     rs = quaternion_xyzw_to_matrix(rotation) * scale[..., None, :]
     top = jnp.concatenate([rs, translation[..., :, None]], axis=-1)
@@ -128,6 +135,13 @@ def trs_to_versor(
 
     Returns:
         The similitudes, batch shape (...).
+
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import deform
+        >>> S = deform.trs_to_versor(jnp.array([1.0, 2.0, 3.0]), jnp.array([0, 0, 0, 1.0]), jnp.full(3, 2.0))
+        >>> [(x.round(6) + 0.0).tolist() for x in deform.versor_to_trs(S)]  # back to translation, rotation, scale
+        [[1.0, 2.0, 3.0], [0.0, 0.0, 0.0, 1.0], [2.0, 2.0, 2.0]]
     """
     return cga.similitude(_rotor_xyzw(rotation), translation, uniform_scale(scale))
 

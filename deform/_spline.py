@@ -64,6 +64,11 @@ def clamped_knots(num_keys: int, degree: int) -> np.ndarray:
 
     Returns:
         (num_keys + degree + 1,) the knots.
+
+    Examples:
+        >>> import deform
+        >>> deform.clamped_knots(5, 3).tolist()
+        [0.0, 0.0, 0.0, 0.0, 0.5, 1.0, 1.0, 1.0, 1.0]
     """
     interior = np.linspace(0.0, 1.0, num_keys - degree + 1)
     return np.concatenate([np.zeros(degree), interior, np.ones(degree)])
@@ -103,6 +108,12 @@ def spline_weights(
 
     Returns:
         (n, k) the weights, rows summing to one.
+
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import deform
+        >>> deform.spline_weights(jnp.array([0.0, 0.5, 1.0]), "linear").tolist()
+        [[1.0, 0.0], [0.5, 0.5], [0.0, 1.0]]
     """
     check_choice("basis", basis, BASES)
     lam = check_parameter(lam)

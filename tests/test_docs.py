@@ -100,7 +100,8 @@ def public_functions(package: str):
             yield f"{package}.{name}", obj
 
 
-@pytest.mark.parametrize("package", PACKAGES)
+# deform's examples compile skinning functions (~30 s on 2 cores): the slow job runs them
+@pytest.mark.parametrize("package", [p if p != "deform" else pytest.param(p, marks=pytest.mark.slow) for p in PACKAGES])
 def test_docstring_examples_run(package):
     # the examples the API reference shows, run as doctests in the suite's configuration (float64, strict promotion)
     finder = doctest.DocTestFinder(recurse=False)
