@@ -157,13 +157,21 @@ def test_every_page_is_in_the_navigation():
 
 
 @pytest.mark.slow
-def test_getting_started_examples_run(monkeypatch):
-    # the page's Python blocks, in order, in one namespace, from the repository's root (their paths are relative)
-    page = (DOCS / "getting-started.md").read_text()
-    blocks = re.findall(r"```python\n(.*?)```", page, re.DOTALL)
+@pytest.mark.parametrize("page", ["docs/getting-started.md", "README.md"])
+def test_examples_of_the_first_pages_run(page, monkeypatch):
+    # the page's Python blocks (one per package), in order, in one namespace, from the repository's root (their
+    # paths are relative)
+    blocks = re.findall(r"```python\n(.*?)```", (ROOT / page).read_text(), re.DOTALL)
     assert len(blocks) >= 4
     monkeypatch.chdir(ROOT)
     namespace: dict = {}
     for block in blocks:
-        exec(compile(block, "docs/getting-started.md", "exec"), namespace)
-    assert namespace["frames"].x.shape[0] == 10
+        exec(compile(block, page, "exec"), namespace)
+    assert {"cga", "deform", "cutting", "xfem"} <= set(namespace)
+
+
+def test_readme_is_a_front_door():
+    # at most 150 lines, and it keeps the test command CI runs (.ci/run: make test)
+    readme = (ROOT / "README.md").read_text()
+    assert len(readme.splitlines()) <= 150
+    assert "make test" in readme and "make test" in (ROOT / ".ci" / "run").read_text()
