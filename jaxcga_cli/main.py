@@ -107,6 +107,9 @@ def main(argv: list[str] | None = None) -> int:
             summary = module.run(args)
     except (ValueError, OSError, RuntimeError) as error:
         top.exit(2, f"jaxcga {args.command}: error: {error_message(error)}\n")
+    except KeyboardInterrupt:
+        # one line, not a traceback through JAX: a command writes its outputs whole at its end (beside, then moved)
+        top.exit(130, f"jaxcga {args.command}: interrupted; its outputs were left as they were\n")
     if summary is not None:
         subject, shown = summary
         print(f"jaxcga {args.command} {subject}: " + ", ".join(f"{k} {v}" for k, v in shown.items()))

@@ -423,6 +423,8 @@ class _Theta(eqx.Module):
     # Rayleigh damping (``Material.damping``): beta, and the elastic forces grad U(x_t) of its energy; None: undamped
     beta: Float[Array, ""] | None = None
     elastic_t: Float[Array, "n 3"] | None = None
+    # a third starting point for Newton (no derivative flows to it: E does not depend on it); None: two
+    guess: Float[Array, "n 3"] | None = None
 
 
 def _elastic_weight(theta: _Theta, h):
@@ -610,6 +612,9 @@ def _newton(theta: _Theta, system: FEMSystem, h, iterations: int, tolerance, lin
     inertial = (theta.x + h * theta.v).at[system.fixed].set(theta.fixed_positions)
     previous = theta.x.at[system.fixed].set(theta.fixed_positions)
     x0 = jnp.where(_energy(system, previous, theta, h)[0] < _energy(system, inertial, theta, h)[0], previous, inertial)
+    if theta.guess is not None:  # e.g. a character's flesh carried along by its rig
+        guess = theta.guess.at[system.fixed].set(theta.fixed_positions)
+        x0 = jnp.where(_energy(system, guess, theta, h)[0] < _energy(system, x0, theta, h)[0], guess, x0)
     size = _size(system, theta.x)
     dtype = np.dtype(x0.dtype)
     # without a stopping test (the paper's fixed iterations) convergence is still reported, at the dtype's default
@@ -677,9 +682,11 @@ def _minimize_bwd(x, cotangents, perturbed, theta, system, h, iterations, tolera
     return jax.tree.map(lambda g, p: g if p else None, grad, perturbed)
 
 
-def _advance(system, state, h, mu, lam, fixed_positions, force, iterations, tolerance, line_search, beta=None):
-    """The step from ``state`` with Lamé parameters, the fixed nodes' new positions, the forces (n, 3) and the
-    Rayleigh damping beta (None: undamped)."""
+def _advance(
+    system, state, h, mu, lam, fixed_positions, force, iterations, tolerance, line_search, beta=None, guess=None
+):
+    """The step from ``state`` with Lamé parameters, the fixed nodes' new positions, the forces (n, 3), the
+    Rayleigh damping beta (None: undamped) and a guess of the new positions for Newton's start (None: none)."""
     elastic_t = None
     if beta is not None:  # grad U(x_t), of the step's own rest shape: a JAX function of theta's inputs
         beta = jnp.asarray(beta, state.x.dtype)
@@ -696,6 +703,7 @@ def _advance(system, state, h, mu, lam, fixed_positions, force, iterations, tole
         system.mass_values,
         beta,
         elastic_t,
+        None if guess is None else jax.lax.stop_gradient(guess),
     )
     # theta carries every differentiable input; the rest of the system is structure
     x, stats = _minimize(theta, jax.lax.stop_gradient(system), h, iterations, tolerance, line_search)

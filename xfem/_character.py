@@ -51,7 +51,6 @@ import deform
 from _jaxcga_shared.checks import check_choice
 from _jaxcga_shared.platform import EXACT
 from xfem._backward_euler import (
-    _NEWTON_ITERATIONS,
     _NEWTON_RESULT,
     FEMSystem,
     SolveStats,
@@ -69,6 +68,9 @@ from xfem._surface_tets import surface_map
 from xfem._xfem import XFEMModel, xfem_model
 
 _FLATTEST = 0.2  # below this smallest singular value of its rig deformation, an element's weight is lowered
+# Newton iterations per step at most: projected Newton converges linearly where elements are far from their rig
+# shapes, and a moving rig's steps took up to about 50 on the corpus' characters
+_CHARACTER_NEWTON_ITERATIONS = 100
 _TINY = 1e-9  # singular values are kept off zero by this much before they are inverted
 
 _PLANES_UNDER_JIT = (
@@ -245,20 +247,21 @@ def _rig_rest_system(system: FEMSystem, rest: Float[Array, "n 3"]) -> FEMSystem:
     F_rig = jnp.einsum("mai,maj->mij", rest[system.T], system.grads, precision=EXACT)
     # skinning flattens or inverts an element where weights change fast across it (near joints). Its rest shape
     # stays the rig's (the energy is zero at the rig's shape, so the stiff limit is the rig), but its stiffness
-    # across the flat direction grows as 1 / s_min: the weight is multiplied by (|s_min| / _FLATTEST)^2 below
-    # _FLATTEST, which keeps it bounded (and Newton's matrix well conditioned); an inverted element (the
+    # across the flat direction grows as 1 / s_min: the weight is multiplied by (|s_min| / _FLATTEST)^4 below
+    # _FLATTEST, which takes it to zero (Newton's matrix stays well conditioned, and such an element, far from its
+    # own shape after a small move across, stops slowing Newton down); an inverted element (the
     # rotation-variant SVD's last singular value negative) is a mirror image, weighted by its volume's magnitude
     U, singular, Vt = svd3(F_rig)
     smallest = jnp.abs(singular[:, 2])
     safe = jnp.where(singular < 0, -1.0, 1.0) * jnp.maximum(jnp.abs(singular), _TINY)
     inverse = jnp.einsum("mji,mj,mkj->mik", Vt, 1 / safe, U, precision=EXACT)
     grads = jnp.einsum("maj,mjk->mak", system.grads, inverse, precision=EXACT)
-    weight = jnp.abs(jnp.prod(singular, axis=1)) * jnp.minimum(1.0, (smallest / _FLATTEST) ** 2)
+    weight = jnp.abs(jnp.prod(singular, axis=1)) * jnp.minimum(1.0, (smallest / _FLATTEST) ** 4)
     return eqx.tree_at(lambda s: (s.grads, s.volumes), system, (grads, system.volumes * weight))
 
 
 @eqx.filter_jit
-def _play(system, state, h, material, rests, targets, iterations, tolerance, line_search):
+def _play(system, state, h, material, rest_start, rests, targets, iterations, tolerance, line_search):
     """The frames of a segment: a ``lax.scan`` of steps, each with its rig rest shape and driven targets."""
     mu, lam = material.lame()
 
@@ -346,7 +349,7 @@ def simulate_character(
     start: float | None = None,
     plane_cuts: Sequence[tuple[int, Float[ArrayLike, " 3"], Float[ArrayLike, " 3"], float]] = (),
     cuts: Sequence[tuple[int, manifold3d.Manifold]] = (),
-    newton_iterations: int = _NEWTON_ITERATIONS,
+    newton_iterations: int = _CHARACTER_NEWTON_ITERATIONS,
     tolerance: float | Literal["auto"] | None = "auto",
     line_search: bool = True,
     progress: Callable[[str, int, int], None] | None = None,
@@ -369,8 +372,10 @@ def simulate_character(
             frame (1 <= frame <= N); point and normal may be JAX values to differentiate.
         cuts: ``(frame, solid)``: closed ``manifold3d.Manifold`` cut solids in the rest configuration
             (``xfem.cut_solid``, ``xfem.plane_cut_solid``, ``xfem.blade_solid``), made before the frame's planes.
-        newton_iterations: as ``backward_euler_step`` (by default every step converges;
-            ``newton_iterations=1, tolerance=None`` is the XFEM paper's single iteration, approximate for gradients).
+        newton_iterations: as ``backward_euler_step`` (by default every step converges,
+            within 100 iterations: a moving rig's steps can take more than the 50 of ``backward_euler_step``, and
+            ``states.stats`` says where one did not; ``newton_iterations=1, tolerance=None`` is the XFEM paper's
+            single iteration, approximate for gradients).
         tolerance: see ``newton_iterations``.
         line_search: see ``newton_iterations``.
         progress: None, or ``progress(stage, done, total)`` called on the host as the work advances: stage
@@ -426,6 +431,7 @@ def simulate_character(
         frozen = np.where(followed[:, None], rig[max(stage.first - 1, 0)][stage.dof_node], frozen)
         followed = stage.follows
         frames = np.arange(max(stage.first, 1), end)
+        rest_start = np.where(followed[:, None], rig[frames[0] - 1][stage.dof_node], frozen) if len(frames) else frozen
         rests = np.where(stage.follows[None, :, None], rig[frames][:, stage.dof_node], frozen[None])
         if system is None:  # every DOF on the rig
             played = _on_rig(state, jnp.asarray(rig[frames][:, stage.dof_node]), h)
@@ -440,6 +446,7 @@ def simulate_character(
                 state,
                 h_checked,
                 _checked_material(material, system, system.grads.dtype),
+                jnp.asarray(rest_start),
                 jnp.asarray(rests),
                 jnp.asarray(targets),
                 iterations,

@@ -193,3 +193,25 @@ def test_animate_refuses_a_request_larger_than_this_machines_memory(tmp_path, ca
     assert animate.available_memory() > 0
     assert _exit(["animate", "--frames", str(10**13), "--out", str(tmp_path / "a.glb")]) == 2
     assert "of memory available now" in capsys.readouterr().err
+
+
+def test_ctrl_c_is_one_line_and_exit_130(monkeypatch, capsys, tmp_path):
+    module = command_module("skin")
+
+    def interrupted(args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(module, "run", interrupted)
+    with pytest.raises(SystemExit) as exit_:
+        main(
+            [
+                "skin",
+                str(Path(__file__).resolve().parents[1] / "data" / "CesiumMan.glb"),
+                "--out",
+                str(tmp_path / "a.obj"),
+            ]
+        )
+    assert exit_.value.code == 130
+    err = capsys.readouterr().err
+    assert err == "jaxcga skin: interrupted; its outputs were left as they were\n"
+    assert not (tmp_path / "a.obj").exists()
