@@ -97,7 +97,14 @@ def lame(
         poisson: Poisson's ratio nu in (-1, 1/2), broadcastable against ``young``.
     Returns:
         ``(mu, lam) = (E / (2 (1 + nu)), E nu / ((1 + nu)(1 - 2 nu)))``, broadcast shape (python floats for python
-        floats)."""
+        floats).
+
+    Examples:
+        >>> import xfem
+        >>> mu, lam = xfem.lame(1e6, 0.25)
+        >>> round(float(mu)), round(float(lam))
+        (400000, 400000)
+    """
     bad = ~(jnp.asarray(young) > 0) | ~jnp.isfinite(young)
     outside = ~((jnp.asarray(poisson) > -1) & (jnp.asarray(poisson) < 0.5))
     young = require(
