@@ -55,6 +55,14 @@ def generators_to_motors(generators: Float[Array, "... k 6"]) -> Multivector:
 
     Returns:
         The motors, batch shape (..., k).
+
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> import deform
+        >>> M = deform.generators_to_motors(jnp.array([[0.0, 0, 0, -1.0, 0, 0]]))  # exp(-t einf / 2), t = (2, 0, 0)
+        >>> cga.apply_to_points(M, jnp.zeros(3)).round(6).tolist()
+        [[2.0, 0.0, 0.0]]
     """
     generators = jnp.asarray(generators)
     if generators.ndim < 1 or generators.shape[-1] != 6:

@@ -70,6 +70,13 @@ def motor_logs(key_motors: Multivector) -> Float[Array, "... k 6"]:
 
     Returns:
         (..., k, 6) the logarithms' components.
+
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> import deform
+        >>> (deform.motor_logs(cga.translator(jnp.array([[2.0, 0, 0]]))).round(6) + 0.0).tolist()  # -t einf / 2
+        [[0.0, 0.0, 0.0, -1.0, 0.0, 0.0]]
     """
     if not isinstance(key_motors, Multivector) or not set(key_motors.blades) <= set(KINDS["motor"]):
         raise ValueError("key_motors: expected a motor Multivector")
@@ -85,6 +92,15 @@ def blend_motors(weights: Float[ArrayLike, "n k"], key_motors: Multivector) -> M
 
     Returns:
         The per-vertex motors, batch shape (..., n).
+
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> import deform
+        >>> keys = cga.translator(jnp.array([[0.0, 0, 0], [2.0, 0, 0]]))  # k = 2 key motors
+        >>> M = deform.blend_motors(jnp.array([[1.0, 0.0], [0.5, 0.5]]), keys)  # n = 2 vertices
+        >>> (cga.apply_to_points(M, jnp.zeros((2, 3))).round(6) + 0.0).tolist()
+        [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]]
     """
     weights = _check_weights(weights)
     key_motors = _check_key_motors("key_motors", key_motors, weights.shape[1])
@@ -252,6 +268,12 @@ def identity_motors(k: int, dtype: DTypeLike = jnp.float64) -> Multivector:
 
     Returns:
         The motors, batch shape (k,).
+
+    Examples:
+        >>> import deform
+        >>> M = deform.identity_motors(3)
+        >>> M.batch_shape, M.values[:, 0].tolist()
+        ((3,), [1.0, 1.0, 1.0])
     """
     values = jnp.zeros((k, 8), dtype).at[:, 0].set(1.0)
     return Multivector(values, KINDS["motor"])
@@ -287,6 +309,12 @@ def blend_positions(weights: Float[ArrayLike, "n k"], P: Float[ArrayLike, "... k
 
     Returns:
         (..., n, 3) the blended positions.
+
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import deform
+        >>> deform.blend_positions(jnp.array([[0.5, 0.5]]), jnp.array([[0.0, 0, 0], [2.0, 0, 0]])).tolist()
+        [[1.0, 0.0, 0.0]]
     """
     weights = jnp.asarray(weights)
     if weights.ndim != 2:

@@ -54,6 +54,12 @@ def quaternion_xyzw_to_matrix(q: Float[Array | np.ndarray, "... 4"]) -> Float[Ar
 
     Returns:
         (..., 3, 3) the rotation matrices.
+
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import deform
+        >>> deform.quaternion_xyzw_to_matrix(jnp.array([0, 0, 0, 1.0])).tolist()
+        [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
     """
     x, y, z, w = (q[..., i] for i in range(4))
     return jnp.stack(
@@ -154,6 +160,11 @@ def local_matrices(skeleton: Skeleton) -> Float[Array, "b 4 4"]:
 
     Returns:
         (b, 4, 4) the matrices.
+
+    Examples:
+        >>> import deform
+        >>> deform.local_matrices(deform.default_arm().skeleton).shape  # 4 bones
+        (4, 4, 4)
     """
     return trs_to_matrix(skeleton.translation, skeleton.rotation, skeleton.scale)
 
@@ -166,6 +177,11 @@ def local_versors(skeleton: Skeleton) -> Multivector:
 
     Returns:
         The similitudes, batch shape (b,).
+
+    Examples:
+        >>> import deform
+        >>> deform.local_versors(deform.default_arm().skeleton).batch_shape
+        (4,)
     """
     return trs_to_versor(skeleton.translation, skeleton.rotation, skeleton.scale)
 
@@ -485,6 +501,12 @@ def sample_trs(
 
     Returns:
         (translation (b, 3), rotation (b, 4) in (x, y, z, w), scale (b, 3)).
+
+    Examples:
+        >>> import deform
+        >>> arm = deform.default_arm()
+        >>> [x.shape for x in deform.sample_trs(arm.skeleton, arm.clips[0], 0.5)]
+        [(4, 3), (4, 4), (4, 3)]
     """
     return sample_stacked_trs((skeleton.translation, skeleton.rotation, skeleton.scale), stacked_channels(clip), t)
 
