@@ -408,6 +408,14 @@ def drill_topology(
         ValueError: bad input, a drill that misses the mesh, a drill wider than the part of the mesh it
             meets, a hole that stays below three boundary points, or a rim that stays farther than
             ``rim_tolerance`` from the cylinder, after ``max_refinements`` splits.
+
+    Examples:
+        >>> import numpy as np
+        >>> import deform, cutting
+        >>> mesh = deform.default_arm().mesh
+        >>> drill = cutting.Drill([0.2, 0.0, -0.2], [0.2, 0.0, 0.2], 0.01)  # through the upper arm, front to back
+        >>> cutting.drill_topology(np.asarray(mesh.V), np.asarray(mesh.F), drill).holes
+        2
     """
     V, F = check_triangle_mesh(V, F, min_faces=0)
     tip, base, radius = check_drill(drill)
@@ -835,7 +843,15 @@ def drill(
         return_topology: also return the ``DrillTopology`` (for ``drill_positions``).
     Returns:
         The drilled SkinnedMesh (its vertices: the input's outside the hole, in order, then refinement
-        split points and new points), and the DrillTopology when ``return_topology``."""
+        split points and new points), and the DrillTopology when ``return_topology``.
+
+    Examples:
+        >>> import deform, cutting
+        >>> mesh = deform.default_arm().mesh  # along +x, about 0.09 thick
+        >>> drilled = cutting.drill(mesh, cutting.Drill([0.2, 0.0, -0.2], [0.2, 0.0, 0.2], 0.01))  # tip, base, radius
+        >>> drilled.V.shape[0] > mesh.V.shape[0]  # the holes' rims
+        True
+    """
     J, W = np.asarray(mesh.J), np.asarray(mesh.W)
     space, joint_matrices = posed_vertices(mesh, joint_matrices)
     topology = drill_topology(
@@ -876,7 +892,18 @@ def drill_positions(V: Float[ArrayLike, "n 3"], topology: DrillTopology, drill: 
         topology: the hole's ``DrillTopology``.
         drill: the ``Drill``.
     Returns:
-        (p, 3) the new points, in the order of ``topology.crossing``."""
+        (p, 3) the new points, in the order of ``topology.crossing``.
+
+    Examples:
+        >>> import numpy as np
+        >>> import deform, cutting
+        >>> mesh = deform.default_arm().mesh
+        >>> V, F = np.asarray(mesh.V), np.asarray(mesh.F)
+        >>> drill = cutting.Drill([0.2, 0.0, -0.2], [0.2, 0.0, 0.2], 0.01)
+        >>> topology = cutting.drill_topology(V, F, drill)
+        >>> cutting.drill_positions(V, topology, drill).shape == topology.points.shape  # a JAX function of V and drill
+        True
+    """
     V = jnp.asarray(V)
     n = len(topology.vertices) - len(topology.parents)
     if V.shape != (n, 3):

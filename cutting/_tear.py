@@ -866,6 +866,15 @@ def tear_topology(
             sweeps meets the mesh). A blade that barely crosses it makes a minimal slit (module docstring); one
             that crosses it only in faces where no slit fits without a sliver, nor in their neighbours (a
             degenerate patch of the surface), is refused too, with a message that says so.
+
+    Examples:
+        >>> import numpy as np
+        >>> import deform, cutting
+        >>> mesh = deform.default_arm().mesh
+        >>> blade = cutting.Scalpel([[0.18, 0.1, 0.0], [0.22, 0.1, 0.0]], [[0.18, 0.0, 0.0], [0.22, 0.0, 0.0]])
+        >>> topology = cutting.tear_topology(np.asarray(mesh.V), np.asarray(mesh.F), blade)
+        >>> topology.points.shape[1]  # the edge points of the tear
+        3
     """
     check_choice("predicates", predicates, PREDICATES)
     V, F = check_triangle_mesh(V, F, min_faces=0)
@@ -1083,7 +1092,16 @@ def tear(
         crossing of each stretch (S_0 and S_k when the blade stays on the surface), the left copies of the
         Q_j, the right copies), and the TearTopology when ``return_topology``.
     Raises:
-        ValueError: bad arguments, or a blade that never crosses the surface (see ``tear_topology``)."""
+        ValueError: bad arguments, or a blade that never crosses the surface (see ``tear_topology``).
+
+    Examples:
+        >>> import deform, cutting
+        >>> mesh = deform.default_arm().mesh
+        >>> blade = cutting.Scalpel([[0.18, 0.1, 0.0], [0.22, 0.1, 0.0]], [[0.18, 0.0, 0.0], [0.22, 0.0, 0.0]])
+        >>> torn = cutting.tear(mesh, blade)  # handle above the skin, tip inside, moved 4 cm along the arm
+        >>> torn.V.shape[0] > mesh.V.shape[0]
+        True
+    """
     if not 0.0 <= side_weight <= 1.0:
         raise ValueError(f"side_weight: expected a number in [0, 1], got {side_weight}")
     if not (np.isfinite(opening) and opening >= 0):
@@ -1175,7 +1193,18 @@ def tear_positions(
     Returns:
         (tips (2r, 3): the first and last crossing of each of the r stretches (S_0 and S_k for one), left
         (q + u, 3), right (q + u, 3): the two copies of every Q_j, then of the middle point of each of the u
-        slits inside one face)."""
+        slits inside one face).
+
+    Examples:
+        >>> import numpy as np
+        >>> import deform, cutting
+        >>> mesh = deform.default_arm().mesh
+        >>> V, F = np.asarray(mesh.V), np.asarray(mesh.F)
+        >>> blade = cutting.Scalpel([[0.18, 0.1, 0.0], [0.22, 0.1, 0.0]], [[0.18, 0.0, 0.0], [0.22, 0.0, 0.0]])
+        >>> tips, left, right = cutting.tear_positions(V, cutting.tear_topology(V, F, blade), blade)
+        >>> left.shape == right.shape  # the two copies of each edge point (apart with an opening)
+        True
+    """
     V = jnp.asarray(V)
     scalpel = joined_scalpel(scalpel)
     handle, tip = jnp.asarray(scalpel.handle), jnp.asarray(scalpel.tip)

@@ -100,8 +100,14 @@ def public_functions(package: str):
             yield f"{package}.{name}", obj
 
 
-# deform's examples compile skinning functions (~30 s on 2 cores): the slow job runs them
-@pytest.mark.parametrize("package", [p if p != "deform" else pytest.param(p, marks=pytest.mark.slow) for p in PACKAGES])
+# deform's and cutting's examples pose, cut, tear and drill the built-in arm (~50 s and ~20 s on 2 cores): the slow job
+# runs them; the kernel's and xfem's take ~20 s
+SLOW_EXAMPLES = ("deform", "cutting")
+
+
+@pytest.mark.parametrize(
+    "package", [pytest.param(p, marks=pytest.mark.slow) if p in SLOW_EXAMPLES else p for p in PACKAGES]
+)
 def test_docstring_examples_run(package):
     # the examples the API reference shows, run as doctests in the suite's configuration (float64, strict promotion)
     finder = doctest.DocTestFinder(recurse=False)
