@@ -198,7 +198,17 @@ def scalpel_path(blade: Float[ArrayLike, "2 3"], motors: cga.Multivector) -> Sca
         blade: (2, 3) the segment's handle end and tip at rest.
         motors: versors with batch shape (k+1,).
     Returns:
-        The ``Scalpel`` (float64 numpy ends (k+1, 3)) that ``tear`` takes."""
+        The ``Scalpel`` (float64 numpy ends (k+1, 3)) that ``tear`` takes.
+
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> import cutting
+        >>> blade = jnp.array([[0.18, 0.1, 0.0], [0.18, 0.0, 0.0]])  # handle end, tip
+        >>> scalpel = cutting.scalpel_path(blade, cga.translator(jnp.array([[0.0, 0, 0], [0.04, 0, 0]])))
+        >>> scalpel.tip.round(6).tolist()  # the tip at the two time steps
+        [[0.18, 0.0, 0.0], [0.22, 0.0, 0.0]]
+    """
     blade = np.asarray(blade, np.float64)
     if blade.shape != (2, 3) or not np.all(np.isfinite(blade)):
         raise ValueError(f"blade: expected 2 finite endpoints of shape (2, 3), got {blade.shape}")
