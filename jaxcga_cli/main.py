@@ -25,6 +25,7 @@ COMMANDS = {
     "arap": "arap",
     "fem": "fem",
     "xfem": "xfem",
+    "physics": "physics",
     "view": "view",
 }
 DESCRIPTION = (

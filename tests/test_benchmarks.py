@@ -215,6 +215,23 @@ def test_bench_xfem_quick_writes_the_published_names(tmp_path):
 
 
 @pytest.mark.slow
+def test_bench_physics_quick_writes_the_published_names(tmp_path):
+    """Issue 53's names, for the arm and the character (the fox, coarse, in the quick run); the tets cached."""
+    result = _quick("bench_physics.py", tmp_path)
+    for prefix in ("arm", "character"):
+        for name in ("step_ms", "step_paper_ms", "reduced_fps", "reduced_error", "full_lag", "breakdown_solve_ms"):
+            assert result["figures"][f"{prefix}_{name}"] > 0 and f"{prefix}_{name}" in result["units"]
+        for name in ("grad_vs_forward", "step_vs_target", "reduced_fps_vs_target", "reduced_vs_full"):
+            assert result["ratios"][f"{prefix}_{name}"] > 0
+        # the reduced mode follows the full one more closely than the rig does
+        assert result["figures"][f"{prefix}_reduced_error"] < result["figures"][f"{prefix}_full_lag"]
+    assert sorted(path.name for path in tmp_path.glob("physics_tets_*.npz")) == [
+        "physics_tets_arm_0.1_0.001.npz",
+        "physics_tets_fox_0.1_0.001.npz",
+    ]
+
+
+@pytest.mark.slow
 def test_bench_batch_quick_writes_the_published_names(tmp_path):
     result = _quick("bench_batch.py", tmp_path)
     for name in ("packed_vs_loop", "packed_vs_loop_first_batch", "packed_vs_loop_warm"):

@@ -44,6 +44,7 @@ from xfem._backward_euler import (
 from xfem._capacity import wait_for_compilations
 from xfem._character import CharacterMotion, CharacterSegment, simulate_character
 from xfem._character_body import CharacterBody, character_body, transfer_weights
+from xfem._character_reduced import CharacterSubspace, character_subspace
 from xfem._cut_system import PlaneCuts, cut_system, plane_cuts
 from xfem._cuts import blade_solid, cut_solid, plane_cut_solid, sweep_between, swept_surface, thicken
 from xfem._integration import Moments, element_piece_integrals, moments_of_pieces, polyhedron_moments
@@ -102,6 +103,8 @@ __all__ = [
     "simulate_character",
     "transfer_weights",
     "surface_map",
+    "CharacterSubspace",
+    "character_subspace",
     "SCENES",
     "SIZES",
     "FrameRecord",

@@ -60,12 +60,13 @@ from xfem._backward_euler import (
     _step_arguments,
 )
 from xfem._character_body import CharacterBody
+from xfem._character_reduced import CharacterSubspace, play_reduced
 from xfem._cut_system import PlaneCuts, _plane_cuts
 from xfem._jacobi3 import svd3
 from xfem._material import Material
 from xfem._simulate import _check_planes, _check_steps
 from xfem._surface_tets import surface_map
-from xfem._xfem import XFEMModel, xfem_model
+from xfem._xfem import XFEMModel, _dof_components, xfem_model
 
 _FLATTEST = 0.2  # below this smallest singular value of its rig deformation, an element's weight is lowered
 # Newton iterations per step at most: projected Newton converges linearly where elements are far from their rig
@@ -353,6 +354,7 @@ def simulate_character(
     tolerance: float | Literal["auto"] | None = "auto",
     line_search: bool = True,
     progress: Callable[[str, int, int], None] | None = None,
+    subspace: CharacterSubspace | None = None,
 ) -> CharacterMotion:
     """Play a clip on a character's body with secondary dynamics and cuts (module docstring: the formulation);
     differentiable (reverse mode, eager) in ``material`` and the points and normals of ``plane_cuts``.
@@ -381,6 +383,10 @@ def simulate_character(
         progress: None, or ``progress(stage, done, total)`` called on the host as the work advances: stage
             ``"rig"`` (the rig skinned), ``"cuts"`` (the cut frames' pieces found), ``"frames"`` (after each
             segment's frames).
+        subspace: None (the full space), or a ``CharacterSubspace`` of the body (``xfem.character_subspace``): the
+            real-time reduced mode (``xfem._character_reduced``: skinning eigenmodes carried by the rig, one k x k
+            solve per frame, no Newton iterations, so ``newton_iterations``, ``tolerance`` and ``line_search`` do not
+            apply); no cuts; its one segment has no ``system``.
     Returns:
         The ``CharacterMotion``: the surface of every frame in segments between cut frames.
     """
@@ -398,6 +404,10 @@ def simulate_character(
     planes = _check_planes(list(plane_cuts), steps, _PLANES_UNDER_JIT)
     solids = _check_cuts(list(cuts), steps)
     report = progress or (lambda stage, done, total: None)
+    if subspace is not None:
+        if planes or solids:
+            raise ValueError("subspace: the reduced mode does not cut; pass no plane_cuts and no cuts with a subspace")
+        return _reduced_motion(body, subspace, times, clip, h, material, method, interpolation, report)
     rig = _rig(body, times, method, clip, interpolation)
     report("rig", 1, 1)
     start_state = State(rig[0], (rig[1] - rig[0]) / h)
@@ -476,6 +486,32 @@ def simulate_character(
         )
         report("frames", int(end - 1), steps)
     return CharacterMotion(body, times, h, segments)
+
+
+def _reduced_motion(body, subspace, times, clip, h, material, method, interpolation, report) -> CharacterMotion:
+    """``simulate_character`` in a subspace: one segment of every frame (``xfem._character_reduced``)."""
+    played = play_reduced(body, subspace, times, clip, material, method, interpolation)
+    report("rig", 1, 1)
+    frames, n = played.x.shape[:2]
+    stats = SolveStats(jnp.ones(frames, bool), jnp.zeros(frames, jnp.int32), jnp.zeros(frames, played.x.dtype))
+    count, label = _dof_components(np.asarray(body.tets.T), n)
+    driven = np.zeros(n, bool)
+    driven[body.driven] = True
+    segment = CharacterSegment(
+        0,
+        played.surface,
+        body.faces,
+        label[body.embedding.nodes[body.faces[:, 0], 0]],
+        np.arange(len(body.surface)),
+        State(played.x, played.v, stats),
+        driven,
+        np.arange(n),
+        label,
+        int(count),
+        None,
+    )
+    report("frames", frames - 1, frames - 1)
+    return CharacterMotion(body, times, h, [segment])
 
 
 def _on_rig(state: State, positions: Float[Array, "frames n 3"], h) -> State:

@@ -13,7 +13,8 @@ Inputs, side by side along x in the order given (each by its bounding box):
   triangles from ``mesh`` (a mesh file, or a (V, F) pair); a .vtu file or a folder of ``frame_XXXX.vtu`` (the runs
   of ``jaxcga fem``/``xfem``: triangles as they are, tetrahedra by their boundary faces); a (frames, F) pair of
   arrays, or a list of (V, F) pairs, one per frame (its triangles may change; in .vtu frames and such lists, the
-  vertices that coincide in every frame of one topology are merged). Frames are stored as int16
+  vertices that coincide in every frame of one topology are merged); a list of (V, F, groups) triples, groups (m,)
+  int per triangle (the pieces of a cut body), draws each group in its own colour. Frames are stored as int16
   positions quantized in one bounding box of all frames (error at most diag / 131068), base64 in the page; between
   two frames the page interpolates linearly, and where the triangles change (XFEM pieces breaking apart) it
   switches mesh at the frame. Drawn with flat shading;
@@ -128,9 +129,12 @@ def _sequence_json(sequence: Sequence, blocks: list[bytes], encoding: str) -> di
     center = (lo + hi) / 2
     half = np.maximum((hi - lo) / 2, 1e-30 + 1e-12 * np.abs(hi - lo).max())  # a flat axis: any nonzero scale
     segments = []
-    for F, frames in sequence.segments:
+    for k, (F, frames) in enumerate(sequence.segments):
         blocks.append(F.astype("<u4").tobytes())
         segment: dict = {"indices": len(blocks) - 1, "vertices": int(frames.shape[1]), "frames": int(len(frames))}
+        if sequence.groups:
+            blocks.append(sequence.groups[k].astype("<u4").tobytes())
+            segment["groups"] = len(blocks) - 1
         if encoding == "json":  # the naive format, for the benchmark's baseline only
             segment["positions"] = frames.astype(np.float32).reshape(len(frames), -1).tolist()
         else:
@@ -334,8 +338,9 @@ def view(
     Args:
         *inputs (str | os.PathLike | tuple | list | object): paths (.glb, .gltf, .npy, .vtu, a folder of
             frame_XXXX.vtu), (V, F) or (frames, F) pairs of numpy or JAX arrays (V (n, 3), frames (t, n, 3), F
-            (m, 3) integers), lists of (V, F) pairs (one per frame; the triangles may change between frames),
-            objects with ``to_glb() -> bytes`` (a ``deform.RiggedModel``).
+            (m, 3) integers), lists of (V, F) pairs (one per frame; the triangles may change between frames) or of
+            (V, F, groups) triples (groups (m,) int >= 0 per triangle, e.g. pieces: a colour per group, a vertex
+            taking the first group that uses it), objects with ``to_glb() -> bytes`` (a ``deform.RiggedModel``).
         mesh: the triangles of .npy frames: a mesh file (.obj, .ply, .stl, .off, .glb, ...; as it is, or welded
             as ``jaxcga deform`` reads it, whichever has the frames' vertex count) or a (V, F) pair.
         joint: show the skin weights of this joint (name, or index into a skin's joints); None: the materials.

@@ -46,6 +46,8 @@ class Sequence:
     name: str
     source: str
     segments: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)  # (F (m, 3), frames (t, n, 3))
+    # none, or one (n,) int array per segment: each vertex's group (a piece), drawn in its own colour
+    groups: list[np.ndarray] = field(default_factory=list)
 
     @property
     def frame_count(self) -> int:
@@ -262,31 +264,43 @@ def _vtu_triangles(path: Path, what: str) -> tuple[np.ndarray, np.ndarray]:
     return points, _faces(np.concatenate(faces), len(points), f"{what}: {path}")
 
 
-def _welded(F: np.ndarray, frames: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The segment with the vertices that coincide in every frame merged, in the order they first appear: XFEM
-    writes each triangle with its own three vertices, six times the data the page needs."""
+def _welded(F: np.ndarray, frames: np.ndarray, groups: np.ndarray | None = None):
+    """The segment with the vertices that coincide in every frame (and are in one group) merged, in the order they
+    first appear: XFEM writes each triangle with its own three vertices, six times the data the page needs.
+    Returns (F, frames, groups)."""
     t, n, _ = frames.shape
-    _, first, inverse = np.unique(frames.transpose(1, 0, 2).reshape(n, 3 * t), axis=0, return_index=True,
-                                  return_inverse=True)  # fmt: skip
+    key = frames.transpose(1, 0, 2).reshape(n, 3 * t)
+    if groups is not None:
+        key = np.concatenate([key, groups[:, None].astype(np.float64)], axis=1)
+    _, first, inverse = np.unique(key, axis=0, return_index=True, return_inverse=True)
     if len(first) == n:
-        return F, frames
+        return F, frames, groups
     order = np.argsort(first)
     rank = np.empty_like(order)
     rank[order] = np.arange(len(order))
-    return rank[inverse.ravel()][F], frames[:, first[order]]
+    return rank[inverse.ravel()][F], frames[:, first[order]], None if groups is None else groups[first[order]]
 
 
-def _segments(meshes) -> list[tuple[np.ndarray, np.ndarray]]:
-    """(F, frames) segments of consecutive (V, F) frames: frames with the same triangles share a segment, whose
-    vertices that coincide in all its frames are merged (``_welded``)."""
-    segments: list[tuple[np.ndarray, list[np.ndarray]]] = []
-    for V, F in meshes:
-        last = segments[-1] if segments else None
-        if last is not None and last[0].shape == F.shape and (last[0] == F).all() and len(last[1][0]) == len(V):
+def _segments(meshes) -> tuple[list[tuple[np.ndarray, np.ndarray]], list[np.ndarray]]:
+    """(F, frames) segments of consecutive (V, F) or (V, F, vertex groups) frames, and the segments' vertex groups
+    (empty without groups): frames with the same triangles (and groups) share a segment, whose vertices that
+    coincide in all its frames are merged (``_welded``)."""
+    runs: list[tuple[np.ndarray, list[np.ndarray], np.ndarray | None]] = []
+    for V, F, *rest in meshes:
+        groups = rest[0] if rest else None
+        last = runs[-1] if runs else None
+        if (
+            last is not None
+            and last[0].shape == F.shape
+            and (last[0] == F).all()
+            and len(last[1][0]) == len(V)
+            and (groups is None or (last[2] == groups).all())
+        ):
             last[1].append(V)
         else:
-            segments.append((F, [V]))
-    return [_welded(F, np.stack(frames)) for F, frames in segments]
+            runs.append((F, [V], groups))
+    welded = [_welded(F, np.stack(frames), groups) for F, frames, groups in runs]
+    return [(F, frames) for F, frames, _ in welded], [g for _, _, g in welded if g is not None]
 
 
 def read_vtu(paths: list[Path], what: str) -> Sequence:
@@ -294,23 +308,42 @@ def read_vtu(paths: list[Path], what: str) -> Sequence:
     folder = paths[0].parent
     name = folder.name if len(paths) > 1 else paths[0].name
     source = str(folder) if len(paths) > 1 else str(paths[0])
-    return Sequence(name, source, _segments(_vtu_triangles(path, what) for path in paths))
+    return Sequence(name, source, _segments(_vtu_triangles(path, what) for path in paths)[0])
+
+
+def _vertex_groups(F: np.ndarray, face_groups, n: int, what: str) -> np.ndarray:
+    """(n,) the group of each vertex: that of the first triangle using it (0 for a vertex no triangle uses)."""
+    face_groups = np.asarray(face_groups)
+    if face_groups.shape != (len(F),) or face_groups.dtype.kind not in "iu" or (face_groups < 0).any():
+        raise ValueError(
+            f"{what}: expected one integer group >= 0 per triangle, shape ({len(F)},), got {face_groups.dtype} "
+            f"{face_groups.shape}"
+        )
+    groups = np.zeros(n, np.int64)
+    groups[F[::-1].ravel()] = np.repeat(face_groups[::-1], 3)  # the first triangle's assignment is written last
+    return groups
 
 
 def read_frame_meshes(item, name: str, what: str) -> Sequence:
-    """A sequence from a list of (V, F) pairs, one per frame, whose triangles may change (pieces breaking apart)."""
+    """A sequence from a list of (V, F) pairs, one per frame, whose triangles may change (pieces breaking apart),
+    or of (V, F, groups) triples (groups (m,) int >= 0 per triangle, e.g. the pieces of a cut body: each vertex
+    drawn in the colour of the first triangle's group that uses it)."""
     meshes = []
-    for k, pair in enumerate(item):
-        if not isinstance(pair, (tuple, list)) or len(pair) != 2:
-            raise ValueError(f"{what}[{k}]: expected a (V, F) pair, like the frames before it")
-        V = _positions(pair[0], f"{what}[{k}][0]", frames=False)
-        meshes.append((V, _faces(pair[1], len(V), f"{what}[{k}][1]")))
-    return Sequence(name, "arrays", _segments(meshes))
+    arity = len(item[0]) if isinstance(item[0], (tuple, list)) and len(item[0]) in (2, 3) else 2
+    kind = "(V, F) pair" if arity == 2 else "(V, F, groups) triple"
+    for k, entry in enumerate(item):
+        if not isinstance(entry, (tuple, list)) or len(entry) != arity:
+            raise ValueError(f"{what}[{k}]: expected a {kind}, like the frames before it")
+        V = _positions(entry[0], f"{what}[{k}][0]", frames=False)
+        F = _faces(entry[1], len(V), f"{what}[{k}][1]")
+        meshes.append((V, F) if arity == 2 else (V, F, _vertex_groups(F, entry[2], len(V), f"{what}[{k}][2]")))
+    segments, groups = _segments(meshes)
+    return Sequence(name, "arrays", segments, groups)
 
 
 def read_arrays(item, name: str, what: str) -> Sequence:
     """A (V, F) pair (a static mesh), a (frames, F) pair (a sequence of one topology) of numpy or JAX arrays, or a
-    list of (V, F) pairs (one per frame)."""
+    list of (V, F) pairs or (V, F, groups) triples (one per frame)."""
     if len(item) and isinstance(item[0], (tuple, list)):
         return read_frame_meshes(item, name, what)
     if len(item) != 2:

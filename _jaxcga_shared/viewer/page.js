@@ -85,9 +85,11 @@
         this.kindName = 'sequence';
         this.center = desc.center;
         this.scale = desc.half.map((h) => h / desc.quantum);
+        // groups (pieces of a cut body): a colour per vertex, by its group
+        const grouped = desc.segments.some((seg) => seg.groups !== undefined);
         this.material = new THREE.MeshStandardMaterial({
-          color: palette[index % palette.length], flatShading: true, side: THREE.DoubleSide,
-          roughness: 0.7, metalness: 0.0,
+          color: grouped ? 0xffffff : palette[index % palette.length], vertexColors: grouped, flatShading: true,
+          side: THREE.DoubleSide, roughness: 0.7, metalness: 0.0,
         });
         let start = 0;
         this.segments = desc.segments.map((seg, k) => {
@@ -113,6 +115,20 @@
           position.setUsage(THREE.DynamicDrawUsage);
           geometry.setAttribute('position', position);
           geometry.setIndex(new THREE.BufferAttribute(indices, 1));
+          if (grouped) {
+            const colour = new Float32Array(3 * seg.vertices);
+            let groups = null;
+            if (seg.groups !== undefined) {
+              const bytes = block(seg.groups, 4 * seg.vertices, what);
+              groups = new Uint32Array(bytes.buffer, bytes.byteOffset, seg.vertices);
+            }
+            const c = new THREE.Color();
+            for (let i = 0; i < seg.vertices; i++) {
+              c.setHex(palette[((groups ? groups[i] : 0) + index) % palette.length]);
+              colour[3 * i] = c.r; colour[3 * i + 1] = c.g; colour[3 * i + 2] = c.b;
+            }
+            geometry.setAttribute('color', new THREE.BufferAttribute(colour, 3));
+          }
           const segment = { start, count: seg.frames, vertices: seg.vertices, frames, geometry };
           start += seg.frames;
           return segment;

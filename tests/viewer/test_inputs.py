@@ -99,6 +99,38 @@ def test_a_rigged_model_and_arrays_are_inputs():
     assert deform.load_model(_glb(model)).mesh.num_vertices == model.mesh.num_vertices
 
 
+def test_groups_give_each_vertex_its_first_triangles_group_and_keep_pieces_apart():
+    """(V, F, groups) triples: a vertex takes the group of the first triangle that uses it; vertices that coincide
+    in every frame are merged only within a group, so a piece's colour never bleeds into another's."""
+    from _jaxcga_shared.viewer._inputs import read_arrays
+
+    V = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0], [1, 0, 0], [0, 1, 0]], float)
+    F = np.array([[0, 1, 2], [3, 5, 4]])  # the second triangle's corners 4, 5 coincide with 1, 2
+    shared = np.array([[0, 1, 2], [1, 3, 2]])
+    sequence = read_arrays([(V, F, np.array([0, 1])), (V + 1.0, F, np.array([0, 1]))], "cut", "inputs[0]")
+    assert [len(frames[0]) for _, frames in sequence.segments] == [6] and sequence.groups[0].tolist() == [
+        0,
+        0,
+        0,
+        1,
+        1,
+        1,
+    ]
+    one = read_arrays([(V, F, np.array([2, 2])), (V + 1.0, F, np.array([2, 2]))], "whole", "inputs[0]")
+    assert len(one.segments[0][1][0]) == 4 and one.groups[0].tolist() == [2, 2, 2, 2]  # one group: merged
+    first = read_arrays([(V[:4], shared, np.array([3, 1]))], "first", "inputs[0]")
+    assert first.groups[0].tolist() == [3, 3, 3, 1]  # vertices 1 and 2: the first triangle's group
+    changed = read_arrays([(V, F, np.array([0, 0])), (V, F, np.array([0, 1]))], "split", "inputs[0]")
+    assert len(changed.segments) == 2 and len(changed.groups) == 2  # new groups: a new segment
+    assert read_arrays([(V, F), (V + 1.0, F)], "plain", "inputs[0]").groups == []
+    with pytest.raises(ValueError, match=r"inputs\[0\]\[1\]\[2\]: expected one integer group >= 0 per triangle"):
+        read_arrays([(V, F, np.array([0, 1])), (V, F, np.array([0, -1]))], "bad", "inputs[0]")
+    with pytest.raises(ValueError, match=r"inputs\[0\]\[1\]: expected a \(V, F, groups\) triple"):
+        read_arrays([(V, F, np.array([0, 1])), (V, F)], "mixed", "inputs[0]")
+    page = jaxcga.view([(V, F, np.array([0, 1]))])
+    assert page.meshes[0]["vertexCount"] == 6
+
+
 def _glb(model) -> Path:
     import tempfile
 

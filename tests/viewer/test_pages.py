@@ -241,6 +241,30 @@ def test_a_list_of_meshes_plays_as_frames_whose_triangles_change(browser, tmp_pa
     np.testing.assert_allclose(browser.positions(0, 1.0), apart, rtol=0, atol=1e-4 * 2)  # six vertices now
 
 
+def _tinted(browser) -> tuple[float, float]:
+    """Fractions of the drawing area's pixels that are clearly red-brown (palette 0, 0xc8a27a) and clearly blue
+    (palette 1, 0x7aa2c8)."""
+    image = browser.screenshot()[:-80].astype(int)
+    return float((image[..., 0] - image[..., 2] > 30).mean()), float((image[..., 2] - image[..., 0] > 30).mean())
+
+
+def test_groups_of_triangles_are_drawn_in_their_own_colours(browser, tmp_path):
+    """(V, F, groups) triples: the pieces of a cut body, each in its own colour, its frames played as the pairs';
+    without groups the whole sequence takes one colour."""
+    V, F = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], float), np.array([[0, 1, 2], [1, 3, 2]])
+    apart = np.concatenate([V[F[0]], V[F[1]] + [0.5, 0.5, 0]])  # two triangles, three vertices each
+    own = np.arange(6).reshape(2, 3)
+    frames = [(apart, own, np.array([0, 1])), (apart + [0.0, 0.0, 0.5], own, np.array([0, 1]))]
+    state = _show(browser, jaxcga.view(frames, fps=1.0), tmp_path)
+    assert state["duration"] == 1.0 and state["meshes"][0]["vertexCount"] == 6
+    np.testing.assert_allclose(browser.positions(0, 1.0), apart + [0.0, 0.0, 0.5], rtol=0, atol=1e-4 * 2)
+    brown, blue = _tinted(browser)
+    assert brown > 0.01 and blue > 0.01
+    _show(browser, jaxcga.view([(V, F) for V, F, _ in frames], fps=1.0), tmp_path, "plain.html")
+    brown, blue = _tinted(browser)
+    assert brown > 0.01 and blue == 0.0
+
+
 def test_skin_weights_of_a_joint_and_the_skeleton(browser, tmp_path):
     model = deform.load_model(DATA / "CesiumMan.glb")
     j = 3
