@@ -4,12 +4,12 @@ VENV ?= .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: demo test test-gpu-variants test-slow lint bench bench-quick bench-compare bench-gpu gpu-programs install clean
+.PHONY: demo test test-gpu-variants test-slow lint docs bench bench-quick bench-compare bench-gpu gpu-programs install clean
 
 $(STAMP): pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet -e ".[dev,bench]"
+	$(PY) -m pip install --quiet -e ".[dev,bench,docs]"
 	touch $(STAMP)
 
 install: $(STAMP)
@@ -38,6 +38,11 @@ lint: $(STAMP)
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .
 	$(VENV)/bin/pyright
+
+## The documentation site into site/ (open site/index.html): mkdocs with --strict, so that a warning (a docstring it
+## cannot read, a broken link) fails; the notebooks as stored, the command-line reference from the parsers.
+docs: $(STAMP)
+	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict --quiet
 
 ## Benchmarks: print figures and ratios, write JSON to out/bench/.
 bench: $(STAMP)
@@ -82,4 +87,4 @@ gpu-programs: $(CUDA_PLUGIN)/.installed
 	PYTHONPATH=$(CUDA_PLUGIN) JAX_PLATFORMS=cpu $(PY) benchmarks/gpu/compile_for_gpu.py --json out/gpu-programs.json
 
 clean:
-	rm -rf $(VENV) $(CUDA_PLUGIN) out .pytest_cache
+	rm -rf $(VENV) $(CUDA_PLUGIN) out .pytest_cache site .cache

@@ -201,9 +201,22 @@ def cut_topology(
             count as on it; so does a vertex next to which a crossing would leave a sliver piece.
         cap: close both halves with the triangulated cut loops (the input must be closed).
         edges: ``mesh_edges(F)``, precomputed once per topology.
+    Returns:
+        The ``CutTopology`` (its attributes say what it holds), which ``cut`` applies to a ``SkinnedMesh`` and
+        ``cut_positions`` to the vertices.
     Raises:
         ValueError: bad shapes, non-finite input, or a plane that misses the mesh (all vertices on one
-            side: there is nothing to cut) or only grazes it (all on one side once snapped)."""
+            side: there is nothing to cut) or only grazes it (all on one side once snapped).
+
+    Examples:
+        >>> import numpy as np
+        >>> import cutting
+        >>> V = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]])  # a unit square in two triangles
+        >>> F = np.array([[0, 1, 2], [0, 2, 3]])
+        >>> topology = cutting.cut_topology(V, F, cutting.Plane([1.0, 0.0, 0.0], 0.5))
+        >>> topology.crossing.tolist()  # the edges that carry the new vertices
+        [[0, 1], [0, 2], [2, 3]]
+    """
     check_choice("predicates", predicates, PREDICATES)
     V, F = check_triangle_mesh(V, F, min_faces=0)
     if not tolerance >= 0:
@@ -226,8 +239,10 @@ def vertex_sides(V, F, n, d, predicates: str, tolerance: float) -> Float[np.ndar
 
     Args:
         V: (n, 3) vertex positions; F: (m, 3) int faces.
-        n, d: the plane's unit normal (3,) and offset (``check_plane``).
-        predicates, tolerance: as in ``cut_topology``.
+        n: (3,) the plane's unit normal (``check_plane``).
+        d: the plane's offset (``check_plane``).
+        predicates: as in ``cut_topology``.
+        tolerance: see ``predicates``.
     Returns:
         (n,) the signed distances. Raises a ValueError where the plane misses the mesh."""
     s = signed_distances(V, n, d, predicates)
@@ -257,7 +272,9 @@ def intersections(V, F, edges: MeshEdges, s, n, d, predicates: str) -> _Crossing
     Args:
         V: (n, 3) vertex positions; F: (m, 3) int faces; edges: ``mesh_edges(F)``.
         s: (n,) ``vertex_sides``' signed distances.
-        n, d, predicates: as in ``vertex_sides``.
+        n: as in ``vertex_sides``.
+        d: see ``n``.
+        predicates: see ``n``.
     Returns:
         The ``_Crossings``. Raises a ValueError where the plane only grazes the mesh."""
     sign = np.sign(s).astype(np.int64)
@@ -370,7 +387,17 @@ def cut_positions(V: Float[ArrayLike, "n 3"], topology: CutTopology, plane: Plan
         topology: the cut's ``CutTopology`` (its ``crossing`` edges are used).
         plane: the ``Plane``; its normal need not be unit length (the intersection does not depend on it).
     Returns:
-        (p, 3) the new vertices, in the order of ``topology.crossing``."""
+        (p, 3) the new vertices, in the order of ``topology.crossing``.
+
+    Examples:
+        >>> import numpy as np
+        >>> import cutting
+        >>> V = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]])
+        >>> F = np.array([[0, 1, 2], [0, 2, 3]])
+        >>> plane = cutting.Plane([1.0, 0.0, 0.0], 0.5)
+        >>> (cutting.cut_positions(V, cutting.cut_topology(V, F, plane), plane) + 0.0).tolist()
+        [[0.5, 0.0, 0.0], [0.5, 0.5, 0.0], [0.5, 1.0, 0.0]]
+    """
     V = jnp.asarray(V)
     if V.shape != (len(topology.distances), 3):
         raise ValueError(
@@ -451,7 +478,15 @@ def cut(
         return_topology: also return the ``CutTopology`` (for ``cut_positions``).
     Returns:
         (positive, negative) SkinnedMeshes, and ``((positive, negative), topology)`` when
-        ``return_topology``."""
+        ``return_topology``.
+
+    Examples:
+        >>> import deform, cutting
+        >>> arm = deform.default_arm()
+        >>> upper, lower = cutting.cut(arm.mesh, cutting.Plane([1.0, 0.0, 0.0], 0.3))  # across the upper arm
+        >>> upper.V.shape[0] + lower.V.shape[0] > arm.mesh.V.shape[0]  # the new vertices are in both halves
+        True
+    """
     if not 0.0 <= side_weight <= 1.0:
         raise ValueError(f"side_weight: expected a number in [0, 1], got {side_weight}")
     V, F = np.asarray(mesh.V, np.float64), np.asarray(mesh.F)
@@ -471,7 +506,8 @@ def new_vertex_data(V, J, W, topology: CutTopology, side_weight: float, joint_ma
     Args:
         V: (n, 3) the input's rest positions; J: (n, k) int its joints; W: (n, k) its weights.
         topology: the cut's ``CutTopology``.
-        side_weight, joint_matrices: as in ``cut`` (None or the (j, 4, 4) pose the mesh was cut in).
+        side_weight: as in ``cut`` (None or the (j, 4, 4) pose the mesh was cut in).
+        joint_matrices: see ``side_weight``.
     Returns:
         (rest positions (p, 3) of the new vertices, [(J_new (p, k) int, W_new (p, k)) for the positive half, then
         for the negative]: the same in both halves when ``side_weight`` is 0)."""
@@ -505,7 +541,8 @@ def split_mesh(mesh: SkinnedMesh, V, J, W, topology: CutTopology, rest, weights)
         mesh: the input SkinnedMesh (its joints, inverse binds and dtypes).
         V: (n, 3) its rest positions; J: (n, k) int its joints; W: (n, k) its weights.
         topology: the cut's ``CutTopology``.
-        rest, weights: ``new_vertex_data``'s results.
+        rest: ``new_vertex_data``'s results.
+        weights: see ``rest``.
     Returns:
         [positive, negative] SkinnedMeshes."""
     halves = []

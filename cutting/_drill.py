@@ -175,7 +175,15 @@ def refine(
         joint_matrices: (j, 4, 4) joint matrices of a pose: split in that pose (midpoints of the posed
             edges, rest positions by inverse LBS).
     Returns:
-        The refined SkinnedMesh (the input's vertices first, in order, then the midpoints)."""
+        The refined SkinnedMesh (the input's vertices first, in order, then the midpoints).
+
+    Examples:
+        >>> import deform, cutting
+        >>> mesh = deform.default_arm().mesh
+        >>> finer = cutting.refine(mesh, [0, 1])  # split two faces (and the neighbours that keep it conforming)
+        >>> finer.F.shape[0] > mesh.F.shape[0]
+        True
+    """
     F = np.asarray(mesh.F)
     mask = np.ones(len(F), bool)
     if faces is not None:
@@ -393,10 +401,22 @@ def drill_topology(
             as on it (no sliver triangles).
         edges: ``mesh_edges(F)``: accepted for the signature that cut, tear and drill share and checked
             against F; the drill builds the adjacency of the few faces near it itself.
+    Returns:
+        The ``DrillTopology`` (its attributes say what it holds), which ``drill`` applies to a ``SkinnedMesh`` and
+        ``drill_positions`` to the vertices.
     Raises:
         ValueError: bad input, a drill that misses the mesh, a drill wider than the part of the mesh it
             meets, a hole that stays below three boundary points, or a rim that stays farther than
-            ``rim_tolerance`` from the cylinder, after ``max_refinements`` splits."""
+            ``rim_tolerance`` from the cylinder, after ``max_refinements`` splits.
+
+    Examples:
+        >>> import numpy as np
+        >>> import deform, cutting
+        >>> mesh = deform.default_arm().mesh
+        >>> drill = cutting.Drill([0.2, 0.0, -0.2], [0.2, 0.0, 0.2], 0.01)  # through the upper arm, front to back
+        >>> cutting.drill_topology(np.asarray(mesh.V), np.asarray(mesh.F), drill).holes
+        2
+    """
     V, F = check_triangle_mesh(V, F, min_faces=0)
     tip, base, radius = check_drill(drill)
     if min_points < 3 or (max_refinements is not None and max_refinements < 0):
@@ -812,7 +832,10 @@ def drill(
         mesh: the SkinnedMesh (``deform``).
         drill: the ``Drill`` (see ``drill_topology``), in the space of the mesh as drilled: the bind
             pose, or the pose of ``joint_matrices``.
-        min_points, max_refinements, rim_tolerance, tolerance: see ``drill_topology``.
+        min_points: see ``drill_topology``.
+        max_refinements: see ``min_points``.
+        rim_tolerance: see ``min_points``.
+        tolerance: see ``min_points``.
         joint_matrices: (j, 4, 4) joint matrices of a pose (``deform.joint_matrices``): drill the mesh
             *in that pose*, the drill in world space. New vertices get the rest positions whose LBS
             image in that pose is their drilled position (exact for LBS).
@@ -820,7 +843,15 @@ def drill(
         return_topology: also return the ``DrillTopology`` (for ``drill_positions``).
     Returns:
         The drilled SkinnedMesh (its vertices: the input's outside the hole, in order, then refinement
-        split points and new points), and the DrillTopology when ``return_topology``."""
+        split points and new points), and the DrillTopology when ``return_topology``.
+
+    Examples:
+        >>> import deform, cutting
+        >>> mesh = deform.default_arm().mesh  # along +x, about 0.09 thick
+        >>> drilled = cutting.drill(mesh, cutting.Drill([0.2, 0.0, -0.2], [0.2, 0.0, 0.2], 0.01))  # tip, base, radius
+        >>> drilled.V.shape[0] > mesh.V.shape[0]  # the holes' rims
+        True
+    """
     J, W = np.asarray(mesh.J), np.asarray(mesh.W)
     space, joint_matrices = posed_vertices(mesh, joint_matrices)
     topology = drill_topology(
@@ -861,7 +892,18 @@ def drill_positions(V: Float[ArrayLike, "n 3"], topology: DrillTopology, drill: 
         topology: the hole's ``DrillTopology``.
         drill: the ``Drill``.
     Returns:
-        (p, 3) the new points, in the order of ``topology.crossing``."""
+        (p, 3) the new points, in the order of ``topology.crossing``.
+
+    Examples:
+        >>> import numpy as np
+        >>> import deform, cutting
+        >>> mesh = deform.default_arm().mesh
+        >>> V, F = np.asarray(mesh.V), np.asarray(mesh.F)
+        >>> drill = cutting.Drill([0.2, 0.0, -0.2], [0.2, 0.0, 0.2], 0.01)
+        >>> topology = cutting.drill_topology(V, F, drill)
+        >>> cutting.drill_positions(V, topology, drill).shape == topology.points.shape  # a JAX function of V and drill
+        True
+    """
     V = jnp.asarray(V)
     n = len(topology.vertices) - len(topology.parents)
     if V.shape != (n, 3):

@@ -35,7 +35,14 @@ def mesh_edges(F: Int[ArrayLike, "m 3"]) -> MeshEdges:
     Args:
         F: (m, 3) int faces.
     Returns:
-        The ``MeshEdges`` (pass it as ``edges=`` to the cut, tear and drill of meshes with these faces)."""
+        The ``MeshEdges`` (pass it as ``edges=`` to the cut, tear and drill of meshes with these faces).
+
+    Examples:
+        >>> import numpy as np
+        >>> import cutting
+        >>> cutting.mesh_edges(np.array([[0, 1, 2], [0, 2, 3]])).edges.tolist()
+        [[0, 1], [0, 2], [0, 3], [1, 2], [2, 3]]
+    """
     F = np.asarray(F)
     if F.ndim != 2 or F.shape[1] != 3:
         raise ValueError(f"F: expected shape (m, 3), got {F.shape}")

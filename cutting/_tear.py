@@ -198,7 +198,17 @@ def scalpel_path(blade: Float[ArrayLike, "2 3"], motors: cga.Multivector) -> Sca
         blade: (2, 3) the segment's handle end and tip at rest.
         motors: versors with batch shape (k+1,).
     Returns:
-        The ``Scalpel`` (float64 numpy ends (k+1, 3)) that ``tear`` takes."""
+        The ``Scalpel`` (float64 numpy ends (k+1, 3)) that ``tear`` takes.
+
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> import cutting
+        >>> blade = jnp.array([[0.18, 0.1, 0.0], [0.18, 0.0, 0.0]])  # handle end, tip
+        >>> scalpel = cutting.scalpel_path(blade, cga.translator(jnp.array([[0.0, 0, 0], [0.04, 0, 0]])))
+        >>> scalpel.tip.round(6).tolist()  # the tip at the two time steps
+        [[0.18, 0.0, 0.0], [0.22, 0.0, 0.0]]
+    """
     blade = np.asarray(blade, np.float64)
     if blade.shape != (2, 3) or not np.all(np.isfinite(blade)):
         raise ValueError(f"blade: expected 2 finite endpoints of shape (2, 3), got {blade.shape}")
@@ -858,11 +868,24 @@ def tear_topology(
         tolerance: planes passing closer than ``tolerance`` times the bounding-box diagonal to a path
             vertex are moved away from it (see the module docstring).
         edges: ``mesh_edges(F)``, precomputed once per topology.
+    Returns:
+        The ``TearTopology`` (its attributes say what it holds), which ``tear`` applies to a ``SkinnedMesh`` and
+        ``tear_positions`` to the vertices.
     Raises:
         ValueError: a blade that never crosses the surface (neither its samples' segments nor the surface it
             sweeps meets the mesh). A blade that barely crosses it makes a minimal slit (module docstring); one
             that crosses it only in faces where no slit fits without a sliver, nor in their neighbours (a
-            degenerate patch of the surface), is refused too, with a message that says so."""
+            degenerate patch of the surface), is refused too, with a message that says so.
+
+    Examples:
+        >>> import numpy as np
+        >>> import deform, cutting
+        >>> mesh = deform.default_arm().mesh
+        >>> blade = cutting.Scalpel([[0.18, 0.1, 0.0], [0.22, 0.1, 0.0]], [[0.18, 0.0, 0.0], [0.22, 0.0, 0.0]])
+        >>> topology = cutting.tear_topology(np.asarray(mesh.V), np.asarray(mesh.F), blade)
+        >>> topology.points.shape[1]  # the edge points of the tear
+        3
+    """
     check_choice("predicates", predicates, PREDICATES)
     V, F = check_triangle_mesh(V, F, min_faces=0)
     segments = check_scalpel(scalpel)
@@ -1079,7 +1102,16 @@ def tear(
         crossing of each stretch (S_0 and S_k when the blade stays on the surface), the left copies of the
         Q_j, the right copies), and the TearTopology when ``return_topology``.
     Raises:
-        ValueError: bad arguments, or a blade that never crosses the surface (see ``tear_topology``)."""
+        ValueError: bad arguments, or a blade that never crosses the surface (see ``tear_topology``).
+
+    Examples:
+        >>> import deform, cutting
+        >>> mesh = deform.default_arm().mesh
+        >>> blade = cutting.Scalpel([[0.18, 0.1, 0.0], [0.22, 0.1, 0.0]], [[0.18, 0.0, 0.0], [0.22, 0.0, 0.0]])
+        >>> torn = cutting.tear(mesh, blade)  # handle above the skin, tip inside, moved 4 cm along the arm
+        >>> torn.V.shape[0] > mesh.V.shape[0]
+        True
+    """
     if not 0.0 <= side_weight <= 1.0:
         raise ValueError(f"side_weight: expected a number in [0, 1], got {side_weight}")
     if not (np.isfinite(opening) and opening >= 0):
@@ -1171,7 +1203,18 @@ def tear_positions(
     Returns:
         (tips (2r, 3): the first and last crossing of each of the r stretches (S_0 and S_k for one), left
         (q + u, 3), right (q + u, 3): the two copies of every Q_j, then of the middle point of each of the u
-        slits inside one face)."""
+        slits inside one face).
+
+    Examples:
+        >>> import numpy as np
+        >>> import deform, cutting
+        >>> mesh = deform.default_arm().mesh
+        >>> V, F = np.asarray(mesh.V), np.asarray(mesh.F)
+        >>> blade = cutting.Scalpel([[0.18, 0.1, 0.0], [0.22, 0.1, 0.0]], [[0.18, 0.0, 0.0], [0.22, 0.0, 0.0]])
+        >>> tips, left, right = cutting.tear_positions(V, cutting.tear_topology(V, F, blade), blade)
+        >>> left.shape == right.shape  # the two copies of each edge point (apart with an opening)
+        True
+    """
     V = jnp.asarray(V)
     scalpel = joined_scalpel(scalpel)
     handle, tip = jnp.asarray(scalpel.handle), jnp.asarray(scalpel.tip)

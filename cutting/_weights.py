@@ -29,7 +29,16 @@ def blend_weights(
         influences: bones kept per new vertex (default k, the input's width).
     Returns:
         (J_new (p, influences) int, W_new (p, influences) float): rows sum to one, unused slots
-        have weight 0 and joint 0."""
+        have weight 0 and joint 0.
+
+    Examples:
+        >>> import numpy as np
+        >>> import cutting
+        >>> J, W = np.array([[0, 1], [1, 2]]), np.array([[0.5, 0.5], [1.0, 0.0]])  # two vertices, 2 influences
+        >>> J_new, W_new = cutting.blend_weights(J, W, np.array([[0, 1]]), np.array([[0.5, 0.5]]))  # their midpoint
+        >>> J_new.tolist(), W_new.tolist()
+        ([[1, 0]], [[0.75, 0.25]])
+    """
     J, W = np.asarray(J), np.asarray(W)
     corners, coefficients = np.asarray(corners), np.asarray(coefficients, dtype=np.float64)
     if corners.ndim != 2 or coefficients.shape != corners.shape:

@@ -328,7 +328,13 @@ def _global(data: ARAPData, rotors: Multivector, bc, previous):
 def default_tolerance(dtype: DTypeLike) -> float:
     """``arap_solve``'s default tolerance for positions of ``dtype``: 50 ulps of the diagonal (1.1e-14 in float64,
     6.0e-6 in float32), above the rounding floor of the fixed-point residual and tight enough for central
-    differences of the converged positions to match the implicit gradient to 1e-6."""
+    differences of the converged positions to match the implicit gradient to 1e-6.
+
+    Args:
+        dtype: the positions' float dtype.
+    Returns:
+        The tolerance, relative to the rest bounding-box diagonal.
+    """
     return 50.0 * float(jnp.finfo(dtype).eps)
 
 

@@ -51,7 +51,16 @@ def capacity(n: int) -> int:
     two), so that padding adds at most a quarter.
 
     Args:
-        n: a count >= 0."""
+        n: a count >= 0.
+
+    Returns:
+        The level, >= n.
+
+    Examples:
+        >>> import deform
+        >>> deform.capacity(9), deform.capacity(100)
+        (10, 112)
+    """
     if n <= 8:
         return max(int(n), 1)
     step = 1 << ((int(n) - 1).bit_length() - 3)

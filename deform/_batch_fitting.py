@@ -171,7 +171,13 @@ def fit_packed(
             ``vertices[m]`` (all of the model's vertices when ``vertices`` is None: t_m = n_m).
         vertices: one (t_m,) int array of vertex indices per model (None for all of a model's vertices), or
             None (all vertices of every model).
-        method, regularization, fit_scale, solver, max_steps, rtol, atol: as ``fit_pose``, for every model.
+        method: as ``fit_pose``, for every model.
+        regularization: see ``method``.
+        fit_scale: see ``method``.
+        solver: see ``method``.
+        max_steps: see ``method``.
+        rtol: see ``method``.
+        atol: see ``method``.
     Returns:
         one PoseFit per model, in the order packed."""
     if not isinstance(packed, PackedModels):

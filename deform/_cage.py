@@ -269,7 +269,8 @@ def cage_precompute(
         V: (n, 3) mesh vertices, all inside the cage (or on it).
         cage_V: (c, 3) cage vertices.
         cage_F: (m, 3) int faces of a closed, consistently oriented 2-manifold (inward orientation is flipped).
-        max_tet_volume, subdivisions: the resolution, see ``harmonic_coordinates``.
+        max_tet_volume: the resolution, see ``harmonic_coordinates``.
+        subdivisions: see ``max_tet_volume``.
     Returns:
         a ``MotorField`` whose weights are the harmonic coordinates ``lambda^i_j`` (n, c) and whose bound
         positions are V (identity rest motors): ``motor_field_solve`` on it and cage motors (batch shape

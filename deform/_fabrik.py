@@ -137,7 +137,11 @@ def chain_motors(rest: Float[Array, "m1 3"], posed: Float[Array, "m1 3"]) -> Mul
 
     Args:
         rest: (m + 1, 3) rest joint positions, root first.
-        posed: (m + 1, 3) posed joint positions, the same bone lengths."""
+        posed: (m + 1, 3) posed joint positions, the same bone lengths.
+
+    Returns:
+        The motors, batch shape (m + 1,).
+    """
     rest, posed = _check_chain("rest", rest), _check_chain("posed", posed)
     if rest.shape != posed.shape:
         raise ValueError(f"posed: expected the shape of rest {rest.shape}, got {posed.shape}")

@@ -101,7 +101,11 @@ def bounding_lattice(V: Float[ArrayLike, "n 3"], counts: Sequence[int] = (4, 4, 
     Args:
         V: (n, 3) points.
         counts: (l, m, n) control points per axis, each >= 2.
-        padding: >= 0, the margin on every side as a fraction of the largest box extent."""
+        padding: >= 0, the margin on every side as a fraction of the largest box extent.
+
+    Returns:
+        The ``Lattice``.
+    """
     V = check_vectors("V", V, rows="n")
     if padding < 0:
         raise ValueError(f"padding: expected >= 0, got {padding}")
@@ -118,7 +122,11 @@ def lattice_coordinates(V: Float[ArrayLike, "n 3"], lattice: Lattice) -> Float[A
 
     Args:
         V: (n, 3) points inside the lattice.
-        lattice: the Lattice."""
+        lattice: the Lattice.
+
+    Returns:
+        (n, 3) the coordinates (s, t, u), in [0, 1] inside the lattice.
+    """
     V = check_vectors("V", V, rows="n")
     axes, origin = lattice.axes.astype(V.dtype), lattice.origin.astype(V.dtype)
     local = jnp.linalg.solve(axes.T, (V - origin).T).T
@@ -152,7 +160,20 @@ def ffd_weights(V: Float[ArrayLike, "n 3"], lattice: Lattice) -> Float[Array, "n
 
     Args:
         V: (n, 3) points inside the lattice.
-        lattice: the Lattice."""
+        lattice: the Lattice.
+
+    Returns:
+        (n, l m n) the weights, rows summing to one.
+
+    Examples:
+        >>> import numpy as np
+        >>> import deform
+        >>> V = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]])
+        >>> lattice = deform.bounding_lattice(V, (2, 2, 2), padding=0.1)
+        >>> W = deform.ffd_weights(V, lattice)
+        >>> W.shape, bool(np.allclose(W.sum(axis=1), 1.0, atol=1e-6))
+        ((4, 8), True)
+    """
     local = lattice_coordinates(V, lattice)
     b = [_bernstein(c - 1, local[:, axis]) for axis, c in enumerate(lattice.counts)]
     return jnp.einsum("pa,pb,pc->pabc", *b, precision=EXACT).reshape(local.shape[0], lattice.size)
@@ -169,7 +190,11 @@ def lattice_points(lattice: Lattice) -> Float[Array, "k 3"]:
     """The rest control points (l m n, 3), row-major over the (a, b, c) grid like ``ffd_weights``.
 
     Args:
-        lattice: the Lattice."""
+        lattice: the Lattice.
+
+    Returns:
+        (l m n, 3) the control points.
+    """
     return lattice.origin + jnp.matmul(_local_grid(lattice), lattice.axes, precision=EXACT)
 
 
@@ -182,7 +207,11 @@ def ffd_precompute(V: Float[ArrayLike, "n 3"], lattice: Lattice) -> MotorField:
 
     Args:
         V: (n, 3) points inside the lattice.
-        lattice: the Lattice."""
+        lattice: the Lattice.
+
+    Returns:
+        The ``MotorField`` of the lattice's motors.
+    """
     V = check_vectors("V", V, rows="n")
     return motor_field_precompute(V, ffd_weights(V, lattice))
 
@@ -228,9 +257,10 @@ def distortion(
         V0: (n, 3) rest positions.
         F: (m, 3) int triangles of a closed mesh.
         V1: (..., n, 3) deformed positions.
-    Returns a dict of arrays with the batch shape of ``V1``:
-        ``volume_ratio``: signed volume of V1 over that of V0 (1 for a volume-preserving map);
-        ``edge_mean``, ``edge_max``: mean and max over the edges of ``|len_1 / len_0 - 1|``.
+    Returns:
+        A dict of arrays with the batch shape of ``V1``: ``volume_ratio``, the signed volume of V1 over that of V0
+        (1 for a volume-preserving map); ``edge_mean`` and ``edge_max``, the mean and max over the edges of
+        ``|len_1 / len_0 - 1|``.
     """
     V0 = check_vectors("V0", V0, rows="n")
     V1 = jnp.asarray(V1)

@@ -51,7 +51,19 @@ def generators_to_motors(generators: Float[Array, "... k 6"]) -> Multivector:
     """Key motors ``exp(B_j)``, batch shape (..., k), from motor generators.
 
     Args:
-        generators: (..., k, 6) motor generators (e12, e13, e23, e1inf, e2inf, e3inf)."""
+        generators: (..., k, 6) motor generators (e12, e13, e23, e1inf, e2inf, e3inf).
+
+    Returns:
+        The motors, batch shape (..., k).
+
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> import deform
+        >>> M = deform.generators_to_motors(jnp.array([[0.0, 0, 0, -1.0, 0, 0]]))  # exp(-t einf / 2), t = (2, 0, 0)
+        >>> cga.apply_to_points(M, jnp.zeros(3)).round(6).tolist()
+        [[2.0, 0.0, 0.0]]
+    """
     generators = jnp.asarray(generators)
     if generators.ndim < 1 or generators.shape[-1] != 6:
         raise ValueError(f"generators: expected shape (..., k, 6), got {generators.shape}")
@@ -101,7 +113,9 @@ def fit_key_motors(
         fixed_motors: motors (batch shape (k,)) for the keys not fitted; default identities.
         regularization: weight of ``lambda |B|^2`` toward the rest (use it with few targets).
         solver: one of ``deform.SOLVERS``.
-        max_steps, rtol, atol: solver limits and tolerances.
+        max_steps: solver limits and tolerances.
+        rtol: see ``max_steps``.
+        atol: see ``max_steps``.
         init: (k, 6) starting generators (zeros: the rest).
     Returns:
         a ``MotorFit``."""

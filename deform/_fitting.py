@@ -39,7 +39,11 @@ def pose_from_parameters(model: RiggedModel, params: Float[ArrayLike, "... b 7"]
     Args:
         model: the RiggedModel (its skeleton's rest pose is the reference).
         params: (..., b, 7): motor-generator components (e12, e13, e23, e1inf, e2inf, e3inf) and the
-            log-scale of each bone."""
+            log-scale of each bone.
+
+    Returns:
+        The local similitudes, batch shape (..., b).
+    """
     params = jnp.asarray(params)
     b = model.skeleton.num_bones
     if params.ndim < 2 or params.shape[-2:] != (b, PARAMETERS_PER_BONE):
@@ -64,7 +68,11 @@ def skin_parameters(
     Args:
         model: the RiggedModel.
         params: (..., b, 7) parameters, see ``pose_from_parameters``.
-        method: skinning method (``deform.METHODS``)."""
+        method: skinning method (``deform.METHODS``).
+
+    Returns:
+        (..., n, 3) the skinned positions.
+    """
     return _pose.skin_pose(model, pose_from_parameters(model, params), method)
 
 
@@ -253,7 +261,9 @@ def fit_pose(
         fit_scale: also fit each bone's dilation (log-scale); otherwise motors only.
         solver: one of ``SOLVERS``. "gradient_descent" (Adam, its learning rate decaying to zero over
             ``max_steps``) is first order: give it thousands of steps (e.g. ``max_steps=10_000``).
-        max_steps, rtol, atol: solver limits and tolerances.
+        max_steps: solver limits and tolerances.
+        rtol: see ``max_steps``.
+        atol: see ``max_steps``.
         init: (b, 7) starting parameters (zeros: the rest pose).
     Returns:
         a PoseFit."""
@@ -326,8 +336,14 @@ def random_parameters(
     Args:
         key: a JAX random key.
         model: the RiggedModel (its bone count b and rest diagonal).
-        rotation, translation, log_scale: the half-widths of the uniform ranges.
-        dtype: the parameters' dtype; None: the mesh's."""
+        rotation: the half-widths of the uniform ranges.
+        translation: see ``rotation``.
+        log_scale: see ``rotation``.
+        dtype: the parameters' dtype; None: the mesh's.
+
+    Returns:
+        (b, 7) the parameters (``pose_from_parameters``).
+    """
     b = model.skeleton.num_bones
     dtype = dtype or model.mesh.V.dtype
     k1, k2, k3 = jax.random.split(key, 3)

@@ -790,7 +790,8 @@ def buffer_file(path: str | Path, what: str = "path") -> Path | None:
     Args:
         path: str or Path of the .gltf or .glb to write.
         what: the argument named in the error.
-
+    Returns:
+        The ``<stem>.bin`` path for a .gltf, None for a .glb.
     Raises:
         ValueError: that file exists and is not a buffer of the .gltf at ``path`` (none there, or one that
             does not refer to it): writing would destroy an unrelated file.
@@ -838,7 +839,8 @@ def save_model(model: RiggedModel, path: str | Path) -> None:
             skeleton translation (b, 3), rotation (b, 4), scale (b, 3), clips' times (t,) and values
             (t, d) or (t, 3, d).
         path: str or Path ending in ``.glb`` or ``.gltf``.
-
+    Returns:
+        None; the file is in place.
     Raises:
         ValueError: wrong suffix; ``mesh.joints`` repeats a bone (two inverse bind matrices for one
             node cannot be one glTF skin); non-finite values; key times not increasing in float32;
@@ -856,7 +858,8 @@ def save_models(models: Mapping[str | Path, RiggedModel]) -> None:
     Args:
         models: ``{path: model}``, each as ``save_model``'s ``path`` and ``model``; two paths that name the same
             file are refused.
-
+    Returns:
+        None; every file is in place.
     Raises:
         ValueError: as ``save_model``, for any of the models; two paths naming the same file.
         OSError: a file cannot be written (every existing one is left as it was).

@@ -42,7 +42,11 @@ def mean_value_laplacian(V: Float[ArrayLike, "n 3"], F: Int[ArrayLike, "m 3"]) -
 
     Args:
         V: (n, 3) vertex positions.
-        F: (m, 3) int faces."""
+        F: (m, 3) int faces.
+
+    Returns:
+        (n, n) the scipy CSR matrix.
+    """
     V, F = check_triangle_mesh(V, F)
     rows, cols, values = [], [], []
     for k in range(3):
@@ -71,7 +75,19 @@ def laplacian(
     Args:
         V: (n, 3) vertex positions.
         F: (m, 3) int faces.
-        kind: ``"cotangent"`` or ``"mean_value"``."""
+        kind: ``"cotangent"`` or ``"mean_value"``.
+
+    Returns:
+        (n, n) the scipy sparse Laplacian.
+
+    Examples:
+        >>> import numpy as np
+        >>> import deform
+        >>> V = np.array([[0.0, 0, 0], [1, 0, 0], [1, 1, 0], [0, 1, 0]])
+        >>> L = deform.laplacian(V, np.array([[0, 1, 2], [0, 2, 3]]))
+        >>> L.shape, bool(np.allclose(L.sum(axis=1), 0.0))
+        ((4, 4), True)
+    """
     return _laplacian(V, F, kind)
 
 

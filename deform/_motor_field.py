@@ -66,7 +66,18 @@ def motor_logs(key_motors: Multivector) -> Float[Array, "... k 6"]:
     """The six bivector components of ``log R_j`` (e12, e13, e23, e1inf, e2inf, e3inf) per key motor.
 
     Args:
-        key_motors: motors with batch shape (..., k)."""
+        key_motors: motors with batch shape (..., k).
+
+    Returns:
+        (..., k, 6) the logarithms' components.
+
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> import deform
+        >>> (deform.motor_logs(cga.translator(jnp.array([[2.0, 0, 0]]))).round(6) + 0.0).tolist()  # -t einf / 2
+        [[0.0, 0.0, 0.0, -1.0, 0.0, 0.0]]
+    """
     if not isinstance(key_motors, Multivector) or not set(key_motors.blades) <= set(KINDS["motor"]):
         raise ValueError("key_motors: expected a motor Multivector")
     return cga.log_motor(key_motors.embed(KINDS["motor"])).embed(MOTOR_GENERATOR).values
@@ -78,6 +89,18 @@ def blend_motors(weights: Float[ArrayLike, "n k"], key_motors: Multivector) -> M
     Args:
         weights: (n, k) weights (rows usually sum to one).
         key_motors: motors with batch shape (..., k); leading axes are batches (poses).
+
+    Returns:
+        The per-vertex motors, batch shape (..., n).
+
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> import deform
+        >>> keys = cga.translator(jnp.array([[0.0, 0, 0], [2.0, 0, 0]]))  # k = 2 key motors
+        >>> M = deform.blend_motors(jnp.array([[1.0, 0.0], [0.5, 0.5]]), keys)  # n = 2 vertices
+        >>> (cga.apply_to_points(M, jnp.zeros((2, 3))).round(6) + 0.0).tolist()
+        [[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]]
     """
     weights = _check_weights(weights)
     key_motors = _check_key_motors("key_motors", key_motors, weights.shape[1])
@@ -241,7 +264,17 @@ def identity_motors(k: int, dtype: DTypeLike = jnp.float64) -> Multivector:
 
     Args:
         k: the number of motors.
-        dtype: their float dtype."""
+        dtype: their float dtype.
+
+    Returns:
+        The motors, batch shape (k,).
+
+    Examples:
+        >>> import deform
+        >>> M = deform.identity_motors(3)
+        >>> M.batch_shape, M.values[:, 0].tolist()
+        ((3,), [1.0, 1.0, 1.0])
+    """
     values = jnp.zeros((k, 8), dtype).at[:, 0].set(1.0)
     return Multivector(values, KINDS["motor"])
 
@@ -272,7 +305,17 @@ def blend_positions(weights: Float[ArrayLike, "n k"], P: Float[ArrayLike, "... k
 
     Args:
         weights: (n, k) weights.
-        P: (..., k, 3) control points."""
+        P: (..., k, 3) control points.
+
+    Returns:
+        (..., n, 3) the blended positions.
+
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import deform
+        >>> deform.blend_positions(jnp.array([[0.5, 0.5]]), jnp.array([[0.0, 0, 0], [2.0, 0, 0]])).tolist()
+        [[1.0, 0.0, 0.0]]
+    """
     weights = jnp.asarray(weights)
     if weights.ndim != 2:
         raise ValueError(f"weights: expected shape (n, k), got {weights.shape}")

@@ -54,7 +54,11 @@ def skin_pose(
         model: the RiggedModel.
         local: local transform of every bone: versors (Multivector, batch shape (..., b)) or
             matrices (..., b, 4, 4).
-        method: one of ``METHODS``."""
+        method: one of ``METHODS``.
+
+    Returns:
+        (..., n, 3) the skinned positions.
+    """
     check_choice("method", method, METHODS)
     mesh = model.mesh
     joint_bones = jnp.asarray(mesh.joints, jnp.int32)
@@ -107,7 +111,16 @@ def rest_pose(model: RiggedModel, method: str = "cga") -> Float[Array, "n 3"]:
 
     Args:
         model: the RiggedModel.
-        method: one of ``METHODS``."""
+        method: one of ``METHODS``.
+
+    Returns:
+        (n, 3) the skinned positions.
+
+    Examples:
+        >>> import deform
+        >>> deform.rest_pose(deform.default_arm()).shape
+        (3266, 3)
+    """
     check_choice("method", method, METHODS)
     if method in ("cga", "cga_motor_blend"):
         return skin_pose(model, _rig.local_versors(model.skeleton), method)
@@ -131,7 +144,17 @@ def sample_pose(
         method: one of ``METHODS``: picks the form of the result.
         clip: clip name or index.
         interpolation: ``"gltf"`` (the specification's, default) or ``"log"`` (the paper's
-            logarithmic blending of key versors); module docstring."""
+            logarithmic blending of key versors); module docstring.
+
+    Returns:
+        Versors, batch shape (b,), or (b, 4, 4) matrices, by ``method``.
+
+    Examples:
+        >>> import deform
+        >>> arm = deform.default_arm()
+        >>> deform.sample_pose(arm, 0.5).batch_shape, deform.sample_pose(arm, 0.5, "lbs").shape  # versors, matrices
+        ((4,), (4, 4, 4))
+    """
     check_choice("method", method, METHODS)
     check_choice("interpolation", interpolation, INTERPOLATIONS)
     # The time goes in as an array: filter_jit would treat a Python float as static and recompile.
@@ -173,7 +196,20 @@ def skin_model(
         method: one of ``METHODS``.
         clip: clip name or index.
         interpolation: ``"gltf"`` (the specification's, default) or ``"log"`` (the paper's); module
-            docstring."""
+            docstring.
+
+    Returns:
+        (n, 3) the skinned positions.
+
+    Examples:
+        >>> import jax, jax.numpy as jnp
+        >>> import deform
+        >>> arm = deform.default_arm()  # the built-in rigged arm: 4 bones, one clip
+        >>> deform.skin_model(arm, 0.5, "cga").shape  # (n, 3) at t = 0.5 s
+        (3266, 3)
+        >>> jax.vmap(lambda t: deform.skin_model(arm, t, "lbs"))(jnp.linspace(0.0, 1.0, 5)).shape  # many frames
+        (5, 3266, 3)
+    """
     check_choice("method", method, METHODS)
     check_choice("interpolation", interpolation, INTERPOLATIONS)
     if not model.clips:

@@ -60,7 +60,16 @@ def clamped_knots(num_keys: int, degree: int) -> np.ndarray:
 
     Args:
         num_keys: k >= degree + 1 control points.
-        degree: the B-spline degree."""
+        degree: the B-spline degree.
+
+    Returns:
+        (num_keys + degree + 1,) the knots.
+
+    Examples:
+        >>> import deform
+        >>> deform.clamped_knots(5, 3).tolist()
+        [0.0, 0.0, 0.0, 0.0, 0.5, 1.0, 1.0, 1.0, 1.0]
+    """
     interior = np.linspace(0.0, 1.0, num_keys - degree + 1)
     return np.concatenate([np.zeros(degree), interior, np.ones(degree)])
 
@@ -96,6 +105,15 @@ def spline_weights(
         num_keys: k; ``None`` for the basis' default (linear 2, lagrange 3, bezier 4, bspline degree + 1).
             ``"linear"`` and ``"lagrange"`` accept only their own k.
         degree: the B-spline degree d >= 1 (``"bspline"`` only; k >= d + 1).
+
+    Returns:
+        (n, k) the weights, rows summing to one.
+
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import deform
+        >>> deform.spline_weights(jnp.array([0.0, 0.5, 1.0]), "linear").tolist()
+        [[1.0, 0.0], [0.5, 0.5], [0.0, 1.0]]
     """
     check_choice("basis", basis, BASES)
     lam = check_parameter(lam)
@@ -147,6 +165,9 @@ def spline_parameter(
         laplacian: ``"cotangent"`` or ``"mean_value"``.
         unhandled: ``"follow"`` (default: a connected part of the mesh with neither handle takes the parameter
             of the part it is attached or nearest to, ``deform.mesh_parts``) or ``"error"``.
+
+    Returns:
+        (n,) the parameter lambda of each vertex, in [0, 1].
     """
     start, end = np.asarray(start).reshape(-1), np.asarray(end).reshape(-1)
     if len(start) == 0 or len(end) == 0:
@@ -180,7 +201,9 @@ def spline_precompute(
         end: (e,) int vertex indices of the handle H_n (lambda = 1).
         rest_motors: None (identity rest motors: key motors are motions of space) or motors with batch
             shape (k,) that give back the rest mesh.
-        basis, num_keys, degree: the spline basis, see ``spline_weights``.
+        basis: the spline basis, see ``spline_weights``.
+        num_keys: see ``basis``.
+        degree: see ``basis``.
         laplacian: ``"cotangent"`` or ``"mean_value"`` for the harmonic field.
         unhandled: ``"follow"`` (default) or ``"error"``, see ``spline_parameter``.
     Returns:

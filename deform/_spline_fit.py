@@ -54,7 +54,11 @@ def spline_fit_solve(data: SplineFitData, Q: Multivector) -> Multivector:
 
     Args:
         data: ``spline_fit_precompute``'s output.
-        Q: motors at the parameters, batch shape (..., m)."""
+        Q: motors at the parameters, batch shape (..., m).
+
+    Returns:
+        The key motors, batch shape (..., k).
+    """
     if not isinstance(data, SplineFitData):
         raise ValueError("data: expected the SplineFitData returned by spline_fit_precompute")
     m, k = data.A.shape
@@ -88,6 +92,9 @@ def spline_fit_precompute(
             equations square A's condition number, so beyond ~1e8 they lose over half the float64 digits.
         rcond: singular values below ``rcond * s_max`` count as zero on the SVD path (default: numpy's
             ``lstsq`` cut-off, machine epsilon times max(m, k)).
+
+    Returns:
+        The ``SplineFitData`` (the factored system), for ``spline_fit_solve``.
     """
     if not isinstance(max_condition, (int, float)) or not max_condition >= 1:
         raise ValueError(f"max_condition: expected a number >= 1, got {max_condition!r}")

@@ -42,6 +42,17 @@ def grade_of(blade: int) -> int:
 
 
 def blade_name(blade: int) -> str:
+    """The name of a basis blade: ``"1"``, ``"e1"``, ``"e12"``, ``"eoinf"``, ... (over e1, e2, e3, eo, einf).
+
+    Args:
+        blade: the blade's index, a bit mask over (e1, e2, e3, eo, einf).
+    Returns:
+        The name, as ``Multivector.names`` gives it.
+    Examples:
+        >>> import jaxcga as cga
+        >>> cga.blade_name(0), cga.blade_name(0b00011), cga.blade_name(0b11000)
+        ('1', 'e12', 'eoinf')
+    """
     if blade == 0:
         return "1"
     return "e" + "".join(VECTOR_NAMES[i] for i in range(N_VECTORS) if blade >> i & 1)

@@ -29,7 +29,17 @@ def align_points(
         target: ``(..., n, 3)`` corresponding points.
         weights: optional ``(..., n)`` non-negative weights.
     Returns:
-        a motor with batch shape ``...``."""
+        a motor with batch shape ``...``.
+
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> source = jnp.array([[0.0, 0, 0], [1.0, 0, 0], [0, 1.0, 0], [0, 0, 1.0]])
+        >>> M = cga.motor(cga.rotor(jnp.array([1.0, 1.0, 0]), 0.7), jnp.array([0.5, -1.0, 2.0]))
+        >>> found = cga.align_points(source, cga.apply_to_points(M, source))
+        >>> bool(jnp.allclose(cga.apply_to_points(found, source), cga.apply_to_points(M, source), atol=1e-5))
+        True
+    """
     p = check_finite("source", check_vectors("source", source))
     q = check_finite("target", check_vectors("target", target))
     if p.ndim < 2 or q.ndim < 2 or p.shape[-2] != q.shape[-2]:

@@ -81,7 +81,19 @@ def _require_generator(name: str, b: Multivector, blades: tuple[int, ...], what:
 
 
 def exp_motor(b: Multivector) -> Multivector:
-    """Motor ``exp(B)`` of a bivector on {e12, e13, e23, e1inf, e2inf, e3inf}, closed form."""
+    """Motor ``exp(B)`` of a bivector on {e12, e13, e23, e1inf, e2inf, e3inf}, closed form.
+
+    Args:
+        b: bivectors on the motor generators (``MOTOR_GENERATOR``: e12, e13, e23, e1inf, e2inf, e3inf).
+    Returns:
+        The unit motors ``exp(b)``.
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> b = cga.Multivector(jnp.array([0.0, 0.0, 0.0, -1.0, 0.0, 0.0]), cga.MOTOR_GENERATOR)
+        >>> cga.apply_to_points(cga.exp_motor(b), jnp.zeros(3)).round(6).tolist()  # exp(-t einf / 2): a translation
+        [2.0, 0.0, 0.0]
+    """
     _require_generator("b", b, MOTOR_GENERATOR, "motor generator")
     b = b.embed(MOTOR_GENERATOR)
     columns = exp_motor_columns([b.values[..., i] for i in range(len(MOTOR_GENERATOR))], b.batch_shape)
@@ -149,7 +161,19 @@ def log_motor(m: Multivector) -> Multivector:
     """Bivector ``log(M)`` of a motor (normalized first), closed form; ``exp(log(M)) = M``.
 
     The rotation angle of the result is in [0, 2 pi]; a motor whose rotor part is -1 (a 2 pi turn) has
-    no unique logarithm: it gets the screw axis along its translation (the e12 plane if there is none)."""
+    no unique logarithm: it gets the screw axis along its translation (the e12 plane if there is none).
+
+    Args:
+        m: motors (normalized here; ``M ~M > 0``, checked).
+    Returns:
+        The bivectors on the motor generators.
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> M = cga.motor(cga.rotor(jnp.array([0, 0, 1.0]), 0.8), jnp.array([1.0, 2.0, 3.0]))
+        >>> bool(jnp.allclose(cga.exp_motor(cga.log_motor(M)).values, M.values, atol=1e-6))
+        True
+    """
     if not isinstance(m, Multivector) or not set(m.blades) <= set(KINDS["motor"]):
         raise ValueError("m: expected a motor Multivector")
     out, bad = log_motor_unchecked(m)
@@ -282,7 +306,19 @@ def _v_matrix(lam: Float[Array, "*batch"], w: Float[Array, "... 3"]) -> Float[Ar
 
 
 def exp_similitude(b: Multivector) -> Multivector:
-    """Similitude ``exp(B)`` of a bivector on the motor generators plus eo^einf (dilation)."""
+    """Similitude ``exp(B)`` of a bivector on the motor generators plus eo^einf (dilation).
+
+    Args:
+        b: bivectors on the motor generators and eoinf.
+    Returns:
+        The similitudes ``exp(b)``.
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> S = cga.similitude(cga.rotor(jnp.array([1.0, 0, 0]), 0.4), jnp.array([0, 1.0, 0]), 3.0)
+        >>> bool(jnp.allclose(cga.exp_similitude(cga.log_similitude(S)).values, S.values, atol=1e-5))
+        True
+    """
     _require_generator("b", b, SIMILITUDE_GENERATOR, "similitude generator")
     b = b.embed(SIMILITUDE_GENERATOR)
     w = _rotation_vector(b.values[..., :3])
@@ -298,7 +334,20 @@ def exp_similitude(b: Multivector) -> Multivector:
 
 
 def log_similitude(s: Multivector) -> Multivector:
-    """Bivector ``log(S)`` of a similitude ``S = T R D`` (rotation angle below 2 pi)."""
+    """Bivector ``log(S)`` of a similitude ``S = T R D`` (rotation angle below 2 pi).
+
+    Args:
+        s: similitudes (``similitude``), rotation angle below 2 pi.
+    Returns:
+        The bivectors on the motor generators and eoinf; the eoinf part is half the log of the scale, up to sign.
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> S = cga.similitude(cga.rotor(jnp.array([0, 0, 1.0]), 0.0), jnp.zeros(3), 2.0)
+        >>> B = cga.log_similitude(S)
+        >>> round(abs(float(B.values[..., B.names.index("eoinf")])), 6) == round(float(jnp.log(2.0)) / 2, 6)
+        True
+    """
     if not isinstance(s, Multivector) or not set(s.blades) <= set(KINDS["similitude"]):
         raise ValueError("s: expected a similitude Multivector (even blades)")
     s = s.embed(KINDS["similitude"])
@@ -321,14 +370,39 @@ def log_similitude(s: Multivector) -> Multivector:
 
 
 def exp(b: Multivector) -> Multivector:
-    """Exponential of a motor or similitude generator (dispatch on the static blades)."""
+    """Exponential of a motor or similitude generator (dispatch on the static blades).
+
+    Args:
+        b: bivectors: on the motor generators (a motor results) or also on eoinf (a similitude results).
+    Returns:
+        ``exp_motor(b)`` or ``exp_similitude(b)``.
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> M = cga.motor(cga.rotor(jnp.array([0, 1.0, 0]), 1.0), jnp.array([0.5, 0, 0]))
+        >>> half = cga.exp(0.5 * cga.log(M))  # the motor halfway along the screw motion
+        >>> x = jnp.array([1.0, 2.0, 3.0])
+        >>> bool(jnp.allclose(cga.apply_to_points(half * half, x), cga.apply_to_points(M, x), atol=1e-5))
+        True
+    """
     if isinstance(b, Multivector) and set(b.blades) <= set(MOTOR_GENERATOR):
         return exp_motor(b)
     return exp_similitude(b)
 
 
 def log(v: Multivector) -> Multivector:
-    """Logarithm of a motor or similitude (dispatch on the static blades)."""
+    """Logarithm of a motor or similitude (dispatch on the static blades).
+
+    Args:
+        v: motors (their blades a subset of the motor's) or similitudes.
+    Returns:
+        ``log_motor(v)`` or ``log_similitude(v)``.
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> cga.log(cga.translator(jnp.array([2.0, 0, 0]))).names
+        ('e12', 'e13', 'e23', 'e1inf', 'e2inf', 'e3inf')
+    """
     if isinstance(v, Multivector) and set(v.blades) <= set(KINDS["motor"]):
         return log_motor(v)
     return log_similitude(v)

@@ -266,7 +266,21 @@ def sandwich(v: Multivector, x: Multivector) -> Multivector:
     """``v x v^-1`` (eq. 14) as one generated expression, bilinear in v, projected on the grades of x.
 
     ``v`` is a versor; ``v^-1 = ~v / <v ~v>_0``, so un-normalized versors (e.g. the paper's dilator
-    of eq. 12) act correctly too."""
+    of eq. 12) act correctly too.
+
+    Args:
+        v: versors, batch shape broadcasting with ``x``'s.
+        x: multivectors (points, spheres, planes, other versors, ...).
+    Returns:
+        ``v x v^-1`` on the grades of ``x`` (also written ``v >> x``).
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> T = cga.translator(jnp.array([0, 0, 1.0]))
+        >>> S = cga.sandwich(T, cga.sphere(jnp.zeros(3), 1.0))  # the sphere moved up by 1
+        >>> [p.round(6).tolist() for p in cga.sphere_center_radius(S)]
+        [[0.0, 0.0, 1.0], 1.0]
+    """
     if not isinstance(v, Multivector) or not isinstance(x, Multivector):
         raise ValueError("sandwich: v and x must be Multivectors")
     batch = broadcast_batch("v", v.batch_shape, "x", x.batch_shape)
@@ -320,7 +334,21 @@ def table_product(kind: str, a: Multivector, b: Multivector) -> Multivector:
     half the time (benchmarks/README.md, "Kernel and deformers"). For large batches (a versor per point)
     use ``product``: it skips the structural zeros (for two similitudes the tensor holds 256 non-zeros among 4,096
     entries). The choice is made per platform when the computation is lowered: elsewhere than on the
-    CPU (GPUs, where XLA fuses the generated expressions into one kernel) this is ``product``."""
+    CPU (GPUs, where XLA fuses the generated expressions into one kernel) this is ``product``.
+
+    Args:
+        kind: the product: "geometric", "outer", "inner", "left_contraction", "regressive", ... (as ``product``).
+        a: a multivector, batch shape broadcasting with ``b``'s.
+        b: a multivector.
+    Returns:
+        The product, equal to ``product(kind, a, b)``.
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> M = cga.motor(cga.rotor(jnp.array([0, 0, 1.0]), 0.3), jnp.array([1.0, 0, 0]))
+        >>> bool(jnp.allclose(cga.table_product("geometric", M, M).values, (M * M).values))
+        True
+    """
     check_choice("kind", kind, sorted(alg.GRADE_RULES))
     broadcast_batch("a", a.batch_shape, "b", b.batch_shape)
     return _contracted_product(a, b, kind=kind)
@@ -333,6 +361,17 @@ def _pseudoscalar() -> tuple[tuple[int, ...], np.ndarray]:
 
 
 def pseudoscalar(dtype: DTypeLike | None = None) -> Multivector:
-    """The paper's pseudoscalar I = e1^e2^e3^e+^e- (eq. 6); I * I = -1."""
+    """The paper's pseudoscalar I = e1^e2^e3^e+^e- (eq. 6); I * I = -1.
+
+    Args:
+        dtype: the value's dtype; None: JAX's default float.
+    Returns:
+        I, a multivector on the one blade e123oinf (e1^e2^e3^eo^einf).
+    Examples:
+        >>> import jaxcga as cga
+        >>> I = cga.pseudoscalar()
+        >>> I.names, (I * I).values.tolist()
+        (('e123oinf',), [-1.0])
+    """
     blades, values = _pseudoscalar()
     return Multivector(jnp.asarray(values, dtype or jnp.result_type(float)), blades)

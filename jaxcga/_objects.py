@@ -49,13 +49,35 @@ def _vector(e123: Float[Array, "... 3"], eo: Float[ArrayLike, "*batch"], einf: F
 
 
 def up(x: Float[ArrayLike, "... 3"]) -> Multivector:
-    """Up-projection of Euclidean points, X = x + |x|^2/2 einf + eo (eq. 3)."""
+    """Up-projection of Euclidean points, X = x + |x|^2/2 einf + eo (eq. 3).
+
+    Args:
+        x: (..., 3) Euclidean points.
+    Returns:
+        The conformal points, vectors on (e1, e2, e3, eo, einf) of batch shape (...).
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> cga.up(jnp.array([1.0, 2.0, 3.0])).values.tolist()
+        [1.0, 2.0, 3.0, 1.0, 7.0]
+    """
     x = _euclidean_checked("x", x)
     return _vector(x, 1.0, 0.5 * jnp.sum(x * x, axis=-1))
 
 
 def down(X: Multivector) -> Float[Array, "... 3"]:
-    """Euclidean point of a conformal point (any scale): x = X_e / X_eo, where X_eo = -X . einf."""
+    """Euclidean point of a conformal point (any scale): x = X_e / X_eo, where X_eo = -X . einf.
+
+    Args:
+        X: conformal points (vectors; any non-zero scale).
+    Returns:
+        (..., 3) the Euclidean points.
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> cga.down(2.0 * cga.up(jnp.array([1.0, 2.0, 3.0]))).tolist()
+        [1.0, 2.0, 3.0]
+    """
     _require_vector("X", X)
     w = X["eo"]
     w = require(w, (jnp.any(w == 0), "X: eo coefficient is zero (a point at infinity or a plane)"))
@@ -64,7 +86,20 @@ def down(X: Multivector) -> Float[Array, "... 3"]:
 
 def sphere(center: Float[ArrayLike, "... 3"], radius: Float[ArrayLike, "*batch"]) -> Multivector:
     """Sphere in vector form, S = X - r^2/2 einf (eq. 4). A negative r^2 is an imaginary sphere; pass
-    ``radius`` >= 0 here."""
+    ``radius`` >= 0 here.
+
+    Args:
+        center: (..., 3) the centers.
+        radius: (...) the radii, >= 0.
+    Returns:
+        The spheres as vectors, batch shape broadcast from both.
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> S = cga.sphere(jnp.zeros(3), 2.0)
+        >>> float(cga.sphere_power(S, cga.up(jnp.array([1.0, 0, 0]))))  # (r^2 - |x - c|^2) / 2
+        1.5
+    """
     c = _euclidean_checked("center", center)
     r = check_finite("radius", jnp.asarray(radius, c.dtype))
     r = require(r, (jnp.any(r < 0), "radius: must be >= 0"))
@@ -72,7 +107,20 @@ def sphere(center: Float[ArrayLike, "... 3"], radius: Float[ArrayLike, "*batch"]
 
 
 def plane(normal: Float[ArrayLike, "... 3"], distance: Float[ArrayLike, "*batch"]) -> Multivector:
-    """Plane in vector form, P = n + d einf (eq. 5): the points x with x . n = d (n is normalized)."""
+    """Plane in vector form, P = n + d einf (eq. 5): the points x with x . n = d (n is normalized).
+
+    Args:
+        normal: (..., 3) the normals (normalized here).
+        distance: (...) the signed distances from the origin along the normal.
+    Returns:
+        The planes as vectors (e1, e2, e3, einf).
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> P = cga.plane(jnp.array([0, 0, 2.0]), 1.0)  # z = 1
+        >>> P.names, P.values.tolist()
+        (('e1', 'e2', 'e3', 'eo', 'einf'), [0.0, 0.0, 1.0, 0.0, 1.0])
+    """
     n = _euclidean_checked("normal", normal)
     d = check_finite("distance", jnp.asarray(distance, n.dtype))
     length = jnp.linalg.norm(n, axis=-1)
@@ -96,51 +144,176 @@ def _einf(dtype: DTypeLike) -> Multivector:
 
 # ---------------------------------------------------------------- direct (outer-product) forms
 def point_pair(a: Multivector, b: Multivector) -> Multivector:
-    """Point pair through two conformal points, a ^ b (grade 2)."""
+    """Point pair through two conformal points, a ^ b (grade 2).
+
+    Args:
+        a: conformal points, batch shape broadcasting with ``b``'s.
+        b: conformal points.
+    Returns:
+        The point pairs, bivectors.
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> T = cga.point_pair(cga.up(jnp.array([1.0, 0, 0])), cga.up(jnp.array([-1.0, 0, 0])))
+        >>> (cga.point_pair_points(T) + 0.0).tolist()  # + 0.0: no negative zeros
+        [[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0]]
+    """
     return outer(a, b)
 
 
 def line(a: Multivector, b: Multivector) -> Multivector:
-    """Line through two conformal points, a ^ b ^ einf (grade 3, sec. 2.3)."""
+    """Line through two conformal points, a ^ b ^ einf (grade 3, sec. 2.3).
+
+    Args:
+        a: conformal points, batch shape broadcasting with ``b``'s.
+        b: conformal points, distinct from ``a``.
+    Returns:
+        The lines, trivectors.
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> L = cga.line(cga.up(jnp.array([0, 1.0, 0])), cga.up(jnp.array([2.0, 1.0, 0])))
+        >>> [(p + 0.0).tolist() for p in cga.line_point_direction(L)]  # + 0.0: no negative zeros
+        [[0.0, 1.0, 0.0], [1.0, 0.0, 0.0]]
+    """
     return outer(outer(a, b), _einf(a.dtype))
 
 
 def circle(a: Multivector, b: Multivector, c: Multivector) -> Multivector:
-    """Circle through three conformal points, a ^ b ^ c (grade 3, sec. 2.3)."""
+    """Circle through three conformal points, a ^ b ^ c (grade 3, sec. 2.3).
+
+    Args:
+        a: conformal points; ``a``, ``b`` and ``c`` broadcast together.
+        b: conformal points.
+        c: conformal points, not on the line through ``a`` and ``b``.
+    Returns:
+        The circles, trivectors.
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> up = lambda x: cga.up(jnp.array(x))
+        >>> C = cga.circle(up([1.0, 0, 0]), up([0, 1.0, 0]), up([-1.0, 0, 0]))
+        >>> center, radius, normal = cga.circle_center_radius_normal(C)
+        >>> [round(v, 6) + 0.0 for v in center.tolist()], round(float(radius), 6)
+        ([0.0, 0.0, 0.0], 1.0)
+    """
     return outer(outer(a, b), c)
 
 
 def plane_through(a: Multivector, b: Multivector, c: Multivector) -> Multivector:
-    """Plane through three conformal points, a ^ b ^ c ^ einf (grade 4, sec. 2.3)."""
+    """Plane through three conformal points, a ^ b ^ c ^ einf (grade 4, sec. 2.3).
+
+    Args:
+        a: conformal points; ``a``, ``b`` and ``c`` broadcast together.
+        b: conformal points.
+        c: conformal points, not on the line through ``a`` and ``b``.
+    Returns:
+        The planes in direct form, quadvectors.
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> up = lambda x: cga.up(jnp.array(x))
+        >>> P = cga.plane_through(up([0, 0, 1.0]), up([1.0, 0, 1.0]), up([0, 1.0, 1.0]))
+        >>> normal, distance = cga.plane_normal_distance(P)
+        >>> (normal + 0.0).tolist(), float(distance)  # + 0.0: no negative zeros
+        ([0.0, 0.0, 1.0], 1.0)
+    """
     return outer(outer(outer(a, b), c), _einf(a.dtype))
 
 
 def sphere_through(a: Multivector, b: Multivector, c: Multivector, d: Multivector) -> Multivector:
-    """Sphere through four conformal points, a ^ b ^ c ^ d (grade 4, sec. 2.3)."""
+    """Sphere through four conformal points, a ^ b ^ c ^ d (grade 4, sec. 2.3).
+
+    Args:
+        a: conformal points; ``a`` to ``d`` broadcast together.
+        b: conformal points.
+        c: conformal points.
+        d: conformal points, not on one circle or plane with the other three.
+    Returns:
+        The spheres in direct form, quadvectors.
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> up = lambda x: cga.up(jnp.array(x))
+        >>> S = cga.sphere_through(up([1.0, 0, 0]), up([-1.0, 0, 0]), up([0, 1.0, 0]), up([0, 0, 1.0]))
+        >>> center, radius = cga.sphere_center_radius(S)
+        >>> [round(v, 6) + 0.0 for v in center.tolist()], round(float(radius), 6)
+        ([0.0, 0.0, 0.0], 1.0)
+    """
     return outer(outer(outer(a, b), c), d)
 
 
 # ---------------------------------------------------------------- distances
 def squared_distance(a: Multivector, b: Multivector) -> Float[Array, "*batch"]:
-    """|x - y|^2 = -2 X . Y / (X_eo Y_eo) for conformal points of any scale (sec. 2.2)."""
+    """|x - y|^2 = -2 X . Y / (X_eo Y_eo) for conformal points of any scale (sec. 2.2).
+
+    Args:
+        a: conformal points, batch shape broadcasting with ``b``'s.
+        b: conformal points.
+    Returns:
+        (*batch) the squared Euclidean distances.
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> float(cga.squared_distance(cga.up(jnp.array([1.0, 0, 0])), 3.0 * cga.up(jnp.array([0, 2.0, 0]))))
+        5.0
+    """
     _require_vector("a", a)
     _require_vector("b", b)
     return -2.0 * scalar_product(a, b) / (a["eo"] * b["eo"])
 
 
 def distance(a: Multivector, b: Multivector) -> Float[Array, "*batch"]:
-    """Euclidean distance between two conformal points."""
+    """Euclidean distance between two conformal points.
+
+    Args:
+        a: conformal points, batch shape broadcasting with ``b``'s.
+        b: conformal points.
+    Returns:
+        (*batch) the Euclidean distances (a finite gradient where they are zero).
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> float(cga.distance(cga.up(jnp.array([3.0, 0, 0])), cga.up(jnp.array([0, 4.0, 0]))))
+        5.0
+    """
     return _safe_sqrt_abs(jnp.maximum(squared_distance(a, b), 0.0))
 
 
 def plane_signed_distance(plane_vector: Multivector, X: Multivector) -> Float[Array, "*batch"]:
-    """Signed distance of a point from a plane given in vector form: X . P = x . n - d."""
+    """Signed distance of a point from a plane given in vector form: X . P = x . n - d.
+
+    Args:
+        plane_vector: planes in vector form (``plane``), batch shape broadcasting with ``X``'s.
+        X: conformal points of scale 1 (``up``).
+    Returns:
+        (*batch) ``x . n - d``: the signed distances for unit normals.
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> P = cga.plane(jnp.array([0, 0, 1.0]), 1.0)
+        >>> float(cga.plane_signed_distance(P, cga.up(jnp.array([5.0, 5.0, 3.0]))))
+        2.0
+    """
     _require_vector("plane_vector", plane_vector)
     return scalar_product(X, plane_vector) / X["eo"]
 
 
 def sphere_power(sphere_vector: Multivector, X: Multivector) -> Float[Array, "*batch"]:
-    """X . S / X_eo = (r^2 - |x - c|^2) / 2: positive inside the sphere, zero on it, negative outside."""
+    """X . S / X_eo = (r^2 - |x - c|^2) / 2: positive inside the sphere, zero on it, negative outside.
+
+    Args:
+        sphere_vector: spheres in vector form (``sphere``), batch shape broadcasting with ``X``'s.
+        X: conformal points (any non-zero scale).
+    Returns:
+        (*batch) the power ``(r^2 - |x - c|^2) / 2``.
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> S = cga.sphere(jnp.zeros(3), 1.0)
+        >>> float(cga.sphere_power(S, cga.up(jnp.array([2.0, 0, 0]))))  # outside
+        -1.5
+    """
     _require_vector("sphere_vector", sphere_vector)
     return scalar_product(X, sphere_vector) / (X["eo"] * sphere_vector["eo"])
 
@@ -156,7 +329,19 @@ def _as_vector_form(name: str, m: Multivector) -> Multivector:
 
 def sphere_center_radius(S: Multivector) -> tuple[Float[Array, "... 3"], Float[Array, "*batch"]]:
     """(center (..., 3), radius (...)) of a sphere in vector or direct form. An imaginary sphere
-    (r^2 < 0) gets a negative radius: -sqrt(-r^2)."""
+    (r^2 < 0) gets a negative radius: -sqrt(-r^2).
+
+    Args:
+        S: spheres in vector form (``sphere``) or direct form (``sphere_through``).
+    Returns:
+        (center (..., 3), radius (...)); an imaginary sphere's radius is negative.
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> center, radius = cga.sphere_center_radius(cga.sphere(jnp.array([1.0, 2.0, 3.0]), 0.5))
+        >>> center.tolist(), float(radius)
+        ([1.0, 2.0, 3.0], 0.5)
+    """
     S = _as_vector_form("S", S)
     w = S["eo"]
     w = require(w, (jnp.any(w == 0), "S: eo coefficient is zero (a plane, not a sphere)"))
@@ -166,7 +351,19 @@ def sphere_center_radius(S: Multivector) -> tuple[Float[Array, "... 3"], Float[A
 
 
 def plane_normal_distance(P: Multivector) -> tuple[Float[Array, "... 3"], Float[Array, "*batch"]]:
-    """(unit normal (..., 3), distance (...)) of a plane in vector or direct form, x . n = d."""
+    """(unit normal (..., 3), distance (...)) of a plane in vector or direct form, x . n = d.
+
+    Args:
+        P: planes in vector form (``plane``) or direct form (``plane_through``).
+    Returns:
+        (unit normal (..., 3), distance (...)) with ``x . n = d`` on the plane.
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> normal, distance = cga.plane_normal_distance(cga.plane(jnp.array([0, 3.0, 0]), 2.0))
+        >>> normal.tolist(), float(distance)
+        ([0.0, 1.0, 0.0], 2.0)
+    """
     P = _as_vector_form("P", P)
     n = jnp.stack([P["e1"], P["e2"], P["e3"]], axis=-1)
     length = jnp.linalg.norm(n, axis=-1)
@@ -176,7 +373,19 @@ def plane_normal_distance(P: Multivector) -> tuple[Float[Array, "... 3"], Float[
 
 def line_point_direction(L: Multivector) -> tuple[Float[Array, "... 3"], Float[Array, "... 3"]]:
     """(point of the line closest to the origin (..., 3), unit direction (..., 3)) of a line in
-    direct form ``a ^ b ^ einf``; the direction points from a to b."""
+    direct form ``a ^ b ^ einf``; the direction points from a to b.
+
+    Args:
+        L: lines in direct form (``line``).
+    Returns:
+        (the point closest to the origin (..., 3), the unit direction (..., 3)).
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> L = cga.line(cga.up(jnp.array([1.0, 0, 5.0])), cga.up(jnp.array([1.0, 0, 1.0])))
+        >>> [(p + 0.0).tolist() for p in cga.line_point_direction(L)]  # + 0.0: no negative zeros
+        [[1.0, 0.0, 0.0], [0.0, 0.0, -1.0]]
+    """
     _require_grade("L", L, 3, "a line in direct form")
     # The dual of a line is a bivector: its e_ij part is the direction (as I3 d), its e_i einf part
     # the moment, proportional to d x p.
@@ -193,13 +402,37 @@ def round_radius2(X: Multivector) -> Float[Array, "*batch"]:
     """Squared radius of a round (point pair, circle or sphere) in direct form:
     <X X^> / <K K> with K = einf _| X and ^ the grade involution; negative for imaginary rounds.
     (With K^ in the denominator the sign would flip for point pairs and spheres, whose K has odd
-    grade.)"""
+    grade.)
+
+    Args:
+        X: rounds in direct form: point pairs (``point_pair``), circles (``circle``) or spheres (``sphere_through``).
+    Returns:
+        (*batch) the squared radii.
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> T = cga.point_pair(cga.up(jnp.array([0, 0, 0.0])), cga.up(jnp.array([4.0, 0, 0])))
+        >>> round(float(cga.round_radius2(T)), 6)
+        4.0
+    """
     K = left_contraction(_einf(X.dtype), X)
     return scalar_product(X, involution(X)) / scalar_product(K, K)
 
 
 def round_center(X: Multivector) -> Float[Array, "... 3"]:
-    """Center (..., 3) of a round in direct form: X einf X is the flat point at the center."""
+    """Center (..., 3) of a round in direct form: X einf X is the flat point at the center.
+
+    Args:
+        X: rounds in direct form: point pairs, circles or spheres.
+    Returns:
+        (..., 3) the centers.
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> T = cga.point_pair(cga.up(jnp.array([0, 0, 0.0])), cga.up(jnp.array([4.0, 2.0, 0])))
+        >>> [round(v, 6) + 0.0 for v in cga.round_center(T).tolist()]
+        [2.0, 1.0, 0.0]
+    """
     S = (X * _einf(X.dtype) * X).grade(1)
     center, _ = sphere_center_radius(S)
     return center
@@ -208,7 +441,22 @@ def round_center(X: Multivector) -> Float[Array, "... 3"]:
 def circle_center_radius_normal(
     C: Multivector,
 ) -> tuple[Float[Array, "... 3"], Float[Array, "*batch"], Float[Array, "... 3"]]:
-    """(center (..., 3), radius (...), unit normal (..., 3)) of a circle in direct form ``a ^ b ^ c``."""
+    """(center (..., 3), radius (...), unit normal (..., 3)) of a circle in direct form ``a ^ b ^ c``.
+
+    Args:
+        C: circles in direct form (``circle``).
+    Returns:
+        (center (..., 3), radius (...), unit normal (..., 3)); the normal follows the right-hand rule through the
+        three points of ``circle(a, b, c)``.
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> up = lambda x: cga.up(jnp.array(x))
+        >>> C = cga.circle(up([2.0, 0, 1.0]), up([0, 2.0, 1.0]), up([-2.0, 0, 1.0]))
+        >>> center, radius, normal = cga.circle_center_radius_normal(C)
+        >>> [round(v, 6) + 0.0 for v in center.tolist()], round(float(radius), 6)
+        ([0.0, 0.0, 1.0], 2.0)
+    """
     _require_grade("C", C, 3, "a circle in direct form")
     r2 = round_radius2(C)
     n, _ = plane_normal_distance(outer(C, _einf(C.dtype)))
@@ -218,7 +466,19 @@ def circle_center_radius_normal(
 def point_pair_points(T: Multivector) -> Float[Array, "... 2 3"]:
     """The two Euclidean points (..., 2, 3) of a point pair in direct form ``a ^ b``:
     (T -/+ sqrt(T . T)) (einf _| T), down-projected. Imaginary pairs give non-finite output and an
-    error."""
+    error.
+
+    Args:
+        T: real point pairs in direct form (``point_pair``).
+    Returns:
+        (..., 2, 3) the two Euclidean points.
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> T = cga.point_pair(cga.up(jnp.array([0, 3.0, 0])), cga.up(jnp.array([0, 1.0, 0])))
+        >>> (cga.point_pair_points(T).round(6) + 0.0).tolist()  # + 0.0: no negative zeros
+        [[0.0, 3.0, 0.0], [0.0, 1.0, 0.0]]
+    """
     _require_grade("T", T, 2, "a point pair in direct form")
     einf = _einf(T.dtype)
     s2 = scalar_product(T, T)
@@ -233,5 +493,21 @@ def point_pair_points(T: Multivector) -> Float[Array, "... 2 3"]:
 
 
 def intersect(a: Multivector, b: Multivector) -> Multivector:
-    """Intersection of two objects in direct form, by the meet (regressive product)."""
+    """Intersection of two objects in direct form, by the meet (regressive product).
+
+    Args:
+        a: objects in direct form (lines, circles, planes, spheres), batch shape broadcasting with ``b``'s.
+        b: objects in direct form.
+    Returns:
+        Their intersection in direct form: ``meet(a, b)``.
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> up = lambda x: cga.up(jnp.array(x))
+        >>> S = cga.sphere_through(up([1.0, 0, 0]), up([-1.0, 0, 0]), up([0, 1.0, 0]), up([0, 0, 1.0]))
+        >>> L = cga.line(up([-5.0, 0, 0]), up([5.0, 0, 0]))
+        >>> T = cga.intersect(S, L)  # the point pair where the x axis crosses the unit sphere
+        >>> (cga.point_pair_points(T).round(6) + 0.0).tolist()  # + 0.0: no negative zeros
+        [[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0]]
+    """
     return meet(a, b)

@@ -42,7 +42,19 @@ def _stack(*columns: Float[Array, "*batch"], blades: tuple[int, ...]) -> Multive
 
 
 def translator(t: Float[ArrayLike, "... 3"]) -> Multivector:
-    """Translator ``T = 1 - t einf / 2`` by the Euclidean vector t (eq. 10)."""
+    """Translator ``T = 1 - t einf / 2`` by the Euclidean vector t (eq. 10).
+
+    Args:
+        t: (..., 3) translation vectors.
+    Returns:
+        The translators (1, e1inf, e2inf, e3inf), batch shape (...).
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> T = cga.translator(jnp.array([1.0, 2.0, 3.0]))
+        >>> T.names, T.values.tolist()
+        (('1', 'e1inf', 'e2inf', 'e3inf'), [1.0, -0.5, -1.0, -1.5])
+    """
     t = check_finite("t", check_vectors("t", t))
     one = jnp.ones(t.shape[:-1], t.dtype)
     return _stack(one, -0.5 * t[..., 0], -0.5 * t[..., 1], -0.5 * t[..., 2], blades=KINDS["translator"])
@@ -62,7 +74,20 @@ def _rotor_in_plane(
 
 def rotor(axis: Float[ArrayLike, "... 3"], angle: Float[ArrayLike, "*batch"]) -> Multivector:
     """Rotor by ``angle`` (radians, right-handed) about ``axis`` (normalized here), eq. 8:
-    the rotation plane is u I3 = u1 e23 - u2 e13 + u3 e12."""
+    the rotation plane is u I3 = u1 e23 - u2 e13 + u3 e12.
+
+    Args:
+        axis: (..., 3) rotation axes (normalized here; non-zero).
+        angle: (...) angles in radians, counter-clockwise looking down the axis.
+    Returns:
+        The rotors (1, e12, e13, e23), batch shape broadcast from both.
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> R = cga.rotor(jnp.array([0, 0, 1.0]), jnp.pi / 2)
+        >>> (cga.apply_to_points(R, jnp.array([1.0, 0, 0])).round(6) + 0.0).tolist()  # + 0.0: no negative zeros
+        [0.0, 1.0, 0.0]
+    """
     u = check_finite("axis", check_vectors("axis", axis))
     plane = jnp.stack([u[..., 2], -u[..., 1], u[..., 0]], axis=-1)
     return _rotor_in_plane("axis", plane, angle, "rotation axis")
@@ -70,7 +95,20 @@ def rotor(axis: Float[ArrayLike, "... 3"], angle: Float[ArrayLike, "*batch"]) ->
 
 def rotor_from_bivector(plane: Float[ArrayLike, "... 3"], angle: Float[ArrayLike, "*batch"]) -> Multivector:
     """Rotor ``exp(-b angle / 2)`` in the plane of the Euclidean bivector b with components
-    (e12, e13, e23) (normalized here), eq. 8."""
+    (e12, e13, e23) (normalized here), eq. 8.
+
+    Args:
+        plane: (..., 3) the rotation plane's bivector components (e12, e13, e23), normalized here.
+        angle: (...) angles in radians.
+    Returns:
+        The rotors (1, e12, e13, e23).
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> R = cga.rotor_from_bivector(jnp.array([1.0, 0, 0]), jnp.pi / 2)  # in the e12 plane: about +z
+        >>> (cga.apply_to_points(R, jnp.array([1.0, 0, 0])).round(6) + 0.0).tolist()
+        [0.0, 1.0, 0.0]
+    """
     b = check_finite("plane", check_vectors("plane", plane))
     return _rotor_in_plane("plane", b, angle, "bivector")
 
@@ -82,7 +120,18 @@ def _float_scalar(value: ArrayLike) -> Float[Array, "*batch"]:
 
 
 def dilator(scale: Float[ArrayLike, "*batch"]) -> Multivector:
-    """Normalized dilator about the origin by the factor ``scale`` > 0 (eq. 12-13)."""
+    """Normalized dilator about the origin by the factor ``scale`` > 0 (eq. 12-13).
+
+    Args:
+        scale: (...) scale factors > 0.
+    Returns:
+        The unit dilators (1, eoinf).
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> cga.apply_to_points(cga.dilator(2.0), jnp.array([1.0, 2.0, 3.0])).round(6).tolist()
+        [2.0, 4.0, 6.0]
+    """
     d = check_finite("scale", _float_scalar(scale))
     d = require(d, (jnp.any(d <= 0), "scale: dilation factor must be > 0"))
     root = jnp.sqrt(d)
@@ -90,7 +139,19 @@ def dilator(scale: Float[ArrayLike, "*batch"]) -> Multivector:
 
 
 def dilator_paper(scale: Float[ArrayLike, "*batch"]) -> Multivector:
-    """The paper's un-normalized dilator ``D = 1 + (1 - d)/(1 + d) einf^eo`` (eq. 12)."""
+    """The paper's un-normalized dilator ``D = 1 + (1 - d)/(1 + d) einf^eo`` (eq. 12).
+
+    Args:
+        scale: (...) scale factors > 0.
+    Returns:
+        The un-normalized dilators (1, eoinf) of eq. 12.
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> D = cga.dilator_paper(2.0)
+        >>> [round(v, 6) for v in D.values.tolist()], cga.apply_to_points(D, jnp.ones(3)).round(6).tolist()
+        ([1.0, 0.333333], [2.0, 2.0, 2.0])
+    """
     d = _float_scalar(scale)
     return _stack(jnp.ones_like(d), (d - 1) / (d + 1), blades=KINDS["dilator"])
 
@@ -105,7 +166,20 @@ def _names(kind: str) -> Iterator[str]:
 
 
 def motor(rotation: Multivector, translation: Float[ArrayLike, "... 3"]) -> Multivector:
-    """Motor ``T R``: rotate by the rotor, then translate by ``translation``."""
+    """Motor ``T R``: rotate by the rotor, then translate by ``translation``.
+
+    Args:
+        rotation: rotors (``rotor``), batch shape broadcasting with the translations'.
+        translation: (..., 3) translation vectors.
+    Returns:
+        The motors (8 components: 1, e12, e13, e23, e1inf, e2inf, e3inf, e123inf).
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> M = cga.motor(cga.rotor(jnp.array([0, 0, 1.0]), jnp.pi / 2), jnp.array([1.0, 0, 0]))
+        >>> (cga.apply_to_points(M, jnp.array([1.0, 0, 0])).round(6) + 0.0).tolist()  # rotated, then moved
+        [1.0, 1.0, 0.0]
+    """
     _require_blades("rotation", rotation, "rotor")
     return (translator(translation) * rotation).embed(KINDS["motor"])
 
@@ -113,7 +187,21 @@ def motor(rotation: Multivector, translation: Float[ArrayLike, "... 3"]) -> Mult
 def similitude(
     rotation: Multivector, translation: Float[ArrayLike, "... 3"], scale: Float[ArrayLike, "*batch"]
 ) -> Multivector:
-    """Similitude ``T R D``: x -> scale R x + translation (16 even components)."""
+    """Similitude ``T R D``: x -> scale R x + translation (16 even components).
+
+    Args:
+        rotation: rotors (``rotor``); the three arguments broadcast together.
+        translation: (..., 3) translation vectors.
+        scale: (...) scale factors > 0.
+    Returns:
+        The similitudes (the 16 even blades).
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> S = cga.similitude(cga.rotor(jnp.array([0, 0, 1.0]), jnp.pi / 2), jnp.array([0, 0, 1.0]), 2.0)
+        >>> (cga.apply_to_points(S, jnp.array([1.0, 0, 0])).round(6) + 0.0).tolist()
+        [0.0, 2.0, 1.0]
+    """
     _require_blades("rotation", rotation, "rotor")
     return (translator(translation) * rotation * dilator(scale)).embed(KINDS["similitude"])
 
@@ -315,7 +403,21 @@ def apply_to_points(v: Multivector, x: Float[ArrayLike, "... 3"], fused: bool = 
     (``_point_map``); a normalized versor's 16 stored components determine it to ~max(d, 1/d) ulps.
 
     Hot path: x is checked for shape here, but values are not checked for NaN (that would cost a
-    pass over the data); ``up``/``point`` check them."""
+    pass over the data); ``up``/``point`` check them.
+
+    Args:
+        v: versors (rotors, translators, dilators, motors, similitudes), batch shape broadcasting with x's (...).
+        x: (..., 3) Euclidean points.
+        fused: leave the memory layout to XLA (above).
+    Returns:
+        (..., 3) the moved points.
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> T = cga.translator(jnp.array([0, 0, 1.0]))
+        >>> cga.apply_to_points(T, jnp.zeros((2, 3))).tolist()  # one versor for all points
+        [[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]]
+    """
     if not isinstance(v, Multivector):
         raise ValueError("v: expected a versor Multivector")
     x = check_vectors("x", x)
@@ -331,7 +433,20 @@ def versor_to_matrix(v: Multivector, normalized: bool = True) -> Float[Array, ".
 
     With ``normalized=False`` the matrix is the sandwich's own linear map on (x, 1): its last row is
     (0, 0, 0, lambda), lambda the eo-coefficient of ``V up(x) V^-1`` (1 / scale for a normalized
-    similitude, 1 for a motor), and the top rows are lambda times those of the normalized matrix."""
+    similitude, 1 for a motor), and the top rows are lambda times those of the normalized matrix.
+
+    Args:
+        v: motors or similitudes.
+        normalized: return the homogeneous matrix with last row (0, 0, 0, 1); False: the sandwich's own map (above).
+    Returns:
+        (..., 4, 4) the matrices.
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> M = cga.motor(cga.rotor(jnp.array([0, 0, 1.0]), jnp.pi / 2), jnp.array([1.0, 2.0, 3.0]))
+        >>> (cga.versor_to_matrix(M).round(6) + 0.0).tolist()
+        [[0.0, -1.0, 0.0, 1.0], [1.0, 0.0, 0.0, 2.0], [0.0, 0.0, 1.0, 3.0], [0.0, 0.0, 0.0, 1.0]]
+    """
     a = _map_entries(v)
     zero = jnp.zeros(v.batch_shape, v.dtype)
     w = a[(3, 3)]
@@ -347,13 +462,37 @@ def versor_to_matrix(v: Multivector, normalized: bool = True) -> Float[Array, ".
 # ---------------------------------------------------------------- quaternions
 def rotor_to_quaternion(r: Multivector) -> Float[Array, "... 4"]:
     """Unit quaternion (w, x, y, z) of the same rotation as the rotor (same sign convention as
-    scipy's ``Rotation.from_quat(..., scalar_first=True)``)."""
+    scipy's ``Rotation.from_quat(..., scalar_first=True)``).
+
+    Args:
+        r: rotors.
+    Returns:
+        (..., 4) unit quaternions (w, x, y, z).
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> q = cga.rotor_to_quaternion(cga.rotor(jnp.array([0, 0, 1.0]), jnp.pi / 2))
+        >>> [round(v, 6) + 0.0 for v in q.tolist()]
+        [0.707107, 0.0, 0.0, 0.707107]
+    """
     _require_blades("r", r, "motor")
     return jnp.stack([r["1"], -r["e23"], r["e13"], -r["e12"]], axis=-1)
 
 
 def quaternion_to_rotor(q: Float[ArrayLike, "... 4"]) -> Multivector:
-    """Rotor of a quaternion (w, x, y, z) (normalized here)."""
+    """Rotor of a quaternion (w, x, y, z) (normalized here).
+
+    Args:
+        q: (..., 4) quaternions (w, x, y, z), non-zero.
+    Returns:
+        The rotors (1, e12, e13, e23).
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> R = cga.quaternion_to_rotor(jnp.array([1.0, 0, 0, 1.0]))  # a quarter turn about z
+        >>> (cga.apply_to_points(R, jnp.array([1.0, 0, 0])).round(6) + 0.0).tolist()
+        [0.0, 1.0, 0.0]
+    """
     q = check_vectors("q", q, 4)
     length = jnp.linalg.norm(q, axis=-1)
     length = require(length, non_finite("q", q), (jnp.any(length == 0), "q: zero quaternion"))
@@ -376,7 +515,20 @@ def _quat_mul(p: Float[Array, "... 4"], q: Float[Array, "... 4"]) -> Float[Array
 
 
 def motor_rotor_translation(m: Multivector) -> tuple[Multivector, Float[Array, "... 3"]]:
-    """Split a motor ``M = T R`` into its rotor R (a Multivector) and translation t (..., 3)."""
+    """Split a motor ``M = T R`` into its rotor R (a Multivector) and translation t (..., 3).
+
+    Args:
+        m: motors.
+    Returns:
+        (the rotors R, (..., 3) the translations t) with ``m = translator(t) R``.
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> M = cga.motor(cga.rotor(jnp.array([0, 1.0, 0]), 0.3), jnp.array([1.0, 2.0, 3.0]))
+        >>> R, t = cga.motor_rotor_translation(M)
+        >>> t.round(6).tolist()
+        [1.0, 2.0, 3.0]
+    """
     _require_blades("m", m, "motor")
     m = m.embed(KINDS["motor"])
     r = Multivector(jnp.stack([m["1"], m["e12"], m["e13"], m["e23"]], axis=-1), _ROTOR)
@@ -423,7 +575,16 @@ def similitude_motor_log_scale(s: Multivector) -> tuple[Multivector, Float[Array
     Args:
         s: similitudes (motors, dilators, any scalar factor), batch shape (...).
     Returns:
-        the motors, batch shape (...), and lam (...)."""
+        the motors, batch shape (...), and lam (...).
+
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> S = cga.similitude(cga.rotor(jnp.array([0, 0, 1.0]), 0.5), jnp.zeros(3), 2.0)
+        >>> M, lam = cga.similitude_motor_log_scale(S)
+        >>> round(float(jnp.exp(lam)), 6)
+        2.0
+    """
     motors, lam, bad = similitude_motor_log_scale_unchecked(s)
     return Multivector(require(motors.values, (bad, "s: not a similitude versor")), motors.blades), lam
 
@@ -443,7 +604,20 @@ def similitude_motor_log_scale_unchecked(s: Multivector) -> tuple[Multivector, F
 
 
 def motor_to_dual_quaternion(m: Multivector) -> Float[Array, "... 8"]:
-    """Unit dual quaternion (real w, x, y, z, dual w, x, y, z) with dual part t q / 2."""
+    """Unit dual quaternion (real w, x, y, z, dual w, x, y, z) with dual part t q / 2.
+
+    Args:
+        m: motors.
+    Returns:
+        (..., 8) unit dual quaternions: real part (w, x, y, z), then dual part (w, x, y, z).
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> M = cga.motor(cga.rotor(jnp.array([0, 0, 1.0]), 0.0), jnp.array([2.0, 0, 0]))
+        >>> dq = cga.motor_to_dual_quaternion(M)
+        >>> (dq.round(6) + 0.0).tolist()
+        [1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0]
+    """
     r, t = motor_rotor_translation(m)
     q = rotor_to_quaternion(r)
     t_quat = jnp.concatenate([jnp.zeros(t.shape[:-1] + (1,), t.dtype), t], axis=-1)
@@ -451,7 +625,19 @@ def motor_to_dual_quaternion(m: Multivector) -> Float[Array, "... 8"]:
 
 
 def dual_quaternion_to_motor(dq: Float[ArrayLike, "... 8"]) -> Multivector:
-    """Motor of a unit dual quaternion (real part, dual part), translation t = 2 q_d q_r^*."""
+    """Motor of a unit dual quaternion (real part, dual part), translation t = 2 q_d q_r^*.
+
+    Args:
+        dq: (..., 8) unit dual quaternions: real part (w, x, y, z), then dual part (w, x, y, z).
+    Returns:
+        The motors.
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> M = cga.dual_quaternion_to_motor(jnp.array([1.0, 0, 0, 0, 0, 1.0, 0, 0]))  # a translation by (2, 0, 0)
+        >>> (cga.apply_to_points(M, jnp.zeros(3)).round(6) + 0.0).tolist()
+        [2.0, 0.0, 0.0]
+    """
     dq = check_finite("dq", check_vectors("dq", dq, 8))
     q, qd = dq[..., :4], dq[..., 4:]
     norm2 = jnp.sum(q * q, axis=-1, keepdims=True)
@@ -463,7 +649,18 @@ def dual_quaternion_to_motor(dq: Float[ArrayLike, "... 8"]) -> Multivector:
 
 def matrix_to_quaternion(rotation: Float[ArrayLike, "... 3 3"]) -> Float[Array, "... 4"]:
     """Quaternion (w, x, y, z), w >= 0, of a rotation matrix (Shepperd's method: the best-
-    conditioned of four formulas, chosen per matrix)."""
+    conditioned of four formulas, chosen per matrix).
+
+    Args:
+        rotation: (..., 3, 3) rotation matrices.
+    Returns:
+        (..., 4) unit quaternions (w, x, y, z) with w >= 0.
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> cga.matrix_to_quaternion(jnp.eye(3)).tolist()
+        [1.0, 0.0, 0.0, 0.0]
+    """
     m = jnp.asarray(rotation)
     tr = m[..., 0, 0] + m[..., 1, 1] + m[..., 2, 2]
     cands = jnp.stack(
@@ -509,7 +706,19 @@ def matrix_to_quaternion(rotation: Float[ArrayLike, "... 3 3"]) -> Float[Array, 
 
 
 def matrix_to_motor(matrix: Float[ArrayLike, "... 4 4"]) -> Multivector:
-    """Motor of a rigid homogeneous 4x4 matrix (rotation block must be orthonormal, det +1)."""
+    """Motor of a rigid homogeneous 4x4 matrix (rotation block must be orthonormal, det +1).
+
+    Args:
+        matrix: (..., 4, 4) rigid homogeneous matrices.
+    Returns:
+        The motors.
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> A = jnp.array([[0, -1.0, 0, 1], [1, 0, 0, 2], [0, 0, 1, 3], [0, 0, 0, 1]])  # a quarter turn about z, moved
+        >>> (cga.versor_to_matrix(cga.matrix_to_motor(A)).round(6) + 0.0).tolist() == A.tolist()
+        True
+    """
     matrix = jnp.asarray(matrix)
     if matrix.ndim < 2 or matrix.shape[-2:] not in ((4, 4), (3, 4)):
         raise ValueError(f"matrix: expected shape (..., 4, 4) or (..., 3, 4), got {matrix.shape}")
@@ -529,7 +738,17 @@ def matrix_to_similitude(matrix: Float[ArrayLike, "... 4 4"], tolerance: float =
     Args:
         matrix: (..., 4, 4) or (..., 3, 4).
         tolerance: allowed deviation of ``A^T A / s^2`` from the identity (shear or non-uniform scale
-            beyond it raises a ValueError, inside jit a runtime error with the message)."""
+            beyond it raises a ValueError, inside jit a runtime error with the message).
+
+    Returns:
+        The similitudes.
+    Examples:
+        >>> import jax.numpy as jnp
+        >>> import jaxcga as cga
+        >>> S = cga.matrix_to_similitude(jnp.diag(jnp.array([2.0, 2.0, 2.0, 1.0])))
+        >>> cga.apply_to_points(S, jnp.ones(3)).round(6).tolist()
+        [2.0, 2.0, 2.0]
+    """
     matrix = jnp.asarray(matrix)
     if matrix.ndim < 2 or matrix.shape[-2:] not in ((4, 4), (3, 4)):
         raise ValueError(f"matrix: expected shape (..., 4, 4) or (..., 3, 4), got {matrix.shape}")

@@ -1,6 +1,6 @@
 """Tests run in float64 with strict dtype promotion (DESIGN.md "Style"). A test marked
 ``@pytest.mark.host("why")`` needs the host by nature and is skipped, with that reason, where JAX's default
-backend is not the CPU (README.md, "On a GPU").
+backend is not the CPU (docs/gpu.md).
 
 ``pytest --gpu-variants`` takes every per-platform kernel's GPU formulation on the CPU (the non-CPU branch of each
 ``jax.lax.platform_dependent``): the suite then checks the arithmetic of the code a GPU runs, without a GPU. Tests

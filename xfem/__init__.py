@@ -1,5 +1,5 @@
-"""xfem: tetrahedral FEM and (next) the generalized XFEM of the XFEM paper (../papers/002), on the
-jaxcga kernel.
+"""xfem: tetrahedral FEM, the generalized XFEM of the XFEM paper and physics on rigged characters, on the jaxcga
+kernel.
 
 Sec. 3 of the paper, the simulation core: ``_tetmesh`` (tet meshes: generators, TetGen, meshio files,
 boundary faces, one-rings, adjacency), ``_surface_tets`` (fTetWild's tets of any surface, the surface embedded in

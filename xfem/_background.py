@@ -85,7 +85,8 @@ class BackgroundCuts:
         """Start a cut in the worker process; the model keeps stepping its current system until ``commit``.
 
         Args:
-            solid, perturb: as ``XFEMModel.cut`` (checked now).
+            solid: as ``XFEMModel.cut`` (checked now).
+            perturb: see ``solid``.
         Returns:
             A ``concurrent.futures.Future`` of the cut's ``CutReport``, done when the cut is prepared; it takes
             effect at ``commit``.

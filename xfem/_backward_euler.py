@@ -449,7 +449,15 @@ def mechanical_energy(
 ) -> tuple[Float[Array, ""], Float[Array, ""], Float[Array, ""]]:
     """The energies of a state of ``system`` made of ``material``: kinetic ``1/2 v^T M v``, elastic ``U(x)``
     (eq. 9) and the potential of the external forces ``-f . x`` (gravity's, for body forces). Their sum is
-    conserved by the exact dynamics; backward Euler dissipates it. Returns three scalars (JAX, differentiable)."""
+    conserved by the exact dynamics; backward Euler dissipates it. Returns three scalars (JAX, differentiable).
+
+    Args:
+        system: the ``FEMSystem`` (mass matrix, external forces).
+        state: the ``State`` (positions x, velocities v).
+        material: the ``Material`` of the elastic energy.
+    Returns:
+        (kinetic, elastic, external): three scalars.
+    """
     mu, lam = material.lame()
     kinetic = 0.5 * jnp.sum(state.v * _mass_times(system, system.mass_values, state.v))
     elastic = jnp.sum(element_energy(state.x[system.T], system.grads, system.volumes, mu, lam))
@@ -831,8 +839,14 @@ def compiled_step(
     prepares the step of the next capacity level before a cut needs it.
 
     Args:
-        system, state, h, material, newton_iterations, tolerance, line_search: as ``backward_euler_step`` (only
+        system: as ``backward_euler_step`` (only
             their shapes and dtypes matter, and the options' values).
+        state: see ``system``.
+        h: see ``system``.
+        material: see ``system``.
+        newton_iterations: see ``system``.
+        tolerance: see ``system``.
+        line_search: see ``system``.
     Returns:
         A function ``(system, state, h, material) -> State`` equal to ``backward_euler_step`` with these options
         (fixed nodes kept in place), for systems and states of the compiled shapes.

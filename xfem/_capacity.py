@@ -129,7 +129,11 @@ _COMPILED_LOCK = threading.Lock()
 def wait_for_compilations() -> None:
     """Wait until every step compiling in a background thread (the next capacity level's, ``XFEMModel.step``)
     is ready. A compilation takes seconds of CPU beside the steps; a benchmark calls this after its warm-up run
-    so that the warm-up's last compilation does not run into the timed frames."""
+    so that the warm-up's last compilation does not run into the timed frames.
+
+    Returns:
+        None, once no background compilation is running.
+    """
     with _COMPILED_LOCK:
         threads = [entry.thread for entry in _COMPILED.values() if entry.thread is not None]
     for thread in threads:

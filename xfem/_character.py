@@ -374,10 +374,12 @@ def simulate_character(
             frame (1 <= frame <= N); point and normal may be JAX values to differentiate.
         cuts: ``(frame, solid)``: closed ``manifold3d.Manifold`` cut solids in the rest configuration
             (``xfem.cut_solid``, ``xfem.plane_cut_solid``, ``xfem.blade_solid``), made before the frame's planes.
-        newton_iterations, tolerance, line_search: as ``backward_euler_step`` (by default every step converges,
+        newton_iterations: as ``backward_euler_step`` (by default every step converges,
             within 100 iterations: a moving rig's steps can take more than the 50 of ``backward_euler_step``, and
             ``states.stats`` says where one did not; ``newton_iterations=1, tolerance=None`` is the XFEM paper's
             single iteration, approximate for gradients).
+        tolerance: see ``newton_iterations``.
+        line_search: see ``newton_iterations``.
         progress: None, or ``progress(stage, done, total)`` called on the host as the work advances: stage
             ``"rig"`` (the rig skinned), ``"cuts"`` (the cut frames' pieces found), ``"frames"`` (after each
             segment's frames).

@@ -511,8 +511,9 @@ def character_body(
         density: the mass density, per unit volume of the rest configuration (1000: water, in kg/m^3 for a model in
             metres).
         gravity: (3,) the gravitational acceleration in world coordinates (glTF is y-up, in metres).
-        edge_length, epsilon: the tets' target edge length and envelope, fractions of the surface's bounding-box
+        edge_length: the tets' target edge length and envelope, fractions of the surface's bounding-box
             diagonal (``tetrahedralize_surface``).
+        epsilon: see ``edge_length``.
         core: the core radius of each bone, a fraction in (0, 1] of the limb's radius about it.
         driven: None (the core rule), ``"all"`` (every node: the body is skinned, nothing is simulated), or the
             (nd,) int indices of the driven nodes.

@@ -256,6 +256,9 @@ def plane_cut_solid(
         normal: (3,) its normal (normalized here; nonzero).
         extent: side length > 0.
         epsilon: thickness > 0.
+
+    Returns:
+        The slab as a closed manifold3d solid, to pass to ``XFEMModel.cut`` or a schedule.
     """
     point = np.asarray(check_finite("point", check_vectors("point", np.asarray(point))), np.float64)
     normal = np.asarray(check_finite("normal", check_vectors("normal", np.asarray(normal))), np.float64)

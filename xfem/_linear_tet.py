@@ -63,6 +63,13 @@ def shape_gradients(
     Raises:
         ValueError (inside jit a runtime error with the message): bad shapes, indices out of range, a tet of
         non-positive volume.
+
+    Examples:
+        >>> import xfem
+        >>> tet = xfem.one_tet()
+        >>> gradients, volumes = xfem.shape_gradients(tet.X, tet.T)
+        >>> (gradients[0].round(6) + 0.0).tolist(), [round(v, 6) for v in volumes.tolist()]
+        ([[-1.0, -1.0, -1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]], [0.166667])
     """
     X, T = _jax_mesh_arrays(X, T)
     grads, volumes, bad_index, bad_volume = _shape_gradients(X, T)
@@ -172,6 +179,12 @@ def lumped_mass(
         density: scalar or (m,) positive mass density per tet.
     Returns:
         (n,) nodal masses, the row sums of ``consistent_mass``.
+
+    Examples:
+        >>> import xfem
+        >>> tet = xfem.one_tet()
+        >>> [round(m, 6) for m in xfem.lumped_mass(tet.X, tet.T, 6.0).tolist()]  # mass 1, a quarter per node
+        [0.25, 0.25, 0.25, 0.25]
     """
     X, T = _jax_mesh_arrays(X, T)
     masses, bad_density, bad_index, bad_volume = _lumped_mass(X, T, _jax_density(density, T.shape[0], X.dtype))

@@ -97,7 +97,14 @@ def lame(
         poisson: Poisson's ratio nu in (-1, 1/2), broadcastable against ``young``.
     Returns:
         ``(mu, lam) = (E / (2 (1 + nu)), E nu / ((1 + nu)(1 - 2 nu)))``, broadcast shape (python floats for python
-        floats)."""
+        floats).
+
+    Examples:
+        >>> import xfem
+        >>> mu, lam = xfem.lame(1e6, 0.25)
+        >>> round(float(mu)), round(float(lam))
+        (400000, 400000)
+    """
     bad = ~(jnp.asarray(young) > 0) | ~jnp.isfinite(young)
     outside = ~((jnp.asarray(poisson) > -1) & (jnp.asarray(poisson) < 0.5))
     young = require(
@@ -269,8 +276,9 @@ def stable_neohookean_energy(
 
     Args:
         F: (..., 3, 3) deformation gradients (inverted and degenerate ones allowed).
-        mu, lam: Lamé parameters of the linear material it matches at rest (``lame``), scalars or arrays
+        mu: Lamé parameters of the linear material it matches at rest (``lame``), scalars or arrays
             broadcastable to F's batch shape ``...`` (e.g. (m,) per element); mu > 0, lam + 5/6 mu > 0.
+        lam: see ``mu``.
     Returns:
         (...) energy densities."""
     F = _check_F(F)
@@ -284,7 +292,8 @@ def stable_neohookean_pk1(
 
     Args:
         F: (..., 3, 3) deformation gradients.
-        mu, lam: Lamé parameters, as in ``stable_neohookean_energy``.
+        mu: Lamé parameters, as in ``stable_neohookean_energy``.
+        lam: see ``mu``.
     Returns:
         (..., 3, 3) stresses, ``P(I) = 0``."""
     F = _check_F(F)
@@ -321,7 +330,8 @@ def element_energy(
         x: (m, 4, 3) deformed positions of each tet's nodes.
         grads: (m, 4, 3) gradients of the 4 linear shape functions with respect to the rest position.
         volumes: (m,) rest volumes.
-        mu, lam: Lamé parameters (``lame``), scalars or (m,) per element.
+        mu: Lamé parameters (``lame``), scalars or (m,) per element.
+        lam: see ``mu``.
     Returns:
         (m,) energies."""
     x, grads, volumes = _check_elements(x, grads, volumes)
@@ -354,7 +364,8 @@ def element_gradient_hessian(
         x: (m, 4, 3) deformed positions of each tet's nodes.
         grads: (m, 4, 3) gradients of the linear shape functions with respect to the rest position.
         volumes: (m,) rest volumes.
-        mu, lam: Lamé parameters (``lame``), scalars or (m,) per element.
+        mu: Lamé parameters (``lame``), scalars or (m,) per element.
+        lam: see ``mu``.
         project: python bool; clamp the negative eigenvalues of dP/dF to 0 ([SGK18] sec. 4, closed-form
             eigensystem) so that every H is positive semidefinite and Newton's direction descends.
     Returns:

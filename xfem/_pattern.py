@@ -40,7 +40,8 @@ def node_pairs(free_nodes, n_free, extra_rows, extra_cols):  # pragma: no cover 
     Args:
         free_nodes: (m, 4) int64 reduced node of each element corner, -1 for a fixed node.
         n_free: the number of free nodes.
-        extra_rows, extra_cols: (k,) int64 further coupled pairs of free nodes (repeats allowed).
+        extra_rows: (k,) int64 further coupled pairs of free nodes (repeats allowed).
+        extra_cols: see ``extra_rows``.
     Returns:
         node_indptr (n_free + 1,) and node_cols (pairs,): the CSR of the node pairs, columns ascending within a
         row; pair (m, 4, 4): the index in node_cols of the pair (corner a, corner b) of each element, -1 where

@@ -52,8 +52,10 @@ def rollout(
         material: the ``Material``.
         h: the positive time step.
         steps: python int >= 0, the number of steps.
-        newton_iterations, tolerance, line_search: as ``backward_euler_step`` (by default each step converges;
+        newton_iterations: as ``backward_euler_step`` (by default each step converges;
             ``newton_iterations=1, tolerance=None`` is the paper's single iteration, approximate for gradients).
+        tolerance: see ``newton_iterations``.
+        line_search: see ``newton_iterations``.
         forces: None (the system's ``force`` every frame), (n, 3) forces for every frame, or (steps, n, 3) the
             forces of each frame, replacing ``system.force``.
         targets: None (the fixed nodes stay where they are in ``state``), or (steps, nb, 3) the fixed nodes'

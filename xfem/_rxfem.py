@@ -98,8 +98,12 @@ def _keast24() -> tuple[np.ndarray, np.ndarray]:
     return np.array(points), np.array(weights)
 
 
-KEAST24, KEAST24_WEIGHTS = _keast24()
-"""(24, 4) barycentric points and (24,) weights (summing to 1) of Keast's degree-6 tetrahedron rule."""
+# one name per assignment, so that the documentation's static reader finds each constant and its docstring
+_KEAST24_RULE = _keast24()
+KEAST24 = _KEAST24_RULE[0]
+"""(24, 4) barycentric points of Keast's degree-6 tetrahedron rule."""
+KEAST24_WEIGHTS = _KEAST24_RULE[1]
+"""(24,) weights of Keast's degree-6 tetrahedron rule, summing to 1."""
 
 _POINTS = len(KEAST24)
 _ROW_LEVELS = 64  # row levels per level of the other sizes (_RowCapacities): 1.5^64 rows, more than any model's

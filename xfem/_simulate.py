@@ -210,8 +210,14 @@ class PlaneCutSimulation:
         Args:
             points: (k, 3) the planes' points, in the order of the plane cuts given (JAX values to differentiate).
             normals: (k, 3) their unit normals (the gradient with respect to a normal is tangent to the sphere).
-            material, h, newton_iterations, tolerance, line_search, forces, state: as ``simulate``; state None:
+            material: as ``simulate``; state None:
                 the model's state when the simulation was prepared.
+            h: see ``material``.
+            newton_iterations: see ``material``.
+            tolerance: see ``material``.
+            line_search: see ``material``.
+            forces: see ``material``.
+            state: see ``material``.
         Returns:
             One ``State`` per segment, as ``simulate``.
         """
@@ -361,8 +367,10 @@ def simulate(
             about the plane through point (3,) with the unit normal (3,) (``plane_cut_solid`` with an extent
             covering the body), made at that frame after the frame's solids; point and normal may be JAX values
             to differentiate (the gradient with respect to a normal is tangent to the unit sphere).
-        newton_iterations, tolerance, line_search: as ``backward_euler_step`` (by default every step converges;
+        newton_iterations: as ``backward_euler_step`` (by default every step converges;
             ``newton_iterations=1, tolerance=None`` is the paper's single iteration, approximate for gradients).
+        tolerance: see ``newton_iterations``.
+        line_search: see ``newton_iterations``.
         forces: None (each segment's system force, e.g. gravity on its pieces), or a function ``(k, system)`` of a
             segment's index and ``FEMSystem`` returning its forces, (n_k, 3) or (frames_k, n_k, 3) per frame, as
             ``rollout`` takes them; it may close over traced parameters.

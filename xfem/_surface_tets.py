@@ -288,7 +288,10 @@ def surface_map(
     cuts (e.g. every frame of a trajectory).
 
     Args:
-        model, embedding, V, F: as ``cut_surface``.
+        model: as ``cut_surface``.
+        embedding: see ``model``.
+        V: see ``model``.
+        F: see ``model``.
     Returns:
         weights (k, 4) float64 and dofs (k, 4) int64 of the k vertices of V', F' (f, 3) int64 triangles into them,
         piece (f,) int64 the connected piece of each triangle, and vertex (k,) int64 the vertex of V each copies.

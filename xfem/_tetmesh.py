@@ -110,6 +110,12 @@ def tet_volumes(X: Float[ArrayLike, "n 3"], T: Int[ArrayLike, "m 4"]) -> Float[A
         T: (m, 4) int tets.
     Returns:
         (m,) signed volumes, > 0 for positively oriented tets.
+
+    Examples:
+        >>> import xfem
+        >>> tet = xfem.one_tet()
+        >>> [round(v, 6) for v in xfem.tet_volumes(tet.X, tet.T).tolist()]
+        [0.166667]
     """
     X, T = _jax_mesh_arrays(X, T)
     volumes, bad = _tet_volumes(X, T)
@@ -187,6 +193,12 @@ def box_tets(
     Returns:
         The ``TetMesh`` with ``prod(cells + 1)`` nodes and ``6 prod(cells)`` tets, each of volume
         ``prod(size / cells) / 6``.
+
+    Examples:
+        >>> import xfem
+        >>> mesh = xfem.box_tets((2, 1, 1), size=(2.0, 1.0, 1.0))  # two unit cells
+        >>> mesh.X.shape, mesh.T.shape
+        ((12, 3), (12, 4))
     """
     cells = _triple(cells, "cells", int)
     if min(cells) < 1:
@@ -233,6 +245,12 @@ def five_tet_cube(
         origin: (3,) the lowest corner.
     Returns:
         The ``TetMesh`` with 8 nodes and 5 tets.
+
+    Examples:
+        >>> import xfem
+        >>> cube = xfem.five_tet_cube()
+        >>> cube.T.shape, round(float(xfem.tet_volumes(cube.X, cube.T).sum()), 6)
+        ((5, 4), 1.0)
     """
     size = float(size)
     if not np.isfinite(size) or size <= 0:
@@ -246,7 +264,16 @@ def five_tet_cube(
 
 
 def one_tet() -> TetMesh:
-    """The unit corner tetrahedron: nodes (0, 0, 0), (1, 0, 0), (0, 1, 0), (0, 0, 1), volume 1/6."""
+    """The unit corner tetrahedron: nodes (0, 0, 0), (1, 0, 0), (0, 1, 0), (0, 0, 1), volume 1/6.
+
+    Returns:
+        The ``TetMesh`` of one element.
+    Examples:
+        >>> import xfem
+        >>> mesh = xfem.one_tet()
+        >>> mesh.X.shape, mesh.T.shape
+        ((4, 3), (1, 4))
+    """
     return tet_mesh(np.vstack([np.zeros(3), np.eye(3)]), np.array([[0, 1, 2, 3]]))
 
 
@@ -351,6 +378,11 @@ def boundary_faces(T: Int[npt.ArrayLike, "m 4"]) -> Int[np.ndarray, "k 3"]:
     Returns:
         (k, 3) int64 numpy triangles, in the order of ``np.nonzero(element_adjacency(T) < 0)`` (by tet, then
         by the local vertex the face is opposite to).
+
+    Examples:
+        >>> import xfem
+        >>> xfem.boundary_faces(xfem.one_tet().T).shape  # a lone tetrahedron: its four faces
+        (4, 3)
     """
     return tet_boundary_faces(_host_tets(T))
 

@@ -19,7 +19,8 @@ def winding_numbers(V, F, vertex_start, face_start, mesh, points):  # pragma: no
     Args:
         V: (v, 3) float64 the vertices of every mesh, mesh after mesh.
         F: (f, 3) int64 the triangles of every mesh, mesh after mesh, indices into the mesh's own vertices.
-        vertex_start, face_start: (meshes + 1,) int64 where each mesh's vertices and triangles start.
+        vertex_start: (meshes + 1,) int64 where each mesh's vertices and triangles start.
+        face_start: see ``vertex_start``.
         mesh: (q,) int64 the mesh of each query.
         points: (q, 3) float64 the query points.
     Returns:

@@ -336,11 +336,11 @@ def view(
     """A viewer page of ``inputs``, side by side (module docstring).
 
     Args:
-        inputs: paths (.glb, .gltf, .npy, .vtu, a folder of frame_XXXX.vtu), (V, F) or (frames, F) pairs of
-            numpy or JAX arrays (V (n, 3), frames (t, n, 3), F (m, 3) integers), lists of (V, F) pairs (one per
-            frame; the triangles may change between frames) or of (V, F, groups) triples (groups (m,) int >= 0 per
-            triangle, e.g. pieces: a colour per group, a vertex taking the first group that uses it), objects with
-            ``to_glb() -> bytes`` (a ``deform.RiggedModel``).
+        *inputs (str | os.PathLike | tuple | list | object): paths (.glb, .gltf, .npy, .vtu, a folder of
+            frame_XXXX.vtu), (V, F) or (frames, F) pairs of numpy or JAX arrays (V (n, 3), frames (t, n, 3), F
+            (m, 3) integers), lists of (V, F) pairs (one per frame; the triangles may change between frames) or of
+            (V, F, groups) triples (groups (m,) int >= 0 per triangle, e.g. pieces: a colour per group, a vertex
+            taking the first group that uses it), objects with ``to_glb() -> bytes`` (a ``deform.RiggedModel``).
         mesh: the triangles of .npy frames: a mesh file (.obj, .ply, .stl, .off, .glb, ...; as it is, or welded
             as ``jaxcga deform`` reads it, whichever has the frames' vertex count) or a (V, F) pair.
         joint: show the skin weights of this joint (name, or index into a skin's joints); None: the materials.
@@ -356,5 +356,13 @@ def view(
             a glTF without triangles, frames of the wrong shape or not matching the mesh's vertex count,
             non-finite positions, .npy frames without ``mesh``), an unknown joint or clip, a bad ``fps``; each
             naming the argument and the file.
+
+    Examples:
+        >>> import numpy as np
+        >>> import jaxcga as cga
+        >>> V = np.array([[0.0, 0, 0], [1.0, 0, 0], [0, 1.0, 0]])
+        >>> page = cga.view((V, np.array([[0, 1, 2]])), title="a triangle")
+        >>> page.html.startswith("<!DOCTYPE html>"), page.title
+        (True, 'a triangle')
     """
     return page(_read_inputs(inputs, mesh), joint=joint, clip=clip, fps=fps, title=title)
