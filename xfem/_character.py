@@ -398,7 +398,7 @@ def simulate_character(
     check_choice("interpolation", interpolation, deform.INTERPOLATIONS)
     if progress is not None and not callable(progress):
         raise ValueError("progress: expected None or a function (stage, done, total)")
-    times, clip = _clip_times(body, clip, seconds, fps, start)
+    times, clip_key = _clip_times(body, clip, seconds, fps, start)
     steps, h = len(times) - 1, 1.0 / fps
     _check_steps(steps)
     planes = _check_planes(list(plane_cuts), steps, _PLANES_UNDER_JIT)
@@ -407,8 +407,8 @@ def simulate_character(
     if subspace is not None:
         if planes or solids:
             raise ValueError("subspace: the reduced mode does not cut; pass no plane_cuts and no cuts with a subspace")
-        return _reduced_motion(body, subspace, times, clip, h, material, method, interpolation, report)
-    rig = _rig(body, times, method, clip, interpolation)
+        return _reduced_motion(body, subspace, times, clip_key, h, material, method, interpolation, report)
+    rig = _rig(body, times, method, clip_key, interpolation)
     report("rig", 1, 1)
     start_state = State(rig[0], (rig[1] - rig[0]) / h)
     model = xfem_model(

@@ -163,6 +163,7 @@ def transfer_weights(
     V, F = np.asarray(V, np.float64), np.asarray(F, np.int64)
     points = np.asarray(points, np.float64)
     _, face, closest = igl.point_mesh_squared_distance(points, V, F)
+    face = np.asarray(face, np.int64)
     corners = V[F[face]]
     bary = igl.barycentric_coordinates(
         np.ascontiguousarray(closest), *(np.ascontiguousarray(corners[:, k]) for k in range(3))
@@ -263,7 +264,7 @@ def _probe_poses(model: deform.RiggedModel) -> np.ndarray:
         turn = np.eye(3) + np.sin(_PROBE_ANGLE) * K + (1 - np.cos(_PROBE_ANGLE)) * K @ K  # Rodrigues
         posed = np.repeat(local[None], _PROBES, axis=0)
         posed[..., :3, :3] = local[..., :3, :3] @ turn
-    world = np.asarray(deform.forward_kinematics_matrices(skeleton.parents, posed), np.float64)
+    world = np.asarray(deform.forward_kinematics_matrices(skeleton.parents, jnp.asarray(posed)), np.float64)
     return world[:, np.asarray(model.mesh.joints)]
 
 

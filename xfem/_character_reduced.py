@@ -53,6 +53,7 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
+from jax.core import Tracer
 from jaxtyping import Array, Float, Int
 
 import deform
@@ -211,7 +212,7 @@ def _blend(rig: _Rig, t, clip, interpolation: str):
         local = deform.sample_pose(model, t, "lbs", clip, interpolation)
     else:
         local = deform.local_matrices(model.skeleton)
-    A = jnp.einsum("jab,jbc->jac", _joint_linear(model, local), rig.rest_linear, precision=EXACT)
+    A = jnp.einsum("jab,jbc->jac", _joint_linear(model, local), rig.rest_linear, precision=EXACT)  # pyright: ignore[reportArgumentType]
     J, W = model.mesh.J[rig.free], model.mesh.W[rig.free]
     return jnp.einsum("ni,niab->nab", W, A[J], precision=EXACT)
 
@@ -305,9 +306,10 @@ def play_reduced(
     check_choice("interpolation", interpolation, deform.INTERPOLATIONS)
     if np.shape(material.young) != () or np.shape(material.poisson) != ():
         raise ValueError("material: the reduced mode takes a scalar Young's modulus and Poisson's ratio")
-    if not isinstance(material.poisson, jax.core.Tracer) and float(material.poisson) != subspace.poisson:
+    poisson = material.poisson
+    if not isinstance(poisson, Tracer) and float(np.asarray(poisson)) != subspace.poisson:
         raise ValueError(
-            f"material: Poisson's ratio {float(material.poisson)} differs from the subspace's {subspace.poisson}; "
+            f"material: Poisson's ratio {float(np.asarray(poisson))} differs from the subspace's {subspace.poisson}; "
             "compute the subspace with character_subspace(body, poisson=...)"
         )
     times = np.asarray(times, np.float64)
