@@ -397,7 +397,8 @@ def physics_command(
             edge_length=edge_length,
             epsilon=epsilon,
             core=core,
-            tolerance=refine or None,
+            tolerance=refine or REFINE,
+            refine=bool(refine),
         )
     X = np.asarray(body.tets.X)
     plane_cuts = []
