@@ -4,7 +4,7 @@ corpus character meshed to at least 20k tets, in the full space and in the reduc
 Models. ``arm``: ``deform.default_arm()`` (its ``wave`` clip), tets at the default edge length. ``character``: the
 corpus's largest animated character (``QuaterniusCyberpunkCharacter``, 3.9k vertices, 27 joints, 22 clips; the
 larger ``QuaterniusWorkerDense`` has no clip and meshes to fewer tets) playing its ``Run`` clip, meshed by fTetWild
-with half the default envelope (``CHARACTER_EPSILON``: ~25k tets), as fTetWild makes them (``tolerance=None``: the
+with half the default envelope (``CHARACTER_EPSILON``: ~25k tets), as fTetWild makes them (``refine=False``: the
 body's bisection near the joints would make them ~480k). fTetWild takes minutes and is not
 deterministic: the tets are cached in the output folder (``--cache``, default beside ``--json`` or ``out/bench``)
 and reused. Material: Young 1e5 Pa, Poisson 0.4, density 1e3, Rayleigh damping 0.01 s; 30 frames/s.
@@ -320,7 +320,7 @@ def main(argv=None):
             body, clip = _body(deform.load_model(QUICK_CHARACTER, weld=True), QUICK_EDGE, cache, "fox"), 0
         else:
             model = deform.load_model(CHARACTER, weld=True)
-            body = _body(model, CHARACTER_EDGE, cache, "cyberpunk", CHARACTER_EPSILON, tolerance=None)
+            body = _body(model, CHARACTER_EDGE, cache, "cyberpunk", CHARACTER_EPSILON, refine=False)
             clip = CHARACTER_CLIP
             if body.tets.n_elements < MIN_TETS:
                 print(f"  warning: {body.tets.n_elements} tets, fewer than {MIN_TETS}", flush=True)
