@@ -578,7 +578,7 @@ def character_body(
     )
     node_model = deform.RiggedModel(node_mesh, model.skeleton, model.clips, model.name)
     distance = _bone_distances(model, X)
-    owner = np.argmax(_dense_weights(mesh), axis=1)
+    owner = np.argmax(dense, axis=1)
     surface_distance = _bone_distances(model, surface)
     radius = np.full(mesh.num_joints, np.nan)
     for j in range(mesh.num_joints):
