@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import os
 from pathlib import Path
 
@@ -32,7 +33,7 @@ def check_paths(args) -> None:
     check_files(args, ("model",), {"out": args.out}, GLTF_OUTPUTS, gltf=True)
 
 
-def run(args) -> dict:
+def run(args: argparse.Namespace) -> tuple[str, dict[str, object]]:
     from jaxcga_cli.models import load_model
 
     model = load_model(args.model, weld=args.weld)

@@ -17,6 +17,7 @@ process has moved its files in, so a folder with ``batch.json`` holds a complete
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import os
 import re
@@ -189,7 +190,7 @@ def initialize(options: dict) -> None:
         raise
 
 
-def run(args) -> tuple:
+def run(args: argparse.Namespace) -> tuple[str, dict[str, object]]:
     if args.frames < 1:
         raise ValueError(f"frames: expected --frames >= 1, got {args.frames}")
     if args.time_shards < 1:

@@ -9,7 +9,9 @@ axis are the handles: the low end stays and the high end moves by the same motio
 
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
+from typing import Any
 
 from jaxcga_cli import arguments
 from jaxcga_cli.deform import HANDLES_HELP
@@ -70,7 +72,7 @@ def check_paths(args) -> None:
     check_files(args, ("mesh", "handles"), {"out": args.out}, DEFORM_OUTPUTS)
 
 
-def run(args) -> dict:
+def run(args: argparse.Namespace) -> tuple[str, dict[str, object]]:
     from jaxcga_cli.models import load_mesh
 
     V, F = load_mesh(args.mesh)
@@ -103,6 +105,7 @@ def handle_targets(path: Path, V):
 
     groups, motors, targets = read_handles(path, len(V), positions=True)
     if targets is None:
+        assert motors is not None  # read_handles gives motors wherever the file gives no positions
         targets = [
             np.asarray(cga.apply_to_points(cga.Multivector(motors.values[i], motors.blades), jnp.asarray(V[g])))
             for i, g in enumerate(groups)
@@ -166,6 +169,7 @@ def arap_command(
         data = deform.arap_precompute(V, F, b, energy=energy, unhandled=unhandled)
     precompute_ms = 1e3 * (time.perf_counter() - start)
     start = time.perf_counter()
+    options: dict[str, Any]  # arap_solve's keywords: a tolerance (a number or None) and an acceleration (a name)
     if fixed:
         options = {"tolerance": None, "acceleration": "none"}
     else:

@@ -3,6 +3,7 @@ keep the input's skeleton and clips, so that they animate again."""
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 from pathlib import Path
 
@@ -58,7 +59,7 @@ def check_paths(args) -> None:
     )
 
 
-def run(args) -> dict:
+def run(args: argparse.Namespace) -> tuple[str, dict[str, object]]:
     from jaxcga_cli.models import load_model
 
     model = load_model(args.model, weld=args.weld)

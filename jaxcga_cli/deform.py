@@ -12,6 +12,7 @@ instead (classic FFD, positional cage) for comparison.
 
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
 
 from jaxcga_cli import arguments
@@ -95,7 +96,7 @@ def check_paths(args) -> None:
     check_files(args, ("mesh", "handles", "cage"), {"out": args.out}, DEFORM_OUTPUTS)
 
 
-def run(args) -> dict:
+def run(args: argparse.Namespace) -> tuple[str, dict[str, object]]:
     from jaxcga_cli.models import load_mesh
 
     V, F = load_mesh(args.mesh)

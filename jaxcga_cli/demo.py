@@ -3,6 +3,7 @@ animated, cut, torn, drilled and deformed, with figures and a page to open in a 
 
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
 
 HELP = "a short tour: the geometric-algebra kernel, then the built-in rigged arm skinned, cut, torn and deformed"
@@ -23,7 +24,7 @@ def check_paths(args) -> None:
     check_folder(args.out)
 
 
-def run(args) -> None:
+def run(args: argparse.Namespace) -> None:
     demo(args.out, args.steps, not args.no_figure)
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
 
 from jaxcga_cli import arguments
@@ -61,7 +62,7 @@ def check_paths(args) -> None:
     check_files(args, ("model",), {"out": args.out}, GLTF_OUTPUTS, gltf=True)
 
 
-def run(args) -> dict:
+def run(args: argparse.Namespace) -> tuple[str, dict[str, object]]:
     from jaxcga_cli.models import load_model
 
     # a drill walks across faces: split vertices along UV seams are always welded for it

@@ -24,6 +24,7 @@ previous run's files (only those), ``summary.json`` last; a failed run leaves OU
 
 from __future__ import annotations
 
+import argparse
 import re
 from pathlib import Path
 
@@ -114,7 +115,7 @@ def check_paths(args) -> None:
     check_run_folder(args.out, RUN_FILES, args.force, RUN_DESCRIBED, inputs=inputs)
 
 
-def run(args) -> dict:
+def run(args: argparse.Namespace) -> tuple[str, dict[str, object]]:
     summary = fem_command(
         args.scene,
         args.steps,
@@ -244,7 +245,8 @@ def surface_frame(V, F, limits, path: Path, title: str, colours=None) -> None:
         )
     else:
         ax.add_collection3d(Poly3DCollection(V[F], facecolors=colours, edgecolors="k", linewidths=0.05, alpha=0.95))
-    figures.set_box(ax, *limits, title, floor=1e-3)
+    lo, hi = limits
+    figures.set_box(ax, lo, hi, title, floor=1e-3)
     figures.save_figure(fig, path, dpi=80, bbox_inches="tight")
 
 
@@ -353,6 +355,7 @@ def fem_command(
             )
             shown = x
             if surface is not None:  # the user's own surface, carried by the tets
+                assert carry is not None
                 shown = np.asarray(carry(state.x))
                 write_obj(staging / f"frame_{k:04d}_surface.obj", shown, surface[1])
             if figures:

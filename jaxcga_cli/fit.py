@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
 
 from jaxcga_cli import arguments
@@ -35,7 +36,7 @@ def check_paths(args) -> None:
     check_files(args, ("model", "target", "vertices"), {"out": args.out}, (".json",))
 
 
-def run(args) -> dict:
+def run(args: argparse.Namespace) -> tuple[str, dict[str, object]]:
     from jaxcga_cli.models import load_model
 
     model = load_model(args.model, weld=args.weld)

@@ -34,9 +34,11 @@ def write_result(out: Path, positions, F, rest=None, title: str = "") -> None:
         import trimesh
 
         file_type = suffix[1:]
-        data = trimesh.Trimesh(np.asarray(positions), np.asarray(F), process=False).export(
-            file_type=file_type, **({"embed_buffers": True} if file_type == "gltf" else {})
-        )
+        mesh = trimesh.Trimesh(np.asarray(positions), np.asarray(F), process=False)
+        if file_type == "gltf":
+            data = mesh.export(file_type=file_type, embed_buffers=True)
+        else:
+            data = mesh.export(file_type=file_type)
         write_bytes(out, data["model.gltf"] if isinstance(data, dict) else data)
 
 

@@ -31,10 +31,12 @@ last):
 
 from __future__ import annotations
 
+import argparse
 import math
 import re
 import sys
 from pathlib import Path
+from typing import Any
 
 from jaxcga_cli import arguments
 
@@ -249,7 +251,7 @@ def _settings(args) -> dict:
     }
 
 
-def run(args) -> tuple[str, dict]:
+def run(args: argparse.Namespace) -> tuple[str, dict[str, object]]:
     from jaxcga_cli.fem import rounded
 
     summary = physics_command(
@@ -411,7 +413,8 @@ def physics_command(
             )
         plane_cuts.append((frame, np.asarray(point), np.asarray(normal), thickness * body.diagonal))
     material = xfem.Material(young, poisson, damping=damping)
-    stepping = {"newton_iterations": 1, "tolerance": None} if paper_step else {}
+    # simulate_character's stepping keywords: Newton's cap and tolerance, or the reduced mode's subspace
+    stepping: dict[str, Any] = {"newton_iterations": 1, "tolerance": None} if paper_step else {}
     if tolerance is not None:
         stepping["tolerance"] = tolerance
     if newton is not None:
@@ -558,9 +561,9 @@ class Timeline:
         self.compile_s, self.marks, self.bar = 0.0, {}, None
         self.segments: list[tuple[float, float]] = []  # (seconds, compilation) of each segment's frames
 
-    def _listen(self, event: str, duration: float, **_) -> None:
+    def _listen(self, event: str, duration_secs: float, **_: str | int) -> None:
         if event.startswith(self._COMPILE):
-            self.compile_s += duration
+            self.compile_s += duration_secs
 
     def __enter__(self) -> "Timeline":
         import time

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
 
 from jaxcga_cli import arguments
@@ -81,7 +82,7 @@ def read_scalpel_path(path: Path) -> list:
     return samples
 
 
-def run(args) -> dict:
+def run(args: argparse.Namespace) -> tuple[str, dict[str, object]]:
     from jaxcga_cli.models import load_model
 
     samples = read_scalpel_path(args.scalpel_path) if args.scalpel_path is not None else []

@@ -4,6 +4,7 @@ models with their clips, mesh sequences (the .npy frames of ``skin``/``deform``/
 
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
 
 from jaxcga_cli import arguments
@@ -46,7 +47,7 @@ def check_paths(args) -> None:
     check_distinct({"out": args.out}, {**inputs, **mesh})
 
 
-def run(args) -> tuple[str, dict]:
+def run(args: argparse.Namespace) -> tuple[str, dict[str, object]]:
     from _jaxcga_shared.viewer import view
     from jaxcga_cli.report import status
 

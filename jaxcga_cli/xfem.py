@@ -25,6 +25,7 @@ fem`` writes it). OUT holds one run, as for ``jaxcga fem``
 
 from __future__ import annotations
 
+import argparse
 from pathlib import Path
 
 from jaxcga_cli import arguments
@@ -111,7 +112,7 @@ def check_paths(args) -> None:
     check_run_folder(args.out, RUN_FILES, args.force, RUN_DESCRIBED, inputs=inputs)
 
 
-def run(args) -> dict:
+def run(args: argparse.Namespace) -> tuple[str, dict[str, object]]:
     summary = xfem_command(
         args.scene,
         args.out,
@@ -283,7 +284,7 @@ def xfem_command(
 
             write(0, sc.model())
             run = xfem.run_scene(sc, steps, on_frame=on_frame, cut_latency=cut_latency)
-        summary = run.summary()
+        summary: dict[str, object] = dict(run.summary())
         summary.update(
             {
                 "steps": steps,
