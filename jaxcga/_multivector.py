@@ -169,12 +169,11 @@ class Multivector(eqx.Module):
     def __add__(self, other: Multivector | ArrayLike) -> Multivector:
         other = _coerce(other, self)
         broadcast_batch("a", self.batch_shape, "b", other.batch_shape)
-        blades = alg.sort_blades(self.blades + other.blades)
-        if blades == self.blades == other.blades:
-            return Multivector(self.values + other.values, blades)
-        return Multivector(
-            _gather(self.values, self.blades, blades) + _gather(other.values, other.blades, blades), blades
-        )
+        a, b = aligned(self, other)
+        blades = alg.sort_blades(a.blades + b.blades)
+        if blades == a.blades == b.blades:
+            return Multivector(a.values + b.values, blades)
+        return Multivector(_gather(a.values, a.blades, blades) + _gather(b.values, b.blades, blades), blades)
 
     __radd__ = __add__
 
@@ -192,16 +191,16 @@ class Multivector(eqx.Module):
             from jaxcga._operations import inverse
 
             return self * inverse(other)
-        return Multivector(self.values / _scalar_field(other), self.blades)
+        return Multivector(jnp.divide(*_same_rank(self.values, _scalar_field(other))), self.blades)
 
     # ---------------------------------------------------------------- products
     def __mul__(self, other: Multivector | ArrayLike) -> Multivector:
         if not isinstance(other, Multivector):
-            return Multivector(self.values * _scalar_field(other), self.blades)
+            return Multivector(jnp.multiply(*_same_rank(self.values, _scalar_field(other))), self.blades)
         return product("geometric", self, other)
 
     def __rmul__(self, other: ArrayLike) -> Multivector:
-        return Multivector(self.values * _scalar_field(other), self.blades)
+        return Multivector(jnp.multiply(*_same_rank(_scalar_field(other), self.values)), self.blades)
 
     def __xor__(self, other: Multivector | ArrayLike) -> Multivector:
         return product("outer", self, _coerce(other, self))
@@ -216,7 +215,9 @@ class Multivector(eqx.Module):
         return product("inner", _coerce(other, self), self)
 
     def __invert__(self) -> Multivector:
-        return Multivector(self.values * _signs(alg.reverse_sign, self.blades, self.dtype), self.blades)
+        return Multivector(
+            self.values * _signs(alg.reverse_sign, self.blades, self.dtype, self.values.ndim), self.blades
+        )
 
     def __rshift__(self, other: Multivector) -> Multivector:
         return sandwich(self, other)
@@ -227,14 +228,33 @@ def _scalar_field(s: ArrayLike) -> Array:
     return s[..., None]
 
 
+def lift_rank(values: Array, ndim: int) -> Array:
+    """``values`` with leading unit axes up to ``ndim`` axes: numpy's rank promotion of batch axes made explicit, so
+    that the kernel also runs where implicit rank promotion raises (``jax_numpy_rank_promotion="raise"``)."""
+    return values.reshape((1,) * (ndim - values.ndim) + values.shape) if values.ndim < ndim else values
+
+
+def _same_rank(a: Array, b: Array) -> tuple[Array, Array]:
+    n = max(a.ndim, b.ndim)
+    return lift_rank(a, n), lift_rank(b, n)
+
+
+def aligned(*mvs: Multivector) -> tuple[Multivector, ...]:
+    """The multivectors with as many batch axes each (leading unit axes added), as numpy would broadcast them."""
+    n = max(m.values.ndim for m in mvs)
+    return tuple(m if m.values.ndim == n else Multivector(lift_rank(m.values, n), m.blades) for m in mvs)
+
+
 def _coerce(x: Multivector | ArrayLike, like: Multivector) -> Multivector:
     if isinstance(x, Multivector):
         return x
     return Multivector(jnp.asarray(x, like.dtype)[..., None], (0,))
 
 
-def _signs(rule: Callable[[int], int], blades: tuple[int, ...], dtype: DTypeLike) -> Array:
-    return jnp.asarray(np.array([rule(b) for b in blades], dtype=float), dtype)
+def _signs(rule: Callable[[int], int], blades: tuple[int, ...], dtype: DTypeLike, ndim: int = 1) -> Array:
+    """The sign of each blade under ``rule``, shaped (1, ..., 1, k) with ``ndim`` axes to multiply values of as many."""
+    signs = np.array([rule(b) for b in blades], dtype=float).reshape((1,) * (ndim - 1) + (-1,))
+    return jnp.asarray(signs, dtype)
 
 
 def _gather(values: Array, source: tuple[int, ...], target: tuple[int, ...]) -> Array:
@@ -256,6 +276,7 @@ def product(kind: str, a: Multivector, b: Multivector) -> Multivector:
     """The product ``kind`` (see ``_algebra.GRADE_RULES``) of a and b, generated for their blades."""
     check_choice("kind", kind, sorted(alg.GRADE_RULES))
     batch = broadcast_batch("a", a.batch_shape, "b", b.batch_shape)
+    a, b = aligned(a, b)
     dtype = jnp.result_type(a.dtype, b.dtype)
     terms = _codegen.bilinear_terms(kind, a.blades, b.blades)
     blades, columns = _codegen.emit(terms, (_codegen.LazyColumns(a.values), _codegen.LazyColumns(b.values)), batch)
@@ -284,6 +305,7 @@ def sandwich(v: Multivector, x: Multivector) -> Multivector:
     if not isinstance(v, Multivector) or not isinstance(x, Multivector):
         raise ValueError("sandwich: v and x must be Multivectors")
     batch = broadcast_batch("v", v.batch_shape, "x", x.batch_shape)
+    v, x = aligned(v, x)
     vc = _codegen.LazyColumns(v.values)
     terms = _codegen.sandwich_terms(v.blades, x.blades)
     blades, columns = _codegen.emit(terms, (vc, vc, _codegen.LazyColumns(x.values)), batch)
@@ -312,6 +334,7 @@ def _generated_product(a: Multivector, b: Multivector, *, kind: str) -> Multivec
 
 @per_platform("table_product", gpu=_generated_product, examples=_table_product_examples)
 def _contracted_product(a: Multivector, b: Multivector, *, kind: str) -> Multivector:
+    a, b = aligned(a, b)
     dtype = jnp.result_type(a.dtype, b.dtype)
     blades, table = _codegen.bilinear_tensor(kind, a.blades, b.blades)
     values = jnp.einsum(

@@ -161,7 +161,7 @@ def involution(m: Multivector) -> Multivector:
         >>> cga.involution(e1).values.tolist(), cga.involution(e12).values.tolist()
         ([-1.0], [1.0])
     """
-    return Multivector(m.values * _signs(alg.involution_sign, m.blades, m.dtype), m.blades)
+    return Multivector(m.values * _signs(alg.involution_sign, m.blades, m.dtype, m.values.ndim), m.blades)
 
 
 def conjugate(m: Multivector) -> Multivector:
@@ -177,7 +177,7 @@ def conjugate(m: Multivector) -> Multivector:
         >>> cga.conjugate(e1).values.tolist(), cga.conjugate(e12).values.tolist()
         ([-1.0], [-1.0])
     """
-    return Multivector(m.values * _signs(alg.conjugate_sign, m.blades, m.dtype), m.blades)
+    return Multivector(m.values * _signs(alg.conjugate_sign, m.blades, m.dtype, m.values.ndim), m.blades)
 
 
 def dual(m: Multivector) -> Multivector:

@@ -30,7 +30,7 @@ from _jaxcga_shared.pallas_rows import RowFunction, fits, rowwise
 from _jaxcga_shared.platform import EXACT, Example, example, per_platform
 from jaxcga import _algebra as alg
 from jaxcga import _codegen
-from jaxcga._multivector import KINDS, Multivector, broadcast_batch
+from jaxcga._multivector import KINDS, Multivector, broadcast_batch, lift_rank
 from jaxcga._objects import POINT_BLADES
 
 _ROTOR = KINDS["rotor"]  # 1, e12, e13, e23
@@ -292,6 +292,7 @@ def fused_point_coordinates(
     elementwise so that XLA fuses them with the computation of v; the caller chooses how to stack them
     (e.g. coordinate-major, then moved last: XLA:CPU's transpose emitter runs that 1.3x faster than a
     stack along the last axis for per-vertex blended motors)."""
+    v, x = _same_batch_rank(v, x)
     return [jnp.broadcast_to(c, batch) for c in _mapped_coordinates(_map_entries(v), [x[..., i] for i in range(3)])]
 
 
@@ -340,6 +341,12 @@ def _point_major(v: Multivector, x: Float[Array, "... 3"]) -> Float[Array, "... 
     return jnp.stack(fused_point_coordinates(v, x, batch), axis=-1)
 
 
+def _same_batch_rank(v: Multivector, x: Array) -> tuple[Multivector, Array]:
+    """v and x with as many batch axes (leading unit axes added), as numpy would broadcast them."""
+    n = max(v.values.ndim, x.ndim)
+    return Multivector(lift_rank(v.values, n), v.blades), lift_rank(x, n)
+
+
 def _rows_of_points(v: Multivector, x: Float[Array, "... 3"]) -> Float[Array, "... 3"]:
     """GPUs: one Triton kernel over blocks of points (``_jaxcga_shared.pallas_rows``) where V is one versor or one
     per point, of x's dtype; other broadcasts and mixed dtypes leave the layout to XLA (``_point_major``)."""
@@ -377,6 +384,7 @@ def _component_major(v: Multivector, x: Float[Array, "... 3"]) -> Float[Array, "
     faster than on the interleaved (..., k) layout); the barriers keep XLA from fusing the transposes back
     into the arithmetic. On a GPU barriers cost more than they save (``_rows_of_points``)."""
     batch = broadcast_batch("v", v.batch_shape, "x", x.shape[:-1])
+    v, x = _same_batch_rank(v, x)
     v_rows, x_rows = jax.lax.optimization_barrier((jnp.moveaxis(v.values, -1, 0), jnp.moveaxis(x, -1, 0)))
     coordinates = _mapped_coordinates(_map_entries(v, columns=v_rows), [x_rows[0], x_rows[1], x_rows[2]])
     # Three separate outputs form one multi-output loop that shares the generated products between

@@ -1,4 +1,6 @@
-"""Tests run in float64 with strict dtype promotion (DESIGN.md "Style"). A test marked
+"""Tests run in float64 with strict dtype promotion (DESIGN.md "Style") and with implicit rank promotion raising, as
+diffrax's do: the library broadcasts explicitly (``x[None]``, ``[..., None]``, ``jnp.broadcast_to``), so that a shape
+mistake fails where it is made instead of broadcasting silently. The library never sets either itself. A test marked
 ``@pytest.mark.host("why")`` needs the host by nature and is skipped, with that reason, where JAX's default
 backend is not the CPU (docs/gpu.md).
 
@@ -20,6 +22,7 @@ from tests.shared import cpu_formulation_skip_reason, gpu_branches, host_skip_re
 
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_dtype_promotion", "strict")
+jax.config.update("jax_numpy_rank_promotion", "raise")
 
 
 def pytest_addoption(parser):

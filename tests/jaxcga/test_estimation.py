@@ -98,7 +98,7 @@ def _weighted_residual(src, tgt, w, perturbations):
     moved = cga.apply_to_points(cga.Multivector(perturbed.values[:, None, :], perturbed.blades), src)
     return (
         jnp.sum(w * jnp.sum((cga.apply_to_points(M, src) - tgt) ** 2, axis=-1)),
-        jnp.sum(w * jnp.sum((moved - tgt) ** 2, axis=-1), axis=-1),
+        jnp.sum(w[None] * jnp.sum((moved - tgt[None]) ** 2, axis=-1), axis=-1),
     )
 
 
