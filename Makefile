@@ -33,7 +33,7 @@ test-slow: $(STAMP)
 	$(PY) -m pytest -n 2 -m slow tests
 	$(PY) -m pytest -n 2 --nbmake notebooks
 
-## Lint, format and type checks (CI runs them): ruff on the tree, pyright (basic) on the library packages.
+## Lint, format and type checks (CI runs them): ruff on the tree, pyright (basic) on the packages, the CLI and the tests.
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .
 	$(VENV)/bin/ruff format --check .

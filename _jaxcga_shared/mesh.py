@@ -19,7 +19,7 @@ def bounding_diagonal(V) -> float:
     return float(np.sqrt(sum((V[:, k].max() - V[:, k].min()) ** 2 for k in range(V.shape[1]))))
 
 
-def signed_volume(V: Float[Array, "... n 3"], F: Int[Array, "m 3"]) -> Float[Array, "*batch"]:
+def signed_volume(V: Float[Array, "... n 3"], F: Int[Array, "m 3"] | Int[np.ndarray, "m 3"]) -> Float[Array, "*batch"]:
     """Signed volume enclosed by a closed, consistently oriented triangle mesh, ``sum_f det(v0, v1, v2) / 6``
     (positive for outward normals); leading axes of V are batches. JAX, differentiable in V; the caller
     checks the shapes and indices."""

@@ -255,7 +255,7 @@ def _block_matvec(pattern: CSRPattern, data):
         raise ValueError("pattern: a pattern of full blocks from csr_pattern (its BlockLayout)")
     count, row, columns = layout.rows.shape[0], layout.rows, layout.columns
     offsets = jnp.arange(size, dtype=layout.starts.dtype)
-    slots = layout.starts[:, None, None] + layout.strides[:, None, None] * offsets[:, None] + offsets
+    slots = layout.starts[:, None, None] + layout.strides[:, None, None] * offsets[None, :, None] + offsets[None, None]
     blocks = jnp.where((row < nodes)[:, None, None], data[slots], 0)
 
     def matvec(x):

@@ -291,7 +291,7 @@ def horn_rotors(S: Float[Array, "n 3 3"], newton_steps: int = 24) -> tuple[Multi
     _, c0 = _adjugate_and_det4(P)
 
     lam = _largest_quartic_root(c2, c1, c0, jnp.sqrt(3.0 * norm2), newton_steps=newton_steps)
-    adj, _ = _adjugate_and_det4(P - lam[:, None, None] * jnp.eye(4, dtype=S.dtype))
+    adj, _ = _adjugate_and_det4(P - lam[:, None, None] * jnp.eye(4, dtype=S.dtype)[None])
     # adj = c q q^T: its column with the largest diagonal entry is the best-conditioned copy of q
     diag = jnp.abs(jnp.diagonal(adj, axis1=-2, axis2=-1))
     k = jnp.argmax(diag, axis=-1)

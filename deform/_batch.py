@@ -34,6 +34,7 @@ import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
+import numpy.typing as npt
 from jax.sharding import Mesh, NamedSharding, PartitionSpec
 from jaxtyping import Array, ArrayLike, Float, Int
 
@@ -187,7 +188,7 @@ class PackedModels(eqx.Module):
         real = sum(n * k for n, k in zip(self.vertex_count, self.influence_count, strict=True))
         return c.blocks * c.vertices * c.influences / real
 
-    def clip_indices(self, clip: int | str | ArrayLike = 0) -> np.ndarray:
+    def clip_indices(self, clip: int | str | npt.ArrayLike = 0) -> np.ndarray:
         """Each model's clip index (M,) for ``clip``: one index or name for all, or one per model. A model without
         clips takes index 0 (it is posed at rest).
 

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
-from jaxtyping import Array, Float
+from jaxtyping import Array, ArrayLike, Float
 
 import jaxcga as cga
 from _jaxcga_shared.checks import require
@@ -50,7 +50,7 @@ def _bones(P):
 
 
 def fabrik(
-    P: Float[Array, "m1 3"], target: Float[Array, "3"], max_iterations: int = 100, tolerance: float = 1e-10
+    P: Float[ArrayLike, "m1 3"], target: Float[ArrayLike, "3"], max_iterations: int = 100, tolerance: float = 1e-10
 ) -> Float[Array, "m1 3"]:
     """Solve the chain ``P`` for ``target`` (FABRIK, Aristidou & Lasenby 2011).
 
@@ -130,7 +130,7 @@ def rotor_between(u: Float[Array, "... 3"], v: Float[Array, "... 3"]) -> Multive
     return Multivector(values, KINDS["rotor"])
 
 
-def chain_motors(rest: Float[Array, "m1 3"], posed: Float[Array, "m1 3"]) -> Multivector:
+def chain_motors(rest: Float[ArrayLike, "m1 3"], posed: Float[ArrayLike, "m1 3"]) -> Multivector:
     """One motor per joint (batch shape (m + 1,)) from a rest chain to a posed chain with the same bone
     lengths: Q_0 the root's translation, Q_{i+1} bone i's rigid motion (minimal rotation of its direction
     about rest joint i, then rest joint i to posed joint i). Q_i maps rest joint i onto posed joint i.

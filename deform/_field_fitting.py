@@ -16,6 +16,7 @@ from __future__ import annotations
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
+import numpy.typing as npt
 import optimistix as optx
 from jaxtyping import Array, ArrayLike, Float, Int
 
@@ -93,7 +94,7 @@ def fit_key_motors(
     targets: Float[ArrayLike, "t 3"],
     vertices: Int[ArrayLike, " t"] | None = None,
     *,
-    free: Int[ArrayLike, " f"] | None = None,
+    free: Int[npt.ArrayLike, " f"] | None = None,
     fixed_motors: Multivector | None = None,
     regularization: float = 0.0,
     solver: str = "levenberg_marquardt",

@@ -289,7 +289,7 @@ def forward_kinematics(parents: tuple[int, ...], local: Multivector) -> Multivec
 
 
 def forward_kinematics_matrices(
-    parents: tuple[int, ...], local: Float[Array, "... b 4 4"]
+    parents: tuple[int, ...], local: Float[ArrayLike, "... b 4 4"]
 ) -> Float[Array, "... b 4 4"]:
     """Global bone matrices ``T_i = T_parent(i) t_i`` (sec. 3).
 

@@ -38,6 +38,7 @@ from jaxtyping import Array, ArrayLike, Float, Int
 
 import jaxcga as cga
 from _jaxcga_shared import pallas_rows
+from _jaxcga_shared.broadcast import lift_rank
 from _jaxcga_shared.checks import check_vectors, require, require_around
 from _jaxcga_shared.platform import EXACT, PerPlatform, example, per_platform
 from jaxcga._multivector import KINDS, Multivector
@@ -80,7 +81,8 @@ def _blend_joints(J, weights, data, joint_axis: int = -2):
     acc = None
     for k, w in enumerate(weights):
         w = w.astype(data.dtype)
-        term = w * data[..., J[:, k]] if joint_axis == -1 else w[..., None] * data[..., J[:, k], :]
+        gathered = data[..., J[:, k]] if joint_axis == -1 else data[..., J[:, k], :]
+        term = lift_rank(w if joint_axis == -1 else w[..., None], gathered.ndim) * gathered
         acc = term if acc is None else acc + term
     if acc is None:
         raise ValueError("J: expected at least one influence per vertex (k >= 1)")
@@ -225,7 +227,7 @@ def _blend_affine(V, J, W, maps: Float[Array, "... j r 4"]) -> Float[Array, "...
     table = _materialize(maps[..., :3, :].reshape(maps.shape[:-3] + (joints, 12)))
     table = jnp.moveaxis(table, -2, -1).reshape(maps.shape[:-3] + (3, 4, joints))
     blended = _blend_joints(J, _influence_weights(W), table, joint_axis=-1)  # (..., 3, 4, n)
-    x, y, z = (V[:, i].astype(maps.dtype) for i in range(3))
+    x, y, z = (lift_rank(V[:, i].astype(maps.dtype), blended.ndim - 1) for i in range(3))
     out = blended[..., 0, :] * x + blended[..., 1, :] * y + blended[..., 2, :] * z + blended[..., 3, :]
     if maps.shape[-2] == 4:
         out = out / _blend_dilations(J, W, maps[..., 3, 3])[..., None, :]
@@ -433,7 +435,11 @@ def matrices_to_dual_quaternions(
         raise ValueError(f"matrices: expected shape (..., 4, 4), got {matrices.shape}")
     rot = matrices[..., :3, :3]
     err = jnp.max(
-        jnp.abs(jnp.matmul(jnp.swapaxes(rot, -1, -2), rot, precision=EXACT) - jnp.eye(3, dtype=rot.dtype)), initial=0.0
+        jnp.abs(
+            jnp.matmul(jnp.swapaxes(rot, -1, -2), rot, precision=EXACT)
+            - lift_rank(jnp.eye(3, dtype=rot.dtype), rot.ndim)
+        ),
+        initial=0.0,
     )
     rot = require(
         rot,

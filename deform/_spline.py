@@ -95,7 +95,7 @@ def _bspline(lam, num_keys: int, degree: int):
 
 
 def spline_weights(
-    lam: Float[Array, " n"], basis: str = "bspline", num_keys: int | None = None, degree: int = 3
+    lam: Float[ArrayLike, " n"], basis: str = "bspline", num_keys: int | None = None, degree: int = 3
 ) -> Float[Array, "n k"]:
     """The weights ``W_j(lambda_i)`` of eq. (1): an (n, k) partition of unity.
 

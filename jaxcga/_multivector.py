@@ -16,6 +16,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, DTypeLike, Float
 
+from _jaxcga_shared.broadcast import lift_rank, same_rank
 from _jaxcga_shared.checks import check_choice
 from _jaxcga_shared.platform import EXACT, example, per_platform
 from jaxcga import _algebra as alg
@@ -191,16 +192,16 @@ class Multivector(eqx.Module):
             from jaxcga._operations import inverse
 
             return self * inverse(other)
-        return Multivector(jnp.divide(*_same_rank(self.values, _scalar_field(other))), self.blades)
+        return Multivector(jnp.divide(*same_rank(self.values, _scalar_field(other))), self.blades)
 
     # ---------------------------------------------------------------- products
     def __mul__(self, other: Multivector | ArrayLike) -> Multivector:
         if not isinstance(other, Multivector):
-            return Multivector(jnp.multiply(*_same_rank(self.values, _scalar_field(other))), self.blades)
+            return Multivector(jnp.multiply(*same_rank(self.values, _scalar_field(other))), self.blades)
         return product("geometric", self, other)
 
     def __rmul__(self, other: ArrayLike) -> Multivector:
-        return Multivector(jnp.multiply(*_same_rank(_scalar_field(other), self.values)), self.blades)
+        return Multivector(jnp.multiply(*same_rank(_scalar_field(other), self.values)), self.blades)
 
     def __xor__(self, other: Multivector | ArrayLike) -> Multivector:
         return product("outer", self, _coerce(other, self))
@@ -226,17 +227,6 @@ class Multivector(eqx.Module):
 def _scalar_field(s: ArrayLike) -> Array:
     s = jnp.asarray(s)
     return s[..., None]
-
-
-def lift_rank(values: Array, ndim: int) -> Array:
-    """``values`` with leading unit axes up to ``ndim`` axes: numpy's rank promotion of batch axes made explicit, so
-    that the kernel also runs where implicit rank promotion raises (``jax_numpy_rank_promotion="raise"``)."""
-    return values.reshape((1,) * (ndim - values.ndim) + values.shape) if values.ndim < ndim else values
-
-
-def _same_rank(a: Array, b: Array) -> tuple[Array, Array]:
-    n = max(a.ndim, b.ndim)
-    return lift_rank(a, n), lift_rank(b, n)
 
 
 def aligned(*mvs: Multivector) -> tuple[Multivector, ...]:

@@ -25,12 +25,13 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
+from _jaxcga_shared.broadcast import lift_rank
 from _jaxcga_shared.checks import check_finite, check_vectors, non_finite, require
 from _jaxcga_shared.pallas_rows import RowFunction, fits, rowwise
 from _jaxcga_shared.platform import EXACT, Example, example, per_platform
 from jaxcga import _algebra as alg
 from jaxcga import _codegen
-from jaxcga._multivector import KINDS, Multivector, broadcast_batch, lift_rank
+from jaxcga._multivector import KINDS, Multivector, broadcast_batch
 from jaxcga._objects import POINT_BLADES
 
 _ROTOR = KINDS["rotor"]  # 1, e12, e13, e23
@@ -732,7 +733,11 @@ def matrix_to_motor(matrix: Float[ArrayLike, "... 4 4"]) -> Multivector:
         raise ValueError(f"matrix: expected shape (..., 4, 4) or (..., 3, 4), got {matrix.shape}")
     rot = matrix[..., :3, :3]
     err = jnp.max(
-        jnp.abs(jnp.matmul(jnp.swapaxes(rot, -1, -2), rot, precision=EXACT) - jnp.eye(3, dtype=rot.dtype)), initial=0.0
+        jnp.abs(
+            jnp.matmul(jnp.swapaxes(rot, -1, -2), rot, precision=EXACT)
+            - lift_rank(jnp.eye(3, dtype=rot.dtype), rot.ndim)
+        ),
+        initial=0.0,
     )
     rigid = (err > 1e-5) | jnp.any(jnp.linalg.det(rot) < 0), "matrix: not a rigid motion"
     rot = require(rot, non_finite("matrix", matrix), rigid)
@@ -767,7 +772,11 @@ def matrix_to_similitude(matrix: Float[ArrayLike, "... 4 4"], tolerance: float =
     s = jnp.cbrt(det)
     rot = a / s[..., None, None]
     err = jnp.max(
-        jnp.abs(jnp.matmul(jnp.swapaxes(rot, -1, -2), rot, precision=EXACT) - jnp.eye(3, dtype=rot.dtype)), initial=0.0
+        jnp.abs(
+            jnp.matmul(jnp.swapaxes(rot, -1, -2), rot, precision=EXACT)
+            - lift_rank(jnp.eye(3, dtype=rot.dtype), rot.ndim)
+        ),
+        initial=0.0,
     )
     rot = require(rot, (err > tolerance, "matrix: not a similitude (shear or non-uniform scale)"))
     return similitude(quaternion_to_rotor(matrix_to_quaternion(rot)), matrix[..., :3, 3], s)

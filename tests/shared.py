@@ -1,8 +1,8 @@
 """Helpers shared by the test packages: a flat grid mesh, a closed tube mesh, a character of many connected parts, the
 corpus of public rigged characters, a finite-difference gradient check, the comparison of two runs of one computation
-(bitwise on the CPU), a script run on forced host devices, the skips of tests that need the host or the CPU
-formulations and the GPU formulations taken on the CPU (conftest.py), and the operations of a program lowered for
-another platform."""
+(bitwise on the CPU), a script run on forced host devices, a glTF file read by pygltflib, the skips of tests that
+need the host or the CPU formulations and the GPU formulations taken on the CPU (conftest.py), and the operations of
+a program lowered for another platform."""
 
 from __future__ import annotations
 
@@ -14,8 +14,17 @@ import struct
 from pathlib import Path
 
 import numpy as np
+import pygltflib
 import pytest
 import trimesh
+
+
+def read_gltf(path: str | Path) -> pygltflib.GLTF2:
+    """The glTF file at ``path`` as pygltflib reads it (an independent reader of the format)."""
+    gltf = pygltflib.GLTF2().load(str(path))
+    if gltf is None:
+        raise ValueError(f"path: pygltflib cannot read {path}")
+    return gltf
 
 
 def grid(n: int = 10):
@@ -31,7 +40,7 @@ def tube(max_edge: float = 0.1):
     """(V, F, start, end): a closed cylinder of radius 0.2 along z in [-1, 1], subdivided so it has rings along
     z, and the indices of its vertices on the bottom (start) and top (end) caps."""
     mesh = trimesh.creation.cylinder(radius=0.2, height=2.0, sections=16)
-    V, F = trimesh.remesh.subdivide_to_size(mesh.vertices, mesh.faces, max_edge=max_edge)
+    V, F = trimesh.remesh.subdivide_to_size(mesh.vertices, mesh.faces, max_edge=max_edge)[:2]
     mesh = trimesh.Trimesh(V, F)
     mesh.merge_vertices()
     V, F = np.asarray(mesh.vertices), np.asarray(mesh.faces)
@@ -50,14 +59,15 @@ def multipart_character() -> tuple[np.ndarray, np.ndarray, dict[str, np.ndarray]
 
     mesh = deform.load_model(DATA / "CesiumMan.glb", weld=True).mesh
     body_V, body_F = np.asarray(mesh.V, np.float64), np.asarray(mesh.F, np.int64)
-    pieces, names = [(body_V, body_F)], ["body"]
+    pieces: list[tuple[np.ndarray, np.ndarray] | trimesh.Trimesh] = [(body_V, body_F)]
+    names = ["body"]
     y = body_V[:, 1]
     head = body_V[(y > 1.35) & (np.abs(body_V[:, 0]) < 0.1)]
     face = head[np.argmax(head[:, 2])]  # the front of the head
     eye = trimesh.creation.icosphere(subdivisions=2, radius=0.015)
-    pieces.append(
-        trimesh.util.concatenate([eye.copy().apply_translation(face + [dx, 0.0, -0.01]) for dx in (-0.03, 0.03)])
-    )
+    eyes = trimesh.util.concatenate([eye.copy().apply_translation(face + [dx, 0.0, -0.01]) for dx in (-0.03, 0.03)])
+    assert isinstance(eyes, trimesh.Trimesh)
+    pieces.append(eyes)
     names.append("eyes")
     torso = body_V[(y > 0.95) & (y < 1.1)]
     centre = 0.5 * (torso.min(0) + torso.max(0))
@@ -148,10 +158,10 @@ def saved_tets(name: str):
 def _character_body(name: str, options: tuple):
     import xfem
 
-    options = dict(options)
-    if options.pop("saved", False):  # the saved tets, refined as the defaults refine fTetWild's
-        options = {"tets": saved_tets(name), "refine": True, **options}
-    return xfem.character_body(load_character(name), **options)
+    keywords = dict(options)
+    if keywords.pop("saved", False):  # the saved tets, refined as the defaults refine fTetWild's
+        keywords = {"tets": saved_tets(name), "refine": True, **keywords}
+    return xfem.character_body(load_character(name), **keywords)
 
 
 def character_body_of(name: str, **options):

@@ -10,6 +10,7 @@ import ast
 from pathlib import Path
 
 import jax
+import jax.extend
 import jax.numpy as jnp
 import numpy as np
 import pytest
@@ -125,7 +126,7 @@ def _float32_calls():
         ),
         "blend_positions": (deform.blend_positions, (weights, jnp.asarray(rng.normal(size=(joints, 3)), f32))),
         "forward_kinematics_matrices": (
-            lambda m: deform.forward_kinematics_matrices(np.array([-1, 0, 1, 1, 3]), m),
+            lambda m: deform.forward_kinematics_matrices((-1, 0, 1, 1, 3), m),
             (matrices,),
         ),
         "ffd_weights": (lambda v: deform.ffd_weights(v, lattice), (V.astype(jnp.float64),)),

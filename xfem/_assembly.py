@@ -28,6 +28,7 @@ import numpy.typing as npt
 import scipy.sparse as sp
 from jaxtyping import Array, Float, Int
 
+from _jaxcga_shared.broadcast import lift_rank
 from _jaxcga_shared.checks import check_index_range
 from _jaxcga_shared.host import to_devices
 from _jaxcga_shared.sparse import CSRPattern, csr_pattern
@@ -118,7 +119,8 @@ def element_slots(base: Int[Array, "*m 4 4"], stride: Int[Array, "*m 4 4"]) -> I
     """The data slots of whole element Hessians, (..., 144) in ``H[e].ravel()`` order, from the compact map
     (``AssemblyPattern.hessian_base``, ``hessian_stride``); jit-able: the step expands them chunk by chunk."""
     k = jnp.arange(3, dtype=base.dtype)
-    slots = base[..., :, None, :, None] + stride[..., :, None, :, None] * k[:, None, None] + k
+    rows = stride[..., :, None, :, None] * lift_rank(k[:, None, None], stride.ndim + 2)
+    slots = base[..., :, None, :, None] + rows + lift_rank(k, stride.ndim + 2)
     return slots.reshape(*base.shape[:-2], 144)
 
 

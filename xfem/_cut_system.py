@@ -40,6 +40,7 @@ import numpy.typing as npt
 from jax.extend.core import concrete_or_error
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
+from _jaxcga_shared.broadcast import lift_rank
 from _jaxcga_shared.checks import check_finite, check_vectors, require
 from _jaxcga_shared.host import to_devices
 from _jaxcga_shared.mesh import TET_FACES
@@ -160,7 +161,8 @@ def _fields(replay: _Replay, points, normals):
         .add(jnp.broadcast_to(values[:, None], replay.slots.shape), mode="drop")
     )
     weights = load * replay.weight[:, None]
-    force = jnp.zeros((replay.n, 3), values.dtype).at[replay.dofs].add(weights[:, :, None] * replay.gravity)
+    gravity = lift_rank(replay.gravity, 3)
+    force = jnp.zeros((replay.n, 3), values.dtype).at[replay.dofs].add(weights[:, :, None] * gravity)
     return volume, values, mass_data, force
 
 

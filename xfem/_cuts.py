@@ -158,7 +158,7 @@ def _offset(V, F, h):
     V2 = jnp.concatenate([V + h * N, V - h * N])
     n = V.shape[0]
     y = jnp.stack([V2[F], V2[F + n]])
-    turned = jnp.sum(jnp.cross(y[:, :, 1] - y[:, :, 0], y[:, :, 2] - y[:, :, 0]) * face_normal, axis=-1) <= 0
+    turned = jnp.sum(jnp.cross(y[:, :, 1] - y[:, :, 0], y[:, :, 2] - y[:, :, 0]) * face_normal[None], axis=-1) <= 0
     return V2, degenerate, fold, jnp.any(turned)
 
 

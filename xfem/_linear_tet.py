@@ -233,6 +233,6 @@ def body_force(
 @jax.jit
 def _body_force(X, T, b):
     _, det = _gradients(X[T])
-    share = b * (det / 24)[:, None]
+    share = jnp.broadcast_to(b, (T.shape[0], 3)) * (det / 24)[:, None]
     f = jnp.zeros(X.shape, X.dtype).at[T].add(jnp.broadcast_to(share[:, None, :], (*T.shape, 3)))
     return f, ~jnp.all(jnp.isfinite(b)), _bad_index(T, X.shape[0]), _bad_volume(det)

@@ -76,6 +76,7 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
+from _jaxcga_shared.broadcast import lift_rank
 from _jaxcga_shared.checks import require
 from _jaxcga_shared.platform import EXACT
 from xfem._jacobi3 import eigh3, svd3
@@ -182,7 +183,7 @@ def _dpdf(F, mu_s, lam_s):
     d = 2 * mu_s / (ic + 1) ** 2
     b = lam_s * (J - 1) - 0.75 * mu_s  # lam' (J - alpha)
     return (
-        c[..., None, None] * jnp.eye(9, dtype=F.dtype)
+        c[..., None, None] * lift_rank(jnp.eye(9, dtype=F.dtype), c.ndim + 2)
         + d[..., None, None] * f[..., :, None] * f[..., None, :]
         + lam_s[..., None, None] * g[..., :, None] * g[..., None, :]
         + b[..., None, None] * hess_det
@@ -203,7 +204,7 @@ def _eigensystem(F, mu_s, lam_s):
         [jnp.stack([zero, s2, s1], -1), jnp.stack([s2, zero, s0], -1), jnp.stack([s1, s0, zero], -1)], -2
     )
     scaling = (
-        c[..., None, None] * jnp.eye(3, dtype=F.dtype)
+        c[..., None, None] * lift_rank(jnp.eye(3, dtype=F.dtype), c.ndim + 2)
         + d[..., None, None] * s[..., :, None] * s[..., None, :]
         + lam_s[..., None, None] * h[..., :, None] * h[..., None, :]
         + b[..., None, None] * offdiag

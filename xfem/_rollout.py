@@ -24,6 +24,7 @@ from typing import Literal
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 from jaxtyping import Array, Float
 
 from xfem._backward_euler import _NEWTON_ITERATIONS, _NEWTON_RESULT, FEMSystem, State, _advance, _step_arguments
@@ -40,7 +41,7 @@ def rollout(
     newton_iterations: int = _NEWTON_ITERATIONS,
     tolerance: float | Literal["auto"] | None = "auto",
     line_search: bool = True,
-    forces: Float[Array, "n 3"] | Float[Array, "steps n 3"] | None = None,
+    forces: Float[Array | np.ndarray, "n 3"] | Float[Array | np.ndarray, "steps n 3"] | None = None,
     targets: Float[Array, "steps nb 3"] | None = None,
 ) -> State:
     """``steps`` backward Euler steps from ``state`` (``backward_euler_step`` in a ``jax.lax.scan``); jit-,

@@ -27,7 +27,7 @@ def tube(tmp_path_factory):
     mesh = trimesh.creation.cylinder(radius=0.2, height=2.0, sections=12).subdivide().subdivide()
     path = tmp_path_factory.mktemp("mesh") / "tube.ply"
     mesh.export(path)
-    loaded = trimesh.load(path, force="mesh", process=True)
+    loaded = trimesh.load_mesh(path, process=True)
     return path, np.asarray(loaded.vertices), np.asarray(loaded.faces, np.int64)
 
 
@@ -90,7 +90,7 @@ def test_default_handles_mesh_and_figure_outputs(tube, tmp_path):
     path, V, F = tube
     glb = tmp_path / "arap.glb"
     assert main(["arap", str(path), "--bend", "90", "--iters", "5", "--out", str(glb)]) == 0
-    X = trimesh.load(glb, force="mesh", process=False).vertices
+    X = trimesh.load_mesh(glb, process=False).vertices
     assert X.shape == V.shape
     far = V[:, 2] > 0.95  # the far end is turned by 90 degrees about x about the centre of the low end
     np.testing.assert_allclose(

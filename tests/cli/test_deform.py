@@ -23,7 +23,7 @@ def tube(tmp_path_factory):
         mesh = mesh.subdivide()
     path = tmp_path_factory.mktemp("mesh") / "tube.ply"
     mesh.export(path)
-    loaded = trimesh.load(path, force="mesh", process=True)
+    loaded = trimesh.load_mesh(path, process=True)
     return path, np.asarray(loaded.vertices), np.asarray(loaded.faces)
 
 
@@ -59,7 +59,7 @@ def test_figure_mesh_and_positional_outputs(tube, tmp_path):
     assert png.stat().st_size > 10_000
     glb = tmp_path / "cage.glb"
     assert main(["deform", "cage", str(path), "--bend", "45", "--out", str(glb)]) == 0
-    assert trimesh.load(glb, force="mesh", process=False).vertices.shape == V.shape
+    assert trimesh.load_mesh(glb, process=False).vertices.shape == V.shape
 
 
 def test_handles_file_with_a_translated_handle(tube, tmp_path):

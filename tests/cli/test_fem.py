@@ -146,12 +146,14 @@ def test_a_wild_surface_is_simulated_and_written_as_itself(tmp_path, capsys):
     assert 0 < report["min_dihedral_deg"] <= report["max_dihedral_deg"] < 180 and 0 < report["min_volume_ratio"] <= 1
     assert report["max_surface_distance"] < 3 * report["epsilon"]
     rest = trimesh.load(out / "frame_0000_surface.obj", process=False)
+    assert isinstance(rest, trimesh.Trimesh)
     np.testing.assert_allclose(rest.vertices, V, atol=1e-7)
     assert np.array_equal(rest.faces, F)
     # the written surface is the tets' motion at the embedded vertices
     frame = meshio.read(out / "frame_0002.vtu")
     rest_tets = xfem.tet_mesh(frame.points - frame.point_data["displacement"], frame.cells_dict["tetra"])
     moved = trimesh.load(out / "frame_0002_surface.obj", process=False)
+    assert isinstance(moved, trimesh.Trimesh)
     embedding = xfem.embed_points(rest_tets, V)
     expected = np.asarray(embedding.positions(frame.points))
     inside = embedding.distance == 0
@@ -171,9 +173,12 @@ def test_a_character_runs_and_writes_its_own_skin(tmp_path):
     mesh = load_character("Fox").mesh
     V, F = np.asarray(mesh.V), np.asarray(mesh.F)
     rest = trimesh.load(out / "frame_0000_surface.obj", process=False)
-    np.testing.assert_allclose(rest.vertices, V, atol=1e-6 * np.linalg.norm(np.ptp(V, axis=0)))
+    assert isinstance(rest, trimesh.Trimesh)
+    np.testing.assert_allclose(rest.vertices, V, atol=1e-6 * float(np.linalg.norm(np.ptp(V, axis=0))))
     assert np.array_equal(rest.faces, F)
-    moved = trimesh.load(out / "frame_0002_surface.obj", process=False).vertices - V
+    moved = trimesh.load(out / "frame_0002_surface.obj", process=False)
+    assert isinstance(moved, trimesh.Trimesh)
+    moved = moved.vertices - V
     assert moved[:, 1].mean() < 0 and np.abs(moved[:, [0, 2]]).mean() < np.abs(moved[:, 1]).mean()  # down y
     report = json.loads((out / "summary.json").read_text())["tetrahedralization"]
     assert report["surface_faces"] == len(F) and report["tets"] > 200

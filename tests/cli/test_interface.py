@@ -26,7 +26,7 @@ from jaxcga_cli.report import StepProgress
 ROOT = Path(__file__).resolve().parents[2]
 
 
-def _exit(argv: list[str]) -> int:
+def _exit(argv: list[str]) -> int | str | None:
     with pytest.raises(SystemExit) as stop:
         main(argv)
     return stop.value.code

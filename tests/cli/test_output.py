@@ -360,7 +360,7 @@ def test_a_trimesh_gltf_holds_its_buffers(tmp_path):
         "mesh.gltf",
     ]
     assert all((tmp_path / n).read_bytes() == b"someone else's buffer" for n in ("mesh.bin", "gltf_buffer_0.bin"))
-    np.testing.assert_allclose(trimesh.load(tmp_path / "mesh.gltf", force="mesh", process=False).vertices, V)
+    np.testing.assert_allclose(trimesh.load_mesh(tmp_path / "mesh.gltf", process=False).vertices, V)
 
 
 # ------------------------------------------------------------------------------ fem / xfem folders hold one run

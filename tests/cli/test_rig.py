@@ -31,7 +31,7 @@ def test_skin_default_arm_to_a_posed_glb(tmp_path):
     out = tmp_path / "arm.glb"
     assert main(["skin", "--time", "1.0", "--out", str(out)]) == 0
     arm = deform.default_arm()
-    loaded = trimesh.load(out, force="mesh", process=False)
+    loaded = trimesh.load_mesh(out, process=False)
     assert loaded.vertices.shape == (arm.mesh.num_vertices, 3)
     np.testing.assert_allclose(loaded.vertices, deform.skin_model(arm, 1.0, "cga"), atol=1e-5)
 

@@ -354,6 +354,7 @@ def _layered_scene():
     sheet = trimesh.Trimesh(V * 3.0 + [-1.5, -1.5, 2.6], F, process=False)
     parts = [outer, inner, ball, speck, sheet]
     scene = trimesh.util.concatenate(parts)
+    assert isinstance(scene, trimesh.Trimesh)
     labels = np.concatenate([np.full(len(p.vertices), k) for k, p in enumerate(parts)])
     return np.asarray(scene.vertices, np.float64), np.asarray(scene.faces), labels
 

@@ -94,8 +94,6 @@ def test_tools_placed_on_real_characters(tool):
     names = list(CHARACTERS)
     rng = np.random.default_rng(51)
     placers = {name: CharacterTools(load_character(name)) for name in names}
-    for placer in placers.values():
-        placer.worst_rim = 0.0  # the largest distance of a drill's new point from its cylinder, over the diagonal
     poses = {name: character_pose(load_character(name), seed=51) for name in names}
     edges = {name: cutting.mesh_edges(load_character(name).mesh.F) for name in names}
     failures, runs = [], 0

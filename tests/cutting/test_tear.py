@@ -325,7 +325,8 @@ def test_tears_placed_on_the_skin_of_characters_all_succeed(name):
     rng = np.random.default_rng(51)
     # any joint matrices: each joint turned and moved at random
     joints = np.tile(np.eye(4), (mesh.num_joints, 1, 1))
-    joints[:, :3, :3] = Rotation.random(mesh.num_joints, random_state=51).as_matrix()
+    # the legacy keyword keeps the seeded stream (scipy's signature names only rng)
+    joints[:, :3, :3] = Rotation.random(mesh.num_joints, random_state=51).as_matrix()  # pyright: ignore[reportCallIssue]
     joints[:, :3, 3] = rng.normal(scale=0.1 * _diagonal(V), size=(mesh.num_joints, 3))
 
     def skin(m):  # linear blend skinning as the glTF specification writes it

@@ -11,6 +11,7 @@ import igl
 import numpy as np
 
 import deform
+import jaxcga as cga
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 
@@ -88,7 +89,8 @@ def scalpels_over(V, F, face, direction, samples: int, step: float, depth: float
             if np.linalg.norm(tangent) < 1e-6 * np.linalg.norm(direction):  # along the normal: any tangent
                 tangent = np.cross(normal, [1.0, 0.0, 0.0] if abs(normal[0]) < 0.9 else [0.0, 1.0, 0.0])
             tangent /= np.linalg.norm(tangent)
-            _, faces, closest = igl.point_mesh_squared_distance((point + step * tangent)[None], V, F)
+            found = igl.point_mesh_squared_distance((point + step * tangent)[None], V, F)
+            faces, closest = np.asarray(found[1]), np.asarray(found[2])
             direction = closest[0] - point  # keep going the same way over the curved surface
             point, normal = closest[0], _frame(V, F, faces[0])[1]
         scalpels.append([point + depth * normal, point - depth * normal])
@@ -105,6 +107,7 @@ def posed(model, t: float):
     """(local matrices, joint matrices, LBS positions) of ``model``'s clip at time t: a tool is then
     given in that pose's world space."""
     local = deform.sample_pose(model, t, "lbs")
+    assert not isinstance(local, cga.Multivector)  # the matrix methods' pose
     joints = deform.joint_matrices(model.mesh, deform.forward_kinematics_matrices(model.skeleton.parents, local))
     return local, joints, np.asarray(deform.skin_pose(model, local, "lbs"))
 
@@ -233,7 +236,7 @@ def piece_quality(V, F, V_out, F_out, ids):
     thin = np.flatnonzero(smallest < MIN_ANGLE)
     if len(thin):
         centroids = V_out[new[thin]].mean(axis=1)
-        _, parents, _ = igl.point_mesh_squared_distance(centroids, V, F)
+        parents = np.asarray(igl.point_mesh_squared_distance(centroids, V, F)[1])
         inherited = angles(V, F[parents]).min(axis=1) < MIN_ANGLE
         if not inherited.all():
             problems.append(f"face with an angle of {smallest[thin][~inherited].min():.3g} rad")
@@ -413,7 +416,7 @@ def drill_through_limb(V, F, rng, *, radius=(0.05, 0.3), tries: int = 100):
             continue
         s = np.concatenate([s, [1.0]]) * scale
         between = point - 0.5 * (np.concatenate([[0.0], s[:-1]]) + s)[:, None] * normal
-        winding = igl.fast_winding_number(V, F, np.vstack([outer, between]))
+        winding = np.asarray(igl.fast_winding_number(V, F, np.vstack([outer, between])))
         if winding[0] > 0.5:  # not on the outer skin
             continue
         out = np.flatnonzero(winding[2:] < 0.5)  # the first gap outside every layer after a crossing
@@ -493,7 +496,8 @@ def character_pose(model, seed: int = 0) -> np.ndarray:
         local = np.asarray(deform.sample_pose(model, times.min() + 0.4 * np.ptp(times), "lbs"))
     else:
         local = np.array(deform.local_matrices(model.skeleton))
-        turn = Rotation.random(len(local), random_state=seed).as_rotvec()
+        # the legacy keyword keeps the seeded stream (scipy's signature names only rng)
+        turn = Rotation.random(len(local), random_state=seed).as_rotvec()  # pyright: ignore[reportCallIssue]
         turn *= np.radians(25.0) / np.pi  # rotation vectors of length <= pi scaled to <= 25 degrees
         local[:, :3, :3] = local[:, :3, :3] @ Rotation.from_rotvec(turn).as_matrix()
     return np.asarray(
@@ -519,6 +523,7 @@ class CharacterTools:
         from tests.shared import connected_parts
 
         self.model = model
+        self.worst_rim = 0.0  # the largest distance of a drill's new point from its cylinder, over the diagonal
         self.V, self.F = np.asarray(model.mesh.V, np.float64), np.asarray(model.mesh.F)
         self.diagonal = diagonal(self.V)
         self.areas = area(self.V, self.F)

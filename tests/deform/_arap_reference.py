@@ -14,7 +14,7 @@ def libigl_rotation_blocks(V, F, energy):
     """libigl's ``arap_linear_block`` as triplets (row, rotation, vector): the global step's right-hand side
     is ``rhs[row] += R[rotation] @ vector`` and the covariance ``S[rotation] += vector x[row]^T``. Transcribed
     from libigl's arap_linear_block_spokes / _spokes_and_rims loops, vectorized over faces."""
-    C = igl.cotmatrix_entries(V, F)
+    C = np.asarray(igl.cotmatrix_entries(V, F))
     rows, rotations, vectors = [], [], []
 
     def add(row, rotation, vector):
@@ -60,7 +60,7 @@ def libigl_arap_in_numpy(V, F, b, bc, U0, iterations, single_precision, energy="
         np.add.at(S, rotation, vector[:, :, None] * x[row][:, None, :])
         # arap_solve scales S into [-1, 1] first, for its single-precision SVD
         S /= np.abs(S).max()
-        R = igl.fit_rotations(S.transpose(1, 0, 2).reshape(3 * n, 3), single_precision)
+        R = np.asarray(igl.fit_rotations(S.transpose(1, 0, 2).reshape(3 * n, 3), single_precision))
         R = R.reshape(3, n, 3).transpose(1, 0, 2)
         rhs = np.zeros((n, 3))
         np.add.at(rhs, row, np.einsum("nkl,nl->nk", R[rotation], vector))

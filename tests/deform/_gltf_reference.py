@@ -6,8 +6,9 @@ node that is a joint of a used skin, or below one, is drawn rigidly with its nod
 from __future__ import annotations
 
 import numpy as np
-import pygltflib
 from scipy.spatial.transform import Rotation, Slerp
+
+from tests.shared import read_gltf
 
 _COMPONENTS = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 5125: np.uint32, 5126: np.float32}
 _WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT4": 16}
@@ -15,8 +16,11 @@ _WIDTH = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT4": 16}
 
 class Reference:
     def __init__(self, path):
-        self.gltf = pygltflib.GLTF2().load(str(path))
-        self.blob = self.gltf.binary_blob()
+        self.gltf = read_gltf(path)
+        blob = self.gltf.binary_blob()
+        if blob is None:
+            raise ValueError(f"path: {path} has no binary buffer; the reference reads .glb files")
+        self.blob: bytes = blob
 
     def accessor(self, index):
         acc = self.gltf.accessors[index]
@@ -89,16 +93,19 @@ class Reference:
         overrides = self.sample(animation, t) if animation is not None else None
         g = self.globals(overrides)
         skin = self.gltf.skins[skin]
+        joints = skin.joints or []
         if skin.inverseBindMatrices is None:  # the specification: identity matrices
-            ibm = np.broadcast_to(np.eye(4), (len(skin.joints), 4, 4))
+            ibm = np.broadcast_to(np.eye(4), (len(joints), 4, 4))
         else:
             ibm = self.accessor(skin.inverseBindMatrices).reshape(-1, 4, 4).transpose(0, 2, 1)
-        return np.stack([g[j] @ ibm[k] for k, j in enumerate(skin.joints)])
+        return np.stack([g[j] @ ibm[k] for k, j in enumerate(joints)])
 
     def rigid_nodes(self):
         """Nodes with a mesh and no skin that are, or descend from, a joint of a skin some mesh node uses."""
         nodes = self.gltf.nodes
-        joints = {j for n in nodes if n.mesh is not None and n.skin is not None for j in self.gltf.skins[n.skin].joints}
+        joints = {
+            j for n in nodes if n.mesh is not None and n.skin is not None for j in self.gltf.skins[n.skin].joints or []
+        }
         parent = {c: p for p, n in enumerate(nodes) for c in (n.children or [])}
         out = set()
         for i, n in enumerate(nodes):

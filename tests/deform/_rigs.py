@@ -18,7 +18,11 @@ def random_model(seed=0, parents=(-1, 0, 1, 1, 3), n=40, influences=4, rest_scal
     """A random rig: rest TRS with (optionally) uniform scales, random weights over the joints."""
     rng = np.random.default_rng(seed)
     b = len(parents)
-    scale = np.ones((b, 3)) if rest_scale is None else np.repeat(rng.uniform(*rest_scale, (b, 1)), 3, axis=1)
+    scale = (
+        np.ones((b, 3))
+        if rest_scale is None
+        else np.repeat(rng.uniform(rest_scale[0], rest_scale[1], (b, 1)), 3, axis=1)
+    )
     skeleton = deform.Skeleton(
         jnp.asarray(rng.normal(size=(b, 3))),
         jnp.asarray(unit_quaternions(rng, b)),
@@ -42,7 +46,7 @@ def random_model(seed=0, parents=(-1, 0, 1, 1, 3), n=40, influences=4, rest_scal
 def random_pose(seed, b, scale_range=None):
     """Random local similitudes, batch (b,)."""
     rng = np.random.default_rng(seed)
-    scale = np.ones(b) if scale_range is None else rng.uniform(*scale_range, b)
+    scale = np.ones(b) if scale_range is None else rng.uniform(scale_range[0], scale_range[1], b)
     q = unit_quaternions(rng, b)
     return cga.similitude(
         cga.quaternion_to_rotor(jnp.asarray(q)), jnp.asarray(rng.normal(size=(b, 3))), jnp.asarray(scale)

@@ -117,7 +117,7 @@ def test_frame_times_and_clip_choice(crowd):
     with pytest.raises(ValueError, match="clip: model 0 .* has 1 clips, no clip 3"):
         packed.clip_indices(3)
     with pytest.raises(ValueError, match="clip: expected one clip or 5"):
-        packed.clip_indices([0, 0])
+        packed.clip_indices([0, 0])  # pyright: ignore[reportArgumentType]
     with pytest.raises(ValueError, match="frames: expected an int >= 1"):
         packed.frame_times(0)
 
@@ -165,7 +165,7 @@ def test_bad_input_names_the_argument(crowd):
     with pytest.raises(ValueError, match="models: expected at least one"):
         deform.pack_models([])
     with pytest.raises(ValueError, match="models: item 1 is a str"):
-        deform.pack_models([crowd[1], "model.glb"])
+        deform.pack_models([crowd[1], "model.glb"])  # pyright: ignore[reportArgumentType]
     single = deform.RiggedModel(
         jax.tree.map(lambda x: x.astype(jnp.float32) if x.dtype == jnp.float64 else x, crowd[3].mesh),
         crowd[3].skeleton,

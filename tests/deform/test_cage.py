@@ -227,7 +227,7 @@ def test_tube_cage_is_closed_encloses_the_mesh_and_follows_the_axis():
     mesh = trimesh.Trimesh(cage_V, cage_F, process=False)
     assert mesh.is_watertight and mesh.is_winding_consistent and mesh.volume > 0
     assert cage_V.shape == (5 * 6 + 2, 3)
-    assert np.all(igl.winding_number(cage_V, cage_F, ARM_V) > 0.5)
+    assert np.all(np.asarray(igl.winding_number(cage_V, cage_F, ARM_V)) > 0.5)
     along_z, _ = tube_cage(ARM_V[:, [1, 2, 0]], axis=2)  # the same mesh turned: the rings follow z
     np.testing.assert_allclose(
         np.sort(np.unique(along_z[:, 2].round(12))),

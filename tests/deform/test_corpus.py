@@ -110,9 +110,11 @@ def test_the_part_measures_on_a_synthetic_scene():
     small = trimesh.creation.box(extents=(0.5, 0.5, 0.5))
     far = trimesh.creation.box(extents=(0.5, 0.5, 0.5)).apply_translation((6, 0, 0))
     diagonal = np.linalg.norm([6.25 + 1, 2, 2])  # the scene's box: x in [-1, 6.25], y and z in [-1, 1]
-    sheet = trimesh.creation.box(extents=(1.5, 1.5, 1e-3)).apply_translation((0, 0, 1 + 0.005 * diagonal))
-    sheet = trimesh.Trimesh(*trimesh.remesh.subdivide_to_size(sheet.vertices, sheet.faces, max_edge=0.3))
+    sheet = trimesh.creation.box(extents=(1.5, 1.5, 1e-3)).apply_translation((0, 0, float(1 + 0.005 * diagonal)))
+    subdivided = trimesh.remesh.subdivide_to_size(sheet.vertices, sheet.faces, max_edge=0.3)
+    sheet = trimesh.Trimesh(subdivided[0], subdivided[1])
     scene = trimesh.util.concatenate([big, small, far, sheet])
+    assert isinstance(scene, trimesh.Trimesh)
     V, F = np.asarray(scene.vertices), np.asarray(scene.faces)
     parts = connected_parts(F, len(V))
     assert sorted(map(len, parts)) == [8, 8, 8, len(sheet.vertices)]
@@ -138,7 +140,7 @@ def test_every_character_skins_as_the_specification(name):
     """LBS and eq. (17) of the unwelded model equal the independent reference's skinning (the specification's
     sampling, kinematics and blend) at a time inside the first clip, or in the rest pose without one; the welded
     model skins to finite positions, each one of the unwelded positions."""
-    from scipy.spatial import cKDTree
+    from scipy.spatial import KDTree
 
     model = load_character(name, weld=False)
     reference = Reference(CHARACTERS[name])
@@ -156,7 +158,7 @@ def test_every_character_skins_as_the_specification(name):
     np.testing.assert_allclose(skin(model, "cga"), expected, atol=5e-6 * scale)
     welded = skin(load_character(name), "cga")
     assert np.isfinite(welded).all()
-    distance, _ = cKDTree(skin(model, "cga")).query(welded)
+    distance, _ = KDTree(skin(model, "cga")).query(welded)
     assert distance.max() <= 1e-9 * scale
 
 

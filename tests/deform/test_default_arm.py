@@ -94,7 +94,7 @@ def test_mesh_is_closed_oriented_manifold(kwargs):
     # no self-intersection: just inside every face the winding number is 1, just outside 0
     centres, normals = tm.triangles_center, tm.face_normals
     for side, expected in ((-1e-4, 1.0), (1e-4, 0.0)):
-        w = igl.winding_number(V, F.astype(np.int64), centres + side * normals)
+        w = np.asarray(igl.winding_number(V, F.astype(np.int64), centres + side * normals))
         np.testing.assert_allclose(w, expected, atol=0.02)
     assert mesh.primitive_sizes == ((len(V), len(F)),)
 
@@ -111,7 +111,7 @@ def test_default_sizes_and_shape(arm):
     extent = V.max(0) - V.min(0)
     assert 0.75 < extent[0] < 0.95 and extent[1] < 0.11
     tm = trimesh.Trimesh(V, np.asarray(mesh.F), process=False)
-    inside = igl.winding_number(V, np.asarray(mesh.F, np.int64), _heads(arm))
+    inside = np.asarray(igl.winding_number(V, np.asarray(mesh.F, np.int64), _heads(arm)))
     np.testing.assert_allclose(inside, 1.0, atol=1e-6)  # every joint lies inside the skin
     assert 0.002 < tm.volume < 0.006  # litres of a human arm
 

@@ -49,7 +49,7 @@ def _arm():
 def _box():
     """A closed 4 x 1 x 1 box, subdivided to edges <= 0.1 (9730 vertices)."""
     box = trimesh.creation.box(extents=(4.0, 1.0, 1.0))
-    V, F = trimesh.remesh.subdivide_to_size(box.vertices, box.faces, 0.1)
+    V, F = trimesh.remesh.subdivide_to_size(box.vertices, box.faces, 0.1)[:2]
     return np.asarray(V, np.float64), np.asarray(F, np.int64)
 
 

@@ -159,15 +159,15 @@ def test_bad_input():
     with pytest.raises(ValueError, match="key_motors"):
         motor_field_solve(FIELD, identity_motors(2))
     with pytest.raises(ValueError, match="targets"):
-        fit_key_motors(FIELD, V[:3], [0, 1])
+        fit_key_motors(FIELD, V[:3], [0, 1])  # pyright: ignore[reportArgumentType]
     with pytest.raises(ValueError, match="free"):
-        fit_key_motors(FIELD, V, free=[3])
+        fit_key_motors(FIELD, V, free=[3])  # pyright: ignore[reportArgumentType]
     with pytest.raises(ValueError, match="field"):
-        fit_key_motors("field", V)
+        fit_key_motors("field", V)  # pyright: ignore[reportArgumentType]
     with pytest.raises(ValueError, match="weights"):
         motor_field_precompute(V, np.ones((len(V) - 1, 3)))
     with pytest.raises(ValueError, match="field"):
-        motor_field_solve(FIELD.weights, identity_motors(3))
+        motor_field_solve(FIELD.weights, identity_motors(3))  # pyright: ignore[reportArgumentType]
 
 
 def test_a_key_motor_without_a_norm_raises_eagerly_and_under_jit():

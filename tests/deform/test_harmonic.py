@@ -43,7 +43,7 @@ def test_cotangent_fields_equal_igl_harmonic(name):
         handles = [np.flatnonzero(y < 2.0), np.flatnonzero(y > 70.0), np.flatnonzero(np.abs(y - 39.0) < 0.5)]
     fields = np.asarray(deform.harmonic_fields(V, F, handles))
     b, bc = _one_hot(handles)
-    np.testing.assert_allclose(fields, igl.harmonic(V, F, b, bc, 1), atol=1e-8)
+    np.testing.assert_allclose(fields, np.asarray(igl.harmonic(V, F, b, bc, 1)), atol=1e-8)
     np.testing.assert_allclose(fields.sum(axis=1), 1.0, atol=1e-10)
     for h, part in enumerate(handles):
         np.testing.assert_array_equal(fields[part, h], 1.0)
@@ -117,7 +117,7 @@ def test_bad_input():
     with pytest.raises(ValueError, match="disjoint"):
         deform.harmonic_fields(V, F, [handles[0], handles[0][:3]])
     with pytest.raises(ValueError, match="at least one vertex"):
-        deform.harmonic_fields(V, F, [handles[0], []])
+        deform.harmonic_fields(V, F, [handles[0], []])  # pyright: ignore[reportArgumentType]
     with pytest.raises(ValueError, match="lie in"):
         deform.harmonic_precompute(V, F, np.array([0, len(V)]))
     with pytest.raises(ValueError, match="bc: expected shape"):

@@ -152,6 +152,7 @@ def test_same_rigid_motion_on_every_bone_of_cesium_man(models, method):
     model = models["CesiumMan"]
     rigid = cga.motor(cga.rotor(jnp.array([0.2, 1.0, -0.4]), 1.3), jnp.array([0.5, -0.2, 1.0]))
     local = deform.sample_pose(model, 0.8, "cga")
+    assert isinstance(local, cga.Multivector)  # the multivector methods' pose
     roots = jnp.asarray([p < 0 for p in model.skeleton.parents])[:, None]
     moved = cga.Multivector(jnp.where(roots, (rigid * local).embed(local.blades).values, local.values), local.blades)
     before = deform.skin_pose(model, local, method)

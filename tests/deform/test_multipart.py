@@ -278,9 +278,11 @@ def test_corpus_characters_of_many_parts(name):
     assert parts.count > 10 and (~parts.handled).sum() > 5
     diag = np.linalg.norm(np.ptp(V, axis=0))
     data = arap_precompute(V, F, b)
-    np.testing.assert_allclose(np.asarray(arap_solve(data, jnp.asarray(_moved(V[b]))).U), _moved(V), atol=1e-9 * diag)
+    np.testing.assert_allclose(
+        np.asarray(arap_solve(data, jnp.asarray(_moved(V[b]))).U), _moved(V), atol=float(1e-9 * diag)
+    )
     field = handles_precompute(V, F, handles)
-    np.testing.assert_allclose(np.asarray(motor_field_solve(field, _same_motor(2))), _moved(V), atol=1e-9 * diag)
+    np.testing.assert_allclose(np.asarray(motor_field_solve(field, _same_motor(2))), _moved(V), atol=float(1e-9 * diag))
     bent = motor_about(jnp.asarray(V.mean(0)), cga.rotor(jnp.asarray([0.0, 0.0, 1.0]), 1.0), jnp.zeros(3))
     bc = jnp.asarray(np.concatenate([V[handles[0]], _moved(V[handles[1]], bent)]))
     assert np.all(np.isfinite(np.asarray(arap_solve(data, bc).U)))

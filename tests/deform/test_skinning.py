@@ -44,7 +44,7 @@ def test_joint_versors_take_precomputed_inverse_bind_versors():
     with pytest.raises(ValueError, match="inverse_bind: expected versors with batch shape"):
         deform.joint_versors(MESH, global_versors, inverse_bind[:-1])
     with pytest.raises(ValueError, match="inverse_bind: expected versors"):
-        deform.joint_versors(MESH, global_versors, MESH.inverse_bind)
+        deform.joint_versors(MESH, global_versors, MESH.inverse_bind)  # pyright: ignore[reportArgumentType]
 
 
 @pytest.mark.parametrize("method", deform.METHODS)
@@ -288,7 +288,7 @@ def test_bad_input_is_named():
     with pytest.raises(ValueError, match="joint_matrices"):
         deform.skin_lbs(V, J, W, jnp.zeros((3, 3)))
     with pytest.raises(ValueError, match="joint_versors"):
-        deform.skin_cga(V, J, W, jnp.zeros((3, 16)))
+        deform.skin_cga(V, J, W, jnp.zeros((3, 16)))  # pyright: ignore[reportArgumentType]
     with pytest.raises(ValueError, match="joint_dual_quaternions"):
         deform.skin_dqs(V, J, W, jnp.zeros((3, 7)))
     with pytest.raises(ValueError, match="method"):

@@ -124,7 +124,7 @@ def test_parameter_is_linear_along_the_tube():
     with pytest.raises(ValueError, match="disjoint"):
         spline_parameter(V, F, START, START[:3])
     with pytest.raises(ValueError, match="start, end"):
-        spline_parameter(V, F, [], END)
+        spline_parameter(V, F, [], END)  # pyright: ignore[reportArgumentType]
 
 
 @pytest.mark.parametrize(
@@ -271,4 +271,4 @@ def test_fit_bad_input():
     with pytest.raises(ValueError, match="Q"):
         spline_fit_solve(fit, Multivector(jnp.zeros((8, 5)), KINDS["vector"]))
     with pytest.raises(ValueError, match="data"):
-        spline_fit_solve(fit.A, identity_motors(8))
+        spline_fit_solve(fit.A, identity_motors(8))  # pyright: ignore[reportArgumentType]

@@ -27,7 +27,7 @@ def _a(x):
 
 def _problem(rng, n=N, batch=()):
     src = rng.normal(size=batch + (n, 3)) * 2
-    rots = Rotation.random(int(np.prod(batch)) if batch else None, random_state=rng)
+    rots = Rotation.random(int(np.prod(batch)) if batch else None, rng=rng)
     t = rng.normal(size=batch + (3,)) * 3
     mats = rots.as_matrix().reshape(batch + (3, 3))
     tgt = np.einsum("...ij,...nj->...ni", mats, src) + t[..., None, :]

@@ -125,7 +125,7 @@ def test_blend_log_same_axis_rotations_match_slerp():
 @given(seeds)
 def test_blend_log_general_rotations_match_slerp(seed):
     rng = np.random.default_rng(seed)
-    r1, r2 = Rotation.random(2, random_state=rng)
+    r1, r2 = Rotation.random(2, rng=rng)
     q1, q2 = r1.as_quat(scalar_first=True), r2.as_quat(scalar_first=True)
     if q1 @ q2 < 0:  # Slerp takes the short way; so does blend_log when the rotors are in one hemisphere
         q2 = -q2
@@ -175,9 +175,9 @@ def test_blend_log_similitudes():
 def test_blend_rejects_non_multivectors_and_bad_batches():
     m = Multivector(np.r_[1.0, np.zeros(7)], "motor")
     with pytest.raises(ValueError):
-        cga.blend_log(m, np.zeros(8), 0.5)
+        cga.blend_log(m, np.zeros(8), 0.5)  # pyright: ignore[reportArgumentType]
     with pytest.raises(ValueError):
-        cga.blend_linear(np.zeros(8), m, 0.5)
+        cga.blend_linear(np.zeros(8), m, 0.5)  # pyright: ignore[reportArgumentType]
     mb3 = Multivector(np.tile(_a(m.values), (3, 1)), "motor")
     mb4 = Multivector(np.tile(_a(m.values), (4, 1)), "motor")
     with pytest.raises(ValueError):

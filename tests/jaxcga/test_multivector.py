@@ -86,12 +86,12 @@ def test_non_broadcasting_sandwich_names_v_and_x():
     v = Multivector(jnp.ones((4, 8)), "motor")
     x = Multivector(jnp.zeros((3, 5)), "vector")
     with pytest.raises(ValueError, match=r"v and x: batch shapes \(4,\) and \(3,\) do not broadcast"):
-        v >> x
+        _ = v >> x
 
 
 def test_sandwich_rejects_non_multivectors():
     with pytest.raises(ValueError, match="sandwich: v and x must be Multivectors"):
-        jaxcga.sandwich(Multivector(jnp.ones(8), "motor"), jnp.zeros(5))
+        jaxcga.sandwich(Multivector(jnp.ones(8), "motor"), jnp.zeros(5))  # pyright: ignore[reportArgumentType]
 
 
 # ---------------------------------------------------------------- non-finite input
@@ -133,7 +133,7 @@ def test_inverse_of_singular_multivector_raises(blades, values):
 def test_division_by_singular_multivector_raises():
     X = jaxcga.up(jnp.array([1.0, 2.0, 0.5]))  # a conformal point is a null vector
     with pytest.raises(ValueError, match="inverse: multivector is not invertible"):
-        Multivector(jnp.ones(1), ("1",)) / X
+        _ = Multivector(jnp.ones(1), ("1",)) / X
 
 
 def test_inverse_of_singular_multivector_raises_under_jit():
@@ -239,7 +239,7 @@ def test_mixed_precision_is_rejected_under_strict_promotion():
     a = Multivector(jnp.ones(5, jnp.float32), "vector")
     b = Multivector(jnp.ones(5, jnp.float64), "vector")
     with pytest.raises(Exception, match="promotion"):
-        a * b
+        _ = a * b
 
 
 def test_float32_dilator_and_similitude():

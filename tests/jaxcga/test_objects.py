@@ -60,7 +60,7 @@ def assert_proportional(u, v, tol=1e-12):
     assert np.linalg.norm(v) > 0 and np.linalg.norm(u) > 0
     k = (u @ v) / (v @ v)
     assert abs(k) > 1e-12
-    np.testing.assert_allclose(u, k * v, atol=tol * np.linalg.norm(u))
+    np.testing.assert_allclose(u, k * v, atol=tol * float(np.linalg.norm(u)))
 
 
 def assert_same_up_to_sign(u, v, atol):

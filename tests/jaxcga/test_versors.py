@@ -332,7 +332,7 @@ def test_apply_to_points_rejects_bad_input():
     with pytest.raises(ValueError):
         cga.apply_to_points(M, np.zeros((4, 2)))
     with pytest.raises(ValueError):
-        cga.apply_to_points(np.eye(4), np.zeros((4, 3)))
+        cga.apply_to_points(np.eye(4), np.zeros((4, 3)))  # pyright: ignore[reportArgumentType]
     Mb = cga.Multivector(np.tile(_a(M.values), (3, 1)), M.blades)
     with pytest.raises(ValueError):
         cga.apply_to_points(Mb, np.zeros((4, 3)))  # batch shapes (3,) and (4,) do not broadcast
@@ -373,7 +373,7 @@ def _rigid(rotation_matrix, t):
 @given(seeds)
 def test_matrix_to_motor_round_trip(seed):
     rng = np.random.default_rng(seed)
-    Rm = Rotation.random(random_state=rng).as_matrix()
+    Rm = Rotation.random(rng=rng).as_matrix()
     t = rng.normal(size=3) * 4
     H = _rigid(Rm, t)
     M, H2, x2, q = _matrix_round_trip(H, np.zeros((2, 3)))
@@ -422,7 +422,8 @@ def test_matrix_to_motor_near_pi(angle, axis_index):
 
 
 def test_matrix_to_quaternion_batched():
-    rots = Rotation.random(6, random_state=4)
+    # the legacy keyword keeps the seeded stream (scipy's signature names only rng)
+    rots = Rotation.random(6, random_state=4)  # pyright: ignore[reportCallIssue]
     q = _a(cga.matrix_to_quaternion(rots.as_matrix()))
     qs = rots.as_quat(scalar_first=True)
     qs = qs * np.where(qs[:, :1] < 0, -1.0, 1.0)

@@ -13,7 +13,8 @@ from _jaxcga_shared.sparse import host_pcg
 
 def _stiffness_like(m: int, shift: float = 0.05) -> sp.csr_matrix:
     """A grid Laplacian of m^3 nodes plus a mass-like diagonal, 3 DOFs per node (the shape of M + h^2 K)."""
-    D = sp.diags([-1.0, 2.0, -1.0], [-1, 0, 1], shape=(m, m))
+    # scipy is unannotated: pyright takes the type of offsets from its default, 0
+    D = sp.diags([-1.0, 2.0, -1.0], [-1, 0, 1], shape=(m, m))  # pyright: ignore[reportArgumentType]
     eye = sp.identity(m)
     L = sp.kron(sp.kron(D, eye), eye) + sp.kron(sp.kron(eye, D), eye) + sp.kron(sp.kron(eye, eye), D)
     rng = np.random.default_rng(m)
@@ -44,7 +45,7 @@ def _numpy_pcg(A: sp.csr_matrix, b: np.ndarray, rtol: float) -> np.ndarray:
 @pytest.mark.parametrize("m", [2, 5, 9])
 def test_pcg_solves_to_its_tolerance_and_matches_the_numpy_loop(m):
     A = _stiffness_like(m)
-    b = np.random.default_rng(1).normal(size=A.shape[0])
+    b = np.random.default_rng(1).normal(size=A.get_shape()[0])
     exact = np.linalg.solve(A.toarray(), b)
     tight = jacobi_pcg(A.data, A.indptr, A.indices, 1 / A.diagonal(), b, 1e-13)
     np.testing.assert_allclose(tight, exact, rtol=1e-9, atol=1e-12)
@@ -57,10 +58,10 @@ def test_pcg_solves_to_its_tolerance_and_matches_the_numpy_loop(m):
 
 def test_pcg_edge_cases_and_the_host_callback_wrapper():
     A = _stiffness_like(3)
-    zero = jacobi_pcg(A.data, A.indptr, A.indices, 1 / A.diagonal(), np.zeros(A.shape[0]), 1e-4)
-    assert np.array_equal(zero, np.zeros(A.shape[0]))
+    zero = jacobi_pcg(A.data, A.indptr, A.indices, 1 / A.diagonal(), np.zeros(A.get_shape()[0]), 1e-4)
+    assert np.array_equal(zero, np.zeros(A.get_shape()[0]))
     # host_pcg: padded CSR slots past indptr[-1] are ignored, float32 in gives float32 out
-    b = np.random.default_rng(2).normal(size=A.shape[0])
+    b = np.random.default_rng(2).normal(size=A.get_shape()[0])
     padded = np.concatenate([A.data, np.full(7, 1e30)])
     indices = np.concatenate([A.indices, np.zeros(7, A.indices.dtype)])
     x = host_pcg(padded, b, 1e-6, A.indptr, indices)
@@ -74,7 +75,7 @@ def test_pcg_runs_without_the_gil():
     ticker would run only around the call, a switch interval (5 ms) at most."""
     assert _pcg.targetoptions["nogil"]
     A = _stiffness_like(24, shift=1e-4)  # ~41k unknowns, hundreds of iterations
-    b = np.random.default_rng(3).normal(size=A.shape[0])
+    b = np.random.default_rng(3).normal(size=A.get_shape()[0])
     args = (A.data, A.indptr, A.indices, 1 / A.diagonal(), b, 1e-12)
     jacobi_pcg(*args)  # compiled (or loaded from numba's cache) before the timed part
     ticks = [0]

@@ -117,7 +117,7 @@ def test_block_jacobi_pcg_solves_an_fem_system_like_cholmod_and_the_host_cg():
     pattern = system.pattern
     data = system.mass_data + H**2 * assemble_matrix(pattern, jnp.asarray(K))
     A = to_scipy(pattern, data)
-    b = np.random.default_rng(4).normal(size=A.shape[0])
+    b = np.random.default_rng(4).normal(size=A.get_shape()[0])
     exact = host_direct(np.asarray(data), b, np.asarray(pattern.indptr), np.asarray(pattern.indices))
     solve = jax.jit(lambda d, r, rtol: checked_device_pcg(pattern.csr, d, r, rtol))
     tight = np.asarray(solve(data, jnp.asarray(b), 1e-11))
@@ -158,7 +158,8 @@ def test_fem_newton_step_and_xfem_gradient_on_the_device_path_equal_the_host_pat
 
 @pytest.mark.slow  # 10-38 s on 2 cores: the fast suite's 10-minute budget
 def test_gradient_and_vmap_through_the_device_path():
-    A = sp.csr_matrix(sp.diags([-1.0, 2.2, -1.0], [-1, 0, 1], shape=(30, 30)))
+    # scipy is unannotated: pyright takes the type of offsets from its default, 0
+    A = sp.csr_matrix(sp.diags([-1.0, 2.2, -1.0], [-1, 0, 1], shape=(30, 30)))  # pyright: ignore[reportArgumentType]
     solver = SparseSolver(A, symmetric=True)
     probe = jnp.asarray(np.random.default_rng(0).normal(size=30))
     b = jnp.asarray(np.random.default_rng(1).uniform(size=30))
@@ -208,7 +209,8 @@ def test_singular_indefinite_and_unconverged_systems_are_reported():
     assert bool(info.breakdown) and not bool(info.converged)
 
     # an SPD system stopped after 2 iterations: reported, not silent
-    A = sp.csr_matrix(sp.diags([-1.0, 2.01, -1.0], [-1, 0, 1], shape=(50, 50)))
+    # scipy is unannotated: pyright takes the type of offsets from its default, 0
+    A = sp.csr_matrix(sp.diags([-1.0, 2.01, -1.0], [-1, 0, 1], shape=(50, 50)))  # pyright: ignore[reportArgumentType]
     pattern = csr_pattern(A.indptr, A.indices)
     with _device_path():
         with pytest.raises(
@@ -233,12 +235,12 @@ def test_small_systems_are_factorized_densely_off_the_cpu():
     indices = np.concatenate([A.indices, np.zeros(padding, A.indices.dtype)])
     data = jnp.asarray(np.concatenate([A.data, np.full(padding, 5.0)]))
     pattern = csr_pattern(A.indptr, indices, block=3)
-    b = np.random.default_rng(12).normal(size=A.shape[0])
+    b = np.random.default_rng(12).normal(size=A.get_shape()[0])
     exact = np.linalg.solve(A.toarray(), b)
     with _device_path() as host_calls:
-        dense = np.asarray(jax.jit(lambda d, r: spd_solve(pattern, d, r, 1e-4, dense_up_to=A.shape[0]))(data, b))
+        dense = np.asarray(jax.jit(lambda d, r: spd_solve(pattern, d, r, 1e-4, dense_up_to=A.get_shape()[0]))(data, b))
         iterative = np.asarray(
-            jax.jit(lambda d, r: spd_solve(pattern, d, r, 1e-4, dense_up_to=A.shape[0] - 1))(data, b)
+            jax.jit(lambda d, r: spd_solve(pattern, d, r, 1e-4, dense_up_to=A.get_shape()[0] - 1))(data, b)
         )
     assert host_calls == []
     np.testing.assert_allclose(dense, exact, rtol=0, atol=1e-12 * np.abs(exact).max())
@@ -257,14 +259,14 @@ def test_small_systems_are_factorized_densely_off_the_cpu():
     np.testing.assert_allclose(np.asarray(fallback), np.linalg.solve(indefinite.toarray(), rhs), rtol=1e-12)
     for bad in (-1, 2.5):
         with pytest.raises(ValueError, match="dense_up_to: expected an int >= 0"):
-            spd_solve(pattern, data, rhs, 1e-10, dense_up_to=bad)
+            spd_solve(pattern, data, rhs, 1e-10, dense_up_to=bad)  # pyright: ignore[reportArgumentType]
 
 
 def _node_block_matrix(seed: int, nodes: int = 9, block: int = 3) -> sp.csr_matrix:
     """A symmetric positive definite matrix of full ``block`` x ``block`` blocks on a random node graph, with
     rows of different lengths (an FEM system's structure)."""
     rng = np.random.default_rng(seed)
-    graph = sp.random(nodes, nodes, density=0.3, random_state=rng)
+    graph = sp.random(nodes, nodes, density=0.3, rng=rng)
     graph = ((graph + graph.T + sp.identity(nodes)) != 0).astype(float)
     values = sp.kron(graph, np.ones((block, block))).tocsr()
     values.data = rng.normal(size=values.nnz)
@@ -287,14 +289,14 @@ def test_block_matvec_multiplies_like_scipy_and_the_device_cg_like_the_entry_one
     assert blocks.full_blocks and not entries.full_blocks and entries.blocks is None
     # the layout found once: scipy's block rows and columns, then the padding's two blocks (dropped rows)
     bsr = A.tobsr(blocksize=(3, 3))
-    nodes = A.shape[0] // 3
+    nodes = A.get_shape()[0] // 3
     layout = jax.tree.map(np.asarray, blocks.blocks)
     np.testing.assert_array_equal(layout.rows, np.r_[np.repeat(np.arange(nodes), np.diff(bsr.indptr)), nodes, nodes])
     np.testing.assert_array_equal(layout.columns[: len(bsr.indices)], bsr.indices)
     for k in range(len(bsr.indices)):
         entries_of_block = layout.starts[k] + layout.strides[k] * np.arange(3)[:, None] + np.arange(3)
         np.testing.assert_array_equal(np.asarray(data)[entries_of_block], bsr.data[k])
-    x = np.random.default_rng(9).normal(size=(A.shape[0], 2))
+    x = np.random.default_rng(9).normal(size=(A.get_shape()[0], 2))
     for v in (x, x[:, 0]):
         np.testing.assert_allclose(jax.jit(sparse.matvec(blocks, data))(jnp.asarray(v)), A @ v, rtol=1e-13, atol=1e-13)
     b = jnp.asarray(x[:, 0])
@@ -311,14 +313,14 @@ def test_cg_checking_every_few_iterations_takes_the_same_iterates(case):
     ``PCGInfo`` are bitwise those of a check after every iteration."""
     A = _node_block_matrix(11)
     rtol, limit, x0 = 1e-12, 500, None
-    b = np.random.default_rng(12).normal(size=(A.shape[0], 2))
+    b = np.random.default_rng(12).normal(size=(A.get_shape()[0], 2))
     if case == "stopped at the limit":
         limit = 6
     if case == "indefinite":
         A = sp.csr_matrix(np.array([[1.0, 2.0, 0.0], [2.0, 1.0, 0.0], [0.0, 0.0, 3.0]]))
         b = np.array([[1.0, -2.0, 3.0], [0.5, 1.0, 1.0]]).T
     if case == "indefinite later":  # positive diagonal, negative curvature found after a few iterations
-        A = sp.csr_matrix(sp.diags([1.0] * 8 + [-0.5], 0) + sp.diags([0.3, 0.3], [-1, 1], shape=(9, 9)))
+        A = sp.csr_matrix(sp.diags([1.0] * 8 + [-0.5], 0) + sp.diags([0.3, 0.3], [-1, 1], shape=(9, 9)))  # pyright: ignore[reportArgumentType]
         b = np.ones((9, 2))
     b = b if case in ("two columns", "from a guess") else b[:, 0]
     if case == "from a guess":
@@ -390,7 +392,7 @@ def test_the_v_cycle_is_symmetric_positive_definite_and_cuts_cg_iterations(smoot
 
 def test_ell_matrices_multiply_like_scipy():
     """Rectangular, with empty rows and rows of different lengths; vectors and blocks of columns."""
-    M = sp.random(30, 17, density=0.15, random_state=np.random.default_rng(6), format="lil")
+    M = sp.random(30, 17, density=0.15, rng=np.random.default_rng(6), format="lil")
     M[3] = 0
     M = M.tocsr()
     M_ell = ell.ell_matrix(M)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import re
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import jax
@@ -310,7 +311,7 @@ def test_playing_advances_time_and_loops(browser, tmp_path):
     assert state["fps"] > 0 and state["rendered"] > 1
 
 
-def _corrupt(html: str, block: int, text: str) -> str:
+def _corrupt(html: str, block: int, text: Callable[[str], str]) -> str:
     start = html.index(f'id="jaxcga-block-{block}">') + len(f'id="jaxcga-block-{block}">')
     end = html.index("</script>", start)
     return html[:start] + text(html[start:end]) + html[end:]

@@ -50,5 +50,5 @@ def static_displacement(X, T, young: float, poisson: float, force, fixed):
     clamped[(3 * np.asarray(fixed)[:, None] + np.arange(3)).ravel()] = True
     free = np.flatnonzero(~clamped)
     u = np.zeros(3 * n)
-    u[free] = splinalg.spsolve(sp.csc_matrix(K[free][:, free]), np.asarray(force, np.float64).ravel()[free])
+    u[free] = np.asarray(splinalg.spsolve(sp.csc_matrix(K[free][:, free]), np.asarray(force, np.float64).ravel()[free]))
     return u.reshape(n, 3)

@@ -2,7 +2,9 @@
 points, and the material and step constants."""
 
 import jax.numpy as jnp
+import manifold3d
 import numpy as np
+from numpy.typing import ArrayLike
 
 from xfem import Material, State, box_tets, plane_cut_solid
 
@@ -17,7 +19,7 @@ def tall_box():
     return box_tets((2, 2, 3), size=(1.0, 1.0, 1.5))
 
 
-def plane(point=POINT, normal=NORMAL, extent=3.0):
+def plane(point: ArrayLike = POINT, normal: ArrayLike = NORMAL, extent: float = 3.0) -> manifold3d.Manifold:
     return plane_cut_solid(np.asarray(point, np.float64), np.asarray(normal, np.float64), extent, EPS)
 
 

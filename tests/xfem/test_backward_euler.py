@@ -8,6 +8,8 @@ velocity, moving boundary, force, integration weights); bad input."""
 
 from __future__ import annotations
 
+from typing import Any
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -41,8 +43,8 @@ H = 0.033
 MATERIAL = Material(1e6, 0.4)
 MU, LAM = MATERIAL.lame()
 GRAVITY = np.array([0.0, 0.0, -9.81])
-CONVERGED = dict(newton_iterations=20, tolerance=1e-12)
-PAPER = dict(newton_iterations=1, tolerance=None)  # the paper's single Newton iteration per step
+CONVERGED: dict[str, Any] = dict(newton_iterations=20, tolerance=1e-12)
+PAPER: dict[str, Any] = dict(newton_iterations=1, tolerance=None)  # the paper's single Newton iteration per step
 
 BAR = box_tets((2, 1, 1), size=(2.0, 1.0, 1.0))
 X = np.asarray(BAR.X)
@@ -253,11 +255,11 @@ def test_bad_input():
     with pytest.raises(ValueError, match="tolerance"):
         backward_euler_step(CANTILEVER, state, H, MATERIAL, tolerance=-1.0)
     with pytest.raises(ValueError, match="tolerance: expected 'auto'"):
-        backward_euler_step(CANTILEVER, state, H, MATERIAL, tolerance="tight")
+        backward_euler_step(CANTILEVER, state, H, MATERIAL, tolerance="tight")  # pyright: ignore[reportArgumentType]
     with pytest.raises(ValueError, match="state.v: non-finite"):
         backward_euler_step(CANTILEVER, State(BAR.X, jnp.full_like(BAR.X, jnp.nan)), H, MATERIAL)
     with pytest.raises(ValueError, match="material: expected an xfem.Material"):
-        backward_euler_step(CANTILEVER, state, H, (MU, LAM))
+        backward_euler_step(CANTILEVER, state, H, (MU, LAM))  # pyright: ignore[reportArgumentType]
     with pytest.raises(ValueError, match="material.young: expected a scalar or one value per element"):
         backward_euler_step(CANTILEVER, state, H, Material(np.full(3, 1e6), 0.4))
     with pytest.raises(ValueError, match="young: Young's modulus must be finite and > 0"):
@@ -281,7 +283,8 @@ def test_newton_direction_is_exact_on_small_systems_and_cg_on_large_ones(monkeyp
 
     rng = np.random.default_rng(3)
     n = 64  # a mass-like diagonal plus a 4 x 4 x 4 grid Laplacian, like M + h^2 K
-    D = sp.diags([-1.0, 2.0, -1.0], [-1, 0, 1], shape=(4, 4))
+    # scipy is unannotated: pyright takes the type of offsets from its default, 0
+    D = sp.diags([-1.0, 2.0, -1.0], [-1, 0, 1], shape=(4, 4))  # pyright: ignore[reportArgumentType]
     eye = sp.identity(4)
     A = sp.csr_matrix(
         sp.kron(sp.kron(D, eye), eye)

@@ -94,6 +94,7 @@ def test_a_severed_arm_falls_at_g_and_the_rest_follows_the_clip(body):
     assert list(motion.pieces_per_frame) == [1, 1, 1, 2, 2, 2, 2, 2, 2, 2]
     assert bool(jnp.all(cut.states.stats.converged))
     system = cut.system
+    assert system is not None  # a segment of a full (not reduced) run carries its system
     mass = np.bincount(np.asarray(system.mass_rows), np.asarray(system.mass_values), minlength=system.n)
     x = np.asarray(cut.states.x)
     nodes = _rig_nodes(body, motion.times[3:])
@@ -170,7 +171,7 @@ def test_errors(body):
     with pytest.raises(ValueError, match="body"):
         xfem.simulate_character(body.model, material=material)
     with pytest.raises(ValueError, match="material"):
-        xfem.simulate_character(body, material=(1e5, 0.4))
+        xfem.simulate_character(body, material=(1e5, 0.4))  # pyright: ignore[reportArgumentType]
     with pytest.raises(ValueError, match="fps"):
         xfem.simulate_character(body, 0, 1.0, 0.0, material=material)
     with pytest.raises(ValueError, match="seconds"):
@@ -180,9 +181,9 @@ def test_errors(body):
     with pytest.raises(ValueError, match="clip"):
         xfem.simulate_character(body, "no such clip", 0.1, material=material)
     with pytest.raises(ValueError, match="cuts"):
-        xfem.simulate_character(body, 0, 0.1, material=material, cuts=[(99, None)])
+        xfem.simulate_character(body, 0, 0.1, material=material, cuts=[(99, None)])  # pyright: ignore[reportArgumentType]
     with pytest.raises(ValueError, match="plane_cuts"):
-        xfem.simulate_character(body, 0, 0.1, material=material, plane_cuts=[(0, [0, 0, 0], [1, 0, 0], 0.01)])
+        xfem.simulate_character(body, 0, 0.1, material=material, plane_cuts=[(0, [0, 0, 0], [1, 0, 0], 0.01)])  # pyright: ignore[reportArgumentType]
     with pytest.raises(ValueError, match="damping"):
         xfem.Material(1e5, 0.4, damping=-1.0)
     with pytest.warns(UserWarning, match="outside the clip"):

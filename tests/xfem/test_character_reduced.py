@@ -152,12 +152,12 @@ def test_bad_input_is_a_value_error_naming_the_argument():
     free = 3 * len(sub.free)
     for modes in (0, free, 2.5, True):
         with pytest.raises(ValueError, match="modes"):
-            xfem.character_subspace(body, modes)
+            xfem.character_subspace(body, modes)  # pyright: ignore[reportArgumentType]
     for poisson in (0.5, -1.0, "0.3"):
         with pytest.raises(ValueError, match="poisson"):
-            xfem.character_subspace(body, 4, poisson=poisson)
+            xfem.character_subspace(body, 4, poisson=poisson)  # pyright: ignore[reportArgumentType]
     with pytest.raises(ValueError, match="body"):
-        xfem.character_subspace(body.tets, 4)
+        xfem.character_subspace(body.tets, 4)  # pyright: ignore[reportArgumentType]
     material = xfem.Material(1e5, 0.4)
     with pytest.raises(ValueError, match="material: Poisson's ratio 0.3"):
         _play(body, sub, 3, xfem.Material(1e5, 0.3))

@@ -10,6 +10,7 @@ import io
 import os
 import pickle
 import sys
+from typing import Any
 
 import manifold3d
 import numpy as np
@@ -24,11 +25,17 @@ from xfem._cut_process import CutProcess, CutProcessError
 from xfem._framing import decode, encode, portable, read_frame, write_frame
 from xfem._subdomains import MeshSolid, pack_meshes, solid_mesh, unpack_meshes
 
-CUTS = [
+CUTS: list[dict[str, Any]] = [  # keyword arguments of plane()
     dict(point=(0.5, 0.5, 0.61), normal=(0.07, -0.04, 1.0)),
     dict(point=(0.5, 0.5, 0.9), normal=(0.03, 0.05, 1.0)),
     dict(point=(0.52, 0.5, 0.7), normal=(1.0, 0.04, 0.02)),
 ]
+
+
+def _worker(background: BackgroundCuts) -> CutProcess:
+    """The worker process of a started ``BackgroundCuts``."""
+    assert background._process is not None, "the background cuts have no worker process"
+    return background._process
 
 
 def _models():
@@ -146,7 +153,11 @@ def test_large_systems_are_padded_by_the_model(monkeypatch):
     remote, inline = _models()
     sent = []
     prepare = remote.prepare_step
-    remote.prepare_step = lambda arrays, n, system, level: (sent.append(system), prepare(arrays, n, system, level))[1]
+    monkeypatch.setattr(
+        remote,
+        "prepare_step",
+        lambda arrays, n, system, level: (sent.append(system), prepare(arrays, n, system, level))[1],
+    )
     background = BackgroundCuts(remote)
     for cut in CUTS:
         background.submit(plane(**cut))
@@ -164,7 +175,7 @@ def test_dead_worker_raises_at_commit_and_the_next_cut_starts_a_new_one():
     background.submit(plane(**CUTS[0]))
     background.commit()
     inline.cut(plane(**CUTS[0]))
-    background._process.kill()  # fault injection: the worker dies
+    _worker(background).kill()  # fault injection: the worker dies
     failed, dropped = background.submit(plane(**CUTS[1])), background.submit(plane(**CUTS[2]))
     with pytest.raises(CutProcessError, match="exited"):
         background.commit()
@@ -185,8 +196,8 @@ def test_worker_errors_come_back_and_disagreement_is_caught():
     background = BackgroundCuts(remote)
     background.start()
     with pytest.raises(TypeError):  # a malformed request: the worker's own error, raised here
-        background._process.send(("not a cut",))
-        background._process.receive()
+        _worker(background).send(("not a cut",))
+        _worker(background).receive()
     background._drop_process()
     background.submit(plane(**CUTS[0]))
     remote.cut(plane(**CUTS[1]))  # directly, while a cut is pending: the replica cannot know
@@ -214,7 +225,7 @@ def test_worker_ends_with_its_background_cuts():
     remote, _ = _models()
     background = BackgroundCuts(remote)
     background.start()
-    child = background._process._child
+    child = _worker(background)._child
     assert child.poll() is None
     del background
     gc.collect()
@@ -276,17 +287,17 @@ def test_messages_are_framed_whole():
 
 
 @pytest.mark.slow  # 12 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
-def test_next_cut_is_sent_before_a_reply_is_prepared():
+def test_next_cut_is_sent_before_a_reply_is_prepared(monkeypatch):
     """The worker process starts the next pending cut as soon as it replies, while this process prepares the
     reply's system."""
     remote, inline = _models()
     background = BackgroundCuts(remote)
     background.start()
     events = []
-    process, prepare = background._process, remote.prepare_step
+    process, prepare = _worker(background), remote.prepare_step
     send = process.send
-    process.send = lambda message: (events.append("send"), send(message))[1]
-    remote.prepare_step = lambda *args: (events.append("prepare"), prepare(*args))[1]
+    monkeypatch.setattr(process, "send", lambda message: (events.append("send"), send(message))[1])
+    monkeypatch.setattr(remote, "prepare_step", lambda *args: (events.append("prepare"), prepare(*args))[1])
     for cut in CUTS:  # queued while the worker makes the first one
         background.submit(plane(**cut))
     for cut in CUTS:
@@ -330,7 +341,7 @@ def test_background_cuts_leave_the_process_settings_alone():
     while not future.done():  # steps while the cut is under way, as a simulation does
         remote.step(H, MATERIAL)
         assert frozenset(os.sched_getaffinity(0)) == before[0] and sys.getswitchinterval() == before[3]
-    child = background._process.pid
+    child = _worker(background).pid
     assert os.getpriority(os.PRIO_PROCESS, child) == before[2]
     assert os.sched_getaffinity(child) == before[0]
     background.commit()

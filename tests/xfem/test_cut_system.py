@@ -208,7 +208,7 @@ def test_bad_input(bar):
     with pytest.raises(ValueError, match="misses the body"):
         xfem.cut_system(bar, np.array([0.1, 0.1, 3.0]), normal, EPS)
     with pytest.raises(ValueError, match=r"cuts\[1\]: expected"):
-        xfem.plane_cuts(bar, [(point, normal, EPS), (point, normal)])
+        xfem.plane_cuts(bar, [(point, normal, EPS), (point, normal)])  # pyright: ignore[reportArgumentType]
     with pytest.raises(ValueError, match=r"normal\[1\]"):
         xfem.plane_cuts(bar, [(point, normal, EPS), (point, 2 * normal, EPS)])
     cuts = xfem.plane_cuts(bar, [(point, normal, EPS)])

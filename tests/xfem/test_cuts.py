@@ -28,7 +28,7 @@ def _screws(axis, centre, angles, pitch):
     axis, centre = np.asarray(axis, np.float64), np.asarray(centre, np.float64)
     angles = jnp.asarray(angles, jnp.float64)
     R = cga.rotor(jnp.asarray(axis), angles)
-    M = cga.motor(R, jnp.asarray(axis) * (pitch * angles)[:, None])
+    M = cga.motor(R, jnp.asarray(axis)[None] * (pitch * angles)[:, None])
     return (cga.translator(jnp.asarray(centre)) * M * cga.translator(jnp.asarray(-centre))).embed(cga.KINDS["motor"])
 
 
@@ -80,7 +80,7 @@ def test_rotation_sweep_is_the_annular_sector():
 def test_sweep_between_matches_translation_sweep():
     edge = jnp.asarray([[0.0, 0.0, 0.0], [1.0, 0.2, 0.0], [2.0, 0.0, 0.3]])
     shift = jnp.asarray([0.1, 1.0, 0.2])
-    Va, Fa = sweep_between(edge, edge + shift, 10)
+    Va, Fa = sweep_between(edge, edge + shift[None], 10)
     Vb, Fb = swept_surface(edge, _translations(jnp.stack([jnp.zeros(3), shift / 2, shift])), 5)
     np.testing.assert_allclose(np.asarray(Va), np.asarray(Vb), atol=1e-14)
     np.testing.assert_array_equal(Fa, Fb)

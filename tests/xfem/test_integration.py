@@ -35,7 +35,7 @@ def _box_moments(lo, hi):
     """Closed-form integrals of 1, X_i, X_i X_j over the box [lo, hi] (products of 1D integrals)."""
     lo, hi = np.asarray(lo, float), np.asarray(hi, float)
     i0, i1, i2 = hi - lo, (hi**2 - lo**2) / 2, (hi**3 - lo**3) / 3
-    volume = np.prod(i0)
+    volume = np.asarray(np.prod(i0))
     first = volume / i0 * i1
     second = np.outer(first, first) / volume
     np.fill_diagonal(second, volume / i0 * i2)
@@ -72,7 +72,7 @@ def test_box_moments(lo, hi):
 
 def test_tet_moments_against_affine_images_of_the_unit_simplex():
     # unit simplex: int 1 = 1/6, int x = 1/24, int x^2 = 2!/5! = 1/60, int x y = 1/5! = 1/120
-    unit = Moments(1 / 6, np.full(3, 1 / 24), np.full((3, 3), 1 / 120) + np.eye(3) / 120)
+    unit = Moments(np.asarray(1 / 6), np.full(3, 1 / 24), np.full((3, 3), 1 / 120) + np.eye(3) / 120)
     for x in _random_tets(5):
         A, t = (x[1:] - x[0]).T, x[0]  # X = A Y + t maps the unit simplex onto the tet
         J = np.linalg.det(A)
@@ -149,7 +149,7 @@ def test_plane_splits_add_up_to_the_tet():
         mass, load, volume = element_piece_integrals(c, g, moments_of_pieces(V, F, piece, 2, origin=Xe.mean(axis=0)))
         assert np.all(volume > 0.01 * whole[2])
         np.testing.assert_allclose(mass.sum(axis=0), whole[0], rtol=0, atol=1e-12 * np.abs(whole[0]).max())
-        np.testing.assert_allclose(load.sum(axis=0), whole[1], rtol=0, atol=1e-12 * whole[2])
+        np.testing.assert_allclose(load.sum(axis=0), whole[1], rtol=0, atol=1e-12 * float(whole[2]))
         np.testing.assert_allclose(volume.sum(), whole[2], rtol=1e-12)
 
 
@@ -167,7 +167,7 @@ def test_corner_piece_against_quadrature():
     weight = np.linalg.det(small[1:] - small[0]) / 6 / 4
     np.testing.assert_allclose(volume, 4 * weight, rtol=1e-12)
     np.testing.assert_allclose(mass, weight * N.T @ N, rtol=0, atol=1e-12 * np.abs(mass).max())
-    np.testing.assert_allclose(load, weight * N.sum(axis=0), rtol=0, atol=1e-12 * volume)
+    np.testing.assert_allclose(load, weight * N.sum(axis=0), rtol=0, atol=1e-12 * float(volume))
 
 
 def test_thin_slab_cut_pieces_plus_the_slab_part_give_the_tet():

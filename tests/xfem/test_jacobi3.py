@@ -36,7 +36,7 @@ def _matrices(rng, n=N):
         np.eye(3) + 1e-9 * rng.standard_normal((n, 3, 3)),
         np.where(rng.random((n, 3, 3)) < 0.6, 0.0, np.round(rng.standard_normal((n, 3, 3)))),
     ]
-    U, V = (Rotation.random(n, random_state=rng).as_matrix() for _ in range(2))
+    U, V = (Rotation.random(n, rng=rng).as_matrix() for _ in range(2))
     for s in SINGULAR_VALUES:  # random rotations and signs around prescribed singular values
         signed = np.array(s) * np.where(rng.random((n, 3)) < 0.5, 1.0, -1.0)
         families.append(np.einsum("mij,mj,mkj->mik", U, signed, V))

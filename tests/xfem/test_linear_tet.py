@@ -172,7 +172,7 @@ def test_float32():
 
 def test_bad_input():
     X, T = BOX.X, BOX.T
-    inverted = T.at[0].set(T[0, jnp.array([1, 0, 2, 3])])
+    inverted = jnp.asarray(T).at[0].set(T[0, jnp.array([1, 0, 2, 3])])
     with pytest.raises(ValueError, match=r"X: expected float positions of shape \(n, 3\)"):
         shape_gradients(X[:, :2], T)
     with pytest.raises(ValueError, match="T: expected integer tets"):

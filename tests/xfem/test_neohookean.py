@@ -6,6 +6,7 @@ elements, float32, per-element parameters, bad input.
 Batches have fixed sizes (16 deformation gradients, M = 8 tets) so that each function compiles once."""
 
 import functools
+from typing import cast
 
 import jax
 import jax.numpy as jnp
@@ -50,7 +51,7 @@ def _random_F(rng, m, spread=0.6):
 def _tets(rng, m=M):
     """Well-shaped random rest tets: shape-function gradients (m, 4, 3), volumes (m,), rest positions (m, 4, 3)."""
     regular = np.array([[1.0, 1, 1], [1, -1, -1], [-1, 1, -1], [-1, -1, 1]]) / np.sqrt(8)
-    R = Rotation.random(m, random_state=rng).as_matrix()
+    R = Rotation.random(m, rng=rng).as_matrix()
     X = np.einsum("mij,maj->mai", R, regular + 0.15 * rng.standard_normal((m, 4, 3))) * rng.uniform(0.5, 2, (m, 1, 1))
     Dm = np.stack([X[:, 1] - X[:, 0], X[:, 2] - X[:, 0], X[:, 3] - X[:, 0]], axis=-1)
     Dinv = np.linalg.inv(Dm)  # F = Ds Dm^-1: node a > 0 has gradient row a - 1 of Dm^-1
@@ -114,7 +115,8 @@ def test_lame_closed_form_and_errors():
 
 
 def test_rest_state_and_rigid_motions_are_zero_energy_and_stress_free():
-    F = jnp.asarray(np.concatenate([np.eye(3)[None], Rotation.random(15, random_state=1).as_matrix()]))
+    # the legacy keyword keeps the seeded stream (scipy's signature names only rng)
+    F = jnp.asarray(np.concatenate([np.eye(3)[None], Rotation.random(15, random_state=1).as_matrix()]))  # pyright: ignore[reportCallIssue]
     psi, P = stable_neohookean_energy(F, MU, LAM), stable_neohookean_pk1(F, MU, LAM)
     assert float(psi[0]) == 0.0 and float(jnp.abs(P[0]).max()) == 0.0  # exactly, at F = I
     assert float(jnp.abs(psi).max()) < 1e-9 * E and float(jnp.abs(P).max()) < 1e-9 * E
@@ -165,14 +167,16 @@ def test_uniaxial_stress_recovers_young_and_poisson():
         return np.asarray(stable_neohookean_pk1(jnp.diag(jnp.asarray([1 + e, 1 + d, 1 + d])), MU, LAM))
 
     for e in (1e-4, 1e-5):
-        d = brentq(lambda d: stress(e, d)[1, 1], -e, e, xtol=1e-16, rtol=1e-15)
+        # scipy is unannotated: pyright takes rtol's type from its default and sees full_output's tuple
+        d = cast(float, brentq(lambda d: stress(e, d)[1, 1], -e, e, xtol=1e-16, rtol=1e-15))  # pyright: ignore[reportArgumentType]
         assert stress(e, d)[0, 0] / e == pytest.approx(E, rel=10 * e)
         assert -d / e == pytest.approx(NU, rel=10 * e)
 
 
 def test_isotropy_and_frame_indifference():
     F = jnp.asarray(_random_F(np.random.default_rng(4), 16))
-    R = jnp.asarray(Rotation.random(16, random_state=5).as_matrix())
+    # the legacy keyword keeps the seeded stream (scipy's signature names only rng)
+    R = jnp.asarray(Rotation.random(16, random_state=5).as_matrix())  # pyright: ignore[reportCallIssue]
     psi, P = stable_neohookean_energy(F, MU, LAM), stable_neohookean_pk1(F, MU, LAM)
     scale = float(jnp.abs(P).max())
     np.testing.assert_allclose(stable_neohookean_energy(R @ F, MU, LAM), psi, rtol=1e-10, atol=1e-12 * scale)
@@ -292,7 +296,7 @@ def test_per_element_parameters_and_float32(tets):
     rng = np.random.default_rng(11)
     x = jnp.asarray(_deformed(_random_F(rng, M), X))
     young = rng.uniform(1e5, 1e7, M)
-    mu, lam = lame(young, NU)
+    mu, lam = (np.asarray(p) for p in lame(young, NU))
     g, H = element_gradient_hessian(x, grads, vol, mu, lam)
     for e in (0, 5):
         ge, He = element_gradient_hessian(x, grads, vol, float(mu[e]), float(lam[e]))

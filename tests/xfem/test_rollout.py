@@ -3,6 +3,8 @@ through each step's implicit gradient, checked against central differences at th
 against the implicit-function formula evaluated at the executed iterate (the paper's single Newton iteration,
 which reports that it did not converge)."""
 
+from typing import Any
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -16,7 +18,7 @@ from xfem import Material, State, backward_euler_step, box_tets, consistent_mass
 
 H = 0.033
 MATERIAL = Material(2e5, 0.4)
-PAPER = dict(newton_iterations=1, tolerance=None)  # the paper's single Newton iteration per step
+PAPER: dict[str, Any] = dict(newton_iterations=1, tolerance=None)  # the paper's single Newton iteration per step
 BAR = box_tets((4, 1, 1), size=(4.0, 1.0, 1.0))
 X = np.asarray(BAR.X)
 FIXED = np.flatnonzero(X[:, 0] == 0)
@@ -95,8 +97,8 @@ def test_gradients_at_the_defaults_match_central_differences():
     (_, converged), grad = value_and_grad(*args)
     assert np.all(converged)
     directions = [jnp.asarray(1.0)] + [jnp.asarray(RNG.normal(size=a.shape)) for a in args[1:]]
-    steps = (2e5 * 1e-4, 1e-5, 1e-2, 1e-6)
-    for i, (d, eps) in enumerate(zip(directions, steps, strict=True)):
+    sizes = (2e5 * 1e-4, 1e-5, 1e-2, 1e-6)  # the finite differences' steps (not ``steps``, which loss reads)
+    for i, (d, eps) in enumerate(zip(directions, sizes, strict=True)):
         plus, minus = list(args), list(args)
         plus[i], minus[i] = args[i] + eps * d, args[i] - eps * d
         central = float(value_and_grad(*plus)[0][0] - value_and_grad(*minus)[0][0]) / (2 * eps)
@@ -201,6 +203,6 @@ def test_bad_input():
     with pytest.raises(ValueError, match="targets: expected float positions of shape"):
         rollout(SYSTEM, REST, MATERIAL, H, 2, targets=jnp.zeros((2, len(X), 3)))
     with pytest.raises(ValueError, match="material: expected an xfem.Material"):
-        rollout(SYSTEM, REST, (1e6, 1e6), H, 2)
+        rollout(SYSTEM, REST, (1e6, 1e6), H, 2)  # pyright: ignore[reportArgumentType]
     with pytest.raises(ValueError, match="h: expected a finite positive"):
         rollout(SYSTEM, REST, MATERIAL, -H, 2)

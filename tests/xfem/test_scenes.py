@@ -150,13 +150,13 @@ def test_bad_input():
     with pytest.raises(ValueError, match="name"):
         scene("mouth")
     with pytest.raises(ValueError, match="last_cut"):
-        scene("thin", "small", last_cut=None)
+        scene("thin", "small", last_cut=None)  # pyright: ignore[reportArgumentType]
     with pytest.raises(ValueError, match="size"):
         scene("sticks", "huge")
     with pytest.raises(ValueError, match="steps"):
         run_scene(scene("cheese", "small"), steps=0)
     with pytest.raises(ValueError, match="scene"):
-        run_scene("cheese")
+        run_scene("cheese")  # pyright: ignore[reportArgumentType]
 
 
 @pytest.mark.slow  # 15 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes

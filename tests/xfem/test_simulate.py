@@ -5,6 +5,8 @@ cuts: the same as the solid cuts at the same planes, differentiable in the plane
 differences); prepared once (``plane_cut_simulation``), jit- and vmap-able over the planes: a batch of tilts in
 one vmapped gradient equals separate calls, and planes that move past the pieces found raise."""
 
+from typing import Any
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -16,7 +18,8 @@ from xfem import Material, State, box_tets, plane_cut_solid, simulate, xfem_mode
 
 H, RHO = 0.02, 1e3
 MATERIAL = Material(2e5, 0.4)
-PAPER = dict(newton_iterations=1, tolerance=None)  # the paper's single Newton iteration, as XFEMModel.step
+# the paper's single Newton iteration, as XFEMModel.step
+PAPER: dict[str, Any] = dict(newton_iterations=1, tolerance=None)
 BAR = box_tets((4, 1, 1), size=(4.0, 1.0, 1.0))
 X = np.asarray(BAR.X)
 FIXED = np.flatnonzero(X[:, 0] == 0)
@@ -101,7 +104,7 @@ def test_a_second_call_reuses_the_cuts_and_bad_input():
     with pytest.raises(ValueError, match="steps: expected an int >= 1"):
         simulate(model, [], MATERIAL, H, 0)
     with pytest.raises(ValueError, match="model: expected an XFEMModel"):
-        simulate(None, [], MATERIAL, H, 2)
+        simulate(None, [], MATERIAL, H, 2)  # pyright: ignore[reportArgumentType]
 
 
 # plane cuts: a bar 0.2 x 0.2 x 1 hanging from its top face, cut by a slab at a height inside the layer 0.375-0.5
@@ -183,7 +186,7 @@ def test_plane_cuts_bad_input():
     with pytest.raises(ValueError, match="plane_cuts: expected"):
         simulate(model, [], MATERIAL, H, 2, plane_cuts=[(3, point, normal, EPS)])
     with pytest.raises(ValueError, match="plane_cuts: expected"):
-        simulate(model, [], MATERIAL, H, 2, plane_cuts=[(1, point, normal)])
+        simulate(model, [], MATERIAL, H, 2, plane_cuts=[(1, point, normal)])  # pyright: ignore[reportArgumentType]
     with pytest.raises(ValueError, match=r"normal \(plane_cuts\[0\]\): expected a unit normal"):
         simulate(model, [], MATERIAL, H, 2, plane_cuts=[(1, point, 2 * normal, EPS)])
     with pytest.raises(ValueError, match=r"epsilon \(plane_cuts\[0\]\)"):
@@ -249,4 +252,4 @@ def test_plane_cut_simulation_bad_input():
     with pytest.raises(ValueError, match="plane_cut_simulation finds the pieces at concrete planes"):
         jax.jit(lambda p: xfem.plane_cut_simulation(model, [], [(1, p, normal, EPS)], 2).points)(point)
     with pytest.raises(ValueError, match="model: expected an XFEMModel"):
-        xfem.plane_cut_simulation(None, [], [(1, point, normal, EPS)], 2)
+        xfem.plane_cut_simulation(None, [], [(1, point, normal, EPS)], 2)  # pyright: ignore[reportArgumentType]

@@ -200,14 +200,16 @@ def test_gentle_perturbation_moves_an_aligned_cut_off_the_nodes():
     assert not np.allclose(report.motion, np.eye(4)[:3], rtol=0, atol=1e-9)
     moved = aligned.transform(report.motion)
     mesh64 = moved.to_mesh64()
-    distance2 = igl.point_mesh_squared_distance(
-        np.asarray(mesh.X), np.asarray(mesh64.vert_properties)[:, :3], np.asarray(mesh64.tri_verts, np.int64)
-    )[0]
+    distance2 = np.asarray(
+        igl.point_mesh_squared_distance(
+            np.asarray(mesh.X), np.asarray(mesh64.vert_properties)[:, :3], np.asarray(mesh64.tri_verts, np.int64)
+        )[0]
+    )
     assert distance2.min() >= 1e-18  # farther than perturb / 100
     # a rigid motion keeps the slab's thickness; the tilt changes its section by ~1e-14
     assert abs(sum(v for v, _ in _element_pieces(sub)) - (1 - EPS)) < 1e-12
     # the nodes on the slab's face are now off it: their 1-rings are halved (the others may lose slivers)
-    assert all(len(sub.node_subdomains(i)) == 2 for i in np.flatnonzero(np.asarray(mesh.X)[:, 2] == 0.5))
+    assert all(len(sub.node_subdomains(int(i))) == 2 for i in np.flatnonzero(np.asarray(mesh.X)[:, 2] == 0.5))
     plain = subdomains(mesh)
     assert np.allclose(apply_cut(plain, _plane([0.5, 0.5, 0.3], [0, 0, 1]), perturb=1e-7).motion, np.eye(4)[:3])
 
@@ -215,11 +217,11 @@ def test_gentle_perturbation_moves_an_aligned_cut_off_the_nodes():
 def test_bad_input():
     sub = subdomains(five_tet_cube())
     with pytest.raises(ValueError, match="mesh"):
-        subdomains(np.zeros((4, 3)))
+        subdomains(np.zeros((4, 3)))  # pyright: ignore[reportArgumentType]
     with pytest.raises(ValueError, match="sub"):
-        apply_cut("sub", _plane([0.5, 0.5, 0.5], [0, 0, 1]))
+        apply_cut("sub", _plane([0.5, 0.5, 0.5], [0, 0, 1]))  # pyright: ignore[reportArgumentType]
     with pytest.raises(ValueError, match="cut"):
-        apply_cut(sub, np.zeros(3))
+        apply_cut(sub, np.zeros(3))  # pyright: ignore[reportArgumentType]
     with pytest.raises(ValueError, match="cut"):
         apply_cut(sub, manifold3d.Manifold())
     with pytest.raises(ValueError, match="perturb"):
@@ -236,7 +238,7 @@ def test_subdomains_inside_a_thick_cut_disappear():
     # the lower layer of cells lies inside the block and meets none of its faces (the winding-number culling)
     block = manifold3d.Manifold.cube((1.2, 1.2, 0.7)).translate((-0.1, -0.1, -0.1))
     report = apply_cut(sub, block)
-    lower = np.flatnonzero(X[np.asarray(mesh.T)][:, :, 2].max(axis=1) <= 0.5)
+    lower = np.flatnonzero(X[np.asarray(mesh.T)][:, :, 2].max(axis=1) <= 0.5).tolist()
     assert len(lower) == 24 and set(lower) <= set(report.candidates.tolist())
     assert all(sub.element_subdomains(e) == [] and report.element_children[e] == () for e in lower)
     assert abs(sum(v for v, _ in _element_pieces(sub)) - 0.4) < 1e-12

@@ -47,7 +47,7 @@ def test_tet_quality_matches_closed_forms():
     q = xfem.tet_quality(xfem.box_tets((2, 2, 2)))
     np.testing.assert_allclose([q.min_dihedral_deg, q.max_dihedral_deg], [45.0, 90.0], rtol=1e-12)
     with pytest.raises(ValueError, match="mesh"):
-        xfem.tet_quality(np.zeros((4, 3)))
+        xfem.tet_quality(np.zeros((4, 3)))  # pyright: ignore[reportArgumentType]
 
 
 def test_an_open_self_intersecting_multi_part_surface_gets_its_volume(wild):
@@ -144,7 +144,7 @@ def test_a_cut_body_carries_its_surface_in_pieces():
     with pytest.raises(ValueError, match="V: expected the"):
         xfem.cut_surface(model, result.embedding, V[:-1], F)
     with pytest.raises(ValueError, match="model"):
-        xfem.cut_surface(result.mesh, result.embedding, V, F)
+        xfem.cut_surface(result.mesh, result.embedding, V, F)  # pyright: ignore[reportArgumentType]
 
 
 @pytest.mark.slow  # fTetWild on a character: 5-60 s each on 2 busy cores
@@ -154,7 +154,7 @@ def test_corpus_characters_are_tetrahedralized(name):
     mesh = load_character(name).mesh
     V, F = np.asarray(mesh.V, np.float64), np.asarray(mesh.F, np.int64)
     result = xfem.tetrahedralize_surface(V, F)
-    diagonal = np.linalg.norm(V.max(0) - V.min(0))
+    diagonal = float(np.linalg.norm(V.max(0) - V.min(0)))
     q = result.quality
     assert q.tets == result.mesh.n_elements > 200 and q.min_dihedral_deg > 1.0 and q.min_volume_ratio > 0.01
     np.testing.assert_allclose(result.embedding.positions(result.mesh.X), V, atol=1e-9 * diagonal)
@@ -186,7 +186,7 @@ def test_bad_input():
         ({"threads": 0}, "threads"),
     ):
         with pytest.raises(ValueError, match=name):
-            xfem.tetrahedralize_surface(V, F, **kwargs)
+            xfem.tetrahedralize_surface(V, F, **kwargs)  # pyright: ignore[reportArgumentType]
     with pytest.raises(ValueError, match="F"):
         xfem.tetrahedralize_surface(V, F + 100)
     sheet = np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0], [1.0, 1.0, 0.1], [0.0, 1.0, 0.0]])

@@ -90,7 +90,7 @@ def test_box_tets_volumes_faces_and_conformity(cells, size, origin):
     # exactly two tets; a non-conforming split would leave unmatched faces inside
     assert len(faces) == 2 * (n * m + m * k + n * k) * 2
     on_surface = np.isclose(X[faces], X.min(axis=0)) | np.isclose(X[faces], X.max(axis=0))
-    assert np.all(on_surface.all(axis=1).any(axis=1))  # the three corners share a box face
+    assert np.all(np.all(on_surface, axis=1).any(axis=1))  # the three corners share a box face
 
 
 @settings(max_examples=25, deadline=None)
@@ -227,11 +227,11 @@ def test_tet_volumes_gradient_and_jit():
     np.testing.assert_allclose(grad[T[0, 3]], jnp.cross(x[1] - x[0], x[2] - x[0]) / 6, rtol=1e-13)
     np.testing.assert_allclose(jax.jit(tet_volumes)(X, T), tet_volumes(X, T), rtol=1e-14)
     with pytest.raises(ValueError, match=r"T: node indices must lie in \[0, 12\)"):
-        tet_volumes(X, T.at[0, 0].set(12))
+        tet_volumes(X, jnp.asarray(T).at[0, 0].set(12))
     # a check under jit: JAX raises a RuntimeError, or a ValueError when the executable was cached (on a GPU when
     # the result is ready)
     with pytest.raises((RuntimeError, ValueError), match="T: node indices must lie in"):
-        jax.block_until_ready(jax.jit(tet_volumes)(X, T.at[0, 0].set(12)))
+        jax.block_until_ready(jax.jit(tet_volumes)(X, jnp.asarray(T).at[0, 0].set(12)))
     with pytest.raises(ValueError, match="X: expected float positions"):
         tet_volumes(jnp.ones((12, 3), int), T)
 
@@ -243,7 +243,7 @@ def _surface_checks(mesh: TetMesh, V, F):
     np.testing.assert_allclose(np.asarray(mesh.volumes()).sum(), surface.volume, rtol=1e-10)
     faces = _check_boundary(mesh, surface.volume, surface.area)
     # the boundary faces lie on the input surface
-    distance2 = igl.point_mesh_squared_distance(X[faces].reshape(-1, 3), V, F)[0]
+    distance2 = np.asarray(igl.point_mesh_squared_distance(X[faces].reshape(-1, 3), V, F)[0])
     assert np.sqrt(distance2.max()) < 1e-12 * surface.scale
     return faces
 

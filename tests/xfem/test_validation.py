@@ -12,6 +12,7 @@ scan of the paper's step."""
 from __future__ import annotations
 
 import functools
+from typing import Any
 
 import jax
 import jax.numpy as jnp
@@ -33,7 +34,7 @@ FREE = np.setdiff1d(np.arange(len(X)), CLAMPED)
 STEPS = 1000
 # quasi-static: with h = 1e3 s the inertia term of eq. 10 is 1 / (omega_1 h)^2 ~ 5e-8 of the stiffness
 QUASI_STATIC_H = 1e3
-CONVERGED = dict(newton_iterations=30, tolerance=1e-14)
+CONVERGED: dict[str, Any] = dict(newton_iterations=30, tolerance=1e-14)
 
 
 def _energy_noise(mu, lam):

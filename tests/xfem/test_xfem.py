@@ -240,9 +240,9 @@ def test_background_cut_takes_effect_at_commit():
         m.step(H, MATERIAL)
     np.testing.assert_allclose(np.asarray(model.state.x), np.asarray(inline.state.x), rtol=0, atol=1e-12)
     with pytest.raises(ValueError, match="cut"):
-        background.submit(None)
+        background.submit(None)  # pyright: ignore[reportArgumentType]
     with pytest.raises(ValueError, match="perturb"):
         background.submit(plane(), perturb=-1.0)
     with pytest.raises(ValueError, match="model"):
-        BackgroundCuts(inline.sub)
+        BackgroundCuts(inline.sub)  # pyright: ignore[reportArgumentType]
     background.close()
