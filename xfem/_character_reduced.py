@@ -231,7 +231,7 @@ def _play(rig: _Rig, times, h, young, damping, method: str, clip, interpolation:
     v0 = (_skin(rig, times[1], method, clip, interpolation) - S0) / h  # the rig's velocity, as the full mode's
     k = rig.eigenvalues.shape[0]
     stiffness = young * rig.eigenvalues
-    gravity_force = rig.lumped[:, None] * rig.gravity  # (M g) on the free rows: M's rows sum to the lumped masses
+    gravity_force = rig.lumped[:, None] * rig.gravity[None]  # (M g) on the free rows: M's rows sum to the lumped masses
 
     def step(carry, t):
         x_prev, v_prev, q_prev = carry
