@@ -22,7 +22,7 @@ from jaxcga._exp_log import (
     log_similitude,
 )
 from jaxcga._interpolation import blend_linear, blend_log, blend_weighted
-from jaxcga._multivector import KINDS, Multivector, pseudoscalar, sandwich, table_product
+from jaxcga._multivector import KINDS, Multivector, inverse, pseudoscalar, sandwich, table_product
 from jaxcga._objects import (
     circle,
     circle_center_radius_normal,
@@ -54,7 +54,6 @@ from jaxcga._operations import (
     geometric,
     grade,
     inner,
-    inverse,
     involution,
     left_contraction,
     meet,

@@ -320,17 +320,14 @@ def _map_row(a: dict[tuple[int, int], Array], inputs: dict[int, Array], r: int) 
 
 
 def _apply_examples() -> list[Example]:
-    # a module that imports this one
-    from jaxcga._exp_log import MOTOR_GENERATOR, SIMILITUDE_GENERATOR, exp_motor, exp_similitude
-
     rng = np.random.default_rng(7)
-    motors = exp_motor(Multivector(rng.normal(size=(64, 6)), MOTOR_GENERATOR))
-    similitude = exp_similitude(Multivector(rng.normal(size=7) * [1, 1, 1, 1, 1, 1, 0.3], SIMILITUDE_GENERATOR))
+    motors = motor(rotor(rng.normal(size=(64, 3)), rng.normal(size=64)), rng.normal(size=(64, 3)))
+    one = similitude(rotor(rng.normal(size=3), rng.normal()), rng.normal(size=3), np.exp(0.3 * rng.normal()))
     rotors = rotor(rng.normal(size=(2, 5, 3)), rng.normal(size=(2, 5)))
     dilators = dilator(rng.uniform(0.1, 10.0, size=64))
     return [
         example(motors, rng.normal(size=(64, 3))),  # one versor per point
-        example(similitude, rng.normal(size=(64, 3))),  # one for all points
+        example(one, rng.normal(size=(64, 3))),  # one for all points
         example(rotors, rng.normal(size=(5, 3))),  # batches broadcast
         example(dilators, rng.normal(size=(64, 3))),
     ]

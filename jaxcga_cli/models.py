@@ -92,7 +92,7 @@ class Motion:
         return deform.motor_about(
             jnp.asarray(self.pivot),
             (bend * twist).embed(cga.KINDS["rotor"]),
-            s[..., None] * jnp.asarray(self.translate),
+            s[..., None] * jnp.broadcast_to(jnp.asarray(self.translate), s.shape + (3,)),
         )
 
 
