@@ -18,6 +18,8 @@ import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, Float, Int
 
+from deform._gltf_write import model_files
+
 PATHS = ("translation", "rotation", "scale")
 INTERPOLATIONS = ("LINEAR", "STEP", "CUBICSPLINE")
 _WIDTH = {"translation": 3, "rotation": 4, "scale": 3}
@@ -216,8 +218,6 @@ class RiggedModel(eqx.Module):
     def to_glb(self) -> bytes:
         """The model as a glTF binary (.glb), as ``deform.save_model`` writes it: for ``jaxcga.view(model)``
         and anything else that takes glTF bytes."""
-        from deform._gltf import model_files
-
         (data,) = model_files(self, "model.glb").values()
         assert isinstance(data, bytes)
         return data

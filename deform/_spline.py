@@ -88,7 +88,10 @@ def _bspline(lam, num_keys: int, degree: int):
         left, right = t[i + p] - t[i], t[i + p + 1] - t[i + 1]
         inv_left = np.divide(1.0, left, out=np.zeros(count), where=left > 0)
         inv_right = np.divide(1.0, right, out=np.zeros(count), where=right > 0)
-        lo, hi, inv_left, inv_right = (jnp.asarray(a, lam.dtype) for a in (t[i], t[i + p + 1], inv_left, inv_right))
+        # per-knot rows (1, count) against the parameters' column (n, 1)
+        lo, hi, inv_left, inv_right = (
+            jnp.asarray(a, lam.dtype)[None] for a in (t[i], t[i + p + 1], inv_left, inv_right)
+        )
         x = lam[:, None]
         N = ((x - lo) * inv_left) * N[:, :-1] + ((hi - x) * inv_right) * N[:, 1:]
     return N

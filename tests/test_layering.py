@@ -2,7 +2,8 @@
 ``_jaxcga_shared`` <- ``jaxcga`` <- ``deform`` <- ``xfem`` (characters' bodies are skinned by ``deform``; ``xfem`` and
 ``cutting`` never import each other), and the command line (``jaxcga_cli``) above all. No package imports one above
 it, at any depth: imports inside functions and ``importlib.import_module("...")`` with a literal name count too. No
-files of the project import each other in a cycle through the imports that run when a module is loaded."""
+files of the project import each other in a cycle: neither through the imports that run when a module is loaded nor
+through those inside functions (``if TYPE_CHECKING:`` blocks, which never run, aside)."""
 
 from __future__ import annotations
 
@@ -66,17 +67,32 @@ def _expressions(statement: ast.stmt):
         stack += [child for child in ast.iter_child_nodes(node) if not isinstance(node, ast.Lambda)]
 
 
-def _imports(path: pathlib.Path, *, load_time_only: bool, root: pathlib.Path = ROOT) -> set[str]:
+def _executed(node: ast.AST):
+    """``node`` and its descendants but the bodies of ``if TYPE_CHECKING:`` blocks (which never run)."""
+    yield node
+    for child in ast.iter_child_nodes(node):
+        if isinstance(child, ast.stmt) and _is_type_checking(child):
+            assert isinstance(child, ast.If)
+            for statement in child.orelse:
+                yield from _executed(statement)
+        else:
+            yield from _executed(child)
+
+
+def _imports(path: pathlib.Path, *, which: str, root: pathlib.Path = ROOT) -> set[str]:
     """Dotted names the file imports, relative imports resolved (``from a import b`` gives ``a.b``: module ``a.b``,
     or module ``a`` where ``b`` is a name it defines), and the literal names it passes to ``importlib.import_module``.
-    ``load_time_only``: only the imports that run when the file is loaded."""
+    ``which``: "load" those that run when the file is loaded, "run" those that can run at all (function bodies
+    too, not ``TYPE_CHECKING`` blocks), "all" every one written."""
     tree = ast.parse(path.read_text())
     module = _module_name(path, root)
     # relative imports start from the module's package: its parent, or the package itself for an __init__
     package = module.split(".") if path.name == "__init__.py" else module.split(".")[:-1]
-    if load_time_only:
+    if which == "load":
         statements = list(_load_time_statements(tree.body))
         nodes = [*statements, *(e for statement in statements for e in _expressions(statement))]
+    elif which == "run":
+        nodes = list(_executed(tree))
     else:
         nodes = list(ast.walk(tree))
     names = set()
@@ -118,9 +134,11 @@ def test_imports_inside_functions_and_import_module_are_read(tmp_path):
         "CONST = importlib.import_module('at.load')\nLATER = lambda: importlib.import_module('in.lambda')\n"
         "def f():\n    import lazy\n    return importlib.import_module('dynamic.name')\n"
     )
-    everything = _imports(source, load_time_only=False, root=tmp_path)
+    everything = _imports(source, which="all", root=tmp_path)
     assert {"pkg.top", "pkg.sub.near.x", "hidden", "in_class", "lazy", "dynamic.name", "in.lambda"} <= everything
-    load_time = _imports(source, load_time_only=True, root=tmp_path)
+    run = _imports(source, which="run", root=tmp_path)
+    assert everything - run == {"hidden"}
+    load_time = _imports(source, which="load", root=tmp_path)
     assert {"importlib", "pkg.top", "pkg.sub.near.x", "in_class", "in_try", "at.load"} <= load_time
     assert not {"hidden", "lazy", "dynamic.name", "in.lambda"} & load_time
 
@@ -130,20 +148,21 @@ def test_no_upward_import(package):
     if not (ROOT / package).is_dir():
         pytest.skip(f"{package} is not in this checkout")
     for path in (ROOT / package).rglob("*.py"):
-        for name in _imports(path, load_time_only=False):
+        for name in _imports(path, which="all"):
             top = name.split(".")[0]
             if top in BELOW and top != package:
                 assert top in BELOW[package], f"{path.relative_to(ROOT)} imports {name}: {package} sits below {top}"
 
 
-def _import_graph() -> dict[str, set[str]]:
-    """Each file's module to the project's modules that its load-time imports load (the most specific one a name
-    reaches: ``from deform._rig import Rig`` is ``deform._rig``, ``from deform import Rig`` is ``deform``)."""
+def _import_graph(which: str) -> dict[str, set[str]]:
+    """Each file's module to the project's modules that its imports (``_imports``' ``which``) load: the most specific
+    one a name reaches (``from deform._rig import Rig`` is ``deform._rig``, ``from deform import Rig`` is
+    ``deform``)."""
     files = _project_files()
     graph = {}
     for module, path in files.items():
         targets = set()
-        for name in _imports(path, load_time_only=True):
+        for name in _imports(path, which=which):
             parts = name.split(".")
             for cut in range(len(parts), 0, -1):
                 if ".".join(parts[:cut]) in files:
@@ -182,5 +201,12 @@ def test_cycle_finder():
 
 
 def test_no_import_cycle_among_the_files():
-    cycle = _cycle(_import_graph())
+    cycle = _cycle(_import_graph("load"))
     assert cycle is None, f"import cycle at load time: {' -> '.join(cycle or [])}"
+
+
+def test_no_import_cycle_through_imports_inside_functions():
+    """No cycle either where a function imports lazily a module that imports the function's own: such code
+    belongs in the lower module (or the two in one)."""
+    cycle = _cycle(_import_graph("run"))
+    assert cycle is None, f"import cycle through an import inside a function: {' -> '.join(cycle or [])}"

@@ -1,0 +1,263 @@
+"""Rigged-model output: glTF 2.0 writing (``.glb``, or ``.gltf`` with its ``.bin``), as the specification's
+sections "Binary Data Storage", "Skins", "Animations" and "GLB File Format Specification" lay it out; the reader is
+``deform._gltf``. It needs the model's bundles only for their types, so that ``RiggedModel.to_glb`` can call it
+without an import cycle. Everything here runs on the host with numpy.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import struct
+import urllib.parse
+from collections.abc import Mapping
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from _jaxcga_shared.output import write_files
+
+if TYPE_CHECKING:
+    from deform._model import AnimationClip, RiggedModel, SkinnedMesh
+
+_GLB_MAGIC = b"glTF"
+_CHUNK_JSON = 0x4E4F534A
+_CHUNK_BIN = 0x004E4942
+_FLOAT, _UINT, _USHORT = 5126, 5125, 5123
+_ARRAY_BUFFER, _ELEMENT_ARRAY_BUFFER = 34962, 34963
+GLTF_OUTPUTS = (".glb", ".gltf")  # what save_model writes
+
+
+class _Writer:
+    """Accumulates one binary buffer and the bufferViews / accessors that describe it."""
+
+    def __init__(self):
+        self.chunks, self.size, self.views, self.accessors = [], 0, [], []
+
+    def accessor(self, data: np.ndarray, kind: str, target: int | None = None, bounds: bool = False) -> int:
+        data = np.ascontiguousarray(data)
+        ctype = {np.dtype("<f4"): _FLOAT, np.dtype("<u4"): _UINT, np.dtype("<u2"): _USHORT}[data.dtype]
+        raw = data.tobytes()
+        view = {"buffer": 0, "byteOffset": self.size, "byteLength": len(raw)}
+        if target is not None:
+            view["target"] = target
+        self.chunks.append(raw + b"\0" * (-len(raw) % 4))  # every view starts 4-byte aligned
+        self.size += len(self.chunks[-1])
+        self.views.append(view)
+        acc = {"bufferView": len(self.views) - 1, "componentType": ctype, "count": len(data), "type": kind}
+        if bounds:
+            flat = data.reshape(len(data), -1)
+            acc["min"], acc["max"] = flat.min(axis=0).tolist(), flat.max(axis=0).tolist()
+        self.accessors.append(acc)
+        return len(self.accessors) - 1
+
+    def blob(self) -> bytes:
+        return b"".join(self.chunks)
+
+
+def _finite(name: str, x) -> np.ndarray:
+    x = np.asarray(x, dtype=np.float64)
+    if not np.all(np.isfinite(x)):
+        raise ValueError(f"{name}: contains non-finite values; cannot write glTF")
+    return x
+
+
+def _mesh_json(mesh: SkinnedMesh, writer: _Writer) -> list[dict]:
+    V = _finite("model.mesh.V", mesh.V).astype("<f4")
+    W = _finite("model.mesh.W", mesh.W).astype("<f4")
+    F, J = np.asarray(mesh.F, dtype=np.int64), np.asarray(mesh.J, dtype=np.int64)
+    n, k = len(V), J.shape[1]
+    if k == 0:
+        raise ValueError("model.mesh.J: expected at least one influence per vertex, got shape (n, 0)")
+    if F.size and (F.min() < 0 or F.max() >= n):
+        raise ValueError(f"model.mesh.F: indices must be in [0, {n})")
+    if J.size and (J.min() < 0 or J.max() >= mesh.num_joints):
+        raise ValueError(f"model.mesh.J: joint indices must be in [0, {mesh.num_joints})")
+    pad = -k % 4  # glTF stores influences in sets of 4
+    J = np.pad(J, ((0, 0), (0, pad))).astype("<u2")
+    W = np.pad(W, ((0, 0), (0, pad)))
+    primitives, v0, f0 = [], 0, 0
+    for p, (nv, nf) in enumerate(mesh.primitive_sizes or ((n, len(F)),)):
+        faces = F[f0 : f0 + nf] - v0
+        if nv == 0 or nf == 0:
+            raise ValueError(f"model.mesh.primitive_sizes: primitive {p} is empty {(nv, nf)}; glTF cannot store it")
+        if faces.min() < 0 or faces.max() >= nv:
+            raise ValueError(
+                f"model.mesh.F: faces of primitive {p} use vertices of another primitive; set primitive_sizes=()"
+            )
+        attributes = {"POSITION": writer.accessor(V[v0 : v0 + nv], "VEC3", _ARRAY_BUFFER, bounds=True)}
+        for s in range(J.shape[1] // 4):
+            attributes[f"JOINTS_{s}"] = writer.accessor(J[v0 : v0 + nv, 4 * s : 4 * s + 4], "VEC4", _ARRAY_BUFFER)
+            attributes[f"WEIGHTS_{s}"] = writer.accessor(W[v0 : v0 + nv, 4 * s : 4 * s + 4], "VEC4", _ARRAY_BUFFER)
+        indices = writer.accessor(faces.reshape(-1).astype("<u4"), "SCALAR", _ELEMENT_ARRAY_BUFFER)
+        primitives.append({"attributes": attributes, "indices": indices, "mode": 4})
+        v0, f0 = v0 + nv, f0 + nf
+    return primitives
+
+
+def _animation_json(clip: AnimationClip, writer: _Writer) -> dict:
+    samplers, channels, inputs = [], [], {}
+    for c, channel in enumerate(clip.channels):
+        times = _finite(f"clip {clip.name!r} channel {c} times", channel.times).astype("<f4")
+        if np.any(np.diff(times) <= 0):
+            raise ValueError(f"clip {clip.name!r} channel {c}: times must be strictly increasing (in float32)")
+        values = _finite(f"clip {clip.name!r} channel {c} values", channel.values).astype("<f4")
+        d = values.shape[-1]
+        if times.tobytes() not in inputs:
+            inputs[times.tobytes()] = writer.accessor(times, "SCALAR", bounds=True)  # min/max required for inputs
+        output = writer.accessor(values.reshape(-1, d), f"VEC{d}")
+        samplers.append({"input": inputs[times.tobytes()], "output": output, "interpolation": channel.interpolation})
+        channels.append({"sampler": c, "target": {"node": channel.bone, "path": channel.path}})
+    return {"name": clip.name, "samplers": samplers, "channels": channels}
+
+
+def buffer_file(path: str | Path, what: str = "path") -> Path | None:
+    """The buffer file ``save_model`` writes beside ``path``: ``<stem>.bin`` for a .gltf, None for a .glb.
+
+    Args:
+        path: str or Path of the .gltf or .glb to write.
+        what: the argument named in the error.
+    Returns:
+        The ``<stem>.bin`` path for a .gltf, None for a .glb.
+    Raises:
+        ValueError: that file exists and is not a buffer of the .gltf at ``path`` (none there, or one that
+            does not refer to it): writing would destroy an unrelated file.
+    """
+    path = Path(path)
+    if path.suffix.lower() != ".gltf":
+        return None
+    bin_path = path.with_suffix(".bin")
+    if not bin_path.exists():
+        return bin_path
+    try:
+        buffers = json.loads(path.read_bytes()).get("buffers", [])
+        uris = [urllib.parse.unquote(b["uri"]) for b in buffers if isinstance(b, dict) and "uri" in b]
+    except (OSError, ValueError, AttributeError, TypeError):  # no .gltf there, or not a glTF document
+        uris = []
+    if not any(os.path.realpath(path.parent / uri) == os.path.realpath(bin_path) for uri in uris):
+        raise ValueError(
+            f"{what}: {bin_path} exists and is not the buffer of {path}; writing {path.name} would replace it "
+            "(move it away or choose another name)"
+        )
+    return bin_path
+
+
+def save_model(model: RiggedModel, path: str | Path) -> None:
+    """Write a RiggedModel as glTF 2.0: ``.glb``, or ``.gltf`` with a sibling ``<stem>.bin``.
+
+    Bones become nodes 0..b-1 (name, translation, rotation, scale, children); a mesh node named
+    ``model.name`` at the scene root, without a transform, holds one mesh with one primitive per
+    ``mesh.primitive_sizes`` entry (one when empty) and the skin (``joints`` = ``mesh.joints``,
+    ``inverseBindMatrices``). Attributes: POSITION (float, with min/max), indices (UNSIGNED_INT),
+    JOINTS_s (UNSIGNED_SHORT) and WEIGHTS_s (FLOAT), one set per 4 influences (k is padded to a
+    multiple of 4 with zero weights). Every clip with channels becomes an animation (a clip without
+    channels is not written: glTF animations need one); samplers keep their interpolation.
+
+    Buffer data (V, W, inverse_bind, key times and values) is written as float32: a float64 model is
+    rounded once, a model read from a file round-trips exactly. Node TRS go into the JSON at full
+    double precision. Reading back gives the bones in depth-first order, which is the order of every
+    loaded skeleton; another topological order comes back reordered.
+
+    The file (and a .gltf's buffer) is written to a temporary file beside it and renamed into place when
+    complete (``_jaxcga_shared.output.replacing``): a failed write leaves an existing file as it was.
+
+    Args:
+        model: RiggedModel with mesh V (n, 3), F (m, 3), J (n, k), W (n, k), inverse_bind (j, 4, 4),
+            skeleton translation (b, 3), rotation (b, 4), scale (b, 3), clips' times (t,) and values
+            (t, d) or (t, 3, d).
+        path: str or Path ending in ``.glb`` or ``.gltf``.
+    Returns:
+        None; the file is in place.
+    Raises:
+        ValueError: wrong suffix; ``mesh.joints`` repeats a bone (two inverse bind matrices for one
+            node cannot be one glTF skin); non-finite values; key times not increasing in float32;
+            faces crossing ``primitive_sizes``; an empty primitive; a ``<stem>.bin`` beside a .gltf
+            ``path`` that is not that file's buffer (``buffer_file``).
+        OSError: the file cannot be written (an existing one is left as it was).
+    """
+    write_files(model_files(model, path))
+
+
+def save_models(models: Mapping[str | Path, RiggedModel]) -> None:
+    """Write several RiggedModels, ``{path: model}``, as one unit (the two halves of a cut): every file is written
+    beside its target first, and none replaces an existing file unless all were written.
+
+    Args:
+        models: ``{path: model}``, each as ``save_model``'s ``path`` and ``model``; two paths that name the same
+            file are refused.
+    Returns:
+        None; every file is in place.
+    Raises:
+        ValueError: as ``save_model``, for any of the models; two paths naming the same file.
+        OSError: a file cannot be written (every existing one is left as it was).
+    """
+    files: dict[Path, bytes | str] = {}
+    for path, model in models.items():
+        for file, data in model_files(model, path).items():
+            if any(os.path.realpath(file) == os.path.realpath(other) for other in files):
+                raise ValueError(f"models: {file} is written twice; give each model its own file name")
+            files[file] = data
+    write_files(files)
+
+
+def model_files(model: RiggedModel, path: str | Path) -> dict[Path, bytes | str]:
+    """The files ``save_model(model, path)`` writes, ``{path: content}``: the .glb, or the .gltf and its buffer
+    (``save_models`` writes several models as one unit). Arguments and errors as
+    ``save_model``'s, except that nothing is written."""
+    path = Path(path)
+    if path.suffix.lower() not in GLTF_OUTPUTS:
+        raise ValueError(f"path: expected a .glb or .gltf file name, got {path.name!r}")
+    bin_path = buffer_file(path)
+    mesh, skeleton = model.mesh, model.skeleton
+    repeated = sorted({skeleton.names[j] for j in mesh.joints if mesh.joints.count(j) > 1})
+    if repeated:
+        raise ValueError(
+            f"model.mesh.joints: bones {repeated} appear as several joints (different inverse bind matrices); "
+            "one glTF skin lists each node once"
+        )
+    writer = _Writer()
+    primitives = _mesh_json(mesh, writer)
+    ibm = _finite("model.mesh.inverse_bind", mesh.inverse_bind).astype("<f4").transpose(0, 2, 1).reshape(-1, 16)
+    skin = {"joints": list(mesh.joints), "inverseBindMatrices": writer.accessor(ibm, "MAT4")}
+    t, r, s = (_finite(f"model.skeleton.{a}", getattr(skeleton, a)) for a in ("translation", "rotation", "scale"))
+    b = skeleton.num_bones
+    nodes = [
+        {"name": skeleton.names[i], "translation": t[i].tolist(), "rotation": r[i].tolist(), "scale": s[i].tolist()}
+        for i in range(b)
+    ]
+    for i, p in enumerate(skeleton.parents):
+        if p != -1:
+            nodes[p].setdefault("children", []).append(i)
+    nodes.append({"name": model.name, "mesh": 0, "skin": 0})
+    roots = [i for i, p in enumerate(skeleton.parents) if p == -1] + [b]
+    animations = [_animation_json(clip, writer) for clip in model.clips if clip.channels]
+    blob = writer.blob()
+    buffer: dict[str, int | str] = {"byteLength": len(blob)}
+    if bin_path is not None:
+        buffer["uri"] = urllib.parse.quote(bin_path.name)
+    doc = {
+        "asset": {"version": "2.0", "generator": "jaxcga"},
+        "scene": 0,
+        "scenes": [{"name": model.name, "nodes": roots}],
+        "nodes": nodes,
+        "meshes": [{"name": model.name, "primitives": primitives}],
+        "skins": [skin],
+        "accessors": writer.accessors,
+        "bufferViews": writer.views,
+        "buffers": [buffer],
+    }
+    if animations:
+        doc["animations"] = animations
+    if bin_path is not None:
+        return {path: json.dumps(doc, indent=1), bin_path: blob}
+    text = json.dumps(doc, separators=(",", ":")).encode("utf-8")
+    text += b" " * (-len(text) % 4)
+    total = 12 + 8 + len(text) + 8 + len(blob)
+    return {
+        path: struct.pack("<4sII", _GLB_MAGIC, 2, total)
+        + struct.pack("<II", len(text), _CHUNK_JSON)
+        + text
+        + struct.pack("<II", len(blob), _CHUNK_BIN)
+        + blob
+    }
