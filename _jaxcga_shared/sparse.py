@@ -39,6 +39,7 @@ import scipy.sparse.linalg as spla
 from jaxtyping import Array, Float, Int
 from sksparse_minimal import SparseCholesky
 
+from _jaxcga_shared.broadcast import lift_rank
 from _jaxcga_shared.checks import require
 from _jaxcga_shared.ell import ell_matrix, ell_matvec
 from _jaxcga_shared.host import host_call, to_devices
@@ -376,12 +377,13 @@ def preconditioned_cg(
         active = (rr > stop) & live
         broken = broken | jnp.any(active & ~(pAp > 0))
         alpha = jnp.where(active & (pAp > 0), rz / jnp.where(pAp > 0, pAp, 1), 0)
+        alpha = lift_rank(alpha, p.ndim)  # one step per column of (n, k) right-hand sides
         x = x + alpha * p
         r = r - alpha * Ap
         z = precondition(r)
         rz_new = dot(r, z)
         beta = jnp.where(active & (rz != 0), rz_new / jnp.where(rz != 0, rz, 1), 0)
-        return k + live.astype(jnp.int32), x, r, z + beta * p, rz_new, dot(r, r), broken
+        return k + live.astype(jnp.int32), x, r, z + lift_rank(beta, p.ndim) * p, rz_new, dot(r, r), broken
 
     def body(carry):
         for _ in range(int(check_every)):

@@ -100,7 +100,7 @@ def fabrik(
     # out of reach: the chain points straight at the target
     toward = _unit(target - root, rest[0])
     offsets = jnp.concatenate([jnp.zeros(1, P.dtype), jnp.cumsum(lengths)])
-    straight = root + offsets[:, None] * toward
+    straight = root[None] + offsets[:, None] * toward[None]
     unreachable = jnp.linalg.norm(target - root) >= offsets[-1]
     return jnp.where(unreachable, straight, solved)
 

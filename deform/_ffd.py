@@ -129,7 +129,7 @@ def lattice_coordinates(V: Float[ArrayLike, "n 3"], lattice: Lattice) -> Float[A
     """
     V = check_vectors("V", V, rows="n")
     axes, origin = lattice.axes.astype(V.dtype), lattice.origin.astype(V.dtype)
-    local = jnp.linalg.solve(axes.T, (V - origin).T).T
+    local = jnp.linalg.solve(axes.T, (V - origin[None]).T).T
     tolerance = float(np.sqrt(np.finfo(V.dtype).eps))
     outside = ~jnp.all((local >= -tolerance) & (local <= 1 + tolerance))
     return require(
@@ -195,7 +195,7 @@ def lattice_points(lattice: Lattice) -> Float[Array, "k 3"]:
     Returns:
         (l m n, 3) the control points.
     """
-    return lattice.origin + jnp.matmul(_local_grid(lattice), lattice.axes, precision=EXACT)
+    return lattice.origin[None] + jnp.matmul(_local_grid(lattice), lattice.axes, precision=EXACT)
 
 
 def ffd_precompute(V: Float[ArrayLike, "n 3"], lattice: Lattice) -> MotorField:
