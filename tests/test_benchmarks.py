@@ -292,13 +292,16 @@ def test_compile_for_gpu_reads_loops_and_conditionals_of_compiled_code():
     def checked_first(x):
         return jnp.sin(jax.lax.cond(x.sum() > 0, lambda y: y + 1, lambda y: y - 1, x)) * x
 
-    launches, conditionals, waiting, loops = compile_for_gpu.structure(
-        jax.jit(program).lower(jnp.ones(5)).compile().as_text()
-    )
+    def compiled_text(f) -> str:
+        text = jax.jit(f).lower(jnp.ones(5)).compile().as_text()
+        assert text is not None, "the CPU backend gives the compiled module's text"
+        return text
+
+    launches, conditionals, waiting, loops = compile_for_gpu.structure(compiled_text(program))
     assert conditionals == 1 and waiting == 0 and launches >= 1  # the conditional is last: nothing waits for it
     assert [loop.trip_count for loop in loops] == [3, None]
     assert all(loop.launches >= 1 and loop.conditionals == 0 and not loop.loops for loop in loops)
-    first = compile_for_gpu.structure(jax.jit(checked_first).lower(jnp.ones(5)).compile().as_text())
+    first = compile_for_gpu.structure(compiled_text(checked_first))
     assert first.conditionals == 1 and first.waiting == 1
 
 

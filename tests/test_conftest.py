@@ -4,6 +4,7 @@ reason is an error; ``--gpu-variants`` takes the GPU formulations on the CPU."""
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 import pytest
 
 from tests.shared import cpu_formulation_skip_reason, gpu_branches, host_skip_reason
@@ -51,3 +52,12 @@ def test_gpu_variants_take_the_other_branch_on_the_cpu_and_keep_both_in_the_trac
     )
     with pytest.raises(ValueError, match="per_platform: a TPU branch"):
         jax.lax.platform_dependent(x, cpu=lambda x: x, tpu=lambda x: x, default=lambda x: x)
+
+
+def test_implicit_rank_promotion_raises_and_explicit_broadcasting_is_the_same():
+    """The suite runs with ``jax_numpy_rank_promotion="raise"`` (conftest.py): an implicit broadcast of a (3,) row
+    against (2, 3) is an error, the explicit one the library writes gives numpy's result."""
+    row, table = jnp.arange(3.0), jnp.ones((2, 3))
+    with pytest.raises(ValueError, match="rank_promotion"):
+        _ = row + table
+    np.testing.assert_array_equal(row[None] + table, np.arange(3.0) + np.ones((2, 3)))
