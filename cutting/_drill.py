@@ -914,8 +914,8 @@ def drill_positions(V: Float[ArrayLike, "n 3"], topology: DrillTopology, drill: 
     tip, base, radius = jnp.asarray(drill.tip), jnp.asarray(drill.base), jnp.asarray(drill.radius)
     crossing = topology.crossing
     axis = (tip - base) / jnp.linalg.norm(tip - base)
-    relative = V - base
-    radial = relative - (relative @ axis)[:, None] * axis
+    relative = V - base[None]
+    radial = relative - (relative @ axis)[:, None] * axis[None]
     mu, nu = radial[crossing[:, 0]], radial[crossing[:, 1]]
     K = jnp.sum((mu - nu) ** 2, -1)
     L = 2.0 * jnp.sum((mu - nu) * nu, -1)
