@@ -154,7 +154,7 @@ def test_require_around_checks_in_either_placement_and_passes_values_and_derivat
     weights = jnp.linspace(0.0, 1.0, 1_000)
 
     def spread(table):  # a small operand to a large result, as a joints' table to skinned vertices
-        return require_around(lambda t: weights[:, None] * t, table, (table < 0, MESSAGE))
+        return require_around(lambda t: weights[:, None] * t[None], table, (table < 0, MESSAGE))
 
     good, bad = np.array([0.0, 1.5]), np.array([1.0, -1.0])
     with pytest.raises(ValueError, match=MESSAGE):
@@ -167,7 +167,7 @@ def test_require_around_checks_in_either_placement_and_passes_values_and_derivat
         with pytest.raises((RuntimeError, ValueError)) as raised:  # a cached executable's failure: a ValueError
             jax.block_until_ready(fn(x))
         assert compiled_error_message(raised.value) == MESSAGE
-    np.testing.assert_array_equal(jax.jit(spread)(good), weights[:, None] * good)
+    np.testing.assert_array_equal(jax.jit(spread)(good), weights[:, None] * good[None])
     np.testing.assert_array_equal(
         jax.jit(jax.vmap(spread))(np.stack([good, 2 * good])), [spread(good), spread(2 * good)]
     )
