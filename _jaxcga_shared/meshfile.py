@@ -30,7 +30,7 @@ def read_mesh_file(path: str | Path, name: str = "mesh", weld: bool = True):
     try:
         loaded = trimesh.load(path, force="mesh", process=False)
     except (ValueError, KeyError, IndexError, TypeError, AttributeError) as error:  # trimesh's parsers
-        line = _bad_obj_vertex(path)
+        line = _bad_obj_vertex(path) or _bad_obj_face(path)
         raise ValueError(
             f"{name}: {path}: {line}" if line else f"{name}: trimesh cannot read {path} ({error})"
         ) from None
@@ -76,6 +76,33 @@ def _bad_obj_vertex(path: Path) -> str | None:
                     good = False
                 if not good:
                     return f"line {number}: {line.strip()!r} is not a vertex of three finite numbers"
+    return None
+
+
+def _bad_obj_face(path: Path) -> str | None:
+    """The first line of an OBJ file's faces that refers to a vertex the file does not have (OBJ counts from 1;
+    a negative index counts back from the vertices read so far), or None."""
+    if path.suffix.lower() != ".obj":
+        return None
+    with open(path, errors="replace") as file:
+        lines = file.readlines()
+    total = sum(line.split()[:1] == ["v"] for line in lines)
+    seen = 0
+    for number, line in enumerate(lines, 1):
+        words = line.split()
+        if words[:1] == ["v"]:
+            seen += 1
+        elif words[:1] == ["f"]:
+            for corner in words[1:]:
+                try:
+                    index = int(corner.split("/")[0])
+                except ValueError:
+                    return f"line {number}: {line.strip()!r}: {corner!r} is not a vertex index"
+                if index == 0:
+                    return f"line {number}: {line.strip()!r} refers to vertex 0 (OBJ counts vertices from 1)"
+                if index > total or -index > seen:
+                    have = f"{total} vertices" if index > 0 else f"{seen} vertices before this line"
+                    return f"line {number}: {line.strip()!r} refers to vertex {index}, but the file has {have}"
     return None
 
 

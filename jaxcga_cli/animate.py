@@ -36,6 +36,7 @@ def run(args) -> dict:
     from jaxcga_cli.models import load_model
 
     model = load_model(args.model, weld=args.weld)
+    arguments.check_clip(model, args.clip, interpolation=args.interpolation)
     return model.name, animate_command(model, args.frames, args.out, args.clip, args.interpolation)
 
 
