@@ -117,3 +117,39 @@ def _bad_vertex(path: Path, V) -> str:
     count = f"{int(bad.sum())} non-finite vertices" if bad.sum() > 1 else "a non-finite vertex"
     first = int(np.argmax(bad))
     return f"{count}, the first is vertex {first}: {V[first].tolist()}"
+
+
+def read_array_file(path: str | Path, name: str, mmap: bool = False) -> np.ndarray:
+    """The array in the .npy file ``path``, its header checked first so that a bad file is told in its own terms:
+    not a .npy file, a pickled (object) array, or truncated (fewer bytes than its header states).
+
+    Args:
+        path: the .npy file.
+        name: what the caller calls it (an option's name); starts every message.
+        mmap: map the file read-only instead of reading it (the viewer reads shapes of large frames so).
+
+    Raises:
+        FileNotFoundError: no such file. ValueError: any of the above, naming ``name`` and the file.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{name}: no such file {path}")
+    fmt = np.lib.format
+    with open(path, "rb") as file:
+        try:
+            version = fmt.read_magic(file)
+            read_header = fmt.read_array_header_1_0 if version == (1, 0) else fmt.read_array_header_2_0
+            shape, _, dtype = read_header(file)
+        except (ValueError, OSError, EOFError) as error:
+            raise ValueError(f"{name}: {path} is not a .npy file (np.save writes one): {error}") from None
+        start = file.tell()
+    if dtype.hasobject:
+        raise ValueError(f"{name}: {path} holds Python objects (a pickled array), not numbers; it is not read")
+    need = start + int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
+    have = path.stat().st_size
+    if have < need:
+        raise ValueError(
+            f"{name}: {path} is truncated: {have} of the {need} bytes its header states for a {dtype} array of "
+            f"shape {shape}"
+        )
+    return np.load(path, mmap_mode="r" if mmap else None, allow_pickle=False)

@@ -116,11 +116,9 @@ def fit_command(
 def _read_array(name: str, path: Path):
     """The array in the .npy file ``path`` (the option ``name`` gave it): a ValueError naming the option for a
     missing file or one that holds no plain array."""
-    import numpy as np
+    from _jaxcga_shared.meshfile import read_array_file
 
-    if not Path(path).is_file():
-        raise FileNotFoundError(f"{name}: no such file {path}")
-    try:
-        return np.load(path, allow_pickle=False)
-    except (ValueError, OSError, EOFError) as error:
-        raise ValueError(f"{name}: {path} is not a .npy file of a numeric array ({type(error).__name__})") from None
+    array = read_array_file(path, name)
+    if array.dtype.kind not in "fiu":
+        raise ValueError(f"{name}: {path} holds {array.dtype} values, expected numbers")
+    return array

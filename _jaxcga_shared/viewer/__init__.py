@@ -235,9 +235,11 @@ def _read_inputs(inputs: tuple, mesh) -> list[Gltf | Sequence]:
 
 
 def _npy_shape(path: Path, what: str) -> tuple[int, ...]:
+    from _jaxcga_shared.meshfile import read_array_file
+
     try:
-        return np.load(path, mmap_mode="r", allow_pickle=False).shape
-    except (OSError, ValueError) as error:
+        return read_array_file(path, what, mmap=True).shape
+    except OSError as error:
         raise ValueError(f"{what}: cannot read {path} as .npy ({error})") from None
 
 
