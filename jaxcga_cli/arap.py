@@ -101,7 +101,7 @@ def handle_targets(path: Path, V):
     import jaxcga as cga
     from jaxcga_cli.models import read_handles
 
-    groups, motors, targets = read_handles(path, len(V), positions=True)
+    groups, motors, targets = read_handles(path, V, positions=True)
     if targets is None:
         targets = [
             np.asarray(cga.apply_to_points(cga.Multivector(motors.values[i], motors.blades), jnp.asarray(V[g])))

@@ -165,7 +165,7 @@ def deform_command(
     motion = Motion(V, bend, twist, translate)
     # the handles, read and checked before the work starts
     if method == "handles" and handles is not None:
-        parts, key_motors, _ = read_handles(handles, len(V))
+        parts, key_motors, _ = read_handles(handles, V)
     elif method in ("spline", "handles"):
         parts = list(end_handles(motion, V, handle_fraction))
         key_motors = motion.motors(np.array([0.0, 1.0]))
