@@ -62,7 +62,7 @@ def fit_command(
     import deform
     from _jaxcga_shared.mesh import bounding_diagonal
     from _jaxcga_shared.output import write_json
-    from jaxcga_cli.report import status
+    from jaxcga_cli.report import StepProgress
 
     targets = _read_array("target", target)
     index = None if vertices is None else _read_array("vertices", vertices)
@@ -72,11 +72,9 @@ def fit_command(
             f"{targets.shape}; give --vertices for a subset"
         )
     dtype = model.mesh.V.dtype
-    with status(
-        "fit",
-        f"fitting {model.skeleton.num_bones} bones to {len(targets)} target positions (compiling, "
-        f"then at most {max_steps} solver steps)",
-    ):
+    desc = f"fit {model.skeleton.num_bones} bones to {len(targets)} targets"
+    with StepProgress("fit", max_steps, "step", desc) as progress:
+        # loss: the sum of squared residuals, distances over the rest pose's diagonal
         fit = deform.fit_pose(
             model,
             jnp.asarray(targets, dtype),
@@ -85,6 +83,7 @@ def fit_command(
             regularization=regularization,
             max_steps=max_steps,
             fit_scale=fit_scale and method != "dqs",
+            progress=lambda loss: progress.step(loss=f"{float(loss):.3g}"),
         )
         translation, rotation, scale = deform.versor_to_trs(fit.local)
     diagonal = bounding_diagonal(deform.rest_pose(model, "lbs"))

@@ -27,25 +27,35 @@ def status(command: str, doing: str) -> Iterator[None]:
 
 
 class StepProgress:
-    """A progress bar over ``total`` steps of a compiled loop. The first step compiles: it runs under a status
-    line, and the bar starts after it, so that its rate and ETA count step time only. Call ``step()`` after each
-    step and ``close()`` at the end (or use it as a context manager)."""
+    """A progress bar over ``total`` steps of a compiled loop (at most ``total`` where the loop may stop early).
+    The first step compiles: it runs under a status line, and the bar starts after it, so that its rate and ETA
+    count step time only; with ``compiled`` (the loop was compiled ahead) the bar starts at once. Call
+    ``step(**postfix)`` after each step (``postfix``: values shown after the bar, e.g. a residual) and ``close()``
+    at the end (or use it as a context manager)."""
 
-    def __init__(self, command: str, total: int, unit: str, desc: str):
+    def __init__(self, command: str, total: int, unit: str, desc: str, compiled: bool = False):
         self.command, self.total, self.unit, self.desc = command, total, unit, desc
         self.bar = None
         self.start = time.perf_counter()
-        say(command, f"compiling (the first {unit} includes compilation) ...")
+        if compiled:
+            self.bar = self._bar(0)
+        else:
+            say(command, f"compiling (the first {unit} includes compilation) ...")
 
-    def step(self) -> None:
+    def _bar(self, initial: int):
+        from tqdm import tqdm
+
+        return tqdm(total=self.total, initial=initial, desc=self.desc, unit=self.unit, file=sys.stderr)
+
+    def step(self, **postfix) -> None:
         if self.bar is None:
             say(self.command, f"first {self.unit} done in {time.perf_counter() - self.start:.1f} s")
-            from tqdm import tqdm
-
             # initial=1: tqdm's rate counts the steps made since the bar started, the compiled ones
-            self.bar = tqdm(total=self.total, initial=1, desc=self.desc, unit=self.unit, file=sys.stderr)
+            self.bar = self._bar(1)
         else:
             self.bar.update(1)
+        if postfix:
+            self.bar.set_postfix(postfix, refresh=False)
 
     def close(self) -> None:
         if self.bar is not None:
