@@ -127,15 +127,9 @@ def check_clip(model, clip: int | str = 0, time: float | None = None, interpolat
     import warnings
 
     if not model.clips:
-        ignored = [
-            option
-            for option, given in (
-                (f"--clip {clip}", clip not in (0, -1)),
-                (f"--time {time:g}", time not in (None, 0.0)),
-                (f"--interpolation {interpolation}", interpolation != "gltf"),
-            )
-            if given
-        ]
+        ignored = [f"--clip {clip}"] if clip not in (0, -1) else []
+        ignored += [f"--time {time:g}"] if time not in (None, 0.0) else []
+        ignored += [f"--interpolation {interpolation}"] if interpolation != "gltf" else []
         if ignored:
             warnings.warn(f"{model.name} has no clip: {', '.join(ignored)} ignored", stacklevel=2)
         return None

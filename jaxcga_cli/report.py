@@ -4,16 +4,32 @@ progress bar whose rate and ETA leave out compilation, warnings and errors on on
 from __future__ import annotations
 
 import contextlib
+import contextvars
 import logging
 import sys
 import time
 import warnings
 from collections.abc import Iterator
 
+_QUIET = contextvars.ContextVar("jaxcga_cli_quiet", default=False)
 
-def say(command: str, text: str) -> None:
-    """``jaxcga COMMAND: TEXT`` on stderr (stdout keeps the command's one-line summary)."""
-    print(f"jaxcga {command}: {text}", file=sys.stderr, flush=True)
+
+def say(command: str, text: str, always: bool = False) -> None:
+    """``jaxcga COMMAND: TEXT`` on stderr (stdout keeps the command's one-line summary); inside ``quiet()`` only
+    with ``always`` (warnings)."""
+    if always or not _QUIET.get():
+        print(f"jaxcga {command}: {text}", file=sys.stderr, flush=True)
+
+
+@contextlib.contextmanager
+def quiet() -> Iterator[None]:
+    """Leave out the status lines and progress bars of the commands run inside (``jaxcga demo`` runs other
+    commands' code and tells its own story); warnings and errors still print."""
+    token = _QUIET.set(True)
+    try:
+        yield
+    finally:
+        _QUIET.reset(token)
 
 
 @contextlib.contextmanager
@@ -36,6 +52,7 @@ class StepProgress:
     def __init__(self, command: str, total: int, unit: str, desc: str, compiled: bool = False):
         self.command, self.total, self.unit, self.desc = command, total, unit, desc
         self.bar = None
+        self.quiet = _QUIET.get()  # read here: step() runs on JAX's callback thread, outside this context
         self.start = time.perf_counter()
         if compiled:
             self.bar = self._bar(0)
@@ -45,11 +62,14 @@ class StepProgress:
     def _bar(self, initial: int):
         from tqdm import tqdm
 
-        return tqdm(total=self.total, initial=initial, desc=self.desc, unit=self.unit, file=sys.stderr)
+        return tqdm(
+            total=self.total, initial=initial, desc=self.desc, unit=self.unit, file=sys.stderr, disable=self.quiet
+        )
 
     def step(self, **postfix) -> None:
         if self.bar is None:
-            say(self.command, f"first {self.unit} done in {time.perf_counter() - self.start:.1f} s")
+            if not self.quiet:
+                say(self.command, f"first {self.unit} done in {time.perf_counter() - self.start:.1f} s")
             # initial=1: tqdm's rate counts the steps made since the bar started, the compiled ones
             self.bar = self._bar(1)
         else:
@@ -94,7 +114,7 @@ def one_line_reports(command: str) -> Iterator[None]:
     disabled, logger.disabled = logger.disabled, True
     try:
         with warnings.catch_warnings():
-            warnings.showwarning = lambda message, *_, **__: say(command, f"warning: {message}")
+            warnings.showwarning = lambda message, *_, **__: say(command, f"warning: {message}", always=True)
             yield
     finally:
         logger.disabled = disabled

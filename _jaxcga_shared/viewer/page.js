@@ -272,6 +272,28 @@
     });
     scene.updateMatrixWorld(true);
 
+    // each input's name under it, kept there as the view turns (an HTML label over the canvas)
+    const labels = items.map((it) => {
+      const label = document.createElement('div');
+      label.className = 'label';
+      label.textContent = it.desc.name;
+      document.getElementById('view').appendChild(label);
+      return label;
+    });
+    function placeLabels() {
+      const canvas = renderer.domElement;
+      state.labels = items.map((it, k) => {
+        const box = boxes[k].clone().translate(slots[k].position);
+        const foot = new THREE.Vector3((box.min.x + box.max.x) / 2, box.min.y, (box.min.z + box.max.z) / 2);
+        foot.project(camera);
+        const x = ((foot.x + 1) / 2) * canvas.clientWidth;
+        const y = ((1 - foot.y) / 2) * canvas.clientHeight;
+        labels[k].style.left = `${x}px`;
+        labels[k].style.top = `${y}px`;
+        return { name: it.desc.name, x, y };
+      });
+    }
+
     // clips: by name across the glTFs; sequences only: one clip "frames"
     const clipNames = [];
     for (const g of gltfs) for (const c of g.clips) if (!clipNames.includes(c.name)) clipNames.push(c.name);
@@ -487,6 +509,7 @@
 
     function render() {
       renderer.render(scene, camera);
+      placeLabels();
       state.rendered++;
     }
 
