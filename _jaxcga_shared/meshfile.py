@@ -34,6 +34,10 @@ def read_mesh_file(path: str | Path, name: str = "mesh", weld: bool = True):
         raise ValueError(
             f"{name}: {path}: {line}" if line else f"{name}: trimesh cannot read {path} ({error})"
         ) from None
+    # trimesh wraps some indices outside the file (0, or -k past the vertices read) around silently
+    line = _bad_obj_face(path)
+    if line:
+        raise ValueError(f"{name}: {path}: {line}")
     if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
         raise ValueError(f"{name}: {path} holds no triangles")
     V, F = np.asarray(loaded.vertices, np.float64), np.asarray(loaded.faces, np.int64)
