@@ -126,11 +126,11 @@ _LEAST_SQUARES = ("levenberg_marquardt", "gauss_newton")  # their loss is half t
 
 def _reporter(progress, scale: float):
     """An optimistix ``verbose`` function that calls ``progress(loss)`` on the host after each solver step, with
-    the sum of squared residuals at the last accepted point (``scale`` times the solver's own loss)."""
+    the sum of squared residuals at the point the step evaluated (``scale`` times the solver's own loss; the
+    "last accepted" loss is a placeholder 0 at the first step)."""
 
     def verbose(**values):
-        _, loss = values.get("loss_last_accepted_step", values["loss_this_step"])
-        jax.debug.callback(progress, scale * loss, ordered=True)
+        jax.debug.callback(progress, scale * values["loss_this_step"][1], ordered=True)
 
     return verbose
 
@@ -285,8 +285,9 @@ def fit_pose(
         atol: see ``max_steps``.
         init: (b, 7) starting parameters (zeros: the rest pose).
         progress: None, or a function called on the host after each solver step with a () array: the sum of
-            the squared residuals (distances over the rest diagonal, and the regularization's) at the step's
-            accepted point, in order, also under ``jit`` (``jax.debug.callback``); for a progress bar.
+            the squared residuals (distances over the rest diagonal, and the regularization's) at the point the
+            step evaluated (the rest pose first; a trial point the solver then rejects counts too), in order, also
+            under ``jit`` (``jax.debug.callback``); for a progress bar.
     Returns:
         a PoseFit."""
     n = model.mesh.num_vertices

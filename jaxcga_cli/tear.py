@@ -115,11 +115,11 @@ def tear_command(
 
     import cutting
     import deform
+    from _jaxcga_shared.mesh import bounding_diagonal
     from jaxcga_cli.cut import coordinates
 
     scalpels = np.asarray(scalpels, np.float64)
-    V = np.asarray(model.mesh.V)
-    diagonal = float(np.linalg.norm(V.max(axis=0) - V.min(axis=0)))
+    diagonal = bounding_diagonal(model.mesh.V)
     if opening > diagonal:
         raise ValueError(
             f"opening: {opening:g} is wider than the model itself (its bounding box diagonal is {diagonal:.4g}, "

@@ -121,6 +121,34 @@ def test_a_step_progress_starts_its_bar_after_the_compiling_step(capsys):
     assert "fem test: 100%" in err and "4/4" in err
 
 
+def test_a_step_progress_of_a_loop_compiled_ahead_starts_at_once_and_shows_its_values(capsys):
+    with StepProgress("arap", 10, "iteration", "arap test", compiled=True) as progress:
+        assert progress.bar is not None and progress.bar.n == 0
+        for k in range(3):
+            progress.step(residual=f"{10.0**-k:.2g}")
+    err = capsys.readouterr().err
+    assert "compiling" not in err and "first" not in err
+    assert "3/10" in err and "residual=0.01" in err
+
+
+def test_quiet_leaves_out_status_lines_and_bars_but_not_warnings(capsys):
+    import warnings
+
+    from jaxcga_cli.report import one_line_reports, quiet, say, status
+
+    with one_line_reports("demo"), quiet():
+        with status("animate", "sampling"):
+            say("tear", "the model's bounding box")
+        with StepProgress("fem", 2, "step", "fem test") as progress:
+            progress.step()
+            progress.step()
+        warnings.warn("a mesh was welded", stacklevel=1)
+    assert capsys.readouterr().err == "jaxcga demo: warning: a mesh was welded\n"
+    with status("animate", "sampling"):  # outside: as before
+        pass
+    assert capsys.readouterr().err.startswith("jaxcga animate: sampling ...\n")
+
+
 def test_skin_reports_its_compiling_step_on_stderr(tmp_path, capsys):
     assert main(["skin", "--time", "0.2", "--out", str(tmp_path / "x.npy")]) == 0
     out, err = capsys.readouterr()
