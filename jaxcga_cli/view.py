@@ -4,6 +4,7 @@ models with their clips, mesh sequences (the .npy frames of ``skin``/``deform``/
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 from jaxcga_cli import arguments
@@ -75,7 +76,14 @@ def run(args) -> tuple[str, dict]:
     if not args.max_megabytes > 0:
         raise ValueError(f"max_megabytes: expected a positive size, got {args.max_megabytes:g}")
     with status("view", f"reading {len(args.inputs)} input{'s' if len(args.inputs) > 1 else ''}"):
-        page = view(*args.inputs, mesh=args.mesh, joint=args.joint, clip=args.clip, fps=args.fps, title=args.title)
+        try:
+            page = view(*args.inputs, mesh=args.mesh, joint=args.joint, clip=args.clip, fps=args.fps, title=args.title)
+        except ValueError as error:  # the library names its k-th argument inputs[k]; here it is INPUT k+1
+            text = str(error)
+            named = re.match(r"inputs\[(\d+)\]: ", text)
+            if named is None:
+                raise
+            raise ValueError(f"INPUT {int(named[1]) + 1}: {text[named.end() :]}") from None
     megabytes = len(page.html.encode("utf-8")) / 2**20
     if megabytes > args.max_megabytes:
         raise ValueError(

@@ -95,7 +95,8 @@ def test_a_gltf_the_page_would_show_empty_is_refused_before_embedding(tmp_path, 
         with pytest.raises(SystemExit) as stop:
             main(["view", str(path), "--out", str(tmp_path / "view.html")])
         err = capsys.readouterr().err
-        assert stop.value.code == 2 and err.splitlines()[-1].startswith("jaxcga view: error: ") and message in err
+        assert stop.value.code == 2 and err.splitlines()[-1].startswith("jaxcga view: error: INPUT 1: ")
+        assert message in err
         assert not (tmp_path / "view.html").exists()
 
 
