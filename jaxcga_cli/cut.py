@@ -61,7 +61,7 @@ def check_paths(args) -> None:
 def check_side_weight(side_weight: float) -> None:
     """--side-weight in [0, 1] (``cutting.cut``'s own check, made before the model is loaded)."""
     if not 0.0 <= side_weight <= 1.0:
-        raise ValueError(f"side_weight: expected --side-weight in [0, 1], got {side_weight:g}")
+        raise ValueError(f"side_weight: expected a number in [0, 1], got {side_weight}")
 
 
 def run(args) -> dict:

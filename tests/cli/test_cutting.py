@@ -106,7 +106,7 @@ def test_a_side_weight_outside_0_1_is_refused_before_loading(tmp_path, capsys, m
         err = capsys.readouterr().err
         assert (
             stop.value.code == 2
-            and err == f"jaxcga {argv[0]}: error: side_weight: expected --side-weight in [0, 1], got 5\n"
+            and err == f"jaxcga {argv[0]}: error: side_weight: expected a number in [0, 1], got 5.0\n"
         )
 
 
