@@ -262,7 +262,8 @@ def _surface_cells(path: Path) -> str:
     try:
         with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
             cells = {block.type for block in meshio.read(path).cells}
-    except (Exception, SystemExit):  # noqa: BLE001 (meshio's readers fail in many ways, some by sys.exit; the caller's error stands then)
+    # meshio's readers fail in many ways, some by sys.exit: the caller's error stands then
+    except (Exception, SystemExit):  # noqa: BLE001
         return ""
     return ", ".join(sorted(cells & {"triangle", "quad", "polygon"}))
 
