@@ -37,6 +37,8 @@ The page's state, for tests and scripts, is ``window.jaxcgaViewer``::
     playing, speed, loop, sequenceFps
     renderer, antialias              the WebGL renderer's name (e.g. SwiftShader's in headless Chromium) and whether
                                      the page multisamples (not on a software renderer)
+    labels: [{name, x, y}]           each input's name, drawn under it: the label's anchor in CSS pixels of the
+                                     drawing area (the middle of the bottom of the input's box, as projected)
     fps                              rendered frames per second over the last second
     rendered                         frames rendered since the page loaded
     frameChanges                     times the sequence frame shown (``frame``) changed since the page loaded
@@ -235,9 +237,11 @@ def _read_inputs(inputs: tuple, mesh) -> list[Gltf | Sequence]:
 
 
 def _npy_shape(path: Path, what: str) -> tuple[int, ...]:
+    from _jaxcga_shared.meshfile import read_array_file
+
     try:
-        return np.load(path, mmap_mode="r", allow_pickle=False).shape
-    except (OSError, ValueError) as error:
+        return read_array_file(path, what, mmap=True).shape
+    except OSError as error:
         raise ValueError(f"{what}: cannot read {path} as .npy ({error})") from None
 
 

@@ -391,14 +391,22 @@ def test_the_notebook_form_renders_in_its_sandboxed_iframe(browser, tmp_path):
 
 
 @pytest.mark.slow  # the whole demo (compilations, cut, tear, drill): about a minute
-def test_the_demo_page_plays_the_arm_cut_torn_and_drilled(browser, tmp_path):
+def test_the_demo_page_plays_the_arm_cut_torn_and_drilled(browser, tmp_path, capsys):
     from jaxcga_cli.main import main
 
     assert main(["demo", "--out", str(tmp_path), "--no-figure"]) == 0
+    assert capsys.readouterr().err == ""  # the demo tells its own story: no other command's status lines
     state = browser.open(tmp_path / "demo.html")
     assert state["errors"] == [] and state["ready"], state["errors"]
     names = ["default_arm", "arm_cut_upper", "arm_cut_lower", "arm_torn.glb", "arm_drilled.glb"]
     assert [m["name"] for m in state["meshes"]] == names and {m["kind"] for m in state["meshes"]} == {"skinned"}
+    # each model's name under it, left to right as they stand, inside the drawing area, which they fill
+    labels = state["labels"]
+    width, height = browser.screenshot().shape[1], browser.screenshot().shape[0] - 64
+    assert [label["name"] for label in labels] == names
+    xs = [label["x"] for label in labels]
+    assert xs == sorted(xs) and all(0 < label["x"] < width and 0 < label["y"] < height for label in labels)
+    assert xs[-1] - xs[0] > 0.6 * width  # the middles of the first and last models' boxes
     assert [c["name"] for c in state["clips"]] == ["wave"] and state["playing"]
     # every piece plays the arm's clip; the whole models equal deform's skinning of the files written
     models = [deform.default_arm(), *(deform.load_model(tmp_path / name) for name in names[3:])]
