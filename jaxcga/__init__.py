@@ -8,6 +8,7 @@ terms. Everything is jit-, vmap- and grad-able. See the cut/tear/drill paper, se
 (three.js in the browser, inline in notebooks).
 """
 
+from _jaxcga_shared.checks import CheckError
 from _jaxcga_shared.viewer import View, view
 from jaxcga._algebra import ALL_BLADES, blade_name
 from jaxcga._estimation import align_points
@@ -92,6 +93,7 @@ from jaxcga._versors import (
 
 __all__ = [
     "ALL_BLADES",
+    "CheckError",
     "KINDS",
     "MOTOR_GENERATOR",
     "SIMILITUDE_GENERATOR",
