@@ -96,7 +96,9 @@ class CSRPattern(eqx.Module):
     blocks: BlockLayout | None = None
 
 
-def csr_pattern(indptr, indices, *, block: int = 1, full_blocks: bool | None = None) -> CSRPattern:
+def csr_pattern(
+    indptr, indices, *, block: int = 1, full_blocks: bool | None = None, on_host: bool = False
+) -> CSRPattern:
     """Analyse a CSR structure (host, numpy): each entry's row and its slot in the diagonal blocks.
 
     Args:
@@ -106,8 +108,9 @@ def csr_pattern(indptr, indices, *, block: int = 1, full_blocks: bool | None = N
         full_blocks: whether the structure is made of full ``block`` x ``block`` blocks (``_full_blocks``); None
             checks it (20 ms a million entries), True is the caller's construction's guarantee (an XFEM
             system's pattern, built after every cut).
+        on_host: numpy arrays instead of device arrays (``to_devices``).
     Returns:
-        The ``CSRPattern`` (device arrays; numpy after ``keep_on_host``).
+        The ``CSRPattern``.
     """
     indptr, indices = np.asarray(indptr), np.asarray(indices)
     n = len(indptr) - 1
@@ -133,8 +136,8 @@ def csr_pattern(indptr, indices, *, block: int = 1, full_blocks: bool | None = N
         full_blocks = block > 1 and _full_blocks(indptr, indices[:used], block)
     full = bool(full_blocks) and block > 1
     indptr, indices = (a.astype(index, copy=False) for a in (indptr, indices))
-    blocks = BlockLayout(*to_devices(*_block_layout(indptr, indices, block))) if full else None
-    indptr, indices, rows, slots = to_devices(indptr, indices, rows, slots)
+    blocks = BlockLayout(*to_devices(*_block_layout(indptr, indices, block), on_host=on_host)) if full else None
+    indptr, indices, rows, slots = to_devices(indptr, indices, rows, slots, on_host=on_host)
     return CSRPattern(
         indptr=indptr, indices=indices, rows=rows, block_slots=slots, n=n, block=block, full_blocks=full, blocks=blocks
     )
