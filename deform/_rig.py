@@ -229,9 +229,7 @@ def _chains_by_doubling(local, parents, *, compose, rounds: int):
     return acc
 
 
-_CHAINS = PerPlatform(
-    "deform.forward_kinematics", cpu=_chains_in_a_loop, gpu=_chains_by_doubling
-)
+_CHAINS = PerPlatform("deform.forward_kinematics", cpu=_chains_in_a_loop, gpu=_chains_by_doubling)
 
 
 def _compose_chains(parents, local, compose):

@@ -184,9 +184,7 @@ def _blend_dilations_jvp(primals, tangents):
     return out, _blend_dilations_sparse(J, W_dot, dilations) + _blend_dilations_sparse(J, W, dilations_dot)
 
 
-_blend_dilations = PerPlatform(
-    "deform.blend_dilations", cpu=_blend_dilations_cpu, gpu=_blend_dilations_sparse
-)
+_blend_dilations = PerPlatform("deform.blend_dilations", cpu=_blend_dilations_cpu, gpu=_blend_dilations_sparse)
 
 
 def _blend_affine(V, J, W, maps: Float[Array, "... j r 4"]) -> Float[Array, "... n 3"]:
