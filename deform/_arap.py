@@ -79,7 +79,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from _jaxcga_shared.checks import check_choice, check_index_range, check_triangle_mesh, require
 from _jaxcga_shared.ell import padded_rows
-from _jaxcga_shared.platform import EXACT, example, per_platform
+from _jaxcga_shared.platform import EXACT, per_platform
 from _jaxcga_shared.sparse import SparseSolver
 from deform._parts import UNHANDLED, mesh_parts
 from jaxcga import KINDS, Multivector, align_points, apply_to_points
@@ -242,15 +242,7 @@ def _adjugate_and_det4(a):
     return jnp.swapaxes(cof, -1, -2), jnp.einsum("...j,...j->...", a[..., 0, :], cof[..., 0, :], precision=EXACT)
 
 
-def _quartic_examples():
-    rng = np.random.default_rng(3)
-    S = rng.normal(size=(40, 3, 3))
-    norm2 = np.sum(S * S, axis=(1, 2))
-    c1, c0 = -8.0 * np.linalg.det(S), rng.normal(size=40) * norm2
-    return [example(-2.0 * norm2, c1, c0, np.sqrt(3.0 * norm2), newton_steps=24)]
-
-
-@per_platform("deform.largest_quartic_root", examples=_quartic_examples)
+@per_platform("deform.largest_quartic_root")
 def _largest_quartic_root(c2, c1, c0, start, *, newton_steps: int, cpu: bool):
     """The largest root of ``l^4 + c2 l^2 + c1 l + c0`` by Newton from ``start`` (above it), elementwise. A rolled
     loop on the CPU (unrolled, differentiating the steps compiled 3x slower there and ran no faster); unrolled

@@ -214,7 +214,7 @@ class RiggedModel(eqx.Module):
                 raise ValueError(f"clips: clip {clip.name!r} animates a bone outside [0, {b})")
 
     def to_glb(self) -> bytes:
-        """The model as a glTF binary (.glb), as ``deform.save_model`` writes it: for ``jaxcga.view(model)``
+        """The model as a glTF binary (.glb), as ``deform.save_model`` writes it: for ``deform.view(model)``
         and anything else that takes glTF bytes."""
         from deform._gltf import model_files
 

@@ -177,14 +177,14 @@ def ffd_figure(V, F, classic, motor, ratios: tuple[float, float], path: Path) ->
 
 
 def viewer_page(out: Path, arm, halves) -> Path:
-    """Write ``out/demo.html``: the viewer (``jaxcga.view``) of the arm, the two halves of its cut (RiggedModels), and
+    """Write ``out/demo.html``: the viewer (``deform.view``) of the arm, the two halves of its cut (RiggedModels), and
     the torn and drilled arms (``out/arm_torn.glb``, ``out/arm_drilled.glb``), side by side, all playing the arm's
     clip (by its name: ``out/arm_animated.glb`` names its re-sampled clip apart)."""
-    import jaxcga as cga
+    import deform
 
     inputs = [arm, *halves, out / "arm_torn.glb", out / "arm_drilled.glb"]
     title = "jaxcga demo: the arm animated, cut, torn and drilled"
-    return cga.view(*inputs, title=title).save(out / "demo.html", force=True)
+    return deform.view(*inputs, title=title).save(out / "demo.html", force=True)
 
 
 def demo(out: Path, steps: int, figure: bool) -> None:

@@ -20,7 +20,7 @@ last):
   ``piece_K`` (f_K,) int64 the connected piece of each triangle and ``vertex_K`` (s_K,) int64 the model's vertex
   that each row copies (a triangle across a cut gets its own copies of the corners on the other side); and
   ``first`` (segments,) int64, ``times`` (N+1,) float64;
-* ``view.html``: the viewer page (``jaxcga.view``) playing the frames at the run's frame rate; with ``--cut``, each
+* ``view.html``: the viewer page (``deform.view``) playing the frames at the run's frame rate; with ``--cut``, each
   connected piece in its own colour;
 * ``summary.json``: the run's settings, the body (tets, nodes, DOFs, driven and anchor nodes, the
   tetrahedralization's time and quality), steps, the seconds of each stage (the rig, the cuts' pieces, each
@@ -645,6 +645,6 @@ class Timeline:
 
 
 def _view(item, fps: float, title: str):
-    import jaxcga
+    import deform
 
-    return jaxcga.view(item, fps=fps, title=title)
+    return deform.view(item, fps=fps, title=title)

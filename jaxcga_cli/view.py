@@ -1,6 +1,6 @@
 """``jaxcga view``: one self-contained HTML page (three.js inside, no network at view time) that shows skinned glTF
 models with their clips, mesh sequences (the .npy frames of ``skin``/``deform``/``arap``, the .vtu frames of
-``fem``/``xfem``) and meshes side by side, to open in a browser (``jaxcga.view``)."""
+``fem``/``xfem``) and meshes side by side, to open in a browser (``deform.view``)."""
 
 from __future__ import annotations
 

@@ -283,6 +283,12 @@ def fem_system(
     Returns:
         The ``FEMSystem``.
     """
+    return host_fem_system(T, grads, volumes, mass, force, fixed, capacity, on_host=False)
+
+
+def host_fem_system(T, grads, volumes, mass, force, fixed=(), capacity=None, *, on_host: bool) -> FEMSystem:
+    """``fem_system``, its arrays numpy ones with ``on_host`` (a system built for another process: the XFEM cut
+    worker's), else on the device."""
     # numpy on the host, one device_put at the end: jnp.asarray of a numpy array compiles a copy per shape
     grads, volumes = np.asarray(grads), np.asarray(volumes)
     if grads.ndim != 3 or grads.shape[1:] != (4, 3) or not jnp.issubdtype(grads.dtype, jnp.floating):
@@ -313,7 +319,7 @@ def fem_system(
     if capacity is not None:
         T, grads, volumes, mass, force, fixed = _pad(T, grads, volumes, mass, force, fixed, capacity)
         n, nnz_capacity = capacity.nodes, capacity.nonzeros
-    pattern, host = _assembly_pattern(T, n, fixed, mass, nnz_capacity)
+    pattern, host = _assembly_pattern(T, n, fixed, mass, nnz_capacity, on_host=on_host)
     coo = mass.tocoo()
     rows, cols, values = coo.row, coo.col, coo.data
     if capacity is not None:  # zero entries on the last node's diagonal keep the rows sorted
@@ -341,6 +347,7 @@ def fem_system(
             mass_data,
             force.astype(dtype),
             fixed.astype(index),
+            on_host=on_host,
         ),
         pattern=pattern,
         n=n,

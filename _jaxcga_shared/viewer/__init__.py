@@ -1,7 +1,7 @@
 """The browser viewer: one self-contained HTML page (three.js r187 inlined, every model and frame embedded; no
 network at view time) that shows skinned glTF files with their clips, mesh sequences and static meshes side by
 side, with play / pause / scrub / speed / loop, a clip selector, orbit and zoom, reset view, wireframe, the
-skeleton and the skin weights of a joint. ``jaxcga.view`` and ``jaxcga view`` build it; notebooks show it inline
+skeleton and the skin weights of a joint. ``deform.view`` and ``jaxcga view`` build it; notebooks show it inline
 (``View._repr_html_``: an iframe of the same page).
 
 Inputs, side by side along x in the order given (each by its bounding box):
@@ -363,9 +363,9 @@ def view(
 
     Examples:
         >>> import numpy as np
-        >>> import jaxcga as cga
+        >>> import deform
         >>> V = np.array([[0.0, 0, 0], [1.0, 0, 0], [0, 1.0, 0]])
-        >>> page = cga.view((V, np.array([[0, 1, 2]])), title="a triangle")
+        >>> page = deform.view((V, np.array([[0, 1, 2]])), title="a triangle")
         >>> page.html.startswith("<!DOCTYPE html>"), page.title
         (True, 'a triangle')
     """

@@ -1,4 +1,4 @@
-"""``jaxcga view``: the page of its inputs (the same as ``jaxcga.view``'s), its summary line, --force, and bad input
+"""``jaxcga view``: the page of its inputs (the same as ``deform.view``'s), its summary line, --force, and bad input
 on one line naming the file."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import jaxcga
+import deform
 from jaxcga_cli.main import main
 from tests.shared import tube
 
@@ -29,7 +29,7 @@ def test_view_writes_the_page_of_its_inputs(tmp_path, capsys):
     assert main([*argv, "--fps", "12", "--title", "two", "--joint", "1", "--out", str(out)]) == 0
     summary = capsys.readouterr().out
     assert summary.startswith("jaxcga view two: meshes 2, vertices ") and f"out {out}" in summary
-    page = jaxcga.view(DATA / "RiggedSimple.glb", tmp_path / "frames.npy", mesh=tmp_path / "tube.obj", fps=12,
+    page = deform.view(DATA / "RiggedSimple.glb", tmp_path / "frames.npy", mesh=tmp_path / "tube.obj", fps=12,
                        title="two", joint=1)  # fmt: skip
     assert out.read_text() == page.html
 
