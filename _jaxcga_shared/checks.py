@@ -1,6 +1,7 @@
-"""Argument and value checks shared by every package: a ``ValueError`` naming the argument on concrete input, a
-runtime error with the same message inside jit, on every backend; and the host-side checks of points, faces and
-index arrays that every package takes. Private to the distribution."""
+"""Argument and value checks shared by every package: a ``CheckError`` (a ``ValueError``) naming the argument on
+concrete input, a runtime error carrying the same message inside jit, on every backend; and the host-side checks of
+points, faces and index arrays that every package takes. Private to the distribution, but for ``CheckError``, which
+``jaxcga`` exports."""
 
 from __future__ import annotations
 
@@ -22,26 +23,48 @@ from numpy.typing import ArrayLike
 
 from _jaxcga_shared.host import host_call
 
+_T = TypeVar("_T")
+
+
+class CheckError(ValueError):
+    """A value check of a function's input failed; the message names the argument and says what is wrong with it.
+
+    Raised on concrete input by the check itself, and by the functions that wait for their compiled result (the
+    pose and batch functions of ``deform``) when the check failed inside it. Inside code compiled by the caller
+    (``jax.jit``) a failed check surfaces as JAX's runtime error, whose text carries this error's message.
+    A ``ValueError``: ``except ValueError`` catches it as before.
+    """
+
+
+CheckError.__module__ = "jaxcga"  # its public name, in tracebacks and the API reference
+
 # ``eqx.error_if`` raises through ``jax.pure_callback``, whose host side puts its inputs on a CPU device: under
 # ``JAX_PLATFORMS=cuda`` there is none, and a failing check raised "failed to find a local CPU device" instead of
 # its message. A check here raises from a ``host_call`` (the backend's own callback, no CPU device) that runs
-# only when the check fails; its message is kept here too, since a GPU's error text adds XLA's context to it.
-_FAILED: dict[str, str | None] = {"message": None}
-
-_T = TypeVar("_T")
+# only when the check fails. JAX hands only the callback error's text on (a GPU's with XLA's context after it), so
+# the host side delimits the message in it: these markers recognise a failed check, and where its message ends.
+_OPEN, _CLOSE = "<jaxcga check>", "</jaxcga check>"
+_MARKED = re.compile(re.escape(_OPEN) + "(.*?)" + re.escape(_CLOSE), re.DOTALL)
 
 
 @dataclasses.dataclass(frozen=True)
 class _Fail:
-    """The host side of failed checks: raise ``ValueError`` with the message of the first set flag (hashable, as
-    ``host_call`` asks)."""
+    """The host side of failed checks: raise ``CheckError`` with the message of the first set flag, delimited
+    (hashable, as ``host_call`` asks)."""
 
     messages: tuple[str, ...]
 
     def __call__(self, flags):
         message = self.messages[int(np.argmax(np.asarray(flags)))]
-        _FAILED["message"] = message
-        raise ValueError(message)
+        raise CheckError(f"{_OPEN}{message}{_CLOSE}")
+
+
+def failed_check_message(error: BaseException) -> str | None:
+    """The message of the check whose failure inside compiled code raised ``error`` (a ``require`` under
+    ``jax.jit`` or ``eqx.filter_jit``, raised by JAX as its runtime error); None when no check of this
+    distribution failed there."""
+    found = _MARKED.search(str(error))
+    return None if found is None else found.group(1)
 
 
 @functools.partial(jax.custom_jvp, nondiff_argnums=(2,))
@@ -60,7 +83,7 @@ def _checked_jvp(messages, primals, tangents):
 
 
 def require(x: _T, *checks: tuple[JaxArrayLike, str]) -> _T:
-    """Value checks, pairs ``(bad, message)``: a ``ValueError`` on concrete input; inside jit, vmap or grad
+    """Value checks, pairs ``(bad, message)``: a ``CheckError`` on concrete input; inside jit, vmap or grad
     (traced flags) a runtime error with the message of the first failing check, raised when ``x`` is computed
     (under vmap when any batch element is bad). Returns ``x`` (to be used, so the traced checks are kept).
 
@@ -73,7 +96,7 @@ def require(x: _T, *checks: tuple[JaxArrayLike, str]) -> _T:
             flags.append(eqx.internal.unvmap_any(jnp.any(bad)))
             messages.append(message)
         elif np.any(np.asarray(bad)):  # numpy: under a trace jnp would stage even a constant flag
-            raise ValueError(message)
+            raise CheckError(message)
     if flags:
         x = _checked(jnp.asarray(x), jnp.stack(flags), tuple(messages))  # python scalars have nothing to thread on
     return x
@@ -86,7 +109,7 @@ def require_around(fn: Callable[[Array], Array], operand: Array, *checks: tuple[
     copies it (a per-call cost: 0.1-0.2 ms for 100k skinned vertices), and a small operand costs nothing.
 
     ``operand`` is a small array (a table of joints or key motors); the checks' flags are computed from it or
-    before it. On concrete flags the ``ValueError`` comes at once, on every platform."""
+    before it. On concrete flags the ``CheckError`` comes at once, on every platform."""
     if not any(isinstance(bad, Tracer) for bad, _ in checks):
         require(None, *checks)
         return fn(operand)
@@ -102,9 +125,10 @@ def compiled_error_message(error: BaseException) -> str | None:
     """The message of a check that failed inside compiled code (``require`` under ``jax.jit`` or
     ``eqx.filter_jit``, ``eqx.error_if``, an exception in a host callback), without the banner, the traceback
     and XLA's context around it; None for other errors."""
+    message = failed_check_message(error)
+    if message is not None:
+        return message
     text = str(error)
-    if _FAILED["message"] is not None and _FAILED["message"] in text:
-        return _FAILED["message"]
     found = re.search(r"EquinoxRuntimeError: (.+)", text)
     if found:
         return found.group(1).strip()
@@ -115,9 +139,9 @@ def compiled_error_message(error: BaseException) -> str | None:
 
 
 def plain_errors(fn):
-    """``fn`` (a jitted public function) raising a plain ``ValueError`` with the check's message when a value
-    check inside it fails on concrete input, on every backend (it waits for the result); under an outer trace
-    nothing changes (its checks fail at run time)."""
+    """``fn`` (a jitted public function) raising a ``CheckError`` with the check's message when a value check
+    inside it (``require``, ``eqx.error_if``) fails on concrete input, on every backend (it waits for the result);
+    other errors pass unchanged, and under an outer trace nothing changes (its checks fail at run time)."""
 
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
@@ -129,10 +153,13 @@ def plain_errors(fn):
             return jax.block_until_ready(out)
         except (eqx.EquinoxRuntimeError, jax.errors.JaxRuntimeError, ValueError) as error:
             # JAX raises a callback's failure as a JaxRuntimeError, or a ValueError from a cached executable
-            message = compiled_error_message(error)
-            if not isinstance(error, eqx.EquinoxRuntimeError) and (message is None or message != _FAILED["message"]):
-                raise  # not a check: an error of the computation or of its arguments (None: no check failed yet)
-            raise ValueError(message) from None
+            if isinstance(error, eqx.EquinoxRuntimeError):
+                message = compiled_error_message(error)
+            else:
+                message = failed_check_message(error)
+            if message is None:
+                raise  # not a check inside the computation: an error of it or of its arguments
+            raise CheckError(message) from None
 
     return wrapper
 

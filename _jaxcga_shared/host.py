@@ -27,19 +27,11 @@ def to_device(a, dtype=None) -> jax.Array:
     return jax.device_put(np.asarray(a, dtype))
 
 
-_HOST = {"only": False}
-
-
-def keep_on_host() -> None:
-    """Make ``to_devices`` return numpy arrays in this process from now on: for a process that builds host data
-    for another one (the XFEM cut worker process), where a device copy would be made only to be read back."""
-    _HOST["only"] = True
-
-
-def to_devices(*arrays) -> tuple:
+def to_devices(*arrays, on_host: bool = False) -> tuple:
     """Host arrays on the device in one batched ``jax.device_put`` (about half the cost of one call each, a large
-    part of building a small system); numpy arrays after ``keep_on_host``."""
-    if _HOST["only"]:
+    part of building a small system); with ``on_host`` the numpy arrays, for data built for another process (the
+    XFEM cut worker's systems), where a device copy would be made only to be read back."""
+    if on_host:
         return tuple(np.asarray(a) for a in arrays)
     return tuple(jax.device_put([np.asarray(a) for a in arrays]))
 

@@ -30,10 +30,14 @@ def read_mesh_file(path: str | Path, name: str = "mesh", weld: bool = True):
     try:
         loaded = trimesh.load(path, force="mesh", process=False)
     except (ValueError, KeyError, IndexError, TypeError, AttributeError) as error:  # trimesh's parsers
-        line = _bad_obj_vertex(path)
+        line = _bad_obj_vertex(path) or _bad_obj_face(path)
         raise ValueError(
             f"{name}: {path}: {line}" if line else f"{name}: trimesh cannot read {path} ({error})"
         ) from None
+    # trimesh wraps some indices outside the file (0, or -k past the vertices read) around silently
+    line = _bad_obj_face(path)
+    if line:
+        raise ValueError(f"{name}: {path}: {line}")
     if not isinstance(loaded, trimesh.Trimesh) or len(loaded.faces) == 0:
         raise ValueError(f"{name}: {path} holds no triangles")
     V, F = np.asarray(loaded.vertices, np.float64), np.asarray(loaded.faces, np.int64)
@@ -79,6 +83,33 @@ def _bad_obj_vertex(path: Path) -> str | None:
     return None
 
 
+def _bad_obj_face(path: Path) -> str | None:
+    """The first line of an OBJ file's faces that refers to a vertex the file does not have (OBJ counts from 1;
+    a negative index counts back from the vertices read so far), or None."""
+    if path.suffix.lower() != ".obj":
+        return None
+    with open(path, errors="replace") as file:
+        lines = file.readlines()
+    total = sum(line.split()[:1] == ["v"] for line in lines)
+    seen = 0
+    for number, line in enumerate(lines, 1):
+        words = line.split()
+        if words[:1] == ["v"]:
+            seen += 1
+        elif words[:1] == ["f"]:
+            for corner in words[1:]:
+                try:
+                    index = int(corner.split("/")[0])
+                except ValueError:
+                    return f"line {number}: {line.strip()!r}: {corner!r} is not a vertex index"
+                if index == 0:
+                    return f"line {number}: {line.strip()!r} refers to vertex 0 (OBJ counts vertices from 1)"
+                if index > total or -index > seen:
+                    have = f"{total} vertices" if index > 0 else f"{seen} vertices before this line"
+                    return f"line {number}: {line.strip()!r} refers to vertex {index}, but the file has {have}"
+    return None
+
+
 def _bad_vertex(path: Path, V) -> str:
     """Where the first vertex that is not three finite numbers is: its OBJ line, else its index."""
     line = _bad_obj_vertex(path)
@@ -90,3 +121,39 @@ def _bad_vertex(path: Path, V) -> str:
     count = f"{int(bad.sum())} non-finite vertices" if bad.sum() > 1 else "a non-finite vertex"
     first = int(np.argmax(bad))
     return f"{count}, the first is vertex {first}: {V[first].tolist()}"
+
+
+def read_array_file(path: str | Path, name: str, mmap: bool = False) -> np.ndarray:
+    """The array in the .npy file ``path``, its header checked first so that a bad file is told in its own terms:
+    not a .npy file, a pickled (object) array, or truncated (fewer bytes than its header states).
+
+    Args:
+        path: the .npy file.
+        name: what the caller calls it (an option's name); starts every message.
+        mmap: map the file read-only instead of reading it (the viewer reads shapes of large frames so).
+
+    Raises:
+        FileNotFoundError: no such file. ValueError: any of the above, naming ``name`` and the file.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{name}: no such file {path}")
+    fmt = np.lib.format
+    with open(path, "rb") as file:
+        try:
+            version = fmt.read_magic(file)
+            read_header = fmt.read_array_header_1_0 if version == (1, 0) else fmt.read_array_header_2_0
+            shape, _, dtype = read_header(file)
+        except (ValueError, OSError, EOFError) as error:
+            raise ValueError(f"{name}: {path} is not a .npy file (np.save writes one): {error}") from None
+        start = file.tell()
+    if dtype.hasobject:
+        raise ValueError(f"{name}: {path} holds Python objects (a pickled array), not numbers; it is not read")
+    need = start + int(np.prod(shape, dtype=np.int64)) * dtype.itemsize
+    have = path.stat().st_size
+    if have < need:
+        raise ValueError(
+            f"{name}: {path} is truncated: {have} of the {need} bytes its header states for a {dtype} array of "
+            f"shape {shape}"
+        )
+    return np.load(path, mmap_mode="r" if mmap else None, allow_pickle=False)

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import functools
 from collections.abc import Callable
-from typing import Any, NamedTuple
 
 import jax
 
@@ -15,18 +14,6 @@ PLATFORM_KERNELS: dict[str, PerPlatform] = {}
 # TF32 (10-bit mantissas: joint motors, rigidity checks and Hessians off by ~1e-3); float64 and the CPU are exact
 # either way. tests/test_precision.py checks that no product is left to the default.
 EXACT = jax.lax.Precision.HIGHEST
-
-
-class Example(NamedTuple):
-    """Inputs on which a kernel's variants must agree: positional array arguments (pytrees) and static
-    keyword arguments."""
-
-    args: tuple
-    static: dict[str, Any]
-
-
-def example(*args, **static) -> Example:
-    return Example(args, static)
 
 
 class PerPlatform:
@@ -41,8 +28,8 @@ class PerPlatform:
     outside jit the platform is known at once and the formulation runs directly.
 
     Registered by ``name`` in ``PLATFORM_KERNELS``: tests/shared_layer/test_platform_kernels.py checks every
-    registered kernel's variants against each other on the ``examples()`` it registers (a list of
-    ``Example``), their vector-Jacobian products too where ``differentiated``, and in float32 where
+    registered kernel's variants against each other on the inputs it keeps under that name (and fails for a
+    kernel it has none for), their vector-Jacobian products too where ``differentiated``, and in float32 where
     ``float32``."""
 
     def __init__(
@@ -51,7 +38,6 @@ class PerPlatform:
         *,
         cpu: Callable,
         gpu: Callable,
-        examples: Callable[[], list[Example]],
         differentiated: bool = True,
         float32: bool = True,
     ):
@@ -59,7 +45,6 @@ class PerPlatform:
             raise ValueError(f"name: a platform kernel named {name!r} is already registered")
         self.name = name
         self.variants = {"cpu": cpu, "gpu": gpu}
-        self.examples = examples
         self.differentiated = differentiated
         self.float32 = float32
         functools.update_wrapper(self, cpu, updated=())
@@ -75,7 +60,6 @@ class PerPlatform:
 def per_platform(
     name: str,
     *,
-    examples: Callable[[], list[Example]],
     gpu: Callable | None = None,
     differentiated: bool = True,
     float32: bool = True,
@@ -83,16 +67,15 @@ def per_platform(
     """Decorator. With ``gpu``: the decorated function is the CPU formulation and ``gpu`` the one for GPUs
     (and other accelerators). Without: the decorated function takes a keyword-only ``cpu: bool`` and the
     variants are it with ``cpu=True`` and ``cpu=False`` (for formulations that differ in a few lines, such
-    as barriers and layouts, written once). ``examples`` etc.: see ``PerPlatform``."""
+    as barriers and layouts, written once). ``differentiated``, ``float32``: see ``PerPlatform``."""
 
     def wrap(fn: Callable) -> PerPlatform:
         if gpu is not None:
-            return PerPlatform(name, cpu=fn, gpu=gpu, examples=examples, differentiated=differentiated, float32=float32)
+            return PerPlatform(name, cpu=fn, gpu=gpu, differentiated=differentiated, float32=float32)
         kernel = PerPlatform(
             name,
             cpu=functools.partial(fn, cpu=True),
             gpu=functools.partial(fn, cpu=False),
-            examples=examples,
             differentiated=differentiated,
             float32=float32,
         )

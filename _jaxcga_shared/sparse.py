@@ -43,7 +43,7 @@ from _jaxcga_shared.broadcast import lift_rank
 from _jaxcga_shared.checks import require
 from _jaxcga_shared.ell import ell_matrix, ell_matvec
 from _jaxcga_shared.host import host_call, to_devices
-from _jaxcga_shared.platform import Example, PerPlatform, example
+from _jaxcga_shared.platform import PerPlatform
 
 # relative residual of a prefactored system's device solve (the host's is a direct solve): 1e-10 left ARAP 8e-9 of
 # its size from libigl's direct iteration on an H100, over the tests' 1e-10
@@ -97,7 +97,9 @@ class CSRPattern(eqx.Module):
     blocks: BlockLayout | None = None
 
 
-def csr_pattern(indptr, indices, *, block: int = 1, full_blocks: bool | None = None) -> CSRPattern:
+def csr_pattern(
+    indptr, indices, *, block: int = 1, full_blocks: bool | None = None, on_host: bool = False
+) -> CSRPattern:
     """Analyse a CSR structure (host, numpy): each entry's row and its slot in the diagonal blocks.
 
     Args:
@@ -107,8 +109,9 @@ def csr_pattern(indptr, indices, *, block: int = 1, full_blocks: bool | None = N
         full_blocks: whether the structure is made of full ``block`` x ``block`` blocks (``_full_blocks``); None
             checks it (20 ms a million entries), True is the caller's construction's guarantee (an XFEM
             system's pattern, built after every cut).
+        on_host: numpy arrays instead of device arrays (``to_devices``).
     Returns:
-        The ``CSRPattern`` (device arrays; numpy after ``keep_on_host``).
+        The ``CSRPattern``.
     """
     indptr, indices = np.asarray(indptr), np.asarray(indices)
     n = len(indptr) - 1
@@ -134,8 +137,8 @@ def csr_pattern(indptr, indices, *, block: int = 1, full_blocks: bool | None = N
         full_blocks = block > 1 and _full_blocks(indptr, indices[:used], block)
     full = bool(full_blocks) and block > 1
     indptr, indices = (a.astype(index, copy=False) for a in (indptr, indices))
-    blocks = BlockLayout(*to_devices(*_block_layout(indptr, indices, block))) if full else None
-    indptr, indices, rows, slots = to_devices(indptr, indices, rows, slots)
+    blocks = BlockLayout(*to_devices(*_block_layout(indptr, indices, block), on_host=on_host)) if full else None
+    indptr, indices, rows, slots = to_devices(indptr, indices, rows, slots, on_host=on_host)
     return CSRPattern(
         indptr=indptr, indices=indices, rows=rows, block_slots=slots, n=n, block=block, full_blocks=full, blocks=blocks
     )
@@ -484,25 +487,11 @@ def spd_solve(
     )
 
 
-def _spd_examples() -> list[Example]:
-    """A 1-D Laplacian plus a mass term, 3 DOFs per node with coupled blocks (the FEM's block structure)."""
-    m = 12
-    # scipy is not annotated: pyright takes the type of ``offsets`` from its default, 0
-    L = sp.diags([-1.0, 2.1, -1.0], [-1, 0, 1], shape=(m, m))  # pyright: ignore[reportArgumentType]
-    block = np.array([[2.0, 0.5, 0.1], [0.5, 1.5, 0.2], [0.1, 0.2, 1.0]])
-    A = sp.csr_matrix(sp.kron(L, block) + sp.identity(3 * m))
-    b = np.random.default_rng(0).normal(size=3 * m)
-    pattern = csr_pattern(A.indptr, A.indices, block=3)
-    # CG to 1e-14 (well conditioned: 32 iterations) agrees with CHOLMOD to a few units of rounding
-    return [example(pattern, jnp.asarray(A.data), jnp.asarray(b), jnp.asarray(1e-14))]
-
-
 # ``spd_solve``'s default configuration, registered for the CPU test of its two variants' agreement
 SPD_SOLVE = PerPlatform(
     "sparse_spd_solve",
     cpu=functools.partial(_on_host, _direct),
     gpu=functools.partial(_on_device, _direct, None, "error", "A", 0),
-    examples=_spd_examples,
     differentiated=False,
     float32=False,
 )  # CHOLMOD is float64; gradients: tests/shared_layer/test_sparse.py
@@ -512,7 +501,6 @@ SPD_SOLVE_DENSE = PerPlatform(
     "sparse_spd_solve_dense",
     cpu=functools.partial(_on_host, _direct),
     gpu=functools.partial(_on_device, _direct, None, "error", "A", 1 << 30),
-    examples=_spd_examples,
     differentiated=False,
     float32=False,
 )

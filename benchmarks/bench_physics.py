@@ -4,7 +4,7 @@ corpus character meshed to at least 20k tets, in the full space and in the reduc
 Models. ``arm``: ``deform.default_arm()`` (its ``wave`` clip), tets at the default edge length. ``character``: the
 corpus's largest animated character (``QuaterniusCyberpunkCharacter``, 3.9k vertices, 27 joints, 22 clips; the
 larger ``QuaterniusWorkerDense`` has no clip and meshes to fewer tets) playing its ``Run`` clip, meshed by fTetWild
-with half the default envelope (``CHARACTER_EPSILON``: ~25k tets), as fTetWild makes them (``refine=False``: the
+with 0.9 of the default envelope (``CHARACTER_EPSILON``: ~22k tets), as fTetWild makes them (``refine=False``: the
 body's bisection near the joints would make them ~480k). fTetWild takes minutes and is not
 deterministic: the tets are cached in the output folder (``--cache``, default beside ``--json`` or ``out/bench``)
 and reused. Material: Young 1e5 Pa, Poisson 0.4, density 1e3, Rayleigh damping 0.01 s; 30 frames/s.
@@ -18,9 +18,10 @@ Figures, for ``PREFIX`` ``arm`` and ``character`` (the issue's names are the cha
   ``PREFIX_newton_iterations``: the converged steps' mean Newton iterations. Target (issue 53): at most 100 ms on
   2 cores at 20k tets (ratio ``PREFIX_step_vs_target`` = 100 ms / ours).
 * Where the step's time goes (``PREFIX_breakdown_*_ms``, the segment's system at the last frame's rig and state,
-  medians of 5): ``hessians`` the free gradient and the projected Newton matrix (element Hessians summed into the
-  CSR data, as the step computes them), ``solve`` the host solve of that Newton system (Jacobi PCG above 1,000
-  unknowns), ``paper_step`` one whole paper step (the two, the rig rest shapes and the line search).
+  medians of 5): ``hessians`` the free gradient and the Newton matrices, projected and true (element Hessians summed
+  into the CSR data, as the step computes them), ``solve`` the host solve of the factored direction (CHOLMOD's factor
+  of the projected matrix, CG on the true one), ``paper_step`` one whole paper step (the two, the rig rest shapes and
+  the line search).
 * ``PREFIX_reduced_fps``: the reduced play (``xfem.character_subspace(body, MODES)``, ``simulate_character(...,
   subspace=...)``) in frames per second: ``--reduced-frames`` frames at 60 frames/s, the whole call (the rig skinned
   for every frame, the scan, the surface), the fastest of 3 after a warm-up call of the same length. Target: at
@@ -70,8 +71,8 @@ from xfem._character import _rig_rest_system  # noqa: E402
 CHARACTER = ROOT / "tests" / "data" / "characters" / "QuaterniusCyberpunkCharacter.glb"
 CHARACTER_CLIP = "CharacterArmature|Run"
 # fTetWild's tets of this character hardly change with the edge length (15k from 0.05 to 0.02): the envelope
-# decides, and half the default envelope gives ~25k tets
-CHARACTER_EDGE, CHARACTER_EPSILON = 0.05, 5e-4
+# decides; 0.9 of the default envelope gives ~22k tets (0.5 of it ~32k)
+CHARACTER_EDGE, CHARACTER_EPSILON = 0.05, 9e-4
 QUICK_CHARACTER = ROOT / "tests" / "data" / "characters" / "Fox.glb"  # --quick: the coarse fox and its own clip
 QUICK_EDGE = 0.1
 MIN_TETS = 20_000
@@ -161,13 +162,13 @@ def _newton_system(system, x, v, rest, target, h, mu, lam, beta):
     theta = be._Theta(
         x, v, mu, lam, target, system.force, moved.grads, moved.volumes, system.mass_values, beta, elastic_t
     )
-    return be._gradient_and_matrix(moved, start, theta, h, project=True)
+    return be._gradient_and_matrices(moved, start, theta, h, be._element_gradient_hessians, 2)
 
 
 @eqx.filter_jit
 def _paper_step(system, x, v, rest, target, h, mu, lam, beta):
     moved = _rig_rest_system(system, rest)
-    return be._advance(moved, be.State(x, v), h, mu, lam, target, system.force, 1, None, True, beta)
+    return be._advance(moved, be.State(x, v), h, mu, lam, target, system.force, 1, None, True, beta, factored=True)
 
 
 def _breakdown(body, motion, frames: int, h: float) -> dict[str, float]:
@@ -182,10 +183,10 @@ def _breakdown(body, motion, frames: int, h: float) -> dict[str, float]:
     mu, lam = MATERIAL.lame()
     args = (system, x, v, rest, target, jnp.asarray(h), jnp.asarray(mu), jnp.asarray(lam), jnp.asarray(0.01))
     hessians = _median(lambda: _newton_system(*args))
-    gradient, data = _newton_system(*args)
-    rhs, A = np.asarray(gradient), np.asarray(data)
+    gradient, (data, true_data) = _newton_system(*args)
+    rhs, A, H = np.asarray(gradient), np.asarray(data), np.asarray(true_data)
     indptr, indices = np.asarray(system.pattern.indptr), np.asarray(system.pattern.indices)
-    solve = _median(lambda: be._host_newton_direction(A, rhs, be._CG_RTOL, indptr, indices))
+    solve = _median(lambda: be._host_factored_direction(A, H, rhs, be._CG_RTOL, indptr, indices))
     step = _median(lambda: _paper_step(*args))
     return {"hessians": hessians, "solve": solve, "paper_step": step, "unknowns": float(len(rhs))}
 

@@ -1,5 +1,5 @@
 """Viewer benchmark: a large mesh sequence (a grid of 100k vertices under a travelling wave, 200 frames) written by
-``jaxcga.view`` as one page (int16 positions in base64 blocks), loaded in headless Chromium (SwiftShader: software
+``deform.view`` as one page (int16 positions in base64 blocks), loaded in headless Chromium (SwiftShader: software
 WebGL, no GPU) and played for a few seconds.
 
 Figures: the page's size, the seconds from opening the page to its first frame drawn (``loadMs``), the frames

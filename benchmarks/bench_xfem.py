@@ -95,13 +95,13 @@ from _report import RATIO_UNIT, add_json_argument, print_device, write_json  # n
 
 # times the step's internal kernels (energy, Newton direction) one by one
 import xfem._backward_euler as be  # noqa: E402
+from jaxcga_cli.scene_runs import run_scene  # noqa: E402
 from xfem import (  # noqa: E402  # noqa: E402
     Material,  # noqa: E402
     cut_system,
     plane_cut_solid,  # noqa: E402
     plane_cuts,
     rollout,  # noqa: E402
-    run_scene,
     rxfem_schedule,
     scene,
     wait_for_compilations,  # noqa: E402

@@ -22,8 +22,12 @@ mesh first, ``laplacian=`` where a Laplacian is chosen) does the work that does 
 values, and ``X_solve(data, values)`` is a JAX function of them (jit, vmap, grad): ``harmonic_``,
 ``arap_``, ``spline_fit_``; the motor deformations (``spline_``, ``handles_``, ``ffd_``, ``cage_precompute``
 and the general ``motor_field_precompute``) all return a ``MotorField``, solved by ``motor_field_solve``.
+
+``view`` / ``View``: the interactive viewer of glTF models with their clips, mesh sequences (skinned or simulated
+frames) and meshes, one self-contained HTML page (three.js in the browser, inline in notebooks).
 """
 
+from _jaxcga_shared.viewer import View, view
 from deform._arap import ACCELERATIONS as ARAP_ACCELERATIONS
 from deform._arap import ENERGIES as ARAP_ENERGIES
 from deform._arap import ARAPData, ARAPResult, arap_precompute, arap_solve, horn_rotors
@@ -133,6 +137,7 @@ __all__ = [
     "PARAMETERS_PER_BONE",
     "SOLVERS",
     "UNHANDLED",
+    "View",
     "ARAPData",
     "ARAPResult",
     "AnimationClip",
@@ -231,5 +236,6 @@ __all__ = [
     "twist_lattice",
     "uniform_scale",
     "versor_to_trs",
+    "view",
     "weld",
 ]

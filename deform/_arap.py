@@ -65,6 +65,8 @@ raises an error. The loop is never unrolled.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import equinox as eqx
 import igl
 import jax
@@ -77,7 +79,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from _jaxcga_shared.checks import check_choice, check_index_range, check_triangle_mesh, require
 from _jaxcga_shared.ell import padded_rows
-from _jaxcga_shared.platform import EXACT, example, per_platform
+from _jaxcga_shared.platform import EXACT, per_platform
 from _jaxcga_shared.sparse import SparseSolver
 from deform._parts import UNHANDLED, mesh_parts
 from jaxcga import KINDS, Multivector, align_points, apply_to_points
@@ -240,15 +242,7 @@ def _adjugate_and_det4(a):
     return jnp.swapaxes(cof, -1, -2), jnp.einsum("...j,...j->...", a[..., 0, :], cof[..., 0, :], precision=EXACT)
 
 
-def _quartic_examples():
-    rng = np.random.default_rng(3)
-    S = rng.normal(size=(40, 3, 3))
-    norm2 = np.sum(S * S, axis=(1, 2))
-    c1, c0 = -8.0 * np.linalg.det(S), rng.normal(size=40) * norm2
-    return [example(-2.0 * norm2, c1, c0, np.sqrt(3.0 * norm2), newton_steps=24)]
-
-
-@per_platform("deform.largest_quartic_root", examples=_quartic_examples)
+@per_platform("deform.largest_quartic_root")
 def _largest_quartic_root(c2, c1, c0, start, *, newton_steps: int, cpu: bool):
     """The largest root of ``l^4 + c2 l^2 + c1 l + c0`` by Newton from ``start`` (above it), elementwise. A rolled
     loop on the CPU (unrolled, differentiating the steps compiled 3x slower there and ran no faster); unrolled
@@ -351,7 +345,7 @@ def _anderson(g, f, dG, dF):
     return g - jnp.tensordot(gamma, dG, axes=1, precision=EXACT)
 
 
-def _iterate(data, bc, V0, max_iterations, tolerance, memory):
+def _iterate(data, bc, V0, max_iterations, tolerance, memory, progress=None):
     """Local/global iterations from V0, Anderson-accelerated when ``memory`` > 0, until the fixed-point residual
     ``max |G(x) - x| / diagonal`` is at most ``tolerance`` (None: exactly ``max_iterations``). Each iteration ends
     with a global step; an Anderson point is kept only if its energy is below the current one (else the plain
@@ -386,8 +380,12 @@ def _iterate(data, bc, V0, max_iterations, tolerance, memory):
             )
         previous = jnp.stack([g, f])
         g = _global(data, rotors, bc, x)
+        if progress is not None:  # static: no callback compiled in without one
+            jax.debug.callback(progress, k + 2, energy, _residual(data, g - x), ordered=True)
         return x, energy, g, g - x, previous, history, energies.at[k + 1].set(energy), k + 1
 
+    if progress is not None:  # the first iteration, before the loop
+        jax.debug.callback(progress, 1, energy, _residual(data, g - x0), ordered=True)
     state = (x0, energy, g, g - x0, jnp.stack([g, g - x0]), history, energies, jnp.asarray(0))
     _, _, U, f, _, _, energies, k = jax.lax.while_loop(cond, body, state)
     # the energy after the last iteration, at the returned positions
@@ -396,18 +394,18 @@ def _iterate(data, bc, V0, max_iterations, tolerance, memory):
 
 
 @eqx.filter_custom_vjp
-def _solve(bc, data, V0, max_iterations, tolerance, memory):
-    return _iterate(data, bc, V0, max_iterations, tolerance, memory)
+def _solve(bc, data, V0, max_iterations, tolerance, memory, progress):
+    return _iterate(data, bc, V0, max_iterations, tolerance, memory, progress)
 
 
 @_solve.def_fwd
-def _solve_fwd(perturbed, bc, data, V0, max_iterations, tolerance, memory):
-    out = _iterate(data, bc, V0, max_iterations, tolerance, memory)
+def _solve_fwd(perturbed, bc, data, V0, max_iterations, tolerance, memory, progress):
+    out = _iterate(data, bc, V0, max_iterations, tolerance, memory, progress)
     return out, out[0]
 
 
 @_solve.def_bwd
-def _solve_bwd(x, grads, perturbed, bc, data, V0, max_iterations, tolerance, memory):
+def _solve_bwd(x, grads, perturbed, bc, data, V0, max_iterations, tolerance, memory, progress):
     g = grads[0]
     if g is None:
         return None
@@ -501,6 +499,7 @@ def arap_solve(
     max_iterations: int = 1000,
     tolerance: float | str | None = _DEFAULT,
     acceleration: str = "anderson",
+    progress: Callable[[Array, Array, Array], object] | None = None,
 ) -> ARAPResult:
     """Deform the mesh so that the handles ``data.b`` sit at ``bc``, as rigidly as possible.
 
@@ -525,6 +524,10 @@ def arap_solve(
         acceleration: ``"anderson"`` (default: Anderson acceleration of the local/global map with the last 5
             iterates, safeguarded by the energy, which never increases) or ``"none"`` (plain local/global
             iterations, as libigl).
+        progress: None, or a function called on the host after each iteration with three () arrays: the
+            iteration's number (from 1), the energy at the positions it started from and its fixed-point residual
+            (``ARAPResult.residual``'s measure), in order, also under ``jit`` (``jax.debug.callback``); for a
+            progress bar.
     Returns:
         ``ARAPResult(U, energies, iterations, residual, converged)``. U is differentiable (reverse mode) with
         respect to bc, implicitly at the fixed point, so its gradient is exact when the solve has converged;
@@ -555,8 +558,10 @@ def arap_solve(
     bc = require(bc, (~jnp.all(jnp.isfinite(bc)), "bc: non-finite handle positions"))
     memory = _ANDERSON_MEMORY if acceleration == "anderson" else 0
     # the fixed point does not depend on the initial guess: no gradient flows to V0
+    if progress is not None and not callable(progress):
+        raise ValueError(f"progress: expected None or a function, got {type(progress).__name__}")
     U, energies, iterations, residual = _solve(
-        bc, data, jax.lax.stop_gradient(V0), int(max_iterations), tolerance, memory
+        bc, data, jax.lax.stop_gradient(V0), int(max_iterations), tolerance, memory, progress
     )
     residual = jax.lax.stop_gradient(residual)
     converged = residual <= (default_tolerance(bc.dtype) if tolerance is None else tolerance)

@@ -13,6 +13,8 @@ Levenberg-Marquardt needs tens).
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import equinox as eqx
 import jax
 import jax.numpy as jnp
@@ -103,19 +105,34 @@ class PoseFit(eqx.Module):
     converged: Array
 
 
-def _solver(name: str, rtol: float, atol: float, parameters: int):
+def _solver(name: str, rtol: float, atol: float, parameters: int, progress=None):
+    verbose = False if progress is None else _reporter(progress, 2.0 if name in _LEAST_SQUARES else 1.0)
     if name == "levenberg_marquardt":
-        return optx.LevenbergMarquardt(rtol=rtol, atol=atol)
+        return optx.LevenbergMarquardt(rtol=rtol, atol=atol, verbose=verbose)
     if name == "gauss_newton":
-        return optx.GaussNewton(rtol=rtol, atol=atol)
+        return optx.GaussNewton(rtol=rtol, atol=atol, verbose=verbose)
     if name == "bfgs":
-        return optx.BFGS(rtol=rtol, atol=atol)
+        return optx.BFGS(rtol=rtol, atol=atol, verbose=verbose)
     if name == "gradient_descent":
         # gradients only, L-BFGS's directions with a line search, a curvature pair per parameter (the problem is badly
         # conditioned: a shoulder's rotation moves the whole arm, a hand's scale only the hand, so a short curvature
         # history or a fixed step size cannot resolve both scales)
-        return optx.OptaxMinimiser(optax.lbfgs(memory_size=parameters), rtol=rtol, atol=atol)
+        return optx.OptaxMinimiser(optax.lbfgs(memory_size=parameters), rtol=rtol, atol=atol, verbose=verbose)
     raise ValueError(f"solver: expected one of {SOLVERS}, got {name!r}")
+
+
+_LEAST_SQUARES = ("levenberg_marquardt", "gauss_newton")  # their loss is half the sum of squared residuals
+
+
+def _reporter(progress, scale: float):
+    """An optimistix ``verbose`` function that calls ``progress(loss)`` on the host after each solver step, with
+    the sum of squared residuals at the point the step evaluated (``scale`` times the solver's own loss; the
+    "last accepted" loss is a placeholder 0 at the first step)."""
+
+    def verbose(**values):
+        jax.debug.callback(progress, scale * values["loss_this_step"][1], ordered=True)
+
+    return verbose
 
 
 def check_targets(targets, vertices, n: int, dtype, item: str = ""):
@@ -133,10 +150,11 @@ def check_targets(targets, vertices, n: int, dtype, item: str = ""):
     return targets, index
 
 
-def run_solver(residuals, name: str, y0, args, max_steps: int, rtol: float, atol: float):
+def run_solver(residuals, name: str, y0, args, max_steps: int, rtol: float, atol: float, progress=None):
     """optimistix on ``residuals(y, args)``: least squares for Levenberg-Marquardt / Gauss-Newton, else
-    minimisation of the squared residual (BFGS, gradient descent). Returns the solution object."""
-    opt = _solver(name, rtol, atol, y0.size)
+    minimisation of the squared residual (BFGS, gradient descent). Returns the solution object. ``progress``:
+    None, or called after each step with the sum of squared residuals (``fit_pose``)."""
+    opt = _solver(name, rtol, atol, y0.size, progress)
     if not isinstance(opt, optx.AbstractMinimiser):  # Levenberg-Marquardt, Gauss-Newton
         return optx.least_squares(residuals, opt, y0, args=args, max_steps=max_steps, throw=False)
     if name == "gradient_descent":
@@ -248,6 +266,7 @@ def fit_pose(
     rtol: float = 1e-10,
     atol: float = 1e-12,
     init: Float[Array, "b 7"] | None = None,
+    progress: Callable[[Array], object] | None = None,
 ) -> PoseFit:
     """Fit every bone's motor (and dilation) so that the skinned vertices reach ``targets``.
 
@@ -265,12 +284,18 @@ def fit_pose(
         rtol: see ``max_steps``.
         atol: see ``max_steps``.
         init: (b, 7) starting parameters (zeros: the rest pose).
+        progress: None, or a function called on the host after each solver step with a () array: the sum of
+            the squared residuals (distances over the rest diagonal, and the regularization's) at the point the
+            step evaluated (the rest pose first; a trial point the solver then rejects counts too), in order, also
+            under ``jit`` (``jax.debug.callback``); for a progress bar.
     Returns:
         a PoseFit."""
     n = model.mesh.num_vertices
     b = model.skeleton.num_bones
     targets, index = check_targets(targets, vertices, n, model.mesh.V.dtype)
     check_options(method, regularization, fit_scale, solver, max_steps)
+    if progress is not None and not callable(progress):
+        raise ValueError(f"progress: expected None or a function, got {type(progress).__name__}")
     dtype = model.mesh.V.dtype
     diagonal = jnp.asarray(_rest_diagonal(model), dtype)
     width = PARAMETERS_PER_BONE if fit_scale else 6
@@ -298,7 +323,7 @@ def fit_pose(
         fit_scale=fit_scale,
         method=method,
     )
-    sol = run_solver(pose_residuals, solver, y0, data, max_steps, rtol, atol)
+    sol = run_solver(pose_residuals, solver, y0, data, max_steps, rtol, atol, progress)
     params = full_parameters(sol.value, fit_scale)
     local = pose_from_parameters(model, params)
     positions = _pose.skin_pose(model, local, method)

@@ -216,7 +216,7 @@ class RiggedModel(eqx.Module):
                 raise ValueError(f"clips: clip {clip.name!r} animates a bone outside [0, {b})")
 
     def to_glb(self) -> bytes:
-        """The model as a glTF binary (.glb), as ``deform.save_model`` writes it: for ``jaxcga.view(model)``
+        """The model as a glTF binary (.glb), as ``deform.save_model`` writes it: for ``deform.view(model)``
         and anything else that takes glTF bytes."""
         (data,) = model_files(self, "model.glb").values()
         assert isinstance(data, bytes)
@@ -227,11 +227,12 @@ class RiggedModel(eqx.Module):
 
         Args:
             name: the clip's name, or its index in ``clips``."""
+        # errors say "clip": every public function that takes one (skin_model, sample_pose, ...) calls it so
         if isinstance(name, int):
             if not -len(self.clips) <= name < len(self.clips):
-                raise ValueError(f"name: model has {len(self.clips)} clips, no clip {name}")
+                raise ValueError(f"clip: model has {len(self.clips)} clips, no clip {name}")
             return self.clips[name]
         for c in self.clips:
             if c.name == name:
                 return c
-        raise ValueError(f"name: no clip called {name!r}; clips are {[c.name for c in self.clips]}")
+        raise ValueError(f"clip: no clip called {name!r}; clips are {[c.name for c in self.clips]}")

@@ -27,14 +27,13 @@ import functools
 import equinox as eqx
 import jax
 import jax.numpy as jnp
-import numpy as np
 from jax.typing import DTypeLike
 from jaxtyping import Array, ArrayLike, Float
 
 import jaxcga as cga
 from _jaxcga_shared import pallas_rows
 from _jaxcga_shared.checks import check_vectors, require_around
-from _jaxcga_shared.platform import EXACT, PerPlatform, example
+from _jaxcga_shared.platform import EXACT, PerPlatform
 from jaxcga import KINDS, MOTOR_GENERATOR, Multivector
 from jaxcga._exp_log import exp_motor_columns, log_motor_unchecked
 from jaxcga._versors import row_coordinates
@@ -159,28 +158,13 @@ def _deform_in_rows(weights, bound, logs):
     return _rows_deform(weights, bound, logs)
 
 
-def _field_examples():
-    rng = np.random.default_rng(11)
-    weights = rng.dirichlet(np.ones(5), size=70)
-    bound = rng.normal(size=(70, 3))
-    logs = rng.normal(size=(5, 6)) * [0.8, 0.8, 0.8, 0.3, 0.3, 0.3]
-    # 27 keys: the Triton program's loop over groups of keys and the keys left after it
-    many = rng.dirichlet(np.ones(27), size=40)
-    many_logs = rng.normal(size=(27, 6)) * [0.8, 0.8, 0.8, 0.3, 0.3, 0.3]
-    return [
-        example(weights, bound, logs),
-        example(weights, bound, np.stack([logs, 0.5 * logs])),
-        example(many, bound[:40], many_logs),
-    ]
-
-
 def _deform_in_xla(weights, bound, logs):
     """The CPU (and a GPU past ``TRITON_MAX_KEYS``): the blend as one dense product, then the exponential and the
     sandwich fused by XLA."""
     return cga.apply_to_points(_blend(weights, logs), bound, fused=True)
 
 
-_deform = PerPlatform("deform.motor_field", cpu=_deform_in_xla, gpu=_deform_in_rows, examples=_field_examples)
+_deform = PerPlatform("deform.motor_field", cpu=_deform_in_xla, gpu=_deform_in_rows)
 
 
 def _rows_deform(weights, bound, logs):

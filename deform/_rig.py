@@ -39,7 +39,7 @@ from jaxtyping import Array, ArrayLike, Float
 import jaxcga as cga
 from _jaxcga_shared.broadcast import same_rank
 from _jaxcga_shared.checks import require
-from _jaxcga_shared.platform import EXACT, PerPlatform, example
+from _jaxcga_shared.platform import EXACT, PerPlatform
 from deform._model import PATHS, AnimationClip, Channel, Skeleton, SkinnedMesh
 from jaxcga._multivector import KINDS, Multivector
 
@@ -230,23 +230,7 @@ def _chains_by_doubling(local, parents, *, compose, rounds: int):
     return acc
 
 
-def _chain_examples():
-    """Two trees (depths 5 and 1: three rounds of doubling), two poses, bones first; as similitudes and as
-    matrices."""
-    parents = (-1, 0, 1, 2, 3, 4, 1, 6, -1, 8)
-    rounds = _doubling_rounds(parents, len(parents))
-    generators = np.random.default_rng(5).normal(size=(len(parents), 2, 7)) * 0.5
-    local = cga.exp_similitude(Multivector(generators, cga.SIMILITUDE_GENERATOR))
-    indices = jnp.asarray(parents, jnp.int32)
-    return [
-        example(local.values, indices, compose=_versor_product(local.blades), rounds=rounds),
-        example(cga.versor_to_matrix(local), indices, compose=_MATRIX_PRODUCT, rounds=rounds),
-    ]
-
-
-_CHAINS = PerPlatform(
-    "deform.forward_kinematics", cpu=_chains_in_a_loop, gpu=_chains_by_doubling, examples=_chain_examples
-)
+_CHAINS = PerPlatform("deform.forward_kinematics", cpu=_chains_in_a_loop, gpu=_chains_by_doubling)
 
 
 def _compose_chains(parents, local, compose):

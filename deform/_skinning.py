@@ -32,7 +32,6 @@ import operator
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 from jax import custom_batching
 from jaxtyping import Array, ArrayLike, Float, Int
 
@@ -40,7 +39,7 @@ import jaxcga as cga
 from _jaxcga_shared import pallas_rows
 from _jaxcga_shared.broadcast import lift_rank
 from _jaxcga_shared.checks import check_vectors, require, require_around
-from _jaxcga_shared.platform import EXACT, PerPlatform, example, per_platform
+from _jaxcga_shared.platform import EXACT, PerPlatform, per_platform
 from jaxcga._multivector import KINDS, Multivector
 from jaxcga._versors import fused_point_coordinates, row_coordinates, similitude_motor_log_scale_unchecked
 
@@ -129,22 +128,6 @@ def _coordinates_last(coordinates, *, cpu: bool):
     return jnp.stack(coordinates, axis=-1)
 
 
-def _skinning_examples(dual_quaternions: bool):
-    """Small rigs on which the platform variants must agree: one pose and a batch of three."""
-    rng = np.random.default_rng(11)
-    n, k, joints = 40, 3, 6
-    V = rng.normal(size=(n, 3))
-    J = jnp.asarray(rng.integers(0, joints, size=(n, k)), jnp.int32)
-    W = rng.uniform(0.1, 1.0, size=(n, k))
-    W = W / W.sum(axis=1, keepdims=True)
-    motors = cga.exp_motor(Multivector(rng.normal(size=(3, joints, 6)), cga.MOTOR_GENERATOR)).values
-    if dual_quaternions:
-        dq = cga.motor_to_dual_quaternion(Multivector(motors, KINDS["motor"]))
-        return [example(V, J, W, dq[0]), example(V, J, W, dq)]
-    log_scale = rng.normal(size=(3, joints)) * 0.3
-    return [example(V, J, W, motors[0], log_scale[0]), example(V, J, W, motors, log_scale)]
-
-
 # Up to this many joints a batch of poses blends its dilations through a dense (joints, vertices) weight
 # matrix (see ``_blend_dilations``); it costs joints multiply-adds per vertex and pose and joints x vertices
 # floats, so large skeletons keep the per-influence gather.
@@ -179,12 +162,6 @@ def _blend_dilations_vmap(axis_size, in_batched, J, W, dilations):
     return _blend_dilations_by_batching(J, W, dilations), dilations_batched
 
 
-def _blend_dilations_examples():
-    _, J, W, _, log_scale = _skinning_examples(dual_quaternions=False)[1].args
-    dilations = jnp.exp(log_scale)
-    return [example(J, W, dilations[0]), example(J, W, dilations)]
-
-
 @jax.custom_jvp
 def _blend_dilations_cpu(J, W, dilations: Float[Array, "... j"]) -> Float[Array, "... n"]:
     """``sum_k W[:, k] * dilations[..., J[:, k]]``: the eo-coefficient (lambda) row of eq. (17)'s sum.
@@ -209,9 +186,7 @@ def _blend_dilations_jvp(primals, tangents):
     return out, _blend_dilations_sparse(J, W_dot, dilations) + _blend_dilations_sparse(J, W, dilations_dot)
 
 
-_blend_dilations = PerPlatform(
-    "deform.blend_dilations", cpu=_blend_dilations_cpu, gpu=_blend_dilations_sparse, examples=_blend_dilations_examples
-)
+_blend_dilations = PerPlatform("deform.blend_dilations", cpu=_blend_dilations_cpu, gpu=_blend_dilations_sparse)
 
 
 def _blend_affine(V, J, W, maps: Float[Array, "... j r 4"]) -> Float[Array, "... n 3"]:
@@ -404,18 +379,10 @@ def _motor_blend_coordinates(influences: int, joints: int) -> pallas_rows.RowFun
     return coordinates
 
 
-def _motor_blend_examples():
-    return [
-        example(V, J, W, jnp.concatenate([motors, log_scale[..., None]], axis=-1))
-        for V, J, W, motors, log_scale in (e.args for e in _skinning_examples(dual_quaternions=False))
-    ]
-
-
 _blend_motors_and_apply = PerPlatform(
     "deform.skin_cga_motor_blend",
     cpu=functools.partial(_blend_motors_in_xla, cpu=True),
     gpu=_blend_motors_in_rows,
-    examples=_motor_blend_examples,
 )
 
 
@@ -474,7 +441,7 @@ def skin_dqs(
     return _blend_dual_quaternions(V, J, W, _materialize(dq))
 
 
-@per_platform("deform.skin_dqs", examples=lambda: _skinning_examples(dual_quaternions=True))
+@per_platform("deform.skin_dqs")
 def _blend_dual_quaternions(V, J, W, d: Float[Array, "... j 8"], *, cpu: bool) -> Float[Array, "... n 3"]:
     b = _blend_joints(J, _aligned_weights(J, W, d[..., :4], None, cpu=cpu), d)
     w, x, y, z = (b[..., i] for i in range(4))

@@ -3,12 +3,9 @@
 Multivectors carry ``values: Array[..., k]`` and a static tuple of k blades in the null basis
 {e1, e2, e3, eo, einf}; products are generated at trace time and compute only structurally non-zero
 terms. Everything is jit-, vmap- and grad-able. See the cut/tear/drill paper, section 2.
-
-``view`` / ``View``: the interactive viewer of meshes, glTF models and mesh sequences, one self-contained HTML page
-(three.js in the browser, inline in notebooks).
 """
 
-from _jaxcga_shared.viewer import View, view
+from _jaxcga_shared.checks import CheckError
 from jaxcga._algebra import ALL_BLADES, blade_name
 from jaxcga._estimation import align_points
 from jaxcga._exp_log import (
@@ -91,11 +88,11 @@ from jaxcga._versors import (
 
 __all__ = [
     "ALL_BLADES",
+    "CheckError",
     "KINDS",
     "MOTOR_GENERATOR",
     "SIMILITUDE_GENERATOR",
     "Multivector",
-    "View",
     "align_points",
     "apply_to_points",
     "basis_vector",
@@ -169,6 +166,5 @@ __all__ = [
     "up",
     "versor_inverse",
     "versor_to_matrix",
-    "view",
     "zeros",
 ]

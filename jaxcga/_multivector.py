@@ -19,7 +19,7 @@ from jaxtyping import Array, ArrayLike, DTypeLike, Float
 
 from _jaxcga_shared.broadcast import lift_rank, same_rank
 from _jaxcga_shared.checks import check_choice, require
-from _jaxcga_shared.platform import EXACT, example, per_platform
+from _jaxcga_shared.platform import EXACT, per_platform
 from jaxcga import _algebra as alg
 from jaxcga import _codegen
 
@@ -350,25 +350,12 @@ def inverse(m: Multivector) -> Multivector:
     return Multivector(x, blades)
 
 
-def _table_product_examples():
-    rng = np.random.default_rng(3)
-    similitudes = (
-        Multivector(rng.normal(size=(23, 16)), KINDS["similitude"]),
-        Multivector(rng.normal(size=(23, 16)), KINDS["similitude"]),
-    )
-    motors = (
-        Multivector(rng.normal(size=(4, 1, 8)), KINDS["motor"]),
-        Multivector(rng.normal(size=(3, 8)), KINDS["motor"]),
-    )
-    return [example(*similitudes, kind="geometric"), example(*motors, kind="geometric"), example(*motors, kind="outer")]
-
-
 def _generated_product(a: Multivector, b: Multivector, *, kind: str) -> Multivector:
     dtype = jnp.result_type(a.dtype, b.dtype)
     return product(kind, Multivector(a.values.astype(dtype), a.blades), Multivector(b.values.astype(dtype), b.blades))
 
 
-@per_platform("table_product", gpu=_generated_product, examples=_table_product_examples)
+@per_platform("table_product", gpu=_generated_product)
 def _contracted_product(a: Multivector, b: Multivector, *, kind: str) -> Multivector:
     a, b = aligned(a, b)
     dtype = jnp.result_type(a.dtype, b.dtype)

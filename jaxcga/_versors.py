@@ -22,13 +22,12 @@ from fractions import Fraction
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 from jaxtyping import Array, ArrayLike, Float
 
 from _jaxcga_shared.broadcast import lift_rank
 from _jaxcga_shared.checks import check_finite, check_vectors, non_finite, require
 from _jaxcga_shared.pallas_rows import RowFunction, fits, rowwise
-from _jaxcga_shared.platform import EXACT, Example, example, per_platform
+from _jaxcga_shared.platform import EXACT, per_platform
 from jaxcga import _algebra as alg
 from jaxcga import _codegen
 from jaxcga._multivector import KINDS, Multivector, broadcast_batch
@@ -319,20 +318,6 @@ def _map_row(a: dict[tuple[int, int], Array], inputs: dict[int, Array], r: int) 
     return functools.reduce(operator.add, terms)
 
 
-def _apply_examples() -> list[Example]:
-    rng = np.random.default_rng(7)
-    motors = motor(rotor(rng.normal(size=(64, 3)), rng.normal(size=64)), rng.normal(size=(64, 3)))
-    one = similitude(rotor(rng.normal(size=3), rng.normal()), rng.normal(size=3), np.exp(0.3 * rng.normal()))
-    rotors = rotor(rng.normal(size=(2, 5, 3)), rng.normal(size=(2, 5)))
-    dilators = dilator(rng.uniform(0.1, 10.0, size=64))
-    return [
-        example(motors, rng.normal(size=(64, 3))),  # one versor per point
-        example(one, rng.normal(size=(64, 3))),  # one for all points
-        example(rotors, rng.normal(size=(5, 3))),  # batches broadcast
-        example(dilators, rng.normal(size=(64, 3))),
-    ]
-
-
 def _point_major(v: Multivector, x: Float[Array, "... 3"]) -> Float[Array, "... 3"]:
     """Point-major: three coordinates, written elementwise and stacked last, left for XLA to fuse."""
     batch = broadcast_batch("v", v.batch_shape, "x", x.shape[:-1])
@@ -376,7 +361,7 @@ def row_coordinates(blades: tuple[int, ...]) -> RowFunction:
     return coordinates
 
 
-@per_platform("apply_to_points", gpu=_rows_of_points, examples=_apply_examples)
+@per_platform("apply_to_points", gpu=_rows_of_points)
 def _component_major(v: Multivector, x: Float[Array, "... 3"]) -> Float[Array, "... 3"]:
     """Component-major: XLA:CPU then vectorizes the generated arithmetic along the points (measured 2-3x
     faster than on the interleaved (..., k) layout); the barriers keep XLA from fusing the transposes back

@@ -21,6 +21,7 @@ import argparse
 import contextlib
 import os
 import re
+import warnings
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -33,6 +34,13 @@ HELP = (
 EXAMPLE = "jaxcga animate-batch tests/data/CesiumMan.glb tests/data/RiggedSimple.glb --frames 30 --out out/batch"
 MANIFEST = "batch.json"
 DISTRIBUTED_HELP = "the same command once per process (one per machine or one per GPU), each with its --process-id"
+# Peak memory per packed vertex slot and frame on a process (the skinned positions on the device and their float64
+# copies on the host): the growth of the peak resident size from 1024 to 8192 frames of CesiumMan and Arm5 in one
+# block, with headroom; the guard refuses a request that would not fit.
+MEASURED_BYTES_PER_SLOT_FRAME = 33
+HEADROOM = 1.5
+BYTES_PER_SLOT_FRAME = int(MEASURED_BYTES_PER_SLOT_FRAME * HEADROOM)
+TIMEOUT = 300  # seconds, jax.distributed.initialize's own default
 
 
 def add_arguments(parser) -> None:
@@ -74,6 +82,14 @@ def add_arguments(parser) -> None:
         type=int,
         metavar="I",
         help="this process's index, 0 to P-1 (default: $JAX_PROCESS_ID, else a cluster jax.distributed detects)",
+    )
+    group.add_argument(
+        "--timeout",
+        type=float,
+        default=TIMEOUT,
+        metavar="SECONDS",
+        help=f"give up when the other processes have not all connected within this many seconds (default {TIMEOUT}); "
+        "a status line says whom this process waits for",
     )
     group.add_argument(
         "--distributed",
@@ -168,13 +184,44 @@ def distributed_options(args) -> dict | None:
     return {"coordinator_address": coordinator, "num_processes": count, "process_id": index}
 
 
-def initialize(options: dict) -> None:
+# jax.distributed's own deadline, past ours: its expiry aborts the process natively (a C++ stack), so the watchdog
+# below must fire first.
+_GRACE = 30
+
+
+def initialize(options: dict, timeout: float = TIMEOUT) -> None:
     """``jax.distributed.initialize`` (before anything touches a JAX backend), its missing-value errors naming the
-    command's options."""
+    command's options; a status line while it waits for the other processes, and a one-line error and exit 2 when
+    they have not all connected within ``timeout`` seconds."""
+    import math
+    import threading
+    import time
+
     import jax
 
+    from jaxcga_cli.report import say
+
+    count, index = options["num_processes"], options["process_id"]
+    address = options["coordinator_address"] or "the address jax.distributed detects"
+    others = f"{count - 1} more process{'es' if count > 2 else ''}" if count is not None else "the other processes"
+    me = f"process {index} of {count}: " if index is not None and count is not None else ""
+    say("animate-batch", f"{me}waiting for {others} at {address} (at most {timeout:g} s, --timeout)")
+    connected = threading.Event()
+
+    def watchdog() -> None:
+        if connected.wait(timeout):
+            return
+        say(
+            "animate-batch",
+            f"error: coordinator: {me}still waiting for {others} at {address} after {timeout:g} s (--timeout); "
+            "start every process with the same --coordinator and --num-processes and its own --process-id",
+        )
+        os._exit(2)  # the connection runs in native code, which no Python exception interrupts
+
+    start = time.perf_counter()
+    threading.Thread(target=watchdog, name="jaxcga-distributed-timeout", daemon=True).start()
     try:
-        jax.distributed.initialize(**options)
+        jax.distributed.initialize(**options, initialization_timeout=math.ceil(timeout) + _GRACE)
     except ValueError as error:
         text = str(error)
         for what, option in (
@@ -188,6 +235,9 @@ def initialize(options: dict) -> None:
                     f"{name}: not given and no cluster detected by jax.distributed; give {option}"
                 ) from None
         raise
+    finally:
+        connected.set()
+    say("animate-batch", f"{me}connected: {jax.process_count()} processes in {time.perf_counter() - start:.1f} s")
 
 
 def run(args: argparse.Namespace) -> tuple[str, dict[str, object]]:
@@ -200,11 +250,13 @@ def run(args: argparse.Namespace) -> tuple[str, dict[str, object]]:
             f"time_shards: --frames {args.frames} do not split over --time-shards {args.time_shards} devices; give "
             "a multiple"
         )
+    if not 0 < args.timeout < 10**6:
+        raise ValueError(f"timeout: expected --timeout in (0, 1e6) seconds, got {args.timeout:g}")
     options = distributed_options(args)
     import jax
 
     if options is not None:
-        initialize(options)
+        initialize(options, args.timeout)
     try:
         return batch_command(
             args.models,
@@ -220,6 +272,22 @@ def run(args: argparse.Namespace) -> tuple[str, dict[str, object]]:
         if options is not None:
             # every process, also after an error: lets its peers shut down instead of waiting for its heartbeat
             jax.distributed.shutdown()
+
+
+def check_memory(frames: int, blocks: int, slots: int) -> None:
+    """Refuse, before skinning, ``frames`` frames of this process's ``blocks`` blocks of ``slots`` vertex slots each
+    when they would not fit in the memory available now (``BYTES_PER_SLOT_FRAME``)."""
+    from jaxcga_cli.animate import available_memory
+
+    need = frames * blocks * slots * BYTES_PER_SLOT_FRAME
+    have = available_memory()
+    if need > have:
+        fit = have // (blocks * slots * BYTES_PER_SLOT_FRAME)
+        raise ValueError(
+            f"frames: {frames} frames of {blocks} block{'s' if blocks > 1 else ''} of {slots} vertex slots need about "
+            f"{need / 2**30:.1f} GiB on this process, more than the {have / 2**30:.1f} GiB of memory available now; "
+            + (f"give at most --frames {fit}" if fit else "give fewer or smaller models per process")
+        )
 
 
 def device_mesh(time_shards: int):
@@ -292,6 +360,13 @@ def batch_command(
     models = [load_model(path, weld=weld) for path in paths or [None]]
     packed = deform.pack_models(models, blocks=rows)
     times = packed.frame_times(frames, clip)
+    for m, model in enumerate(models):
+        if not model.clips and interpolation != "gltf":
+            warnings.warn(
+                f"{packed.names[m]} has no clip: posed at rest, --interpolation {interpolation} ignored", stacklevel=2
+            )
+    mine = sum(int(mesh.devices[b, 0].process_index) == me for b in range(rows))
+    check_memory(frames, mine, packed.capacities.vertices)
     where = f"process {me} of {processes}: " if processes > 1 else ""
     vertices = sum(packed.vertex_count)
     doing = f"{where}skinning {len(models)} models, {vertices} vertices, {frames} frames (compiling)"

@@ -117,3 +117,29 @@ PREDICATES = ("euclidean", "ga")  # cutting.PREDICATES
 XFEM_SCENES = ("sticks", "thin", "cheese", "accordion", "octopus")  # xfem.SCENES
 XFEM_SIZES = ("paper", "small")  # xfem.SIZES
 METHODS = ("lbs", "dqs", "cga", "cga_motor_blend")  # deform.METHODS
+
+
+def check_clip(model, clip: int | str = 0, time: float | None = None, interpolation: str = "gltf"):
+    """The clip ``clip`` of ``model`` (None for a model without clips), checked after loading and before anything
+    compiles: an unknown clip is a ``ValueError`` naming --clip; options that do nothing are told (a warning, one
+    line): --clip, --time and --interpolation on a model without clips, and a ``time`` outside the clip, which
+    glTF holds at the clip's nearer end."""
+    import warnings
+
+    if not model.clips:
+        ignored = [f"--clip {clip}"] if clip not in (0, -1) else []
+        ignored += [f"--time {time:g}"] if time not in (None, 0.0) else []
+        ignored += [f"--interpolation {interpolation}"] if interpolation != "gltf" else []
+        if ignored:
+            warnings.warn(f"{model.name} has no clip: {', '.join(ignored)} ignored", stacklevel=2)
+        return None
+    source = model.clip(clip)
+    start, end = float(source.start), float(source.end)
+    if time is not None and not start <= time <= end:
+        held = start if time < start else end
+        warnings.warn(
+            f"--time {time:g} is outside clip {source.name!r} ({start:g} to {end:g} s); glTF holds a clip at its "
+            f"ends: posed at {held:g} s",
+            stacklevel=2,
+        )
+    return source

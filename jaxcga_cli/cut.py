@@ -59,9 +59,16 @@ def check_paths(args) -> None:
     )
 
 
+def check_side_weight(side_weight: float) -> None:
+    """--side-weight in [0, 1] (``cutting.cut``'s own check, made before the model is loaded)."""
+    if not 0.0 <= side_weight <= 1.0:
+        raise ValueError(f"side_weight: expected a number in [0, 1], got {side_weight}")
+
+
 def run(args: argparse.Namespace) -> tuple[str, dict[str, object]]:
     from jaxcga_cli.models import load_model
 
+    check_side_weight(args.side_weight)
     model = load_model(args.model, weld=args.weld)
     return model.name, cut_command(
         model, args.plane, *args.out, cap=args.cap, predicates=args.predicates, side_weight=args.side_weight

@@ -96,9 +96,34 @@ def check_paths(args) -> None:
     check_files(args, ("mesh", "handles", "cage"), {"out": args.out}, DEFORM_OUTPUTS)
 
 
+def check_cage(path: Path):
+    """(V, F) of the cage file ``path``, a closed, consistently oriented surface (``deform.cage_precompute``'s
+    requirement, checked here in the file's terms before the model is loaded)."""
+    import trimesh
+
+    from jaxcga_cli.fem import open_edges
+    from jaxcga_cli.models import load_mesh
+
+    V, F = load_mesh(path, "cage")
+    border = open_edges(F)
+    if border:
+        raise ValueError(
+            f"cage: {path} is an open surface ({border} edges lie on its border, each in one triangle only); a cage "
+            "is a closed surface around the model"
+        )
+    if not trimesh.Trimesh(V, F, process=False).is_winding_consistent:
+        raise ValueError(
+            f"cage: {path} is closed but its triangles are not consistently oriented (neighbours list a shared "
+            "edge in the same direction); fix their winding, e.g. with trimesh's fix_winding"
+        )
+    return V, F
+
+
 def run(args: argparse.Namespace) -> tuple[str, dict[str, object]]:
     from jaxcga_cli.models import load_mesh
 
+    if args.method == "cage" and args.cage is not None:
+        check_cage(args.cage)
     V, F = load_mesh(args.mesh)
     return f"{args.method} {args.mesh or 'built-in arm'}", deform_command(
         args.method,
@@ -151,7 +176,7 @@ def deform_command(
 
     import deform
     import jaxcga as cga
-    from jaxcga_cli.models import Motion, end_handles, load_mesh, read_handles
+    from jaxcga_cli.models import Motion, end_handles, read_handles
     from jaxcga_cli.output import write_result
     from jaxcga_cli.report import status
 
@@ -166,7 +191,7 @@ def deform_command(
     motion = Motion(V, bend, twist, translate)
     # the handles, read and checked before the work starts
     if method == "handles" and handles is not None:
-        parts, key_motors, _ = read_handles(handles, len(V))
+        parts, key_motors, _ = read_handles(handles, V)
     elif method in ("spline", "handles"):
         parts = list(end_handles(motion, V, handle_fraction))
         key_motors = motion.motors(np.array([0.0, 1.0]))
@@ -191,7 +216,7 @@ def deform_command(
             if cage is None:
                 cage_V, cage_F = deform.tube_cage(V, axis=motion.long)
             else:
-                cage_V, cage_F = load_mesh(cage, "cage")
+                cage_V, cage_F = check_cage(cage)
             field = deform.cage_precompute(V, cage_V, cage_F)
             key_motors = motion.motors(motion.fraction(cage_V))
             control = cga.apply_to_points(key_motors, jnp.asarray(cage_V))

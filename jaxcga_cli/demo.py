@@ -68,6 +68,7 @@ def blending_figure(path: Path, steps: int = 8) -> Path:
                 ax.plot(*closed.T, color=color, alpha=0.35 + 0.65 * i / (len(frames) - 1))
         ax.set_title(title)
         ax.set_box_aspect((1, 1, 1))
+        figures.readable_ticks(ax)
     fig.suptitle("Blending similitude keyframes (rotation, translation, dilation)")
     return figures.save_figure(fig, path, dpi=110, bbox_inches="tight")
 
@@ -135,15 +136,56 @@ def cut_figure(arm, upper, lower, path: Path) -> Path:
     return figures.save_figure(fig, path, dpi=100, bbox_inches="tight")
 
 
+def ffd_figure(V, F, classic, motor, ratios: tuple[float, float], path: Path) -> Path:
+    """Classic (positional) and motor FFD of the same twist side by side, on one box, and their cross-sections at
+    mid-length over the rest one's: where classic FFD loses volume, its section shrinks. ``ratios``: the volume
+    ratios (deformed over rest) of classic and motor FFD, in the titles and the figure's title."""
+    import numpy as np
+
+    from jaxcga_cli import figures
+
+    V, classic, motor = (np.asarray(X, np.float64) for X in (V, classic, motor))
+    both = np.concatenate([classic, motor])
+    lo, hi = both.min(axis=0), both.max(axis=0)
+    long = int(np.argmax(V.max(axis=0) - V.min(axis=0)))
+    across = [i for i in range(3) if i != long]
+    fig = figures.figure(13, 4.6)
+    names = ("classic FFD (eq. 6)", "motor FFD (eq. 7-8)")
+    for k, (X, name, ratio, color) in enumerate(zip((classic, motor), names, ratios, ("tab:blue", "tab:orange"))):
+        ax = figures.axes_3d(fig, 1, 3, k + 1)
+        ax.plot_trisurf(X[:, 0], X[:, 1], X[:, 2], triangles=F, color=color, linewidth=0, alpha=0.9)
+        figures.set_box(ax, lo, hi, f"{name}\nvolume x {ratio:.3f}")
+        figures.readable_ticks(ax, count=3)
+    # the vertices of a thin slab at mid-length (their rest positions pick them: a twist keeps them in the slab)
+    middle = 0.5 * (V[:, long].min() + V[:, long].max())
+    slab = np.abs(V[:, long] - middle) <= 0.02 * (V[:, long].max() - V[:, long].min())
+    ax = fig.add_subplot(1, 3, 3)
+    for X, label, color in ((V, "rest", "0.6"), (classic, names[0], "tab:blue"), (motor, names[1], "tab:orange")):
+        section = X[slab][:, across]
+        section = section - section.mean(axis=0)  # each on its own centre: the twist also moves the section
+        ax.scatter(section[:, 0], section[:, 1], s=4, color=color, label=label)
+    ax.set_aspect("equal")
+    ax.set_title("cross-sections at mid-length (centred)")
+    ax.set_xlabel("xyz"[across[0]], fontsize=8)
+    ax.set_ylabel("xyz"[across[1]], fontsize=8, labelpad=0)
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.18), ncol=3, markerscale=2, frameon=False)
+    figures.readable_ticks(ax)
+    fig.suptitle(
+        f"The same 120 degree twist of a 4x4x4 lattice: classic FFD keeps {ratios[0]:.1%} of the volume, motor FFD "
+        f"{ratios[1]:.1%} (motor / classic = {ratios[1] / ratios[0]:.2f})"
+    )
+    return figures.save_figure(fig, path, dpi=100, bbox_inches="tight")
+
+
 def viewer_page(out: Path, arm, halves) -> Path:
-    """Write ``out/demo.html``: the viewer (``jaxcga.view``) of the arm, the two halves of its cut (RiggedModels), and
+    """Write ``out/demo.html``: the viewer (``deform.view``) of the arm, the two halves of its cut (RiggedModels), and
     the torn and drilled arms (``out/arm_torn.glb``, ``out/arm_drilled.glb``), side by side, all playing the arm's
     clip (by its name: ``out/arm_animated.glb`` names its re-sampled clip apart)."""
-    import jaxcga as cga
+    import deform
 
     inputs = [arm, *halves, out / "arm_torn.glb", out / "arm_drilled.glb"]
     title = "jaxcga demo: the arm animated, cut, torn and drilled"
-    return cga.view(*inputs, title=title).save(out / "demo.html", force=True)
+    return deform.view(*inputs, title=title).save(out / "demo.html", force=True)
 
 
 def demo(out: Path, steps: int, figure: bool) -> None:
@@ -152,6 +194,7 @@ def demo(out: Path, steps: int, figure: bool) -> None:
 
     import jax
     import jax.numpy as jnp
+    import numpy as np
 
     import cutting
     import deform
@@ -160,6 +203,7 @@ def demo(out: Path, steps: int, figure: bool) -> None:
     from jaxcga_cli.deform import deform_command
     from jaxcga_cli.drill import drill_command
     from jaxcga_cli.models import load_mesh
+    from jaxcga_cli.report import quiet
     from jaxcga_cli.tear import tear_command
 
     print("jaxcga demo: the CGA kernel G(4,1) in the null basis {e1, e2, e3, eo, einf}")
@@ -192,7 +236,8 @@ def demo(out: Path, steps: int, figure: bool) -> None:
     frames = jax.vmap(lambda t: deform.skin_model(arm, t, "cga"))(jnp.linspace(0.0, arm.clips[0].end, 9))
     reach = jnp.linalg.norm(frames, axis=-1).max(axis=-1)
     print(f"  eq. (17) skinning of 9 frames (vmap)    : reach {reach.min():.3f} .. {reach.max():.3f} m")
-    summary = animate_command(arm, 30, out / "arm_animated.glb")
+    with quiet():
+        summary = animate_command(arm, 30, out / "arm_animated.glb")
     print(f"  clip re-sampled through log blending   : {summary['frames']} frames -> {summary['out']}")
     if figure:
         path = skinning_figure(arm, out / "arm.png")
@@ -213,13 +258,15 @@ def demo(out: Path, steps: int, figure: bool) -> None:
 
     scalpels = [[[0.2, 0.0, 0.1], [0.2, 0.0, 0.0]], [[0.3, 0.0, 0.1], [0.3, 0.0, 0.0]]]
     start = time.perf_counter()
-    summary = tear_command(arm, scalpels, out / "arm_torn.glb", opening=0.005)
+    with quiet():
+        summary = tear_command(arm, scalpels, out / "arm_torn.glb", opening=0.005)
     print(
         f"Tear (Algorithm 2) along the upper arm: {summary['tear_points']} tear points, opened by 5 mm, in "
         f"{1e3 * (time.perf_counter() - start):.1f} ms with the file -> {summary['out']}"
     )
     start = time.perf_counter()
-    summary = drill_command(arm, [0.4, 0.0, 0.0], [0.4, 0.0, 0.1], 0.015, out / "arm_drilled.glb")
+    with quiet():
+        summary = drill_command(arm, [0.4, 0.0, 0.0], [0.4, 0.0, 0.1], 0.015, out / "arm_drilled.glb")
     print(
         f"Drill (Algorithm 3) of radius 15 mm into the forearm: {summary['hole_points']} points around the hole, "
         f"in {1e3 * (time.perf_counter() - start):.1f} ms with the file -> {summary['out']}"
@@ -234,19 +281,18 @@ def demo(out: Path, steps: int, figure: bool) -> None:
 
     V, F = load_mesh(None)
     print("\nMotor deformations (the deformation paper): the same 120 degree twist of a 4x4x4 lattice")
+    results, ratios = [], []
     for positional in (True, False):
-        out_file = out / ("arm_ffd_classic" if positional else "arm_ffd_motor")
-        summary = deform_command(
-            "ffd",
-            V,
-            F,
-            out_file.with_suffix(".png" if figure else ".npy"),
-            bend=0.0,
-            twist=120.0,
-            positional=positional,
-        )
+        out_file = out / ("arm_ffd_classic.npy" if positional else "arm_ffd_motor.npy")
+        with quiet():
+            summary = deform_command("ffd", V, F, out_file, bend=0.0, twist=120.0, positional=positional)
+        results.append(np.load(out_file))
+        ratios.append(summary["volume_ratio"])
         print(
             f"  {'classic FFD (eq. 6)' if positional else 'motor FFD (eq. 7-8)':22s}: volume ratio "
             f"{summary['volume_ratio']:.4f}, mean edge change {summary['mean_edge_change']:.4f}, "
             f"{summary['frame_ms']:.2f} ms per frame -> {summary['out']}"
         )
+    if figure:
+        path = ffd_figure(V, F, *results, (ratios[0], ratios[1]), out / "arm_ffd.png")
+        print(f"  figure: classic and motor FFD, their volumes and cross-sections -> {path}")

@@ -196,6 +196,13 @@ def scene_mesh(
         if mesher == "tetgen":
             import time
 
+            border = open_edges(F)
+            if border:
+                raise ValueError(
+                    f"SCENE: {path} is an open surface ({border} edges lie on its border, each in one triangle "
+                    "only); TetGen fills closed surfaces only: give --mesher ftetwild (the default), which takes "
+                    "open ones"
+                )
             start = time.perf_counter()
             try:
                 mesh = xfem.tetrahedralize(V, F)
@@ -224,10 +231,42 @@ def scene_mesh(
             with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
                 mesh = xfem.read_tet_mesh(path)
         except ValueError as error:  # it names its argument "path"
+            surface = _surface_cells(path)
+            if surface:
+                raise ValueError(
+                    f"SCENE: {path} holds a surface ({surface} cells), no tetrahedra; fem fills a surface with "
+                    f"tetrahedra when it comes as {', '.join(SURFACE_FORMATS)}: convert it to one of those"
+                ) from None
             raise ValueError(f"SCENE: {str(error).removeprefix('path: ')}") from None
     height = np.asarray(mesh.X) @ np.asarray(up, np.float64)
     fixed = np.flatnonzero(height >= height.max() - fix_fraction * (height.max() - height.min()))
     return mesh, fixed, surface
+
+
+def open_edges(F) -> int:
+    """The number of edges of the triangles ``F`` ((m, 3)) that only one triangle has (0 for a closed surface)."""
+    import numpy as np
+
+    edges = np.sort(np.asarray(F)[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
+    _, counts = np.unique(edges, axis=0, return_counts=True)
+    return int((counts == 1).sum())
+
+
+def _surface_cells(path: Path) -> str:
+    """The surface cell types (triangle, quad, ...) of a mesh file meshio reads that holds no tetrahedra, joined
+    (empty when meshio cannot read it or it has none)."""
+    import contextlib
+    import io
+
+    import meshio
+
+    try:
+        with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
+            cells = {block.type for block in meshio.read(path).cells}
+    # meshio's readers fail in many ways, some by sys.exit: the caller's error stands then
+    except (Exception, SystemExit):  # noqa: BLE001
+        return ""
+    return ", ".join(sorted(cells & {"triangle", "quad", "polygon"}))
 
 
 def surface_frame(V, F, limits, path: Path, title: str, colours=None) -> None:
@@ -322,6 +361,8 @@ def fem_command(
         raise ValueError(f"density: expected a positive density, got {density}")
     if tolerance is not None and not tolerance > 0:
         raise ValueError(f"tolerance: expected a positive fraction of the body's size, got {tolerance}")
+    if not isinstance(newton_iterations, int) or newton_iterations < 1:
+        raise ValueError(f"newton: expected --newton >= 1 Newton iterations per step, got {newton_iterations!r}")
     if gravity is None:
         gravity = (0.0, -GRAVITY, 0.0) if is_gltf(scene) else (0.0, 0.0, -GRAVITY)
     if len(gravity) != 3 or not np.isfinite(max(abs(float(g)) for g in gravity) * float(density)):

@@ -32,6 +32,18 @@ def set_box(ax, lo, hi, title: str | None = None, floor: float = 1e-9) -> None:
     if title is not None:
         ax.set_title(title)
     ax.set_box_aspect(np.maximum(hi - lo, floor * (hi - lo).max()))
+    readable_ticks(ax)
+
+
+def readable_ticks(ax, count: int = 4, size: float = 7) -> None:
+    """At most ``count`` ticks per axis of ``ax`` (2-D or 3-D), in ``size`` points: matplotlib's default crowds a
+    small 3-D panel with overlapping labels."""
+    from matplotlib.ticker import MaxNLocator
+
+    axes = [ax.xaxis, ax.yaxis] + ([ax.zaxis] if hasattr(ax, "zaxis") else [])
+    for axis in axes:
+        axis.set_major_locator(MaxNLocator(count))
+    ax.tick_params(labelsize=size, pad=0)
 
 
 def save_figure(fig, path, **savefig) -> Path:

@@ -63,7 +63,7 @@ def fit_command(
     import deform
     from _jaxcga_shared.mesh import bounding_diagonal
     from _jaxcga_shared.output import write_json
-    from jaxcga_cli.report import status
+    from jaxcga_cli.report import StepProgress
 
     targets = _read_array("target", target)
     index = None if vertices is None else _read_array("vertices", vertices)
@@ -73,11 +73,9 @@ def fit_command(
             f"{targets.shape}; give --vertices for a subset"
         )
     dtype = model.mesh.V.dtype
-    with status(
-        "fit",
-        f"fitting {model.skeleton.num_bones} bones to {len(targets)} target positions (compiling, "
-        f"then at most {max_steps} solver steps)",
-    ):
+    desc = f"fit {model.skeleton.num_bones} bones to {len(targets)} targets"
+    with StepProgress("fit", max_steps, "step", desc) as progress:
+        # loss: the sum of squared residuals, distances over the rest pose's diagonal
         fit = deform.fit_pose(
             model,
             jnp.asarray(targets, dtype),
@@ -86,6 +84,7 @@ def fit_command(
             regularization=regularization,
             max_steps=max_steps,
             fit_scale=fit_scale and method != "dqs",
+            progress=lambda loss: progress.step(loss=f"{float(loss):.3g}"),
         )
         translation, rotation, scale = deform.versor_to_trs(fit.local)
     diagonal = bounding_diagonal(deform.rest_pose(model, "lbs"))
@@ -117,11 +116,9 @@ def fit_command(
 def _read_array(name: str, path: Path):
     """The array in the .npy file ``path`` (the option ``name`` gave it): a ValueError naming the option for a
     missing file or one that holds no plain array."""
-    import numpy as np
+    from _jaxcga_shared.meshfile import read_array_file
 
-    if not Path(path).is_file():
-        raise FileNotFoundError(f"{name}: no such file {path}")
-    try:
-        return np.load(path, allow_pickle=False)
-    except (ValueError, OSError, EOFError) as error:
-        raise ValueError(f"{name}: {path} is not a .npy file of a numeric array ({type(error).__name__})") from None
+    array = read_array_file(path, name)
+    if array.dtype.kind not in "fiu":
+        raise ValueError(f"{name}: {path} holds {array.dtype} values, expected numbers")
+    return array

@@ -123,10 +123,18 @@ def read_json(path: Path, what: str):
 _MOTOR_KEYS = {"center": [0.0, 0.0, 0.0], "axis": [0.0, 0.0, 1.0], "angle_deg": 0.0, "translation": [0.0, 0.0, 0.0]}
 
 
-def read_handles(path: Path, n: int, positions: bool = False):
-    """The handles of HANDLES.json (module docstring) for a mesh of ``n`` vertices: (groups, motors, targets):
-    the groups of vertex indices, their motors (a motor Multivector of batch shape (h,)) and, only where
-    ``positions`` allows a "positions" entry and the file has one, each group's target positions (else None)."""
+# A handle carried farther than this many mesh diagonals is a units mistake (and near float64's range the
+# deformation's arithmetic overflows): refused.
+MAX_REACH = 1e6
+
+
+def read_handles(path: Path, V, positions: bool = False):
+    """The handles of HANDLES.json (module docstring) for a mesh of vertices ``V`` ((n, 3)): (groups, motors,
+    targets): the groups of vertex indices, their motors (a motor Multivector of batch shape (h,)) and, only where
+    ``positions`` allows a "positions" entry and the file has one, each group's target positions (else None).
+    Every handle must stay within ``MAX_REACH`` mesh diagonals of the mesh."""
+    V = np.asarray(V, np.float64)
+    n = len(V)
     spec = read_json(path, "handles")
     if not isinstance(spec, dict) or not isinstance(spec.get("handles"), list) or not spec["handles"]:
         raise ValueError(
@@ -140,11 +148,17 @@ def read_handles(path: Path, n: int, positions: bool = False):
             + (" or 'positions'" if positions else "")
         )
     try:
-        handles = [np.asarray(h).reshape(-1) for h in spec["handles"]]
+        handles = [np.asarray(h) for h in spec["handles"]]
     except (TypeError, ValueError):
         handles = []
     if len(handles) != len(spec["handles"]) or not all(np.issubdtype(h.dtype, np.integer) for h in handles):
         raise ValueError(f"handles: every handle in {path} must be a list of vertex indices")
+    for i, h in enumerate(handles):
+        if h.ndim != 1:
+            raise ValueError(
+                f"handles: handle {i} in {path} is a list of lists (groups within a group); each handle is one "
+                "flat list of vertex indices [i, ...]: give each group as its own handle"
+            )
     if any(len(h) == 0 or h.min() < 0 or h.max() >= n for h in handles):
         raise ValueError(f"handles: every handle needs vertex indices in [0, {n})")
     values, counts = np.unique(np.concatenate(handles), return_counts=True)
@@ -158,8 +172,31 @@ def read_handles(path: Path, n: int, positions: bool = False):
             )
         if "motors" in spec:
             raise ValueError(f"handles: {path} gives both 'motors' and 'positions'; give one")
-        return handles, None, _targets(spec["positions"], handles, path)
-    return handles, _motors(spec.get("motors", [{}] * len(handles)), len(handles), path), None
+        targets = _targets(spec["positions"], handles, path)
+        _check_reach(targets, V, path, "positions")
+        return handles, None, targets
+    motors = _motors(spec.get("motors", [{}] * len(handles)), len(handles), path)
+    moved = [
+        np.asarray(cga.apply_to_points(cga.Multivector(motors.values[i], motors.blades), jnp.asarray(V[h])))
+        for i, h in enumerate(handles)
+    ]
+    _check_reach(moved, V, path, "motor")
+    return handles, motors, None
+
+
+def _check_reach(moved, V, path, what: str) -> None:
+    """Each handle's moved vertices lie within ``MAX_REACH`` mesh diagonals of the mesh's centre."""
+    center = 0.5 * (V.min(axis=0) + V.max(axis=0))
+    diagonal = float(np.linalg.norm(V.max(axis=0) - V.min(axis=0))) or 1.0
+    for i, P in enumerate(moved):
+        with np.errstate(over="ignore", invalid="ignore"):
+            reach = float(np.max(np.linalg.norm(P - center, axis=1))) / diagonal
+        if not reach <= MAX_REACH:
+            far = f"{reach:.3g} mesh diagonals ({diagonal:.4g})" if np.isfinite(reach) else "beyond float64's range"
+            raise ValueError(
+                f"handles: {what} {i} in {path} moves handle {i} {far} from the mesh, more than {MAX_REACH:g} "
+                "diagonals: give the translation in the mesh's units"
+            )
 
 
 def _targets(given, handles, path):

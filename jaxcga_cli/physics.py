@@ -20,7 +20,7 @@ last):
   ``piece_K`` (f_K,) int64 the connected piece of each triangle and ``vertex_K`` (s_K,) int64 the model's vertex
   that each row copies (a triangle across a cut gets its own copies of the corners on the other side); and
   ``first`` (segments,) int64, ``times`` (N+1,) float64;
-* ``view.html``: the viewer page (``jaxcga.view``) playing the frames at the run's frame rate; with ``--cut``, each
+* ``view.html``: the viewer page (``deform.view``) playing the frames at the run's frame rate; with ``--cut``, each
   connected piece in its own colour;
 * ``summary.json``: the run's settings, the body (tets, nodes, DOFs, driven and anchor nodes, the
   tetrahedralization's time and quality), steps, the seconds of each stage (the rig, the cuts' pieces, each
@@ -48,6 +48,8 @@ EXAMPLE = "jaxcga physics tests/data/CesiumMan.glb --seconds 0.6 --cut 8 0.2 1 0
 RUN_FILES = re.compile(r"frames\.npy|frames\.npz|faces\.npy|view\.html|summary\.json")
 RUN_DESCRIBED = "frames.npy, frames.npz, faces.npy, view.html and summary.json"
 YOUNG, POISSON, DENSITY, THICKNESS, FPS = 1e5, 0.4, 1000.0, 1e-3, 30.0
+# backward Euler is stable at any step: a rate above this only multiplies the steps (and the frames kept)
+MAX_FPS = 10_000.0
 GRAVITY = (0.0, -9.81, 0.0)
 REFINE = 1e-3  # xfem.character_body's default tolerance
 
@@ -57,7 +59,10 @@ def add_arguments(parser) -> None:
     arguments.clip_argument(parser)
     parser.add_argument("--seconds", type=float, default=None, help="seconds to simulate (default: the clip's length)")
     parser.add_argument(
-        "--fps", type=float, default=FPS, help=f"frames per second: the time step 1/fps (default {FPS:g})"
+        "--fps",
+        type=float,
+        default=FPS,
+        help=f"frames per second: the time step 1/fps (default {FPS:g}, at most {MAX_FPS:g}; every frame is kept)",
     )
     parser.add_argument(
         "--young", type=float, default=YOUNG, help=f"Young's modulus of the flesh, Pa (default {YOUNG:g})"
@@ -174,6 +179,11 @@ def check_settings(
             raise ValueError(f"{name}: expected {what}, got {value!r}")
 
     positive("fps", fps, "a positive frame rate")
+    if fps > MAX_FPS:
+        raise ValueError(
+            f"fps: {fps:g} frames per second is above {MAX_FPS:g}; backward Euler is stable at any step, and every "
+            "frame is kept in memory: give a lower --fps"
+        )
     if seconds is not None:
         positive("seconds", seconds, "a positive duration in seconds")
         if round(seconds * fps) < 1:
@@ -638,6 +648,6 @@ class Timeline:
 
 
 def _view(item, fps: float, title: str):
-    import jaxcga
+    import deform
 
-    return jaxcga.view(item, fps=fps, title=title)
+    return deform.view(item, fps=fps, title=title)

@@ -4,16 +4,32 @@ progress bar whose rate and ETA leave out compilation, warnings and errors on on
 from __future__ import annotations
 
 import contextlib
+import contextvars
 import logging
 import sys
 import time
 import warnings
 from collections.abc import Iterator
 
+_QUIET = contextvars.ContextVar("jaxcga_cli_quiet", default=False)
 
-def say(command: str, text: str) -> None:
-    """``jaxcga COMMAND: TEXT`` on stderr (stdout keeps the command's one-line summary)."""
-    print(f"jaxcga {command}: {text}", file=sys.stderr, flush=True)
+
+def say(command: str, text: str, always: bool = False) -> None:
+    """``jaxcga COMMAND: TEXT`` on stderr (stdout keeps the command's one-line summary); inside ``quiet()`` only
+    with ``always`` (warnings)."""
+    if always or not _QUIET.get():
+        print(f"jaxcga {command}: {text}", file=sys.stderr, flush=True)
+
+
+@contextlib.contextmanager
+def quiet() -> Iterator[None]:
+    """Leave out the status lines and progress bars of the commands run inside (``jaxcga demo`` runs other
+    commands' code and tells its own story); warnings and errors still print."""
+    token = _QUIET.set(True)
+    try:
+        yield
+    finally:
+        _QUIET.reset(token)
 
 
 @contextlib.contextmanager
@@ -27,25 +43,39 @@ def status(command: str, doing: str) -> Iterator[None]:
 
 
 class StepProgress:
-    """A progress bar over ``total`` steps of a compiled loop. The first step compiles: it runs under a status
-    line, and the bar starts after it, so that its rate and ETA count step time only. Call ``step()`` after each
-    step and ``close()`` at the end (or use it as a context manager)."""
+    """A progress bar over ``total`` steps of a compiled loop (at most ``total`` where the loop may stop early).
+    The first step compiles: it runs under a status line, and the bar starts after it, so that its rate and ETA
+    count step time only; with ``compiled`` (the loop was compiled ahead) the bar starts at once. Call
+    ``step(**postfix)`` after each step (``postfix``: values shown after the bar, e.g. a residual) and ``close()``
+    at the end (or use it as a context manager)."""
 
-    def __init__(self, command: str, total: int, unit: str, desc: str):
+    def __init__(self, command: str, total: int, unit: str, desc: str, compiled: bool = False):
         self.command, self.total, self.unit, self.desc = command, total, unit, desc
         self.bar = None
+        self.quiet = _QUIET.get()  # read here: step() runs on JAX's callback thread, outside this context
         self.start = time.perf_counter()
-        say(command, f"compiling (the first {unit} includes compilation) ...")
+        if compiled:
+            self.bar = self._bar(0)
+        else:
+            say(command, f"compiling (the first {unit} includes compilation) ...")
 
-    def step(self) -> None:
+    def _bar(self, initial: int):
+        from tqdm import tqdm
+
+        return tqdm(
+            total=self.total, initial=initial, desc=self.desc, unit=self.unit, file=sys.stderr, disable=self.quiet
+        )
+
+    def step(self, **postfix) -> None:
         if self.bar is None:
-            say(self.command, f"first {self.unit} done in {time.perf_counter() - self.start:.1f} s")
-            from tqdm import tqdm
-
+            if not self.quiet:
+                say(self.command, f"first {self.unit} done in {time.perf_counter() - self.start:.1f} s")
             # initial=1: tqdm's rate counts the steps made since the bar started, the compiled ones
-            self.bar = tqdm(total=self.total, initial=1, desc=self.desc, unit=self.unit, file=sys.stderr)
+            self.bar = self._bar(1)
         else:
             self.bar.update(1)
+        if postfix:
+            self.bar.set_postfix(postfix, refresh=False)
 
     def close(self) -> None:
         if self.bar is not None:
@@ -84,7 +114,7 @@ def one_line_reports(command: str) -> Iterator[None]:
     disabled, logger.disabled = logger.disabled, True
     try:
         with warnings.catch_warnings():
-            warnings.showwarning = lambda message, *_, **__: say(command, f"warning: {message}")
+            warnings.showwarning = lambda message, *_, **__: say(command, f"warning: {message}", always=True)
             yield
     finally:
         logger.disabled = disabled

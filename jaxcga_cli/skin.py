@@ -13,7 +13,12 @@ EXAMPLE = "jaxcga skin tests/data/CesiumMan.glb --time 0.5 --out posed.glb"
 
 def add_arguments(parser) -> None:
     arguments.model_argument(parser)
-    parser.add_argument("--time", type=float, default=0.0, help="clip time in seconds (default 0)")
+    parser.add_argument(
+        "--time",
+        type=float,
+        default=None,
+        help="clip time in seconds (default: the clip's start); outside the clip, glTF holds its nearer end (told)",
+    )
     parser.add_argument("--method", choices=arguments.METHODS, default="cga", help=arguments.METHODS_HELP)
     arguments.clip_argument(parser)
     arguments.interpolation_argument(parser)
@@ -35,6 +40,9 @@ def run(args: argparse.Namespace) -> tuple[str, dict[str, object]]:
     from jaxcga_cli.models import load_model
 
     model = load_model(args.model, weld=args.weld)
+    source = arguments.check_clip(model, args.clip, args.time, args.interpolation)
+    if args.time is None:
+        args.time = float(source.start) if source is not None else 0.0
     return model.name, skin_command(model, args.time, args.method, args.clip, args.out, args.interpolation)
 
 

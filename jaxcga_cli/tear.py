@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from jaxcga_cli import arguments
-from jaxcga_cli.cut import PREDICATES_HELP, SIDE_WEIGHT_HELP
+from jaxcga_cli.cut import PREDICATES_HELP, SIDE_WEIGHT_HELP, check_side_weight
 
 HELP = (
     "tear a rigged model along the path of a moving scalpel (a line segment given at two or more times, in the "
@@ -40,7 +40,8 @@ def add_arguments(parser) -> None:
         "--opening",
         type=float,
         default=0.0,
-        help="distance between the two sides of the tear (default 0: a closed slit)",
+        help="distance between the two sides of the tear (default 0: a closed slit; at most the model's bounding "
+        "box diagonal)",
     )
     parser.add_argument("--predicates", choices=arguments.PREDICATES, default="ga", help=PREDICATES_HELP)
     parser.add_argument("--side-weight", type=float, default=0.0, help=SIDE_WEIGHT_HELP)
@@ -91,6 +92,9 @@ def run(args: argparse.Namespace) -> tuple[str, dict[str, object]]:
         raise ValueError(
             f"scalpel: expected two or more samples (--scalpel repeated, or --scalpel-path), got {len(samples)}"
         )
+    check_side_weight(args.side_weight)
+    if not args.opening >= 0:
+        raise ValueError(f"opening: expected a distance >= 0, got {args.opening:g}")
     # a tear walks across faces: split vertices along UV seams are always welded for it
     model = load_model(args.model, weld=True)
     return model.name, tear_command(
@@ -112,9 +116,16 @@ def tear_command(
 
     import cutting
     import deform
+    from _jaxcga_shared.mesh import bounding_diagonal
     from jaxcga_cli.cut import coordinates
 
     scalpels = np.asarray(scalpels, np.float64)
+    diagonal = bounding_diagonal(model.mesh.V)
+    if opening > diagonal:
+        raise ValueError(
+            f"opening: {opening:g} is wider than the model itself (its bounding box diagonal is {diagonal:.4g}, "
+            "in the file's units); give the distance between the tear's two sides in those units"
+        )
     with coordinates("tear", model, ("scalpel",)):
         torn, topology = cutting.tear(
             model.mesh,

@@ -17,9 +17,9 @@ a frame shows the cuts that have taken effect):
   (``xfem.cut_surface``: each triangle follows the side of the cut its centroid is on), its faces in the
   file's order, each under the OBJ group ``piece_K`` of its connected piece;
 
-and ``summary.json``: ``SceneRun.summary()`` (pieces, DOFs, Booleans, timings) plus the run's settings, the
-cut frames and the per-frame pieces, DOFs and times (surface files: also ``tetrahedralization``, as ``jaxcga
-fem`` writes it). OUT holds one run, as for ``jaxcga fem``
+and ``summary.json``: ``SceneRun.summary()`` (``jaxcga_cli.scene_runs``: pieces, DOFs, Booleans, timings) plus
+the run's settings, the cut frames and the per-frame pieces, DOFs and times (surface files: also
+``tetrahedralization``, as ``jaxcga fem`` writes it). OUT holds one run, as for ``jaxcga fem``
 (``jaxcga_cli.fem``): empty unless ``force``, filled when the run ends, ``summary.json`` last.
 """
 
@@ -146,6 +146,11 @@ def run(args: argparse.Namespace) -> tuple[str, dict[str, object]]:
             "total_s",
         )
     }
+    # the first frame compiles the step: shown apart, and the step times over the frames after it
+    seconds = summary["frame_seconds"]
+    if len(seconds) > 1:
+        later = seconds[1:]
+        shown |= {"step_avg_s": sum(later) / len(later), "step_max_s": max(later), "first_frame_s": seconds[0]}
     if "tetrahedralization" in summary:
         report = summary["tetrahedralization"]
         shown |= {k: report[k] for k in ("tets", "seconds", "min_dihedral_deg", "min_volume_ratio")}
@@ -202,12 +207,12 @@ def xfem_command(
     epsilon: float = 1e-3,
     force: bool = False,
 ) -> dict:
-    """Run scene ``name`` (a paper scene or a surface file) for ``steps`` frames (None: the scene's default, 30 for
-    a surface file) and write frames into ``out``; returns the summary (module docstring). ``cut_latency``: as
-    ``xfem.run_scene``; ``method``: "xfem" or "rxfem" (``xfem.rxfem_schedule``: the RXFEM baseline on the cuts that
-    intersect no earlier one; no cut latency); ``last_cut``: as ``xfem.scene`` (paper scenes); ``plane`` (6 numbers:
-    point, normal), ``cut_frame``, ``edge_length``, ``epsilon``: the surface file's cut and tetrahedralization;
-    ``force``: as ``fem_command``'s."""
+    """Run scene ``name`` (a paper scene or a surface file) for ``steps`` frames (None: the scene's default, 30 for a
+    surface file) and write frames into ``out``; returns the summary (module docstring). ``cut_latency``: as
+    ``jaxcga_cli.scene_runs.run_scene``; ``method``: "xfem" or "rxfem" (``xfem.rxfem_schedule``: the RXFEM baseline
+    on the cuts that intersect no earlier one; no cut latency); ``last_cut``: as ``xfem.scene`` (paper scenes);
+    ``plane`` (6 numbers: point, normal), ``cut_frame``, ``edge_length``, ``epsilon``: the surface file's cut and
+    tetrahedralization; ``force``: as ``fem_command``'s."""
     import meshio
     import numpy as np
 
@@ -216,6 +221,7 @@ def xfem_command(
     from jaxcga_cli.fem import surface_frame, write_obj
     from jaxcga_cli.figures import colormap
     from jaxcga_cli.report import StepProgress
+    from jaxcga_cli.scene_runs import run_scene
 
     is_file = name not in xfem.SCENES
     if is_file and Path(name).suffix.lower() not in SURFACE_FORMATS:
@@ -283,7 +289,7 @@ def xfem_command(
                 progress.step()
 
             write(0, sc.model())
-            run = xfem.run_scene(sc, steps, on_frame=on_frame, cut_latency=cut_latency)
+            run = run_scene(sc, steps, on_frame=on_frame, cut_latency=cut_latency)
         summary: dict[str, object] = dict(run.summary())
         summary.update(
             {

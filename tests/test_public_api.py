@@ -1,10 +1,14 @@
 """The public surface of the library packages: every public function and class method is annotated (arguments and
 return), and what a package exports is its own (defined in the package, not a re-export of a helper from
-another)."""
+another); the kernel leaves the viewer out, and the scene runner of the command line and the benchmarks is not
+the library's."""
 
 from __future__ import annotations
 
 import inspect
+import pathlib
+import subprocess
+import sys
 import typing
 
 import pytest
@@ -60,3 +64,22 @@ def test_every_public_annotation_evaluates(package):
             except Exception as error:  # noqa: BLE001 (any failure to evaluate is the finding)
                 failed.append(f"{name}: {error}")
     assert not failed, f"{package}: " + "; ".join(failed)
+
+
+def test_the_kernel_leaves_the_viewer_out():
+    """``jaxcga`` is the algebra: the viewer, which reads mesh and glTF files, is ``deform.view`` (and
+    ``deform.View``), and importing the kernel does not load it."""
+    assert not {"view", "View"} & {*jaxcga.__all__, *dir(jaxcga)}
+    assert {"view", "View"} <= set(deform.__all__)
+    script = "import sys, jaxcga; print(sorted(m for m in sys.modules if 'viewer' in m))"
+    root = pathlib.Path(__file__).resolve().parent.parent
+    out = subprocess.run([sys.executable, "-c", script], cwd=root, capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.strip() == "[]"
+
+
+def test_the_scene_runner_is_not_the_librarys():
+    """The runner that times the XFEM scenes (tqdm, wall clocks) is the command line's (``jaxcga_cli.scene_runs``);
+    the scenes themselves stay in ``xfem``."""
+    assert not {"run_scene", "SceneRun", "FrameRecord"} & {*xfem.__all__, *dir(xfem)}
+    assert {"scene", "Scene", "SCENES", "piece_surfaces"} <= set(xfem.__all__)

@@ -67,7 +67,7 @@ from xfem._rxfem import (
     rxfem_model,
     rxfem_schedule,
 )
-from xfem._scenes import SCENES, SIZES, FrameRecord, Scene, SceneRun, ScheduledCut, piece_surfaces, run_scene, scene
+from xfem._scenes import SCENES, SIZES, Scene, ScheduledCut, piece_surfaces, scene
 from xfem._simulate import PlaneCutSimulation, plane_cut_simulation, simulate
 from xfem._subdomains import CutReport, CutStats, Subdomains, apply_cut, subdomains
 from xfem._surface_tets import (
@@ -107,12 +107,9 @@ __all__ = [
     "character_subspace",
     "SCENES",
     "SIZES",
-    "FrameRecord",
     "ScheduledCut",
     "Scene",
-    "SceneRun",
     "piece_surfaces",
-    "run_scene",
     "scene",
     "PlaneCuts",
     "cut_system",

@@ -158,8 +158,11 @@ def assembly_pattern(
     return _assembly_pattern(T, n, fixed, coupling, nnz_capacity)[0]
 
 
-def _assembly_pattern(T, n, fixed, coupling, nnz_capacity) -> tuple[AssemblyPattern, _HostPattern]:
-    """``assembly_pattern`` and its ``_HostPattern`` (for ``_scalar_slots``)."""
+def _assembly_pattern(
+    T, n, fixed, coupling, nnz_capacity, on_host: bool = False
+) -> tuple[AssemblyPattern, _HostPattern]:
+    """``assembly_pattern`` and its ``_HostPattern`` (for ``_scalar_slots``); ``on_host``: numpy arrays instead of
+    device arrays (``to_devices``)."""
     from xfem._pattern import block_csr, hessian_maps, node_pairs  # numba: imported on first use
 
     n = int(n)
@@ -196,7 +199,7 @@ def _assembly_pattern(T, n, fixed, coupling, nnz_capacity) -> tuple[AssemblyPatt
     base, stride = np.empty((len(T), 4, 4), index), np.empty((len(T), 4, 4), index)
     hessian_maps(F, node_indptr, pair, stored, base, stride)
 
-    on_device = to_devices(*(np.asarray(a, index) for a in (free, free_index, base, stride)))
+    on_device = to_devices(*(np.asarray(a, index) for a in (free, free_index, base, stride)), on_host=on_host)
     pattern = AssemblyPattern(
         n=n,
         n_free=nf,
@@ -204,7 +207,7 @@ def _assembly_pattern(T, n, fixed, coupling, nnz_capacity) -> tuple[AssemblyPatt
         m=len(T),
         free=on_device[0],
         free_index=on_device[1],
-        csr=csr_pattern(indptr, indices, block=3, full_blocks=True),  # block_csr expands the node pairs
+        csr=csr_pattern(indptr, indices, block=3, full_blocks=True, on_host=on_host),  # block_csr: full blocks
         hessian_base=on_device[2],
         hessian_stride=on_device[3],
     )

@@ -28,8 +28,8 @@ import jax
 import manifold3d
 import numpy as np
 
-from _jaxcga_shared.host import keep_on_host, to_devices
-from xfem._backward_euler import State
+from _jaxcga_shared.host import to_devices
+from xfem._backward_euler import CapacityError, State, host_fem_system
 from xfem._cut_process import CutProcess, CutProcessError, child_streams
 from xfem._framing import decode, encode, portable, read_frame, write_frame
 from xfem._subdomains import CutReport, MeshSolid, check_cut, solid_mesh
@@ -260,9 +260,24 @@ def replica_cut(model: XFEMModel, cut: MeshSolid, perturb: float, parallel: bool
     arrays, n = model._system_arrays(), len(model.dof_sid)
     system, level = None, 0
     if model._capacities.padded_bytes_at_least(arrays, n, model._level) <= sent_system_bytes:
-        padded = model.padded_system()
-        system, level = padded.system, padded.level
+        system, level = _host_padded_system(model, arrays, n)
     return report, model.delta(mark), (arrays, n, system, level)  # pyright: ignore[reportArgumentType]  # marked: delta
+
+
+def _host_padded_system(model: XFEMModel, arrays: tuple, n: int):
+    """The system of ``arrays`` over n DOFs padded as ``XFEMModel.padded_system`` pads it (the smallest capacity
+    level, not below the replica's last one, that holds it), in numpy arrays: the parent puts it on its device, so a
+    device copy here would only be read back for the pipe. Returns (system, level)."""
+    capacities = model._capacities
+    level = capacities.smallest_level(arrays, n, model._level)
+    while True:
+        try:
+            system = host_fem_system(*arrays, capacity=capacities.capacity(level), on_host=True)
+            break
+        except CapacityError:  # more matrix nonzeros than the level holds
+            level += 1
+    model._level = level  # as padded_system: the replica's levels only grow, as the parent's
+    return system, level
 
 
 def serve() -> None:
@@ -274,7 +289,6 @@ def serve() -> None:
         write_frame(outbox, *encode((kind, payload)))
 
     init = decode(*read_frame(inbox))
-    keep_on_host()  # this process's systems go to the parent, which puts them on its device
     try:
         model = replica_model(init)
     except BaseException as error:  # noqa: BLE001 (any failure goes back to the parent)

@@ -40,7 +40,11 @@ is taken as it is (it still decreases the quadratic model, so it remains a desce
 With ``tolerance`` the relative residual is tightened to ``|grad E| / |grad E at the first iteration|`` (down
 to 1e-11, or 100 times the unit roundoff in float32), so that Newton converges superlinearly where the
 projection of the element Hessians is inactive near the solution (where it is active, projected Newton converges
-linearly). The adjoint solve of the
+linearly). Factored directions (``_newton``'s ``factored``, what ``xfem.simulate_character`` uses): each Newton matrix,
+projected, is factored by CHOLMOD on the host and preconditions CG on the true Hessian, stopped at a direction of
+negative curvature (``_host_factored_direction``); where the projection is active at the minimizer this converges
+quadratically, projected Newton only linearly. For bodies whose factor stays sparse (a character's limbs); the
+adjoint solve is then CHOLMOD's too. On a GPU the projected system's device solve, as above. The adjoint solve of the
 gradients (below) must be accurate: it uses CHOLMOD (scipy's SuperLU when the true Hessian is not positive
 definite), or above ``_DIRECT_DOFS`` unknowns CG to a relative residual of 1e-10, checked; on a GPU the dense
 Cholesky factorization up to ``_DIRECT_DOFS`` unknowns, above them the device CG to 1e-10, and the host's solve
@@ -78,7 +82,7 @@ from jax.ad_checkpoint import checkpoint_name
 from jaxtyping import Array, Bool, Float, Int
 
 from _jaxcga_shared.checks import check_real, require
-from _jaxcga_shared.host import to_devices
+from _jaxcga_shared.host import host_call, to_devices
 from _jaxcga_shared.platform import EXACT
 from _jaxcga_shared.sparse import factorize, host_csr, host_direct, host_pcg, spd_solve
 from xfem._assembly import (
@@ -93,12 +97,21 @@ from xfem._assembly import (
 )
 from xfem._linear_tet import body_force, consistent_mass, shape_gradients
 from xfem._material import Material
-from xfem._neohookean import _element_energy, _element_gradient_hessian, _modified_lame, element_energy
+from xfem._neohookean import (
+    _element_energy,
+    _element_gradient_hessian,
+    _element_gradient_hessians,
+    _modified_lame,
+    element_energy,
+)
 from xfem._tetmesh import TetMesh
 
 _CG_RTOL = 1e-4  # relative residual of the Newton direction (inexact Newton)
 _DIRECT_DOFS = 1000  # Newton systems up to this many unknowns are factorized (CHOLMOD), larger ones go to CG
 _CG_RTOL_MIN = 1e-11  # the tightest one asked for when converging (CG stalls near rounding)
+# the factored direction's CG iterations at most: each costs a solve with the factor, and where the projection is
+# active on many elements more buy little (the iterate is a descent direction wherever CG stops)
+_FACTORED_CG_ITERATIONS = 30
 # the default relative tolerance per dtype ("auto"): far enough above rounding to be reached (a float32 position
 # holds ~7 digits), tight enough in float64 that the implicit gradient matches the executed step well within 1e-6
 _TOLERANCE = {np.dtype(np.float64): 1e-10, np.dtype(np.float32): 1e-5}
@@ -270,6 +283,12 @@ def fem_system(
     Returns:
         The ``FEMSystem``.
     """
+    return host_fem_system(T, grads, volumes, mass, force, fixed, capacity, on_host=False)
+
+
+def host_fem_system(T, grads, volumes, mass, force, fixed=(), capacity=None, *, on_host: bool) -> FEMSystem:
+    """``fem_system``, its arrays numpy ones with ``on_host`` (a system built for another process: the XFEM cut
+    worker's), else on the device."""
     # numpy on the host, one device_put at the end: jnp.asarray of a numpy array compiles a copy per shape
     grads, volumes = np.asarray(grads), np.asarray(volumes)
     if grads.ndim != 3 or grads.shape[1:] != (4, 3) or not jnp.issubdtype(grads.dtype, jnp.floating):
@@ -300,7 +319,7 @@ def fem_system(
     if capacity is not None:
         T, grads, volumes, mass, force, fixed = _pad(T, grads, volumes, mass, force, fixed, capacity)
         n, nnz_capacity = capacity.nodes, capacity.nonzeros
-    pattern, host = _assembly_pattern(T, n, fixed, mass, nnz_capacity)
+    pattern, host = _assembly_pattern(T, n, fixed, mass, nnz_capacity, on_host=on_host)
     coo = mass.tocoo()
     rows, cols, values = coo.row, coo.col, coo.data
     if capacity is not None:  # zero entries on the last node's diagonal keep the rows sorted
@@ -328,6 +347,7 @@ def fem_system(
             mass_data,
             force.astype(dtype),
             fixed.astype(index),
+            on_host=on_host,
         ),
         pattern=pattern,
         n=n,
@@ -384,6 +404,63 @@ def _host_newton_direction(data, rhs, rtol, indptr, indices):
         except ValueError:
             pass
     return host_pcg(data, rhs, rtol, indptr, indices)
+
+
+def _host_factored_direction(data, true_data, rhs, rtol, indptr, indices):
+    """The factored Newton direction (``_newton``'s ``factored``): CG on the true Hessian (``true_data``)
+    preconditioned by the CHOLMOD factor of the projected one (``data``), from 0, to the relative residual ``rtol``
+    or ``_FACTORED_CG_ITERATIONS`` iterations, stopped where it meets a direction of negative curvature (Steihaug):
+    its first iterate is the projected Newton direction, its limit the true Newton direction where the true Hessian
+    is positive definite. Every iterate descends (the quadratic model falls along CG's positive-curvature
+    directions). Jacobi PCG on the projected matrix where CHOLMOD finds it not positive definite."""
+    try:
+        precondition = factorize(host_csr(data, indptr, indices), symmetric=True)
+    except ValueError:
+        return host_pcg(data, rhs, rtol, indptr, indices)
+    H = host_csr(true_data, indptr, indices)
+    b = np.asarray(rhs, np.float64)
+
+    def dot(u, v):  # not BLAS: numpy's threaded dot stalls for milliseconds on a loaded machine (_jaxcga_shared.pcg)
+        return float(np.sum(u * v))
+
+    x, r = np.zeros_like(b), b.copy()
+    z = precondition(r)
+    p, rz, stop = z.copy(), dot(r, z), float(rtol) ** 2 * dot(b, b)
+    for k in range(_FACTORED_CG_ITERATIONS):
+        Hp = H @ p
+        curvature = dot(p, Hp)
+        if not curvature > 0:  # the true Hessian is indefinite along p: keep the iterate (the first: P^-1 b)
+            return (x if k else z).astype(rhs.dtype)
+        alpha = rz / curvature
+        x += alpha * p
+        r -= alpha * Hp
+        if dot(r, r) <= stop:
+            break
+        z = precondition(r)
+        rz, previous = dot(r, z), rz
+        p = z + (rz / previous) * p
+    return x.astype(rhs.dtype)
+
+
+def _host_exact(data, rhs, rtol, indptr, indices):
+    """The factored mode's adjoint solve: exact (``host_direct``: CHOLMOD, SuperLU where the true Hessian is not
+    positive definite) at every size."""
+    return host_direct(data, rhs, indptr, indices)
+
+
+def _factored_solve(pattern: AssemblyPattern, data, true_data, rhs, rtol):
+    """The factored Newton direction (``_host_factored_direction``) on the CPU; elsewhere the projected system's
+    ``_solve`` (the device has no sparse factorization)."""
+
+    def on_host(data, true_data, rhs, rtol):
+        shape = jax.ShapeDtypeStruct(rhs.shape, rhs.dtype)
+        return host_call(_host_factored_direction, shape, data, true_data, rhs, rtol, pattern.indptr, pattern.indices)
+
+    def on_device(data, true_data, rhs, rtol):
+        return _solve(_host_newton_direction, pattern, data, rhs, rtol, "accept")
+
+    x = jax.lax.platform_dependent(data, true_data, rhs, jnp.asarray(rtol, rhs.dtype), cpu=on_host, default=on_device)
+    return require(x, (~jnp.all(jnp.isfinite(x)), "the Newton system is singular or the state is not finite"))
 
 
 def _solve(host, pattern: AssemblyPattern, data, rhs, rtol, on_failure: str):
@@ -534,26 +611,40 @@ def _slicer(start, size: int):
 def _gradient_and_matrix(system: FEMSystem, x, theta: _Theta, h, project: bool):
     """grad E on the free DOFs (3 n_free,) and the CSR data of ``M + h^2 K`` (K projected or true), the
     element Hessians summed into the mass's data chunk by chunk (``_in_chunks``)."""
+
+    def hessians(x, grads, volumes, mu_s, lam_s):
+        g, H = _element_gradient_hessian(x, grads, volumes, mu_s, lam_s, project)
+        return g, (H,)
+
+    gradient, (data,) = _gradient_and_matrices(system, x, theta, h, hessians, 1)
+    return gradient, data
+
+
+def _gradient_and_matrices(system: FEMSystem, x, theta: _Theta, h, hessians, count: int):
+    """grad E on the free DOFs and the CSR data of ``M + h^2 K`` for each of the ``count`` element Hessians that
+    ``hessians(x, grads, volumes, mu_s, lam_s) -> (g, (H, ...))`` returns."""
     m = system.T.shape[0]
     mu_s, lam_s = _modified_lame(theta.mu, theta.lam, x.dtype, (m,))  # theta's come from a checked Material
     base, stride = system.pattern.hessian_base, system.pattern.hessian_stride
 
     def add_chunk(start, size, own, carry):
-        forces, data = carry
+        forces, datas = carry
         take = _slicer(start, size)
         T, volumes = take(system.T), jnp.where(own, take(theta.volumes), 0)
-        g, H = _element_gradient_hessian(x[T], take(theta.grads), volumes, take(mu_s), take(lam_s), project)
+        g, Hs = hessians(x[T], take(theta.grads), volumes, take(mu_s), take(lam_s))
         forces = forces.at[T.reshape(-1)].add(g.reshape(-1, 3))
-        slots = element_slots(take(base), take(stride))
-        return forces, data.at[slots.reshape(-1)].add(weight * H.reshape(-1), mode="drop")
+        slots = element_slots(take(base), take(stride)).reshape(-1)
+        datas = tuple(d.at[slots].add(weight * H.reshape(-1), mode="drop") for d, H in zip(datas, Hs))
+        return forces, datas
 
     weight = _elastic_weight(theta, h)
-    forces, data = _in_chunks(m, _ELEMENT_CHUNK, add_chunk, (jnp.zeros((system.n, 3), x.dtype), system.mass_data))
+    start = (jnp.zeros((system.n, 3), x.dtype), (system.mass_data,) * count)
+    forces, datas = _in_chunks(m, _ELEMENT_CHUNK, add_chunk, start)
     d = x - theta.x - h * theta.v
     gradient = _mass_times(system, theta.mass_values, d) + weight * forces - h**2 * theta.force
     if theta.beta is not None:
         gradient = gradient - theta.beta * h * theta.elastic_t
-    return restrict(system.pattern, gradient), data
+    return restrict(system.pattern, gradient), datas
 
 
 def _elastic_forces(system: FEMSystem, x, grads, volumes, mu, lam):
@@ -603,9 +694,12 @@ def _size(system: FEMSystem, x):
     return jnp.maximum(jnp.sqrt(jnp.sum(extent**2)), jnp.finfo(x.dtype).tiny)
 
 
-def _newton(theta: _Theta, system: FEMSystem, h, iterations: int, tolerance, line_search: bool):
+def _newton(theta: _Theta, system: FEMSystem, h, iterations: int, tolerance, line_search: bool, factored: bool):
     """The minimizer of E by at most ``iterations`` projected Newton iterations, stopped (tolerance not None) once
-    an update's largest entry is at most ``tolerance`` times the body's size (``_size``); and its ``SolveStats``."""
+    an update's largest entry is at most ``tolerance`` times the body's size (``_size``); and its ``SolveStats``.
+    ``factored``: each direction by CG on the true Hessian preconditioned by the factored projected one
+    (``_host_factored_direction``), which converges quadratically where the projection stays active near the
+    minimizer (a character's elements far from their rig shapes), where projected Newton converges linearly."""
     free = system.pattern.free
     # start at x~ = x_t + h v_t or at x_t, whichever has the lower E: from x~ alone, one Newton iteration on a
     # violent state (large velocities) only lowers E below E(x~), far above the minimum, and the energy grows
@@ -631,13 +725,19 @@ def _newton(theta: _Theta, system: FEMSystem, h, iterations: int, tolerance, lin
 
     def body(carry):
         k, x, first_norm, _, _ = carry
-        gradient, data = _gradient_and_matrix(system, x, theta, h, project=True)
+        if factored:
+            gradient, (data, true_data) = _gradient_and_matrices(system, x, theta, h, _element_gradient_hessians, 2)
+        else:
+            gradient, data = _gradient_and_matrix(system, x, theta, h, project=True)
         norm = jnp.sqrt(jnp.sum(gradient**2))
         first_norm = jnp.where(k == 0, norm, first_norm)
         rtol = _CG_RTOL
         if tolerance is not None:  # converging: tighten the solves as grad E falls, for superlinear convergence
             rtol = jnp.clip(norm / first_norm, rtol_min, _CG_RTOL)
-        step = -_solve(_host_newton_direction, system.pattern, data, gradient, rtol, "accept")
+        if factored:
+            step = -_factored_solve(system.pattern, data, true_data, gradient, rtol)
+        else:
+            step = -_solve(_host_newton_direction, system.pattern, data, gradient, rtol, "accept")
         alpha = (
             _line_search(system, x, step.reshape(-1, 3), jnp.dot(gradient, step, precision=EXACT), theta, h)
             if line_search
@@ -654,18 +754,18 @@ def _newton(theta: _Theta, system: FEMSystem, h, iterations: int, tolerance, lin
 
 
 @eqx.filter_custom_vjp
-def _minimize(theta, system, h, iterations, tolerance, line_search):
-    return _newton(theta, system, h, iterations, tolerance, line_search)
+def _minimize(theta, system, h, iterations, tolerance, line_search, factored=False):
+    return _newton(theta, system, h, iterations, tolerance, line_search, factored)
 
 
 @_minimize.def_fwd
-def _minimize_fwd(perturbed, theta, system, h, iterations, tolerance, line_search):
-    x, stats = _newton(theta, system, h, iterations, tolerance, line_search)
+def _minimize_fwd(perturbed, theta, system, h, iterations, tolerance, line_search, factored=False):
+    x, stats = _newton(theta, system, h, iterations, tolerance, line_search, factored)
     return (x, stats), checkpoint_name(x, _NEWTON_RESULT)
 
 
 @_minimize.def_bwd
-def _minimize_bwd(x, cotangents, perturbed, theta, system, h, iterations, tolerance, line_search):
+def _minimize_bwd(x, cotangents, perturbed, theta, system, h, iterations, tolerance, line_search, factored=False):
     pattern = system.pattern
     x_bar = cotangents[0]  # the stats have no derivative
     if x_bar is None:
@@ -676,17 +776,31 @@ def _minimize_bwd(x, cotangents, perturbed, theta, system, h, iterations, tolera
         return restrict(pattern, jax.grad(lambda z: _energy(system, z, t, h)[0])(y))
 
     _, data = _gradient_and_matrix(system, x, theta, h, project=False)
-    u = _solve(_host_adjoint, pattern, data, restrict(pattern, x_bar), _ADJOINT_RTOL, "host")
+    host = _host_exact if factored else _host_adjoint
+    u = _solve(host, pattern, data, restrict(pattern, x_bar), _ADJOINT_RTOL, "host")
     grad = jax.vjp(free_gradient, theta)[1](-u)[0]
     grad = eqx.tree_at(lambda t: t.fixed_positions, grad, grad.fixed_positions + x_bar[system.fixed])
     return jax.tree.map(lambda g, p: g if p else None, grad, perturbed)
 
 
 def _advance(
-    system, state, h, mu, lam, fixed_positions, force, iterations, tolerance, line_search, beta=None, guess=None
+    system,
+    state,
+    h,
+    mu,
+    lam,
+    fixed_positions,
+    force,
+    iterations,
+    tolerance,
+    line_search,
+    beta=None,
+    guess=None,
+    factored: bool = False,
 ):
     """The step from ``state`` with Lamé parameters, the fixed nodes' new positions, the forces (n, 3), the
-    Rayleigh damping beta (None: undamped) and a guess of the new positions for Newton's start (None: none)."""
+    Rayleigh damping beta (None: undamped), a guess of the new positions for Newton's start (None: none) and
+    ``_newton``'s ``factored`` (the direction, and the adjoint solve exact, by CHOLMOD factors)."""
     elastic_t = None
     if beta is not None:  # grad U(x_t), of the step's own rest shape: a JAX function of theta's inputs
         beta = jnp.asarray(beta, state.x.dtype)
@@ -706,7 +820,7 @@ def _advance(
         None if guess is None else jax.lax.stop_gradient(guess),
     )
     # theta carries every differentiable input; the rest of the system is structure
-    x, stats = _minimize(theta, jax.lax.stop_gradient(system), h, iterations, tolerance, line_search)
+    x, stats = _minimize(theta, jax.lax.stop_gradient(system), h, iterations, tolerance, line_search, factored)
     return State(x, (x - state.x) / h, jax.lax.stop_gradient(stats))
 
 

@@ -27,7 +27,16 @@ nodes are free from then on and its rest shape stays the skinned shape of frame 
 its centroid accelerates at exactly g: the elastic and damping forces sum to zero). The pieces that keep an anchor
 follow the clip. The surface is carried with its pieces (``xfem.surface_map``).
 
-Gradients. Every step is differentiable through its implicit gradient (exact for converged steps, the default) in
+Newton. Each step minimizes by ``_newton``'s factored mode (``xfem._backward_euler``): the direction is CG on the
+true Hessian preconditioned by the CHOLMOD factor of the projected one. Skinning leaves elements far from their
+rig shapes near the joints (flattened, stretched), where the projection of the element Hessians stays active at the
+minimizer, and projected Newton converges linearly there (tens of iterations); the true Hessian is positive definite
+near the minimizer, and the factored direction converges quadratically. A character's body is made of limbs, so its
+factor stays sparse. Newton starts from the best of the previous positions, the inertial guess, and the inertial
+guess plus the rig's acceleration (the flesh carried along by the rig).
+
+Gradients. Every step is differentiable through its implicit gradient (exact for converged steps, the default; the
+adjoint solve by CHOLMOD) in
 the material (Young's modulus, Poisson's ratio, damping) and in the planes of plane cuts (``xfem.plane_cuts``: exact
 for the pieces found at the planes).
 """
@@ -69,8 +78,8 @@ from xfem._surface_tets import surface_map
 from xfem._xfem import XFEMModel, _dof_components, xfem_model
 
 _FLATTEST = 0.2  # below this smallest singular value of its rig deformation, an element's weight is lowered
-# Newton iterations per step at most: twice backward_euler_step's, as projected Newton converges only linearly where
-# elements are far from their rig shapes
+# Newton iterations per step at most: a cap far above what the factored steps take (module docstring, Newton), so
+# that a hard frame still converges
 _CHARACTER_NEWTON_ITERATIONS = 100
 _TINY = 1e-9  # singular values are kept off zero by this much before they are inverted
 
@@ -270,13 +279,34 @@ def _play(system, state, h, material, rest_start, rests, targets, iterations, to
     @functools.partial(
         jax.checkpoint, prevent_cse=False, policy=jax.checkpoint_policies.save_only_these_names(_NEWTON_RESULT)
     )
-    def body(s, frame):
+    def body(carry, frame):
+        s, before, previous = carry  # the rig rest shapes of the two frames before
         rest, target = frame
         moved = _rig_rest_system(system, rest)
-        s = _advance(moved, s, h, mu, lam, target, system.force, iterations, tolerance, line_search, material.damping)
-        return s, s
+        # Newton's third start: the inertial one plus the rig's acceleration (the flesh keeps its motion relative to
+        # the rig), nearer the minimizer than the inertial start when the rig turns a limb
+        guess = s.x + h * s.v + (rest - 2 * previous + before)
+        s = _advance(
+            moved,
+            s,
+            h,
+            mu,
+            lam,
+            target,
+            system.force,
+            iterations,
+            tolerance,
+            line_search,
+            material.damping,
+            guess,
+            factored=True,
+        )
+        return (s, previous, rest), s
 
-    return jax.lax.scan(body, state, (rests, targets))[1]
+    # before frame 1 the rig moves at its first velocity (no acceleration)
+    first = rests[0] if rests.shape[0] else rest_start  # a segment of no frames (a cut at frame 1)
+    start = (state, 2 * rest_start - first, rest_start)
+    return jax.lax.scan(body, start, (rests, targets))[1]
 
 
 def _check_cuts(cuts, steps: int) -> list[tuple[int, manifold3d.Manifold]]:

@@ -35,7 +35,10 @@ joint to each child joint; a leaf joint is a point), where ``r_j`` is the median
 the surface vertices whose largest weight is j's: the limb's radius there. A node is driven when it lies in some
 bone's core and not on the tets' boundary (the skin: a bone may run there, as a tail's or an ear's does); a bone
 whose core holds no such node (a thin limb on coarse tets) drives its nearest interior nodes instead, those within
-twice the nearest one's distance and within ``r_j``. Bones whose vertices are fewer than 4 have no core.
+twice the nearest one's distance and within ``r_j``. Bones whose vertices are fewer than 4 have no core. A part of
+the surface (a connected set of its triangles) whose tets hold no driven node (an accessory away from the bones: a
+rifle held out in a hand, a robot's plate) has every node of those tets driven: it follows its bones as skinned,
+instead of hanging on flesh alone.
 
 Anchors. A cut that severs a limb severs its bones too: the pieces that keep the skeleton's root are driven on, the
 others fall. The anchors are the driven nodes of the bones closest to the skeleton's root (the fewest parents up)
@@ -52,7 +55,9 @@ import igl
 import jax.numpy as jnp
 import numpy as np
 import numpy.typing as npt
+import scipy.sparse as sp
 from jaxtyping import Float, Int
+from scipy.sparse.csgraph import connected_components
 
 import deform
 from _jaxcga_shared.checks import check_real
@@ -402,6 +407,25 @@ def _bone_distances(model: deform.RiggedModel, points: np.ndarray) -> np.ndarray
     return distance
 
 
+def _hold_loose_parts(driven: np.ndarray, surface: np.ndarray, F: np.ndarray, embedded_in: np.ndarray) -> np.ndarray:
+    """The driven nodes (sorted indices) of the core rule's mask ``driven``, with every node of the tets that hold a
+    part of the surface (a connected set of its triangles) none of whose tets has a driven node: an accessory away
+    from the bones (a rifle held out in a hand, a plate of a robot) would otherwise hang on flesh alone and swing
+    off; it follows its bones as it was skinned."""
+    count, label = connected_components(
+        sp.coo_matrix((np.ones(F.size), (np.repeat(F[:, 0], 3), F.ravel())), shape=(len(surface),) * 2),
+        directed=False,
+    )
+    held = driven.copy()
+    used = np.zeros(len(surface), bool)
+    used[F.ravel()] = True
+    for part in range(count):
+        nodes = np.unique(embedded_in[(label == part) & used])
+        if nodes.size and not driven[nodes].any():
+            held[nodes] = True
+    return np.flatnonzero(held)
+
+
 def _boundary_faces(T: np.ndarray) -> np.ndarray:
     """(f, 3) the faces of the tets T (t, 4) that lie in one tet only."""
     faces = T[:, [[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]]].reshape(-1, 3)
@@ -599,7 +623,7 @@ def character_body(
     if isinstance(driven, str):
         driven_nodes = np.arange(len(X))
     elif driven is None:
-        driven_nodes = np.flatnonzero(inside.any(axis=1))
+        driven_nodes = _hold_loose_parts(inside.any(axis=1), surface, F, embedding.nodes)
     else:
         driven_nodes = np.asarray(driven)
         if (

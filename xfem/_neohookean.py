@@ -351,6 +351,21 @@ def _element_gradient_hessian(x, grads, volumes, mu_s, lam_s, project):
     return g.reshape(m, 12), H
 
 
+@eqx.filter_jit
+def _element_gradient_hessians(x, grads, volumes, mu_s, lam_s):
+    """The gradients (m, 12) and both Hessians (m, 12, 12), projected and true, from one eigensystem: the true
+    Hessian ``vol sum_n lambda_n w_n w_n^T`` over all 9 modes, the projected one over ``max(lambda_n, 0)``. Not for
+    differentiation (the projected Hessian's derivative is ``_projected_hessian``'s)."""
+    m = x.shape[0]
+    F = jnp.einsum("mai,maj->mij", x, grads, precision=EXACT)
+    g = volumes[:, None, None] * jnp.einsum("mkj,maj->mak", _pk1(F, mu_s, lam_s), grads, precision=EXACT)
+    values, modes = _eigensystem(F, mu_s, lam_s)
+    w = jnp.einsum("mnkj,maj->mnak", modes, grads, precision=EXACT).reshape(*modes.shape[:2], 12)
+    true = jnp.einsum("mn,mni,mnj->mij", volumes[:, None] * values, w, w, precision=EXACT)
+    projected = jnp.einsum("mn,mni,mnj->mij", volumes[:, None] * jnp.maximum(values, 0), w, w, precision=EXACT)
+    return g.reshape(m, 12), (projected, true)
+
+
 def element_gradient_hessian(
     x: Float[ArrayLike, "m 4 3"],
     grads: Float[ArrayLike, "m 4 3"],

@@ -330,7 +330,7 @@ def rxfem_model(
 
 @dataclasses.dataclass(frozen=True)
 class RXFEMScene(Scene):
-    """A ``Scene`` whose ``model`` is an ``RXFEMModel`` (``run_scene`` then runs the RXFEM baseline)."""
+    """A ``Scene`` whose ``model`` is an ``RXFEMModel`` (a scene run then runs the RXFEM baseline)."""
 
     def model(self) -> RXFEMModel:
         """A fresh uncut ``RXFEMModel`` of the scene, at rest."""

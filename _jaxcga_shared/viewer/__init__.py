@@ -1,7 +1,7 @@
 """The browser viewer: one self-contained HTML page (three.js r187 inlined, every model and frame embedded; no
 network at view time) that shows skinned glTF files with their clips, mesh sequences and static meshes side by
 side, with play / pause / scrub / speed / loop, a clip selector, orbit and zoom, reset view, wireframe, the
-skeleton and the skin weights of a joint. ``jaxcga.view`` and ``jaxcga view`` build it; notebooks show it inline
+skeleton and the skin weights of a joint. ``deform.view`` and ``jaxcga view`` build it; notebooks show it inline
 (``View._repr_html_``: an iframe of the same page).
 
 Inputs, side by side along x in the order given (each by its bounding box):
@@ -37,6 +37,8 @@ The page's state, for tests and scripts, is ``window.jaxcgaViewer``::
     playing, speed, loop, sequenceFps
     renderer, antialias              the WebGL renderer's name (e.g. SwiftShader's in headless Chromium) and whether
                                      the page multisamples (not on a software renderer)
+    labels: [{name, x, y}]           each input's name, drawn under it: the label's anchor in CSS pixels of the
+                                     drawing area (the middle of the bottom of the input's box, as projected)
     fps                              rendered frames per second over the last second
     rendered                         frames rendered since the page loaded
     frameChanges                     times the sequence frame shown (``frame``) changed since the page loaded
@@ -235,9 +237,11 @@ def _read_inputs(inputs: tuple, mesh) -> list[Gltf | Sequence]:
 
 
 def _npy_shape(path: Path, what: str) -> tuple[int, ...]:
+    from _jaxcga_shared.meshfile import read_array_file
+
     try:
-        return np.load(path, mmap_mode="r", allow_pickle=False).shape
-    except (OSError, ValueError) as error:
+        return read_array_file(path, what, mmap=True).shape
+    except OSError as error:
         raise ValueError(f"{what}: cannot read {path} as .npy ({error})") from None
 
 
@@ -359,9 +363,9 @@ def view(
 
     Examples:
         >>> import numpy as np
-        >>> import jaxcga as cga
+        >>> import deform
         >>> V = np.array([[0.0, 0, 0], [1.0, 0, 0], [0, 1.0, 0]])
-        >>> page = cga.view((V, np.array([[0, 1, 2]])), title="a triangle")
+        >>> page = deform.view((V, np.array([[0, 1, 2]])), title="a triangle")
         >>> page.html.startswith("<!DOCTYPE html>"), page.title
         (True, 'a triangle')
     """

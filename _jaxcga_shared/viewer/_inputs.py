@@ -54,7 +54,7 @@ class Sequence:
         return sum(len(frames) for _, frames in self.segments)
 
 
-def _glb_json(data: bytes, what: str) -> dict:
+def _glb_json(data: bytes, what: str) -> tuple[dict, bytes]:
     import pygltflib
 
     if len(data) < 12 or data[:4] != b"glTF":
@@ -75,7 +75,80 @@ def _glb_json(data: bytes, what: str) -> dict:
     for buffer in document.get("buffers", [])[:1]:
         if "uri" not in buffer and len(blob) < buffer.get("byteLength", 0):
             raise ValueError(f"{what}: truncated: its buffer holds {len(blob)} of {buffer['byteLength']} bytes")
-    return document
+    return document, blob
+
+
+def _buffer_files(document: dict, folder: Path, what: str) -> None:
+    """Every buffer a glTF refers to by a file name exists beside it (``deform.load_model`` refuses it otherwise;
+    the page would show nothing)."""
+    from urllib.parse import unquote
+
+    for k, buffer in enumerate(document.get("buffers", [])):
+        uri = buffer.get("uri")
+        if uri is not None and not uri.startswith("data:") and not (folder / unquote(uri)).is_file():
+            raise ValueError(f"{what}: buffer {k} refers to {uri!r}, no such file {folder / unquote(uri)}")
+
+
+_COMPONENTS = {"SCALAR": 1, "VEC2": 2, "VEC3": 3, "VEC4": 4, "MAT2": 4, "MAT3": 9, "MAT4": 16}
+_FLOAT = 5126  # glTF componentType
+
+
+def _finite_data(document: dict, blob: bytes, what: str) -> None:
+    """Every float accessor and node transform of a glTF is finite, as ``deform.load_model`` checks (three.js
+    draws nothing, silently, where a position is NaN)."""
+    import base64
+
+    def buffer(index: int) -> bytes:
+        uri = document["buffers"][index].get("uri")
+        if uri is None:
+            return blob
+        if uri.startswith("data:"):
+            return base64.b64decode(uri.split(",", 1)[1])
+        return b""  # a file beside a .glb (rare): checked to exist, its values left to three.js
+
+    cache: dict[int, bytes] = {}
+    for k, accessor in enumerate(document.get("accessors", [])):
+        if accessor.get("componentType") != _FLOAT or accessor.get("bufferView") is None:
+            continue
+        view = document["bufferViews"][accessor["bufferView"]]
+        if view["buffer"] not in cache:
+            cache[view["buffer"]] = buffer(view["buffer"])
+        data = cache[view["buffer"]]
+        width = _COMPONENTS[accessor["type"]]
+        count, stride = accessor["count"], view.get("byteStride") or 4 * width
+        offset = view.get("byteOffset", 0) + accessor.get("byteOffset", 0)
+        if not data or count == 0:
+            continue
+        if offset + (count - 1) * stride + 4 * width > len(data):
+            raise ValueError(f"{what}: accessor {k} reaches past the end of its buffer ({len(data)} bytes)")
+        values = np.ndarray((count, width), "<f4", buffer=data, offset=offset, strides=(stride, 4))
+        bad = int((~np.isfinite(values)).sum())
+        if bad:
+            raise ValueError(
+                f"{what}: accessor {k} ({_accessor_use(document, k)}) holds {bad} non-finite values (NaN or "
+                f"infinity) of {values.size}; the page would show nothing"
+            )
+    for k, node in enumerate(document.get("nodes", [])):
+        for key in ("matrix", "translation", "rotation", "scale"):
+            if key in node and not np.isfinite(np.asarray(node[key], np.float64)).all():
+                raise ValueError(f"{what}: node {k}'s {key} holds a NaN or infinity")
+
+
+def _accessor_use(document: dict, index: int) -> str:
+    """What a glTF uses accessor ``index`` for, in words (the first use found)."""
+    for m, mesh in enumerate(document.get("meshes", [])):
+        for p, primitive in enumerate(mesh.get("primitives", [])):
+            for name, a in primitive.get("attributes", {}).items():
+                if a == index:
+                    return f"mesh {m} primitive {p} {name}"
+    for s, skin in enumerate(document.get("skins", [])):
+        if skin.get("inverseBindMatrices") == index:
+            return f"skin {s}'s inverse bind matrices"
+    for a, animation in enumerate(document.get("animations", [])):
+        for sampler in animation.get("samplers", []):
+            if index in (sampler.get("input"), sampler.get("output")):
+                return f"animation {a}'s keys"
+    return "unused"
 
 
 def _embedded_gltf(path: Path, what: str) -> tuple[dict, bytes]:
@@ -84,6 +157,10 @@ def _embedded_gltf(path: Path, what: str) -> tuple[dict, bytes]:
 
     try:
         gltf = pygltflib.GLTF2().load_json(str(path))
+    except Exception as error:  # noqa: BLE001 (a malformed file fails anywhere inside pygltflib)
+        raise ValueError(f"{what}: not a readable glTF file ({type(error).__name__}: {error})") from None
+    _buffer_files(json.loads(gltf.gltf_to_json()), path.parent, what)
+    try:
         with warnings.catch_warnings():  # "the .bin file is left orphaned": it is left as it is, unused
             warnings.simplefilter("ignore", UserWarning)
             gltf.convert_buffers(pygltflib.BufferFormat.DATAURI)
@@ -106,10 +183,12 @@ def read_gltf(data: bytes | None, path: Path | None, name: str, what: str) -> Gl
             raise ValueError(f"{what}: cannot read it ({error.strerror})") from None
         if path.suffix.lower() == ".gltf" and data[:4] != b"glTF":
             document, data = _embedded_gltf(path, what)
+            blob = b""
         else:
-            document = _glb_json(data, what)
+            document, blob = _glb_json(data, what)
+            _buffer_files(document, path.parent, what)
     else:
-        document = _glb_json(data, what)
+        document, blob = _glb_json(data, what)
     # three.js's loader decodes these only with decoders the page does not carry
     undecoded = sorted(set(document.get("extensionsRequired", [])) & _UNDECODED)
     if undecoded:
@@ -143,6 +222,7 @@ def read_gltf(data: bytes | None, path: Path | None, name: str, what: str) -> Gl
             # three.js's GLTFLoader names an unnamed animation so
             clips.append({"name": animation.get("name") or f"animation_{k}", "duration": max(ends) if ends else None})
         joints = [[nodes[j].get("name", f"node_{j}") for j in skin["joints"]] for skin in document.get("skins", [])]
+        _finite_data(document, blob, what)
     except (KeyError, IndexError, TypeError) as error:
         raise ValueError(f"{what}: a malformed glTF (a missing or out-of-range {error})") from None
     if not vertices:
@@ -207,9 +287,11 @@ def read_npy(paths: list[Path], mesh, what: str) -> Sequence:
     """One sequence from .npy files: one (t, n, 3) file, or several (n, 3) files, one per frame."""
     frames = []
     for path in paths:
+        from _jaxcga_shared.meshfile import read_array_file
+
         try:
-            array = np.load(path, allow_pickle=False)
-        except (OSError, ValueError) as error:
+            array = read_array_file(path, what)
+        except OSError as error:
             raise ValueError(f"{what}: cannot read {path} as .npy ({error})") from None
         if len(paths) == 1 and array.ndim == 3:
             frames.append(_positions(array, f"{what}: {path}", frames=True))

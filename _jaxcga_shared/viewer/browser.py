@@ -29,7 +29,7 @@ FLAGS = (
 # what a test or a script reads of window.jaxcgaViewer (its functions left out)
 STATE = (
     "ready errors meshes clips clip duration time frame interpolation playing speed loop sequenceFps fps rendered "
-    "frameChanges updateMs decodeMs loadMs joint renderer antialias"
+    "frameChanges updateMs decodeMs loadMs joint renderer antialias labels"
 ).split()
 
 

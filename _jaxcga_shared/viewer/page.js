@@ -272,6 +272,28 @@
     });
     scene.updateMatrixWorld(true);
 
+    // each input's name under it, kept there as the view turns (an HTML label over the canvas)
+    const labels = items.map((it) => {
+      const label = document.createElement('div');
+      label.className = 'label';
+      label.textContent = it.desc.name;
+      document.getElementById('view').appendChild(label);
+      return label;
+    });
+    function placeLabels() {
+      const canvas = renderer.domElement;
+      state.labels = items.map((it, k) => {
+        const box = boxes[k].clone().translate(slots[k].position);
+        const foot = new THREE.Vector3((box.min.x + box.max.x) / 2, box.min.y, (box.min.z + box.max.z) / 2);
+        foot.project(camera);
+        const x = ((foot.x + 1) / 2) * canvas.clientWidth;
+        const y = ((1 - foot.y) / 2) * canvas.clientHeight;
+        labels[k].style.left = `${x}px`;
+        labels[k].style.top = `${y}px`;
+        return { name: it.desc.name, x, y };
+      });
+    }
+
     // clips: by name across the glTFs; sequences only: one clip "frames"
     const clipNames = [];
     for (const g of gltfs) for (const c of g.clips) if (!clipNames.includes(c.name)) clipNames.push(c.name);
@@ -405,20 +427,53 @@
     state.resetView = () => {
       const box = new THREE.Box3();
       boxes.forEach((b, k) => box.union(b.clone().translate(slots[k].position)));
-      const center = box.getCenter(new THREE.Vector3());
       const radius = Math.max(box.getSize(new THREE.Vector3()).length() / 2, 1e-6);
-      // the nearest distance along the view direction at which every corner of the box is in the picture, with
-      // a margin: a row of models side by side fills the width instead of a sphere around it the height
+      // the corners of each input's own box (not of the box around all: its empty corners would push the camera
+      // back), centred in the view's own axes; then the nearest distance along the view direction at which every
+      // corner is in the picture, with a margin: a row of models side by side fills the width
       const toward = new THREE.Vector3(0.35, 0.3, 1).normalize();
       const right = new THREE.Vector3(0, 1, 0).cross(toward).normalize();
       const up = toward.clone().cross(right);
+      const corners = [];
+      boxes.forEach((b, k) => {
+        const moved = b.clone().translate(slots[k].position);
+        for (const x of [moved.min.x, moved.max.x]) for (const y of [moved.min.y, moved.max.y]) {
+          for (const z of [moved.min.z, moved.max.z]) corners.push(new THREE.Vector3(x, y, z));
+        }
+      });
+      const middle = (axis) => {
+        const values = corners.map((c) => c.dot(axis));
+        return (Math.min(...values) + Math.max(...values)) / 2;
+      };
+      const center = right.clone().multiplyScalar(middle(right))
+        .add(up.clone().multiplyScalar(middle(up))).add(toward.clone().multiplyScalar(middle(toward)));
       const tanV = Math.tan(THREE.MathUtils.degToRad(camera.fov / 2));
       const tanH = tanV * camera.aspect;
       let distance = 1e-6;
-      for (const x of [box.min.x, box.max.x]) for (const y of [box.min.y, box.max.y]) for (const z of [box.min.z, box.max.z]) {
-        const corner = new THREE.Vector3(x, y, z).sub(center);
+      for (const point of corners) {
+        const corner = point.clone().sub(center);
         const depth = corner.dot(toward);
         distance = Math.max(distance, depth + Math.abs(corner.dot(right)) / tanH, depth + Math.abs(corner.dot(up)) / tanV);
+      }
+      // in perspective the near side of the row looks larger than the far side: centre and close in on the
+      // corners as projected (a few rounds: each moves the centre to the middle of the picture's extents and
+      // scales the distance so that they just fit; never past the nearest corner)
+      const nearest = Math.max(...corners.map((c) => c.clone().sub(center).dot(toward)));
+      for (let round = 0; round < 8; round++) {
+        camera.position.copy(center).add(toward.clone().multiplyScalar(distance));
+        camera.lookAt(center);
+        camera.updateMatrixWorld();
+        const lo = [Infinity, Infinity];
+        const hi = [-Infinity, -Infinity];
+        for (const point of corners) {
+          const q = point.clone().project(camera);
+          lo[0] = Math.min(lo[0], q.x); hi[0] = Math.max(hi[0], q.x);
+          lo[1] = Math.min(lo[1], q.y); hi[1] = Math.max(hi[1], q.y);
+        }
+        center.add(right.clone().multiplyScalar(((lo[0] + hi[0]) / 2) * distance * tanH))
+          .add(up.clone().multiplyScalar(((lo[1] + hi[1]) / 2) * distance * tanV));
+        const extent = Math.max((hi[0] - lo[0]) / 2, (hi[1] - lo[1]) / 2);
+        distance = Math.max(distance * extent, nearest * 1.05 + 1e-6);
       }
       distance *= 1.1;
       if (!home) home = { center, distance, radius };
@@ -487,6 +542,7 @@
 
     function render() {
       renderer.render(scene, camera);
+      placeLabels();
       state.rendered++;
     }
 

@@ -262,3 +262,70 @@ def test_missing_distributed_values_name_their_options(tmp_path):
             check=False,
         )
         assert done.returncode == 2 and f"jaxcga animate-batch: error: {message}" in done.stderr, done.stderr
+
+
+@pytest.mark.parametrize("process", [0, 1])
+def test_a_missing_peer_is_a_status_line_then_one_error_line_at_the_timeout(tmp_path, process):
+    # 2 processes, only one started: jax.distributed alone would wait 300 s, then abort natively (a C++ stack)
+    address = f"127.0.0.1:{_free_port()}"
+    argv = ["animate-batch", MODELS[0], "--coordinator", address, "--num-processes", "2", "--process-id"]
+    codes, logs = _run_processes(
+        [([*argv, str(process), "--timeout", "2", "--out", str(tmp_path / "out")], _environment(1))],
+        timeout=120,
+        check=False,
+    )
+    lines = logs[0].splitlines()
+    assert codes == [2], logs[0]
+    assert lines == [
+        f"jaxcga animate-batch: process {process} of 2: waiting for 1 more process at {address} (at most 2 s, "
+        "--timeout)",
+        f"jaxcga animate-batch: error: coordinator: process {process} of 2: still waiting for 1 more process at "
+        f"{address} after 2 s (--timeout); start every process with the same --coordinator and --num-processes "
+        "and its own --process-id",
+    ], logs[0]
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_request_that_would_not_fit_in_memory_is_refused_before_skinning(tmp_path, capsys, monkeypatch):
+    from jaxcga_cli import animate, animate_batch
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("skinned although the frames would not fit")
+
+    monkeypatch.setattr(deform, "skin_packed", refuse)
+    monkeypatch.setattr(animate, "available_memory", lambda: 2**30)
+    packed = deform.pack_models([deform.load_model(p) for p in MODELS], blocks=1)
+    slots = packed.capacities.vertices
+    fit = 2**30 // (slots * animate_batch.BYTES_PER_SLOT_FRAME)
+    with pytest.raises(SystemExit) as refused:
+        main(["animate-batch", *MODELS, "--frames", str(fit + 1), "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert refused.value.code == 2
+    assert f"error: frames: {fit + 1} frames of 1 block of {slots} vertex slots need about " in err
+    assert f"than the 1.0 GiB of memory available now; give at most --frames {fit}" in err
+    assert not (tmp_path / "out").exists()
+    animate_batch.check_memory(fit, 1, slots)  # the largest request that fits passes
+
+
+def test_timeout_must_be_positive(tmp_path, capsys):
+    with pytest.raises(SystemExit) as refused:
+        main(["animate-batch", MODELS[0], "--timeout", "0", "--out", str(tmp_path / "out")])
+    assert (
+        refused.value.code == 2 and "timeout: expected --timeout in (0, 1e6) seconds, got 0" in capsys.readouterr().err
+    )
+
+
+@pytest.mark.slow  # two runs of 1k and 8k frames: ~40 s on 2 busy cores
+def test_the_memory_guard_covers_the_measured_bytes_per_vertex_slot_and_frame(tmp_path):
+    from jaxcga_cli import animate_batch
+    from tests.shared import peak_memory_of_command
+
+    packed = deform.pack_models([deform.load_model(p) for p in MODELS], blocks=1)
+    peaks = [
+        peak_memory_of_command(
+            ["animate-batch", *MODELS, "--frames", str(frames), "--out", str(tmp_path / str(frames))]
+        )
+        for frames in (1024, 8192)
+    ]
+    per_slot_frame = (peaks[1] - peaks[0]) / ((8192 - 1024) * packed.capacities.vertices)
+    assert 0.5 * animate_batch.MEASURED_BYTES_PER_SLOT_FRAME <= per_slot_frame <= animate_batch.BYTES_PER_SLOT_FRAME

@@ -202,3 +202,13 @@ def test_a_corpus_character_of_many_parts(tmp_path, capsys):
     assert main(["arap", str(CHARACTERS["QuaterniusWorker"]), "--bend", "45", "--iters", "5", "--out", str(out)]) == 0
     assert np.all(np.isfinite(np.load(out)))
     assert re.search(r"parts 15, following_parts [1-9]", capsys.readouterr().out)
+
+
+def test_each_iteration_is_shown_and_the_solve_time_leaves_compilation_out(tmp_path, capsys):
+    assert main(["arap", "--bend", "30", "--fixed", "--iters", "40", "--out", str(tmp_path / "a.npy")]) == 0
+    captured = capsys.readouterr()
+    assert "jaxcga arap: compiling the solve: done in " in captured.err
+    bar = captured.err.replace("\r", "\n").splitlines()
+    assert any(" 40/40 [" in line and "residual=" in line and "energy=" in line for line in bar), captured.err
+    summary = dict(item.split(" ", 1) for item in captured.out.split(": ", 1)[1].strip().split(", "))
+    assert summary["iterations"] == "40" and float(summary["compile_s"]) > 0 and float(summary["solve_ms"]) > 0

@@ -90,6 +90,42 @@ def test_tear_path_errors_exit_with_code_2(tmp_path, capsys):
     assert stop.value.code == 2 and "missing.json" in capsys.readouterr().err
 
 
+def test_a_side_weight_outside_0_1_is_refused_before_loading(tmp_path, capsys, monkeypatch):
+    def refuse(*args, **kwargs):
+        raise AssertionError("loaded the model although --side-weight is refused")
+
+    monkeypatch.setattr(deform, "load_model", refuse)
+    monkeypatch.setattr(deform, "default_arm", refuse)
+    scalpel = [a for s in ("0.2 0 0.1 0.2 0 0", "0.3 0 0.1 0.3 0 0") for a in ("--scalpel", *s.split())]
+    for argv in (
+        ["cut", "--plane", "1", "0", "0", "0.3", "--out", str(tmp_path / "a.glb"), str(tmp_path / "b.glb")],
+        ["tear", *scalpel, "--out", str(tmp_path / "t.glb")],
+    ):
+        with pytest.raises(SystemExit) as stop:
+            main([*argv, "--side-weight", "5"])
+        err = capsys.readouterr().err
+        assert (
+            stop.value.code == 2
+            and err == f"jaxcga {argv[0]}: error: side_weight: expected a number in [0, 1], got 5.0\n"
+        )
+
+
+def test_a_tear_opening_wider_than_the_model_is_refused(tmp_path, capsys):
+    from _jaxcga_shared.mesh import bounding_diagonal
+
+    diagonal = bounding_diagonal(deform.default_arm().mesh.V)
+    scalpel = [a for s in ("0.2 0 0.1 0.2 0 0", "0.3 0 0.1 0.3 0 0") for a in ("--scalpel", *s.split())]
+    with pytest.raises(SystemExit) as stop:
+        main(["tear", *scalpel, "--opening", "10", "--out", str(tmp_path / "t.glb")])
+    err = capsys.readouterr().err
+    assert (
+        stop.value.code == 2
+        and f"opening: 10 is wider than the model itself (its bounding box diagonal is {diagonal:.4g}" in err
+    )
+    assert not (tmp_path / "t.glb").exists()
+    assert main(["tear", *scalpel, "--opening", f"{0.01 * diagonal}", "--out", str(tmp_path / "t.glb")]) == 0
+
+
 def test_drill_writes_a_skinned_model_with_a_hole(tmp_path):
     out = tmp_path / "drilled.glb"
     assert (

@@ -161,6 +161,47 @@ def test_a_bad_obj_vertex_names_its_line(tmp_path, capsys, command, line):
     assert f"mesh: {path}: line 4: {line!r} is not a vertex of three finite numbers" in err
 
 
+@pytest.mark.parametrize(
+    "face, told",
+    [
+        ("f 1 3 9", "refers to vertex 9, but the file has 4 vertices"),
+        ("f 0 3 2", "refers to vertex 0 (OBJ counts vertices from 1)"),
+        ("f -7 3 2", "refers to vertex -7, but the file has 4 vertices before this line"),
+    ],
+)
+def test_a_face_index_outside_the_obj_names_its_line(tmp_path, capsys, face, told):
+    path = tmp_path / "bad.obj"
+    path.write_text(TETRAHEDRON.replace("f 1 3 2", face))
+    with pytest.raises(SystemExit) as exit_info:
+        main(["arap", str(path), "--out", str(tmp_path / "x.npy")])
+    err = capsys.readouterr().err
+    assert exit_info.value.code == 2 and err.count("\n") == 1
+    assert f"mesh: {path}: line 5: {face!r} {told}" in err
+
+
+def test_an_open_or_mis_wound_cage_is_refused_before_the_mesh_loads(tmp_path, capsys, monkeypatch):
+    import jaxcga_cli.models
+
+    def refuse(path, name="mesh"):
+        if name != "cage":
+            raise AssertionError("loaded the mesh although the cage is refused")
+        return load(path, name)
+
+    load = jaxcga_cli.models.load_mesh
+    monkeypatch.setattr(jaxcga_cli.models, "load_mesh", refuse)
+    (tmp_path / "open.obj").write_text(TETRAHEDRON.replace("f 2 3 4\n", ""))
+    (tmp_path / "flipped.obj").write_text(TETRAHEDRON.replace("f 2 3 4", "f 2 4 3"))
+    for name, told in (
+        ("open.obj", "is an open surface (3 edges lie on its border, each in one triangle only)"),
+        ("flipped.obj", "is closed but its triangles are not consistently oriented"),
+    ):
+        with pytest.raises(SystemExit) as exit_info:
+            main(["deform", "cage", "--cage", str(tmp_path / name), "--out", str(tmp_path / "x.npy")])
+        err = capsys.readouterr().err
+        assert exit_info.value.code == 2
+        assert f"cage: {tmp_path / name} {told}" in err and err.count("\n") == 1
+
+
 def test_a_non_finite_vertex_in_other_formats_names_its_index(tmp_path):
     from _jaxcga_shared.meshfile import read_mesh_file
 
@@ -203,6 +244,9 @@ def test_more_keys_than_vertices_are_refused(tmp_path, capsys):
             "motor 0 .* needs finite numbers and a non-zero",
         ),
         ('{"handles": [[0], [1]], "motors": [{"center": [NaN, 0, 0]}, {}]}', "motor 0 in .* needs finite numbers"),
+        ('{"handles": [[[0, 1]], [[2]]]}', "handle 0 in .* is a list of lists"),
+        ('{"handles": [[0], [1]], "motors": [{}, {"translation": [1e308, 1e308, 0]}]}', "motor 1 .* beyond float64"),
+        ('{"handles": [[0], [1]], "motors": [{}, {"translation": [0, 1e7, 0]}]}', r"motor 1 .* 1.1\d+e\+07 mesh diag"),
     ],
 )
 def test_bad_handle_files_are_named(tmp_path, capsys, content, message):

@@ -192,3 +192,32 @@ def test_tetgen_is_an_extra_the_command_names(tmp_path, capsys, monkeypatch):
         main(["fem", str(path), "--mesher", "tetgen", "--out", str(tmp_path / "x")])
     err = capsys.readouterr().err
     assert exit_info.value.code == 2 and "mesher: tetrahedralize needs TetGen" in err and "jaxcga[tetgen]" in err
+
+
+def test_newton_0_is_refused_before_the_scene_is_built(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exit_info:
+        main(["fem", "bar", "--newton", "0", "--out", str(tmp_path / "x")])
+    err = capsys.readouterr().err
+    assert exit_info.value.code == 2
+    assert err == "jaxcga fem: error: newton: expected --newton >= 1 Newton iterations per step, got 0\n"
+
+
+def test_surfaces_tetgen_cannot_fill_and_surfaces_in_tet_formats_are_told(tmp_path, capsys):
+    box = trimesh.creation.box()
+    trimesh.Trimesh(box.vertices, box.faces[:-1], process=False).export(tmp_path / "open.obj")
+    meshio.write(tmp_path / "surface.vtu", meshio.Mesh(box.vertices, [("triangle", box.faces)]))
+    for args, told in (
+        (
+            [str(tmp_path / "open.obj"), "--mesher", "tetgen"],
+            f"SCENE: {tmp_path / 'open.obj'} is an open surface (3 edges lie on its border, each in one triangle "
+            "only); TetGen fills closed surfaces only: give --mesher ftetwild (the default), which takes open ones",
+        ),
+        (
+            [str(tmp_path / "surface.vtu")],
+            f"SCENE: {tmp_path / 'surface.vtu'} holds a surface (triangle cells), no tetrahedra; fem fills a surface",
+        ),
+    ):
+        with pytest.raises(SystemExit) as exit_info:
+            main(["fem", *args, "--out", str(tmp_path / "x")])
+        err = capsys.readouterr().err
+        assert exit_info.value.code == 2 and err.count("\n") == 1 and told in err

@@ -121,6 +121,34 @@ def test_a_step_progress_starts_its_bar_after_the_compiling_step(capsys):
     assert "fem test: 100%" in err and "4/4" in err
 
 
+def test_a_step_progress_of_a_loop_compiled_ahead_starts_at_once_and_shows_its_values(capsys):
+    with StepProgress("arap", 10, "iteration", "arap test", compiled=True) as progress:
+        assert progress.bar is not None and progress.bar.n == 0
+        for k in range(3):
+            progress.step(residual=f"{10.0**-k:.2g}")
+    err = capsys.readouterr().err
+    assert "compiling" not in err and "first" not in err
+    assert "3/10" in err and "residual=0.01" in err
+
+
+def test_quiet_leaves_out_status_lines_and_bars_but_not_warnings(capsys):
+    import warnings
+
+    from jaxcga_cli.report import one_line_reports, quiet, say, status
+
+    with one_line_reports("demo"), quiet():
+        with status("animate", "sampling"):
+            say("tear", "the model's bounding box")
+        with StepProgress("fem", 2, "step", "fem test") as progress:
+            progress.step()
+            progress.step()
+        warnings.warn("a mesh was welded", stacklevel=1)
+    assert capsys.readouterr().err == "jaxcga demo: warning: a mesh was welded\n"
+    with status("animate", "sampling"):  # outside: as before
+        pass
+    assert capsys.readouterr().err.startswith("jaxcga animate: sampling ...\n")
+
+
 def test_skin_reports_its_compiling_step_on_stderr(tmp_path, capsys):
     assert main(["skin", "--time", "0.2", "--out", str(tmp_path / "x.npy")]) == 0
     out, err = capsys.readouterr()
@@ -215,3 +243,19 @@ def test_ctrl_c_is_one_line_and_exit_130(monkeypatch, capsys, tmp_path):
     err = capsys.readouterr().err
     assert err == "jaxcga skin: interrupted; its outputs were left as they were\n"
     assert not (tmp_path / "a.obj").exists()
+
+
+@pytest.mark.slow  # two animate runs of 8k and 40k frames: ~1 min on 2 busy cores
+def test_animates_memory_guard_covers_the_measured_bytes_per_bone_frame(tmp_path):
+    from tests.shared import peak_memory_of_command
+
+    cesium = str(ROOT / "tests" / "data" / "CesiumMan.glb")
+    bones = deform.load_model(cesium).skeleton.num_bones
+    peaks = [
+        peak_memory_of_command(["animate", cesium, "--frames", str(frames), "--out", str(tmp_path / f"{frames}.glb")])
+        for frames in (8_000, 40_000)
+    ]
+    per_bone_frame = (peaks[1] - peaks[0]) / (32_000 * bones)
+    # the guard's figure holds what was measured, with its headroom, and is no gross overestimate
+    assert per_bone_frame <= animate.BYTES_PER_BONE_FRAME
+    assert per_bone_frame >= 0.5 * animate.MEASURED_BYTES_PER_BONE_FRAME

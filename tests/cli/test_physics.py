@@ -195,3 +195,13 @@ def test_a_plane_that_misses_the_body_names_its_bounding_box(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "cut 1: the plane through [0.0, 1000.0, 0.0]" in err and "misses the body" in err and "y [" in err
     assert not (tmp_path / "x").exists()
+
+
+def test_a_frame_rate_above_the_limit_is_refused_before_loading(tmp_path, capsys):
+    from jaxcga_cli.physics import MAX_FPS
+
+    with pytest.raises(SystemExit) as exit_info:
+        main(["physics", FOX, "--fps", "1e9", "--out", str(tmp_path / "x")])
+    err = capsys.readouterr().err
+    assert exit_info.value.code == 2 and "loading" not in err
+    assert err.startswith(f"jaxcga physics: error: fps: 1e+09 frames per second is above {MAX_FPS:g};")

@@ -132,7 +132,15 @@ def test_fit_names_unreadable_target_and_vertex_files(tmp_path, capsys):
     out = str(tmp_path / "p.json")
     assert "target: no such file" in _error(["fit", "--target", str(tmp_path / "none.npy"), "--out", out], capsys)
     (tmp_path / "text.npy").write_text("not an array")
-    assert "target: " in _error(["fit", "--target", str(tmp_path / "text.npy"), "--out", out], capsys)
+    assert "text.npy is not a .npy file" in _error(
+        ["fit", "--target", str(tmp_path / "text.npy"), "--out", out], capsys
+    )
+    np.save(tmp_path / "whole.npy", np.zeros((10, 3)))
+    (tmp_path / "cut.npy").write_bytes((tmp_path / "whole.npy").read_bytes()[:150])
+    assert (
+        "cut.npy is truncated: 150 of the 368 bytes its header states for a float64 array of shape (10, 3)"
+        in _error(["fit", "--target", str(tmp_path / "cut.npy"), "--out", out], capsys)
+    )
     np.save(tmp_path / "t.npy", np.zeros((2, 3)))
     np.save(tmp_path / "i.npy", np.array([0, 1]))
     argv = ["fit", "--target", str(tmp_path / "t.npy"), "--out", out]
@@ -208,3 +216,52 @@ def test_skin_and_animate_interpolation(tmp_path):
         animated = deform.load_model(out)
         wanted = deform.skin_model(model, 0.5, "lbs", interpolation=interpolation)
         np.testing.assert_allclose(deform.skin_model(animated, 0.5, "lbs"), wanted, atol=1e-5 * diagonal)
+
+
+def test_clip_options_that_do_nothing_are_told(tmp_path, capsys):
+    model = deform.load_model(DATA / "RiggedSimple.glb")
+    start, end = float(model.clips[0].start), float(model.clips[0].end)
+    out = tmp_path / "x.npy"
+    # a time past the clip: glTF holds the clip's last pose, and the user is told so
+    assert main(["skin", str(DATA / "RiggedSimple.glb"), "--time", "100", "--out", str(out)]) == 0
+    err = capsys.readouterr().err
+    told = f"--time 100 is outside clip 'clip0' ({start:g} to {end:g} s); glTF holds a clip at its ends"
+    assert f"jaxcga skin: warning: {told}: posed at {end:g} s" in err
+    np.testing.assert_allclose(np.load(out), np.asarray(deform.skin_model(model, end, "cga")), rtol=0, atol=1e-12)
+    # no --time: the clip's start (RiggedSimple's is not 0), without a word
+    assert main(["skin", str(DATA / "RiggedSimple.glb"), "--out", str(out)]) == 0
+    captured = capsys.readouterr()
+    assert "warning" not in captured.err and f"time {start}," in captured.out
+    # a model without clips: --time and --interpolation change nothing
+    assert main(["skin", str(DATA / "Arm5.glb"), "--time", "1", "--interpolation", "log", "--out", str(out)]) == 0
+    assert "jaxcga skin: warning: Arm5 has no clip: --time 1, --interpolation log ignored" in capsys.readouterr().err
+
+
+def test_an_unknown_clip_is_named_as_the_option_before_anything_compiles(tmp_path, capsys, monkeypatch):
+    def refuse(*args, **kwargs):
+        raise AssertionError("compiled although the clip does not exist")
+
+    monkeypatch.setattr(deform, "skin_model", refuse)
+    monkeypatch.setattr(deform, "sample_pose", refuse)
+    for command in ("skin", "animate"):
+        for clip, message in (
+            ("Walk", "clip: no clip called 'Walk'; clips are ['clip0']"),
+            ("3", "clip: model has 1 clips, no clip 3"),
+        ):
+            argv = [command, str(DATA / "RiggedSimple.glb"), "--clip", clip, "--out", str(tmp_path / "x.glb")]
+            assert _error(argv, capsys) == f"jaxcga {command}: error: {message}\n"
+
+
+def test_fit_shows_each_solver_step_after_the_compiling_one(tmp_path, capsys):
+    model = deform.load_model(DATA / "RiggedSimple.glb")
+    np.save(tmp_path / "target.npy", np.asarray(deform.skin_model(model, 1.0, "cga")))
+    argv = ["fit", str(DATA / "RiggedSimple.glb"), "--target", str(tmp_path / "target.npy")]
+    assert main([*argv, "--max-steps", "50", "--out", str(tmp_path / "pose.json")]) == 0
+    captured = capsys.readouterr()
+    steps = json.loads((tmp_path / "pose.json").read_text())["steps"]
+    assert "jaxcga fit: compiling (the first step includes compilation) ..." in captured.err
+    assert "jaxcga fit: first step done in " in captured.err
+    # the bar counts every step the solver made, each with its loss
+    bar = captured.err.replace("\r", "\n").splitlines()
+    assert any(f" {steps}/50 [" in line and "loss=" in line for line in bar), captured.err
+    assert not any(f" {steps + 1}/50 [" in line for line in bar)

@@ -341,3 +341,19 @@ def test_gradient_on_a_multi_part_character_matches_central_differences():
     numeric = (8 * (at(1) - at(-1)) - (at(2) - at(-2))) / (12 * step)
     assert np.all(np.isfinite(np.asarray(gradient)))
     assert float(jnp.sum(gradient * direction)) == pytest.approx(float(numeric), rel=1e-6)
+
+
+def test_progress_reports_every_iteration_with_its_energy_and_residual(arm):
+    V, F, b, bc, data = arm
+    seen = []
+    solve = jax.jit(lambda bc: arap_solve(data, bc, progress=lambda *values: seen.append([float(v) for v in values])))
+    result = solve(jnp.asarray(bc))
+    plain = jax.jit(lambda bc: arap_solve(data, bc))(jnp.asarray(bc))  # jitted too: the same rounding
+    iterations = int(result.iterations)
+    assert iterations == int(plain.iterations) and [s[0] for s in seen] == list(range(1, iterations + 1))
+    # each iteration's energy is that of the positions it started from: the result's energies before U's
+    np.testing.assert_allclose([s[1] for s in seen], np.asarray(result.energies)[:iterations], rtol=1e-12)
+    assert seen[-1][2] == pytest.approx(float(result.residual), rel=1e-12)
+    np.testing.assert_allclose(np.asarray(result.U), np.asarray(plain.U), rtol=0, atol=1e-10)
+    with pytest.raises(ValueError, match="progress: expected None or a function, got int"):
+        arap_solve(data, jnp.asarray(bc), progress=3)

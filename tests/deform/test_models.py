@@ -292,3 +292,19 @@ def test_fit_to_a_handful_of_vertices_with_regularization(models):
         deform.fit_pose(model, targets[index][:, :2], index)
     with pytest.raises(ValueError, match="vertices"):
         deform.fit_pose(model, targets[:2], jnp.array([0, 10**6]))
+
+
+def test_fit_progress_reports_each_step_and_its_sum_of_squared_residuals():
+    model = deform.default_arm()
+    truth = deform.random_parameters(jax.random.PRNGKey(1), model, rotation=0.2)
+    # unreachable targets (a fixed random offset): the last loss is the fit's own, not zero
+    noise = 1e-3 * jax.random.normal(jax.random.PRNGKey(2), (model.mesh.num_vertices, 3), model.mesh.V.dtype)
+    targets = deform.skin_parameters(model, truth) + noise
+    losses = []
+    fit = deform.fit_pose(model, targets, max_steps=30, progress=lambda loss: losses.append(float(loss)))
+    diagonal = _diagonal(deform.rest_pose(model, "lbs"))
+    assert len(losses) == int(fit.steps) and bool(fit.converged)
+    # the first step evaluates the rest pose, the last the fitted one
+    rest = deform.skin_parameters(model, jnp.zeros((model.skeleton.num_bones, 7), targets.dtype))
+    assert losses[0] == pytest.approx(float(jnp.sum((rest - targets) ** 2)) / diagonal**2, rel=1e-9)
+    assert losses[-1] == pytest.approx(float(jnp.sum((fit.positions - targets) ** 2)) / diagonal**2, rel=1e-6)

@@ -10,7 +10,9 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from _jaxcga_shared.checks import compiled_error_message, plain_errors, require, require_around
+import jaxcga
+from _jaxcga_shared.checks import compiled_error_message, failed_check_message, plain_errors, require, require_around
+from _jaxcga_shared.host import host_call
 
 MESSAGE = "x: expected non-negative values"
 
@@ -42,7 +44,7 @@ def _raises_the_message(fn, x):
 def test_a_check_raises_its_message_eagerly_and_inside_jit_vmap_and_grad(device):
     good, bad = (jax.device_put(np.array(v), device) for v in ([0.0, 1.5], [1.0, -1.0]))
     with jax.default_device(device):
-        with pytest.raises(ValueError, match=MESSAGE):
+        with pytest.raises(jaxcga.CheckError, match=MESSAGE):
             _doubled(bad)
         for fn in (
             jax.jit(_doubled),
@@ -74,10 +76,51 @@ def test_plain_errors_turns_a_failed_check_into_a_value_error_and_leaves_other_e
             doubled = plain_errors(jit(_doubled))
             np.testing.assert_array_equal(doubled(good), [2.0])
             for _ in range(2):  # JAX raises a JaxRuntimeError, and a ValueError from the cached executable
-                with pytest.raises(ValueError, match=f"^{MESSAGE}$"):
+                with pytest.raises(jaxcga.CheckError, match=f"^{MESSAGE}$"):
                     doubled(bad)
     with pytest.raises(TypeError):  # not a check: as it was
         plain_errors(jax.jit(_doubled))("not an array")
+
+
+def _same_text_raised(x):
+    raise ValueError(MESSAGE)
+
+
+@pytest.mark.parametrize("jit", [jax.jit, eqx.filter_jit], ids=["jit", "filter_jit"])
+def test_a_failed_check_is_recognised_by_its_type_not_its_text(jit):
+    """A failed check is a ``CheckError`` (a ``ValueError``); an error raised inside compiled code with a check's
+    very text, after that check failed, is not one: ``plain_errors`` passes it on as it came."""
+    assert issubclass(jaxcga.CheckError, ValueError)
+    bad = np.array([-1.0])
+    with pytest.raises(jaxcga.CheckError, match=f"^{MESSAGE}$"):
+        plain_errors(jit(_doubled))(bad)
+
+    def not_a_check(x):
+        return host_call(_same_text_raised, jax.ShapeDtypeStruct(x.shape, x.dtype), x)
+
+    with pytest.raises((RuntimeError, ValueError)) as raised:
+        plain_errors(jit(not_a_check))(bad)
+    assert not isinstance(raised.value, jaxcga.CheckError)
+    assert failed_check_message(raised.value) is None
+    assert MESSAGE in str(raised.value) and str(raised.value) != MESSAGE  # JAX's error, with the traceback
+
+
+def test_the_message_of_a_failed_check_is_read_up_to_its_end():
+    """A GPU's error text goes on after the callback's error (XLA's context on the same line); a message may span
+    lines."""
+    with pytest.raises(RuntimeError) as raised:
+        jax.block_until_ready(jax.jit(_doubled)(np.array([-1.0])))
+    text = str(raised.value)
+    assert failed_check_message(RuntimeError(text + "; current tracing scope: custom-call.3")) == MESSAGE
+    two_lines = "x: bad\nsee the docs"
+
+    def checked(x):
+        return require(x, (x < 0, two_lines))
+
+    with pytest.raises(RuntimeError) as raised:
+        jax.block_until_ready(jax.jit(checked)(np.array([-1.0])))
+    assert failed_check_message(RuntimeError(f"{raised.value}; more context")) == two_lines
+    assert failed_check_message(RuntimeError("INTERNAL: ValueError: x: bad")) is None
 
 
 def test_a_check_needs_no_cpu_device(monkeypatch):

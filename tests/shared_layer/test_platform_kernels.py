@@ -12,8 +12,9 @@ import pytest
 
 import deform
 import jaxcga as cga
-from _jaxcga_shared.platform import PLATFORM_KERNELS, PerPlatform, example, per_platform
+from _jaxcga_shared.platform import PLATFORM_KERNELS, PerPlatform, per_platform
 from tests.shared import lowered_operations, needs_cuda_lowering
+from tests.shared_layer._platform_examples import EXAMPLES, example
 
 KERNELS = sorted(PLATFORM_KERNELS)
 DTYPES = {jnp.float64: 1e-12, jnp.float32: 2e-5}  # tolerance relative to the largest entry
@@ -30,6 +31,17 @@ def test_kernels_are_registered():
         "deform.forward_kinematics",
         "deform.largest_quartic_root",
     } <= set(KERNELS)
+
+
+def test_every_kernel_has_examples():
+    """A kernel registered without inputs to compare its variants on would go untested: each has some, and
+    every entry of the examples names a registered kernel (a renamed kernel leaves none behind)."""
+    assert set(EXAMPLES) == set(KERNELS), (
+        f"registered kernels without examples: {sorted(set(KERNELS) - set(EXAMPLES))}; "
+        f"examples of no registered kernel: {sorted(set(EXAMPLES) - set(KERNELS))}"
+    )
+    for name in KERNELS:
+        assert EXAMPLES[name](), f"{name}: an empty list of examples"
 
 
 def _cast(tree, dtype):
@@ -54,8 +66,7 @@ def _jitted(kernel, static):
 
 
 def _cases(kernel: PerPlatform, dtype):
-    examples = kernel.examples()
-    assert examples, f"{kernel.name}: no examples registered"
+    examples = EXAMPLES[kernel.name]()
     return [example(*_cast(e.args, dtype), **e.static) for e in examples]
 
 
@@ -107,7 +118,7 @@ def test_dispatch_is_the_backends_variant(name, running_variant):
     variant in CI, the GPU variant where the suite runs on a GPU or with ``--gpu-variants``)."""
     kernel = PLATFORM_KERNELS[name]
     variant = kernel.variants[running_variant]
-    for args, static in kernel.examples():
+    for args, static in EXAMPLES[name]():
         got, expected = (_jitted(f, static)(*args) for f in (kernel, variant))
         for g, e in zip(jax.tree.leaves(got), jax.tree.leaves(expected)):
             np.testing.assert_array_equal(g, e)
@@ -120,7 +131,7 @@ def test_lowering_picks_the_platform_variant(name):
     """Lowered for the CPU the dispatch holds the CPU variant's operations, lowered for CUDA the GPU
     variant's, and the two differ (a registered kernel whose variants lower alike would be pointless)."""
     kernel = PLATFORM_KERNELS[name]
-    args, static = kernel.examples()[-1]
+    args, static = EXAMPLES[name]()[-1]
     dispatch = functools.partial(kernel, **static)
     cpu, gpu = (functools.partial(kernel.variants[v], **static) for v in ("cpu", "gpu"))
     assert lowered_operations(dispatch, args, "cpu") == lowered_operations(cpu, args, "cpu")
@@ -179,7 +190,7 @@ def test_static_options_and_transformations_pass_through(running_variant):
         calls.append("gpu")
         return x**power * y
 
-    kernel = PerPlatform("test.power", cpu=cpu, gpu=gpu, examples=lambda: [example(jnp.ones(2), 1.0, power=2)])
+    kernel = PerPlatform("test.power", cpu=cpu, gpu=gpu)
     try:
         x = jnp.arange(1.0, 4.0)
         np.testing.assert_allclose(kernel(x, 2.0, power=3), 2 * x**3)
@@ -187,13 +198,13 @@ def test_static_options_and_transformations_pass_through(running_variant):
         np.testing.assert_allclose(jax.vmap(lambda a: kernel(a, 2.0, power=3))(x), 2 * x**3)
         np.testing.assert_allclose(jax.jit(jax.grad(lambda a: kernel(a, 2.0, power=3)))(1.5), 6 * 1.5**2)
         with pytest.raises(ValueError, match="name: a platform kernel named 'test.power'"):
-            PerPlatform("test.power", cpu=cpu, gpu=gpu, examples=list)
+            PerPlatform("test.power", cpu=cpu, gpu=gpu)
     finally:
         del PLATFORM_KERNELS["test.power"]
 
 
 def test_flag_form_binds_cpu(running_variant):
-    @per_platform("test.flag", examples=list)
+    @per_platform("test.flag")
     def kernel(x, *, cpu: bool):
         """Doubles on the CPU, triples elsewhere."""
         return 2 * x if cpu else 3 * x

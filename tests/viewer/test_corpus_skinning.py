@@ -10,7 +10,6 @@ import numpy as np
 import pytest
 
 import deform
-import jaxcga
 from _jaxcga_shared.mesh import bounding_diagonal
 from tests.shared import CHARACTERS, character_params, gltf_json, load_character, moving_mesh_nodes
 
@@ -47,7 +46,7 @@ def skinned_order(document: dict) -> np.ndarray:
 def test_every_character_skins_as_three_js_does(browser, tmp_path, name):
     path = CHARACTERS[name]
     model = load_character(name, weld=False)
-    state = browser.open(jaxcga.view(path).save(tmp_path / "view.html"))
+    state = browser.open(deform.view(path).save(tmp_path / "view.html"))
     assert state["errors"] == [] and state["ready"], state["errors"]
     order = skinned_order(gltf_json(path))
     assert len(order) == model.mesh.num_vertices

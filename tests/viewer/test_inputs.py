@@ -1,4 +1,4 @@
-"""What ``jaxcga.view`` reads and writes, without a browser: the page is one self-contained file, every bad input
+"""What ``deform.view`` reads and writes, without a browser: the page is one self-contained file, every bad input
 is a ``ValueError`` naming the argument and the file, ``save`` refuses to overwrite, and the notebook form is an
 iframe of the same page."""
 
@@ -14,13 +14,13 @@ import meshio
 import numpy as np
 import pytest
 
-import jaxcga
+import deform
 from tests.shared import grid
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 
 
-def _config(page: jaxcga.View) -> dict:
+def _config(page: deform.View) -> dict:
     text = re.search(r'<script type="application/json" id="jaxcga-config">(.*?)</script>', page.html, re.S)
     assert text is not None
     return json.loads(text.group(1))
@@ -28,7 +28,7 @@ def _config(page: jaxcga.View) -> dict:
 
 def test_the_page_is_self_contained():
     title = "a </script> <!-- <script> title"
-    page = jaxcga.view(DATA / "RiggedSimple.glb", title=title)
+    page = deform.view(DATA / "RiggedSimple.glb", title=title)
     # nothing fetched at view time: no element that loads a file (src, href, a stylesheet link)
     assert not re.search(r"""<[a-z]+[^>]*\s(src|href)\s*=""", page.html)
     assert page.html.count("</script>") == page.html.count("<script")  # the title did not end a script early
@@ -51,7 +51,7 @@ def test_frames_are_int16_in_one_box_and_decode_within_the_bound():
     diag / 131068 of the frames given."""
     V, F = grid(4)
     frames = np.stack([V + [0.0, 0.0, 0.3 * k] for k in range(3)])
-    page = jaxcga.view((jnp.asarray(frames), F))
+    page = deform.view((jnp.asarray(frames), F))
     config = _config(page)
     (item,) = config["items"]
     (segment,) = item["segments"]
@@ -67,7 +67,7 @@ def test_frames_are_int16_in_one_box_and_decode_within_the_bound():
 
 
 def test_save_is_atomic_and_refuses_to_overwrite(tmp_path):
-    page = jaxcga.view(grid(2))
+    page = deform.view(grid(2))
     path = page.save(tmp_path / "view.html")
     assert path.read_text() == page.html
     path.write_text("previous")
@@ -81,7 +81,7 @@ def test_save_is_atomic_and_refuses_to_overwrite(tmp_path):
 
 
 def test_the_notebook_form_is_an_iframe_of_the_same_page():
-    page = jaxcga.view(grid(2))
+    page = deform.view(grid(2))
     frame = page._repr_html_()
     source = re.fullmatch(r'<iframe srcdoc="([^"]*)" .*sandbox="allow-scripts"></iframe>', frame, re.S)
     assert source is not None and html.unescape(source.group(1)) == page.html
@@ -93,7 +93,7 @@ def test_a_rigged_model_and_arrays_are_inputs():
     import deform
 
     model = deform.default_arm()
-    page = jaxcga.view(model, grid(3), clip="wave")
+    page = deform.view(model, grid(3), clip="wave")
     assert [m["kind"] for m in page.meshes] == ["skinned", "static"]
     assert page.meshes[0]["vertexCount"] == model.mesh.num_vertices and page.clips[0]["name"] == "wave"
     assert deform.load_model(_glb(model)).mesh.num_vertices == model.mesh.num_vertices
@@ -127,7 +127,7 @@ def test_groups_give_each_vertex_its_first_triangles_group_and_keep_pieces_apart
         read_arrays([(V, F, np.array([0, 1])), (V, F, np.array([0, -1]))], "bad", "inputs[0]")
     with pytest.raises(ValueError, match=r"inputs\[0\]\[1\]: expected a \(V, F, groups\) triple"):
         read_arrays([(V, F, np.array([0, 1])), (V, F)], "mixed", "inputs[0]")
-    page = jaxcga.view([(V, F, np.array([0, 1]))])
+    page = deform.view([(V, F, np.array([0, 1]))])
     assert page.meshes[0]["vertexCount"] == 6
 
 
@@ -198,4 +198,4 @@ def _bad_inputs(tmp_path):
 def test_bad_inputs_name_the_argument_and_the_file(tmp_path):
     for inputs, options, message in _bad_inputs(tmp_path):
         with pytest.raises(ValueError, match=message):
-            jaxcga.view(*inputs, **options)
+            deform.view(*inputs, **options)

@@ -18,7 +18,6 @@ import pytest
 import trimesh
 
 import deform
-import jaxcga
 from _jaxcga_shared.mesh import bounding_diagonal
 from tests.shared import tube
 
@@ -26,7 +25,7 @@ DATA = Path(__file__).resolve().parents[1] / "data"
 BACKGROUND = np.array([242, 242, 240])  # the page's background colour, 0xf2f2f0
 
 
-def _show(browser, page: jaxcga.View, folder: Path, name: str = "view.html") -> dict:
+def _show(browser, page: deform.View, folder: Path, name: str = "view.html") -> dict:
     """Save ``page``, load it, and return its state once ready, with no error."""
     path = page.save(folder / name)
     state = browser.open(path)
@@ -40,7 +39,7 @@ def _drawn_fraction(browser) -> float:
     return float((np.abs(image - BACKGROUND).max(axis=-1) > 12).mean())
 
 
-def _compare_counts(state: dict, page: jaxcga.View) -> None:
+def _compare_counts(state: dict, page: deform.View) -> None:
     """The page's meshes are those Python read and wrote (counts from three.js's geometry against Python's)."""
     shown = [{k: m[k] for k in ("name", "kind", "vertexCount", "triangleCount", "source")} for m in state["meshes"]]
     assert shown == list(page.meshes)
@@ -49,7 +48,7 @@ def _compare_counts(state: dict, page: jaxcga.View) -> None:
 @pytest.mark.parametrize("name", ["CesiumMan", "RiggedSimple"])
 def test_a_skinned_gltf_plays_as_deform_skins_it(browser, tmp_path, name):
     path = DATA / f"{name}.glb"
-    page = jaxcga.view(path)
+    page = deform.view(path)
     state = _show(browser, page, tmp_path)
     model = deform.load_model(path)
     _compare_counts(state, page)
@@ -78,7 +77,7 @@ def test_a_gltf_with_its_bin_is_embedded(browser, tmp_path):
     file beside it."""
     model = deform.load_model(DATA / "RiggedSimple.glb")
     deform.save_model(model, tmp_path / "simple.gltf")
-    page = jaxcga.view(tmp_path / "simple.gltf")
+    page = deform.view(tmp_path / "simple.gltf")
     (tmp_path / "simple.bin").unlink()
     state = _show(browser, page, tmp_path)
     _compare_counts(state, page)
@@ -88,9 +87,9 @@ def test_a_gltf_with_its_bin_is_embedded(browser, tmp_path):
 
 
 def test_a_rigged_model_is_shown_through_its_glb(browser, tmp_path):
-    """``jaxcga.view(model)`` of a RiggedModel in memory (``to_glb``): deform's writer, three.js's reader."""
+    """``deform.view(model)`` of a RiggedModel in memory (``to_glb``): deform's writer, three.js's reader."""
     model = deform.default_arm()
-    page = jaxcga.view(model)
+    page = deform.view(model)
     state = _show(browser, page, tmp_path)
     assert state["meshes"][0]["vertexCount"] == model.mesh.num_vertices
     assert [c["name"] for c in state["clips"]] == [c.name for c in model.clips]
@@ -105,7 +104,7 @@ def test_a_rigged_model_is_shown_through_its_glb(browser, tmp_path):
 def test_gltfs_side_by_side_each_play_their_clip(browser, tmp_path):
     """Three glTFs laid out along x without overlap; a clip name plays in every glTF that has it, the others rest."""
     paths = [DATA / "CesiumMan.glb", DATA / "RiggedSimple.glb", DATA / "CesiumMan.glb"]
-    page = jaxcga.view(*paths)
+    page = deform.view(*paths)
     state = _show(browser, page, tmp_path)
     _compare_counts(state, page)
     assert [c["name"] for c in state["clips"]] == ["Anim_0", "animation_0"]
@@ -141,7 +140,7 @@ def test_an_npy_sequence_plays_its_frames(browser, tmp_path):
     np.save(tmp_path / "frames.npy", frames)
     trimesh.Trimesh(V, F, process=False).export(tmp_path / "tube.ply")
     fps = 10.0
-    page = jaxcga.view(tmp_path / "frames.npy", mesh=tmp_path / "tube.ply", fps=fps)
+    page = deform.view(tmp_path / "frames.npy", mesh=tmp_path / "tube.ply", fps=fps)
     state = _show(browser, page, tmp_path)
     _compare_counts(state, page)
     assert state["meshes"][0]["kind"] == "sequence" and state["interpolation"] == "linear"
@@ -163,7 +162,7 @@ def test_npy_files_of_single_frames_form_one_sequence(browser, tmp_path):
     for k, frame in enumerate(frames):
         files.append(tmp_path / f"frame{k}.npy")
         np.save(files[-1], frame)
-    page = jaxcga.view(*files, mesh=(V, F), fps=1.0)
+    page = deform.view(*files, mesh=(V, F), fps=1.0)
     state = _show(browser, page, tmp_path)
     assert len(state["meshes"]) == 1 and state["duration"] == pytest.approx(2.0)
     diag = bounding_diagonal(frames.reshape(-1, 3))
@@ -209,7 +208,7 @@ def test_vtu_frames_of_tets_and_of_breaking_triangles(browser, tmp_path):
     for k, name in enumerate(["a", "a", "b"]):
         (tmp_path / "broken" / f"frame_{k:04d}.vtu").write_bytes((tmp_path / f"{name}.vtu").read_bytes())
 
-    page = jaxcga.view(run, tmp_path / "broken", fps=1.0)
+    page = deform.view(run, tmp_path / "broken", fps=1.0)
     state = _show(browser, page, tmp_path)
     _compare_counts(state, page)
     cube = state["meshes"][0]
@@ -225,7 +224,7 @@ def test_vtu_frames_of_tets_and_of_breaking_triangles(browser, tmp_path):
 
 
 def test_a_list_of_meshes_plays_as_frames_whose_triangles_change(browser, tmp_path):
-    """``jaxcga.view([(V0, F0), (V1, F1), ...])``, as notebook 07 shows an XFEM run: one frame per pair, the
+    """``deform.view([(V0, F0), (V1, F1), ...])``, as notebook 07 shows an XFEM run: one frame per pair, the
     triangles switching where the pieces change; each triangle given with its own three vertices (as XFEM writes
     them), the vertices that coincide in every frame of a topology are drawn once."""
     V, F = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0]], float), np.array([[0, 1, 2], [1, 3, 2]])
@@ -233,7 +232,7 @@ def test_a_list_of_meshes_plays_as_frames_whose_triangles_change(browser, tmp_pa
     apart = np.concatenate([lifted[F[0]], lifted[F[1]] + [0.2, 0.2, 0]])  # three vertices each, apart
     own = np.arange(6).reshape(2, 3)
     # (the last frame's triangles are listed from another corner: a new topology, whose corners do not coincide)
-    page = jaxcga.view([(V[F].reshape(6, 3), own), (lifted[F].reshape(6, 3), own), (apart, own[:, [1, 2, 0]])], fps=2.0)
+    page = deform.view([(V[F].reshape(6, 3), own), (lifted[F].reshape(6, 3), own), (apart, own[:, [1, 2, 0]])], fps=2.0)
     state = _show(browser, page, tmp_path)
     _compare_counts(state, page)
     assert state["meshes"][0]["vertexCount"] == 4  # the shared edge's two corners merged
@@ -256,12 +255,12 @@ def test_groups_of_triangles_are_drawn_in_their_own_colours(browser, tmp_path):
     apart = np.concatenate([V[F[0]], V[F[1]] + [0.5, 0.5, 0]])  # two triangles, three vertices each
     own = np.arange(6).reshape(2, 3)
     frames = [(apart, own, np.array([0, 1])), (apart + [0.0, 0.0, 0.5], own, np.array([0, 1]))]
-    state = _show(browser, jaxcga.view(frames, fps=1.0), tmp_path)
+    state = _show(browser, deform.view(frames, fps=1.0), tmp_path)
     assert state["duration"] == 1.0 and state["meshes"][0]["vertexCount"] == 6
     np.testing.assert_allclose(browser.positions(0, 1.0), apart + [0.0, 0.0, 0.5], rtol=0, atol=1e-4 * 2)
     brown, blue = _tinted(browser)
     assert brown > 0.01 and blue > 0.01
-    _show(browser, jaxcga.view([(V, F) for V, F, _ in frames], fps=1.0), tmp_path, "plain.html")
+    _show(browser, deform.view([(V, F) for V, F, _ in frames], fps=1.0), tmp_path, "plain.html")
     brown, blue = _tinted(browser)
     assert brown > 0.01 and blue == 0.0
 
@@ -270,7 +269,7 @@ def test_skin_weights_of_a_joint_and_the_skeleton(browser, tmp_path):
     model = deform.load_model(DATA / "CesiumMan.glb")
     j = 3
     name = model.skeleton.names[model.mesh.joints[j]]
-    page = jaxcga.view(DATA / "CesiumMan.glb", joint=name)
+    page = deform.view(DATA / "CesiumMan.glb", joint=name)
     state = _show(browser, page, tmp_path)
     assert state["joint"] == name
     J, W = np.asarray(model.mesh.J), np.asarray(model.mesh.W)
@@ -293,7 +292,7 @@ def test_skin_weights_of_a_joint_and_the_skeleton(browser, tmp_path):
 
 def test_playing_advances_time_and_loops(browser, tmp_path):
     _, F, frames = _wave(4)
-    state = _show(browser, jaxcga.view((frames, F), fps=20.0), tmp_path)  # a 0.15 s clip: loops several times a second
+    state = _show(browser, deform.view((frames, F), fps=20.0), tmp_path)  # a 0.15 s clip: loops several times a second
     assert state["playing"] and state["duration"] == pytest.approx(0.15)
     seen, times, end = set(), [], time.monotonic() + 20
     while not (len(seen) > 1 and any(b < a for a, b in zip(times, times[1:]))) and time.monotonic() < end:
@@ -326,7 +325,7 @@ def _corrupt(html: str, block: int, text: Callable[[str], str]) -> str:
     ],
 )
 def test_a_corrupted_glb_page_shows_its_error(browser, tmp_path, make, message):
-    page = jaxcga.view(DATA / "RiggedSimple.glb")
+    page = deform.view(DATA / "RiggedSimple.glb")
     path = tmp_path / "broken.html"
     path.write_text(make(page.html))
     state = browser.open(path)
@@ -337,7 +336,7 @@ def test_a_corrupted_glb_page_shows_its_error(browser, tmp_path, make, message):
 
 def test_a_corrupted_sequence_page_shows_its_error(browser, tmp_path):
     V, F, frames = _wave(3)
-    page = jaxcga.view((frames, F))
+    page = deform.view((frames, F))
     path = tmp_path / "broken.html"
     path.write_text(_corrupt(page.html, 1, lambda b: b[: 4 * (len(b) // 8)]))  # half of the positions
     state = browser.open(path)
@@ -358,7 +357,7 @@ def test_the_outputs_of_skin_fem_and_xfem_are_shown(browser, tmp_path):
     xfem_run = tmp_path / "xfem"
     assert main(["xfem", "cheese", "--size", "small", "--steps", "3", "--no-figures", "--out", str(xfem_run)]) == 0
     posed = np.load(tmp_path / "posed.npy")
-    page = jaxcga.view(tmp_path / "posed.npy", tmp_path / "fem", xfem_run, mesh=model)
+    page = deform.view(tmp_path / "posed.npy", tmp_path / "fem", xfem_run, mesh=model)
     state = _show(browser, page, tmp_path)
     _compare_counts(state, page)
     assert [m["kind"] for m in state["meshes"]] == ["static", "sequence", "sequence"]
@@ -373,7 +372,7 @@ def test_the_outputs_of_skin_fem_and_xfem_are_shown(browser, tmp_path):
 def test_the_notebook_form_renders_in_its_sandboxed_iframe(browser, tmp_path):
     """``_repr_html_`` (what Jupyter shows): the same page in an iframe that may run scripts and nothing else;
     a textured glTF (its image decoded from the embedded data) loads there too."""
-    page = jaxcga.view(DATA / "CesiumMan.glb")
+    page = deform.view(DATA / "CesiumMan.glb")
     host = tmp_path / "notebook.html"
     host.write_text(f"<!DOCTYPE html><html><body><p>a notebook cell</p>{page._repr_html_()}</body></html>")
     browser.driver.get(host.as_uri())
@@ -392,14 +391,22 @@ def test_the_notebook_form_renders_in_its_sandboxed_iframe(browser, tmp_path):
 
 
 @pytest.mark.slow  # the whole demo (compilations, cut, tear, drill): about a minute
-def test_the_demo_page_plays_the_arm_cut_torn_and_drilled(browser, tmp_path):
+def test_the_demo_page_plays_the_arm_cut_torn_and_drilled(browser, tmp_path, capsys):
     from jaxcga_cli.main import main
 
     assert main(["demo", "--out", str(tmp_path), "--no-figure"]) == 0
+    assert capsys.readouterr().err == ""  # the demo tells its own story: no other command's status lines
     state = browser.open(tmp_path / "demo.html")
     assert state["errors"] == [] and state["ready"], state["errors"]
     names = ["default_arm", "arm_cut_upper", "arm_cut_lower", "arm_torn.glb", "arm_drilled.glb"]
     assert [m["name"] for m in state["meshes"]] == names and {m["kind"] for m in state["meshes"]} == {"skinned"}
+    # each model's name under it, left to right as they stand, inside the drawing area, which they fill
+    labels = state["labels"]
+    width, height = browser.screenshot().shape[1], browser.screenshot().shape[0] - 64
+    assert [label["name"] for label in labels] == names
+    xs = [label["x"] for label in labels]
+    assert xs == sorted(xs) and all(0 < label["x"] < width and 0 < label["y"] < height for label in labels)
+    assert xs[-1] - xs[0] > 0.6 * width  # the middles of the first and last models' boxes
     assert [c["name"] for c in state["clips"]] == ["wave"] and state["playing"]
     # every piece plays the arm's clip; the whole models equal deform's skinning of the files written
     models = [deform.default_arm(), *(deform.load_model(tmp_path / name) for name in names[3:])]

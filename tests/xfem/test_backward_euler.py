@@ -306,6 +306,40 @@ def test_newton_direction_is_exact_on_small_systems_and_cg_on_large_ones(monkeyp
     assert np.all(np.isfinite(x))
 
 
+def test_factored_direction_is_the_true_newton_direction_or_descends():
+    """The factored direction (a character's Newton steps): CG on the true Hessian preconditioned by the factored
+    projected one. Where the true Hessian is positive definite it is the true Newton direction; where it is
+    indefinite along the first direction, the projected Newton direction; either way it descends."""
+    from xfem._backward_euler import _host_factored_direction  # internal: the host solve of one Newton direction
+
+    rng = np.random.default_rng(5)
+    n = 40
+    Q = np.linalg.qr(rng.normal(size=(n, n)))[0]
+    projected = Q @ np.diag(rng.uniform(1.0, 3.0, n)) @ Q.T  # P, positive definite
+    csr = sp.csr_matrix(np.ones((n, n)))  # one dense pattern for both matrices
+    b = rng.normal(size=n)
+
+    def direction(true, rtol=1e-12):
+        return _host_factored_direction(projected[csr.nonzero()], true[csr.nonzero()], b, rtol, csr.indptr, csr.indices)
+
+    # true = P plus a low-rank positive definite change: CG converges to the true Newton direction
+    low_rank = rng.normal(size=(n, 3))
+    true = projected - 0.4 * (low_rank @ low_rank.T) / np.linalg.norm(low_rank, 2) ** 2
+    assert np.linalg.eigvalsh(true).min() > 0
+    np.testing.assert_allclose(direction(true), np.linalg.solve(true, b), rtol=1e-9, atol=1e-12)
+    # indefinite along P^-1 b itself: the projected Newton direction
+    first = np.linalg.solve(projected, b)
+    unit = first / np.linalg.norm(first)
+    indefinite = projected - 10 * (unit @ projected @ unit) * np.outer(unit, unit)
+    assert unit @ indefinite @ unit < 0
+    np.testing.assert_allclose(direction(indefinite), first, rtol=1e-12)
+    # indefinite elsewhere: CG stops where it meets the negative curvature, with a descent direction
+    other = np.linalg.qr(np.stack([first, rng.normal(size=n)], axis=1))[0][:, 1]
+    mixed = projected - 5 * np.outer(other, other)
+    x = direction(mixed)
+    assert b @ x > 0 and np.all(np.isfinite(x))  # b = -grad E: a descent direction
+
+
 @pytest.mark.slow  # 16 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 def test_padded_system_steps_like_the_real_one():
     """A system padded to a capacity (extra free and fixed nodes, zero-weight elements, zero mass entries and CSR

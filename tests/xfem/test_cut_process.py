@@ -12,12 +12,14 @@ import pickle
 import sys
 from typing import Any
 
+import jax
 import manifold3d
 import numpy as np
 import pytest
 
 # the worker process, its framing and the mesh packing are internal to BackgroundCuts: tested here directly
 import xfem._background
+from _jaxcga_shared.host import to_devices
 from tests.xfem._models import MATERIAL, RHO, G, H, plane, tall_box
 from xfem import BackgroundCuts, xfem_model
 from xfem._background import _ENTRY
@@ -126,6 +128,27 @@ def test_replica_replays_earlier_cuts_and_direct_cuts():
     assert outside.done() and len(remote.cuts) == 4
     _assert_same(remote, inline)
     background.close()
+
+
+def test_the_worker_builds_its_systems_on_the_host_without_a_process_flag():
+    """The worker's reply holds the padded system in numpy arrays (the parent puts it on its device), equal to the
+    model's own padded system and level; built so by its arguments: this process's arrays still go to the device."""
+    replica, model = _models()
+    for m in (replica, model):
+        m.cut(plane(**CUTS[0]))
+    report, _, (arrays, n, system, level) = xfem._background.replica_cut(
+        replica, solid_mesh(plane(**CUTS[1])), 0.0, True, True, sent_system_bytes=1 << 40
+    )
+    model.cut(plane(**CUTS[1]))
+    padded = model.padded_system()
+    assert system is not None and level == padded.level and n == len(model.dof_sid)
+    leaves, expected = jax.tree.leaves(system), jax.tree.leaves(padded.system)
+    assert all(type(leaf) is np.ndarray for leaf in leaves)
+    assert all(isinstance(leaf, jax.Array) for leaf in expected)
+    assert jax.tree.structure(system) == jax.tree.structure(padded.system)
+    for got, want in zip(leaves, expected):
+        np.testing.assert_array_equal(got, np.asarray(want))
+    assert isinstance(to_devices(np.ones(2))[0], jax.Array)
 
 
 @pytest.mark.slow  # 22 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes

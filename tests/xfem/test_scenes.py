@@ -7,13 +7,15 @@ the cross cut (Fig. 1), the octopus's jaw drops (Fig. 8)."""
 
 import dataclasses
 import sys
+import threading
 
 import manifold3d
 import numpy as np
 import pytest
 import trimesh
 
-from xfem import SCENES, boundary_faces, embed_points, piece_surfaces, run_scene, scene
+from jaxcga_cli.scene_runs import run_scene
+from xfem import SCENES, boundary_faces, embed_points, piece_surfaces, scene
 
 # the scenes' mean edge length (Table 1's parameter) has no public API
 from xfem._scenes import average_edge
@@ -186,6 +188,8 @@ def test_cut_latency_equals_the_cuts_done_later():
     short = run_scene(sc, steps=1, cut_latency=latency)
     first = sum(c.frame == 1 for c in sc.cuts)  # the vertical cuts: 6 slabs
     assert sum(r.cuts for r in short.records) == first and short.model.pieces() == short.records[-1].pieces == 6
+    # each run closed its background cuts: no cut thread is left (their worker processes end with them)
+    assert not [t.name for t in threading.enumerate() if t.name.startswith("xfem-cut")]
     with pytest.raises(ValueError, match="cut_latency"):
         run_scene(sc, steps=1, cut_latency=-1)
 
