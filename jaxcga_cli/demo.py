@@ -294,5 +294,5 @@ def demo(out: Path, steps: int, figure: bool) -> None:
             f"{summary['frame_ms']:.2f} ms per frame -> {summary['out']}"
         )
     if figure:
-        path = ffd_figure(V, F, *results, (ratios[0], ratios[1]), out / "arm_ffd.png")
+        path = ffd_figure(V, F, results[0], results[1], (ratios[0], ratios[1]), out / "arm_ffd.png")
         print(f"  figure: classic and motor FFD, their volumes and cross-sections -> {path}")

@@ -12,11 +12,20 @@ import json
 import re
 import struct
 from pathlib import Path
+from typing import TypeVar
 
 import numpy as np
 import pygltflib
 import pytest
 import trimesh
+
+T = TypeVar("T")
+
+
+def given(value: T | None) -> T:
+    """A glTF field the file must give (pygltflib types every field as optional)."""
+    assert value is not None, "the file lacks a field it must give"
+    return value
 
 
 def read_gltf(path: str | Path) -> pygltflib.GLTF2:

@@ -623,7 +623,7 @@ def character_body(
     if isinstance(driven, str):
         driven_nodes = np.arange(len(X))
     elif driven is None:
-        driven_nodes = _hold_loose_parts(inside.any(axis=1), surface, F, embedding.nodes)
+        driven_nodes = _hold_loose_parts(np.asarray(inside.any(axis=1)), surface, F, embedding.nodes)
     else:
         driven_nodes = np.asarray(driven)
         if (

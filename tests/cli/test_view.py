@@ -11,7 +11,7 @@ import pytest
 
 import deform
 from jaxcga_cli.main import main
-from tests.shared import tube
+from tests.shared import given, read_gltf, tube
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 
@@ -54,12 +54,10 @@ def test_a_file_the_viewer_cannot_show_is_one_line_naming_it(tmp_path, capsys):
 
 def _nan_position_glb(path: Path) -> Path:
     """RiggedSimple.glb with its first vertex's x a NaN (the binary chunk edited in place)."""
-    import pygltflib
-
-    gltf = pygltflib.GLTF2().load(str(DATA / "RiggedSimple.glb"))
-    blob = bytearray(gltf.binary_blob())
-    accessor = gltf.accessors[gltf.meshes[0].primitives[0].attributes.POSITION]
-    start = (gltf.bufferViews[accessor.bufferView].byteOffset or 0) + (accessor.byteOffset or 0)
+    gltf = read_gltf(DATA / "RiggedSimple.glb")
+    blob = bytearray(given(gltf.binary_blob()))
+    accessor = gltf.accessors[given(gltf.meshes[0].primitives[0].attributes.POSITION)]
+    start = (gltf.bufferViews[given(accessor.bufferView)].byteOffset or 0) + (accessor.byteOffset or 0)
     blob[start : start + 4] = np.float32(np.nan).tobytes()
     gltf.set_binary_blob(bytes(blob))
     gltf.save(str(path))
@@ -72,7 +70,7 @@ def _gltf_without_its_bin(path: Path) -> Path:
 
     import pygltflib
 
-    gltf = pygltflib.GLTF2().load(str(DATA / "RiggedSimple.glb"))
+    gltf = read_gltf(DATA / "RiggedSimple.glb")
     gltf.convert_buffers(pygltflib.BufferFormat.DATAURI)  # in memory: BINFILE would write beside the .glb
     document = json.loads(gltf.gltf_to_json())
     document["buffers"][0]["uri"] = f"{path.stem}.bin"

@@ -356,4 +356,4 @@ def test_progress_reports_every_iteration_with_its_energy_and_residual(arm):
     assert seen[-1][2] == pytest.approx(float(result.residual), rel=1e-12)
     np.testing.assert_allclose(np.asarray(result.U), np.asarray(plain.U), rtol=0, atol=1e-10)
     with pytest.raises(ValueError, match="progress: expected None or a function, got int"):
-        arap_solve(data, jnp.asarray(bc), progress=3)
+        arap_solve(data, jnp.asarray(bc), progress=3)  # pyright: ignore[reportArgumentType]

@@ -7,7 +7,6 @@ import shutil
 import struct
 import subprocess
 from pathlib import Path
-from typing import TypeVar
 
 import jax
 import jax.numpy as jnp
@@ -18,10 +17,9 @@ import trimesh
 
 from deform import SkinnedMesh, load_model, rest_pose, save_model, skin_model, weld
 from tests.deform._gltf_reference import Reference
-from tests.shared import load_character, read_gltf
+from tests.shared import given, load_character, read_gltf
 
 DATA = Path(__file__).resolve().parents[1] / "data"
-T = TypeVar("T")
 MODELS = ["Arm5", "3Cylinder4bones", "PlaneWith3Bones", "RiggedSimple", "CesiumMan"]
 # (vertices, faces, joints, bones = joints + non-joint ancestors, clips)
 COUNTS = {
@@ -65,12 +63,6 @@ def _assert_same(a, b):
         np.testing.assert_array_equal(x, y)
 
 
-def _given(value: T | None) -> T:
-    """A field the file must give (pygltflib types every field as optional)."""
-    assert value is not None
-    return value
-
-
 def _trimesh_counts(path):
     scene = trimesh.load(path, process=False)
     assert isinstance(scene, trimesh.Scene)
@@ -96,18 +88,18 @@ def test_counts_against_trimesh_and_pygltflib(name):
     reference = Reference(path)
     gltf = reference.gltf
     (skin,) = gltf.skins
-    assert [skeleton.names[i] for i in mesh.joints] == [gltf.nodes[i].name for i in _given(skin.joints)]
+    assert [skeleton.names[i] for i in mesh.joints] == [gltf.nodes[i].name for i in given(skin.joints)]
     ibm = reference.accessor(skin.inverseBindMatrices)
     np.testing.assert_array_equal(mesh.inverse_bind, ibm.reshape(j, 4, 4).transpose(0, 2, 1))
     np.testing.assert_allclose(np.asarray(mesh.W).sum(axis=1), 1.0, atol=1e-2)
     for clip, anim in zip(model.clips, gltf.animations):
         assert len(clip.channels) == len(anim.channels)  # every channel of these files animates a bone
         for channel, raw in zip(clip.channels, anim.channels):
-            assert skeleton.names[channel.bone] == gltf.nodes[_given(raw.target.node)].name
+            assert skeleton.names[channel.bone] == gltf.nodes[given(raw.target.node)].name
             assert channel.path == raw.target.path
             times = gltf.accessors[anim.samplers[raw.sampler].input]
             assert channel.times.shape == (times.count,)
-            assert float(channel.times[0]) == _given(times.min)[0] and float(channel.times[-1]) == _given(times.max)[0]
+            assert float(channel.times[0]) == given(times.min)[0] and float(channel.times[-1]) == given(times.max)[0]
 
 
 def test_skeleton_order_and_non_joint_ancestors():
@@ -156,11 +148,11 @@ def test_round_trip_is_exact(tmp_path, name, suffix):
     assert all((view.byteOffset or 0) % 4 == 0 for view in gltf.bufferViews)
     assert sum(view.byteLength for view in gltf.bufferViews) <= gltf.buffers[0].byteLength
     primitive = gltf.meshes[0].primitives[0]
-    position = gltf.accessors[_given(primitive.attributes.POSITION)]
+    position = gltf.accessors[given(primitive.attributes.POSITION)]
     np.testing.assert_array_equal(position.min, np.asarray(first.mesh.V).min(axis=0))
-    assert gltf.bufferViews[_given(position.bufferView)].target == pygltflib.ARRAY_BUFFER
-    indices = gltf.accessors[_given(primitive.indices)]
-    assert gltf.bufferViews[_given(indices.bufferView)].target == pygltflib.ELEMENT_ARRAY_BUFFER
+    assert gltf.bufferViews[given(position.bufferView)].target == pygltflib.ARRAY_BUFFER
+    indices = gltf.accessors[given(primitive.indices)]
+    assert gltf.bufferViews[given(indices.bufferView)].target == pygltflib.ELEMENT_ARRAY_BUFFER
 
 
 # ------------------------------------------------------------------------------------------ FBX via assimp

@@ -136,9 +136,11 @@ def test_the_worker_builds_its_systems_on_the_host_without_a_process_flag():
     replica, model = _models()
     for m in (replica, model):
         m.cut(plane(**CUTS[0]))
-    report, _, (arrays, n, system, level) = xfem._background.replica_cut(
+    report, _, reply = xfem._background.replica_cut(
         replica, solid_mesh(plane(**CUTS[1])), 0.0, True, True, sent_system_bytes=1 << 40
     )
+    assert reply is not None  # a delta's reply (delta=True) holds the system
+    arrays, n, system, level = reply
     model.cut(plane(**CUTS[1]))
     padded = model.padded_system()
     assert system is not None and level == padded.level and n == len(model.dof_sid)
