@@ -62,6 +62,7 @@ TUNING = [(rows, warps) for rows in (256, 512, 1024, 2048) for warps in (4, 8)]
 
 
 def _matrix_unrolled(a, x):
+    a = a.reshape((1,) * (x.ndim + 1 - a.ndim) + a.shape)  # one matrix for all points: its batch axes explicit
     return a[..., 0] * x[..., 0:1] + a[..., 1] * x[..., 1:2] + a[..., 2] * x[..., 2:3] + a[..., 3]
 
 

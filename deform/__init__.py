@@ -57,8 +57,8 @@ from deform._fitting import (
     random_parameters,
     skin_parameters,
 )
-from deform._gltf import convert_with_assimp, load_model, weld
-from deform._gltf_write import GLTF_OUTPUTS, buffer_file, save_model, save_models
+from deform._gltf import convert_with_assimp, load_model, save_model, save_models, weld
+from deform._gltf_write import GLTF_OUTPUTS, buffer_file
 from deform._handles import handles_precompute
 from deform._harmonic import (
     LAPLACIANS,

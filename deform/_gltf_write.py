@@ -1,7 +1,7 @@
-"""Rigged-model output: glTF 2.0 writing (``.glb``, or ``.gltf`` with its ``.bin``), as the specification's
-sections "Binary Data Storage", "Skins", "Animations" and "GLB File Format Specification" lay it out; the reader is
-``deform._gltf``. It needs the model's bundles only for their types, so that ``RiggedModel.to_glb`` can call it
-without an import cycle. Everything here runs on the host with numpy.
+"""The glTF 2.0 writer: a model's files (``.glb``, or ``.gltf`` with its ``.bin``), laid out as the specification's
+sections "Binary Data Storage", "Skins", "Animations" and "GLB File Format Specification" say; ``deform.save_model``
+(in ``deform._gltf``, with the reader) writes them. It needs the model's bundles only for their types, so that
+``RiggedModel.to_glb`` can call it without an import cycle. Everything here runs on the host with numpy.
 """
 
 from __future__ import annotations
@@ -10,13 +10,10 @@ import json
 import os
 import struct
 import urllib.parse
-from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-
-from _jaxcga_shared.output import write_files
 
 if TYPE_CHECKING:
     from deform._model import AnimationClip, RiggedModel, SkinnedMesh
@@ -141,64 +138,6 @@ def buffer_file(path: str | Path, what: str = "path") -> Path | None:
             "(move it away or choose another name)"
         )
     return bin_path
-
-
-def save_model(model: RiggedModel, path: str | Path) -> None:
-    """Write a RiggedModel as glTF 2.0: ``.glb``, or ``.gltf`` with a sibling ``<stem>.bin``.
-
-    Bones become nodes 0..b-1 (name, translation, rotation, scale, children); a mesh node named
-    ``model.name`` at the scene root, without a transform, holds one mesh with one primitive per
-    ``mesh.primitive_sizes`` entry (one when empty) and the skin (``joints`` = ``mesh.joints``,
-    ``inverseBindMatrices``). Attributes: POSITION (float, with min/max), indices (UNSIGNED_INT),
-    JOINTS_s (UNSIGNED_SHORT) and WEIGHTS_s (FLOAT), one set per 4 influences (k is padded to a
-    multiple of 4 with zero weights). Every clip with channels becomes an animation (a clip without
-    channels is not written: glTF animations need one); samplers keep their interpolation.
-
-    Buffer data (V, W, inverse_bind, key times and values) is written as float32: a float64 model is
-    rounded once, a model read from a file round-trips exactly. Node TRS go into the JSON at full
-    double precision. Reading back gives the bones in depth-first order, which is the order of every
-    loaded skeleton; another topological order comes back reordered.
-
-    The file (and a .gltf's buffer) is written to a temporary file beside it and renamed into place when
-    complete (``_jaxcga_shared.output.replacing``): a failed write leaves an existing file as it was.
-
-    Args:
-        model: RiggedModel with mesh V (n, 3), F (m, 3), J (n, k), W (n, k), inverse_bind (j, 4, 4),
-            skeleton translation (b, 3), rotation (b, 4), scale (b, 3), clips' times (t,) and values
-            (t, d) or (t, 3, d).
-        path: str or Path ending in ``.glb`` or ``.gltf``.
-    Returns:
-        None; the file is in place.
-    Raises:
-        ValueError: wrong suffix; ``mesh.joints`` repeats a bone (two inverse bind matrices for one
-            node cannot be one glTF skin); non-finite values; key times not increasing in float32;
-            faces crossing ``primitive_sizes``; an empty primitive; a ``<stem>.bin`` beside a .gltf
-            ``path`` that is not that file's buffer (``buffer_file``).
-        OSError: the file cannot be written (an existing one is left as it was).
-    """
-    write_files(model_files(model, path))
-
-
-def save_models(models: Mapping[str | Path, RiggedModel]) -> None:
-    """Write several RiggedModels, ``{path: model}``, as one unit (the two halves of a cut): every file is written
-    beside its target first, and none replaces an existing file unless all were written.
-
-    Args:
-        models: ``{path: model}``, each as ``save_model``'s ``path`` and ``model``; two paths that name the same
-            file are refused.
-    Returns:
-        None; every file is in place.
-    Raises:
-        ValueError: as ``save_model``, for any of the models; two paths naming the same file.
-        OSError: a file cannot be written (every existing one is left as it was).
-    """
-    files: dict[Path, bytes | str] = {}
-    for path, model in models.items():
-        for file, data in model_files(model, path).items():
-            if any(os.path.realpath(file) == os.path.realpath(other) for other in files):
-                raise ValueError(f"models: {file} is written twice; give each model its own file name")
-            files[file] = data
-    write_files(files)
 
 
 def model_files(model: RiggedModel, path: str | Path) -> dict[Path, bytes | str]:

@@ -328,7 +328,7 @@ def _blend_motors_in_xla(V, J, W, table: Float[Array, "... j 9"], *, cpu: bool) 
     # No explicit normalization: the generated point map of M up(x) ~M divides by the eo row, the
     # scalar part of M ~M, and the e123inf part of M ~M does not reach points, so the unnormalized
     # blend moves points exactly as ``jaxcga.normalize(M)`` does (tested), inside one fused loop.
-    coordinates = fused_point_coordinates(blended, V * scale[..., None], blended.batch_shape)
+    coordinates = fused_point_coordinates(blended, lift_rank(V, scale.ndim + 1) * scale[..., None], blended.batch_shape)
     return _coordinates_last(coordinates, cpu=cpu)
 
 
@@ -447,7 +447,7 @@ def _blend_dual_quaternions(V, J, W, d: Float[Array, "... j 8"], *, cpu: bool) -
     w, x, y, z = (b[..., i] for i in range(4))
     dw, dx, dy, dz = (b[..., 4 + i] for i in range(4))
     inv = 1.0 / (w * w + x * x + y * y + z * z)
-    vx, vy, vz = (V[:, i].astype(d.dtype) for i in range(3))
+    vx, vy, vz = (lift_rank(V[:, i].astype(d.dtype), w.ndim) for i in range(3))
     # Rotation by the unnormalized real part and translation 2 q_d q_r^*, both divided by |q_r|^2;
     # written per component (no stacked temporaries) so that XLA fuses the whole vertex loop.
     out_x = (w * w + x * x - y * y - z * z) * vx + 2 * (x * y - w * z) * vy + 2 * (x * z + w * y) * vz

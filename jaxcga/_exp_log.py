@@ -23,6 +23,7 @@ from collections.abc import Callable, Sequence
 import jax.numpy as jnp
 from jaxtyping import Array, Bool, Float
 
+from _jaxcga_shared.broadcast import lift_rank
 from _jaxcga_shared.checks import require
 from _jaxcga_shared.platform import EXACT
 from jaxcga import _algebra as alg
@@ -301,7 +302,7 @@ def _v_matrix(lam: Float[Array, "*batch"], w: Float[Array, "... 3"]) -> Float[Ar
         ],
         -2,
     )
-    eye = jnp.eye(3, dtype=w.dtype)
+    eye = lift_rank(jnp.eye(3, dtype=w.dtype), a0.ndim + 2)
     return a0[..., None, None] * eye + a1[..., None, None] * W + a2[..., None, None] * jnp.matmul(W, W, precision=EXACT)
 
 

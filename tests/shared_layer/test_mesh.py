@@ -25,7 +25,7 @@ def test_signed_volume_of_a_box_a_reversed_one_and_a_batch():
     Vs = np.asarray(sphere.vertices)
     np.testing.assert_allclose(signed_volume(jnp.asarray(Vs), np.asarray(sphere.faces)), sphere.volume, rtol=1e-12)
     scales = jnp.asarray([1.0, 2.0, 0.5])
-    batch = scales[:, None, None] * jnp.asarray(V)
+    batch = scales[:, None, None] * jnp.asarray(V)[None]
     np.testing.assert_allclose(jax.jit(signed_volume)(batch, F), 4.0 * scales**3, rtol=1e-12)
     # d volume / d V is the area-weighted vertex normal / 3: a uniform scale s changes it by 3 s^2 V0
     grad = jax.grad(lambda s: signed_volume(s * jnp.asarray(V), F))(1.0)
