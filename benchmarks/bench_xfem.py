@@ -14,8 +14,8 @@ step's solve), step max and average (a cut frame's time is its cuts plus its ste
 Timing. Each scene runs twice in one process: a warm-up run through its last cut (it compiles the step at
 every capacity level the cuts reach; ``XFEMModel`` pads its systems to capacity levels, so a cut within a level
 reuses the compiled step), then the timed run of ``--steps`` frames (default: the scene's), once the warm-up's
-background compilation of the next level up has ended (``wait_for_compilations``: it would run into the timed
-frames and take much of their CPU). The warm-up's slowest frame (with compilation) is
+background compilation of the next level up has ended (the runs share one ``CompiledSteps``; ``wait``: it would run
+into the timed frames and take much of their CPU). The warm-up's slowest frame (with compilation) is
 reported as ``SCENE_cold_max_s``. dPsi and CG are timed after the run on the final (padded) system and state:
 the median of 5 calls of the step's gradient and Newton matrix (``_gradient_and_matrix``), and of its host solve of the
 Newton system there (``_host_newton_direction``: CHOLMOD up to 1,000 unknowns, as on sticks,
@@ -96,7 +96,8 @@ from _report import RATIO_UNIT, add_json_argument, print_device, write_json  # n
 # times the step's internal kernels (energy, Newton direction) one by one
 import xfem._backward_euler as be  # noqa: E402
 from jaxcga_cli.scene_runs import run_scene  # noqa: E402
-from xfem import (  # noqa: E402  # noqa: E402
+from xfem import (  # noqa: E402
+    CompiledSteps,
     Material,  # noqa: E402
     cut_system,
     plane_cut_solid,  # noqa: E402
@@ -104,7 +105,6 @@ from xfem import (  # noqa: E402  # noqa: E402
     rollout,  # noqa: E402
     rxfem_schedule,
     scene,
-    wait_for_compilations,  # noqa: E402
     xfem_model,  # noqa: E402
 )
 from xfem._capacity import padded_state  # noqa: E402
@@ -226,15 +226,16 @@ def run(size: str, steps: int | None, scenes=SCENES, cuts_in_background: bool = 
     for name in scenes:
         sc = scene(name, size)
         mu, lam = sc.material.lame()
-        warm = run_scene(sc, steps=sc.last_cut_frame + 2)
+        compiled_steps = CompiledSteps()  # the warm-up run compiles what the timed run steps
+        warm = run_scene(sc, steps=sc.last_cut_frame + 2, compiled_steps=compiled_steps)
         cold_max = max(r.seconds for r in warm.records)
         # the warm-up's last step starts compiling the level above its last one in a background thread (seconds
         # of CPU, a step of its own never needs): finished here, not in the timed frames
-        wait_for_compilations()
+        compiled_steps.wait()
         gc.collect()
         gc.freeze()
         frames = steps if steps is not None else sc.steps
-        timed = run_scene(sc, steps=frames)
+        timed = run_scene(sc, steps=frames, compiled_steps=compiled_steps)
         summary = timed.summary()
         cut_max = max((r.seconds for r in timed.records if r.cuts), default=0.0)
         # the step alone on cut frames: no compilation, the cut's cost does not leak into the step
@@ -316,7 +317,7 @@ def run(size: str, steps: int | None, scenes=SCENES, cuts_in_background: bool = 
             f"({summary['boolean_ms']:.3f} ms per Boolean; target <= 0.5 ms)"
         )
         if cuts_in_background:
-            async_figures, async_units = _background(sc, frames, paper["step_avg_s"])
+            async_figures, async_units = _background(sc, frames, paper["step_avg_s"], compiled_steps)
             figures |= async_figures
             units |= async_units
             ratios[f"{name}_async_step_avg_vs_paper"] = paper["step_avg_s"] / figures[f"{name}_async_step_avg_s"]
@@ -353,10 +354,11 @@ def _table2_run(sc, frames: int) -> dict:
     """One method's Table 2 figures on scene ``sc``: a warm-up run through its last cut (compiling the step at
     every capacity level), then the timed run of ``frames`` frames and the dPsi / CG breakdown on its final system."""
     warm_frames = (sc.last_cut_frame if sc.cuts else 0) + 2
-    run_scene(sc, steps=warm_frames)
-    wait_for_compilations()
+    compiled_steps = CompiledSteps()  # the warm-up run compiles what the timed run steps
+    run_scene(sc, steps=warm_frames, compiled_steps=compiled_steps)
+    compiled_steps.wait()
     gc.collect()
-    timed = run_scene(sc, steps=frames)
+    timed = run_scene(sc, steps=frames, compiled_steps=compiled_steps)
     summary = timed.summary()
     mu, lam = sc.material.lame()
     dpsi, cg = _breakdown(timed.model, sc.h, mu, lam)
@@ -437,14 +439,14 @@ def rxfem_run(size: str, steps: int | None, scenes=RXFEM_SCENES):
     return {"figures": figures, "ratios": ratios, "units": units | ratio_units}
 
 
-def _background(sc, frames: int, paper_step_avg_s: float) -> tuple[dict, dict]:
+def _background(sc, frames: int, paper_step_avg_s: float, compiled_steps) -> tuple[dict, dict]:
     """A third run of scene ``sc`` after the timed one, its cuts computed in the cut worker process while the body
     steps: the ``SCENE_async_*`` figures and their units."""
     name = sc.name
-    wait_for_compilations()
+    compiled_steps.wait()
     gc.collect()  # the timed run's objects too, as after the warm-up
     gc.freeze()
-    background = run_scene(sc, steps=frames, cut_latency=LATENCY[name])
+    background = run_scene(sc, steps=frames, cut_latency=LATENCY[name], compiled_steps=compiled_steps)
     asummary = background.summary()
     slowest = max((r for r in background.records if r.cutting or r.cuts), key=lambda r: r.seconds)
     acut_max = slowest.seconds

@@ -21,7 +21,7 @@ import jax
 import manifold3d
 import numpy as np
 
-from xfem import BackgroundCuts, Scene, ScheduledCut, XFEMModel
+from xfem import BackgroundCuts, CompiledSteps, Scene, ScheduledCut, XFEMModel
 
 
 @dataclass
@@ -116,6 +116,7 @@ def run_scene(
     steps: int | None = None,
     on_frame: Callable[[FrameRecord, XFEMModel], None] | None = None,
     cut_latency: int = 0,
+    compiled_steps: CompiledSteps | None = None,
 ) -> SceneRun:
     """Simulate a scene: in each frame its scheduled cuts (Algorithm 1 lines 1-25), then one backward Euler step.
 
@@ -132,8 +133,10 @@ def run_scene(
             cuts started but not yet due at the end take effect after the last step.
         on_frame: None, or called after every frame with its ``FrameRecord`` and the model.
         cut_latency: L >= 0, in frames.
+        compiled_steps: None (the run's model compiles its own steps), or a ``CompiledSteps`` shared by several
+            runs of the scene (a benchmark's warm-up run compiles what the timed run steps).
     Returns:
-        The ``SceneRun``.
+        The ``SceneRun``; its model is the caller's to close (``run.model.close()``).
     Raises:
         ValueError: bad steps. RuntimeError: non-finite positions after a step.
     """
@@ -144,7 +147,7 @@ def run_scene(
         raise ValueError(f"steps: expected an int >= 1, got {steps!r}")
     if not isinstance(cut_latency, int) or isinstance(cut_latency, bool) or cut_latency < 0:
         raise ValueError(f"cut_latency: expected an int >= 0 (frames), got {cut_latency!r}")
-    model = scene.model()
+    model = scene.model(compiled_steps)
     run = SceneRun(scene, model)
     background = BackgroundCuts(model) if cut_latency else None
     if background is not None:  # its start (imports, the model's replica) is not a frame's work

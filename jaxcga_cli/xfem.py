@@ -288,8 +288,10 @@ def xfem_command(
                     write(record.frame, model)
                 progress.step()
 
-            write(0, sc.model())
+            with sc.model() as first:  # frame 0's model, closed once written
+                write(0, first)
             run = run_scene(sc, steps, on_frame=on_frame, cut_latency=cut_latency)
+            run.model.close()  # its threads: the cuts' Booleans, the next level's compilation
         summary: dict[str, object] = dict(run.summary())
         summary.update(
             {

@@ -41,7 +41,7 @@ from xfem._backward_euler import (
     fem_system,
     mechanical_energy,
 )
-from xfem._capacity import wait_for_compilations
+from xfem._capacity import CompiledSteps
 from xfem._character import CharacterMotion, CharacterSegment, simulate_character
 from xfem._character_body import CharacterBody, character_body, transfer_weights
 from xfem._character_reduced import CharacterSubspace, character_subspace
@@ -96,6 +96,7 @@ from xfem._tetmesh import (
 from xfem._xfem import XFEMModel, xfem_model
 
 __all__ = [
+    "CompiledSteps",
     "CharacterBody",
     "CharacterMotion",
     "CharacterSegment",
@@ -141,7 +142,6 @@ __all__ = [
     "PlaneCutSimulation",
     "plane_cut_simulation",
     "simulate",
-    "wait_for_compilations",
     "xfem_model",
     "AssemblyPattern",
     "CapacityError",

@@ -295,13 +295,14 @@ def serve() -> None:
         reply("error", portable(error))
         return
     reply("ready", None)
-    while True:
-        try:
-            message = decode(*read_frame(inbox))
-        except EOFError:
-            return
-        try:
-            reply("ok", replica_cut(model, *message, sent_system_bytes=init["sent_system_bytes"]))
-        except BaseException as error:  # noqa: BLE001
-            reply("error", portable(error))
-            return
+    with model:  # its Boolean threads end with the worker
+        while True:
+            try:
+                message = decode(*read_frame(inbox))
+            except EOFError:
+                return
+            try:
+                reply("ok", replica_cut(model, *message, sent_system_bytes=init["sent_system_bytes"]))
+            except BaseException as error:  # noqa: BLE001
+                reply("error", portable(error))
+                return

@@ -4,13 +4,14 @@ A cut changes the sizes of the system (DOFs, element pieces, mass entries, nonze
 specialised to sizes. So the steps run the system padded to a capacity level: level 0 is ``_HEADROOM`` times the
 uncut model's sizes (at least ``_FLOOR``), each level ``_GROWTH`` times the one below. A cut that stays within the
 level reuses the compiled step; the step of the next level up is compiled in a background thread meanwhile, so that
-the cut that moves the model there finds it ready. Compiled steps are shared by every model in the process
-(``_COMPILED``, keyed by capacity, Newton iterations and the material's shapes).
+the cut that moves the model there finds it ready. Compiled steps are kept by a ``CompiledSteps`` (keyed by capacity,
+Newton iterations and the material's shapes) that the model owns, or that models of one mesh share.
 """
 
 from __future__ import annotations
 
 import threading
+from collections import OrderedDict
 from typing import NamedTuple
 
 import numpy as np
@@ -25,6 +26,9 @@ _GROWTH = 1.5  # capacity growth per level: few levels, each padding the system 
 # the smallest capacities (nodes, elements, mass entries, nonzeros): a small model's first cuts stay in level 0,
 # and its padded step costs little (benchmarks/README.md, "XFEM: capacity levels")
 _FLOOR = (128, 128, 1024, 9 * 1024)
+# compiled steps a CompiledSteps keeps: a model uses its level and the next one up per set of step options, so a few
+# levels and option sets stay compiled while an unbounded cache would keep every executable of a long session
+_STEPS_KEPT = 8
 
 
 class PaddedSystem(NamedTuple):
@@ -121,61 +125,116 @@ class _Compilation:
             self.ready.set()
 
 
-# compiled steps by (capacity, newton iterations, shapes of the material's parameters), for every model in the process
-_COMPILED: dict[tuple, _Compilation] = {}
-_COMPILED_LOCK = threading.Lock()
+class CompiledSteps:
+    """The compiled steps of ``XFEMModel.step`` by capacity level and options, and the threads compiling the next
+    level's step beside the steps. A model owns one (``xfem_model`` makes it, ``XFEMModel.close`` closes it);
+    models of one mesh may share one (``xfem_model(..., steps=...)``): their steps then compile once. It keeps at
+    most ``limit`` steps (the least recently used is dropped: each holds an executable and its padded system's
+    buffers). ``close()`` waits for the compile threads and drops every step; a closed one compiles nothing more.
+    A context manager: ``with CompiledSteps() as steps: ...`` closes it at the end.
 
-
-def wait_for_compilations() -> None:
-    """Wait until every step compiling in a background thread (the next capacity level's, ``XFEMModel.step``)
-    is ready. A compilation takes seconds of CPU beside the steps; a benchmark calls this after its warm-up run
-    so that the warm-up's last compilation does not run into the timed frames.
-
-    Returns:
-        None, once no background compilation is running.
+    Args:
+        limit: the steps kept at most, >= 1.
     """
-    with _COMPILED_LOCK:
-        threads = [entry.thread for entry in _COMPILED.values() if entry.thread is not None]
-    for thread in threads:
-        thread.join()
 
+    def __init__(self, limit: int = _STEPS_KEPT):
+        if isinstance(limit, bool) or not isinstance(limit, int) or limit < 1:
+            raise ValueError(f"limit: expected an int >= 1, got {limit!r}")
+        self.limit = limit
+        self._entries: OrderedDict[tuple, _Compilation] = OrderedDict()
+        self._lock = threading.Lock()  # held briefly: a compilation in one thread must not stall another's lookups
+        self._closed = False
 
-def compiled(
-    capacities: Capacities,
-    padded: PaddedSystem,
-    level: int,
-    h,
-    material: Material,
-    newton_iterations: int,
-    background: bool,
-):
-    """The step compiled for capacity ``level`` (``compiled_step``), shared through ``_COMPILED``: found there, or
-    compiled now (``background=False``), or compiled in a background thread that the step needing it will wait for
-    (``background=True``; returns None). ``padded``: the system it is for (a level above ``padded.level`` pads
-    ``padded.arrays`` anew; nothing is compiled in the background for a level the system does not fit)."""
-    capacity = capacities.capacity(level)
-    key = (capacity, newton_iterations, np.shape(material.young), np.shape(material.poisson), material.damping is None)
-    system = padded.system if level == padded.level else None
-    with _COMPILED_LOCK:  # held briefly: a compilation in one thread must not stall another's lookups
-        entry = _COMPILED.get(key)
-        created = entry is None
+    def __enter__(self) -> CompiledSteps:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    @property
+    def closed(self) -> bool:
+        """Whether ``close`` was called."""
+        return self._closed
+
+    def __len__(self) -> int:
+        return len(self._entries)
+
+    def wait(self) -> None:
+        """Wait until every step compiling in a background thread (the next capacity level's) is ready: a
+        compilation takes seconds of CPU beside the steps (a benchmark waits after its warm-up run, so that the
+        warm-up's last compilation does not run into the timed frames)."""
+        with self._lock:
+            threads = [entry.thread for entry in self._entries.values() if entry.thread is not None]
+        for thread in threads:
+            thread.join()
+
+    def close(self) -> None:
+        """Wait for the compile threads, then drop every compiled step (idempotent)."""
+        self._closed = True
+        self.wait()
+        with self._lock:
+            self._entries.clear()
+
+    def compiled(
+        self,
+        capacities: Capacities,
+        padded: PaddedSystem,
+        level: int,
+        h,
+        material: Material,
+        newton_iterations: int,
+        background: bool,
+    ):
+        """The step compiled for capacity ``level`` (``compiled_step``): found here, or compiled now
+        (``background=False``), or compiled in a background thread that the step needing it will wait for
+        (``background=True``; returns None). ``padded``: the system it is for (a level above ``padded.level`` pads
+        ``padded.arrays`` anew; nothing is compiled in the background for a level the system does not fit)."""
+        if self._closed:
+            raise ValueError("steps: the CompiledSteps (or the model owning them) is closed")
+        capacity = capacities.capacity(level)
+        key = (
+            capacity,
+            newton_iterations,
+            np.shape(material.young),
+            np.shape(material.poisson),
+            material.damping is None,
+        )
+        system = padded.system if level == padded.level else None
+        with self._lock:
+            entry = self._entries.get(key)
+            created = entry is None
+            if created:
+                if background and not capacities.fits(level, padded.arrays, padded.n):
+                    return None
+                entry = self._entries[key] = _Compilation()
+                self._evict()
+                if background:  # never run a step here: two steps' host callbacks at once can deadlock XLA
+                    entry.thread = threading.Thread(
+                        target=entry.build,
+                        args=(padded.arrays, capacity, h, material, newton_iterations, system),
+                        name="xfem-compile",
+                    )
+                    entry.thread.start()  # not a daemon: XLA must not be cut off at exit
+            else:
+                self._entries.move_to_end(key)
+        if background:
+            return None
         if created:
-            if background and not capacities.fits(level, padded.arrays, padded.n):
-                return None
-            entry = _COMPILED[key] = _Compilation()
-            if background:  # never run a step here: two steps' host callbacks at once can deadlock XLA
-                entry.thread = threading.Thread(
-                    target=entry.build, args=(padded.arrays, capacity, h, material, newton_iterations, system)
-                )
-                entry.thread.start()  # not a daemon: XLA must not be cut off at exit
-    if background:
-        return None
-    if created:
-        entry.build(padded.arrays, capacity, h, material, newton_iterations, system)
-    entry.ready.wait()
-    if entry.step is None:  # its background build failed (e.g. too few nonzeros): build it here
-        entry.build(padded.arrays, capacity, h, material, newton_iterations, system)
-    return entry.step
+            entry.build(padded.arrays, capacity, h, material, newton_iterations, system)
+        entry.ready.wait()
+        if entry.step is None:  # its background build failed (e.g. too few nonzeros): build it here
+            entry.build(padded.arrays, capacity, h, material, newton_iterations, system)
+        return entry.step
+
+    def _evict(self) -> None:
+        """Drop the least recently used steps beyond ``limit`` (not one compiling in the background, nor the one
+        just added; under the lock)."""
+        for key in list(self._entries)[:-1]:
+            if len(self._entries) <= self.limit:
+                return
+            entry = self._entries[key]
+            if entry.thread is None or entry.ready.is_set():
+                del self._entries[key]
 
 
 def padded_state(state: State, n: int, nodes: int) -> State:

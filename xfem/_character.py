@@ -444,7 +444,7 @@ def simulate_character(
     model = xfem_model(
         body.tets, body.density, body.gravity, fixed=body.driven, state=start_state, anchors=body.anchors
     )
-    with jax.ensure_compile_time_eval():  # host work, also under eager jax.grad
+    with model, jax.ensure_compile_time_eval():  # host work, also under eager jax.grad; the model's threads end
         stages, replay = _stages(model, body, solids, [(f, *c) for f, _, _, c in planes])
     report("cuts", len(stages) - 1, len(stages) - 1)
     systems = None

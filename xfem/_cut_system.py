@@ -427,7 +427,12 @@ def _plane_cuts(model: XFEMModel, cuts, after_cut: Callable[[int, XFEMModel], No
     checked = [_entry(entry, f"[{k}]" if len(cuts) > 1 else "") for k, entry in enumerate(cuts)]
     if all(entry[0] is None for entry in checked):
         raise ValueError("cuts: expected at least one (point, normal, epsilon)")
-    copy = _copy(model)
+    with _copy(model) as copy:  # its Boolean threads end with the cuts; the pieces stay for host queries
+        return _cut_copy(copy, cuts, checked, after_cut)
+
+
+def _cut_copy(copy: XFEMModel, cuts: list, checked: list, after_cut) -> PlaneCuts:
+    """``_plane_cuts`` on the model's copy."""
     tet_volume = np.asarray(tet_volumes(copy.X, copy.T))
     table = _Table()
     programs: dict[int, list[tuple[int, ...]]] = {}  # replayed piece sid -> faces

@@ -66,7 +66,7 @@ from jaxtyping import Float, Int
 
 from _jaxcga_shared.checks import check_real
 from xfem._backward_euler import State, SystemCapacity
-from xfem._capacity import _FLOOR, _GROWTH, _HEADROOM, Capacities, PaddedSystem
+from xfem._capacity import _FLOOR, _GROWTH, _HEADROOM, Capacities, CompiledSteps, PaddedSystem
 from xfem._cuts import cut_solid
 from xfem._scenes import Scene, ScheduledCut
 from xfem._subdomains import CutReport, MeshSolid, check_cut, solid_mesh
@@ -186,11 +186,12 @@ class RXFEMModel(XFEMModel):
         gravity: Float[np.ndarray, " 3"],
         fixed: Int[np.ndarray, " nb"],
         state: State,
+        steps: CompiledSteps | None = None,
     ):
         self.rules: dict[int, np.ndarray] = {}
         self.solids: list[manifold3d.Manifold] = []
         self._body: manifold3d.Manifold | None = None
-        super().__init__(mesh, rho, gravity, fixed, state)
+        super().__init__(mesh, rho, gravity, fixed, state, steps)
         nodes, rows, entries, nonzeros = self._capacities.base
         self._capacities = _RowCapacities((nodes, rows, entries, nonzeros))
 
@@ -312,6 +313,7 @@ def rxfem_model(
     gravity: Float[npt.ArrayLike, " 3"] = (0.0, 0.0, -9.81),
     fixed: Int[npt.ArrayLike, " nb"] = (),
     state: State | None = None,
+    steps: CompiledSteps | None = None,
 ) -> RXFEMModel:
     """An uncut body for the RXFEM baseline (Koschier et al. 2017; ``xfem._rxfem``): one DOF per node, one
     element row per tet, as ``xfem_model``.
@@ -322,19 +324,20 @@ def rxfem_model(
         gravity: (3,) gravitational acceleration.
         fixed: (nb,) int mesh nodes held in place; () for none.
         state: the initial ``State`` over the n nodes (float64); None: at rest in the rest positions.
+        steps: None, or a shared ``CompiledSteps`` (``xfem_model``).
     Returns:
-        The ``RXFEMModel``.
+        The ``RXFEMModel`` (close it when done, as an ``XFEMModel``).
     """
-    return RXFEMModel(*model_arguments(mesh, density, gravity, fixed, state))
+    return RXFEMModel(*model_arguments(mesh, density, gravity, fixed, state), steps=steps)
 
 
 @dataclasses.dataclass(frozen=True)
 class RXFEMScene(Scene):
     """A ``Scene`` whose ``model`` is an ``RXFEMModel`` (a scene run then runs the RXFEM baseline)."""
 
-    def model(self) -> RXFEMModel:
-        """A fresh uncut ``RXFEMModel`` of the scene, at rest."""
-        return rxfem_model(self.mesh, self.density, self.gravity, self.fixed)
+    def model(self, steps: CompiledSteps | None = None) -> RXFEMModel:
+        """A fresh uncut ``RXFEMModel`` of the scene, at rest (``steps``: as ``Scene.model``)."""
+        return rxfem_model(self.mesh, self.density, self.gravity, self.fixed, steps=steps)
 
 
 def rxfem_schedule(scene: Scene) -> tuple[Scene, RXFEMScene, tuple[ScheduledCut, ...]]:

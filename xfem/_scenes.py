@@ -61,6 +61,7 @@ import jaxcga as cga
 from _jaxcga_shared.checks import check_choice
 from _jaxcga_shared.mesh import TET_FACES
 from _jaxcga_shared.tetmeshing import optional_tetgen
+from xfem._capacity import CompiledSteps
 from xfem._cuts import cut_solid, plane_cut_solid, sweep_between, swept_surface
 from xfem._integration import linear_shape_coefficients
 from xfem._material import Material
@@ -144,9 +145,14 @@ class Scene:
     def last_cut_frame(self) -> int:
         return max(c.frame for c in self.cuts)
 
-    def model(self) -> XFEMModel:
-        """A fresh uncut ``XFEMModel`` of the scene, at rest."""
-        return xfem_model(self.mesh, self.density, self.gravity, self.fixed)
+    def model(self, steps: CompiledSteps | None = None) -> XFEMModel:
+        """A fresh uncut ``XFEMModel`` of the scene, at rest (close it when done).
+
+        Args:
+            steps: None (the model compiles its own steps), or a ``CompiledSteps`` the scene's runs share (a
+                second run then compiles nothing).
+        """
+        return xfem_model(self.mesh, self.density, self.gravity, self.fixed, steps=steps)
 
 
 def average_edge(mesh: TetMesh) -> float:

@@ -38,11 +38,11 @@ h (a rotation by ``h / size`` about its box centre and a translation of length h
 
 from __future__ import annotations
 
-import functools
+import contextlib
 import itertools
 import os
 import time
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import Executor, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import NamedTuple
 
@@ -59,7 +59,7 @@ from xfem._tetmesh import TetMesh, node_rings
 _RELATIVE_VOLUME = 1e-12
 # the cores this process may run on, at least 2 (CI's) and at most 8: a cut's ~2,000 Booleans make ~70 tasks
 _CORES = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 2
-_BOOLEAN_THREADS = min(8, max(2, _CORES))
+BOOLEAN_THREADS = min(8, max(2, _CORES))  # a cut's Boolean threads (XFEMModel's pool)
 _BOOLEAN_CHUNK = 32  # subdomains per task
 # attempts of the gentle perturbation before giving up, and the alignment distance relative to the motion
 _PERTURB_TRIES = 16
@@ -511,10 +511,10 @@ def _difference(solid: manifold3d.Manifold, cut: manifold3d.Manifold):
     return [p for p, v in zip(pieces, volumes) if v > tiny]
 
 
-def _differences(sids: list[int], solid_of, cut: manifold3d.Manifold, tally: list, parallel: bool) -> list:
+def _differences(sids: list[int], solid_of, cut: manifold3d.Manifold, tally: list, pool: Executor | None) -> list:
     """``_difference`` of the solids of the subdomains sids (built on first use by ``solid_of``), in parallel
-    on ``_BOOLEAN_THREADS`` threads (manifold3d releases the GIL) or in this thread; ``tally`` ([count, seconds])
-    counts them and their wall time (with the building of the solids)."""
+    on the ``pool``'s threads (manifold3d releases the GIL) or, pool None, in this thread; ``tally`` ([count,
+    seconds]) counts them and their wall time (with the building of the solids)."""
     start = time.perf_counter()
 
     def difference(sid):
@@ -523,21 +523,16 @@ def _differences(sids: list[int], solid_of, cut: manifold3d.Manifold, tally: lis
     def differences(chunk):
         return [difference(sid) for sid in chunk]
 
-    if not parallel or len(sids) < 2 * _BOOLEAN_CHUNK:
+    if pool is None or len(sids) < 2 * _BOOLEAN_CHUNK:
         results = differences(sids)
     else:
         # a task per chunk: ThreadPoolExecutor.map ignores its chunksize, and a future per Boolean cost about a
         # quarter of the Booleans' wall time
         chunks = [sids[k : k + _BOOLEAN_CHUNK] for k in range(0, len(sids), _BOOLEAN_CHUNK)]
-        results = list(itertools.chain.from_iterable(_booleans().map(differences, chunks)))
+        results = list(itertools.chain.from_iterable(pool.map(differences, chunks)))
     tally[0] += len(sids)
     tally[1] += time.perf_counter() - start
     return results
-
-
-@functools.cache
-def _booleans() -> ThreadPoolExecutor:
-    return ThreadPoolExecutor(_BOOLEAN_THREADS, thread_name_prefix="xfem-boolean")
 
 
 def _cut_kind(
@@ -547,12 +542,12 @@ def _cut_kind(
     cut: manifold3d.Manifold,
     tally: list,
     children: dict[int, tuple[int, ...]],
-    parallel: bool,
+    pool: Executor | None,
 ) -> tuple[list[int], list[int]]:
     """Algorithm 1 lines 2-8 (or 12-17) for the given owners: the owners met and those split."""
     met, split = [], []
     sids = [sid for owner in owners for sid in kind.live[owner]]
-    results = dict(zip(sids, _differences(sids, solid_of, cut, tally, parallel)))
+    results = dict(zip(sids, _differences(sids, solid_of, cut, tally, pool)))
     for owner in owners:
         old = kind.live[owner]
         new_live, hit = [], False
@@ -633,7 +628,12 @@ def check_cut(cut: manifold3d.Manifold, perturb: float) -> None:
 
 
 def apply_cut(
-    sub: Subdomains, cut: manifold3d.Manifold, perturb: float = 0.0, seed: int = 0, parallel: bool = True
+    sub: Subdomains,
+    cut: manifold3d.Manifold,
+    perturb: float = 0.0,
+    seed: int = 0,
+    parallel: bool = True,
+    pool: Executor | None = None,
 ) -> CutReport:
     """Cut all subdomains by one cut solid (Algorithm 1 lines 1-19), in place.
 
@@ -644,8 +644,11 @@ def apply_cut(
             surface, move the cut by a random rigid motion of size h (sec. 6.1, gentle perturbation);
             ValueError if still aligned after 16 tries.
         seed: seed of the perturbation's random motions.
-        parallel: run the Booleans on ``_BOOLEAN_THREADS`` threads; False: in the calling thread (a cut in the
-            background leaves the other core to the steps).
+        parallel: run the Booleans on several threads: ``pool``'s, or without one ``BOOLEAN_THREADS`` threads of
+            this call's own (ended before it returns); False: in the calling thread (a cut in the background leaves
+            the other core to the steps).
+        pool: None, or the ``concurrent.futures.Executor`` to run the Booleans on (``XFEMModel``'s, which it
+            owns and closes).
     Returns:
         The ``CutReport``.
     """
@@ -672,6 +675,14 @@ def apply_cut(
             motion = np.concatenate([R, t[:, None]], axis=1)
             cut = original.transform(motion)
             boxed, candidates = _candidates(sub, cut)
+    with contextlib.ExitStack() as stack:
+        if parallel and pool is None:  # a pool of this call's own, ended before it returns
+            pool = stack.enter_context(ThreadPoolExecutor(BOOLEAN_THREADS, thread_name_prefix="xfem-boolean"))
+        return _split(sub, cut, boxed, candidates, motion, pool if parallel else None)
+
+
+def _split(sub: Subdomains, cut, boxed, candidates, motion, pool: Executor | None) -> CutReport:
+    """``apply_cut`` after the cut's placement: the subdomains split, on ``pool``'s threads (None: this one)."""
     tally = [0, 0.0]  # Booleans and their seconds
     element_children: dict[int, tuple[int, ...]] = {}
     node_children: dict[int, tuple[int, ...]] = {}
@@ -679,14 +690,14 @@ def apply_cut(
     sub._build_initial((), candidates.tolist())
     tally[1] += time.perf_counter() - start
     met, elements_split = _cut_kind(
-        sub._elements, candidates.tolist(), sub.element_solid, cut, tally, element_children, parallel
+        sub._elements, candidates.tolist(), sub.element_solid, cut, tally, element_children, pool
     )
     elements_touched = np.asarray(met, np.int64)
     nodes_touched = np.unique(sub.T[elements_touched]) if met else np.zeros(0, np.int64)
     start = time.perf_counter()
     sub._build_initial(nodes_touched.tolist(), ())
     tally[1] += time.perf_counter() - start
-    _, nodes_split = _cut_kind(sub._nodes, nodes_touched.tolist(), sub.node_solid, cut, tally, node_children, parallel)
+    _, nodes_split = _cut_kind(sub._nodes, nodes_touched.tolist(), sub.node_solid, cut, tally, node_children, pool)
     return CutReport(
         boxed,
         candidates,

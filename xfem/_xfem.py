@@ -38,6 +38,7 @@ import dataclasses
 import itertools
 import time
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple
 
 import igl
@@ -53,11 +54,12 @@ from scipy.sparse.csgraph import connected_components
 from _jaxcga_shared.checks import check_positive, check_real
 from xfem._assembly import sorted_unique
 from xfem._backward_euler import FEMSystem, State, fem_system
-from xfem._capacity import Capacities, PaddedSystem, compiled, padded_state
+from xfem._capacity import Capacities, CompiledSteps, PaddedSystem, padded_state
 from xfem._integration import element_piece_integrals, linear_shape_coefficients, moments_of_pieces
 from xfem._linear_tet import shape_gradients
 from xfem._material import Material
 from xfem._subdomains import (
+    BOOLEAN_THREADS,
     CutReport,
     MeshSolid,
     Subdomains,
@@ -171,6 +173,10 @@ class XFEMModel:
         state: the ``State`` over the DOFs; ``step`` and the cuts keep it in host (numpy) arrays, which the
             compiled step takes at little cost (a device copy per step costs more than a small body's step).
         cuts: the cuts made so far, in order: (the cut solid's ``MeshSolid``, perturb, parallel).
+
+    A model owns threads: its cuts' Boolean thread pool and, unless given shared ones, its ``CompiledSteps`` (with
+    the threads compiling the next capacity level's step). ``close()`` ends them; a closed model neither cuts in
+    parallel nor steps. A context manager: ``with xfem_model(...) as model: ...`` closes it at the end.
     """
 
     def __init__(
@@ -180,6 +186,7 @@ class XFEMModel:
         gravity: Float[np.ndarray, " 3"],
         fixed: Int[np.ndarray, " nb"],
         state: State,
+        steps: CompiledSteps | None = None,
     ):
         self.mesh = mesh
         self.sub: Subdomains = subdomains(mesh)
@@ -213,6 +220,46 @@ class XFEMModel:
         _, _, _, M, _, _ = self._system_arrays()
         # capacity level 0 is the uncut model's sizes (nodes, elements, mass entries, nonzeros) with headroom
         self._capacities = Capacities((len(self.X), len(self.T), M.nnz, 9 * M.nnz))
+        self._owns_steps = steps is None
+        self._steps = CompiledSteps() if steps is None else steps
+        self._pool: ThreadPoolExecutor | None = None  # the cuts' Booleans, made by the first parallel cut
+        self._closed = False
+
+    # ---------------------------------------------------------------------------------------------------
+    # the threads it owns
+
+    def __enter__(self) -> XFEMModel:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """End the model's threads: shut its Boolean pool down and close its own ``CompiledSteps`` (waiting for
+        the compilations running); shared steps are left to their owner. Idempotent."""
+        self._closed = True
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
+            self._pool = None
+        if self._owns_steps:
+            self._steps.close()
+
+    @property
+    def closed(self) -> bool:
+        """Whether ``close`` was called."""
+        return self._closed
+
+    def wait_for_compilations(self) -> None:
+        """Wait until the step compiling in the background (the next capacity level's, ``step``) is ready: a
+        compilation takes seconds of CPU beside the steps (a benchmark waits after its warm-up run)."""
+        self._steps.wait()
+
+    def _booleans(self) -> ThreadPoolExecutor:
+        if self._closed:
+            raise ValueError("model: closed (XFEMModel.close); make a new model to cut")
+        if self._pool is None:
+            self._pool = ThreadPoolExecutor(BOOLEAN_THREADS, thread_name_prefix="xfem-boolean")
+        return self._pool
 
     # ---------------------------------------------------------------------------------------------------
     # pieces
@@ -388,7 +435,7 @@ class XFEMModel:
             solid = solid_mesh(solid)
         built = solid.build()
         check_cut(built, perturb)
-        report = apply_cut(self.sub, built, perturb, parallel=parallel)
+        report = apply_cut(self.sub, built, perturb, parallel=parallel, pool=self._booleans() if parallel else None)
         self._piece_cache = None
         self.cuts.append((solid, float(perturb), bool(parallel)))
         touched = report.elements_touched
@@ -510,7 +557,7 @@ class XFEMModel:
             raise ValueError(f"newton_iterations: expected an int >= 1, got {newton_iterations!r}")
         padded = self.padded_system()
         options = (h, material, int(newton_iterations))
-        step = compiled(self._capacities, padded, padded.level, *options, background=False)
+        step = self._steps.compiled(self._capacities, padded, padded.level, *options, background=False)
         # compiled(background=False) returns the step (built here if its background build failed)
         stepped = step(padded.system, padded_state(self.state, padded.n, padded.system.n), h, material)  # pyright: ignore[reportOptionalCall]
         # host views of the result, sliced (a JAX slice would compile anew for every DOF count)
@@ -520,7 +567,7 @@ class XFEMModel:
             jax.tree.map(np.asarray, stepped.stats),
         )
         self._step_options = options
-        compiled(self._capacities, padded, padded.level + 1, *options, background=True)
+        self._steps.compiled(self._capacities, padded, padded.level + 1, *options, background=True)
         return self.state
 
     # ---------------------------------------------------------------------------------------------------
@@ -604,7 +651,7 @@ class XFEMModel:
             result = PaddedSystem(system, level, arrays, n)
         options = self._step_options
         if options is not None:
-            compiled(self._capacities, result, result.level, *options, background=False)
+            self._steps.compiled(self._capacities, result, result.level, *options, background=False)
         return result
 
     # ---------------------------------------------------------------------------------------------------
@@ -715,8 +762,10 @@ def xfem_model(
     fixed: Int[npt.ArrayLike, " nb"] = (),
     state: State | None = None,
     anchors: Int[npt.ArrayLike, " na"] | None = None,
+    steps: CompiledSteps | None = None,
 ) -> XFEMModel:
-    """An uncut XFEM model: one DOF per node (its 1-ring), one piece per tet.
+    """An uncut XFEM model: one DOF per node (its 1-ring), one piece per tet. It owns threads: close it
+    (``XFEMModel.close``, or ``with xfem_model(...) as model:``) when done.
 
     Args:
         mesh: the ``TetMesh``.
@@ -726,10 +775,14 @@ def xfem_model(
         state: the initial ``State`` over the n nodes (float64); None: at rest in the rest positions.
         anchors: None (every fixed DOF stays fixed), or (na,) int nodes among ``fixed``: after cuts, only the pieces
             holding a DOF of an anchor keep their fixed DOFs fixed (``XFEMModel.anchors``).
+        steps: None (the model compiles and owns its steps), or a ``CompiledSteps`` shared with other models of
+            this mesh (their steps then compile once; its owner closes it).
     Returns:
         The ``XFEMModel``.
     """
-    model = XFEMModel(*model_arguments(mesh, density, gravity, fixed, state))
+    if steps is not None and not isinstance(steps, CompiledSteps):
+        raise ValueError(f"steps: expected None or an xfem.CompiledSteps, got {type(steps).__name__}")
+    model = XFEMModel(*model_arguments(mesh, density, gravity, fixed, state), steps=steps)
     if anchors is not None:
         anchors = np.asarray(anchors).reshape(-1)
         if (

@@ -5,6 +5,7 @@ times the body's volume minus the volume of the cut inside it (manifold3d's Bool
 separates and its free part falls with g."""
 
 import logging
+import threading
 from concurrent.futures import Future
 
 import jax
@@ -18,13 +19,13 @@ from tests.shared import assert_same_run
 from tests.xfem._models import EPS, MATERIAL, NORMAL, POINT, RHO, G, H, deformed_state, plane, random_points, tall_box
 from xfem import (
     BackgroundCuts,
+    CompiledSteps,
     State,
     backward_euler_step,
     boundary_faces,
     box_tets,
     fem_from_mesh,
     five_tet_cube,
-    wait_for_compilations,
     xfem_model,
 )
 
@@ -181,6 +182,55 @@ def test_bad_input():
         xfem_model(mesh, RHO).displacement_at(np.zeros((2, 2)), np.zeros(2, int))
 
 
+def test_models_own_their_threads_and_runs_interleave():
+    """Two models stepped and cut in interleaved order in one process give what each gives alone; after close()
+    no thread of theirs remains (the cuts' Boolean pool, the next level's compilation) and a closed model refuses
+    to step; models sharing a bounded ``CompiledSteps`` compile once and keep at most its limit."""
+    earlier = set(threading.enumerate())  # other tests' models may still compile
+    mesh = tall_box()
+    fixed = np.flatnonzero(np.asarray(mesh.X)[:, 2] > 1.5 - 1e-9)
+    cuts = {"a": plane(), "b": plane(point=(0.5, 0.5, 0.9), normal=(0.03, 0.05, 1.0))}
+
+    def alone(name):
+        with xfem_model(mesh, RHO, gravity=G, fixed=fixed) as model:
+            model.step(H, MATERIAL)
+            model.cut(cuts[name])
+            model.step(H, MATERIAL)
+            return np.array(model.state.x)
+
+    expected = {name: alone(name) for name in cuts}
+    a = xfem_model(mesh, RHO, gravity=G, fixed=fixed)
+    b = xfem_model(mesh, RHO, gravity=G, fixed=fixed)
+    b.step(H, MATERIAL)
+    a.step(H, MATERIAL)
+    a.cut(cuts["a"])
+    b.cut(cuts["b"])
+    b.step(H, MATERIAL)
+    a.step(H, MATERIAL)
+    for name, model in (("a", a), ("b", b)):
+        np.testing.assert_allclose(model.state.x, expected[name], rtol=0, atol=1e-12)
+    a.close()
+    b.close()
+    left = [t.name for t in set(threading.enumerate()) - earlier if t.name.startswith(("xfem-boolean", "xfem-compile"))]
+    assert not left
+    assert a.closed and b.closed
+    with pytest.raises(ValueError, match="closed"):
+        a.step(H, MATERIAL)
+    with CompiledSteps(limit=1) as shared:
+        first = xfem_model(mesh, RHO, gravity=G, fixed=fixed, steps=shared)
+        second = xfem_model(mesh, RHO, gravity=G, fixed=fixed, steps=shared)
+        first.step(H, MATERIAL)
+        shared.wait()
+        assert len(shared) == 1  # the step's level; the next level's replaced it (the limit)
+        second.step(H, MATERIAL, newton_iterations=2)
+        assert len(shared) == 1
+        first.close()  # shared steps are left to their owner
+        assert not shared.closed
+    assert shared.closed and len(shared) == 0
+    with pytest.raises(ValueError, match="limit"):
+        CompiledSteps(limit=0)
+
+
 @pytest.mark.slow  # 18 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
 def test_cuts_within_a_capacity_level_reuse_the_compiled_step(caplog):
     """Steps run on the system padded to a capacity level: cuts that stay within it compile nothing for the step,
@@ -189,7 +239,7 @@ def test_cuts_within_a_capacity_level_reuse_the_compiled_step(caplog):
     model = xfem_model(mesh, RHO, gravity=G, fixed=np.flatnonzero(np.asarray(mesh.X)[:, 2] > 1.5 - 1e-9))
     cuts = [plane(), plane(point=(0.5, 0.5, 0.9), normal=(0.03, 0.05, 1.0))]
     model.step(H, MATERIAL)
-    wait_for_compilations()  # the next level, compiled in the background
+    model.wait_for_compilations()  # the next level, compiled in the background
     for cut in cuts:
         model.cut(cut)
         before = model.state
