@@ -447,7 +447,8 @@ def _cut_copy(copy: XFEMModel, cuts: list, checked: list, after_cut) -> PlaneCut
             for sid in report.element_children:
                 programs.pop(sid, None)
         else:
-            report = _cut_by_plane(copy, table, programs, *entry, name)
+            point, normal, epsilon = entry
+            report = _cut_by_plane(copy, table, programs, point, normal, epsilon, name)
             planes.append(entry)
         reports.append(report)
         replay, system, elements = _stage_replay(copy, table, programs, [c[2] for c in planes])
