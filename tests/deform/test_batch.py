@@ -117,7 +117,7 @@ def test_frame_times_and_clip_choice(crowd):
     with pytest.raises(ValueError, match="clip: model 0 .* has 1 clips, no clip 3"):
         packed.clip_indices(3)
     with pytest.raises(ValueError, match="clip: expected one clip or 5"):
-        packed.clip_indices([0, 0])  # pyright: ignore[reportArgumentType]
+        packed.clip_indices([0, 0])
     with pytest.raises(ValueError, match="frames: expected an int >= 1"):
         packed.frame_times(0)
 

@@ -161,7 +161,7 @@ def test_bad_input():
     with pytest.raises(ValueError, match="targets"):
         fit_key_motors(FIELD, V[:3], [0, 1])  # pyright: ignore[reportArgumentType]
     with pytest.raises(ValueError, match="free"):
-        fit_key_motors(FIELD, V, free=[3])  # pyright: ignore[reportArgumentType]
+        fit_key_motors(FIELD, V, free=[3])
     with pytest.raises(ValueError, match="field"):
         fit_key_motors("field", V)  # pyright: ignore[reportArgumentType]
     with pytest.raises(ValueError, match="weights"):
