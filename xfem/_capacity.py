@@ -12,9 +12,11 @@ from __future__ import annotations
 
 import threading
 from collections import OrderedDict
+from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
+from jaxtyping import Array, Float
 
 from _jaxcga_shared.host import to_device
 from xfem._assembly import CapacityError
@@ -180,11 +182,11 @@ class CompiledSteps:
         capacities: Capacities,
         padded: PaddedSystem,
         level: int,
-        h,
+        h: float | Float[Array, ""],
         material: Material,
         newton_iterations: int,
         background: bool,
-    ):
+    ) -> Callable | None:
         """The step compiled for capacity ``level`` (``compiled_step``): found here, or compiled now
         (``background=False``), or compiled in a background thread that the step needing it will wait for
         (``background=True``; returns None). ``padded``: the system it is for (a level above ``padded.level`` pads
