@@ -186,7 +186,7 @@ class CompiledSteps:
         material: Material,
         newton_iterations: int,
         background: bool,
-    ) -> Callable[[FEMSystem, State, float | Float[Array, ""], Material], State] | None:
+    ) -> Callable | None:
         """The step compiled for capacity ``level`` (``compiled_step``): found here, or compiled now
         (``background=False``), or compiled in a background thread that the step needing it will wait for
         (``background=True``; returns None). ``padded``: the system it is for (a level above ``padded.level`` pads

@@ -142,7 +142,8 @@ def test_reduced_play_gradients_match_central_differences():
 
     params = jnp.array([3e5, 0.02])
     grad = jax.grad(loss)(params)
-    for i, step in enumerate((1e2, 1e-5)):
+    # small steps: the loss swings with E (the modes' phases after 10 frames), and fTetWild's body varies run to run
+    for i, step in enumerate((1e1, 1e-6)):
         plus, minus = (loss(params.at[i].add(s)) for s in (step, -step))
         np.testing.assert_allclose(grad[i], (plus - minus) / (2 * step), rtol=1e-5)
 
