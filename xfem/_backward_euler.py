@@ -420,7 +420,7 @@ def _host_factored_direction(data, true_data, rhs, rtol, indptr, indices):
     H = host_csr(true_data, indptr, indices)
     b = np.asarray(rhs, np.float64)
 
-    def dot(u, v):  # not BLAS: numpy's threaded dot stalls for milliseconds on a loaded machine (_jaxcga_shared.pcg)
+    def dot(u, v):  # not BLAS: numpy's threaded dot stalls on a loaded machine (_jaxcga_shared.pcg)
         return float(np.sum(u * v))
 
     x, r = np.zeros_like(b), b.copy()
