@@ -404,28 +404,3 @@ def wild_surface():
     volume = (solids[0] + solids[1] + solids[2]).volume()
     area = float(trimesh.Trimesh(V, F, process=False).area)
     return V, F, volume, area
-
-
-def peak_memory_of_command(argv: list[str], timeout: float = 600) -> int:
-    """Peak resident bytes of ``jaxcga ARGV`` run in a fresh interpreter (its ``ru_maxrss``), for the command line's
-    memory guards; the command must succeed."""
-    import subprocess
-    import sys
-
-    # the child measures itself (RUSAGE_CHILDREN here would be the largest child's so far)
-    script = (
-        "import resource, sys\n"
-        "from jaxcga_cli.main import main\n"
-        f"main({list(argv)!r})\n"
-        "print('peak', resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024, file=sys.stderr)\n"
-    )
-    done = subprocess.run(
-        [sys.executable, "-c", script],
-        capture_output=True,
-        text=True,
-        timeout=timeout,
-        cwd=Path(__file__).resolve().parents[1],
-        check=False,
-    )
-    assert done.returncode == 0, done.stderr
-    return int(done.stderr.rsplit("peak ", 1)[1].split()[0])

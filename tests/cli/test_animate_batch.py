@@ -313,19 +313,3 @@ def test_timeout_must_be_positive(tmp_path, capsys):
     assert (
         refused.value.code == 2 and "timeout: expected --timeout in (0, 1e6) seconds, got 0" in capsys.readouterr().err
     )
-
-
-@pytest.mark.slow  # two runs of 1k and 8k frames: ~40 s on 2 busy cores
-def test_the_memory_guard_covers_the_measured_bytes_per_vertex_slot_and_frame(tmp_path):
-    from jaxcga_cli import animate_batch
-    from tests.shared import peak_memory_of_command
-
-    packed = deform.pack_models([deform.load_model(p) for p in MODELS], blocks=1)
-    peaks = [
-        peak_memory_of_command(
-            ["animate-batch", *MODELS, "--frames", str(frames), "--out", str(tmp_path / str(frames))]
-        )
-        for frames in (1024, 8192)
-    ]
-    per_slot_frame = (peaks[1] - peaks[0]) / ((8192 - 1024) * packed.capacities.vertices)
-    assert 0.5 * animate_batch.MEASURED_BYTES_PER_SLOT_FRAME <= per_slot_frame <= animate_batch.BYTES_PER_SLOT_FRAME
