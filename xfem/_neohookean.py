@@ -235,8 +235,13 @@ def _sandwich(grads, stiffness, volumes):
 def _projected_hessian(F, grads, volumes, mu_s, lam_s):
     """``vol B^T (dP/dF)_+ B`` (m, 12, 12), summed mode by mode: ``B^T vec(M) = vec(grads M^T)``."""
     values, modes = _eigensystem(F, mu_s, lam_s)
+    return _modal_sum(volumes[:, None] * jnp.maximum(values, 0), modes, grads)
+
+
+def _modal_sum(weight, modes, grads):
+    """``sum_n weight_n w_n w_n^T`` (m, 12, 12) over the eigenmatrices of dP/dF mapped to the nodes,
+    ``B^T vec(M) = vec(grads M^T)``."""
     w = jnp.einsum("mnkj,maj->mnak", modes, grads, precision=EXACT).reshape(*modes.shape[:2], 12)
-    weight = volumes[:, None] * jnp.maximum(values, 0)
     return jnp.einsum("mn,mni,mnj->mij", weight, w, w, precision=EXACT)
 
 
@@ -360,9 +365,8 @@ def _element_gradient_hessians(x, grads, volumes, mu_s, lam_s):
     F = jnp.einsum("mai,maj->mij", x, grads, precision=EXACT)
     g = volumes[:, None, None] * jnp.einsum("mkj,maj->mak", _pk1(F, mu_s, lam_s), grads, precision=EXACT)
     values, modes = _eigensystem(F, mu_s, lam_s)
-    w = jnp.einsum("mnkj,maj->mnak", modes, grads, precision=EXACT).reshape(*modes.shape[:2], 12)
-    true = jnp.einsum("mn,mni,mnj->mij", volumes[:, None] * values, w, w, precision=EXACT)
-    projected = jnp.einsum("mn,mni,mnj->mij", volumes[:, None] * jnp.maximum(values, 0), w, w, precision=EXACT)
+    true = _modal_sum(volumes[:, None] * values, modes, grads)
+    projected = _modal_sum(volumes[:, None] * jnp.maximum(values, 0), modes, grads)
     return g.reshape(m, 12), (projected, true)
 
 
