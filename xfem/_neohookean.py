@@ -235,13 +235,16 @@ def _sandwich(grads, stiffness, volumes):
 def _projected_hessian(F, grads, volumes, mu_s, lam_s):
     """``vol B^T (dP/dF)_+ B`` (m, 12, 12), summed mode by mode: ``B^T vec(M) = vec(grads M^T)``."""
     values, modes = _eigensystem(F, mu_s, lam_s)
-    return _modal_sum(volumes[:, None] * jnp.maximum(values, 0), modes, grads)
+    return _modal_sum(volumes[:, None] * jnp.maximum(values, 0), _node_modes(modes, grads))
 
 
-def _modal_sum(weight, modes, grads):
-    """``sum_n weight_n w_n w_n^T`` (m, 12, 12) over the eigenmatrices of dP/dF mapped to the nodes,
-    ``B^T vec(M) = vec(grads M^T)``."""
-    w = jnp.einsum("mnkj,maj->mnak", modes, grads, precision=EXACT).reshape(*modes.shape[:2], 12)
+def _node_modes(modes, grads):
+    """(m, 9, 12) the eigenmatrices of dP/dF mapped to the nodes, ``B^T vec(M) = vec(grads M^T)``."""
+    return jnp.einsum("mnkj,maj->mnak", modes, grads, precision=EXACT).reshape(*modes.shape[:2], 12)
+
+
+def _modal_sum(weight, w):
+    """``sum_n weight_n w_n w_n^T`` (m, 12, 12)."""
     return jnp.einsum("mn,mni,mnj->mij", weight, w, w, precision=EXACT)
 
 
@@ -365,8 +368,9 @@ def _element_gradient_hessians(x, grads, volumes, mu_s, lam_s):
     F = jnp.einsum("mai,maj->mij", x, grads, precision=EXACT)
     g = volumes[:, None, None] * jnp.einsum("mkj,maj->mak", _pk1(F, mu_s, lam_s), grads, precision=EXACT)
     values, modes = _eigensystem(F, mu_s, lam_s)
-    true = _modal_sum(volumes[:, None] * values, modes, grads)
-    projected = _modal_sum(volumes[:, None] * jnp.maximum(values, 0), modes, grads)
+    w = _node_modes(modes, grads)
+    true = _modal_sum(volumes[:, None] * values, w)
+    projected = _modal_sum(volumes[:, None] * jnp.maximum(values, 0), w)
     return g.reshape(m, 12), (projected, true)
 
 
