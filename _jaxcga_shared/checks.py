@@ -8,12 +8,14 @@ from __future__ import annotations
 import dataclasses
 import functools
 import re
+import threading
 from collections.abc import Callable, Collection
 from typing import TypeVar
 
 import equinox as eqx
 import jax
 import jax.core
+import jax.extend.core
 import jax.numpy as jnp
 import numpy as np
 from jax.core import Tracer
@@ -98,7 +100,12 @@ def require(x: _T, *checks: tuple[JaxArrayLike, str]) -> _T:
         elif np.any(np.asarray(bad)):  # numpy: under a trace jnp would stage even a constant flag
             raise CheckError(message)
     if flags:
-        x = _checked(jnp.asarray(x), jnp.stack(flags), tuple(messages))  # python scalars have nothing to thread on
+        collector = _collector()
+        if collector is not None:
+            collector.flags.extend(flags)
+            collector.messages.extend(messages)
+        else:
+            x = _checked(jnp.asarray(x), jnp.stack(flags), tuple(messages))  # python scalars have nothing to thread on
     return x
 
 
@@ -110,7 +117,8 @@ def require_around(fn: Callable[[Array], Array], operand: Array, *checks: tuple[
 
     ``operand`` is a small array (a table of joints or key motors); the checks' flags are computed from it or
     before it. On concrete flags the ``CheckError`` comes at once, on every platform."""
-    if not any(isinstance(bad, Tracer) for bad, _ in checks):
+    if not any(isinstance(bad, Tracer) for bad, _ in checks) or _collector() is not None:
+        # concrete flags raise at once; collected flags cost no conditional, wherever they are made
         require(None, *checks)
         return fn(operand)
     # looked up at call time: the tests' --gpu-variants option replaces it to take the GPU branch on the CPU
@@ -119,6 +127,72 @@ def require_around(fn: Callable[[Array], Array], operand: Array, *checks: tuple[
         cpu=lambda operand: fn(require(operand, *checks)),
         default=lambda operand: require(fn(operand), *checks),
     )
+
+
+class _Collector:
+    """The traced checks of one trace of a ``checked_jit`` function, returned as its outputs."""
+
+    def __init__(self):
+        self.trace = jax.extend.core.get_opaque_trace_state()
+        self.flags: list[Array] = []
+        self.messages: list[str] = []
+
+
+# the collectors of the checked_jit functions being traced in this thread, innermost last: trace-time state only
+# (each is pushed and popped around its own trace), as JAX keeps its own trace context
+_tracing = threading.local()
+
+
+def _collector() -> _Collector | None:
+    """The innermost collecting trace, if it is the current one (a check inside a nested trace of it, a vmap, a
+    loop body, a custom derivative's function, cannot leave that trace as an output: it stays a conditional)."""
+    stack = getattr(_tracing, "collectors", None)
+    if stack and stack[-1].trace == jax.extend.core.get_opaque_trace_state():
+        return stack[-1]
+    return None
+
+
+def checked_jit(fn):
+    """``eqx.filter_jit(fn)`` whose value checks (``require`` made directly in its trace or in the traces of the
+    ``checked_jit`` functions it calls there) are outputs of the compiled function, not host callbacks, so that
+    the executable has none (JAX's persistent compilation cache stores no executable with a host callback). On
+    concrete input a failed check raises ``CheckError`` when the result is ready; under an outer trace (the
+    caller's jit, vmap, grad) the flags become a check of that trace, as ``require``'s. Checks made inside nested
+    traces (loop bodies, vmaps) stay conditionals with a host call; ``plain_errors`` raises those as
+    ``CheckError`` too."""
+
+    @functools.wraps(fn)
+    def collecting(*args, **kwargs):
+        collector = _Collector()
+        stack = _tracing.__dict__.setdefault("collectors", [])
+        stack.append(collector)
+        try:
+            out = fn(*args, **kwargs)
+        finally:
+            stack.pop()
+        # the messages are static outputs: filter_jit returns them unchanged, from the trace of any call
+        flags = jnp.stack(collector.flags) if collector.flags else None
+        return out, flags, tuple(collector.messages)
+
+    jitted = eqx.filter_jit(collecting)
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):
+        out, flags, messages = jitted(*args, **kwargs)
+        if flags is None:
+            return out
+        if isinstance(flags, Tracer):
+            # thread the checks on the first array output (as require on x), or hand them to an outer collector
+            leaves, tree = jax.tree.flatten(out)
+            first = next(i for i, leaf in enumerate(leaves) if isinstance(leaf, (jax.Array, Tracer)))
+            leaves[first] = require(leaves[first], *((flags[k], m) for k, m in enumerate(messages)))
+            return jax.tree.unflatten(tree, leaves)
+        flags = np.asarray(flags)
+        if flags.any():
+            raise CheckError(messages[int(np.argmax(flags))])
+        return out
+
+    return plain_errors(wrapper)
 
 
 def compiled_error_message(error: BaseException) -> str | None:

@@ -32,7 +32,7 @@ from jaxtyping import Array, ArrayLike, Float
 
 import jaxcga as cga
 from _jaxcga_shared import pallas_rows
-from _jaxcga_shared.checks import check_vectors, require_around
+from _jaxcga_shared.checks import check_vectors, checked_jit, require_around
 from _jaxcga_shared.platform import EXACT, PerPlatform
 from jaxcga import KINDS, MOTOR_GENERATOR, Multivector
 from jaxcga._exp_log import exp_motor_columns, log_motor_unchecked
@@ -128,6 +128,7 @@ class MotorField(eqx.Module):
         return self.weights.shape[1]
 
 
+@checked_jit
 def motor_field_solve(field: MotorField, key_motors: Multivector) -> Float[Array, "... n 3"]:
     """Deformed positions ``M_i p'_i ~M_i`` (eq. 2), ``M_i = exp(sum_j w_ij log R_j)``.
 

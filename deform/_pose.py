@@ -34,7 +34,7 @@ import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
 import jaxcga as cga
-from _jaxcga_shared.checks import check_choice, plain_errors
+from _jaxcga_shared.checks import check_choice, checked_jit, plain_errors
 from deform import _rig, _skinning
 from deform._model import RiggedModel
 from jaxcga._multivector import Multivector
@@ -43,8 +43,7 @@ METHODS = ("lbs", "dqs", "cga", "cga_motor_blend")
 INTERPOLATIONS = ("gltf", "log")
 
 
-@plain_errors
-@eqx.filter_jit
+@checked_jit
 def skin_pose(
     model: RiggedModel, local: Multivector | Float[ArrayLike, "... b 4 4"], method: str = "cga"
 ) -> Float[Array, "... n 3"]:
@@ -104,8 +103,7 @@ def skin_with_joints(V, J, W, joints, method: str):
     return _skinning.skin_dqs(V, J, W, _skinning.matrices_to_dual_quaternions(joints))
 
 
-@plain_errors
-@eqx.filter_jit
+@checked_jit
 def rest_pose(model: RiggedModel, method: str = "cga") -> Float[Array, "n 3"]:
     """Skinned positions (n, 3) in the skeleton's rest pose (the nodes' own TRS).
 
@@ -161,7 +159,7 @@ def sample_pose(
     return _sample_pose(model, jnp.asarray(t), method, model.clip(clip), interpolation)
 
 
-@eqx.filter_jit
+@checked_jit
 def _sample_pose(model: RiggedModel, t, method: str, animation, interpolation: str):
     skeleton = model.skeleton
     rest = (skeleton.translation, skeleton.rotation, skeleton.scale)
@@ -217,6 +215,6 @@ def skin_model(
     return _skin_model(model, jnp.asarray(t), method, model.clip(clip), interpolation)
 
 
-@eqx.filter_jit
+@checked_jit
 def _skin_model(model: RiggedModel, t, method: str, animation, interpolation: str):
     return skin_pose(model, _sample_pose(model, t, method, animation, interpolation), method)

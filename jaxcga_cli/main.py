@@ -34,6 +34,8 @@ DESCRIPTION = (
     "a command's options and an example."
 )
 
+NO_CACHE_HELP = "compile afresh: neither read nor write the compilation cache (as JAXCGA_NO_CACHE=1)"
+
 
 def version() -> str:
     """The installed distribution's version (its metadata), or a note that it is not installed."""
@@ -75,8 +77,15 @@ def command_module(name: str):
 
 def parser() -> argparse.ArgumentParser:
     """The parser of the whole command line (no JAX imported: ``--help`` and ``--version`` answer at once)."""
-    top = _Parser(prog="jaxcga", description=DESCRIPTION)
+    from jaxcga_cli import cache
+
+    top = _Parser(
+        prog="jaxcga",
+        description=DESCRIPTION,
+        epilog=textwrap.fill(cache.help_text()[0].upper() + cache.help_text()[1:] + ".", 100, break_on_hyphens=False),
+    )
     top.add_argument("--version", action="version", version=f"jaxcga {version()}")
+    top.add_argument("--no-cache", action="store_true", help=NO_CACHE_HELP)
     sub = top.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for name in COMMANDS:
         module = command_module(name)
@@ -89,6 +98,8 @@ def parser() -> argparse.ArgumentParser:
             formatter_class=argparse.RawDescriptionHelpFormatter,
         )
         module.add_arguments(p)
+        # also after the command's name; SUPPRESS keeps a --no-cache given before it
+        p.add_argument("--no-cache", action="store_true", default=argparse.SUPPRESS, help=NO_CACHE_HELP)
     return top
 
 
@@ -103,8 +114,12 @@ def main(argv: list[str] | None = None) -> int:
             module.check_paths(args)
             import jax
 
-            # the command line computes in double precision (the library leaves that choice to its caller)
+            from jaxcga_cli import cache
+
+            # the command line computes in double precision and caches what it compiles (the library leaves both
+            # choices to its caller)
             jax.config.update("jax_enable_x64", True)
+            cache.enable(args.command, args.no_cache)
             summary = module.run(args)
     except (ValueError, OSError, RuntimeError) as error:
         top.exit(2, f"jaxcga {args.command}: error: {error_message(error)}\n")

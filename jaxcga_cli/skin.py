@@ -50,7 +50,6 @@ def skin_command(model, time: float, method: str, clip: int | str, out: Path, in
     """Skinned positions of every skinned primitive (file order) at ``time``, in glTF world space,
     written to ``out`` (.npy: float64 (n, 3); .glb etc.: the posed mesh); keys interpolated by
     ``interpolation`` (``deform.skin_model``)."""
-    import jax
     import jax.numpy as jnp
 
     import deform
@@ -58,7 +57,9 @@ def skin_command(model, time: float, method: str, clip: int | str, out: Path, in
     from jaxcga_cli.report import status
 
     with status("skin", f"skinning {model.mesh.num_vertices} vertices (compiling)"):
-        positions = jax.jit(lambda t: deform.skin_model(model, t, method, clip, interpolation))(time)
+        # the library's compiled entry point itself (not a jit around it): its checks come back as values, so
+        # that the executable holds no host callback and the compilation cache keeps it
+        positions = deform.skin_model(model, time, method, clip, interpolation)
         if not bool(jnp.all(jnp.isfinite(positions))):
             raise ValueError("skinning produced non-finite positions")
     write_result(out, positions, model.mesh.F)
