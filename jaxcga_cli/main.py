@@ -79,10 +79,13 @@ def parser() -> argparse.ArgumentParser:
     """The parser of the whole command line (no JAX imported: ``--help`` and ``--version`` answer at once)."""
     from jaxcga_cli import cache
 
+    said = cache.help_text()
     top = _Parser(
         prog="jaxcga",
-        description=DESCRIPTION,
-        epilog=textwrap.fill(cache.help_text()[0].upper() + cache.help_text()[1:] + ".", 100, break_on_hyphens=False),
+        description=textwrap.fill(DESCRIPTION, 100, break_on_hyphens=False),
+        # raw: the cache's path stays whole on its line, to be copied
+        epilog=textwrap.fill(said[0].upper() + said[1:] + ".", 100, break_on_hyphens=False, break_long_words=False),
+        formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     top.add_argument("--version", action="version", version=f"jaxcga {version()}")
     top.add_argument("--no-cache", action="store_true", help=NO_CACHE_HELP)

@@ -14,6 +14,9 @@ import os
 # several test workers share one GPU: each takes memory as it needs it, not 75% of it up front (read when JAX
 # starts its backend, after this)
 os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
+# the tests run the command line's main() in this process: it must neither write the user's compilation cache nor
+# turn JAX's cache on for the rest of the session (the cache's own tests run the command in subprocesses)
+os.environ.setdefault("JAXCGA_NO_CACHE", "1")
 
 import jax  # noqa: E402
 import pytest  # noqa: E402

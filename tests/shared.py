@@ -306,6 +306,29 @@ def run_on_host_devices(script: str, devices: int = 4, timeout: int = 600) -> st
     return done.stdout
 
 
+def run_jaxcga(argv: list[str], cache: Path | None, timeout: int = 600, **env: str):
+    """``jaxcga ARGV`` in a fresh process from the repository root (its packages, not an installed copy), with
+    the compilation cache in ``cache`` (None: the cache left as the environment has it, which the tests' conftest
+    turns off) and the environment variables ``env``; returns the ``subprocess.CompletedProcess`` (text)."""
+    import os
+    import subprocess
+    import sys
+
+    environment = dict(os.environ)
+    if cache is not None:
+        environment.pop("JAXCGA_NO_CACHE", None)
+        environment["JAXCGA_CACHE_DIR"] = str(cache)
+    environment.update(env)
+    return subprocess.run(
+        [sys.executable, "-m", "jaxcga_cli", *argv],
+        env=environment,
+        cwd=Path(__file__).resolve().parents[1],
+        capture_output=True,
+        text=True,
+        timeout=timeout,
+    )
+
+
 def assert_checks_placed_per_platform(fn, *args) -> None:
     """``fn(*args)``'s runtime check (``checks.require_around``) on the CPU is made on a small operand before the
     computation (a conditional returning the large result would copy it), and on other platforms it is the last
