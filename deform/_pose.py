@@ -29,7 +29,6 @@ name and the model's static fields part of the cache key); inside an outer jit t
 
 from __future__ import annotations
 
-import equinox as eqx
 import jax.numpy as jnp
 from jaxtyping import Array, ArrayLike, Float
 
