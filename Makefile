@@ -56,6 +56,7 @@ bench: $(STAMP)
 	$(PY) benchmarks/bench_xfem.py --json out/bench/xfem.json
 	$(PY) benchmarks/bench_batch.py --json out/bench/batch.json
 	$(PY) benchmarks/bench_viewer.py --json out/bench/viewer.json
+	$(PY) benchmarks/bench_cli.py --json out/bench/cli.json
 
 ## The quick set: every benchmark, the figures the issues name at their own sizes where those are cheap, the rest
 ## smaller (benchmarks/quick.py); about 5 minutes on 2 cores, JSON into out/bench-quick/quick.json. ONLY="a b" for some.

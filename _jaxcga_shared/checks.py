@@ -102,7 +102,7 @@ def require(x: _T, *checks: tuple[JaxArrayLike, str]) -> _T:
     if flags:
         collector = _collector()
         if collector is not None:
-            collector.flags.extend(flags)
+            collector.flags.append(jnp.stack(flags))
             collector.messages.extend(messages)
         else:
             x = _checked(jnp.asarray(x), jnp.stack(flags), tuple(messages))  # python scalars have nothing to thread on
@@ -153,13 +153,13 @@ def _collector() -> _Collector | None:
 
 
 def checked_jit(fn):
-    """``eqx.filter_jit(fn)`` whose value checks (``require`` made directly in its trace or in the traces of the
-    ``checked_jit`` functions it calls there) are outputs of the compiled function, not host callbacks, so that
-    the executable has none (JAX's persistent compilation cache stores no executable with a host callback). On
-    concrete input a failed check raises ``CheckError`` when the result is ready; under an outer trace (the
-    caller's jit, vmap, grad) the flags become a check of that trace, as ``require``'s. Checks made inside nested
-    traces (loop bodies, vmaps) stay conditionals with a host call; ``plain_errors`` raises those as
-    ``CheckError`` too."""
+    """``eqx.filter_jit(fn)`` for a public entry point: called on concrete input, its value checks (``require``
+    made directly in its trace or in the traces of the ``checked_jit`` functions it calls there) are outputs of the
+    compiled function, not host callbacks, and a failed one raises ``CheckError`` once the result is ready; the
+    executable then holds no host callback, which JAX's persistent compilation cache requires. Under the caller's
+    own trace (jit, vmap, grad) it is ``eqx.filter_jit(fn)`` as it is, its checks ``require``'s. Checks made in
+    nested traces of it (loop bodies, vmaps, plain jits) stay conditionals with a host call, which
+    ``plain_errors`` also raises as ``CheckError``."""
 
     @functools.wraps(fn)
     def collecting(*args, **kwargs):
@@ -171,22 +171,23 @@ def checked_jit(fn):
         finally:
             stack.pop()
         # the messages are static outputs: filter_jit returns them unchanged, from the trace of any call
-        flags = jnp.stack(collector.flags) if collector.flags else None
+        flags = jnp.concatenate(collector.flags) if collector.flags else None
         return out, flags, tuple(collector.messages)
 
-    jitted = eqx.filter_jit(collecting)
+    plain, collected = eqx.filter_jit(fn), eqx.filter_jit(collecting)
 
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
-        out, flags, messages = jitted(*args, **kwargs)
+        outer = _collector()
+        if outer is None and any(isinstance(leaf, Tracer) for leaf in jax.tree.leaves((args, kwargs))):
+            return plain(*args, **kwargs)
+        out, flags, messages = collected(*args, **kwargs)
         if flags is None:
             return out
-        if isinstance(flags, Tracer):
-            # thread the checks on the first array output (as require on x), or hand them to an outer collector
-            leaves, tree = jax.tree.flatten(out)
-            first = next(i for i, leaf in enumerate(leaves) if isinstance(leaf, (jax.Array, Tracer)))
-            leaves[first] = require(leaves[first], *((flags[k], m) for k, m in enumerate(messages)))
-            return jax.tree.unflatten(tree, leaves)
+        if outer is not None:  # called in a collecting trace: its flags join that trace's
+            outer.flags.append(flags)
+            outer.messages.extend(messages)
+            return out
         flags = np.asarray(flags)
         if flags.any():
             raise CheckError(messages[int(np.argmax(flags))])

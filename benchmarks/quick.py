@@ -38,6 +38,7 @@ QUICK = {
     "xfem": ["--quick", "--no-background"],
     "batch": ["--quick", "--figures", "skinning"],
     "viewer": ["--quick"],
+    "cli": ["--repeats", "1"],
 }
 
 

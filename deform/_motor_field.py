@@ -132,6 +132,9 @@ class MotorField(eqx.Module):
 def motor_field_solve(field: MotorField, key_motors: Multivector) -> Float[Array, "... n 3"]:
     """Deformed positions ``M_i p'_i ~M_i`` (eq. 2), ``M_i = exp(sum_j w_ij log R_j)``.
 
+    Compiled on first use (``eqx.filter_jit``); a key motor of non-positive norm raises ``CheckError`` when the
+    result is ready (inside the caller's jit, JAX's runtime error with the same message).
+
     Args:
         field: a ``MotorField``.
         key_motors: motors with batch shape (..., k); leading batch axes lead the result (vmap-free

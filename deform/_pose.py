@@ -23,8 +23,9 @@ orthogonal to the method (``interpolation``):
   take the log-blended similitudes as matrices (``jaxcga.versor_to_matrix``), so a non-uniform scale
   raises there too.
 
-The model-level functions are compiled on first use (``eqx.filter_jit``: arrays traced, the method
-name and the model's static fields part of the cache key); inside an outer jit they are inlined.
+The model-level functions are compiled on first use (``eqx.filter_jit``: arrays traced, the method name and the
+model's static fields part of the cache key), their value checks returned as outputs and raised on the host (no host
+callback in the executable: JAX's persistent cache can keep it); inside an outer jit they are inlined.
 """
 
 from __future__ import annotations

@@ -564,3 +564,11 @@ def test_compare_marks_and_lists_first_the_moves_whose_runs_lie_apart(tmp_path, 
     printed = capsys.readouterr().out
     assert _listed(printed)["worse"] == ["cut_ms*", "blend_vs_dqs", "fps_f32", "peak_gib"]
     assert "marked *" in printed.splitlines()[1]
+
+
+@pytest.mark.slow
+def test_bench_cli_quick_writes_the_published_names(tmp_path):
+    result = _quick("bench_cli.py", tmp_path)
+    assert set(result["ratios"]) == {"cli_first_vs_second_run_skin"}
+    assert {"cli_help_s", "cli_skin_first_s", "cli_skin_second_s"} <= set(result["figures"])
+    assert all(math.isfinite(v) and v > 0 for v in result["figures"].values())

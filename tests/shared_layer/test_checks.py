@@ -11,7 +11,14 @@ import numpy as np
 import pytest
 
 import jaxcga
-from _jaxcga_shared.checks import compiled_error_message, failed_check_message, plain_errors, require, require_around
+from _jaxcga_shared.checks import (
+    checked_jit,
+    compiled_error_message,
+    failed_check_message,
+    plain_errors,
+    require,
+    require_around,
+)
 from _jaxcga_shared.host import host_call
 
 MESSAGE = "x: expected non-negative values"
@@ -217,3 +224,39 @@ def test_require_around_checks_in_either_placement_and_passes_values_and_derivat
     np.testing.assert_allclose(
         jax.jit(jax.grad(lambda t: jnp.sum(spread(t) ** 2)))(good), 2 * jnp.sum(weights**2) * good, rtol=1e-12
     )
+
+
+@checked_jit
+def _non_negative(x):
+    return require(x, (x < 0, "x: negative values"))
+
+
+@checked_jit
+def _entry_point(x):
+    # a nested entry point's checks join this one's; a check in a loop body stays a host call
+    y = jax.lax.map(lambda v: require(v, (v > 100, "v: above 100")), _non_negative(x))
+    return 2.0 * require_around(lambda y: y, y, (jnp.isnan(y).any(), "y: NaN"))
+
+
+def test_checked_jit_returns_its_checks_as_values_on_concrete_input():
+    x = jnp.array([1.0, 2.0])
+    np.testing.assert_array_equal(_entry_point(x), [2.0, 4.0])
+    # the nested entry point's and the around check come back as values, raised on the host (no runtime error
+    # behind them); the loop body's check is a host call, whose error (JAX's) is raised as CheckError
+    for bad, message, called_back in (
+        (-1.0, "x: negative values", False),
+        (jnp.nan, "y: NaN", False),
+        (101.0, "v: above 100", True),
+    ):
+        with pytest.raises(jaxcga.CheckError, match=message) as raised:
+            _entry_point(x.at[1].set(bad))
+        assert (raised.value.__context__ is not None) is called_back, message  # JAX's error of the callback
+
+
+def test_checked_jit_under_the_callers_jit_vmap_and_grad_checks_as_require():
+    x = jnp.array([1.0, -2.0])
+    with pytest.raises((jax.errors.JaxRuntimeError, ValueError), match="x: negative values"):
+        jax.block_until_ready(jax.jit(_entry_point)(x))
+    with pytest.raises((jax.errors.JaxRuntimeError, ValueError), match="x: negative values"):
+        jax.block_until_ready(jax.vmap(lambda v: _non_negative(v[None]))(x))
+    assert float(jax.grad(lambda v: _entry_point(v[None]).sum())(3.0)) == 2.0
