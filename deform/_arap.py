@@ -65,6 +65,7 @@ raises an error. The loop is never unrolled.
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable
 
 import equinox as eqx
@@ -307,16 +308,22 @@ def _local(data: ARAPData, x):
     return rotors, quadratic + data.rest_energy - 2.0 * jnp.sum(lam)
 
 
-def _global(data: ARAPData, rotors: Multivector, bc, previous):
-    """Global step (eq. 12) with the handles substituted; ``previous`` positions are the device solve's first
-    guess (an iterative solve from them stops sooner as the iterations converge)."""
+def _global_system(data: ARAPData, rotors: Multivector, bc):
+    """The global step's (eq. 12) right-hand side over the free vertices, the handles substituted, and the
+    positions with the handles set (the free rows to be filled by the solve)."""
     own = apply_to_points(rotors, data.own, fused=True)
     neighbours = Multivector(rotors.values[data.ring], rotors.blades)
     rhs = data.rhs_scale * (own + jnp.sum(apply_to_points(neighbours, data.z, fused=True), axis=1))
     y = jnp.zeros((data.n, 3), bc.dtype).at[data.b].set(bc)
     Ly = data.degree[:, None] * y - jnp.einsum("nd,ndk->nk", data.w, y[data.ring], precision=EXACT)  # -L y
-    x_free = data.solver((rhs - Ly)[data.free], previous[data.free])
-    return y.at[data.free].set(x_free)
+    return (rhs - Ly)[data.free], y
+
+
+def _global(data: ARAPData, rotors: Multivector, bc, previous):
+    """Global step (eq. 12) with the handles substituted; ``previous`` positions are the device solve's first
+    guess (an iterative solve from them stops sooner as the iterations converge)."""
+    rhs, y = _global_system(data, rotors, bc)
+    return y.at[data.free].set(data.solver(rhs, previous[data.free]))
 
 
 def default_tolerance(dtype: DTypeLike) -> float:
@@ -345,52 +352,131 @@ def _anderson(g, f, dG, dF):
     return g - jnp.tensordot(gamma, dG, axes=1, precision=EXACT)
 
 
+# One iteration is split at its linear solve: ``_before_solve`` (Anderson's candidate, the local step, the global
+# step's right-hand side) and ``_after_solve`` (the solved positions placed). The compiled loop runs both with the
+# solver between them in one while loop; ``arap_solve(..., host_loop=True)`` runs them compiled apart, calling
+# CHOLMOD on the host between them, so that no compiled piece holds a host callback.
+# state: (x, energy, g = G(x), f = g - x, previous (g, f), history, energies, k)
+
+
+def _start(data, bc, V0, max_iterations, memory):
+    """The first iteration up to its solve: (its partial state, the global system (rhs, y), the solve's guess)."""
+    x0 = V0.at[data.b].set(bc)
+    rotors, energy = _local(data, x0)
+    energies = jnp.full((max_iterations + 1,), jnp.nan, energy.dtype).at[0].set(energy)
+    history = jnp.zeros((2, max(memory, 1)) + x0.shape, bc.dtype)  # the last differences of G(x) and G(x) - x
+    return (x0, energy, history, energies, jnp.asarray(0)), _global_system(data, rotors, bc), x0
+
+
+def _started(data, partial, y, x_free):
+    """The state after the first iteration's solve (``x_free``: the free vertices' positions)."""
+    x0, energy, history, energies, k = partial
+    g = y.at[data.free].set(x_free)
+    return x0, energy, g, g - x0, jnp.stack([g, g - x0]), history, energies, k
+
+
+def _before_solve(data, bc, memory, state):
+    """An iteration up to its solve: (its partial state, the global system (rhs, y), the solve's guess)."""
+    x, energy, g, f, previous, history, energies, k = state
+    if memory == 0:
+        x, (rotors, energy) = g, _local(data, g)
+    else:
+        # a new pair of differences once there is a previous iterate, into the oldest slot
+        delta = jnp.stack([g - previous[0], f - previous[1]])
+        history = history.at[:, k % memory].set(jnp.where(k > 0, delta, history[:, k % memory]))
+        candidate = _anderson(g, f, history[0], history[1])
+        rotors_a, energy_a = _local(data, candidate)
+        x, rotors, energy = jax.lax.cond(
+            energy_a <= energy,
+            lambda: (candidate, rotors_a, energy_a),
+            lambda: (g, *_local(data, g)),
+        )
+    partial = (x, energy, jnp.stack([g, f]), history, energies.at[k + 1].set(energy), k + 1)
+    return partial, _global_system(data, rotors, bc), x
+
+
+def _after_solve(data, partial, y, x_free):
+    """The state after an iteration's solve."""
+    x, energy, previous, history, energies, k = partial
+    g = y.at[data.free].set(x_free)
+    return x, energy, g, g - x, previous, history, energies, k
+
+
+def _go_on(data, max_iterations, tolerance, state):
+    """Whether another iteration runs (the tolerance not yet met, iterations left)."""
+    k, f = state[7], state[3]
+    if tolerance is None:  # static: run every iteration
+        return k + 1 < max_iterations
+    return (k + 1 < max_iterations) & (_residual(data, f) > tolerance)
+
+
+def _result(data, state):
+    """(U, energies, iterations, residual) of the last state: the energy after the last iteration, at U."""
+    _, _, U, f, _, _, energies, k = state
+    return U, energies.at[k + 1].set(_local(data, U)[1]), k + 1, _residual(data, f)
+
+
+def _solved(data, system, guess):
+    rhs, _ = system
+    return data.solver(rhs, guess[data.free])
+
+
 def _iterate(data, bc, V0, max_iterations, tolerance, memory, progress=None):
     """Local/global iterations from V0, Anderson-accelerated when ``memory`` > 0, until the fixed-point residual
     ``max |G(x) - x| / diagonal`` is at most ``tolerance`` (None: exactly ``max_iterations``). Each iteration ends
     with a global step; an Anderson point is kept only if its energy is below the current one (else the plain
     step's), so the energy never increases (Peng et al. 2018, "Anderson acceleration for geometry optimization
     and physics simulation", Alg. 2)."""
-    x0 = V0.at[data.b].set(bc)
-    rotors, energy = _local(data, x0)
-    g = _global(data, rotors, bc, x0)
-    energies = jnp.full((max_iterations + 1,), jnp.nan, energy.dtype).at[0].set(energy)
-    history = jnp.zeros((2, max(memory, 1)) + x0.shape, bc.dtype)  # the last differences of G(x) and G(x) - x
-
-    def cond(state):
-        _, _, g, f, _, _, _, k = state
-        if tolerance is None:  # static: run every iteration
-            return k + 1 < max_iterations
-        return (k + 1 < max_iterations) & (_residual(data, f) > tolerance)
+    partial, system, guess = _start(data, bc, V0, max_iterations, memory)
+    state = _started(data, partial, system[1], _solved(data, system, guess))
 
     def body(state):
-        x, energy, g, f, previous, history, energies, k = state
-        if memory == 0:
-            x, (rotors, energy) = g, _local(data, g)
-        else:
-            # a new pair of differences once there is a previous iterate, into the oldest slot
-            delta = jnp.stack([g - previous[0], f - previous[1]])
-            history = history.at[:, k % memory].set(jnp.where(k > 0, delta, history[:, k % memory]))
-            candidate = _anderson(g, f, history[0], history[1])
-            rotors_a, energy_a = _local(data, candidate)
-            x, rotors, energy = jax.lax.cond(
-                energy_a <= energy,
-                lambda: (candidate, rotors_a, energy_a),
-                lambda: (g, *_local(data, g)),
-            )
-        previous = jnp.stack([g, f])
-        g = _global(data, rotors, bc, x)
+        partial, system, guess = _before_solve(data, bc, memory, state)
+        state = _after_solve(data, partial, system[1], _solved(data, system, guess))
         if progress is not None:  # static: no callback compiled in without one
-            jax.debug.callback(progress, k + 2, energy, _residual(data, g - x), ordered=True)
-        return x, energy, g, g - x, previous, history, energies.at[k + 1].set(energy), k + 1
+            jax.debug.callback(progress, state[7] + 1, state[1], _residual(data, state[3]), ordered=True)
+        return state
 
     if progress is not None:  # the first iteration, before the loop
-        jax.debug.callback(progress, 1, energy, _residual(data, g - x0), ordered=True)
-    state = (x0, energy, g, g - x0, jnp.stack([g, g - x0]), history, energies, jnp.asarray(0))
-    _, _, U, f, _, _, energies, k = jax.lax.while_loop(cond, body, state)
-    # the energy after the last iteration, at the returned positions
-    energies = energies.at[k + 1].set(_local(data, U)[1])
-    return U, energies, k + 1, _residual(data, f)
+        jax.debug.callback(progress, 1, state[1], _residual(data, state[3]), ordered=True)
+    state = jax.lax.while_loop(functools.partial(_go_on, data, max_iterations, tolerance), body, state)
+    return _result(data, state)
+
+
+def _iterate_on_host(data, bc, V0, max_iterations, tolerance, memory, progress=None):
+    """``_iterate`` with its loop and its solves on the host: one compiled call between two solves (no host
+    callback in it), CHOLMOD called directly between them."""
+    statics = (max_iterations, tolerance, memory)
+    partial, (rhs, y) = _start_on_host(data, bc, V0, *statics)
+    first = True
+    while True:
+        x_free = data.solver.host_solve(np.asarray(rhs)).astype(bc.dtype)
+        state, go_on, residual, partial, (rhs, y) = _between_solves(data, bc, partial, y, x_free, first, *statics)
+        if progress is not None:
+            progress(state[7] + 1, state[1], residual)
+        first = False
+        if not go_on:
+            return _result_on_host(data, state)
+
+
+@functools.partial(jax.jit, static_argnums=(3, 4, 5))
+def _start_on_host(data, bc, V0, max_iterations, tolerance, memory):
+    """``_start`` with its partial state shaped as ``_before_solve``'s (``previous`` set after the solve)."""
+    (x0, energy, history, energies, k), system, _ = _start(data, bc, V0, max_iterations, memory)
+    return (x0, energy, jnp.zeros((2,) + x0.shape, x0.dtype), history, energies, k), system
+
+
+@functools.partial(jax.jit, static_argnums=(6, 7, 8))
+def _between_solves(data, bc, partial, y, x_free, first, max_iterations, tolerance, memory):
+    """The state after a solve (the first iteration's when ``first``: a traced flag, one executable for all),
+    whether another iteration runs, its residual, and the next iteration up to its solve."""
+    x, energy, g, f, previous, history, energies, k = _after_solve(data, partial, y, x_free)
+    state = (x, energy, g, f, jnp.where(first, jnp.stack([g, f]), previous), history, energies, k)
+    partial, system, _ = _before_solve(data, bc, memory, state)
+    return state, _go_on(data, max_iterations, tolerance, state), _residual(data, f), partial, system
+
+
+_result_on_host = jax.jit(_result)
 
 
 @eqx.filter_custom_vjp
@@ -500,6 +586,7 @@ def arap_solve(
     tolerance: float | str | None = _DEFAULT,
     acceleration: str = "anderson",
     progress: Callable[[Array, Array, Array], object] | None = None,
+    host_loop: bool = False,
 ) -> ARAPResult:
     """Deform the mesh so that the handles ``data.b`` sit at ``bc``, as rigidly as possible.
 
@@ -528,6 +615,10 @@ def arap_solve(
             iteration's number (from 1), the energy at the positions it started from and its fixed-point residual
             (``ARAPResult.residual``'s measure), in order, also under ``jit`` (``jax.debug.callback``); for a
             progress bar.
+        host_loop: run the iterations from Python, on concrete input only (not under jit, vmap or grad): each
+            iteration's compiled pieces before and after its sparse solve hold no host callback, so that JAX's
+            persistent compilation cache keeps them, and the solve calls CHOLMOD directly between them (a few
+            microseconds of dispatch more per iteration). The same iterations and result; not differentiable.
     Returns:
         ``ARAPResult(U, energies, iterations, residual, converged)``. U is differentiable (reverse mode) with
         respect to bc, implicitly at the fixed point, so its gradient is exact when the solve has converged;
@@ -560,9 +651,16 @@ def arap_solve(
     # the fixed point does not depend on the initial guess: no gradient flows to V0
     if progress is not None and not callable(progress):
         raise ValueError(f"progress: expected None or a function, got {type(progress).__name__}")
-    U, energies, iterations, residual = _solve(
-        bc, data, jax.lax.stop_gradient(V0), int(max_iterations), tolerance, memory, progress
-    )
+    if host_loop:
+        if any(isinstance(a, jax.core.Tracer) for a in (bc, V0)):
+            raise ValueError("host_loop: runs on concrete input only, not under jit, vmap or grad")
+        U, energies, iterations, residual = _iterate_on_host(
+            data, bc, V0, int(max_iterations), tolerance, memory, progress
+        )
+    else:
+        U, energies, iterations, residual = _solve(
+            bc, data, jax.lax.stop_gradient(V0), int(max_iterations), tolerance, memory, progress
+        )
     residual = jax.lax.stop_gradient(residual)
     converged = residual <= (default_tolerance(bc.dtype) if tolerance is None else tolerance)
     return ARAPResult(U, jax.lax.stop_gradient(energies), iterations, residual, converged)
