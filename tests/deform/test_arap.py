@@ -357,3 +357,36 @@ def test_progress_reports_every_iteration_with_its_energy_and_residual(arm):
     np.testing.assert_allclose(np.asarray(result.U), np.asarray(plain.U), rtol=0, atol=1e-10)
     with pytest.raises(ValueError, match="progress: expected None or a function, got int"):
         arap_solve(data, jnp.asarray(bc), progress=3)  # pyright: ignore[reportArgumentType]
+
+
+@pytest.mark.parametrize("options", [{}, {"tolerance": None, "acceleration": "none", "max_iterations": 15}])
+def test_the_host_loop_gives_the_compiled_loops_iterations(arm, options):
+    V, _, _, bc, data = arm
+    diag = np.linalg.norm(np.ptp(V, axis=0))
+    seen = []
+    host = arap_solve(
+        data, bc, host_loop=True, progress=lambda *values: seen.append([float(v) for v in values]), **options
+    )
+    compiled = arap_solve(data, bc, **options)
+    k = int(host.iterations)
+    # the same iterations: Anderson's least squares may round apart near convergence, so the count may differ by
+    # a few where the tolerance stops the loop, never the result
+    assert abs(k - int(compiled.iterations)) <= (0 if options else 0.1 * k) and bool(host.converged) == bool(
+        compiled.converged
+    )
+    np.testing.assert_allclose(np.asarray(host.U), np.asarray(compiled.U), rtol=0, atol=1e-10 * diag)
+    # plain iterations follow one path; Anderson's paths part by rounding (the same start and minimum)
+    energies, expected = np.asarray(host.energies), np.asarray(compiled.energies)
+    if options:
+        np.testing.assert_allclose(energies, expected, rtol=1e-9)
+    else:
+        assert energies[0] == pytest.approx(expected[0], rel=1e-12)
+        assert energies[k] == pytest.approx(expected[int(compiled.iterations)], rel=1e-9)
+    assert [s[0] for s in seen] == list(range(1, k + 1)) and seen[-1][2] == pytest.approx(float(host.residual))
+    np.testing.assert_allclose([s[1] for s in seen], np.asarray(host.energies)[:k], rtol=1e-12)
+
+
+def test_the_host_loop_refuses_a_trace(arm):
+    _, _, _, bc, data = arm
+    with pytest.raises(ValueError, match="host_loop: runs on concrete input only"):
+        jax.jit(lambda bc: arap_solve(data, bc, host_loop=True).U)(jnp.asarray(bc))
