@@ -444,7 +444,7 @@ def _check_planes(planes, steps: int, advice: str | None) -> list:
                 if advice is not None:
                     raise ValueError(f"{what}{name}: {advice}") from None
         if len(values) == 2:
-            concrete = _plane(*values, epsilon, name)
+            concrete = _plane(values[0], values[1], epsilon, name)
         else:
             concrete = (None, None, _positive("epsilon" + name, epsilon, "slab thickness"))
         checked.append((frame, point, normal, concrete))

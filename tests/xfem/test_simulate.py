@@ -113,7 +113,6 @@ def booleans(monkeypatch):
     return calls
 
 
-@pytest.mark.slow  # ~25 s on 2 cores (three rollouts compiled): the fast suite's 10-minute budget
 def test_a_plan_made_once_runs_the_booleans_once(booleans):
     model = _model()
     plan = plan_cuts(model, schedule := [(1, CUT)], 2)
