@@ -75,6 +75,7 @@ import jax.numpy as jnp
 import lineax as lx
 import numpy as np
 import scipy.sparse as sp
+from jax.core import Tracer
 from jax.typing import DTypeLike
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
@@ -652,7 +653,7 @@ def arap_solve(
     if progress is not None and not callable(progress):
         raise ValueError(f"progress: expected None or a function, got {type(progress).__name__}")
     if host_loop:
-        if any(isinstance(a, jax.core.Tracer) for a in (bc, V0)):
+        if any(isinstance(a, Tracer) for a in (bc, V0)):
             raise ValueError("host_loop: runs on concrete input only, not under jit, vmap or grad")
         U, energies, iterations, residual = _iterate_on_host(
             data, bc, V0, int(max_iterations), tolerance, memory, progress

@@ -46,8 +46,9 @@ def enable(command: str, no_cache: bool) -> Path | None:
 
     if no_cache or disabled_by_environment():
         return None
-    if jax.config.jax_compilation_cache_dir:  # the user configured JAX's cache: theirs to keep
-        return Path(jax.config.jax_compilation_cache_dir)
+    configured = getattr(jax.config, "jax_compilation_cache_dir", None)
+    if configured:  # the user configured JAX's cache: theirs to keep
+        return Path(configured)
     path = directory()
     try:
         path.mkdir(parents=True, exist_ok=True)

@@ -168,7 +168,6 @@ def deform_command(
     summary (vertices, keys, precompute and per-frame milliseconds, volume and edge-length change; for spline
     and handles the mesh's connected parts and how many follow others, ``unhandled`` being
     ``deform.mesh_parts``'s "follow" or "error")."""
-    import functools
     import time
 
     import jax
@@ -229,7 +228,7 @@ def deform_command(
     else:
         # the library's compiled entry point itself: its checks come back as values, the executable has no host
         # callback and the compilation cache keeps it
-        frame = functools.partial(deform.motor_field_solve, field)
+        frame = lambda motors: deform.motor_field_solve(field, motors)  # noqa: E731
         argument = key_motors
     with status("deform", "compiling the deformation"):
         positions = jax.block_until_ready(frame(argument))

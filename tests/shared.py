@@ -306,10 +306,10 @@ def run_on_host_devices(script: str, devices: int = 4, timeout: int = 600) -> st
     return done.stdout
 
 
-def run_jaxcga(argv: list[str], cache: Path | None, timeout: int = 600, **env: str):
+def run_jaxcga(argv: list[str], cache: Path | None, env: dict[str, str] | None = None, timeout: int = 600):
     """``jaxcga ARGV`` in a fresh process from the repository root (its packages, not an installed copy), with
     the compilation cache in ``cache`` (None: the cache left as the environment has it, which the tests' conftest
-    turns off) and the environment variables ``env``; returns the ``subprocess.CompletedProcess`` (text)."""
+    turns off) and the environment variables ``env`` added; returns the ``subprocess.CompletedProcess`` (text)."""
     import os
     import subprocess
     import sys
@@ -318,7 +318,7 @@ def run_jaxcga(argv: list[str], cache: Path | None, timeout: int = 600, **env: s
     if cache is not None:
         environment.pop("JAXCGA_NO_CACHE", None)
         environment["JAXCGA_CACHE_DIR"] = str(cache)
-    environment.update(env)
+    environment.update(env or {})
     return subprocess.run(
         [sys.executable, "-m", "jaxcga_cli", *argv],
         env=environment,

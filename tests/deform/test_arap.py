@@ -362,7 +362,7 @@ def test_progress_reports_every_iteration_with_its_energy_and_residual(arm):
 @pytest.mark.parametrize("options", [{}, {"tolerance": None, "acceleration": "none", "max_iterations": 15}])
 def test_the_host_loop_gives_the_compiled_loops_iterations(arm, options):
     V, _, _, bc, data = arm
-    diag = np.linalg.norm(np.ptp(V, axis=0))
+    diag = float(np.linalg.norm(np.ptp(V, axis=0)))
     seen = []
     host = arap_solve(
         data, bc, host_loop=True, progress=lambda *values: seen.append([float(v) for v in values]), **options
