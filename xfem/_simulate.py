@@ -14,19 +14,18 @@ placed by parameters: the pieces they make are found on the host at the given (c
 system is then ``PlaneCuts.systems(points, normals)``, a JAX function of every plane so far; the gradient with
 respect to each point and normal is exact for the combinatorics found (``xfem._cut_system``).
 
-The two phases are split in the open. The host phase, ``plan_cuts``, returns a ``CutPlan``: one ``_Segment`` per
-cut frame (the system after the frame's cuts, for plane cuts the index of the frame's last cut in
-``PlaneCuts.systems``, and the map from the previous segment's DOFs). The JAX phase, ``simulate(..., plan=plan)``
-(``_run``), rolls the segments out. The caller holds the plan and passes it to every call of one schedule (a loss
-under ``jax.grad``, an optimizer's iterations), so the Booleans run once; nothing in this module keeps a plan or a
-model, and a plan keeps the model and the solids it was made from, so it is checked against the call's by
-identity and cannot go stale. Every cut is made on a copy of the model (``xfem._cut_system._copy``), which the
-plan keeps (``CutPlan.model``): the caller's model is never cut, so ``simulate`` is a function of its arguments.
-``simulate`` without a plan makes one for the call. With plane cuts the plan's pieces
-are checked to hold at the call's planes (``PlaneCuts.holds``): concrete planes where they do not are refused
-(make a new plan there), traced ones raise a runtime error (``require``). ``plane_cut_simulation`` wraps a plan in
-a ``PlaneCutSimulation``, a function of the planes alone that makes a new plan where concrete planes moved past
-its pieces.
+The two phases are split in the open. The host phase, ``plan_cuts``, returns a ``CutPlan``: one ``_Segment`` per cut
+frame (the system after the frame's cuts, for plane cuts the index of the frame's last cut in ``PlaneCuts.systems``,
+and the map from the previous segment's DOFs). The JAX phase, ``simulate(..., plan=plan)`` (``_run``), rolls the
+segments out. The caller holds the plan and passes it to every call of one schedule (a loss under ``jax.grad``, an
+optimizer's iterations), so the Booleans run once; nothing in this module keeps a plan or a model, and a plan keeps
+the model and the solids it was made from, so it is checked against the call's by identity and cannot go stale.
+Every cut is made on a copy of the model (``xfem._cut_system._copy``), which the plan keeps (``CutPlan.model``): the
+caller's model is never cut, so ``simulate`` is a function of its arguments. ``simulate`` without a plan makes one
+for the call. With plane cuts the plan's pieces are checked to hold at the call's planes (``PlaneCuts.holds``):
+concrete planes where they do not are refused (make a new plan there), traced ones raise a runtime error
+(``require``). ``plane_cut_simulation`` wraps a plan in a ``PlaneCutSimulation``, a function of the planes alone
+that makes a new plan where concrete planes moved past its pieces.
 
 Every segment's steps converge by default (``rollout``), so the implicit gradients are the derivatives of the
 trajectory computed; ``newton_iterations=1, tolerance=None`` is the paper's step.

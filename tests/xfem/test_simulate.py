@@ -291,7 +291,8 @@ def test_plane_cuts_bad_input():
         jax.jit(lambda p: simulate(model, [], MATERIAL, H, 2, plane_cuts=[(1, p, normal, EPS)])[-1].x)(point)
     plan = plan_cuts(model, [], 2, plane_cuts=[(1, point, normal, EPS)])
     assert len(model.dof_sid) == HANGING.n_nodes and model.pieces() == 1  # the model is left uncut
-    assert plan.model is plan.cuts.model and plan.model.pieces() == 2 and plan.made_for is model
+    assert plan.cuts is not None and plan.model is plan.cuts.model and plan.made_for is model
+    assert plan.model.pieces() == 2
     assert bool(plan.holds(point[None] + 1e-4, normal[None])) and not plan.holds(point[None] + 0.1, normal[None])
     with pytest.raises(ValueError, match="plan: its pieces were found at other planes and do not hold at these"):
         simulate(model, [], MATERIAL, H, 2, plane_cuts=[(1, point + 0.1, normal, EPS)], plan=plan)
