@@ -14,17 +14,18 @@ placed by parameters: the pieces they make are found on the host at the given (c
 system is then ``PlaneCuts.systems(points, normals)``, a JAX function of every plane so far; the gradient with
 respect to each point and normal is exact for the combinatorics found (``xfem._cut_system``).
 
-The two phases are split in the open. The host phase, ``plan_cuts``, returns a ``CutPlan``: one ``_Segment`` per
-cut frame (the system after the frame's cuts, for plane cuts the index of the frame's last cut in
-``PlaneCuts.systems``, and the map from the previous segment's DOFs). The JAX phase, ``simulate(..., plan=plan)``
-(``_run``), rolls the segments out. The caller holds the plan and passes it to every call of one schedule (a loss
-under ``jax.grad``, an optimizer's iterations), so the Booleans run once; nothing in this module keeps a plan or a
-model, and a plan keeps the model and the solids it was made from, so it is checked against the call's by
-identity and cannot go stale. ``simulate`` without a plan makes one for the call. With plane cuts the plan's pieces
-are checked to hold at the call's planes (``PlaneCuts.holds``): concrete planes where they do not are refused
-(make a new plan there), traced ones raise a runtime error (``require``). ``plane_cut_simulation`` wraps a plan in
-a ``PlaneCutSimulation``, a function of the planes alone that makes a new plan where concrete planes moved past
-its pieces.
+The two phases are split in the open. The host phase, ``plan_cuts``, returns a ``CutPlan``: one ``_Segment`` per cut
+frame (the system after the frame's cuts, for plane cuts the index of the frame's last cut in ``PlaneCuts.systems``,
+and the map from the previous segment's DOFs). The JAX phase, ``simulate(..., plan=plan)`` (``_run``), rolls the
+segments out. The caller holds the plan and passes it to every call of one schedule (a loss under ``jax.grad``, an
+optimizer's iterations), so the Booleans run once; nothing in this module keeps a plan or a model, and a plan keeps
+the model and the solids it was made from, so it is checked against the call's by identity and cannot go stale.
+Every cut is made on a copy of the model (``xfem._cut_system._copy``), which the plan keeps (``CutPlan.model``): the
+caller's model is never cut, so ``simulate`` is a function of its arguments. ``simulate`` without a plan makes one
+for the call. With plane cuts the plan's pieces are checked to hold at the call's planes (``PlaneCuts.holds``):
+concrete planes where they do not are refused (make a new plan there), traced ones raise a runtime error
+(``require``). ``plane_cut_simulation`` wraps a plan in a ``PlaneCutSimulation``, a function of the planes alone
+that makes a new plan where concrete planes moved past its pieces.
 
 Every segment's steps converge by default (``rollout``), so the implicit gradients are the derivatives of the
 trajectory computed; ``newton_iterations=1, tolerance=None`` is the paper's step.
@@ -44,7 +45,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from _jaxcga_shared.checks import require
 from xfem._backward_euler import _NEWTON_ITERATIONS, FEMSystem, State
-from xfem._cut_system import PlaneCuts, _plane, plane_cuts
+from xfem._cut_system import PlaneCuts, _copy, _plane, plane_cuts
 from xfem._cuts import _positive
 from xfem._material import Material
 from xfem._rollout import rollout
@@ -70,16 +71,21 @@ class CutPlan:
     many times (``jax.grad``, an optimizer's iterations) cuts once. The caller owns it: nothing else keeps it, and
     dropping it frees its systems.
 
-    It keeps the model and the schedule's solids it was made from; ``simulate`` refuses it (a ValueError naming
-    ``plan``) for another model (compared by identity), schedule (frames, and solids by identity), step count or
-    set of plane cuts (frames and thicknesses). Make a new plan when the schedule changes, when the model was cut
-    since (``simulate`` refuses the plan then, naming ``model``), and, with plane cuts, when the planes move past
-    the pieces found (``holds`` is False: ``simulate`` refuses such concrete planes, and raises a runtime error for
-    traced ones, rather than return a trajectory of other pieces).
+    The cuts are made on a copy of the model, which the plan keeps (``model``); the model it was made for
+    (``made_for``) is left uncut. It keeps that model and the schedule's solids; ``simulate`` refuses it (a
+    ValueError naming ``plan``) for another model (compared by identity), schedule (frames, and solids by
+    identity), step count or set of plane cuts (frames and thicknesses). Make a new plan when the schedule
+    changes, when the model was cut since (``simulate`` refuses the plan then, naming ``model``), and, with plane
+    cuts, when the planes move past the pieces found (``holds`` is False: ``simulate`` refuses such concrete
+    planes, and raises a runtime error for traced ones, rather than return a trajectory of other pieces).
 
     Attributes:
-        model: the ``XFEMModel`` it was made for. Without plane cuts ``plan_cuts`` cut it by the schedule (it holds
-            the last segment's pieces); with plane cuts it is left uncut and ``cuts.model`` is the cut copy.
+        made_for: the caller's ``XFEMModel`` it was made for (compared by identity; never cut by the plan).
+        model: the copy of ``made_for`` cut by every cut of the plan, in time order (the schedule's solids and the
+            slabs at ``points``, ``normals``): the last segment's pieces and DOF numbering (``dof_node``,
+            ``components``, ``piece_surfaces``) for host queries of a trajectory; its state is ``start`` carried
+            through the cuts, not stepped. Closed (``XFEMModel.close``: its Boolean threads ended), so it neither
+            cuts in parallel nor steps. With plane cuts it is ``cuts.model``.
         schedule: the ``(frame, solid)`` pairs, as given.
         steps: the number of frames.
         frames: (k,) int64 the frame of each plane cut, in the order given (k = 0 without plane cuts).
@@ -94,10 +100,11 @@ class CutPlan:
         segments: one ``(frame, system, source)`` per segment: its first frame; its ``FEMSystem`` (with plane cuts,
             the index of its frame's last cut in ``cuts.systems``; None for the first segment: ``initial``); the
             (n_k,) int64 map from the previous segment's DOFs to its own (None: the same DOFs).
-        model_cuts: the number of the model's cuts (``len(model.cuts)``) once planned: a model cut since is
+        model_cuts: the number of cuts of ``made_for`` (``len(made_for.cuts)``) when planned: a model cut since is
             refused.
     """
 
+    made_for: XFEMModel
     model: XFEMModel
     schedule: tuple[tuple[int, object], ...]
     steps: int
@@ -188,7 +195,8 @@ def _plane_segments(model: XFEMModel, schedule, planes) -> tuple[list[_Segment],
 
 def _plan(model: XFEMModel, schedule: list, steps: int, planes: list, start: State | None = None) -> CutPlan:
     """The ``CutPlan`` of checked arguments: ``planes`` (frame, point, normal, epsilon), concrete numpy, in the
-    order given; ``start``: the state before the cuts (None: the model's now). Host work, also when traced."""
+    order given; ``start``: the state before the cuts (None: the model's now). Host work, also when traced; the
+    cuts are made on a copy, ``model`` is left as it is."""
     with jax.ensure_compile_time_eval():  # the systems' arrays are constants, also when simulate is traced
         if start is None:
             start = State(np.array(model.state.x), np.array(model.state.v))
@@ -201,13 +209,17 @@ def _plan(model: XFEMModel, schedule: list, steps: int, planes: list, start: Sta
         if planes:
             in_time = [planes[k] for k in _time_order(frames)]
             segments, cuts = _plane_segments(model, schedule, in_time)
+            copy = cuts.model
         else:
             segments = [_Segment(1, None, None)]
-            for frame in sorted({frame for frame, _ in schedule}):
-                system, source = _after_cuts(model, [solid for f, solid in schedule if f == frame])
-                segments.append(_Segment(frame, system, source))
+            # its Boolean threads end with the cuts; the plan keeps its pieces for host queries
+            with _copy(model) as copy:
+                for frame in sorted({frame for frame, _ in schedule}):
+                    system, source = _after_cuts(copy, [solid for f, solid in schedule if f == frame])
+                    segments.append(_Segment(frame, system, source))
     return CutPlan(
-        model=model,
+        made_for=model,
+        model=copy,
         schedule=tuple(schedule),
         steps=steps,
         frames=frames,
@@ -233,12 +245,13 @@ def plan_cuts(
     Booleans, each segment's system and the DOF copy maps, for ``simulate(..., plan=plan)`` to run on as often as
     needed (``CutPlan``: what it holds and when to make a new one).
 
-    Without plane cuts it CUTS ``model`` by the schedule, in frame order (afterwards the model holds the last
-    segment's pieces; its ``state`` is carried through the cuts, not stepped). With plane cuts every cut is made on
-    a copy (``xfem.plane_cuts``) at these concrete planes, and ``model`` is left uncut.
+    Every cut is made on a copy of ``model`` (the schedule's solids in frame order, with plane cuts by
+    ``xfem.plane_cuts`` at these concrete planes), and ``model`` is left uncut: the cut copy is the plan's
+    ``model`` (the last segment's pieces and DOFs, for host queries).
 
     Args:
-        model: the ``XFEMModel``, with the cuts made before the schedule's; its state is the plan's ``start``.
+        model: the ``XFEMModel``, with the cuts made before the schedule's (made again on the copy); its state is
+            the plan's ``start``.
         schedule: ``(frame, solid)`` pairs, 1 <= frame <= steps, solids as ``XFEMModel.cut`` takes them; the cuts
             of one frame are made in the order given.
         steps: python int >= 1, the number of frames.
@@ -381,9 +394,9 @@ class PlaneCutSimulation:
 def _replan(plan: CutPlan, points: np.ndarray, normals: np.ndarray) -> CutPlan:
     """The plan of the same model, schedule and plane cuts at other concrete planes (given order), from the same
     start."""
-    _check_model(plan, plan.model)
+    _check_model(plan, plan.made_for)
     planes = [(int(f), points[k], normals[k], float(e)) for k, (f, e) in enumerate(zip(plan.frames, plan.epsilons))]
-    return _plan(plan.model, list(plan.schedule), plan.steps, planes, plan.start)
+    return _plan(plan.made_for, list(plan.schedule), plan.steps, planes, plan.start)
 
 
 def plane_cut_simulation(
@@ -468,7 +481,7 @@ def _check_schedule(schedule, steps: int) -> list:
 
 def _check_model(plan: CutPlan, model: XFEMModel) -> None:
     """ValueError where the plan was made for another model, or the model was cut since."""
-    if plan.model is not model:
+    if plan.made_for is not model:
         raise ValueError("plan: made for another model; make one for this model (xfem.plan_cuts(model, ...))")
     if len(model.cuts) != plan.model_cuts:
         raise ValueError(
@@ -541,16 +554,15 @@ def simulate(
     ``XFEMModel.step`` do. The cuts are the host phase (``plan_cuts``: the Booleans), the steps the JAX phase.
     Pass the ``plan`` of this model and schedule to run the JAX phase alone: a loss evaluated many times (by
     ``jax.grad``, an optimizer's iterations) then cuts once. Without a plan each call makes one (as ``plan_cuts``
-    does) and drops it: without plane cuts it CUTS ``model`` (afterwards it holds the last segment's pieces; its
-    own ``state`` is carried through the cuts but not stepped), so a second call on the same model would start
-    from those pieces and cut them again: pass the plan instead. With plane cuts every cut of the schedule is made
-    on a copy (``xfem.plane_cuts``) and ``model`` is left uncut; a plan's pieces are used at other planes while
-    they hold there (``CutPlan.holds``: the planes moved without crossing a node or a piece's vertex); which pieces
-    exist is a constant of the gradient. Points and normals traced by ``jax.jit`` or ``jax.vmap`` need a plan;
+    does) and drops it. Either way the cuts are made on a copy and ``model`` is left as it is (its pieces, DOFs
+    and state), so equal calls give equal trajectories; the cut model (the last segment's DOFs, for host queries)
+    is the plan's ``model``. With plane cuts a plan's pieces are used at other planes while they hold there
+    (``CutPlan.holds``: the planes moved without crossing a node or a piece's vertex); which pieces exist is a
+    constant of the gradient. Points and normals traced by ``jax.jit`` or ``jax.vmap`` need a plan;
     eager ``jax.grad`` gives concrete values, and works without one.
 
     Args:
-        model: the ``XFEMModel``, with the cuts made before the schedule's.
+        model: the ``XFEMModel``, with the cuts made before the schedule's (left uncut).
         schedule: ``(frame, solid)`` pairs, 1 <= frame <= steps, solids as ``XFEMModel.cut`` takes them; the cuts
             of one frame are made in the order given.
         material: the ``Material`` (scalars or one value per element of every segment's system).

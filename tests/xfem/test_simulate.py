@@ -44,8 +44,7 @@ def test_trajectory_equals_the_model_stepped_frame_by_frame():
     n_before = len(model.dof_sid)
     segments = simulate(model, [(CUT_FRAME, CUT)], MATERIAL, H, STEPS, **PAPER)
     assert [s.x.shape[0] for s in segments] == [CUT_FRAME - 1, STEPS - CUT_FRAME + 1]
-    assert segments[0].x.shape[1] == n_before and segments[1].x.shape[1] == len(model.dof_sid) > n_before
-    assert model.pieces() == 2
+    assert len(model.dof_sid) == n_before and model.pieces() == 1  # the cuts were made on a copy
     frames = [(s.x[k], s.v[k]) for s in segments for k in range(s.x.shape[0])]
 
     reference = _model()
@@ -56,6 +55,7 @@ def test_trajectory_equals_the_model_stepped_frame_by_frame():
         x, v = frames[frame - 1]
         np.testing.assert_allclose(x, reference.state.x, rtol=0, atol=1e-10)
         np.testing.assert_allclose(v, reference.state.v, rtol=0, atol=1e-8)
+    assert segments[0].x.shape[1] == n_before and segments[1].x.shape[1] == len(reference.dof_sid) > n_before
     assert float(jnp.min(segments[1].v[-1, :, 2])) < -0.1  # the released end falls
 
 
@@ -87,7 +87,7 @@ def test_gradients_across_the_cut_match_central_differences_at_the_defaults():
     args = (jnp.asarray(2e5), v0, jnp.asarray(1.0))
     value_and_grad = jax.jit(jax.value_and_grad(loss, argnums=(0, 1, 2), has_aux=True))
     (_, converged), grad = value_and_grad(*args)
-    assert model.pieces() == 2 and converged  # cut once, by the plan
+    assert plan.model.pieces() == 2 and model.pieces() == 1 and converged  # cut once, by the plan, on its copy
 
     def central(i, d, eps):
         plus, minus = list(args), list(args)
@@ -117,7 +117,8 @@ def test_a_plan_made_once_runs_the_booleans_once(booleans):
     model = _model()
     plan = plan_cuts(model, schedule := [(1, CUT)], 2)
     made = len(booleans)
-    assert made > 0 and model.pieces() == 2 and plan.model is model and plan.schedule[0][1] is CUT
+    assert made > 0 and plan.made_for is model and plan.schedule[0][1] is CUT
+    assert model.pieces() == 1 and plan.model is not model and plan.model.pieces() == 2 and plan.model.closed
     system = model.system()
     first = simulate(model, schedule, MATERIAL, H, 2, plan=plan, **PAPER)
     second = simulate(model, schedule, MATERIAL, H, 2, plan=plan, **PAPER)
@@ -129,6 +130,27 @@ def test_a_plan_made_once_runs_the_booleans_once(booleans):
         assert_same_run(b.x, a.x, atol=1e-12)
         np.testing.assert_allclose(a.x, c.x, rtol=0, atol=1e-12)
         np.testing.assert_allclose(a.v, c.v, rtol=0, atol=1e-12)
+
+
+def test_simulate_without_a_plan_leaves_the_model_as_it_was():
+    """Plan-less calls cut a copy each: two calls on one model (with a cut of its own before) give the same
+    trajectory, and the model's cuts, pieces, DOFs and state are those it had."""
+    model, cut_model = _model(), _model()  # cut_model: cut by both solids, for the DOF counts
+    for m in (model, cut_model):
+        m.cut(plane_cut_solid(np.array([1.53, 0.5, 0.5]), np.array([1.0, -0.02, 0.03]), 3.0, 1e-3))
+    cut_model.cut(CUT)
+    model.state = State(model.state.x + 0.01 * np.random.default_rng(2).normal(size=model.state.x.shape), model.state.v)
+    before = (len(model.cuts), model.pieces(), model.dof_sid.copy(), np.array(model.state.x), np.array(model.state.v))
+    first = simulate(model, [(2, CUT)], MATERIAL, H, 2, **PAPER)
+    second = simulate(model, [(2, CUT)], MATERIAL, H, 2, **PAPER)
+    assert [s.x.shape[:2] for s in first] == [(1, len(before[2])), (1, len(cut_model.dof_sid))]
+    for a, b in zip(first, second, strict=True):
+        np.testing.assert_allclose(b.x, a.x, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(b.v, a.v, rtol=0, atol=1e-12)
+    assert (len(model.cuts), model.pieces()) == before[:2] == (1, 2)
+    np.testing.assert_array_equal(model.dof_sid, before[2])
+    np.testing.assert_array_equal(model.state.x, before[3])
+    np.testing.assert_array_equal(model.state.v, before[4])
 
 
 def test_a_plan_for_another_model_schedule_or_step_count_is_refused():
@@ -170,11 +192,12 @@ def test_nothing_keeps_a_dropped_plan():
     model = _model()
     plan = plan_cuts(model, schedule := [(1, CUT)], 1)
     simulate(model, schedule, MATERIAL, H, 1, plan=plan, **PAPER)
-    dropped = weakref.ref(plan), weakref.ref(plan.initial)  # the system before the cut: only the plan has it
+    # the system after the cut and the cut copy: only the plan has them (the model keeps its own system)
+    dropped = weakref.ref(plan), weakref.ref(plan.segments[-1].system), weakref.ref(plan.model)
     del plan
     gc.collect()
-    assert dropped[0]() is None and dropped[1]() is None  # no module, cache or compiled step keeps them
-    assert model.pieces() == 2  # the model keeps its cuts
+    assert all(ref() is None for ref in dropped)  # no module, cache, thread or compiled step keeps them
+    assert model.pieces() == 1  # the plan never cut the model
 
 
 # plane cuts: a bar 0.2 x 0.2 x 1 hanging from its top face, cut by a slab at a height inside the layer 0.375-0.5
@@ -268,6 +291,8 @@ def test_plane_cuts_bad_input():
         jax.jit(lambda p: simulate(model, [], MATERIAL, H, 2, plane_cuts=[(1, p, normal, EPS)])[-1].x)(point)
     plan = plan_cuts(model, [], 2, plane_cuts=[(1, point, normal, EPS)])
     assert len(model.dof_sid) == HANGING.n_nodes and model.pieces() == 1  # the model is left uncut
+    assert plan.cuts is not None and plan.model is plan.cuts.model and plan.made_for is model
+    assert plan.model.pieces() == 2
     assert bool(plan.holds(point[None] + 1e-4, normal[None])) and not plan.holds(point[None] + 0.1, normal[None])
     with pytest.raises(ValueError, match="plan: its pieces were found at other planes and do not hold at these"):
         simulate(model, [], MATERIAL, H, 2, plane_cuts=[(1, point + 0.1, normal, EPS)], plan=plan)
