@@ -5,5 +5,6 @@ One module per subcommand (``demo``, ``skin``, ``animate``, ``fit``, ``cut``, ``
 ``arap``, ``fem``, ``xfem``, ``view``), run by ``main``; what they share: ``arguments`` (options and enumerations),
 ``models`` (loading models and meshes, the bounding box, the motion and the ``--handles`` file of ``deform`` and
 ``arap``), ``output`` (suffixes and the one writer chosen by suffix),
-``figures`` (matplotlib, set up once) and ``report`` (status lines, progress bars, one-line errors on stderr).
+``figures`` (matplotlib, set up once), ``report`` (status lines, progress bars, one-line errors on stderr) and
+``cache`` (JAX's persistent compilation cache in the user's cache directory, turned on by ``main``).
 """
