@@ -62,12 +62,12 @@ from scipy.sparse.csgraph import connected_components
 import deform
 from _jaxcga_shared.checks import check_real
 from _jaxcga_shared.mesh import bounding_diagonal
+from _jaxcga_shared.tetmeshing import embed, ftetwild
 from xfem._surface_tets import (
     EDGE_LENGTH,
     EPSILON,
     SurfaceEmbedding,
     TetQuality,
-    embed_points,
     tet_quality,
     tetrahedralize_surface,
 )
@@ -90,6 +90,7 @@ _GROWTH = 8  # the refinement stops at this many times fTetWild's tets
 _SHRINK = 0.7
 _STUCK = 0.9  # a vertex whose error fell by less after a refinement of its tet sits out a round
 LIMIT = 1e-3  # the surface limit the tets are refined to, a fraction of the diagonal
+_APART = 4  # parts whose bounding boxes lie this many envelopes apart are meshed in one fTetWild call
 
 
 class CharacterBody(NamedTuple):
@@ -407,11 +408,14 @@ def _bone_distances(model: deform.RiggedModel, points: np.ndarray) -> np.ndarray
     return distance
 
 
-def _hold_loose_parts(driven: np.ndarray, surface: np.ndarray, F: np.ndarray, embedded_in: np.ndarray) -> np.ndarray:
+def _hold_loose_parts(
+    driven: np.ndarray, surface: np.ndarray, F: np.ndarray, embedded_in: np.ndarray, T: np.ndarray
+) -> np.ndarray:
     """The driven nodes (sorted indices) of the core rule's mask ``driven``, with every node of the tets that hold a
     part of the surface (a connected set of its triangles) none of whose tets has a driven node: an accessory away
     from the bones (a rifle held out in a hand, a plate of a robot) would otherwise hang on flesh alone and swing
-    off; it follows its bones as it was skinned."""
+    off; it follows its bones as it was skinned. So does a connected set of the tets T with no driven node (a part
+    meshed on its own that embeds no vertex), which would otherwise fall from the start."""
     count, label = connected_components(
         sp.coo_matrix((np.ones(F.size), (np.repeat(F[:, 0], 3), F.ravel())), shape=(len(surface),) * 2),
         directed=False,
@@ -423,6 +427,10 @@ def _hold_loose_parts(driven: np.ndarray, surface: np.ndarray, F: np.ndarray, em
         nodes = np.unique(embedded_in[(label == part) & used])
         if nodes.size and not driven[nodes].any():
             held[nodes] = True
+    pieces, piece = _components(T, len(held))
+    holding = np.zeros(pieces, bool)
+    holding[piece[held]] = True
+    held |= ~holding[piece]
     return np.flatnonzero(held)
 
 
@@ -440,7 +448,118 @@ def _depths(parents: tuple[int, ...]) -> np.ndarray:
     return depth
 
 
-def _build(model, dense, V, F, G, diagonal, edge_length, epsilon, threads, tets, influences, tolerance):
+def _components(T: np.ndarray, n: int) -> tuple[int, np.ndarray]:
+    """The connected components of n nodes joined by the tets T (t, 4): their count and each node's label."""
+    rows = np.repeat(T[:, :1], 3, axis=1).ravel()
+    return connected_components(sp.coo_matrix((np.ones(len(rows)), (rows, T[:, 1:].ravel())), shape=(n, n)), False)
+
+
+def _surface_parts(V: np.ndarray, F: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
+    """The parts of a surface, the connected sets of its triangles: their count, each vertex's part (s,) (a vertex
+    on no triangle takes the part of its nearest triangle) and each triangle's part (f,)."""
+    adjacency = sp.coo_matrix((np.ones(F.size), (np.repeat(F[:, 0], 3), F.ravel())), shape=(len(V),) * 2)
+    label = connected_components(adjacency, directed=False)[1]
+    parts, face_part = np.unique(label[F[:, 0]], return_inverse=True)
+    vertex_part = np.full(len(V), -1, np.int64)
+    vertex_part[F] = face_part.reshape(-1, 1)
+    loose = np.flatnonzero(vertex_part < 0)
+    if len(loose):
+        face = np.asarray(igl.point_mesh_squared_distance(V[loose], V, F)[1], np.int64)
+        vertex_part[loose] = face_part[face]
+    return len(parts), vertex_part, face_part.astype(np.int64)
+
+
+def _meshing_groups(V: np.ndarray, F: np.ndarray, face_part: np.ndarray, count: int, margin: float) -> list:
+    """The parts in groups that one fTetWild call can mesh without joining them: greedily, largest first, a part
+    joins the first group none of whose parts' bounding boxes comes within ``margin`` of its own (touching, nested
+    and overlapping parts go to different calls)."""
+    corners = V[F].reshape(-1, 3)
+    part = np.repeat(face_part, 3)
+    low, high = np.full((count, 3), np.inf), np.full((count, 3), -np.inf)
+    np.minimum.at(low, part, corners)
+    np.maximum.at(high, part, corners)
+    near = np.all(low[:, None] - margin <= high[None], axis=2) & np.all(low[None] - margin <= high[:, None], axis=2)
+    groups: list[list[int]] = []
+    for p in np.argsort(-np.bincount(face_part, minlength=count), kind="stable").tolist():
+        group = next((g for g in groups if not near[p, g].any()), None)
+        if group is None:
+            groups.append([p])
+        else:
+            group.append(p)
+    return [np.asarray(g, np.int64) for g in groups]
+
+
+def _part_tets(V, F, face_part, count, diagonal, edge_length, epsilon, threads) -> tuple[np.ndarray, np.ndarray]:
+    """fTetWild's tets of each part of the surface on its own (module docstring), parts far apart meshed in one
+    call, as one mesh of disjoint node sets: (X (n, 3), T (t, 4))."""
+    nodes, tets, offset = [], [], 0
+    for group in _meshing_groups(V, F, face_part, count, _APART * epsilon * diagonal):
+        used, local = np.unique(F[np.isin(face_part, group)], return_inverse=True)
+        size = bounding_diagonal(V[used])
+        # the lengths are the whole surface's: fTetWild takes them relative to the group's diagonal
+        TV, TT = ftetwild(
+            V[used], local.reshape(-1, 3), edge_length * diagonal / size, epsilon * diagonal / size, threads=threads
+        )
+        if len(TT) == 0:  # open sheets: no volume, their vertices take the nearest tets (_embed_parts)
+            continue
+        kept, TT = np.unique(TT, return_inverse=True)
+        nodes.append(TV[kept])
+        tets.append(TT.reshape(-1, 4) + offset)
+        offset += len(kept)
+    if not tets:
+        raise ValueError("model: its surface encloses no volume (fTetWild kept no tet of any of its parts)")
+    return np.concatenate(nodes), np.concatenate(tets)
+
+
+def _tet_parts(
+    X: np.ndarray, T: np.ndarray, surface: np.ndarray, F: np.ndarray, face_part: np.ndarray, count: int
+) -> np.ndarray:
+    """(t,) the surface part each tet belongs to: a connected set of tets belongs to the part most of its boundary
+    nodes lie nearest to (fTetWild's tets of a part end within the envelope of that part's surface)."""
+    components, label = _components(T, len(X))
+    boundary = np.unique(_boundary_faces(T))
+    face = np.asarray(igl.point_mesh_squared_distance(X[boundary], surface, F)[1], np.int64)
+    votes = sp.coo_matrix((np.ones(len(boundary)), (label[boundary], face_part[face])), shape=(components, count))
+    return np.asarray(votes.toarray().argmax(axis=1), np.int64)[label[T[:, 0]]]
+
+
+def _carry_parts(T: np.ndarray, tet_part: np.ndarray, n: int, refined: np.ndarray) -> np.ndarray:
+    """(t',) the parts of the tets ``refined`` (of n nodes) that bisect the tets T of parts ``tet_part``: a
+    bisection keeps T's nodes and splits edges inside one connected set of tets, so each connected set of the
+    refined tets holds nodes of T, of one part."""
+    node_part = np.full(n, -1, np.int64)
+    node_part[T] = tet_part[:, None]
+    components, label = _components(refined, n)
+    part = np.full(components, -1, np.int64)
+    np.maximum.at(part, label, node_part)
+    return part[label[refined[:, 0]]]
+
+
+def _embed_parts(X, T, tet_part, points, vertex_part) -> SurfaceEmbedding:
+    """The surface's vertices embedded each in the tets of its own part (``embed_points`` restricted to them), so
+    that no tet holds two parts; the vertices of a part without tets (an open sheet) in the nearest tets."""
+    element = np.zeros(len(points), np.int64)
+    weights = np.zeros((len(points), 4))
+    distance = np.zeros(len(points))
+    owned = np.zeros(int(max(vertex_part.max(), tet_part.max())) + 1, bool)
+    owned[tet_part] = True
+    order = np.argsort(tet_part, kind="stable")
+    bounds = np.searchsorted(tet_part[order], np.arange(len(owned) + 1))
+    rows_of = np.argsort(vertex_part, kind="stable")
+    row_bounds = np.searchsorted(vertex_part[rows_of], np.arange(len(owned) + 1))
+    for p in np.flatnonzero(owned):
+        rows = rows_of[row_bounds[p] : row_bounds[p + 1]]
+        if len(rows):
+            mine = order[bounds[p] : bounds[p + 1]]
+            e, weights[rows], distance[rows] = embed(X, T[mine], points[rows])
+            element[rows] = mine[e]
+    rows = np.flatnonzero(~owned[vertex_part])
+    if len(rows):
+        element[rows], weights[rows], distance[rows] = embed(X, T, points[rows])
+    return SurfaceEmbedding(element, T[element], weights, distance)
+
+
+def _build(model, dense, V, F, G, diagonal, edge_length, epsilon, threads, tets, influences, tolerance, per_part):
     """The tets of the rest configuration (fTetWild's or ``tets``), refined, with their weights (module docstring):
     (Y (n, 3) nodes, T (t, 4) tets, J and W (n, influences) weights, the surface's embedding).
 
@@ -453,12 +572,15 @@ def _build(model, dense, V, F, G, diagonal, edge_length, epsilon, threads, tets,
     images = np.einsum("jab,sb->sja", G[:, :3], Vh)  # (s, j, 3) each joint's rest image of each vertex
     placed = np.einsum("sj,sja->sa", dense, images)
     moments = dense[..., None] * (images - placed[:, None])
-    if tets is None:
-        made = tetrahedralize_surface(placed, F, edge_length=edge_length, epsilon=epsilon, threads=threads)
-        mesh = made.mesh
-    else:
+    count, vertex_part, face_part = _surface_parts(placed, F)
+    if tets is not None:
         mesh = tets
+    elif per_part and count > 1:
+        mesh = tet_mesh(*_part_tets(placed, F, face_part, count, diagonal, edge_length, epsilon, threads))
+    else:
+        mesh = tetrahedralize_surface(placed, F, edge_length=edge_length, epsilon=epsilon, threads=threads).mesh
     Y, T = np.asarray(mesh.X, np.float64), np.asarray(mesh.T, np.int64)
+    tet_part = _tet_parts(Y, T, placed, F, face_part, count)
     if tolerance is not None:  # the probe poses: the nodes' joint matrices, and the surface skinned directly
         inverse_bind = np.asarray(model.mesh.inverse_bind, np.float64)
         poses = _probe_poses(model)
@@ -473,7 +595,7 @@ def _build(model, dense, V, F, G, diagonal, edge_length, epsilon, threads, tets,
     budget = _GROWTH * len(T)
     previous = np.full(len(V), np.inf)  # each vertex's error when its tet was last refined
     for round_ in range(_ROUNDS + 1):
-        embedding = embed_points(mesh, placed)
+        embedding = _embed_parts(Y, T, tet_part, placed, vertex_part)
         if round_ == 0 and tets is not None:
             far = embedding.distance > 3 * float(np.median(lengths))
             if far.mean() > 0.1:
@@ -500,8 +622,9 @@ def _build(model, dense, V, F, G, diagonal, edge_length, epsilon, threads, tets,
         for t in embedding.element[bad][np.argsort(error[bad], kind="stable")].tolist():
             order.pop(t, None)
             order[t] = None
-        Y, T = bisect_tets(Y, T, np.fromiter(order, np.int64, len(order)), _SHRINK, shortest, budget)
-        mesh = tet_mesh(Y, T)
+        refined_Y, refined_T = bisect_tets(Y, T, np.fromiter(order, np.int64, len(order)), _SHRINK, shortest, budget)
+        tet_part = _carry_parts(T, tet_part, len(refined_Y), refined_T)
+        Y, T = refined_Y, refined_T
     if tolerance is not None and error.max() > tolerance * diagonal:
         warnings.warn(
             f"tolerance: the embedded surface misses the directly skinned one by up to {error.max() / diagonal:.2g} "
@@ -527,6 +650,7 @@ def character_body(
     threads: int | None = None,
     tolerance: float = LIMIT,
     refine: bool | None = None,
+    per_part: bool = True,
 ) -> CharacterBody:
     """A tet body of a rigged model: fTetWild's tets of its surface, the surface's skinning weights carried to the
     tet nodes, the nodes the skeleton drives and the surface embedded in the tets (module docstring: the rules).
@@ -550,6 +674,9 @@ def character_body(
             docstring).
         refine: whether to refine the tets to ``tolerance``; None: fTetWild's yes, ``tets`` given no (a saved
             body's are refined already).
+        per_part: True: each part of the surface (a connected set of its triangles) gets tets of its own, which
+            share no node with another part's (module docstring); False: one fTetWild mesh of the whole surface,
+            whose tets may hold several parts.
     Returns:
         The ``CharacterBody``.
     """
@@ -567,6 +694,11 @@ def character_body(
         raise ValueError(f"influences: expected an int >= 1, got {influences!r}")
     if isinstance(tolerance, bool) or not isinstance(tolerance, (int, float, np.floating)) or not 0 < tolerance < 1:
         raise ValueError(f"tolerance: expected a fraction of the diagonal in (0, 1), got {tolerance!r}")
+    for name, value, high in (("edge_length", edge_length, 1.0), ("epsilon", epsilon, 0.1)):
+        if isinstance(value, bool) or not isinstance(value, (int, float, np.floating)) or not 0 < value <= high:
+            raise ValueError(f"{name}: expected a fraction of the bounding box diagonal in (0, {high}], got {value!r}")
+    if not isinstance(per_part, bool):
+        raise ValueError(f"per_part: expected True or False, got {per_part!r}")
     if refine is not None and not isinstance(refine, bool):
         raise ValueError(f"refine: expected None, True or False, got {refine!r}")
     if refine is None:
@@ -586,7 +718,7 @@ def character_body(
     V = np.asarray(mesh.V, np.float64)
     target = tolerance if refine else None
     Y, T, J, W, embedding = _build(
-        model, dense, V, F, G, diagonal, edge_length, epsilon, threads, tets, int(influences), target
+        model, dense, V, F, G, diagonal, edge_length, epsilon, threads, tets, int(influences), target, per_part
     )
     X = Y
     rest = tet_mesh(X, T)
@@ -623,7 +755,7 @@ def character_body(
     if isinstance(driven, str):
         driven_nodes = np.arange(len(X))
     elif driven is None:
-        driven_nodes = _hold_loose_parts(np.asarray(inside.any(axis=1)), surface, F, embedding.nodes)
+        driven_nodes = _hold_loose_parts(np.asarray(inside.any(axis=1)), surface, F, embedding.nodes, T)
     else:
         driven_nodes = np.asarray(driven)
         if (
@@ -642,7 +774,12 @@ def character_body(
     depth = _depths(model.skeleton.parents)[np.asarray(mesh.joints)]
     nearest = np.argmin(np.where(has_core[None], distance / np.where(has_core, radius, 1)[None], np.inf), axis=1)
     node_depth = depth[nearest[driven_nodes]]
-    anchors = driven_nodes[node_depth == node_depth.min()]
+    # in each connected set of tets (the parts meshed on their own are several from the start): each must follow
+    # the rig until a cut severs it
+    pieces, piece = _components(T, len(X))
+    shallowest = np.full(pieces, np.iinfo(np.int64).max)
+    np.minimum.at(shallowest, piece[driven_nodes], node_depth)
+    anchors = driven_nodes[node_depth == shallowest[piece[driven_nodes]]]
     return CharacterBody(
         model=model,
         node_model=node_model,
