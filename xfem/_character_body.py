@@ -90,6 +90,8 @@ _GROWTH = 8  # the refinement stops at this many times fTetWild's tets
 _SHRINK = 0.7
 _STUCK = 0.9  # a vertex whose error fell by less after a refinement of its tet sits out a round
 LIMIT = 1e-3  # the surface limit the tets are refined to, a fraction of the diagonal
+_BIND_FITS = 2  # the fits in mesh space, each with the mesh-space nodes of the previous weights
+_BIND_SPREAD = 1e-9  # a vertex's joints' rest images further apart than this (diagonals): fit in mesh space
 _APART = 4  # parts whose bounding boxes lie this many envelopes apart are meshed in one fTetWild call
 
 
@@ -190,16 +192,6 @@ def _rest_joint_matrices(model: deform.RiggedModel) -> tuple[np.ndarray, np.ndar
     return bones, bones @ np.asarray(model.mesh.inverse_bind, np.float64)
 
 
-def _nearest_similitudes(matrices: np.ndarray) -> np.ndarray:
-    """(k, 4, 4) the nearest similitudes of affine matrices (k, 4, 4), translations kept: files store rotations and
-    scales to float32, and the multivector methods take only exact similitudes."""
-    U, S, Vt = np.linalg.svd(matrices[:, :3, :3])
-    nearest = np.array(matrices)
-    nearest[:, :3, :3] = np.cbrt(np.prod(S, axis=1))[:, None, None] * (U @ Vt)
-    nearest[:, 3] = [0.0, 0.0, 0.0, 1.0]
-    return nearest
-
-
 def fit_weights(
     X: np.ndarray,
     T: np.ndarray,
@@ -241,6 +233,14 @@ def fit_weights(
     scale = smoothness * normal.diagonal().sum() / max(K.diagonal().sum(), 1e-300)
     system = (normal + scale * K).tocsc()
     return sparse_linalg.splu(system).solve(np.asarray(M.T @ Y))
+
+
+def _bind_positions(Y: np.ndarray, G: np.ndarray, J: np.ndarray, W: np.ndarray) -> np.ndarray:
+    """(n, 3) the nodes' mesh-space positions ``y_a``: those that linear blending of the joints' rest matrices G
+    (j, 4, 4) with the nodes' weights (J, W) (n, k) takes to the rest positions Y (n, 3), ``sum_j W_aj G_j y_a =
+    x_a``."""
+    blend = np.einsum("nk,nkab->nab", W, G[J][:, :, :3])  # (n, 3, 4)
+    return np.linalg.solve(blend[:, :, :3], (Y - blend[:, :, 3])[..., None])[..., 0]
 
 
 def _probe_poses(model: deform.RiggedModel) -> np.ndarray:
@@ -572,6 +572,9 @@ def _build(model, dense, V, F, G, diagonal, edge_length, epsilon, threads, tets,
     images = np.einsum("jab,sb->sja", G[:, :3], Vh)  # (s, j, 3) each joint's rest image of each vertex
     placed = np.einsum("sj,sja->sa", dense, images)
     moments = dense[..., None] * (images - placed[:, None])
+    # the joints' rest images of a vertex differ where the bind pose is not the rest pose (module docstring)
+    bind = bool(np.abs(moments).max() > _BIND_SPREAD * diagonal)
+    zero = np.zeros_like(moments)
     count, vertex_part, face_part = _surface_parts(placed, F)
     if tets is not None:
         mesh = tets
@@ -584,7 +587,7 @@ def _build(model, dense, V, F, G, diagonal, edge_length, epsilon, threads, tets,
     if tolerance is not None:  # the probe poses: the nodes' joint matrices, and the surface skinned directly
         inverse_bind = np.asarray(model.mesh.inverse_bind, np.float64)
         poses = _probe_poses(model)
-        node_motions = poses @ (inverse_bind @ np.linalg.inv(G))[None]
+        node_motions = poses @ inverse_bind[None]
         k = len(G)
         targets = [
             np.einsum("sab,sb->sa", (dense @ (pose @ inverse_bind)[:, :3].reshape(k, 12)).reshape(-1, 3, 4), Vh)
@@ -606,9 +609,14 @@ def _build(model, dense, V, F, G, diagonal, edge_length, epsilon, threads, tets,
                 )
         fitted = fit_weights(Y, T, embedding, placed, dense, moments, _LENGTH * diagonal, _SMOOTHNESS)
         J, W = _trim(np.clip(fitted, 0.0, 1.0), influences)
+        bound = _bind_positions(Y, G, J, W)
+        for _ in range(_BIND_FITS if bind else 0):  # the moments in mesh space are zero (module docstring)
+            fitted = fit_weights(bound, T, embedding, V, dense, zero, _LENGTH * diagonal, _SMOOTHNESS)
+            J, W = _trim(np.clip(fitted, 0.0, 1.0), influences)
+            bound = _bind_positions(Y, G, J, W)
         if tolerance is None:
             break
-        error = _probe_errors(node_motions, Y, J, W, embedding, targets)
+        error = _probe_errors(node_motions, bound, J, W, embedding, targets)
         bad = error > _MARGIN * tolerance * diagonal
         # a vertex whose error hardly fell when its tet was refined sits where surfaces of different bones meet:
         # refining on would spend the budget there for nothing
@@ -633,7 +641,7 @@ def _build(model, dense, V, F, G, diagonal, edge_length, epsilon, threads, tets,
             "different bones meet or overlap there (rigid parts, seams), and the tets that hold both blend them",
             stacklevel=3,
         )
-    return Y, T, J, W, embedding
+    return Y, T, J, W, embedding, bound
 
 
 def character_body(
@@ -717,20 +725,15 @@ def character_body(
     dense = _dense_weights(mesh)
     V = np.asarray(mesh.V, np.float64)
     target = tolerance if refine else None
-    Y, T, J, W, embedding = _build(
+    Y, T, J, W, embedding, bound = _build(
         model, dense, V, F, G, diagonal, edge_length, epsilon, threads, tets, int(influences), target, per_part
     )
     X = Y
     rest = tet_mesh(X, T)
     seconds = time.perf_counter() - start
-    # the nodes' mesh space is the rest configuration: joint j's inverse bind is its bone's inverse rest matrix
+    # the nodes' mesh space is the model's: its inverse binds, the nodes where its rest pose takes them to the tets'
     node_mesh = deform.SkinnedMesh(
-        jnp.asarray(Y),
-        jnp.zeros((0, 3), jnp.int32),
-        jnp.asarray(J),
-        jnp.asarray(W),
-        jnp.asarray(_nearest_similitudes(np.asarray(mesh.inverse_bind, np.float64) @ np.linalg.inv(G))),
-        mesh.joints,
+        jnp.asarray(bound), jnp.zeros((0, 3), jnp.int32), jnp.asarray(J), jnp.asarray(W), mesh.inverse_bind, mesh.joints
     )
     node_model = deform.RiggedModel(node_mesh, model.skeleton, model.clips, model.name)
     distance = _bone_distances(model, X)
