@@ -5,29 +5,45 @@ Spaces. The tets are made (fTetWild, ``tetrahedralize_surface``) from the surfac
 skeleton's rest pose by linear blending, ``r_p = sum_j w_pj G_j p`` (``deform.rest_pose(model, "lbs")``; ``p`` in
 mesh space, ``G_j`` joint j's rest matrix, its bone's global rest matrix ``B_j`` times its inverse bind), world
 coordinates, where every skin of a model stands together (the mesh spaces of several skins need not agree, nor a
-bind pose equal the rest pose). The nodes' own mesh space is that rest configuration: ``node_model``'s inverse
-binds are ``B_j^-1`` (each projected to the nearest similitude), so ``CharacterBody.nodes == tets.X`` and
-``deform.skin_model(node_model, t, method)`` moves node ``x_a`` by ``sum_j W_aj E_j(t) x_a``, ``E_j(t) = P_j(t)
-B_j^-1`` bone j's motion from its rest (``P_j(t)``: its posed global matrix).
+bind pose equal the rest pose). ``CharacterBody.nodes == tets.X`` are the nodes there. Their mesh space is the
+model's (``node_model`` keeps its inverse binds): node a's mesh-space position is the ``y_a`` that the rest pose
+takes to ``x_a`` by linear blending, ``sum_j W_aj G_j y_a = x_a``, so ``deform.skin_model(node_model, t, method)``
+moves it to ``sum_j W_aj P_j(t) IB_j y_a`` (``P_j(t)``: bone j's posed global matrix, ``IB_j`` its inverse bind),
+and by linear blending the rest pose gives ``x_a`` back exactly.
 
-Weights (the transfer rule). Skinned directly, a surface vertex goes to ``sum_j w_pj E_j (G_j p)``; embedded (its
-barycentric coordinates ``b_pa`` in the rest tets), to ``sum_a b_pa sum_j W_aj E_j x_a``. The two agree in every
-pose when, for each joint j, ``sum_a b_pa W_aj = w_pj`` (the weight) and ``sum_a b_pa W_aj (x_a - r_p) = w_pj (G_j p
-- r_p)`` (its first moment about the vertex). The node weights of joint j minimize, over the surface's vertices,
-``sum_p l^2 (sum_a b_pa W_aj - w_pj)^2 + |sum_a b_pa W_aj (x_a - r_p) - w_pj (G_j p - r_p)|^2 + mu W_j^T K W_j``,
-with ``l`` = 0.1 diagonal (the lever arm that weighs a weight's error against a moment's), ``K`` the tets'
-cotangent stiffness (their Dirichlet energy: nodes far from the surface get harmonic weights) and ``mu`` 1e-2 of
-the data's trace over K's; one sparse factorization serves every joint, and the rows sum to 1 (the constant
-solves the summed problem). The weights are then clamped to [0, 1], cut to the ``influences`` largest and
-normalized. Refinement (``refine``, fTetWild's tets by default): linear tets cannot follow weights that change
-inside a tet, so the embedded surface is checked against the directly skinned one (linear blending) at probe poses
-(at least 16 times spread over each of the model's first 4 clips, 64 in all; without clips, 64 random poses
-turning every bone by 45 degrees). The tets of the vertices off by more than 0.8 ``tolerance`` diagonals are
-bisected at their longest edges (Rivara's longest-edge propagation path: the mesh stays conforming and the shapes
-do not degrade) to 0.7 of their longest edge, not below 1/64 of the initial median, and the weights are fitted
-again, for at most 12 rounds and 8 times fTetWild's tets, the worst vertices' tets first; a vertex whose error fell
-by less than a tenth since its tet was last refined sits out the next round. Where surfaces of different bones
-touch or overlap (rigid parts, seams), tets holding both blend them and no refinement separates them: a
+Parts (``per_part``, the default). The surface falls into parts, the connected sets of its triangles (a rifle, a
+clothing layer, a robot's plate, an inner mesh of joints). Where two parts of different bones touch or overlap, a
+tet that holds both blends their motions, and no refinement separates surfaces that touch. So each part gets tets
+of its own, which share no node with another part's: fTetWild meshes the parts in groups, the parts of a group
+having bounding boxes at least 4 envelopes (``epsilon``) apart, so that their tets cannot join (fTetWild's tets
+end within an envelope of the surface). Each connected set of tets belongs to the part most of its boundary nodes
+lie nearest to (the same rule for saved ``tets``), and each part's vertices are embedded in its own tets; a part
+that encloses no volume (an open sheet) has no tets, and its vertices take the nearest tets of any part. Nested
+parts (the joints inside Xbot's skin, a body inside its clothes) overlap in volume: their masses add.
+
+Weights (the transfer rule). Skinned directly, a surface vertex goes to ``sum_j w_pj P_j IB_j p``; embedded (its
+barycentric coordinates ``b_pa`` in the rest tets), to ``sum_a b_pa sum_j W_aj P_j IB_j y_a``. The two agree in
+every pose when, for each joint j, ``sum_a b_pa W_aj = w_pj`` (the weight) and ``sum_a b_pa W_aj (y_a - p) = 0``
+(its first moment about the vertex, in mesh space). The node weights of joint j minimize, over the surface's
+vertices, ``sum_p l^2 (sum_a b_pa W_aj - w_pj)^2 + |sum_a b_pa W_aj (y_a - p)|^2 + mu W_j^T K W_j``, with ``l`` =
+0.1 diagonal (the lever arm that weighs a weight's error against a moment's), ``K`` the tets' cotangent stiffness
+(their Dirichlet energy: nodes far from the surface get harmonic weights) and ``mu`` 1e-2 of the data's trace over
+K's; one sparse factorization serves every joint, and the rows sum to 1 (the constant solves the summed problem).
+The weights are then clamped to [0, 1], cut to the ``influences`` largest and normalized. The ``y_a`` depend on the
+weights: the first fit takes the moments in the rest configuration (``x_a - r_p`` against ``w_pj (G_j p - r_p)``,
+the same fit where the bind pose is the rest pose, ``G_j`` equal for a vertex's joints), and where it is not, two
+more fits in mesh space follow, each with the ``y_a`` of the previous weights. (Fitted in the rest configuration
+alone, a vertex blending joints whose rest images ``G_j p`` lie apart needs weights that change by that distance
+over a tet, beyond [0, 1] in small tets: refinement made it worse.) Refinement (``refine``, fTetWild's tets by
+default): linear tets cannot follow weights that change inside a tet, so the embedded surface is checked against
+the directly skinned one (linear blending) at probe poses (at least 16 times spread over each of the model's first
+4 clips, 64 in all; without clips, 64 random poses turning every bone by 45 degrees). The tets of the vertices off
+by more than 0.8 ``tolerance`` diagonals are bisected at their longest edges (Rivara's longest-edge propagation
+path: the mesh stays conforming, the parts' tets apart, and the shapes do not degrade) to 0.7 of their longest
+edge, not below 1/64 of the initial median, and the weights are fitted again, for at most 12 rounds and 8 times
+fTetWild's tets, the worst vertices' tets first; a vertex whose error fell by less than a tenth since its tet was
+last refined sits out the next round. Where surfaces of different bones touch inside one part (an arm against the
+chest in the rest pose, then raised), tets holding both blend them and no refinement separates them: a
 ``UserWarning`` gives the error reached.
 
 Driven nodes (the core rule). Bone j's core is the set of points within ``core * r_j`` of its segments (from the
@@ -40,9 +56,15 @@ the surface (a connected set of its triangles) whose tets hold no driven node (a
 rifle held out in a hand, a robot's plate) has every node of those tets driven: it follows its bones as skinned,
 instead of hanging on flesh alone.
 
+Every connected set of tets holds a driven node: one without (a part meshed on its own that embeds no vertex) has
+all its nodes driven.
+
 Anchors. A cut that severs a limb severs its bones too: the pieces that keep the skeleton's root are driven on, the
-others fall. The anchors are the driven nodes of the bones closest to the skeleton's root (the fewest parents up)
-among the bones with a core; ``simulate_character`` releases the driven nodes of every piece without an anchor.
+others fall. The anchors are, in each connected set of tets (one per part meshed on its own), the driven nodes of
+the bones closest to the skeleton's root (the fewest parents up) among the bones with a core and driven nodes
+there; ``simulate_character`` releases the driven nodes of every piece without an anchor. So every part follows
+the rig from the start, and a part that a cut does not cross (an inner joint mesh or a held rifle beyond the cut)
+keeps following its bones: the parts do not hold each other.
 """
 
 from __future__ import annotations
@@ -91,7 +113,9 @@ _SHRINK = 0.7
 _STUCK = 0.9  # a vertex whose error fell by less after a refinement of its tet sits out a round
 LIMIT = 1e-3  # the surface limit the tets are refined to, a fraction of the diagonal
 _BIND_FITS = 2  # the fits in mesh space, each with the mesh-space nodes of the previous weights
-_BIND_SPREAD = 1e-9  # a vertex's joints' rest images further apart than this (diagonals): fit in mesh space
+_BIND_SPREAD = (
+    1e-6  # a vertex's joints' rest images further apart (diagonals; closer: float32 rounding): fit in mesh space
+)
 _APART = 4  # parts whose bounding boxes lie this many envelopes apart are meshed in one fTetWild call
 
 
