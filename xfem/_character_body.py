@@ -662,7 +662,8 @@ def _build(model, dense, V, F, G, diagonal, edge_length, epsilon, threads, tets,
             f"tolerance: the embedded surface misses the directly skinned one by up to {error.max() / diagonal:.2g} "
             f"of the diagonal at the probe poses ({int((error > tolerance * diagonal).sum())} of {len(error)} "
             f"vertices above {tolerance:g}; {len(T)} tets, at most {_GROWTH} times fTetWild's): surfaces of "
-            "different bones meet or overlap there (rigid parts, seams), and the tets that hold both blend them",
+            "different bones meet there inside one part of the surface (or across parts, per_part=False), and the "
+            "tets that hold both blend them",
             stacklevel=3,
         )
     return Y, T, J, W, embedding, bound
