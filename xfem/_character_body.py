@@ -42,9 +42,11 @@ by more than 0.8 ``tolerance`` diagonals are bisected at their longest edges (Ri
 path: the mesh stays conforming, the parts' tets apart, and the shapes do not degrade) to 0.7 of their longest
 edge, not below 1/64 of the initial median, and the weights are fitted again, for at most 12 rounds and 8 times
 fTetWild's tets, the worst vertices' tets first; a vertex whose error fell by less than a tenth since its tet was
-last refined sits out the next round. Where surfaces of different bones touch inside one part (an arm against the
-chest in the rest pose, then raised), tets holding both blend them and no refinement separates them: a
-``UserWarning`` gives the error reached.
+last refined sits out the next round, and so does a vertex outside the tets (where fTetWild's filter cut a thin
+feature off) by more than a quarter of its tet's longest edge: it follows its tet's linear map extrapolated, and a
+smaller tet would amplify the fit's errors by the distance over its size. Where surfaces of different bones touch
+inside one part (an arm against the chest in the rest pose, then raised), tets holding both blend them and no
+refinement separates them: a ``UserWarning`` gives the error reached.
 
 Driven nodes (the core rule). Bone j's core is the set of points within ``core * r_j`` of its segments (from the
 joint to each child joint; a leaf joint is a point), where ``r_j`` is the median distance from those segments of
@@ -112,6 +114,7 @@ _GROWTH = 8  # the refinement stops at this many times fTetWild's tets
 _SHRINK = 0.7
 _STUCK = 0.9  # a vertex whose error fell by less after a refinement of its tet sits out a round
 LIMIT = 1e-3  # the surface limit the tets are refined to, a fraction of the diagonal
+_OUTSIDE = 0.25  # a vertex farther outside its tet than this fraction of the tet's longest edge: not refined
 _BIND_FITS = 2  # the fits in mesh space, each with the mesh-space nodes of the previous weights
 _BIND_SPREAD = (
     1e-6  # a vertex's joints' rest images further apart (diagonals; closer: float32 rounding): fit in mesh space
@@ -647,6 +650,11 @@ def _build(model, dense, V, F, G, diagonal, edge_length, epsilon, threads, tets,
         stuck = bad & (error > _STUCK * previous)
         previous = np.where(bad & ~stuck, error, np.inf)
         bad &= ~stuck
+        # a vertex outside the tets (where fTetWild's filter cut a thin feature) follows its tet's linear map
+        # extrapolated: refining that tet amplifies the fit's errors by the distance over the tet's size
+        x = Y[embedding.nodes]
+        size = np.linalg.norm(x[:, [0, 0, 0, 1, 1, 2]] - x[:, [1, 2, 3, 2, 3, 3]], axis=2).max(axis=1)
+        bad &= embedding.distance <= _OUTSIDE * size
         if not bad.any() or round_ == _ROUNDS or len(T) >= budget:
             break
         # the worst vertices' tets last: the bisection takes them first, so a spent budget went where it did most
