@@ -111,7 +111,8 @@ def direct_step(system, state, h, mu, lam):
     step = -host_call(
         _direct, jax.ShapeDtypeStruct(gradient.shape, gradient.dtype), data, gradient, csr.indptr, csr.indices
     )
-    alpha = be._line_search(system, x, step.reshape(-1, 3), jnp.dot(gradient, step), theta, h)
+    start = be._energy(system, x, theta, h)
+    alpha, _ = be._line_search(system, x, step.reshape(-1, 3), jnp.dot(gradient, step), theta, h, start)
     x = x.at[system.pattern.free].add(alpha * step.reshape(-1, 3))
     return xfem.State(x, (x - state.x) / h)
 
@@ -144,9 +145,9 @@ def assembly(system, Hs):
 
 @eqx.filter_jit
 def line_search(system, state, x, gradient, step, h, mu, lam):
-    return be._line_search(
-        system, x, step.reshape(-1, 3), jnp.dot(gradient, step), _theta(system, state, h, mu, lam), h
-    )
+    theta = _theta(system, state, h, mu, lam)
+    start = be._energy(system, x, theta, h)  # the Newton loop carries it from the last line search
+    return be._line_search(system, x, step.reshape(-1, 3), jnp.dot(gradient, step), theta, h, start)[0]
 
 
 def breakdown(system, states, h, mu, lam):

@@ -20,8 +20,8 @@ Figures, for ``PREFIX`` ``arm`` and ``character`` (the issue's names are the cha
 * Where the step's time goes (``PREFIX_breakdown_*_ms``, the segment's system at the last frame's rig and state,
   medians of 5): ``hessians`` the free gradient and the Newton matrices, projected and true (element Hessians summed
   into the CSR data, as the step computes them), ``solve`` the host solve of the factored direction (CHOLMOD's factor
-  of the projected matrix, CG on the true one), ``paper_step`` one whole paper step (the two, the rig rest shapes and
-  the line search).
+  of the projected matrix, CG on the true one), ``paper_step`` one whole paper step (the rig rest shapes, the
+  starts' energies, the gradient and the projected matrix, its factored solve and the line search).
 * ``PREFIX_reduced_fps``: the reduced play (``xfem.character_subspace(body, MODES)``, ``simulate_character(...,
   subspace=...)``) in frames per second: ``--reduced-frames`` frames at 60 frames/s, the whole call (the rig skinned
   for every frame, the scan, the surface), the fastest of 3 after a warm-up call of the same length. Target: at

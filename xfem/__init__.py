@@ -14,19 +14,19 @@ a checkpointed ``lax.scan``, differentiable in the initial state, material, forc
 step is generic over an element list (DOF-node indices, shape gradients, integration weights) and any mass
 matrix, so the enriched XFEM elements go through the same code.
 
-Sec. 4, the generalized XFEM: ``_cuts`` (swept tool edges thickened into closed solids, sec. 4.1),
-``_subdomains`` (nodal and element subdomains cut by manifold3d Booleans, Algorithm 1 lines 1-19),
-``_integration`` (exact divergence-theorem moments of the pieces, eq. 13, 14, 21), ``_xfem`` (``XFEMModel``:
-indicator enrichments eq. 16-18, DOF duplication, pieces on the FEM core), ``_capacity`` (systems padded to
-capacity levels so that cuts reuse the compiled step), ``_background`` (``BackgroundCuts``: cuts computed in a
-worker process, ``_cut_process`` and ``_framing``, while the model steps), ``_material`` (``Material``),
-``_rollout`` (``rollout``: a differentiable ``lax.scan`` of steps), ``_simulate`` (trajectories across a schedule
-of cuts, differentiable through the cuts' DOF copy maps and in the planes of plane cuts, ``plane_cut_simulation``
-for jit and vmap over them), ``_cut_system`` (slab
-cuts whose placement is a differentiable parameter). Sec. 5: ``_scenes`` (the paper's five scenes with Table 1's
-parameters, a runner timing them like Table 2; ``jaxcga xfem SCENE`` runs them), ``_rxfem`` (the RXFEM baseline of
-Koschier et al. 2017 that Table 2 compares against, on the same core: Heaviside enrichment without intersecting cuts,
-moment-fitted 24-point rules on the cut elements' pieces).
+Sec. 4, the generalized XFEM: ``_cuts`` (swept tool edges thickened into closed solids, sec. 4.1), ``_subdomains``
+(nodal and element subdomains cut by manifold3d Booleans, Algorithm 1 lines 1-19), ``_integration`` (exact
+divergence-theorem moments of the pieces, eq. 13, 14, 21), ``_xfem`` (``XFEMModel``: indicator enrichments eq.
+16-18, DOF duplication, pieces on the FEM core), ``_capacity`` (systems padded to capacity levels so that cuts reuse
+the compiled step), ``_background`` (``BackgroundCuts``: cuts computed in a worker process, ``_cut_process`` and
+``_framing``, while the model steps), ``_material`` (``Material``), ``_rollout`` (``rollout``: a differentiable
+``lax.scan`` of steps), ``_simulate`` (trajectories across a schedule of cuts, differentiable through the cuts' DOF
+copy maps and in the planes of plane cuts; ``plan_cuts``, the host phase as a ``CutPlan`` the caller holds and
+passes; ``plane_cut_simulation`` for jit and vmap over the planes), ``_cut_system`` (slab cuts whose placement is a
+differentiable parameter). Sec. 5: ``_scenes`` (the paper's five scenes with Table 1's parameters, a runner timing
+them like Table 2; ``jaxcga xfem SCENE`` runs them), ``_rxfem`` (the RXFEM baseline of Koschier et al. 2017 that
+Table 2 compares against, on the same core: Heaviside enrichment without intersecting cuts, moment-fitted 24-point
+rules on the cut elements' pieces).
 """
 
 from xfem._assembly import AssemblyPattern, CapacityError, assemble_matrix, assemble_vector, assembly_pattern
@@ -68,7 +68,7 @@ from xfem._rxfem import (
     rxfem_schedule,
 )
 from xfem._scenes import SCENES, SIZES, Scene, ScheduledCut, piece_surfaces, scene
-from xfem._simulate import PlaneCutSimulation, plane_cut_simulation, simulate
+from xfem._simulate import CutPlan, PlaneCutSimulation, plan_cuts, plane_cut_simulation, simulate
 from xfem._subdomains import CutReport, CutStats, Subdomains, apply_cut, subdomains
 from xfem._surface_tets import (
     SurfaceEmbedding,
@@ -139,7 +139,9 @@ __all__ = [
     "moment_fitted_weights",
     "rxfem_model",
     "rxfem_schedule",
+    "CutPlan",
     "PlaneCutSimulation",
+    "plan_cuts",
     "plane_cut_simulation",
     "simulate",
     "xfem_model",

@@ -92,7 +92,7 @@ from xfem._assembly import (
     _host_elements,
     _host_fixed,
     _scalar_slots,
-    element_slots,
+    add_element_hessians,
     restrict,
 )
 from xfem._linear_tet import body_force, consistent_mass, shape_gradients
@@ -442,6 +442,17 @@ def _host_factored_direction(data, true_data, rhs, rtol, indptr, indices):
     return x.astype(rhs.dtype)
 
 
+def _host_projected_direction(data, rhs, rtol, indptr, indices):
+    """The projected Newton direction by the CHOLMOD factor at every size (``_newton``'s factored mode with a
+    single iteration, which has no later iterations to converge with the true Hessian); Jacobi PCG where CHOLMOD
+    finds the matrix not positive definite."""
+    try:
+        solve = factorize(host_csr(data, indptr, indices), symmetric=True)
+    except ValueError:
+        return host_pcg(data, rhs, rtol, indptr, indices)
+    return solve(np.asarray(rhs, np.float64)).astype(rhs.dtype)
+
+
 def _host_exact(data, rhs, rtol, indptr, indices):
     """The factored mode's adjoint solve: exact (``host_direct``: CHOLMOD, SuperLU where the true Hessian is not
     positive definite) at every size."""
@@ -449,12 +460,16 @@ def _host_exact(data, rhs, rtol, indptr, indices):
 
 
 def _factored_solve(pattern: AssemblyPattern, data, true_data, rhs, rtol):
-    """The factored Newton direction (``_host_factored_direction``) on the CPU; elsewhere the projected system's
-    ``_solve`` (the device has no sparse factorization)."""
+    """The factored Newton direction (``_host_factored_direction``; with ``true_data`` None the projected one,
+    ``_host_projected_direction``) on the CPU; elsewhere the projected system's ``_solve`` (the device has no
+    sparse factorization)."""
 
     def on_host(data, true_data, rhs, rtol):
         shape = jax.ShapeDtypeStruct(rhs.shape, rhs.dtype)
-        return host_call(_host_factored_direction, shape, data, true_data, rhs, rtol, pattern.indptr, pattern.indices)
+        indptr, indices = pattern.indptr, pattern.indices
+        if true_data is None:
+            return host_call(_host_projected_direction, shape, data, rhs, rtol, indptr, indices)
+        return host_call(_host_factored_direction, shape, data, true_data, rhs, rtol, indptr, indices)
 
     def on_device(data, true_data, rhs, rtol):
         return _solve(_host_newton_direction, pattern, data, rhs, rtol, "accept")
@@ -633,8 +648,8 @@ def _gradient_and_matrices(system: FEMSystem, x, theta: _Theta, h, hessians, cou
         T, volumes = take(system.T), jnp.where(own, take(theta.volumes), 0)
         g, Hs = hessians(x[T], take(theta.grads), volumes, take(mu_s), take(lam_s))
         forces = forces.at[T.reshape(-1)].add(g.reshape(-1, 3))
-        slots = element_slots(take(base), take(stride)).reshape(-1)
-        datas = tuple(d.at[slots].add(weight * H.reshape(-1), mode="drop") for d, H in zip(datas, Hs))
+        base_k, stride_k = take(base), take(stride)
+        datas = tuple(add_element_hessians(d, base_k, stride_k, weight * H) for d, H in zip(datas, Hs))
         return forces, datas
 
     weight = _elastic_weight(theta, h)
@@ -661,20 +676,21 @@ def _elastic_forces(system: FEMSystem, x, grads, volumes, mu, lam):
     return _in_chunks(m, _ELEMENT_CHUNK, add_chunk, jnp.zeros((system.n, 3), x.dtype))
 
 
-def _line_search(system: FEMSystem, x, step, slope, theta: _Theta, h):
-    """The Armijo step length along ``step`` (n_free, 3); 0 when no decrease is found."""
+def _line_search(system: FEMSystem, x, step, slope, theta: _Theta, h, start):
+    """The Armijo step length along ``step`` (n_free, 3) from x, whose ``_energy`` is ``start`` (E, its scale), and
+    the ``_energy`` where it lands: (0, start) when no decrease is found."""
     free = system.pattern.free
-    energy0, scale = _energy(system, x, theta, h)
+    energy0, scale = start
     slack = 64 * jnp.finfo(x.dtype).eps * scale  # below this E differences are rounding
 
     def accepted(alpha, energy):
         return energy <= energy0 + _ARMIJO * alpha * slope + slack
 
     def trial(alpha):
-        return _energy(system, x.at[free].add(alpha * step), theta, h)[0]
+        return _energy(system, x.at[free].add(alpha * step), theta, h)
 
     def cond(carry):
-        alpha, energy, k = carry
+        alpha, (energy, _), k = carry
         return ~accepted(alpha, energy) & (k < _HALVINGS)
 
     def body(carry):
@@ -682,8 +698,9 @@ def _line_search(system: FEMSystem, x, step, slope, theta: _Theta, h):
         return alpha / 2, trial(alpha / 2), k + 1
 
     one = jnp.ones((), x.dtype)
-    alpha, energy, _ = jax.lax.while_loop(cond, body, (one, trial(one), 0))
-    return jnp.where(accepted(alpha, energy), alpha, 0)
+    alpha, landed, _ = jax.lax.while_loop(cond, body, (one, trial(one), 0))
+    found = accepted(alpha, landed[0])
+    return jnp.where(found, alpha, 0), jax.tree.map(lambda a, b: jnp.where(found, a, b), landed, start)
 
 
 def _size(system: FEMSystem, x):
@@ -699,16 +716,22 @@ def _newton(theta: _Theta, system: FEMSystem, h, iterations: int, tolerance, lin
     an update's largest entry is at most ``tolerance`` times the body's size (``_size``); and its ``SolveStats``.
     ``factored``: each direction by CG on the true Hessian preconditioned by the factored projected one
     (``_host_factored_direction``), which converges quadratically where the projection stays active near the
-    minimizer (a character's elements far from their rig shapes), where projected Newton converges linearly."""
+    minimizer (a character's elements far from their rig shapes), where projected Newton converges linearly; with a
+    single iteration (the paper's), the projected direction by the same factor (``_host_projected_direction``)."""
     free = system.pattern.free
     # start at x~ = x_t + h v_t or at x_t, whichever has the lower E: from x~ alone, one Newton iteration on a
     # violent state (large velocities) only lowers E below E(x~), far above the minimum, and the energy grows
-    inertial = (theta.x + h * theta.v).at[system.fixed].set(theta.fixed_positions)
-    previous = theta.x.at[system.fixed].set(theta.fixed_positions)
-    x0 = jnp.where(_energy(system, previous, theta, h)[0] < _energy(system, inertial, theta, h)[0], previous, inertial)
-    if theta.guess is not None:  # e.g. a character's flesh carried along by its rig
-        guess = theta.guess.at[system.fixed].set(theta.fixed_positions)
-        x0 = jnp.where(_energy(system, guess, theta, h)[0] < _energy(system, x0, theta, h)[0], guess, x0)
+    starts = [theta.x + h * theta.v, theta.x]  # inertial, previous: a tie keeps the inertial one
+    if theta.guess is not None:  # e.g. a character's flesh carried along by its rig (a tie keeps the others)
+        starts.append(theta.guess)
+    starts = jnp.stack(starts).at[:, system.fixed].set(theta.fixed_positions)
+    # the starts' energies in one pass over the elements (the shape gradients read once for all)
+    energies = jax.vmap(lambda y: _energy(system, y, theta, h))(starts)
+    best = jnp.argmin(energies[0])
+    x0, e0 = starts[best], (energies[0][best], energies[1][best])
+    # the paper's single iteration takes the factored projected direction (one Hessian); CG on the true Hessian
+    # pays for a second one with the quadratic convergence of later iterations
+    true_hessian = factored and iterations > 1
     size = _size(system, theta.x)
     dtype = np.dtype(x0.dtype)
     # without a stopping test (the paper's fixed iterations) convergence is still reported, at the dtype's default
@@ -716,7 +739,7 @@ def _newton(theta: _Theta, system: FEMSystem, h, iterations: int, tolerance, lin
     rtol_min = max(_CG_RTOL_MIN, 100 * float(jnp.finfo(dtype).eps))
 
     def cond(carry):
-        k, _, _, residual, stalled = carry
+        k, _, _, _, residual, stalled = carry
         go = k < iterations
         if tolerance is not None:
             # converged, or stalled (the line search found no decrease above rounding)
@@ -724,8 +747,9 @@ def _newton(theta: _Theta, system: FEMSystem, h, iterations: int, tolerance, lin
         return go
 
     def body(carry):
-        k, x, first_norm, _, _ = carry
-        if factored:
+        k, x, energy, first_norm, _, _ = carry
+        true_data = None
+        if true_hessian:
             gradient, (data, true_data) = _gradient_and_matrices(system, x, theta, h, _element_gradient_hessians, 2)
         else:
             gradient, data = _gradient_and_matrix(system, x, theta, h, project=True)
@@ -738,18 +762,17 @@ def _newton(theta: _Theta, system: FEMSystem, h, iterations: int, tolerance, lin
             step = -_factored_solve(system.pattern, data, true_data, gradient, rtol)
         else:
             step = -_solve(_host_newton_direction, system.pattern, data, gradient, rtol, "accept")
-        alpha = (
-            _line_search(system, x, step.reshape(-1, 3), jnp.dot(gradient, step, precision=EXACT), theta, h)
-            if line_search
-            else 1
-        )
+        alpha = 1
+        if line_search:
+            slope = jnp.dot(gradient, step, precision=EXACT)
+            alpha, energy = _line_search(system, x, step.reshape(-1, 3), slope, theta, h, energy)
         x = x.at[free].add(alpha * step.reshape(-1, 3))
         residual = jnp.max(jnp.abs(step), initial=0) / size
-        return k + 1, x, first_norm, residual, jnp.asarray(alpha == 0)
+        return k + 1, x, energy, first_norm, residual, jnp.asarray(alpha == 0)
 
     zero = jnp.zeros((), x0.dtype)
-    start = (jnp.zeros((), jnp.int32), x0, zero, jnp.asarray(jnp.inf, x0.dtype), jnp.asarray(False))
-    k, x, _, residual, _ = jax.lax.while_loop(cond, body, start)
+    start = (jnp.zeros((), jnp.int32), x0, e0, zero, jnp.asarray(jnp.inf, x0.dtype), jnp.asarray(False))
+    k, x, _, _, residual, _ = jax.lax.while_loop(cond, body, start)
     return x, SolveStats(residual <= reported, k, residual)
 
 

@@ -32,8 +32,9 @@ true Hessian preconditioned by the CHOLMOD factor of the projected one. Skinning
 rig shapes near the joints (flattened, stretched), where the projection of the element Hessians stays active at the
 minimizer, and projected Newton converges linearly there (tens of iterations); the true Hessian is positive definite
 near the minimizer, and the factored direction converges quadratically. A character's body is made of limbs, so its
-factor stays sparse. Newton starts from the best of the previous positions, the inertial guess, and the inertial
-guess plus the rig's acceleration (the flesh carried along by the rig).
+factor stays sparse. The XFEM paper's single iteration (``newton_iterations=1, tolerance=None``) takes the projected
+direction by the same factor. Newton starts from the best of the previous positions, the inertial guess, and the
+inertial guess plus the rig's acceleration (the flesh carried along by the rig).
 
 Gradients. Every step is differentiable through its implicit gradient (exact for converged steps, the default; the
 adjoint solve by CHOLMOD) in
@@ -71,17 +72,17 @@ from xfem._backward_euler import (
 from xfem._character_body import CharacterBody
 from xfem._character_reduced import CharacterSubspace, play_reduced
 from xfem._cut_system import PlaneCuts, _plane_cuts
-from xfem._jacobi3 import svd3
 from xfem._material import Material
+from xfem._neohookean import _cofactor
 from xfem._simulate import _check_planes, _check_steps
 from xfem._surface_tets import surface_map
 from xfem._xfem import XFEMModel, _dof_components, xfem_model
 
-_FLATTEST = 0.2  # below this smallest singular value of its rig deformation, an element's weight is lowered
+_FLATTEST = 0.2  # below this thickness of its rig deformation (_rig_rest_system), an element's weight is lowered
 # Newton iterations per step at most: a cap far above what the factored steps take (module docstring, Newton), so
 # that a hard frame still converges
 _CHARACTER_NEWTON_ITERATIONS = 100
-_TINY = 1e-9  # singular values are kept off zero by this much before they are inverted
+_TINY = 1e-9  # determinants and cofactor norms are kept off zero by this much before they divide
 
 _PLANES_UNDER_JIT = (
     "simulate_character finds the pieces of plane cuts on the host at concrete planes: call it outside jax.jit and "
@@ -255,18 +256,20 @@ def _rig_rest_system(system: FEMSystem, rest: Float[Array, "n 3"]) -> FEMSystem:
     """The system with each element's rest shape moved to ``rest`` (module docstring): shape gradients
     ``grads F_rig^-1`` and weights ``volumes |det F_rig|``, the weight of a flattened element lowered (below)."""
     F_rig = jnp.einsum("mai,maj->mij", rest[system.T], system.grads, precision=EXACT)
+    cof, det = _cofactor(F_rig)  # F^-1 = cof^T / det: no SVD (a step's setup did one per element before)
     # skinning flattens or inverts an element where weights change fast across it (near joints). Its rest shape
     # stays the rig's (the energy is zero at the rig's shape, so the stiff limit is the rig), but its stiffness
-    # across the flat direction grows as 1 / s_min: the weight is multiplied by (|s_min| / _FLATTEST)^4 below
-    # _FLATTEST, which takes it to zero (Newton's matrix stays well conditioned, and such an element, far from its
-    # own shape after a small move across, stops slowing Newton down); an inverted element (the
-    # rotation-variant SVD's last singular value negative) is a mirror image, weighted by its volume's magnitude
-    U, singular, Vt = svd3(F_rig)
-    smallest = jnp.abs(singular[:, 2])
-    safe = jnp.where(singular < 0, -1.0, 1.0) * jnp.maximum(jnp.abs(singular), _TINY)
-    inverse = jnp.einsum("mji,mj,mkj->mik", Vt, 1 / safe, U, precision=EXACT)
+    # across the flat direction grows as 1 / thickness, with thickness = |det F| / |cof F|_F (singular values
+    # s0 >= s1 >= s2: s0 s1 s2 / |(s0 s1, s0 s2, s1 s2)|, which is s2 to first order in s2 / s1 and lies in
+    # [s2 / sqrt 3, s2]): the weight is multiplied by (thickness / _FLATTEST)^4 below _FLATTEST, which takes it to
+    # zero (Newton's matrix stays well conditioned, and such an element, far from its own shape after a small move
+    # across, stops slowing Newton down); an inverted element (det < 0) is a mirror image, weighted by its volume's
+    # magnitude
+    thickness = jnp.abs(det) / jnp.maximum(jnp.sqrt(jnp.sum(cof * cof, axis=(1, 2))), _TINY)
+    safe = jnp.where(det < 0, -1.0, 1.0) * jnp.maximum(jnp.abs(det), _TINY)
+    inverse = cof.swapaxes(-1, -2) / safe[:, None, None]
     grads = jnp.einsum("maj,mjk->mak", system.grads, inverse, precision=EXACT)
-    weight = jnp.abs(jnp.prod(singular, axis=1)) * jnp.minimum(1.0, (smallest / _FLATTEST) ** 4)
+    weight = jnp.abs(det) * jnp.minimum(1.0, (thickness / _FLATTEST) ** 4)
     return eqx.tree_at(lambda s: (s.grads, s.volumes), system, (grads, system.volumes * weight))
 
 
