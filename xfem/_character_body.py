@@ -127,8 +127,9 @@ class CharacterBody(NamedTuple):
 
     Attributes:
         model: the ``deform.RiggedModel`` it was made from (weights normalized).
-        node_model: the same skeleton and clips with the tet nodes as its mesh (its mesh space is the rest
-            configuration; the transferred weights): ``deform.skin_model(node_model, t, method)`` skins the nodes.
+        node_model: the same skeleton, clips and inverse binds with the tet nodes as its mesh (in the model's mesh
+            space, where its rest pose by linear blending puts them at ``nodes``; the transferred weights):
+            ``deform.skin_model(node_model, t, method)`` skins the nodes.
         tets: the ``TetMesh`` in the rest configuration (world coordinates, the skeleton's rest pose).
         nodes: (n, 3) float64 the tet nodes (``node_model.mesh.V``, equal to ``tets.X``).
         driven: (nd,) int64 sorted indices of the nodes the skeleton drives.
