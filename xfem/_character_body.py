@@ -5,30 +5,48 @@ Spaces. The tets are made (fTetWild, ``tetrahedralize_surface``) from the surfac
 skeleton's rest pose by linear blending, ``r_p = sum_j w_pj G_j p`` (``deform.rest_pose(model, "lbs")``; ``p`` in
 mesh space, ``G_j`` joint j's rest matrix, its bone's global rest matrix ``B_j`` times its inverse bind), world
 coordinates, where every skin of a model stands together (the mesh spaces of several skins need not agree, nor a
-bind pose equal the rest pose). The nodes' own mesh space is that rest configuration: ``node_model``'s inverse
-binds are ``B_j^-1`` (each projected to the nearest similitude), so ``CharacterBody.nodes == tets.X`` and
-``deform.skin_model(node_model, t, method)`` moves node ``x_a`` by ``sum_j W_aj E_j(t) x_a``, ``E_j(t) = P_j(t)
-B_j^-1`` bone j's motion from its rest (``P_j(t)``: its posed global matrix).
+bind pose equal the rest pose). ``CharacterBody.nodes == tets.X`` are the nodes there. Their mesh space is the
+model's (``node_model`` keeps its inverse binds): node a's mesh-space position is the ``y_a`` that the rest pose
+takes to ``x_a`` by linear blending, ``sum_j W_aj G_j y_a = x_a``, so ``deform.skin_model(node_model, t, method)``
+moves it to ``sum_j W_aj P_j(t) IB_j y_a`` (``P_j(t)``: bone j's posed global matrix, ``IB_j`` its inverse bind),
+and by linear blending the rest pose gives ``x_a`` back exactly.
 
-Weights (the transfer rule). Skinned directly, a surface vertex goes to ``sum_j w_pj E_j (G_j p)``; embedded (its
-barycentric coordinates ``b_pa`` in the rest tets), to ``sum_a b_pa sum_j W_aj E_j x_a``. The two agree in every
-pose when, for each joint j, ``sum_a b_pa W_aj = w_pj`` (the weight) and ``sum_a b_pa W_aj (x_a - r_p) = w_pj (G_j p
-- r_p)`` (its first moment about the vertex). The node weights of joint j minimize, over the surface's vertices,
-``sum_p l^2 (sum_a b_pa W_aj - w_pj)^2 + |sum_a b_pa W_aj (x_a - r_p) - w_pj (G_j p - r_p)|^2 + mu W_j^T K W_j``,
-with ``l`` = 0.1 diagonal (the lever arm that weighs a weight's error against a moment's), ``K`` the tets'
-cotangent stiffness (their Dirichlet energy: nodes far from the surface get harmonic weights) and ``mu`` 1e-2 of
-the data's trace over K's; one sparse factorization serves every joint, and the rows sum to 1 (the constant
-solves the summed problem). The weights are then clamped to [0, 1], cut to the ``influences`` largest and
-normalized. Refinement (``refine``, fTetWild's tets by default): linear tets cannot follow weights that change
-inside a tet, so the embedded surface is checked against the directly skinned one (linear blending) at probe poses
-(at least 16 times spread over each of the model's first 4 clips, 64 in all; without clips, 64 random poses
-turning every bone by 45 degrees). The tets of the vertices off by more than 0.8 ``tolerance`` diagonals are
-bisected at their longest edges (Rivara's longest-edge propagation path: the mesh stays conforming and the shapes
-do not degrade) to 0.7 of their longest edge, not below 1/64 of the initial median, and the weights are fitted
-again, for at most 12 rounds and 8 times fTetWild's tets, the worst vertices' tets first; a vertex whose error fell
-by less than a tenth since its tet was last refined sits out the next round. Where surfaces of different bones
-touch or overlap (rigid parts, seams), tets holding both blend them and no refinement separates them: a
-``UserWarning`` gives the error reached.
+Parts (``per_part``, the default). The surface falls into parts, the connected sets of its triangles (a rifle, a
+clothing layer, a robot's plate, an inner mesh of joints). Where two parts of different bones touch or overlap, a
+tet that holds both blends their motions, and no refinement separates surfaces that touch. So each part gets tets
+of its own, which share no node with another part's: fTetWild meshes the parts in groups, the parts of a group
+having bounding boxes at least 4 envelopes (``epsilon``) apart, so that their tets cannot join (fTetWild's tets
+end within an envelope of the surface). Each connected set of tets belongs to the part most of its boundary nodes
+lie nearest to (the same rule for saved ``tets``), and each part's vertices are embedded in its own tets; a part
+that encloses no volume (an open sheet) has no tets, and its vertices take the nearest tets of any part. Nested
+parts (the joints inside Xbot's skin, a body inside its clothes) overlap in volume: their masses add.
+
+Weights (the transfer rule). Skinned directly, a surface vertex goes to ``sum_j w_pj P_j IB_j p``; embedded (its
+barycentric coordinates ``b_pa`` in the rest tets), to ``sum_a b_pa sum_j W_aj P_j IB_j y_a``. The two agree in
+every pose when, for each joint j, ``sum_a b_pa W_aj = w_pj`` (the weight) and ``sum_a b_pa W_aj (y_a - p) = 0``
+(its first moment about the vertex, in mesh space). The node weights of joint j minimize, over the surface's
+vertices, ``sum_p l^2 (sum_a b_pa W_aj - w_pj)^2 + |sum_a b_pa W_aj (y_a - p)|^2 + mu W_j^T K W_j``, with ``l`` =
+0.1 diagonal (the lever arm that weighs a weight's error against a moment's), ``K`` the tets' cotangent stiffness
+(their Dirichlet energy: nodes far from the surface get harmonic weights) and ``mu`` 1e-2 of the data's trace over
+K's; one sparse factorization serves every joint, and the rows sum to 1 (the constant solves the summed problem).
+The weights are then clamped to [0, 1], cut to the ``influences`` largest and normalized. The ``y_a`` depend on the
+weights: the first fit takes the moments in the rest configuration (``x_a - r_p`` against ``w_pj (G_j p - r_p)``,
+the same fit where the bind pose is the rest pose, ``G_j`` equal for a vertex's joints), and where it is not, two
+more fits in mesh space follow, each with the ``y_a`` of the previous weights. (Fitted in the rest configuration
+alone, a vertex blending joints whose rest images ``G_j p`` lie apart needs weights that change by that distance
+over a tet, beyond [0, 1] in small tets: refinement made it worse.) Refinement (``refine``, fTetWild's tets by
+default): linear tets cannot follow weights that change inside a tet, so the embedded surface is checked against
+the directly skinned one (linear blending) at probe poses (at least 16 times spread over each of the model's first
+4 clips, 64 in all; without clips, 64 random poses turning every bone by 45 degrees). The tets of the vertices off
+by more than 0.8 ``tolerance`` diagonals are bisected at their longest edges (Rivara's longest-edge propagation
+path: the mesh stays conforming, the parts' tets apart, and the shapes do not degrade) to 0.7 of their longest
+edge, not below 1/64 of the initial median, and the weights are fitted again, for at most 12 rounds and 8 times
+fTetWild's tets, the worst vertices' tets first; a vertex whose error fell by less than a tenth since its tet was
+last refined sits out the next round, and so does a vertex outside the tets (where fTetWild's filter cut a thin
+feature off) by more than a quarter of its tet's longest edge: it follows its tet's linear map extrapolated, and a
+smaller tet would amplify the fit's errors by the distance over its size. Where surfaces of different bones touch
+inside one part (an arm against the chest in the rest pose, then raised), tets holding both blend them and no
+refinement separates them: a ``UserWarning`` gives the error reached.
 
 Driven nodes (the core rule). Bone j's core is the set of points within ``core * r_j`` of its segments (from the
 joint to each child joint; a leaf joint is a point), where ``r_j`` is the median distance from those segments of
@@ -40,9 +58,15 @@ the surface (a connected set of its triangles) whose tets hold no driven node (a
 rifle held out in a hand, a robot's plate) has every node of those tets driven: it follows its bones as skinned,
 instead of hanging on flesh alone.
 
+Every connected set of tets holds a driven node: one without (a part meshed on its own that embeds no vertex) has
+all its nodes driven.
+
 Anchors. A cut that severs a limb severs its bones too: the pieces that keep the skeleton's root are driven on, the
-others fall. The anchors are the driven nodes of the bones closest to the skeleton's root (the fewest parents up)
-among the bones with a core; ``simulate_character`` releases the driven nodes of every piece without an anchor.
+others fall. The anchors are, in each connected set of tets (one per part meshed on its own), the driven nodes of
+the bones closest to the skeleton's root (the fewest parents up) among the bones with a core and driven nodes
+there; ``simulate_character`` releases the driven nodes of every piece without an anchor. So every part follows
+the rig from the start, and a part that a cut does not cross (an inner joint mesh or a held rifle beyond the cut)
+keeps following its bones: the parts do not hold each other.
 """
 
 from __future__ import annotations
@@ -62,12 +86,12 @@ from scipy.sparse.csgraph import connected_components
 import deform
 from _jaxcga_shared.checks import check_real
 from _jaxcga_shared.mesh import bounding_diagonal
+from _jaxcga_shared.tetmeshing import embed, ftetwild
 from xfem._surface_tets import (
     EDGE_LENGTH,
     EPSILON,
     SurfaceEmbedding,
     TetQuality,
-    embed_points,
     tet_quality,
     tetrahedralize_surface,
 )
@@ -90,6 +114,12 @@ _GROWTH = 8  # the refinement stops at this many times fTetWild's tets
 _SHRINK = 0.7
 _STUCK = 0.9  # a vertex whose error fell by less after a refinement of its tet sits out a round
 LIMIT = 1e-3  # the surface limit the tets are refined to, a fraction of the diagonal
+_OUTSIDE = 0.25  # a vertex farther outside its tet than this fraction of the tet's longest edge: not refined
+_BIND_FITS = 2  # the fits in mesh space, each with the mesh-space nodes of the previous weights
+_BIND_SPREAD = (
+    1e-6  # a vertex's joints' rest images further apart (diagonals; closer: float32 rounding): fit in mesh space
+)
+_APART = 4  # parts whose bounding boxes lie this many envelopes apart are meshed in one fTetWild call
 
 
 class CharacterBody(NamedTuple):
@@ -97,8 +127,9 @@ class CharacterBody(NamedTuple):
 
     Attributes:
         model: the ``deform.RiggedModel`` it was made from (weights normalized).
-        node_model: the same skeleton and clips with the tet nodes as its mesh (its mesh space is the rest
-            configuration; the transferred weights): ``deform.skin_model(node_model, t, method)`` skins the nodes.
+        node_model: the same skeleton, clips and inverse binds with the tet nodes as its mesh (in the model's mesh
+            space, where its rest pose by linear blending puts them at ``nodes``; the transferred weights):
+            ``deform.skin_model(node_model, t, method)`` skins the nodes.
         tets: the ``TetMesh`` in the rest configuration (world coordinates, the skeleton's rest pose).
         nodes: (n, 3) float64 the tet nodes (``node_model.mesh.V``, equal to ``tets.X``).
         driven: (nd,) int64 sorted indices of the nodes the skeleton drives.
@@ -189,16 +220,6 @@ def _rest_joint_matrices(model: deform.RiggedModel) -> tuple[np.ndarray, np.ndar
     return bones, bones @ np.asarray(model.mesh.inverse_bind, np.float64)
 
 
-def _nearest_similitudes(matrices: np.ndarray) -> np.ndarray:
-    """(k, 4, 4) the nearest similitudes of affine matrices (k, 4, 4), translations kept: files store rotations and
-    scales to float32, and the multivector methods take only exact similitudes."""
-    U, S, Vt = np.linalg.svd(matrices[:, :3, :3])
-    nearest = np.array(matrices)
-    nearest[:, :3, :3] = np.cbrt(np.prod(S, axis=1))[:, None, None] * (U @ Vt)
-    nearest[:, 3] = [0.0, 0.0, 0.0, 1.0]
-    return nearest
-
-
 def fit_weights(
     X: np.ndarray,
     T: np.ndarray,
@@ -240,6 +261,14 @@ def fit_weights(
     scale = smoothness * normal.diagonal().sum() / max(K.diagonal().sum(), 1e-300)
     system = (normal + scale * K).tocsc()
     return sparse_linalg.splu(system).solve(np.asarray(M.T @ Y))
+
+
+def _bind_positions(Y: np.ndarray, G: np.ndarray, J: np.ndarray, W: np.ndarray) -> np.ndarray:
+    """(n, 3) the nodes' mesh-space positions ``y_a``: those that linear blending of the joints' rest matrices G
+    (j, 4, 4) with the nodes' weights (J, W) (n, k) takes to the rest positions Y (n, 3), ``sum_j W_aj G_j y_a =
+    x_a``."""
+    blend = np.einsum("nk,nkab->nab", W, G[J][:, :, :3])  # (n, 3, 4)
+    return np.linalg.solve(blend[:, :, :3], (Y - blend[:, :, 3])[..., None])[..., 0]
 
 
 def _probe_poses(model: deform.RiggedModel) -> np.ndarray:
@@ -407,11 +436,14 @@ def _bone_distances(model: deform.RiggedModel, points: np.ndarray) -> np.ndarray
     return distance
 
 
-def _hold_loose_parts(driven: np.ndarray, surface: np.ndarray, F: np.ndarray, embedded_in: np.ndarray) -> np.ndarray:
+def _hold_loose_parts(
+    driven: np.ndarray, surface: np.ndarray, F: np.ndarray, embedded_in: np.ndarray, T: np.ndarray
+) -> np.ndarray:
     """The driven nodes (sorted indices) of the core rule's mask ``driven``, with every node of the tets that hold a
     part of the surface (a connected set of its triangles) none of whose tets has a driven node: an accessory away
     from the bones (a rifle held out in a hand, a plate of a robot) would otherwise hang on flesh alone and swing
-    off; it follows its bones as it was skinned."""
+    off; it follows its bones as it was skinned. So does a connected set of the tets T with no driven node (a part
+    meshed on its own that embeds no vertex), which would otherwise fall from the start."""
     count, label = connected_components(
         sp.coo_matrix((np.ones(F.size), (np.repeat(F[:, 0], 3), F.ravel())), shape=(len(surface),) * 2),
         directed=False,
@@ -423,6 +455,10 @@ def _hold_loose_parts(driven: np.ndarray, surface: np.ndarray, F: np.ndarray, em
         nodes = np.unique(embedded_in[(label == part) & used])
         if nodes.size and not driven[nodes].any():
             held[nodes] = True
+    pieces, piece = _components(T, len(held))
+    holding = np.zeros(pieces, bool)
+    holding[piece[held]] = True
+    held |= ~holding[piece]
     return np.flatnonzero(held)
 
 
@@ -440,7 +476,118 @@ def _depths(parents: tuple[int, ...]) -> np.ndarray:
     return depth
 
 
-def _build(model, dense, V, F, G, diagonal, edge_length, epsilon, threads, tets, influences, tolerance):
+def _components(T: np.ndarray, n: int) -> tuple[int, np.ndarray]:
+    """The connected components of n nodes joined by the tets T (t, 4): their count and each node's label."""
+    rows = np.repeat(T[:, :1], 3, axis=1).ravel()
+    return connected_components(sp.coo_matrix((np.ones(len(rows)), (rows, T[:, 1:].ravel())), shape=(n, n)), False)
+
+
+def _surface_parts(V: np.ndarray, F: np.ndarray) -> tuple[int, np.ndarray, np.ndarray]:
+    """The parts of a surface, the connected sets of its triangles: their count, each vertex's part (s,) (a vertex
+    on no triangle takes the part of its nearest triangle) and each triangle's part (f,)."""
+    adjacency = sp.coo_matrix((np.ones(F.size), (np.repeat(F[:, 0], 3), F.ravel())), shape=(len(V),) * 2)
+    label = connected_components(adjacency, directed=False)[1]
+    parts, face_part = np.unique(label[F[:, 0]], return_inverse=True)
+    vertex_part = np.full(len(V), -1, np.int64)
+    vertex_part[F] = face_part.reshape(-1, 1)
+    loose = np.flatnonzero(vertex_part < 0)
+    if len(loose):
+        face = np.asarray(igl.point_mesh_squared_distance(V[loose], V, F)[1], np.int64)
+        vertex_part[loose] = face_part[face]
+    return len(parts), vertex_part, face_part.astype(np.int64)
+
+
+def _meshing_groups(V: np.ndarray, F: np.ndarray, face_part: np.ndarray, count: int, margin: float) -> list:
+    """The parts in groups that one fTetWild call can mesh without joining them: greedily, largest first, a part
+    joins the first group none of whose parts' bounding boxes comes within ``margin`` of its own (touching, nested
+    and overlapping parts go to different calls)."""
+    corners = V[F].reshape(-1, 3)
+    part = np.repeat(face_part, 3)
+    low, high = np.full((count, 3), np.inf), np.full((count, 3), -np.inf)
+    np.minimum.at(low, part, corners)
+    np.maximum.at(high, part, corners)
+    near = np.all(low[:, None] - margin <= high[None], axis=2) & np.all(low[None] - margin <= high[:, None], axis=2)
+    groups: list[list[int]] = []
+    for p in np.argsort(-np.bincount(face_part, minlength=count), kind="stable").tolist():
+        group = next((g for g in groups if not near[p, g].any()), None)
+        if group is None:
+            groups.append([p])
+        else:
+            group.append(p)
+    return [np.asarray(g, np.int64) for g in groups]
+
+
+def _part_tets(V, F, face_part, count, diagonal, edge_length, epsilon, threads) -> tuple[np.ndarray, np.ndarray]:
+    """fTetWild's tets of each part of the surface on its own (module docstring), parts far apart meshed in one
+    call, as one mesh of disjoint node sets: (X (n, 3), T (t, 4))."""
+    nodes, tets, offset = [], [], 0
+    for group in _meshing_groups(V, F, face_part, count, _APART * epsilon * diagonal):
+        used, local = np.unique(F[np.isin(face_part, group)], return_inverse=True)
+        size = bounding_diagonal(V[used])
+        # the lengths are the whole surface's: fTetWild takes them relative to the group's diagonal
+        TV, TT = ftetwild(
+            V[used], local.reshape(-1, 3), edge_length * diagonal / size, epsilon * diagonal / size, threads=threads
+        )
+        if len(TT) == 0:  # open sheets: no volume, their vertices take the nearest tets (_embed_parts)
+            continue
+        kept, TT = np.unique(TT, return_inverse=True)
+        nodes.append(TV[kept])
+        tets.append(TT.reshape(-1, 4) + offset)
+        offset += len(kept)
+    if not tets:
+        raise ValueError("model: its surface encloses no volume (fTetWild kept no tet of any of its parts)")
+    return np.concatenate(nodes), np.concatenate(tets)
+
+
+def _tet_parts(
+    X: np.ndarray, T: np.ndarray, surface: np.ndarray, F: np.ndarray, face_part: np.ndarray, count: int
+) -> np.ndarray:
+    """(t,) the surface part each tet belongs to: a connected set of tets belongs to the part most of its boundary
+    nodes lie nearest to (fTetWild's tets of a part end within the envelope of that part's surface)."""
+    components, label = _components(T, len(X))
+    boundary = np.unique(_boundary_faces(T))
+    face = np.asarray(igl.point_mesh_squared_distance(X[boundary], surface, F)[1], np.int64)
+    votes = sp.coo_matrix((np.ones(len(boundary)), (label[boundary], face_part[face])), shape=(components, count))
+    return np.asarray(votes.toarray().argmax(axis=1), np.int64)[label[T[:, 0]]]
+
+
+def _carry_parts(T: np.ndarray, tet_part: np.ndarray, n: int, refined: np.ndarray) -> np.ndarray:
+    """(t',) the parts of the tets ``refined`` (of n nodes) that bisect the tets T of parts ``tet_part``: a
+    bisection keeps T's nodes and splits edges inside one connected set of tets, so each connected set of the
+    refined tets holds nodes of T, of one part."""
+    node_part = np.full(n, -1, np.int64)
+    node_part[T] = tet_part[:, None]
+    components, label = _components(refined, n)
+    part = np.full(components, -1, np.int64)
+    np.maximum.at(part, label, node_part)
+    return part[label[refined[:, 0]]]
+
+
+def _embed_parts(X, T, tet_part, points, vertex_part) -> SurfaceEmbedding:
+    """The surface's vertices embedded each in the tets of its own part (``embed_points`` restricted to them), so
+    that no tet holds two parts; the vertices of a part without tets (an open sheet) in the nearest tets."""
+    element = np.zeros(len(points), np.int64)
+    weights = np.zeros((len(points), 4))
+    distance = np.zeros(len(points))
+    owned = np.zeros(int(max(vertex_part.max(), tet_part.max())) + 1, bool)
+    owned[tet_part] = True
+    order = np.argsort(tet_part, kind="stable")
+    bounds = np.searchsorted(tet_part[order], np.arange(len(owned) + 1))
+    rows_of = np.argsort(vertex_part, kind="stable")
+    row_bounds = np.searchsorted(vertex_part[rows_of], np.arange(len(owned) + 1))
+    for p in np.flatnonzero(owned):
+        rows = rows_of[row_bounds[p] : row_bounds[p + 1]]
+        if len(rows):
+            mine = order[bounds[p] : bounds[p + 1]]
+            e, weights[rows], distance[rows] = embed(X, T[mine], points[rows])
+            element[rows] = mine[e]
+    rows = np.flatnonzero(~owned[vertex_part])
+    if len(rows):
+        element[rows], weights[rows], distance[rows] = embed(X, T, points[rows])
+    return SurfaceEmbedding(element, T[element], weights, distance)
+
+
+def _build(model, dense, V, F, G, diagonal, edge_length, epsilon, threads, tets, influences, tolerance, per_part):
     """The tets of the rest configuration (fTetWild's or ``tets``), refined, with their weights (module docstring):
     (Y (n, 3) nodes, T (t, 4) tets, J and W (n, influences) weights, the surface's embedding).
 
@@ -453,16 +600,22 @@ def _build(model, dense, V, F, G, diagonal, edge_length, epsilon, threads, tets,
     images = np.einsum("jab,sb->sja", G[:, :3], Vh)  # (s, j, 3) each joint's rest image of each vertex
     placed = np.einsum("sj,sja->sa", dense, images)
     moments = dense[..., None] * (images - placed[:, None])
-    if tets is None:
-        made = tetrahedralize_surface(placed, F, edge_length=edge_length, epsilon=epsilon, threads=threads)
-        mesh = made.mesh
-    else:
+    # the joints' rest images of a vertex differ where the bind pose is not the rest pose (module docstring)
+    bind = bool(np.abs(moments).max() > _BIND_SPREAD * diagonal)
+    zero = np.zeros_like(moments)
+    count, vertex_part, face_part = _surface_parts(placed, F)
+    if tets is not None:
         mesh = tets
+    elif per_part and count > 1:
+        mesh = tet_mesh(*_part_tets(placed, F, face_part, count, diagonal, edge_length, epsilon, threads))
+    else:
+        mesh = tetrahedralize_surface(placed, F, edge_length=edge_length, epsilon=epsilon, threads=threads).mesh
     Y, T = np.asarray(mesh.X, np.float64), np.asarray(mesh.T, np.int64)
+    tet_part = _tet_parts(Y, T, placed, F, face_part, count)
     if tolerance is not None:  # the probe poses: the nodes' joint matrices, and the surface skinned directly
         inverse_bind = np.asarray(model.mesh.inverse_bind, np.float64)
         poses = _probe_poses(model)
-        node_motions = poses @ (inverse_bind @ np.linalg.inv(G))[None]
+        node_motions = poses @ inverse_bind[None]
         k = len(G)
         targets = [
             np.einsum("sab,sb->sa", (dense @ (pose @ inverse_bind)[:, :3].reshape(k, 12)).reshape(-1, 3, 4), Vh)
@@ -473,7 +626,7 @@ def _build(model, dense, V, F, G, diagonal, edge_length, epsilon, threads, tets,
     budget = _GROWTH * len(T)
     previous = np.full(len(V), np.inf)  # each vertex's error when its tet was last refined
     for round_ in range(_ROUNDS + 1):
-        embedding = embed_points(mesh, placed)
+        embedding = _embed_parts(Y, T, tet_part, placed, vertex_part)
         if round_ == 0 and tets is not None:
             far = embedding.distance > 3 * float(np.median(lengths))
             if far.mean() > 0.1:
@@ -484,15 +637,25 @@ def _build(model, dense, V, F, G, diagonal, edge_length, epsilon, threads, tets,
                 )
         fitted = fit_weights(Y, T, embedding, placed, dense, moments, _LENGTH * diagonal, _SMOOTHNESS)
         J, W = _trim(np.clip(fitted, 0.0, 1.0), influences)
+        bound = _bind_positions(Y, G, J, W)
+        for _ in range(_BIND_FITS if bind else 0):  # the moments in mesh space are zero (module docstring)
+            fitted = fit_weights(bound, T, embedding, V, dense, zero, _LENGTH * diagonal, _SMOOTHNESS)
+            J, W = _trim(np.clip(fitted, 0.0, 1.0), influences)
+            bound = _bind_positions(Y, G, J, W)
         if tolerance is None:
             break
-        error = _probe_errors(node_motions, Y, J, W, embedding, targets)
+        error = _probe_errors(node_motions, bound, J, W, embedding, targets)
         bad = error > _MARGIN * tolerance * diagonal
         # a vertex whose error hardly fell when its tet was refined sits where surfaces of different bones meet:
         # refining on would spend the budget there for nothing
         stuck = bad & (error > _STUCK * previous)
         previous = np.where(bad & ~stuck, error, np.inf)
         bad &= ~stuck
+        # a vertex outside the tets (where fTetWild's filter cut a thin feature) follows its tet's linear map
+        # extrapolated: refining that tet amplifies the fit's errors by the distance over the tet's size
+        x = Y[embedding.nodes]
+        size = np.linalg.norm(x[:, [0, 0, 0, 1, 1, 2]] - x[:, [1, 2, 3, 2, 3, 3]], axis=2).max(axis=1)
+        bad &= embedding.distance <= _OUTSIDE * size
         if not bad.any() or round_ == _ROUNDS or len(T) >= budget:
             break
         # the worst vertices' tets last: the bisection takes them first, so a spent budget went where it did most
@@ -500,17 +663,19 @@ def _build(model, dense, V, F, G, diagonal, edge_length, epsilon, threads, tets,
         for t in embedding.element[bad][np.argsort(error[bad], kind="stable")].tolist():
             order.pop(t, None)
             order[t] = None
-        Y, T = bisect_tets(Y, T, np.fromiter(order, np.int64, len(order)), _SHRINK, shortest, budget)
-        mesh = tet_mesh(Y, T)
+        refined_Y, refined_T = bisect_tets(Y, T, np.fromiter(order, np.int64, len(order)), _SHRINK, shortest, budget)
+        tet_part = _carry_parts(T, tet_part, len(refined_Y), refined_T)
+        Y, T = refined_Y, refined_T
     if tolerance is not None and error.max() > tolerance * diagonal:
         warnings.warn(
             f"tolerance: the embedded surface misses the directly skinned one by up to {error.max() / diagonal:.2g} "
             f"of the diagonal at the probe poses ({int((error > tolerance * diagonal).sum())} of {len(error)} "
             f"vertices above {tolerance:g}; {len(T)} tets, at most {_GROWTH} times fTetWild's): surfaces of "
-            "different bones meet or overlap there (rigid parts, seams), and the tets that hold both blend them",
+            "different bones meet there inside one part of the surface (or across parts, per_part=False), and the "
+            "tets that hold both blend them",
             stacklevel=3,
         )
-    return Y, T, J, W, embedding
+    return Y, T, J, W, embedding, bound
 
 
 def character_body(
@@ -527,6 +692,7 @@ def character_body(
     threads: int | None = None,
     tolerance: float = LIMIT,
     refine: bool | None = None,
+    per_part: bool = True,
 ) -> CharacterBody:
     """A tet body of a rigged model: fTetWild's tets of its surface, the surface's skinning weights carried to the
     tet nodes, the nodes the skeleton drives and the surface embedded in the tets (module docstring: the rules).
@@ -550,6 +716,9 @@ def character_body(
             docstring).
         refine: whether to refine the tets to ``tolerance``; None: fTetWild's yes, ``tets`` given no (a saved
             body's are refined already).
+        per_part: True: each part of the surface (a connected set of its triangles) gets tets of its own, which
+            share no node with another part's (module docstring); False: one fTetWild mesh of the whole surface,
+            whose tets may hold several parts.
     Returns:
         The ``CharacterBody``.
     """
@@ -567,6 +736,11 @@ def character_body(
         raise ValueError(f"influences: expected an int >= 1, got {influences!r}")
     if isinstance(tolerance, bool) or not isinstance(tolerance, (int, float, np.floating)) or not 0 < tolerance < 1:
         raise ValueError(f"tolerance: expected a fraction of the diagonal in (0, 1), got {tolerance!r}")
+    for name, value, high in (("edge_length", edge_length, 1.0), ("epsilon", epsilon, 0.1)):
+        if isinstance(value, bool) or not isinstance(value, (int, float, np.floating)) or not 0 < value <= high:
+            raise ValueError(f"{name}: expected a fraction of the bounding box diagonal in (0, {high}], got {value!r}")
+    if not isinstance(per_part, bool):
+        raise ValueError(f"per_part: expected True or False, got {per_part!r}")
     if refine is not None and not isinstance(refine, bool):
         raise ValueError(f"refine: expected None, True or False, got {refine!r}")
     if refine is None:
@@ -585,20 +759,15 @@ def character_body(
     dense = _dense_weights(mesh)
     V = np.asarray(mesh.V, np.float64)
     target = tolerance if refine else None
-    Y, T, J, W, embedding = _build(
-        model, dense, V, F, G, diagonal, edge_length, epsilon, threads, tets, int(influences), target
+    Y, T, J, W, embedding, bound = _build(
+        model, dense, V, F, G, diagonal, edge_length, epsilon, threads, tets, int(influences), target, per_part
     )
     X = Y
     rest = tet_mesh(X, T)
     seconds = time.perf_counter() - start
-    # the nodes' mesh space is the rest configuration: joint j's inverse bind is its bone's inverse rest matrix
+    # the nodes' mesh space is the model's: its inverse binds, the nodes where its rest pose takes them to the tets'
     node_mesh = deform.SkinnedMesh(
-        jnp.asarray(Y),
-        jnp.zeros((0, 3), jnp.int32),
-        jnp.asarray(J),
-        jnp.asarray(W),
-        jnp.asarray(_nearest_similitudes(np.asarray(mesh.inverse_bind, np.float64) @ np.linalg.inv(G))),
-        mesh.joints,
+        jnp.asarray(bound), jnp.zeros((0, 3), jnp.int32), jnp.asarray(J), jnp.asarray(W), mesh.inverse_bind, mesh.joints
     )
     node_model = deform.RiggedModel(node_mesh, model.skeleton, model.clips, model.name)
     distance = _bone_distances(model, X)
@@ -623,7 +792,7 @@ def character_body(
     if isinstance(driven, str):
         driven_nodes = np.arange(len(X))
     elif driven is None:
-        driven_nodes = _hold_loose_parts(np.asarray(inside.any(axis=1)), surface, F, embedding.nodes)
+        driven_nodes = _hold_loose_parts(np.asarray(inside.any(axis=1)), surface, F, embedding.nodes, T)
     else:
         driven_nodes = np.asarray(driven)
         if (
@@ -642,7 +811,12 @@ def character_body(
     depth = _depths(model.skeleton.parents)[np.asarray(mesh.joints)]
     nearest = np.argmin(np.where(has_core[None], distance / np.where(has_core, radius, 1)[None], np.inf), axis=1)
     node_depth = depth[nearest[driven_nodes]]
-    anchors = driven_nodes[node_depth == node_depth.min()]
+    # in each connected set of tets (the parts meshed on their own are several from the start): each must follow
+    # the rig until a cut severs it
+    pieces, piece = _components(T, len(X))
+    shallowest = np.full(pieces, np.iinfo(np.int64).max)
+    np.minimum.at(shallowest, piece[driven_nodes], node_depth)
+    anchors = driven_nodes[node_depth == shallowest[piece[driven_nodes]]]
     return CharacterBody(
         model=model,
         node_model=node_model,

@@ -63,10 +63,14 @@ def test_body_weights_nodes_driven_anchors(name):
     np.testing.assert_allclose(W.sum(axis=1), 1.0, atol=1e-12)
     # the node model's mesh space is the rest configuration: its rest pose gives the tets' nodes back
     np.testing.assert_array_equal(body.nodes, np.asarray(body.tets.X))
-    # (to the float32 rounding of the files' rest rotations and scales: the inverse binds are exact similitudes)
-    for method in ("lbs", "cga"):
-        rest = np.asarray(deform.rest_pose(body.node_model, method))
-        assert np.abs(rest - body.nodes).max() <= 1e-5 * body.diagonal
+    # by linear blending exactly (each node's mesh-space position is the one the rest pose takes to it); by the
+    # multivector method, which blends the joints' rest versors, exactly where a node's joints agree at rest: every
+    # node on the fox (its bind pose is its rest pose), the nodes of one joint on the robot
+    rest = np.asarray(deform.rest_pose(body.node_model, "lbs"))
+    assert np.abs(rest - body.nodes).max() <= 1e-9 * body.diagonal
+    rest = np.asarray(deform.rest_pose(body.node_model, "cga"))
+    agree = slice(None) if name == "Fox" else W.max(axis=1) > 1 - 1e-12
+    assert np.abs(rest - body.nodes)[agree].max() <= 1e-5 * body.diagonal
     # the embedding gives the rest surface back; the surface is the model's own rest pose
     np.testing.assert_allclose(np.asarray(body.embedding.positions(jnp.asarray(body.nodes))), body.surface, atol=1e-9)
     np.testing.assert_allclose(body.surface, np.asarray(deform.rest_pose(body.model, "lbs")), atol=1e-9)
@@ -90,10 +94,9 @@ def test_surface_limit_within_bound(name, method):
     assert mean <= LIMIT / 10
 
 
-# where surfaces of different bones touch or overlap (the robot's and the cyberpunk's rigid parts), tets hold both and
-# blend them, and the dense worker's many seams spend the refinement budget first: there the limit is missed
-# (character_body warns with the error reached) after minutes of refinement to about 100k tets, so they are left out
-_MISSED = {"RobotExpressive", "QuaterniusCyberpunkCharacter", "QuaterniusWorkerDense"}
+# the dense worker's many seams spend the refinement budget first: there the limit is missed (character_body warns
+# with the error reached) after minutes of refinement, so it is left out
+_MISSED = {"QuaterniusWorkerDense"}
 
 
 @pytest.mark.slow
@@ -118,6 +121,53 @@ def test_surface_limit_on_the_corpus(name):
     # reached across it (MaleBaseMesh 2.4e-3 to 6.7e-3 at the random pose, the Worker 7e-4 to 1.01e-3), so here the
     # bound is the one every run so far kept
     assert worst <= 10 * LIMIT
+
+
+@pytest.mark.slow  # fTetWild meshes the robot's 63 parts in a few calls: about 30 s
+@pytest.mark.parametrize("method", ["lbs", "cga"])
+def test_surface_limit_on_rigid_parts(method):
+    """The robot's rigid parts touch and overlap (four skins, 63 parts, a bind pose away from the rest pose): each
+    meshed on its own, the embedded surface follows the directly skinned one to the issue's bound."""
+    worst, mean = surface_limit(character_body_of("RobotExpressive"), method)
+    assert worst <= LIMIT, (worst, mean)
+    assert mean <= LIMIT / 10
+
+
+@pytest.mark.slow  # the robot's body of the test above
+def test_parts_have_tets_of_their_own():
+    """Each part of the surface (a connected set of triangles) gets tets of its own: no connected set of tets holds
+    vertices of two closed parts (an open part may enclose no volume and take another's), every closed part's
+    vertices lie in its own set, and every connected set of tets holds anchors (each part follows the rig from the
+    start)."""
+    body = character_body_of("RobotExpressive")
+    X, T = np.asarray(body.tets.X), np.asarray(body.tets.T)
+    mesh = trimesh.Trimesh(body.surface, body.faces, process=False)
+    parts = trimesh.graph.connected_components(mesh.edges, min_len=1)
+    pieces, piece = _tet_pieces(T, len(X))
+    vertex_piece = piece[body.embedding.nodes[:, 0]]
+    owner = np.full(pieces, -1)
+    closed = 0
+    for index, part in enumerate(parts):
+        faces = body.faces[np.isin(body.faces, part).all(axis=1)]
+        if not trimesh.Trimesh(body.surface, faces, process=False).is_watertight:
+            continue
+        closed += 1
+        for p in np.unique(vertex_piece[part]):
+            assert owner[p] in (-1, index), f"a set of tets holds vertices of closed parts {owner[p]} and {index}"
+            owner[p] = index
+    assert closed >= 20 and pieces >= closed
+    held = np.zeros(pieces, bool)
+    held[piece[body.anchors]] = True
+    assert held.all()
+
+
+def _tet_pieces(T: np.ndarray, n: int) -> tuple[int, np.ndarray]:
+    """The connected sets of n nodes joined by the tets T: their count and each node's label."""
+    import scipy.sparse as sparse
+    from scipy.sparse.csgraph import connected_components
+
+    rows = np.repeat(T[:, :1], 3, axis=1).ravel()
+    return connected_components(sparse.coo_matrix((np.ones(len(rows)), (rows, T[:, 1:].ravel())), shape=(n, n)))
 
 
 def _rotation(axis: np.ndarray, angle: float) -> np.ndarray:
@@ -157,14 +207,14 @@ def test_tets_given_are_kept_without_refinement():
 @pytest.mark.filterwarnings("ignore:tolerance")
 @pytest.mark.parametrize("name", character_params(fast=("Fox",)))  # the robot's refined body takes minutes
 def test_core_rule_drives_the_bones_not_the_skin(name):
-    """Driven nodes lie inside, away from the skin, along the skeleton: a few percent to about a fifth of the
-    nodes; the anchors are a part of them at the root's end of the skeleton. Every part of the surface (a connected
-    set of triangles) is held: a tet that embeds it has a driven node; a part away from every bone (an accessory, a
-    robot's plate) has all its tets' nodes driven, skin included (fTetWild's tets: the refinement of the models with
-    many rigid parts spends its whole budget, minutes)."""
+    """Driven nodes lie inside, away from the skin, along the skeleton: on a one-part character a few percent to
+    about a fifth of the nodes; the anchors are a part of them at the root's end of the skeleton. Every part of the
+    surface (a connected set of triangles) is held: a tet that embeds it has a driven node; a part away from every
+    bone (an accessory, a robot's plate) has all its tets' nodes driven, skin included (fTetWild's tets, unrefined:
+    a shorter run)."""
     body = character_body_of(name, **({} if name == "Fox" else {"refine": False}))
     fraction = len(body.driven) / len(body.nodes)
-    assert 0.005 <= fraction <= 0.5, fraction
+    assert 0.005 <= fraction, fraction
     X = np.asarray(body.tets.X)
     skin = np.sqrt(igl.point_mesh_squared_distance(X[body.driven], X, _boundary(np.asarray(body.tets.T)))[0])
     driven = np.zeros(len(X), bool)
@@ -173,8 +223,11 @@ def test_core_rule_drives_the_bones_not_the_skin(name):
     for part in parts:
         held = driven[body.embedding.nodes[part]].any()
         assert held, f"a part of {len(part)} vertices hangs on free nodes alone"
-    if len(parts) == 1:  # one skin: no node of it is driven
+    if len(parts) == 1:  # one skin: no node of it is driven, and the flesh is free
         assert skin.min() > 0
+        assert fraction <= 0.5, fraction
+    # (the robot's rigid parts, each meshed on its own, have their nodes on their skins: held as loose parts, they
+    # are driven whole, about 70% of its nodes)
     assert len(body.anchors) < len(body.driven)
 
 
@@ -209,6 +262,7 @@ def test_all_driven_and_given_driven():
         ({"tolerance": 1.0}, "tolerance"),
         ({"tolerance": None}, "tolerance"),
         ({"refine": "yes"}, "refine"),
+        ({"per_part": 1}, "per_part"),
         ({"tets": "tets"}, "tets"),
         ({"edge_length": 0.0}, "edge_length"),
         ({"epsilon": -1.0}, "epsilon"),
