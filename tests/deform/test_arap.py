@@ -374,7 +374,10 @@ def test_the_host_loop_gives_the_compiled_loops_iterations(arm, options):
     assert abs(k - int(compiled.iterations)) <= (0 if options else 0.1 * k) and bool(host.converged) == bool(
         compiled.converged
     )
-    np.testing.assert_allclose(np.asarray(host.U), np.asarray(compiled.U), rtol=0, atol=1e-10 * diag)
+    # both stop at the fixed-point residual max |G(x) - x| (1.1e-14 of the diagonal); their distance from the fixed
+    # point is that over (1 - the contraction), which ARAP's slow contraction makes thousands of times larger (the GPU
+    # formulations' rounding, --gpu-variants, parts them by 1.1e-10 of the diagonal)
+    np.testing.assert_allclose(np.asarray(host.U), np.asarray(compiled.U), rtol=0, atol=1e-9 * diag)
     # plain iterations follow one path; Anderson's paths part by rounding (the same start and minimum)
     energies, expected = np.asarray(host.energies), np.asarray(compiled.energies)
     if options:
