@@ -398,11 +398,7 @@ def _host_newton_direction(data, rhs, rtol, indptr, indices):
     factorization costs less than CG's iterations (module docstring), Jacobi PCG to ``rtol`` otherwise and on
     a matrix CHOLMOD finds not positive definite."""
     if len(rhs) <= _DIRECT_DOFS:
-        try:
-            solve = factorize(host_csr(data, indptr, indices), symmetric=True)
-            return solve(np.asarray(rhs, np.float64)).astype(rhs.dtype)
-        except ValueError:
-            pass
+        return _host_projected_direction(data, rhs, rtol, indptr, indices)
     return host_pcg(data, rhs, rtol, indptr, indices)
 
 
@@ -443,9 +439,9 @@ def _host_factored_direction(data, true_data, rhs, rtol, indptr, indices):
 
 
 def _host_projected_direction(data, rhs, rtol, indptr, indices):
-    """The projected Newton direction by the CHOLMOD factor at every size (``_newton``'s factored mode with a
-    single iteration, which has no later iterations to converge with the true Hessian); Jacobi PCG where CHOLMOD
-    finds the matrix not positive definite."""
+    """The projected Newton direction by the CHOLMOD factor at every size (``_host_newton_direction``'s small
+    systems; ``_newton``'s factored mode with a single iteration, which has no later iterations to converge with
+    the true Hessian); Jacobi PCG where CHOLMOD finds the matrix not positive definite."""
     try:
         solve = factorize(host_csr(data, indptr, indices), symmetric=True)
     except ValueError:

@@ -256,7 +256,7 @@ def _rig_rest_system(system: FEMSystem, rest: Float[Array, "n 3"]) -> FEMSystem:
     """The system with each element's rest shape moved to ``rest`` (module docstring): shape gradients
     ``grads F_rig^-1`` and weights ``volumes |det F_rig|``, the weight of a flattened element lowered (below)."""
     F_rig = jnp.einsum("mai,maj->mij", rest[system.T], system.grads, precision=EXACT)
-    cof, det = _cofactor(F_rig)  # F^-1 = cof^T / det: no SVD (a step's setup did one per element before)
+    cof, det = _cofactor(F_rig)  # F^-1 = cof^T / det: the thickness below needs no SVD either
     # skinning flattens or inverts an element where weights change fast across it (near joints). Its rest shape
     # stays the rig's (the energy is zero at the rig's shape, so the stiff limit is the rig), but its stiffness
     # across the flat direction grows as 1 / thickness, with thickness = |det F| / |cof F|_F (singular values
