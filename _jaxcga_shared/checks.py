@@ -188,6 +188,10 @@ def checked_jit(fn):
             outer.flags.append(flags)
             outer.messages.extend(messages)
             return out
+        if isinstance(flags, Tracer):
+            # concrete arguments closed over in the caller's trace (jit of a lambda over a model): the flags are
+            # that trace's values, so the checks are made as require makes them there
+            return plain(*args, **kwargs)
         flags = np.asarray(flags)
         if flags.any():
             raise CheckError(messages[int(np.argmax(flags))])

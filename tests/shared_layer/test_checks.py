@@ -260,3 +260,9 @@ def test_checked_jit_under_the_callers_jit_vmap_and_grad_checks_as_require():
     with pytest.raises((jax.errors.JaxRuntimeError, ValueError), match="x: negative values"):
         jax.block_until_ready(jax.vmap(lambda v: _non_negative(v[None]))(x))
     assert float(jax.grad(lambda v: _entry_point(v[None]).sum())(3.0)) == 2.0
+    # concrete arguments closed over by the caller's jit: its checks are that trace's (no host read of a tracer)
+    good, bad = np.array([1.0, 2.0]), np.array([1.0, -2.0])
+    np.testing.assert_array_equal(jax.jit(lambda: _entry_point(good))(), [2.0, 4.0])
+    np.testing.assert_array_equal(jax.jit(jax.vmap(lambda s: s * _entry_point(good)))(good), [[2.0, 4.0], [4.0, 8.0]])
+    with pytest.raises((jax.errors.JaxRuntimeError, ValueError), match="x: negative values"):
+        jax.block_until_ready(jax.jit(lambda: _entry_point(bad))())
