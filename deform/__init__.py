@@ -27,104 +27,113 @@ and the general ``motor_field_precompute``) all return a ``MotorField``, solved 
 frames) and meshes, one self-contained HTML page (three.js in the browser, inline in notebooks).
 """
 
-from _jaxcga_shared.viewer import View, view
-from deform._arap import ACCELERATIONS as ARAP_ACCELERATIONS
-from deform._arap import ENERGIES as ARAP_ENERGIES
-from deform._arap import ARAPData, ARAPResult, arap_precompute, arap_solve, horn_rotors
-from deform._arap import default_tolerance as default_arap_tolerance
-from deform._batch import Capacities, PackedModels, PackedRigs, capacity, pack_models, skin_packed
-from deform._batch_fitting import fit_packed
-from deform._cage import cage_precompute, harmonic_coordinates, tube_cage
-from deform._default_arm import default_arm
-from deform._fabrik import chain_motors, fabrik, rotor_between
-from deform._ffd import (
-    Lattice,
-    bounding_lattice,
-    distortion,
-    ffd_precompute,
-    ffd_weights,
-    lattice_coordinates,
-    lattice_points,
-    twist_lattice,
-)
-from deform._field_fitting import MotorFit, fit_key_motors, generators_to_motors
-from deform._fitting import (
-    PARAMETERS_PER_BONE,
-    SOLVERS,
-    PoseFit,
-    fit_pose,
-    pose_from_parameters,
-    random_parameters,
-    skin_parameters,
-)
-from deform._gltf import convert_with_assimp, load_model, save_model, save_models, weld
-from deform._gltf_write import GLTF_OUTPUTS, buffer_file
-from deform._handles import handles_precompute
-from deform._harmonic import (
-    LAPLACIANS,
-    HarmonicData,
-    harmonic_fields,
-    harmonic_precompute,
-    harmonic_solve,
-    laplacian,
-    mean_value_laplacian,
-)
-from deform._model import AnimationClip, Channel, RiggedModel, Skeleton, SkinnedMesh
-from deform._motor_field import (
-    MotorField,
-    blend_motors,
-    blend_positions,
-    identity_motors,
-    motor_about,
-    motor_field_precompute,
-    motor_field_solve,
-    motor_logs,
-)
-from deform._parts import UNHANDLED, MeshParts, mesh_parts
-from deform._pose import (
-    INTERPOLATIONS,
-    METHODS,
-    rest_pose,
-    sample_pose,
-    skin_model,
-    skin_pose,
-)
-from deform._rig import (
-    Keyframes,
-    clip_from_poses,
-    forward_kinematics,
-    forward_kinematics_matrices,
-    inverse_bind_versors,
-    joint_matrices,
-    joint_versors,
-    local_matrices,
-    local_versors,
-    quaternion_xyzw_to_matrix,
-    sample_channel,
-    sample_keyframes,
-    sample_matrices,
-    sample_trs,
-    sample_versors,
-    trs_to_matrix,
-    trs_to_versor,
-    uniform_scale,
-    versor_to_trs,
-)
-from deform._skinning import (
-    matrices_to_dual_quaternions,
-    skin_cga,
-    skin_cga_motor_blend,
-    skin_dqs,
-    skin_lbs,
-)
-from deform._spline import (
-    BASES,
-    clamped_knots,
-    spline_parameter,
-    spline_precompute,
-    spline_weights,
-)
-from deform._spline_fit import SplineFitData, spline_fit_precompute, spline_fit_solve
+from typing import TYPE_CHECKING
+
+from _jaxcga_shared.lazy import lazy_exports
+
+# each public name is imported from its module on first use (a command that skins does not import libigl,
+# optax or the viewer); type checkers and the documentation read these imports as they are
+if TYPE_CHECKING:
+    from _jaxcga_shared.viewer import View, view
+    from deform._arap import ACCELERATIONS as ARAP_ACCELERATIONS
+    from deform._arap import ENERGIES as ARAP_ENERGIES
+    from deform._arap import ARAPData, ARAPResult, arap_precompute, arap_solve, horn_rotors
+    from deform._arap import default_tolerance as default_arap_tolerance
+    from deform._batch import Capacities, PackedModels, PackedRigs, capacity, pack_models, skin_packed
+    from deform._batch_fitting import fit_packed
+    from deform._cage import cage_precompute, harmonic_coordinates, tube_cage
+    from deform._default_arm import default_arm
+    from deform._fabrik import chain_motors, fabrik, rotor_between
+    from deform._ffd import (
+        Lattice,
+        bounding_lattice,
+        distortion,
+        ffd_precompute,
+        ffd_weights,
+        lattice_coordinates,
+        lattice_points,
+        twist_lattice,
+    )
+    from deform._field_fitting import MotorFit, fit_key_motors, generators_to_motors
+    from deform._fitting import (
+        PARAMETERS_PER_BONE,
+        SOLVERS,
+        PoseFit,
+        fit_pose,
+        pose_from_parameters,
+        random_parameters,
+        skin_parameters,
+    )
+    from deform._gltf import convert_with_assimp, load_model, save_model, save_models, weld
+    from deform._gltf_write import GLTF_OUTPUTS, buffer_file
+    from deform._handles import handles_precompute
+    from deform._harmonic import (
+        LAPLACIANS,
+        HarmonicData,
+        harmonic_fields,
+        harmonic_precompute,
+        harmonic_solve,
+        laplacian,
+        mean_value_laplacian,
+    )
+    from deform._model import AnimationClip, Channel, RiggedModel, Skeleton, SkinnedMesh
+    from deform._motor_field import (
+        MotorField,
+        blend_motors,
+        blend_positions,
+        identity_motors,
+        motor_about,
+        motor_field_precompute,
+        motor_field_solve,
+        motor_logs,
+    )
+    from deform._parts import UNHANDLED, MeshParts, mesh_parts
+    from deform._pose import (
+        INTERPOLATIONS,
+        METHODS,
+        rest_pose,
+        sample_pose,
+        skin_model,
+        skin_pose,
+    )
+    from deform._rig import (
+        Keyframes,
+        clip_from_poses,
+        forward_kinematics,
+        forward_kinematics_matrices,
+        inverse_bind_versors,
+        joint_matrices,
+        joint_versors,
+        local_matrices,
+        local_versors,
+        quaternion_xyzw_to_matrix,
+        sample_channel,
+        sample_keyframes,
+        sample_matrices,
+        sample_trs,
+        sample_versors,
+        trs_to_matrix,
+        trs_to_versor,
+        uniform_scale,
+        versor_to_trs,
+    )
+    from deform._skinning import (
+        matrices_to_dual_quaternions,
+        skin_cga,
+        skin_cga_motor_blend,
+        skin_dqs,
+        skin_lbs,
+    )
+    from deform._spline import (
+        BASES,
+        clamped_knots,
+        spline_parameter,
+        spline_precompute,
+        spline_weights,
+    )
+    from deform._spline_fit import SplineFitData, spline_fit_precompute, spline_fit_solve
+
+__getattr__, __dir__ = lazy_exports(__name__, __file__)
 
 __all__ = [
     "ARAP_ACCELERATIONS",

@@ -79,7 +79,7 @@ from jax.core import Tracer
 from jax.typing import DTypeLike
 from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
-from _jaxcga_shared.checks import check_choice, check_index_range, check_triangle_mesh, require
+from _jaxcga_shared.checks import check_choice, check_index_range, check_triangle_mesh, checked_jit, require
 from _jaxcga_shared.ell import padded_rows
 from _jaxcga_shared.platform import EXACT, per_platform
 from _jaxcga_shared.sparse import SparseSolver
@@ -223,25 +223,35 @@ def arap_precompute(
     )
 
 
-def _det3(a):
+def _entries(a):
+    """The entries ``a[..., i, j]`` of (..., r, c) matrices as nested lists, sliced by lax: the cofactor formulas
+    below index them hundreds of times, and numpy-style indexing would trace a gather for each."""
+    rows = [jax.lax.index_in_dim(a, i, a.ndim - 2, keepdims=False) for i in range(a.shape[-2])]
+    return [[jax.lax.index_in_dim(r, j, r.ndim - 1, keepdims=False) for j in range(a.shape[-1])] for r in rows]
+
+
+def _det3_of(e):
+    """The determinant of 3 x 3 matrices given by their entries ``e[i][j]``."""
     return (
-        a[..., 0, 0] * (a[..., 1, 1] * a[..., 2, 2] - a[..., 1, 2] * a[..., 2, 1])
-        - a[..., 0, 1] * (a[..., 1, 0] * a[..., 2, 2] - a[..., 1, 2] * a[..., 2, 0])
-        + a[..., 0, 2] * (a[..., 1, 0] * a[..., 2, 1] - a[..., 1, 1] * a[..., 2, 0])
+        e[0][0] * (e[1][1] * e[2][2] - e[1][2] * e[2][1])
+        - e[0][1] * (e[1][0] * e[2][2] - e[1][2] * e[2][0])
+        + e[0][2] * (e[1][0] * e[2][1] - e[1][1] * e[2][0])
     )
+
+
+def _det3(a):
+    return _det3_of(_entries(a))
 
 
 def _adjugate_and_det4(a):
     """Adjugate (transpose of the cofactor matrix) and determinant of (..., 4, 4) matrices."""
+    e = _entries(a)
     idx = [[k for k in range(4) if k != i] for i in range(4)]
-    cof = jnp.stack(
-        [
-            jnp.stack([(-1.0) ** (i + j) * _det3(a[..., idx[i], :][..., :, idx[j]]) for j in range(4)], -1)
-            for i in range(4)
-        ],
-        -2,
-    )
-    return jnp.swapaxes(cof, -1, -2), jnp.einsum("...j,...j->...", a[..., 0, :], cof[..., 0, :], precision=EXACT)
+    cof = [
+        [(-1.0) ** (i + j) * _det3_of([[e[r][c] for c in idx[j]] for r in idx[i]]) for j in range(4)] for i in range(4)
+    ]
+    adjugate = jnp.stack([jnp.stack([cof[j][i] for j in range(4)], -1) for i in range(4)], -2)
+    return adjugate, sum(e[0][j] * cof[0][j] for j in range(4))
 
 
 @per_platform("deform.largest_quartic_root")
@@ -568,6 +578,7 @@ class ARAPResult(eqx.Module):
     converged: Bool[Array, ""]
 
 
+@checked_jit  # one compiled call, not the alignment's operations dispatched one by one
 def _aligned_rest(data: ARAPData, bc) -> Float[Array, "n 3"]:
     rest = data.V.astype(bc.dtype)
     if len(data.b) < 3:

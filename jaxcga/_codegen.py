@@ -11,13 +11,13 @@ XLA fuses them into one elementwise loop, which is what makes a per-point sandwi
 from __future__ import annotations
 
 import functools
-import operator
 from collections.abc import Sequence
 from fractions import Fraction
 from typing import Protocol
 
 import jax.numpy as jnp
 import numpy as np
+from jax import lax
 from jaxtyping import Array
 
 from jaxcga import _algebra as alg
@@ -91,21 +91,39 @@ def emit(terms: Terms, factors: Sequence[Columns], shape_hint: tuple[int, ...]) 
 
     Terms sharing a coefficient magnitude are summed first and scaled once (most coefficients are
     +-1 or +-2), which saves a multiply per term on the hot path."""
+    used = sorted({(p, i) for _, blade_terms in terms for key, _ in blade_terms for p, i in enumerate(key)})
+    raw = {pi: jnp.asarray(factors[pi[0]][pi[1]]) for pi in used}
+    dtype = jnp.result_type(*raw.values()) if raw else jnp.result_type(float)
+    # the components at the output's shape and dtype, once each: the terms are then lax's own operations, bound
+    # directly (numpy-style operators would wrap each of the thousands of them in a jitted function to trace)
+    cols = {pi: _at(x, shape_hint, dtype) for pi, x in raw.items()}
     columns = []
     for _, blade_terms in terms:
         groups: dict[float, Array] = {}
         for key, coef in blade_terms:
-            prod = factors[0][key[0]]
+            prod = cols[0, key[0]]
             for p in range(1, len(key)):
-                prod = prod * factors[p][key[p]]
+                prod = lax.mul(prod, cols[p, key[p]])
             mag = abs(coef)
             if mag in groups:
-                groups[mag] = groups[mag] + prod if coef > 0 else groups[mag] - prod
+                groups[mag] = lax.add(groups[mag], prod) if coef > 0 else lax.sub(groups[mag], prod)
             else:
-                groups[mag] = prod if coef > 0 else -prod
-        acc = functools.reduce(operator.add, [total if mag == 1.0 else mag * total for mag, total in groups.items()])
-        columns.append(jnp.broadcast_to(acc, shape_hint) if acc.shape != shape_hint else acc)
+                groups[mag] = prod if coef > 0 else lax.neg(prod)
+        scaled = [
+            total if mag == 1.0 else lax.mul(total, lax.convert_element_type(mag, dtype))
+            for mag, total in groups.items()
+        ]
+        columns.append(functools.reduce(lax.add, scaled))
     return tuple(b for b, _ in terms), columns
+
+
+def _at(x: Array, shape: tuple[int, ...], dtype) -> Array:
+    """``x`` broadcast to ``shape`` (numpy's rules) in ``dtype``."""
+    if x.dtype != dtype:
+        x = lax.convert_element_type(x, dtype)
+    if x.shape != shape:
+        x = lax.broadcast_in_dim(x, shape, tuple(range(len(shape) - x.ndim, len(shape))))
+    return x
 
 
 class LazyColumns:
@@ -117,5 +135,5 @@ class LazyColumns:
 
     def __getitem__(self, i: int) -> Array:
         if i not in self._cache:
-            self._cache[i] = self._values[..., i]
+            self._cache[i] = lax.index_in_dim(self._values, i, axis=-1, keepdims=False)
         return self._cache[i]

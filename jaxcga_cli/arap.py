@@ -115,6 +115,7 @@ def handle_targets(path: Path, V):
 
 def default_handles(V, bend: float, twist: float, translate, fraction: float):
     """The low end of the long axis fixed, the high end moved by ``Motion(V, bend, twist, translate)``."""
+    import jax
     import jax.numpy as jnp
     import numpy as np
 
@@ -123,7 +124,7 @@ def default_handles(V, bend: float, twist: float, translate, fraction: float):
 
     motion = Motion(V, bend, twist, translate)
     low, high = end_handles(motion, V, fraction)
-    moved = np.asarray(apply_to_points(motion.motors(jnp.ones(len(high))), jnp.asarray(V[high])))
+    moved = np.asarray(jax.jit(apply_to_points)(motion.motors(jnp.ones(len(high))), jnp.asarray(V[high])))
     return np.concatenate([low, high]), np.concatenate([V[low], moved])
 
 

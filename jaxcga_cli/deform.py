@@ -211,7 +211,7 @@ def deform_command(
             field = deform.ffd_precompute(V, grid)
             points = deform.lattice_points(grid)
             key_motors = motion.motors(motion.fraction(points))
-            control = cga.apply_to_points(key_motors, points)
+            control = jax.jit(cga.apply_to_points)(key_motors, points)
         else:
             if cage is None:
                 cage_V, cage_F = deform.tube_cage(V, axis=motion.long)
@@ -219,7 +219,7 @@ def deform_command(
                 cage_V, cage_F = check_cage(cage)
             field = deform.cage_precompute(V, cage_V, cage_F)
             key_motors = motion.motors(motion.fraction(cage_V))
-            control = cga.apply_to_points(key_motors, jnp.asarray(cage_V))
+            control = jax.jit(cga.apply_to_points)(key_motors, jnp.asarray(cage_V))
     precompute_ms = 1e3 * (time.perf_counter() - start)
 
     if positional:

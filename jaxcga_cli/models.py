@@ -23,6 +23,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -85,7 +86,11 @@ class Motion:
         return np.clip((np.asarray(X)[:, self.long] - self.low) / self.length, 0.0, 1.0)
 
     def motors(self, s) -> cga.Multivector:
-        s = jnp.asarray(s, jnp.float64)
+        # one compiled call: the kernel's operations dispatched one by one would each be compiled (or looked up in
+        # the compilation cache) on their own
+        return jax.jit(self._motors)(jnp.asarray(s, jnp.float64))
+
+    def _motors(self, s) -> cga.Multivector:
         axes = np.eye(3)
         bend = cga.rotor(jnp.broadcast_to(jnp.asarray(axes[self.across]), s.shape + (3,)), self.bend * s)
         twist = cga.rotor(jnp.broadcast_to(jnp.asarray(axes[self.long]), s.shape + (3,)), self.twist * s)

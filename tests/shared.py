@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import collections
 import functools
+import importlib
 import json
+import pkgutil
 import re
 import struct
 from pathlib import Path
@@ -26,6 +28,16 @@ def given(value: T | None) -> T:
     """A glTF field the file must give (pygltflib types every field as optional)."""
     assert value is not None, "the file lacks a field it must give"
     return value
+
+
+def import_library() -> None:
+    """Import every module of the library packages: a registry filled as modules load (the per-platform kernels)
+    is then whole, though the packages import their modules on first use of a name (``_jaxcga_shared.lazy``)."""
+    for package in ("_jaxcga_shared", "jaxcga", "deform", "cutting", "xfem"):
+        root = importlib.import_module(package)
+        for module in pkgutil.walk_packages(root.__path__, prefix=f"{package}."):
+            if not module.name.endswith("_worker"):  # a subprocess's entry point
+                importlib.import_module(module.name)
 
 
 def read_gltf(path: str | Path) -> pygltflib.GLTF2:

@@ -3,7 +3,8 @@
 ``cutting`` never import each other), and the command line (``jaxcga_cli``) above all. No package imports one above
 it, at any depth: imports inside functions and ``importlib.import_module("...")`` with a literal name count too. No
 files of the project import each other in a cycle: neither through the imports that run when a module is loaded nor
-through those inside functions (``if TYPE_CHECKING:`` blocks, which never run, aside)."""
+through those inside functions (``if TYPE_CHECKING:`` blocks, which never run, aside; but for a package's lazy exports,
+which its ``__getattr__`` imports on first use)."""
 
 from __future__ import annotations
 
@@ -92,7 +93,8 @@ def _imports(path: pathlib.Path, *, which: str, root: pathlib.Path = ROOT) -> se
         statements = list(_load_time_statements(tree.body))
         nodes = [*statements, *(e for statement in statements for e in _expressions(statement))]
     elif which == "run":
-        nodes = list(_executed(tree))
+        # a package __init__ with lazy exports (_jaxcga_shared.lazy) imports its TYPE_CHECKING names on first use
+        nodes = list(ast.walk(tree)) if "lazy_exports(" in path.read_text() else list(_executed(tree))
     else:
         nodes = list(ast.walk(tree))
     names = set()

@@ -16,6 +16,9 @@ from _jaxcga_shared.pallas_rows import rowwise
 from _jaxcga_shared.platform import PLATFORM_KERNELS
 from deform._motor_field import TRITON_MAX_KEYS
 from jaxcga import _versors
+from tests.shared import import_library
+
+import_library()  # the kernels read from PLATFORM_KERNELS are registered when their modules load
 
 
 def _affine_then_divide(row_columns, shared_columns):

@@ -13,9 +13,10 @@ import pytest
 import deform
 import jaxcga as cga
 from _jaxcga_shared.platform import PLATFORM_KERNELS, PerPlatform, per_platform
-from tests.shared import lowered_operations, needs_cuda_lowering
+from tests.shared import import_library, lowered_operations, needs_cuda_lowering
 from tests.shared_layer._platform_examples import EXAMPLES, example
 
+import_library()  # every module that registers a kernel
 KERNELS = sorted(PLATFORM_KERNELS)
 DTYPES = {jnp.float64: 1e-12, jnp.float32: 2e-5}  # tolerance relative to the largest entry
 
