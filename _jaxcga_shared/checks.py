@@ -190,8 +190,12 @@ def checked_jit(fn):
             return out
         if isinstance(flags, Tracer):
             # concrete arguments closed over in the caller's trace (jit of a lambda over a model): the flags are
-            # that trace's values, so the checks are made as require makes them there
-            return plain(*args, **kwargs)
+            # that trace's values, so they are threaded through the result as require threads its checks
+            leaves, tree = jax.tree.flatten(out)
+            traced = [i for i, leaf in enumerate(leaves) if isinstance(leaf, Tracer)]
+            if traced:  # nothing traced out: nothing to check, as for a require whose value goes unused
+                leaves[traced[0]] = require(leaves[traced[0]], *((flags[k], m) for k, m in enumerate(messages)))
+            return jax.tree.unflatten(tree, leaves)
         flags = np.asarray(flags)
         if flags.any():
             raise CheckError(messages[int(np.argmax(flags))])
