@@ -152,14 +152,12 @@ def _collector() -> _Collector | None:
     return None
 
 
-def checked_jit(fn):
-    """``eqx.filter_jit(fn)`` for a public entry point: called on concrete input, its value checks (``require``
-    made directly in its trace or in the traces of the ``checked_jit`` functions it calls there) are outputs of the
-    compiled function, not host callbacks, and a failed one raises ``CheckError`` once the result is ready; the
-    executable then holds no host callback, which JAX's persistent compilation cache requires. Under the caller's
-    own trace (jit, vmap, grad) it is ``eqx.filter_jit(fn)`` as it is, its checks ``require``'s. Checks made in
-    nested traces of it (loop bodies, vmaps, plain jits) stay conditionals with a host call, which
-    ``plain_errors`` also raises as ``CheckError``."""
+def collect_checks(fn):
+    """``fn`` returning ``(out, flags, messages)``: called in a trace (``jax.jit``, ``jax.export``), the value checks
+    made at its top level (``require``, and the checks of the ``checked_jit`` entry points it calls there) are
+    collected as ``flags``, a bool array (None: no check), with their messages, a static tuple, instead of host
+    calls; the caller raises ``CheckError(messages[i])`` for the first set flag. Its program then holds no host
+    callback: it can be exported and cached (the command line's ``jaxcga_cli.cache``)."""
 
     @functools.wraps(fn)
     def collecting(*args, **kwargs):
@@ -170,11 +168,30 @@ def checked_jit(fn):
             out = fn(*args, **kwargs)
         finally:
             stack.pop()
-        # the messages are static outputs: filter_jit returns them unchanged, from the trace of any call
         flags = jnp.concatenate(collector.flags) if collector.flags else None
         return out, flags, tuple(collector.messages)
 
-    plain, collected = eqx.filter_jit(fn), eqx.filter_jit(collecting)
+    return collecting
+
+
+def raise_collected(flags, messages: tuple[str, ...]) -> None:
+    """``CheckError`` with the message of the first set flag of ``collect_checks``'s concrete ``flags``."""
+    flags = np.asarray(flags)
+    if flags.any():
+        raise CheckError(messages[int(np.argmax(flags))])
+
+
+def checked_jit(fn):
+    """``eqx.filter_jit(fn)`` for a public entry point: called on concrete input, its value checks (``require``
+    made directly in its trace or in the traces of the ``checked_jit`` functions it calls there) are outputs of the
+    compiled function, not host callbacks, and a failed one raises ``CheckError`` once the result is ready; the
+    executable then holds no host callback, which JAX's persistent compilation cache requires. Under the caller's
+    own trace (jit, vmap, grad) it is ``eqx.filter_jit(fn)`` as it is, its checks ``require``'s. Checks made in
+    nested traces of it (loop bodies, vmaps, plain jits) stay conditionals with a host call, which
+    ``plain_errors`` also raises as ``CheckError``."""
+
+    # the messages are static outputs: filter_jit returns them unchanged, from the trace of any call
+    plain, collected = eqx.filter_jit(fn), eqx.filter_jit(collect_checks(fn))
 
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
@@ -196,9 +213,7 @@ def checked_jit(fn):
             if traced:  # nothing traced out: nothing to check, as for a require whose value goes unused
                 leaves[traced[0]] = require(leaves[traced[0]], *((flags[k], m) for k, m in enumerate(messages)))
             return jax.tree.unflatten(tree, leaves)
-        flags = np.asarray(flags)
-        if flags.any():
-            raise CheckError(messages[int(np.argmax(flags))])
+        raise_collected(flags, messages)
         return out
 
     return plain_errors(wrapper)

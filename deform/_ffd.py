@@ -37,13 +37,13 @@ a deformation causes, for the comparison in the paper's Fig. 7.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
 import equinox as eqx
 import jax.numpy as jnp
 import numpy as np
 from jaxtyping import Array, ArrayLike, Float, Int
-from scipy.special import comb
 
 import jaxcga as cga
 from _jaxcga_shared.checks import check_faces, check_vectors, require
@@ -150,9 +150,7 @@ def _bernstein(degree: int, t: Float[Array, "*batch"]) -> Float[Array, "*batch d
     if not jnp.issubdtype(t.dtype, jnp.floating):
         t = t.astype(jnp.result_type(float))
     # integer powers keep the derivative finite at t = 0 and t = 1 (no 0 * inf from t^(j - 1))
-    return jnp.stack(
-        [float(comb(degree, j, exact=True)) * t**j * (1 - t) ** (degree - j) for j in range(degree + 1)], axis=-1
-    )
+    return jnp.stack([float(math.comb(degree, j)) * t**j * (1 - t) ** (degree - j) for j in range(degree + 1)], axis=-1)
 
 
 def ffd_weights(V: Float[ArrayLike, "n 3"], lattice: Lattice) -> Float[Array, "n k"]:

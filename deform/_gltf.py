@@ -42,14 +42,15 @@ import urllib.parse
 from collections.abc import Mapping
 from pathlib import Path
 
+import jax
 import jax.numpy as jnp
 import numpy as np
-from scipy.spatial.transform import Rotation
-from trimesh import grouping
 
+from _jaxcga_shared.gltf import CHUNK_BIN, CHUNK_JSON, FLOAT, GLB_MAGIC, UINT, USHORT
 from _jaxcga_shared.output import write_files
-from deform._gltf_write import _CHUNK_BIN, _CHUNK_JSON, _FLOAT, _GLB_MAGIC, _UINT, _USHORT, model_files
+from deform._gltf_write import model_files
 from deform._model import INTERPOLATIONS, PATHS, AnimationClip, Channel, RiggedModel, Skeleton, SkinnedMesh
+from deform._rig import quaternion_xyzw_to_matrix
 
 _COMPONENT = {5120: "<i1", 5121: "<u1", 5122: "<i2", 5123: "<u2", 5125: "<u4", 5126: "<f4"}
 _NORMALIZER = {5120: 127.0, 5121: 255.0, 5122: 32767.0, 5123: 65535.0}
@@ -70,12 +71,16 @@ _SHEAR_TOLERANCE = 1e-5
 _WEIGHT_TOLERANCE = 1e-2
 
 
+# converted by numpy and copied by device_put: a conversion on the device, or jnp.asarray's staging, is a
+# compiled program per shape
+
+
 def _float_array(x) -> jnp.ndarray:
-    return jnp.asarray(x, dtype=jnp.result_type(float))
+    return jax.device_put(np.asarray(x, dtype=jnp.result_type(float)))
 
 
 def _int_array(x) -> jnp.ndarray:
-    return jnp.asarray(x, dtype=jnp.int32)
+    return jax.device_put(np.asarray(x, dtype=np.int32))
 
 
 # ----------------------------------------------------------------------------------------------- reading
@@ -89,7 +94,7 @@ class _Document:
         self.base = path.parent
         self.glb_bin = None
         raw = path.read_bytes()
-        if raw[:4] == _GLB_MAGIC:
+        if raw[:4] == GLB_MAGIC:
             self.json = self._parse_glb(raw)
         else:
             try:
@@ -120,13 +125,13 @@ class _Document:
             if len(chunk) != size:
                 raise ValueError(f"{self.source}: truncated GLB chunk at byte {offset}")
             if doc is None:
-                if kind != _CHUNK_JSON:
+                if kind != CHUNK_JSON:
                     raise ValueError(f"{self.source}: the first GLB chunk must be JSON")
                 try:
                     doc = json.loads(chunk.decode("utf-8"))
                 except (UnicodeDecodeError, json.JSONDecodeError) as e:
                     raise ValueError(f"{self.source}: malformed GLB JSON chunk: {e}") from None
-            elif kind == _CHUNK_BIN and self.glb_bin is None:
+            elif kind == CHUNK_BIN and self.glb_bin is None:
                 self.glb_bin = chunk
             offset += 8 + size
         if doc is None:
@@ -186,7 +191,7 @@ class _Document:
         return strided.copy()
 
     def accessor(self, index, what: str, types: tuple[str, ...], components: tuple[int, ...]) -> np.ndarray:
-        """Accessor ``index`` as a (count, width) array: float64 when ``_FLOAT`` is allowed, else int64."""
+        """Accessor ``index`` as a (count, width) array: float64 when ``FLOAT`` is allowed, else int64."""
         acc = self.item("accessors", index, what)
         ctype, kind = acc.get("componentType"), acc.get("type")
         if kind not in types or ctype not in components:
@@ -211,7 +216,7 @@ class _Document:
             if n and idx.max() >= count:
                 raise ValueError(f"{self._at(what)} (accessor {index}) has a sparse index past its count {count}")
             out[idx[:, 0]] = values
-        if _FLOAT not in components:
+        if FLOAT not in components:
             return out.astype(np.int64)
         if acc.get("normalized", False) and ctype in _NORMALIZER:
             return np.maximum(out / _NORMALIZER[ctype], -1.0)
@@ -225,7 +230,7 @@ class _Document:
         return out.astype(np.float64)
 
 
-_FLOATS = (_FLOAT, 5120, 5121, 5122, 5123)  # float, or quantized integers (KHR_mesh_quantization)
+_FLOATS = (FLOAT, 5120, 5121, 5122, 5123)  # float, or quantized integers (KHR_mesh_quantization)
 
 
 def _decompose(matrix: np.ndarray, where: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -242,6 +247,8 @@ def _decompose(matrix: np.ndarray, where: str) -> tuple[np.ndarray, np.ndarray, 
     error = np.abs(rotation.T @ rotation - np.eye(3)).max()
     if error > _SHEAR_TOLERANCE:
         raise ValueError(f"{where}: matrix has a shear (columns {error:.2g} from orthogonal) and is not T * R * S")
+    from scipy.spatial.transform import Rotation  # here: nodes given by matrices are rare, the import is slow
+
     return matrix[:3, 3].copy(), Rotation.from_matrix(rotation).as_quat(), scale
 
 
@@ -267,6 +274,8 @@ def _node_trs(node: dict, where: str) -> tuple[np.ndarray, np.ndarray, np.ndarra
         raise ValueError(
             f"{where}: translation, rotation, scale must be finite, got {t.tolist()}, {r.tolist()}, {s.tolist()}"
         )
+    if not np.linalg.norm(r) > 0:
+        raise ValueError(f"{where}: rotation must be a unit quaternion (x, y, z, w), got {r.tolist()}")
     return t, r, s
 
 
@@ -380,7 +389,7 @@ def _joint_table(doc: _Document, skins: list[int], bone_of: dict[int, int]):
         skin = doc.json["skins"][s]
         n = len(skin["joints"])
         if "inverseBindMatrices" in skin:
-            ibm = doc.accessor(skin["inverseBindMatrices"], f"skin {s} inverseBindMatrices", ("MAT4",), (_FLOAT,))
+            ibm = doc.accessor(skin["inverseBindMatrices"], f"skin {s} inverseBindMatrices", ("MAT4",), (FLOAT,))
             if len(ibm) != n:
                 raise ValueError(f"{doc.source}: skin {s} has {n} joints but {len(ibm)} inverse bind matrices")
             ibm = ibm.reshape(n, 4, 4).transpose(0, 2, 1)  # column-major in the file
@@ -412,7 +421,7 @@ def _primitive(doc: _Document, prim: dict, skin_joints: int | None, where: str):
     V = doc.accessor(attrs["POSITION"], f"{where} POSITION", ("VEC3",), _FLOATS)
     n = len(V)
     if "indices" in prim:
-        F = doc.accessor(prim["indices"], f"{where} indices", ("SCALAR",), (5121, _USHORT, _UINT))[:, 0]
+        F = doc.accessor(prim["indices"], f"{where} indices", ("SCALAR",), (5121, USHORT, UINT))[:, 0]
     else:
         F = np.arange(n)
     if len(F) % 3 or (len(F) and F.max() >= n):
@@ -425,11 +434,11 @@ def _primitive(doc: _Document, prim: dict, skin_joints: int | None, where: str):
     if sets == 0 or any(f"WEIGHTS_{s}" not in attrs for s in range(sets)) or f"WEIGHTS_{sets}" in attrs:
         raise ValueError(f"{where}: a skinned primitive needs matching JOINTS_0/WEIGHTS_0 (and _1, ...) attributes")
     J = np.hstack(
-        [doc.accessor(attrs[f"JOINTS_{s}"], f"{where} JOINTS_{s}", ("VEC4",), (5121, _USHORT)) for s in range(sets)]
+        [doc.accessor(attrs[f"JOINTS_{s}"], f"{where} JOINTS_{s}", ("VEC4",), (5121, USHORT)) for s in range(sets)]
     )
     W = np.hstack(
         [
-            doc.accessor(attrs[f"WEIGHTS_{s}"], f"{where} WEIGHTS_{s}", ("VEC4",), (_FLOAT, 5121, _USHORT))
+            doc.accessor(attrs[f"WEIGHTS_{s}"], f"{where} WEIGHTS_{s}", ("VEC4",), (FLOAT, 5121, USHORT))
             for s in range(sets)
         ]
     )
@@ -452,7 +461,8 @@ def _global_rest(doc: _Document, i: int, parent: list[int]) -> np.ndarray:
     while i != -1:
         t, r, s = _node_trs(doc.json["nodes"][i], f"{doc.source}: node {i}")
         local = np.eye(4)
-        local[:3, :3] = Rotation.from_quat(r).as_matrix() * s
+        r = np.asarray(r, np.float64)
+        local[:3, :3] = quaternion_xyzw_to_matrix(r / np.linalg.norm(r)) * s
         local[:3, 3] = t
         out = local @ out
         i = parent[i]
@@ -536,7 +546,7 @@ def _clips(doc: _Document, bone_of: dict[int, int]) -> tuple[AnimationClip, ...]
             interpolation = sampler.get("interpolation", "LINEAR")
             if interpolation not in INTERPOLATIONS:
                 raise ValueError(f"{where}: interpolation {interpolation!r}, expected one of {INTERPOLATIONS}")
-            times = doc.accessor(sampler["input"], f"{where} input", ("SCALAR",), (_FLOAT,))[:, 0]
+            times = doc.accessor(sampler["input"], f"{where} input", ("SCALAR",), (FLOAT,))[:, 0]
             if len(times) == 0 or np.any(np.diff(times) <= 0):
                 raise ValueError(f"{where}: key times must be non-empty and strictly increasing")
             d = 4 if path == "rotation" else 3
@@ -656,10 +666,23 @@ def load_model(path: str | Path, *, weld: bool = False) -> RiggedModel:
 # ----------------------------------------------------------------------------------------------- welding
 
 
+def _unique_rows(rows: np.ndarray, decimals: int) -> tuple[np.ndarray, np.ndarray]:
+    """(first, inverse): the first row of each group of rows equal after rounding to ``decimals`` digits, in order of
+    first occurrence, and each row's group (``rows[first][inverse]`` is ``rows`` rounded). The rounding is
+    trimesh.grouping.float_to_int's (scaled, nudged down by 1e-6 so that halves do not go either way); numpy's
+    unique instead of trimesh, whose import takes longer than a model's load."""
+    as_int = np.round(rows * 10.0**decimals - 1e-6).astype(np.int64)
+    _, first, inverse = np.unique(as_int, axis=0, return_index=True, return_inverse=True)
+    order = np.argsort(first)  # the groups renumbered by first occurrence
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    return first[order], rank[inverse.reshape(-1)]
+
+
 def weld(mesh: SkinnedMesh, decimals: int = 8) -> SkinnedMesh:
     """Merge vertices with the same position, joints and weights (host-side, numpy).
 
-    Rows ``[V, J, W]`` are compared after rounding to ``decimals`` digits (trimesh.grouping.unique_rows),
+    Rows ``[V, J, W]`` are compared after rounding to ``decimals`` digits (as trimesh.grouping.unique_rows does),
     so vertices that straddle a rounding boundary stay apart; joints and weights must match in the
     same slot order. The first vertex of each group is kept, with its exact values, in order of first
     occurrence. F is re-indexed; faces whose corners become the same vertex are dropped (faces that
@@ -677,7 +700,7 @@ def weld(mesh: SkinnedMesh, decimals: int = 8) -> SkinnedMesh:
     V, F, J, W = (np.asarray(a) for a in (mesh.V, mesh.F, mesh.J, mesh.W))
     if V.shape[0] == 0:
         return mesh
-    first, inverse = grouping.unique_rows(np.hstack([V, J, W]).astype(np.float64), digits=decimals, keep_order=True)
+    first, inverse = _unique_rows(np.hstack([V, J, W]).astype(np.float64), decimals)
     F = inverse[F]
     F = F[(F[:, 0] != F[:, 1]) & (F[:, 1] != F[:, 2]) & (F[:, 0] != F[:, 2])]
     return SkinnedMesh(

@@ -8,49 +8,18 @@ from __future__ import annotations
 
 import json
 import os
-import struct
 import urllib.parse
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from _jaxcga_shared.gltf import ARRAY_BUFFER, ELEMENT_ARRAY_BUFFER, BufferWriter, glb_bytes
+
 if TYPE_CHECKING:
     from deform._model import AnimationClip, RiggedModel, SkinnedMesh
 
-_GLB_MAGIC = b"glTF"
-_CHUNK_JSON = 0x4E4F534A
-_CHUNK_BIN = 0x004E4942
-_FLOAT, _UINT, _USHORT = 5126, 5125, 5123
-_ARRAY_BUFFER, _ELEMENT_ARRAY_BUFFER = 34962, 34963
 GLTF_OUTPUTS = (".glb", ".gltf")  # what save_model writes
-
-
-class _Writer:
-    """Accumulates one binary buffer and the bufferViews / accessors that describe it."""
-
-    def __init__(self):
-        self.chunks, self.size, self.views, self.accessors = [], 0, [], []
-
-    def accessor(self, data: np.ndarray, kind: str, target: int | None = None, bounds: bool = False) -> int:
-        data = np.ascontiguousarray(data)
-        ctype = {np.dtype("<f4"): _FLOAT, np.dtype("<u4"): _UINT, np.dtype("<u2"): _USHORT}[data.dtype]
-        raw = data.tobytes()
-        view = {"buffer": 0, "byteOffset": self.size, "byteLength": len(raw)}
-        if target is not None:
-            view["target"] = target
-        self.chunks.append(raw + b"\0" * (-len(raw) % 4))  # every view starts 4-byte aligned
-        self.size += len(self.chunks[-1])
-        self.views.append(view)
-        acc = {"bufferView": len(self.views) - 1, "componentType": ctype, "count": len(data), "type": kind}
-        if bounds:
-            flat = data.reshape(len(data), -1)
-            acc["min"], acc["max"] = flat.min(axis=0).tolist(), flat.max(axis=0).tolist()
-        self.accessors.append(acc)
-        return len(self.accessors) - 1
-
-    def blob(self) -> bytes:
-        return b"".join(self.chunks)
 
 
 def _finite(name: str, x) -> np.ndarray:
@@ -60,7 +29,7 @@ def _finite(name: str, x) -> np.ndarray:
     return x
 
 
-def _mesh_json(mesh: SkinnedMesh, writer: _Writer) -> list[dict]:
+def _mesh_json(mesh: SkinnedMesh, writer: BufferWriter) -> list[dict]:
     V = _finite("model.mesh.V", mesh.V).astype("<f4")
     W = _finite("model.mesh.W", mesh.W).astype("<f4")
     F, J = np.asarray(mesh.F, dtype=np.int64), np.asarray(mesh.J, dtype=np.int64)
@@ -83,17 +52,17 @@ def _mesh_json(mesh: SkinnedMesh, writer: _Writer) -> list[dict]:
             raise ValueError(
                 f"model.mesh.F: faces of primitive {p} use vertices of another primitive; set primitive_sizes=()"
             )
-        attributes = {"POSITION": writer.accessor(V[v0 : v0 + nv], "VEC3", _ARRAY_BUFFER, bounds=True)}
+        attributes = {"POSITION": writer.accessor(V[v0 : v0 + nv], "VEC3", ARRAY_BUFFER, bounds=True)}
         for s in range(J.shape[1] // 4):
-            attributes[f"JOINTS_{s}"] = writer.accessor(J[v0 : v0 + nv, 4 * s : 4 * s + 4], "VEC4", _ARRAY_BUFFER)
-            attributes[f"WEIGHTS_{s}"] = writer.accessor(W[v0 : v0 + nv, 4 * s : 4 * s + 4], "VEC4", _ARRAY_BUFFER)
-        indices = writer.accessor(faces.reshape(-1).astype("<u4"), "SCALAR", _ELEMENT_ARRAY_BUFFER)
+            attributes[f"JOINTS_{s}"] = writer.accessor(J[v0 : v0 + nv, 4 * s : 4 * s + 4], "VEC4", ARRAY_BUFFER)
+            attributes[f"WEIGHTS_{s}"] = writer.accessor(W[v0 : v0 + nv, 4 * s : 4 * s + 4], "VEC4", ARRAY_BUFFER)
+        indices = writer.accessor(faces.reshape(-1).astype("<u4"), "SCALAR", ELEMENT_ARRAY_BUFFER)
         primitives.append({"attributes": attributes, "indices": indices, "mode": 4})
         v0, f0 = v0 + nv, f0 + nf
     return primitives
 
 
-def _animation_json(clip: AnimationClip, writer: _Writer) -> dict:
+def _animation_json(clip: AnimationClip, writer: BufferWriter) -> dict:
     samplers, channels, inputs = [], [], {}
     for c, channel in enumerate(clip.channels):
         times = _finite(f"clip {clip.name!r} channel {c} times", channel.times).astype("<f4")
@@ -155,7 +124,7 @@ def model_files(model: RiggedModel, path: str | Path) -> dict[Path, bytes | str]
             f"model.mesh.joints: bones {repeated} appear as several joints (different inverse bind matrices); "
             "one glTF skin lists each node once"
         )
-    writer = _Writer()
+    writer = BufferWriter()
     primitives = _mesh_json(mesh, writer)
     ibm = _finite("model.mesh.inverse_bind", mesh.inverse_bind).astype("<f4").transpose(0, 2, 1).reshape(-1, 16)
     skin = {"joints": list(mesh.joints), "inverseBindMatrices": writer.accessor(ibm, "MAT4")}
@@ -190,13 +159,4 @@ def model_files(model: RiggedModel, path: str | Path) -> dict[Path, bytes | str]
         doc["animations"] = animations
     if bin_path is not None:
         return {path: json.dumps(doc, indent=1), bin_path: blob}
-    text = json.dumps(doc, separators=(",", ":")).encode("utf-8")
-    text += b" " * (-len(text) % 4)
-    total = 12 + 8 + len(text) + 8 + len(blob)
-    return {
-        path: struct.pack("<4sII", _GLB_MAGIC, 2, total)
-        + struct.pack("<II", len(text), _CHUNK_JSON)
-        + text
-        + struct.pack("<II", len(blob), _CHUNK_BIN)
-        + blob
-    }
+    return {path: glb_bytes(doc, blob)}

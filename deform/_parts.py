@@ -28,15 +28,19 @@ the feet are fixed) would not feel the others. The rule used by every deformer o
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import equinox as eqx
 import numpy as np
-import scipy.sparse as sp
 from jaxtyping import ArrayLike, Bool, Float, Int
-from scipy.sparse.csgraph import connected_components
-from scipy.spatial import KDTree
 
 from _jaxcga_shared.checks import check_choice, check_index_range, check_triangle_mesh
 
+if TYPE_CHECKING:
+    import scipy.sparse as sp
+
+# scipy's sparse and spatial packages are imported where they are used: a caller that only reads UNHANDLED (the
+# command line's argument check) does not load them
 UNHANDLED = ("follow", "error")
 
 
@@ -63,6 +67,8 @@ class MeshParts(eqx.Module):
 
     def laplacian(self) -> sp.csr_matrix:
         """The bridges' Laplacian (n, n): ``w`` off the diagonal at each bridge, rows summing to zero."""
+        import scipy.sparse as sp
+
         n = len(self.labels)
         i, j = self.bridges[:, 0], self.bridges[:, 1]
         W = sp.csr_matrix((np.concatenate([self.weights] * 2), (np.r_[i, j], np.r_[j, i])), shape=(n, n))
@@ -70,6 +76,9 @@ class MeshParts(eqx.Module):
 
 
 def _components(n: int, edges: np.ndarray) -> tuple[int, np.ndarray]:
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
     graph = sp.coo_matrix((np.ones(len(edges)), (edges[:, 0], edges[:, 1])), shape=(n, n))
     return connected_components(graph, directed=False)
 
@@ -86,6 +95,8 @@ def _shortest_per_anchor(follower, anchor, distance, labels):
 
 
 def _seams(V, labels, length):
+    from scipy.spatial import KDTree
+
     """Every vertex within ``length`` of another part, bridged to its nearest vertex there: (i, j, distance)."""
     pairs = KDTree(V).query_pairs(length, output_type="ndarray")
     pairs = pairs[labels[pairs[:, 0]] != labels[pairs[:, 1]]]
@@ -122,6 +133,8 @@ def mesh_parts(
         name: the argument name that ``constrained`` has in the caller, for the error messages.
     Returns:
         ``MeshParts`` (no bridges for a mesh of one part)."""
+    from scipy.spatial import KDTree
+
     check_choice("unhandled", unhandled, UNHANDLED)
     V, F = check_triangle_mesh(V, F)
     constrained = np.asarray(constrained).reshape(-1)

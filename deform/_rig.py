@@ -47,14 +47,14 @@ _SIMILITUDE = KINDS["similitude"]
 
 
 # ---------------------------------------------------------------- TRS -> matrix / versor
-def quaternion_xyzw_to_matrix(q: Float[Array | np.ndarray, "... 4"]) -> Float[Array, "... 3 3"]:
-    """Rotation matrices (..., 3, 3) of unit quaternions.
+def quaternion_xyzw_to_matrix(q: Float[Array | np.ndarray, "... 4"]) -> Float[Array | np.ndarray, "... 3 3"]:
+    """Rotation matrices (..., 3, 3) of unit quaternions (a numpy array for a numpy array).
 
     Args:
         q: (..., 4) unit quaternions in glTF order (x, y, z, w).
 
     Returns:
-        (..., 3, 3) the rotation matrices.
+        (..., 3, 3) the rotation matrices, numpy for numpy ``q``, else JAX.
 
     Examples:
         >>> import jax.numpy as jnp
@@ -62,12 +62,14 @@ def quaternion_xyzw_to_matrix(q: Float[Array | np.ndarray, "... 4"]) -> Float[Ar
         >>> deform.quaternion_xyzw_to_matrix(jnp.array([0, 0, 0, 1.0])).tolist()
         [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
     """
+    # numpy in, numpy out: the glTF loader's host arithmetic dispatches no JAX operation
+    xp = np if isinstance(q, np.ndarray) else jnp
     x, y, z, w = (q[..., i] for i in range(4))
-    return jnp.stack(
+    return xp.stack(
         [
-            jnp.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
-            jnp.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
-            jnp.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
+            xp.stack([1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)], -1),
+            xp.stack([2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)], -1),
+            xp.stack([2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)], -1),
         ],
         axis=-2,
     )

@@ -115,16 +115,15 @@ def handle_targets(path: Path, V):
 
 def default_handles(V, bend: float, twist: float, translate, fraction: float):
     """The low end of the long axis fixed, the high end moved by ``Motion(V, bend, twist, translate)``."""
-    import jax
-    import jax.numpy as jnp
     import numpy as np
 
     from jaxcga import apply_to_points
+    from jaxcga_cli import cache
     from jaxcga_cli.models import Motion, end_handles
 
     motion = Motion(V, bend, twist, translate)
     low, high = end_handles(motion, V, fraction)
-    moved = np.asarray(jax.jit(apply_to_points)(motion.motors(jnp.ones(len(high))), jnp.asarray(V[high])))
+    moved = np.asarray(cache.call("apply_to_points", apply_to_points, motion.motors(np.ones(len(high))), V[high]))
     return np.concatenate([low, high]), np.concatenate([V[low], moved])
 
 

@@ -5,8 +5,11 @@ configuration; the library never does (it leaves that choice to its caller)."""
 from __future__ import annotations
 
 import os
+import pickle
 import sys
+import warnings
 from pathlib import Path
+from typing import Any, NamedTuple
 
 NO_CACHE = "JAXCGA_NO_CACHE"  # set (to anything but "", "0" or "false"): compile afresh, write nothing
 CACHE_DIR = "JAXCGA_CACHE_DIR"  # another directory for the cache than the user's cache directory
@@ -68,4 +71,231 @@ def enable(command: str, no_cache: bool) -> Path | None:
     # every executable: a command compiles many small ones (eager operations of the precomputations), which
     # together take seconds and read back in milliseconds
     jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+    global _calls
+    _calls = ExportedCalls(path / "exported")
     return path
+
+
+# the packages whose sources key an exported program: a changed line compiles afresh
+_SOURCES = ("jaxcga", "deform", "cutting", "xfem", "_jaxcga_shared", "jaxcga_cli")
+
+
+class ExportedCalls:
+    """The command's compiled programs, exported (``jax.export``) into ``directory``: a second run reads a program
+    back instead of tracing and lowering it again (JAX's compilation cache is keyed by the lowered program, so it
+    saves the compilation alone; tracing the library's generated products takes longer than reading them back).
+
+    ``calls(name, fn, *args, by_value=(), **kwargs)`` is ``fn(*args, **kwargs)`` for a function JAX can trace
+    whose result is a tree of arrays; the positional arguments numbered in ``by_value`` are arrays the program
+    holds as constants (``fn`` may compute with them on the host: a mesh's faces), the other arrays are its inputs.
+    The key is the name, the input arrays' shapes and dtypes, the other arguments' values (the arrays given by value
+    by a digest of their bytes), the JAX version and platform, and a digest of the packages' sources. The value
+    checks of ``fn`` (``_jaxcga_shared.checks.collect_checks``) are outputs of the program and raise ``CheckError``
+    as the library's own call would; warnings given while tracing are kept with the program and given again. A call
+    the export cannot take (a host callback inside, an argument whose value has no stable text) runs as it is."""
+
+    def __init__(self, directory: Path):
+        self.directory = directory
+        self._digest: str | None = None
+
+    def __call__(self, name: str, fn, *args, by_value: tuple[int, ...] = (), **kwargs):
+        import jax
+
+        try:
+            key, leaves, static = self._key(name, args, kwargs, by_value)
+        except _Uncacheable:
+            return fn(*args, **kwargs)
+        path = self.directory / f"{name}-{key[:32]}.jaxexport"
+        refused = path.with_suffix(".plain")  # a call found not exportable: plain from then on
+        if refused.exists():
+            return fn(*args, **kwargs)
+        program = _Program.read(path)
+        if program is None:
+            try:
+                program = _Program.export(fn, leaves, static)
+                data = program.to_bytes()
+            except Exception:  # noqa: BLE001  not exportable (host values, a host callback, a result's tree)
+                # the plain call raises an error of the input as the library gives it, or runs
+                out = fn(*args, **kwargs)
+                _write_bytes(refused, b"")
+                return out
+            _write_bytes(path, data)
+        for category, text in program.told:
+            warnings.warn(text, _warning_category(category), stacklevel=2)
+        out, flags = program.exported.call(leaves)
+        from _jaxcga_shared.checks import raise_collected
+
+        raise_collected(jax.device_get(flags), tuple(program.messages))
+        return jax.tree.unflatten(program.out_tree, out)
+
+    def _key(self, name, args, kwargs, by_value):
+        import hashlib
+
+        import equinox as eqx
+        import jax
+        import numpy as np
+
+        # the arrays given by value are part of the program (host work on them while tracing), keyed by their bytes
+        held = {i: np.asarray(args[i]) for i in by_value}
+        args = tuple(None if i in held else arg for i, arg in enumerate(args))
+        dynamic, static = eqx.partition((args, kwargs), eqx.is_array)
+        leaves, tree = jax.tree.flatten(dynamic)
+        # the trees' own text, not the modules' pretty-printed repr (tens of milliseconds for a model)
+        static_leaves, static_tree = jax.tree.flatten(static)
+        values = [(i, a.shape, str(a.dtype), hashlib.sha256(a.tobytes()).hexdigest()) for i, a in held.items()]
+        text = repr((str(tree), str(static_tree), static_leaves, values))
+        if " at 0x" in text:  # an object without a value's text (a function, a default repr): no stable key
+            raise _Uncacheable
+        shapes = [(leaf.shape, str(leaf.dtype)) for leaf in leaves]
+        platform = jax.default_backend()
+        config = (jax.__version__, platform, bool(jax.config.jax_enable_x64))
+        if self._digest is None:
+            self._digest = _sources_digest()
+        key = hashlib.sha256(repr((name, text, shapes, config, self._digest)).encode()).hexdigest()
+        return key, leaves, (tree, static, held)
+
+
+class _Uncacheable(Exception):
+    pass
+
+
+class _Program(NamedTuple):
+    """An exported program: its function of the arguments' arrays returns its result's arrays and the check flags."""
+
+    exported: Any  # jax.export.Exported
+    out_tree: Any  # the result's PyTreeDef (pickled: it may hold the library's own node types)
+    messages: list[str]  # the checks' messages, one per flag
+    told: list[tuple[str, str]]  # the warnings given while tracing: (category, text)
+
+    @classmethod
+    def export(cls, fn, leaves, static) -> _Program:
+        import equinox as eqx
+        import jax
+        import jax.numpy as jnp
+
+        from _jaxcga_shared.checks import collect_checks
+
+        tree, rest, held = static
+        collecting = collect_checks(fn)
+        traced: dict = {}
+
+        def program(leaves):
+            args, kwargs = eqx.combine(jax.tree.unflatten(tree, leaves), rest)
+            args = tuple(held.get(i, arg) for i, arg in enumerate(args))
+            out, flags, messages = collecting(*args, **kwargs)
+            outs, traced["tree"] = jax.tree.flatten(out)
+            traced["messages"] = list(messages)
+            return outs, jnp.zeros((0,), bool) if flags is None else flags
+
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            exported = jax.export.export(jax.jit(program))(leaves)
+        told = [(w.category.__name__, str(w.message)) for w in caught]
+        return cls(exported, traced["tree"], traced["messages"], told)
+
+    def to_bytes(self) -> bytes:
+        """A header (messages, warnings), the result's tree and the serialized program, each after its length."""
+        import io
+        import json
+        import pickle
+
+        buffer = io.BytesIO()
+        _TreePickler(buffer).dump(self.out_tree)
+        tree = buffer.getvalue()
+        if pickle.loads(tree) != self.out_tree:  # a node type that does not come back equal: not cached
+            raise ValueError("the result's tree does not survive pickling")
+        header = json.dumps({"messages": self.messages, "warnings": self.told}).encode()
+        parts = (header, tree, bytes(self.exported.serialize()))
+        return b"".join(len(part).to_bytes(8, "little") + part for part in parts)
+
+    @classmethod
+    def read(cls, path: Path) -> _Program | None:
+        """The program in ``path``, or None when absent or unreadable (a file of another JAX or a corrupt one is
+        exported afresh and overwritten)."""
+        import json
+        import pickle
+
+        import jax
+
+        try:
+            data = path.read_bytes()
+        except OSError:
+            return None
+        try:
+            parts, at = [], 0
+            for _ in range(3):
+                size = int.from_bytes(data[at : at + 8], "little")
+                parts.append(data[at + 8 : at + 8 + size])
+                at += 8 + size
+            header, tree, serialized = parts
+            told = [(str(category), str(text)) for category, text in json.loads(header)["warnings"]]
+            messages = list(json.loads(header)["messages"])
+            return cls(jax.export.deserialize(bytearray(serialized)), pickle.loads(tree), messages, told)
+        except Exception:  # noqa: BLE001  corrupt or foreign
+            return None
+
+
+def _equinox_missing():
+    """Equinox's marker of a module's field left out of its tree (``eqx.partition``, and the trees of modules
+    whose fields are static), compared by identity; None where this equinox keeps it elsewhere (results holding
+    it are then not cached: ``tests/cli/test_cache.py`` fails loudly)."""
+    try:
+        from equinox._module._flatten import MISSING
+    except ImportError:
+        return None
+    return MISSING
+
+
+class _TreePickler(pickle.Pickler):
+    """Pickles a result's tree with equinox's marker as a reference to the marker itself, so that the tree read
+    back is equal to the tree written (a copy of the marker would not be the marker)."""
+
+    def reducer_override(self, obj):
+        if obj is not None and obj is _equinox_missing():
+            return _equinox_missing, ()
+        return NotImplemented
+
+
+def _write_bytes(path: Path, data: bytes) -> None:
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        partial = path.with_name(f"{path.name}.{os.getpid()}.part")
+        partial.write_bytes(data)
+        os.replace(partial, path)
+    except OSError:
+        pass
+
+
+def _warning_category(name: str) -> type[Warning]:
+    import builtins
+
+    category = getattr(builtins, name, UserWarning)
+    return category if isinstance(category, type) and issubclass(category, Warning) else UserWarning
+
+
+def _sources_digest() -> str:
+    """A digest of the packages' Python sources (``_SOURCES``), found without importing them."""
+    import hashlib
+    import importlib.util
+
+    digest = hashlib.sha256()
+    for package in _SOURCES:
+        spec = importlib.util.find_spec(package)
+        if spec is None or not spec.submodule_search_locations:
+            continue
+        for root in spec.submodule_search_locations:
+            for source in sorted(Path(root).rglob("*.py")):
+                digest.update(str(source.relative_to(root)).encode())
+                digest.update(source.read_bytes())
+    return digest.hexdigest()
+
+
+# the process's exported calls: set by ``enable`` (the command line owns its process); None: off
+_calls: ExportedCalls | None = None
+
+
+def call(name: str, fn, *args, by_value: tuple[int, ...] = (), **kwargs):
+    """``fn(*args, **kwargs)`` through the exported programs of the cache when it is on (``ExportedCalls``)."""
+    if _calls is None:
+        return fn(*args, **kwargs)
+    return _calls(name, fn, *args, by_value=by_value, **kwargs)

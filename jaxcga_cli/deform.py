@@ -176,6 +176,7 @@ def deform_command(
 
     import deform
     import jaxcga as cga
+    from jaxcga_cli import cache
     from jaxcga_cli.models import Motion, end_handles, read_handles
     from jaxcga_cli.output import write_result
     from jaxcga_cli.report import status
@@ -207,11 +208,11 @@ def deform_command(
         elif method == "handles":
             field = deform.handles_precompute(V, F, parts, laplacian=laplacian, unhandled=unhandled)
         elif method == "ffd":
-            grid = deform.bounding_lattice(V, tuple(lattice), padding=0.02)
-            field = deform.ffd_precompute(V, grid)
-            points = deform.lattice_points(grid)
+            grid = cache.call("bounding_lattice", deform.bounding_lattice, V, tuple(lattice), padding=0.02)
+            field = cache.call("ffd_precompute", deform.ffd_precompute, V, grid)
+            points = cache.call("lattice_points", deform.lattice_points, grid)
             key_motors = motion.motors(motion.fraction(points))
-            control = jax.jit(cga.apply_to_points)(key_motors, points)
+            control = cache.call("apply_to_points", cga.apply_to_points, key_motors, points)
         else:
             if cage is None:
                 cage_V, cage_F = deform.tube_cage(V, axis=motion.long)
@@ -228,7 +229,7 @@ def deform_command(
     else:
         # the library's compiled entry point itself: its checks come back as values, the executable has no host
         # callback and the compilation cache keeps it
-        frame = lambda motors: deform.motor_field_solve(field, motors)  # noqa: E731
+        frame = lambda motors: cache.call("motor_field_solve", deform.motor_field_solve, field, motors)  # noqa: E731
         argument = key_motors
     with status("deform", "compiling the deformation"):
         positions = jax.block_until_ready(frame(argument))
@@ -239,7 +240,7 @@ def deform_command(
     if not np.all(np.isfinite(positions)):
         raise ValueError("the deformation produced non-finite positions")
     write_result(out, positions, F, V, f"{method}{' (positional)' if positional else ''}")
-    measured = deform.distortion(V, F, positions)
+    measured = cache.call("distortion", deform.distortion, V, F, positions, by_value=(1,))  # edges of F on the host
     summary = {
         "method": method + (" (positional)" if positional else ""),
         "vertices": len(V),

@@ -23,7 +23,6 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 
@@ -86,19 +85,28 @@ class Motion:
         return np.clip((np.asarray(X)[:, self.long] - self.low) / self.length, 0.0, 1.0)
 
     def motors(self, s) -> cga.Multivector:
-        # one compiled call: the kernel's operations dispatched one by one would each be compiled (or looked up in
-        # the compilation cache) on their own
-        return jax.jit(self._motors)(jnp.asarray(s, jnp.float64))
+        """The motors at fractions ``s`` along the long axis: one compiled call (the kernel's operations dispatched
+        one by one would each be compiled or looked up on their own), exported to the cache (``cache.call``)."""
+        from jaxcga_cli import cache
 
-    def _motors(self, s) -> cga.Multivector:
-        axes = np.eye(3)
-        bend = cga.rotor(jnp.broadcast_to(jnp.asarray(axes[self.across]), s.shape + (3,)), self.bend * s)
-        twist = cga.rotor(jnp.broadcast_to(jnp.asarray(axes[self.long]), s.shape + (3,)), self.twist * s)
-        return deform.motor_about(
-            jnp.asarray(self.pivot),
-            (bend * twist).embed(cga.KINDS["rotor"]),
-            s[..., None] * jnp.broadcast_to(jnp.asarray(self.translate), s.shape + (3,)),
+        angles = np.array([self.bend, self.twist])
+        axes = (self.across, self.long)
+        return cache.call(
+            "motion_motors", _motion_motors, np.asarray(s, np.float64), self.pivot, angles, self.translate, axes
         )
+
+
+def _motion_motors(s, pivot, angles, translate, axes: tuple[int, int]) -> cga.Multivector:
+    """``Motion.motors``'s motors: the bend about axis ``axes[0]`` and the twist about ``axes[1]`` (``angles``,
+    radians at s = 1), about ``pivot``, then ``s * translate``."""
+    unit = jnp.eye(3, dtype=s.dtype)
+    bend = cga.rotor(jnp.broadcast_to(unit[axes[0]], s.shape + (3,)), angles[0] * s)
+    twist = cga.rotor(jnp.broadcast_to(unit[axes[1]], s.shape + (3,)), angles[1] * s)
+    return deform.motor_about(
+        jnp.asarray(pivot),
+        (bend * twist).embed(cga.KINDS["rotor"]),
+        s[..., None] * jnp.broadcast_to(translate, s.shape + (3,)),
+    )
 
 
 def end_handles(motion: Motion, V, fraction: float):

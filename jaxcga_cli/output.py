@@ -30,6 +30,10 @@ def write_result(out: Path, positions, F, rest=None, title: str = "") -> None:
     elif suffix == ".npy":
         with replacing(out) as (temp,), open(temp, "wb") as file:  # np.save on a name would append .npy
             np.save(file, np.asarray(positions, np.float64))
+    elif suffix == ".glb":  # written here: trimesh's import takes longer than a skinning run's work
+        from _jaxcga_shared.gltf import mesh_glb
+
+        write_bytes(out, mesh_glb(positions, F, Path(out).stem))
     else:
         import trimesh
 

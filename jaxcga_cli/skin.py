@@ -50,17 +50,18 @@ def skin_command(model, time: float, method: str, clip: int | str, out: Path, in
     """Skinned positions of every skinned primitive (file order) at ``time``, in glTF world space,
     written to ``out`` (.npy: float64 (n, 3); .glb etc.: the posed mesh); keys interpolated by
     ``interpolation`` (``deform.skin_model``)."""
-    import jax.numpy as jnp
+    import numpy as np
 
     import deform
+    from jaxcga_cli import cache
     from jaxcga_cli.output import write_result
     from jaxcga_cli.report import status
 
     with status("skin", f"skinning {model.mesh.num_vertices} vertices (compiling)"):
-        # the library's compiled entry point itself (not a jit around it): its checks come back as values, so
-        # that the executable holds no host callback and the compilation cache keeps it
-        positions = deform.skin_model(model, time, method, clip, interpolation)
-        if not bool(jnp.all(jnp.isfinite(positions))):
+        # exported with its checks as values (cache.ExportedCalls): a second run reads the program back
+        positions = cache.call("skin_model", deform.skin_model, model, np.float64(time), method, clip, interpolation)
+        positions = np.asarray(positions)  # checked on the host: no program compiled for the check
+        if not np.all(np.isfinite(positions)):
             raise ValueError("skinning produced non-finite positions")
     write_result(out, positions, model.mesh.F)
     return {

@@ -1,13 +1,20 @@
-"""The command line's compilation cache: a command's executables are written to the cache (the skinning's own,
-whose checks come back as values, among them) and read back by its second run; ``--no-cache`` (before or after the
-command's name) and ``JAXCGA_NO_CACHE`` turn it off; an unwritable directory costs one warning line; ``--help``
-says where the cache lives and how to turn it off."""
+"""The command line's compilation cache: a command's executables are written to the cache and read back by its second
+run, and its programs are exported there (``cache.ExportedCalls``: read back instead of traced, their checks and
+warnings kept); ``--no-cache`` (before or after the command's name) and ``JAXCGA_NO_CACHE`` turn it off; an
+unwritable directory costs one warning line; ``--help`` says where the cache lives and how to turn it off."""
 
 from __future__ import annotations
 
+import warnings
+
 import jax
+import jax.numpy as jnp
+import numpy as np
 import pytest
 
+import deform
+import jaxcga
+from _jaxcga_shared.checks import require
 from jaxcga_cli import cache
 from jaxcga_cli.main import parser
 from tests.shared import DATA, run_jaxcga
@@ -17,13 +24,16 @@ def test_a_commands_executables_are_cached_and_read_back_and_the_switches_turn_t
     argv = ["skin", str(DATA / "RiggedSimple.glb"), "--time", "0.5", "--out", str(tmp_path / "posed.npy")]
     first = run_jaxcga(argv, tmp_path / "cache")
     assert first.returncode == 0, first.stderr
-    written = sorted(path.name for path in (tmp_path / "cache").iterdir())
-    # the skinning itself: JAX writes no entry for an executable with a host callback, which a traced check was
-    assert any(name.startswith("jit__skin_model-") for name in written), written
+    written = sorted(str(path.relative_to(tmp_path)) for path in (tmp_path / "cache").rglob("*"))
+    # the skinning exported, and its executable cached: JAX writes no entry for an executable with a host callback,
+    # which a traced check was
+    assert any(name.startswith("cache/exported/skin_model-") for name in written), written
+    assert any(name.startswith("cache/jit_call_exported-") for name in written), written
     second = run_jaxcga(argv, tmp_path / "cache")
     assert second.returncode == 0, second.stderr
-    # every executable found under the same key: nothing compiled, nothing new written
-    assert sorted(path.name for path in (tmp_path / "cache").iterdir()) == written
+    # every program and executable found under the same key: nothing exported or compiled, nothing new written
+    assert sorted(str(path.relative_to(tmp_path)) for path in (tmp_path / "cache").rglob("*")) == written
+    assert np.array_equal(np.load(tmp_path / "posed.npy"), np.asarray(deform.skin_model(*_model_at(0.5))))
     for name, argv_off, env in (("flag", [*argv, "--no-cache"], {}), ("env", argv, {"JAXCGA_NO_CACHE": "1"})):
         off = run_jaxcga(argv_off, tmp_path / name, env=env)
         assert off.returncode == 0, off.stderr
@@ -61,3 +71,70 @@ def test_help_says_where_the_cache_lives_and_how_to_turn_it_off(tmp_path, monkey
     text = " ".join(parser().format_help().split())
     assert f"cached in {tmp_path / 'here'}" in text
     assert "--no-cache" in text and "JAXCGA_NO_CACHE=1" in text
+
+
+def _model_at(t: float):
+    return deform.load_model(DATA / "RiggedSimple.glb"), t
+
+
+def test_an_exported_call_is_read_back_and_gives_the_librarys_result(tmp_path):
+    calls = cache.ExportedCalls(tmp_path)
+    model, t = _model_at(0.25)
+    expected = np.asarray(deform.skin_model(model, t, "lbs"))
+    first = calls("skin_model", deform.skin_model, model, np.float64(t), "lbs")
+    (written,) = tmp_path.iterdir()
+    assert written.name.startswith("skin_model-") and written.suffix == ".jaxexport"
+    stamp = written.stat().st_mtime_ns
+    # a fresh object, as a second run has: the program is read back, not exported again
+    second = cache.ExportedCalls(tmp_path)("skin_model", deform.skin_model, model, np.float64(t), "lbs")
+    assert written.stat().st_mtime_ns == stamp and len(list(tmp_path.iterdir())) == 1
+    np.testing.assert_array_equal(np.asarray(first), expected)
+    np.testing.assert_array_equal(np.asarray(second), expected)
+    # another time is an argument of the same program; another method is another program
+    other = calls("skin_model", deform.skin_model, model, np.float64(0.75), "lbs")
+    np.testing.assert_array_equal(np.asarray(other), np.asarray(deform.skin_model(model, 0.75, "lbs")))
+    assert len(list(tmp_path.iterdir())) == 1
+    calls("skin_model", deform.skin_model, model, np.float64(t), "cga")
+    assert len(list(tmp_path.iterdir())) == 2
+
+
+def _checked_half(x):
+    require(None, (jnp.any(x < 0), "x: expected non-negative values"))
+    with warnings.catch_warnings():
+        warnings.simplefilter("always")
+        warnings.warn("halved", UserWarning, stacklevel=1)  # given while tracing, as the library's notices are
+    return {"half": x / 2}
+
+
+def test_an_exported_calls_checks_raise_and_its_warnings_are_given_again(tmp_path):
+    for calls in (cache.ExportedCalls(tmp_path), cache.ExportedCalls(tmp_path)):  # exported, then read back
+        with pytest.warns(UserWarning, match="halved"):
+            out = calls("half", _checked_half, np.array([1.0, 4.0]))
+        np.testing.assert_array_equal(np.asarray(out["half"]), [0.5, 2.0])
+        with pytest.warns(UserWarning, match="halved"), pytest.raises(jaxcga.CheckError, match="x: expected non"):
+            calls("half", _checked_half, np.array([1.0, -4.0]))
+
+
+def test_a_call_that_cannot_be_exported_runs_plain_and_is_remembered(tmp_path):
+    def on_the_host(x):
+        return np.asarray(x) * 2  # needs the values: no program to export
+
+    calls = cache.ExportedCalls(tmp_path)
+    np.testing.assert_array_equal(calls("host", on_the_host, np.array([1.0, 2.0])), [2.0, 4.0])
+    assert [path.suffix for path in tmp_path.iterdir()] == [".plain"]
+    np.testing.assert_array_equal(calls("host", on_the_host, np.array([2.0, 3.0])), [4.0, 6.0])
+    # an error of the input is the library's own, and nothing is remembered for it
+    with pytest.raises(ValueError, match="method"):
+        calls("skin_model", deform.skin_model, *_model_at(0.5), "nope")
+    assert [path.suffix for path in tmp_path.iterdir()] == [".plain"]
+
+
+def test_a_corrupt_program_is_exported_again(tmp_path):
+    calls = cache.ExportedCalls(tmp_path)
+    with pytest.warns(UserWarning, match="halved"):
+        calls("half", _checked_half, np.array([1.0]))
+    (written,) = tmp_path.iterdir()
+    written.write_bytes(b"not a program")
+    with pytest.warns(UserWarning, match="halved"):
+        out = cache.ExportedCalls(tmp_path)("half", _checked_half, np.array([1.0]))
+    assert float(out["half"][0]) == 0.5 and written.stat().st_size > 100
