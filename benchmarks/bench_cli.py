@@ -3,8 +3,9 @@ the command line turns on, and the time ``jaxcga --help`` takes.
 
 Each run is a fresh process (``python -m jaxcga_cli``, from the checkout measured), timed from its start to its exit:
 the first with an empty cache directory (a new temporary one, ``JAXCGA_CACHE_DIR``), the second with what the first
-wrote. The checkout's modules are compiled to bytecode first, as an installed package's are. The commands are the README's, on CesiumMan: ``skin`` (one pose), ``cut`` (a plane across the body),
-``deform ffd`` (a 4x4x4 motor lattice bent 60 degrees) and ``arap`` (bent 60 degrees, to convergence).
+wrote. The checkout's modules are compiled to bytecode first, as an installed package's are. The commands are the
+README's, on CesiumMan: ``skin`` (one pose), ``cut`` (a plane across the body), ``deform ffd`` (a 4x4x4 motor
+lattice bent 60 degrees) and ``arap`` (bent 60 degrees, to convergence).
 ``cli_first_vs_second_run_COMMAND`` is the first run's time over the second's (larger: the second run is faster);
 medians over ``--repeats`` pairs, each with its own empty cache.
 
