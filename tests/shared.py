@@ -164,7 +164,7 @@ def load_character(name: str, weld: bool = True):
 
 # fTetWild's tets of a corpus character's rest surface, saved once (fTetWild is not deterministic): a body built on
 # them, refined as character_body refines, is the same in every run (tests/data/README.md)
-SAVED_TETS = {"Fox": DATA / "Fox_tets.npz"}
+SAVED_TETS = {"Fox": DATA / "Fox_tets.npz", "CesiumMan": DATA / "CesiumMan_tets.npz"}
 
 
 def saved_tets(name: str):

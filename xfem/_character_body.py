@@ -42,11 +42,16 @@ by more than 0.8 ``tolerance`` diagonals are bisected at their longest edges (Ri
 path: the mesh stays conforming, the parts' tets apart, and the shapes do not degrade) to 0.7 of their longest
 edge, not below 1/64 of the initial median, and the weights are fitted again, for at most 12 rounds and 8 times
 fTetWild's tets, the worst vertices' tets first; a vertex whose error fell by less than a tenth since its tet was
-last refined sits out the next round, and so does a vertex outside the tets (where fTetWild's filter cut a thin
-feature off) by more than a quarter of its tet's longest edge: it follows its tet's linear map extrapolated, and a
-smaller tet would amplify the fit's errors by the distance over its size. Where surfaces of different bones touch
-inside one part (an arm against the chest in the rest pose, then raised), tets holding both blend them and no
-refinement separates them: a ``UserWarning`` gives the error reached.
+last refined sits out the next round. A vertex outside the tets (where fTetWild's filter cut a thin feature off)
+by more than a quarter of its tet's longest edge is not refined (it follows its tet's linear map extrapolated, and a
+smaller tet would amplify the fit's errors by the distance over its size): up to four such edges out it becomes a
+node instead, the apex of a tet of its own on the nearest boundary face of its part (one a face, and none that would
+hold another node), so that it is embedded at that node, whose weights are fitted to its own. Where surfaces of
+different bones touch inside one part (an arm against the chest in the rest pose, then raised), tets holding both
+blend them and no refinement separates them: a ``UserWarning`` gives the error reached. Where the tets still miss
+``tolerance`` at the end (coarse tets of a low-poly model that spent the budget), the weights are fitted again with
+a tenth and a hundredth of the smoothness, and the fit closest at the probe poses is kept; the probe poses choose
+among the fits for tets given as they are too, so a saved body's tets give its weights back.
 
 Driven nodes (the core rule). Bone j's core is the set of points within ``core * r_j`` of its segments (from the
 joint to each child joint; a leaf joint is a point), where ``r_j`` is the median distance from those segments of
@@ -85,7 +90,7 @@ from scipy.sparse.csgraph import connected_components
 
 import deform
 from _jaxcga_shared.checks import check_real
-from _jaxcga_shared.mesh import bounding_diagonal
+from _jaxcga_shared.mesh import bounding_diagonal, tet_face_matching
 from _jaxcga_shared.tetmeshing import embed, ftetwild
 from xfem._surface_tets import (
     EDGE_LENGTH,
@@ -102,6 +107,7 @@ INFLUENCES = 8  # joints per node: refined tets near joints blend more bones tha
 _MIN_VERTICES = 4  # a bone with fewer surface vertices (by largest weight) has no core
 _LENGTH = 0.1
 _SMOOTHNESS = 1e-2
+_WEAKER = (0.1, 0.01)  # the smoothness's fractions tried where the refined tets still miss the tolerance
 _PROBES = 64
 _PER_CLIP = 16
 _CLIPS = 4
@@ -115,6 +121,8 @@ _SHRINK = 0.7
 _STUCK = 0.9  # a vertex whose error fell by less after a refinement of its tet sits out a round
 LIMIT = 1e-3  # the surface limit the tets are refined to, a fraction of the diagonal
 _OUTSIDE = 0.25  # a vertex farther outside its tet than this fraction of the tet's longest edge: not refined
+_CAP_REACH = 4.0  # ... and given a tet of its own up to this many of those edges outside
+_CAP_FLAT = 0.1  # nearer than this fraction of the edge, a tet of its own would be flat
 _BIND_FITS = 2  # the fits in mesh space, each with the mesh-space nodes of the previous weights
 _BIND_SPREAD = (
     1e-6  # a vertex's joints' rest images further apart (diagonals; closer: float32 rounding): fit in mesh space
@@ -563,6 +571,53 @@ def _carry_parts(T: np.ndarray, tet_part: np.ndarray, n: int, refined: np.ndarra
     return part[label[refined[:, 0]]]
 
 
+def _cap_outside(Y, T, tet_part, points, vertex_part, vertices) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+    """Tets of their own for surface vertices that lie outside their part's tets (fTetWild's envelope cut a thin
+    feature off): each of ``vertices`` (worst first) becomes a node, the apex of a new tet on the boundary face of
+    its part nearest to it, so that it is embedded at that node, whose weights are fitted to its own, instead of in
+    a tet whose linear map it extrapolates (its coordinates outside [0, 1] amplify the fit's errors). A face takes
+    one apex a round, and a tet that would hold another node or lie on the inner side of its face is not made.
+    Returns (Y, T, tet_part, the number of tets made)."""
+    faces, inverse, counts = tet_face_matching(T)
+    flat = faces.reshape(-1, 3)
+    boundary = np.flatnonzero(counts[inverse] == 1)
+    owner = boundary // 4
+    nodes, tets, parts, used = [], [], [], set()
+    for part in np.unique(vertex_part[vertices]):
+        mine = vertices[vertex_part[vertices] == part]
+        candidates = boundary[tet_part[owner] == part]
+        if not len(candidates):
+            continue
+        nearest = candidates[np.asarray(igl.point_mesh_squared_distance(points[mine], Y, flat[candidates])[1])]
+        for v, f in zip(mine.tolist(), nearest.tolist()):
+            if f in used:
+                continue
+            a, b, c = flat[f]
+            opposite = T[f // 4, f % 4]  # the face's own tet's fourth node: the apex must lie across the face
+            normal = np.cross(Y[b] - Y[a], Y[c] - Y[a])
+            if np.dot(normal, points[v] - Y[a]) * np.dot(normal, Y[opposite] - Y[a]) >= 0:
+                continue
+            corners = np.stack([Y[a], Y[b], Y[c], points[v]])
+            edges = (corners[1:] - corners[0]).T
+            near = np.flatnonzero(np.all((Y >= corners.min(0)) & (Y <= corners.max(0)), axis=1))
+            near = near[~np.isin(near, (a, b, c))]
+            if len(near):
+                lam = np.linalg.solve(edges, (Y[near] - corners[0]).T).T
+                if np.any((lam >= 0).all(axis=1) & (lam.sum(axis=1) <= 1)):
+                    continue
+            used.add(f)
+            index = len(Y) + len(nodes)
+            nodes.append(points[v])
+            # positively oriented, as every tet of the mesh
+            tets.append((a, b, c, index) if np.linalg.det(edges) > 0 else (b, a, c, index))
+            parts.append(tet_part[f // 4])
+    if not tets:
+        return Y, T, tet_part, 0
+    Y = np.concatenate([Y, np.asarray(nodes)])
+    T = np.concatenate([T, np.asarray(tets, T.dtype)])
+    return Y, T, np.concatenate([tet_part, np.asarray(parts, tet_part.dtype)]), len(tets)
+
+
 def _embed_parts(X, T, tet_part, points, vertex_part) -> SurfaceEmbedding:
     """The surface's vertices embedded each in the tets of its own part (``embed_points`` restricted to them), so
     that no tet holds two parts; the vertices of a part without tets (an open sheet) in the nearest tets."""
@@ -587,7 +642,9 @@ def _embed_parts(X, T, tet_part, points, vertex_part) -> SurfaceEmbedding:
     return SurfaceEmbedding(element, T[element], weights, distance)
 
 
-def _build(model, dense, V, F, G, diagonal, edge_length, epsilon, threads, tets, influences, tolerance, per_part):
+def _build(
+    model, dense, V, F, G, diagonal, edge_length, epsilon, threads, tets, influences, tolerance, refine, per_part
+):
     """The tets of the rest configuration (fTetWild's or ``tets``), refined, with their weights (module docstring):
     (Y (n, 3) nodes, T (t, 4) tets, J and W (n, influences) weights, the surface's embedding).
 
@@ -612,15 +669,16 @@ def _build(model, dense, V, F, G, diagonal, edge_length, epsilon, threads, tets,
         mesh = tetrahedralize_surface(placed, F, edge_length=edge_length, epsilon=epsilon, threads=threads).mesh
     Y, T = np.asarray(mesh.X, np.float64), np.asarray(mesh.T, np.int64)
     tet_part = _tet_parts(Y, T, placed, F, face_part, count)
-    if tolerance is not None:  # the probe poses: the nodes' joint matrices, and the surface skinned directly
-        inverse_bind = np.asarray(model.mesh.inverse_bind, np.float64)
-        poses = _probe_poses(model)
-        node_motions = poses @ inverse_bind[None]
-        k = len(G)
-        targets = [
-            np.einsum("sab,sb->sa", (dense @ (pose @ inverse_bind)[:, :3].reshape(k, 12)).reshape(-1, 3, 4), Vh)
-            for pose in poses
-        ]
+    # the probe poses (also for tets given as they are: the fit's smoothness is chosen by them, below): the nodes'
+    # joint matrices, and the surface skinned directly
+    inverse_bind = np.asarray(model.mesh.inverse_bind, np.float64)
+    poses = _probe_poses(model)
+    node_motions = poses @ inverse_bind[None]
+    k = len(G)
+    targets = [
+        np.einsum("sab,sb->sa", (dense @ (pose @ inverse_bind)[:, :3].reshape(k, 12)).reshape(-1, 3, 4), Vh)
+        for pose in poses
+    ]
     lengths = np.linalg.norm(Y[T[:, [0, 0, 0, 1, 1, 2]]] - Y[T[:, [1, 2, 3, 2, 3, 3]]], axis=2).max(axis=1)
     shortest = _FINEST * float(np.median(lengths))
     budget = _GROWTH * len(T)
@@ -635,16 +693,29 @@ def _build(model, dense, V, F, G, diagonal, edge_length, epsilon, threads, tets,
                     "expected tets of the surface in the rest configuration (the skeleton's rest pose, world "
                     "coordinates, as CharacterBody.tets)"
                 )
-        fitted = fit_weights(Y, T, embedding, placed, dense, moments, _LENGTH * diagonal, _SMOOTHNESS)
-        J, W = _trim(np.clip(fitted, 0.0, 1.0), influences)
-        bound = _bind_positions(Y, G, J, W)
-        for _ in range(_BIND_FITS if bind else 0):  # the moments in mesh space are zero (module docstring)
-            fitted = fit_weights(bound, T, embedding, V, dense, zero, _LENGTH * diagonal, _SMOOTHNESS)
+
+        def fit(smoothness):
+            fitted = fit_weights(Y, T, embedding, placed, dense, moments, _LENGTH * diagonal, smoothness)
             J, W = _trim(np.clip(fitted, 0.0, 1.0), influences)
             bound = _bind_positions(Y, G, J, W)
-        if tolerance is None:
-            break
+            for _ in range(_BIND_FITS if bind else 0):  # the moments in mesh space are zero (module docstring)
+                fitted = fit_weights(bound, T, embedding, V, dense, zero, _LENGTH * diagonal, smoothness)
+                J, W = _trim(np.clip(fitted, 0.0, 1.0), influences)
+                bound = _bind_positions(Y, G, J, W)
+            return J, W, bound
+
+        J, W, bound = fit(_SMOOTHNESS)
         error = _probe_errors(node_motions, bound, J, W, embedding, targets)
+        if error.max() > tolerance * diagonal:
+            # coarse tets (a low-poly model's, or before the refinement has reached a joint) may follow the weights
+            # closer with less smoothing: a weaker fit is kept only where the probe poses show it closer
+            for smoothness in _SMOOTHNESS * np.asarray(_WEAKER):
+                J_s, W_s, bound_s = fit(smoothness)
+                error_s = _probe_errors(node_motions, bound_s, J_s, W_s, embedding, targets)
+                if error_s.max() < error.max():
+                    J, W, bound, error = J_s, W_s, bound_s, error_s
+        if not refine:
+            break
         bad = error > _MARGIN * tolerance * diagonal
         # a vertex whose error hardly fell when its tet was refined sits where surfaces of different bones meet:
         # refining on would spend the budget there for nothing
@@ -652,12 +723,25 @@ def _build(model, dense, V, F, G, diagonal, edge_length, epsilon, threads, tets,
         previous = np.where(bad & ~stuck, error, np.inf)
         bad &= ~stuck
         # a vertex outside the tets (where fTetWild's filter cut a thin feature) follows its tet's linear map
-        # extrapolated: refining that tet amplifies the fit's errors by the distance over the tet's size
+        # extrapolated: refining that tet amplifies the fit's errors by the distance over the tet's size, so it gets
+        # a tet of its own instead (_cap_outside)
         x = Y[embedding.nodes]
         size = np.linalg.norm(x[:, [0, 0, 0, 1, 1, 2]] - x[:, [1, 2, 3, 2, 3, 3]], axis=2).max(axis=1)
-        bad &= embedding.distance <= _OUTSIDE * size
-        if not bad.any() or round_ == _ROUNDS or len(T) >= budget:
+        # (or nearer, where its coordinates extrapolate far: a thin tet's, near an edge, at the finest size)
+        extrapolated = (embedding.distance > _CAP_FLAT * size) & (embedding.weights.min(axis=1) < -_OUTSIDE)
+        outside = bad & ((embedding.distance > _OUTSIDE * size) | extrapolated)
+        bad &= ~outside
+        outside &= embedding.distance <= _CAP_REACH * size  # farther, a tet of its own would be a spike
+        if not (bad.any() or outside.any()) or round_ == _ROUNDS or len(T) >= budget:
             break
+        capped = 0
+        if outside.any():
+            worst_first = np.flatnonzero(outside)[np.argsort(-error[outside], kind="stable")]
+            Y, T, tet_part, capped = _cap_outside(Y, T, tet_part, placed, vertex_part, worst_first)
+        if not bad.any():
+            if not capped:
+                break
+            continue
         # the worst vertices' tets last: the bisection takes them first, so a spent budget went where it did most
         order: dict[int, None] = {}
         for t in embedding.element[bad][np.argsort(error[bad], kind="stable")].tolist():
@@ -666,13 +750,14 @@ def _build(model, dense, V, F, G, diagonal, edge_length, epsilon, threads, tets,
         refined_Y, refined_T = bisect_tets(Y, T, np.fromiter(order, np.int64, len(order)), _SHRINK, shortest, budget)
         tet_part = _carry_parts(T, tet_part, len(refined_Y), refined_T)
         Y, T = refined_Y, refined_T
-    if tolerance is not None and error.max() > tolerance * diagonal:
+    if error.max() > tolerance * diagonal:
         warnings.warn(
             f"tolerance: the embedded surface misses the directly skinned one by up to {error.max() / diagonal:.2g} "
             f"of the diagonal at the probe poses ({int((error > tolerance * diagonal).sum())} of {len(error)} "
-            f"vertices above {tolerance:g}; {len(T)} tets, at most {_GROWTH} times fTetWild's): surfaces of "
-            "different bones meet there inside one part of the surface (or across parts, per_part=False), and the "
-            "tets that hold both blend them",
+            f"vertices above {tolerance:g}; {len(T)} tets, "
+            + (f"at most {_GROWTH} times fTetWild's" if refine else "given, not refined (refine=True refines them)")
+            + "): surfaces of different bones meet there inside one part of the surface (or across parts, "
+            "per_part=False), and the tets that hold both blend them",
             stacklevel=3,
         )
     return Y, T, J, W, embedding, bound
@@ -712,8 +797,8 @@ def character_body(
         tets: None (tetrahedralize), or a ``TetMesh`` of the surface in the rest configuration (e.g. a saved
             ``CharacterBody.tets``, as fTetWild is not deterministic).
         threads: fTetWild's threads; None: every core.
-        tolerance: the surface limit the tets are refined to, a fraction in (0, 1) of the diagonal (module
-            docstring).
+        tolerance: the surface limit the tets are refined to and the weights fitted to, a fraction in (0, 1) of
+            the diagonal (module docstring); a body that misses it warns.
         refine: whether to refine the tets to ``tolerance``; None: fTetWild's yes, ``tets`` given no (a saved
             body's are refined already).
         per_part: True: each part of the surface (a connected set of its triangles) gets tets of its own, which
@@ -758,9 +843,21 @@ def character_body(
     _, G = _rest_joint_matrices(model)
     dense = _dense_weights(mesh)
     V = np.asarray(mesh.V, np.float64)
-    target = tolerance if refine else None
     Y, T, J, W, embedding, bound = _build(
-        model, dense, V, F, G, diagonal, edge_length, epsilon, threads, tets, int(influences), target, per_part
+        model,
+        dense,
+        V,
+        F,
+        G,
+        diagonal,
+        edge_length,
+        epsilon,
+        threads,
+        tets,
+        int(influences),
+        tolerance,
+        refine,
+        per_part,
     )
     X = Y
     rest = tet_mesh(X, T)
