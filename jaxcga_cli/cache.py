@@ -148,7 +148,8 @@ class ExportedCalls:
             raise _Uncacheable
         shapes = [(leaf.shape, str(leaf.dtype)) for leaf in leaves]
         platform = jax.default_backend()
-        config = (jax.__version__, platform, bool(jax.config.jax_enable_x64))
+        # x64 or not: what float64 becomes
+        config = (jax.__version__, platform, str(jax.dtypes.canonicalize_dtype(np.float64)))
         if self._digest is None:
             self._digest = _sources_digest()
         key = hashlib.sha256(repr((name, text, shapes, config, self._digest)).encode()).hexdigest()

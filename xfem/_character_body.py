@@ -44,7 +44,7 @@ edge, not below 1/64 of the initial median, and the weights are fitted again, fo
 fTetWild's tets, the worst vertices' tets first; a vertex whose error fell by less than a tenth since its tet was
 last refined sits out the next round. A vertex outside the tets (where fTetWild's filter cut a thin feature off)
 by more than a quarter of its tet's longest edge is not refined (it follows its tet's linear map extrapolated, and a
-smaller tet would amplify the fit's errors by the distance over its size): up to four such edges out it becomes a
+smaller tet would amplify the fit's errors by the distance over its size): up to two such edges out it becomes a
 node instead, the apex of a tet of its own on the nearest boundary face of its part (one a face, and none that would
 hold another node), so that it is embedded at that node, whose weights are fitted to its own. Where surfaces of
 different bones touch inside one part (an arm against the chest in the rest pose, then raised), tets holding both
@@ -121,8 +121,7 @@ _SHRINK = 0.7
 _STUCK = 0.9  # a vertex whose error fell by less after a refinement of its tet sits out a round
 LIMIT = 1e-3  # the surface limit the tets are refined to, a fraction of the diagonal
 _OUTSIDE = 0.25  # a vertex farther outside its tet than this fraction of the tet's longest edge: not refined
-_CAP_REACH = 4.0  # ... and given a tet of its own up to this many of those edges outside
-_CAP_FLAT = 0.1  # nearer than this fraction of the edge, a tet of its own would be flat
+_CAP_REACH = 2.0  # ... and given a tet of its own up to this many of those edges outside
 _BIND_FITS = 2  # the fits in mesh space, each with the mesh-space nodes of the previous weights
 _BIND_SPREAD = (
     1e-6  # a vertex's joints' rest images further apart (diagonals; closer: float32 rounding): fit in mesh space
@@ -727,9 +726,7 @@ def _build(
         # a tet of its own instead (_cap_outside)
         x = Y[embedding.nodes]
         size = np.linalg.norm(x[:, [0, 0, 0, 1, 1, 2]] - x[:, [1, 2, 3, 2, 3, 3]], axis=2).max(axis=1)
-        # (or nearer, where its coordinates extrapolate far: a thin tet's, near an edge, at the finest size)
-        extrapolated = (embedding.distance > _CAP_FLAT * size) & (embedding.weights.min(axis=1) < -_OUTSIDE)
-        outside = bad & ((embedding.distance > _OUTSIDE * size) | extrapolated)
+        outside = bad & (embedding.distance > _OUTSIDE * size)
         bad &= ~outside
         outside &= embedding.distance <= _CAP_REACH * size  # farther, a tet of its own would be a spike
         if not (bad.any() or outside.any()) or round_ == _ROUNDS or len(T) >= budget:
