@@ -198,7 +198,6 @@ class _Program(NamedTuple):
         """A header (messages, warnings), the result's tree and the serialized program, each after its length."""
         import io
         import json
-        import pickle
 
         buffer = io.BytesIO()
         _TreePickler(buffer).dump(self.out_tree)
@@ -214,7 +213,6 @@ class _Program(NamedTuple):
         """The program in ``path``, or None when absent or unreadable (a file of another JAX or a corrupt one is
         exported afresh and overwritten)."""
         import json
-        import pickle
 
         import jax
 

@@ -138,3 +138,15 @@ def test_a_corrupt_program_is_exported_again(tmp_path):
     with pytest.warns(UserWarning, match="halved"):
         out = cache.ExportedCalls(tmp_path)("half", _checked_half, np.array([1.0]))
     assert float(out["half"][0]) == 0.5 and written.stat().st_size > 100
+
+
+def test_a_module_result_is_exported_and_read_back(tmp_path):
+    """A result holding the library's modules (a Multivector, whose tree marks its static fields with equinox's
+    marker) is exported, not run plain: this fails loudly if equinox moves the marker ``cache`` pickles by name."""
+    axis, angle = np.array([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0]]), np.array([0.3, -1.2])
+    expected = jaxcga.rotor(jnp.asarray(axis), jnp.asarray(angle))
+    for calls in (cache.ExportedCalls(tmp_path), cache.ExportedCalls(tmp_path)):  # exported, then read back
+        rotors = calls("rotor", jaxcga.rotor, axis, angle)
+        assert isinstance(rotors, jaxcga.Multivector) and rotors.blades == expected.blades
+        np.testing.assert_array_equal(np.asarray(rotors.values), np.asarray(expected.values))
+    assert [path.suffix for path in tmp_path.iterdir()] == [".jaxexport"]
