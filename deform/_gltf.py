@@ -71,11 +71,9 @@ _SHEAR_TOLERANCE = 1e-5
 _WEIGHT_TOLERANCE = 1e-2
 
 
-# converted by numpy and copied by device_put: a conversion on the device, or jnp.asarray's staging, is a
-# compiled program per shape
-
-
 def _float_array(x) -> jnp.ndarray:
+    # converted by numpy and copied by device_put: a conversion on the device, or jnp.asarray's staging, is a
+    # compiled program per shape
     return jax.device_put(np.asarray(x, dtype=jnp.result_type(float)))
 
 
@@ -461,8 +459,7 @@ def _global_rest(doc: _Document, i: int, parent: list[int]) -> np.ndarray:
     while i != -1:
         t, r, s = _node_trs(doc.json["nodes"][i], f"{doc.source}: node {i}")
         local = np.eye(4)
-        r = np.asarray(r, np.float64)
-        local[:3, :3] = quaternion_xyzw_to_matrix(r / np.linalg.norm(r)) * s
+        local[:3, :3] = quaternion_xyzw_to_matrix(r / np.linalg.norm(r)) * s  # normalized, as glTF readers do
         local[:3, 3] = t
         out = local @ out
         i = parent[i]
