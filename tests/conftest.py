@@ -9,6 +9,9 @@ backend is not the CPU (docs/gpu.md).
 marked ``@pytest.mark.cpu_formulation("why")`` check the CPU formulations themselves and are skipped with that
 reason wherever the GPU formulations run; the ``running_variant`` fixture names the one that runs."""
 
+import ctypes
+import ctypes.util
+import gc
 import os
 
 # several test workers share one GPU: each takes memory as it needs it, not 75% of it up front (read when JAX
@@ -54,6 +57,22 @@ def pytest_collection_modifyitems(config, items):
         ):
             if reason is not None:
                 item.add_marker(pytest.mark.skip(reason=reason))
+
+
+# glibc's malloc keeps what a module's tests freed (XLA's buffers and executables, meshes, sparse factors) in its
+# arenas instead of returning it to the system, so a worker of a long run grows by gigabytes (5.8 GB a worker a
+# quarter into the slow job, 0.4-0.8 GB after a trim), and two of them near the job's end, in its largest tests,
+# can exhaust a 24 GB machine; the tests return it between modules (the library leaves a caller's allocator alone)
+_LIBC = ctypes.CDLL(ctypes.util.find_library("c")) if ctypes.util.find_library("c") else None
+_TRIM = getattr(_LIBC, "malloc_trim", None)
+
+
+@pytest.fixture(autouse=True, scope="module")
+def _return_freed_memory_after_each_module():
+    yield
+    if _TRIM is not None:  # glibc only
+        gc.collect()
+        _TRIM(0)
 
 
 @pytest.fixture
