@@ -65,6 +65,7 @@ raises an error. The loop is never unrolled.
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 from collections.abc import Callable
 
@@ -81,6 +82,7 @@ from jaxtyping import Array, ArrayLike, Bool, Float, Int
 
 from _jaxcga_shared.checks import check_choice, check_index_range, check_triangle_mesh, checked_jit, require
 from _jaxcga_shared.ell import padded_rows
+from _jaxcga_shared.host import to_device
 from _jaxcga_shared.platform import EXACT, per_platform
 from _jaxcga_shared.sparse import SparseSolver
 from deform._parts import UNHANDLED, mesh_parts
@@ -201,18 +203,19 @@ def arap_precompute(
     else:
         # every face's edges are in three cells; sum_ij w_ij |v'_ij|^2 counts every edge twice
         y, rhs_scale, quadratic_scale = wv + rim, 1.0 / 3.0, 1.5
+    # put on the device as they are (jnp.asarray would compile a copy per array and shape: a run's lowerings)
     return ARAPData(
-        V=jnp.asarray(V),
-        b=jnp.asarray(b),
-        free=jnp.asarray(free),
-        ring=jnp.asarray(ring),
-        w=jnp.asarray(w),
-        own=jnp.asarray(wv.sum(1) + bridge_share * bridge_sum),
-        y=jnp.asarray(y),
-        z=jnp.asarray(z),
-        degree=jnp.asarray(w.sum(1)),
-        rest_energy=jnp.asarray(quadratic_scale * np.einsum("ndk,ndk->", wv, V[:, None, :] - V[ring])),
-        diagonal=jnp.asarray(np.linalg.norm(np.ptp(V, axis=0))),
+        V=to_device(V),
+        b=to_device(b),
+        free=to_device(free),
+        ring=to_device(ring),
+        w=to_device(w),
+        own=to_device(wv.sum(1) + bridge_share * bridge_sum),
+        y=to_device(y),
+        z=to_device(z),
+        degree=to_device(w.sum(1)),
+        rest_energy=to_device(quadratic_scale * np.einsum("ndk,ndk->", wv, V[:, None, :] - V[ring])),
+        diagonal=to_device(np.linalg.norm(np.ptp(V, axis=0))),
         solver=solver,
         n=n,
         energy=energy,
@@ -454,20 +457,37 @@ def _iterate(data, bc, V0, max_iterations, tolerance, memory, progress=None):
     return _result(data, state)
 
 
-def _iterate_on_host(data, bc, V0, max_iterations, tolerance, memory, progress=None):
+def _iterate_on_host(data, bc, V0, max_iterations, tolerance, memory, progress=None, runner=None):
     """``_iterate`` with its loop and its solves on the host: one compiled call between two solves (no host
-    callback in it), CHOLMOD called directly between them."""
+    callback in it), CHOLMOD called directly between them. ``runner(name, step, *args)`` runs each compiled step
+    (``arap_solve``'s ``runner``), on the data without its factor, which no step reads."""
+    run = _call if runner is None else runner
+    arrays = _without_factor(data)
     statics = (max_iterations, tolerance, memory)
-    partial, (rhs, y) = _start_on_host(data, bc, V0, *statics)
-    first = True
+    if V0 is None:
+        V0 = run("arap_aligned_rest", _aligned_rest, arrays, bc)
+    partial, (rhs, y) = run("arap_start", _start_on_host, arrays, bc, V0, *statics)
+    first = np.asarray(True)  # an array: one program for the first solve and the others
     while True:
         x_free = data.solver.host_solve(np.asarray(rhs)).astype(bc.dtype)
-        state, go_on, residual, partial, (rhs, y) = _between_solves(data, bc, partial, y, x_free, first, *statics)
+        state, go_on, residual, partial, (rhs, y) = run(
+            "arap_between_solves", _between_solves, arrays, bc, partial, y, x_free, first, *statics
+        )
         if progress is not None:
             progress(state[7] + 1, state[1], residual)
-        first = False
+        first = np.asarray(False)
         if not go_on:
-            return _result_on_host(data, state)
+            return run("arap_result", _result_on_host, arrays, state)
+
+
+def _call(name: str, step, *args):
+    return step(*args)
+
+
+def _without_factor(data: ARAPData) -> ARAPData:
+    """``data`` with no solver: what the host loop's compiled steps read, a tree of arrays and values (the factor,
+    an object hashed by identity, would make every new ARAPData a new program)."""
+    return dataclasses.replace(data, solver=None)
 
 
 @functools.partial(jax.jit, static_argnums=(3, 4, 5))
@@ -599,6 +619,7 @@ def arap_solve(
     acceleration: str = "anderson",
     progress: Callable[[Array, Array, Array], object] | None = None,
     host_loop: bool = False,
+    runner: Callable | None = None,
 ) -> ARAPResult:
     """Deform the mesh so that the handles ``data.b`` sit at ``bc``, as rigidly as possible.
 
@@ -631,6 +652,11 @@ def arap_solve(
             iteration's compiled pieces before and after its sparse solve hold no host callback, so that JAX's
             persistent compilation cache keeps them, and the solve calls CHOLMOD directly between them (a few
             microseconds of dispatch more per iteration). The same iterations and result; not differentiable.
+        runner: with ``host_loop``, how its compiled steps run: None calls them; else a function
+            ``runner(name, step, *args)`` that returns ``step(*args)`` by its own means, e.g. programs kept between
+            processes (the command line's ``jax.export`` cache). ``step`` is a function JAX can trace; the arguments
+            are arrays, trees of arrays (the ARAP data without its factor) and hashable values; ``name`` is a
+            stable name of the step.
     Returns:
         ``ARAPResult(U, energies, iterations, residual, converged)``. U is differentiable (reverse mode) with
         respect to bc, implicitly at the fixed point, so its gradient is exact when the solve has converged;
@@ -641,11 +667,14 @@ def arap_solve(
     bc = jnp.asarray(bc)
     if bc.shape != (len(data.b), 3) or not jnp.issubdtype(bc.dtype, jnp.floating):
         raise ValueError(f"bc: expected float handle positions of shape ({len(data.b)}, 3), got {bc.dtype} {bc.shape}")
-    if V0 is None:
+    if runner is not None and not (host_loop and callable(runner)):
+        raise ValueError("runner: expected a function, with host_loop=True (the compiled loop has no steps to run)")
+    if V0 is None and not host_loop:  # the host loop aligns the rest by its runner
         V0 = _aligned_rest(data, bc)
-    V0 = jnp.asarray(V0, bc.dtype)
-    if V0.shape != (data.n, 3):
-        raise ValueError(f"V0: expected shape ({data.n}, 3), got {V0.shape}")
+    if V0 is not None:
+        V0 = jnp.asarray(V0, bc.dtype)
+        if V0.shape != (data.n, 3):
+            raise ValueError(f"V0: expected shape ({data.n}, 3), got {V0.shape}")
     if not isinstance(max_iterations, (int, np.integer)) or max_iterations < 1:
         raise ValueError(f"max_iterations: expected an int >= 1, got {max_iterations!r}")
     check_choice("acceleration", acceleration, ACCELERATIONS)
@@ -658,7 +687,9 @@ def arap_solve(
         if not tolerance > 0:
             raise ValueError(f"tolerance: expected > 0 (None for a fixed number of iterations), got {tolerance!r}")
         tolerance = float(tolerance)
-    bc = require(bc, (~jnp.all(jnp.isfinite(bc)), "bc: non-finite handle positions"))
+    # concrete handles are checked by numpy: no eager operations to compile (a command's run)
+    finite = jnp.all(jnp.isfinite(bc)) if isinstance(bc, Tracer) else np.all(np.isfinite(np.asarray(bc)))
+    bc = require(bc, (~finite, "bc: non-finite handle positions"))
     memory = _ANDERSON_MEMORY if acceleration == "anderson" else 0
     # the fixed point does not depend on the initial guess: no gradient flows to V0
     if progress is not None and not callable(progress):
@@ -667,7 +698,7 @@ def arap_solve(
         if any(isinstance(a, Tracer) for a in (bc, V0)):
             raise ValueError("host_loop: runs on concrete input only, not under jit, vmap or grad")
         U, energies, iterations, residual = _iterate_on_host(
-            data, bc, V0, int(max_iterations), tolerance, memory, progress
+            data, bc, V0, int(max_iterations), tolerance, memory, progress, runner
         )
     else:
         U, energies, iterations, residual = _solve(

@@ -695,16 +695,18 @@ def weld(mesh: SkinnedMesh, decimals: int = 8) -> SkinnedMesh:
         ``joints`` unchanged.
     """
     V, F, J, W = (np.asarray(a) for a in (mesh.V, mesh.F, mesh.J, mesh.W))
+    F_dtype = F.dtype
     if V.shape[0] == 0:
         return mesh
     first, inverse = _unique_rows(np.hstack([V, J, W]).astype(np.float64), decimals)
     F = inverse[F]
     F = F[(F[:, 0] != F[:, 1]) & (F[:, 1] != F[:, 2]) & (F[:, 0] != F[:, 2])]
+    # device_put of numpy arrays, as the reader's (_float_array): no compiled copy per array and shape
     return SkinnedMesh(
-        V=jnp.asarray(V[first]),
-        F=jnp.asarray(F, dtype=jnp.asarray(mesh.F).dtype),
-        J=jnp.asarray(J[first]),
-        W=jnp.asarray(W[first]),
+        V=jax.device_put(V[first]),
+        F=jax.device_put(F.astype(F_dtype)),
+        J=jax.device_put(J[first]),
+        W=jax.device_put(W[first]),
         inverse_bind=mesh.inverse_bind,
         joints=mesh.joints,
         primitive_sizes=((len(first), len(F)),),

@@ -154,6 +154,7 @@ def arap_command(
     import numpy as np
 
     import deform
+    from jaxcga_cli import cache
     from jaxcga_cli.output import write_result
     from jaxcga_cli.report import StepProgress, status
 
@@ -181,11 +182,18 @@ def arap_command(
         bar.step(energy=f"{float(energy):.4g}", residual=f"{float(residual):.2g}")
 
     # the loop on the host: its compiled pieces hold no host callback (the CHOLMOD solves are made between them),
-    # so that the compilation cache keeps them; the first iteration compiles them, the bar starts after it
+    # so that they are exported and read back by a later run (cache.call); the first iteration compiles them (or
+    # reads them), the bar starts after it
     with StepProgress("arap", iterations, "iteration", f"arap {len(V)} vertices") as bar:
         start = time.perf_counter()
         result = deform.arap_solve(
-            data, jnp.asarray(bc), max_iterations=iterations, progress=report, host_loop=True, **options
+            data,
+            jnp.asarray(bc),
+            max_iterations=iterations,
+            progress=report,
+            host_loop=True,
+            runner=cache.call,
+            **options,
         )
         end = time.perf_counter()
     compile_s = first_done[0] - start

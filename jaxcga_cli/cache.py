@@ -97,6 +97,10 @@ class ExportedCalls:
     def __init__(self, directory: Path):
         self.directory = directory
         self._digest: str | None = None
+        # a loop's step is called once per iteration (ARAP's host loop): its program is read once and called through
+        # one jitted function, and its trees' text made once (Exported.call dispatches a fresh program per call)
+        self._loaded: dict[Path, tuple[_Program | None, Any]] = {}
+        self._tree_text: dict[Any, str] = {}
 
     def __call__(self, name: str, fn, *args, by_value: tuple[int, ...] = (), **kwargs):
         import jax
@@ -106,27 +110,42 @@ class ExportedCalls:
         except _Uncacheable:
             return fn(*args, **kwargs)
         path = self.directory / f"{name}-{key[:32]}.jaxexport"
-        refused = path.with_suffix(".plain")  # a call found not exportable: plain from then on
-        if refused.exists():
-            return fn(*args, **kwargs)
+        if path in self._loaded:
+            program, run = self._loaded[path]
+        else:
+            program, run = self._load(path, fn, leaves, static)
+        if program is None:  # not exportable: plain (the plain call raises an error of the input as the library's)
+            out = fn(*args, **kwargs)
+            if path not in self._loaded:
+                _write_bytes(path.with_suffix(".plain"), b"")
+                self._loaded[path] = (None, None)
+            return out
+        self._loaded[path] = (program, run)
+        for category, text in program.told:
+            warnings.warn(text, _warning_category(category), stacklevel=2)
+        out, flags = run(leaves)
+        from _jaxcga_shared.checks import raise_collected
+
+        raise_collected(jax.device_get(flags), tuple(program.messages))
+        return jax.tree.unflatten(program.out_tree, out)
+
+    @staticmethod
+    def _load(path: Path, fn, leaves, static) -> tuple[_Program | None, Any]:
+        """The program of ``path``, exported afresh when absent or unreadable, and its jitted call; (None, None)
+        for a call found not exportable (then or before: its ``.plain`` marker)."""
+        import jax
+
+        if path.with_suffix(".plain").exists():
+            return None, None
         program = _Program.read(path)
         if program is None:
             try:
                 program = _Program.export(fn, leaves, static)
                 data = program.to_bytes()
             except Exception:  # noqa: BLE001  not exportable (host values, a host callback, a result's tree)
-                # the plain call raises an error of the input as the library gives it, or runs
-                out = fn(*args, **kwargs)
-                _write_bytes(refused, b"")
-                return out
+                return None, None
             _write_bytes(path, data)
-        for category, text in program.told:
-            warnings.warn(text, _warning_category(category), stacklevel=2)
-        out, flags = program.exported.call(leaves)
-        from _jaxcga_shared.checks import raise_collected
-
-        raise_collected(jax.device_get(flags), tuple(program.messages))
-        return jax.tree.unflatten(program.out_tree, out)
+        return program, jax.jit(program.exported.call)
 
     def _key(self, name, args, kwargs, by_value):
         import hashlib
@@ -143,7 +162,7 @@ class ExportedCalls:
         # the trees' own text, not the modules' pretty-printed repr (tens of milliseconds for a model)
         static_leaves, static_tree = jax.tree.flatten(static)
         values = [(i, a.shape, str(a.dtype), hashlib.sha256(a.tobytes()).hexdigest()) for i, a in held.items()]
-        text = repr((str(tree), str(static_tree), static_leaves, values))
+        text = repr((self._text(tree), self._text(static_tree), static_leaves, values))
         if " at 0x" in text:  # an object without a value's text (a function, a default repr): no stable key
             raise _Uncacheable
         shapes = [(leaf.shape, str(leaf.dtype)) for leaf in leaves]
@@ -154,6 +173,15 @@ class ExportedCalls:
             self._digest = _sources_digest()
         key = hashlib.sha256(repr((name, text, shapes, config, self._digest)).encode()).hexdigest()
         return key, leaves, (tree, static, held)
+
+    def _text(self, tree) -> str:
+        try:
+            known = self._tree_text.get(tree)
+        except TypeError:  # a tree whose static values are not hashable
+            return str(tree)
+        if known is None:
+            known = self._tree_text[tree] = str(tree)
+        return known
 
 
 class _Uncacheable(Exception):

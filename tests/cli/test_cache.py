@@ -28,7 +28,7 @@ def test_a_commands_executables_are_cached_and_read_back_and_the_switches_turn_t
     # the skinning exported, and its executable cached: JAX writes no entry for an executable with a host callback,
     # which a traced check was
     assert any(name.startswith("cache/exported/skin_model-") for name in written), written
-    assert any(name.startswith("cache/jit_call_exported-") for name in written), written
+    assert any(name.startswith("cache/jit_call-") for name in written), written  # the exported program, jitted
     second = run_jaxcga(argv, tmp_path / "cache")
     assert second.returncode == 0, second.stderr
     # every program and executable found under the same key: nothing exported or compiled, nothing new written
@@ -151,3 +151,19 @@ def test_a_module_result_is_exported_and_read_back(tmp_path):
         assert isinstance(rotors, jaxcga.Multivector) and rotors.blades == expected.blades
         np.testing.assert_array_equal(np.asarray(rotors.values), np.asarray(expected.values))
     assert [path.suffix for path in tmp_path.iterdir()] == [".jaxexport"]
+
+
+def test_arap_host_loops_steps_are_exported_and_read_back(tmp_path):
+    """ARAP's host loop through the exported programs (the ``arap`` command's): its four steps are exported once,
+    each iteration calls the same program, and a second process's loop reads them back to the same positions."""
+    mesh = deform.default_arm().mesh
+    V, F = np.asarray(mesh.V, np.float64), np.asarray(mesh.F, np.int64)
+    b = np.flatnonzero((V[:, 0] < 0) | (V[:, 0] > 0.75))
+    bc = V[b] + np.where(V[b, :1] > 0.75, [0.0, 0.2, 0.1], 0.0)
+    data = deform.arap_precompute(V, F, b)
+    expected = np.asarray(deform.arap_solve(data, jnp.asarray(bc), host_loop=True, max_iterations=20).U)
+    for calls in (cache.ExportedCalls(tmp_path), cache.ExportedCalls(tmp_path)):  # exported, then read back
+        result = deform.arap_solve(data, jnp.asarray(bc), host_loop=True, max_iterations=20, runner=calls)
+        np.testing.assert_allclose(np.asarray(result.U), expected, rtol=0, atol=1e-12)
+        names = sorted(path.name.split("-")[0] for path in tmp_path.iterdir())
+        assert names == ["arap_aligned_rest", "arap_between_solves", "arap_result", "arap_start"], names

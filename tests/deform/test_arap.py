@@ -389,6 +389,27 @@ def test_the_host_loop_gives_the_compiled_loops_iterations(arm, options):
     np.testing.assert_allclose([s[1] for s in seen], np.asarray(host.energies)[:k], rtol=1e-12)
 
 
+def test_the_host_loops_runner_runs_each_compiled_step(arm):
+    """A runner (the command line's exported programs) gets every compiled step of the host loop, by a stable name,
+    on data without the factor, and the loop gives the host loop's own result."""
+    V, _, _, bc, data = arm
+    names = []
+
+    def runner(name, step, *args):
+        names.append(name)
+        assert all(getattr(arg, "solver", None) is None for arg in args)  # no step holds the factor
+        return step(*args)
+
+    options = {"tolerance": None, "acceleration": "none", "max_iterations": 4}
+    ran = arap_solve(data, bc, host_loop=True, runner=runner, **options)
+    assert names == ["arap_aligned_rest", "arap_start", *["arap_between_solves"] * 4, "arap_result"]
+    np.testing.assert_array_equal(np.asarray(ran.U), np.asarray(arap_solve(data, bc, host_loop=True, **options).U))
+    with pytest.raises(ValueError, match="runner: expected a function, with host_loop=True"):
+        arap_solve(data, bc, runner=runner)
+    with pytest.raises(ValueError, match="runner: expected a function"):
+        arap_solve(data, bc, host_loop=True, runner=3)  # pyright: ignore[reportArgumentType]
+
+
 def test_the_host_loop_refuses_a_trace(arm):
     _, _, _, bc, data = arm
     with pytest.raises(ValueError, match="host_loop: runs on concrete input only"):
