@@ -145,6 +145,15 @@ def run(args: argparse.Namespace) -> tuple[str, dict[str, object]]:
     )
 
 
+def _ffd_setup(V, lattice: tuple[int, int, int]):
+    """The FFD binding of V to its bounding lattice (2% padding) and the lattice's points: one exported program for
+    a second run to read back (each program read back is lowered again)."""
+    import deform
+
+    grid = deform.bounding_lattice(V, lattice, padding=0.02)
+    return deform.ffd_precompute(V, grid), deform.lattice_points(grid)
+
+
 def deform_command(
     method: str,
     V,
@@ -208,11 +217,10 @@ def deform_command(
         elif method == "handles":
             field = deform.handles_precompute(V, F, parts, laplacian=laplacian, unhandled=unhandled)
         elif method == "ffd":
-            grid = cache.call("bounding_lattice", deform.bounding_lattice, V, tuple(lattice), padding=0.02)
-            field = cache.call("ffd_precompute", deform.ffd_precompute, V, grid)
-            points = cache.call("lattice_points", deform.lattice_points, grid)
+            field, points = cache.call("ffd_setup", _ffd_setup, V, tuple(lattice))
             key_motors = motion.motors(motion.fraction(points))
-            control = cache.call("apply_to_points", cga.apply_to_points, key_motors, points)
+            if positional:
+                control = cache.call("apply_to_points", cga.apply_to_points, key_motors, points)
         else:
             if cage is None:
                 cage_V, cage_F = deform.tube_cage(V, axis=motion.long)
