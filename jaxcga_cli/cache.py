@@ -116,8 +116,9 @@ class ExportedCalls:
             program, run = self._load(path, fn, leaves, static)
         if program is None:  # not exportable: plain (the plain call raises an error of the input as the library's)
             out = fn(*args, **kwargs)
-            if path not in self._loaded:
-                _write_bytes(path.with_suffix(".plain"), b"")
+            if path not in self._loaded:  # remembered for this process, and on disk for the next
+                if not path.with_suffix(".plain").exists():
+                    _write_bytes(path.with_suffix(".plain"), b"")
                 self._loaded[path] = (None, None)
             return out
         self._loaded[path] = (program, run)
