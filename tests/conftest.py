@@ -13,6 +13,7 @@ import ctypes
 import ctypes.util
 import gc
 import os
+from pathlib import Path
 
 # several test workers share one GPU: each takes memory as it needs it, not 75% of it up front (read when JAX
 # starts its backend, after this)
@@ -20,6 +21,15 @@ os.environ.setdefault("XLA_PYTHON_CLIENT_PREALLOCATE", "false")
 # the tests run the command line's main() in this process: it must neither write the user's compilation cache nor
 # turn JAX's cache on for the rest of the session (the cache's own tests run the command in subprocesses)
 os.environ.setdefault("JAXCGA_NO_CACHE", "1")
+# JAX's persistent compilation cache in the checkout (.cache/, ignored by git), set in the environment so that the
+# processes the tests start (the command line, the benchmarks, the batch's peers) share it: a run's two workers and
+# the runs after it (the GPU variants, the slow job) load an executable compiled once instead of compiling it again.
+# The size bound turns on JAX's file lock, so that no process reads an entry another is writing. An empty
+# JAX_COMPILATION_CACHE_DIR runs the tests cold. The library never turns this on; the command line's own cache is
+# tested with these variables removed (tests.shared.run_jaxcga).
+os.environ.setdefault("JAX_COMPILATION_CACHE_DIR", str(Path(__file__).resolve().parents[1] / ".cache" / "jax-tests"))
+os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
+os.environ.setdefault("JAX_COMPILATION_CACHE_MAX_SIZE", str(4 << 30))
 
 import jax  # noqa: E402
 import pytest  # noqa: E402
@@ -29,6 +39,12 @@ from tests.shared import cpu_formulation_skip_reason, gpu_branches, host_skip_re
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_dtype_promotion", "strict")
 jax.config.update("jax_numpy_rank_promotion", "raise")
+# and in this process, were JAX imported before this file (a plugin) and its environment read then
+jax.config.update("jax_compilation_cache_dir", os.environ["JAX_COMPILATION_CACHE_DIR"] or None)
+jax.config.update(
+    "jax_persistent_cache_min_compile_time_secs", float(os.environ["JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS"])
+)
+jax.config.update("jax_compilation_cache_max_size", int(os.environ["JAX_COMPILATION_CACHE_MAX_SIZE"]))
 
 
 def pytest_addoption(parser):

@@ -318,17 +318,27 @@ def run_on_host_devices(script: str, devices: int = 4, timeout: int = 600) -> st
     return done.stdout
 
 
+# the tests' shared JAX compilation cache (conftest.py)
+TESTS_JAX_CACHE_VARIABLES = (
+    "JAX_COMPILATION_CACHE_DIR",
+    "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS",
+    "JAX_COMPILATION_CACHE_MAX_SIZE",
+)
+
+
 def run_jaxcga(argv: list[str], cache: Path | None, env: dict[str, str] | None = None, timeout: int = 600):
     """``jaxcga ARGV`` in a fresh process from the repository root (its packages, not an installed copy), with
-    the compilation cache in ``cache`` (None: the cache left as the environment has it, which the tests' conftest
-    turns off) and the environment variables ``env`` added; returns the ``subprocess.CompletedProcess`` (text)."""
+    the command's compilation cache in ``cache`` (None: as the environment has it, which the tests' conftest sets:
+    the command's cache off, the tests' JAX cache on) and the environment variables ``env`` added; returns the
+    ``subprocess.CompletedProcess`` (text)."""
     import os
     import subprocess
     import sys
 
     environment = dict(os.environ)
-    if cache is not None:
-        environment.pop("JAXCGA_NO_CACHE", None)
+    if cache is not None:  # the command's own cache alone: the tests' JAX cache (conftest.py) would be the user's
+        for name in ("JAXCGA_NO_CACHE", *TESTS_JAX_CACHE_VARIABLES):
+            environment.pop(name, None)
         environment["JAXCGA_CACHE_DIR"] = str(cache)
     environment.update(env or {})
     return subprocess.run(

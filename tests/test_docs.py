@@ -100,7 +100,7 @@ def public_functions(package: str):
             yield f"{package}.{name}", obj
 
 
-# deform's and cutting's examples pose, cut, tear and drill the built-in arm (~50 s and ~20 s on 2 cores): the slow job
+# deform's and cutting's examples pose, cut, tear and drill the built-in arm: the slow job
 # runs them; the kernel's and xfem's take ~20 s
 SLOW_EXAMPLES = ("deform", "cutting")
 

@@ -29,7 +29,7 @@ def _outputs(folder: Path) -> dict[str, np.ndarray]:
     return {p.name: np.load(p) for p in sorted(folder.glob("*.npy"))}
 
 
-@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 def test_one_process_writes_each_models_frames_as_skin_model_gives_them(tmp_path):
     out = tmp_path / "batch"
     argv = ["animate-batch", *MODELS, "--frames", "3", "--method", "dqs", "--out", str(out)]
@@ -161,12 +161,12 @@ def _two_processes_against_one(
         )
 
 
-@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 def test_two_processes_write_exactly_what_one_process_with_their_devices_writes(tmp_path):
     _two_processes_against_one(tmp_path, MODELS, 1, [])
 
 
-@pytest.mark.slow  # three processes compiling CesiumMan at once: about 30 s on 2 cores
+@pytest.mark.slow
 def test_two_processes_of_two_devices_split_models_and_frames_into_their_own_folders(tmp_path):
     models = [str(DATA / "CesiumMan.glb"), *MODELS]
     _two_processes_against_one(tmp_path, models, 2, ["--time-shards", "2"], shared_folder=False)
@@ -180,7 +180,7 @@ FILE_SIZE_LIMITED = [
 ]
 
 
-@pytest.mark.slow  # two compiling processes: about 20 s on 2 cores
+@pytest.mark.slow
 def test_a_process_that_fails_to_write_stops_every_process_and_nothing_is_written(tmp_path):
     out = tmp_path / "out"
     coordinator = ["--coordinator", f"127.0.0.1:{_free_port()}", "--num-processes", "2"]

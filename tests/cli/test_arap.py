@@ -31,7 +31,7 @@ def tube(tmp_path_factory):
     return path, np.asarray(loaded.vertices), np.asarray(loaded.faces, np.int64)
 
 
-@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 @pytest.mark.parametrize("energy", [None, "spokes"])
 def test_handles_file_gives_arap_solves_result(tube, tmp_path, capsys, energy):
     """The default energy is spokes and rims; --energy spokes gives the paper's."""
@@ -56,7 +56,7 @@ def test_handles_file_gives_arap_solves_result(tube, tmp_path, capsys, energy):
     np.testing.assert_allclose(X, expected, atol=1e-10)
 
 
-@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 def test_the_handles_file_of_deform_moves_arap_handles_by_their_motors(tube, tmp_path):
     """One --handles format for deform and arap: each group of vertices moved by its motor (a rotation about an
     axis through a centre, then a translation), here against scipy's rotation of the same vertices."""
@@ -85,7 +85,7 @@ def test_the_handles_file_of_deform_moves_arap_handles_by_their_motors(tube, tmp
     np.testing.assert_allclose(np.load(tmp_path / "d.npy")[high], moved + shift, atol=1e-9)
 
 
-@pytest.mark.slow  # ~20-50 s on 2 cores: out of `make test` (its 15-minute budget); `make test-slow` and CI run it
+@pytest.mark.slow
 def test_default_handles_mesh_and_figure_outputs(tube, tmp_path):
     path, V, F = tube
     glb = tmp_path / "arap.glb"
@@ -135,7 +135,7 @@ def test_bad_output_and_iterations(tube, tmp_path, capsys):
         assert message in capsys.readouterr().err
 
 
-@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 def test_one_rigid_motion_of_every_handle_gives_that_motion_on_arm5(tmp_path):
     """Issue 30's probe: `jaxcga arap` on Arm5 (welded on load) with both ends moved by one rigid motion returns
     that rigid map (the default energy, start and convergence test)."""
@@ -171,7 +171,7 @@ def character(tmp_path_factory):
     return (path, *write_multipart_character(path))
 
 
-@pytest.mark.slow  # two ARAP compilations, ~25 s on 2 cores
+@pytest.mark.slow
 def test_a_character_of_many_parts_moves_as_one(character, tmp_path, capsys):
     """The feet and the crown turned by one rigid motion: every part, the five without a handle included, is
     moved by it (scipy's rotation of every vertex); the default end handles run too, every position finite; and
@@ -194,7 +194,7 @@ def test_a_character_of_many_parts_moves_as_one(character, tmp_path, capsys):
     assert "of the mesh's 6 connected part(s) hold no constrained vertex (part" in capsys.readouterr().err
 
 
-@pytest.mark.slow  # one ARAP compilation, ~15 s on 2 cores
+@pytest.mark.slow
 def test_a_corpus_character_of_many_parts(tmp_path, capsys):
     """jaxcga arap on a real character of 15 connected parts (tests/data/characters): every position finite, the
     parts and the followers counted."""

@@ -54,11 +54,16 @@ def test_an_unwritable_cache_directory_is_one_warning_line_and_no_cache(tmp_path
     monkeypatch.delenv("JAXCGA_NO_CACHE", raising=False)
     monkeypatch.setenv("JAXCGA_CACHE_DIR", str(blocker / "jax"))  # a directory inside a file cannot be made
     before = getattr(jax.config, "jax_compilation_cache_dir")
-    assert cache.enable("skin", no_cache=False) is None
+    # the tests' own cache (tests/conftest.py) would be the caller's configuration, which the command keeps
+    jax.config.update("jax_compilation_cache_dir", None)
+    try:
+        assert cache.enable("skin", no_cache=False) is None
+        assert getattr(jax.config, "jax_compilation_cache_dir") is None
+    finally:
+        jax.config.update("jax_compilation_cache_dir", before)
     lines = capsys.readouterr().err.splitlines()
     assert len(lines) == 1 and lines[0].startswith("jaxcga skin: warning: the compilation cache"), lines
     assert "not writable" in lines[0] and str(blocker / "jax") in lines[0]
-    assert getattr(jax.config, "jax_compilation_cache_dir") == before
 
 
 @pytest.mark.parametrize("value, off", [("1", True), ("yes", True), ("0", False), ("", False)])

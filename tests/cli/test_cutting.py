@@ -13,7 +13,7 @@ import deform
 from jaxcga_cli.main import main
 
 
-@pytest.mark.slow  # 10-38 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 def test_cut_writes_two_skinned_halves_that_animate(tmp_path):
     pos, neg = tmp_path / "pos.glb", tmp_path / "neg.glb"
     assert main(["cut", "--plane", "1", "0.1", "0", "0.3", "--cap", "--out", str(pos), str(neg)]) == 0

@@ -27,7 +27,7 @@ def tube(tmp_path_factory):
     return path, np.asarray(loaded.vertices), np.asarray(loaded.faces)
 
 
-@pytest.mark.slow  # 35 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 @pytest.mark.parametrize("method", ["spline", "handles", "ffd", "cage"])
 def test_every_method_turns_the_far_end_by_the_bend_and_keeps_the_near_end(tube, tmp_path, method, capsys):
     path, V, F = tube
@@ -51,7 +51,7 @@ def test_every_method_turns_the_far_end_by_the_bend_and_keeps_the_near_end(tube,
     assert np.abs(X - V).max() > 1.0
 
 
-@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 def test_figure_mesh_and_positional_outputs(tube, tmp_path):
     path, V, F = tube
     png = tmp_path / "ffd.png"
@@ -85,7 +85,7 @@ def test_handles_file_with_a_translated_handle(tube, tmp_path):
     assert 0.1 < np.mean(X[middle, 0] - V[middle, 0]) < 0.2
 
 
-@pytest.mark.slow  # 8 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_built_in_arm_by_default(tmp_path):
     out = tmp_path / "arm.npy"
     assert main(["deform", "spline", "--basis", "lagrange", "--bend", "30", "--out", str(out)]) == 0

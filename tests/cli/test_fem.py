@@ -50,7 +50,7 @@ def test_bar_writes_frames_meshes_and_a_summary(bar_run, capsys):
     assert last.cells_dict["tetra"].shape == (summary["elements"], 4)
 
 
-@pytest.mark.slow  # 16 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_a_surface_and_a_written_frame_are_scenes(bar_run, tmp_path, capsys):
     sphere = tmp_path / "ball.obj"
     trimesh.creation.icosphere(subdivisions=1, radius=0.3).export(sphere)
@@ -129,7 +129,7 @@ def test_corrupt_scenes_and_overflowing_gravity_are_named(tmp_path, capsys):
         assert exit_info.value.code == 2 and err.count("\n") == 1 and message in err
 
 
-@pytest.mark.slow  # fTetWild and a compile: 20-60 s on 2 busy cores
+@pytest.mark.slow
 def test_a_wild_surface_is_simulated_and_written_as_itself(tmp_path, capsys):
     # open, self-intersecting, three parts: fTetWild meshes it, and the user's own surface is what is written
     V, F, _, _ = wild_surface()
@@ -165,7 +165,7 @@ def test_a_wild_surface_is_simulated_and_written_as_itself(tmp_path, capsys):
     assert np.abs(moved.vertices - V).max() > 1e-4  # it fell
 
 
-@pytest.mark.slow  # fTetWild and a compile: 20-40 s on 2 busy cores
+@pytest.mark.slow
 def test_a_character_runs_and_writes_its_own_skin(tmp_path):
     # jaxcga fem CHARACTER.glb: the bind-pose skin of every part, hanging along -y (glTF's up)
     out = tmp_path / "fox"

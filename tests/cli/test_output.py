@@ -200,7 +200,7 @@ def disk_full(tmp_path_factory):
     return folder, before, json.loads(done.stdout.splitlines()[-1])
 
 
-@pytest.mark.slow  # 8 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_disk_full_leaves_both_halves_of_a_cut_as_they_were(disk_full):
     folder, before, (cut_result, _, _) = disk_full
     code, err = cut_result

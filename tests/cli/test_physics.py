@@ -35,7 +35,7 @@ def _summary(out) -> dict:
     return json.loads((out / "summary.json").read_text())
 
 
-@pytest.mark.slow  # fTetWild and a compile: 30-60 s on 2 busy cores
+@pytest.mark.slow
 def test_a_clip_plays_and_writes_frames_a_page_and_a_summary(tmp_path, capsys):
     out = tmp_path / "fox"
     assert main(["physics", FOX, *FOX_RUN, "--seconds", "0.2", "--out", str(out)]) == 0
@@ -70,7 +70,7 @@ def test_a_clip_plays_and_writes_frames_a_page_and_a_summary(tmp_path, capsys):
     assert sum(s["frames"] for s in sequence["segments"]) == 7
 
 
-@pytest.mark.slow  # fTetWild, a cut and two compiles: 40-90 s on 2 busy cores
+@pytest.mark.slow
 def test_a_cut_makes_two_pieces_written_per_segment(tmp_path):
     """CesiumMan's left arm cut off (the plane x = 0.2 m, rest pose) before frame 2 at 10 frames per second, on
     coarse unrefined tets with wide cores (as notebook 08): frames 0-1 in one piece, 2-5 in two, the arm released
@@ -112,7 +112,7 @@ def test_a_cut_makes_two_pieces_written_per_segment(tmp_path):
     assert all("groups" in s for s in config["items"][0]["segments"])  # pieces coloured
 
 
-@pytest.mark.slow  # fTetWild, the eigenmodes and a compile: 20-40 s on 2 busy cores
+@pytest.mark.slow
 def test_the_reduced_mode_plays_in_skinning_eigenmodes(tmp_path):
     """--reduced K: the body's K lowest skinning eigenmodes carry the flesh (xfem.character_subspace); the same
     files, one segment, no Newton iterations; frame 0 is the rig, as in the full space."""
@@ -187,7 +187,7 @@ def test_bad_inputs_and_folders_are_refused(tmp_path, capsys):
     assert not (tmp_path / "y").exists()
 
 
-@pytest.mark.slow  # fTetWild: 5-10 s on 2 busy cores
+@pytest.mark.slow
 def test_a_plane_that_misses_the_body_names_its_bounding_box(tmp_path, capsys):
     with pytest.raises(SystemExit):
         main(["physics", FOX, *FOX_RUN, "--seconds", "0.1", "--cut", "1", "0", "1000", "0", "0", "1", "0",

@@ -36,7 +36,7 @@ def test_skin_default_arm_to_a_posed_glb(tmp_path):
     np.testing.assert_allclose(loaded.vertices, deform.skin_model(arm, 1.0, "cga"), atol=1e-5)
 
 
-@pytest.mark.slow  # ~20-50 s on 2 cores: out of `make test` (its 15-minute budget); `make test-slow` and CI run it
+@pytest.mark.slow
 def test_animate_resamples_the_clip_through_versors(tmp_path):
     out = tmp_path / "walk.glb"
     assert main(["animate", str(DATA / "RiggedSimple.glb"), "--frames", "9", "--out", str(out)]) == 0
@@ -49,7 +49,7 @@ def test_animate_resamples_the_clip_through_versors(tmp_path):
         np.testing.assert_allclose(deform.skin_model(animated, t, "lbs"), expected, atol=1e-5)
 
 
-@pytest.mark.slow  # ~20-50 s on 2 cores: out of `make test` (its 15-minute budget); `make test-slow` and CI run it
+@pytest.mark.slow
 def test_animate_generates_keyframes_for_a_model_without_clip(tmp_path):
     out = tmp_path / "arm5.gltf"
     assert main(["animate", str(DATA / "Arm5.glb"), "--frames", "5", "--out", str(out)]) == 0
@@ -61,7 +61,7 @@ def test_animate_generates_keyframes_for_a_model_without_clip(tmp_path):
     assert float(jnp.max(jnp.abs(middle - deform.rest_pose(animated, "cga")))) > 1.0
 
 
-@pytest.mark.slow  # ~20-50 s on 2 cores: out of `make test` (its 15-minute budget); `make test-slow` and CI run it
+@pytest.mark.slow
 def test_fit_writes_a_pose_that_reproduces_the_target(tmp_path):
     arm = deform.default_arm()
     truth = deform.random_parameters(jax.random.PRNGKey(0), arm, rotation=0.3, translation=0.01, log_scale=0.05)
@@ -163,7 +163,7 @@ def test_a_corrupt_buffer_is_blamed_on_its_accessor(tmp_path, capsys):
     assert "POSITION (accessor" in err and "non-finite" in err
 
 
-@pytest.mark.slow  # compile-heavy: `make test-slow` and CI run it, `make test` stays under 10 minutes
+@pytest.mark.slow
 def test_skin_and_animate_interpolation(tmp_path):
     """``--interpolation gltf`` (default) follows the file's animation for every method; ``log`` is the
     paper's sampling, which departs from it between scale keys."""

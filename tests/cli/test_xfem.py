@@ -15,7 +15,7 @@ from jaxcga_cli.main import main
 from tests.shared import wild_surface
 
 
-@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 def test_cheese_writes_frames_surfaces_and_a_summary(tmp_path, capsys):
     out = tmp_path / "cheese"
     assert main(["xfem", "cheese", "--size", "small", "--steps", "4", "--every", "4", "--out", str(out)]) == 0
@@ -58,14 +58,14 @@ def test_cheese_writes_frames_surfaces_and_a_summary(tmp_path, capsys):
     assert 0 < summary["max_displacement"] < 0.1
 
 
-@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 def test_no_figures_writes_surfaces_only(tmp_path):
     out = tmp_path / "plain"
     assert main(["xfem", "cheese", "--size", "small", "--steps", "1", "--no-figures", "--out", str(out)]) == 0
     assert sorted(p.name for p in out.iterdir()) == ["frame_0000.vtu", "frame_0001.vtu", "summary.json"]
 
 
-@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 def test_without_last_cut_drops_the_scenes_last_cut(tmp_path):
     """--without-last-cut: the cheese's last cut (frame 2) is not made; the summary says so."""
     runs = {}
@@ -79,7 +79,7 @@ def test_without_last_cut_drops_the_scenes_last_cut(tmp_path):
     assert runs[True]["booleans"] < runs[False]["booleans"]
 
 
-@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 def test_cut_latency_defers_cuts(tmp_path):
     """--cut-latency 2: the cuts of frames 1 and 2 are computed in the background and take effect in frames 3 and
     4; every frame is written, showing the cuts that have taken effect (frames 1 and 2: the uncut body)."""
@@ -145,7 +145,7 @@ def _obj_groups(path):
     return np.array(V), np.array(F), np.array(group)
 
 
-@pytest.mark.slow  # fTetWild, the cut and a compile: 30-90 s on 2 busy cores
+@pytest.mark.slow
 def test_a_wild_surface_is_cut_and_written_in_pieces(tmp_path, capsys):
     # open, self-intersecting, three parts; the default plane z = 0 cuts the spheres and the cube in halves: the
     # spheres' top (the fixed nodes) stays, their lower half and both halves of the cube fall

@@ -37,7 +37,7 @@ def _random_plane(V, direction, offset):
 directions = st.tuples(*[st.floats(-1, 1) for _ in range(3)]).filter(lambda v: np.linalg.norm(v) > 0.1)
 
 
-@pytest.mark.slow  # 17 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 @settings(max_examples=15, deadline=None)
 @given(
     name=st.sampled_from(sorted(MODELS)),
@@ -85,7 +85,7 @@ def _original_rows(half, V):
     return np.array([lookup.get(tuple(v), -1) for v in np.asarray(half.V).tolist()])
 
 
-# one method in the fast suite, the others in the slow job: 6-10 s each on 2 cores (the fast suite's 10 minutes)
+# one method in the fast suite, the others in the slow job
 @pytest.mark.parametrize(
     "method", [m if m == "cga" else pytest.param(m, marks=pytest.mark.slow) for m in deform.METHODS]
 )

@@ -55,7 +55,7 @@ def _loops(boundary_edges):
     return connected_components(graph, directed=False)[0]
 
 
-@pytest.mark.slow  # 10 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 @settings(max_examples=12, deadline=None)
 @given(
     name=st.sampled_from(sorted(MODELS)),
@@ -211,7 +211,7 @@ def test_drill_in_a_pose_reproduces_the_hole_when_posed_again(method):
     assert np.all(np.isfinite(np.asarray(later)))
 
 
-@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 def test_new_vertex_positions_are_differentiable_in_the_drill():
     mesh = MODELS["3Cylinder4bones"].mesh
     V, F = np.asarray(mesh.V), np.asarray(mesh.F)

@@ -88,7 +88,7 @@ def _drill_problems(placer, drilled, ids, drill) -> list[str]:
     return problems
 
 
-@pytest.mark.slow  # a few minutes on 2 cores: `make test-slow` and CI run it
+@pytest.mark.slow
 @pytest.mark.parametrize("tool", ["cut", "tear", "drill"])
 def test_tools_placed_on_real_characters(tool):
     names = list(CHARACTERS)

@@ -15,7 +15,7 @@ import deform
 from tests.cutting.tools import DATA, TOOL_REFUSALS, fuzz
 
 
-@pytest.mark.slow  # 10 s to 4 minutes per case on 2 cores: out of `make test`; `make test-slow` and CI run it
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["Arm5", "CesiumMan"])
 @pytest.mark.parametrize("tool, count", [("plane", 1000), ("drill", 200), ("tear", 200)])
 def test_random_tools_make_no_slivers(name, tool, count):

@@ -128,7 +128,7 @@ def test_tear_in_a_pose_reproduces_the_tear_when_posed_again(method):
     assert np.all(np.isfinite(np.asarray(later))) and q > 0
 
 
-@pytest.mark.slow  # 12 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_new_vertex_positions_are_differentiable_in_the_scalpel():
     mesh = MODELS["3Cylinder4bones"].mesh
     V, F = np.asarray(mesh.V), np.asarray(mesh.F)

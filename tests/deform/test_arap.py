@@ -113,7 +113,7 @@ def test_equals_libigls_algorithm_on_arm5(arm5, iterations, energy):
     assert np.abs(U - libigl).max() < 1e-3 * diag  # measured 2e-5 .. 3e-4: the float32 SVD
 
 
-@pytest.mark.slow  # 8 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_matches_libigl_on_the_arm(arm):
     V, F, b, bc, data = arm
     U0 = V + 0.01 * np.sin(7 * V[:, [1, 2, 0]])  # any initial guess, passed to both
@@ -123,7 +123,7 @@ def test_matches_libigl_on_the_arm(arm):
     assert np.abs(np.asarray(U) - _igl(V, F, b, bc, U0, 5)).max() < 1e-4 * diag
 
 
-@pytest.mark.slow  # 11 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_negative_energies_do_not_stop_the_iterations(arm5):
     """Obtuse triangles give negative cotangent weights, and Arm5's spokes energy goes below zero: the
     Anderson-accelerated iterations still never increase it, and stop on the fixed-point residual. Spokes and
@@ -139,7 +139,7 @@ def test_negative_energies_do_not_stop_the_iterations(arm5):
     assert np.nanmin(energies) > 0
 
 
-@pytest.mark.slow  # 7 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_energy_decreases_and_tolerance_stops(arm):
     V, _, _, bc, data = arm
     diag = np.linalg.norm(np.ptp(V, axis=0))
@@ -188,7 +188,7 @@ def _welded(name):
     return V, F, np.flatnonzero((s < 0.05) | (s > 0.95)), np.linalg.norm(np.ptp(V, axis=0))
 
 
-@pytest.mark.slow  # 10-38 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["Arm5", "CesiumMan"])
 def test_rigid_motion_stays_rigid_on_real_meshes(name):
     """Every handle moved by one rigid motion: with spokes and rims (the default) the rigid map is the
@@ -206,7 +206,7 @@ def test_rigid_motion_stays_rigid_on_real_meshes(name):
     assert np.abs(np.asarray(spokes.U) - rigid).max() > 1e-3 * diag  # measured 1.8e-2 (Arm5), 4.4e-2 (CesiumMan)
 
 
-@pytest.mark.slow  # ~30 s on 2 cores
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["Arm5", "CesiumMan"])
 def test_rigid_motion_is_reached_from_the_rest_pose(name):
     """From the rest pose with the handles moved by one rigid motion, plain local/global iterations approach the
@@ -261,7 +261,7 @@ def _strip():
     return V, F, np.concatenate([left, right]), len(left)
 
 
-@pytest.mark.slow  # one adjoint compile per energy (~20-60 s each on 2 cores)
+@pytest.mark.slow
 @pytest.mark.parametrize("energy", ARAP_ENERGIES)
 def test_gradient_at_the_defaults_matches_central_differences(cylinder, energy):
     """At the default settings (converged to the default tolerance) the implicit gradient of a scalar of U with
@@ -279,7 +279,7 @@ def test_gradient_at_the_defaults_matches_central_differences(cylinder, energy):
     assert float(jnp.sum(gradient * direction)) == pytest.approx(float(numeric), rel=1e-6)
 
 
-@pytest.mark.slow  # ~20-50 s on 2 cores: out of `make test` (its 15-minute budget); `make test-slow` and CI run it
+@pytest.mark.slow
 def test_implicit_gradient_fits_a_handle():
     """One compiled loss and gradient (the adjoint compiles slowly), at the defaults: gradient descent on it
     brings a marker vertex to a target."""
@@ -301,7 +301,7 @@ def test_implicit_gradient_fits_a_handle():
     assert loss(shift, target)[0] < 1e-3 * start
 
 
-@pytest.mark.slow  # ~20-50 s on 2 cores: out of `make test` (its 15-minute budget); `make test-slow` and CI run it
+@pytest.mark.slow
 def test_vmap_and_jit_equal_one_by_one(cylinder):
     _, _, _, bc, data = cylinder
     batch = jnp.stack([jnp.asarray(bc) * s for s in (1.0, 0.9, 1.1)])
@@ -314,7 +314,7 @@ def test_vmap_and_jit_equal_one_by_one(cylinder):
     assert np.all(np.asarray(together.converged))
 
 
-@pytest.mark.slow  # ~60 s on 2 cores: one adjoint compile and 5,000-iteration references
+@pytest.mark.slow
 def test_gradient_on_a_multi_part_character_matches_central_differences():
     """RobotExpressive (63 connected parts joined by weak bridges: the local/global map contracts slowly, and
     GMRES(40) on the adjoint stagnated): the implicit gradient at the defaults (1000 iterations, a residual

@@ -56,7 +56,7 @@ def test_capacity_levels():
     assert sorted({c for c in levels if 1024 < c <= 2048}) == [1280, 1536, 1792, 2048]
 
 
-@pytest.mark.slow  # 10-38 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 @pytest.mark.parametrize("method", ["cga", "lbs"])
 def test_each_model_of_a_packed_batch_equals_skinning_it_alone(crowd, method):
     packed = deform.pack_models(crowd)
@@ -68,7 +68,7 @@ def test_each_model_of_a_packed_batch_equals_skinning_it_alone(crowd, method):
     _assert_each_model_alone(crowd, packed, times, out, method)
 
 
-@pytest.mark.slow  # one compilation per method and sampling (~60 s each on 2 cores)
+@pytest.mark.slow
 @pytest.mark.parametrize(
     "method, interpolation", [("cga_motor_blend", "gltf"), ("dqs", "gltf"), ("cga", "log"), ("lbs", "log")]
 )
@@ -122,7 +122,7 @@ def test_frame_times_and_clip_choice(crowd):
         packed.frame_times(0)
 
 
-@pytest.mark.slow  # 18 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 def test_a_new_batch_packed_at_least_as_large_reuses_the_shapes(crowd):
     first = deform.pack_models(crowd)
     second = deform.pack_models(crowd[1:4], at_least=first.capacities)
@@ -150,7 +150,7 @@ def test_one_time_row_for_every_model_and_padding_rows_are_inert(crowd):
     )
 
 
-@pytest.mark.slow  # 9 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 def test_a_model_with_a_non_uniform_scale_fails_by_name_in_a_batch(crowd):
     odd = random_model(5)
     skeleton = eqx.tree_at(lambda s: s.scale, odd.skeleton, odd.skeleton.scale.at[1].set(jnp.asarray([1.0, 2.0, 1.0])))
@@ -198,7 +198,7 @@ def test_bad_input_names_the_argument(crowd):
         packed.unpack(np.zeros((1, 2, 5, 3)))
 
 
-@pytest.mark.slow  # a fresh process with 4 host devices and three compilations (~40 s on 2 cores)
+@pytest.mark.slow
 def test_sharded_over_models_and_time_equals_one_device(crowd, tmp_path):
     """The batch split over 4 forced host devices (blocks over "models", frames over "time") in a fresh process
     (XLA_FLAGS must be set first), against one device in this process."""

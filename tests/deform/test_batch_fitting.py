@@ -38,7 +38,7 @@ def _assert_equal_fits(models, fits, targets, vertices, **options):
         np.testing.assert_allclose(fit.rms_error, alone.rms_error, atol=1e-8 * diagonal)
 
 
-@pytest.mark.slow  # three solver compilations (the packed solve and one fit_pose per model): ~80 s of CPU
+@pytest.mark.slow
 @pytest.mark.parametrize("solver", ["levenberg_marquardt", "gradient_descent"])
 def test_fit_packed_equals_fit_pose_of_each_model_with_padded_targets_bones_and_influences(solver):
     # "lbs" compiles the solver in a third of the time of "cga"; the slow test below fits real models with "cga".
@@ -91,7 +91,7 @@ def test_fit_packed_refuses_bad_input_naming_the_argument():
         deform.fit_packed(packed, targets, max_steps=0)
 
 
-@pytest.mark.slow  # real models with "cga": minutes of solver compilation (one per distinct model size)
+@pytest.mark.slow
 def test_fit_packed_equals_fit_pose_on_real_models():
     # fit_pose's own slow test (tests/deform/test_models.py) recovers such poses of Arm5 from all its vertices;
     # every model's targets are padded to the largest target count (CesiumMan's would make it four CesiumMan fits)

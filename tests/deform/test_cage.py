@@ -117,7 +117,7 @@ def test_same_motor_on_every_cage_vertex_moves_the_mesh_rigidly(name):
     np.testing.assert_allclose(motor_deform(cage, motors), cga.apply_to_points(G, jnp.asarray(V)), atol=1e-10)
 
 
-@pytest.mark.slow  # 9 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_translator_cage_motors_equal_the_positional_cage_in_both_bindings():
     cage = BOUND["arm"]
     d = np.random.default_rng(4).normal(scale=0.05, size=TUBE_V.shape)
@@ -133,7 +133,7 @@ def test_translator_cage_motors_equal_the_positional_cage_in_both_bindings():
     )
 
 
-@pytest.mark.slow  # 7 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 def test_local_motor_moves_points_near_its_cage_vertex_most():
     cage, V = BOUND["arm"], ARM_V
     j = 3 * 8 + 2  # a vertex of the middle ring
@@ -147,7 +147,7 @@ def test_local_motor_moves_points_near_its_cage_vertex_most():
     assert distance[np.argmax(displacement)] < np.quantile(distance, 0.05)
 
 
-@pytest.mark.slow  # 7 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_jit_and_vmap_over_batches_of_cage_positions_and_motors():
     cage = BOUND["cube"]
     rng = np.random.default_rng(5)
@@ -165,7 +165,7 @@ def test_jit_and_vmap_over_batches_of_cage_positions_and_motors():
     np.testing.assert_allclose(vmapped(cage, motors), one_by_one, atol=1e-12)
 
 
-@pytest.mark.slow  # 14 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_gradients_against_finite_differences():
     cage = cage_precompute(BOX_POINTS[:20], BOX_V, BOX_F)
     target = jnp.asarray(BOX_POINTS[:20] + 0.1)

@@ -131,7 +131,7 @@ def test_motors_map_rest_joints_onto_posed_joints():
     np.testing.assert_allclose(Q.values[0], np.eye(8)[0], atol=1e-15)  # fixed root: identity
 
 
-@pytest.mark.slow  # 18 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_fabrik_drives_a_spline_path_deformation_of_a_tube():
     # Fig. 5: a chain along the tube's axis, solved for a target; its joint motors Q_i at lambda_i = i / m
     # are fitted by k < m + 1 B-spline key motors that deform the tube

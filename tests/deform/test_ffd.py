@@ -146,7 +146,7 @@ def test_one_rigid_motor_for_the_whole_lattice_moves_the_mesh_rigidly():
     np.testing.assert_allclose(_deform(_paper_form(V, W, P0), GT), rigid, atol=1e-12)
 
 
-@pytest.mark.parametrize("degrees", [90, pytest.param(180, marks=pytest.mark.slow)])  # 7 s each on 2 cores
+@pytest.mark.parametrize("degrees", [90, pytest.param(180, marks=pytest.mark.slow)])
 def test_twist_motors_give_the_exact_analytic_twist(degrees):
     V, _ = _box()
     lattice = bounding_lattice(V, (4, 4, 4), 0.05)
@@ -217,7 +217,7 @@ def _small_case():
     return lattice, V, jnp.asarray(target)
 
 
-@pytest.mark.slow  # ~20-50 s on 2 cores: out of `make test` (its 15-minute budget); `make test-slow` and CI run it
+@pytest.mark.slow
 def test_gradient_with_respect_to_lattice_motor_logs():
     lattice, V, target = _small_case()
     field = ffd_precompute(V, lattice)
@@ -244,7 +244,7 @@ def test_gradient_with_respect_to_control_points_and_embedded_points():
     )
 
 
-@pytest.mark.slow  # 6 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 def test_float32():
     V, F = _arm()
     lattice = bounding_lattice(V.astype(np.float32), (4, 4, 4), 0.05)

@@ -41,14 +41,14 @@ def _motors(rng, k, rotation=0.5, translation=0.1):
     return generators_to_motors(jnp.asarray(generators))
 
 
-@pytest.mark.slow  # 7 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_weights_are_the_harmonic_fields_and_identity_motors_give_the_rest_mesh():
     np.testing.assert_array_equal(FIELD.weights, harmonic_fields(V, F, HANDLES))
     np.testing.assert_allclose(FIELD.weights.sum(axis=1), 1.0, atol=1e-12)
     np.testing.assert_allclose(motor_field_solve(FIELD, identity_motors(3)), V, atol=1e-14)
 
 
-@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 @pytest.mark.parametrize("laplacian", ["cotangent", "mean_value"])
 def test_handle_vertices_move_rigidly_by_their_motor(laplacian):
     field = handles_precompute(V, F, HANDLES, laplacian=laplacian)
@@ -65,7 +65,7 @@ def test_handle_vertices_move_rigidly_by_their_motor(laplacian):
     assert all(np.abs(moved[free] - r).max() > 1e-3 for r in rigid)
 
 
-@pytest.mark.slow  # 6 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 def test_the_same_motor_on_every_handle_is_that_rigid_map():
     G = motor_about(jnp.array([0.3, 0.1, -0.2]), cga.rotor(jnp.array([1.0, 2.0, 0.5]), 2.5), jnp.array([0.4, 0, 1]))
     motors = cga.Multivector(jnp.broadcast_to(G.values, (3, 8)), G.blades)
@@ -80,7 +80,7 @@ def test_binding_to_rest_motors_gives_back_the_rest_mesh():
         motor_field_precompute(V, FIELD.weights, rest_motors=identity_motors(2))
 
 
-@pytest.mark.slow  # 8 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_batches_of_handle_motors_under_jit_and_vmap():
     rng = np.random.default_rng(3)
     batch = cga.Multivector(jnp.stack([_motors(rng, 3).values for _ in range(4)]), cga.KINDS["motor"])
@@ -90,7 +90,7 @@ def test_batches_of_handle_motors_under_jit_and_vmap():
     np.testing.assert_allclose(mapped, one_by_one, atol=1e-12)
 
 
-@pytest.mark.slow  # 9 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_gradient_with_respect_to_handle_generators_matches_finite_differences():
     rng = np.random.default_rng(4)
     target = V + 0.05 * rng.normal(size=V.shape)
@@ -105,7 +105,7 @@ def test_gradient_with_respect_to_handle_generators_matches_finite_differences()
 @pytest.mark.parametrize(
     "method, solver", [("spline", "gauss_newton"), ("handles", "levenberg_marquardt"), ("ffd", "levenberg_marquardt")]
 )
-@pytest.mark.slow  # ~20-50 s on 2 cores: out of `make test` (its 15-minute budget); `make test-slow` and CI run it
+@pytest.mark.slow
 def test_fit_recovers_known_key_motors(method, solver):
     """Targets from known key motors of the spline (eq. 1-2), the harmonic handles (sec. IV) and the motor
     FFD (eq. 7-8) are fitted back (Gauss-Newton compiles in half the time of Levenberg-Marquardt, which
@@ -129,7 +129,7 @@ def test_fit_recovers_known_key_motors(method, solver):
         np.testing.assert_allclose(fit.motors.values[0], identity_motors(1).values[0])  # the fixed region
 
 
-@pytest.mark.slow  # 14 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_fit_by_gradient_based_minimisation():
     """BFGS on the squared residual (optimistix.minimise) reaches the same handle motors."""
     rng = np.random.default_rng(7)
@@ -142,7 +142,7 @@ def test_fit_by_gradient_based_minimisation():
     np.testing.assert_allclose(fit.generators, truth, atol=1e-5)
 
 
-@pytest.mark.slow  # ~20-50 s on 2 cores: out of `make test` (its 15-minute budget); `make test-slow` and CI run it
+@pytest.mark.slow
 def test_fit_to_a_handful_of_vertices_with_a_regularizer():
     tip = HANDLES[1][:3]
     targets = V[tip] + np.array([0.0, 0.15, 0.05])

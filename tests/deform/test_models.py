@@ -55,7 +55,7 @@ _BLEND_OF_MATRICES = {
 }
 
 
-# CesiumMan's DQS and motor-blend cases take ~30 s each on 2 cores: in the slow job
+# CesiumMan's DQS and motor-blend cases: in the slow job
 _SPEC_CASES = [
     (name, method)
     for name in ("RiggedSimple", "scaled_keys")
@@ -91,7 +91,7 @@ def test_skinning_follows_the_specification(models, scaled_keys, name, method):
         np.testing.assert_allclose(skin(jnp.asarray(t, jnp.float64)), expected, atol=tol, err_msg=f"t = {t}")
 
 
-@pytest.mark.slow  # compile-heavy: `make test-slow` and CI run it, `make test` stays under 10 minutes
+@pytest.mark.slow
 def test_log_interpolation_is_the_papers_sampling(scaled_keys):
     """``interpolation="log"`` blends the key versors logarithmically (sec. 4.1) for every method: equal
     to the specification on keys, geometric scale between them (15% of the diagonal here)."""
@@ -114,7 +114,7 @@ def test_log_interpolation_is_the_papers_sampling(scaled_keys):
         deform.sample_pose(model, 0.5, "lbs", interpolation="LINEAR")
 
 
-@pytest.mark.slow  # ~20-50 s on 2 cores: out of `make test` (its 15-minute budget); `make test-slow` and CI run it
+@pytest.mark.slow
 def test_motor_blend_equals_dqs_on_a_rigid_clip(models):
     model = models["CesiumMan"]
     for t in [0.3, 1.2]:
@@ -122,7 +122,7 @@ def test_motor_blend_equals_dqs_on_a_rigid_clip(models):
         np.testing.assert_allclose(deform.skin_model(model, t, "cga_motor_blend"), dqs, atol=1e-6 * _diagonal(dqs))
 
 
-@pytest.mark.slow  # 18 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_arm5_rest_pose_reproduces_bind_positions(models):
     model = models["Arm5"]
     V = np.asarray(model.mesh.V)
@@ -180,7 +180,7 @@ def test_thousand_poses_of_cesium_man_in_one_jit_call(models, thousand_frames):
         np.testing.assert_allclose(frames[k], deform.skin_model(model, times[k], "cga"), atol=1e-12)
 
 
-@pytest.mark.slow  # ~20-50 s on 2 cores: out of `make test` (its 15-minute budget); `make test-slow` and CI run it
+@pytest.mark.slow
 def test_sharded_batch_equals_unsharded(thousand_frames, tmp_path):
     """1,000 CesiumMan poses split over 4 host devices (a fresh process: XLA_FLAGS must be set first),
     against the unsharded batch of this process."""
@@ -211,7 +211,7 @@ def test_sharded_batch_equals_unsharded(thousand_frames, tmp_path):
     np.testing.assert_allclose(odd, np.asarray(plain[:998]), atol=1e-12)
 
 
-@pytest.mark.slow  # ~20 s of solver compilation per model: `make test-slow` and CI run it
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["Arm5", "CesiumMan"])
 def test_fit_recovers_known_random_poses(models, name):
     model = models[name]
@@ -223,7 +223,7 @@ def test_fit_recovers_known_random_poses(models, name):
     assert float(fit.max_error) <= 1e-6 * diagonal
 
 
-@pytest.mark.slow  # ~40 s on 2 cores
+@pytest.mark.slow
 def test_gradient_descent_fit_recovers_a_known_pose_of_the_default_arm():
     # notebook 02's problem: rotations up to 0.5 rad, translations up to 2% of the diagonal, scales within e^0.1
     arm = deform.default_arm()
@@ -235,7 +235,7 @@ def test_gradient_descent_fit_recovers_a_known_pose_of_the_default_arm():
     np.testing.assert_allclose(fit.params, truth, atol=1e-5)
 
 
-@pytest.mark.slow  # two solves of 5,000 and 1,000 L-BFGS steps on CesiumMan: ~3 minutes on 2 cores
+@pytest.mark.slow
 def test_gradient_descent_converges_on_cesium_man_and_says_when_it_does_not(models):
     """Notebook 02's problem on CesiumMan (every vertex, a random pose): gradient descent reaches 1e-6 of the
     diagonal within 5,000 steps and says it converged; stopped after 1,000 steps it is still far, and says so
@@ -252,7 +252,7 @@ def test_gradient_descent_converges_on_cesium_man_and_says_when_it_does_not(mode
     assert float(short.max_error) > 1e-6 * diagonal  # measured 1.3e-4
 
 
-@pytest.mark.slow  # the implicit adjoint through optimistix compiles slowly: ~1-2 minutes on 2 cores
+@pytest.mark.slow
 def test_fit_pose_gradient_with_respect_to_the_targets_matches_central_differences():
     """At the defaults (Levenberg-Marquardt), the gradient of a scalar of the fit (positions and parameters)
     with respect to the targets, implicit through optimistix, matches central differences of fit_pose to 1e-6
@@ -275,7 +275,7 @@ def test_fit_pose_gradient_with_respect_to_the_targets_matches_central_differenc
     assert float(jnp.sum(gradient * direction)) == pytest.approx(float(numeric), rel=1e-6)
 
 
-@pytest.mark.slow  # ~20-50 s on 2 cores: out of `make test` (its 15-minute budget); `make test-slow` and CI run it
+@pytest.mark.slow
 def test_fit_to_a_handful_of_vertices_with_regularization(models):
     model = models["Arm5"]
     truth = deform.random_parameters(jax.random.PRNGKey(4), model, rotation=0.2)

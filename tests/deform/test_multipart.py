@@ -262,7 +262,7 @@ def test_unhandled_error_names_the_parts_and_bad_values_name_unhandled():
     assert single.count == 1 and len(single.bridges) == 0
 
 
-@pytest.mark.slow  # two ARAP compilations per character, ~30 s on 2 cores
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["QuaterniusWorker", "QuaterniusCyberpunkCharacter"])
 def test_corpus_characters_of_many_parts(name):
     """Real characters (15 and 66 connected parts, most without a handle), the feet and the crown as handles:

@@ -47,7 +47,7 @@ def test_non_uniform_scale_has_no_versor():
     np.testing.assert_allclose(np.diag(m), [1, 2, 1, 1])
 
 
-@pytest.mark.slow  # 7 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_forward_kinematics_versors_equal_matrices():
     model = random_model(1, parents=(-1, 0, 0, 1, 3, 3, -1, 6), rest_scale=(0.5, 2.0))
     local = random_pose(2, 8, scale_range=(0.5, 1.5))
@@ -121,7 +121,7 @@ def test_cubic_spline_reproduces_a_cubic():
         np.testing.assert_allclose(deform.sample_channel(c, t), p(np.array(t)), atol=1e-12)
 
 
-@pytest.mark.slow  # 9 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_versor_sampling_equals_specification_for_translation_and_rotation():
     model = random_model(4)
     rng = np.random.default_rng(4)
@@ -138,7 +138,7 @@ def test_versor_sampling_equals_specification_for_translation_and_rotation():
         np.testing.assert_allclose(ours, spec, atol=1e-11)
 
 
-@pytest.mark.slow  # 11 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 def test_versor_sampling_blends_dilations_geometrically():
     model = random_model(5)
     clip = deform.AnimationClip((_channel("scale", [0.0, 1.0], [[1.0] * 3, [4.0] * 3], bone=1),))
@@ -158,7 +158,7 @@ def test_sampling_vmaps_over_times():
         np.testing.assert_allclose(batched[k], deform.sample_versors(model.skeleton, clip, t).values, atol=1e-12)
 
 
-@pytest.mark.slow  # 7 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 def test_keyframes_blend_linearly_and_align_signs():
     a, b = random_pose(7, 3), random_pose(8, 3)
     keys = deform.Keyframes(jnp.array([0.0, 2.0]), cga.Multivector(jnp.stack([a.values, -b.values]), a.blades))
@@ -174,7 +174,7 @@ def test_keyframes_blend_linearly_and_align_signs():
         deform.Keyframes(jnp.array([0.0]), a)
 
 
-@pytest.mark.slow  # 8 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_clip_from_poses_round_trip():
     model = random_model(9)
     poses = cga.Multivector(jnp.stack([random_pose(k, 5).values for k in range(4)]), random_pose(0, 5).blades)

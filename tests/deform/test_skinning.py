@@ -52,7 +52,7 @@ def test_rest_pose_reproduces_bind_positions(method):
     np.testing.assert_allclose(deform.rest_pose(MODEL, method), MESH.V, atol=1e-12)
 
 
-@pytest.mark.slow  # 6 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 def test_cga_with_dilations_against_numpy_lbs():
     local = random_pose(1, B, scale_range=(0.5, 2.0))
     expected = _numpy_lbs(MODEL, cga.versor_to_matrix(local))
@@ -95,7 +95,7 @@ def test_cga_equals_literal_equation_17():
     )
 
 
-@pytest.mark.slow  # 9 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_motor_blend_equals_dqs_for_rigid_poses():
     local = random_pose(3, B)
     model = random_model(3)  # rigid rest pose too
@@ -129,7 +129,7 @@ def _numpy_dqs(V, J, W, dq):
     return out
 
 
-@pytest.mark.slow  # 8 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 def test_dqs_and_motor_blend_against_numpy_dqs_with_flipped_signs():
     """Negating a joint's dual quaternion (or motor) is the same transformation: the blends align
     signs per vertex, so flipping any subset of joints changes nothing."""
@@ -182,7 +182,7 @@ def test_dqs_rejects_scaled_joints():
         jax.block_until_ready(deform.skin_pose(MODEL, local, "dqs"))
 
 
-@pytest.mark.slow  # 6 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 def test_motor_blend_dilation_is_blended_in_log_space():
     """One vertex, two joints with pure dilations s1, s2 and weights w: scale s1^w1 s2^w2."""
     V = jnp.array([[1.0, 2.0, 3.0]])
@@ -199,7 +199,7 @@ def test_motor_blend_dilation_is_blended_in_log_space():
     np.testing.assert_allclose(deform.skin_cga(V, J, W, joints), V * (0.25 * 2.0 + 0.75 * 0.5), atol=1e-14)
 
 
-@pytest.mark.slow  # 15 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 @pytest.mark.parametrize("method", deform.METHODS)
 def test_batched_poses_under_vmap_equal_one_by_one(method):
     params = jnp.stack([deform.random_parameters(jax.random.PRNGKey(k), MODEL, 0.5, 0.1, 0.0) for k in range(3)])
@@ -243,7 +243,7 @@ def test_dilation_blend_paths_agree_under_vmap_and_grad(dense, monkeypatch):
     np.testing.assert_allclose(grad_w, np.einsum("pn,pnk->nk", 2 * expected, np.asarray(dilations)[:, J]), atol=1e-12)
 
 
-@pytest.mark.slow  # a backward-pass compile per method (~10-30 s each): `make test-slow` and CI run it
+@pytest.mark.slow
 @pytest.mark.parametrize("method", deform.METHODS)
 def test_gradients_match_finite_differences(method):
     model = random_model(7)
@@ -264,7 +264,7 @@ def test_gradients_match_finite_differences(method):
         np.testing.assert_allclose(jnp.sum(grad * d), fd, rtol=1e-6, atol=1e-7)
 
 
-@pytest.mark.slow  # 13 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_float32_skinning():
     model = jax.tree_util.tree_map(
         lambda x: x.astype(jnp.float32) if jnp.issubdtype(x.dtype, jnp.floating) else x, random_model(9)

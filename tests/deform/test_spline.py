@@ -129,7 +129,7 @@ def test_parameter_is_linear_along_the_tube():
 
 @pytest.mark.parametrize(
     "basis, num_keys",
-    [("linear", None), ("lagrange", None), pytest.param("bspline", 6, marks=pytest.mark.slow)],  # 10 s on 2 cores
+    [("linear", None), ("lagrange", None), pytest.param("bspline", 6, marks=pytest.mark.slow)],
 )
 def test_rest_motors_give_the_rest_mesh_and_handles_move_rigidly(basis, num_keys):
     rng = np.random.default_rng(1)
@@ -171,7 +171,7 @@ def test_linear_bend_turns_each_section_by_its_share_of_the_angle():
     np.testing.assert_allclose(X[END], moved(bend, V[END]), atol=1e-12)
 
 
-@pytest.mark.slow  # 9 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 def test_jit_and_vmap_over_batches_of_key_motors():
     rng = np.random.default_rng(3)
     field = spline_precompute(V, F, START, END, basis="bspline", num_keys=5)
@@ -183,7 +183,7 @@ def test_jit_and_vmap_over_batches_of_key_motors():
     )
 
 
-@pytest.mark.slow  # ~20-50 s on 2 cores: out of `make test` (its 15-minute budget); `make test-slow` and CI run it
+@pytest.mark.slow
 def test_gradient_with_respect_to_key_motor_logs():
     rng = np.random.default_rng(4)
     small = tube(max_edge=0.4)
@@ -197,7 +197,7 @@ def test_gradient_with_respect_to_key_motor_logs():
 
 
 # ---------------------------------------------------------------- B-spline fit (eq. 3-5)
-@pytest.mark.slow  # 14 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_fit_recovers_the_key_motors_that_generated_the_data():
     rng = np.random.default_rng(5)
     lam = np.linspace(0.0, 1.0, 12)
@@ -213,7 +213,7 @@ def test_fit_recovers_the_key_motors_that_generated_the_data():
     np.testing.assert_allclose(fitted_logs(fit, noisy), np.linalg.lstsq(A, q, rcond=None)[0], atol=1e-12)
 
 
-@pytest.mark.slow  # 13 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_ill_conditioned_fit_takes_the_svd_path_and_gives_the_minimum_norm_solution():
     rng = np.random.default_rng(6)
     lam = np.linspace(0.0, 0.3, 9)  # keys 5 and 6 of 7 have no parameter in their support
@@ -235,7 +235,7 @@ def test_ill_conditioned_fit_takes_the_svd_path_and_gives_the_minimum_norm_solut
     np.testing.assert_allclose(fitted_logs(forced, Q), fitted_logs(normal, Q), atol=1e-12)
 
 
-@pytest.mark.slow  # 17 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_fit_is_a_jax_function_of_the_motors():
     rng = np.random.default_rng(7)
     fit = spline_fit_precompute(np.linspace(0.0, 1.0, 8), 4)

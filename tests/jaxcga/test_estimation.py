@@ -134,7 +134,7 @@ def test_align_points_rejects_bad_input():
         cga.align_points(src, src, np.ones(N - 1))  # weights of the wrong length
 
 
-@pytest.mark.slow  # 6 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 def test_align_points_is_differentiable():
     rng = np.random.default_rng(5)
     src, clean, _, _ = _problem(rng)

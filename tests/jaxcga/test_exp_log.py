@@ -145,7 +145,7 @@ def test_exp_of_a_rotation_generator_matches_scipy():
     np.testing.assert_allclose(_a(cga.apply_to_points(R, x)), Rotation.from_rotvec(angle * axis).apply(x), atol=1e-13)
 
 
-@pytest.mark.slow  # 8 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 def test_exp_dispatch_and_log_dispatch():
     b = Multivector(np.r_[0.1, 0.2, 0.3, 1.0, 2.0, 3.0], MOTOR_GEN)
     assert _exp_jit(b).blades == cga.KINDS["motor"]
@@ -375,7 +375,7 @@ def test_exp_similitude_derivatives():
     np.testing.assert_allclose(vj[at], c[at][:, [blades.index(b) for b in SIM_GEN]], atol=1e-14)
 
 
-@pytest.mark.slow  # 17 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 def test_log_motor_derivatives():
     motors = _motors()[: len(_GEN_POINTS)]
     np.testing.assert_array_equal(motors[0], np.r_[1.0, np.zeros(7)])  # exactly the identity
@@ -386,7 +386,7 @@ def test_log_motor_derivatives():
     np.testing.assert_allclose(vj[at], _embed_rows(c[at], MOTOR_GEN, cga.KINDS["motor"]), atol=1e-14)
 
 
-@pytest.mark.slow  # 7 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_log_similitude_derivatives():
     sims = _sims()[: len(_SIM_POINTS)]
     assert sims[0, 0] == 1.0 and not np.any(sims[0, 1:])  # exactly the identity
@@ -431,7 +431,7 @@ def test_derivative_through_exp_and_apply_matches_closed_form():
 
 
 # ---------------------------------------------------------------- jit and vmap
-@pytest.mark.slow  # 12 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 def test_jit_and_vmap_match_eager():
     rng = np.random.default_rng(7)
     b = rng.normal(size=(ROWS, 7))

@@ -276,7 +276,7 @@ def test_blend_linear_derivatives():
     check_derivatives(lambda v: cga.blend_linear(*_split(v)).values, _PAIRS, np.random.default_rng(1))
 
 
-@pytest.mark.slow  # 8 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_blend_weighted_derivatives():
     # One blend of ROWS keys; its input (the keys and their weights) is one (ROWS, 9) array. Base
     # points: AT the identity (every key 1), pure translations, and generic keys.

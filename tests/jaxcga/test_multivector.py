@@ -178,7 +178,7 @@ def test_normalize_zero_raises():
 
 
 # ---------------------------------------------------------------- float32
-@pytest.mark.slow  # 8 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_float32_round_trip():
     f32 = jnp.float32
     x = jnp.array([[1.0, 2.0, 3.0], [-0.5, 0.25, 4.0]], f32)

@@ -446,7 +446,7 @@ TABLE_KINDS = {
 }
 
 
-@pytest.mark.slow  # 23 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_table_product_equals_generated_product_on_every_kind_pair():
     """The generated products are checked against clifford on every pair above; the structure-tensor
     evaluation must give the same blades and values on every pair too (pairs with the full 32-blade

@@ -118,7 +118,7 @@ def _left_multiplication_matrix(m: Multivector) -> np.ndarray:
     return np.asarray((m * basis).full()).T
 
 
-@pytest.mark.slow  # 9 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 @SETTINGS
 @given(coefficients(32, ()))
 def test_inverse_is_inverse(v):

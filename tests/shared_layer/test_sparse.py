@@ -86,7 +86,7 @@ def test_device_pcg_solves_a_cotangent_laplacian_like_cholmod():
     np.testing.assert_allclose(device, host, rtol=0, atol=1e-7)
 
 
-@pytest.mark.slow  # ARAP compiled for both paths on Arm5: ~40 s on the shared 2 cores
+@pytest.mark.slow
 def test_harmonic_fields_and_arap_on_the_device_path_equal_the_host_path():
     V, F = np.asarray(ARM5.V, np.float64), np.asarray(ARM5.F, np.int64)
     x = V[:, 0]
@@ -129,7 +129,7 @@ def test_block_jacobi_pcg_solves_an_fem_system_like_cholmod_and_the_host_cg():
         assert np.linalg.norm(x - exact) <= 10 * max(np.linalg.norm(on_host - exact), rtol * np.linalg.norm(exact))
 
 
-@pytest.mark.slow  # two converged steps and their gradients, compiled for both paths: ~60 s on the shared 2 cores
+@pytest.mark.slow
 def test_fem_newton_step_and_xfem_gradient_on_the_device_path_equal_the_host_path():
     """A converged FEM step (Newton systems by block-Jacobi PCG on the device, CHOLMOD on the host) and the
     implicit gradient of a cut XFEM system's step (its adjoint solve)."""
@@ -156,7 +156,7 @@ def test_fem_newton_step_and_xfem_gradient_on_the_device_path_equal_the_host_pat
     np.testing.assert_allclose(grad, host_grad, rtol=1e-6)
 
 
-@pytest.mark.slow  # 10-38 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 def test_gradient_and_vmap_through_the_device_path():
     # scipy is unannotated: pyright takes the type of offsets from its default, 0
     A = sp.csr_matrix(sp.diags([-1.0, 2.2, -1.0], [-1, 0, 1], shape=(30, 30)))  # pyright: ignore[reportArgumentType]
@@ -171,7 +171,7 @@ def test_gradient_and_vmap_through_the_device_path():
     np.testing.assert_allclose(solved, np.linalg.solve(A.toarray(), np.asarray(batch).T).T, rtol=1e-8)
 
 
-@pytest.mark.slow  # 11 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 def test_singular_indefinite_and_unconverged_systems_are_reported():
     singular = sp.csr_matrix(np.array([[1.0, 1.0], [1.0, 1.0]]))
     with pytest.raises(ValueError, match="A: the matrix is singular or not positive definite"):
@@ -411,7 +411,7 @@ def test_multigrid_names_bad_options_and_matrices():
         multigrid.multigrid_precompute(-A)
 
 
-@pytest.mark.slow  # 9 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 def test_a_first_guess_changes_neither_the_solve_nor_its_gradient():
     """``SparseSolver(b, x0)`` on the device path: the solution of b (to the tolerance) whatever x0, the same
     gradient with respect to b, none with respect to x0; a guess of the wrong shape is named."""

@@ -100,7 +100,7 @@ def test_a_rigged_model_is_shown_through_its_glb(browser, tmp_path):
     assert np.abs(browser.positions(0, t) - browser.positions(0, 0.0)).max() > 0.02 * diag
 
 
-@pytest.mark.slow  # 8 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 def test_gltfs_side_by_side_each_play_their_clip(browser, tmp_path):
     """Three glTFs laid out along x without overlap; a clip name plays in every glTF that has it, the others rest."""
     paths = [DATA / "CesiumMan.glb", DATA / "RiggedSimple.glb", DATA / "CesiumMan.glb"]
@@ -390,7 +390,7 @@ def test_the_notebook_form_renders_in_its_sandboxed_iframe(browser, tmp_path):
         browser.driver.switch_to.default_content()
 
 
-@pytest.mark.slow  # the whole demo (compilations, cut, tear, drill): about a minute
+@pytest.mark.slow
 def test_the_demo_page_plays_the_arm_cut_torn_and_drilled(browser, tmp_path, capsys):
     from jaxcga_cli.main import main
 

@@ -70,7 +70,7 @@ def _deformed(X, seed, scale=0.05):
     return jnp.asarray(X + scale * rng.normal(size=X.shape)), jnp.asarray(rng.normal(size=X.shape))
 
 
-@pytest.mark.slow  # 12 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_rest_stays_at_rest():
     system = fem_from_mesh(BAR, 1e3, (0.0, 0.0, 0.0), fixed=FIXED)
     state = backward_euler_step(system, State(BAR.X, jnp.zeros_like(BAR.X)), H, MATERIAL)
@@ -78,7 +78,7 @@ def test_rest_stays_at_rest():
     np.testing.assert_allclose(state.v, 0.0, atol=1e-12)
 
 
-@pytest.mark.slow  # 12 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_uniform_velocity_moves_a_free_body_rigidly():
     system, _, Xs = _two_cubes((0.0, 0.0, 0.0))
     v = jnp.broadcast_to(jnp.asarray([0.3, -1.2, 2.0]), Xs.shape)
@@ -89,7 +89,7 @@ def test_uniform_velocity_moves_a_free_body_rigidly():
     np.testing.assert_allclose(state.v, v, atol=1e-10)
 
 
-@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 def test_gravity_accelerates_the_centre_of_mass_by_g():
     system, mass, Xs = _two_cubes(GRAVITY)
     x, v = _deformed(Xs, 1)  # deformed, random velocities: large elastic forces, all internal
@@ -116,7 +116,7 @@ def _potential_gradient(x, x_t, v_t):
     return np.asarray(jax.grad(E)(x)), np.abs(M @ np.asarray(x - x_t).ravel()).max()
 
 
-@pytest.mark.slow  # 17 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_converged_step_zeroes_the_gradient_and_keeps_fixed_nodes():
     x, v = _deformed(X, 2)
     x = x.at[FIXED].set(X[FIXED])
@@ -153,7 +153,7 @@ def _static_deflection():
     return x[X[:, 0] == 2.0, 2].mean() - 0.5
 
 
-@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 def test_cantilever_stays_finite_loses_energy_and_settles():
     M = np.kron(consistent_mass(X, np.asarray(BAR.T), 1e3).toarray(), np.eye(3))
     grads, volumes = shape_gradients(BAR.X, BAR.T)
@@ -179,7 +179,7 @@ def test_cantilever_stays_finite_loses_energy_and_settles():
     np.testing.assert_allclose(tips[-1], static, rtol=0.05)
 
 
-@pytest.mark.slow  # 17 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_implicit_gradients_match_central_differences_at_the_defaults():
     """Three steps at the default settings (Newton to convergence): the implicit gradient is the derivative of the
     steps computed, to 1e-6 of central differences, for every differentiable input."""
@@ -221,7 +221,7 @@ def test_implicit_gradients_match_central_differences_at_the_defaults():
     np.testing.assert_allclose(grad[4], central(4, 1.0, 1e-4), rtol=1e-6)  # through the integration weights
 
 
-@pytest.mark.slow  # a step compiled at three settings: ~15 s on 2 cores
+@pytest.mark.slow
 def test_stats_say_whether_the_step_converged():
     """The default step converges (several Newton iterations, the last update below 1e-10 of the bar's size); the
     paper's single iteration does not on a moving cantilever, and says so; a state made by hand reports no step."""
@@ -340,7 +340,7 @@ def test_factored_direction_is_the_true_newton_direction_or_descends():
     assert b @ x > 0 and np.all(np.isfinite(x))  # b = -grad E: a descent direction
 
 
-@pytest.mark.slow  # 16 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_padded_system_steps_like_the_real_one():
     """A system padded to a capacity (extra free and fixed nodes, zero-weight elements, zero mass entries and CSR
     slots) takes the same step on its real nodes and leaves the padded ones where they are."""
@@ -393,7 +393,7 @@ def _step_inputs(system, X, x, v):
     )
 
 
-@pytest.mark.slow  # 7 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 def test_in_chunks_visits_every_row_once():
     """The last chunk is moved back to end at the last row; the rows it shares with the chunk before are masked."""
     rows = jnp.arange(1.0, 34.0)
@@ -446,7 +446,7 @@ def test_the_energy_and_newton_system_make_no_runtime_checks():
         backward_euler_step(CANTILEVER, State(jnp.asarray(X), v), H, Material(1e5, 0.5))
 
 
-@pytest.mark.slow  # 51 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_steps_in_chunks_equal_one_pass(monkeypatch):
     """The energy, its gradient and Newton matrix, M d, a step and its implicit gradient, summed over chunks of
     elements and mass entries that overlap at the end (3 of 30 elements, 7 of 174 mass entries), equal one pass

@@ -83,7 +83,7 @@ def test_body_weights_nodes_driven_anchors(name):
     assert body.density == 1000.0 and np.array_equal(body.gravity, [0.0, -9.81, 0.0]) and body.seconds > 0
 
 
-@pytest.mark.parametrize("name", ["Fox", pytest.param("CesiumMan", marks=pytest.mark.slow)])  # CesiumMan: ~40 s
+@pytest.mark.parametrize("name", ["Fox", pytest.param("CesiumMan", marks=pytest.mark.slow)])
 @pytest.mark.parametrize("method", ["lbs", "cga"])
 def test_surface_limit_within_bound(name, method):
     """Every node driven, the embedded surface follows the surface skinned by its own weights to 1e-3 of the
@@ -125,7 +125,7 @@ def test_surface_limit_on_the_corpus(name):
     assert worst <= 10 * LIMIT
 
 
-@pytest.mark.slow  # fTetWild meshes the robot's 63 parts in a few calls: about 30 s
+@pytest.mark.slow
 @pytest.mark.parametrize("method", ["lbs", "cga"])
 def test_surface_limit_on_rigid_parts(method):
     """The robot's rigid parts touch and overlap (four skins, 63 parts, a bind pose away from the rest pose): each
@@ -135,7 +135,7 @@ def test_surface_limit_on_rigid_parts(method):
     assert mean <= LIMIT / 10
 
 
-@pytest.mark.slow  # the robot's body of the test above
+@pytest.mark.slow
 def test_parts_have_tets_of_their_own():
     """Each part of the surface (a connected set of triangles) gets tets of its own: no connected set of tets holds
     vertices of two closed parts (an open part may enclose no volume and take another's), every closed part's

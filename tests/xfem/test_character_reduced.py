@@ -51,7 +51,7 @@ def _free_matrices(body, subspace):
     return K, M
 
 
-@pytest.mark.slow  # the dense eigensolve it is checked against: about 30 s on the arm
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["arm", "Fox"])
 def test_modes_are_the_lowest_mass_orthonormal_eigenvectors_of_linear_elasticity(name):
     body = _arm_body() if name == "arm" else character_body_of(name)

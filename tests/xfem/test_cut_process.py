@@ -98,7 +98,7 @@ def test_subdomains_delta_makes_a_copy_equal():
         copy.sub.apply_delta(delta)  # copy has the new ids already
 
 
-@pytest.mark.slow  # 11 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_replica_replays_earlier_cuts_and_direct_cuts():
     """Cuts made in the model's process before its worker started are replayed there, and so is a ``cut`` made
     directly while no cut is pending; the solids come back as meshes and are built on first use."""
@@ -153,7 +153,7 @@ def test_the_worker_builds_its_systems_on_the_host_without_a_process_flag():
     assert isinstance(to_devices(np.ones(2))[0], jax.Array)
 
 
-@pytest.mark.slow  # 22 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_cut_that_removes_material():
     """A cut that swallows the top layer of tets (and their nodes' subdomains, with their DOFs) and cuts into the
     next one: the same model through the worker."""
@@ -171,7 +171,7 @@ def test_cut_that_removes_material():
     background.close()
 
 
-@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 def test_large_systems_are_padded_by_the_model(monkeypatch):
     """Above ``_SENT_SYSTEM_BYTES`` the worker sends the system arrays only, and the model pads them itself."""
     monkeypatch.setattr(xfem._background, "_SENT_SYSTEM_BYTES", 0)
@@ -193,7 +193,7 @@ def test_large_systems_are_padded_by_the_model(monkeypatch):
     background.close()
 
 
-@pytest.mark.slow  # 8 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_dead_worker_raises_at_commit_and_the_next_cut_starts_a_new_one():
     remote, inline = _models()
     background = BackgroundCuts(remote)
@@ -215,7 +215,7 @@ def test_dead_worker_raises_at_commit_and_the_next_cut_starts_a_new_one():
     background.close()
 
 
-@pytest.mark.slow  # 34 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_worker_errors_come_back_and_disagreement_is_caught():
     remote, inline = _models()
     background = BackgroundCuts(remote)
@@ -245,7 +245,7 @@ def test_worker_errors_come_back_and_disagreement_is_caught():
     assert isinstance(error, RuntimeError) and "Local: x" in str(error)
 
 
-@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 def test_worker_ends_with_its_background_cuts():
     remote, _ = _models()
     background = BackgroundCuts(remote)
@@ -311,7 +311,7 @@ def test_messages_are_framed_whole():
     assert pickle.loads(pickle.dumps(messages[1]))[0] == "one"
 
 
-@pytest.mark.slow  # 12 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_next_cut_is_sent_before_a_reply_is_prepared(monkeypatch):
     """The worker process starts the next pending cut as soon as it replies, while this process prepares the
     reply's system."""
@@ -347,7 +347,7 @@ def _thread_affinities() -> dict[int, frozenset]:
 @pytest.mark.skipif(
     not hasattr(os, "sched_getaffinity") or not os.path.isdir("/proc/self/task"), reason="needs Linux's CPU affinity"
 )
-@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 def test_background_cuts_leave_the_process_settings_alone():
     """A background cut changes nothing process-wide in the user's process: its CPU affinity and every thread's,
     its priority, the interpreter's switch interval and the environment stay as they were; the worker process

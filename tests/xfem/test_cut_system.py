@@ -72,7 +72,7 @@ def _scalar(system, weights):
     return sum(jnp.sum(getattr(system, name) * w) for name, w in zip(_FIELDS, weights))
 
 
-@pytest.mark.slow  # 14 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 @pytest.mark.parametrize("which", ["height", "tilt"])
 def test_gradient_matches_central_differences_of_the_booleans(bar, which):
     """``cut_system`` (no options: its default) differentiated in the plane: within 1e-6 of central differences
@@ -90,7 +90,7 @@ def test_gradient_matches_central_differences_of_the_booleans(bar, which):
     assert abs(gradient - difference) <= 1e-6 * abs(difference)
 
 
-@pytest.mark.slow  # 7 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 def test_mass_below_a_tilted_slab(bar):
     """The mass of the released piece and its derivatives in the height and the tilt: closed forms."""
     height, theta = 0.43, 0.3

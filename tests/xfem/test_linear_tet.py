@@ -84,7 +84,7 @@ def test_gradients_reproduce_linear_fields(name):
     )
 
 
-@pytest.mark.slow  # 7 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 def test_gradients_by_finite_differences():
     mesh = box_tets((1, 1, 1))
     T = mesh.T

@@ -205,7 +205,7 @@ def test_element_gradient_and_hessian_match_autodiff(tets):
     np.testing.assert_allclose(H, np.swapaxes(H, 1, 2), atol=1e-13 * Hs.max())
 
 
-@pytest.mark.slow  # 9 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 def test_element_gradient_and_hessian_finite_differences(tets):
     # one inverted tet, repeated M times (the batch size the element functions are compiled for)
     grads, vol, X = (np.repeat(a[:1], M, 0) for a in tets)
@@ -255,7 +255,7 @@ def test_projected_hessian_is_the_psd_part(tets):
     assert np.sum(w[2 * M :].min(1) >= 0) >= 2
 
 
-@pytest.mark.slow  # 10 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_degenerate_and_inverted_elements_stay_finite(tets):
     grads, vol, X = tets
     x = jnp.asarray(_deformed(SPECIAL, X))
@@ -274,7 +274,7 @@ def test_degenerate_and_inverted_elements_stay_finite(tets):
     assert np.isfinite(d_x).all() and np.isfinite(d_young)
 
 
-@pytest.mark.slow  # 7 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 def test_projected_hessian_derivative(tets):
     # the custom JVP (Daleckii-Krein) against central differences at generic states, inverted ones included
     grads, vol, X = tets
@@ -290,7 +290,7 @@ def test_projected_hessian_derivative(tets):
     assert np.all(np.abs(tangent - fd) <= 1e-6 * np.abs(fd).max((1, 2), keepdims=True))
 
 
-@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 def test_per_element_parameters_and_float32(tets):
     grads, vol, X = tets
     rng = np.random.default_rng(11)

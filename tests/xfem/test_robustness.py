@@ -147,7 +147,7 @@ def test_cut_aligned_with_faces_edges_or_vertices(feature, perturb):
     _assert_fields(model, before, points, elements, keep)
 
 
-@pytest.mark.slow  # 12 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 def test_cut_outside_the_body_is_bitwise_a_no_op():
     mesh = box_tets((2, 2, 2))
     model = xfem_model(mesh, RHO, fixed=[0, 1, 2], state=deformed_state(mesh))
@@ -373,7 +373,7 @@ class _Run:
             np.testing.assert_allclose(w @ v[part], v0 - np.array([0, 0, speed]), rtol=0, atol=2e-5 * speed)
 
 
-@pytest.mark.slow  # ~20-50 s on 2 cores: out of `make test` (its 15-minute budget); `make test-slow` and CI run it
+@pytest.mark.slow
 def test_long_run_cut_before_and_between_steps():
     mesh = box_tets((3, 3, 3))
     X = np.asarray(mesh.X)
@@ -405,7 +405,7 @@ def test_long_run_cut_before_and_between_steps():
     assert np.max(np.abs(np.asarray(model.state.x)[held] - X[model.dof_node[held]])) < 1e-2
 
 
-@pytest.mark.slow  # 19 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 @pytest.mark.parametrize("perturb", [0.0, PERTURB], ids=["exact", "perturbed"])
 def test_long_run_after_a_face_aligned_cut(perturb):
     mesh = box_tets((3, 3, 3))

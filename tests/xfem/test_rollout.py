@@ -39,7 +39,7 @@ def _loss(trajectory):
     return jnp.sum(WEIGHTS * trajectory.x) + 0.5 * jnp.sum(trajectory.v[-1] ** 2)
 
 
-@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 def test_rollout_equals_a_loop_of_steps():
     forces = jnp.asarray(RNG.normal(size=(3,) + X.shape))
     targets = _moving(3)
@@ -63,7 +63,7 @@ def test_rollout_equals_a_loop_of_steps():
     )
 
 
-@pytest.mark.slow  # two compilations of a 3-step rollout (jit, vmap): ~45 s on the shared 2 cores
+@pytest.mark.slow
 def test_jit_and_vmap_over_young():
     youngs = jnp.asarray([1e5, 1e6])
 
@@ -77,7 +77,7 @@ def test_jit_and_vmap_over_young():
     assert not np.allclose(batched[0], batched[1])  # the stiffer bar sags less
 
 
-@pytest.mark.slow  # 14 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_gradients_at_the_defaults_match_central_differences():
     """Young's modulus, the initial velocity, per-frame forces and moving targets, through 10 steps at the default
     settings (each step converged): within 1e-6 of central differences."""
@@ -120,7 +120,7 @@ def _incremental_potential_gradient(x_free, x_t, v_t, young):
     return jax.grad(energy)(x_free)
 
 
-@pytest.mark.slow  # 19 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_one_newton_iteration_gives_the_converged_formula_at_the_executed_iterate():
     """With one Newton iteration the rollout's gradient is the implicit-function formula dx/dtheta = -H^-1 dG/dtheta
     evaluated at each step's executed iterate x_k (not the minimizer), chained through the steps: checked to 1e-8
@@ -169,7 +169,7 @@ def test_one_newton_iteration_gives_the_converged_formula_at_the_executed_iterat
 
 
 @pytest.mark.cpu_formulation("counts the host's Newton and adjoint solves; a GPU solves on the device")
-@pytest.mark.slow  # a rollout and its gradient compiled for a mesh of their own: ~25 s on the shared 2 cores
+@pytest.mark.slow
 def test_reverse_pass_reruns_no_newton_iteration(monkeypatch):
     """Checkpointing keeps each step's Newton result: the gradient of a 4-step rollout runs the forward pass's
     Newton solves (as many as its steps' iterations, ``stats.iterations``) and 4 adjoint solves, none again."""

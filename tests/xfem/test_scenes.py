@@ -60,7 +60,7 @@ def _material_volume(run) -> float:
     return body.volume() - (body ^ cuts).volume()
 
 
-@pytest.mark.slow  # 17 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 @pytest.mark.parametrize("name", SCENES)
 def test_scene_runs_past_its_cuts(runs, name):
     run = runs(name)
@@ -80,14 +80,14 @@ def test_scene_runs_past_its_cuts(runs, name):
     assert summary["step_max_s"] >= summary["step_avg_s"] > 0
 
 
-@pytest.mark.slow  # 14 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_sticks_end_as_36_pieces(runs):
     run = runs("sticks")
     assert run.summary()["pieces"] == 36 == run.model.pieces()
     assert run.records[0].pieces == 6  # the 5 vertical cuts of frame 1 give 6 slabs
 
 
-@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 def test_accordion_release_adds_a_piece(runs):
     run = runs("accordion")
     release = run.scene.cuts[-1].frame
@@ -101,7 +101,7 @@ def test_accordion_release_adds_a_piece(runs):
     assert v[label != held].mean() < v[label == held].mean()
 
 
-@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 def test_cheese_gets_several_subdomains_per_node(runs):
     run = runs("cheese")
     sub = run.model.sub
@@ -110,7 +110,7 @@ def test_cheese_gets_several_subdomains_per_node(runs):
     assert len(sub.element_subdomains(0)) == run.model.pieces()  # one element, every piece in it
 
 
-@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 @pytest.mark.parametrize("name", ["sticks", "cheese", "thin", "accordion", "octopus"])
 def test_mass_is_rho_times_material_volume(runs, name):
     """The pieces' exact masses (eq. 13, 21) sum to rho |body minus cuts|. Both sides are sums of float64
@@ -147,7 +147,7 @@ def test_piece_surfaces_enclose_the_pieces():
     assert np.all(piece == 0)
 
 
-@pytest.mark.slow  # 13 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_bad_input():
     with pytest.raises(ValueError, match="name"):
         scene("mouth")
@@ -161,7 +161,7 @@ def test_bad_input():
         run_scene("cheese")  # pyright: ignore[reportArgumentType]
 
 
-@pytest.mark.slow  # 15 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_cut_latency_equals_the_cuts_done_later():
     """With a cut latency of L frames, cuts computed in the background while the body steps give the same run as
     the same cuts done in their frame L frames later (``BackgroundCuts``): the same DOFs and
@@ -194,7 +194,7 @@ def test_cut_latency_equals_the_cuts_done_later():
         run_scene(sc, steps=1, cut_latency=-1)
 
 
-@pytest.mark.slow  # fTetWild and the octopus's Booleans: ~30 s on 2 busy cores
+@pytest.mark.slow
 def test_the_octopus_without_tetgen_is_meshed_by_ftetwild(monkeypatch):
     # TetGen is an optional extra: without it the octopus is fTetWild's, at about TetGen's average edge, and the
     # scene still cuts its mouth and jaw

@@ -38,7 +38,7 @@ def _model():
     return xfem_model(BAR, RHO, fixed=FIXED)
 
 
-@pytest.mark.slow  # 20 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_trajectory_equals_the_model_stepped_frame_by_frame():
     model = _model()
     n_before = len(model.dof_sid)
@@ -59,7 +59,7 @@ def test_trajectory_equals_the_model_stepped_frame_by_frame():
     assert float(jnp.min(segments[1].v[-1, :, 2])) < -0.1  # the released end falls
 
 
-@pytest.mark.slow  # 25 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_gradients_across_the_cut_match_central_differences_at_the_defaults():
     model = _model()
     rng = np.random.default_rng(5)
@@ -218,7 +218,7 @@ def _plane(height, theta):
     )
 
 
-@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 def test_plane_cuts_equal_the_solid_cuts():
     """A notch (a solid) at frame 1 and a tilted slab at frame 2 as ``plane_cuts``: every frame equals the schedule
     of both solids (``plane_cut_solid`` at the same plane) cut by the model; the model is left uncut."""
@@ -244,7 +244,7 @@ def test_plane_cuts_equal_the_solid_cuts():
         np.testing.assert_allclose(a.v, b.v, rtol=0, atol=1e-10)
 
 
-@pytest.mark.slow  # 24 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_gradient_with_respect_to_the_plane_matches_central_differences():
     """The hanging bar's positions after the cut (a random linear functional of the last frame), differentiated
     with respect to the slab's height and tilt through the cut and two steps at the defaults (converged); central
@@ -306,7 +306,7 @@ def test_plane_cuts_bad_input():
         jax.jit(lambda p: plan_cuts(model, [], 2, plane_cuts=[(1, p, normal, EPS)]).points)(point)
 
 
-@pytest.mark.slow  # a vmapped gradient compiled, and 8 eager gradients of simulate: ~50 s on 2 cores
+@pytest.mark.slow
 def test_a_vmapped_gradient_over_plane_tilts_equals_separate_calls():
     """``plane_cut_simulation`` prepares the pieces once; ``jax.jit(jax.vmap(jax.grad(loss)))`` over 8 tilts of the
     slab equals ``jax.grad`` of ``simulate`` at each tilt (to 1e-10), and so does ``simulate`` under ``jax.jit`` with

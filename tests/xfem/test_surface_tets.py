@@ -147,7 +147,7 @@ def test_a_cut_body_carries_its_surface_in_pieces():
         xfem.cut_surface(result.mesh, result.embedding, V, F)  # pyright: ignore[reportArgumentType]
 
 
-@pytest.mark.slow  # fTetWild on a character: 5-60 s each on 2 busy cores
+@pytest.mark.slow
 @pytest.mark.parametrize("name", sorted(set(CHARACTERS) - {"QuaterniusWorkerDense"}))  # the dense one: ~2 min
 def test_corpus_characters_are_tetrahedralized(name):
     # open seams, several skins, parts inside parts, clothing: every character gets tets, its skin rides on them

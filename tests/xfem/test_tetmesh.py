@@ -210,7 +210,7 @@ def test_topology_bad_input():
         element_adjacency(three)
 
 
-@pytest.mark.slow  # 9 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_tet_volumes_gradient_and_jit():
     mesh = box_tets((1, 1, 2), size=(1.0, 2.0, 1.0))
     T = mesh.T

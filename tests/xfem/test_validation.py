@@ -106,7 +106,7 @@ def _static_error(g):
     return _relative_error(np.asarray(_equilibrium(system).x) - X, linear)
 
 
-@pytest.mark.slow  # 9 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_small_load_equilibrium_converges_to_linear_elasticity():
     """Static: the cantilever under small gravity g (largest Green strain 2.1e-4 at g = 0.02 m/s^2), brought to
     equilibrium by converged backward Euler steps with h = 1e3 s, against the independent linear-elastic
@@ -121,7 +121,7 @@ def test_small_load_equilibrium_converges_to_linear_elasticity():
     np.testing.assert_allclose(np.array(errors[:-1]) / np.array(errors[1:]), 2.0, rtol=0.02)
 
 
-@pytest.mark.slow  # 9 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_tiny_load_equilibrium_is_not_stalled_by_the_line_search():
     """Static, as above, at loads 10-80x smaller (g = 2e-3, 1e-3, 2.5e-4): the relative error must stay
     proportional to the load, within 2 % of g / 0.02 times its value at g = 0.02. Measured: 1.0e-4, 5.1e-5,
@@ -134,7 +134,7 @@ def test_tiny_load_equilibrium_is_not_stalled_by_the_line_search():
         np.testing.assert_allclose(_static_error(g) / g, reference, rtol=0.02)
 
 
-@pytest.mark.slow  # 13 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_paper_step_settles_at_the_static_equilibrium():
     """Dynamic: from rest under the suddenly applied small load (g = 0.02), 1,000 of the paper's steps (one
     Newton iteration each) dissipate the oscillation: backward Euler shrinks the slowest mode's amplitude by
@@ -151,7 +151,7 @@ def test_paper_step_settles_at_the_static_equilibrium():
     assert np.abs(np.asarray(final.x) - static).max() < 1e-3 * np.abs(static - X).max()
 
 
-@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 def test_free_vibration_loses_energy_monotonically_and_stays_finite():
     """The clamped bar swinging freely (no gravity) from its rest shape with a bending velocity (1 m/s at the
     tip, amplitude ~0.2 m): over 1,000 of the paper's steps positions and velocities stay finite, the total
@@ -180,7 +180,7 @@ def _violent_start(seed=0):
     return State(jnp.asarray(x), jnp.asarray(v)), inverted
 
 
-@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 def test_paper_step_survives_a_violent_start():
     """The paper's step (one Newton iteration) from ``_violent_start`` over 1,000 steps: the total energy must
     stay finite and never exceed its initial value (a backward Euler step dissipates). Before the fix it did
@@ -194,7 +194,7 @@ def test_paper_step_survives_a_violent_start():
     assert np.all(np.isfinite(energies)) and energies.max() <= energies[0]
 
 
-@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 def test_converged_step_tames_a_violent_start():
     """Backward Euler itself (converged Newton, h = 0.033) from the same violent start (32 of 144 tets
     inverted): the total energy falls at every one of 10 steps (measured 5.9e6 J to 2.6e3 J, bounded by 1e-3 of
@@ -211,7 +211,7 @@ def test_converged_step_tames_a_violent_start():
     assert np.all(np.asarray(tet_volumes(state.x, BAR.T)) > 0)
 
 
-@pytest.mark.slow  # 9 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_near_incompressible_hanging_bar_keeps_its_volume():
     """The bar hanging from its clamped end under strong gravity (g = 100 m/s^2 along the bar: a mean stretch of
     ~15 %, the tip moves ~0.4-0.5 m) at its static equilibrium. Linear theory gives dV/V = (1 - 2 nu) times

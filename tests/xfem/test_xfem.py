@@ -37,7 +37,7 @@ def _mass(system):
     )
 
 
-@pytest.mark.slow  # 16 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 @pytest.mark.parametrize("make", [five_tet_cube, lambda: box_tets((2, 2, 2))])
 def test_uncut_model_is_plain_fem(make):
     mesh = make()
@@ -115,7 +115,7 @@ def test_mass_after_cuts_is_body_minus_cuts():
         piece_volume[0] = 0.0
 
 
-@pytest.mark.slow  # 7 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_cut_through_hanging_body_separates():
     mesh = tall_box()
     top = np.flatnonzero(np.asarray(mesh.X)[:, 2] > 1.5 - 1e-9)
@@ -231,7 +231,7 @@ def test_models_own_their_threads_and_runs_interleave():
         CompiledSteps(limit=0)
 
 
-@pytest.mark.slow  # 18 s on 2 cores: in the slow job (`make test-slow`), to keep `make test` under 10 minutes
+@pytest.mark.slow
 def test_cuts_within_a_capacity_level_reuse_the_compiled_step(caplog):
     """Steps run on the system padded to a capacity level: cuts that stay within it compile nothing for the step,
     and the padded step equals the real system's step."""
@@ -251,7 +251,7 @@ def test_cuts_within_a_capacity_level_reuse_the_compiled_step(caplog):
         np.testing.assert_allclose(model.state.x, expected.x, rtol=0, atol=1e-12)
 
 
-@pytest.mark.slow  # 10-36 s on 2 cores: the fast suite's 10-minute budget
+@pytest.mark.slow
 def test_background_cut_takes_effect_at_commit():
     """``BackgroundCuts.submit`` prepares a cut in the worker process while the model steps its old system;
     ``commit`` makes it take effect with the state of that moment: the same model as ``cut`` called then (to the
