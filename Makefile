@@ -22,13 +22,15 @@ demo: $(STAMP)
 test: $(STAMP)
 	$(PY) -m pytest -n 2 -m "not slow" tests
 
-## The fast tests of the per-platform kernels and of their callers again, with every kernel's GPU formulation taken on
-## the CPU (tests/conftest.py, --gpu-variants): the arithmetic of what a GPU runs, checked without one (CI runs it).
-# the kernel, the shared layer (each kernel's variants against each other) and the tests of each kernel's callers:
-# the products and versors, skinning, rig, ARAP, the FEM and XFEM steps, a surface cut, the command line's cache
-GPU_VARIANT_TESTS := tests/jaxcga tests/shared_layer tests/deform/test_skinning.py tests/deform/test_rig.py \
-	tests/deform/test_arap.py tests/xfem/test_backward_euler.py tests/xfem/test_neohookean.py \
-	tests/xfem/test_simulate.py tests/xfem/test_rollout.py tests/cutting/test_cut.py tests/cli/test_cache.py
+## The fast tests of the per-platform kernels' callers again, with every kernel's GPU formulation taken on the CPU
+## (tests/conftest.py, --gpu-variants): the arithmetic of what a GPU runs, checked without one (CI runs it).
+# each kernel's two formulations are compared on its examples in the plain run (tests/shared_layer/
+# test_platform_kernels.py); these are their callers: the sparse solves, host calls, checks and row kernels, the
+# versors, skinning, ARAP, the FEM and XFEM steps and rollouts, the command line's cache
+GPU_VARIANT_TESTS := tests/shared_layer/test_sparse.py tests/shared_layer/test_host_call.py \
+	tests/shared_layer/test_checks.py tests/shared_layer/test_pallas_rows.py tests/jaxcga/test_versors.py \
+	tests/deform/test_skinning.py tests/deform/test_arap.py tests/xfem/test_backward_euler.py \
+	tests/xfem/test_neohookean.py tests/xfem/test_simulate.py tests/xfem/test_rollout.py tests/cli/test_cache.py
 test-gpu-variants: $(STAMP)
 	$(PY) -m pytest -n 2 -m "not slow" --gpu-variants $(GPU_VARIANT_TESTS)
 

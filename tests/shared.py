@@ -319,11 +319,7 @@ def run_on_host_devices(script: str, devices: int = 4, timeout: int = 600) -> st
 
 
 # the tests' shared JAX compilation cache (conftest.py)
-TESTS_JAX_CACHE_VARIABLES = (
-    "JAX_COMPILATION_CACHE_DIR",
-    "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS",
-    "JAX_COMPILATION_CACHE_MAX_SIZE",
-)
+TESTS_JAX_CACHE_VARIABLES = ("JAX_COMPILATION_CACHE_DIR", "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS")
 
 
 def run_jaxcga(argv: list[str], cache: Path | None, env: dict[str, str] | None = None, timeout: int = 600):
