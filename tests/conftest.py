@@ -34,7 +34,7 @@ os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0")
 import jax  # noqa: E402
 import pytest  # noqa: E402
 
-from tests.shared import cpu_formulation_skip_reason, gpu_branches, host_skip_reason  # noqa: E402
+from tests.shared import cpu_formulation_skip_reason, extended_tests, gpu_branches, host_skip_reason  # noqa: E402
 
 jax.config.update("jax_enable_x64", True)
 jax.config.update("jax_numpy_dtype_promotion", "strict")
@@ -63,9 +63,14 @@ def _gpu_formulations(config) -> bool:
     return jax.default_backend() != "cpu" or config.getoption("--gpu-variants")
 
 
+# before pytest's own hook deselects by mark (-m): the extended mark is given here
+@pytest.hookimpl(tryfirst=True)
 def pytest_collection_modifyitems(config, items):
     backend = jax.default_backend()
+    extended = set(extended_tests())
     for item in items:
+        if item.nodeid in extended:
+            item.add_marker(pytest.mark.extended)
         for reason in (
             host_skip_reason(item.get_closest_marker("host"), backend),
             cpu_formulation_skip_reason(item.get_closest_marker("cpu_formulation"), _gpu_formulations(config)),

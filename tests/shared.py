@@ -318,6 +318,12 @@ def run_on_host_devices(script: str, devices: int = 4, timeout: int = 600) -> st
     return done.stdout
 
 
+def extended_tests() -> list[str]:
+    """The node ids of ``tests/extended.txt``: the slow tests CI's slow job leaves out (``make test-extended``)."""
+    lines = (Path(__file__).resolve().parent / "extended.txt").read_text().splitlines()
+    return [line.strip() for line in lines if line.strip() and not line.startswith("#")]
+
+
 # the tests' shared JAX compilation cache (conftest.py)
 TESTS_JAX_CACHE_VARIABLES = ("JAX_COMPILATION_CACHE_DIR", "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS")
 

@@ -1,13 +1,17 @@
 """The marks and options of tests/conftest.py: a test that needs the host is skipped with its reason on a GPU and
 runs on the CPU; one that checks the CPU formulations is skipped where the GPU formulations run; a mark without a
-reason is an error; ``--gpu-variants`` takes the GPU formulations on the CPU."""
+reason is an error; ``--gpu-variants`` takes the GPU formulations on the CPU; every test ``tests/extended.txt``
+names exists and carries the extended mark."""
+
+import ast
+from pathlib import Path
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 import pytest
 
-from tests.shared import cpu_formulation_skip_reason, gpu_branches, host_skip_reason
+from tests.shared import cpu_formulation_skip_reason, extended_tests, gpu_branches, host_skip_reason
 
 
 def test_a_host_test_is_skipped_with_its_reason_off_the_cpu():
@@ -61,3 +65,34 @@ def test_implicit_rank_promotion_raises_and_explicit_broadcasting_is_the_same():
     with pytest.raises(ValueError, match="rank_promotion"):
         _ = row + table
     np.testing.assert_array_equal(row[None] + table, np.arange(3.0) + np.ones((2, 3)))
+
+
+def test_every_extended_test_exists_once():
+    """A name in ``tests/extended.txt`` that is no longer a test (renamed, moved) would silently run in CI again: each
+    names a test function of its file, once."""
+    root = Path(__file__).resolve().parents[1]
+    ids = extended_tests()
+    assert ids and len(ids) == len(set(ids))
+    for node in ids:
+        path, name = node.split("::")
+        tree = ast.parse((root / path).read_text())
+        functions = [d.name for d in ast.walk(tree) if isinstance(d, ast.FunctionDef)]
+        assert name.split("[")[0] in functions, node
+
+
+def test_the_extended_mark_is_given_to_the_named_tests_alone(request):
+    from tests import conftest
+
+    class Item:  # what the collection hook reads of a test item
+        def __init__(self, nodeid):
+            self.nodeid, self.marks = nodeid, []
+
+        def get_closest_marker(self, name):
+            return next((m for m in self.marks if m.name == name), None)
+
+        def add_marker(self, mark):
+            self.marks.append(mark.mark)
+
+    named, other = Item(extended_tests()[0]), Item("tests/test_conftest.py::test_a_test_not_named")
+    conftest.pytest_collection_modifyitems(request.config, [named, other])
+    assert [m.name for m in named.marks] == ["extended"] and other.marks == []
