@@ -25,12 +25,10 @@ test: $(STAMP)
 ## The fast tests of the per-platform kernels' callers again, with every kernel's GPU formulation taken on the CPU
 ## (tests/conftest.py, --gpu-variants): the arithmetic of what a GPU runs, checked without one (CI runs it).
 # each kernel's two formulations are compared on its examples in the plain run (tests/shared_layer/
-# test_platform_kernels.py); these are their callers: the sparse solves, host calls, checks and row kernels, the
-# versors, skinning, ARAP, the FEM and XFEM steps and rollouts, the command line's cache
-GPU_VARIANT_TESTS := tests/shared_layer/test_sparse.py tests/shared_layer/test_host_call.py \
-	tests/shared_layer/test_checks.py tests/shared_layer/test_pallas_rows.py tests/jaxcga/test_versors.py \
-	tests/deform/test_skinning.py tests/deform/test_arap.py tests/xfem/test_backward_euler.py \
-	tests/xfem/test_neohookean.py tests/xfem/test_simulate.py tests/xfem/test_rollout.py tests/cli/test_cache.py
+# test_platform_kernels.py); these are their main callers: the sparse solves, skinning (forward kinematics, the
+# products, DQS), the FEM and XFEM steps and rollouts, the command line's cache
+GPU_VARIANT_TESTS := tests/shared_layer/test_sparse.py tests/shared_layer/test_checks.py tests/deform/test_skinning.py \
+	tests/xfem/test_backward_euler.py tests/xfem/test_simulate.py tests/xfem/test_rollout.py tests/cli/test_cache.py
 test-gpu-variants: $(STAMP)
 	$(PY) -m pytest -n 2 -m "not slow" --gpu-variants $(GPU_VARIANT_TESTS)
 
