@@ -12,6 +12,7 @@ any work, with a ``ValueError`` naming the argument.
 from __future__ import annotations
 
 import contextlib
+import errno
 import json
 import os
 import re
@@ -218,5 +219,14 @@ def run_folder(folder, own: re.Pattern, last: str) -> Iterator[Path]:
             os.replace(path, folder / path.name)
     finally:
         shutil.rmtree(staging, ignore_errors=True)
-        if created and not any(folder.iterdir()):
-            folder.rmdir()
+        if created:
+            # the processes of one run (animate-batch) share the folder: another may have removed it already, or
+            # staged in it since; either way it is theirs to leave, and this run's own error is the one to tell
+            try:
+                if not any(folder.iterdir()):
+                    folder.rmdir()
+            except FileNotFoundError:
+                pass
+            except OSError as error:
+                if error.errno != errno.ENOTEMPTY:
+                    raise
