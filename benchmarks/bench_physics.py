@@ -21,7 +21,9 @@ Figures, for ``PREFIX`` ``arm`` and ``character`` (the issue's names are the cha
 * Where the step's time goes (``PREFIX_breakdown_*_ms``, the segment's system at the last frame's rig and state,
   medians of 5): ``hessians`` the free gradient and the Newton matrices, projected and true (element Hessians summed
   into the CSR data, as the step computes them), ``solve`` the host solve of the factored direction (CHOLMOD's factor
-  of the projected matrix, CG on the true one), ``paper_step`` one whole paper step (the rig rest shapes, the
+  of the projected matrix, CG on the true one), ``factor`` CHOLMOD's factorization alone (made afresh at every
+  Newton iteration: a factor kept from the step's first iteration preconditions the later ones too weakly, as the
+  state moves, to pay back), ``paper_step`` one whole paper step (the rig rest shapes, the
   starts' energies, the gradient and the projected matrix, its factored solve and the line search).
 * ``PREFIX_reduced_fps``: the reduced play (``xfem.character_subspace(body, MODES)``, ``simulate_character(...,
   subspace=...)``) in frames per second: ``--reduced-frames`` frames at 60 frames/s, the whole call (the rig skinned
@@ -67,6 +69,7 @@ import xfem  # noqa: E402
 
 # the step's kernels timed one by one
 import xfem._backward_euler as be  # noqa: E402
+from _jaxcga_shared.sparse import factorize, host_csr  # noqa: E402
 from xfem._character import _rig_rest_system  # noqa: E402
 
 CHARACTER = ROOT / "tests" / "data" / "characters" / "QuaterniusCyberpunkCharacter.glb"
@@ -172,13 +175,13 @@ def _paper_step(system, x, v, rest, target, h, mu, lam, beta):
     return be._advance(moved, be.State(x, v), h, mu, lam, target, system.force, 1, None, True, beta, factored=True)
 
 
-def _breakdown(body, motion, frames: int, h: float) -> dict[str, float]:
-    """Where a step's time goes, at the last frame (module docstring)."""
+def _breakdown(body, motion, clip, h: float) -> dict[str, float]:
+    """Where a step's time goes, at the last frame of the played ``clip`` (module docstring)."""
     (segment,) = motion.segments
     system = segment.system
     x, v = segment.states.x[-2], segment.states.v[-2]
     times = motion.times
-    rest = jnp.asarray(deform.skin_model(body.node_model, times[-1], "cga", 0))
+    rest = jnp.asarray(deform.skin_model(body.node_model, times[-1], "cga", clip))
     target = rest[jnp.asarray(segment.dof_node)[system.fixed]]
     rest = rest[jnp.asarray(segment.dof_node)]
     mu, lam = MATERIAL.lame()
@@ -188,8 +191,9 @@ def _breakdown(body, motion, frames: int, h: float) -> dict[str, float]:
     rhs, A, H = np.asarray(gradient), np.asarray(data), np.asarray(true_data)
     indptr, indices = np.asarray(system.pattern.indptr), np.asarray(system.pattern.indices)
     solve = _median(lambda: be._host_factored_direction(A, H, rhs, be._CG_RTOL, indptr, indices))
+    factor = _median(lambda: factorize(host_csr(A, indptr, indices), symmetric=True))
     step = _median(lambda: _paper_step(*args))
-    return {"hessians": hessians, "solve": solve, "paper_step": step, "unknowns": float(len(rhs))}
+    return {"hessians": hessians, "solve": solve, "factor": factor, "paper_step": step, "unknowns": float(len(rhs))}
 
 
 def run_model(prefix: str, body: xfem.CharacterBody, clip, frames: int, reduced_frames: int) -> tuple[dict, dict, dict]:
@@ -231,12 +235,13 @@ def run_model(prefix: str, body: xfem.CharacterBody, clip, frames: int, reduced_
         f"{iterations.max()}), {paper_ms:.1f} ms one iteration (target {STEP_TARGET_MS:.0f} ms)",
         flush=True,
     )
-    parts = _breakdown(body, motion, frames, 1 / FPS)
-    for name in ("hessians", "solve", "paper_step"):
+    parts = _breakdown(body, motion, clip, 1 / FPS)
+    for name in ("hessians", "solve", "factor", "paper_step"):
         figure(f"breakdown_{name}_ms", 1e3 * parts[name], "ms")
     print(
         f"  where a step goes ({parts['unknowns']:.0f} unknowns): gradient and Newton matrix "
-        f"{1e3 * parts['hessians']:.1f} ms, the host solve {1e3 * parts['solve']:.1f} ms, one paper step "
+        f"{1e3 * parts['hessians']:.1f} ms, the host solve {1e3 * parts['solve']:.1f} ms (its factorization "
+        f"{1e3 * parts['factor']:.1f} ms), one paper step "
         f"{1e3 * parts['paper_step']:.1f} ms",
         flush=True,
     )

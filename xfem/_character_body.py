@@ -46,12 +46,23 @@ last refined sits out the next round. A vertex outside the tets (where fTetWild'
 by more than a quarter of its tet's longest edge is not refined (it follows its tet's linear map extrapolated, and a
 smaller tet would amplify the fit's errors by the distance over its size): up to two such edges out it becomes a
 node instead, the apex of a tet of its own on the nearest boundary face of its part (one a face, and none that would
-hold another node), so that it is embedded at that node, whose weights are fitted to its own. Where surfaces of
-different bones touch inside one part (an arm against the chest in the rest pose, then raised), tets holding both
-blend them and no refinement separates them: a ``UserWarning`` gives the error reached. Where the tets still miss
-``tolerance`` at the end (coarse tets of a low-poly model that spent the budget), the weights are fitted again with
-a tenth and a hundredth of the smoothness, and the fit closest at the probe poses is kept; the probe poses choose
-among the fits for tets given as they are too, so a saved body's tets give its weights back.
+hold another node), so that it is embedded at that node, whose weights are its own. Where surfaces of different
+bones touch inside one part (an arm against the chest in the rest pose, then raised), tets holding both blend them
+and no refinement separates them; nor does it reach a vertex whose error stopped falling, or one left when the rounds
+or the budget are spent. Such vertices are pinned (``_pin_vertices``), for at most 8 more rounds, the worst first:
+each becomes a node, placed by re-coning the star of a simplex of its tet (which keeps the region the tets fill,
+and on the boundary moves it towards the vertex, on the surface, by at most half a tet's height: the vertex's
+coordinates of the other corners sum to at most that;
+every tet around that simplex has one of the simplex's corners replaced by the vertex in turn: a 1-4 split inside a
+tet, 2-6 across a face, two tets for each around an edge, a node moved to the vertex next to it), choosing the
+simplex that leaves the thinnest new tet thickest, and only where each new tet keeps a volume ratio of 0.1
+(``tet_quality``'s) or its parent's. The mesh stays conforming, and a pinned node's weights are the vertex's own
+(after each fit), so the vertex follows its directly skinned self exactly in every pose. A vertex that cannot be
+pinned (its star would be too thin, or two vertices of different bones nearly coincide) keeps its error, and a
+``UserWarning`` gives the error reached. Where the tets still miss ``tolerance`` at the end (coarse tets of a low-poly
+model that spent the budget), the weights are fitted again with a tenth and a hundredth of the smoothness, and the fit
+closest at the probe poses is kept; the probe poses choose among the fits for tets given as they are too, so a saved
+body's tets give its weights back.
 
 Driven nodes (the core rule). Bone j's core is the set of points within ``core * r_j`` of its segments (from the
 joint to each child joint; a leaf joint is a point), where ``r_j`` is the median distance from those segments of
@@ -126,6 +137,11 @@ _BIND_FITS = 2  # the fits in mesh space, each with the mesh-space nodes of the 
 _BIND_SPREAD = (
     1e-6  # a vertex's joints' rest images further apart (diagonals; closer: float32 rounding): fit in mesh space
 )
+_KEEP = 0.1  # the tets that pinning makes keep this volume ratio (tet_quality's), or their parent's where lower
+_FLAT = 1e-3  # a capping tet's height above its face, a fraction of the face's longest edge, at least
+_NEAR = 0.5  # a pinned vertex re-cones the star of a boundary simplex it lies this near (its other coordinates' sum)
+_ON = 1e-9  # a vertex whose coordinates off a simplex sum to at most this lies on it
+_PIN_ROUNDS = 8  # rounds that pin vertices after the refinement has ended
 _APART = 4  # parts whose bounding boxes lie this many envelopes apart are meshed in one fTetWild call
 
 
@@ -570,18 +586,21 @@ def _carry_parts(T: np.ndarray, tet_part: np.ndarray, n: int, refined: np.ndarra
     return part[label[refined[:, 0]]]
 
 
-def _cap_outside(Y, T, tet_part, points, vertex_part, vertices) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+def _cap_outside(
+    Y, T, tet_part, points, vertex_part, vertices, pinned: dict[int, int]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[int, int]]:
     """Tets of their own for surface vertices that lie outside their part's tets (fTetWild's envelope cut a thin
     feature off): each of ``vertices`` (worst first) becomes a node, the apex of a new tet on the boundary face of
     its part nearest to it, so that it is embedded at that node, whose weights are fitted to its own, instead of in
     a tet whose linear map it extrapolates (its coordinates outside [0, 1] amplify the fit's errors). A face takes
     one apex a round, and a tet that would hold another node or lie on the inner side of its face is not made.
-    Returns (Y, T, tet_part, the number of tets made)."""
+    ``pinned`` (vertex -> node) grows by the vertices given a tet. Returns (Y, T, tet_part, pinned)."""
     faces, inverse, counts = tet_face_matching(T)
     flat = faces.reshape(-1, 3)
     boundary = np.flatnonzero(counts[inverse] == 1)
     owner = boundary // 4
     nodes, tets, parts, used = [], [], [], set()
+    pinned = dict(pinned)
     for part in np.unique(vertex_part[vertices]):
         mine = vertices[vertex_part[vertices] == part]
         candidates = boundary[tet_part[owner] == part]
@@ -594,7 +613,11 @@ def _cap_outside(Y, T, tet_part, points, vertex_part, vertices) -> tuple[np.ndar
             a, b, c = flat[f]
             opposite = T[f // 4, f % 4]  # the face's own tet's fourth node: the apex must lie across the face
             normal = np.cross(Y[b] - Y[a], Y[c] - Y[a])
-            if np.dot(normal, points[v] - Y[a]) * np.dot(normal, Y[opposite] - Y[a]) >= 0:
+            height = np.dot(normal, points[v] - Y[a])
+            if height * np.dot(normal, Y[opposite] - Y[a]) >= 0:
+                continue
+            # a flat tet (the vertex on its face's plane, or at a corner) would make the mass matrix singular
+            if abs(height) <= _FLAT * np.linalg.norm(normal) * np.linalg.norm([Y[b] - Y[a], Y[c] - Y[a]], axis=1).max():
                 continue
             corners = np.stack([Y[a], Y[b], Y[c], points[v]])
             edges = (corners[1:] - corners[0]).T
@@ -607,14 +630,105 @@ def _cap_outside(Y, T, tet_part, points, vertex_part, vertices) -> tuple[np.ndar
             used.add(f)
             index = len(Y) + len(nodes)
             nodes.append(points[v])
+            pinned[v] = index
             # positively oriented, as every tet of the mesh
             tets.append((a, b, c, index) if np.linalg.det(edges) > 0 else (b, a, c, index))
             parts.append(tet_part[f // 4])
     if not tets:
-        return Y, T, tet_part, 0
+        return Y, T, tet_part, pinned
     Y = np.concatenate([Y, np.asarray(nodes)])
     T = np.concatenate([T, np.asarray(tets, T.dtype)])
-    return Y, T, np.concatenate([tet_part, np.asarray(parts, tet_part.dtype)]), len(tets)
+    return Y, T, np.concatenate([tet_part, np.asarray(parts, tet_part.dtype)]), pinned
+
+
+def _pin_vertices(
+    Y, T, tet_part, points, vertex_part, vertices, pinned: dict[int, int]
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[int, int]]:
+    """Nodes at surface vertices that refinement does not bring within the tolerance (module docstring): each of
+    ``vertices`` (worst first) is placed by re-coning the star of a simplex of its tet (the k corners of its largest
+    barycentric coordinates, k = 1..4; each tet around the simplex has one of its corners replaced by the vertex in
+    turn, so the mesh stays conforming), the k whose thinnest new tet is thickest (``_star_shape``), where every new tet
+    keeps a volume ratio of ``_KEEP`` or its parent's: among the simplices whose re-coning keeps the region the tets
+    fill, else among boundary simplices the vertex lies near (its other coordinates sum to at most ``_NEAR``). A vertex
+    whose star meets a tet already re-coned this round, or whose nearest node (k = 1) is pinned already, waits.
+    ``pinned`` (vertex -> node) grows by the vertices placed. Returns (Y, T, tet_part, pinned)."""
+    embedding = _embed_parts(Y, T, tet_part, points[vertices], vertex_part[vertices])
+    node_tets = sp.csr_matrix(
+        (np.ones(T.size, bool), (T.ravel(), np.repeat(np.arange(len(T)), 4))), shape=(len(Y), len(T))
+    ).tolil()
+    Y, pinned = Y.copy(), dict(pinned)
+    taken = set(pinned.values())
+    on_boundary = np.zeros(len(Y), bool)
+    on_boundary[_boundary_faces(T).ravel()] = True
+    touched: set[int] = set()
+    new_tets, new_parts, new_nodes = [], [], []
+    for v, t, b in zip(vertices.tolist(), embedding.element, embedding.weights):
+        # the simplex: the corners of the largest coordinates, as many as make the thickest star (1: the node moves).
+        # Re-coning about a simplex inside the mesh, or with the vertex on it, keeps the region the tets fill; about
+        # a boundary simplex with the vertex off it, it moves the boundary towards the vertex (on the surface): only
+        # where no region-keeping star is thick enough, and the vertex near (its other coordinates sum to _NEAR)
+        best: dict[bool, tuple] = {}
+        order = np.argsort(-b, kind="stable")
+        for k in range(1, 5):
+            simplex = T[t][order[:k]]
+            off = float(b[order[k:]].sum())
+            keeps = not on_boundary[simplex].all() or off <= _ON
+            if (not keeps and off > _NEAR) or (k == 1 and int(simplex[0]) in taken):
+                continue
+            star = set(node_tets.rows[simplex[0]]).intersection(*(node_tets.rows[c] for c in simplex[1:]))
+            if star & touched:
+                continue
+            star_list = sorted(star)
+            shape = _star_shape(Y, T[star_list], points[v], simplex)
+            if shape >= 1 and (keeps not in best or shape > best[keeps][0]):
+                best[keeps] = (shape, simplex, star, star_list)
+        if not best:
+            continue
+        _, simplex, star, star_list = best.get(True) or best[False]
+        touched |= star
+        if len(simplex) == 1:  # the node itself moves to the vertex
+            node = int(simplex[0])
+            Y[node] = points[v]
+        else:
+            node = len(Y) + len(new_nodes)
+            new_nodes.append(points[v])
+        pinned[v] = node
+        taken.add(node)
+        for u in star_list:
+            for c in simplex:
+                new_tets.append(np.where(T[u] == c, node, T[u]))
+                new_parts.append(tet_part[u])
+    if not touched:
+        return Y, T, tet_part, pinned
+    keep = np.ones(len(T), bool)
+    keep[sorted(touched)] = False
+    Y = np.concatenate([Y, np.asarray(new_nodes).reshape(-1, 3)])
+    T = np.concatenate([T[keep], np.asarray(new_tets, T.dtype).reshape(-1, 4)])
+    return Y, T, np.concatenate([tet_part[keep], np.asarray(new_parts, tet_part.dtype)]), pinned
+
+
+def _volume_ratios(x: np.ndarray) -> np.ndarray:
+    """(k,) ``6 sqrt(2) volume / rms edge^3`` of tets of corners x (k, 4, 3): 1 for a regular tet, 0 for a flat one,
+    negative for an inverted one (``tet_quality``'s measure, signed)."""
+    edges = x[:, [0, 0, 0, 1, 1, 2]] - x[:, [1, 2, 3, 2, 3, 3]]
+    rms = np.sqrt(np.mean(np.sum(edges**2, axis=2), axis=1))
+    volume = np.einsum("ij,ij->i", np.cross(x[:, 1] - x[:, 0], x[:, 2] - x[:, 0]), x[:, 3] - x[:, 0]) / 6
+    return 6 * np.sqrt(2) * volume / rms**3
+
+
+def _star_shape(Y: np.ndarray, star: np.ndarray, point: np.ndarray, simplex: np.ndarray) -> float:
+    """How much worse than ``_KEEP`` re-coning the tets ``star`` (k, 4) about ``simplex`` at ``point`` leaves them: the
+    smallest over the new tets of their volume ratio (``_volume_ratios``) over the smaller of ``_KEEP`` and their
+    parent's ratio (>= 1: none is thinner than the bound, or than its parent)."""
+    x = Y[star]
+    parent = _volume_ratios(x)
+    worst = np.inf
+    for c in simplex:
+        k, corner = np.nonzero(star == c)
+        y = x[k].copy()
+        y[np.arange(len(k)), corner] = point
+        worst = min(worst, float(np.min(_volume_ratios(y) / np.minimum(_KEEP, parent[k]))))
+    return worst
 
 
 def _embed_parts(X, T, tet_part, points, vertex_part) -> SurfaceEmbedding:
@@ -682,7 +796,9 @@ def _build(
     shortest = _FINEST * float(np.median(lengths))
     budget = _GROWTH * len(T)
     previous = np.full(len(V), np.inf)  # each vertex's error when its tet was last refined
-    for round_ in range(_ROUNDS + 1):
+    pinned: dict[int, int] = {}  # surface vertex -> the node at it, whose weights are the vertex's own
+    pinning = 0  # the rounds that pinned vertices, once refining has ended
+    for round_ in range(_ROUNDS + _PIN_ROUNDS + 1):
         embedding = _embed_parts(Y, T, tet_part, placed, vertex_part)
         if round_ == 0 and tets is not None:
             far = embedding.distance > 3 * float(np.median(lengths))
@@ -693,13 +809,22 @@ def _build(
                     "coordinates, as CharacterBody.tets)"
                 )
 
+        pinned_vertices = np.fromiter(pinned, np.int64, len(pinned))
+        pinned_nodes = np.fromiter(pinned.values(), np.int64, len(pinned))
+        own = _trim(dense[pinned_vertices], influences)
+
+        def fitted_weights(fitted):  # clamped, trimmed, and a pinned node's weights its vertex's own
+            J, W = _trim(np.clip(fitted, 0.0, 1.0), influences)
+            J[pinned_nodes], W[pinned_nodes] = own
+            return J, W
+
         def fit(smoothness):
             fitted = fit_weights(Y, T, embedding, placed, dense, moments, _LENGTH * diagonal, smoothness)
-            J, W = _trim(np.clip(fitted, 0.0, 1.0), influences)
+            J, W = fitted_weights(fitted)
             bound = _bind_positions(Y, G, J, W)
             for _ in range(_BIND_FITS if bind else 0):  # the moments in mesh space are zero (module docstring)
                 fitted = fit_weights(bound, T, embedding, V, dense, zero, _LENGTH * diagonal, smoothness)
-                J, W = _trim(np.clip(fitted, 0.0, 1.0), influences)
+                J, W = fitted_weights(fitted)
                 bound = _bind_positions(Y, G, J, W)
             return J, W, bound
 
@@ -715,38 +840,58 @@ def _build(
                     J, W, bound, error = J_s, W_s, bound_s, error_s
         if not refine:
             break
-        bad = error > _MARGIN * tolerance * diagonal
-        # a vertex whose error hardly fell when its tet was refined sits where surfaces of different bones meet:
-        # refining on would spend the budget there for nothing
-        stuck = bad & (error > _STUCK * previous)
-        previous = np.where(bad & ~stuck, error, np.inf)
-        bad &= ~stuck
-        # a vertex outside the tets (where fTetWild's filter cut a thin feature) follows its tet's linear map
-        # extrapolated: refining that tet amplifies the fit's errors by the distance over the tet's size, so it gets
-        # a tet of its own instead (_cap_outside)
+        off = error > _MARGIN * tolerance * diagonal
         x = Y[embedding.nodes]
         size = np.linalg.norm(x[:, [0, 0, 0, 1, 1, 2]] - x[:, [1, 2, 3, 2, 3, 3]], axis=2).max(axis=1)
-        outside = bad & (embedding.distance > _OUTSIDE * size)
-        bad &= ~outside
-        outside &= embedding.distance <= _CAP_REACH * size  # farther, a tet of its own would be a spike
-        if not (bad.any() or outside.any()) or round_ == _ROUNDS or len(T) >= budget:
+        if not pinning:
+            bad = off.copy()
+            # a vertex whose error hardly fell when its tet was refined sits where surfaces of different bones meet:
+            # refining on would spend the budget there for nothing (it is pinned once refining ends)
+            stuck = bad & (error > _STUCK * previous)
+            previous = np.where(bad & ~stuck, error, np.inf)
+            bad &= ~stuck
+            # a vertex outside the tets (where fTetWild's filter cut a thin feature) follows its tet's linear map
+            # extrapolated: refining that tet amplifies the fit's errors by the distance over the tet's size, so it
+            # gets a tet of its own instead (_cap_outside)
+            outside = bad & (embedding.distance > _OUTSIDE * size)
+            bad &= ~outside
+            outside &= embedding.distance <= _CAP_REACH * size  # farther, a tet of its own would be a spike
+            if (bad.any() or outside.any()) and round_ < _ROUNDS and len(T) < budget:
+                count = len(pinned)
+                if outside.any():
+                    worst_first = np.flatnonzero(outside)[np.argsort(-error[outside], kind="stable")]
+                    Y, T, tet_part, pinned = _cap_outside(Y, T, tet_part, placed, vertex_part, worst_first, pinned)
+                if bad.any():
+                    # the worst vertices' tets last: the bisection takes them first, so a spent budget went where it
+                    # did most
+                    order: dict[int, None] = {}
+                    for t in embedding.element[bad][np.argsort(error[bad], kind="stable")].tolist():
+                        order.pop(t, None)
+                        order[t] = None
+                    marked = np.fromiter(order, np.int64, len(order))
+                    refined_Y, refined_T = bisect_tets(Y, T, marked, _SHRINK, shortest, budget)
+                    tet_part = _carry_parts(T, tet_part, len(refined_Y), refined_T)
+                    Y, T = refined_Y, refined_T
+                    continue
+                if len(pinned) > count:
+                    continue
+            pinning = 1  # refining has ended: the vertices still off (the stuck ones among them) become nodes
+        # those above the tolerance itself (refining aims below it, by _MARGIN); farther outside than _CAP_REACH
+        # edges, a node at the vertex would make a spike
+        left = np.flatnonzero((error > tolerance * diagonal) & (embedding.distance <= _CAP_REACH * size))
+        left = left[~np.isin(left, pinned_vertices)]
+        if not len(left) or pinning > _PIN_ROUNDS:
             break
-        capped = 0
-        if outside.any():
-            worst_first = np.flatnonzero(outside)[np.argsort(-error[outside], kind="stable")]
-            Y, T, tet_part, capped = _cap_outside(Y, T, tet_part, placed, vertex_part, worst_first)
-        if not bad.any():
-            if not capped:
-                break
-            continue
-        # the worst vertices' tets last: the bisection takes them first, so a spent budget went where it did most
-        order: dict[int, None] = {}
-        for t in embedding.element[bad][np.argsort(error[bad], kind="stable")].tolist():
-            order.pop(t, None)
-            order[t] = None
-        refined_Y, refined_T = bisect_tets(Y, T, np.fromiter(order, np.int64, len(order)), _SHRINK, shortest, budget)
-        tet_part = _carry_parts(T, tet_part, len(refined_Y), refined_T)
-        Y, T = refined_Y, refined_T
+        count = len(pinned)
+        worst_first = left[np.argsort(-error[left], kind="stable")]
+        # a tet of its own for a vertex well outside (_cap_outside); nearer, a cap would be a sliver
+        outside_first = worst_first[embedding.distance[worst_first] > _OUTSIDE * size[worst_first]]
+        Y, T, tet_part, pinned = _cap_outside(Y, T, tet_part, placed, vertex_part, outside_first, pinned)
+        worst_first = worst_first[~np.isin(worst_first, np.fromiter(pinned, np.int64, len(pinned)))]
+        Y, T, tet_part, pinned = _pin_vertices(Y, T, tet_part, placed, vertex_part, worst_first, pinned)
+        if len(pinned) == count:
+            break
+        pinning += 1
     if error.max() > tolerance * diagonal:
         warnings.warn(
             f"tolerance: the embedded surface misses the directly skinned one by up to {error.max() / diagonal:.2g} "

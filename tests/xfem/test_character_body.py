@@ -6,6 +6,8 @@ conform and keep the fTetWild volume and boundary, the core rule on the corpus, 
 
 from __future__ import annotations
 
+import warnings
+
 import igl
 import jax.numpy as jnp
 import numpy as np
@@ -14,7 +16,14 @@ import trimesh
 
 import deform
 import xfem
-from tests.shared import CHARACTERS, SAVED_TETS, character_body_of, character_params, load_character
+from tests.shared import (
+    CHARACTERS,
+    SAVED_TETS,
+    character_body_of,
+    character_params,
+    load_character,
+    saved_tets,
+)
 
 LIMIT = 1e-3  # the issue's bound on the surface limit, a fraction of the bounding-box diagonal
 FRAMES = 30  # clip times the limit is checked at
@@ -180,20 +189,40 @@ def _rotation(axis: np.ndarray, angle: float) -> np.ndarray:
 def test_refined_tets_conform_and_keep_the_volume():
     """The refinement bisects edges: the tets stay conforming (every face in one or two tets), positive, of the
     same total volume, and their boundary covers the same surface (its area and its volume by the divergence
-    theorem) as the fTetWild tets they refine."""
+    theorem) as the fTetWild tets they refine; where vertices are pinned after it (fTetWild's tets vary run to run),
+    a pinned node may move a boundary node towards its vertex, by a fraction of a tet."""
     coarse = character_body_of("Fox", refine=False)
     fine = xfem.character_body(coarse.model, tets=coarse.tets, refine=True)
     X0, T0 = np.asarray(coarse.tets.X), np.asarray(coarse.tets.T)
     X, T = np.asarray(fine.tets.X), np.asarray(fine.tets.T)
-    assert len(T) > len(T0) and np.array_equal(X[: len(X0)], X0)
+    moved = np.any(X[: len(X0)] != X0, axis=1)
+    assert len(T) > len(T0) and moved.mean() <= 0.01
     assert np.unique(_faces(T), axis=0, return_counts=True)[1].max() <= 2
     volumes = np.asarray(xfem.tet_volumes(X, T))
     assert volumes.min() > 0
-    np.testing.assert_allclose(volumes.sum(), np.asarray(xfem.tet_volumes(X0, T0)).sum(), rtol=1e-12)
+    rtol = 1e-12 if not moved.any() else 1e-3
+    np.testing.assert_allclose(volumes.sum(), np.asarray(xfem.tet_volumes(X0, T0)).sum(), rtol=rtol)
     B0, B = _boundary(T0), _boundary(T)
-    np.testing.assert_allclose(np.sum(igl.doublearea(X, B)), np.sum(igl.doublearea(X0, B0)), rtol=1e-12)
+    np.testing.assert_allclose(np.sum(igl.doublearea(X, B)), np.sum(igl.doublearea(X0, B0)), rtol=10 * rtol)
     # LEPP keeps the shapes: the worst dihedral angle falls by a bounded factor at most
     assert fine.quality.min_dihedral_deg >= coarse.quality.min_dihedral_deg / 4
+
+
+def test_vertices_refinement_leaves_are_pinned():
+    """At a tolerance that bisection does not reach within its rounds (on the saved fox, 30 vertices stay above
+    1e-4 of the diagonal at the probe poses), the vertices left become nodes carrying their own weights: the
+    surface limit holds over the clip, with the tets conforming, positive and of fTetWild's shapes."""
+    saved = saved_tets("Fox")
+    tolerance = 1e-4
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", UserWarning)  # the tolerance's warning would say vertices were left
+        body = xfem.character_body(load_character("Fox"), tets=saved, refine=True, tolerance=tolerance)
+    worst, mean = surface_limit(body, "lbs")
+    assert worst <= tolerance, (worst, mean)
+    X, T = np.asarray(body.tets.X), np.asarray(body.tets.T)
+    assert np.unique(_faces(T), axis=0, return_counts=True)[1].max() <= 2
+    assert np.asarray(xfem.tet_volumes(X, T)).min() > 0
+    assert body.quality.min_volume_ratio >= min(0.1, xfem.tet_quality(saved).min_volume_ratio) / 2
 
 
 def test_tets_given_are_kept_without_refinement():
@@ -301,16 +330,52 @@ def test_a_vertex_outside_the_tets_gets_a_tet_of_its_own():
     # below the face z = 0 (outside), twice near that face, and once beyond the slanted face x + y + z = 1
     points = np.array([[0.2, 0.2, -0.3], [0.25, 0.2, -0.1], [0.5, 0.5, 0.5]])
     vertex_part = np.zeros(3, np.int64)
-    Y2, T2, part2, made = _cap_outside(Y, T, part, points, vertex_part, np.array([0, 1, 2]))
-    assert made == 2 and len(Y2) == 6 and len(T2) == 3 and part2.tolist() == [0, 0, 0]
+    Y2, T2, part2, pinned = _cap_outside(Y, T, part, points, vertex_part, np.array([0, 1, 2]), {})
+    assert pinned == {0: 4, 2: 5} and len(Y2) == 6 and len(T2) == 3 and part2.tolist() == [0, 0, 0]
     np.testing.assert_array_equal(Y2[4:], points[[0, 2]])  # the first vertex near the face takes it
     assert (np.asarray(xfem.tet_volumes(Y2, T2)) > 0).all()
     assert np.unique(_faces(T2), axis=0, return_counts=True)[1].max() <= 2
     # inside the tet: no cap; a cap that would hold another node (the tet's own apex seen from below): none
     inside = np.array([[0.1, 0.1, 0.1]])
-    assert _cap_outside(Y, T, part, inside, np.zeros(1, np.int64), np.array([0]))[3] == 0
+    assert _cap_outside(Y, T, part, inside, np.zeros(1, np.int64), np.array([0]), {})[3] == {}
     # another part's tet below the face, one of its nodes where the cap would reach
     Y3 = np.concatenate([Y, [[0.2, 0.2, -0.1], [0.2, 0.2, -1], [1, 0.2, -1], [0.2, 1, -1]]])
     T3 = np.array([[0, 1, 2, 3], [4, 5, 6, 7]])
-    assert _cap_outside(Y3, T3, np.array([0, 1]), points[:1], np.zeros(1, np.int64), np.array([0]))[3] == 0
-    assert _cap_outside(Y, T, part, points[:1], np.zeros(1, np.int64), np.array([0]))[3] == 1  # alone: made
+    assert _cap_outside(Y3, T3, np.array([0, 1]), points[:1], np.zeros(1, np.int64), np.array([0]), {})[3] == {}
+    assert _cap_outside(Y, T, part, points[:1], np.zeros(1, np.int64), np.array([0]), {})[3] == {0: 4}  # alone
+
+
+@pytest.mark.parametrize(
+    "point, new_nodes, new_tets",
+    [
+        ([0.2, 0.25, 0.3], 1, 3),  # inside a tet: 1-4
+        ([0.3, 0.3, 0.0], 1, 4),  # on the shared face: 2-6
+        ([0.5, 0.0, 0.0], 1, 2),  # on an edge of both tets: 2 for each
+        ([0.97, 0.01, 0.01], 0, 0),  # next to a node of both: the node moves
+    ],
+)
+def test_a_pinned_vertex_re_cones_its_star(point, new_nodes, new_tets):
+    """A vertex refinement leaves becomes a node by re-coning the star of the simplex it lies nearest to: the mesh
+    conforms, every tet is positive and no thinner than the bound or its parent, the vertex is the node, and a star
+    split (not a move) keeps the volume and the boundary."""
+    from xfem._character_body import _pin_vertices
+
+    # two tets sharing the face (0, 1, 2): z > 0 and z < 0
+    Y = np.array([[0.0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [0, 0, -1]])
+    T = np.array([[0, 1, 2, 3], [0, 2, 1, 4]])
+    part = np.zeros(2, np.int64)
+    points = np.array([point])
+    Y2, T2, part2, pinned = _pin_vertices(Y, T, part, points, np.zeros(1, np.int64), np.array([0]), {})
+    assert list(pinned) == [0] and len(Y2) == len(Y) + new_nodes and len(T2) == len(T) + new_tets
+    np.testing.assert_array_equal(Y2[pinned[0]], points[0])
+    volumes = np.asarray(xfem.tet_volumes(Y2, T2))
+    assert volumes.min() > 0 and (part2 == 0).all()
+    assert np.unique(_faces(T2), axis=0, return_counts=True)[1].max() <= 2
+    assert xfem.tet_quality(xfem.tet_mesh(Y2, T2)).min_volume_ratio >= 0.1 * 0.99
+    if new_nodes:
+        np.testing.assert_allclose(volumes.sum(), np.asarray(xfem.tet_volumes(Y, T)).sum(), rtol=1e-12)
+        area = np.sum(igl.doublearea(Y2, _boundary(T2)))
+        np.testing.assert_allclose(area, np.sum(igl.doublearea(Y, _boundary(T))), rtol=1e-12)
+    # a vertex at a node pinned already (another vertex's) is not placed: that node keeps its vertex
+    again = _pin_vertices(Y2, T2, part2, points, np.zeros(1, np.int64), np.array([0]), {1: pinned[0]})
+    assert again[3] == {1: pinned[0]} and np.array_equal(again[1], T2)
