@@ -50,14 +50,16 @@ hold another node), so that it is embedded at that node, whose weights are its o
 bones touch inside one part (an arm against the chest in the rest pose, then raised), tets holding both blend them
 and no refinement separates them; nor does it reach a vertex whose error stopped falling, or one left when the rounds
 or the budget are spent. Such vertices are pinned (``_pin_vertices``), for at most 8 more rounds, the worst first:
-each becomes a node, placed by re-coning the star of a simplex of its tet (which keeps the region the tets fill,
-and on the boundary moves it towards the vertex, on the surface, by at most half a tet's height: the vertex's
-coordinates of the other corners sum to at most that;
-every tet around that simplex has one of the simplex's corners replaced by the vertex in turn: a 1-4 split inside a
-tet, 2-6 across a face, two tets for each around an edge, a node moved to the vertex next to it), choosing the
-simplex that leaves the thinnest new tet thickest, and only where each new tet keeps a volume ratio of 0.1
-(``tet_quality``'s) or its parent's. The mesh stays conforming, and a pinned node's weights are the vertex's own
-(after each fit), so the vertex follows its directly skinned self exactly in every pose. A vertex that cannot be
+each becomes a node, placed by re-coning the star of a simplex of its tet: every tet around that simplex has one of
+the simplex's corners replaced by the vertex in turn (a 1-4 split inside a tet, 2-6 across a face, two tets for each
+around an edge, a node moved to the vertex next to it). The simplex chosen is the one that leaves the thinnest new
+tet thickest, among those that keep the region the tets fill (inside the mesh, or with the vertex on it), else among
+boundary simplices, which move the boundary towards the vertex (on the surface) by at most half a tet's height; and
+only where each new tet keeps a volume ratio of 0.1 (``tet_quality``'s) or its parent's. The mesh stays conforming,
+and a pinned node's weights are the vertex's own (after each fit), so the vertex follows its directly skinned self
+exactly in every pose; the others' weights are fitted around the pinned ones. Tets given as they are (a saved
+body's) are not re-coned, but a vertex above the tolerance that lies at one of their nodes (a pin of the saved body)
+is pinned there where that lowers the largest error at the probe poses. A vertex that cannot be
 pinned (its star would be too thin, or two vertices of different bones nearly coincide) keeps its error, and a
 ``UserWarning`` gives the error reached. Where the tets still miss ``tolerance`` at the end (coarse tets of a low-poly
 model that spent the budget), the weights are fitted again with a tenth and a hundredth of the smoothness, and the fit
@@ -252,6 +254,7 @@ def fit_weights(
     moments: np.ndarray,
     length: float,
     smoothness: float,
+    fixed: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> np.ndarray:
     """Node weights whose barycentric blend reproduces the surface's linear blend skinning (module docstring).
 
@@ -263,6 +266,7 @@ def fit_weights(
         moments: (s, j, 3) ``w_pj (G_j p - r_p)``: the weighted offsets of each joint's rest image of the point.
         length: the length that weighs a weight's error against a moment's.
         smoothness: the weight of the tets' Dirichlet energy, relative to the data's (scale free).
+        fixed: None, or (nodes (p,), their weights (p, j)): weights the others are fitted around (pinned vertices').
     Returns:
         (n, j) the least-squares weights, unclamped (rows sum to 1 up to the solve's rounding).
     """
@@ -283,7 +287,16 @@ def fit_weights(
     K = -igl.cotmatrix(X, T)
     scale = smoothness * normal.diagonal().sum() / max(K.diagonal().sum(), 1e-300)
     system = (normal + scale * K).tocsc()
-    return sparse_linalg.splu(system).solve(np.asarray(M.T @ Y))
+    rhs = np.asarray(M.T @ Y)
+    if fixed is None or not len(fixed[0]):
+        return sparse_linalg.splu(system).solve(rhs)
+    nodes, values = fixed
+    free = np.setdiff1d(np.arange(n), nodes)
+    weights = np.empty((n, rhs.shape[1]))
+    weights[nodes] = values
+    A = system[free][:, free].tocsc()
+    weights[free] = sparse_linalg.splu(A).solve(rhs[free] - system[free][:, nodes] @ values)
+    return weights
 
 
 def _bind_positions(Y: np.ndarray, G: np.ndarray, J: np.ndarray, W: np.ndarray) -> np.ndarray:
@@ -798,6 +811,7 @@ def _build(
     previous = np.full(len(V), np.inf)  # each vertex's error when its tet was last refined
     pinned: dict[int, int] = {}  # surface vertex -> the node at it, whose weights are the vertex's own
     pinning = 0  # the rounds that pinned vertices, once refining has ended
+    kept = None  # tets given as they are: the fit before the last pins
     for round_ in range(_ROUNDS + _PIN_ROUNDS + 1):
         embedding = _embed_parts(Y, T, tet_part, placed, vertex_part)
         if round_ == 0 and tets is not None:
@@ -818,12 +832,14 @@ def _build(
             J[pinned_nodes], W[pinned_nodes] = own
             return J, W
 
+        fixed = (pinned_nodes, dense[pinned_vertices])
+
         def fit(smoothness):
-            fitted = fit_weights(Y, T, embedding, placed, dense, moments, _LENGTH * diagonal, smoothness)
+            fitted = fit_weights(Y, T, embedding, placed, dense, moments, _LENGTH * diagonal, smoothness, fixed)
             J, W = fitted_weights(fitted)
             bound = _bind_positions(Y, G, J, W)
             for _ in range(_BIND_FITS if bind else 0):  # the moments in mesh space are zero (module docstring)
-                fitted = fit_weights(bound, T, embedding, V, dense, zero, _LENGTH * diagonal, smoothness)
+                fitted = fit_weights(bound, T, embedding, V, dense, zero, _LENGTH * diagonal, smoothness, fixed)
                 J, W = fitted_weights(fitted)
                 bound = _bind_positions(Y, G, J, W)
             return J, W, bound
@@ -839,7 +855,23 @@ def _build(
                 if error_s.max() < error.max():
                     J, W, bound, error = J_s, W_s, bound_s, error_s
         if not refine:
-            break
+            # tets given as they are: a vertex above the tolerance that lies at a node (a saved body's pinned ones)
+            # is pinned there, which changes no tet, where that brings the probe poses' largest error down
+            if kept is not None and error.max() >= kept[3].max():
+                J, W, bound, error = kept
+                break
+            kept = (J, W, bound, error)
+            at = (error > tolerance * diagonal) & (embedding.weights.max(axis=1) >= 1 - _ON) & (embedding.distance == 0)
+            at[pinned_vertices] = False
+            at = np.flatnonzero(at)
+            nodes = embedding.nodes[at, np.argmax(embedding.weights[at], axis=1)]
+            free = ~np.isin(nodes, pinned_nodes)
+            at, nodes = at[free], nodes[free]
+            first = np.unique(nodes, return_index=True)[1]  # one vertex a node
+            if not len(first) or round_ >= _PIN_ROUNDS:
+                break
+            pinned.update(zip(at[first].tolist(), nodes[first].tolist()))
+            continue
         off = error > _MARGIN * tolerance * diagonal
         x = Y[embedding.nodes]
         size = np.linalg.norm(x[:, [0, 0, 0, 1, 1, 2]] - x[:, [1, 2, 3, 2, 3, 3]], axis=2).max(axis=1)

@@ -211,7 +211,8 @@ def test_refined_tets_conform_and_keep_the_volume():
 def test_vertices_refinement_leaves_are_pinned():
     """At a tolerance that bisection does not reach within its rounds (on the saved fox, 30 vertices stay above
     1e-4 of the diagonal at the probe poses), the vertices left become nodes carrying their own weights: the
-    surface limit holds over the clip, with the tets conforming, positive and of fTetWild's shapes."""
+    surface limit holds over the clip, with the tets conforming, positive and of fTetWild's shapes, also when the tets
+    are given back."""
     saved = saved_tets("Fox")
     tolerance = 1e-4
     with warnings.catch_warnings():
@@ -223,6 +224,9 @@ def test_vertices_refinement_leaves_are_pinned():
     assert np.unique(_faces(T), axis=0, return_counts=True)[1].max() <= 2
     assert np.asarray(xfem.tet_volumes(X, T)).min() > 0
     assert body.quality.min_volume_ratio >= min(0.1, xfem.tet_quality(saved).min_volume_ratio) / 2
+    # saved and given back as they are, the tets give the pins back: the vertices at their nodes are pinned again
+    again = xfem.character_body(body.model, tets=body.tets, tolerance=tolerance)
+    assert surface_limit(again, "lbs")[0] <= tolerance
 
 
 def test_tets_given_are_kept_without_refinement():
