@@ -49,13 +49,14 @@ node instead, the apex of a tet of its own on the nearest boundary face of its p
 hold another node), so that it is embedded at that node, whose weights are its own. Where surfaces of different
 bones touch inside one part (an arm against the chest in the rest pose, then raised), tets holding both blend them
 and no refinement separates them; nor does it reach a vertex whose error stopped falling, or one left when the rounds
-or the budget are spent. Such vertices are pinned (``_pin_vertices``), for at most 8 more rounds, the worst first:
+or the budget are spent. Such vertices are pinned (``_pin_vertices``), for at most 16 more rounds, the worst first:
 each becomes a node, placed by re-coning the star of a simplex of its tet: every tet around that simplex has one of
 the simplex's corners replaced by the vertex in turn (a 1-4 split inside a tet, 2-6 across a face, two tets for each
 around an edge, a node moved to the vertex next to it). The simplex chosen is the one that leaves the thinnest new
 tet thickest, among those that keep the region the tets fill (inside the mesh, or with the vertex on it), else among
 boundary simplices, which move the boundary towards the vertex (on the surface) by at most half a tet's height; and
-only where each new tet keeps a volume ratio of 0.1 (``tet_quality``'s) or its parent's. The mesh stays conforming,
+only where each new tet keeps a volume ratio of 0.1 (``tet_quality``'s) or its parent's (0.05 in a round where
+no vertex would be pinned otherwise: a dense surface's vertices crowd the tets). The mesh stays conforming,
 and a pinned node's weights are the vertex's own (after each fit), so the vertex follows its directly skinned self
 exactly in every pose; the others' weights are fitted around the pinned ones. Tets given as they are (a saved
 body's) are not re-coned, but a vertex above the tolerance that lies at one of their nodes (a pin of the saved body)
@@ -143,7 +144,7 @@ _KEEP = 0.1  # the tets that pinning makes keep this volume ratio (tet_quality's
 _FLAT = 1e-3  # a capping tet's height above its face, a fraction of the face's longest edge, at least
 _NEAR = 0.5  # a pinned vertex re-cones the star of a boundary simplex it lies this near (its other coordinates' sum)
 _ON = 1e-9  # a vertex whose coordinates off a simplex sum to at most this lies on it
-_PIN_ROUNDS = 8  # rounds that pin vertices after the refinement has ended
+_PIN_ROUNDS = 16  # rounds that pin vertices after the refinement has ended
 _APART = 4  # parts whose bounding boxes lie this many envelopes apart are meshed in one fTetWild call
 
 
@@ -655,13 +656,13 @@ def _cap_outside(
 
 
 def _pin_vertices(
-    Y, T, tet_part, points, vertex_part, vertices, pinned: dict[int, int]
+    Y, T, tet_part, points, vertex_part, vertices, pinned: dict[int, int], keep: float = _KEEP
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[int, int]]:
     """Nodes at surface vertices that refinement does not bring within the tolerance (module docstring): each of
     ``vertices`` (worst first) is placed by re-coning the star of a simplex of its tet (the k corners of its largest
     barycentric coordinates, k = 1..4; each tet around the simplex has one of its corners replaced by the vertex in
     turn, so the mesh stays conforming), the k whose thinnest new tet is thickest (``_star_shape``), where every new tet
-    keeps a volume ratio of ``_KEEP`` or its parent's: among the simplices whose re-coning keeps the region the tets
+    keeps a volume ratio of ``keep`` or its parent's: among the simplices whose re-coning keeps the region the tets
     fill, else among boundary simplices the vertex lies near (its other coordinates sum to at most ``_NEAR``). A vertex
     whose star meets a tet already re-coned this round, or whose nearest node (k = 1) is pinned already, waits.
     ``pinned`` (vertex -> node) grows by the vertices placed. Returns (Y, T, tet_part, pinned)."""
@@ -692,7 +693,7 @@ def _pin_vertices(
             if star & touched:
                 continue
             star_list = sorted(star)
-            shape = _star_shape(Y, T[star_list], points[v], simplex)
+            shape = _star_shape(Y, T[star_list], points[v], simplex, keep)
             if shape >= 1 and (keeps not in best or shape > best[keeps][0]):
                 best[keeps] = (shape, simplex, star, star_list)
         if not best:
@@ -729,9 +730,9 @@ def _volume_ratios(x: np.ndarray) -> np.ndarray:
     return 6 * np.sqrt(2) * volume / rms**3
 
 
-def _star_shape(Y: np.ndarray, star: np.ndarray, point: np.ndarray, simplex: np.ndarray) -> float:
-    """How much worse than ``_KEEP`` re-coning the tets ``star`` (k, 4) about ``simplex`` at ``point`` leaves them: the
-    smallest over the new tets of their volume ratio (``_volume_ratios``) over the smaller of ``_KEEP`` and their
+def _star_shape(Y: np.ndarray, star: np.ndarray, point: np.ndarray, simplex: np.ndarray, keep: float) -> float:
+    """How much worse than ``keep`` re-coning the tets ``star`` (k, 4) about ``simplex`` at ``point`` leaves them: the
+    smallest over the new tets of their volume ratio (``_volume_ratios``) over the smaller of ``keep`` and their
     parent's ratio (>= 1: none is thinner than the bound, or than its parent)."""
     x = Y[star]
     parent = _volume_ratios(x)
@@ -740,7 +741,7 @@ def _star_shape(Y: np.ndarray, star: np.ndarray, point: np.ndarray, simplex: np.
         k, corner = np.nonzero(star == c)
         y = x[k].copy()
         y[np.arange(len(k)), corner] = point
-        worst = min(worst, float(np.min(_volume_ratios(y) / np.minimum(_KEEP, parent[k]))))
+        worst = min(worst, float(np.min(_volume_ratios(y) / np.minimum(keep, parent[k]))))
     return worst
 
 
@@ -920,7 +921,10 @@ def _build(
         outside_first = worst_first[embedding.distance[worst_first] > _OUTSIDE * size[worst_first]]
         Y, T, tet_part, pinned = _cap_outside(Y, T, tet_part, placed, vertex_part, outside_first, pinned)
         worst_first = worst_first[~np.isin(worst_first, np.fromiter(pinned, np.int64, len(pinned)))]
-        Y, T, tet_part, pinned = _pin_vertices(Y, T, tet_part, placed, vertex_part, worst_first, pinned)
+        for keep in (_KEEP, _KEEP / 2):  # where no star keeps the bound (dense surfaces), half of it
+            Y, T, tet_part, pinned = _pin_vertices(Y, T, tet_part, placed, vertex_part, worst_first, pinned, keep)
+            if len(pinned) > count:
+                break
         if len(pinned) == count:
             break
         pinning += 1

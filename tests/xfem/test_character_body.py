@@ -103,11 +103,9 @@ def test_surface_limit_within_bound(name, method):
     assert mean <= LIMIT / 10
 
 
-# the dense worker's many seams spend the refinement budget first: there the limit is missed (character_body warns
-# with the error reached) after minutes of refinement; the cyberpunk's parts each have tets of their own, but 3 of
-# its vertices (one blend of three joints) miss the limit by up to 8x, too near this test's 10x bound across
-# fTetWild's runs: both are left out
-_MISSED = {"QuaterniusWorkerDense", "QuaterniusCyberpunkCharacter"}
+# the dense worker's many seams spend the refinement budget first, and its vertices crowd the tets that pinning would
+# re-cone: there the limit is missed (character_body warns with the error reached, 3.4e-3 at the probe poses)
+_MISSED = {"QuaterniusWorkerDense"}
 
 
 @pytest.mark.slow
