@@ -113,6 +113,7 @@ from xfem._surface_tets import (
     TetQuality,
     tet_quality,
     tetrahedralize_surface,
+    volume_ratios,
 )
 from xfem._tetmesh import TetMesh, tet_mesh
 
@@ -714,34 +715,25 @@ def _pin_vertices(
                 new_parts.append(tet_part[u])
     if not touched:
         return Y, T, tet_part, pinned
-    keep = np.ones(len(T), bool)
-    keep[sorted(touched)] = False
+    alive = np.ones(len(T), bool)
+    alive[sorted(touched)] = False
     Y = np.concatenate([Y, np.asarray(new_nodes).reshape(-1, 3)])
-    T = np.concatenate([T[keep], np.asarray(new_tets, T.dtype).reshape(-1, 4)])
-    return Y, T, np.concatenate([tet_part[keep], np.asarray(new_parts, tet_part.dtype)]), pinned
-
-
-def _volume_ratios(x: np.ndarray) -> np.ndarray:
-    """(k,) ``6 sqrt(2) volume / rms edge^3`` of tets of corners x (k, 4, 3): 1 for a regular tet, 0 for a flat one,
-    negative for an inverted one (``tet_quality``'s measure, signed)."""
-    edges = x[:, [0, 0, 0, 1, 1, 2]] - x[:, [1, 2, 3, 2, 3, 3]]
-    rms = np.sqrt(np.mean(np.sum(edges**2, axis=2), axis=1))
-    volume = np.einsum("ij,ij->i", np.cross(x[:, 1] - x[:, 0], x[:, 2] - x[:, 0]), x[:, 3] - x[:, 0]) / 6
-    return 6 * np.sqrt(2) * volume / rms**3
+    T = np.concatenate([T[alive], np.asarray(new_tets, T.dtype).reshape(-1, 4)])
+    return Y, T, np.concatenate([tet_part[alive], np.asarray(new_parts, tet_part.dtype)]), pinned
 
 
 def _star_shape(Y: np.ndarray, star: np.ndarray, point: np.ndarray, simplex: np.ndarray, keep: float) -> float:
     """How much worse than ``keep`` re-coning the tets ``star`` (k, 4) about ``simplex`` at ``point`` leaves them: the
-    smallest over the new tets of their volume ratio (``_volume_ratios``) over the smaller of ``keep`` and their
+    smallest over the new tets of their volume ratio (``volume_ratios``) over the smaller of ``keep`` and their
     parent's ratio (>= 1: none is thinner than the bound, or than its parent)."""
     x = Y[star]
-    parent = _volume_ratios(x)
+    parent = volume_ratios(x)
     worst = np.inf
     for c in simplex:
         k, corner = np.nonzero(star == c)
         y = x[k].copy()
         y[np.arange(len(k)), corner] = point
-        worst = min(worst, float(np.min(_volume_ratios(y) / np.minimum(keep, parent[k]))))
+        worst = min(worst, float(np.min(volume_ratios(y) / np.minimum(keep, parent[k]))))
     return worst
 
 

@@ -63,6 +63,15 @@ class TetQuality(NamedTuple):
     mean_volume_ratio: float
 
 
+def volume_ratios(x: np.ndarray) -> np.ndarray:
+    """(m,) ``6 sqrt(2) volume / rms edge^3`` of the tets of corners x (m, 4, 3), signed: 1 for a regular tet, 0 for
+    a flat one, negative for an inverted one (``tet_quality``'s volume ratio is its magnitude)."""
+    edges = x[:, _EDGES[:, 1]] - x[:, _EDGES[:, 0]]
+    rms = np.sqrt(np.mean(np.einsum("med,med->me", edges, edges), axis=1))
+    volume = np.einsum("md,md->m", x[:, 1] - x[:, 0], np.cross(x[:, 2] - x[:, 0], x[:, 3] - x[:, 0])) / 6
+    return 6 * np.sqrt(2) * volume / rms**3
+
+
 def tet_quality(mesh: TetMesh) -> TetQuality:
     """The tet count, dihedral angles and volume ratios of a mesh (``TetQuality``; host, numpy).
 
@@ -84,10 +93,7 @@ def tet_quality(mesh: TetMesh) -> TetQuality:
     normals /= np.linalg.norm(normals, axis=2, keepdims=True)
     cosines = np.einsum("med,med->me", normals[:, _EDGE_FACES[:, 0]], normals[:, _EDGE_FACES[:, 1]])
     dihedral = 180.0 - np.degrees(np.arccos(np.clip(cosines, -1.0, 1.0)))  # interior angle = pi - normals' angle
-    edges = x[:, _EDGES[:, 1]] - x[:, _EDGES[:, 0]]
-    rms = np.sqrt(np.mean(np.einsum("med,med->me", edges, edges), axis=1))
-    volume = np.abs(np.einsum("md,md->m", x[:, 1] - x[:, 0], np.cross(x[:, 2] - x[:, 0], x[:, 3] - x[:, 0]))) / 6
-    ratio = 6 * np.sqrt(2) * volume / rms**3
+    ratio = np.abs(volume_ratios(x))
     return TetQuality(
         tets=len(T),
         nodes=len(X),
