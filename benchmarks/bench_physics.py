@@ -29,7 +29,8 @@ Figures, for ``PREFIX`` ``arm`` and ``character`` (the issue's names are the cha
   subspace=...)``) in frames per second: ``--reduced-frames`` frames at 60 frames/s, the whole call (the rig skinned
   for every frame, the scan, the surface), the fastest of 3 after a warm-up call of the same length. Target: at
   least 60 frames/s at 20k tets (ratio ``PREFIX_reduced_fps_vs_target`` = ours / 60). ``PREFIX_reduced_vs_full``:
-  the converged full step's time over the reduced frame's. ``PREFIX_subspace_s``: the eigensolve.
+  the converged full step's time over the reduced frame's. ``PREFIX_subspace_s``: the eigensolve and the
+  joint pairs' mass products (``CharacterSubspace.pair_mass``).
 * ``PREFIX_reduced_error``: the reduced surface against the full-space one (converged steps) over the ``--frames``
   frames at 30 frames/s: the largest over the frames of the root mean square vertex distance, as a fraction of the
   surface's bounding-box diagonal; ``PREFIX_reduced_error_max`` the largest vertex distance; beside them
@@ -268,7 +269,7 @@ def run_model(prefix: str, body: xfem.CharacterBody, clip, frames: int, reduced_
     figure("reduced_error_max", worst, "fraction of the diagonal (largest vertex distance)")
     figure("full_lag", lag.max(), "fraction of the diagonal (largest RMS over the frames)")
     print(
-        f"  reduced ({MODES} modes, eigensolve {figures[f'{prefix}_subspace_s']:.1f} s): {fps:.0f} frames/s "
+        f"  reduced ({MODES} modes, subspace {figures[f'{prefix}_subspace_s']:.1f} s): {fps:.0f} frames/s "
         f"(target {FPS_TARGET:.0f}); error against the full space {error.max():.2e} of the diagonal (RMS; largest "
         f"vertex {worst:.2e}), the full mode's lag behind the rig {lag.max():.2e}",
         flush=True,

@@ -35,7 +35,11 @@ velocity ``v_0 = (S_1 - S_0) / h``. The rig's inertia (its
 acceleration through ``x_{k-1} + h v_{k-1} - S_k``) is what makes the flesh lag and jiggle; with every node driven
 or a very stiff material ``q -> 0`` and the body is the skinned one. The surface is carried by the body's
 embedding. The whole play is one compiled ``lax.scan``, the rig skinned and its joints' linear parts
-blended inside it, frame by frame.
+blended inside it, frame by frame. The reduced mass ``B_k^T M B_k`` is not formed from the nodes: with
+``M = m (x) I_3`` and ``R_i`` linear in the joints' ``A_j``, it is a sum over the joint pairs (j, p) that share a tet
+of ``(A_j^T A_p)[c, d]`` times mass products computed once with the subspace (``CharacterSubspace.pair_mass``), so a
+frame costs the pairs' 9 k^2 products rather than the nodes' 3 k^2 each (the way Fast Complementary Dynamics
+precomputes its rig-carried terms).
 
 Left out of Fast Complementary Dynamics: its rotation-strain clustered modes and cubature (the energy here is
 quadratic in q, so large local rotations of the flesh relative to the rig are not corrected), its complementarity
@@ -80,11 +84,15 @@ class CharacterSubspace(NamedTuple):
         density: the body's density (the mass of the modes).
         basis: (n, 3, k) float64 ``Phi`` on every node (zero rows at the driven nodes): what the play carries.
         mass_rows, mass_cols, mass_values: (nnz,) the consistent mass's entries ``M[rows, cols]`` on the free rows
-            (rows index ``free``, cols every node); mass_free_cols: (nnz,) their columns among the free nodes (n_free
-            for a driven node's column).
+            (rows index ``free``, cols every node).
+        pair_joints: (P, 2) int64 the joint pairs (j, p), j <= p, that weight two free nodes coupled by the mass.
+        pair_mass: (P, 3, 3, k, k) float64 their mass products ``P_jp[c, d] = sum_il m_il w_ij w_lp Phi_i[c]^T
+            Phi_l[d]`` (halved where j = p), so that the reduced mass of a pose is ``B^T M B = S + S^T`` with
+            ``S = sum_jp sum_cd (A_j^T A_p)[c, d] P_jp[c, d]``: a frame's cost is the pairs' (P 9 k^2), not the
+            nodes'. It holds P 9 k^2 doubles (the Cyberpunk character, 22k tets and 24 modes: 16 MB).
         lumped: (n_free,) float64 the free nodes' masses (rows of M summed): the weight of gravity.
         rest_linear: (j, 3, 3) float64 the inverses of the joints' linear parts at the rest pose, ``L_j(rest)^-1``.
-        seconds: the wall time of the eigensolve.
+        seconds: the wall time of the eigensolve and the pair products.
     """
 
     modes: Float[np.ndarray, "d k"]
@@ -96,7 +104,8 @@ class CharacterSubspace(NamedTuple):
     mass_rows: Int[np.ndarray, " nnz"]
     mass_cols: Int[np.ndarray, " nnz"]
     mass_values: Float[np.ndarray, " nnz"]
-    mass_free_cols: Int[np.ndarray, " nnz"]
+    pair_joints: Int[np.ndarray, "P 2"]
+    pair_mass: Float[np.ndarray, "P 3 3 k k"]
     lumped: Float[np.ndarray, " nf"]
     rest_linear: Float[np.ndarray, "j 3 3"]
     seconds: float
@@ -151,13 +160,16 @@ def character_subspace(body: CharacterBody, modes: int = MODES, *, poisson: floa
     gram = vectors.T @ (M @ vectors)
     vectors = vectors @ np.linalg.inv(np.linalg.cholesky(gram)).T
     values = np.einsum("dk,dk->k", vectors, K @ vectors)
-    seconds = time.perf_counter() - start
     basis = np.zeros((n, 3, modes))
     basis[free] = vectors.reshape(len(free), 3, modes)
-    rows = M1[free].tocoo()
     model = body.node_model
-    local = np.full(n, len(free))
-    local[free] = np.arange(len(free))
+    rest_linear = np.linalg.inv(np.asarray(_joint_linear(model, deform.local_matrices(model.skeleton))))
+    mass_free = M1[free][:, free].tocsr()
+    weights = np.zeros((n, len(rest_linear)))
+    np.add.at(weights, (np.arange(n)[:, None], np.asarray(model.mesh.J)), np.asarray(model.mesh.W))
+    pair_joints, pair_mass = _pair_mass(mass_free, weights[free], basis[free])
+    seconds = time.perf_counter() - start
+    rows = M1[free].tocoo()
     return CharacterSubspace(
         modes=vectors,
         eigenvalues=values,
@@ -168,11 +180,32 @@ def character_subspace(body: CharacterBody, modes: int = MODES, *, poisson: floa
         mass_rows=rows.row.astype(np.int64),
         mass_cols=rows.col.astype(np.int64),
         mass_values=rows.data,
-        mass_free_cols=local[rows.col].astype(np.int64),
+        pair_joints=pair_joints,
+        pair_mass=pair_mass,
         lumped=np.asarray(M1[free].sum(axis=1)).ravel(),
-        rest_linear=np.linalg.inv(np.asarray(_joint_linear(model, deform.local_matrices(model.skeleton)))),
+        rest_linear=rest_linear,
         seconds=seconds,
     )
+
+
+def _pair_mass(mass: sp.csr_matrix, weights: np.ndarray, Phi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The joint pairs and their mass products (``CharacterSubspace.pair_mass``) from the free nodes' mass
+    (nf, nf), weights (nf, joints) and modes (nf, 3, k)."""
+    nf, _, k = Phi.shape
+    weighted = weights != 0
+    # (j, p) couple where a node weighted by j and a node weighted by p share a tet
+    coupled = sp.csr_matrix(weighted.T.astype(np.float64)) @ (mass != 0) @ sp.csr_matrix(weighted.astype(np.float64))
+    pairs = np.argwhere(np.triu(coupled.toarray()) > 0)
+    table = np.empty((len(pairs), 3, 3, k, k))
+    for p in np.unique(pairs[:, 1]):
+        MU = mass @ (weights[:, p, None, None] * Phi).reshape(nf, 3 * k)  # M U_p
+        for row in np.flatnonzero(pairs[:, 1] == p):
+            j = pairs[row, 0]
+            support = np.flatnonzero(weighted[:, j])  # U_j's nonzero rows
+            U = (weights[support, j, None, None] * Phi[support]).reshape(-1, 3 * k)
+            block = (U.T @ MU[support]).reshape(3, k, 3, k).transpose(0, 2, 1, 3)
+            table[row] = 0.5 * block if j == p else block  # S + S^T counts a pair (j, j) twice
+    return pairs.astype(np.int64), table
 
 
 class _Rig(eqx.Module):
@@ -187,7 +220,8 @@ class _Rig(eqx.Module):
     mass_rows: Int[Array, " nnz"]
     mass_cols: Int[Array, " nnz"]
     mass_values: Float[Array, " nnz"]
-    mass_free_cols: Int[Array, " nnz"]
+    pair_joints: Int[Array, "P 2"]
+    pair_mass: Float[Array, "P 3 3 k k"]
     lumped: Float[Array, " nf"]
     gravity: Float[Array, " 3"]
     embed_nodes: Int[Array, "s 4"]
@@ -205,16 +239,14 @@ def _skin(rig: _Rig, t, method: str, clip, interpolation: str):
     return deform.skin_model(rig.node_model, t, method, clip, interpolation)
 
 
-def _blend(rig: _Rig, t, clip, interpolation: str):
-    """(nf, 3, 3) the free nodes' blended linear maps R_i(t) (module docstring)."""
+def _joint_blend(rig: _Rig, t, clip, interpolation: str):
+    """(j, 3, 3) the joints' linear parts at time t relative to the rest pose, ``A_j(t)`` (module docstring)."""
     model = rig.node_model
     if model.clips:
         local = deform.sample_pose(model, t, "lbs", clip, interpolation)
     else:
         local = deform.local_matrices(model.skeleton)
-    A = jnp.einsum("jab,jbc->jac", _joint_linear(model, local), rig.rest_linear, precision=EXACT)  # pyright: ignore[reportArgumentType]
-    J, W = model.mesh.J[rig.free], model.mesh.W[rig.free]
-    return jnp.einsum("ni,niab->nab", W, A[J], precision=EXACT)
+    return jnp.einsum("jab,jbc->jac", _joint_linear(model, local), rig.rest_linear, precision=EXACT)  # pyright: ignore[reportArgumentType]
 
 
 def _mass_times(rig: _Rig, r, cols):
@@ -232,18 +264,22 @@ def _play(rig: _Rig, times, h, young, damping, method: str, clip, interpolation:
     k = rig.eigenvalues.shape[0]
     stiffness = young * rig.eigenvalues
     gravity_force = rig.lumped[:, None] * rig.gravity[None]  # (M g) on the free rows: M's rows sum to the lumped masses
+    joints, weights = rig.node_model.mesh.J[rig.free], rig.node_model.mesh.W[rig.free]
 
     def step(carry, t):
         x_prev, v_prev, q_prev = carry
-        S_k, R_k = _skin(rig, t, method, clip, interpolation), _blend(rig, t, clip, interpolation)
-        Y = jnp.einsum("nab,nbk->nak", R_k, rig.basis, precision=EXACT)  # the free rows of B_k
-        # B_k is zero on the driven nodes: M B_k from the free columns (the row after the last is that zero)
-        MY = _mass_times(rig, jnp.concatenate([Y, jnp.zeros((1, 3, k), Y.dtype)]), rig.mass_free_cols)
-        A = jnp.einsum("nak,nal->kl", Y, MY, precision=EXACT) + jnp.diag((h**2 + damping * h) * stiffness)
+        S_k, A_k = _skin(rig, t, method, clip, interpolation), _joint_blend(rig, t, clip, interpolation)
+        R_k = jnp.einsum("ni,niab->nab", weights, A_k[joints], precision=EXACT)  # the free nodes' R_i(t_k)
+        # B_k^T M B_k from the joint pairs' mass products (CharacterSubspace.pair_mass)
+        G = jnp.einsum("pac,pad->pcd", A_k[rig.pair_joints[:, 0]], A_k[rig.pair_joints[:, 1]], precision=EXACT)
+        S = jnp.einsum("pcd,pcdkl->kl", G, rig.pair_mass, precision=EXACT)
+        A = S + S.T + jnp.diag((h**2 + damping * h) * stiffness)
         r = _mass_times(rig, x_prev + h * v_prev - S_k, rig.mass_cols) + h**2 * gravity_force
-        b = jnp.einsum("nak,na->k", Y, r, precision=EXACT) + damping * h * stiffness * q_prev
-        q = jnp.linalg.solve(0.5 * (A + A.T), b)
-        x = S_k.at[rig.free].add(jnp.einsum("nak,k->na", Y, q, precision=EXACT))
+        # B_k^T r = sum_i Phi_i^T R_i^T r_i and B_k q = R_i (Phi q)_i: B_k itself (nf x 3 x k) is never formed
+        b = jnp.einsum("nck,nc->k", rig.basis, jnp.einsum("nac,na->nc", R_k, r, precision=EXACT), precision=EXACT)
+        q = jnp.linalg.solve(A, b + damping * h * stiffness * q_prev)
+        modal = jnp.einsum("nbk,k->nb", rig.basis, q, precision=EXACT)
+        x = S_k.at[rig.free].add(jnp.einsum("nab,nb->na", R_k, modal, precision=EXACT))
         v = (x - x_prev) / h
         return (x, v, q), (x, v, q)
 
@@ -322,7 +358,8 @@ def play_reduced(
         mass_rows=jnp.asarray(subspace.mass_rows),
         mass_cols=jnp.asarray(subspace.mass_cols),
         mass_values=jnp.asarray(subspace.mass_values),
-        mass_free_cols=jnp.asarray(subspace.mass_free_cols),
+        pair_joints=jnp.asarray(subspace.pair_joints),
+        pair_mass=jnp.asarray(subspace.pair_mass),
         lumped=jnp.asarray(subspace.lumped),
         gravity=jnp.asarray(body.gravity),
         embed_nodes=jnp.asarray(body.embedding.nodes),

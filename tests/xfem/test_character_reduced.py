@@ -91,6 +91,56 @@ def test_the_stiff_limit_is_the_skinned_body_and_the_difference_falls_with_stiff
     assert all(0.05 < b / a < 0.2 for a, b in zip(errors[1:], errors[2:])), errors
 
 
+def _joint_linear(model, local) -> np.ndarray:
+    globals_ = deform.forward_kinematics_matrices(model.skeleton.parents, local)
+    return np.asarray(deform.joint_matrices(model.mesh, globals_))[:, :3, :3]
+
+
+def test_a_moving_rig_plays_the_documented_step():
+    """The step of the module docstring with the rig moving, solved densely in numpy from deform's public skinning:
+    ``B_k`` formed node by node (``R_i = sum_j w_ij A_j``), ``M`` the full consistent mass. The play assembles
+    ``B_k^T M B_k`` from its joint pairs' mass products instead, and must agree to rounding."""
+    body, sub = _arm_body(), _subspace()
+    frames, young, beta = 6, 2e5, 0.01
+    h = 1 / FPS
+    model = body.node_model
+    x_play = np.asarray(_play(body, sub, frames, xfem.Material(young, 0.4, beta)).states.x)
+    n, k = body.tets.n_nodes, len(sub.eigenvalues)
+    mass = np.kron(xfem.consistent_mass(body.tets.X, body.tets.T, body.density).toarray(), np.eye(3))
+    weights = np.zeros((n, len(model.mesh.joints)))
+    np.add.at(weights, (np.arange(n)[:, None], np.asarray(model.mesh.J)), np.asarray(model.mesh.W))
+    rest = np.linalg.inv(_joint_linear(model, deform.local_matrices(model.skeleton)))
+    driven = np.zeros(n, bool)
+    driven[body.driven] = True
+    gravity = np.tile(body.gravity, n)
+
+    def skinned(t):
+        return np.asarray(deform.skin_model(model, t, "cga", 0)).ravel()
+
+    def basis(t):
+        A = np.einsum("jab,jbc->jac", _joint_linear(model, deform.sample_pose(model, t, "lbs", 0, "gltf")), rest)
+        R = np.einsum("nj,jab->nab", weights, A)
+        B = np.zeros((n, 3, k))
+        B[~driven] = np.einsum("nab,nbk->nak", R[~driven], sub.basis[~driven])
+        return B.reshape(3 * n, k)
+
+    stiffness = young * sub.eigenvalues
+    x, v, q = skinned(0.0), (skinned(h) - skinned(0.0)) / h, np.zeros(k)
+    expected = [x]
+    for step in range(1, frames + 1):
+        S, B = skinned(step * h), basis(step * h)
+        lhs = B.T @ mass @ B + np.diag((h**2 + beta * h) * stiffness)
+        rhs = B.T @ mass @ (x + h * v - S + h**2 * gravity) + beta * h * stiffness * q
+        q = np.linalg.solve(lhs, rhs)
+        x, v = S + B @ q, (S + B @ q - x) / h
+        expected.append(x)
+    expected = np.stack(expected).reshape(frames + 1, n, 3)
+    assert np.abs(expected - expected[0]).max() > 0.05 * body.diagonal  # the rig moves the arm
+    lag = np.abs(expected[1:] - np.stack([skinned(i * h) for i in range(1, frames + 1)]).reshape(-1, n, 3)).max()
+    assert lag > 1e-3 * body.diagonal  # and the flesh lags it
+    np.testing.assert_allclose(x_play, expected, rtol=0, atol=1e-12 * body.diagonal)
+
+
 def _modal_recurrence(sub, young: float, damping: float, frames: int, gravity) -> np.ndarray:
     """Each mode alone, as the step reads with the rig at rest (B = Phi, B^T M B = I, v = Phi dq / h):
     (1 + (h^2 + beta h) E lam) q_k = 2 q_{k-1} - q_{k-2} + beta h E lam q_{k-1} + h^2 Phi^T M g."""
