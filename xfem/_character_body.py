@@ -55,15 +55,17 @@ the simplex's corners replaced by the vertex in turn (a 1-4 split inside a tet, 
 around an edge, a node moved to the vertex next to it). The simplex chosen is the one that leaves the thinnest new
 tet thickest, among those that keep the region the tets fill (inside the mesh, or with the vertex on it), else among
 boundary simplices, which move the boundary towards the vertex (on the surface) by at most half a tet's height; and
-only where each new tet keeps a volume ratio of 0.1 (``tet_quality``'s) or its parent's (0.05 in a round where
-no vertex would be pinned otherwise: a dense surface's vertices crowd the tets). The mesh stays conforming,
-and a pinned node's weights are the vertex's own (after each fit), so the vertex follows its directly skinned self
-exactly in every pose; the others' weights are fitted around the pinned ones. Tets given as they are (a saved
-body's) are not re-coned, but a vertex above the tolerance that lies at one of their nodes (a pin of the saved body)
-is pinned there where that lowers the largest error at the probe poses. A vertex that cannot be
-pinned (its star would be too thin, or two vertices of different bones nearly coincide) keeps its error, and a
-``UserWarning`` gives the error reached. Where the tets still miss ``tolerance`` at the end (coarse tets of a low-poly
-model that spent the budget), the weights are fitted again with a tenth and a hundredth of the smoothness, and the fit
+only where each new tet keeps a volume ratio of 0.1 (``tet_quality``'s) or its parent's. A vertex no star of
+which keeps that bound tries 0.05 (a dense surface's vertices crowd the tets), and one that finds none at 0.05
+either (or whose node is pinned already) has its tet bisected, beyond the budget by at most 32 tets for each, to be
+tried again in the next round among smaller simplices (a bisected piece may be somewhat thinner than its parent).
+The mesh stays conforming, and a pinned node's weights are the vertex's own (after each fit), so the vertex follows
+its directly skinned self exactly in every pose; the others' weights are fitted around the pinned ones. Tets given
+as they are (a saved body's) are not re-coned, but a vertex above the tolerance that lies at one of their nodes (a
+pin of the saved body) is pinned there where that lowers the largest error at the probe poses. A vertex that still
+cannot be pinned (two vertices of different bones nearly coincide) keeps its error, and a ``UserWarning`` gives the
+error reached. Where the tets still miss ``tolerance`` at the end (coarse tets of a low-poly model that spent the
+budget), the weights are fitted again with a tenth and a hundredth of the smoothness, and the fit
 closest at the probe poses is kept; the probe poses choose among the fits for tets given as they are too, so a saved
 body's tets give its weights back.
 
@@ -146,6 +148,7 @@ _FLAT = 1e-3  # a capping tet's height above its face, a fraction of the face's 
 _NEAR = 0.5  # a pinned vertex re-cones the star of a boundary simplex it lies this near (its other coordinates' sum)
 _ON = 1e-9  # a vertex whose coordinates off a simplex sum to at most this lies on it
 _PIN_ROUNDS = 16  # rounds that pin vertices after the refinement has ended
+_PIN_SPLIT = 32  # the tets a round may add beyond the budget for each tet of a vertex that could not be pinned
 _APART = 4  # parts whose bounding boxes lie this many envelopes apart are meshed in one fTetWild call
 
 
@@ -658,7 +661,7 @@ def _cap_outside(
 
 def _pin_vertices(
     Y, T, tet_part, points, vertex_part, vertices, pinned: dict[int, int], keep: float = _KEEP
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[int, int]]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[int, int], np.ndarray]:
     """Nodes at surface vertices that refinement does not bring within the tolerance (module docstring): each of
     ``vertices`` (worst first) is placed by re-coning the star of a simplex of its tet (the k corners of its largest
     barycentric coordinates, k = 1..4; each tet around the simplex has one of its corners replaced by the vertex in
@@ -666,7 +669,8 @@ def _pin_vertices(
     keeps a volume ratio of ``keep`` or its parent's: among the simplices whose re-coning keeps the region the tets
     fill, else among boundary simplices the vertex lies near (its other coordinates sum to at most ``_NEAR``). A vertex
     whose star meets a tet already re-coned this round, or whose nearest node (k = 1) is pinned already, waits.
-    ``pinned`` (vertex -> node) grows by the vertices placed. Returns (Y, T, tet_part, pinned)."""
+    ``pinned`` (vertex -> node) grows by the vertices placed. Returns (Y, T, tet_part, pinned, stuck), ``stuck`` the
+    vertices no star of which keeps the bound (not those that waited)."""
     embedding = _embed_parts(Y, T, tet_part, points[vertices], vertex_part[vertices])
     node_tets = sp.csr_matrix(
         (np.ones(T.size, bool), (T.ravel(), np.repeat(np.arange(len(T)), 4))), shape=(len(Y), len(T))
@@ -676,13 +680,14 @@ def _pin_vertices(
     on_boundary = np.zeros(len(Y), bool)
     on_boundary[_boundary_faces(T).ravel()] = True
     touched: set[int] = set()
-    new_tets, new_parts, new_nodes = [], [], []
+    new_tets, new_parts, new_nodes, stuck = [], [], [], []
     for v, t, b in zip(vertices.tolist(), embedding.element, embedding.weights):
         # the simplex: the corners of the largest coordinates, as many as make the thickest star (1: the node moves).
         # Re-coning about a simplex inside the mesh, or with the vertex on it, keeps the region the tets fill; about
         # a boundary simplex with the vertex off it, it moves the boundary towards the vertex (on the surface): only
         # where no region-keeping star is thick enough, and the vertex near (its other coordinates sum to _NEAR)
         best: dict[bool, tuple] = {}
+        waits = False
         order = np.argsort(-b, kind="stable")
         for k in range(1, 5):
             simplex = T[t][order[:k]]
@@ -692,12 +697,15 @@ def _pin_vertices(
                 continue
             star = set(node_tets.rows[simplex[0]]).intersection(*(node_tets.rows[c] for c in simplex[1:]))
             if star & touched:
+                waits = True
                 continue
             star_list = sorted(star)
             shape = _star_shape(Y, T[star_list], points[v], simplex, keep)
             if shape >= 1 and (keeps not in best or shape > best[keeps][0]):
                 best[keeps] = (shape, simplex, star, star_list)
         if not best:
+            if not waits:
+                stuck.append(v)
             continue
         _, simplex, star, star_list = best.get(True) or best[False]
         touched |= star
@@ -713,13 +721,14 @@ def _pin_vertices(
             for c in simplex:
                 new_tets.append(np.where(T[u] == c, node, T[u]))
                 new_parts.append(tet_part[u])
+    stuck = np.asarray(stuck, np.int64)
     if not touched:
-        return Y, T, tet_part, pinned
+        return Y, T, tet_part, pinned, stuck
     alive = np.ones(len(T), bool)
     alive[sorted(touched)] = False
     Y = np.concatenate([Y, np.asarray(new_nodes).reshape(-1, 3)])
     T = np.concatenate([T[alive], np.asarray(new_tets, T.dtype).reshape(-1, 4)])
-    return Y, T, np.concatenate([tet_part[alive], np.asarray(new_parts, tet_part.dtype)]), pinned
+    return Y, T, np.concatenate([tet_part[alive], np.asarray(new_parts, tet_part.dtype)]), pinned, stuck
 
 
 def _star_shape(Y: np.ndarray, star: np.ndarray, point: np.ndarray, simplex: np.ndarray, keep: float) -> float:
@@ -913,11 +922,20 @@ def _build(
         outside_first = worst_first[embedding.distance[worst_first] > _OUTSIDE * size[worst_first]]
         Y, T, tet_part, pinned = _cap_outside(Y, T, tet_part, placed, vertex_part, outside_first, pinned)
         worst_first = worst_first[~np.isin(worst_first, np.fromiter(pinned, np.int64, len(pinned)))]
-        for keep in (_KEEP, _KEEP / 2):  # where no star keeps the bound (dense surfaces), half of it
-            Y, T, tet_part, pinned = _pin_vertices(Y, T, tet_part, placed, vertex_part, worst_first, pinned, keep)
-            if len(pinned) > count:
-                break
-        if len(pinned) == count:
+        # the vertices no star of which keeps the bound try half of it (a dense surface's vertices crowd the tets),
+        # and the tets of those that still find none are bisected, beyond the budget by a few tets a vertex, so that
+        # the next round tries them among more, smaller simplices; the vertices that waited for a star re-coned this
+        # round try again in the next
+        Y, T, tet_part, pinned, stuck = _pin_vertices(Y, T, tet_part, placed, vertex_part, worst_first, pinned)
+        if len(stuck):
+            Y, T, tet_part, pinned, stuck = _pin_vertices(Y, T, tet_part, placed, vertex_part, stuck, pinned, _KEEP / 2)
+        before = len(T)
+        if len(stuck):
+            marked = np.unique(_embed_parts(Y, T, tet_part, placed[stuck], vertex_part[stuck]).element)
+            refined_Y, refined_T = bisect_tets(Y, T, marked, _SHRINK, shortest, len(T) + _PIN_SPLIT * len(marked))
+            tet_part = _carry_parts(T, tet_part, len(refined_Y), refined_T)
+            Y, T = refined_Y, refined_T
+        if len(pinned) == count and len(T) == before:
             break
         pinning += 1
     if error.max() > tolerance * diagonal:
