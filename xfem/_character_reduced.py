@@ -89,7 +89,7 @@ class CharacterSubspace(NamedTuple):
         pair_mass: (P, 3, 3, k, k) float64 their mass products ``P_jp[c, d] = sum_il m_il w_ij w_lp Phi_i[c]^T
             Phi_l[d]`` (halved where j = p), so that the reduced mass of a pose is ``B^T M B = S + S^T`` with
             ``S = sum_jp sum_cd (A_j^T A_p)[c, d] P_jp[c, d]``: a frame's cost is the pairs' (P 9 k^2), not the
-            nodes'. It holds P 9 k^2 doubles (the Cyberpunk character, 22k tets and 24 modes: 16 MB).
+            nodes'. It holds P 9 k^2 doubles (a character couples a few hundred pairs).
         lumped: (n_free,) float64 the free nodes' masses (rows of M summed): the weight of gravity.
         rest_linear: (j, 3, 3) float64 the inverses of the joints' linear parts at the rest pose, ``L_j(rest)^-1``.
         seconds: the wall time of the eigensolve and the pair products.
