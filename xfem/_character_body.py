@@ -592,16 +592,17 @@ def _tet_parts(
     return np.asarray(votes.toarray().argmax(axis=1), np.int64)[label[T[:, 0]]]
 
 
-def _carry_parts(T: np.ndarray, tet_part: np.ndarray, n: int, refined: np.ndarray) -> np.ndarray:
-    """(t',) the parts of the tets ``refined`` (of n nodes) that bisect the tets T of parts ``tet_part``: a
-    bisection keeps T's nodes and splits edges inside one connected set of tets, so each connected set of the
-    refined tets holds nodes of T, of one part."""
-    node_part = np.full(n, -1, np.int64)
+def _bisect_parts(Y, T, tet_part, marked, shortest: float, most: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``bisect_tets`` of tets of parts ``tet_part`` (at ``_SHRINK``), with the parts of the refined tets: a bisection
+    keeps T's nodes and splits edges inside one connected set of tets, so each connected set of the refined tets holds
+    nodes of T, of one part. Returns (Y', T', tet_part')."""
+    refined_Y, refined_T = bisect_tets(Y, T, marked, _SHRINK, shortest, most)
+    node_part = np.full(len(refined_Y), -1, np.int64)
     node_part[T] = tet_part[:, None]
-    components, label = _components(refined, n)
+    components, label = _components(refined_T, len(refined_Y))
     part = np.full(components, -1, np.int64)
     np.maximum.at(part, label, node_part)
-    return part[label[refined[:, 0]]]
+    return refined_Y, refined_T, part[label[refined_T[:, 0]]]
 
 
 def _cap_outside(
@@ -903,9 +904,7 @@ def _build(
                         order.pop(t, None)
                         order[t] = None
                     marked = np.fromiter(order, np.int64, len(order))
-                    refined_Y, refined_T = bisect_tets(Y, T, marked, _SHRINK, shortest, budget)
-                    tet_part = _carry_parts(T, tet_part, len(refined_Y), refined_T)
-                    Y, T = refined_Y, refined_T
+                    Y, T, tet_part = _bisect_parts(Y, T, tet_part, marked, shortest, budget)
                     continue
                 if len(pinned) > count:
                     continue
@@ -932,9 +931,7 @@ def _build(
         before = len(T)
         if len(stuck):
             marked = np.unique(_embed_parts(Y, T, tet_part, placed[stuck], vertex_part[stuck]).element)
-            refined_Y, refined_T = bisect_tets(Y, T, marked, _SHRINK, shortest, len(T) + _PIN_SPLIT * len(marked))
-            tet_part = _carry_parts(T, tet_part, len(refined_Y), refined_T)
-            Y, T = refined_Y, refined_T
+            Y, T, tet_part = _bisect_parts(Y, T, tet_part, marked, shortest, len(T) + _PIN_SPLIT * len(marked))
         if len(pinned) == count and len(T) == before:
             break
         pinning += 1
